@@ -1,0 +1,1 @@
+"""OpenCL C sources of pydynrad, shipped as package data (see ``pydynrad.device``)."""

@@ -1,0 +1,20 @@
+"""pydynrad: Dynamic Radiosity (Shcherbakov and Frolov) on OpenCL.
+
+Diffuse global illumination where a local multibounce form-factor matrix over the M patches
+nearest the observer is kept up to date frame by frame. Kernels live in ``kernels/`` and run
+on PoCL CPU devices by default or on any OpenCL GPU (``PYOPENCL_CTX``).
+"""
+
+from .device import Device, default_device, list_devices
+from .errors import (
+    ConvergenceError,
+    DeviceError,
+    InvalidInputError,
+    KernelBuildError,
+    OutOfMemoryError,
+    PydynradError,
+    SceneFileError,
+)
+from .scene import DegenerateTriangleWarning, Scene
+
+__version__ = "0.1.0"

@@ -1,0 +1,198 @@
+"""OpenCL device selection and program building.
+
+One place decides which device runs the kernels and builds each program once per context:
+
+* ``PYOPENCL_CTX`` is honoured exactly as pyopencl documents it (e.g. ``PYOPENCL_CTX=0:0``);
+* otherwise the first PoCL CPU device is used, falling back to the first device of any
+  platform, so the same code runs on a laptop's CPU and on any OpenCL GPU unchanged.
+
+Programs are read from the ``.cl`` files shipped as package data (``pydynrad.kernels``),
+built with ``-I <kernel dir>`` so sources can ``#include`` shared helpers, and cached per
+(context, file, defines). pyopencl's binary cache is used where it helps; PoCL keeps its own.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from dataclasses import dataclass, field
+from functools import cached_property
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DeviceError, KernelBuildError
+
+__all__ = ["Device", "default_device", "kernel_dir", "list_devices"]
+
+
+def kernel_dir() -> Path:
+    """The folder holding the ``.cl`` sources (works for wheels and editable installs)."""
+    return Path(str(resources.files("pydynrad.kernels")))
+
+
+@dataclass(eq=False)
+class Device:
+    """An OpenCL context and in-order queue on one device, with a program cache.
+
+    Create one with :func:`default_device` (the usual way) or wrap an existing context.
+    """
+
+    context: "cl.Context"  # noqa: F821 - pyopencl is imported lazily
+    queue: "cl.CommandQueue" = None  # type: ignore[assignment]
+    _programs: dict = field(default_factory=dict, repr=False)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def __post_init__(self) -> None:
+        import pyopencl as cl
+
+        if self.queue is None:
+            self.queue = cl.CommandQueue(self.context)
+
+    @property
+    def cl_device(self):
+        return self.context.devices[0]
+
+    @property
+    def name(self) -> str:
+        d = self.cl_device
+        return f"{d.platform.name.strip()} / {d.name.strip()}"
+
+    @cached_property
+    def supports_fp64(self) -> bool:
+        d = self.cl_device
+        return "cl_khr_fp64" in d.extensions or bool(getattr(d, "double_fp_config", 0))
+
+    @property
+    def is_cpu(self) -> bool:
+        import pyopencl as cl
+
+        return bool(self.cl_device.type & cl.device_type.CPU)
+
+    @property
+    def global_mem_bytes(self) -> int:
+        return int(self.cl_device.global_mem_size)
+
+    @property
+    def max_alloc_bytes(self) -> int:
+        return int(self.cl_device.max_mem_alloc_size)
+
+    def program(self, filename: str, defines: dict[str, object] | None = None):
+        """Build (once) and return the program in ``kernels/<filename>``.
+
+        ``defines`` become ``-D NAME=VALUE`` options, so one source serves several storage
+        types or tile sizes; each distinct set is built and cached separately.
+        """
+        import pyopencl as cl
+
+        opts = tuple(sorted(f"-D{k}={v}" for k, v in (defines or {}).items()))
+        key = (filename, opts)
+        with self._lock:
+            prg = self._programs.get(key)
+            if prg is not None:
+                return prg
+            path = kernel_dir() / filename
+            try:
+                src = path.read_text()
+            except OSError as exc:
+                raise KernelBuildError(f"cannot read kernel source {path}: {exc}") from exc
+            options = ["-I", str(kernel_dir()), *opts]
+            try:
+                prg = cl.Program(self.context, src).build(options=options)
+            except cl.RuntimeError as exc:
+                # pyopencl puts each device's build log into the message.
+                raise KernelBuildError(f"OpenCL build of {filename} failed on {self.name}", str(exc)) from exc
+            self._programs[key] = prg
+            return prg
+
+    def kernel(self, filename: str, name: str, defines: dict[str, object] | None = None):
+        """A fresh kernel object (kernel objects hold arguments, so one per call site)."""
+        import pyopencl as cl
+
+        return cl.Kernel(self.program(filename, defines), name)
+
+    def info(self) -> dict[str, object]:
+        """What a user needs to know about this device, as plain values."""
+        d = self.cl_device
+        return {
+            "platform": d.platform.name.strip(),
+            "device": d.name.strip(),
+            "version": d.version.strip(),
+            "type": "CPU" if self.is_cpu else "GPU/accelerator",
+            "compute_units": int(d.max_compute_units),
+            "global_memory_MiB": self.global_mem_bytes // 2**20,
+            "max_alloc_MiB": self.max_alloc_bytes // 2**20,
+            "fp64": self.supports_fp64,
+            "fp16_arithmetic": "cl_khr_fp16" in d.extensions,
+        }
+
+    def to_device(self, array: np.ndarray):
+        """Copy a host array to a new read-only device buffer."""
+        import pyopencl as cl
+
+        a = np.ascontiguousarray(array)
+        if a.nbytes == 0:
+            a = np.zeros(1, dtype=a.dtype)
+        return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=a)
+
+
+_default: Device | None = None
+_default_lock = threading.Lock()
+
+
+def _pick_cl_device():
+    import pyopencl as cl
+
+    if os.environ.get("PYOPENCL_CTX"):
+        ctx = cl.create_some_context(interactive=False)
+        return ctx
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as exc:
+        raise DeviceError(
+            "no OpenCL platform found; install the PoCL wheel (pip install pocl-binary-distribution) "
+            "or a GPU vendor's OpenCL driver"
+        ) from exc
+    candidates = []
+    for p in platforms:
+        try:
+            devs = p.get_devices()
+        except cl.Error:
+            continue
+        for d in devs:
+            pocl_cpu = "portable computing language" in p.name.lower() and d.type & cl.device_type.CPU
+            candidates.append((0 if pocl_cpu else 1, d))
+    if not candidates:
+        raise DeviceError("OpenCL platforms exist but none offers a device")
+    candidates.sort(key=lambda t: t[0])
+    return cl.Context([candidates[0][1]])
+
+
+def default_device() -> Device:
+    """The process-wide device: built on first use, shared by every call after that."""
+    global _default
+    with _default_lock:
+        if _default is None:
+            _default = Device(_pick_cl_device())
+        return _default
+
+
+def list_devices() -> list[dict[str, object]]:
+    """Every OpenCL device visible to this process, with the ``PYOPENCL_CTX`` key selecting it."""
+    import pyopencl as cl
+
+    out = []
+    for pi, p in enumerate(cl.get_platforms()):
+        for di, d in enumerate(p.get_devices()):
+            out.append(
+                {
+                    "PYOPENCL_CTX": f"{pi}:{di}",
+                    "platform": p.name.strip(),
+                    "device": d.name.strip(),
+                    "type": cl.device_type.to_string(d.type),
+                    "compute_units": int(d.max_compute_units),
+                    "global_memory_MiB": int(d.global_mem_size) // 2**20,
+                }
+            )
+    return out

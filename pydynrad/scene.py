@@ -1,0 +1,203 @@
+"""The patch scene: planar triangles with a diffuse albedo and an emission each.
+
+A :class:`Scene` is the unit every other part of pydynrad works on. Patches are triangles
+(``triangles`` index into ``points``); shared points carry the mesh's connectivity so the
+renderer can interpolate radiosity smoothly. Geometry is validated once here, so kernels
+never see NaNs, degenerate triangles or out-of-range materials.
+
+Units: lengths in the scene's own unit (the Cornell box uses millimetres), areas in that
+unit squared, albedo dimensionless in [0, 1), emission as radiant exitance (W/unit^2, any
+consistent scale: radiosity is linear in it).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import warnings
+from functools import cached_property
+
+import numpy as np
+
+from .errors import InvalidInputError
+
+__all__ = ["Scene", "DegenerateTriangleWarning"]
+
+
+class DegenerateTriangleWarning(UserWarning):
+    """Zero-area triangles were dropped from a scene."""
+
+
+def _as_rgb(value, n: int, what: str) -> np.ndarray:
+    a = np.asarray(value, dtype=np.float64)
+    if a.ndim == 0:
+        a = np.full((n, 3), float(a))
+    elif a.shape == (3,):
+        a = np.broadcast_to(a, (n, 3))
+    elif a.shape == (n,):
+        a = np.repeat(a[:, None], 3, axis=1)
+    if a.shape != (n, 3):
+        raise InvalidInputError(f"{what} must be a scalar, an RGB triple, (N,) or (N, 3) with N={n}; got shape {np.shape(value)}")
+    if not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"{what} contains NaN or infinite values")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def _checked_albedo(value, n: int) -> np.ndarray:
+    a = _as_rgb(value, n, "albedo")
+    if a.min() < 0.0 or a.max() >= 1.0:
+        raise InvalidInputError(
+            "albedo must lie in [0, 1) (a closed scene with albedo >= 1 has no finite radiosity); "
+            f"got range [{a.min():g}, {a.max():g}]"
+        )
+    return a
+
+
+def _checked_emission(value, n: int) -> np.ndarray:
+    e = _as_rgb(value, n, "emission")
+    if e.min() < 0.0:
+        raise InvalidInputError(f"emission must be >= 0; got minimum {e.min():g}")
+    return e
+
+
+class Scene:
+    """N triangular patches with materials.
+
+    Parameters
+    ----------
+    points : (V, 3) float
+        Vertex positions.
+    triangles : (N, 3) int
+        Vertex indices of each patch, counter-clockwise seen from the front (the lit side).
+    albedo : float, (3,), (N,) or (N, 3)
+        Diffuse reflectance per patch and RGB channel, each in [0, 1).
+    emission : float, (3,), (N,) or (N, 3)
+        Emitted radiosity per patch and channel, >= 0.
+    source_face : (N,) int, optional
+        Index of the input-mesh face each patch came from (identity by default).
+    name : str
+        A label used in reports and file headers.
+
+    Zero-area triangles are dropped with a :class:`DegenerateTriangleWarning` that counts
+    them; everything else invalid raises :class:`~pydynrad.errors.InvalidInputError`.
+    """
+
+    def __init__(self, points, triangles, albedo=0.5, emission=0.0, source_face=None, name: str = "scene") -> None:
+        pts = np.asarray(points, dtype=np.float64)
+        tri = np.asarray(triangles)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise InvalidInputError(f"points must have shape (V, 3); got {pts.shape}")
+        if tri.size == 0:
+            raise InvalidInputError("the mesh is empty: it has no triangles")
+        if tri.ndim != 2 or tri.shape[1] != 3:
+            raise InvalidInputError(f"triangles must have shape (N, 3); got {tri.shape}")
+        if not np.issubdtype(tri.dtype, np.integer):
+            raise InvalidInputError(f"triangles must hold integer vertex indices; got dtype {tri.dtype}")
+        if tri.min() < 0 or tri.max() >= len(pts):
+            raise InvalidInputError(f"triangles index vertices outside 0..{len(pts) - 1}")
+        used = np.unique(tri)
+        if not np.all(np.isfinite(pts[used])):
+            raise InvalidInputError("vertices contain NaN or infinite coordinates")
+        n_in = len(tri)
+        albedo = _checked_albedo(albedo, n_in)
+        emission = _checked_emission(emission, n_in)
+        if source_face is None:
+            source_face = np.arange(n_in)
+        source_face = np.asarray(source_face, dtype=np.int64)
+        if source_face.shape != (n_in,):
+            raise InvalidInputError(f"source_face must have shape ({n_in},); got {source_face.shape}")
+
+        v = pts[tri]
+        cross = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        dbl_area = np.linalg.norm(cross, axis=1)
+        # Relative to the triangle's own size, so tiny but well-shaped patches survive.
+        edge2 = np.max(np.sum((v - np.roll(v, 1, axis=1)) ** 2, axis=2), axis=1)
+        keep = dbl_area > 1e-7 * edge2
+        if not np.all(keep):
+            n_bad = int(np.count_nonzero(~keep))
+            if n_bad == n_in:
+                raise InvalidInputError(f"the mesh is empty: all {n_in} triangles have zero area")
+            warnings.warn(f"dropped {n_bad} zero-area triangle(s) of {n_in}", DegenerateTriangleWarning, stacklevel=2)
+            tri, albedo, emission, source_face = tri[keep], albedo[keep], emission[keep], source_face[keep]
+            cross, dbl_area = cross[keep], dbl_area[keep]
+
+        self.points = np.ascontiguousarray(pts, dtype=np.float32)
+        self.triangles = np.ascontiguousarray(tri, dtype=np.int32)
+        self.albedo = albedo
+        self.emission = emission
+        self.source_face = source_face
+        self.name = str(name)
+        v = pts[tri]
+        self.centers = np.ascontiguousarray(v.mean(axis=1), dtype=np.float32)
+        self.normals = np.ascontiguousarray(cross / dbl_area[:, None], dtype=np.float32)
+        self.areas = np.ascontiguousarray(0.5 * dbl_area, dtype=np.float32)
+
+    # -- sizes and views -------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self.triangles)
+
+    @property
+    def n_patches(self) -> int:
+        return len(self.triangles)
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """(N, 3, 3) float32 corner positions of every patch."""
+        return self.points[self.triangles]
+
+    @property
+    def is_grey(self) -> bool:
+        """True when every albedo has equal R, G and B: one colour channel suffices for K."""
+        a = self.albedo
+        return bool(np.all(a[:, 0] == a[:, 1]) and np.all(a[:, 0] == a[:, 2]))
+
+    @property
+    def bbox(self) -> np.ndarray:
+        """(2, 3) min and max corner of the used points."""
+        p = self.points[np.unique(self.triangles)]
+        return np.stack([p.min(axis=0), p.max(axis=0)])
+
+    @property
+    def scale(self) -> float:
+        """Length of the bounding-box diagonal: the yardstick for scene-relative epsilons."""
+        lo, hi = self.bbox.astype(np.float64)
+        return float(np.linalg.norm(hi - lo)) or 1.0
+
+    @property
+    def emitters(self) -> np.ndarray:
+        """Indices of patches with non-zero emission."""
+        return np.flatnonzero(self.emission.max(axis=1) > 0)
+
+    # -- derived structures ----------------------------------------------------------------
+    @cached_property
+    def bvh(self):
+        """The patch BVH, built on first use and shared by every kernel that casts rays."""
+        from .bvh import BVH
+
+        return BVH.build(self.vertices)
+
+    def content_hash(self) -> str:
+        """SHA-256 of geometry and materials: identifies the scene in file headers."""
+        h = hashlib.sha256()
+        for a in (self.points, self.triangles, self.albedo, self.emission):
+            h.update(np.ascontiguousarray(a).tobytes())
+        return h.hexdigest()
+
+    def geometry_hash(self) -> str:
+        """SHA-256 of geometry only: form factors depend on this and not on materials."""
+        h = hashlib.sha256()
+        for a in (self.points, self.triangles):
+            h.update(np.ascontiguousarray(a).tobytes())
+        return h.hexdigest()
+
+    def with_materials(self, albedo=None, emission=None) -> "Scene":
+        """A scene with the same geometry (and the same BVH, not rebuilt) and new materials."""
+        out = object.__new__(Scene)
+        out.__dict__.update(self.__dict__)
+        if albedo is not None:
+            out.albedo = _checked_albedo(albedo, len(self))
+        if emission is not None:
+            out.emission = _checked_emission(emission, len(self))
+        return out
+
+    def __repr__(self) -> str:
+        return f"Scene({self.name!r}, {len(self)} patches, {len(self.emitters)} emitting, grey={self.is_grey})"

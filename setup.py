@@ -1,0 +1,18 @@
+"""Build script: the package metadata lives in pyproject.toml; this file only wires the
+layout of the design card (top-level ``kernels/`` shipped as ``pydynrad.kernels``) and the
+native BVH builder in ``csrc/``."""
+
+from setuptools import Extension, setup
+
+setup(
+    packages=["pydynrad", "pydynrad.kernels"],
+    package_dir={"pydynrad": "pydynrad", "pydynrad.kernels": "kernels"},
+    package_data={"pydynrad.kernels": ["*.cl", "*.h"]},
+    ext_modules=[
+        Extension(
+            "pydynrad._bvh",
+            sources=["csrc/bvh.c"],
+            extra_compile_args=["-O3", "-std=c99"],
+        )
+    ],
+)

@@ -1,0 +1,41 @@
+import pytest
+
+import pydynrad
+from pydynrad.device import kernel_dir
+
+
+def test_default_device_is_shared(device):
+    assert pydynrad.default_device() is device
+    info = device.info()
+    assert info["compute_units"] >= 1
+    assert info["device"]
+
+
+def test_kernel_sources_ship_as_package_data():
+    assert any(kernel_dir().glob("*.cl"))
+
+
+def test_program_is_built_once(device):
+    a = device.program("selftest.cl")
+    assert device.program("selftest.cl") is a
+    assert device.program("selftest.cl", {"SELFTEST_SCALE": 3}) is not a
+
+
+def test_kernel_runs(device):
+    import numpy as np
+    import pyopencl as cl
+
+    x = np.arange(16, dtype=np.float32)
+    buf = cl.Buffer(device.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=x)
+    k = device.kernel("selftest.cl", "scale", {"SELFTEST_SCALE": 3})
+    k(device.queue, (16,), None, buf)
+    out = np.empty_like(x)
+    cl.enqueue_copy(device.queue, out, buf)
+    np.testing.assert_array_equal(out, 3 * x)
+
+
+def test_build_error_carries_log(device):
+    with pytest.raises(pydynrad.KernelBuildError) as info:
+        device.program("selftest.cl", {"SELFTEST_BREAK": 1})
+    assert "selftest.cl" in str(info.value)
+    assert info.value.build_log
