@@ -16,5 +16,6 @@ from .errors import (
     SceneFileError,
 )
 from .scene import DegenerateTriangleWarning, Scene
+from .matvec import DeviceMatrix
 
 __version__ = "0.1.0"

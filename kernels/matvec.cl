@@ -1,0 +1,70 @@
+// Dense matrix-vector products with one M x M row-major matrix K (leading dimension ld).
+// Storage type from storage.h (STORAGE_FP16/FP32/FP64); vectors x, y are REAL.
+//
+// Both products are memory-bound: they stream K exactly once.
+//   VW: vector width of the loads (16 suits CPUs' wide SIMD, 4 suits GPUs).
+//   LX: work-items per row in `matvec`. LX == 1 gives one row per work-item (a CPU core then
+//       streams whole rows with vector loads); LX > 1 gives one work-group per row whose
+//       items read adjacent vectors (coalesced on a GPU) and reduce in local memory.
+// Requirements (the host guarantees them): ld % VW == 0, K's padding columns M..ld hold 0,
+// x holds ld entries (zeros past M).
+#include "storage.h"
+
+#ifndef VW
+#define VW 16
+#endif
+#ifndef LX
+#define LX 1
+#endif
+
+// y[i] = sum_j K[i, j] x[j] for i < M.
+__kernel void matvec(__global const STORE_T *K, const int M, const int ld,
+                     __global const REAL *x, __global REAL *y)
+{
+#if LX == 1
+    const int row = get_global_id(0);
+    if (row >= M) return;
+    __global const STORE_T *r = K + (size_t)row * ld;
+    REALV(VW) acc = (REALV(VW))(0);
+    for (int j = 0; j < ld; j += VW) acc += LOADV(VW, r, j) * VLOADR(VW, x, j);
+    y[row] = HSUM(VW, acc);
+#else
+    __local REAL part[LX];
+    const int row = get_group_id(0), lid = get_local_id(0);
+    __global const STORE_T *r = K + (size_t)row * ld;
+    REALV(VW) acc = (REALV(VW))(0);
+    for (int j = lid * VW; j < ld; j += LX * VW) acc += LOADV(VW, r, j) * VLOADR(VW, x, j);
+    part[lid] = HSUM(VW, acc);
+    for (int s = LX / 2; s > 0; s >>= 1) {
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (lid < s) part[lid] += part[lid + s];
+    }
+    if (lid == 0 && row < M) y[row] = part[0];
+#endif
+}
+
+// Transposed product, first pass: partial[b, j] = sum_{i in row block b} x[i] K[i, j].
+// Work-item (c, b) owns columns c*VW .. c*VW+VW of the rows [b*RB, min(M, b*RB+RB)); items of
+// one row block read adjacent vectors of the same rows, so each row is read contiguously.
+__kernel void rmatvec_partial(__global const STORE_T *K, const int M, const int ld, const int RB,
+                              __global const REAL *x, __global REAL *partial)
+{
+    const int c = get_global_id(0), b = get_global_id(1);
+    const int j = c * VW;
+    if (j >= ld) return;
+    const int i_end = min(M, (b + 1) * RB);
+    REALV(VW) acc = (REALV(VW))(0);
+    for (int i = b * RB; i < i_end; ++i) acc += x[i] * LOADV(VW, K, (size_t)i * ld + j);
+    PDR_XCAT(vstore, VW)(acc, 0, partial + (size_t)b * ld + j);
+}
+
+// Second pass: y[j] = sum_b partial[b, j] for j < M.
+__kernel void rmatvec_reduce(__global const REAL *partial, const int M, const int ld, const int n_blocks,
+                             __global REAL *y)
+{
+    const int j = get_global_id(0);
+    if (j >= M) return;
+    REAL s = 0;
+    for (int b = 0; b < n_blocks; ++b) s += partial[(size_t)b * ld + j];
+    y[j] = s;
+}

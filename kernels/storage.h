@@ -1,0 +1,58 @@
+// Storage types for device-resident matrices (the multibounce matrix K and its updates).
+//
+// Select one with a build define: STORAGE_FP16, STORAGE_FP32 (default) or STORAGE_FP64.
+//   STORE_T       element type in memory (half is only a storage type: no cl_khr_fp16 needed)
+//   REAL          compute type: float for fp16/fp32 storage, double for fp64 storage
+//   REALV(n)      REAL vector type of width n (n = 2, 4, 8, 16)
+//   LOAD(p, i)    element i of p as REAL;           STORE(v, p, i)   p[i] = v (fp16: round to nearest even)
+//   LOADV(n, p, i) n elements p[i..i+n) as REALV(n); STOREV(n, v, p, i) the inverse
+//   VLOADR(n, p, i) n elements of a REAL array (vectors x, y live in REAL, not in STORE_T)
+// Vector forms need only element alignment (vload_half*/vload* semantics), so i need not be
+// a multiple of n.
+#ifndef PYDYNRAD_STORAGE_H
+#define PYDYNRAD_STORAGE_H
+
+#define PDR_CAT(a, b) a##b
+#define PDR_XCAT(a, b) PDR_CAT(a, b)
+
+#if defined(STORAGE_FP64)
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double STORE_T;
+typedef double REAL;
+#define REAL_BASE double
+#define LOAD(p, i) ((p)[i])
+#define STORE(v, p, i) ((p)[i] = (v))
+#define LOADV(n, p, i) PDR_XCAT(vload, n)(0, (p) + (i))
+#define STOREV(n, v, p, i) PDR_XCAT(vstore, n)((v), 0, (p) + (i))
+#elif defined(STORAGE_FP16)
+typedef half STORE_T;
+typedef float REAL;
+#define REAL_BASE float
+#define LOAD(p, i) vload_half(0, (p) + (i))
+#define STORE(v, p, i) vstore_half_rte((v), 0, (p) + (i))
+#define LOADV(n, p, i) PDR_XCAT(vload_half, n)(0, (p) + (i))
+#define STOREV(n, v, p, i) PDR_XCAT(PDR_XCAT(vstore_half, n), _rte)((v), 0, (p) + (i))
+#else
+#ifndef STORAGE_FP32
+#define STORAGE_FP32
+#endif
+typedef float STORE_T;
+typedef float REAL;
+#define REAL_BASE float
+#define LOAD(p, i) ((p)[i])
+#define STORE(v, p, i) ((p)[i] = (v))
+#define LOADV(n, p, i) PDR_XCAT(vload, n)(0, (p) + (i))
+#define STOREV(n, v, p, i) PDR_XCAT(vstore, n)((v), 0, (p) + (i))
+#endif
+
+#define REALV(n) PDR_XCAT(REAL_BASE, n)
+#define VLOADR(n, p, i) PDR_XCAT(vload, n)(0, (p) + (i))
+
+// Horizontal sums, pairwise so rounding grows like log(n).
+inline REAL pdr_hsum4(REALV(4) a) { return (a.x + a.y) + (a.z + a.w); }
+#define PDR_HSUM_4(a) pdr_hsum4(a)
+#define PDR_HSUM_8(a) pdr_hsum4((a).lo + (a).hi)
+#define PDR_HSUM_16(a) pdr_hsum4(((a).lo.lo + (a).lo.hi) + ((a).hi.lo + (a).hi.hi))
+#define HSUM(n, a) PDR_XCAT(PDR_HSUM_, n)(a)
+
+#endif

@@ -1,0 +1,234 @@
+"""Device-resident dense matrices (the multibounce matrix K) and their matrix-vector products.
+
+A :class:`DeviceMatrix` holds C channels of an M x M matrix on an OpenCL device, one buffer
+per channel, row-major with a padded leading dimension :attr:`DeviceMatrix.ld`. Elements are
+stored as fp16, fp32 or fp64 (``storage``); fp16 and fp32 compute in fp32, fp64 in fp64.
+Lighting a frame is one product per channel, ``y = K x``, which streams K once: the kernels in
+``kernels/matvec.cl`` are written to run at memory bandwidth (see ``bench/radiosity.py``).
+
+Other kernels that work on K in place (``kernels/update.cl``) include ``kernels/storage.h``
+and build with :attr:`DeviceMatrix.defines` so they read and write the same element type.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import DeviceError, InvalidInputError, OutOfMemoryError
+
+__all__ = ["DeviceMatrix", "STORAGE_DTYPES", "storage_dtype"]
+
+#: Element type in device memory per storage name.
+STORAGE_DTYPES = {"fp16": np.dtype(np.float16), "fp32": np.dtype(np.float32), "fp64": np.dtype(np.float64)}
+
+#: Rows are padded to a multiple of this many elements (128 bytes of fp16, 256 of fp32), so
+#: every vector load is aligned and rows start on cache-line boundaries.
+LD_ALIGN = 64
+
+
+def storage_dtype(storage: str) -> np.dtype:
+    """The numpy element type of a storage name; InvalidInputError naming the allowed ones."""
+    try:
+        return STORAGE_DTYPES[storage]
+    except (KeyError, TypeError):
+        raise InvalidInputError(f"unknown storage {storage!r}; allowed: {', '.join(STORAGE_DTYPES)}") from None
+
+
+def _check_storage_on(device, storage: str) -> None:
+    storage_dtype(storage)
+    if storage == "fp64" and not device.supports_fp64:
+        raise DeviceError(f"fp64 storage needs cl_khr_fp64, which {device.name} lacks; use storage='fp32' or 'fp16'")
+
+
+class DeviceMatrix:
+    """C channels of an M x M matrix in device memory.
+
+    Parameters
+    ----------
+    device : pydynrad.Device
+    K : (C, M, M) array
+        The matrix per channel (any float dtype; converted to the storage type with
+        round-to-nearest-even).
+    storage : "fp16" | "fp32" | "fp64"
+    layout : (VW, LX), optional
+        Kernel layout override (vector width, work-items per row); by default (16, 1) on a
+        CPU and (4, 64) on a GPU. For tuning and for testing the GPU path on a CPU.
+
+    Attributes
+    ----------
+    C, M, ld : int
+        Channels, rows/columns, and the row pitch in elements (ld >= M, ld % 64 == 0; the
+        padding columns hold zeros and must stay zero).
+    buffers : list of pyopencl.Buffer
+        One buffer per channel, M * ld elements of the storage type.
+    storage : str
+    real_dtype : numpy dtype
+        The compute type of vectors passed to the kernels: float32, or float64 for fp64.
+    """
+
+    def __init__(self, device, K: np.ndarray, storage: str = "fp32", *, layout: tuple[int, int] | None = None) -> None:
+        K = np.asarray(K)
+        if K.ndim != 3 or K.shape[1] != K.shape[2] or K.shape[1] == 0:
+            raise InvalidInputError(f"K must have shape (C, M, M) with M > 0; got {K.shape}")
+        if not np.issubdtype(K.dtype, np.floating) or not np.all(np.isfinite(K)):
+            raise InvalidInputError("K must hold finite floating-point values")
+        self._allocate(device, K.shape[0], K.shape[1], storage, layout)
+        self.upload(K)
+
+    @classmethod
+    def zeros(cls, device, C: int, M: int, storage: str = "fp32", *, layout=None) -> "DeviceMatrix":
+        """An all-zero matrix, for callers that fill K with their own kernels."""
+        import pyopencl as cl
+
+        if C < 1 or M < 1:
+            raise InvalidInputError(f"need C >= 1 and M >= 1; got C={C}, M={M}")
+        out = object.__new__(cls)
+        out._allocate(device, int(C), int(M), storage, layout)
+        zero = np.zeros(1, dtype=out.dtype)
+        for buf in out.buffers:
+            cl.enqueue_fill_buffer(device.queue, buf, zero, 0, out.channel_nbytes)
+        device.queue.finish()
+        return out
+
+    # -- construction ------------------------------------------------------------------------
+    def _allocate(self, device, C: int, M: int, storage: str, layout) -> None:
+        import pyopencl as cl
+
+        _check_storage_on(device, storage)
+        self.device, self.storage, self.C, self.M = device, storage, C, M
+        self.dtype = storage_dtype(storage)
+        self.real_dtype = np.dtype(np.float64 if storage == "fp64" else np.float32)
+        self.ld = -(-M // LD_ALIGN) * LD_ALIGN
+        per = self.channel_nbytes
+        if per > device.max_alloc_bytes:
+            raise OutOfMemoryError(
+                f"one channel of a {M} x {M} {storage} matrix needs {per / 2**20:.1f} MiB, above the device's "
+                f"largest allocation ({device.max_alloc_bytes / 2**20:.0f} MiB on {device.name}); use fewer patches "
+                "or fp16 storage"
+            )
+        if C * per > device.global_mem_bytes:
+            raise OutOfMemoryError(
+                f"{C} channels of a {M} x {M} {storage} matrix need {C * per / 2**20:.1f} MiB, above the device's "
+                f"global memory ({device.global_mem_bytes / 2**20:.0f} MiB)"
+            )
+        try:
+            self.buffers = [cl.Buffer(device.context, cl.mem_flags.READ_WRITE, per) for _ in range(C)]
+        except cl.Error as exc:
+            raise OutOfMemoryError(f"allocating {C} x {per / 2**20:.1f} MiB on {device.name} failed: {exc}") from exc
+        cpu = device.is_cpu
+        # CPU: one row per work-item, 16-wide loads. GPU: a work-group per row, coalesced loads.
+        self._vw, self._lx = layout or ((16, 1) if cpu else (4, 64))
+        if self._vw not in (4, 8, 16) or self._lx < 1 or self._lx & (self._lx - 1):
+            raise InvalidInputError(f"layout must be (VW in 4/8/16, LX a power of two); got {layout}")
+        # Row block of the transposed product's first pass: long enough to amortise the
+        # partial sums (1/RB of K's traffic), short enough to give a GPU enough work-items.
+        n_chunks = self.ld // self._vw
+        self._rb = 64 if cpu else max(16, min(256, (M * n_chunks) // 65536 or 16))
+        self._n_blocks = -(-M // self._rb)
+        self._x = self._y = self._partial = None
+        prg = device.program("matvec.cl", {**self.defines, "VW": self._vw, "LX": self._lx})
+        # Kernel objects hold their arguments: one per matrix, reused by every call.
+        self._k_matvec = cl.Kernel(prg, "matvec")
+        self._k_partial = cl.Kernel(prg, "rmatvec_partial")
+        self._k_reduce = cl.Kernel(prg, "rmatvec_reduce")
+
+    def upload(self, K: np.ndarray) -> None:
+        """Overwrite every channel with K (C, M, M)."""
+        import pyopencl as cl
+
+        K = np.asarray(K)
+        if K.shape != (self.C, self.M, self.M):
+            raise InvalidInputError(f"K must have shape {(self.C, self.M, self.M)}; got {K.shape}")
+        host = np.zeros((self.M, self.ld), dtype=self.dtype)
+        for c in range(self.C):
+            host[:, : self.M] = K[c]
+            cl.enqueue_copy(self.device.queue, self.buffers[c], host, is_blocking=True)
+
+    # -- properties ----------------------------------------------------------------------------
+    @property
+    def channel_nbytes(self) -> int:
+        return self.M * self.ld * self.dtype.itemsize
+
+    @property
+    def nbytes(self) -> int:
+        """Device bytes held by the matrix (all channels, padding included)."""
+        return self.C * self.channel_nbytes
+
+    @property
+    def defines(self) -> dict[str, int]:
+        """Build defines selecting this storage in ``kernels/storage.h``."""
+        return {f"STORAGE_{self.storage.upper()}": 1}
+
+    # -- device-side products (no host round trip) ---------------------------------------------
+    def enqueue_matvec(self, channel: int, x_buf, y_buf) -> None:
+        """Enqueue y = K[channel] x on device buffers: x holds ld REAL values (zeros past M), y M."""
+        k = self._k_matvec
+        gsize = (-(-self.M // 64) * 64,) if self._lx == 1 else (self.M * self._lx,)
+        lsize = None if self._lx == 1 else (self._lx,)
+        k(self.device.queue, gsize, lsize, self.buffers[channel], np.int32(self.M), np.int32(self.ld), x_buf, y_buf)
+
+    def enqueue_rmatvec(self, channel: int, x_buf, y_buf) -> None:
+        """Enqueue y = x^T K[channel] on device buffers: x holds M REAL values, y M."""
+        import pyopencl as cl
+
+        if self._partial is None:
+            self._partial = cl.Buffer(
+                self.device.context, cl.mem_flags.READ_WRITE, self._n_blocks * self.ld * self.real_dtype.itemsize
+            )
+        q, M, ld = self.device.queue, np.int32(self.M), np.int32(self.ld)
+        self._k_partial(
+            q, (ld // self._vw, self._n_blocks), None, self.buffers[channel], M, ld, np.int32(self._rb), x_buf, self._partial
+        )
+        self._k_reduce(q, (-(-self.M // 64) * 64,), None, self._partial, M, ld, np.int32(self._n_blocks), y_buf)
+
+    # -- host-facing products --------------------------------------------------------------------
+    def _vectors(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float64)
+        if x.shape == (self.M,):
+            x = np.broadcast_to(x, (self.C, self.M))
+        if x.shape != (self.C, self.M):
+            raise InvalidInputError(f"x must have shape ({self.C}, {self.M}) or ({self.M},); got {x.shape}")
+        if not np.all(np.isfinite(x)):
+            raise InvalidInputError("x contains NaN or infinite values")
+        return x
+
+    def _run(self, x: np.ndarray, enqueue) -> np.ndarray:
+        import pyopencl as cl
+
+        x = self._vectors(x)
+        if self._x is None:
+            mf = cl.mem_flags
+            self._x = cl.Buffer(self.device.context, mf.READ_ONLY, self.ld * self.real_dtype.itemsize)
+            self._y = cl.Buffer(self.device.context, mf.WRITE_ONLY, self.M * self.real_dtype.itemsize)
+        xh = np.zeros(self.ld, dtype=self.real_dtype)
+        yh = np.empty(self.M, dtype=self.real_dtype)
+        out = np.empty((self.C, self.M))
+        for c in range(self.C):
+            xh[: self.M] = x[c]
+            cl.enqueue_copy(self.device.queue, self._x, xh)
+            enqueue(c, self._x, self._y)
+            cl.enqueue_copy(self.device.queue, yh, self._y, is_blocking=True)
+            out[c] = yh
+        return out
+
+    def matvec(self, x: np.ndarray) -> np.ndarray:
+        """y = K x per channel. x: (C, M) or (M,) for every channel. Returns (C, M) float64."""
+        return self._run(x, self.enqueue_matvec)
+
+    def rmatvec(self, x: np.ndarray) -> np.ndarray:
+        """y = x^T K per channel (light gathered by row vector x). Returns (C, M) float64."""
+        return self._run(x, self.enqueue_rmatvec)
+
+    def to_host(self) -> np.ndarray:
+        """The stored matrix as (C, M, M) float64 (values as stored: fp16 rounding included)."""
+        import pyopencl as cl
+
+        host = np.empty((self.M, self.ld), dtype=self.dtype)
+        out = np.empty((self.C, self.M, self.M))
+        for c in range(self.C):
+            cl.enqueue_copy(self.device.queue, host, self.buffers[c], is_blocking=True)
+            out[c] = host[:, : self.M]
+        return out
+
+    def __repr__(self) -> str:
+        return f"DeviceMatrix(C={self.C}, M={self.M}, ld={self.ld}, storage={self.storage!r}, {self.nbytes / 2**20:.1f} MiB)"

@@ -1,0 +1,91 @@
+"""DeviceMatrix: storage round trips and products against numpy in float64.
+
+Tolerances (relative to max |y|, inputs in [0, 1)): the stored matrix differs from K by the
+storage rounding (fp16: 2^-11 relative per element, fp32: 2^-24); products accumulate in the
+compute type (fp32 for fp16/fp32, fp64 for fp64). So fp16 ~1e-3, fp32 ~1e-6, fp64 ~1e-13.
+"""
+
+import numpy as np
+import pytest
+
+import pydynrad
+from pydynrad.matvec import DeviceMatrix
+
+TOL = {"fp16": 1e-3, "fp32": 2e-6, "fp64": 1e-13}
+LAYOUTS = [None, (4, 64), (8, 4)]  # the default, the GPU layout, one in between
+
+
+def _rel(a, b):
+    return np.abs(a - b).max() / np.abs(b).max()
+
+
+@pytest.mark.parametrize("storage", ["fp16", "fp32", "fp64"])
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_products_match_numpy(device, storage, layout):
+    rng = np.random.default_rng(1)
+    C, M = 3, 203  # M not a multiple of the padding: exercises the padded tail
+    K = rng.random((C, M, M))
+    x = rng.random((C, M))
+    m = DeviceMatrix(device, K, storage, layout=layout)
+    assert (m.C, m.M, m.storage) == (C, M, storage)
+    assert m.ld >= M and m.ld % 64 == 0
+    assert len(m.buffers) == C
+    assert m.nbytes == C * M * m.ld * np.dtype(np.float16 if storage == "fp16" else np.float32 if storage == "fp32" else np.float64).itemsize
+    y = m.matvec(x)
+    assert y.dtype == np.float64 and y.shape == (C, M)
+    assert _rel(y, np.einsum("cij,cj->ci", K, x)) < TOL[storage]
+    assert _rel(m.rmatvec(x), np.einsum("cij,ci->cj", K, x)) < TOL[storage]
+
+
+@pytest.mark.parametrize("storage", ["fp16", "fp32", "fp64"])
+def test_to_host_is_storage_rounding(device, storage):
+    rng = np.random.default_rng(2)
+    K = rng.random((1, 70, 70))
+    m = DeviceMatrix(device, K, storage)
+    back = m.to_host()
+    assert back.dtype == np.float64 and back.shape == K.shape
+    # Exactly numpy's round-to-nearest-even conversion to the storage type.
+    np.testing.assert_array_equal(back, K.astype(m.dtype).astype(np.float64))
+
+
+def test_single_vector_applies_to_every_channel(device):
+    rng = np.random.default_rng(3)
+    K = rng.random((3, 40, 40))
+    x = rng.random(40)
+    y = DeviceMatrix(device, K, "fp64").matvec(x)
+    np.testing.assert_allclose(y, K @ x, rtol=1e-13)
+
+
+def test_zeros_and_upload(device):
+    m = DeviceMatrix.zeros(device, 2, 50, "fp32")
+    assert np.all(m.to_host() == 0)
+    K = np.arange(2 * 50 * 50, dtype=np.float64).reshape(2, 50, 50) / 5000
+    m.upload(K)
+    np.testing.assert_allclose(m.to_host(), K, rtol=1e-7)
+
+
+def test_bad_inputs(device):
+    K = np.ones((1, 8, 8))
+    with pytest.raises(pydynrad.InvalidInputError, match="fp16, fp32, fp64"):
+        DeviceMatrix(device, K, "bf16")
+    with pytest.raises(pydynrad.InvalidInputError, match="shape"):
+        DeviceMatrix(device, np.ones((8, 8)), "fp32")
+    with pytest.raises(pydynrad.InvalidInputError, match="finite"):
+        DeviceMatrix(device, np.full((1, 4, 4), np.nan), "fp32")
+    m = DeviceMatrix(device, K, "fp32")
+    with pytest.raises(pydynrad.InvalidInputError, match="shape"):
+        m.matvec(np.ones((2, 8)))
+    with pytest.raises(pydynrad.InvalidInputError, match="NaN"):
+        m.matvec(np.full(8, np.inf))
+
+
+def test_fp64_refused_without_device_support(device, monkeypatch):
+    monkeypatch.setattr(type(device), "supports_fp64", property(lambda self: False))
+    with pytest.raises(pydynrad.DeviceError, match="fp64"):
+        DeviceMatrix(device, np.ones((1, 4, 4)), "fp64")
+
+
+def test_oversized_matrix_refused_before_allocating(device):
+    # 63,125 patches (the paper's full scene) in fp32: 16 GB per channel.
+    with pytest.raises(pydynrad.OutOfMemoryError, match="MiB"):
+        DeviceMatrix.zeros(device, 3, 63125, "fp32")
