@@ -1,0 +1,184 @@
+// Reference path tracer: the ground truth that radiosity results are compared against.
+//
+// Every surface is a one-sided Lambertian patch (the side its normal faces), like the
+// hemicubes of the radiosity solver: a ray that reaches a patch's back is absorbed.
+// Radiometry: a patch's emission E (W/unit^2, radiant exitance) emits radiance E / pi; a
+// surface of albedo rho reflects radiance (rho / pi) * H, H = irradiance (W/unit^2).
+//
+// Estimator (documented rule against double counting): direct light from emitting patches
+// is taken ONLY by next-event estimation at each diffuse vertex (an emitter sampled with
+// probability proportional to its power, a uniform point on it); the emission of a patch
+// that a BSDF-sampled (cosine) ray hits is never added. Emission is added only where a
+// camera ray hits an emitter. The analytic lights (points, spots, directional) are deltas
+// and have NEE only. Russian roulette after RR_DEPTH bounces, at most MAX_DEPTH bounces.
+//
+// Random numbers come from rng.cl keyed by (seed, pixel or patch, sample index), so an image
+// is the same whatever the pass size.
+#include "bvh.cl"
+#include "rng.cl"
+
+#ifndef MAX_DEPTH
+#define MAX_DEPTH 256
+#endif
+#ifndef RR_DEPTH
+#define RR_DEPTH 3
+#endif
+
+#define LIGHT_POINT 0
+#define LIGHT_SPOT 1
+#define LIGHT_DIRECTIONAL 2
+
+// Scene arguments shared by both entry points, in this order.
+#define SCENE_ARGS                                                                              \
+    __global const float4 *nodes, __global const float4 *tris, __global const int *order,       \
+    __global const float4 *normals, __global const float4 *albedo,                            \
+    __global const float4 *emission,                                                          \
+    const int n_emitters, __global const float4 *em_tri, __global const float4 *em_emission,  \
+    __global const float *em_cdf, __global const float *em_pmf,                               \
+    const int n_lights, __global const float4 *light_pos, __global const float4 *light_dir,   \
+    __global const float4 *light_color, __global const float4 *light_cone,                    \
+    const float eps
+#define SCENE_PASS                                                                              \
+    nodes, tris, order, normals, albedo, emission, n_emitters, em_tri, em_emission, em_cdf,   \
+    em_pmf, n_lights, light_pos, light_dir, light_color, light_cone, eps
+
+// Irradiance at x (normal n, origin already offset) from the analytic lights, shadowed.
+// light_pos.w holds the type; light_cone = (cos_inner, cos_outer) for spots: full
+// intensity inside the inner cone, none outside the outer, smoothstep in between.
+inline float3 analytic_irradiance(float3 x, float3 n, SCENE_ARGS)
+{
+    float3 h = (float3)(0.0f);
+    for (int k = 0; k < n_lights; ++k) {
+        float4 lp = light_pos[k];
+        int type = (int)lp.w;
+        float3 color = light_color[k].xyz;
+        if (type == LIGHT_DIRECTIONAL) {
+            float3 to_light = -light_dir[k].xyz;
+            float c = dot(n, to_light);
+            if (c <= 0.0f || bvh_occluded(nodes, tris, x, to_light, 0.0f, INFINITY)) continue;
+            h += color * c;
+            continue;
+        }
+        float3 d = lp.xyz - x;
+        float dist2 = dot(d, d);
+        float dist = sqrt(dist2);
+        float3 w = d / dist;
+        float c = dot(n, w);
+        if (c <= 0.0f) continue;
+        float gain = 1.0f;
+        if (type == LIGHT_SPOT) {
+            float cos_axis = -dot(w, light_dir[k].xyz);
+            float2 cone = light_cone[k].xy;
+            gain = cone.x > cone.y ? smoothstep(cone.y, cone.x, cos_axis) : (float)(cos_axis >= cone.x);
+            if (gain <= 0.0f) continue;
+        }
+        if (bvh_occluded(nodes, tris, x, w, 0.0f, dist - eps)) continue;
+        h += color * (gain * c / dist2);
+    }
+    return h;
+}
+
+// One-sample estimate of the irradiance at x from the emitting patches.
+inline float3 emitter_irradiance(float3 x, float3 n, uint *rng, SCENE_ARGS)
+{
+    if (n_emitters == 0) return (float3)(0.0f);
+    float u = rng_next(rng);
+    int lo = 0, hi = n_emitters - 1;
+    while (lo < hi) {  // first k with cdf[k] > u
+        int mid = (lo + hi) / 2;
+        if (em_cdf[mid] > u) hi = mid; else lo = mid + 1;
+    }
+    float3 v0 = em_tri[4 * lo].xyz, e1 = em_tri[4 * lo + 1].xyz, e2 = em_tri[4 * lo + 2].xyz;
+    float4 na = em_tri[4 * lo + 3];  // normal, area
+    float s = sqrt(rng_next(rng)), t = rng_next(rng);
+    float3 y = v0 + e1 * (s * (1.0f - t)) + e2 * (s * t);
+    float3 d = y - x;
+    float dist2 = dot(d, d);
+    float dist = sqrt(dist2);
+    float3 w = d / dist;
+    float cx = dot(n, w), cy = -dot(na.xyz, w);
+    if (cx <= 0.0f || cy <= 0.0f) return (float3)(0.0f);
+    if (bvh_occluded(nodes, tris, x, w, 0.0f, dist - eps)) return (float3)(0.0f);
+    // radiance E/pi times the geometry term over the area pdf pmf / area.
+    return em_emission[lo].xyz * (M_1_PI_F * cx * cy * na.w / (dist2 * em_pmf[lo]));
+}
+
+// Cosine-weighted direction about n (pdf cos / pi); branchless basis of Duff et al. 2017.
+inline float3 sample_cosine(float3 n, uint *rng)
+{
+    float sign = copysign(1.0f, n.z);
+    float a = -1.0f / (sign + n.z);
+    float b = n.x * n.y * a;
+    float3 t = (float3)(1.0f + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    float3 bt = (float3)(b, sign + n.y * n.y * a, -n.y);
+    float r = sqrt(rng_next(rng)), phi = 2.0f * M_PI_F * rng_next(rng);
+    float z = sqrt(fmax(0.0f, 1.0f - r * r));
+    return normalize(t * (r * cos(phi)) + bt * (r * sin(phi)) + n * z);
+}
+
+// Radiance reflected at surface point p (normal n, albedo rho) towards any direction,
+// excluding p's own emission: (rho / pi) * H(p), H estimated by NEE plus one path.
+inline float3 reflected_radiance(float3 p, float3 n, float3 rho, uint *rng, SCENE_ARGS)
+{
+    float3 acc = (float3)(0.0f);
+    float3 thr = rho;  // product of albedos along the path
+    for (int depth = 0; depth < MAX_DEPTH; ++depth) {
+        float3 x = p + n * eps;
+        float3 h = analytic_irradiance(x, n, SCENE_PASS) + emitter_irradiance(x, n, rng, SCENE_PASS);
+        acc += thr * h * M_1_PI_F;
+        // The cosine pdf cancels the cosine and 1/pi: the next vertex's reflected radiance
+        // enters with weight rho (already in thr).
+        float3 w = sample_cosine(n, rng);
+        Hit hit = bvh_closest(nodes, tris, order, x, w, 0.0f, INFINITY);
+        if (hit.patch < 0 || !hit.front) break;
+        p = x + w * hit.t;
+        n = normals[hit.patch].xyz;
+        thr *= albedo[hit.patch].xyz;
+        if (depth + 1 >= RR_DEPTH) {
+            float q = fmin(fmax(thr.x, fmax(thr.y, thr.z)), 0.95f);
+            if (rng_next(rng) >= q) break;
+            thr /= q;
+        }
+    }
+    return acc;
+}
+
+// Radiance along one camera ray per pixel (the pixel centre's ray, as `render` casts it),
+// summed over samples [sample_start, sample_start + n_samples) into accum[pixel].xyz.
+__kernel void trace_pixels(__global const float4 *ray_org, __global const float4 *ray_dir, const int n_pixels,
+                           __global float4 *accum, const uint seed, const uint sample_start, const int n_samples,
+                           SCENE_ARGS)
+{
+    int i = get_global_id(0);
+    if (i >= n_pixels) return;
+    float3 o = ray_org[i].xyz, d = ray_dir[i].xyz;
+    Hit hit = bvh_closest(nodes, tris, order, o, d, 0.0f, INFINITY);
+    if (hit.patch < 0 || !hit.front) return;
+    float3 p = o + d * hit.t;
+    float3 n = normals[hit.patch].xyz;
+    float3 rho = albedo[hit.patch].xyz;
+    float3 sum = emission[hit.patch].xyz * (M_1_PI_F * (float)n_samples);
+    for (int s = 0; s < n_samples; ++s) {
+        uint rng = rng_stream(seed, (uint)i, sample_start + (uint)s);
+        sum += reflected_radiance(p, n, rho, &rng, SCENE_PASS);
+    }
+    accum[i].xyz += sum;
+}
+
+// Radiosity gathered at the centres of the patches `patch_ids`, minus their own emission:
+// pi * reflected radiance = rho * H, summed over the samples into accum[k].xyz.
+__kernel void gather_patches(__global const int *patch_ids, __global const float4 *centers, const int n_items,
+                             __global float4 *accum, const uint seed, const uint sample_start, const int n_samples,
+                             SCENE_ARGS)
+{
+    int k = get_global_id(0);
+    if (k >= n_items) return;
+    int i = patch_ids[k];
+    float3 p = centers[i].xyz, n = normals[i].xyz, rho = albedo[i].xyz;
+    float3 sum = (float3)(0.0f);
+    for (int s = 0; s < n_samples; ++s) {
+        uint rng = rng_stream(seed, (uint)i, sample_start + (uint)s);
+        sum += reflected_radiance(p, n, rho, &rng, SCENE_PASS);
+    }
+    accum[k].xyz += sum * M_PI_F;
+}

@@ -1,0 +1,269 @@
+"""Reference path tracer: the ground truth radiosity results are measured against.
+
+Two estimators share one OpenCL kernel file (``kernels/pathtrace.cl``) and the scene's BVH:
+
+* :func:`path_trace` renders the image a :class:`~pydynrad.Camera` sees, one ray per pixel
+  through the pixel centre (the ray ``render`` casts), so a radiosity image and a path-traced
+  image compare pixel by pixel;
+* :func:`path_trace_patches` estimates patch radiosities directly by gathering at patch
+  centres: ``B_i = E_i + rho_i * H_i`` with the irradiance ``H_i`` estimated by cosine-weighted
+  hemisphere sampling, to compare with :func:`pydynrad.solve` patch by patch.
+
+The transport model is the radiosity model: one-sided Lambertian patches, emission only from
+the front, analytic lights as deltas with shadow rays. Direct light from emitting patches is
+counted only by next-event estimation (emitters picked proportionally to power) and never when
+a bounce ray happens to hit an emitter; see the kernel's header. Russian roulette keeps
+long paths unbiased. Samples are accumulated in passes (one kernel launch each, so a progress
+bar and a time limit work); random numbers depend only on ``(seed, pixel or patch, sample)``,
+so a result is reproducible bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InvalidInputError
+from .scene import Scene
+
+__all__ = ["path_trace", "path_trace_patches"]
+
+#: Origin offset along the normal for secondary rays, relative to the scene's size.
+_EPS_REL = 1e-4
+#: Largest number of samples per item in one kernel launch (keeps launches short on GPUs).
+_MAX_PASS = 16
+_LIGHT_TYPES = {"PointLight": 0, "SpotLight": 1, "DirectionalLight": 2}
+
+
+def _float4(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float32).reshape(len(a), -1)
+    out = np.zeros((len(a), 4), dtype=np.float32)
+    out[:, : a.shape[1]] = a
+    return out
+
+
+def _rgb(value, what: str) -> np.ndarray:
+    v = np.asarray(value, dtype=np.float64)
+    v = np.broadcast_to(v, (3,)) if v.ndim == 0 else v
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or v.min() < 0:
+        raise InvalidInputError(f"{what} must be a finite non-negative scalar or RGB triple; got {value!r}")
+    return v
+
+
+def _unit(value, what: str) -> np.ndarray:
+    v = np.asarray(value, dtype=np.float64).reshape(-1)
+    n = float(np.linalg.norm(v)) if v.shape == (3,) else 0.0
+    if not np.isfinite(n) or n == 0.0:
+        raise InvalidInputError(f"{what} must be a non-zero finite 3-vector; got {value!r}")
+    return v / n
+
+
+def _pack_lights(lights) -> tuple[np.ndarray, ...]:
+    """(pos+type, direction, colour, cone) float4 arrays for the kernel's analytic lights."""
+    rows = []
+    for light in lights or ():
+        kind = _LIGHT_TYPES.get(type(light).__name__)
+        if kind is None:
+            raise InvalidInputError(f"unsupported light {light!r}: expected PointLight, SpotLight or DirectionalLight")
+        pos, direction, cone = np.zeros(3), np.zeros(3), np.zeros(2)
+        if kind == 2:
+            direction = _unit(light.direction, "DirectionalLight.direction")
+            color = _rgb(light.irradiance, "DirectionalLight.irradiance")
+        else:
+            pos = np.asarray(light.position, dtype=np.float64).reshape(-1)
+            if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+                raise InvalidInputError(f"light position must be a finite 3-vector; got {light.position!r}")
+            color = _rgb(light.intensity, f"{type(light).__name__}.intensity")
+        if kind == 1:
+            direction = _unit(light.direction, "SpotLight.direction")
+            inner, outer = float(light.inner_angle), float(light.outer_angle)
+            cone = np.array([math.cos(inner), math.cos(outer)])
+        rows.append((np.append(pos, kind), direction, color, cone))
+    if not rows:
+        return tuple(np.zeros((1, 4), np.float32) for _ in range(4)) + (0,)
+    cols = list(zip(*rows))
+    return tuple(_float4(np.array(c)) for c in cols) + (len(rows),)
+
+
+@dataclass
+class _Tracer:
+    """A scene, its lights and the device buffers the kernels need."""
+
+    device: object
+    args: tuple
+    scene: Scene
+
+    @classmethod
+    def create(cls, scene: Scene, lights, max_depth: int, device) -> "_Tracer":
+        import pyopencl as cl  # noqa: F401 - imported for its side effect of failing early
+
+        from .device import default_device
+
+        if not isinstance(scene, Scene):
+            raise InvalidInputError(f"scene must be a pydynrad.Scene; got {type(scene).__name__}")
+        if not isinstance(max_depth, (int, np.integer)) or max_depth < 1:
+            raise InvalidInputError(f"max_depth must be a positive integer; got {max_depth!r}")
+        device = device or default_device()
+        em = scene.emitters
+        power = scene.emission[em].astype(np.float64).mean(axis=1) * scene.areas[em]
+        if len(em):
+            pmf = power / power.sum()
+            cdf = np.cumsum(pmf)
+            cdf[-1] = 1.0 + 1e-6  # every u in [0, 1) finds an emitter despite rounding
+            v = scene.vertices[em].astype(np.float64)
+            tri = np.stack([v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], np.zeros_like(v[:, 0])], axis=1)
+            tri = _float4(tri.reshape(-1, 3))
+            tri.reshape(len(em), 4, 4)[:, 3, :3] = scene.normals[em]
+            tri.reshape(len(em), 4, 4)[:, 3, 3] = scene.areas[em]
+        else:
+            pmf = cdf = np.zeros(1)
+            tri = np.zeros((4, 4), np.float32)
+        pos, direction, color, cone, n_lights = _pack_lights(lights)
+        up = device.to_device
+        nodes, tris, order = scene.bvh.buffers(device)
+        args = (
+            nodes, tris, order,
+            up(_float4(scene.normals)), up(_float4(scene.albedo)), up(_float4(scene.emission)),
+            np.int32(len(em)), up(tri), up(_float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
+            up(cdf.astype(np.float32)), up(pmf.astype(np.float32)),
+            np.int32(n_lights), up(pos), up(direction), up(color), up(cone),
+            np.float32(_EPS_REL * scene.scale),
+        )
+        tracer = cls(device, args, scene)
+        tracer.defines = {"MAX_DEPTH": int(max_depth)}
+        return tracer
+
+    def accumulate(self, kernel_name: str, items: tuple, n_items: int, spp: int, seed: int,
+                   progress, time_limit: float | None) -> tuple[np.ndarray, int]:
+        """Run passes until ``spp`` samples (or the time limit); return (sum (n, 3), samples)."""
+        import pyopencl as cl
+
+        from tqdm.auto import tqdm
+
+        kernel = self.device.kernel("pathtrace.cl", kernel_name, self.defines)
+        queue = self.device.queue
+        accum = cl.Buffer(self.device.context, cl.mem_flags.READ_WRITE, size=max(1, n_items) * 16)
+        cl.enqueue_fill_buffer(queue, accum, np.float32(0), 0, max(1, n_items) * 16)
+        local = None
+        gsize = (max(1, n_items),)
+        done, size = 0, 1
+        start = time.perf_counter()
+        bar = tqdm(total=spp, unit="spp", desc=f"path tracing ({kernel_name})", disable=not progress)
+        with bar:
+            while done < spp:
+                n = min(size, spp - done)
+                kernel(queue, gsize, local, *items, np.int32(n_items), accum, np.uint32(seed),
+                       np.uint32(done), np.int32(n), *self.args)
+                queue.finish()
+                done += n
+                bar.update(n)
+                # A fixed doubling schedule: pass boundaries (and so the float sums) depend on
+                # spp alone, which keeps results bit-reproducible.
+                size = min(2 * size, _MAX_PASS)
+                if time_limit is not None and time.perf_counter() - start > time_limit:
+                    break
+        out = np.empty((max(1, n_items), 4), dtype=np.float32)
+        cl.enqueue_copy(queue, out, accum)
+        return out[:n_items, :3], done
+
+
+def _check_common(spp, seed, time_limit) -> None:
+    if not isinstance(spp, (int, np.integer)) or spp < 1:
+        raise InvalidInputError(f"spp must be a positive integer; got {spp!r}")
+    if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32:
+        raise InvalidInputError(f"seed must be an integer in [0, 2**32); got {seed!r}")
+    if time_limit is not None and not time_limit > 0:
+        raise InvalidInputError(f"time_limit must be positive seconds or None; got {time_limit!r}")
+
+
+def _camera_rays(camera) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """Pixel-centre rays of ``camera``: origins and unit directions (H*W, 3), and (H, W)."""
+    origins, directions = camera.rays()
+    origins = np.asarray(origins, dtype=np.float32)
+    directions = np.asarray(directions, dtype=np.float32)
+    h, w = directions.shape[:2]
+    origins = np.broadcast_to(origins, directions.shape).reshape(-1, 3)
+    return origins, directions.reshape(-1, 3), (h, w)
+
+
+def path_trace(scene: Scene, camera, spp: int = 64, lights=(), seed: int = 0, max_depth: int = 256,
+               device=None, progress: bool | None = None, time_limit: float | None = None) -> np.ndarray:
+    """Path-trace the image ``camera`` sees.
+
+    Parameters
+    ----------
+    scene : Scene
+    camera : pydynrad.Camera
+        The renderer's camera; its pixel-centre rays are used, so pixels match ``render``.
+    spp : int
+        Samples per pixel (paths started from each pixel's visible point).
+    lights : sequence of PointLight, SpotLight, DirectionalLight
+        Analytic lights (in addition to the scene's emitting patches).
+    seed : int
+        Random seed in [0, 2**32); the same seed gives the same image bit for bit.
+    max_depth : int
+        Bounce limit; Russian roulette ends most paths long before it.
+    progress : bool
+        Show a tqdm bar over the samples.
+    time_limit : float, optional
+        Stop after the pass that exceeds this many seconds (the image averages the samples done).
+
+    Returns
+    -------
+    (H, W, 3) float32
+        Linear pixel values in ``render``'s convention (see :data:`PIXEL_SCALE`): a diffuse
+        surface of radiosity B gives ``B * PIXEL_SCALE``. Pixels whose ray escapes or reaches
+        a patch's back are 0.
+    """
+    _check_common(spp, seed, time_limit)
+    tracer = _Tracer.create(scene, lights, max_depth, device)
+    origins, directions, (h, w) = _camera_rays(camera)
+    up = tracer.device.to_device
+    total, done = tracer.accumulate("trace_pixels", (up(_float4(origins)), up(_float4(directions))),
+                                    h * w, int(spp), int(seed), progress, time_limit)
+    # The kernel returns radiance; pi * radiance is the radiosity of a diffuse surface.
+    return (total * (math.pi * PIXEL_SCALE / done)).reshape(h, w, 3).astype(np.float32)
+
+
+def path_trace_patches(scene: Scene, patches=None, spp: int = 256, lights=(), seed: int = 0,
+                       max_depth: int = 256, device=None, progress: bool | None = None,
+                       time_limit: float | None = None) -> np.ndarray:
+    """Estimate patch radiosities by gathering at patch centres.
+
+    ``B_i = E_i + rho_i * H_i`` with the irradiance ``H_i`` at patch i's centre estimated from
+    ``spp`` paths (next-event estimation at every vertex). Compare with the radiosity of
+    :func:`pydynrad.solve`: that is an area average, this is a point value at the centre, so
+    the two differ by the variation of B across a patch (small for fine patches).
+
+    Parameters
+    ----------
+    patches : (n,) int, optional
+        Patch indices (default: every patch).
+    Other parameters as in :func:`path_trace`.
+
+    Returns
+    -------
+    (n, 3) float32 radiosity (the scene's emission units).
+    """
+    _check_common(spp, seed, time_limit)
+    if not isinstance(scene, Scene):
+        raise InvalidInputError(f"scene must be a pydynrad.Scene; got {type(scene).__name__}")
+    ids = np.arange(len(scene)) if patches is None else np.asarray(patches)
+    if ids.ndim != 1 or (len(ids) and not np.issubdtype(ids.dtype, np.integer)):
+        raise InvalidInputError(f"patches must be a 1-D array of patch indices; got shape {ids.shape}, dtype {ids.dtype}")
+    if len(ids) and (ids.min() < 0 or ids.max() >= len(scene)):
+        raise InvalidInputError(f"patch indices must lie in 0..{len(scene) - 1}")
+    if len(ids) == 0:
+        return np.zeros((0, 3), dtype=np.float32)
+    tracer = _Tracer.create(scene, lights, max_depth, device)
+    up = tracer.device.to_device
+    total, done = tracer.accumulate("gather_patches", (up(ids.astype(np.int32)), up(_float4(scene.centers))),
+                                    len(ids), int(spp), int(seed), progress, time_limit)
+    return (scene.emission[ids] + total / done).astype(np.float32)
+
+
+#: Pixel value of a diffuse surface of radiosity B is ``B * PIXEL_SCALE`` (``render``'s convention).
+PIXEL_SCALE = 1.0
