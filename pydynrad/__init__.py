@@ -16,6 +16,8 @@ from .errors import (
     SceneFileError,
 )
 from .scene import DegenerateTriangleWarning, Scene
+from .camera import Camera
+from .render import render
 from .matvec import DeviceMatrix
 
 __version__ = "0.1.0"
