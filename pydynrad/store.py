@@ -1,0 +1,366 @@
+"""An on-disk form-factor store: F in row blocks, compressed, checksummed, resumable.
+
+The paper (section 4.2) streams form factors of big scenes from disk; this module is that
+disk. A store is a folder::
+
+    STORE/header.json          scene geometry hash, N, block size, form-factor parameters
+    STORE/blocks/b000000.npz   rows [0, block_rows) as one CSR block
+    STORE/blocks/b000001.npz   rows [block_rows, 2 block_rows), ...
+
+Format choice. Each block is a standard NumPy ``.npz`` (a zip archive, DEFLATE-compressed)
+holding ``indptr.npy`` (int64, block-local), ``indices.npy`` (int32 column = patch index),
+``data.npy`` (float32 F[i, j]) and ``meta.json`` (block index, row range, nnz and the
+SHA-256 of the three arrays). Anyone can read a block with ``numpy.load`` alone. Zarr (v3,
+as installed here) was considered and not used: its arrays need a regular chunk grid, and a
+CSR block's nnz differs from block to block, so ragged rows would need either padding to the
+longest row (several times the bytes) or one Zarr group of three arrays per block, whose
+several files cannot be replaced in one atomic step. One file per block makes "a chunk is
+written whole" exactly one ``os.replace``.
+
+Guarantees:
+
+* a block file is written to a temporary name in the same folder, flushed to disk, then
+  renamed over its final name, so a reader sees either no block or a whole one;
+* every read verifies the block's SHA-256 (and the zip CRCs); a mismatch raises
+  :class:`StoreCorruptError` and no row of that block is served;
+* a store interrupted mid-way is resumed by :func:`compute_store` (or the distributed
+  :func:`pydynrad.distributed.precompute_distributed`): finished blocks are kept, missing
+  ones computed, stale temporary files removed;
+* opening a store for another scene geometry or other form-factor parameters raises
+  :class:`StoreMismatchError`, naming the fields that differ.
+
+One writer run per store at a time: concurrent runs would compute the same blocks twice (the
+results stay correct, each block is still replaced whole).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import uuid
+import zipfile
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import InvalidInputError, PydynradError
+
+__all__ = [
+    "FormFactorStore",
+    "StoreCorruptError",
+    "StoreIncompleteError",
+    "StoreMismatchError",
+    "compute_store",
+    "form_factor_rows",
+]
+
+FORMAT = "pydynrad-formfactor-store"
+FORMAT_VERSION = 1
+HEADER = "header.json"
+BLOCK_DIR = "blocks"
+TMP_MARK = ".tmp-"
+DEFAULT_BLOCK_ROWS = 256
+# DEFLATE level 1: F's float32 mantissas are nearly incompressible, so higher levels cost
+# several times the CPU time for a few percent of size.
+COMPRESS_LEVEL = 1
+
+RowFunction = Callable[..., sp.csr_matrix]
+
+
+class StoreMismatchError(InvalidInputError):
+    """The store on disk was computed for another scene geometry or other parameters."""
+
+
+class StoreCorruptError(PydynradError):
+    """A block file on disk fails its checksum or cannot be decoded; it is never served."""
+
+
+class StoreIncompleteError(PydynradError):
+    """Rows were requested from a block that has not been computed yet."""
+
+
+def _library_version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+def _write_atomic(path: Path, payload: bytes) -> None:
+    """Write ``payload`` to ``path`` whole: temp file in the same folder, fsync, rename."""
+    tmp = path.with_name(f"{path.name}{TMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(payload)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _digest(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> str:
+    h = hashlib.sha256()
+    for a in (indptr, indices, data):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def _canonical_params(resolution: int, patching: dict | None) -> dict:
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 1:
+        raise InvalidInputError(f"resolution must be a positive integer (hemicube pixels per side); got {resolution!r}")
+    try:
+        # A JSON round trip makes tuples lists, so the recorded and the requested values compare equal.
+        patch = json.loads(json.dumps(dict(patching or {}), sort_keys=True))
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"patching parameters must be JSON-serialisable (numbers, strings, lists): {exc}") from exc
+    return {"resolution": int(resolution), "patching": patch, "pydynrad_version": _library_version(), "dtype": "float32"}
+
+
+class FormFactorStore:
+    """Form-factor rows of one scene on disk, in CSR blocks of ``block_rows`` rows.
+
+    Create with :meth:`create`, reopen with :meth:`open`; both check the scene and the
+    parameters against the header. Implements the ``RowSource`` protocol
+    (:meth:`rows`, :attr:`n_patches`), so it can feed a :class:`~pydynrad.rowcache.RowCache`.
+    """
+
+    def __init__(self, path: Path, header: dict) -> None:
+        self.path = path
+        self.header = header
+        self.n_patches = int(header["n_patches"])
+        self.block_rows = int(header["block_rows"])
+        self.n_blocks = -(-self.n_patches // self.block_rows)
+
+    # -- creation and opening --------------------------------------------------------------
+    @classmethod
+    def create(cls, path, scene, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
+               patching: dict | None = None, exist_ok: bool = False) -> "FormFactorStore":
+        """Make a new, empty store for ``scene`` at ``path`` (a folder).
+
+        ``resolution`` is the hemicube resolution the rows will be computed with;
+        ``patching`` records how the scene was patched (e.g. ``{"max_area": 0.01}``), so a
+        store is never reused for another patching of the same input. With ``exist_ok`` an
+        existing store with a matching header is opened (to resume it); a mismatching one
+        always raises :class:`StoreMismatchError`.
+        """
+        path = Path(path)
+        if isinstance(block_rows, bool) or not isinstance(block_rows, (int, np.integer)) or block_rows < 1:
+            raise InvalidInputError(f"block_rows must be a positive integer; got {block_rows!r}")
+        params = _canonical_params(resolution, patching)
+        if (path / HEADER).exists():
+            if not exist_ok:
+                raise InvalidInputError(f"a form-factor store already exists at {path}; open it, or pass exist_ok=True to resume it")
+            store = cls.open(path, scene, resolution=resolution, patching=patching)
+            if store.block_rows != block_rows:
+                raise StoreMismatchError(f"store {path} has block_rows={store.block_rows}, not {block_rows}")
+            return store
+        if path.exists() and (not path.is_dir() or any(path.iterdir())):
+            raise InvalidInputError(f"{path} exists and is not an empty folder; a form-factor store needs its own folder")
+        header = {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "scene_name": scene.name,
+            "geometry_hash": scene.geometry_hash(),
+            "n_patches": int(len(scene)),
+            "block_rows": int(block_rows),
+            "params": params,
+        }
+        (path / BLOCK_DIR).mkdir(parents=True, exist_ok=True)
+        _write_atomic(path / HEADER, json.dumps(header, indent=2, sort_keys=True).encode())
+        return cls(path, header)
+
+    @classmethod
+    def read_header(cls, path) -> dict:
+        """The header of the store at ``path``, checked for format and version only."""
+        path = Path(path)
+        try:
+            header = json.loads((path / HEADER).read_text())
+        except FileNotFoundError:
+            raise InvalidInputError(f"no form-factor store at {path} (missing {HEADER})") from None
+        except (OSError, ValueError) as exc:
+            raise StoreCorruptError(f"unreadable store header {path / HEADER}: {exc}") from exc
+        if not isinstance(header, dict) or header.get("format") != FORMAT:
+            raise InvalidInputError(f"{path} is not a pydynrad form-factor store")
+        if header.get("format_version") != FORMAT_VERSION:
+            raise StoreMismatchError(f"store {path} has format version {header.get('format_version')}; this pydynrad reads {FORMAT_VERSION}")
+        return header
+
+    @classmethod
+    def open(cls, path, scene, *, resolution: int, patching: dict | None = None) -> "FormFactorStore":
+        """Open the store at ``path``, refusing it unless it was made for this scene and parameters."""
+        path = Path(path)
+        header = cls.read_header(path)
+        want = {"geometry_hash": scene.geometry_hash(), "n_patches": int(len(scene)),
+                **_canonical_params(resolution, patching)}
+        have = {"geometry_hash": header["geometry_hash"], "n_patches": header["n_patches"], **header["params"]}
+        diff = [f"{k}: store has {have.get(k)!r}, requested {v!r}" for k, v in want.items() if have.get(k) != v]
+        if diff:
+            raise StoreMismatchError(f"form-factor store {path} does not match the request ({'; '.join(diff)})")
+        return cls(path, header)
+
+    # -- layout ----------------------------------------------------------------------------
+    def block_path(self, k: int) -> Path:
+        return self.path / BLOCK_DIR / f"b{k:06d}.npz"
+
+    def block_range(self, k: int) -> range:
+        """The scene rows held by block ``k``."""
+        if not 0 <= k < self.n_blocks:
+            raise InvalidInputError(f"block index {k} outside 0..{self.n_blocks - 1}")
+        return range(k * self.block_rows, min(self.n_patches, (k + 1) * self.block_rows))
+
+    # -- writing ---------------------------------------------------------------------------
+    def write_block(self, k: int, block) -> int:
+        """Write rows ``block_range(k)`` as one compressed, checksummed file; returns its size in bytes.
+
+        ``block`` is a sparse (rows in block, N) matrix of float32-representable form
+        factors (finite, >= 0). The file appears whole or not at all.
+        """
+        rows = self.block_range(k)
+        csr = sp.csr_matrix(block)
+        if csr.shape != (len(rows), self.n_patches):
+            raise InvalidInputError(f"block {k} must have shape ({len(rows)}, {self.n_patches}); got {csr.shape}")
+        csr.sum_duplicates()
+        csr.sort_indices()
+        data = csr.data.astype(np.float32)
+        if not np.all(np.isfinite(data)) or (data.size and data.min() < 0):
+            raise InvalidInputError(f"block {k} holds negative, NaN or infinite form factors")
+        indptr = csr.indptr.astype(np.int64)
+        indices = csr.indices.astype(np.int32)
+        meta = {"block": int(k), "row_start": rows.start, "row_stop": rows.stop, "nnz": int(indices.size),
+                "sha256": _digest(indptr, indices, data)}
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=COMPRESS_LEVEL) as zf:
+            for name, a in (("indptr", indptr), ("indices", indices), ("data", data)):
+                with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
+                    np.lib.format.write_array(f, a, allow_pickle=False)
+            zf.writestr("meta.json", json.dumps(meta))
+        payload = buf.getvalue()
+        _write_atomic(self.block_path(k), payload)
+        return len(payload)
+
+    def remove_stale_temporaries(self) -> int:
+        """Delete temporary files left by interrupted writers; returns how many. Not while a writer runs."""
+        n = 0
+        for p in (self.path / BLOCK_DIR).glob(f"*{TMP_MARK}*"):
+            p.unlink(missing_ok=True)
+            n += 1
+        return n
+
+    # -- reading ---------------------------------------------------------------------------
+    def read_block(self, k: int) -> sp.csr_matrix:
+        """Block ``k`` as a (rows in block, N) float32 CSR matrix, checksum verified."""
+        rows = self.block_range(k)
+        path = self.block_path(k)
+        try:
+            with zipfile.ZipFile(path) as zf:
+                meta = json.loads(zf.read("meta.json"))
+                arrays = {n: np.lib.format.read_array(zf.open(f"{n}.npy"), allow_pickle=False)
+                          for n in ("indptr", "indices", "data")}
+        except FileNotFoundError:
+            raise StoreIncompleteError(f"block {k} (rows {rows.start}..{rows.stop - 1}) of store {self.path} "
+                                       "has not been computed; run compute_store to finish the store") from None
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+            raise StoreCorruptError(f"block file {path} is corrupt ({type(exc).__name__}: {exc}); delete it and "
+                                    "re-run compute_store to recompute it") from exc
+        indptr, indices, data = arrays["indptr"], arrays["indices"], arrays["data"]
+        if (meta.get("block") != k or meta.get("row_start") != rows.start or meta.get("row_stop") != rows.stop
+                or meta.get("sha256") != _digest(indptr, indices, data)):
+            raise StoreCorruptError(f"block file {path} fails its checksum or belongs elsewhere; delete it and "
+                                    "re-run compute_store to recompute it")
+        return sp.csr_matrix((data, indices, indptr), shape=(len(rows), self.n_patches))
+
+    def rows(self, idx) -> sp.csr_matrix:
+        """Rows ``idx`` of F as a (len(idx), N) float32 CSR matrix, in the order given."""
+        idx = np.asarray(idx)
+        if idx.ndim != 1 or (idx.size and not np.issubdtype(idx.dtype, np.integer)):
+            raise InvalidInputError(f"row indices must be a 1-D integer array; got shape {idx.shape}, dtype {idx.dtype}")
+        idx = idx.astype(np.int64)
+        if idx.size and (idx.min() < 0 or idx.max() >= self.n_patches):
+            raise InvalidInputError(f"row indices must lie in 0..{self.n_patches - 1}")
+        if idx.size == 0:
+            return sp.csr_matrix((0, self.n_patches), dtype=np.float32)
+        blocks = idx // self.block_rows
+        order = np.argsort(blocks, kind="stable")
+        parts = []
+        for k, first, count in zip(*np.unique(blocks[order], return_index=True, return_counts=True)):
+            sel = order[first:first + count]
+            parts.append(self.read_block(int(k))[idx[sel] - k * self.block_rows])
+        stacked = sp.vstack(parts, format="csr")
+        # stacked holds the rows in block order; put them back in the caller's order.
+        return stacked[np.argsort(order, kind="stable")].astype(np.float32)
+
+    read_rows = rows
+
+    # -- state -----------------------------------------------------------------------------
+    def missing_blocks(self, verify: bool = False) -> list[int]:
+        """Blocks not yet on disk; with ``verify``, also blocks whose checksum fails."""
+        out = []
+        for k in range(self.n_blocks):
+            if not self.block_path(k).exists():
+                out.append(k)
+            elif verify:
+                try:
+                    self.read_block(k)
+                except StoreCorruptError:
+                    out.append(k)
+        return out
+
+    @property
+    def complete(self) -> bool:
+        return not self.missing_blocks()
+
+    @property
+    def nbytes_on_disk(self) -> int:
+        """Bytes of the header plus every finished block file."""
+        files = [self.path / HEADER, *(self.path / BLOCK_DIR).glob("b*.npz")]
+        return sum(p.stat().st_size for p in files if p.exists())
+
+    def to_csr(self) -> sp.csr_matrix:
+        """The whole (N, N) matrix in memory: only for stores that fit in RAM."""
+        return sp.vstack([self.read_block(k) for k in range(self.n_blocks)], format="csr")
+
+    def __repr__(self) -> str:
+        done = self.n_blocks - len(self.missing_blocks())
+        return (f"FormFactorStore({str(self.path)!r}, N={self.n_patches}, {done}/{self.n_blocks} blocks of "
+                f"{self.block_rows} rows, resolution={self.header['params']['resolution']})")
+
+
+def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None) -> sp.csr_matrix:
+    """The default row function: hemicube rows from :func:`pydynrad.form_factors`."""
+    from .formfactors import form_factors
+
+    return form_factors(scene, resolution=resolution, rows=rows, device=device)
+
+
+def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
+                  patching: dict | None = None, progress: bool = True, verify: bool = False,
+                  row_function: RowFunction = form_factor_rows, device=None,
+                  blocks: Iterable[int] | None = None) -> FormFactorStore:
+    """Create (or resume) the store at ``path`` and compute every missing block in this process.
+
+    ``row_function(scene, rows, resolution, device=...)`` returns the (len(rows), N) CSR
+    rows; the default is :func:`form_factor_rows`. ``verify`` re-checks finished blocks and
+    recomputes corrupt ones. ``blocks`` restricts the work to some block indices (the
+    distributed driver splits work this way). Returns the store; interrupting it loses at
+    most the blocks being computed.
+    """
+    from tqdm.auto import tqdm
+
+    store = FormFactorStore.create(path, scene, resolution=resolution, block_rows=block_rows,
+                                   patching=patching, exist_ok=True)
+    store.remove_stale_temporaries()
+    todo = store.missing_blocks(verify=verify)
+    if blocks is not None:
+        todo = sorted(set(todo) & {int(b) for b in blocks})
+    with tqdm(total=sum(len(store.block_range(k)) for k in todo), unit="row", desc="form factors",
+              disable=not progress) as bar:
+        for k in todo:
+            rows = np.arange(store.block_range(k).start, store.block_range(k).stop)
+            store.write_block(k, row_function(scene, rows, resolution, device=device))
+            bar.update(len(rows))
+    return store
