@@ -9,10 +9,12 @@
  *     count == 0: interior, children at offset and offset + 1
  *     count  > 0: leaf, primitives order[offset .. offset + count)
  *
- * Python signature:  _bvh.build(tris, nodes, order) -> n_nodes
- *   tris  : C-contiguous float32 buffer of N*9 values (three corners per triangle)
- *   nodes : writable float32 buffer of at least max(1, 2N-1)*8 values (int fields bit-cast)
- *   order : writable int32 buffer of N values, filled with the triangle permutation
+ * Python signature:  _bvh.build(tris, nodes, order, packed) -> n_nodes
+ *   tris   : C-contiguous float32 buffer of N*9 values (three corners per triangle)
+ *   nodes  : writable float32 buffer of at least max(1, 2N-1)*8 values (int fields bit-cast)
+ *   order  : writable int32 buffer of N values, filled with the triangle permutation
+ *   packed : writable float32 buffer of N*12 values, filled in BVH order with
+ *            v0, 0, e1, 0, e2, 0 (e1 = v1 - v0, e2 = v2 - v0, rounded once from double)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -68,58 +70,96 @@ static float box_half_area(const Box *b)
     return dx * dy + dy * dz + dz * dx;
 }
 
+/* A node still to build. Its bounds (of the boxes and of the centroids) come from the
+ * parent's bins, which saves a pass over the range at every level; known == 0 asks for a pass. */
 typedef struct {
-    int32_t node, start, end;
+    int32_t node, start, end, known;
+    Box bounds, cbounds;
 } Task;
 
-/* Returns the node count, or -1 when memory runs out. */
-static int32_t build_bvh(const float *tris, int32_t n, Node *nodes, int32_t *order)
+/* One primitive as the builder sees it; the array of these is permuted in place while
+ * partitioning, so every pass over a node's range reads memory sequentially (an index
+ * indirection into 1M boxes would miss the cache on nearly every access). */
+typedef struct {
+    Box box;
+    float cent[3];
+    int32_t index;
+} Prim;
+
+static int bin_of(float c, float lo, float scale)
 {
-    Box *pbox = malloc(sizeof(Box) * (size_t)(n > 0 ? n : 1));
-    float *cent = malloc(sizeof(float) * 3 * (size_t)(n > 0 ? n : 1));
+    int b = (int)((c - lo) * scale);
+    return b < 0 ? 0 : (b >= N_BINS ? N_BINS - 1 : b);
+}
+
+/* Returns the node count, or -1 when memory runs out. */
+static int32_t build_bvh(const float *tris, int32_t n, Node *nodes, int32_t *order, float *packed)
+{
+    Prim *prims = malloc(sizeof(Prim) * (size_t)(n > 0 ? n : 1));
     Task *stack = malloc(sizeof(Task) * 128);
-    if (!pbox || !cent || !stack) {
-        free(pbox); free(cent); free(stack);
+    if (!prims || !stack) {
+        free(prims); free(stack);
         return -1;
     }
     for (int32_t i = 0; i < n; ++i) {
-        box_empty(&pbox[i]);
-        for (int c = 0; c < 3; ++c) box_grow_point(&pbox[i], tris + 9 * (size_t)i + 3 * c);
-        for (int a = 0; a < 3; ++a) cent[3 * i + a] = 0.5f * (pbox[i].bmin[a] + pbox[i].bmax[a]);
-        order[i] = i;
+        Prim *p = &prims[i];
+        box_empty(&p->box);
+        for (int c = 0; c < 3; ++c) box_grow_point(&p->box, tris + 9 * (size_t)i + 3 * c);
+        for (int a = 0; a < 3; ++a) p->cent[a] = 0.5f * (p->box.bmin[a] + p->box.bmax[a]);
+        p->index = i;
     }
 
     int32_t n_nodes = 1, sp = 0;
-    stack[sp++] = (Task){0, 0, n};
+    stack[sp++] = (Task){0, 0, n, 0};
     while (sp > 0) {
         Task t = stack[--sp];
         Node *node = &nodes[t.node];
-        Box bounds, cbounds;
-        box_empty(&bounds);
-        box_empty(&cbounds);
-        for (int32_t i = t.start; i < t.end; ++i) {
-            box_grow_box(&bounds, &pbox[order[i]]);
-            box_grow_point(&cbounds, &cent[3 * order[i]]);
+        Box bounds = t.bounds, cbounds = t.cbounds;
+        if (!t.known) {
+            box_empty(&bounds);
+            box_empty(&cbounds);
+            for (int32_t i = t.start; i < t.end; ++i) {
+                box_grow_box(&bounds, &prims[i].box);
+                box_grow_point(&cbounds, prims[i].cent);
+            }
         }
         memcpy(node->bmin, bounds.bmin, sizeof bounds.bmin);
         memcpy(node->bmax, bounds.bmax, sizeof bounds.bmax);
         int32_t count = t.end - t.start;
+        if (count <= 1) {
+            node->offset = t.start;
+            node->count = count;
+            continue;
+        }
+
+        /* Bin all three axes in one sequential pass. */
+        float lo[3], scale[3];
+        int32_t bin_count[3][N_BINS];
+        Box bin_box[3][N_BINS], bin_cbox[3][N_BINS];
+        for (int a = 0; a < 3; ++a) {
+            float extent = cbounds.bmax[a] - cbounds.bmin[a];
+            lo[a] = cbounds.bmin[a];
+            scale[a] = extent > 0.0f ? N_BINS / extent : 0.0f;
+            for (int b = 0; b < N_BINS; ++b) {
+                bin_count[a][b] = 0;
+                box_empty(&bin_box[a][b]);
+                box_empty(&bin_cbox[a][b]);
+            }
+        }
+        for (int32_t i = t.start; i < t.end; ++i) {
+            const Prim *p = &prims[i];
+            for (int a = 0; a < 3; ++a) {
+                int b = bin_of(p->cent[a], lo[a], scale[a]);
+                bin_count[a][b]++;
+                box_grow_box(&bin_box[a][b], &p->box);
+                box_grow_point(&bin_cbox[a][b], p->cent);
+            }
+        }
 
         int best_axis = -1, best_split = 0;
         float best_cost = FLT_MAX;
         for (int a = 0; a < 3; ++a) {
-            float lo = cbounds.bmin[a], extent = cbounds.bmax[a] - lo;
-            if (!(extent > 0.0f)) continue;
-            float scale = N_BINS / extent;
-            int32_t bin_count[N_BINS] = {0};
-            Box bin_box[N_BINS];
-            for (int b = 0; b < N_BINS; ++b) box_empty(&bin_box[b]);
-            for (int32_t i = t.start; i < t.end; ++i) {
-                int b = (int)((cent[3 * order[i] + a] - lo) * scale);
-                b = b < 0 ? 0 : (b >= N_BINS ? N_BINS - 1 : b);
-                bin_count[b]++;
-                box_grow_box(&bin_box[b], &pbox[order[i]]);
-            }
+            if (scale[a] == 0.0f) continue;
             /* Sweep from the right to get the cost of every right part, then from the left. */
             float right_area[N_BINS];
             int32_t right_count[N_BINS];
@@ -127,16 +167,16 @@ static int32_t build_bvh(const float *tris, int32_t n, Node *nodes, int32_t *ord
             box_empty(&acc);
             int32_t cnt = 0;
             for (int b = N_BINS - 1; b > 0; --b) {
-                box_grow_box(&acc, &bin_box[b]);
-                cnt += bin_count[b];
+                box_grow_box(&acc, &bin_box[a][b]);
+                cnt += bin_count[a][b];
                 right_area[b] = box_half_area(&acc);
                 right_count[b] = cnt;
             }
             box_empty(&acc);
             cnt = 0;
             for (int b = 0; b < N_BINS - 1; ++b) {
-                box_grow_box(&acc, &bin_box[b]);
-                cnt += bin_count[b];
+                box_grow_box(&acc, &bin_box[a][b]);
+                cnt += bin_count[a][b];
                 if (cnt == 0 || right_count[b + 1] == 0) continue;
                 float cost = box_half_area(&acc) * cnt + right_area[b + 1] * right_count[b + 1];
                 if (cost < best_cost) {
@@ -149,57 +189,73 @@ static int32_t build_bvh(const float *tris, int32_t n, Node *nodes, int32_t *ord
 
         float parent_area = box_half_area(&bounds);
         float sah = parent_area > 0.0f ? TRAVERSAL_COST + best_cost / parent_area : FLT_MAX;
-        int32_t mid;
-        if (count <= 1 || (count <= MAX_LEAF && sah >= (float)count)) {
+        int32_t mid, known = 0;
+        if (count <= MAX_LEAF && (sah >= (float)count || best_axis < 0)) {
             node->offset = t.start;
             node->count = count;
             continue;
         }
         if (best_axis < 0) {
             /* All centroids coincide: no spatial split exists, so split the index range. */
-            if (count <= MAX_LEAF) {
-                node->offset = t.start;
-                node->count = count;
-                continue;
-            }
             mid = t.start + count / 2;
         } else {
-            float lo = cbounds.bmin[best_axis];
-            float scale = N_BINS / (cbounds.bmax[best_axis] - lo);
             int32_t i = t.start, j = t.end - 1;
             while (i <= j) {
-                int b = (int)((cent[3 * order[i] + best_axis] - lo) * scale);
-                b = b < 0 ? 0 : (b >= N_BINS ? N_BINS - 1 : b);
-                if (b < best_split) {
+                if (bin_of(prims[i].cent[best_axis], lo[best_axis], scale[best_axis]) < best_split) {
                     ++i;
                 } else {
-                    int32_t tmp = order[i];
-                    order[i] = order[j];
-                    order[j--] = tmp;
+                    Prim tmp = prims[i];
+                    prims[i] = prims[j];
+                    prims[j--] = tmp;
                 }
             }
             mid = i;
-            if (mid == t.start || mid == t.end) mid = t.start + count / 2;
+            if (mid == t.start || mid == t.end)
+                mid = t.start + count / 2;
+            else
+                known = 1;
         }
+
         int32_t left = n_nodes;
         n_nodes += 2;
         node->offset = left;
         node->count = 0;
         if (sp + 2 > 128) { /* depth beyond 64 is impossible with halving splits; guard anyway */
-            free(pbox); free(cent); free(stack);
+            free(prims); free(stack);
             return -1;
+        }
+        Task lt = {left, t.start, mid, known}, rt = {left + 1, mid, t.end, known};
+        if (known) {
+            box_empty(&lt.bounds); box_empty(&lt.cbounds);
+            box_empty(&rt.bounds); box_empty(&rt.cbounds);
+            for (int b = 0; b < N_BINS; ++b) {
+                Task *side = b < best_split ? &lt : &rt;
+                box_grow_box(&side->bounds, &bin_box[best_axis][b]);
+                box_grow_box(&side->cbounds, &bin_cbox[best_axis][b]);
+            }
         }
         /* Larger half first onto the stack so the smaller one is processed next: bounded depth. */
         if (mid - t.start > t.end - mid) {
-            stack[sp++] = (Task){left, t.start, mid};
-            stack[sp++] = (Task){left + 1, mid, t.end};
+            stack[sp++] = lt;
+            stack[sp++] = rt;
         } else {
-            stack[sp++] = (Task){left + 1, mid, t.end};
-            stack[sp++] = (Task){left, t.start, mid};
+            stack[sp++] = rt;
+            stack[sp++] = lt;
         }
     }
-    free(pbox);
-    free(cent);
+    for (int32_t i = 0; i < n; ++i) {
+        int32_t k = prims[i].index;
+        const float *v = tris + 9 * (size_t)k;
+        float *out = packed + 12 * (size_t)i;
+        order[i] = k;
+        for (int a = 0; a < 3; ++a) {
+            out[a] = v[a];
+            out[4 + a] = (float)((double)v[3 + a] - (double)v[a]);
+            out[8 + a] = (float)((double)v[6 + a] - (double)v[a]);
+        }
+        out[3] = out[7] = out[11] = 0.0f;
+    }
+    free(prims);
     free(stack);
     return n_nodes;
 }
@@ -207,8 +263,8 @@ static int32_t build_bvh(const float *tris, int32_t n, Node *nodes, int32_t *ord
 static PyObject *py_build(PyObject *self, PyObject *args)
 {
     (void)self;
-    Py_buffer tris, nodes, order;
-    if (!PyArg_ParseTuple(args, "y*w*w*", &tris, &nodes, &order)) return NULL;
+    Py_buffer tris, nodes, order, packed;
+    if (!PyArg_ParseTuple(args, "y*w*w*w*", &tris, &nodes, &order, &packed)) return NULL;
     PyObject *result = NULL;
     Py_ssize_t n = tris.len / (Py_ssize_t)(9 * sizeof(float));
     if (tris.len != n * (Py_ssize_t)(9 * sizeof(float)) || n > INT32_MAX / 2) {
@@ -217,12 +273,15 @@ static PyObject *py_build(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "nodes buffer too small: need (2N-1)*32 bytes");
     } else if (order.len < (Py_ssize_t)sizeof(int32_t) * n) {
         PyErr_SetString(PyExc_ValueError, "order buffer too small: need N int32 values");
+    } else if (packed.len < (Py_ssize_t)sizeof(float) * 12 * n) {
+        PyErr_SetString(PyExc_ValueError, "packed buffer too small: need N*12 float32 values");
     } else if (n == 0) {
         PyErr_SetString(PyExc_ValueError, "cannot build a BVH over zero triangles");
     } else {
         int32_t n_nodes;
         Py_BEGIN_ALLOW_THREADS
-        n_nodes = build_bvh((const float *)tris.buf, (int32_t)n, (Node *)nodes.buf, (int32_t *)order.buf);
+        n_nodes = build_bvh((const float *)tris.buf, (int32_t)n, (Node *)nodes.buf, (int32_t *)order.buf,
+                            (float *)packed.buf);
         Py_END_ALLOW_THREADS
         if (n_nodes < 0)
             PyErr_NoMemory();
@@ -232,11 +291,12 @@ static PyObject *py_build(PyObject *self, PyObject *args)
     PyBuffer_Release(&tris);
     PyBuffer_Release(&nodes);
     PyBuffer_Release(&order);
+    PyBuffer_Release(&packed);
     return result;
 }
 
 static PyMethodDef methods[] = {
-    {"build", py_build, METH_VARARGS, "build(tris, nodes, order) -> n_nodes: binned-SAH BVH over triangles"},
+    {"build", py_build, METH_VARARGS, "build(tris, nodes, order, packed) -> n_nodes: binned-SAH BVH over triangles"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -10,6 +10,11 @@
 
 #define BVH_STACK 64
 
+// Barycentric slack of the triangle test: a ray through the edge shared by two triangles
+// could otherwise slip between them in float32 (a leak in a closed scene). Relative to the
+// triangle (dimensionless), so a near-edge ray hits both and the nearer wins.
+#define BVH_EDGE_EPS 1e-6f
+
 typedef struct {
     float t;     // ray parameter of the hit
     float u, v;  // barycentrics of v1 and v2
@@ -38,10 +43,10 @@ inline bool bvh_tri_hit(__global const float4 *tris, int k, float3 org, float3 d
     float inv = 1.0f / det;
     float3 s = org - v0;
     float u = dot(s, p) * inv;
-    if (u < 0.0f || u > 1.0f) return false;
+    if (u < -BVH_EDGE_EPS || u > 1.0f + BVH_EDGE_EPS) return false;
     float3 q = cross(s, e1);
     float v = dot(dir, q) * inv;
-    if (v < 0.0f || u + v > 1.0f) return false;
+    if (v < -BVH_EDGE_EPS || u + v > 1.0f + BVH_EDGE_EPS) return false;
     float t = dot(e2, q) * inv;
     if (t <= tmin || t >= hit->t) return false;
     hit->t = t;
@@ -52,12 +57,20 @@ inline bool bvh_tri_hit(__global const float4 *tris, int k, float3 org, float3 d
     return true;
 }
 
+// 1 / dir with zero components nudged to a tiny signed value: 0 * inf in the slab test would
+// give NaN for a ray lying in a box's face plane and silently drop that box.
+inline float3 bvh_inv_dir(float3 dir)
+{
+    float3 tiny = copysign((float3)(1e-30f), dir);
+    return 1.0f / select(dir, tiny, isless(fabs(dir), (float3)(1e-30f)));
+}
+
 // Nearest hit along org + t dir for t in (tmin, tmax). Returns hit.patch = -1 on a miss.
 inline Hit bvh_closest(__global const float4 *nodes, __global const float4 *tris, __global const int *order,
                        float3 org, float3 dir, float tmin, float tmax)
 {
     Hit hit = {tmax, 0.0f, 0.0f, -1, 0};
-    float3 inv_dir = 1.0f / dir;
+    float3 inv_dir = bvh_inv_dir(dir);
     int stack[BVH_STACK];
     float stack_entry[BVH_STACK];
     int sp = 0, node = 0;
@@ -101,7 +114,7 @@ inline bool bvh_occluded(__global const float4 *nodes, __global const float4 *tr
                          float3 org, float3 dir, float tmin, float tmax)
 {
     Hit hit = {tmax, 0.0f, 0.0f, -1, 0};
-    float3 inv_dir = 1.0f / dir;
+    float3 inv_dir = bvh_inv_dir(dir);
     int stack[BVH_STACK];
     int sp = 0;
     stack[sp++] = 0;

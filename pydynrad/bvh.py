@@ -14,7 +14,7 @@ import numpy as np
 from . import _bvh
 from .errors import InvalidInputError
 
-__all__ = ["BVH"]
+__all__ = ["BVH", "cast_rays", "occluded"]
 
 #: Traversal stack size in kernels/bvh.cl (BVH_STACK); the near-first walk never holds more
 #: entries than the tree is deep.
@@ -63,20 +63,16 @@ class BVH:
         n = len(v)
         nodes = np.empty((max(1, 2 * n - 1), 8), dtype=np.float32)
         order = np.empty(n, dtype=np.int32)
-        n_nodes = _bvh.build(v.reshape(-1), nodes, order)
-        nodes = nodes[:n_nodes].copy()
+        tris = np.empty((n, 12), dtype=np.float32)
+        n_nodes = _bvh.build(v.reshape(-1), nodes, order, tris)
+        nodes = nodes[:n_nodes]
         depth = _depth(nodes)
         if depth > MAX_DEPTH:
             raise InvalidInputError(
                 f"BVH depth {depth} exceeds the traversal stack ({MAX_DEPTH}); the geometry is pathological "
                 "(e.g. millions of nested, nearly coincident triangles)"
             )
-        tv = v[order].astype(np.float64)
-        tris = np.zeros((n, 3, 4), dtype=np.float32)
-        tris[:, 0, :3] = tv[:, 0]
-        tris[:, 1, :3] = tv[:, 1] - tv[:, 0]
-        tris[:, 2, :3] = tv[:, 2] - tv[:, 0]
-        return cls(nodes, order, tris.reshape(n, 12))
+        return cls(nodes, order, tris)
 
     @property
     def n_nodes(self) -> int:
@@ -102,3 +98,82 @@ class BVH:
             bufs = (device.to_device(self.nodes), device.to_device(self.tris), device.to_device(self.order))
             entry = self._device_buffers[id(device)] = (device, bufs)
         return entry[1]
+
+
+def _rays(origins, directions, tmax) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    o = np.ascontiguousarray(origins, dtype=np.float32)
+    d = np.ascontiguousarray(directions, dtype=np.float32)
+    if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
+        raise InvalidInputError(f"origins and directions must both have shape (n, 3); got {o.shape} and {d.shape}")
+    if not (np.all(np.isfinite(o)) and np.all(np.isfinite(d))):
+        raise InvalidInputError("ray origins or directions contain NaN or infinite values")
+    if len(d) and np.any(np.all(d == 0, axis=1)):
+        raise InvalidInputError("ray directions must be non-zero")
+    tm = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=np.float32), (len(o),)))
+    if np.any(np.isnan(tm)) or np.any(tm <= 0):
+        raise InvalidInputError("tmax must be > 0 (inf for unbounded rays)")
+    return o, d, tm
+
+
+def _resolve(scene_or_bvh, device):
+    from .device import default_device
+
+    bvh = scene_or_bvh if isinstance(scene_or_bvh, BVH) else getattr(scene_or_bvh, "bvh", None)
+    if not isinstance(bvh, BVH):
+        raise InvalidInputError(f"expected a Scene or a BVH; got {type(scene_or_bvh).__name__}")
+    return bvh, device or default_device()
+
+
+def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nearest hits of a batch of rays ``origins + t * directions``, ``0 < t < tmax``.
+
+    Parameters
+    ----------
+    scene_or_bvh : Scene or BVH
+    origins, directions : (n, 3) float
+        Directions need not be unit length; ``t`` is measured in units of ``|direction|``.
+    tmax : float or (n,) float
+
+    Returns
+    -------
+    patch : (n,) int32, the patch hit (-1 on a miss)
+    t : (n,) float32, the hit distance (inf on a miss)
+    front : (n,) bool, True when the ray meets the patch's front (its normal's side)
+    """
+    import pyopencl as cl
+
+    bvh, dev = _resolve(scene_or_bvh, device)
+    o, d, tm = _rays(origins, directions, tmax)
+    n = len(o)
+    patch, t, front = np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.int8)
+    if n == 0:
+        return patch, t, front.astype(bool)
+    mf = cl.mem_flags
+    bufs = [cl.Buffer(dev.context, mf.WRITE_ONLY, a.nbytes) for a in (patch, t, front)]
+    knl = dev.kernel("raycast.cl", "cast_closest")
+    knl(dev.queue, (n,), None, *bvh.buffers(dev), dev.to_device(o), dev.to_device(d), dev.to_device(tm),
+        np.int32(n), *bufs)
+    for host, buf in zip((patch, t, front), bufs):
+        cl.enqueue_copy(dev.queue, host, buf)
+    dev.queue.finish()
+    return patch, t, front.astype(bool)
+
+
+def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.ndarray:
+    """(n,) bool: True where any triangle lies on ``origins + t * directions``, ``0 < t < tmax``."""
+    import pyopencl as cl
+
+    bvh, dev = _resolve(scene_or_bvh, device)
+    o, d, tm = _rays(origins, directions, tmax)
+    n = len(o)
+    out = np.zeros(n, np.int8)
+    if n == 0:
+        return out.astype(bool)
+    buf = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    nodes, tris, _ = bvh.buffers(dev)
+    dev.kernel("raycast.cl", "cast_occluded")(
+        dev.queue, (n,), None, nodes, tris, dev.to_device(o), dev.to_device(d), dev.to_device(tm), np.int32(n), buf
+    )
+    cl.enqueue_copy(dev.queue, out, buf)
+    dev.queue.finish()
+    return out.astype(bool)

@@ -1,0 +1,161 @@
+"""BVH build and traversal against a brute-force numpy ray cast (float64 Moller-Trumbore)."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from pydynrad import InvalidInputError, Scene
+from pydynrad.bvh import BVH, MAX_DEPTH, _depth, cast_rays, occluded
+
+
+def brute_force(vertices, origins, directions):
+    """Nearest hit of every ray against every triangle, float64: (patch, t, front, second_t)."""
+    v = np.asarray(vertices, np.float64)
+    o = np.asarray(origins, np.float64)[:, None, :]
+    d = np.asarray(directions, np.float64)[:, None, :]
+    v0, e1, e2 = v[None, :, 0], v[None, :, 1] - v[None, :, 0], v[None, :, 2] - v[None, :, 0]
+    p = np.cross(d, e2)
+    det = np.sum(e1 * p, axis=2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / det
+        s = o - v0
+        u = np.sum(s * p, axis=2) * inv
+        q = np.cross(s, e1)
+        w = np.sum(d * q, axis=2) * inv
+        t = np.sum(e2 * q, axis=2) * inv
+    ok = (det != 0) & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0)
+    t = np.where(ok, t, np.inf)
+    idx = np.argmin(t, axis=1)
+    rows = np.arange(len(t))
+    tn = t[rows, idx]
+    second = np.partition(t, 1, axis=1)[:, 1] if t.shape[1] > 1 else np.full(len(t), np.inf)
+    patch = np.where(np.isfinite(tn), idx, -1)
+    front = np.isfinite(tn) & (det[rows, idx] > 0)
+    return patch, tn, front, second
+
+
+def random_triangles(rng, n, spread=10.0, size=1.0):
+    c = rng.uniform(-spread, spread, (n, 1, 3))
+    return c + rng.normal(scale=size, size=(n, 3, 3))
+
+
+def random_rays(rng, n, spread=12.0):
+    o = rng.uniform(-spread, spread, (n, 3))
+    d = rng.normal(size=(n, 3))
+    return o, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def check_against_brute_force(device, vertices, o, d):
+    bvh = BVH.build(vertices)
+    patch, t, front = cast_rays(bvh, o, d, device=device)
+    bp, bt, bf, second = brute_force(vertices, o, d)
+    hits = bp >= 0
+    assert hits.sum() > len(o) // 10, "the test rays should hit something"
+    np.testing.assert_array_equal(patch >= 0, hits)
+    # Where two triangles lie at (almost) the same distance either answer is right.
+    with np.errstate(invalid="ignore"):
+        clear = hits & (second - bt > 1e-4 * np.maximum(bt, 1.0))
+    np.testing.assert_array_equal(patch[clear], bp[clear])
+    np.testing.assert_array_equal(front[clear], bf[clear])
+    np.testing.assert_allclose(t[hits], bt[hits], rtol=1e-4, atol=1e-5)
+    assert np.all(np.isinf(t[~hits]))
+    # Any-hit with a per-ray bound: occluded exactly when the nearest hit is closer than it.
+    tmax = np.random.default_rng(1).uniform(0.5, 25.0, len(o))
+    away = np.abs(bt - tmax) > 1e-4 * tmax
+    occ = occluded(bvh, o, d, tmax=tmax, device=device)
+    np.testing.assert_array_equal(occ[away], (bt < tmax)[away])
+    # The same bound on the closest-hit query.
+    p2, _, _ = cast_rays(bvh, o, d, tmax=tmax, device=device)
+    np.testing.assert_array_equal((p2 >= 0)[away], (bt < tmax)[away])
+    return patch
+
+
+def test_random_rays_random_triangles(device):
+    rng = np.random.default_rng(0)
+    v = random_triangles(rng, 400)
+    o, d = random_rays(rng, 3000)
+    check_against_brute_force(device, v, o, d)
+
+
+def test_rays_inside_a_closed_mesh_hit_its_inside(device):
+    """A real scene: rays from inside a sphere plus a box hit back faces of the sphere."""
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=5.0)
+    box = trimesh.creation.box(extents=(2.0, 1.0, 3.0))
+    mesh = trimesh.util.concatenate([sphere, box])
+    scene = Scene(mesh.vertices, mesh.faces)
+    rng = np.random.default_rng(2)
+    o = rng.uniform(-2.5, 2.5, (2000, 3))  # inside the sphere (inradius > 4.5)
+    inside_box = np.all(np.abs(o) < [1.0, 0.5, 1.5], axis=1)
+    o = o[~inside_box]
+    d = rng.normal(size=o.shape)
+    patch = check_against_brute_force(device, scene.vertices, o, d)
+    assert np.all(patch >= 0), "nothing escapes a closed sphere"
+    p, _, front = cast_rays(scene, o, d, device=device)
+    on_sphere = p < len(sphere.faces)
+    assert np.all(~front[on_sphere]), "rays from inside meet the sphere's back faces"
+    assert np.all(front[~on_sphere]), "rays from outside the box meet its front faces"
+
+
+def test_axis_aligned_rays_and_coincident_centroids(device):
+    """Directions with zero components and many triangles sharing one centroid."""
+    rng = np.random.default_rng(3)
+    base = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]])
+    stack = np.stack([base * (1 + 0.01 * k) + [0, 0, 0.1 * k] for k in range(40)])
+    v = np.concatenate([stack, random_triangles(rng, 200, spread=5.0)])
+    o = rng.uniform(-0.5, 0.5, (1500, 3)) + [0, 0, -2.0]
+    d = np.zeros_like(o)
+    d[:, 2] = 1.0
+    d[::3] = [1.0, 0.0, 0.0]
+    check_against_brute_force(device, v, o, d)
+
+
+def test_build_is_a_valid_hierarchy():
+    rng = np.random.default_rng(4)
+    v = random_triangles(rng, 5000, spread=50.0).astype(np.float32)
+    bvh = BVH.build(v)
+    assert np.array_equal(np.sort(bvh.order), np.arange(len(v)))
+    counts, offsets = bvh.counts, bvh.offsets
+    leaves = counts > 0
+    assert counts[leaves].sum() == len(v) and counts.max() <= 4
+    assert _depth(bvh.nodes) <= MAX_DEPTH
+    # Every leaf box holds its triangles; every interior box holds its children's boxes.
+    lo, hi = bvh.nodes[:, :3], bvh.nodes[:, 4:7]
+    for k in np.flatnonzero(leaves):
+        tv = v[bvh.order[offsets[k] : offsets[k] + counts[k]]].reshape(-1, 3)
+        assert np.all(tv >= lo[k]) and np.all(tv <= hi[k])
+    inner = np.flatnonzero(~leaves)
+    for c in (offsets[inner], offsets[inner] + 1):
+        assert np.all(lo[c] >= lo[inner]) and np.all(hi[c] <= hi[inner])
+    # The packed triangles are the input corners in BVH order.
+    tris = bvh.tris.reshape(-1, 3, 4)[:, :, :3]
+    np.testing.assert_allclose(tris[:, 0], v[bvh.order, 0])
+    np.testing.assert_allclose(tris[:, 1], v[bvh.order, 1] - v[bvh.order, 0], atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "vertices, match",
+    [
+        (np.zeros((0, 3, 3)), "N > 0"),
+        (np.zeros((4, 3)), r"\(N, 3, 3\)"),
+        (np.full((2, 3, 3), np.nan), "NaN"),
+        (np.full((2, 3, 3), np.inf), "infinite"),
+    ],
+)
+def test_bad_geometry(vertices, match):
+    with pytest.raises(InvalidInputError, match=match):
+        BVH.build(vertices)
+
+
+def test_bad_rays(device):
+    bvh = BVH.build(random_triangles(np.random.default_rng(5), 10))
+    o = np.zeros((2, 3))
+    with pytest.raises(InvalidInputError, match="shape"):
+        cast_rays(bvh, o, np.ones((3, 3)), device=device)
+    with pytest.raises(InvalidInputError, match="non-zero"):
+        cast_rays(bvh, o, np.zeros((2, 3)), device=device)
+    with pytest.raises(InvalidInputError, match="NaN"):
+        cast_rays(bvh, [[np.nan, 0, 0], [0, 0, 0]], np.ones((2, 3)), device=device)
+    with pytest.raises(InvalidInputError, match="tmax"):
+        occluded(bvh, o, np.ones((2, 3)), tmax=0.0, device=device)
+    with pytest.raises(InvalidInputError, match="Scene or a BVH"):
+        cast_rays("scene", o, np.ones((2, 3)), device=device)
