@@ -18,6 +18,8 @@ from .errors import (
 from .scene import DegenerateTriangleWarning, Scene
 from .camera import Camera
 from .render import render
+from .image_io import read_image, write_image
 from .matvec import DeviceMatrix
+from .pathtrace import path_trace, path_trace_patches
 
 __version__ = "0.1.0"

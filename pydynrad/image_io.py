@@ -1,0 +1,127 @@
+"""Image files through OpenImageIO.
+
+Renders are linear float32 (H, W, 3). Two kinds of file come out of them:
+
+* linear formats (``.exr``, ``.hdr``, ``.tif``/``.tiff``, ``.pfm``) keep float values
+  (scaled by ``2 ** exposure``, which is 1 by default): data for compositing or comparison;
+* display formats (``.png``, ``.jpg``/``.jpeg``, ``.bmp``, ``.tga``) are exposed, encoded
+  with the sRGB transfer curve written out here (OIIO would otherwise clamp linear floats
+  without encoding them) and stored as 8-bit.
+
+Files are written whole: into a temporary file in the same folder, then renamed over the
+target, so a reader never sees half an image and a failed write leaves no debris.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InvalidInputError
+
+__all__ = ["write_image", "read_image", "srgb_encode", "LINEAR_FORMATS", "DISPLAY_FORMATS"]
+
+#: Extension -> OIIO format name for files that store linear floats.
+LINEAR_FORMATS = {".exr": "openexr", ".hdr": "hdr", ".tif": "tiff", ".tiff": "tiff", ".pfm": "pnm"}
+#: Extension -> OIIO format name for 8-bit sRGB files.
+DISPLAY_FORMATS = {".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".bmp": "bmp", ".tga": "targa"}
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """The sRGB transfer curve (IEC 61966-2-1) on values clipped to [0, 1]."""
+    x = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+
+
+def _checked_image(image) -> np.ndarray:
+    a = np.asarray(image, dtype=np.float32)
+    if a.ndim == 2:
+        a = a[:, :, None]
+    if a.ndim != 3 or a.shape[2] not in (1, 3) or a.shape[0] == 0 or a.shape[1] == 0:
+        raise InvalidInputError(f"an image must have shape (H, W), (H, W, 1) or (H, W, 3); got {np.shape(image)}")
+    if not np.all(np.isfinite(a)):
+        raise InvalidInputError("the image contains NaN or infinite values; refusing to write it")
+    return np.ascontiguousarray(a)
+
+
+def _format_for(path: Path) -> tuple[str, bool]:
+    ext = path.suffix.lower()
+    if ext in LINEAR_FORMATS:
+        return LINEAR_FORMATS[ext], True
+    if ext in DISPLAY_FORMATS:
+        return DISPLAY_FORMATS[ext], False
+    known = ", ".join(sorted({*LINEAR_FORMATS, *DISPLAY_FORMATS}))
+    raise InvalidInputError(f"cannot tell the image format of {str(path)!r}: use one of the extensions {known}")
+
+
+def write_image(path, image, exposure: float = 0.0) -> Path:
+    """Write a linear image.
+
+    Parameters
+    ----------
+    path : str or Path
+        Target file; its extension picks the format (see the module docstring). The folder
+        must exist.
+    image : (H, W), (H, W, 1) or (H, W, 3) float
+        Linear values, e.g. from :func:`pydynrad.render`.
+    exposure : float
+        Photographic stops: values are multiplied by ``2 ** exposure`` before writing.
+
+    Returns
+    -------
+    The path written.
+    """
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    fmt, linear = _format_for(path)
+    if not np.isfinite(exposure):
+        raise InvalidInputError(f"exposure must be a finite number of stops; got {exposure!r}")
+    if not path.parent.is_dir():
+        raise InvalidInputError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} does not exist")
+    a = _checked_image(image) * np.float32(2.0**exposure)
+    if linear:
+        spec = oiio.ImageSpec(a.shape[1], a.shape[0], a.shape[2], oiio.FLOAT)
+        pixels = a
+    else:
+        spec = oiio.ImageSpec(a.shape[1], a.shape[0], a.shape[2], oiio.UINT8)
+        spec.attribute("oiio:ColorSpace", "sRGB")
+        pixels = np.round(srgb_encode(a) * 255.0).astype(np.uint8)
+    buf = oiio.ImageBuf(spec)
+    if not buf.set_pixels(oiio.ROI(), pixels):
+        raise InvalidInputError(f"cannot store the image for {str(path)!r}: {buf.geterror()}")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        if not buf.write(str(tmp), fileformat=fmt) or buf.has_error:
+            raise OSError(f"cannot write {str(path)!r}: {buf.geterror().strip() or 'OpenImageIO failed'}")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def read_image(path) -> np.ndarray:
+    """Read an image file as float32 (H, W, C).
+
+    Values are the file's own: linear floats from EXR/HDR/TIFF, and the stored sRGB-encoded
+    code values scaled to [0, 1] from 8-bit files (no decoding).
+    """
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInputError(f"cannot read image {str(path)!r}: no such file")
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InvalidInputError(f"cannot read image {str(path)!r}: {oiio.geterror().strip() or 'unknown format'}")
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        if pixels is None or inp.has_error:
+            raise InvalidInputError(f"cannot read image {str(path)!r}: {inp.geterror().strip()}")
+    finally:
+        inp.close()
+    return np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)

@@ -1,0 +1,70 @@
+import numpy as np
+import pytest
+
+from pydynrad import InvalidInputError, read_image, write_image
+from pydynrad.image_io import srgb_encode
+
+
+def test_exr_round_trip_is_exact_and_linear(tmp_path):
+    rng = np.random.default_rng(0)
+    img = rng.uniform(-0.5, 40.0, size=(7, 5, 3)).astype(np.float32)  # HDR values survive
+    out = write_image(tmp_path / "a.exr", img)
+    np.testing.assert_array_equal(read_image(out), img)
+    write_image(tmp_path / "b.exr", img, exposure=2.0)
+    np.testing.assert_allclose(read_image(tmp_path / "b.exr"), 4.0 * img, rtol=1e-7)
+
+
+def test_srgb_curve_matches_openimageio_colorconvert():
+    import OpenImageIO as oiio
+
+    x = np.linspace(0.0, 1.0, 101, dtype=np.float32).reshape(1, 101, 1).repeat(3, axis=2)
+    buf = oiio.ImageBuf(oiio.ImageSpec(101, 1, 3, oiio.FLOAT))
+    buf.set_pixels(oiio.ROI(), x)
+    ref = oiio.ImageBufAlgo.colorconvert(buf, "linear", "sRGB").get_pixels(oiio.FLOAT)
+    np.testing.assert_allclose(srgb_encode(x), ref, atol=2e-5)
+
+
+@pytest.mark.parametrize("ext", ["png", "jpg"])
+def test_display_formats_are_exposed_srgb_8bit(tmp_path, ext):
+    import OpenImageIO as oiio
+
+    img = np.zeros((4, 6, 3), dtype=np.float32)
+    img[:2] = 0.25  # one stop up: 0.5 linear -> sRGB 0.7354 -> code 188
+    img[2:, :3] = 7.0  # over-exposed: clipped to 255
+    img[2:, 3:] = -1.0  # negative: clipped to 0
+    path = write_image(tmp_path / f"x.{ext}", img, exposure=1.0)
+    inp = oiio.ImageInput.open(str(path))
+    assert inp.spec().format == oiio.UINT8
+    inp.close()
+    codes = np.round(read_image(path) * 255)
+    assert codes.shape == (4, 6, 3)
+    tol = 0 if ext == "png" else 3  # JPEG is lossy
+    np.testing.assert_allclose(codes[:2], 188, atol=tol)
+    np.testing.assert_allclose(codes[2:, :3], 255, atol=tol)
+    np.testing.assert_allclose(codes[2:, 3:], 0, atol=tol)
+
+
+def test_grey_images_and_replacing_a_file_leave_no_temporaries(tmp_path):
+    path = tmp_path / "g.png"
+    write_image(path, np.zeros((3, 3)))
+    write_image(path, np.ones((3, 3, 1)))  # replaces the first file whole
+    np.testing.assert_array_equal(read_image(path), 1.0)
+    assert [p.name for p in tmp_path.iterdir()] == ["g.png"]
+
+
+def test_bad_paths_and_images_give_clear_errors(tmp_path):
+    img = np.zeros((2, 2, 3))
+    with pytest.raises(InvalidInputError, match="extensions"):
+        write_image(tmp_path / "a.xyz", img)
+    with pytest.raises(InvalidInputError, match="does not exist"):
+        write_image(tmp_path / "missing" / "a.png", img)
+    with pytest.raises(InvalidInputError, match="NaN"):
+        write_image(tmp_path / "a.exr", np.full((2, 2, 3), np.nan))
+    with pytest.raises(InvalidInputError, match="shape"):
+        write_image(tmp_path / "a.exr", np.zeros((2, 2, 5)))
+    with pytest.raises(InvalidInputError, match="no such file"):
+        read_image(tmp_path / "nothing.png")
+    (tmp_path / "junk.png").write_bytes(b"not an image")
+    with pytest.raises(InvalidInputError, match="cannot read"):
+        read_image(tmp_path / "junk.png")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["junk.png"]
