@@ -143,15 +143,16 @@ inline float3 reflected_radiance(float3 p, float3 n, float3 rho, uint *rng, SCEN
     return acc;
 }
 
-// Radiance along one camera ray per pixel (the pixel centre's ray, as `render` casts it),
+// Radiance along one camera ray per pixel (from the camera at origin through the pixel centre,
+// the ray `render` casts),
 // summed over samples [sample_start, sample_start + n_samples) into accum[pixel].xyz.
-__kernel void trace_pixels(__global const float4 *ray_org, __global const float4 *ray_dir, const int n_pixels,
+__kernel void trace_pixels(const float4 origin, __global const float4 *ray_dir, const int n_pixels,
                            __global float4 *accum, const uint seed, const uint sample_start, const int n_samples,
                            SCENE_ARGS)
 {
     int i = get_global_id(0);
     if (i >= n_pixels) return;
-    float3 o = ray_org[i].xyz, d = ray_dir[i].xyz;
+    float3 o = origin.xyz, d = ray_dir[i].xyz;
     Hit hit = bvh_closest(nodes, tris, order, o, d, 0.0f, INFINITY);
     if (hit.patch < 0 || !hit.front) return;
     float3 p = o + d * hit.t;

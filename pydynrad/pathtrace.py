@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .camera import Camera
 from .errors import InvalidInputError
 from .scene import Scene
 
@@ -179,16 +180,6 @@ def _check_common(spp, seed, time_limit) -> None:
         raise InvalidInputError(f"time_limit must be positive seconds or None; got {time_limit!r}")
 
 
-def _camera_rays(camera) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
-    """Pixel-centre rays of ``camera``: origins and unit directions (H*W, 3), and (H, W)."""
-    origins, directions = camera.rays()
-    origins = np.asarray(origins, dtype=np.float32)
-    directions = np.asarray(directions, dtype=np.float32)
-    h, w = directions.shape[:2]
-    origins = np.broadcast_to(origins, directions.shape).reshape(-1, 3)
-    return origins, directions.reshape(-1, 3), (h, w)
-
-
 def path_trace(scene: Scene, camera, spp: int = 64, lights=(), seed: int = 0, max_depth: int = 256,
                device=None, progress: bool | None = None, time_limit: float | None = None) -> np.ndarray:
     """Path-trace the image ``camera`` sees.
@@ -214,18 +205,22 @@ def path_trace(scene: Scene, camera, spp: int = 64, lights=(), seed: int = 0, ma
     Returns
     -------
     (H, W, 3) float32
-        Linear pixel values in ``render``'s convention (see :data:`PIXEL_SCALE`): a diffuse
-        surface of radiosity B gives ``B * PIXEL_SCALE``. Pixels whose ray escapes or reaches
-        a patch's back are 0.
+        Linear pixel values in ``render``'s convention: radiosity (pi times the radiance
+        towards the camera), so a diffuse surface of radiosity B shows B. Pixels whose ray
+        escapes or reaches a patch's back are 0 (``render``'s default background and backface).
     """
     _check_common(spp, seed, time_limit)
     tracer = _Tracer.create(scene, lights, max_depth, device)
-    origins, directions, (h, w) = _camera_rays(camera)
-    up = tracer.device.to_device
-    total, done = tracer.accumulate("trace_pixels", (up(_float4(origins)), up(_float4(directions))),
-                                    h * w, int(spp), int(seed), progress, time_limit)
+    if not isinstance(camera, Camera):
+        raise InvalidInputError(f"camera must be a pydynrad.Camera; got {type(camera).__name__}")
+    h, w = camera.shape
+    origin = np.zeros(4, dtype=np.float32)
+    origin[:3] = camera.position
+    directions = tracer.device.to_device(_float4(camera.ray_directions().reshape(-1, 3)))
+    total, done = tracer.accumulate("trace_pixels", (origin, directions), h * w, int(spp), int(seed),
+                                    progress, time_limit)
     # The kernel returns radiance; pi * radiance is the radiosity of a diffuse surface.
-    return (total * (math.pi * PIXEL_SCALE / done)).reshape(h, w, 3).astype(np.float32)
+    return (total * (math.pi / done)).reshape(h, w, 3).astype(np.float32)
 
 
 def path_trace_patches(scene: Scene, patches=None, spp: int = 256, lights=(), seed: int = 0,
@@ -263,7 +258,3 @@ def path_trace_patches(scene: Scene, patches=None, spp: int = 256, lights=(), se
     total, done = tracer.accumulate("gather_patches", (up(ids.astype(np.int32)), up(_float4(scene.centers))),
                                     len(ids), int(spp), int(seed), progress, time_limit)
     return (scene.emission[ids] + total / done).astype(np.float32)
-
-
-#: Pixel value of a diffuse surface of radiosity B is ``B * PIXEL_SCALE`` (``render``'s convention).
-PIXEL_SCALE = 1.0
