@@ -24,10 +24,6 @@
 #define RR_DEPTH 3
 #endif
 
-#define LIGHT_POINT 0
-#define LIGHT_SPOT 1
-#define LIGHT_DIRECTIONAL 2
-
 // Scene arguments shared by both entry points, in this order.
 #define SCENE_ARGS                                                                              \
     __global const float4 *nodes, __global const float4 *tris, __global const int *order,       \
@@ -35,45 +31,41 @@
     __global const float4 *emission,                                                          \
     const int n_emitters, __global const float4 *em_tri, __global const float4 *em_emission,  \
     __global const float *em_cdf, __global const float *em_pmf,                               \
-    const int n_lights, __global const float4 *light_pos, __global const float4 *light_dir,   \
-    __global const float4 *light_color, __global const float4 *light_cone,                    \
-    const float eps
+    const int n_lights, __global const float4 *lights, const float eps, const float far
 #define SCENE_PASS                                                                              \
     nodes, tris, order, normals, albedo, emission, n_emitters, em_tri, em_emission, em_cdf,   \
-    em_pmf, n_lights, light_pos, light_dir, light_color, light_cone, eps
+    em_pmf, n_lights, lights, eps, far
 
 // Irradiance at x (normal n, origin already offset) from the analytic lights, shadowed.
-// light_pos.w holds the type; light_cone = (cos_inner, cos_outer) for spots: full
-// intensity inside the inner cone, none outside the outer, smoothstep in between.
+// lights: 3 float4 per light in pydynrad/lights.py's packing (see kernels/lights.cl, whose
+// direct_irradiance kernel evaluates the same formula at patch centres).
 inline float3 analytic_irradiance(float3 x, float3 n, SCENE_ARGS)
 {
     float3 h = (float3)(0.0f);
-    for (int k = 0; k < n_lights; ++k) {
-        float4 lp = light_pos[k];
-        int type = (int)lp.w;
-        float3 color = light_color[k].xyz;
-        if (type == LIGHT_DIRECTIONAL) {
-            float3 to_light = -light_dir[k].xyz;
-            float c = dot(n, to_light);
-            if (c <= 0.0f || bvh_occluded(nodes, tris, x, to_light, 0.0f, INFINITY)) continue;
-            h += color * c;
-            continue;
+    for (int l = 0; l < n_lights; ++l) {
+        float4 a = lights[3 * l], b = lights[3 * l + 1], c = lights[3 * l + 2];
+        int type = (int)a.w;
+        float3 w;  // unit direction towards the light
+        float dist, scale;
+        if (type == 2) {
+            w = -b.xyz;
+            dist = far;
+            scale = 1.0f;
+        } else {
+            float3 d = a.xyz - x;
+            dist = length(d);
+            if (dist <= 0.0f) continue;
+            w = d / dist;
+            scale = 1.0f / (dist * dist);
+            if (type == 1) {  // spot: smoothstep from the outer to the inner cone
+                float t = clamp((dot(b.xyz, -w) - c.w) * b.w, 0.0f, 1.0f);
+                scale *= t * t * (3.0f - 2.0f * t);
+            }
         }
-        float3 d = lp.xyz - x;
-        float dist2 = dot(d, d);
-        float dist = sqrt(dist2);
-        float3 w = d / dist;
-        float c = dot(n, w);
-        if (c <= 0.0f) continue;
-        float gain = 1.0f;
-        if (type == LIGHT_SPOT) {
-            float cos_axis = -dot(w, light_dir[k].xyz);
-            float2 cone = light_cone[k].xy;
-            gain = cone.x > cone.y ? smoothstep(cone.y, cone.x, cos_axis) : (float)(cos_axis >= cone.x);
-            if (gain <= 0.0f) continue;
-        }
+        float cosine = dot(n, w);
+        if (cosine <= 0.0f || scale <= 0.0f) continue;
         if (bvh_occluded(nodes, tris, x, w, 0.0f, dist - eps)) continue;
-        h += color * (gain * c / dist2);
+        h += c.xyz * (scale * cosine);
     }
     return h;
 }

@@ -28,15 +28,13 @@ import numpy as np
 
 from .camera import Camera
 from .errors import InvalidInputError
+from .lights import SHADOW_EPSILON, _checked_lights
 from .scene import Scene
 
 __all__ = ["path_trace", "path_trace_patches"]
 
-#: Origin offset along the normal for secondary rays, relative to the scene's size.
-_EPS_REL = 1e-4
 #: Largest number of samples per item in one kernel launch (keeps launches short on GPUs).
 _MAX_PASS = 16
-_LIGHT_TYPES = {"PointLight": 0, "SpotLight": 1, "DirectionalLight": 2}
 
 
 def _float4(a: np.ndarray) -> np.ndarray:
@@ -44,49 +42,6 @@ def _float4(a: np.ndarray) -> np.ndarray:
     out = np.zeros((len(a), 4), dtype=np.float32)
     out[:, : a.shape[1]] = a
     return out
-
-
-def _rgb(value, what: str) -> np.ndarray:
-    v = np.asarray(value, dtype=np.float64)
-    v = np.broadcast_to(v, (3,)) if v.ndim == 0 else v
-    if v.shape != (3,) or not np.all(np.isfinite(v)) or v.min() < 0:
-        raise InvalidInputError(f"{what} must be a finite non-negative scalar or RGB triple; got {value!r}")
-    return v
-
-
-def _unit(value, what: str) -> np.ndarray:
-    v = np.asarray(value, dtype=np.float64).reshape(-1)
-    n = float(np.linalg.norm(v)) if v.shape == (3,) else 0.0
-    if not np.isfinite(n) or n == 0.0:
-        raise InvalidInputError(f"{what} must be a non-zero finite 3-vector; got {value!r}")
-    return v / n
-
-
-def _pack_lights(lights) -> tuple[np.ndarray, ...]:
-    """(pos+type, direction, colour, cone) float4 arrays for the kernel's analytic lights."""
-    rows = []
-    for light in lights or ():
-        kind = _LIGHT_TYPES.get(type(light).__name__)
-        if kind is None:
-            raise InvalidInputError(f"unsupported light {light!r}: expected PointLight, SpotLight or DirectionalLight")
-        pos, direction, cone = np.zeros(3), np.zeros(3), np.zeros(2)
-        if kind == 2:
-            direction = _unit(light.direction, "DirectionalLight.direction")
-            color = _rgb(light.irradiance, "DirectionalLight.irradiance")
-        else:
-            pos = np.asarray(light.position, dtype=np.float64).reshape(-1)
-            if pos.shape != (3,) or not np.all(np.isfinite(pos)):
-                raise InvalidInputError(f"light position must be a finite 3-vector; got {light.position!r}")
-            color = _rgb(light.intensity, f"{type(light).__name__}.intensity")
-        if kind == 1:
-            direction = _unit(light.direction, "SpotLight.direction")
-            inner, outer = float(light.inner_angle), float(light.outer_angle)
-            cone = np.array([math.cos(inner), math.cos(outer)])
-        rows.append((np.append(pos, kind), direction, color, cone))
-    if not rows:
-        return tuple(np.zeros((1, 4), np.float32) for _ in range(4)) + (0,)
-    cols = list(zip(*rows))
-    return tuple(_float4(np.array(c)) for c in cols) + (len(rows),)
 
 
 @dataclass
@@ -122,7 +77,8 @@ class _Tracer:
         else:
             pmf = cdf = np.zeros(1)
             tri = np.zeros((4, 4), np.float32)
-        pos, direction, color, cone, n_lights = _pack_lights(lights)
+        lights = _checked_lights(lights)
+        packed = np.asarray([light._packed() for light in lights] or [[0.0] * 12], dtype=np.float32)
         up = device.to_device
         nodes, tris, order = scene.bvh.buffers(device)
         args = (
@@ -130,8 +86,8 @@ class _Tracer:
             up(_float4(scene.normals)), up(_float4(scene.albedo)), up(_float4(scene.emission)),
             np.int32(len(em)), up(tri), up(_float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
             up(cdf.astype(np.float32)), up(pmf.astype(np.float32)),
-            np.int32(n_lights), up(pos), up(direction), up(color), up(cone),
-            np.float32(_EPS_REL * scene.scale),
+            np.int32(len(lights)), up(packed), np.float32(SHADOW_EPSILON * scene.scale),
+            np.float32(2.0 * scene.scale),  # directional shadow rays need only leave the scene
         )
         tracer = cls(device, args, scene)
         tracer.defines = {"MAX_DEPTH": int(max_depth)}
