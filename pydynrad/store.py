@@ -48,6 +48,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .errors import InvalidInputError, PydynradError
+from .rowcache import check_row_indices
 
 __all__ = [
     "FormFactorStore",
@@ -276,12 +277,7 @@ class FormFactorStore:
 
     def rows(self, idx) -> sp.csr_matrix:
         """Rows ``idx`` of F as a (len(idx), N) float32 CSR matrix, in the order given."""
-        idx = np.asarray(idx)
-        if idx.ndim != 1 or (idx.size and not np.issubdtype(idx.dtype, np.integer)):
-            raise InvalidInputError(f"row indices must be a 1-D integer array; got shape {idx.shape}, dtype {idx.dtype}")
-        idx = idx.astype(np.int64)
-        if idx.size and (idx.min() < 0 or idx.max() >= self.n_patches):
-            raise InvalidInputError(f"row indices must lie in 0..{self.n_patches - 1}")
+        idx = check_row_indices(idx, self.n_patches)
         if idx.size == 0:
             return sp.csr_matrix((0, self.n_patches), dtype=np.float32)
         blocks = idx // self.block_rows
