@@ -1,0 +1,216 @@
+"""Distributed form-factor precomputation with Dask (``dask.distributed``).
+
+:func:`precompute_distributed` fills a :class:`~pydynrad.store.FormFactorStore` with one
+task per missing row block. The client writes the header once; each worker rebuilds the
+scene (from a small :class:`SceneSpec`, or from arrays broadcast to it once), checks its
+geometry hash against the header, computes its blocks with its own OpenCL context and writes
+each block file itself, atomically. A stopped run resumes: only missing blocks become tasks.
+The store's folder must be visible to every worker (any shared filesystem; a LocalCluster
+shares the local one).
+
+OpenCL contexts must not cross a fork (a forked child of a process holding one can hang), so
+the LocalCluster starts its worker processes with the ``spawn`` method and every worker builds
+its context after start, in a worker plugin (:func:`opencl_worker_plugin_class`).
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InvalidInputError
+from .scene import Scene
+from .store import DEFAULT_BLOCK_ROWS, FormFactorStore, RowFunction, form_factor_rows
+
+__all__ = ["SceneSpec", "opencl_worker_plugin_class", "precompute_distributed"]
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A scene by recipe, cheap to send to workers: a built-in name or a mesh file, plus parameters.
+
+    ``SceneSpec("village", {"n_houses": 400})`` calls ``pydynrad.scenes.village(n_houses=400)``;
+    ``SceneSpec("/data/house.obj", {"max_patch_area": 0.01})`` calls
+    ``pydynrad.loading.load(path, max_patch_area=0.01)``. Parameters must be JSON values
+    (they are recorded in the store header as its patching parameters).
+    """
+
+    name: str
+    params: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        try:
+            json.dumps(self.params, sort_keys=True)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError(f"scene parameters must be JSON values: {exc}") from exc
+
+    @property
+    def is_builtin(self) -> bool:
+        scenes = importlib.import_module("pydynrad.scenes")
+        return callable(getattr(scenes, self.name, None)) and not self.name.startswith("_")
+
+    def resolved(self) -> "SceneSpec":
+        """The same spec with a file path made absolute, so workers in other folders find it."""
+        if self.is_builtin:
+            return self
+        p = Path(self.name).expanduser()
+        if not p.is_file():
+            raise InvalidInputError(f"scene {self.name!r} is neither a built-in scene of pydynrad.scenes nor a mesh file")
+        return SceneSpec(str(p.resolve()), self.params)
+
+    def build(self) -> Scene:
+        if self.is_builtin:
+            return getattr(importlib.import_module("pydynrad.scenes"), self.name)(**self.params)
+        from .loading import load
+
+        return load(self.resolved().name, **self.params)
+
+    def recipe(self) -> dict:
+        """JSON description: {"scene": name, **params} (what the store header records)."""
+        return {"scene": self.name, **self.params}
+
+
+def _as_spec(scene_spec) -> SceneSpec | Scene:
+    if isinstance(scene_spec, (SceneSpec, Scene)):
+        return scene_spec.resolved() if isinstance(scene_spec, SceneSpec) else scene_spec
+    if isinstance(scene_spec, (str, os.PathLike)):
+        return SceneSpec(str(scene_spec)).resolved()
+    if isinstance(scene_spec, tuple) and len(scene_spec) == 2:
+        return SceneSpec(str(scene_spec[0]), dict(scene_spec[1])).resolved()
+    raise InvalidInputError(
+        "scene_spec must be a SceneSpec, a built-in scene name or mesh path, a (name, params) pair or a Scene; "
+        f"got {type(scene_spec).__name__}"
+    )
+
+
+@functools.cache
+def opencl_worker_plugin_class() -> type:
+    """The WorkerPlugin class that builds each worker's own OpenCL context at worker start.
+
+    Made on first use so that ``import pydynrad`` does not import ``distributed``.
+    """
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class OpenCLWorkerPlugin(WorkerPlugin):
+        name = "pydynrad-opencl"
+
+        def setup(self, worker) -> None:
+            from pydynrad.device import default_device
+
+            default_device()
+
+    return OpenCLWorkerPlugin
+
+
+# Per worker process: the last scene built, keyed by its geometry hash. One entry only, since
+# a million-patch scene with its BVH is large and a run works on one scene.
+_WORKER_SCENE: dict[str, Scene] = {}
+
+
+def _worker_scene(payload, geometry_hash: str) -> Scene:
+    scene = _WORKER_SCENE.get(geometry_hash)
+    if scene is None:
+        scene = payload.build() if isinstance(payload, SceneSpec) else Scene(*payload)
+        if scene.geometry_hash() != geometry_hash:
+            raise InvalidInputError(
+                f"the scene rebuilt on this worker (pid {os.getpid()}) has geometry hash {scene.geometry_hash()[:12]}..., "
+                f"the store expects {geometry_hash[:12]}...; check that workers run the same pydynrad and see the same files"
+            )
+        _WORKER_SCENE.clear()
+        _WORKER_SCENE[geometry_hash] = scene
+    return scene
+
+
+def _block_task(path: str, k: int, payload, geometry_hash: str, resolution: int, patching: dict,
+                row_function: RowFunction) -> tuple[int, int, int, float]:
+    """Compute and write block k on a worker; returns (k, rows, bytes written, seconds)."""
+    from .device import default_device
+
+    t0 = time.perf_counter()
+    scene = _worker_scene(payload, geometry_hash)
+    store = FormFactorStore.open(path, scene, resolution=resolution, patching=patching)
+    rows = store.block_range(k)
+    csr = row_function(scene, np.arange(rows.start, rows.stop), resolution, device=default_device())
+    nbytes = store.write_block(k, csr)
+    return k, len(rows), nbytes, time.perf_counter() - t0
+
+
+def _start_client(workers: int | None, scheduler: str | None):
+    import dask
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        if workers is not None:
+            raise InvalidInputError("give either workers (for a LocalCluster) or scheduler (an existing cluster), not both")
+        return Client(scheduler), None
+    n = workers if workers is not None else (os.cpu_count() or 1)
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise InvalidInputError(f"workers must be a positive integer; got {workers!r}")
+    with dask.config.set({"distributed.worker.multiprocessing-method": "spawn"}):
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
+                           workers: int | None = None, scheduler: str | None = None, progress: bool = True,
+                           verify: bool = False, row_function: RowFunction = form_factor_rows) -> FormFactorStore:
+    """Compute every missing block of the store at ``path`` on a Dask cluster; returns the store.
+
+    Parameters
+    ----------
+    scene_spec : SceneSpec, str, (name, params) or Scene
+        The scene. A spec (built-in name or mesh path, with parameters) is what workers get:
+        a few bytes. A :class:`~pydynrad.scene.Scene` is sent as its (points, triangles)
+        arrays, broadcast once to every worker.
+    path : folder of the store (created, or resumed if its header matches).
+    resolution : hemicube resolution (pixels on the top face's side).
+    block_rows : rows per block = per task.
+    workers : worker processes of the LocalCluster started by default (one thread each;
+        default: one per CPU core).
+    scheduler : address of an existing cluster's scheduler (``tcp://host:8786``) instead.
+    verify : re-check finished blocks' checksums and recompute corrupt ones.
+    row_function : ``f(scene, rows, resolution, device=...) -> csr``; must be importable (or
+        cloudpickle-able) on the workers. Default: :func:`pydynrad.store.form_factor_rows`.
+
+    The patching parameters recorded in the header are the spec's recipe (empty for a Scene).
+    """
+    from distributed import as_completed
+    from tqdm.auto import tqdm
+
+    spec = _as_spec(scene_spec)
+    scene = spec if isinstance(spec, Scene) else spec.build()
+    patching = {} if isinstance(spec, Scene) else spec.recipe()
+    path = Path(path).resolve()
+    store = FormFactorStore.create(path, scene, resolution=resolution, block_rows=block_rows,
+                                   patching=patching, exist_ok=True)
+    store.remove_stale_temporaries()
+    todo = store.missing_blocks(verify=verify)
+    if not todo:
+        return store
+    client, cluster = _start_client(workers, scheduler)
+    try:
+        client.register_plugin(opencl_worker_plugin_class()())
+        payload = spec if isinstance(spec, SceneSpec) else client.scatter((scene.points, scene.triangles), broadcast=True)
+        ghash = scene.geometry_hash()
+        futures = [client.submit(_block_task, str(path), k, payload, ghash, resolution, patching, row_function,
+                                 key=f"pydynrad-ffblock-{ghash[:16]}-{k}", pure=False)
+                   for k in todo]
+        with tqdm(total=sum(len(store.block_range(k)) for k in todo), unit="row", desc="form factors",
+                  disable=not progress) as bar:
+            for fut in as_completed(futures):
+                _, nrows, _, _ = fut.result()  # re-raises a worker's error here, with its traceback
+                bar.update(nrows)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return store
