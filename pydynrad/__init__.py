@@ -21,5 +21,8 @@ from .render import render
 from .image_io import read_image, write_image
 from .matvec import DeviceMatrix
 from .pathtrace import path_trace, path_trace_patches
+from .store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError, compute_store
+from .rowcache import CSRRows, RowCache, RowSource, as_row_source
+from .distributed import SceneSpec, precompute_distributed
 
 __version__ = "0.1.0"
