@@ -21,6 +21,7 @@ import json
 import logging
 import os
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,7 +29,7 @@ import numpy as np
 
 from .errors import InvalidInputError
 from .scene import Scene
-from .store import DEFAULT_BLOCK_ROWS, FormFactorStore, RowFunction, form_factor_rows
+from .store import DEFAULT_BLOCK_ROWS, FormFactorStore, RowFunction, form_factor_rows, prepare_store
 
 __all__ = ["SceneSpec", "opencl_worker_plugin_class", "precompute_distributed"]
 
@@ -162,7 +163,8 @@ def _start_client(workers: int | None, scheduler: str | None):
 
 def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
                            workers: int | None = None, scheduler: str | None = None, progress: bool = True,
-                           verify: bool = False, row_function: RowFunction = form_factor_rows) -> FormFactorStore:
+                           verify: bool = False, row_function: RowFunction = form_factor_rows,
+                           blocks: Iterable[int] | None = None) -> FormFactorStore:
     """Compute every missing block of the store at ``path`` on a Dask cluster; returns the store.
 
     Parameters
@@ -180,6 +182,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     verify : re-check finished blocks' checksums and recompute corrupt ones.
     row_function : ``f(scene, rows, resolution, device=...) -> csr``; must be importable (or
         cloudpickle-able) on the workers. Default: :func:`pydynrad.store.form_factor_rows`.
+    blocks : compute only these block indices (to split one store over several runs).
 
     The patching parameters recorded in the header are the spec's recipe (empty for a Scene).
     """
@@ -190,10 +193,8 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     scene = spec if isinstance(spec, Scene) else spec.build()
     patching = {} if isinstance(spec, Scene) else spec.recipe()
     path = Path(path).resolve()
-    store = FormFactorStore.create(path, scene, resolution=resolution, block_rows=block_rows,
-                                   patching=patching, exist_ok=True)
-    store.remove_stale_temporaries()
-    todo = store.missing_blocks(verify=verify)
+    store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
+                                verify=verify, blocks=blocks)
     if not todo:
         return store
     client, cluster = _start_client(workers, scheduler)

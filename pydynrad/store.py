@@ -333,6 +333,18 @@ def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None) -> s
     return form_factors(scene, resolution=resolution, rows=rows, device=device)
 
 
+def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: dict | None, verify: bool,
+                  blocks: Iterable[int] | None) -> tuple[FormFactorStore, list[int]]:
+    """Create or reopen a store for writing: stale temporaries removed; returns it and the blocks to compute."""
+    store = FormFactorStore.create(path, scene, resolution=resolution, block_rows=block_rows,
+                                   patching=patching, exist_ok=True)
+    store.remove_stale_temporaries()
+    todo = store.missing_blocks(verify=verify)
+    if blocks is not None:
+        todo = sorted(set(todo) & {int(b) for b in blocks})
+    return store, todo
+
+
 def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
                   patching: dict | None = None, progress: bool = True, verify: bool = False,
                   row_function: RowFunction = form_factor_rows, device=None,
@@ -347,12 +359,8 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
     """
     from tqdm.auto import tqdm
 
-    store = FormFactorStore.create(path, scene, resolution=resolution, block_rows=block_rows,
-                                   patching=patching, exist_ok=True)
-    store.remove_stale_temporaries()
-    todo = store.missing_blocks(verify=verify)
-    if blocks is not None:
-        todo = sorted(set(todo) & {int(b) for b in blocks})
+    store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
+                                verify=verify, blocks=blocks)
     with tqdm(total=sum(len(store.block_range(k)) for k in todo), unit="row", desc="form factors",
               disable=not progress) as bar:
         for k in todo:
