@@ -20,6 +20,9 @@ from .camera import Camera
 from .render import render
 from .image_io import read_image, write_image
 from .matvec import DeviceMatrix
+from .lights import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector
+from .solve import Solution, solve
+from .multibounce import multibounce, multibounce_radiosity
 from .pathtrace import path_trace, path_trace_patches
 from .store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError, compute_store
 from .rowcache import CSRRows, RowCache, RowSource, as_row_source

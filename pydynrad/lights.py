@@ -1,0 +1,175 @@
+"""Analytic lights and the light vector L that the radiosity solvers propagate.
+
+Lights are frozen, validated dataclasses. Their direct irradiance at every patch centre is
+computed per call by a shadow-ray kernel through the scene's BVH (``kernels/lights.cl``), so
+moving or recolouring a light costs one light pass plus one matrix-vector product with the
+multibounce matrix (``B = L + P K L``), never a rebuild:
+
+    K = pydynrad.multibounce(scene, F)                  # once
+    L = pydynrad.light_vector(scene, [PointLight(...)]) # per light change
+    B = pydynrad.multibounce_radiosity(scene, K, L)
+
+Units: positions in scene units; a point or spot light's intensity in W/sr (irradiance
+falls off as intensity * cos(theta) / d^2); a directional light's irradiance in W/unit^2 on
+a surface facing it. Only the front side of a patch (its normal's side) receives light.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InvalidInputError
+
+__all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "light_vector"]
+
+#: Shadow-ray origins sit this fraction of the scene's bounding-box diagonal off the surface.
+SHADOW_EPSILON = 1e-4
+
+
+def _vec3(value, what: str) -> tuple[float, float, float]:
+    a = np.asarray(value, dtype=np.float64)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"{what} must be 3 finite numbers; got {value!r}")
+    return tuple(float(v) for v in a)
+
+
+def _rgb(value, what: str) -> tuple[float, float, float]:
+    a = np.asarray(value, dtype=np.float64)
+    if a.ndim == 0:
+        a = np.full(3, float(a))
+    rgb = _vec3(a, what)
+    if min(rgb) < 0:
+        raise InvalidInputError(f"{what} must be >= 0; got {rgb}")
+    return rgb
+
+
+def _unit(value, what: str) -> tuple[float, float, float]:
+    a = np.asarray(_vec3(value, what))
+    norm = float(np.linalg.norm(a))
+    if norm == 0:
+        raise InvalidInputError(f"{what} must be a non-zero vector")
+    return tuple(float(v) for v in a / norm)
+
+
+@dataclass(frozen=True)
+class PointLight:
+    """An isotropic point light: position (3,), intensity RGB in W/sr (scalar = grey)."""
+
+    position: tuple
+    intensity: tuple
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "position", _vec3(self.position, "PointLight.position"))
+        object.__setattr__(self, "intensity", _rgb(self.intensity, "PointLight.intensity"))
+
+    def _packed(self) -> list:
+        return [*self.position, 0.0, 0.0, 0.0, 1.0, 0.0, *self.intensity, -2.0]
+
+
+@dataclass(frozen=True)
+class SpotLight:
+    """A point light restricted to a cone.
+
+    position (3,); direction (3,), the cone axis (normalised here); intensity RGB W/sr on the
+    axis; full intensity within ``inner_angle`` of the axis, smoothly falling to 0 at
+    ``outer_angle`` (radians, 0 <= inner <= outer <= pi, outer > 0).
+    """
+
+    position: tuple
+    direction: tuple
+    intensity: tuple
+    inner_angle: float
+    outer_angle: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "position", _vec3(self.position, "SpotLight.position"))
+        object.__setattr__(self, "direction", _unit(self.direction, "SpotLight.direction"))
+        object.__setattr__(self, "intensity", _rgb(self.intensity, "SpotLight.intensity"))
+        inner, outer = float(self.inner_angle), float(self.outer_angle)
+        if not (0.0 <= inner <= outer <= math.pi and outer > 0.0):
+            raise InvalidInputError(
+                f"SpotLight angles must satisfy 0 <= inner_angle <= outer_angle <= pi, outer_angle > 0 (radians); "
+                f"got inner={inner!r}, outer={outer!r}"
+            )
+        object.__setattr__(self, "inner_angle", inner)
+        object.__setattr__(self, "outer_angle", outer)
+
+    def _packed(self) -> list:
+        width = math.cos(self.inner_angle) - math.cos(self.outer_angle)
+        slope = 1.0 / width if width > 1e-7 else 1e30
+        return [*self.position, 1.0, *self.direction, slope, *self.intensity, math.cos(self.outer_angle)]
+
+
+@dataclass(frozen=True)
+class DirectionalLight:
+    """A light at infinity: direction (3,) it travels in (normalised here), irradiance RGB W/unit^2."""
+
+    direction: tuple
+    irradiance: tuple
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "direction", _unit(self.direction, "DirectionalLight.direction"))
+        object.__setattr__(self, "irradiance", _rgb(self.irradiance, "DirectionalLight.irradiance"))
+
+    def _packed(self) -> list:
+        return [0.0, 0.0, 0.0, 2.0, *self.direction, 1.0, *self.irradiance, -2.0]
+
+
+LIGHT_TYPES = (PointLight, SpotLight, DirectionalLight)
+
+
+def _checked_lights(lights) -> list:
+    if isinstance(lights, LIGHT_TYPES):
+        lights = [lights]
+    lights = list(lights)
+    for light in lights:
+        if not isinstance(light, LIGHT_TYPES):
+            raise InvalidInputError(f"not a light: {light!r}; use PointLight, SpotLight or DirectionalLight")
+    return lights
+
+
+def direct_irradiance(scene, lights, device=None) -> np.ndarray:
+    """(N, 3) float32 irradiance at each patch centre from ``lights``, with shadows.
+
+    One shadow ray per patch and light, traced through ``scene.bvh`` on the device.
+    """
+    import pyopencl as cl
+
+    from .device import default_device
+
+    lights = _checked_lights(lights)
+    n = len(scene)
+    if not lights:
+        return np.zeros((n, 3), dtype=np.float32)
+    device = device or default_device()
+    packed = np.asarray([light._packed() for light in lights], dtype=np.float32)
+
+    def float4(a: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(a), 4), dtype=np.float32)
+        out[:, :3] = a
+        return out
+
+    nodes, tris, _ = scene.bvh.buffers(device)
+    out_dev = cl.Buffer(device.context, cl.mem_flags.WRITE_ONLY, n * 16)
+    kernel = device.kernel("lights.cl", "direct_irradiance")
+    # Directional shadow rays need only reach past the scene: twice its diagonal.
+    kernel(
+        device.queue, (-(-n // 64) * 64,), None, np.int32(n), device.to_device(float4(scene.centers)),
+        device.to_device(float4(scene.normals)), np.int32(len(lights)), device.to_device(packed), nodes, tris,
+        np.float32(SHADOW_EPSILON * scene.scale), np.float32(2.0 * scene.scale), out_dev,
+    )
+    out = np.empty((n, 4), dtype=np.float32)
+    cl.enqueue_copy(device.queue, out, out_dev, is_blocking=True)
+    return np.ascontiguousarray(out[:, :3])
+
+
+def light_vector(scene, lights=(), device=None) -> np.ndarray:
+    """L (N, 3) float64: emission plus the albedo-weighted direct irradiance of ``lights``."""
+    L = scene.emission.astype(np.float64)
+    lights = _checked_lights(lights)
+    if lights:
+        L = L + scene.albedo.astype(np.float64) * direct_irradiance(scene, lights, device)
+    return L

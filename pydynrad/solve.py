@@ -1,0 +1,307 @@
+"""The full ("naive") radiosity solve over all N patches: B = L + P F B.
+
+Two methods, both for every colour channel at once:
+
+* ``"iterative"``: bounce (Jacobi / Neumann series) iteration ``B <- L + P F B`` from
+  ``B = L``, one CSR sparse matrix-vector kernel per bounce (``kernels/spmv.cl``) in float32
+  or float64. F is uploaded once per :class:`RadiositySolver`, so re-lighting a scene costs
+  a new light vector and the iterations, never a new upload.
+* ``"dense"``: numpy float64 LU solve of ``(I - P F) B = L``: the reference for small N.
+
+Convergence. The iteration contracts with factor q <= max_i rho_i * sum_j F_ij < 1, so it
+always converges for valid input, but slowly when q is near 1 (about ln(tol) / ln(q)
+bounces: 1,400 for q = 0.99 at tol = 1e-6). ``residual`` is the relative max-norm residual
+``max |L + P F B - B| / max |B|`` of the second-to-last iterate, an upper bound on the
+returned one's. The error of B is at most ``residual / (1 - q)`` relative: choose ``tol``
+accordingly for albedos near 1.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import ConvergenceError, InvalidInputError, OutOfMemoryError
+
+__all__ = ["Solution", "RadiositySolver", "solve", "check_form_factors", "DENSE_MAX_PATCHES", "ROW_SUM_SLACK"]
+
+#: Hemicube rows are sums of discretised delta form factors; allow them to exceed 1 by this much.
+ROW_SUM_SLACK = 1e-3
+#: The dense reference solve is refused above this many patches (an N x N float64 LU:
+#: 8192 patches take 0.5 GiB and about a minute on 2 cores).
+DENSE_MAX_PATCHES = 8192
+
+
+@dataclass
+class Solution:
+    """Result of :func:`solve`.
+
+    radiosity : (N, 3) float64
+        B per patch and RGB channel (the units of the emission, e.g. W/m^2).
+    light : (N, 3) float64
+        The light vector L it was solved for (emission plus reflected direct light).
+    iterations : int
+        Bounces run (0 for the dense method).
+    residual : float
+        Relative max-norm residual max|L + P F B - B| / max|B| (see the module notes).
+    converged : bool
+        residual <= tol (always True for the dense method).
+    method, dtype : str
+    channels : int
+        Colour channels actually computed (1 when albedos and L are grey).
+    seconds : float
+        Wall time of the solve itself (uploads and kernel builds excluded).
+    """
+
+    radiosity: np.ndarray
+    light: np.ndarray
+    iterations: int
+    residual: float
+    converged: bool
+    method: str
+    dtype: str
+    channels: int
+    seconds: float
+    history: list = field(default_factory=list, repr=False)
+
+
+def check_form_factors(scene, F) -> sp.csr_matrix:
+    """F as a validated float64 CSR matrix of shape (N, N) for ``scene``.
+
+    Refuses a wrong shape, NaN/inf or negative entries, and rows summing above 1 (beyond
+    :data:`ROW_SUM_SLACK`): such an F has no physical meaning and can make B diverge.
+    """
+    n = len(scene)
+    if sp.issparse(F):
+        F = sp.csr_matrix(F, dtype=np.float64)
+    else:
+        a = np.asarray(F)
+        if a.ndim != 2:
+            raise InvalidInputError(f"F must be a 2-D (sparse or dense) matrix; got shape {a.shape}")
+        F = sp.csr_matrix(a.astype(np.float64))
+    if F.shape != (n, n):
+        raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {F.shape}")
+    F.sum_duplicates()
+    if not np.all(np.isfinite(F.data)):
+        raise InvalidInputError("F contains NaN or infinite entries")
+    if F.nnz and F.data.min() < 0:
+        raise InvalidInputError(f"form factors must be >= 0; F has minimum {F.data.min():g}")
+    rows = np.asarray(F.sum(axis=1)).ravel()
+    if rows.max(initial=0.0) > 1.0 + ROW_SUM_SLACK:
+        i = int(rows.argmax())
+        raise InvalidInputError(
+            f"row {i} of F sums to {rows[i]:.6g} > 1: a patch cannot send out more than all its energy "
+            f"(tolerance {ROW_SUM_SLACK:g})"
+        )
+    return F
+
+
+def _channels(scene, L: np.ndarray) -> int:
+    grey_light = bool(np.all(L[:, 0] == L[:, 1]) and np.all(L[:, 0] == L[:, 2]))
+    return 1 if scene.is_grey and grey_light else 3
+
+
+class RadiositySolver:
+    """The iterative solver with F resident on the device: build once, solve for many L.
+
+    Parameters
+    ----------
+    scene : Scene
+    F : (N, N) sparse or dense
+        Gathering form factors (validated by :func:`check_form_factors`).
+    dtype : np.float32 | np.float64
+        Working precision of the kernels.
+    device : Device, optional
+    """
+
+    def __init__(self, scene, F, dtype=np.float32, device=None) -> None:
+        from .device import default_device
+
+        self.scene, self.device = scene, device or default_device()
+        self.dtype = _real_dtype(dtype, self.device)
+        F = check_form_factors(scene, F)
+        if F.nnz >= 2**31:
+            raise OutOfMemoryError(f"F has {F.nnz} non-zeros; the CSR kernel indexes with 32-bit integers (< 2^31)")
+        d = self.device
+        self._n = len(scene)
+        self._rowptr = d.to_device(F.indptr.astype(np.int32))
+        self._cols = d.to_device(F.indices.astype(np.int32))
+        self._vals = d.to_device(F.data.astype(self.dtype))
+        self.nnz = F.nnz
+        self.nbytes = F.nnz * (4 + self.dtype.itemsize) + 4 * (self._n + 1)
+
+    def solve(self, L: np.ndarray, tol: float = 1e-6, max_iterations: int = 10000, bounces: int | None = None,
+              raise_on_failure: bool = True) -> Solution:
+        """B for light vector L (N, 3). See :func:`solve` for the parameters."""
+        import pyopencl as cl
+
+        L = _checked_light(L, self._n)
+        tol, max_iterations = _checked_stopping(tol, max_iterations, bounces)
+        nch = _channels(self.scene, L)
+        width = 1 if nch == 1 else 4
+        d, n, real = self.device, self._n, self.dtype
+        defines = {"STORAGE_FP64" if real == np.float64 else "STORAGE_FP32": 1, "NCH": width}
+        kernel = d.kernel("spmv.cl", "bounce", defines)
+
+        def packed(a: np.ndarray) -> np.ndarray:
+            out = np.zeros((n, width), dtype=real)
+            out[:, :nch] = a[:, :nch]
+            return out
+
+        L_dev, rho_dev = d.to_device(packed(L)), d.to_device(packed(self.scene.albedo.astype(np.float64)))
+        mf = cl.mem_flags
+        x = cl.Buffer(d.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=packed(L))
+        y = cl.Buffer(d.context, mf.READ_WRITE, n * width * real.itemsize)
+        n_groups = -(-n // 64)
+        partial_dev = cl.Buffer(d.context, mf.READ_WRITE, 2 * n_groups * real.itemsize)
+        partial = np.empty((n_groups, 2), dtype=real)
+
+        t0 = time.perf_counter()
+        history, residual, it = [], np.inf, 0
+        while it < max_iterations:
+            kernel(d.queue, (n_groups * 64,), (64,), np.int32(n), self._rowptr, self._cols, self._vals,
+                   L_dev, rho_dev, x, y, partial_dev)
+            x, y = y, x
+            it += 1
+            cl.enqueue_copy(d.queue, partial, partial_dev, is_blocking=True)
+            scale = float(partial[:, 1].max())
+            residual = float(partial[:, 0].max()) / scale if scale > 0 else 0.0
+            history.append(residual)
+            if bounces is None and residual <= tol:
+                break
+        B = np.empty((n, width), dtype=real)
+        cl.enqueue_copy(d.queue, B, x, is_blocking=True)
+        seconds = time.perf_counter() - t0
+        converged = residual <= tol
+        if bounces is None and not converged and raise_on_failure:
+            raise ConvergenceError(
+                f"bounce iteration did not reach tol={tol:g} in {max_iterations} iterations (relative residual "
+                f"{residual:.3g}); albedos near 1 need about ln(tol)/ln(max albedo) bounces: raise max_iterations, "
+                "use method='dense' for small scenes, or pass raise_on_failure=False to get the partial result"
+            )
+        radiosity = np.repeat(B[:, :1], 3, axis=1) if nch == 1 else B[:, :3]
+        return Solution(
+            radiosity=radiosity.astype(np.float64), light=L, iterations=it, residual=residual, converged=converged,
+            method="iterative", dtype=real.name, channels=nch, seconds=seconds, history=history,
+        )
+
+
+def _real_dtype(dtype, device) -> np.dtype:
+    from .errors import DeviceError
+
+    real = np.dtype(dtype)
+    if real not in (np.float32, np.float64):
+        raise InvalidInputError(f"dtype must be float32 or float64; got {real}")
+    if real == np.float64 and not device.supports_fp64:
+        raise DeviceError(f"float64 needs cl_khr_fp64, which {device.name} lacks; use dtype=np.float32")
+    return real
+
+
+def _checked_light(L, n: int) -> np.ndarray:
+    L = np.asarray(L, dtype=np.float64)
+    if L.shape != (n, 3):
+        raise InvalidInputError(f"the light vector must have shape ({n}, 3); got {L.shape}")
+    if not np.all(np.isfinite(L)) or L.min(initial=0.0) < 0:
+        raise InvalidInputError("the light vector must be finite and >= 0")
+    return L
+
+
+def _checked_stopping(tol, max_iterations, bounces):
+    if bounces is not None:
+        if int(bounces) != bounces or bounces < 0:
+            raise InvalidInputError(f"bounces must be a non-negative integer; got {bounces!r}")
+        return float(tol), int(bounces)
+    if not (np.isfinite(tol) and tol > 0):
+        raise InvalidInputError(f"tol must be a positive number; got {tol!r}")
+    if int(max_iterations) != max_iterations or max_iterations < 1:
+        raise InvalidInputError(f"max_iterations must be a positive integer; got {max_iterations!r}")
+    return float(tol), int(max_iterations)
+
+
+def available_host_bytes() -> int:
+    """Host memory available to a new allocation (Linux MemAvailable, else free pages)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError):
+        return 2**62
+
+
+def _dense_solve(scene, F: sp.csr_matrix, L: np.ndarray) -> Solution:
+    n = len(scene)
+    if n > DENSE_MAX_PATCHES:
+        raise InvalidInputError(
+            f"method='dense' builds an N x N matrix; refused for N={n} > {DENSE_MAX_PATCHES} patches: use method='iterative'"
+        )
+    need = 2 * n * n * 8
+    if need > available_host_bytes():
+        raise OutOfMemoryError(f"the dense solve needs {need / 2**30:.2f} GiB of host memory; not available")
+    nch = _channels(scene, L)
+    t0 = time.perf_counter()
+    Fd = F.toarray()
+    B = np.empty((n, 3))
+    if nch == 1:
+        A = np.eye(n) - scene.albedo[:, :1].astype(np.float64) * Fd
+        B[:] = np.linalg.solve(A, L[:, :1])
+    else:
+        for c in range(3):
+            A = np.eye(n) - scene.albedo[:, c : c + 1].astype(np.float64) * Fd
+            B[:, c] = np.linalg.solve(A, L[:, c])
+    r = L + scene.albedo.astype(np.float64) * (F @ B) - B
+    residual = float(np.abs(r).max() / max(np.abs(B).max(), np.finfo(float).tiny))
+    return Solution(
+        radiosity=B, light=L, iterations=0, residual=residual, converged=True, method="dense", dtype="float64",
+        channels=nch, seconds=time.perf_counter() - t0,
+    )
+
+
+def solve(scene, F, lights=(), method: str = "iterative", tol: float = 1e-6, max_iterations: int = 10000,
+          dtype=np.float32, device=None, bounces: int | None = None, raise_on_failure: bool = True,
+          light=None) -> Solution:
+    """Radiosity B = L + P F B over all patches.
+
+    Parameters
+    ----------
+    scene : Scene
+    F : (N, N) scipy.sparse or dense array
+        Gathering form factors, F[i, j] = fraction of the energy leaving i that reaches j.
+    lights : sequence of PointLight / SpotLight / DirectionalLight
+        Analytic lights; L = emission + albedo * direct irradiance (:func:`light_vector`).
+    method : "iterative" | "dense"
+    tol : float
+        Relative residual to stop at (iterative).
+    max_iterations : int
+        Iteration budget (iterative).
+    dtype : np.float32 | np.float64
+        Working precision of the iterative kernels (dense is always float64).
+    bounces : int, optional
+        Run exactly this many bounces instead (B = sum_{k <= bounces} (P F)^k L); no error.
+    raise_on_failure : bool
+        When the budget runs out before ``tol``: raise :class:`ConvergenceError` (default), or
+        return the partial result with ``converged=False``.
+    light : (N, 3) array, optional
+        A precomputed light vector, used instead of ``lights``.
+
+    Returns
+    -------
+    Solution
+    """
+    from .lights import light_vector
+
+    if method not in ("iterative", "dense"):
+        raise InvalidInputError(f"unknown method {method!r}; allowed: 'iterative', 'dense'")
+    L = light_vector(scene, lights, device=device) if light is None else _checked_light(light, len(scene))
+    if method == "dense":
+        return _dense_solve(scene, check_form_factors(scene, F), L)
+    solver = RadiositySolver(scene, F, dtype=dtype, device=device)
+    return solver.solve(L, tol=tol, max_iterations=max_iterations, bounces=bounces, raise_on_failure=raise_on_failure)
