@@ -16,6 +16,8 @@ from .errors import (
     SceneFileError,
 )
 from .scene import DegenerateTriangleWarning, Scene
+from .loading import load
+from . import scenes
 from .camera import Camera
 from .render import render
 from .image_io import read_image, write_image

@@ -131,6 +131,13 @@ class Scene:
         self.normals = np.ascontiguousarray(cross / dbl_area[:, None], dtype=np.float32)
         self.areas = np.ascontiguousarray(0.5 * dbl_area, dtype=np.float32)
 
+    @classmethod
+    def from_mesh(cls, mesh, **kw) -> "Scene":
+        """A scene from a ``trimesh.Trimesh`` or ``trimesh.Scene``; see :func:`pydynrad.loading.from_mesh`."""
+        from .loading import from_mesh
+
+        return from_mesh(mesh, **kw)
+
     # -- sizes and views -------------------------------------------------------------------
     def __len__(self) -> int:
         return len(self.triangles)

@@ -1,0 +1,228 @@
+"""Scenes from meshes and mesh files: materials read per geometry, then patched.
+
+``load(path)`` reads OBJ (+MTL), PLY, GLB/glTF, STL and OFF through trimesh and hands the
+result to :func:`from_mesh`, which accepts a ``trimesh.Trimesh`` or a ``trimesh.Scene``.
+
+Materials, per input face:
+
+* OBJ/MTL: ``Kd`` is the albedo, ``Ke`` the emission (radiant exitance, same unit as every
+  other emission in the scene). A multi-material OBJ loads as one geometry per material, so
+  materials are read per geometry, never from a merged mesh (merging drops them).
+* GLB/glTF: ``baseColorFactor`` is the albedo, ``emissiveFactor`` the emission.
+* Face colours (PLY) and vertex colours (PLY, GLB; averaged over a face's three corners):
+  8-bit values ``c`` give albedo ``c / 255``, read as linear reflectance.
+* Anything else (STL, a mesh without colours or materials, a texture-only material): the
+  ``default_albedo`` and no emission. Textures are not sampled.
+
+An albedo of 1 (``Kd 1 1 1``, colour 255) would make a closed scene's radiosity infinite, and
+such values are common in files that mean "white", so albedos in ``[MAX_ALBEDO, 1]`` are
+clamped to ``MAX_ALBEDO`` with an :class:`AlbedoClampedWarning` that counts the faces.
+Albedos above 1 are errors, not typos to repair.
+
+``source_face[k]`` is the index of patch k's face in the concatenation of the input's
+triangle geometries, taken in ``trimesh.Scene.graph.nodes_geometry`` order (for a single
+``Trimesh``: its own face index). Scene-graph transforms are applied; a mirroring transform
+reverses the winding so normals keep pointing to the same (lit) side.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .errors import InvalidInputError, SceneFileError
+from .patching import subdivide
+from .scene import Scene
+
+__all__ = ["load", "from_mesh", "patched_scene", "soup_scene", "AlbedoClampedWarning", "MAX_ALBEDO", "SUPPORTED_FORMATS"]
+
+MAX_ALBEDO = 0.999
+SUPPORTED_FORMATS = ("obj", "ply", "glb", "gltf", "stl", "off")
+_TEXT_FORMATS = ("obj", "off", "gltf")
+
+
+class AlbedoClampedWarning(UserWarning):
+    """Albedos of 1 (or within ``1 - MAX_ALBEDO`` of it) were clamped to ``MAX_ALBEDO``."""
+
+
+def load(path, max_patch_area: float | None = None, max_edge: float | None = None, default_albedo=0.5) -> Scene:
+    """Read a mesh file into a :class:`~pydynrad.Scene`.
+
+    Parameters
+    ----------
+    path : str or Path
+        An ``.obj`` (with its ``.mtl``), ``.ply``, ``.glb``, ``.gltf``, ``.stl`` or ``.off`` file.
+    max_patch_area, max_edge : float, optional
+        Split triangles (4-way, at edge midpoints) until no patch exceeds this area (file
+        units squared) or edge length (file units). ``None``: keep the file's triangles.
+    default_albedo : float or (3,)
+        Albedo of faces whose file gives none.
+
+    Raises
+    ------
+    SceneFileError
+        The file is missing, unreadable, malformed, of an unsupported format, has no
+        triangles, or holds invalid values (NaN vertices, albedo above 1, negative emission);
+        the message names the file and the problem.
+    """
+    path = Path(path)
+    fmt = path.suffix.lower().lstrip(".")
+    if not path.is_file():
+        raise SceneFileError(f"{path}: no such file" if not path.exists() else f"{path}: not a regular file")
+    if fmt not in SUPPORTED_FORMATS:
+        raise SceneFileError(f"{path}: unsupported format {path.suffix!r}; supported: {', '.join(SUPPORTED_FORMATS)}")
+    if fmt in _TEXT_FORMATS and b"\0" in path.read_bytes()[:1 << 16]:
+        raise SceneFileError(f"{path}: malformed {fmt.upper()} file: binary data (NUL bytes) in a text format")
+    try:
+        # process=False keeps face order (source_face) and lets bad vertices reach validation.
+        loaded = trimesh.load(str(path), file_type=fmt, process=False)
+    except Exception as exc:  # trimesh raises anything from ValueError to UnicodeDecodeError
+        raise SceneFileError(f"{path}: cannot read as {fmt.upper()}: {type(exc).__name__}: {exc}") from exc
+    try:
+        return from_mesh(loaded, max_patch_area=max_patch_area, max_edge=max_edge, default_albedo=default_albedo, name=path.stem)
+    except InvalidInputError as exc:
+        raise SceneFileError(f"{path}: {exc}") from exc
+
+
+def from_mesh(mesh, max_patch_area: float | None = None, max_edge: float | None = None, default_albedo=0.5, name: str | None = None) -> Scene:
+    """A :class:`~pydynrad.Scene` from a ``trimesh.Trimesh`` or ``trimesh.Scene``.
+
+    Materials come from each geometry's visual (see the module docstring); vertices at
+    identical positions are merged so the patches form one connected mesh. Patching as in
+    :func:`load`. Raises :class:`~pydynrad.errors.InvalidInputError` for an input with no
+    triangles, and whatever :class:`~pydynrad.Scene` raises for invalid values.
+    """
+    if isinstance(mesh, trimesh.Scene):
+        parts = [(_transformed(mesh.geometry[g], t), mesh.geometry[g]) for t, g in (mesh.graph[n] for n in mesh.graph.nodes_geometry)]
+    elif isinstance(mesh, trimesh.Trimesh):
+        parts = [((np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces)), mesh)]
+    else:
+        raise InvalidInputError(f"from_mesh needs a trimesh.Trimesh or trimesh.Scene; got {type(mesh).__name__}")
+    parts = [(vf, g) for vf, g in parts if isinstance(g, trimesh.Trimesh) and len(vf[1]) > 0]
+    if not parts:
+        raise InvalidInputError("the mesh is empty: it has no triangles")
+
+    points, triangles, offset = [], [], 0
+    for (v, f), _ in parts:
+        points.append(v)
+        triangles.append(np.asarray(f, dtype=np.int64) + offset)
+        offset += len(v)
+    albedo, emission = zip(*(_face_materials(g, default_albedo) for _, g in parts))
+    points, triangles = _merge_points(np.concatenate(points), np.concatenate(triangles))
+    if name is None:
+        name = str(mesh.metadata.get("file_name") or "mesh") if hasattr(mesh, "metadata") else "mesh"
+    return patched_scene(points, triangles, _clamp_albedo(np.concatenate(albedo)), np.concatenate(emission),
+                         max_patch_area=max_patch_area, max_edge=max_edge, name=name)
+
+
+def patched_scene(points, triangles, albedo, emission, source_face=None, max_patch_area: float | None = None,
+                  max_edge: float | None = None, name: str = "scene") -> Scene:
+    """Validate a triangle mesh as a Scene, then split it into patches within the limits.
+
+    Validation comes first so zero-area input triangles are dropped (and counted) once, as
+    input faces, rather than after being split into many zero-area children.
+    """
+    scene = Scene(points, triangles, albedo=albedo, emission=emission, source_face=source_face, name=name)
+    if max_patch_area is None and max_edge is None:
+        return scene
+    pts, tri, parent = subdivide(scene.points, scene.triangles, max_area=max_patch_area, max_edge=max_edge)
+    return Scene(pts, tri, albedo=scene.albedo[parent], emission=scene.emission[parent],
+                 source_face=scene.source_face[parent], name=name)
+
+
+def soup_scene(vertices, albedo, emission, max_patch_area: float | None = None, max_edge: float | None = None,
+               name: str = "scene") -> Scene:
+    """A patched Scene from a triangle soup: (T, 3, 3) corners, counter-clockwise seen from the front.
+
+    Corners at bit-identical positions become one point, so a soup built from shared literal
+    coordinates (like the Cornell box data) comes out as a connected mesh.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    if v.ndim != 3 or v.shape[1:] != (3, 3):
+        raise InvalidInputError(f"a triangle soup must have shape (T, 3, 3); got {v.shape}")
+    points, triangles = _merge_points(v.reshape(-1, 3), np.arange(3 * len(v)).reshape(-1, 3))
+    return patched_scene(points, triangles, albedo, emission, max_patch_area=max_patch_area, max_edge=max_edge, name=name)
+
+
+def _transformed(geometry, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (float64) and faces of a scene-graph instance in world space."""
+    if not isinstance(geometry, trimesh.Trimesh):
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    t = np.asarray(transform, dtype=np.float64)
+    v = np.asarray(geometry.vertices, dtype=np.float64) @ t[:3, :3].T + t[:3, 3]
+    f = np.asarray(geometry.faces)
+    return v, (f[:, ::-1] if np.linalg.det(t[:3, :3]) < 0 else f)
+
+
+def _merge_points(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices at bit-identical positions (STL and per-material OBJ geometries repeat them)."""
+    if not np.all(np.isfinite(points)):
+        return points, triangles  # leave NaNs for Scene to report; np.unique would scramble them
+    unique, inverse = np.unique(points, axis=0, return_inverse=True)
+    return unique, inverse.reshape(-1)[triangles]
+
+
+def _face_materials(mesh: trimesh.Trimesh, default_albedo) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 3) albedo and (F, 3) emission of one geometry's faces, as float64."""
+    n = len(mesh.faces)
+    albedo = np.broadcast_to(np.asarray(default_albedo, dtype=np.float64), (3,))
+    emission = np.zeros(3)
+    visual = mesh.visual
+    kind = getattr(visual, "kind", None)
+    if isinstance(visual, trimesh.visual.ColorVisuals) and kind == "face":
+        albedo = np.asarray(visual.face_colors, dtype=np.float64)[:, :3] / 255.0
+    elif isinstance(visual, trimesh.visual.ColorVisuals) and kind == "vertex":
+        albedo = np.asarray(visual.vertex_colors, dtype=np.float64)[mesh.faces][:, :, :3].mean(axis=1) / 255.0
+    elif isinstance(visual, trimesh.visual.TextureVisuals) and visual.material is not None:
+        albedo, emission = _material_rgb(visual.material, albedo)
+    return (np.broadcast_to(albedo, (n, 3)).astype(np.float64), np.broadcast_to(emission, (n, 3)).astype(np.float64))
+
+
+def _material_rgb(material, default_albedo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Albedo and emission RGB of an MTL (SimpleMaterial) or glTF (PBRMaterial) material."""
+    kwargs = getattr(material, "kwargs", None) or {}
+    if isinstance(material, trimesh.visual.material.PBRMaterial):
+        base = material.baseColorFactor
+        albedo = default_albedo if base is None else _rgb8_or_float(base)
+        emissive = material.emissiveFactor
+        emission = np.zeros(3) if emissive is None else np.asarray(emissive, dtype=np.float64)[:3]
+        return albedo, emission
+    # The MTL parser keeps Kd as floats in kwargs; material.diffuse is quantised to 8 bits.
+    kd = kwargs.get("kd")
+    albedo = _parse_rgb(kd, "Kd") if kd is not None else default_albedo
+    ke = kwargs.get("ke")
+    emission = _parse_rgb(ke, "Ke") if ke is not None else np.zeros(3)
+    return albedo, emission
+
+
+def _rgb8_or_float(value) -> np.ndarray:
+    a = np.asarray(value)
+    rgb = a[:3].astype(np.float64)
+    return rgb / 255.0 if np.issubdtype(a.dtype, np.integer) else rgb
+
+
+def _parse_rgb(value, key: str) -> np.ndarray:
+    """An MTL colour: one value (grey) or three (RGB), given as numbers or strings."""
+    tokens = value.split() if isinstance(value, str) else list(np.atleast_1d(value))
+    try:
+        rgb = np.array([float(t) for t in tokens], dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"material {key} is not numeric: {value!r}") from exc
+    if rgb.shape == (1,):
+        rgb = np.repeat(rgb, 3)
+    if rgb.shape != (3,):
+        raise InvalidInputError(f"material {key} needs 1 or 3 values; got {value!r}")
+    return rgb
+
+
+def _clamp_albedo(albedo: np.ndarray) -> np.ndarray:
+    near_one = (albedo >= MAX_ALBEDO) & (albedo <= 1.0)
+    if np.any(near_one):
+        n_faces = int(np.count_nonzero(near_one.any(axis=1)))
+        warnings.warn(f"clamped albedo of {n_faces} face(s) from up to 1 to {MAX_ALBEDO} (albedo must be < 1)",
+                      AlbedoClampedWarning, stacklevel=3)
+        albedo = np.where(near_one, MAX_ALBEDO, albedo)
+    return albedo
