@@ -5,12 +5,13 @@
 // Radiometry: a patch's emission E (W/unit^2, radiant exitance) emits radiance E / pi; a
 // surface of albedo rho reflects radiance (rho / pi) * H, H = irradiance (W/unit^2).
 //
-// Estimator (documented rule against double counting): direct light from emitting patches
-// is taken ONLY by next-event estimation at each diffuse vertex (an emitter sampled with
-// probability proportional to its power, a uniform point on it); the emission of a patch
-// that a BSDF-sampled (cosine) ray hits is never added. Emission is added only where a
-// camera ray hits an emitter. The analytic lights (points, spots, directional) are deltas
-// and have NEE only. Russian roulette after RR_DEPTH bounces, at most MAX_DEPTH bounces.
+// Estimator: direct light from emitting patches is sampled two ways at each diffuse vertex,
+// next-event estimation (an emitter picked with probability proportional to its power, a
+// uniform point on it) and the cosine-sampled bounce ray hitting an emitter, combined with
+// multiple importance sampling (balance heuristic), so neither double counts and neither
+// has the 1/d^2 spikes of NEE alone next to an emitter. A camera ray's first hit adds its
+// emission in full. The analytic lights (points, spots, directional) are deltas: NEE only.
+// Russian roulette after RR_DEPTH bounces, at most MAX_DEPTH bounces.
 //
 // Random numbers come from rng.cl keyed by (seed, pixel or patch, sample index), so an image
 // is the same whatever the pass size.
@@ -30,11 +31,11 @@
     __global const float4 *normals, __global const float4 *albedo,                            \
     __global const float4 *emission,                                                          \
     const int n_emitters, __global const float4 *em_tri, __global const float4 *em_emission,  \
-    __global const float *em_cdf, __global const float *em_pmf,                               \
+    __global const float *em_cdf, const float inv_power,                                      \
     const int n_lights, __global const float4 *lights, const float eps, const float far
 #define SCENE_PASS                                                                              \
     nodes, tris, order, normals, albedo, emission, n_emitters, em_tri, em_emission, em_cdf,   \
-    em_pmf, n_lights, lights, eps, far
+    inv_power, n_lights, lights, eps, far
 
 // Irradiance at x (normal n, origin already offset) from the analytic lights, shadowed.
 // lights: 3 float4 per light in pydynrad/lights.py's packing (see kernels/lights.cl, whose
@@ -70,7 +71,21 @@ inline float3 analytic_irradiance(float3 x, float3 n, SCENE_ARGS)
     return h;
 }
 
-// One-sample estimate of the irradiance at x from the emitting patches.
+// Area pdf with which emitter_irradiance picks a point on emitting patch j: its pick
+// probability (power share, power = mean emission * area) over its area.
+inline float emitter_area_pdf(float3 e, const float inv_power)
+{
+    return (e.x + e.y + e.z) * (1.0f / 3.0f) * inv_power;
+}
+
+// Balance-heuristic weight of a technique with pdf a against one with pdf b (solid angle).
+inline float mis_weight(float a, float b)
+{
+    return a / (a + b);
+}
+
+// One-sample NEE estimate of the irradiance at x from the emitting patches, MIS-weighted
+// against the cosine-sampled bounce (whose pdf is cos / pi).
 inline float3 emitter_irradiance(float3 x, float3 n, uint *rng, SCENE_ARGS)
 {
     if (n_emitters == 0) return (float3)(0.0f);
@@ -81,18 +96,20 @@ inline float3 emitter_irradiance(float3 x, float3 n, uint *rng, SCENE_ARGS)
         if (em_cdf[mid] > u) hi = mid; else lo = mid + 1;
     }
     float3 v0 = em_tri[4 * lo].xyz, e1 = em_tri[4 * lo + 1].xyz, e2 = em_tri[4 * lo + 2].xyz;
-    float4 na = em_tri[4 * lo + 3];  // normal, area
+    float3 ny = em_tri[4 * lo + 3].xyz;
     float s = sqrt(rng_next(rng)), t = rng_next(rng);
     float3 y = v0 + e1 * (s * (1.0f - t)) + e2 * (s * t);
     float3 d = y - x;
     float dist2 = dot(d, d);
     float dist = sqrt(dist2);
     float3 w = d / dist;
-    float cx = dot(n, w), cy = -dot(na.xyz, w);
+    float cx = dot(n, w), cy = -dot(ny, w);
     if (cx <= 0.0f || cy <= 0.0f) return (float3)(0.0f);
     if (bvh_occluded(nodes, tris, x, w, 0.0f, dist - eps)) return (float3)(0.0f);
-    // radiance E/pi times the geometry term over the area pdf pmf / area.
-    return em_emission[lo].xyz * (M_1_PI_F * cx * cy * na.w / (dist2 * em_pmf[lo]));
+    float3 e = em_emission[lo].xyz;
+    float pdf_light = emitter_area_pdf(e, inv_power) * dist2 / cy;  // solid angle
+    // radiance E/pi times cos_x over the solid-angle pdf, weighted.
+    return e * (M_1_PI_F * cx / pdf_light * mis_weight(pdf_light, cx * M_1_PI_F));
 }
 
 // Cosine-weighted direction about n (pdf cos / pi); branchless basis of Duff et al. 2017.
@@ -118,13 +135,21 @@ inline float3 reflected_radiance(float3 p, float3 n, float3 rho, uint *rng, SCEN
         float3 x = p + n * eps;
         float3 h = analytic_irradiance(x, n, SCENE_PASS) + emitter_irradiance(x, n, rng, SCENE_PASS);
         acc += thr * h * M_1_PI_F;
-        // The cosine pdf cancels the cosine and 1/pi: the next vertex's reflected radiance
-        // enters with weight rho (already in thr).
+        // The cosine pdf cancels the cosine and 1/pi: radiance arriving along the bounce ray
+        // enters with weight thr (rho of this vertex included).
         float3 w = sample_cosine(n, rng);
         Hit hit = bvh_closest(nodes, tris, order, x, w, 0.0f, INFINITY);
         if (hit.patch < 0 || !hit.front) break;
+        float3 e = emission[hit.patch].xyz;
+        float3 ny = normals[hit.patch].xyz;
+        if (n_emitters > 0 && (e.x > 0.0f || e.y > 0.0f || e.z > 0.0f)) {
+            // The bounce ray found an emitter: its radiance E/pi enters with weight thr,
+            // MIS-weighted against NEE having picked the same point.
+            float pdf_light = emitter_area_pdf(e, inv_power) * hit.t * hit.t / fmax(-dot(ny, w), 1e-12f);
+            acc += thr * e * (M_1_PI_F * mis_weight(dot(n, w) * M_1_PI_F, pdf_light));
+        }
         p = x + w * hit.t;
-        n = normals[hit.patch].xyz;
+        n = ny;
         thr *= albedo[hit.patch].xyz;
         if (depth + 1 >= RR_DEPTH) {
             float q = fmin(fmax(thr.x, fmax(thr.y, thr.z)), 0.95f);

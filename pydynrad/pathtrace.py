@@ -11,8 +11,8 @@ Two estimators share one OpenCL kernel file (``kernels/pathtrace.cl``) and the s
 
 The transport model is the radiosity model: one-sided Lambertian patches, emission only from
 the front, analytic lights as deltas with shadow rays. Direct light from emitting patches is
-counted only by next-event estimation (emitters picked proportionally to power) and never when
-a bounce ray happens to hit an emitter; see the kernel's header. Russian roulette keeps
+sampled both by next-event estimation (emitters picked proportionally to power) and by the
+bounce rays, combined by multiple importance sampling; see the kernel's header. Russian roulette keeps
 long paths unbiased. Samples are accumulated in passes (one kernel launch each, so a progress
 bar and a time limit work); random numbers depend only on ``(seed, pixel or patch, sample)``,
 so a result is reproducible bit for bit.
@@ -66,8 +66,8 @@ class _Tracer:
         em = scene.emitters
         power = scene.emission[em].astype(np.float64).mean(axis=1) * scene.areas[em]
         if len(em):
-            pmf = power / power.sum()
-            cdf = np.cumsum(pmf)
+            inv_power = 1.0 / power.sum()  # the kernel turns this into each emitter's area pdf
+            cdf = np.cumsum(power * inv_power)
             cdf[-1] = 1.0 + 1e-6  # every u in [0, 1) finds an emitter despite rounding
             v = scene.vertices[em].astype(np.float64)
             tri = np.stack([v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], np.zeros_like(v[:, 0])], axis=1)
@@ -75,7 +75,7 @@ class _Tracer:
             tri.reshape(len(em), 4, 4)[:, 3, :3] = scene.normals[em]
             tri.reshape(len(em), 4, 4)[:, 3, 3] = scene.areas[em]
         else:
-            pmf = cdf = np.zeros(1)
+            inv_power, cdf = 0.0, np.zeros(1)
             tri = np.zeros((4, 4), np.float32)
         lights = _checked_lights(lights)
         packed = np.asarray([light._packed() for light in lights] or [[0.0] * 12], dtype=np.float32)
@@ -85,7 +85,7 @@ class _Tracer:
             nodes, tris, order,
             up(_float4(scene.normals)), up(_float4(scene.albedo)), up(_float4(scene.emission)),
             np.int32(len(em)), up(tri), up(_float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
-            up(cdf.astype(np.float32)), up(pmf.astype(np.float32)),
+            up(cdf.astype(np.float32)), np.float32(inv_power),
             np.int32(len(lights)), up(packed), np.float32(SHADOW_EPSILON * scene.scale),
             np.float32(2.0 * scene.scale),  # directional shadow rays need only leave the scene
         )

@@ -1,0 +1,1 @@
+"""pydynrad's benchmarks: ``python -m bench [--quick | --full]`` (see :mod:`bench.suite`)."""

@@ -1,0 +1,172 @@
+"""The benchmark report: one JSON file with every number and a markdown page with tables and
+PNG plots, written next to each other as ``bench/results/<device-slug>.{json,md}``.
+
+A result is plain data, so the JSON is the record and the markdown is a view of it::
+
+    {"device": {...}, "date": "...", "size": "quick", "seconds": 123.4,
+     "sections": {name: {"title": str, "description": str, "seconds": float,
+                         "tables": [{"title", "columns": [...], "rows": [[...]], "note"}],
+                         "plots": [{"name", "title", "xlabel", "ylabel", "xscale", "yscale",
+                                    "series": [{"label", "x": [...], "y": [...], "style"}]}],
+                         "error": str (only when the section failed)}}}
+
+Files are written whole (temporary file, then rename), so an interrupted run never leaves a
+half-written report behind.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import tempfile
+from pathlib import Path
+
+__all__ = ["slugify", "write_report", "markdown", "plot_files", "format_value"]
+
+
+def slugify(text: str) -> str:
+    """A file-name-safe lower-case slug: ``"pthread / cpu-haswell"`` -> ``"pthread-cpu-haswell"``."""
+    slug = re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")
+    return slug[:80] or "device"
+
+
+def _atomic_write(path: Path, write) -> None:
+    """Call ``write(tmp_path)`` and move the result onto ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(Path(tmp))
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def format_value(v) -> str:
+    """A table cell: floats to 4 significant digits, None as an em dash."""
+    if v is None:
+        return "—"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            return str(v)
+        if v == 0:
+            return "0"
+        if 1e-3 <= abs(v) < 1e5:
+            return f"{v:.4g}"
+        return f"{v:.3e}"
+    return str(v)
+
+
+def _table_md(table: dict) -> list[str]:
+    lines = []
+    if table.get("title"):
+        lines += [f"**{table['title']}**", ""]
+    cols = table["columns"]
+    lines.append("| " + " | ".join(cols) + " |")
+    lines.append("|" + "|".join("---" for _ in cols) + "|")
+    for row in table["rows"]:
+        lines.append("| " + " | ".join(format_value(v) for v in row) + " |")
+    if table.get("note"):
+        lines += ["", table["note"]]
+    lines.append("")
+    return lines
+
+
+def plot_files(slug: str, results: dict) -> dict[tuple[str, str], str]:
+    """File name of every plot, keyed by (section, plot name)."""
+    return {
+        (sec, p["name"]): f"{slug}-{sec}-{p['name']}.png"
+        for sec, body in results["sections"].items()
+        for p in body.get("plots", [])
+    }
+
+
+def _draw(plot: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=100)
+    try:
+        for s in plot["series"]:
+            ax.plot(s["x"], s["y"], s.get("style", "o-"), label=s.get("label"))
+        ax.set_xscale(plot.get("xscale", "linear"))
+        ax.set_yscale(plot.get("yscale", "linear"))
+        ax.set_xlabel(plot.get("xlabel", ""))
+        ax.set_ylabel(plot.get("ylabel", ""))
+        ax.set_title(plot.get("title", ""))
+        ax.grid(True, which="both", alpha=0.3)
+        if any(s.get("label") for s in plot["series"]):
+            ax.legend(fontsize="small")
+        fig.tight_layout()
+        _atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+    finally:
+        plt.close(fig)
+
+
+def markdown(results: dict, slug: str) -> str:
+    """The markdown page for ``results`` (plots referenced by the names of :func:`plot_files`)."""
+    dev = results["device"]
+    files = plot_files(slug, results)
+    lines = [
+        f"# pydynrad benchmarks: {dev.get('device', '?')}",
+        "",
+        f"Device: {dev.get('platform', '?')} / {dev.get('device', '?')} ({dev.get('type', '?')}, "
+        f"{dev.get('compute_units', '?')} compute units). Date: {results['date']}. "
+        f"Size: `{results['size']}`. Total time: {format_value(results.get('seconds'))} s. "
+        f"Produced by `python -m bench --{results['size']}`.",
+        "",
+    ]
+    for name, sec in results["sections"].items():
+        lines += [f"## {sec.get('title', name)}", ""]
+        if sec.get("description"):
+            lines += [sec["description"], ""]
+        if sec.get("error"):
+            lines += [f"**This section failed:** `{sec['error']}`", ""]
+        for table in sec.get("tables", []):
+            lines += _table_md(table)
+        for plot in sec.get("plots", []):
+            lines += [f"![{plot.get('title', plot['name'])}]({files[(name, plot['name'])]})", ""]
+        if "seconds" in sec:
+            lines += [f"_Section time: {format_value(sec['seconds'])} s._", ""]
+    return "\n".join(lines)
+
+
+def _json_safe(value):
+    """NaN and infinities become None (strict JSON has no spelling for them)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if hasattr(value, "item") and callable(value.item):  # numpy scalars
+        return _json_safe(value.item())
+    return value
+
+
+def write_report(results: dict, out_dir, slug: str) -> dict[str, Path]:
+    """Write ``<slug>.json``, ``<slug>.md`` and the PNG plots into ``out_dir``.
+
+    Returns the paths written, keyed ``"json"``, ``"md"`` and ``"png:<section>:<plot>"``.
+    """
+    out = Path(out_dir)
+    results = _json_safe(results)
+    written: dict[str, Path] = {}
+    files = plot_files(slug, results)
+    for sec, body in results["sections"].items():
+        for plot in body.get("plots", []):
+            path = out / files[(sec, plot["name"])]
+            _draw(plot, path)
+            written[f"png:{sec}:{plot['name']}"] = path
+    json_path, md_path = out / f"{slug}.json", out / f"{slug}.md"
+    _atomic_write(json_path, lambda tmp: tmp.write_text(json.dumps(results, indent=1, allow_nan=False)))
+    _atomic_write(md_path, lambda tmp: tmp.write_text(markdown(results, slug)))
+    written["json"], written["md"] = json_path, md_path
+    return written

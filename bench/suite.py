@@ -1,0 +1,196 @@
+"""The benchmark suite: every section on the current OpenCL device, one report.
+
+``python -m bench [--quick | --full] [--sections a,b] [--out DIR]`` runs the sections below
+at one size and writes ``<out>/<device-slug>.json`` and ``.md`` with PNG plots
+(:mod:`bench.report`). Sections:
+
+=============  ===========================================================================
+pathtracer     the reference path tracer: furnace error vs samples, throughput
+formfactors    hemicube form factors vs the analytic plates: error and time per R, subdivision
+paper          the paper's Fig. 12/15 comparison on the village: naive full radiosity vs the
+               dynamic method's lighting and update time, M = 1024 and 4096
+accuracy       the trade curve: error vs frame time per M, update mode, storage, resolution,
+               against the path-traced reference and the full radiosity solution
+drift          rounding drift of the local matrix over many frames
+bandwidth      matrix kernels vs copy bandwidth and the peers (numpy/SciPy, Embree)
+=============  ===========================================================================
+
+Each section is a function ``section(ctx) -> dict`` (title, description, tables, plots; see
+:mod:`bench.report`). A failing section is recorded with its error and the rest still run
+(``strict=True`` re-raises instead, as the tests do).
+"""
+
+from __future__ import annotations
+
+import datetime
+import importlib
+import platform
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .report import slugify, write_report
+
+__all__ = ["SIZES", "SECTIONS", "Context", "run_suite", "main"]
+
+#: Where reports go by default: bench/results next to this file.
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+
+#: Parameters per size; each section reads its own entry. "tiny" is for the tests only.
+SIZES: dict[str, dict] = {
+    "tiny": {
+        "pathtracer": {"spp": (4, 16, 64), "image": (16, 12), "image_spp": 8},
+        "formfactors": {"resolutions": (16, 32), "subdivisions": (2,)},
+        "paper": {"village": {"target_patches": 1500}, "resolution": 16, "M": (64, 128), "frames": 4},
+        "accuracy": {"max_edge": 250.0, "resolutions": (16, 32), "M": (48, 96), "base_M": 96,
+                     "frames": 3, "ref_spp": 64, "image": (24, 18)},
+        "drift": {"frames": 20},
+        "bandwidth": {"M": (256,)},
+    },
+    "quick": {
+        "pathtracer": {"spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
+        "formfactors": {"resolutions": (32, 64, 128), "subdivisions": (2, 4)},
+        "paper": {"village": {"target_patches": 8000}, "resolution": 32, "M": (1024,), "frames": 8},
+        "accuracy": {"max_edge": 100.0, "resolutions": (32, 64), "M": (256, 512, 768), "base_M": 512,
+                     "frames": 6, "ref_spp": 512, "image": (64, 48)},
+        "drift": {"frames": 1000},
+        "bandwidth": {"M": (1024, 2048)},
+    },
+    "full": {
+        "pathtracer": {"spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
+        "formfactors": {"resolutions": (32, 64, 128, 256, 512), "subdivisions": (2, 4, 8)},
+        "paper": {"village": {"target_patches": 64000}, "resolution": 64, "M": (1024, 4096), "frames": 16},
+        "accuracy": {"max_edge": 50.0, "resolutions": (64, 128, 256), "M": (1024, 2048, 3072),
+                     "base_M": 2048, "frames": 12, "ref_spp": 4096, "image": (320, 240)},
+        "drift": {"frames": 10000},
+        "bandwidth": {"M": (1024, 2048, 4096)},
+    },
+}
+
+#: Section name -> "module:function", in report order.
+SECTIONS: dict[str, str] = {
+    "pathtracer": "bench.accuracy:pathtracer_section",
+    "formfactors": "bench.formfactors:suite_section",
+    "paper": "bench.paper:paper_section",
+    "accuracy": "bench.accuracy:accuracy_section",
+    "drift": "bench.dynamic:suite_section",
+    "bandwidth": "bench.radiosity:suite_section",
+}
+
+
+@dataclass
+class Context:
+    """What a section gets: its parameters, the device, and a cache shared by sections
+    (scenes and form factors are costly and several sections need the same ones)."""
+
+    size: str
+    device: object
+    progress: bool = True
+    cache: dict = field(default_factory=dict)
+    section: str = ""
+
+    @property
+    def params(self) -> dict:
+        return SIZES[self.size][self.section]
+
+    def cached(self, key, make):
+        """``make()`` once per key for the whole run."""
+        if key not in self.cache:
+            self.cache[key] = make()
+        return self.cache[key]
+
+
+def _resolve(spec: str):
+    module, func = spec.split(":")
+    return getattr(importlib.import_module(module), func)
+
+
+def run_suite(size: str = "quick", sections=None, out_dir=None, device=None, progress: bool = True,
+              strict: bool = False) -> tuple[dict, dict]:
+    """Run the suite and write its report.
+
+    Parameters
+    ----------
+    size : "tiny" | "quick" | "full"
+    sections : iterable of str, optional
+        Subset of :data:`SECTIONS` (default: all, in order).
+    out_dir : path, optional
+        Report folder (default ``bench/results``).
+    device : pydynrad.Device, optional
+    progress : bool
+        tqdm bars and one status line per section on stderr.
+    strict : bool
+        Re-raise a section's exception instead of recording it.
+
+    Returns
+    -------
+    (results, written) : the result dict (see :mod:`bench.report`) and the files written.
+    """
+    import sys
+
+    import pydynrad
+
+    if size not in SIZES:
+        raise ValueError(f"unknown size {size!r}; choose from {', '.join(SIZES)}")
+    names = list(SECTIONS) if sections is None else list(sections)
+    unknown = [s for s in names if s not in SECTIONS]
+    if unknown:
+        raise ValueError(f"unknown section(s) {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
+    device = device or pydynrad.default_device()
+    info = device.info()
+    results = {
+        "device": info,
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "size": size,
+        "host": {"machine": platform.machine(), "processor": platform.processor(), "python": platform.python_version(),
+                 "pydynrad": pydynrad.__version__},
+        "sections": {},
+    }
+    ctx = Context(size=size, device=device, progress=progress)
+    start = time.perf_counter()
+    for name in names:
+        ctx.section = name
+        if progress:
+            print(f"[bench] {name} ...", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        try:
+            body = dict(_resolve(SECTIONS[name])(ctx))
+        except Exception as exc:  # recorded in the report; the other sections still run
+            if strict:
+                raise
+            body = {"title": name, "error": f"{type(exc).__name__}: {exc}",
+                    "traceback": traceback.format_exc(limit=8)}
+        body["seconds"] = time.perf_counter() - t0
+        results["sections"][name] = body
+    results["seconds"] = time.perf_counter() - start
+    slug = slugify(f"{info['platform']}-{info['device']}")
+    written = write_report(results, out_dir or RESULTS_DIR, slug)
+    return results, written
+
+
+def main(argv=None) -> int:
+    """Command-line entry point (``python -m bench``; ``pydynrad bench`` calls this too)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.split("\n\n")[0])
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--quick", dest="size", action="store_const", const="quick",
+                       help="CI-scale sizes: a few minutes on two CPU cores (default)")
+    group.add_argument("--full", dest="size", action="store_const", const="full",
+                       help="the paper's sizes (village >= 60k patches, M up to 4096, 10,000 frames)")
+    group.add_argument("--size", choices=list(SIZES), help=argparse.SUPPRESS)
+    parser.add_argument("--sections", help=f"comma-separated subset of: {', '.join(SECTIONS)}")
+    parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="report folder (default: bench/results)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    args = parser.parse_args(argv)
+    sections = args.sections.split(",") if args.sections else None
+    try:
+        results, written = run_suite(args.size or "quick", sections, args.out, progress=not args.no_progress)
+    except ValueError as exc:
+        parser.error(str(exc))
+    failed = [n for n, s in results["sections"].items() if s.get("error")]
+    print(f"wrote {written['md']} and {written['json']}")
+    for name in failed:
+        print(f"section {name} failed: {results['sections'][name]['error']}")
+    return 1 if failed else 0
