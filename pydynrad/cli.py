@@ -1,19 +1,202 @@
 """The ``pydynrad`` command line: one subcommand per main job.
 
 Errors a user can cause (bad paths, bad options, unreadable meshes) end with one clear line
-on stderr and exit status 2, never a traceback.
+on stderr and exit status 2, never a traceback; warnings print as one line each.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import sys
+import time
+import warnings
+from pathlib import Path
 
-from .errors import PydynradError
+import numpy as np
 
-__all__ = ["main"]
+from .errors import InvalidInputError, PydynradError
+
+__all__ = ["main", "build_parser", "load_scene", "save_form_factors", "load_form_factors", "BUILTIN_SCENES"]
+
+#: Names SCENE may take instead of a mesh file (functions of pydynrad.scenes).
+BUILTIN_SCENES = ("cornell_box", "village", "closed_box", "parallel_plates", "perpendicular_plates")
+FF_FORMAT = "pydynrad-form-factors"
+FF_VERSION = 1
+
+DEMO_DIR = "pydynrad-demo"
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (no usage dump): the message and where to get help."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+# -- option types -----------------------------------------------------------------------------
+def _vec3(text: str) -> tuple[float, float, float]:
+    try:
+        v = tuple(float(x) for x in text.replace(" ", "").split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3 or not all(np.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,Z; got {text!r}")
+    return v  # type: ignore[return-value]
+
+
+def _size(text: str) -> tuple[int, int]:
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.isdigit() and int(p) > 0 for p in parts):
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, e.g. 320x240; got {text!r}")
+    return int(parts[0]), int(parts[1])
+
+
+def _positive_int(text: str) -> int:
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1; got {text!r}")
+    return int(text)
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not (np.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number; got {text!r}")
+    return v
+
+
+def _point_light(text: str):
+    from .lights import PointLight
+
+    try:
+        pos, rgb = text.split(":")
+        intensity = [float(x) for x in rgb.split(",")]
+        return PointLight(_vec3(pos), intensity[0] if len(intensity) == 1 else intensity)
+    except (ValueError, argparse.ArgumentTypeError, PydynradError) as exc:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z:R,G,B (position : intensity in W/sr); got {text!r} ({exc})")
+
+
+# -- scenes and form-factor files -------------------------------------------------------------
+def load_scene(name: str, max_edge: float | None = None):
+    """A built-in scene by name (:data:`BUILTIN_SCENES`) or a mesh file trimesh reads.
+
+    ``max_edge`` (scene units) subdivides patches; None keeps each scene's default.
+    """
+    kwargs = {} if max_edge is None else {"max_edge": max_edge}
+    if name in BUILTIN_SCENES:
+        from . import scenes
+
+        make = getattr(scenes, name, None)
+        if make is None:
+            raise InvalidInputError(f"the built-in scene {name!r} is not available in this installation")
+        return make(**kwargs)
+    path = Path(name)
+    if not path.exists() and not path.suffix:
+        raise InvalidInputError(f"scene {name!r} is neither a mesh file nor a built-in scene "
+                                f"({', '.join(BUILTIN_SCENES)})")
+    from .loading import load
+
+    return load(path, **kwargs)
+
+
+def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
+    """``path`` as a Path, after checking its folder exists (and its suffix, or image format)."""
+    from .image_io import _format_for
+
+    path = Path(path)
+    if suffixes is None:
+        _format_for(path)
+    elif path.suffix.lower() not in suffixes:
+        raise InvalidInputError(f"output file {str(path)!r} must end in {' or '.join(suffixes)}")
+    if not path.parent.is_dir():
+        raise InvalidInputError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} does not exist")
+    return path
+
+
+def save_form_factors(path, F, scene, resolution: int) -> Path:
+    """Save sparse F (N, N) as ``.npz`` with a JSON header (format, scene geometry hash, N,
+    resolution); written to a temporary file in the same folder, then renamed."""
+    import scipy.sparse as sp
+
+    path = _checked_target(path, (".npz",))
+    F = sp.csr_matrix(F)
+    header = {"format": FF_FORMAT, "version": FF_VERSION, "scene": scene.name, "geometry_hash": scene.geometry_hash(),
+              "n_patches": len(scene), "resolution": int(resolution), "nnz": int(F.nnz)}
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, header=np.array(json.dumps(header)), data=F.data.astype(np.float32),
+                     indices=F.indices.astype(np.int32), indptr=F.indptr.astype(np.int64))
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def load_form_factors(path, scene):
+    """Read a file written by :func:`save_form_factors` for ``scene``; returns (F, header).
+
+    Raises :class:`InvalidInputError` when the file is missing, malformed or made for another
+    scene geometry.
+    """
+    import scipy.sparse as sp
+
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInputError(f"form-factor file {str(path)!r}: no such file")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            header = json.loads(str(z["header"]))
+            n = int(header["n_patches"])
+            F = sp.csr_matrix((z["data"], z["indices"], z["indptr"]), shape=(n, n))
+    except Exception as exc:  # zipfile, KeyError, ValueError, JSON: all mean "not our file"
+        raise InvalidInputError(f"form-factor file {str(path)!r} is not a pydynrad form-factor file ({exc})") from None
+    if header.get("format") != FF_FORMAT:
+        raise InvalidInputError(f"form-factor file {str(path)!r} is not a pydynrad form-factor file")
+    if header.get("geometry_hash") != scene.geometry_hash():
+        raise InvalidInputError(f"form-factor file {str(path)!r} was computed for another scene geometry "
+                                f"({header.get('scene')!r}, {n} patches; this scene has {len(scene)} patches): "
+                                "recompute it with `pydynrad formfactors`")
+    return F, header
+
+
+def _form_factors(args, scene):
+    """F from --form-factors FILE when given, else computed now (with a progress bar)."""
+    if getattr(args, "form_factors", None):
+        F, header = load_form_factors(args.form_factors, scene)
+        print(f"form factors: {args.form_factors} (resolution {header['resolution']}, {F.nnz} non-zeros)")
+        return F
+    from .formfactors import form_factors
+
+    t0 = time.perf_counter()
+    F = form_factors(scene, resolution=args.resolution, progress=not args.quiet)
+    print(f"form factors: {len(scene)} patches, resolution {args.resolution}, {F.nnz} non-zeros, "
+          f"{time.perf_counter() - t0:.1f} s")
+    return F
+
+
+def _default_camera(scene, args):
+    """A camera from --position/--look-at/--up/--fov/--size; unset parts frame the scene:
+    looking at the bounding-box centre along +z from 1.1 diagonals away (the Cornell box's
+    published view)."""
+    from .camera import Camera
+
+    lo, hi = scene.bbox.astype(np.float64)
+    centre = (lo + hi) / 2
+    look_at = np.asarray(args.look_at if args.look_at else centre)
+    position = args.position if args.position else look_at - np.array([0.0, 0.0, 1.1 * scene.scale])
+    width, height = args.size
+    return Camera(position, look_at, args.up, args.fov, width, height)
+
+
+# -- subcommands -----------------------------------------------------------------------------
 def _cmd_info(args: argparse.Namespace) -> int:
     from .device import default_device, list_devices
 
@@ -27,27 +210,277 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_formfactors(args: argparse.Namespace) -> int:
+    out = _checked_target(args.output, (".npz",))  # fail before the work, not after
+    scene = load_scene(args.scene, args.max_edge)
+    print(f"scene: {scene!r}")
+    F = _form_factors(args, scene)
+    save_form_factors(out, F, scene, args.resolution)
+    print(f"wrote {out} ({out.stat().st_size / 2**20:.1f} MiB)")
+    return 0
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    from .image_io import write_image
+    from .render import render
+    from .solve import solve
+
+    _checked_target(args.output)  # reject a bad image name before any work
+    scene = load_scene(args.scene, args.max_edge)
+    camera = _default_camera(scene, args)
+    F = _form_factors(args, scene)
+    sol = solve(scene, F, args.light)
+    img = render(scene, sol.radiosity, camera, args.shading)
+    write_image(args.output, img, args.exposure)
+    print(f"wrote {args.output} ({camera.width}x{camera.height}, {sol.iterations} bounces)")
+    return 0
+
+
+def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames) -> object:
+    from .walk import walk
+
+    opts = {"update": args.update, "storage": args.storage}
+    result = walk(scene, path, lights=lights, form_factors=F, local_size=min(args.local_size, len(scene)),
+                  solver_options=opts, shading=args.shading, output=out_dir, image_format=args.format,
+                  exposure=args.exposure, reference_frames=reference_frames, progress=not args.quiet)
+    summary = result.summary()
+    print(summary)
+    if out_dir is not None:
+        (Path(out_dir) / "summary.txt").write_text(summary + "\n")
+        print(f"images in {out_dir}/")
+    return result
+
+
+def _cmd_walk(args: argparse.Namespace) -> int:
+    from .paths import load_path
+
+    path, lights = load_path(args.path)
+    scene = load_scene(args.scene, args.max_edge)
+    F = _form_factors(args, scene)
+    _walk_and_report(args, scene, path, lights + list(args.light), F, args.out, args.reference_frames)
+    return 0
+
+
+def demo_setup(frames: int, size: tuple[int, int]):
+    """The demo's Cornell box walk: the camera moves from the published viewpoint into the
+    box and turns towards the tall block, while a small point light circles the blocks."""
+    from .lights import PointLight
+    from .paths import CameraPath, LightTrack
+
+    positions = [(278, 273, -800), (278, 273, -250), (330, 250, 90), (400, 220, 170)]
+    look_ats = [(278, 273, 0), (278, 260, 280), (240, 180, 350), (150, 150, 400)]
+    cam = CameraPath(positions, look_ats, frames, fov_y=39.3, width=size[0], height=size[1])
+    orbit_keys = [(150, 120, 180), (120, 120, 400), (450, 120, 460), (460, 120, 150), (150, 120, 180)]
+    light = LightTrack(PointLight(orbit_keys[0], (60000.0, 50000.0, 30000.0)), orbit_keys)
+    return cam, [light]
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from .scenes import cornell_box
+
+    t0 = time.perf_counter()
+    scene = cornell_box(max_edge=args.max_edge)
+    print(f"scene: {scene!r}")
+    F = _form_factors(args, scene)
+    path, lights = demo_setup(args.frames, args.size)
+    out = Path(args.out)
+    result = _walk_and_report(args, scene, path, lights, F, out, [0, args.frames - 1])
+    print(f"comparison images (dynamic | full | relative error): "
+          f"{', '.join(str(f.comparison_path) for f in result.frames if f.comparison_path)}")
+    print(f"demo done in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from .compare import comparison_image, radiosity_error
+    from .dynamic import DynamicRadiosity
+    from .image_io import write_image
+    from .render import Renderer
+    from .solve import solve
+
+    _checked_target(args.output)
+    scene = load_scene(args.scene, args.max_edge)
+    camera = _default_camera(scene, args)
+    F = _form_factors(args, scene)
+    dyn = DynamicRadiosity(scene, F, local_size=min(args.local_size, len(scene)), update=args.update, storage=args.storage)
+    dyn.update(camera.position)
+    local = np.asarray(dyn.radiosity(args.light))
+    full = solve(scene, F, args.light).radiosity
+    renderer = Renderer(scene)
+    img, stats = comparison_image(renderer.render(local, camera, args.shading), renderer.render(full, camera, args.shading),
+                                  args.exposure)
+    write_image(args.output, img)
+    print(f"local ({dyn.local_patches.size} of {len(scene)} patches) vs full radiosity: relative RMS error "
+          f"{100 * radiosity_error(local, full, scene.areas):.3g}% over patches; per pixel mean "
+          f"{100 * stats['mean']:.3g}%, 99th percentile {100 * stats['p99']:.3g}%")
+    print(f"wrote {args.output} (dynamic | full | error map, colour bar 0 to {100 * stats['vmax']:.3g}%)")
+    return 0
+
+
+# -- the parser -------------------------------------------------------------------------------
+def _add_scene(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", metavar="SCENE",
+                   help=f"a mesh file trimesh reads (.obj with .mtl, .ply, .glb, .gltf, .stl, .off) or a built-in "
+                        f"scene: {', '.join(BUILTIN_SCENES)}")
+    p.add_argument("--max-edge", type=_positive_float, default=None, metavar="LEN",
+                   help="split patches until no edge is longer than LEN (scene units; the Cornell box is in mm); "
+                        "default: the scene's own patching")
+
+
+def _add_form_factors(p: argparse.ArgumentParser, resolution: int = 64) -> None:
+    p.add_argument("--form-factors", metavar="FILE.npz", default=None,
+                   help="precomputed form factors from `pydynrad formfactors`; default: compute them now")
+    p.add_argument("--resolution", type=_positive_int, default=resolution, metavar="R",
+                   help=f"hemicube resolution (R x R pixels on the top face) when computing form factors "
+                        f"(default {resolution})")
+
+
+def _add_camera(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--position", type=_vec3, metavar="X,Y,Z", default=None,
+                   help="eye position in scene units (default: 1.1 scene diagonals in front of the centre, along -z)")
+    p.add_argument("--look-at", type=_vec3, metavar="X,Y,Z", default=None,
+                   help="point the camera looks at (default: the bounding-box centre)")
+    p.add_argument("--up", type=_vec3, metavar="X,Y,Z", default=(0.0, 1.0, 0.0), help="up direction (default 0,1,0)")
+    p.add_argument("--fov", type=_positive_float, default=39.3, metavar="DEG",
+                   help="vertical field of view in degrees (default 39.3, the Cornell box camera's)")
+    p.add_argument("--size", type=_size, default=(320, 240), metavar="WxH", help="image size in pixels (default 320x240)")
+
+
+def _add_look(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--shading", choices=("smooth", "flat"), default="smooth",
+                   help="smooth: radiosity interpolated across patches (not across creases or material borders); "
+                        "flat: one value per patch (default smooth)")
+    p.add_argument("--exposure", type=float, default=0.0, metavar="STOPS",
+                   help="brighten (positive) or darken (negative) PNG/JPEG output by this many stops (default 0)")
+    p.add_argument("--light", type=_point_light, action="append", default=[], metavar="X,Y,Z:R,G,B",
+                   help="add a point light at X,Y,Z with intensity R,G,B in W/sr (repeatable); emitting patches "
+                        "of the scene always shine")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _add_dynamic(p: argparse.ArgumentParser, local_size: int = 1024) -> None:
+    p.add_argument("--local-size", type=_positive_int, default=local_size, metavar="M",
+                   help=f"patches in the local set around the observer, the size of the multibounce matrix K "
+                        f"(default {local_size}; capped at the scene's patch count)")
+    p.add_argument("--update", choices=("exact", "paper"), default="exact",
+                   help="local-matrix update: exact (Sherman-Morrison swaps, equals a rebuild) or paper "
+                        "(the published rank-one update) (default exact)")
+    p.add_argument("--storage", choices=("fp16", "fp32", "fp64"), default="fp32",
+                   help="element type K is stored in on the device (default fp32)")
+
+
+def _add_walk_output(p: argparse.ArgumentParser, out: str | None) -> None:
+    p.add_argument("--out", default=out, metavar="DIR",
+                   help="folder for frame_NNNN images, compare_NNNN.png and summary.txt (created if missing)"
+                        + (f"; default ./{out}" if out else "; default: write no images"))
+    p.add_argument("--format", default="png", choices=("png", "jpg", "exr", "hdr", "tif"),
+                   help="image format of the frames (exr keeps linear float values) (default png)")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="pydynrad",
-        description="Dynamic Radiosity on OpenCL: form factors, local multibounce matrices, frame loops.",
+        description="Dynamic Radiosity on OpenCL: form factors, local multibounce matrices, frame loops. "
+                    "Start with `pydynrad demo`.",
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=_Parser)
+
     p = sub.add_parser("info", help="list OpenCL devices and the one pydynrad uses",
                        description="List every OpenCL device and show the one pydynrad selects "
                                    "(PYOPENCL_CTX overrides the default, the first PoCL CPU device).")
     p.set_defaults(func=_cmd_info)
+
+    p = sub.add_parser("demo", help="Cornell box walk with a moving light: frames, timings, error",
+                       description="Render the Cornell box while the camera walks into it and a point light circles "
+                                   "the blocks. The local multibounce matrix follows the camera; each frame is "
+                                   "written as an image, and at the first and last frame the full radiosity is "
+                                   "solved too, giving the local-versus-full error and a comparison image. Prints "
+                                   "a table of per-stage timings.")
+    p.add_argument("--frames", type=_positive_int, default=24, metavar="N", help="number of frames (default 24)")
+    p.add_argument("--size", type=_size, default=(320, 240), metavar="WxH", help="image size in pixels (default 320x240)")
+    p.add_argument("--max-edge", type=_positive_float, default=80.0, metavar="MM",
+                   help="longest patch edge in mm (default 80: about 2,600 patches)")
+    _add_form_factors(p, resolution=64)
+    _add_dynamic(p, local_size=1024)
+    _add_walk_output(p, DEMO_DIR)
+    p.add_argument("--shading", choices=("smooth", "flat"), default="smooth", help="smooth or flat shading (default smooth)")
+    p.add_argument("--exposure", type=float, default=0.0, metavar="STOPS", help="PNG/JPEG exposure in stops (default 0)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cmd_demo)
+
+    p = sub.add_parser("formfactors", help="precompute a scene's form factors into a file",
+                       description="Compute the sparse form-factor matrix F of SCENE with hemicubes and save it as "
+                                   ".npz (CSR arrays plus a header with the scene's geometry hash and the "
+                                   "parameters, so a file is never used with the wrong scene). The file is written "
+                                   "whole: a temporary file, then a rename.")
+    _add_scene(p)
+    p.add_argument("-o", "--output", required=True, metavar="FILE.npz", help="output file (.npz)")
+    p.add_argument("--resolution", type=_positive_int, default=64, metavar="R",
+                   help="hemicube resolution (R x R pixels on the top face) (default 64)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_formfactors)
+
+    p = sub.add_parser("render", help="render one image of a full radiosity solution",
+                       description="Solve the radiosity of SCENE over all patches (emitting patches plus any "
+                                   "--light) and render it from one camera.")
+    _add_scene(p)
+    p.add_argument("-o", "--output", required=True, metavar="IMAGE",
+                   help="output image: .png/.jpg (exposed, sRGB, 8-bit) or .exr/.hdr/.tif (linear float)")
+    _add_camera(p)
+    _add_look(p)
+    _add_form_factors(p)
+    p.set_defaults(func=_cmd_render)
+
+    p = sub.add_parser("walk", help="walk a camera path through a scene with dynamic radiosity",
+                       description="Follow the camera path in FILE through SCENE: per frame the local multibounce "
+                                   "matrix follows the camera, the lights of that frame are applied and an image is "
+                                   "rendered. Prints per-stage timings. The path file is JSON: "
+                                   '{"frames": 48, "fov": 39.3, "size": [320, 240], "keyframes": '
+                                   '[{"position": [x,y,z], "look_at": [x,y,z]}, ...]} (or "orbit": {"center": '
+                                   '[x,y,z], "radius": r, "height": h} instead of keyframes), optionally "lights": '
+                                   '[{"type": "point", "intensity": [r,g,b], "keyframes": [[x,y,z], ...]}].')
+    _add_scene(p)
+    p.add_argument("--path", required=True, metavar="FILE", help="camera path file (JSON, format above)")
+    _add_look(p)
+    _add_form_factors(p)
+    _add_dynamic(p)
+    _add_walk_output(p, None)
+    p.add_argument("--reference-frames", type=int, nargs="*", default=[], metavar="K",
+                   help="frames (negative: from the end) at which to also solve the full radiosity, report the "
+                        "error and write compare_K.png")
+    p.set_defaults(func=_cmd_walk)
+
+    p = sub.add_parser("compare", help="dynamic versus full radiosity for one view, side by side",
+                       description="Place the local set around the camera, compute the dynamic radiosity and the "
+                                   "full solution, and write one image: dynamic | full | false-colour relative "
+                                   "error with a colour bar. Prints the errors.")
+    _add_scene(p)
+    p.add_argument("-o", "--output", required=True, metavar="IMAGE", help="output image (.png recommended)")
+    _add_camera(p)
+    _add_look(p)
+    _add_form_factors(p)
+    _add_dynamic(p)
+    p.set_defaults(func=_cmd_compare)
     return parser
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"pydynrad: warning: {message}", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous = warnings.showwarning
+    warnings.showwarning = _one_line_warning
     try:
         return int(args.func(args) or 0)
     except (PydynradError, OSError) as exc:
-        print(f"pydynrad {args.command}: error: {exc}", file=sys.stderr)
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        print(f"pydynrad {args.command}: error: {first}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"pydynrad {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = previous

@@ -1,0 +1,279 @@
+"""Camera and light paths for walks: keyframes interpolated per frame, orbits, fly-throughs,
+and the JSON path file that ``pydynrad walk --path FILE`` reads.
+
+A :class:`CameraPath` holds K keyframes (eye positions and look-at points) and a frame count;
+frame i samples the keyframe curve at parameter ``i (K - 1) / (frames - 1)``, uniformly in
+keyframe index (Catmull-Rom, which passes through every keyframe, or linear). A
+:class:`LightTrack` moves a point or spot light the same way.
+
+Path file (JSON)::
+
+    {
+      "frames": 48,                       # number of frames (>= 1)
+      "fov": 39.3,                        # vertical field of view, degrees (default 45)
+      "size": [320, 240],                 # image width, height in pixels (default 320 x 240)
+      "up": [0, 1, 0],                    # optional, default +y
+      "interpolation": "catmull-rom",     # or "linear"
+      "keyframes": [{"position": [x, y, z], "look_at": [x, y, z]}, ...],
+      # instead of "keyframes": "orbit": {"center": [..], "radius": r, "height": h,
+      #                                     "start_angle": degrees, "turns": 1.0}
+      "lights": [{"type": "point", "intensity": [r, g, b], "keyframes": [[x, y, z], ...]}]
+    }
+
+``"lights"`` is optional; each light is ``"point"`` (intensity, W/sr) with position keyframes
+(one keyframe: a fixed light), or ``"directional"`` (direction, irradiance).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .camera import Camera
+from .errors import InvalidInputError
+
+__all__ = ["CameraPath", "LightTrack", "orbit", "fly_through", "load_path", "INTERPOLATIONS"]
+
+INTERPOLATIONS = ("catmull-rom", "linear")
+
+
+def _keyframes(value, what: str) -> np.ndarray:
+    a = np.asarray(value, dtype=np.float64)
+    if a.ndim == 1 and a.shape == (3,):
+        a = a[None]
+    if a.ndim != 2 or a.shape[1] != 3 or len(a) == 0:
+        raise InvalidInputError(f"{what} must be a list of (x, y, z) points; got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"{what} must be finite")
+    return a
+
+
+def _frame_count(frames) -> int:
+    if isinstance(frames, bool) or not float(frames).is_integer() or int(frames) < 1:
+        raise InvalidInputError(f"frames must be a whole number >= 1; got {frames!r}")
+    return int(frames)
+
+
+def sample_curve(keys: np.ndarray, s: float, interpolation: str) -> np.ndarray:
+    """Point at parameter ``s`` in [0, K-1] on the curve through ``keys`` (K, 3)."""
+    k = len(keys)
+    if k == 1:
+        return keys[0].copy()
+    s = min(max(float(s), 0.0), k - 1.0)
+    i = min(int(np.floor(s)), k - 2)
+    t = s - i
+    p1, p2 = keys[i], keys[i + 1]
+    if interpolation == "linear":
+        return (1.0 - t) * p1 + t * p2
+    # Uniform Catmull-Rom; end segments reflect the missing neighbour so the curve starts and
+    # ends with the direction of its first and last chords.
+    p0 = keys[i - 1] if i > 0 else 2.0 * p1 - p2
+    p3 = keys[i + 2] if i + 2 < k else 2.0 * p2 - p1
+    t2, t3 = t * t, t * t * t
+    return 0.5 * ((2.0 * p1) + (-p0 + p2) * t + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2
+                  + (-p0 + 3.0 * p1 - 3.0 * p2 + p3) * t3)
+
+
+def _param(frame: int, frames: int, n_keys: int) -> float:
+    if not 0 <= frame < frames:
+        raise InvalidInputError(f"frame {frame} outside 0..{frames - 1}")
+    return 0.0 if frames == 1 else frame * (n_keys - 1) / (frames - 1)
+
+
+@dataclass(frozen=True, eq=False)
+class CameraPath:
+    """A camera moving through keyframes.
+
+    Parameters
+    ----------
+    positions : (K, 3) float
+        Eye keyframes, scene units.
+    look_ats : (K, 3) float or None
+        Look-at keyframes; None looks along the path (a fly-through).
+    frames : int
+        Number of frames rendered along the path.
+    fov_y, width, height, up : the lens and image size of every frame (see :class:`Camera`).
+    interpolation : "catmull-rom" or "linear"
+    """
+
+    positions: np.ndarray
+    look_ats: np.ndarray | None
+    frames: int
+    fov_y: float = 45.0
+    width: int = 320
+    height: int = 240
+    up: tuple = (0.0, 1.0, 0.0)
+    interpolation: str = "catmull-rom"
+
+    def __post_init__(self) -> None:
+        pos = _keyframes(self.positions, "camera keyframe positions")
+        object.__setattr__(self, "positions", pos)
+        if self.look_ats is not None:
+            look = _keyframes(self.look_ats, "camera keyframe look_at points")
+            if look.shape != pos.shape:
+                raise InvalidInputError(f"{len(pos)} position keyframes but {len(look)} look_at keyframes")
+            object.__setattr__(self, "look_ats", look)
+        elif len(pos) < 2:
+            raise InvalidInputError("a path without look_at points needs at least 2 positions to look along")
+        object.__setattr__(self, "frames", _frame_count(self.frames))
+        if self.interpolation not in INTERPOLATIONS:
+            raise InvalidInputError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}; got {self.interpolation!r}")
+        self.camera(0)  # validates the lens and the first view now rather than mid-walk
+
+    def __len__(self) -> int:
+        return self.frames
+
+    def __iter__(self):
+        return (self.camera(i) for i in range(self.frames))
+
+    def camera(self, frame: int) -> Camera:
+        """The camera of frame ``frame`` (0-based)."""
+        k = len(self.positions)
+        s = _param(frame, self.frames, k)
+        eye = sample_curve(self.positions, s, self.interpolation)
+        if self.look_ats is not None:
+            target = sample_curve(self.look_ats, s, self.interpolation)
+        else:
+            # Look along the curve: a point a little further on (or back, at the very end).
+            ds = 0.05
+            ahead = sample_curve(self.positions, min(s + ds, k - 1.0), self.interpolation)
+            behind = sample_curve(self.positions, max(s - ds, 0.0), self.interpolation)
+            target = eye + (ahead - behind)
+        return Camera(eye, target, self.up, self.fov_y, self.width, self.height)
+
+
+def orbit(center, radius: float, height: float, frames: int, *, start_angle: float = 0.0, turns: float = 1.0,
+          up=(0.0, 1.0, 0.0), **lens) -> CameraPath:
+    """A circle of ``radius`` around ``center`` at ``height`` above it (along ``up``), always
+    looking at ``center``; ``turns`` full turns over ``frames`` frames, starting at
+    ``start_angle`` degrees. ``lens``: ``fov_y``, ``width``, ``height`` of :class:`CameraPath`.
+    """
+    c = _keyframes(center, "orbit center")[0]
+    n = _frame_count(frames)
+    if not (np.isfinite(radius) and radius > 0):
+        raise InvalidInputError(f"orbit radius must be > 0; got {radius!r}")
+    up_v = np.asarray(up, dtype=np.float64)
+    up_v = up_v / np.linalg.norm(up_v)
+    a = np.cross(up_v, [1.0, 0.0, 0.0] if abs(up_v[0]) < 0.9 else [0.0, 0.0, 1.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(up_v, a)
+    # Frames sample the full turn without repeating the start when turns == 1.
+    angles = np.radians(start_angle) + 2.0 * np.pi * turns * np.arange(n) / n
+    pos = c + radius * (np.cos(angles)[:, None] * a + np.sin(angles)[:, None] * b) + height * up_v
+    return CameraPath(pos, np.repeat(c[None], n, axis=0), n, up=tuple(up_v), interpolation="linear", **lens)
+
+
+def fly_through(points, frames: int, **lens) -> CameraPath:
+    """Fly through ``points`` (K >= 2, Catmull-Rom) in ``frames`` frames, looking ahead."""
+    return CameraPath(_keyframes(points, "fly-through points"), None, _frame_count(frames), **lens)
+
+
+@dataclass(frozen=True, eq=False)
+class LightTrack:
+    """A light whose position follows keyframes over a walk.
+
+    ``light`` is a :class:`~pydynrad.lights.PointLight` or ``SpotLight`` (any frozen dataclass
+    with a ``position`` field); frame i of an n-frame walk places it on the curve through
+    ``positions`` at parameter ``i (K - 1) / (n - 1)``.
+    """
+
+    light: object
+    positions: np.ndarray
+    interpolation: str = "catmull-rom"
+
+    def __post_init__(self) -> None:
+        if not (dataclasses.is_dataclass(self.light) and hasattr(self.light, "position")):
+            raise InvalidInputError(f"a LightTrack needs a light with a position; got {self.light!r}")
+        object.__setattr__(self, "positions", _keyframes(self.positions, "light keyframes"))
+        if self.interpolation not in INTERPOLATIONS:
+            raise InvalidInputError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}; got {self.interpolation!r}")
+
+    def at(self, frame: int, frames: int):
+        """The light at frame ``frame`` of ``frames``."""
+        s = _param(frame, frames, len(self.positions))
+        return dataclasses.replace(self.light, position=sample_curve(self.positions, s, self.interpolation))
+
+
+def lights_at(lights, frame: int, frames: int) -> list:
+    """The lights of one frame: :class:`LightTrack` entries placed, fixed lights as they are."""
+    return [l.at(frame, frames) if isinstance(l, LightTrack) else l for l in lights]
+
+
+def _field(doc: dict, key: str, where: str, default=None, required: bool = False):
+    if key not in doc:
+        if required:
+            raise InvalidInputError(f"{where}: missing field {key!r}")
+        return default
+    return doc[key]
+
+
+def _parse_light(item, where: str):
+    from .lights import DirectionalLight, PointLight
+
+    if not isinstance(item, dict):
+        raise InvalidInputError(f"{where}: a light must be an object with a 'type'")
+    kind = _field(item, "type", where, required=True)
+    if kind == "point":
+        keys = _keyframes(_field(item, "keyframes", where, required=True), f"{where}: keyframes")
+        light = PointLight(keys[0], _field(item, "intensity", where, required=True))
+        return LightTrack(light, keys, item.get("interpolation", "catmull-rom")) if len(keys) > 1 else light
+    if kind == "directional":
+        return DirectionalLight(_field(item, "direction", where, required=True), _field(item, "irradiance", where, required=True))
+    raise InvalidInputError(f"{where}: unknown light type {kind!r}; use 'point' or 'directional'")
+
+
+def load_path(path) -> tuple[CameraPath, list]:
+    """Read a JSON path file (format in the module docstring).
+
+    Returns ``(camera_path, lights)``: lights are fixed lights and :class:`LightTrack` s,
+    ready for :func:`pydynrad.walk`. Every problem raises
+    :class:`~pydynrad.errors.InvalidInputError` naming the file and the field.
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InvalidInputError(f"path file {str(path)!r}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InvalidInputError(f"path file {str(path)!r}: cannot read: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise InvalidInputError(f"path file {str(path)!r}: not valid JSON: {exc}") from None
+    where = f"path file {str(path)!r}"
+    if not isinstance(doc, dict):
+        raise InvalidInputError(f"{where}: the top level must be a JSON object")
+    try:
+        size = _field(doc, "size", where, [320, 240])
+        if not (isinstance(size, list) and len(size) == 2):
+            raise InvalidInputError(f"{where}: 'size' must be [width, height]")
+        lens = dict(fov_y=_field(doc, "fov", where, 45.0), width=size[0], height=size[1],
+                    up=tuple(_field(doc, "up", where, (0.0, 1.0, 0.0))))
+        frames = _field(doc, "frames", where, required=True)
+        if "orbit" in doc:
+            o = doc["orbit"]
+            if not isinstance(o, dict):
+                raise InvalidInputError(f"{where}: 'orbit' must be an object")
+            cam = orbit(_field(o, "center", where, required=True), _field(o, "radius", where, required=True),
+                        _field(o, "height", where, 0.0), frames, start_angle=_field(o, "start_angle", where, 0.0),
+                        turns=_field(o, "turns", where, 1.0), **lens)
+        else:
+            keys = _field(doc, "keyframes", where, required=True)
+            if not isinstance(keys, list) or not keys or not all(isinstance(k, dict) for k in keys):
+                raise InvalidInputError(f"{where}: 'keyframes' must be a non-empty list of "
+                                        "{\"position\": [x, y, z], \"look_at\": [x, y, z]} objects")
+            positions = [_field(k, "position", f"{where}: keyframe {i}", required=True) for i, k in enumerate(keys)]
+            look_ats = [_field(k, "look_at", f"{where}: keyframe {i}", required=True) for i, k in enumerate(keys)]
+            cam = CameraPath(positions, look_ats, frames, interpolation=doc.get("interpolation", "catmull-rom"), **lens)
+        items = _field(doc, "lights", where, [])
+        if not isinstance(items, list):
+            raise InvalidInputError(f"{where}: 'lights' must be a list")
+        lights = [_parse_light(item, f"{where}: light {i}") for i, item in enumerate(items)]
+    except InvalidInputError as exc:
+        msg = str(exc)
+        raise InvalidInputError(msg if msg.startswith(where) else f"{where}: {msg}") from None
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"{where}: {exc}") from None
+    return cam, lights

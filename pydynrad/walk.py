@@ -1,0 +1,219 @@
+"""The frame loop: a camera walks through a scene, the local matrix follows it.
+
+Per frame :func:`walk` does what an interactive viewer would, and times each stage:
+
+1. ``update``: ``dynamic.update(camera.position)`` moves the local patch set to the observer
+   (the paper's per-frame swaps of the multibounce matrix K);
+2. ``lighting``: ``dynamic.radiosity(lights)`` with the lights of this frame (lights may move
+   along :class:`~pydynrad.paths.LightTrack` keyframes): one light pass and B = L + P K L;
+3. ``render``: primary visibility and shading (:class:`~pydynrad.render.Renderer`);
+4. ``write``: the image file, when an output folder is given.
+
+At chosen frames it can also solve the full radiosity (all N patches) for the same lights and
+record the local-versus-full error, with a comparison image (:mod:`pydynrad.compare`).
+Timings are wall-clock seconds measured on the host after each stage has finished on the
+device; the first frame includes kernel builds and uploads.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .camera import Camera
+from .errors import InvalidInputError
+from .paths import CameraPath, LightTrack, fly_through, lights_at, load_path, orbit
+
+__all__ = ["walk", "WalkResult", "FrameRecord", "CameraPath", "LightTrack", "orbit", "fly_through", "load_path", "STAGES"]
+
+STAGES = ("update", "lighting", "render", "write")
+
+
+@dataclass
+class FrameRecord:
+    """One frame of a walk: its camera, stage times (seconds), the dynamic solver's stats,
+    the image written (if any) and, at reference frames, the local-versus-full error
+    (area-weighted relative RMS over patches, see :func:`pydynrad.compare.radiosity_error`)."""
+
+    index: int
+    camera: Camera
+    seconds: dict[str, float]
+    stats: object = None
+    image_path: Path | None = None
+    error: float | None = None
+    comparison_path: Path | None = None
+    pixel_error: dict | None = None
+
+
+@dataclass
+class WalkResult:
+    """What :func:`walk` returns: per-frame records, the last frame's radiosity (N, 3) and
+    image (H, W, 3), and every image when ``keep_images`` was set."""
+
+    frames: list[FrameRecord]
+    radiosity: np.ndarray
+    image: np.ndarray
+    images: list[np.ndarray] = field(default_factory=list)
+
+    def timings(self) -> dict[str, np.ndarray]:
+        """Seconds per stage, one entry per frame."""
+        return {s: np.array([f.seconds.get(s, 0.0) for f in self.frames]) for s in STAGES}
+
+    def errors(self) -> dict[int, float]:
+        """Local-versus-full error at each reference frame."""
+        return {f.index: f.error for f in self.frames if f.error is not None}
+
+    def summary(self) -> str:
+        """A table of stage times: first frame (warm-up), median and max of the others."""
+        t = self.timings()
+        lines = [f"{'stage':10s} {'first ms':>10s} {'median ms':>10s} {'max ms':>10s}   ({len(self.frames)} frames)"]
+        for stage in STAGES:
+            v = 1e3 * t[stage]
+            rest = v[1:] if len(v) > 1 else v
+            lines.append(f"{stage:10s} {v[0]:10.1f} {np.median(rest):10.1f} {rest.max():10.1f}")
+        total = sum(t[s] for s in STAGES)
+        rest = total[1:] if len(total) > 1 else total
+        lines.append(f"{'frame':10s} {1e3 * total[0]:10.1f} {1e3 * np.median(rest):10.1f} {1e3 * rest.max():10.1f}"
+                     f"   -> {1.0 / max(np.median(rest), 1e-9):.1f} frames/s")
+        for k, e in self.errors().items():
+            lines.append(f"local vs full radiosity at frame {k}: relative RMS error {100 * e:.3g}%")
+        return "\n".join(lines)
+
+
+def _frame_set(frames, n: int) -> set[int]:
+    out = set()
+    for f in frames:
+        k = int(f)
+        if k < 0:
+            k += n
+        if not 0 <= k < n:
+            raise InvalidInputError(f"reference frame {f} outside the walk's {n} frames")
+        out.add(k)
+    return out
+
+
+def walk(
+    scene,
+    path: CameraPath,
+    dynamic=None,
+    *,
+    lights=(),
+    form_factors=None,
+    local_size: int | None = None,
+    solver_options: dict | None = None,
+    shading: str = "smooth",
+    output=None,
+    image_format: str = "png",
+    exposure: float = 0.0,
+    reference_frames=(),
+    keep_images: bool = False,
+    progress: bool = True,
+    device=None,
+) -> WalkResult:
+    """Walk a camera through ``scene`` with dynamic radiosity.
+
+    Parameters
+    ----------
+    scene : Scene
+    path : CameraPath
+        From :func:`orbit`, :func:`fly_through`, :class:`CameraPath` keyframes or :func:`load_path`.
+    dynamic : DynamicRadiosity, optional
+        The solver to drive (anything with ``update(position)`` and ``radiosity(lights)``).
+        Built from ``form_factors`` when omitted.
+    lights : sequence of lights and LightTrack
+        Analytic lights of every frame; a :class:`LightTrack` moves along its keyframes.
+    form_factors : (N, N) scipy.sparse, optional
+        F for building ``dynamic`` and for the reference solves; required for either.
+    local_size : int, optional
+        M, the local set's size, when building ``dynamic`` (default min(N, 1024)).
+    solver_options : dict, optional
+        More keyword arguments for :class:`~pydynrad.DynamicRadiosity` (``update``,
+        ``storage``, ``max_swaps_per_frame``, ...).
+    shading : "smooth" or "flat"
+    output : str or Path, optional
+        Folder for ``frame_0000.<image_format>``, ... (created if missing); None writes nothing.
+    image_format : str
+        File extension of the frames: png, jpg, exr, ...
+    exposure : float
+        Stops applied when writing images.
+    reference_frames : iterable of int
+        Frames (negative counts from the end) at which to solve the full radiosity and record
+        the error; with ``output`` a ``compare_0000.png`` is written there too.
+    keep_images : bool
+        Return every frame's image in ``WalkResult.images``.
+    progress : bool
+        Show a tqdm progress bar.
+    device : Device, optional
+
+    Returns
+    -------
+    WalkResult
+    """
+    from tqdm.auto import tqdm
+
+    from .device import default_device
+    from .image_io import _format_for, write_image
+    from .render import Renderer
+
+    if not isinstance(path, CameraPath):
+        raise InvalidInputError(f"path must be a CameraPath (orbit, fly_through, load_path); got {type(path).__name__}")
+    device = device or default_device()
+    lights = [lights] if not isinstance(lights, (list, tuple)) else list(lights)
+    n = len(path)
+    refs = _frame_set(reference_frames, n)
+    if refs and form_factors is None:
+        raise InvalidInputError("reference frames need the form factors (form_factors=F) for the full solve")
+    if dynamic is None:
+        if form_factors is None:
+            raise InvalidInputError("walk needs a DynamicRadiosity (dynamic=...) or the form factors (form_factors=F)")
+        from .dynamic import DynamicRadiosity
+
+        m = min(len(scene), 1024) if local_size is None else local_size
+        dynamic = DynamicRadiosity(scene, form_factors, local_size=m, device=device, **(solver_options or {}))
+    out_dir = None
+    if output is not None:
+        out_dir = Path(output)
+        _format_for(out_dir / f"frame.{image_format}")  # reject a bad format before any work
+        out_dir.mkdir(parents=True, exist_ok=True)
+    renderer = Renderer(scene, device)
+    records, images = [], []
+    b = img = None
+    bar = tqdm(range(n), desc="walk", unit="frame", disable=not progress)
+    for k in bar:
+        cam = path.camera(k)
+        frame_lights = lights_at(lights, k, n)
+        t0 = time.perf_counter()
+        stats = dynamic.update(cam.position)
+        t1 = time.perf_counter()
+        b = np.asarray(dynamic.radiosity(frame_lights))
+        t2 = time.perf_counter()
+        img = renderer.render(b, cam, shading)
+        t3 = time.perf_counter()
+        rec = FrameRecord(k, cam, {"update": t1 - t0, "lighting": t2 - t1, "render": t3 - t2, "write": 0.0}, stats)
+        if out_dir is not None:
+            rec.image_path = write_image(out_dir / f"frame_{k:04d}.{image_format}", img, exposure)
+            rec.seconds["write"] = time.perf_counter() - t3
+        if k in refs:
+            _reference(rec, scene, form_factors, frame_lights, b, img, renderer, shading, out_dir, exposure, device)
+        if keep_images:
+            images.append(img)
+        records.append(rec)
+        bar.set_postfix_str(" ".join(f"{s} {1e3 * v:.0f}ms" for s, v in rec.seconds.items() if s != "write"))
+    return WalkResult(records, b, img, images)
+
+
+def _reference(rec: FrameRecord, scene, F, lights, b, img, renderer, shading, out_dir, exposure, device) -> None:
+    """Solve the full radiosity for this frame's lights; record the error and the comparison."""
+    from .compare import comparison_image, radiosity_error
+    from .image_io import write_image
+    from .solve import solve
+
+    full = solve(scene, F, lights, device=device).radiosity
+    rec.error = radiosity_error(b, full, scene.areas)
+    full_img = renderer.render(full, rec.camera, shading)
+    composite, rec.pixel_error = comparison_image(img, full_img, exposure)
+    if out_dir is not None:
+        rec.comparison_path = write_image(out_dir / f"compare_{rec.index:04d}.png", composite)
