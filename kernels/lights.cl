@@ -29,7 +29,8 @@ __kernel void direct_irradiance(const int n, __global const float4 *centers, __g
             dist = far;
             scale = 1.0f;
         } else {
-            const float3 d = a.xyz - org;
+            // The law uses the true centre; only the shadow ray starts off the surface.
+            const float3 d = a.xyz - c;
             dist = length(d);
             if (dist <= 0.0f) continue;
             wi = d / dist;
@@ -41,7 +42,7 @@ __kernel void direct_irradiance(const int n, __global const float4 *centers, __g
         }
         const float cosine = dot(nrm, wi);
         if (cosine <= 0.0f || scale <= 0.0f) continue;
-        if (bvh_occluded(nodes, tris, org, wi, 0.0f, dist - eps)) continue;
+        if (bvh_occluded(nodes, tris, org, wi, 0.0f, dist - 2.0f * eps)) continue;
         e += p.xyz * (scale * cosine);
     }
     irradiance[i] = (float4)(e, 0.0f);
