@@ -147,10 +147,11 @@ class CameraPath:
 
 
 def orbit(center, radius: float, height: float, frames: int, *, start_angle: float = 0.0, turns: float = 1.0,
-          up=(0.0, 1.0, 0.0), **lens) -> CameraPath:
+          up=(0.0, 1.0, 0.0), fov_y: float = 45.0, size: tuple[int, int] = (320, 240)) -> CameraPath:
     """A circle of ``radius`` around ``center`` at ``height`` above it (along ``up``), always
     looking at ``center``; ``turns`` full turns over ``frames`` frames, starting at
-    ``start_angle`` degrees. ``lens``: ``fov_y``, ``width``, ``height`` of :class:`CameraPath`.
+    ``start_angle`` degrees. ``fov_y`` (degrees) and ``size`` (width, height in pixels) set
+    the lens and the image.
     """
     c = _keyframes(center, "orbit center")[0]
     n = _frame_count(frames)
@@ -164,12 +165,20 @@ def orbit(center, radius: float, height: float, frames: int, *, start_angle: flo
     # Frames sample the full turn without repeating the start when turns == 1.
     angles = np.radians(start_angle) + 2.0 * np.pi * turns * np.arange(n) / n
     pos = c + radius * (np.cos(angles)[:, None] * a + np.sin(angles)[:, None] * b) + height * up_v
-    return CameraPath(pos, np.repeat(c[None], n, axis=0), n, up=tuple(up_v), interpolation="linear", **lens)
+    return CameraPath(pos, np.repeat(c[None], n, axis=0), n, fov_y, *_size(size), up=tuple(up_v), interpolation="linear")
 
 
-def fly_through(points, frames: int, **lens) -> CameraPath:
-    """Fly through ``points`` (K >= 2, Catmull-Rom) in ``frames`` frames, looking ahead."""
-    return CameraPath(_keyframes(points, "fly-through points"), None, _frame_count(frames), **lens)
+def fly_through(points, frames: int, *, up=(0.0, 1.0, 0.0), fov_y: float = 45.0,
+                size: tuple[int, int] = (320, 240)) -> CameraPath:
+    """Fly through ``points`` (K >= 2, Catmull-Rom) in ``frames`` frames, looking ahead;
+    lens and image as in :func:`orbit`."""
+    return CameraPath(_keyframes(points, "fly-through points"), None, _frame_count(frames), fov_y, *_size(size), up=up)
+
+
+def _size(size) -> tuple[int, int]:
+    if not (isinstance(size, (tuple, list)) and len(size) == 2):
+        raise InvalidInputError(f"size must be (width, height) in pixels; got {size!r}")
+    return size[0], size[1]
 
 
 @dataclass(frozen=True, eq=False)
@@ -249,8 +258,7 @@ def load_path(path) -> tuple[CameraPath, list]:
         size = _field(doc, "size", where, [320, 240])
         if not (isinstance(size, list) and len(size) == 2):
             raise InvalidInputError(f"{where}: 'size' must be [width, height]")
-        lens = dict(fov_y=_field(doc, "fov", where, 45.0), width=size[0], height=size[1],
-                    up=tuple(_field(doc, "up", where, (0.0, 1.0, 0.0))))
+        fov, up = _field(doc, "fov", where, 45.0), tuple(_field(doc, "up", where, (0.0, 1.0, 0.0)))
         frames = _field(doc, "frames", where, required=True)
         if "orbit" in doc:
             o = doc["orbit"]
@@ -258,7 +266,7 @@ def load_path(path) -> tuple[CameraPath, list]:
                 raise InvalidInputError(f"{where}: 'orbit' must be an object")
             cam = orbit(_field(o, "center", where, required=True), _field(o, "radius", where, required=True),
                         _field(o, "height", where, 0.0), frames, start_angle=_field(o, "start_angle", where, 0.0),
-                        turns=_field(o, "turns", where, 1.0), **lens)
+                        turns=_field(o, "turns", where, 1.0), up=up, fov_y=fov, size=size)
         else:
             keys = _field(doc, "keyframes", where, required=True)
             if not isinstance(keys, list) or not keys or not all(isinstance(k, dict) for k in keys):
@@ -266,7 +274,8 @@ def load_path(path) -> tuple[CameraPath, list]:
                                         "{\"position\": [x, y, z], \"look_at\": [x, y, z]} objects")
             positions = [_field(k, "position", f"{where}: keyframe {i}", required=True) for i, k in enumerate(keys)]
             look_ats = [_field(k, "look_at", f"{where}: keyframe {i}", required=True) for i, k in enumerate(keys)]
-            cam = CameraPath(positions, look_ats, frames, interpolation=doc.get("interpolation", "catmull-rom"), **lens)
+            cam = CameraPath(positions, look_ats, frames, fov, size[0], size[1], up,
+                             interpolation=doc.get("interpolation", "catmull-rom"))
         items = _field(doc, "lights", where, [])
         if not isinstance(items, list):
             raise InvalidInputError(f"{where}: 'lights' must be a list")

@@ -1,0 +1,153 @@
+import json
+
+import numpy as np
+import pytest
+
+from pydynrad import InvalidInputError, Scene, read_image
+from pydynrad.lights import PointLight, light_vector
+from pydynrad.paths import CameraPath, LightTrack, fly_through, load_path, orbit
+from pydynrad.render import Renderer
+from pydynrad.walk import walk
+
+from test_render import grid_box
+
+
+def test_keyframes_are_hit_and_interpolation_is_smooth():
+    keys = np.array([[0, 0, 0], [1, 2, 0], [3, 2, 1], [4, 0, 5]], dtype=float)
+    look = keys + [0, 0, -1]
+    path = CameraPath(keys, look, frames=3 * 4 + 1)  # every 4th frame is a keyframe
+    for i, k in enumerate(keys):
+        np.testing.assert_allclose(path.camera(4 * i).position, k, atol=1e-12)
+        np.testing.assert_allclose(path.camera(4 * i).look_at, look[i], atol=1e-12)
+    # Linear interpolation: frame 2 is halfway between keyframes 0 and 1.
+    lin = CameraPath(keys, look, frames=13, interpolation="linear")
+    np.testing.assert_allclose(lin.camera(2).position, (keys[0] + keys[1]) / 2, atol=1e-12)
+    # Catmull-Rom through equally spaced collinear points moves uniformly along the line.
+    line = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], dtype=float)
+    cr = CameraPath(line, line + [0, 0, -1], frames=7)
+    np.testing.assert_allclose([c.position[0] for c in cr], np.linspace(0, 3, 7), atol=1e-12)
+
+
+def test_orbit_and_fly_through():
+    centre = np.array([1.0, 2.0, 3.0])
+    path = orbit(centre, radius=5.0, height=1.5, frames=8, size=(16, 12), fov_y=30)
+    cams = list(path)
+    assert len(cams) == 8 and cams[0].width == 16 and cams[0].fov_y == 30
+    pos = np.array([c.position for c in cams])
+    np.testing.assert_allclose(pos[:, 1], centre[1] + 1.5)  # y is up
+    np.testing.assert_allclose(np.linalg.norm((pos - centre)[:, [0, 2]], axis=1), 5.0)
+    np.testing.assert_allclose([c.look_at for c in cams], np.repeat(centre[None], 8, 0))
+    assert len({tuple(np.round(p, 9)) for p in pos}) == 8  # a full turn without repeating the start
+    fly = fly_through([[0, 0, 0], [0, 0, -4], [0, 0, -8]], frames=5, size=(8, 8))
+    for cam in fly:
+        np.testing.assert_allclose(cam.basis()[2], [0, 0, -1], atol=1e-9)  # looks along the path
+
+
+def test_light_track_moves_the_light():
+    track = LightTrack(PointLight((0, 0, 0), 5.0), [[0, 0, 0], [2, 0, 0]], interpolation="linear")
+    assert track.at(0, 3).position == (0.0, 0.0, 0.0)
+    assert track.at(1, 3).position == (1.0, 0.0, 0.0)
+    assert track.at(2, 3).intensity == (5.0, 5.0, 5.0)
+    with pytest.raises(InvalidInputError):
+        track.at(3, 3)
+
+
+def write_json(tmp_path, doc, name="path.json"):
+    p = tmp_path / name
+    p.write_text(json.dumps(doc) if not isinstance(doc, str) else doc)
+    return p
+
+
+def test_load_path_file(tmp_path):
+    doc = {"frames": 5, "fov": 50, "size": [40, 30], "interpolation": "linear",
+           "keyframes": [{"position": [0, 0, 5], "look_at": [0, 0, 0]}, {"position": [2, 0, 5], "look_at": [0, 0, 0]}],
+           "lights": [{"type": "point", "intensity": [1, 2, 3], "keyframes": [[0, 1, 0], [0, 3, 0]]},
+                      {"type": "point", "intensity": 4, "keyframes": [[1, 1, 1]]},
+                      {"type": "directional", "direction": [0, -1, 0], "irradiance": 0.5}]}
+    path, lights = load_path(write_json(tmp_path, doc))
+    assert len(path) == 5 and path.camera(0).shape == (30, 40) and path.camera(0).fov_y == 50
+    np.testing.assert_allclose(path.camera(2).position, [1, 0, 5])
+    assert isinstance(lights[0], LightTrack) and lights[0].at(4, 5).position == (0.0, 3.0, 0.0)
+    assert lights[1].position == (1.0, 1.0, 1.0)
+    orbit_doc = {"frames": 4, "orbit": {"center": [0, 0, 0], "radius": 2, "height": 1}}
+    path, lights = load_path(write_json(tmp_path, orbit_doc, "o.json"))
+    assert len(path) == 4 and lights == []
+
+
+@pytest.mark.parametrize(
+    "doc, message",
+    [
+        ("{not json", "not valid JSON"),
+        ([1, 2], "top level"),
+        ({"keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "missing field 'frames'"),
+        ({"frames": 0, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "frames"),
+        ({"frames": 2, "keyframes": [{"position": [0, 0, 1]}]}, "keyframe 0: missing field 'look_at'"),
+        ({"frames": 2, "keyframes": []}, "keyframes"),
+        ({"frames": 2, "keyframes": [{"position": [0, 0], "look_at": [0, 0, 0]}]}, "x, y, z"),
+        ({"frames": 2, "size": [10], "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "size"),
+        ({"frames": 2, "fov": 200, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "fov_y"),
+        ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}], "lights": [{"type": "area"}]},
+         "unknown light type"),
+        ({"frames": 2, "orbit": {"radius": 1}}, "missing field 'center'"),
+    ],
+)
+def test_bad_path_files_name_the_file_and_the_problem(tmp_path, doc, message):
+    p = write_json(tmp_path, doc)
+    with pytest.raises(InvalidInputError, match=message) as info:
+        load_path(p)
+    assert str(p) in str(info.value)
+
+
+def test_missing_path_file(tmp_path):
+    with pytest.raises(InvalidInputError, match="no such file"):
+        load_path(tmp_path / "nope.json")
+
+
+class DirectOnly:
+    """A solver with the DynamicRadiosity interface whose radiosity is the direct light L
+    (emission + albedo * shadowed irradiance): no local set, so the loop itself is what is tested."""
+
+    def __init__(self, scene, device):
+        self.scene, self.device, self.observers = scene, device, []
+
+    def update(self, position):
+        self.observers.append(np.array(position))
+        return len(self.observers)
+
+    def radiosity(self, lights=()):
+        return light_vector(self.scene, lights, device=self.device)
+
+
+def test_walk_drives_solver_moves_lights_and_writes_frames(device, tmp_path):
+    pts, tris = grid_box(n=4, inward=True)
+    scene = Scene(pts, tris, albedo=0.5)
+    path = CameraPath([[0.5, 0.5, 0.9], [0.4, 0.6, 0.8]], [[0.5, 0.5, 0.0], [0.2, 0.4, 0.0]], frames=3,
+                      width=24, height=16, fov_y=80, interpolation="linear")
+    track = LightTrack(PointLight((0.2, 0.8, 0.5), 1.0), [[0.2, 0.8, 0.5], [0.8, 0.8, 0.5]], interpolation="linear")
+    solver = DirectOnly(scene, device)
+    result = walk(scene, path, solver, lights=[track], output=tmp_path / "frames", image_format="exr",
+                  keep_images=True, progress=False, device=device)
+    np.testing.assert_allclose(np.array(solver.observers), [c.position for c in path])
+    assert [f.stats for f in result.frames] == [1, 2, 3]
+    renderer = Renderer(scene, device)
+    for k, rec in enumerate(result.frames):
+        expect = renderer.render(light_vector(scene, [track.at(k, 3)], device=device), path.camera(k))
+        np.testing.assert_allclose(read_image(rec.image_path), expect, rtol=1e-6)
+        np.testing.assert_array_equal(result.images[k], expect)
+        assert set(rec.seconds) == {"update", "lighting", "render", "write"} and min(rec.seconds.values()) >= 0
+    assert not np.allclose(result.images[0], result.images[2])  # the light moved
+    t = result.timings()
+    assert t["render"].shape == (3,)
+    assert "median ms" in result.summary() and "render" in result.summary()
+
+
+def test_walk_rejects_bad_requests(device):
+    pts, tris = grid_box(n=1)
+    scene = Scene(pts, tris)
+    path = orbit((0.5, 0.5, 0.5), 0.2, 0.0, frames=2, size=(8, 8), fov_y=60)
+    with pytest.raises(InvalidInputError, match="form factors"):
+        walk(scene, path, progress=False, device=device)
+    with pytest.raises(InvalidInputError, match="reference frame"):
+        walk(scene, path, DirectOnly(scene, device), reference_frames=[5], form_factors=np.eye(1), progress=False)
+    with pytest.raises(InvalidInputError, match="CameraPath"):
+        walk(scene, [path.camera(0)], DirectOnly(scene, device), progress=False)
