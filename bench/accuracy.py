@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-__all__ = ["pathtracer_section", "accuracy_section", "relative_image_error", "walk_positions"]
+__all__ = ["pathtracer_section", "accuracy_section", "relative_image_error", "walk_positions", "timed"]
 
 #: The furnace of the path-tracer section: closed unit box, albedo and emission.
 FURNACE_ALBEDO, FURNACE_EMISSION = 0.6, 1.0
@@ -48,11 +48,11 @@ def _two_halves(fn, spp: int) -> tuple[np.ndarray, float]:
 def pathtracer_section(ctx) -> dict:
     """Furnace error vs samples per patch (should fall as 1/sqrt(spp)) and throughput."""
     import pydynrad
-    from pydynrad.scenes.analytic import closed_box
-    from pydynrad.scenes.cornell import cornell_box
+
+
 
     p = ctx.params
-    scene = closed_box(1.0, subdivisions=4, albedo=FURNACE_ALBEDO, emission=FURNACE_EMISSION)
+    scene = pydynrad.scenes.closed_box(1.0, subdivisions=p["furnace_subdivisions"], albedo=FURNACE_ALBEDO, emission=FURNACE_EMISSION)
     truth = FURNACE_EMISSION / (1.0 - FURNACE_ALBEDO)
     rows, errs = [], []
     pydynrad.path_trace_patches(scene, spp=1, device=ctx.device)  # compile outside the timings
@@ -63,7 +63,7 @@ def pathtracer_section(ctx) -> dict:
         err = float(np.sqrt(np.mean((b - truth) ** 2)) / truth)
         errs.append(err)
         rows.append([spp, len(scene), float(b.mean()), truth, err, dt, len(scene) * spp / dt / 1e6])
-    cornell = cornell_box()
+    cornell = pydynrad.scenes.cornell_box()
     w, h = p["image"]
     cam = _box_camera(w, h)
     pydynrad.path_trace(cornell, cam, spp=1, device=ctx.device)  # warm-up: compile, upload the BVH
@@ -123,7 +123,8 @@ def _settings(p: dict) -> list[dict]:
     return out
 
 
-def _timed(fn):
+def timed(fn):
+    """(fn(), wall seconds)."""
     t0 = time.perf_counter()
     out = fn()
     return out, time.perf_counter() - t0
@@ -133,10 +134,10 @@ def accuracy_section(ctx) -> dict:
     """The trade curve: error vs frame time per M, update mode, storage and resolution."""
     import pydynrad
     from pydynrad.compare import radiosity_error
-    from pydynrad.scenes.cornell import cornell_box
+
 
     p = ctx.params
-    scene = ctx.cached(("cornell", p["max_edge"]), lambda: cornell_box(max_edge=p["max_edge"]))
+    scene = ctx.cached(("cornell", p["max_edge"]), lambda: pydynrad.scenes.cornell_box(max_edge=p["max_edge"]))
     n = len(scene)
     path = walk_positions(p["frames"])
     w, h = p["image"]
@@ -150,7 +151,7 @@ def accuracy_section(ctx) -> dict:
     full = {}
     for R in p["resolutions"]:
         F = form_factors(R)
-        sol, t_solve = _timed(lambda: pydynrad.solve(scene, F, device=ctx.device))
+        sol, t_solve = timed(lambda: pydynrad.solve(scene, F, device=ctx.device))
         full[R] = (sol.radiosity, t_solve)
     ref_patches, noise_patches = _two_halves(
         lambda spp, seed: pydynrad.path_trace_patches(scene, spp=spp, seed=seed, device=ctx.device,
@@ -170,9 +171,9 @@ def accuracy_section(ctx) -> dict:
         F = form_factors(s["R"])
         dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=s["update"], storage=s["storage"],
                                         device=ctx.device)
-        _, t_build = _timed(lambda: dyn.update(path[0]))
-        t_update = [_timed(lambda: dyn.update(pos))[1] for pos in path[1:]]
-        b, t_light = _timed(dyn.radiosity)
+        _, t_build = timed(lambda: dyn.update(path[0]))
+        t_update = [timed(lambda: dyn.update(pos))[1] for pos in path[1:]]
+        b, t_light = timed(dyn.radiosity)
         local = np.asarray(dyn.local_patches)
         img = pydynrad.render(scene, b, cam, device=ctx.device)
         frame = (float(np.mean(t_update)) if t_update else 0.0) + t_light

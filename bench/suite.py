@@ -40,27 +40,27 @@ RESULTS_DIR = Path(__file__).resolve().parent / "results"
 #: Parameters per size; each section reads its own entry. "tiny" is for the tests only.
 SIZES: dict[str, dict] = {
     "tiny": {
-        "pathtracer": {"spp": (4, 16, 64), "image": (16, 12), "image_spp": 8},
+        "pathtracer": {"furnace_subdivisions": 2, "spp": (4, 16, 64), "image": (16, 12), "image_spp": 8},
         "formfactors": {"resolutions": (16, 32), "subdivisions": (2,)},
-        "paper": {"village": {"target_patches": 1500}, "resolution": 16, "M": (64, 128), "frames": 4},
+        "paper": {"village": {"houses": 1, "detail": 0.25}, "resolution": 16, "M": (64, 128), "frames": 4},
         "accuracy": {"max_edge": 250.0, "resolutions": (16, 32), "M": (48, 96), "base_M": 96,
                      "frames": 3, "ref_spp": 64, "image": (24, 18)},
         "drift": {"frames": 20},
         "bandwidth": {"M": (256,)},
     },
     "quick": {
-        "pathtracer": {"spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
+        "pathtracer": {"furnace_subdivisions": 3, "spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
         "formfactors": {"resolutions": (32, 64, 128), "subdivisions": (2, 4)},
-        "paper": {"village": {"target_patches": 8000}, "resolution": 32, "M": (1024,), "frames": 8},
+        "paper": {"village": {"houses": 2, "detail": 1.0}, "resolution": 32, "M": (1024,), "frames": 8},
         "accuracy": {"max_edge": 100.0, "resolutions": (32, 64), "M": (256, 512, 768), "base_M": 512,
                      "frames": 6, "ref_spp": 512, "image": (64, 48)},
         "drift": {"frames": 1000},
         "bandwidth": {"M": (1024, 2048)},
     },
     "full": {
-        "pathtracer": {"spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
+        "pathtracer": {"furnace_subdivisions": 4, "spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
         "formfactors": {"resolutions": (32, 64, 128, 256, 512), "subdivisions": (2, 4, 8)},
-        "paper": {"village": {"target_patches": 64000}, "resolution": 64, "M": (1024, 4096), "frames": 16},
+        "paper": {"village": {"houses": 12, "detail": 1.0}, "resolution": 64, "M": (1024, 4096), "frames": 16},
         "accuracy": {"max_edge": 50.0, "resolutions": (64, 128, 256), "M": (1024, 2048, 3072),
                      "base_M": 2048, "frames": 12, "ref_spp": 4096, "image": (320, 240)},
         "drift": {"frames": 10000},

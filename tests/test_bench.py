@@ -1,0 +1,103 @@
+"""The benchmark suite at a tiny size: its report's numbers are finite and its files readable.
+
+Speed is never asserted here (that is what the suite measures); these tests check that the
+runner, the sections and the report writer produce a complete, well-formed record.
+"""
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package lives in the repo root
+
+from bench import report, suite  # noqa: E402
+
+
+def _numbers(rows):
+    for row in rows:
+        for v in row:
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                yield v
+
+
+def _check_report(results: dict, written: dict, sections) -> None:
+    import matplotlib.image
+
+    data = json.loads(written["json"].read_text())  # strict JSON: NaN would fail to parse back as a number
+    assert data["size"] == results["size"] and list(data["sections"]) == list(sections)
+    md = written["md"].read_text()
+    for name, sec in data["sections"].items():
+        assert "error" not in sec, f"section {name} failed: {sec.get('error')}"
+        assert sec["title"] in md
+        assert sec["tables"], f"section {name} has no table"
+        for table in sec["tables"]:
+            assert table["rows"]
+            numbers = list(_numbers(table["rows"]))
+            assert numbers and all(math.isfinite(v) for v in numbers), (name, table["title"])
+        for plot in sec.get("plots", []):
+            for s in plot["series"]:
+                assert len(s["x"]) == len(s["y"]) and all(math.isfinite(v) for v in s["x"] + s["y"])
+    pngs = [p for k, p in written.items() if k.startswith("png:")]
+    assert len(pngs) == sum(len(s.get("plots", [])) for s in data["sections"].values())
+    for path in pngs:
+        img = matplotlib.image.imread(path)
+        assert img.ndim == 3 and img.shape[0] > 100 and img.shape[1] > 100
+        assert path.name in md
+
+
+def test_report_writer_round_trip(tmp_path):
+    results = {
+        "device": {"platform": "P", "device": "D", "type": "CPU", "compute_units": 2},
+        "date": "2026-01-01T00:00:00+00:00", "size": "tiny", "seconds": 1.5,
+        "sections": {"demo": {
+            "title": "Demo section", "description": "words", "seconds": 0.5,
+            "tables": [{"title": "T", "columns": ["a", "b"], "rows": [[1, 0.125], [2, float("nan")]]}],
+            "plots": [{"name": "p", "title": "P", "xlabel": "x", "ylabel": "y", "xscale": "log",
+                       "series": [{"label": "s", "x": [1, 10], "y": [np.float32(2.0), 3.0]}]}],
+        }},
+    }
+    written = report.write_report(results, tmp_path, "dev-slug")
+    data = json.loads(written["json"].read_text())
+    assert data["sections"]["demo"]["tables"][0]["rows"] == [[1, 0.125], [2, None]]  # NaN -> null
+    md = written["md"].read_text()
+    assert "| a | b |" in md and "| 2 | — |" in md and "dev-slug-demo-p.png" in md
+    assert written["png:demo:p"].stat().st_size > 1000
+    assert not list(tmp_path.glob(".*"))  # no temporaries left behind
+
+
+def test_slug_and_format():
+    assert report.slugify("Portable Computing Language / pthread-Intel(R) Xeon(R)") == \
+        "portable-computing-language-pthread-intel-r-xeon-r"
+    assert report.format_value(0.000123456) == "1.235e-04"
+    assert report.format_value(12.3456) == "12.35"
+    assert report.format_value(None) == "—"
+
+
+def test_pathtracer_section_tiny(tmp_path, device):
+    results, written = suite.run_suite("tiny", ["pathtracer"], tmp_path, device=device, progress=False, strict=True)
+    _check_report(results, written, ["pathtracer"])
+    rows = results["sections"]["pathtracer"]["tables"][0]["rows"]
+    # Furnace error at the most samples is below the error at the fewest (Monte Carlo converges).
+    assert rows[-1][4] < rows[0][4]
+
+
+def test_unknown_section_or_size_is_rejected(tmp_path):
+    with pytest.raises(ValueError, match="unknown section"):
+        suite.run_suite("tiny", ["nope"], tmp_path)
+    with pytest.raises(ValueError, match="unknown size"):
+        suite.run_suite("huge", None, tmp_path)
+
+
+def test_cli_writes_report(tmp_path, device):
+    assert suite.main(["--size", "tiny", "--sections", "pathtracer", "--out", str(tmp_path), "--no-progress"]) == 0
+    assert len(list(tmp_path.glob("*.json"))) == 1 and len(list(tmp_path.glob("*.md"))) == 1
+
+
+@pytest.mark.slow
+def test_whole_suite_tiny(tmp_path, device):
+    results, written = suite.run_suite("tiny", None, tmp_path, device=device, progress=False, strict=True)
+    _check_report(results, written, list(suite.SECTIONS))
