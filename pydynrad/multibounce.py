@@ -146,8 +146,8 @@ class _Builder:
         V = cl.Buffer(self.device.context, mf.READ_ONLY, nb * 2 * Mp * w)
         for r0 in range(0, Mp, nb):
             c0 = r0 + nb  # A's columns left of c0 are already eliminated (identity): never touched again
-            cl.enqueue_copy(q, rows_A, self.A, device_offset=r0 * Mp * w)
-            cl.enqueue_copy(q, rows_F, self.F, device_offset=r0 * Mp * w)
+            cl.enqueue_copy(q, rows_A, self.A, src_offset=r0 * Mp * w)
+            cl.enqueue_copy(q, rows_F, self.F, src_offset=r0 * Mp * w)
             cl.enqueue_copy(
                 q, col, self.A, buffer_origin=(r0 * w, 0), host_origin=(0, 0), region=(nb * w, Mp),
                 buffer_pitches=(Mp * w,), host_pitches=(nb * w,), is_blocking=True,
@@ -165,8 +165,8 @@ class _Builder:
             self.gemm(Mp, Mp - c0, nb, U, nb, V, ldv, 0, self.A, Mp, c0, self.A, Mp, c0)
             self.gemm(Mp, Mp, nb, U, nb, V, ldv, Mp - c0, self.F, Mp, 0, self.F, Mp, 0)
             rows_A[:, c0:] = scaled[:, : Mp - c0]
-            cl.enqueue_copy(q, self.A, rows_A, device_offset=r0 * Mp * w)
-            cl.enqueue_copy(q, self.F, np.ascontiguousarray(scaled[:, Mp - c0 :]), device_offset=r0 * Mp * w)
+            cl.enqueue_copy(q, self.A, rows_A, dst_offset=r0 * Mp * w)
+            cl.enqueue_copy(q, self.F, np.ascontiguousarray(scaled[:, Mp - c0 :]), dst_offset=r0 * Mp * w)
             q.finish()
             bar.update(1)
         return self.read(self.F)

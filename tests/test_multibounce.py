@@ -1,0 +1,139 @@
+"""The multibounce matrix K_S = (I - F_SS P_S)^{-1} F_SS against numpy float64, and the
+radiosity B = L + P K L against the full solvers.
+
+float32 tolerance: Gauss-Jordan error ~ cond(I - F P) * 2^-24 with cond <= (1 + rho)/(1 - rho):
+1e-5 relative at rho <= 0.9, 1e-3 at rho = 0.999.
+"""
+
+import time
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import pydynrad
+from pydynrad import multibounce, multibounce_radiosity
+from pydynrad.multibounce import multibounce_memory
+from radiosity_inputs import box_scene, reciprocal_F
+
+
+def K_truth(scene, F, idx, channel):
+    Fd = sp.csr_matrix(F).toarray()[np.ix_(idx, idx)]
+    rho = scene.albedo[idx, channel].astype(np.float64)
+    return np.linalg.solve(np.eye(len(idx)) - Fd * rho[None, :], Fd)
+
+
+def rel(a, b):
+    return np.abs(a - b).max() / np.abs(b).max()
+
+
+@pytest.mark.parametrize("dtype,tol", [(np.float64, 1e-12), (np.float32, 1e-5)])
+def test_full_K_matches_dense_inverse_coloured(device, dtype, tol):
+    rng = np.random.default_rng(0)
+    s = box_scene(4)  # 192 patches: two panels of 128 after padding
+    s = s.with_materials(albedo=rng.uniform(0, 0.9, (len(s), 3)))
+    F = reciprocal_F(s.areas, row_sum=0.95, density=0.2, seed=1)
+    K = multibounce(s, F, dtype=dtype, device=device)
+    assert K.shape == (3, len(s), len(s)) and K.dtype == dtype
+    idx = np.arange(len(s))
+    for c in range(3):
+        assert rel(K[c], K_truth(s, F, idx, c)) < tol
+
+
+def test_subset_in_given_order_grey(device):
+    s = box_scene(4, albedo=0.7)
+    F = reciprocal_F(s.areas, density=0.2, seed=2)
+    idx = np.random.default_rng(3).permutation(len(s))[:150]
+    K = multibounce(s, F, patches=idx, dtype=np.float64, device=device)
+    assert K.shape == (1, 150, 150)
+    assert rel(K[0], K_truth(s, F, idx, 0)) < 1e-12
+
+
+def test_albedo_0999_exact_in_float64(device):
+    s = box_scene(3, albedo=0.999)
+    F = reciprocal_F(s.areas, seed=4)
+    idx = np.arange(len(s))
+    truth = K_truth(s, F, idx, 0)
+    assert rel(multibounce(s, F, dtype=np.float64, device=device)[0], truth) < 1e-10
+    assert rel(multibounce(s, F, dtype=np.float32, device=device)[0], truth) < 1e-3
+
+
+def test_fp16_is_storage_rounding_of_fp32(device):
+    s = box_scene(3, albedo=0.6)
+    F = reciprocal_F(s.areas, seed=5)
+    K32 = multibounce(s, F, dtype=np.float32, device=device)
+    K16 = multibounce(s, F, dtype=np.float16, device=device)
+    assert K16.dtype == np.float16
+    np.testing.assert_array_equal(K16, K32.astype(np.float16))
+
+
+def test_truncated_series(device):
+    s = box_scene(3, albedo=0.8)
+    F = reciprocal_F(s.areas, seed=6)
+    Fd = F.toarray()
+    FP = Fd * s.albedo[:, 0].astype(np.float64)[None, :]
+    series, term = Fd.copy(), Fd.copy()
+    for _ in range(4):
+        term = FP @ term
+        series += term
+    K = multibounce(s, F, bounces=4, dtype=np.float64, device=device)
+    assert rel(K[0], series) < 1e-13
+    np.testing.assert_allclose(multibounce(s, F, bounces=0, dtype=np.float64, device=device)[0], Fd)
+
+
+def test_B_from_K_matches_iterative_and_dense(device):
+    rng = np.random.default_rng(7)
+    s = box_scene(3)
+    s = s.with_materials(albedo=rng.uniform(0, 0.9, (len(s), 3)), emission=(rng.random((len(s), 3)) < 0.1) * 3.0)
+    F = reciprocal_F(s.areas, row_sum=0.9, seed=8)
+    lights = [pydynrad.PointLight((0.3, 0.6, 0.5), 2.0)]
+    L = pydynrad.light_vector(s, lights, device=device)
+    K = multibounce(s, F, dtype=np.float64, device=device)
+    B = multibounce_radiosity(s, K, L)
+    dense = pydynrad.solve(s, F, lights=lights, method="dense", device=device).radiosity
+    iterative = pydynrad.solve(s, F, lights=lights, dtype=np.float64, tol=1e-12, device=device).radiosity
+    np.testing.assert_allclose(B, dense, rtol=1e-10)
+    np.testing.assert_allclose(B, iterative, rtol=1e-9)
+    # The same product on the device, from K stored in fp32 and fp16.
+    for storage, tol in (("fp32", 1e-5), ("fp16", 2e-3)):
+        Bd = multibounce_radiosity(s, pydynrad.DeviceMatrix(device, K, storage), L)
+        assert rel(Bd, dense) < tol
+
+
+def test_grey_K_with_coloured_light(device):
+    s = box_scene(2, albedo=0.5)
+    F = reciprocal_F(s.areas, seed=9)
+    L = np.zeros((len(s), 3))
+    L[:5] = [1.0, 0.2, 0.0]
+    K = multibounce(s, F, dtype=np.float64, device=device)
+    assert K.shape[0] == 1
+    dense = pydynrad.solve(s, F, method="dense", light=L, device=device).radiosity
+    np.testing.assert_allclose(multibounce_radiosity(s, K, L), dense, rtol=1e-10, atol=1e-15)
+    np.testing.assert_allclose(multibounce_radiosity(s, pydynrad.DeviceMatrix(device, K, "fp64"), L), dense, rtol=1e-10, atol=1e-15)
+
+
+def test_paper_scale_refused_quickly(device):
+    n = 63125  # the paper's scene: K over all patches would take 44 GiB (3 channels, fp32)
+    pts = np.random.default_rng(0).random((3 * n, 3))
+    s = pydynrad.Scene(pts, np.arange(3 * n).reshape(n, 3), albedo=(0.5, 0.4, 0.3))
+    t0 = time.perf_counter()
+    with pytest.raises(pydynrad.OutOfMemoryError, match="GiB"):
+        multibounce(s, sp.csr_matrix((n, n), dtype=np.float32), device=device)
+    assert time.perf_counter() - t0 < 5.0  # refused before allocating or validating anything big
+    need = multibounce_memory(n, 3, np.float32)
+    assert need["host"] > 44e9
+
+
+def test_bad_arguments(device):
+    s = box_scene(2, albedo=0.5)
+    F = reciprocal_F(s.areas, seed=10)
+    with pytest.raises(pydynrad.InvalidInputError, match="repeated"):
+        multibounce(s, F, patches=[0, 1, 1], device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="index"):
+        multibounce(s, F, patches=[0, 48], device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="dtype"):
+        multibounce(s, F, dtype=np.int8, device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="bounces"):
+        multibounce(s, F, bounces=-1, device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="sums to"):
+        multibounce(s, F * 2, device=device)

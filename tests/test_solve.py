@@ -1,0 +1,176 @@
+"""The full radiosity solver against independent truths: the furnace B = E / (1 - rho), a
+dense float64 solve written here in numpy, energy conservation, and the extremes.
+
+Synthetic F (tests/radiosity_inputs.py) satisfies reciprocity and its row sums exactly, so
+these tests check the solver's algebra apart from any form-factor discretisation.
+
+float32 bound: the iteration stops at relative residual tol, so B's relative error is at most
+tol / (1 - rho) plus float32 rounding accumulated over the bounces (~1e-6 here).
+"""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import pydynrad
+from pydynrad import solve
+from radiosity_inputs import box_scene, reciprocal_F
+
+
+def dense_truth(scene, F, L):
+    """(I - P F) B = L per channel in float64, written plainly."""
+    Fd = sp.csr_matrix(F).toarray().astype(np.float64)
+    rho = scene.albedo.astype(np.float64)
+    return np.stack([np.linalg.solve(np.eye(len(scene)) - rho[:, c : c + 1] * Fd, L[:, c]) for c in range(3)], axis=1)
+
+
+@pytest.mark.parametrize("rho", [0.5, 0.99])
+def test_furnace_float64(device, rho):
+    s = box_scene(3, albedo=rho, emission=2.0)
+    F = reciprocal_F(s.areas, seed=1)
+    truth = 2.0 / (1.0 - s.albedo[0, 0].astype(np.float64))  # the stored (float32) albedo
+    sol = solve(s, F, dtype=np.float64, tol=1e-9, device=device)
+    assert sol.converged and sol.channels == 1 and sol.method == "iterative"
+    assert sol.radiosity.shape == (len(s), 3) and sol.radiosity.dtype == np.float64
+    assert np.abs(sol.radiosity / truth - 1).max() < 1e-4
+    dense = solve(s, F, method="dense", device=device)
+    assert np.abs(dense.radiosity / truth - 1).max() < 1e-10
+
+
+@pytest.mark.parametrize("rho", [0.5, 0.99])
+def test_furnace_float32(device, rho):
+    s = box_scene(3, albedo=rho, emission=2.0)
+    F = reciprocal_F(s.areas, seed=1)
+    truth = 2.0 / (1.0 - s.albedo[0, 0].astype(np.float64))
+    tol = 1e-6
+    sol = solve(s, F, dtype=np.float32, tol=tol, device=device)
+    assert sol.converged and sol.residual <= tol
+    assert np.abs(sol.radiosity / truth - 1).max() < tol / (1 - rho) + 1e-5
+
+
+def test_iterative_matches_dense_coloured_leaky(device):
+    rng = np.random.default_rng(4)
+    s = box_scene(3)
+    s = s.with_materials(albedo=rng.uniform(0, 0.9, (len(s), 3)), emission=rng.uniform(0, 1, (len(s), 3)) * (rng.random((len(s), 1)) < 0.2))
+    F = reciprocal_F(s.areas, row_sum=0.9, seed=2)
+    truth = dense_truth(s, F, s.emission.astype(np.float64))
+    dense = solve(s, F, method="dense", device=device)
+    np.testing.assert_allclose(dense.radiosity, truth, rtol=1e-12, atol=1e-14)
+    it64 = solve(s, F, dtype=np.float64, tol=1e-12, device=device)
+    assert it64.channels == 3
+    np.testing.assert_allclose(it64.radiosity, truth, rtol=1e-10, atol=1e-12)
+    it32 = solve(s, F, dtype=np.float32, tol=1e-6, device=device)
+    assert np.abs(it32.radiosity - truth).max() < 2e-5 * np.abs(truth).max()
+
+
+def test_energy_balance(device):
+    """Emitted = absorbed + escaped, with H = F B the irradiance and, by reciprocity, the power
+    leaving j that escapes = A_j B_j (1 - sum_i F_ji)."""
+    rng = np.random.default_rng(5)
+    s = box_scene(3).with_materials(albedo=rng.uniform(0.1, 0.9, (108, 3)))
+    s = s.with_materials(emission=np.where(np.arange(len(s))[:, None] < 6, 5.0, 0.0) * np.ones(3))
+    A, rho, E = (s.areas.astype(np.float64), s.albedo.astype(np.float64), s.emission.astype(np.float64))
+    for row_sum in (1.0, 0.8):
+        F = reciprocal_F(s.areas, row_sum=row_sum, seed=3)
+        B = solve(s, F, dtype=np.float64, tol=1e-12, device=device).radiosity
+        H = F @ B
+        emitted = A @ E
+        absorbed = A @ ((1 - rho) * H)
+        escaped = (A * (1 - np.asarray(F.sum(axis=1)).ravel())) @ B
+        np.testing.assert_allclose(absorbed + escaped, emitted, rtol=1e-9)
+
+
+def test_grey_scene_with_coloured_light_uses_three_channels(device):
+    s = box_scene(2, albedo=0.6).with_materials(emission=np.tile([1.0, 0.5, 0.0], (48, 1)))
+    F = reciprocal_F(s.areas, seed=6)
+    sol = solve(s, F, dtype=np.float64, tol=1e-12, device=device)
+    assert sol.channels == 3
+    np.testing.assert_allclose(sol.radiosity, dense_truth(s, F, s.emission.astype(np.float64)), rtol=1e-10)
+
+
+def test_analytic_lights_enter_through_L(device):
+    s = box_scene(3, albedo=(0.7, 0.5, 0.3))
+    F = reciprocal_F(s.areas, seed=7)
+    lights = [pydynrad.PointLight((0.5, 0.5, 0.9), 1.0)]
+    L = pydynrad.light_vector(s, lights, device=device)
+    assert L.max() > 0
+    sol = solve(s, F, lights=lights, dtype=np.float64, tol=1e-12, device=device)
+    np.testing.assert_allclose(sol.radiosity, dense_truth(s, F, L), rtol=1e-10)
+    np.testing.assert_allclose(sol.light, L)
+
+
+def test_fixed_bounces_are_the_truncated_series(device):
+    s = box_scene(2, albedo=0.8, emission=np.repeat([1.0, 0.0], [4, 44]))
+    F = reciprocal_F(s.areas, seed=8)
+    L = s.emission.astype(np.float64)
+    PF = s.albedo[:, :1].astype(np.float64) * F.toarray()
+    series = L.copy()
+    term = L.copy()
+    for _ in range(3):
+        term = PF @ term
+        series += term
+    sol = solve(s, F, bounces=3, dtype=np.float64, device=device)
+    assert sol.iterations == 3
+    np.testing.assert_allclose(sol.radiosity, series, rtol=1e-12)
+    np.testing.assert_array_equal(solve(s, F, bounces=0, dtype=np.float64, device=device).radiosity, L)
+
+
+def test_albedo_zero_gives_light_exactly(device):
+    s = box_scene(2, albedo=0.0, emission=np.linspace(0, 1, 48))
+    F = reciprocal_F(s.areas, seed=9)
+    for dtype in (np.float32, np.float64):
+        sol = solve(s, F, dtype=dtype, device=device)
+        np.testing.assert_array_equal(sol.radiosity, s.emission.astype(dtype).astype(np.float64))
+        assert sol.iterations == 1 and sol.residual == 0
+
+
+def test_albedo_0999_reports_non_convergence_or_converges(device):
+    s = box_scene(2, albedo=0.999, emission=1.0)
+    F = reciprocal_F(s.areas, seed=10)
+    with pytest.raises(pydynrad.ConvergenceError, match="200 iterations"):
+        solve(s, F, dtype=np.float64, max_iterations=200, device=device)
+    partial = solve(s, F, dtype=np.float64, max_iterations=200, raise_on_failure=False, device=device)
+    assert not partial.converged and partial.iterations == 200 and partial.residual > 1e-6
+    assert len(partial.history) == 200 and partial.history[-1] < partial.history[0]
+    truth = 1.0 / (1.0 - s.albedo[0, 0].astype(np.float64))
+    np.testing.assert_allclose(solve(s, F, method="dense", device=device).radiosity, truth, rtol=1e-9)
+
+
+def test_albedo_one_refused():
+    with pytest.raises(pydynrad.InvalidInputError, match=r"\[0, 1\)"):
+        box_scene(2, albedo=1.0)
+    with pytest.raises(pydynrad.InvalidInputError, match=r"\[0, 1\)"):
+        box_scene(2).with_materials(albedo=(1.0, 0.5, 0.5))
+
+
+def test_bad_form_factors_refused(device):
+    s = box_scene(2, emission=1.0)
+    F = reciprocal_F(s.areas, seed=11)
+    with pytest.raises(pydynrad.InvalidInputError, match="shape"):
+        solve(s, F[:10, :10], device=device)
+    bad = F.tolil()
+    bad[0, 1] = -0.1
+    with pytest.raises(pydynrad.InvalidInputError, match=">= 0"):
+        solve(s, bad.tocsr(), device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="sums to"):
+        solve(s, F * 1.2, device=device)
+    nan = F.toarray()
+    nan[3, 4] = np.nan
+    with pytest.raises(pydynrad.InvalidInputError, match="NaN"):
+        solve(s, nan, device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="method"):
+        solve(s, F, method="magic", device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="tol"):
+        solve(s, F, tol=0, device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="dtype"):
+        solve(s, F, dtype=np.int32, device=device)
+
+
+def test_dense_refused_when_too_large(device, monkeypatch):
+    import sys
+
+    solve_module = sys.modules["pydynrad.solve"]  # the package attribute is the function
+    s = box_scene(2, emission=1.0)
+    monkeypatch.setattr(solve_module, "DENSE_MAX_PATCHES", 10)
+    with pytest.raises(pydynrad.InvalidInputError, match="iterative"):
+        solve(s, reciprocal_F(s.areas), method="dense", device=device)
