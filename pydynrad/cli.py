@@ -270,7 +270,8 @@ def demo_setup(frames: int, size: tuple[int, int]):
     positions = [(278, 273, -800), (278, 273, -250), (330, 250, 90), (400, 220, 170)]
     look_ats = [(278, 273, 0), (278, 260, 280), (240, 180, 350), (150, 150, 400)]
     cam = CameraPath(positions, look_ats, frames, fov_y=39.3, width=size[0], height=size[1])
-    orbit_keys = [(150, 120, 180), (120, 120, 400), (450, 120, 460), (460, 120, 150), (150, 120, 180)]
+    # Above both blocks (the tall one is 330 mm high), below the ceiling (548.8 mm).
+    orbit_keys = [(130, 420, 130), (130, 420, 430), (430, 420, 430), (430, 420, 130), (130, 420, 130)]
     light = LightTrack(PointLight(orbit_keys[0], (60000.0, 50000.0, 30000.0)), orbit_keys)
     return cam, [light]
 

@@ -1,0 +1,116 @@
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from pydynrad import InvalidInputError, Scene
+from pydynrad.cli import build_parser, load_form_factors, main, save_form_factors
+
+from test_render import grid_box
+
+
+def run_main(argv, capsys):
+    """main(argv) -> (exit code, stdout, stderr); argparse's own exits count as exit codes."""
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line_error(code, err, *needles):
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for n in needles:
+        assert n in lines[0], lines[0]
+
+
+def test_every_option_of_every_subcommand_is_explained():
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    assert set(sub.choices) == {"info", "demo", "formfactors", "render", "walk", "compare"}
+    for name, p in sub.choices.items():
+        assert p.description, name
+        for action in p._actions:
+            assert action.help and len(action.help) > 10, (name, action.dest)
+        assert p.format_help().count("\n") > 5
+
+
+@pytest.mark.parametrize(
+    "argv, needles",
+    [
+        (["render", "nosuch.obj", "-o", "x.png"], ["no such file"]),
+        (["render", "not_a_scene", "-o", "x.png"], ["neither a mesh file nor a built-in"]),
+        (["render", "cornell_box", "-o", "/no/such/folder/x.png"], ["does not exist"]),
+        (["render", "cornell_box", "-o", "x.xyz"], ["extensions"]),
+        (["formfactors", "cornell_box", "-o", "f.txt"], [".npz"]),
+        (["walk", "cornell_box", "--path", "missing.json"], ["no such file"]),
+    ],
+)
+def test_user_errors_give_one_line(capsys, argv, needles):
+    assert_one_line_error(*run_main(argv, capsys)[::2], *needles)
+
+
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["render", "cornell_box", "-o", "x.png", "--size", "0x5"], "WIDTHxHEIGHT"),
+        (["render", "cornell_box", "-o", "x.png", "--fov", "abc"], "positive number"),
+        (["render", "cornell_box", "-o", "x.png", "--position", "1,2"], "three finite numbers"),
+        (["render", "cornell_box", "-o", "x.png", "--light", "1,2,3"], "X,Y,Z:R,G,B"),
+        (["render", "cornell_box"], "required"),
+        (["demo", "--frames", "-3"], "--frames"),
+        (["explode"], "invalid choice"),
+    ],
+)
+def test_bad_options_give_one_line(capsys, argv, needle):
+    code, _, err = run_main(argv, capsys)
+    assert_one_line_error(code, err, needle)
+
+
+def test_unreadable_mesh(capsys, tmp_path):
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(b"ply\nformat nonsense\n\x00\x01\x02")
+    code, _, err = run_main(["render", str(bad), "-o", str(tmp_path / "x.png")], capsys)
+    assert_one_line_error(code, err, "bad.ply")
+    empty = tmp_path / "empty.obj"
+    empty.write_text("# nothing here\n")
+    code, _, err = run_main(["formfactors", str(empty), "-o", str(tmp_path / "f.npz")], capsys)
+    assert_one_line_error(code, err, "empty.obj")
+
+
+def test_errors_through_the_installed_entry_point(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "pydynrad", "render", str(tmp_path / "none.obj"), "-o",
+                           str(tmp_path / "x.png")], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count("\n") == 0 and "no such file" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def small_scene():
+    pts, tris = grid_box(n=1)
+    return Scene(pts, tris, albedo=0.5, name="cube")
+
+
+def test_form_factor_file_round_trip_and_checks(tmp_path, capsys):
+    scene = small_scene()
+    rng = np.random.default_rng(1)
+    F = sp.random(len(scene), len(scene), density=0.3, random_state=rng, format="csr", dtype=np.float32)
+    path = save_form_factors(tmp_path / "f.npz", F, scene, resolution=32)
+    G, header = load_form_factors(path, scene)
+    assert (G != F).nnz == 0 and header["resolution"] == 32 and header["n_patches"] == len(scene)
+    assert [p.name for p in tmp_path.iterdir()] == ["f.npz"]  # no temporary left behind
+    other = Scene(*grid_box(n=2), name="other")
+    with pytest.raises(InvalidInputError, match="another scene geometry"):
+        load_form_factors(path, other)
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"PK\x03\x04 not a zip")
+    with pytest.raises(InvalidInputError, match="not a pydynrad form-factor file"):
+        load_form_factors(junk, scene)
+    np.savez(tmp_path / "alien.npz", x=np.zeros(3))
+    with pytest.raises(InvalidInputError, match="not a pydynrad form-factor file"):
+        load_form_factors(tmp_path / "alien.npz", scene)
