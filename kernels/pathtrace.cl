@@ -37,10 +37,10 @@
     nodes, tris, order, normals, albedo, emission, n_emitters, em_tri, em_emission, em_cdf,   \
     inv_power, n_lights, lights, eps, far
 
-// Irradiance at x (normal n, origin already offset) from the analytic lights, shadowed.
-// lights: 3 float4 per light in pydynrad/lights.py's packing (see kernels/lights.cl, whose
-// direct_irradiance kernel evaluates the same formula at patch centres).
-inline float3 analytic_irradiance(float3 x, float3 n, SCENE_ARGS)
+// Irradiance at surface point p (normal n) from the analytic lights; shadow rays start at the
+// offset point x. lights: 3 float4 per light in pydynrad/lights.py's packing; the formula is
+// the one kernels/lights.cl's direct_irradiance evaluates at patch centres.
+inline float3 analytic_irradiance(float3 p, float3 x, float3 n, SCENE_ARGS)
 {
     float3 h = (float3)(0.0f);
     for (int l = 0; l < n_lights; ++l) {
@@ -53,7 +53,7 @@ inline float3 analytic_irradiance(float3 x, float3 n, SCENE_ARGS)
             dist = far;
             scale = 1.0f;
         } else {
-            float3 d = a.xyz - x;
+            float3 d = a.xyz - p;  // the law from the true point, as lights.cl
             dist = length(d);
             if (dist <= 0.0f) continue;
             w = d / dist;
@@ -65,7 +65,7 @@ inline float3 analytic_irradiance(float3 x, float3 n, SCENE_ARGS)
         }
         float cosine = dot(n, w);
         if (cosine <= 0.0f || scale <= 0.0f) continue;
-        if (bvh_occluded(nodes, tris, x, w, 0.0f, dist - eps)) continue;
+        if (bvh_occluded(nodes, tris, x, w, 0.0f, dist - 2.0f * eps)) continue;
         h += c.xyz * (scale * cosine);
     }
     return h;
@@ -133,7 +133,7 @@ inline float3 reflected_radiance(float3 p, float3 n, float3 rho, uint *rng, SCEN
     float3 thr = rho;  // product of albedos along the path
     for (int depth = 0; depth < MAX_DEPTH; ++depth) {
         float3 x = p + n * eps;
-        float3 h = analytic_irradiance(x, n, SCENE_PASS) + emitter_irradiance(x, n, rng, SCENE_PASS);
+        float3 h = analytic_irradiance(p, x, n, SCENE_PASS) + emitter_irradiance(x, n, rng, SCENE_PASS);
         acc += thr * h * M_1_PI_F;
         // The cosine pdf cancels the cosine and 1/pi: radiance arriving along the bounce ray
         // enters with weight thr (rho of this vertex included).

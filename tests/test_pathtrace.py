@@ -11,34 +11,9 @@ import pydynrad
 from pydynrad import Camera, Scene, path_trace, path_trace_patches
 
 
-def closed_cube(n: int = 2, size: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """A cube of side ``size``, each face split into n x n quads (2 triangles each), normals inward."""
-    pts, tris = [], []
-    for axis in range(3):
-        u, v = [a for a in range(3) if a != axis]
-        for side in (0.0, 1.0):
-            base = len(pts)
-            for i in range(n + 1):
-                for j in range(n + 1):
-                    p = np.zeros(3)
-                    p[axis], p[u], p[v] = side, i / n, j / n
-                    pts.append(p * size)
-            for i in range(n):
-                for j in range(n):
-                    a = base + i * (n + 1) + j
-                    b, d = a + n + 1, a + 1
-                    tris += [[a, b, b + 1], [a, b + 1, d]]
-    pts, tris = np.array(pts), np.array(tris)
-    v = pts[tris]
-    outward = np.einsum("ij,ij->i", np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), v.mean(axis=1) - size / 2) > 0
-    tris[outward] = tris[outward][:, ::-1]
-    return pts, tris
-
-
 @pytest.fixture(scope="module")
 def furnace():
-    pts, tris = closed_cube(2)
-    return Scene(pts, tris, albedo=0.6, emission=[1.0, 0.5, 2.0], name="furnace")
+    return pydynrad.scenes.closed_box(1.0, subdivisions=1, albedo=0.6, emission=[1.0, 0.5, 2.0])
 
 
 def test_furnace_patches_converge_to_analytic(furnace, device):
@@ -46,7 +21,7 @@ def test_furnace_patches_converge_to_analytic(furnace, device):
     b = path_trace_patches(furnace, spp=1024, seed=1, device=device)
     assert b.shape == (len(furnace), 3) and b.dtype == np.float32
     truth = e / (1 - rho)
-    # Each patch is an independent estimate: the mean over 24 patches has std err ~ std / sqrt(24).
+    # Each patch is an independent estimate: the mean over the patches has std err ~ std / sqrt(24).
     stderr = b.std(axis=0) / np.sqrt(len(b))
     assert np.all(np.abs(b.mean(axis=0) - truth) < 4 * stderr + 1e-3 * truth)
     assert np.all(np.abs(b - truth) < 0.25 * truth)
@@ -63,9 +38,9 @@ def test_furnace_image_matches_analytic(furnace, device):
 
 def test_emission_only_scene_shows_emission(device):
     """Albedo 0: the image is exactly the emission of the visible patch (no noise at all)."""
-    pts, tris = closed_cube(1)
-    emission = np.linspace(0.5, 3.0, len(tris))[:, None] * np.ones(3)
-    scene = Scene(pts, tris, albedo=0.0, emission=emission)
+    box = pydynrad.scenes.closed_box(1.0, subdivisions=0)
+    emission = np.linspace(0.5, 3.0, len(box))[:, None] * np.ones(3)
+    scene = box.with_materials(albedo=0.0, emission=emission)
     cam = Camera((0.5, 0.5, 0.5), (0.5, 0.5, 0.0), fov_y=80, width=9, height=7)
     img = path_trace(scene, cam, spp=3, device=device)
     vis = pydynrad.render(scene, emission, cam, shading="flat", device=device)
