@@ -1,0 +1,419 @@
+"""Dynamic radiosity: a local multibounce matrix over the M patches nearest the observer.
+
+:class:`DynamicRadiosity` keeps K = K_S = (I - F_SS P_S)^{-1} F_SS (one M x M matrix per colour
+channel, on the OpenCL device) for the local set S and updates it as the observer moves, so
+a frame costs O(M^2) device work instead of O(N^2):
+
+* ``update(observer)`` swaps the farthest included patches for nearer excluded ones (the
+  paper's loop, at most ``max_swaps_per_frame`` per frame) and updates K in place, either as
+  the paper does (``update="paper"``, :mod:`pydynrad.paper`) or exactly
+  (``update="exact"``, :mod:`pydynrad.exact`: after any sequence of swaps K equals a fresh
+  build over the same set, to rounding);
+* ``radiosity(lights)`` returns B = L + P K L on the local patches (one matrix-vector product
+  per colour channel) and L (emitted plus direct light) elsewhere.
+
+Form factors come from a precomputed sparse F, any row source (:mod:`pydynrad.rowcache`:
+a form-factor store on disk, a row cache) or, with ``form_factors=None``, from one hemicube
+per entering patch. With a sparse F in memory the entering patch's column is read from F;
+with a row source or hemicubes it follows by reciprocity, F[a, j] = A_j F[j, a] / A_a.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import InvalidInputError, PydynradError
+from .matvec import DeviceMatrix, storage_dtype
+from .selection import NearestSet
+
+__all__ = ["DynamicRadiosity", "FrameStats"]
+
+UPDATE_MODES = ("exact", "paper")
+#: The most swaps one frame may batch (the gather keeps this many vectors in private memory).
+MAX_SWAPS_LIMIT = 32
+
+
+@dataclass
+class FrameStats:
+    """What one :meth:`DynamicRadiosity.update` call did. Times in seconds (wall clock)."""
+
+    frame: int
+    swaps: int
+    removed: np.ndarray = field(repr=False)  # patch indices that left the local set
+    added: np.ndarray = field(repr=False)  # patch indices that entered it
+    t_select: float = 0.0  # choosing the swaps (k-d tree query, partial order of M distances)
+    t_form_factors: float = 0.0  # fetching or computing the entering patches' rows and columns
+    t_update: float = 0.0  # updating K on the device (all channels), waited for
+    refreshed: bool = False  # K was (re)built from scratch this frame
+    residual: float | None = None  # probe estimate of K's relative error, when checked
+
+    @property
+    def t_total(self) -> float:
+        return self.t_select + self.t_form_factors + self.t_update
+
+
+class _HemicubeRows:
+    """Rows of F from one hemicube per patch (a RowSource over :func:`pydynrad.form_factors`)."""
+
+    def __init__(self, scene, resolution: int, device) -> None:
+        self.scene, self.resolution, self.device = scene, resolution, device
+        self.n_patches = len(scene)
+
+    def rows(self, idx) -> sp.csr_matrix:
+        from .formfactors import form_factors
+
+        return form_factors(self.scene, resolution=self.resolution, rows=np.asarray(idx), device=self.device)
+
+
+class _FormFactors:
+    """Blocks F[rows][:, cols] of the scene's F, from a sparse matrix or a row source."""
+
+    def __init__(self, scene, form_factors, resolution: int, device) -> None:
+        from .rowcache import RowSource
+
+        n = len(scene)
+        self.areas = scene.areas.astype(np.float64)
+        self.csr = self.csc = None
+        if form_factors is None:
+            self.source = _HemicubeRows(scene, resolution, device)
+        elif isinstance(form_factors, RowSource):
+            if int(form_factors.n_patches) != n:
+                raise InvalidInputError(f"form_factors serves {form_factors.n_patches} patches; the scene has {n}")
+            self.source = form_factors
+        else:
+            from .solve import check_form_factors
+
+            shape = getattr(form_factors, "shape", None)
+            if shape != (n, n):
+                raise InvalidInputError(f"form_factors must have shape ({n}, {n}) for this {n}-patch scene; got {shape}")
+            self.csr = check_form_factors(scene, form_factors)  # float64, kept at full precision
+            self.csc = self.csr.tocsc()
+
+    def rows(self, idx: np.ndarray) -> sp.csr_matrix:
+        idx = np.asarray(idx, dtype=np.int64)
+        if self.csr is not None:
+            return self.csr[idx]
+        return sp.csr_matrix(self.source.rows(idx), dtype=np.float64)
+
+    def entering(self, members: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """F[S, J] (M, k), F[J, S] (k, M) and F[J, J] (k, k), dense float64."""
+        rows_J = self.rows(J)
+        F_JS = rows_J[:, members].toarray()
+        F_JJ = rows_J[:, J].toarray()
+        if self.csc is not None:
+            F_SJ = self.csc[:, J][members].toarray()
+        else:  # reciprocity: A_a F[a, j] = A_j F[j, a]
+            F_SJ = F_JS.T * self.areas[J][None, :] / self.areas[members][:, None]
+        return F_SJ, F_JS, F_JJ
+
+    def square(self, members: np.ndarray) -> sp.csr_matrix:
+        """F_SS (M, M) sparse, rows and columns in the order of ``members``."""
+        return sp.csr_matrix(self.rows(members)[:, members])
+
+    def full_shape(self, members: np.ndarray) -> sp.csr_matrix:
+        """An (N, N) sparse matrix holding F's rows ``members`` (all of F when it is in memory)."""
+        if self.csr is not None:
+            return self.csr
+        rows = self.rows(members).tocoo()
+        n = len(self.areas)
+        return sp.csr_matrix((rows.data, (members[rows.row], rows.col)), shape=(n, n))
+
+
+def _checked_point(p, what: str) -> np.ndarray:
+    a = np.asarray(p, dtype=np.float64)
+    if a.shape != (3,):
+        raise InvalidInputError(f"{what} must be a 3-vector; got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"{what} contains NaN or infinite values: {a.tolist()}")
+    return a
+
+
+def _checked_int(value, name: str, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise InvalidInputError(f"{name} must be an integer; got {value!r}")
+    if not lo <= value <= hi:
+        raise InvalidInputError(f"{name} must lie in {lo}..{hi}; got {value}")
+    return int(value)
+
+
+class DynamicRadiosity:
+    """The local multibounce matrix of the M patches nearest the observer, updated per frame.
+
+    Parameters
+    ----------
+    scene : pydynrad.Scene
+    form_factors : (N, N) sparse matrix, RowSource, or None
+        F as :func:`pydynrad.form_factors` returns it; a row source (form-factor store, row
+        cache) serving its rows; or None for one hemicube per entering patch.
+    local_size : int
+        M, the number of local patches, 1 <= M <= N.
+    update : "exact" | "paper"
+        The paper's update (sections 3-4, with section 4.1's bitset) or the exact one.
+    storage : "fp16" | "fp32" | "fp64"
+        Element type of K on the device (fp16 and fp32 compute in fp32).
+    max_swaps_per_frame : int
+        k, the most patches exchanged per :meth:`update` (exact mode batches them in one
+        read pass and one rank-2k pass over K; paper mode does them one after another).
+    refresh_tolerance : float or None
+        Rebuild K from scratch when :meth:`residual` exceeds this; checked every
+        ``refresh_interval`` frames (None: never).
+    refresh_interval : int
+        Frames between residual checks when ``refresh_tolerance`` is set.
+    observer : (3,) float, optional
+        Initial observer position: the local set and K are built here. Without it they are
+        built by the first :meth:`update` call, around that call's position.
+    keep_emitters : bool
+        Never evict emitting patches once local (the authors' code does this for the paper's
+        update; we do the same in exact mode, since an emitter outside the set lights
+        nothing). If every slot holds an emitter, no more swaps happen.
+    resolution : int
+        Hemicube resolution when ``form_factors`` is None.
+    device : pydynrad.Device, optional
+    """
+
+    def __init__(self, scene, form_factors, local_size: int = 1024, update: str = "exact", storage: str = "fp32",
+                 max_swaps_per_frame: int = 8, refresh_tolerance: float | None = None, refresh_interval: int = 32,
+                 observer=None, keep_emitters: bool = True, resolution: int = 128, device=None) -> None:
+        from .device import default_device
+        from .scene import Scene
+
+        if not isinstance(scene, Scene):
+            raise InvalidInputError(f"scene must be a pydynrad.Scene; got {type(scene).__name__}")
+        n = len(scene)
+        self.scene = scene
+        self.M = _checked_int(local_size, "local_size (M)", 1, n)
+        if update not in UPDATE_MODES:
+            raise InvalidInputError(f"update must be one of {UPDATE_MODES}; got {update!r}")
+        self.mode = update
+        storage_dtype(storage)
+        self.storage = storage
+        self.max_swaps = _checked_int(max_swaps_per_frame, "max_swaps_per_frame", 1, MAX_SWAPS_LIMIT)
+        if refresh_tolerance is not None and not (np.isfinite(refresh_tolerance) and refresh_tolerance > 0):
+            raise InvalidInputError(f"refresh_tolerance must be a positive number or None; got {refresh_tolerance!r}")
+        self.refresh_tolerance = refresh_tolerance
+        self.refresh_interval = _checked_int(refresh_interval, "refresh_interval", 1, 2**31 - 1)
+        self.device = device or default_device()
+        self._ff = _FormFactors(scene, form_factors, _checked_int(resolution, "resolution", 8, 4096), self.device)
+        self.C = 1 if scene.is_grey else 3
+        pinned = scene.emission.max(axis=1) > 0 if keep_emitters else None
+        self._select = NearestSet(scene.centers, pinned)
+        self._members: np.ndarray | None = None
+        self._included = np.zeros(n, dtype=bool)
+        self._matrix: DeviceMatrix | None = None
+        self._kernels = None
+        self._used = None
+        self.frame = 0
+        self.refreshes = 0
+        self._rng = np.random.default_rng(0x5EEAC106)
+        if observer is not None:
+            self._build(self._select.nearest(_checked_point(observer, "observer"), self.M)[0])
+
+    # -- state -------------------------------------------------------------------------------------
+    @property
+    def built(self) -> bool:
+        return self._members is not None
+
+    def _require_built(self) -> None:
+        if not self.built:
+            raise PydynradError("the local set is not built yet: pass observer= or call update(position) first")
+
+    @property
+    def local_patches(self) -> np.ndarray:
+        """(M,) patch index held by each slot (row/column of K)."""
+        self._require_built()
+        return self._members.copy()
+
+    @property
+    def local_mask(self) -> np.ndarray:
+        """(N,) bool: True on the patches whose radiosity K computes."""
+        self._require_built()
+        return self._included.copy()
+
+    @property
+    def matrix(self) -> DeviceMatrix:
+        """The device-resident K (C, M, M) in slot order (see :attr:`local_patches`)."""
+        self._require_built()
+        return self._matrix
+
+    @property
+    def memory_bytes(self) -> int:
+        """Device bytes of K (all channels) and the update's scratch buffers."""
+        self._require_built()
+        return self._matrix.nbytes + self._kernels.nbytes
+
+    @staticmethod
+    def estimate_memory_bytes(M: int, channels: int, storage: str, max_swaps_per_frame: int = 8, device=None) -> int:
+        """What :attr:`memory_bytes` will be for these sizes, without building anything."""
+        from .device import default_device
+        from .kupdate import scratch_nbytes
+        from .matvec import LD_ALIGN
+
+        device = device or default_device()
+        ld = -(-M // LD_ALIGN) * LD_ALIGN
+        real = 8 if storage == "fp64" else 4
+        return channels * M * ld * storage_dtype(storage).itemsize + scratch_nbytes(device, M, ld, real, max_swaps_per_frame)
+
+    @property
+    def host_memory_bytes(self) -> int:
+        """Host bytes of the bookkeeping: slot map, local mask and (paper mode) the bitsets."""
+        self._require_built()
+        used = self._used.nbytes if self._used is not None else 0
+        return self._members.nbytes + self._included.nbytes + used
+
+    def _rho(self, patches: np.ndarray) -> np.ndarray:
+        """(C, len(patches)) albedo per K channel."""
+        return self.scene.albedo[patches, : self.C].T.astype(np.float64)
+
+    # -- building ----------------------------------------------------------------------------------
+    def _fresh_K(self, members: np.ndarray) -> np.ndarray:
+        from .multibounce import multibounce
+
+        dtype = np.float64 if self.storage == "fp64" else np.float32
+        return multibounce(self.scene, self._ff.full_shape(members), patches=members, dtype=dtype, device=self.device)
+
+    def _build(self, members: np.ndarray) -> None:
+        from .kupdate import UpdateKernels
+        from .paper import UsedPatches
+
+        members = np.asarray(members, dtype=np.int64)
+        K = self._fresh_K(members)
+        if self._matrix is None:
+            self._matrix = DeviceMatrix(self.device, K, self.storage)
+            self._kernels = UpdateKernels(self._matrix, self.max_swaps)
+        else:
+            self._matrix.upload(K)
+        self._members = members.copy()
+        self._included[:] = False
+        self._included[members] = True
+        if self.mode == "paper":
+            self._used = self._used or UsedPatches(self.M, len(self.scene))
+            self._used.reset_all(self._included)
+
+    def refresh(self) -> None:
+        """Rebuild K from scratch over the current local set (slots keep their patches)."""
+        self._require_built()
+        self._build(self._members)
+        self.refreshes += 1
+
+    # -- the frame -----------------------------------------------------------------------------------
+    def update(self, observer_position) -> FrameStats:
+        """Move the observer: swap patches in and out of the local set and update K.
+
+        Returns a :class:`FrameStats`. The first call builds the set if the constructor had no
+        ``observer`` (that frame reports ``refreshed=True`` and no swaps).
+        """
+        obs = _checked_point(observer_position, "observer_position")
+        self.frame += 1
+        empty = np.empty(0, np.int64)
+        if not self.built:
+            t0 = time.perf_counter()
+            self._build(self._select.nearest(obs, self.M)[0])
+            return FrameStats(self.frame, 0, empty, empty, t_update=time.perf_counter() - t0, refreshed=True)
+        t0 = time.perf_counter()
+        slots, J = self._select.propose(obs, self._members, self._included, self.max_swaps)
+        t1 = time.perf_counter()
+        removed = self._members[slots].copy()
+        t_ff = 0.0
+        if len(slots):
+            t_ff = self._exact_frame(slots, J) if self.mode == "exact" else self._paper_frame(slots, J)
+        self.device.queue.finish()
+        t2 = time.perf_counter()
+        stats = FrameStats(self.frame, len(slots), removed, J, t_select=t1 - t0, t_form_factors=t_ff, t_update=t2 - t1 - t_ff)
+        if self.refresh_tolerance is not None and self.frame % self.refresh_interval == 0:
+            stats.residual = self.residual()
+            if stats.residual > self.refresh_tolerance:
+                self.refresh()
+                stats.refreshed = True
+        return stats
+
+    def _swap_members(self, slots: np.ndarray, J: np.ndarray) -> None:
+        self._included[self._members[slots]] = False
+        self._members[slots] = J
+        self._included[J] = True
+
+    def _exact_frame(self, slots: np.ndarray, J: np.ndarray) -> float:
+        from .exact import exact_swap
+
+        t0 = time.perf_counter()
+        F_SJ, F_JS, F_JJ = self._ff.entering(self._members, J)
+        F_SJ[slots, :] = 0.0  # the leaving patches take no part in the new paths
+        F_JS[:, slots] = 0.0
+        t_ff = time.perf_counter() - t0
+        rho_S, rho_J = self._rho(self._members), self._rho(J)
+        for c in range(self.C):
+            exact_swap(self._kernels, c, slots, F_SJ, F_JS, F_JJ, rho_S[c], rho_J[c])
+        self._swap_members(slots, J)
+        return t_ff
+
+    def _paper_frame(self, slots: np.ndarray, J: np.ndarray) -> float:
+        from .paper import paper_swap
+
+        t_ff = 0.0
+        for s, j in zip(slots.tolist(), J.tolist()):
+            self._swap_members(np.array([s]), np.array([j]))
+            t0 = time.perf_counter()
+            F_SJ, F_JS, _ = self._ff.entering(self._members, np.array([j]))
+            t_ff += time.perf_counter() - t0
+            f_c, f_r = F_SJ[:, 0], F_JS[0]
+            f_c[s] = f_r[s] = 0.0
+            rho_S, rho_j = self._rho(self._members), self._rho(np.array([j]))[:, 0]
+            mask = ~self._used.holding(j)
+            for c in range(self.C):
+                paper_swap(self._kernels, c, s, f_c, f_r, rho_S[c], rho_j[c], mask)
+            self._used.add(j)
+            self._used.reset(s, self._included)
+        return t_ff
+
+    # -- lighting ----------------------------------------------------------------------------------------
+    def radiosity(self, lights=()) -> np.ndarray:
+        """B (N, 3) float64: L + P K L on the local patches, L elsewhere.
+
+        ``lights``: analytic lights (see :func:`pydynrad.light_vector`; emission alone when
+        empty) or a precomputed light vector L of shape (N, 3). K is only read.
+        """
+        self._require_built()
+        n = len(self.scene)
+        if isinstance(lights, np.ndarray) and lights.ndim == 2:
+            if lights.shape != (n, 3) or not np.all(np.isfinite(lights)):
+                raise InvalidInputError(f"a light vector must be a finite ({n}, 3) array; got shape {lights.shape}")
+            L = lights.astype(np.float64)
+        else:
+            from .lights import light_vector
+
+            L = light_vector(self.scene, lights, device=self.device)
+        S = self._members
+        LS = L[S]
+        if self.C == 3:
+            KL = self._matrix.matvec(LS.T)
+        else:  # one K serves the three colour channels of L
+            KL = np.stack([self._matrix.matvec(LS[:, ch][None])[0] for ch in range(3)])
+        B = L.copy()
+        B[S] = LS + self.scene.albedo[S].astype(np.float64) * KL.T
+        return B
+
+    # -- drift -------------------------------------------------------------------------------------------
+    def residual(self, tol: float = 1e-10) -> float:
+        """Relative error of K on a random probe: max over channels of |K x - y| / |y|.
+
+        y solves (I - F_SS P_S) y = F_SS x, i.e. y = K_S x for a fresh K_S, by GMRES on the
+        sparse F_SS warm-started from K x: O(nnz(F_SS)) per iteration, no O(M^3) work.
+        """
+        from scipy.sparse.linalg import LinearOperator, gmres
+
+        self._require_built()
+        S, M = self._members, self.M
+        F = self._ff.square(S)
+        x = self._rng.random(M)
+        Kx = self._matrix.matvec(x)
+        rho = self._rho(S)
+        worst = 0.0
+        for c in range(self.C):
+            A = LinearOperator((M, M), matvec=lambda v, r=rho[c]: v - F @ (r * v), dtype=np.float64)
+            b = F @ x
+            y, _ = gmres(A, b, x0=Kx[c], rtol=tol, atol=0.0, restart=min(M, 50), maxiter=20)
+            worst = max(worst, float(np.linalg.norm(Kx[c] - y) / max(np.linalg.norm(y), 1e-300)))
+        return worst

@@ -1,0 +1,78 @@
+"""The paper's local update (``update="paper"``), step by step as DESIGN.md reads sections 3-4.
+
+One swap frees slot s (the evicted patch i) and puts patch j there. Per colour channel:
+
+1. clear row s and column s of K (paths through i stay inside K: the paper keeps them);
+2. f_c = F[S, j], f_r = F[j, S] over the slots (zero at s);
+3. dr = sum_a f_c[a] f_r[a] rho[a]                       (Eq. 1, the ``double_reflection`` kernel);
+4. g_c = f_c (1 + rho_j dr),  g_r = f_r (1 + rho_j dr);
+5. g'_c = g_c + K (P_S g_c),  g'_r = g_r + (g_r P_S) K     (one gather pass over K);
+6. K += rho_j g'_c g'_r^T on the rows the used-patches table allows (one rank-one pass);
+7. K[:, s] = g'_c, K[s, :] = g'_r, K[s, s] = dr.
+
+Section 4.1's bitset (:class:`UsedPatches`): for every slot a, the set of patches whose
+reflection row a of K already holds. What it masks, precisely: when j enters, every row a
+whose set already holds j (j was local before and its paths into a were added then, and
+clearing j's row and column on eviction did not remove them) is left out of step 6's
+rank-one update, so those paths are not added a second time; afterwards j joins every row's
+set. The entering patch's own row (K[s, :] = g'_r) is built from all current members (through
+K), so its set starts as the whole current local set, j included. The initial K is the exact
+multibounce matrix over the initial set, so every row's set starts as that set.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["UsedPatches", "paper_swap"]
+
+
+class UsedPatches:
+    """Per-slot bitsets over the N patches, packed 8 per byte: M * ceil(N / 8) bytes."""
+
+    def __init__(self, M: int, N: int) -> None:
+        self.n = int(N)
+        self.bits = np.zeros((int(M), -(-int(N) // 8)), dtype=np.uint8)
+
+    @property
+    def nbytes(self) -> int:
+        return self.bits.nbytes
+
+    def reset_all(self, included: np.ndarray) -> None:
+        """Every slot's set := the patches marked in ``included`` (N,) bool."""
+        self.bits[:] = np.packbits(included)[None, :]
+
+    def reset(self, slot: int, included: np.ndarray) -> None:
+        """Slot ``slot``'s set := the patches marked in ``included``."""
+        self.bits[slot] = np.packbits(included)
+
+    def holding(self, patch: int) -> np.ndarray:
+        """(M,) bool: the slots whose set holds ``patch``."""
+        return (self.bits[:, patch >> 3] >> (7 - (patch & 7))) & 1 == 1
+
+    def add(self, patch: int) -> None:
+        """Put ``patch`` into every slot's set."""
+        self.bits[:, patch >> 3] |= np.uint8(1 << (7 - (patch & 7)))
+
+
+def paper_swap(kernels, channel: int, slot: int, f_c: np.ndarray, f_r: np.ndarray, rho_S: np.ndarray, rho_j: float,
+               row_mask: np.ndarray) -> None:
+    """Steps 1 and 3-7 above on one channel of the device matrix behind ``kernels``.
+
+    f_c, f_r (M,): F[S, j] and F[j, S] with zeros at ``slot``; rho_S (M,) the slots' albedo in
+    this channel; rho_j the entering patch's; row_mask (M,) bool, False on the rows the
+    used-patches table excludes from the rank-one update.
+    """
+    M = len(f_c)
+    zero = np.zeros((1, M))
+    kernels.write_slots(channel, [slot], zero, zero)  # 1. clear i's row and column
+    dr = kernels.double_reflection(f_c, f_r, rho_S)  # 3. Eq. 1
+    g_c = f_c * (1.0 + rho_j * dr)  # 4.
+    g_r = f_r * (1.0 + rho_j * dr)
+    KPg, gPK = kernels.gather(channel, rho_S * g_c, g_r * rho_S)  # 5. one read pass
+    gp_c = g_c + KPg[0]
+    gp_r = g_r + gPK[0]
+    kernels.rank_update(channel, rho_j * gp_c * row_mask, gp_r)  # 6. masked rank one
+    gp_c[slot] = dr  # 7. the new column, row and diagonal
+    gp_r[slot] = dr
+    kernels.write_slots(channel, [slot], gp_c[None], gp_r[None])

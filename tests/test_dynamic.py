@@ -1,0 +1,373 @@
+"""DynamicRadiosity: exact updates against fresh dense builds, lighting against dense solves.
+
+Truths used here are independent of the library: K_S = (I - F_SS P_S)^{-1} F_SS by
+numpy.linalg.solve in float64, B = (I - P F)^{-1} L by a dense solve, the single-patch
+Sherman-Morrison downdate and bordering update written out in numpy, and a brute-force
+full sort for the selection. F is random with exact reciprocity (radiosity_inputs.py), so
+the algebra is tested apart from hemicube error.
+
+Documented bounds after the random walk (hundreds of swaps, relative to max |K|):
+fp64 storage 1e-5 (observed ~1e-13); fp32 storage 2e-5 (each update rounds K to fp32,
+observed ~2e-6); fp16 storage 3e-3 (the storage rounding, 2^-11, accumulated; observed ~1e-3).
+"""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from radiosity_inputs import box_scene, reciprocal_F
+
+import pydynrad
+from pydynrad.dynamic import DynamicRadiosity
+from pydynrad.errors import InvalidInputError
+from pydynrad.exact import batched_swap
+from pydynrad.kupdate import UpdateKernels
+from pydynrad.matvec import DeviceMatrix
+from pydynrad.rowcache import CSRRows
+from pydynrad.selection import NearestSet
+
+WALK_TOL = {"fp64": 1e-5, "fp32": 2e-5, "fp16": 3e-3}
+
+
+def make_scene(n=4, grey=False, seed=0, albedo=None, emitters=0):
+    scene = box_scene(n)
+    rng = np.random.default_rng(seed)
+    N = len(scene)
+    if albedo is None:
+        albedo = rng.uniform(0.1, 0.9, N if grey else (N, 3))
+    emission = np.zeros((N, 3))
+    emission[rng.choice(N, emitters, replace=False)] = 5.0
+    return scene.with_materials(albedo=albedo, emission=emission)
+
+
+def fresh_K(scene, F, members, C):
+    Fs = F[members][:, members].toarray()
+    rho = scene.albedo[members].astype(np.float64)
+    return np.stack([np.linalg.solve(np.eye(len(members)) - Fs * rho[:, c][None, :], Fs) for c in range(C)])
+
+
+def rel(a, b):
+    return np.abs(a - b).max() / np.abs(b).max()
+
+
+def walk(rng, scene, steps):
+    """Random observer positions inside the unit box, moving a bit each frame."""
+    p = np.full(3, 0.5)
+    for _ in range(steps):
+        p = np.clip(p + rng.normal(0, 0.12, 3), 0.02, 0.98)
+        yield p
+
+
+@pytest.fixture(scope="module")
+def setup():
+    scene = make_scene(4)  # 192 patches, RGB
+    F = reciprocal_F(scene.areas, row_sum=0.95, density=0.08, seed=1)
+    return scene, F
+
+
+# -- exact mode ----------------------------------------------------------------------------------
+@pytest.mark.parametrize("storage", ["fp64", "fp32", "fp16"])
+def test_exact_walk_equals_fresh_build(device, setup, storage):
+    scene, F = setup
+    rng = np.random.default_rng(5)
+    dyn = DynamicRadiosity(scene, F, local_size=48, update="exact", storage=storage, max_swaps_per_frame=6,
+                           observer=[0.5, 0.5, 0.5], device=device)
+    swaps = batched = 0
+    for p in walk(rng, scene, 90):
+        st = dyn.update(p)
+        swaps += st.swaps
+        batched += st.swaps > 1
+        assert len(st.removed) == len(st.added) == st.swaps
+    assert swaps >= 200 and batched >= 20  # hundreds of swaps, many of them batched
+    S = dyn.local_patches
+    assert len(np.unique(S)) == 48 and np.array_equal(np.flatnonzero(dyn.local_mask), np.sort(S))
+    assert rel(dyn.matrix.to_host(), fresh_K(scene, F, S, 3)) < WALK_TOL[storage]
+
+
+def test_single_swap_is_downdate_then_bordering():
+    """k = 1 of the batched formula == Sherman-Morrison removal followed by the bordering add."""
+    scene = make_scene(3, seed=3)
+    F = reciprocal_F(scene.areas, row_sum=0.9, density=0.2, seed=4).toarray()
+    rho = scene.albedo[:, 1].astype(np.float64)
+    rng = np.random.default_rng(0)
+    S = rng.choice(len(scene), 20, replace=False)
+    j = next(x for x in range(len(scene)) if x not in S)
+    s = 7
+    Fs = F[np.ix_(S, S)]
+    K = np.linalg.solve(np.eye(20) - Fs * rho[S], Fs)
+    # Sherman-Morrison downdate of slot s (DESIGN.md), then drop its row and column.
+    ri = rho[S[s]]
+    Kd = K - np.outer(K[:, s], K[s, :]) * ri / (1 + ri * K[s, s])
+    keep = np.arange(20) != s
+    Kd, T = Kd[np.ix_(keep, keep)], S[keep]
+    # Bordering update adding j.
+    f_c, f_r, PT = F[T, j], F[j, T], rho[T]
+    c = f_c + Kd @ (PT * f_c)
+    r = f_r + (f_r * PT) @ Kd
+    lam = r @ (PT * f_c)
+    d = 1 - rho[j] * lam
+    want = np.zeros((20, 20))
+    want[np.ix_(keep, keep)] = Kd + (rho[j] / d) * np.outer(c, r)
+    want[keep, s], want[s, keep], want[s, s] = c / d, r / d, lam / d
+    # The batched formula with k = 1.
+    F_SJ = F[S, j][:, None].copy()
+    F_SJ[s] = 0
+    F_JS = F[j, S][None].copy()
+    F_JS[0, s] = 0
+    rS = rho[S]
+    u = batched_swap(K[:, [s]], K[[s], :], K @ (rS[:, None] * F_SJ), (F_JS * rS) @ K, F_SJ, F_JS,
+                     F[[j]][:, [j]], rS, rho[[j]], np.array([s]))
+    got = K + u.A @ u.B
+    got[:, s], got[s, :] = u.cols[0], u.rows[0]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-13)
+    S2 = S.copy()
+    S2[s] = j
+    np.testing.assert_allclose(got, np.linalg.solve(np.eye(20) - F[np.ix_(S2, S2)] * rho[S2], F[np.ix_(S2, S2)]), atol=1e-13)
+
+
+def test_row_source_with_reciprocity_matches_sparse(device, setup):
+    """A RowSource gives only rows; columns by reciprocity equal F's columns when F is reciprocal."""
+    scene, F = setup
+    kw = dict(local_size=40, update="exact", storage="fp64", max_swaps_per_frame=4, observer=[0.2, 0.5, 0.5], device=device)
+    a, b = DynamicRadiosity(scene, F, **kw), DynamicRadiosity(scene, CSRRows(F), **kw)
+    for p in walk(np.random.default_rng(2), scene, 15):
+        assert a.update(p).swaps == b.update(p).swaps
+    assert np.array_equal(a.local_patches, b.local_patches)
+    assert rel(b.matrix.to_host(), a.matrix.to_host()) < 1e-6  # F is float32: reciprocity holds to ~1e-7
+
+
+# -- lighting ------------------------------------------------------------------------------------
+def dense_B(scene, F, L):
+    Fd = F.toarray()
+    rho = scene.albedo.astype(np.float64)
+    return np.stack([np.linalg.solve(np.eye(len(scene)) - rho[:, c][:, None] * Fd, L[:, c]) for c in range(3)], axis=1)
+
+
+@pytest.mark.parametrize("mode", ["exact", "paper"])
+def test_full_set_reproduces_the_full_solution(device, mode):
+    scene = make_scene(3, emitters=3, seed=7)  # 108 patches
+    F = reciprocal_F(scene.areas, row_sum=1.0, density=0.2, seed=8)
+    dyn = DynamicRadiosity(scene, F, local_size=len(scene), update=mode, storage="fp64", observer=[0.5, 0.5, 0.5], device=device)
+    assert dyn.update([0.1, 0.9, 0.3]).swaps == 0
+    L = np.random.default_rng(1).random((len(scene), 3))
+    B = dyn.radiosity(L)
+    np.testing.assert_allclose(B, dense_B(scene, F, L), rtol=1e-10)
+    ref = pydynrad.solve(scene, F, method="dense").radiosity
+    np.testing.assert_allclose(dyn.radiosity(), ref, rtol=1e-8)
+
+
+def test_one_patch_gives_its_own_light(device, setup):
+    scene, F = setup
+    dyn = DynamicRadiosity(scene, F, local_size=1, observer=[0.5, 0.5, 0.02], device=device)
+    L = np.random.default_rng(3).random((len(scene), 3))
+    (i,) = dyn.local_patches
+    d = np.linalg.norm(scene.centers - [0.5, 0.5, 0.02], axis=1)
+    assert d[i] == d.min()
+    np.testing.assert_array_equal(dyn.radiosity(L), L)
+    st = dyn.update([0.5, 0.5, 0.98])
+    assert st.swaps == 1 and dyn.local_patches[0] != i
+    np.testing.assert_array_equal(dyn.radiosity(L), L)
+
+
+@pytest.mark.parametrize("albedo", [0.0, 0.999])
+@pytest.mark.parametrize("mode", ["exact", "paper"])
+def test_albedo_extremes(device, albedo, mode):
+    scene = make_scene(3, albedo=albedo, emitters=2, seed=9)
+    F = reciprocal_F(scene.areas, row_sum=1.0, density=0.2, seed=10)
+    dyn = DynamicRadiosity(scene, F, local_size=50, update=mode, storage="fp64", max_swaps_per_frame=3,
+                           observer=[0.5, 0.5, 0.5], device=device)
+    for p in walk(np.random.default_rng(4), scene, 10):
+        dyn.update(p)
+    L = np.random.default_rng(5).random((len(scene), 3))
+    B = dyn.radiosity(L)
+    assert np.all(np.isfinite(B)) and np.all(B >= L - 1e-12)
+    S = dyn.local_patches
+    if albedo == 0.0:  # nothing reflects: K may hold anything, B is L
+        np.testing.assert_array_equal(B, L)
+    elif mode == "exact":  # B on the set = the dense solve restricted to S
+        Fs = F[S][:, S].toarray()
+        rho = scene.albedo[S, 0].astype(np.float64)  # 0.999 as stored (float32)
+        want = L[S] + rho[:, None] * (np.linalg.solve(np.eye(50) - Fs * rho[None, :], Fs) @ L[S])
+        np.testing.assert_allclose(B[S], want, rtol=1e-8)
+
+
+def test_lighting_changes_B_not_K(device, setup):
+    import pyopencl as cl
+
+    scene, F = setup
+    dyn = DynamicRadiosity(scene, F, local_size=32, storage="fp16", observer=[0.5, 0.5, 0.5], device=device)
+    dyn.update([0.3, 0.6, 0.5])
+
+    def raw():
+        out = []
+        for buf in dyn.matrix.buffers:
+            h = np.empty(buf.size, dtype=np.uint8)
+            cl.enqueue_copy(device.queue, h, buf, is_blocking=True)
+            out.append(h)
+        return np.concatenate(out)
+
+    before = raw()
+    rng = np.random.default_rng(6)
+    L1, L2 = rng.random((len(scene), 3)), rng.random((len(scene), 3))
+    B1, B2 = dyn.radiosity(L1), dyn.radiosity(L2)
+    assert np.array_equal(raw(), before)
+    K = dyn.matrix.to_host()
+    S = dyn.local_patches
+    for L, B in ((L1, B1), (L2, B2)):
+        want = L[S] + scene.albedo[S] * np.einsum("cij,jc->ic", K, L[S])
+        np.testing.assert_allclose(B[S], want, rtol=2e-5)
+        outside = ~dyn.local_mask
+        np.testing.assert_array_equal(B[outside], L[outside])
+    assert not np.allclose(B1, B2)
+
+
+def test_emitters_are_never_evicted(device):
+    scene = make_scene(4, emitters=5, seed=11)
+    F = reciprocal_F(scene.areas, row_sum=0.95, density=0.08, seed=12)
+    emit = np.flatnonzero(scene.emission.max(axis=1) > 0)
+    for mode in ("exact", "paper"):
+        dyn = DynamicRadiosity(scene, F, local_size=40, update=mode, storage="fp32", observer=[0.5, 0.5, 0.5], device=device)
+        held = set(emit) & set(dyn.local_patches)
+        for p in walk(np.random.default_rng(13), scene, 25):
+            st = dyn.update(p)
+            assert not set(st.removed) & set(emit)
+            held |= set(emit) & set(st.added)
+        assert held <= set(dyn.local_patches)
+
+
+def test_grey_scene_keeps_one_channel(device):
+    scene = make_scene(3, grey=True, seed=14)
+    F = reciprocal_F(scene.areas, row_sum=0.95, density=0.2, seed=15)
+    dyn = DynamicRadiosity(scene, F, local_size=30, storage="fp64", max_swaps_per_frame=4, observer=[0.5, 0.5, 0.1], device=device)
+    for p in walk(np.random.default_rng(16), scene, 12):
+        dyn.update(p)
+    assert dyn.matrix.C == 1
+    S = dyn.local_patches
+    assert rel(dyn.matrix.to_host(), fresh_K(scene, F, S, 1)) < 1e-10
+    L = np.random.default_rng(17).random((len(scene), 3))
+    np.testing.assert_allclose(dyn.radiosity(L)[S], L[S] + scene.albedo[S] * (fresh_K(scene, F, S, 1)[0] @ L[S]), rtol=1e-10)
+
+
+# -- drift, refresh, memory ----------------------------------------------------------------------
+def test_residual_and_refresh(device, setup):
+    scene, F = setup
+    exact = DynamicRadiosity(scene, F, local_size=40, update="exact", storage="fp64", observer=[0.5, 0.5, 0.5], device=device)
+    paper = DynamicRadiosity(scene, F, local_size=40, update="paper", storage="fp64", observer=[0.5, 0.5, 0.5],
+                             refresh_tolerance=1e-3, refresh_interval=10, device=device)
+    assert exact.residual() < 1e-6 and paper.residual() < 1e-6  # both start from a fresh build
+    refreshed = []
+    for p in walk(np.random.default_rng(18), scene, 20):
+        exact.update(p)
+        st = paper.update(p)
+        assert (st.residual is not None) == (st.frame % 10 == 0)
+        refreshed.append(st.refreshed)
+    assert exact.residual() < 1e-6
+    assert any(refreshed) and paper.refreshes == sum(refreshed)
+    # Right after a refresh, K is a fresh build over the current set.
+    paper.refresh()
+    assert rel(paper.matrix.to_host(), fresh_K(scene, F, paper.local_patches, 3)) < 1e-10
+    # An exact K with a known perturbation: the probe sees it.
+    K = exact.matrix.to_host()
+    exact.matrix.upload(K * 1.01)
+    assert 0.003 < exact.residual() < 0.03
+
+
+def test_memory_bytes(device, setup):
+    scene, F = setup
+    dyn = DynamicRadiosity(scene, F, local_size=64, storage="fp16", max_swaps_per_frame=8, observer=[0.5, 0.5, 0.5], device=device)
+    assert dyn.memory_bytes == DynamicRadiosity.estimate_memory_bytes(64, 3, "fp16", 8, device)
+    assert dyn.memory_bytes >= 3 * 64 * 64 * 2
+    # The paper's figure: M = 4096, RGB, fp16 is about 96 MiB: K alone is exactly 96 MiB, the
+    # update's scratch (partial sums for 8 vectors) adds about 5%.
+    assert DynamicRadiosity.estimate_memory_bytes(4096, 3, "fp16", 1, device) / 2**20 < 97
+    mib = DynamicRadiosity.estimate_memory_bytes(4096, 3, "fp16", 8, device) / 2**20
+    assert 96 <= mib < 102
+
+
+# -- selection -----------------------------------------------------------------------------------
+def test_selection_matches_the_papers_loop_by_full_sort():
+    rng = np.random.default_rng(19)
+    centers = rng.random((500, 3))
+    pinned = rng.random(500) < 0.05
+    sel = NearestSet(centers, pinned)
+    obs = np.array([0.5, 0.5, 0.5])
+    members = sel.nearest(obs, 60)[0]
+    included = np.zeros(500, bool)
+    included[members] = True
+    for _ in range(30):
+        obs = obs + rng.normal(0, 0.05, 3)
+        slots, J = sel.propose(obs, members, included, 5)
+        # The paper's loop, brute force: full sorts of both sides, one swap at a time.
+        m2, inc2 = members.copy(), included.copy()
+        want = []
+        for _ in range(5):
+            d = np.linalg.norm(centers - obs, axis=1)
+            d_in = np.where(pinned[m2], -np.inf, d[m2])
+            s = int(np.argmax(d_in))
+            j = int(np.flatnonzero(~inc2)[np.argmin(d[~inc2])])
+            if not d[j] < d_in[s]:
+                break
+            want.append((s, j))
+            inc2[m2[s]], inc2[j] = False, True
+            m2[s] = j
+        assert list(zip(slots.tolist(), J.tolist())) == want
+        included[members[slots]] = False
+        members[slots] = J
+        included[J] = True
+
+
+# -- kernels -------------------------------------------------------------------------------------
+@pytest.mark.parametrize("storage", ["fp32", "fp64"])
+def test_update_kernels_against_numpy(device, storage):
+    rng = np.random.default_rng(20)
+    M = 150
+    m = DeviceMatrix(device, rng.random((1, M, M)), storage)
+    uk = UpdateKernels(m, 4)
+    K = m.to_host()[0]
+    tol = 1e-12 if storage == "fp64" else 1e-5
+    X, Y = rng.random((3, M)), rng.random((3, M))
+    KX, YK = uk.gather(0, X, Y)
+    assert rel(KX, X @ K.T) < tol and rel(YK, Y @ K) < tol
+    A, B = rng.random((5, M)), rng.random((5, M))
+    uk.rank_update(0, A, B)
+    K2 = m.to_host()[0]
+    assert rel(K2, K + A.T @ B) < tol
+    slots = np.array([4, 149, 0])
+    cols, rows = uk.read_slots(0, slots)
+    np.testing.assert_array_equal(cols, K2[:, slots].T)
+    np.testing.assert_array_equal(rows, K2[slots])
+    f = rng.random((3, M))
+    assert abs(uk.double_reflection(*f) - np.sum(f[0] * f[1] * f[2])) < tol * M
+
+
+# -- bad input -----------------------------------------------------------------------------------
+def test_bad_input(device, setup):
+    scene, F = setup
+    N = len(scene)
+    for M in (0, -3, N + 1, 2.5, True):
+        with pytest.raises(InvalidInputError, match="local_size"):
+            DynamicRadiosity(scene, F, local_size=M, device=device)
+    with pytest.raises(InvalidInputError, match="storage"):
+        DynamicRadiosity(scene, F, local_size=10, storage="fp8", device=device)
+    with pytest.raises(InvalidInputError, match="update"):
+        DynamicRadiosity(scene, F, local_size=10, update="approximate", device=device)
+    with pytest.raises(InvalidInputError, match="shape"):
+        DynamicRadiosity(scene, sp.eye(N - 1, format="csr") * 0.5, local_size=10, device=device)
+    with pytest.raises(InvalidInputError, match="patches"):
+        DynamicRadiosity(scene, CSRRows(sp.eye(N + 2, format="csr") * 0.5), local_size=10, device=device)
+    with pytest.raises(InvalidInputError, match="max_swaps"):
+        DynamicRadiosity(scene, F, local_size=10, max_swaps_per_frame=0, device=device)
+    with pytest.raises(InvalidInputError, match="refresh_tolerance"):
+        DynamicRadiosity(scene, F, local_size=10, refresh_tolerance=float("nan"), device=device)
+    with pytest.raises(InvalidInputError, match="NaN"):
+        DynamicRadiosity(scene, F, local_size=10, observer=[0, np.nan, 0], device=device)
+    dyn = DynamicRadiosity(scene, F, local_size=10, device=device)
+    with pytest.raises(pydynrad.PydynradError, match="not built"):
+        dyn.radiosity()
+    st = dyn.update([0.5, 0.5, 0.5])
+    assert st.refreshed and st.swaps == 0 and dyn.local_mask.sum() == 10
+    with pytest.raises(InvalidInputError, match="NaN"):
+        dyn.update([np.nan, 0, 0])
+    with pytest.raises(InvalidInputError, match="3-vector"):
+        dyn.update([0, 0])
+    with pytest.raises(InvalidInputError, match="light vector"):
+        dyn.radiosity(np.ones((N, 2)))
