@@ -22,6 +22,7 @@ from .camera import Camera
 from .render import render
 from .image_io import read_image, write_image
 from .matvec import DeviceMatrix
+from .dynamic import DynamicRadiosity, FrameStats
 from .lights import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector
 from .solve import Solution, solve
 from .multibounce import multibounce, multibounce_radiosity
