@@ -222,7 +222,7 @@ class FormFactorStore:
         factors (finite, >= 0). The file appears whole or not at all.
         """
         rows = self.block_range(k)
-        csr = sp.csr_matrix(block)
+        csr = sp.csr_matrix(block, copy=True)  # canonicalised below: never touch the caller's arrays
         if csr.shape != (len(rows), self.n_patches):
             raise InvalidInputError(f"block {k} must have shape ({len(rows)}, {self.n_patches}); got {csr.shape}")
         csr.sum_duplicates()

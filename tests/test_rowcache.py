@@ -7,7 +7,6 @@ import pytest
 import scipy.sparse as sp
 from test_store import grid_scene, same_csr, synthetic_rows
 
-import pydynrad
 from pydynrad import InvalidInputError
 from pydynrad.rowcache import ROW_OVERHEAD, CSRRows, RowCache, RowSource, as_row_source
 from pydynrad.store import StoreCorruptError, compute_store
@@ -168,23 +167,56 @@ def test_store_errors_pass_through_the_cache(tmp_path):
         assert len(cache) == 0 and same_csr(cache.rows([0]), good)
 
 
-@pytest.mark.skipif(not hasattr(pydynrad, "DynamicRadiosity"), reason="pydynrad.DynamicRadiosity not available yet")
-def test_streamed_walk_equals_in_memory_walk(tmp_path):
-    """DynamicRadiosity fed from a store through a small cache gives the in-memory walk's radiosity."""
+def dynamic_radiosity_class():
+    try:
+        from pydynrad.dynamic import DynamicRadiosity
+    except ImportError:
+        pytest.skip("pydynrad.dynamic.DynamicRadiosity not available yet")
+    return DynamicRadiosity
+
+
+def reciprocal_form_factors(scene, nnz_per_row: int = 12, seed: int = 3) -> sp.csr_matrix:
+    """A random sparse F with A_i F[i, j] = A_j F[j, i] and rows summing to at most 0.9."""
+    n = len(scene)
+    rng = np.random.default_rng(seed)
+    g = sp.random(n, n, density=nnz_per_row / (2 * n), random_state=rng, dtype=np.float64)
+    g = g + g.T  # symmetric: G[i, j] = A_i F[i, j]
+    g.setdiag(0)
+    g.eliminate_zeros()
+    f = sp.diags(1.0 / scene.areas.astype(np.float64)) @ g
+    f = sp.csr_matrix(f / (np.asarray(f.sum(axis=1)).max() / 0.9), dtype=np.float32)
+    f.sort_indices()
+    return f
+
+
+def test_streamed_walk_equals_in_memory_walk(tmp_path, device):
+    """DynamicRadiosity fed from a store through a cache smaller than F = fed from F in memory."""
+    DynamicRadiosity = dynamic_radiosity_class()
     scene = grid_scene(12)  # 288 patches
     emission = np.zeros(len(scene))
     emission[::37] = 1.0
     scene = scene.with_materials(albedo=0.6, emission=emission)
-    store = compute_store(scene, tmp_path / "ff", resolution=8, block_rows=32, progress=False, row_function=synthetic_rows)
-    f = store.to_csr()
-    cache = RowCache(store, max_bytes=(f.data.nbytes + f.indices.nbytes) // 3)
-    walks = [pydynrad.DynamicRadiosity(scene, src, local_size=48, update="exact", storage="fp64") for src in (f, cache)]
+    f = reciprocal_form_factors(scene)
+    store = compute_store(scene, tmp_path / "ff", resolution=8, block_rows=32, progress=False,
+                          row_function=lambda scene, rows, resolution, device=None: f[rows])
+    cache = RowCache(store, max_bytes=CSRRows(f).nbytes // 3)
+    sources = {"rows in memory": CSRRows(f), "streamed": cache, "matrix in memory": f}
+    walks = {name: DynamicRadiosity(scene, src, local_size=48, update="exact", storage="fp64", max_swaps_per_frame=6,
+                                    device=device)
+             for name, src in sources.items()}
     lo, hi = scene.bbox.astype(np.float64)
+    swaps = 0
     for t in np.linspace(0, 1, 12):
         eye = lo + t * (hi - lo) + np.array([0, 0, 1.0])
-        for w in walks:
-            w.update(eye)
-        assert np.array_equal(walks[0].local_mask, walks[1].local_mask)
-        np.testing.assert_array_equal(walks[0].radiosity(), walks[1].radiosity())
-    assert cache.stats["misses"] > 0 and cache.nbytes <= cache.max_bytes
+        stats = {name: w.update(eye) for name, w in walks.items()}
+        swaps += stats["streamed"].swaps if hasattr(stats["streamed"], "swaps") else 0
+        b = {name: w.radiosity() for name, w in walks.items()}
+        assert np.array_equal(walks["streamed"].local_mask, walks["rows in memory"].local_mask)
+        assert np.array_equal(walks["streamed"].local_mask, walks["matrix in memory"].local_mask)
+        # Same rows, same arithmetic: bit for bit.
+        np.testing.assert_array_equal(b["streamed"], b["rows in memory"])
+        # The in-memory matrix reads F[S, J] from its columns instead of by reciprocity: rounding only.
+        np.testing.assert_allclose(b["streamed"], b["matrix in memory"], rtol=1e-9, atol=1e-12)
+    assert walks["streamed"].local_mask.sum() == 48
+    assert cache.stats["misses"] > 0 and cache.nbytes <= cache.max_bytes < CSRRows(f).nbytes
     cache.close()

@@ -199,3 +199,17 @@ def test_bad_input(tmp_path):
     (tmp_path / "full" / "x.txt").write_text("x")
     with pytest.raises(InvalidInputError, match="empty folder"):
         FormFactorStore.create(tmp_path / "full", scene, resolution=8)
+
+
+def test_write_block_canonicalises_a_copy(tmp_path):
+    scene = grid_scene(2)  # 8 patches, one block
+    store = FormFactorStore.create(tmp_path / "ff", scene, resolution=8, block_rows=8)
+    # Unsorted columns and a duplicate entry (1, 5) twice: stored summed and sorted.
+    m = sp.csr_matrix((np.array([0.3, 0.1, 0.2, 0.05], np.float32), np.array([5, 2, 5, 1]), [0, 0, 4, 4, 4, 4, 4, 4, 4]),
+                      shape=(8, 8))
+    before = (m.data.copy(), m.indices.copy())
+    store.write_block(0, m)
+    got = store.read_block(0)
+    assert got.has_sorted_indices and got[1].indices.tolist() == [1, 2, 5]
+    np.testing.assert_array_equal(got.toarray(), m.toarray())
+    assert np.array_equal(m.data, before[0]) and np.array_equal(m.indices, before[1])  # caller's matrix untouched
