@@ -7,8 +7,8 @@ full sort for the selection. F is random with exact reciprocity (radiosity_input
 the algebra is tested apart from hemicube error.
 
 Documented bounds after the random walk (hundreds of swaps, relative to max |K|):
-fp64 storage 1e-5 (observed ~1e-13); fp32 storage 2e-5 (each update rounds K to fp32,
-observed ~2e-6); fp16 storage 3e-3 (the storage rounding, 2^-11, accumulated; observed ~1e-3).
+fp64 storage 1e-5 (observed ~1e-15); fp32 storage 2e-5 (each update rounds K to fp32,
+observed ~3e-7); fp16 storage 3e-3 (the storage rounding, 2^-11, accumulated; observed ~9e-4).
 """
 
 import numpy as np
