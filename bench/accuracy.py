@@ -20,7 +20,8 @@ import time
 
 import numpy as np
 
-__all__ = ["pathtracer_section", "accuracy_section", "relative_image_error", "walk_positions", "timed"]
+__all__ = ["pathtracer_section", "accuracy_section", "relative_image_error", "walk_positions", "timed", "timed_walk",
+           "median_time"]
 
 #: The furnace of the path-tracer section: closed unit box, albedo and emission.
 FURNACE_ALBEDO, FURNACE_EMISSION = 0.6, 1.0
@@ -130,6 +131,29 @@ def timed(fn):
     return out, time.perf_counter() - t0
 
 
+def median_time(fn, repeats: int = 5) -> float:
+    """Median wall seconds of ``repeats`` calls of ``fn`` after one warm-up call."""
+    fn()
+    return float(np.median([timed(fn)[1] for _ in range(repeats)]))
+
+
+def timed_walk(make, path: np.ndarray) -> tuple[object, float, list]:
+    """Walk a fresh ``make()`` (a DynamicRadiosity) along ``path``.
+
+    A throwaway instance walks the first frames first, so kernel builds (once per device)
+    stay out of the timings. Returns (the walked instance, build seconds (first frame),
+    [(seconds, FrameStats) for every later frame]).
+    """
+    warm = make()
+    for pos in path[: min(len(path), 3)]:
+        warm.update(pos)
+    del warm
+    dyn = make()
+    _, t_build = timed(lambda: dyn.update(path[0]))
+    frames = [tuple(reversed(timed(lambda: dyn.update(pos)))) for pos in path[1:]]
+    return dyn, t_build, frames
+
+
 def accuracy_section(ctx) -> dict:
     """The trade curve: error vs frame time per M, update mode, storage and resolution."""
     import pydynrad
@@ -151,8 +175,8 @@ def accuracy_section(ctx) -> dict:
     full = {}
     for R in p["resolutions"]:
         F = form_factors(R)
-        sol, t_solve = timed(lambda: pydynrad.solve(scene, F, device=ctx.device))
-        full[R] = (sol.radiosity, t_solve)
+        sol = pydynrad.solve(scene, F, device=ctx.device)
+        full[R] = (sol.radiosity, median_time(lambda: pydynrad.solve(scene, F, device=ctx.device), repeats=3))
     ref_patches, noise_patches = _two_halves(
         lambda spp, seed: pydynrad.path_trace_patches(scene, spp=spp, seed=seed, device=ctx.device,
                                                       progress=ctx.progress), p["ref_spp"])
@@ -169,11 +193,10 @@ def accuracy_section(ctx) -> dict:
     for s in _settings(p):
         M = min(s["M"], n)
         F = form_factors(s["R"])
-        dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=s["update"], storage=s["storage"],
-                                        device=ctx.device)
-        _, t_build = timed(lambda: dyn.update(path[0]))
-        t_update = [timed(lambda: dyn.update(pos))[1] for pos in path[1:]]
-        b, t_light = timed(dyn.radiosity)
+        dyn, _, frames = timed_walk(lambda: pydynrad.DynamicRadiosity(
+            scene, F, local_size=M, update=s["update"], storage=s["storage"], device=ctx.device), path)
+        t_update = [dt for dt, _ in frames]
+        b, t_light = dyn.radiosity(), median_time(dyn.radiosity)
         local = np.asarray(dyn.local_patches)
         img = pydynrad.render(scene, b, cam, device=ctx.device)
         frame = (float(np.mean(t_update)) if t_update else 0.0) + t_light

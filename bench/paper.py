@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .accuracy import timed
+from .accuracy import median_time, timed, timed_walk
 
 __all__ = ["paper_section", "street_walk", "PAPER_LIGHTING_RATIO", "PAPER_UPDATE_RATIO"]
 
@@ -39,11 +39,6 @@ def street_walk(frames: int) -> np.ndarray:
     return np.stack([x, np.full_like(x, EYE_HEIGHT), np.full_like(x, 2.5)], axis=1)
 
 
-def _median_time(fn, repeats: int = 5) -> float:
-    fn()  # warm-up: kernels built, buffers allocated
-    return float(np.median([timed(fn)[1] for _ in range(repeats)]))
-
-
 def paper_section(ctx) -> dict:
     import pydynrad
 
@@ -55,23 +50,19 @@ def paper_section(ctx) -> dict:
                                                                      progress=ctx.progress)))
     L = pydynrad.light_vector(scene, device=ctx.device)
     sol = pydynrad.solve(scene, F, light=L, device=ctx.device)
-    t_naive = _median_time(lambda: pydynrad.solve(scene, F, light=L, device=ctx.device), repeats=3)
+    t_naive = median_time(lambda: pydynrad.solve(scene, F, light=L, device=ctx.device), repeats=3)
     walk = street_walk(p["frames"] + 1)
     rows = []
     for M in p["M"]:
         if M > n:
             continue
         for mode in ("paper", "exact"):
-            dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=mode, storage="fp16", device=ctx.device)
-            _, t_build = timed(lambda: dyn.update(walk[0]))
-            frames = []
-            for pos in walk[1:]:
-                stats, dt = timed(lambda: dyn.update(pos))
-                if stats.swaps:
-                    frames.append((dt, stats.swaps))
+            dyn, t_build, walked = timed_walk(lambda: pydynrad.DynamicRadiosity(
+                scene, F, local_size=M, update=mode, storage="fp16", device=ctx.device), walk)
+            frames = [(dt, stats.swaps) for dt, stats in walked if stats.swaps]
             t_update = float(np.mean([dt for dt, _ in frames])) if frames else float("nan")
             swaps = float(np.mean([k for _, k in frames])) if frames else 0.0
-            t_light = _median_time(lambda: dyn.radiosity(L))
+            t_light = median_time(lambda: dyn.radiosity(L))
             rows.append([M, mode, "fp16", n, t_naive * 1e3, sol.iterations, t_build, swaps, t_update * 1e3,
                          t_light * 1e3, t_naive / t_light, PAPER_LIGHTING_RATIO, t_naive / t_update,
                          PAPER_UPDATE_RATIO])
