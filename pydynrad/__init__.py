@@ -16,6 +16,8 @@ from .errors import (
     SceneFileError,
 )
 from .scene import DegenerateTriangleWarning, Scene
+from .formfactors import form_factors
+from .patching import subdivide
 from .loading import load
 from . import scenes
 from .camera import Camera

@@ -1,0 +1,184 @@
+"""Hemicube form factors by ray casting through the patch BVH (kernels/hemicube.cl).
+
+Patch i's row of F comes from one hemicube at its centre: every pixel casts one ray, and the
+pixel's delta form factor (its exact cosine-weighted solid angle, computed once per
+resolution on the host) goes to the nearest patch the ray meets from the front. A back face
+occludes and receives nothing; a ray that leaves the scene takes its share with it, so rows
+sum to 1 in closed scenes and to less in open ones.
+
+Rows are computed in blocks: the device writes each scanline's pixels run-length encoded
+(patch, end pixel), the host turns runs into weights with a prefix sum and sums duplicates
+into CSR. Memory stays bounded by the block, whatever N.
+"""
+
+from __future__ import annotations
+
+import sys
+from functools import lru_cache
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import InvalidInputError
+
+__all__ = ["form_factors", "pixel_form_factors", "SURFACE_OFFSET"]
+
+#: Hemicube centres sit this far off their patch, times the scene's bounding-box diagonal:
+#: far above float32 rounding of coordinates (about 6e-8 of them), far below any patch size.
+SURFACE_OFFSET = 1e-5
+
+#: Bytes of run buffers per block (8 bytes per pixel slot); bounds memory for any N.
+BLOCK_BYTES = 128 * 2**20
+
+#: Show a progress bar on a terminal when a call casts more rays than this.
+LONG_RUN_RAYS = 50_000_000
+
+
+def _polygon_form_factor(corners: np.ndarray) -> np.ndarray:
+    """Form factor from a differential area at the origin, normal +z, to polygons.
+
+    ``corners``: (..., K, 3) polygon vertices in order. Lambert's contour formula:
+    F = 1/(2 pi) |sum_k angle(r_k, r_k+1) * z.(r_k x r_k+1) / |r_k x r_k+1||, exact.
+    """
+    r = corners / np.linalg.norm(corners, axis=-1, keepdims=True)
+    r_next = np.roll(r, -1, axis=-2)
+    cross = np.cross(r, r_next)
+    sin = np.linalg.norm(cross, axis=-1)
+    angle = np.arctan2(sin, np.sum(r * r_next, axis=-1))
+    return np.abs(np.sum(angle * cross[..., 2] / sin, axis=-1)) / (2 * np.pi)
+
+
+@lru_cache(maxsize=16)
+def pixel_form_factors(resolution: int) -> np.ndarray:
+    """(3R, R) float64 delta form factors of the hemicube's pixels, in the kernel's layout.
+
+    Rows 0..R-1 are the top face's scanlines, then R/2 scanlines per side face (see
+    kernels/hemicube.cl). Normalised to sum to 1 (analytically they already do, to rounding).
+    """
+    R, H = resolution, resolution // 2
+    edges = -1.0 + 2.0 * np.arange(R + 1) / R  # pixel boundaries across a face
+    heights = 2.0 * np.arange(H + 1) / R  # pixel boundaries up a side face
+    u0, u1 = edges[:-1], edges[1:]
+    # Top face: pixel (x, s) spans [u0[x], u1[x]] x [u0[s], u1[s]] at z = 1.
+    uu0, vv0 = np.meshgrid(u0, u0)
+    uu1, vv1 = np.meshgrid(u1, u1)
+    one = np.ones_like(uu0)
+    top = np.stack([np.stack(c, -1) for c in ((uu0, vv0, one), (uu1, vv0, one), (uu1, vv1, one), (uu0, vv1, one))], -2)
+    # Side face 0, (1, a, h): pixel (x, r) spans a in [u0[x], u1[x]], h in [heights[r], heights[r+1]].
+    aa0, hh0 = np.meshgrid(u0, heights[:-1])
+    aa1, hh1 = np.meshgrid(u1, heights[1:])
+    one = np.ones_like(aa0)
+    side = np.stack([np.stack(c, -1) for c in ((one, aa0, hh0), (one, aa1, hh0), (one, aa1, hh1), (one, aa0, hh1))], -2)
+    # The four sides are rotations of side 0 about z, so their pixels weigh the same.
+    w = np.concatenate([_polygon_form_factor(top)] + [_polygon_form_factor(side)] * 4)
+    return w / w.sum()
+
+
+def _check_resolution(resolution, device) -> int:
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
+        raise InvalidInputError(f"resolution must be an integer; got {resolution!r}")
+    R = int(resolution)
+    if R < 2 or R % 2:
+        raise InvalidInputError(f"resolution must be an even integer >= 2 (side faces are R x R/2); got {R}")
+    if 3 * R * R * 4 > device.max_alloc_bytes:
+        raise InvalidInputError(f"resolution {R} needs more memory per hemicube than the device allows in one buffer")
+    return R
+
+
+def _check_rows(rows, n: int) -> np.ndarray:
+    if rows is None:
+        return np.arange(n, dtype=np.int32)
+    r = np.asarray(rows)
+    if r.ndim != 1 or not (np.issubdtype(r.dtype, np.integer) or r.size == 0):
+        raise InvalidInputError(f"rows must be a 1-D array of patch indices; got shape {r.shape}, dtype {r.dtype}")
+    if r.size and (r.min() < 0 or r.max() >= n):
+        raise InvalidInputError(f"rows must index patches 0..{n - 1}; got values in [{r.min()}, {r.max()}]")
+    return r.astype(np.int32)
+
+
+def _runs_to_csr(patch, end, count, weights_cum, n_cols: int) -> sp.csr_matrix:
+    """Sum each row's runs into a CSR block: patch/end (B, 3R, R), count (B, 3R)."""
+    B, S, R = patch.shape
+    start = np.empty_like(end)
+    start[..., 0] = 0
+    start[..., 1:] = end[..., :-1]
+    used = np.arange(R)[None, None, :] < count[..., None]
+    b, s, j = np.nonzero(used & (patch >= 0))
+    cols = patch[b, s, j]
+    w = weights_cum[s, end[b, s, j]] - weights_cum[s, start[b, s, j]]
+    m = sp.csr_matrix((w, (b, cols)), shape=(B, n_cols))  # duplicates summed, in float64
+    m.sum_duplicates()
+    return m
+
+
+def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: bool | None = None) -> sp.csr_matrix:
+    """Gathering form factors F[i, j] of a scene by hemicubes.
+
+    Parameters
+    ----------
+    scene : Scene
+    resolution : int
+        Hemicube resolution R (even, >= 2): top face R x R, sides R x R/2, 3 R^2 rays per patch.
+    rows : sequence of int, optional
+        Patches whose rows to compute; all by default.
+    device : Device, optional
+        The OpenCL device (default: :func:`pydynrad.default_device`).
+    progress : bool, optional
+        Show a tqdm bar; by default only on a terminal for long runs.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, float32, shape (len(rows), N)
+        Row k holds patch ``rows[k]``'s form factors to every patch (fraction of the energy
+        leaving it that arrives at each). ``F[i, i] = 0``.
+    """
+    import pyopencl as cl
+    from tqdm.auto import tqdm
+
+    from .device import default_device
+
+    dev = device or default_device()
+    R = _check_resolution(resolution, dev)
+    n = len(scene)
+    rows = _check_rows(rows, n)
+    if len(rows) == 0:
+        return sp.csr_matrix((0, n), dtype=np.float32)
+
+    S = 3 * R
+    per_row = S * R * 8
+    block = int(max(1, min(len(rows), BLOCK_BYTES // per_row)))
+    weights_cum = np.zeros((S, R + 1))
+    np.cumsum(pixel_form_factors(R), axis=1, out=weights_cum[:, 1:])
+
+    knl = dev.kernel("hemicube.cl", "hemicube_runs", {"HC_RES": R})
+    nodes, tris, order = scene.bvh.buffers(dev)
+    c4 = np.zeros((n, 4), np.float32)
+    n4 = np.zeros((n, 4), np.float32)
+    c4[:, :3], n4[:, :3] = scene.centers, scene.normals
+    centers, normals = dev.to_device(c4), dev.to_device(n4)
+    mf = cl.mem_flags
+    patch_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
+    end_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
+    count_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * 4)
+    eps = np.float32(SURFACE_OFFSET * scene.scale)
+
+    if progress is None:
+        progress = len(rows) > block and len(rows) * S * R > LONG_RUN_RAYS and sys.stderr.isatty()
+    parts = []
+    with tqdm(total=len(rows), unit="patch", desc=f"form factors R={R}", disable=not progress) as bar:
+        for first in range(0, len(rows), block):
+            idx = rows[first : first + block]
+            b = len(idx)
+            knl(dev.queue, (b * S,), None, nodes, tris, order, centers, normals, dev.to_device(idx), np.int32(b),
+                eps, patch_buf, end_buf, count_buf)
+            patch = np.empty((b, S, R), np.int32)
+            end = np.empty((b, S, R), np.int32)
+            count = np.empty((b, S), np.int32)
+            cl.enqueue_copy(dev.queue, patch, patch_buf)
+            cl.enqueue_copy(dev.queue, end, end_buf)
+            cl.enqueue_copy(dev.queue, count, count_buf)
+            parts.append(_runs_to_csr(patch, end, count, weights_cum, n))
+            bar.update(b)
+    F = sp.vstack(parts, format="csr").astype(np.float32)
+    F.sort_indices()
+    return F
