@@ -27,6 +27,7 @@ reverses the winding so normals keep pointing to the same (lit) side.
 
 from __future__ import annotations
 
+import re
 import warnings
 from pathlib import Path
 
@@ -37,7 +38,7 @@ from .errors import InvalidInputError, SceneFileError
 from .patching import subdivide
 from .scene import Scene
 
-__all__ = ["load", "from_mesh", "patched_scene", "soup_scene", "AlbedoClampedWarning", "MAX_ALBEDO", "SUPPORTED_FORMATS"]
+__all__ = ["load", "from_mesh", "patched_scene", "soup_scene", "AlbedoClampedWarning", "MissingMaterialWarning", "MAX_ALBEDO", "SUPPORTED_FORMATS"]
 
 MAX_ALBEDO = 0.999
 SUPPORTED_FORMATS = ("obj", "ply", "glb", "gltf", "stl", "off")
@@ -46,6 +47,10 @@ _TEXT_FORMATS = ("obj", "off", "gltf")
 
 class AlbedoClampedWarning(UserWarning):
     """Albedos of 1 (or within ``1 - MAX_ALBEDO`` of it) were clamped to ``MAX_ALBEDO``."""
+
+
+class MissingMaterialWarning(UserWarning):
+    """An OBJ file names materials that could not be loaded; defaults were used."""
 
 
 def load(path, max_patch_area: float | None = None, max_edge: float | None = None, default_albedo=0.5) -> Scene:
@@ -78,9 +83,11 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
         raise SceneFileError(f"{path}: malformed {fmt.upper()} file: binary data (NUL bytes) in a text format")
     try:
         # process=False keeps face order (source_face) and lets bad vertices reach validation.
-        loaded = trimesh.load(str(path), file_type=fmt, process=False)
+        loaded = trimesh.load(str(path), file_type=fmt, process=False, resolver=_MtlResolver(str(path)))
     except Exception as exc:  # trimesh raises anything from ValueError to UnicodeDecodeError
         raise SceneFileError(f"{path}: cannot read as {fmt.upper()}: {type(exc).__name__}: {exc}") from exc
+    if fmt == "obj" and b"usemtl" in path.read_bytes():
+        _warn_lost_materials(path, loaded)
     try:
         return from_mesh(loaded, max_patch_area=max_patch_area, max_edge=max_edge, default_albedo=default_albedo, name=path.stem)
     except InvalidInputError as exc:
@@ -99,6 +106,8 @@ def from_mesh(mesh, max_patch_area: float | None = None, max_edge: float | None 
         parts = [(_transformed(mesh.geometry[g], t), mesh.geometry[g]) for t, g in (mesh.graph[n] for n in mesh.graph.nodes_geometry)]
     elif isinstance(mesh, trimesh.Trimesh):
         parts = [((np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces)), mesh)]
+    elif isinstance(mesh, trimesh.parent.Geometry):  # a point cloud or a path: no triangles
+        raise InvalidInputError(f"the mesh is empty: it has no triangles (got a {type(mesh).__name__})")
     else:
         raise InvalidInputError(f"from_mesh needs a trimesh.Trimesh or trimesh.Scene; got {type(mesh).__name__}")
     parts = [(vf, g) for vf, g in parts if isinstance(g, trimesh.Trimesh) and len(vf[1]) > 0]
@@ -145,6 +154,31 @@ def soup_scene(vertices, albedo, emission, max_patch_area: float | None = None, 
         raise InvalidInputError(f"a triangle soup must have shape (T, 3, 3); got {v.shape}")
     points, triangles = _merge_points(v.reshape(-1, 3), np.arange(3 * len(v)).reshape(-1, 3))
     return patched_scene(points, triangles, albedo, emission, max_patch_area=max_patch_area, max_edge=max_edge, name=name)
+
+
+class _MtlResolver(trimesh.resolvers.FilePathResolver):
+    """Serves MTL files with one-value colours (``Kd 0.5``, valid MTL) spelled as RGB triples.
+
+    trimesh 5.2 fails on the one-value form and then silently drops every material of the file.
+    """
+
+    def get(self, name):
+        data = super().get(name)
+        if str(name).lower().endswith(".mtl"):
+            text = data.decode("utf-8", errors="replace") if isinstance(data, bytes) else str(data)
+            data = re.sub(r"(?im)^(\s*k[ads]\s+)(\S+)\s*$", r"\1\2 \2 \2", text).encode()
+        return data
+
+
+def _warn_lost_materials(path: Path, loaded) -> None:
+    """Warn when an OBJ names materials but some geometry came back without one (no MTL file,
+    an unknown material name): those faces get the default albedo and no emission."""
+    geometries = loaded.geometry.values() if isinstance(loaded, trimesh.Scene) else [loaded]
+    bare = sum(len(g.faces) for g in geometries
+               if isinstance(g, trimesh.Trimesh) and getattr(g.visual, "material", None) is None)
+    if bare:
+        warnings.warn(f"{path}: {bare} face(s) use materials that could not be loaded (missing or unreadable MTL); "
+                      "they get the default albedo and no emission", MissingMaterialWarning, stacklevel=3)
 
 
 def _transformed(geometry, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

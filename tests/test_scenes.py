@@ -10,7 +10,7 @@ import pytest
 
 from pydynrad.errors import InvalidInputError
 from pydynrad.scenes import cornell, cornell_box, village
-from pydynrad.scenes.village import BASE_CELL
+from pydynrad.scenes.village import BASE_CELL, MATERIALS
 
 BOX = (556.0, 548.8, 559.2)
 
@@ -197,7 +197,7 @@ def test_village_lamp_light_leaves_through_doors_and_windows():
     d *= np.sign(np.einsum("ij,ij->i", d, normal))[:, None]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     hit, _ = first_hits(origin + 1e-4 * normal, d, s.vertices.astype(np.float64))
-    grass = np.all(np.isclose(s.albedo, [0.18, 0.32, 0.10]), axis=1) | np.all(np.isclose(s.albedo, [0.32, 0.31, 0.30]), axis=1)
+    grass = np.all(np.isclose(s.albedo, MATERIALS["grass"]), axis=1) | np.all(np.isclose(s.albedo, MATERIALS["road"]), axis=1)
     outside = (hit < 0) | grass[np.maximum(hit, 0)]
     assert 0 < outside.mean() < 0.5  # openings let some light out; the walls keep most in
 

@@ -28,38 +28,40 @@ from ..errors import InvalidInputError
 from ..patching import subdivide
 from ..scene import Scene
 
-__all__ = ["village", "BASE_CELL", "MATERIALS"]
+__all__ = ["village", "BASE_CELL", "MATERIALS", "EMISSION"]
 
 #: Cell edge (m) at ``detail=1``: 12 houses then give about 66,000 patches (66,154 for seed 0).
 BASE_CELL = 0.59
 
 ROOM_LAMP = (24.0, 19.0, 12.0)
 STREET_LAMP = (40.0, 34.0, 22.0)
-#: name: (albedo RGB, emission RGB)
+#: Albedo (RGB) of every material, by name.
 MATERIALS = {
-    "grass": ((0.18, 0.32, 0.10), (0, 0, 0)),
-    "road": ((0.32, 0.31, 0.30), (0, 0, 0)),
-    "stone": ((0.45, 0.43, 0.40), (0, 0, 0)),
-    "wood": ((0.50, 0.34, 0.20), (0, 0, 0)),
-    "ceiling": ((0.80, 0.79, 0.76), (0, 0, 0)),
-    "metal": ((0.20, 0.20, 0.22), (0, 0, 0)),
-    "room_lamp": ((0.80, 0.80, 0.80), ROOM_LAMP),
-    "street_lamp": ((0.80, 0.80, 0.80), STREET_LAMP),
-    "plaster_cream": ((0.78, 0.70, 0.55), (0, 0, 0)),
-    "plaster_ochre": ((0.72, 0.52, 0.30), (0, 0, 0)),
-    "plaster_rose": ((0.72, 0.50, 0.45), (0, 0, 0)),
-    "plaster_blue": ((0.55, 0.62, 0.70), (0, 0, 0)),
-    "paint_white": ((0.80, 0.78, 0.74), (0, 0, 0)),
-    "paint_mint": ((0.62, 0.74, 0.64), (0, 0, 0)),
-    "paint_peach": ((0.80, 0.66, 0.55), (0, 0, 0)),
-    "paint_lavender": ((0.68, 0.64, 0.76), (0, 0, 0)),
-    "roof_terracotta": ((0.55, 0.22, 0.12), (0, 0, 0)),
-    "roof_slate": ((0.24, 0.26, 0.30), (0, 0, 0)),
-    "roof_brown": ((0.36, 0.24, 0.16), (0, 0, 0)),
+    "grass": (0.18, 0.32, 0.10),
+    "road": (0.32, 0.31, 0.30),
+    "stone": (0.45, 0.43, 0.40),
+    "wood": (0.50, 0.34, 0.20),
+    "ceiling": (0.80, 0.79, 0.76),
+    "metal": (0.20, 0.20, 0.22),
+    "room_lamp": (0.80, 0.80, 0.80),
+    "street_lamp": (0.80, 0.80, 0.80),
+    "plaster_cream": (0.78, 0.70, 0.55),
+    "plaster_ochre": (0.72, 0.52, 0.30),
+    "plaster_rose": (0.72, 0.50, 0.45),
+    "plaster_blue": (0.55, 0.62, 0.70),
+    "paint_white": (0.80, 0.78, 0.74),
+    "paint_mint": (0.62, 0.74, 0.64),
+    "paint_peach": (0.80, 0.66, 0.55),
+    "paint_lavender": (0.68, 0.64, 0.76),
+    "roof_terracotta": (0.55, 0.22, 0.12),
+    "roof_slate": (0.24, 0.26, 0.30),
+    "roof_brown": (0.36, 0.24, 0.16),
 }
+#: Emission (radiant exitance, W/m^2, RGB) of the emitting materials.
+EMISSION = {"room_lamp": ROOM_LAMP, "street_lamp": STREET_LAMP}
 _ID = {name: k for k, name in enumerate(MATERIALS)}
-_ALBEDO = np.array([a for a, _ in MATERIALS.values()], dtype=np.float64)
-_EMISSION = np.array([e for _, e in MATERIALS.values()], dtype=np.float64)
+_ALBEDO = np.array(list(MATERIALS.values()), dtype=np.float64)
+_EMISSION = np.array([EMISSION.get(name, (0.0, 0.0, 0.0)) for name in MATERIALS], dtype=np.float64)
 _PLASTERS = [n for n in MATERIALS if n.startswith("plaster_")]
 _PAINTS = [n for n in MATERIALS if n.startswith("paint_")]
 _ROOFS = [n for n in MATERIALS if n.startswith("roof_")]
