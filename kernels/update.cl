@@ -109,15 +109,18 @@ __kernel void read_slots(__global const STORE_T *K, const int M, const int ld, _
 }
 
 // K[i, slots[m]] = cols[m*M + i], K[slots[m], i] = rows[m*M + i]. Where a written row crosses
-// a written column the host passes equal values, so the two writes agree.
-__kernel void write_slots(__global STORE_T *K, const int M, const int ld, __global const int *slots,
+// a written column only the column write happens, so no cell has two writers (fp16 stores
+// of neighbouring halves by different items must never overlap a cell). Item (i, m).
+__kernel void write_slots(__global STORE_T *K, const int M, const int ld, __global const int *slots, const int k,
                           __global const REAL *cols, __global const REAL *rows)
 {
     const int i = get_global_id(0), m = get_global_id(1);
     if (i >= M) return;
     const int s = slots[m];
     STORE(cols[(size_t)m * M + i], K, (size_t)i * ld + s);
-    STORE(rows[(size_t)m * M + i], K, (size_t)s * ld + i);
+    bool crossing = false;
+    for (int t = 0; t < k; ++t) crossing |= slots[t] == i;
+    if (!crossing) STORE(rows[(size_t)m * M + i], K, (size_t)s * ld + i);
 }
 
 // Eq. 1: out[0] = sum_a f_c[a] f_r[a] rho[a]: light leaving the new patch, reflected once by

@@ -149,7 +149,9 @@ class UpdateKernels:
         cl.enqueue_copy(self.device.queue, self._slots, slots)
         self._put(self._A, cols, self.M)
         self._put(self._Y, rows, self.M)
-        self._k["write_slots"](self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M), np.int32(self.ld), self._slots, self._A, self._Y)
+        self._k["write_slots"](
+            self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M), np.int32(self.ld), self._slots, np.int32(k), self._A, self._Y
+        )
 
     def double_reflection(self, f_c: np.ndarray, f_r: np.ndarray, rho: np.ndarray) -> float:
         """Eq. 1: sum_a f_c[a] f_r[a] rho[a] over the M slots, reduced on the device."""
