@@ -1,0 +1,237 @@
+"""Hemicube form factors: ray throughput against Embree, and accuracy against analytic plates.
+
+``python -m bench.formfactors [--size quick|full|tiny] [--scenes cornell_box,village]`` writes
+``bench/results/formfactors.{json,md}``; the suite runs the same measurement as its
+"formfactors" section.
+
+Throughput: for a sample of patches of each scene, the hemicube rays that
+``kernels/hemicube.cl`` casts (same origins, per-patch rotations and pixel directions,
+rebuilt here in numpy) are cast three ways in one run:
+
+* ``form_factors(rows=sample)``: the whole pipeline (rays, run-length scanlines, CSR);
+* ``pydynrad.bvh.cast_rays``: our BVH kernel alone on the explicit rays (upload included);
+* Embree (``embreex``, closest hit, driven from Python): the peer to beat per ray.
+
+Accuracy: the plate-to-plate form factor of the unit parallel and perpendicular plates
+against Howell's closed forms, per resolution R and subdivision, with the time each took.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .common import time_call
+
+__all__ = ["SIZES", "hemicube_rays", "throughput", "accuracy", "measure", "suite_section", "main"]
+
+SIZES = {
+    "tiny": {"scenes": ("cornell_box",), "ray_rows": 16, "ray_resolution": 16,
+             "resolutions": (16, 32), "subdivisions": (2,)},
+    "quick": {"scenes": ("cornell_box", "village"), "ray_rows": 200, "ray_resolution": 32,
+              "resolutions": (16, 32, 64, 128), "subdivisions": (1, 2, 3, 4)},
+    "full": {"scenes": ("cornell_box", "village"), "ray_rows": 1000, "ray_resolution": 64,
+             "resolutions": (16, 32, 64, 128, 256, 512), "subdivisions": (1, 2, 3, 4, 5)},
+}
+
+
+def _hash(x: np.ndarray) -> np.ndarray:
+    """kernels/hemicube.cl's hc_hash (lowbias32) in uint32 arithmetic."""
+    x = x.astype(np.uint32)
+    x ^= x >> np.uint32(16)
+    x *= np.uint32(0x7FEB352D)
+    x ^= x >> np.uint32(15)
+    x *= np.uint32(0x846CA68B)
+    x ^= x >> np.uint32(16)
+    return x
+
+
+def hemicube_rays(scene, rows: np.ndarray, resolution: int) -> tuple[np.ndarray, np.ndarray]:
+    """Origins and directions, (len(rows) * 3R * R, 3) float32 each, of the rays that
+    ``kernels/hemicube.cl`` casts for these patches, in its (row, scanline, pixel) order."""
+    from pydynrad.formfactors import SURFACE_OFFSET
+
+    R, H = resolution, resolution // 2
+    n = scene.normals[rows].astype(np.float64)
+    sg = np.copysign(1.0, n[:, 2])
+    a = -1.0 / (sg + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    t0 = np.stack([1 + sg * n[:, 0] ** 2 * a, sg * b, -sg * n[:, 0]], axis=1)
+    b0 = np.stack([b, sg + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
+    ang = _hash(rows).astype(np.float64) * (2 * np.pi / 2**32)
+    cs, sn = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    T, B = cs * t0 + sn * b0, cs * b0 - sn * t0
+    c = (np.arange(R) + 0.5) * 2 / R - 1  # pixel centres across a face
+    h = (np.arange(H) + 0.5) * 2 / R  # pixel centres up a side
+    # Local (tangent, bitangent, normal) coordinates of every pixel, scanline-major.
+    top = np.stack(np.broadcast_arrays(c[None, :], c[:, None], 1.0), -1).reshape(-1, 3)
+    side = [np.stack(np.broadcast_arrays(*comp), -1).reshape(-1, 3) for comp in (
+        (1.0, c[None, :], h[:, None]), (-1.0, -c[None, :], h[:, None]),
+        (-c[None, :], 1.0, h[:, None]), (c[None, :], -1.0, h[:, None]))]
+    local = np.concatenate([top, *side])  # (3R * R, 3)
+    d = local[None, :, 0:1] * T[:, None] + local[None, :, 1:2] * B[:, None] + local[None, :, 2:3] * n[:, None]
+    o = scene.centers[rows].astype(np.float64) + SURFACE_OFFSET * scene.scale * n
+    o = np.broadcast_to(o[:, None], d.shape)
+    return o.reshape(-1, 3).astype(np.float32), d.reshape(-1, 3).astype(np.float32)
+
+
+def _embree(scene):
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
+    es = rtcore_scene.EmbreeScene()
+    TriangleMesh(scene=es, vertices=scene.points.astype(np.float32), indices=scene.triangles.astype(np.int32))
+    return es
+
+
+def _scene(name: str):
+    import pydynrad
+
+    make = getattr(pydynrad.scenes, name, None)
+    if make is None:
+        raise ValueError(f"no scene pydynrad.scenes.{name}")
+    return make()
+
+
+def throughput(scene, n_rows: int, resolution: int, device, repeats: int = 3) -> dict:
+    """Rays per second of the three ray casters on one scene's hemicube rays."""
+    from pydynrad.bvh import cast_rays
+    from pydynrad.formfactors import form_factors
+
+    rows = np.linspace(0, len(scene) - 1, min(n_rows, len(scene))).astype(np.int32)
+    o, d = hemicube_rays(scene, rows, resolution)
+    n_rays = len(o)
+    t_bvh = time.perf_counter()
+    scene.bvh.buffers(device)
+    t_bvh = time.perf_counter() - t_bvh
+    ff = time_call(lambda: form_factors(scene, resolution=resolution, rows=rows, device=device, progress=False),
+                   repeats=repeats)
+    ours = time_call(lambda: cast_rays(scene, o, d, device=device), repeats=repeats)
+    t_embree_build = time.perf_counter()
+    es = _embree(scene)
+    t_embree_build = time.perf_counter() - t_embree_build
+    emb = time_call(lambda: es.run(o, d), repeats=repeats)
+    patch_ours, patch_emb = ours["result"][0], np.asarray(emb["result"])
+    return {
+        "scene": scene.name, "patches": len(scene), "rows": len(rows), "R": resolution, "rays": n_rays,
+        "form_factors_rays_per_s": n_rays / ff["median_s"],
+        "cast_rays_per_s": n_rays / ours["median_s"],
+        "embree_rays_per_s": n_rays / emb["median_s"],
+        "ours_over_embree": emb["median_s"] / ours["median_s"],
+        "same_hit_fraction": float(np.mean(patch_ours == patch_emb)),
+        "warmup_s": ff["warmup_s"], "bvh_upload_s": t_bvh, "embree_build_s": t_embree_build,
+    }
+
+
+def _howell_parallel(a, b, c):
+    X, Y = a / c, b / c
+    x1, y1 = np.sqrt(1 + X**2), np.sqrt(1 + Y**2)
+    return (2 / (np.pi * X * Y)) * (np.log(x1**2 * y1**2 / (x1**2 + y1**2 - 1)) / 2 + X * y1 * np.arctan(X / y1)
+                                    + Y * x1 * np.arctan(Y / x1) - X * np.arctan(X) - Y * np.arctan(Y))
+
+
+def _howell_perpendicular(l, w, h):
+    H, W = h / l, w / l
+    s = H**2 + W**2
+    log = np.log((1 + W**2) * (1 + H**2) / (1 + s)
+                 * (W**2 * (1 + s) / ((1 + W**2) * s)) ** (W**2) * (H**2 * (1 + s) / ((1 + H**2) * s)) ** (H**2))
+    return (W * np.arctan(1 / W) + H * np.arctan(1 / H) - np.sqrt(s) * np.arctan(1 / np.sqrt(s)) + log / 4) / (np.pi * W)
+
+
+def accuracy(resolutions, subdivisions, device) -> list[dict]:
+    """Plate-to-plate error and time per configuration, R and subdivision."""
+    from pydynrad.formfactors import form_factors
+    from pydynrad.scenes.analytic import parallel_plates, perpendicular_plates
+
+    out = []
+    for name, make, truth in (("parallel", parallel_plates, _howell_parallel(1, 1, 1)),
+                              ("perpendicular", perpendicular_plates, _howell_perpendicular(1, 1, 1))):
+        for sub in subdivisions:
+            scene = make(subdivisions=sub)
+            a = scene.areas.astype(np.float64)
+            src, dst = scene.source_face // 2 == 0, scene.source_face // 2 == 1
+            for R in resolutions:
+                form_factors(scene, resolution=R, rows=[0], device=device)  # kernel build outside the timing
+                t = time.perf_counter()
+                F = form_factors(scene, resolution=R, device=device, progress=False)
+                dt = time.perf_counter() - t
+                got = float(a[src] @ np.asarray(F[src][:, dst].sum(axis=1)).ravel() / a[src].sum())
+                out.append({"case": name, "subdivisions": sub, "patches": len(scene), "R": R, "F": got,
+                            "truth": float(truth), "rel_error": got / truth - 1, "seconds": dt,
+                            "rays_per_s": len(scene) * 3 * R * R / dt})
+    return out
+
+
+def measure(params: dict, device) -> dict:
+    """The section dict (see bench.report) for one parameter set."""
+    tp = [throughput(_scene(name), params["ray_rows"], params["ray_resolution"], device)
+          for name in params["scenes"]]
+    acc = accuracy(params["resolutions"], params["subdivisions"], device)
+    tp_cols = ["scene", "patches", "rows", "R", "rays", "form_factors_rays_per_s", "cast_rays_per_s",
+               "embree_rays_per_s", "ours_over_embree", "same_hit_fraction", "warmup_s"]
+    acc_cols = ["case", "subdivisions", "patches", "R", "F", "truth", "rel_error", "seconds", "rays_per_s"]
+    plots = [{
+        "name": f"error-{case}", "title": f"{case} unit plates: |relative error| vs R", "xlabel": "R",
+        "ylabel": "|F / F_exact - 1|", "xscale": "log", "yscale": "log",
+        "series": [{"label": f"subdivisions {s}", "x": [r["R"] for r in acc if r["case"] == case and r["subdivisions"] == s],
+                    "y": [max(abs(r["rel_error"]), 1e-7) for r in acc if r["case"] == case and r["subdivisions"] == s]}
+                   for s in params["subdivisions"]],
+    } for case in ("parallel", "perpendicular")]
+    return {
+        "title": "Hemicube form factors",
+        "description": (
+            "Ray throughput on each scene's hemicube rays (a sample of patches, resolution R): the full "
+            "form_factors pipeline, our BVH kernel alone (cast_rays, upload included) and Embree (embreex, "
+            "closest hit from Python) on the same rays in the same run; same_hit_fraction is how often both "
+            "return the same patch. Then the unit plates' form factor against Howell's closed forms."
+        ),
+        "tables": [
+            {"title": "Ray throughput (rays/s)", "columns": tp_cols, "rows": [[r[c] for c in tp_cols] for r in tp]},
+            {"title": "Accuracy vs the analytic plates", "columns": acc_cols,
+             "rows": [[r[c] for c in acc_cols] for r in acc]},
+        ],
+        "plots": plots,
+        "throughput": tp,
+        "accuracy": acc,
+    }
+
+
+def suite_section(ctx) -> dict:
+    """The suite's "formfactors" section: this size's defaults, overridden by the suite's parameters."""
+    params = dict(SIZES.get(ctx.size, SIZES["quick"]))
+    params.update({k: tuple(v) for k, v in ctx.params.items()})
+    return measure(params, ctx.device)
+
+
+def main(argv=None) -> int:
+    import datetime
+
+    import pydynrad
+
+    from .report import write_report
+
+    ap = argparse.ArgumentParser(prog="python -m bench.formfactors", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--size", choices=list(SIZES), default="quick")
+    ap.add_argument("--scenes", help="comma-separated pydynrad.scenes names (default: the size's)")
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
+    args = ap.parse_args(argv)
+    params = dict(SIZES[args.size])
+    if args.scenes:
+        params["scenes"] = tuple(args.scenes.split(","))
+    device = pydynrad.default_device()
+    t0 = time.perf_counter()
+    section = measure(params, device)
+    results = {"device": device.info(),
+               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+               "size": args.size, "sections": {"formfactors": section}, "seconds": time.perf_counter() - t0}
+    written = write_report(results, args.out, "formfactors")
+    print("\n".join(str(p) for p in written.values()), file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
