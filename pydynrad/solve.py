@@ -77,7 +77,9 @@ def check_form_factors(scene, F) -> sp.csr_matrix:
     """
     n = len(scene)
     if sp.issparse(F):
-        F = sp.csr_matrix(F, dtype=np.float64)
+        # copy=True: scipy shares indices with the caller's matrix, and sum_duplicates below
+        # sorts them in place, which would scramble the caller's (non-canonical) F.
+        F = sp.csr_matrix(F, dtype=np.float64, copy=True)
     else:
         a = np.asarray(F)
         if a.ndim != 2:
