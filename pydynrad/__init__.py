@@ -23,6 +23,7 @@ from . import scenes
 from .camera import Camera
 from .render import render
 from .image_io import read_image, write_image
+from .walk import CameraPath, LightTrack, WalkResult, fly_through, load_path, orbit, walk
 from .matvec import DeviceMatrix
 from .dynamic import DynamicRadiosity, FrameStats
 from .lights import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector
