@@ -26,6 +26,7 @@ FF_FORMAT = "pydynrad-form-factors"
 FF_VERSION = 1
 
 DEMO_DIR = "pydynrad-demo"
+DEMO_EXPOSURE = float(-np.log2(np.pi))
 
 
 class _Parser(argparse.ArgumentParser):
@@ -262,13 +263,13 @@ def _cmd_walk(args: argparse.Namespace) -> int:
 
 
 def demo_setup(frames: int, size: tuple[int, int]):
-    """The demo's Cornell box walk: the camera moves from the published viewpoint into the
-    box and turns towards the tall block, while a small point light circles the blocks."""
+    """The demo's Cornell box walk: the camera moves from the published viewpoint up to the
+    box's open side and pans across it, while a point light circles above the blocks."""
     from .lights import PointLight
     from .paths import CameraPath, LightTrack
 
-    positions = [(278, 273, -800), (278, 273, -250), (330, 250, 90), (400, 220, 170)]
-    look_ats = [(278, 273, 0), (278, 260, 280), (240, 180, 350), (150, 150, 400)]
+    positions = [(278, 273, -800), (278, 273, -450), (150, 320, -250), (400, 220, -200)]
+    look_ats = [(278, 273, 0), (278, 260, 280), (300, 200, 300), (250, 220, 300)]
     cam = CameraPath(positions, look_ats, frames, fov_y=39.3, width=size[0], height=size[1])
     # Above both blocks (the tall one is 330 mm high), below the ceiling (548.8 mm).
     orbit_keys = [(130, 420, 130), (130, 420, 430), (430, 420, 430), (430, 420, 130), (130, 420, 130)]
@@ -352,7 +353,7 @@ def _add_look(p: argparse.ArgumentParser) -> None:
                    help="smooth: radiosity interpolated across patches (not across creases or material borders); "
                         "flat: one value per patch (default smooth)")
     p.add_argument("--exposure", type=float, default=0.0, metavar="STOPS",
-                   help="brighten (positive) or darken (negative) PNG/JPEG output by this many stops (default 0)")
+                   help="multiply the written image by 2**STOPS: brighter (positive) or darker (negative) (default 0)")
     p.add_argument("--light", type=_point_light, action="append", default=[], metavar="X,Y,Z:R,G,B",
                    help="add a point light at X,Y,Z with intensity R,G,B in W/sr (repeatable); emitting patches "
                         "of the scene always shine")
@@ -399,13 +400,15 @@ def build_parser() -> argparse.ArgumentParser:
                                    "a table of per-stage timings.")
     p.add_argument("--frames", type=_positive_int, default=24, metavar="N", help="number of frames (default 24)")
     p.add_argument("--size", type=_size, default=(320, 240), metavar="WxH", help="image size in pixels (default 320x240)")
-    p.add_argument("--max-edge", type=_positive_float, default=80.0, metavar="MM",
-                   help="longest patch edge in mm (default 80: about 2,600 patches)")
-    _add_form_factors(p, resolution=64)
-    _add_dynamic(p, local_size=1024)
+    p.add_argument("--max-edge", type=_positive_float, default=100.0, metavar="MM",
+                   help="longest patch edge in mm (default 100: 1,096 patches)")
+    _add_form_factors(p, resolution=32)
+    _add_dynamic(p, local_size=768)
     _add_walk_output(p, DEMO_DIR)
     p.add_argument("--shading", choices=("smooth", "flat"), default="smooth", help="smooth or flat shading (default smooth)")
-    p.add_argument("--exposure", type=float, default=0.0, metavar="STOPS", help="PNG/JPEG exposure in stops (default 0)")
+    p.add_argument("--exposure", type=float, default=DEMO_EXPOSURE, metavar="STOPS",
+                   help=f"exposure of the written frames in stops (default {DEMO_EXPOSURE:.2f} = log2(1/pi): pixels "
+                        "hold radiosity, so this shows the radiance B/pi, as a path tracer would)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_demo)
 

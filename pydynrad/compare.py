@@ -118,7 +118,7 @@ def comparison_image(dynamic, reference, exposure: float = 0.0, vmax: float | No
     scale = max(1, h // 120)
     top, bottom = _text(">" + _percent(vmax), scale), _text("0%", scale)
     bar_w = max(8, w // 16)
-    panel_w = bar_w + gap + max(top.shape[1], bottom.shape[1])
+    panel_w = bar_w + 2 * gap + max(top.shape[1], bottom.shape[1])
     out = np.zeros((h, 3 * w + 3 * gap + panel_w, 3), dtype=np.float32)
     out[:, :w] = np.asarray(dynamic, dtype=np.float32) * gain
     out[:, w + gap:2 * w + gap] = np.asarray(reference, dtype=np.float32) * gain

@@ -114,3 +114,21 @@ def test_form_factor_file_round_trip_and_checks(tmp_path, capsys):
     np.savez(tmp_path / "alien.npz", x=np.zeros(3))
     with pytest.raises(InvalidInputError, match="not a pydynrad form-factor file"):
         load_form_factors(tmp_path / "alien.npz", scene)
+
+
+def test_demo_runs_reduced_and_writes_readable_images(tmp_path, capsys):
+    from pydynrad import read_image
+
+    out = tmp_path / "demo"
+    code, stdout, err = run_main(["demo", "--frames", "3", "--size", "40x30", "--max-edge", "250", "--resolution", "8",
+                                  "--local-size", "40", "--out", str(out), "--quiet"], capsys)
+    assert code == 0, err
+    for k in range(3):
+        img = read_image(out / f"frame_{k:04d}.png")
+        assert img.shape == (30, 40, 3) and np.all(np.isfinite(img)) and img.std() > 0.01
+    for k in (0, 2):  # first and last frames carry the full solve and a comparison image
+        cmp_img = read_image(out / f"compare_{k:04d}.png")
+        assert cmp_img.shape[0] == 30 and cmp_img.shape[1] > 3 * 40 and cmp_img.std() > 0.01
+    summary = (out / "summary.txt").read_text()
+    for stage in ("update", "lighting", "render", "write", "median ms", "local vs full radiosity at frame 2"):
+        assert stage in summary and stage in stdout

@@ -151,3 +151,22 @@ def test_walk_rejects_bad_requests(device):
         walk(scene, path, DirectOnly(scene, device), reference_frames=[5], form_factors=np.eye(1), progress=False)
     with pytest.raises(InvalidInputError, match="CameraPath"):
         walk(scene, [path.camera(0)], DirectOnly(scene, device), progress=False)
+
+
+def test_walk_with_dynamic_radiosity_matches_full_solve_when_local_set_is_everything(device, tmp_path):
+    from pydynrad.formfactors import form_factors
+
+    pts, tris = grid_box(n=2, inward=True)
+    scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))
+    scene = scene.with_materials(emission=np.where(scene.centers[:, 1] > 0.99, 1.0, 0.0))  # a glowing ceiling
+    F = form_factors(scene, resolution=16, device=device, progress=False)
+    path = orbit((0.5, 0.5, 0.5), 0.3, 0.0, frames=3, size=(20, 16), fov_y=90)
+    lights = [LightTrack(PointLight((0.3, 0.5, 0.5), 0.2), [[0.3, 0.5, 0.5], [0.7, 0.5, 0.5]])]
+    everything = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene), reference_frames=[0, -1],
+                      output=tmp_path, progress=False, device=device)
+    assert set(everything.errors()) == {0, 2}
+    assert max(everything.errors().values()) < 1e-4  # B = L + P K L with K over all patches is the full solution
+    assert (tmp_path / "compare_0002.png").is_file() and (tmp_path / "frame_0001.png").is_file()
+    part = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene) // 3, reference_frames=[-1],
+                progress=False, device=device)
+    assert part.errors()[2] > 10 * everything.errors()[2]  # patches outside the local set lack indirect light
