@@ -132,3 +132,35 @@ def test_demo_runs_reduced_and_writes_readable_images(tmp_path, capsys):
     summary = (out / "summary.txt").read_text()
     for stage in ("update", "lighting", "render", "write", "median ms", "local vs full radiosity at frame 2"):
         assert stage in summary and stage in stdout
+
+
+def test_formfactors_render_walk_compare_chain(tmp_path, capsys):
+    import json
+
+    from pydynrad import read_image
+
+    ff = tmp_path / "cbox.npz"
+    small = ["--max-edge", "250"]
+    assert run_main(["formfactors", "cornell_box", *small, "--resolution", "8", "-o", str(ff), "--quiet"], capsys)[0] == 0
+    code, out, err = run_main(["render", "cornell_box", *small, "--form-factors", str(ff), "--size", "32x24",
+                               "--light", "278,400,280:5e4", "-o", str(tmp_path / "r.exr")], capsys)
+    assert code == 0, err
+    img = read_image(tmp_path / "r.exr")
+    assert img.shape == (24, 32, 3) and img.max() > 0
+    # The file belongs to this patching only: another one is refused with one clear line.
+    code, _, err = run_main(["render", "cornell_box", "--max-edge", "200", "--form-factors", str(ff), "-o",
+                             str(tmp_path / "x.png")], capsys)
+    assert_one_line_error(code, err, "another scene geometry")
+    path = tmp_path / "path.json"
+    path.write_text(json.dumps({"frames": 2, "size": [24, 16], "fov": 40, "keyframes": [
+        {"position": [278, 273, -800], "look_at": [278, 273, 0]}, {"position": [278, 273, -300], "look_at": [278, 273, 0]}]}))
+    code, out, err = run_main(["walk", "cornell_box", *small, "--form-factors", str(ff), "--path", str(path),
+                               "--local-size", "20", "--out", str(tmp_path / "w"), "--reference-frames", "-1", "--quiet"],
+                              capsys)
+    assert code == 0, err
+    assert read_image(tmp_path / "w" / "frame_0001.png").shape == (16, 24, 3)
+    assert "local vs full radiosity at frame 1" in out
+    code, out, err = run_main(["compare", "cornell_box", *small, "--form-factors", str(ff), "--local-size", "20",
+                               "--size", "24x16", "-o", str(tmp_path / "c.png")], capsys)
+    assert code == 0, err
+    assert read_image(tmp_path / "c.png").shape[1] > 3 * 24 and "relative RMS error" in out
