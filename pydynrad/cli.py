@@ -7,8 +7,8 @@ on stderr and exit status 2, never a traceback; warnings print as one line each.
 from __future__ import annotations
 
 import argparse
+import io
 import json
-import os
 import sys
 import time
 import warnings
@@ -127,17 +127,12 @@ def save_form_factors(path, F, scene, resolution: int) -> Path:
     F = sp.csr_matrix(F)
     header = {"format": FF_FORMAT, "version": FF_VERSION, "scene": scene.name, "geometry_hash": scene.geometry_hash(),
               "n_patches": len(scene), "resolution": int(resolution), "nnz": int(F.nnz)}
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, header=np.array(json.dumps(header)), data=F.data.astype(np.float32),
-                     indices=F.indices.astype(np.int32), indptr=F.indptr.astype(np.int64))
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    from .store import _write_atomic
+
+    buf = io.BytesIO()
+    np.savez(buf, header=np.array(json.dumps(header)), data=F.data.astype(np.float32),
+             indices=F.indices.astype(np.int32), indptr=F.indptr.astype(np.int64))
+    _write_atomic(path, buf.getvalue())
     return path
 
 
