@@ -2,10 +2,10 @@
 layout of the design card (top-level ``kernels/`` shipped as ``pydynrad.kernels``) and the
 native BVH builder in ``csrc/``."""
 
-from setuptools import Extension, setup
+from setuptools import Extension, find_packages, setup
 
 setup(
-    packages=["pydynrad", "pydynrad.kernels"],
+    packages=[*find_packages(include=["pydynrad", "pydynrad.*"]), "pydynrad.kernels"],
     package_dir={"pydynrad": "pydynrad", "pydynrad.kernels": "kernels"},
     package_data={"pydynrad.kernels": ["*.cl", "*.h"]},
     ext_modules=[
