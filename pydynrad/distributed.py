@@ -25,11 +25,19 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 
 from .errors import InvalidInputError
 from .scene import Scene
-from .store import DEFAULT_BLOCK_ROWS, FormFactorStore, RowFunction, form_factor_rows, prepare_store
+from .store import (
+    DEFAULT_BLOCK_ROWS,
+    DEFAULT_TASK_ROWS,
+    FormFactorStore,
+    RowFunction,
+    compute_blocks,
+    form_factor_rows,
+    prepare_store,
+    task_groups,
+)
 
 __all__ = ["SceneSpec", "opencl_worker_plugin_class", "precompute_distributed"]
 
@@ -130,18 +138,16 @@ def _worker_scene(payload, geometry_hash: str) -> Scene:
     return scene
 
 
-def _block_task(path: str, k: int, payload, geometry_hash: str, resolution: int, patching: dict,
-                row_function: RowFunction) -> tuple[int, int, int, float]:
-    """Compute and write block k on a worker; returns (k, rows, bytes written, seconds)."""
+def _blocks_task(path: str, group: list[int], payload, geometry_hash: str, resolution: int, patching: dict,
+                 row_function: RowFunction) -> tuple[list[int], int, float]:
+    """Compute and write the consecutive blocks ``group`` on a worker; returns (group, rows, seconds)."""
     from .device import default_device
 
     t0 = time.perf_counter()
     scene = _worker_scene(payload, geometry_hash)
     store = FormFactorStore.open(path, scene, resolution=resolution, patching=patching)
-    rows = store.block_range(k)
-    csr = row_function(scene, np.arange(rows.start, rows.stop), resolution, device=default_device())
-    nbytes = store.write_block(k, csr)
-    return k, len(rows), nbytes, time.perf_counter() - t0
+    rows = compute_blocks(store, scene, group, row_function, default_device())
+    return group, rows, time.perf_counter() - t0
 
 
 def _start_client(workers: int | None, scheduler: str | None):
@@ -164,7 +170,7 @@ def _start_client(workers: int | None, scheduler: str | None):
 def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
                            workers: int | None = None, scheduler: str | None = None, progress: bool = True,
                            verify: bool = False, row_function: RowFunction = form_factor_rows,
-                           blocks: Iterable[int] | None = None) -> FormFactorStore:
+                           blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS) -> FormFactorStore:
     """Compute every missing block of the store at ``path`` on a Dask cluster; returns the store.
 
     Parameters
@@ -175,7 +181,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
         arrays, broadcast once to every worker.
     path : folder of the store (created, or resumed if its header matches).
     resolution : hemicube resolution (pixels on the top face's side).
-    block_rows : rows per block = per task.
+    block_rows : rows per block file (the unit of reads and of resuming).
     workers : worker processes of the LocalCluster started by default (one thread each;
         default: one per CPU core).
     scheduler : address of an existing cluster's scheduler (``tcp://host:8786``) instead.
@@ -183,6 +189,8 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     row_function : ``f(scene, rows, resolution, device=...) -> csr``; must be importable (or
         cloudpickle-able) on the workers. Default: :func:`pydynrad.store.form_factor_rows`.
     blocks : compute only these block indices (to split one store over several runs).
+    task_rows : rows per task: consecutive missing blocks are computed by one row-function
+        call of at most this many rows (at least one block), amortising per-call set-up.
 
     The patching parameters recorded in the header are the spec's recipe (empty for a Scene).
     """
@@ -202,13 +210,13 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
         client.register_plugin(opencl_worker_plugin_class()())
         payload = spec if isinstance(spec, SceneSpec) else client.scatter((scene.points, scene.triangles), broadcast=True)
         ghash = scene.geometry_hash()
-        futures = [client.submit(_block_task, str(path), k, payload, ghash, resolution, patching, row_function,
-                                 key=f"pydynrad-ffblock-{ghash[:16]}-{k}", pure=False)
-                   for k in todo]
+        futures = [client.submit(_blocks_task, str(path), group, payload, ghash, resolution, patching, row_function,
+                                 key=f"pydynrad-ffblocks-{ghash[:16]}-{group[0]}-{group[-1]}", pure=False)
+                   for group in task_groups(store, todo, task_rows)]
         with tqdm(total=sum(len(store.block_range(k)) for k in todo), unit="row", desc="form factors",
                   disable=not progress) as bar:
             for fut in as_completed(futures):
-                _, nrows, _, _ = fut.result()  # re-raises a worker's error here, with its traceback
+                _, nrows, _ = fut.result()  # re-raises a worker's error here, with its traceback
                 bar.update(nrows)
     finally:
         client.close()

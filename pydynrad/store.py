@@ -55,8 +55,10 @@ __all__ = [
     "StoreCorruptError",
     "StoreIncompleteError",
     "StoreMismatchError",
+    "compute_blocks",
     "compute_store",
     "form_factor_rows",
+    "task_groups",
 ]
 
 FORMAT = "pydynrad-formfactor-store"
@@ -65,6 +67,7 @@ HEADER = "header.json"
 BLOCK_DIR = "blocks"
 TMP_MARK = ".tmp-"
 DEFAULT_BLOCK_ROWS = 256
+DEFAULT_TASK_ROWS = 4096
 # DEFLATE level 1: F's float32 mantissas are nearly incompressible, so higher levels cost
 # several times the CPU time for a few percent of size.
 COMPRESS_LEVEL = 1
@@ -345,17 +348,46 @@ def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: di
     return store, todo
 
 
+def task_groups(store: FormFactorStore, blocks: Iterable[int], task_rows: int) -> list[list[int]]:
+    """Blocks grouped into runs of consecutive indices holding at most ``task_rows`` rows (>= 1 block each).
+
+    One row-function call per group: a call has fixed costs (device buffers, per-scene
+    set-up), so tasks of a few thousand rows amortise them while blocks stay small for reads.
+    """
+    if isinstance(task_rows, bool) or not isinstance(task_rows, (int, np.integer)) or task_rows < 1:
+        raise InvalidInputError(f"task_rows must be a positive integer; got {task_rows!r}")
+    groups: list[list[int]] = []
+    for k in sorted(blocks):
+        g = groups[-1] if groups else None
+        if g and g[-1] == k - 1 and (len(g) + 1) * store.block_rows <= task_rows:
+            g.append(k)
+        else:
+            groups.append([k])
+    return groups
+
+
+def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function: RowFunction, device=None) -> int:
+    """Compute the consecutive blocks ``group`` in one row-function call and write each; returns rows done."""
+    first, last = store.block_range(group[0]), store.block_range(group[-1])
+    csr = sp.csr_matrix(row_function(scene, np.arange(first.start, last.stop), store.header["params"]["resolution"],
+                                     device=device))
+    for k in group:
+        r = store.block_range(k)
+        store.write_block(k, csr[r.start - first.start:r.stop - first.start])
+    return last.stop - first.start
+
+
 def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
                   patching: dict | None = None, progress: bool = True, verify: bool = False,
                   row_function: RowFunction = form_factor_rows, device=None,
-                  blocks: Iterable[int] | None = None) -> FormFactorStore:
+                  blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS) -> FormFactorStore:
     """Create (or resume) the store at ``path`` and compute every missing block in this process.
 
     ``row_function(scene, rows, resolution, device=...)`` returns the (len(rows), N) CSR
-    rows; the default is :func:`form_factor_rows`. ``verify`` re-checks finished blocks and
-    recomputes corrupt ones. ``blocks`` restricts the work to some block indices (the
-    distributed driver splits work this way). Returns the store; interrupting it loses at
-    most the blocks being computed.
+    rows; the default is :func:`form_factor_rows`; it is called on runs of up to
+    ``task_rows`` rows. ``verify`` re-checks finished blocks and recomputes corrupt ones.
+    ``blocks`` restricts the work to some block indices. Returns the store; interrupting it
+    loses at most the blocks of the call in progress.
     """
     from tqdm.auto import tqdm
 
@@ -363,8 +395,6 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
                                 verify=verify, blocks=blocks)
     with tqdm(total=sum(len(store.block_range(k)) for k in todo), unit="row", desc="form factors",
               disable=not progress) as bar:
-        for k in todo:
-            rows = np.arange(store.block_range(k).start, store.block_range(k).stop)
-            store.write_block(k, row_function(scene, rows, resolution, device=device))
-            bar.update(len(rows))
+        for group in task_groups(store, todo, task_rows):
+            bar.update(compute_blocks(store, scene, group, row_function, device))
     return store

@@ -115,8 +115,9 @@ def test_killed_writer_resumes(tmp_path):
         calls.append(rows[0])
         return synthetic_rows(scene, rows, resolution)
 
-    with pytest.raises(Crash):
-        compute_store(scene, path, resolution=8, block_rows=10, progress=False, row_function=dies_after_three)
+    with pytest.raises(Crash):  # one block per call (task_rows=10), so three blocks get written
+        compute_store(scene, path, resolution=8, block_rows=10, task_rows=10, progress=False,
+                      row_function=dies_after_three)
     # A writer killed mid-write leaves a temporary file; it must never count as a block.
     (path / "blocks" / "b000003.npz.tmp-999-deadbeef").write_bytes(b"PK\x03\x04 half a zip")
     store = FormFactorStore.open(path, scene, resolution=8)
@@ -129,11 +130,12 @@ def test_killed_writer_resumes(tmp_path):
     resumed = []
 
     def counting(scene, rows, resolution, device=None):
-        resumed.append(int(rows[0]))
+        assert np.array_equal(rows, np.arange(rows[0], rows[-1] + 1))
+        resumed.append((int(rows[0]), int(rows[-1]) + 1))
         return synthetic_rows(scene, rows, resolution)
 
-    store = compute_store(scene, path, resolution=8, block_rows=10, progress=False, row_function=counting)
-    assert resumed == [30, 40, 50, 60, 70]  # finished blocks kept, only the missing ones computed
+    store = compute_store(scene, path, resolution=8, block_rows=10, task_rows=25, progress=False, row_function=counting)
+    assert resumed == [(30, 50), (50, 70), (70, 72)]  # only the missing blocks, two per call (task_rows=25)
     assert store.complete and same_csr(store.to_csr(), ref)
     assert not list((path / "blocks").glob("*.tmp-*"))
 
