@@ -12,6 +12,9 @@ rebuilt here in numpy) are cast three ways in one run:
 * ``pydynrad.bvh.cast_rays``: our BVH kernel alone on the explicit rays (upload included);
 * Embree (``embreex``, closest hit, driven from Python): the peer to beat per ray.
 
+BVH build: the native binned-SAH builder on random triangles (the issue's yardstick: 1,000,000
+triangles in under 2 s), through ``BVH.build`` as a user calls it.
+
 Accuracy: the plate-to-plate form factor of the unit parallel and perpendicular plates
 against Howell's closed forms, per resolution R and subdivision, with the time each took.
 """
@@ -27,14 +30,14 @@ import numpy as np
 
 from .common import time_call
 
-__all__ = ["SIZES", "hemicube_rays", "throughput", "accuracy", "measure", "suite_section", "main"]
+__all__ = ["SIZES", "hemicube_rays", "throughput", "bvh_build", "accuracy", "measure", "suite_section", "main"]
 
 SIZES = {
-    "tiny": {"scenes": ("cornell_box",), "ray_rows": 16, "ray_resolution": 16,
+    "tiny": {"bvh_triangles": 100_000, "scenes": ("cornell_box",), "ray_rows": 16, "ray_resolution": 16,
              "resolutions": (16, 32), "subdivisions": (2,)},
-    "quick": {"scenes": ("cornell_box", "village"), "ray_rows": 200, "ray_resolution": 32,
+    "quick": {"bvh_triangles": 1_000_000, "scenes": ("cornell_box", "village"), "ray_rows": 200, "ray_resolution": 32,
               "resolutions": (16, 32, 64, 128), "subdivisions": (1, 2, 3, 4)},
-    "full": {"scenes": ("cornell_box", "village"), "ray_rows": 1000, "ray_resolution": 64,
+    "full": {"bvh_triangles": 1_000_000, "scenes": ("cornell_box", "village"), "ray_rows": 1000, "ray_resolution": 64,
              "resolutions": (16, 32, 64, 128, 256, 512), "subdivisions": (1, 2, 3, 4, 5)},
 }
 
@@ -127,6 +130,17 @@ def throughput(scene, n_rows: int, resolution: int, device, repeats: int = 3) ->
     }
 
 
+def bvh_build(n: int, repeats: int = 3) -> dict:
+    """Seconds to build the BVH over n random triangles (unit-ish triangles in a 100^3 box)."""
+    from pydynrad.bvh import BVH
+
+    rng = np.random.default_rng(0)
+    v = (rng.uniform(0, 100, (n, 1, 3)) + rng.normal(scale=0.3, size=(n, 3, 3))).astype(np.float32)
+    t = time_call(lambda: BVH.build(v), repeats=repeats, warmup=0)
+    return {"triangles": n, "median_s": t["median_s"], "min_s": t["min_s"], "nodes": t["result"].n_nodes,
+            "triangles_per_s": n / t["median_s"]}
+
+
 def _howell_parallel(a, b, c):
     X, Y = a / c, b / c
     x1, y1 = np.sqrt(1 + X**2), np.sqrt(1 + Y**2)
@@ -171,6 +185,8 @@ def measure(params: dict, device) -> dict:
     tp = [throughput(_scene(name), params["ray_rows"], params["ray_resolution"], device)
           for name in params["scenes"]]
     acc = accuracy(params["resolutions"], params["subdivisions"], device)
+    build = bvh_build(int(params.get("bvh_triangles", 1_000_000)))
+    build_cols = ["triangles", "median_s", "min_s", "nodes", "triangles_per_s"]
     tp_cols = ["scene", "patches", "rows", "R", "rays", "form_factors_rays_per_s", "cast_rays_per_s",
                "embree_rays_per_s", "ours_over_embree", "same_hit_fraction", "warmup_s"]
     acc_cols = ["case", "subdivisions", "patches", "R", "F", "truth", "rel_error", "seconds", "rays_per_s"]
@@ -193,17 +209,20 @@ def measure(params: dict, device) -> dict:
             {"title": "Ray throughput (rays/s)", "columns": tp_cols, "rows": [[r[c] for c in tp_cols] for r in tp]},
             {"title": "Accuracy vs the analytic plates", "columns": acc_cols,
              "rows": [[r[c] for c in acc_cols] for r in acc]},
+            {"title": "BVH build (native binned SAH, random triangles)", "columns": build_cols,
+             "rows": [[build[c] for c in build_cols]]},
         ],
         "plots": plots,
         "throughput": tp,
         "accuracy": acc,
+        "bvh_build": build,
     }
 
 
 def suite_section(ctx) -> dict:
     """The suite's "formfactors" section: this size's defaults, overridden by the suite's parameters."""
     params = dict(SIZES.get(ctx.size, SIZES["quick"]))
-    params.update({k: tuple(v) for k, v in ctx.params.items()})
+    params.update({k: tuple(v) if isinstance(v, (list, tuple)) else v for k, v in ctx.params.items()})
     return measure(params, ctx.device)
 
 
