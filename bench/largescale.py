@@ -1,0 +1,242 @@
+"""Large scenes: precompute a village's form-factor store, then walk through it streaming rows.
+
+    python bench/largescale.py --quick        # village(detail=2): about 128,000 patches
+    python bench/largescale.py                # village(detail=20): about 1,100,000 patches
+
+Stages (each reported with wall-clock times on this machine):
+
+1. scene: ``pydynrad.scenes.village(detail=D)``; N patches.
+2. throughput: ``--sample-blocks`` blocks of the store computed with 1 worker and with 2
+   workers (LocalCluster, spawned processes, own OpenCL context each), rows per second,
+   cluster start-up included (it is part of what a user waits for).
+3. store: the whole store with the largest worker count, resuming the 2-worker sample:
+   time, bytes on disk, bytes per patch, non-zeros per row. ``--max-minutes`` stops this
+   stage (the store stays resumable) and the report says how far it got.
+4. walk: a DynamicRadiosity walk (M = ``--local-size``, exact update, fp32 K) along a
+   street, fed from the store through a :class:`~pydynrad.rowcache.RowCache` smaller than
+   the store, prefetching the next candidates; and the same walk fed from F in memory when F
+   fits in a quarter of RAM. Each walk runs in its own process, so its peak RSS is its own.
+
+Writes ``bench/results/largescale-<size>.{json,md}`` (whole files: temp + rename).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).resolve().parent / "results"
+SIZES = {"quick": {"detail": 2.0, "frames": 40}, "full": {"detail": 20.0, "frames": 60}}
+
+
+def village_spec(detail: float):
+    from pydynrad.distributed import SceneSpec
+
+    return SceneSpec("village", {"detail": detail})
+
+
+def peak_rss_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def rss_mib() -> float:
+    import psutil
+
+    return psutil.Process().memory_info().rss / 2**20
+
+
+def walk_path(scene, frames: int, step: float) -> np.ndarray:
+    """Eye positions 1.7 m above the ground along the village's longer horizontal axis (y is up)."""
+    lo, hi = scene.bbox.astype(np.float64)
+    axis = 0 if hi[0] - lo[0] >= hi[2] - lo[2] else 2
+    start = lo + 0.25 * (hi - lo)
+    start[1] = lo[1] + 1.7
+    eyes = np.repeat(start[None], frames, axis=0)
+    eyes[:, axis] += step * np.arange(frames)
+    return eyes
+
+
+def run_walk(args) -> dict:
+    """One walk in this process (called through the ``_walk`` sub-command); returns its numbers."""
+    import pydynrad
+    from pydynrad.rowcache import CSRRows, RowCache
+    from pydynrad.store import FormFactorStore
+
+    spec = village_spec(args.detail)
+    scene = spec.build()
+    store = FormFactorStore.open(args.store, scene, resolution=args.resolution, patching=spec.recipe())
+    base = rss_mib()
+    cache = None
+    if args.source == "memory":
+        source = CSRRows(store.to_csr())
+    else:
+        source = cache = RowCache(store, max_bytes=int(args.cache_mib * 2**20))
+    loaded = rss_mib()
+    dyn = pydynrad.DynamicRadiosity(scene, source, local_size=args.local_size, update="exact", storage="fp32",
+                                    max_swaps_per_frame=args.swaps)
+    eyes = walk_path(scene, args.frames, args.step)
+    times, ff_times, swaps = [], [], []
+    t0 = time.perf_counter()
+    first = dyn.update(eyes[0])
+    t_build = time.perf_counter() - t0
+    for eye in eyes[1:]:
+        if cache is not None:
+            # Prefetch the patches next in line: the nearest ones not yet local.
+            near, _ = dyn._select.nearest(eye, args.local_size + 4 * args.swaps)
+            cache.prefetch(near[~dyn._included[near]])
+        t0 = time.perf_counter()
+        st = dyn.update(eye)
+        dyn.radiosity()
+        times.append(time.perf_counter() - t0)
+        ff_times.append(st.t_form_factors)
+        swaps.append(st.swaps)
+    out = {
+        "source": args.source, "N": len(scene), "M": args.local_size, "frames": len(times),
+        "build_s": t_build, "build_refreshed": bool(first.refreshed),
+        "frame_ms_median": 1e3 * float(np.median(times)), "frame_ms_p95": 1e3 * float(np.percentile(times, 95)),
+        "rows_ms_median": 1e3 * float(np.median(ff_times)), "swaps_per_frame": float(np.mean(swaps)),
+        "rss_scene_mib": base, "rss_after_source_mib": loaded, "peak_rss_mib": peak_rss_mib(),
+        "K_mib": dyn.memory_bytes / 2**20 if hasattr(dyn, "memory_bytes") else None,
+    }
+    if cache is not None:
+        out.update(cache_mib=cache.max_bytes / 2**20, cache_peak_mib=cache.peak_nbytes / 2**20, **cache.stats)
+        cache.close()
+    return out
+
+
+def walk_in_subprocess(args, source: str, cache_mib: float) -> dict:
+    cmd = [sys.executable, __file__, "_walk", "--source", source, "--store", str(args.store),
+           "--detail", str(args.detail), "--resolution", str(args.resolution), "--local-size", str(args.local_size),
+           "--frames", str(args.frames), "--step", str(args.step), "--swaps", str(args.swaps),
+           "--cache-mib", str(cache_mib)]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    if done.returncode != 0:
+        return {"source": source, "error": done.stderr.strip().splitlines()[-1] if done.stderr.strip() else "failed"}
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def precompute(args, scene, path: Path, workers: int, blocks=None) -> float:
+    from pydynrad.distributed import precompute_distributed
+
+    t0 = time.perf_counter()
+    precompute_distributed(village_spec(args.detail), path, resolution=args.resolution, block_rows=args.block_rows,
+                           workers=workers, blocks=blocks, progress=True)
+    return time.perf_counter() - t0
+
+
+def store_numbers(store) -> dict:
+    done = [k for k in range(store.n_blocks) if store.block_path(k).exists()]
+    rows = sum(len(store.block_range(k)) for k in done)
+    nnz = sum(store.read_block(k).nnz for k in done[:: max(1, len(done) // 64)])
+    sampled_rows = sum(len(store.block_range(k)) for k in done[:: max(1, len(done) // 64)])
+    return {"blocks_done": len(done), "blocks": store.n_blocks, "rows_done": rows,
+            "bytes_on_disk": store.nbytes_on_disk, "bytes_per_patch": store.nbytes_on_disk / max(rows, 1),
+            "nnz_per_row": nnz / max(sampled_rows, 1), "in_memory_bytes_est": rows and (nnz / sampled_rows) * 8 * store.n_patches}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("stage", nargs="?", default="all", choices=["all", "_walk"])
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--detail", type=float, help="village detail (patch density); overrides the size's default")
+    ap.add_argument("--resolution", type=int, default=16, help="hemicube resolution (top-face pixels per side)")
+    ap.add_argument("--block-rows", type=int, default=256)
+    ap.add_argument("--sample-blocks", type=int, default=64, help="blocks per throughput measurement")
+    ap.add_argument("--workers", type=int, default=2, help="workers for the whole store")
+    ap.add_argument("--max-minutes", type=float, default=None, help="stop the whole-store stage after this long")
+    ap.add_argument("--store", type=Path, default=None, help="store folder (default: a temporary one, kept)")
+    ap.add_argument("--local-size", type=int, default=4096)
+    ap.add_argument("--frames", type=int, default=None)
+    ap.add_argument("--step", type=float, default=0.5, help="observer step per frame in metres")
+    ap.add_argument("--swaps", type=int, default=32, help="max_swaps_per_frame")
+    ap.add_argument("--cache-mib", type=float, default=None, help="row cache size (default: a quarter of F's RAM size)")
+    ap.add_argument("--source", choices=["store", "memory"], default="store")
+    args = ap.parse_args(argv)
+    size = "quick" if args.quick else "full"
+    args.detail = args.detail or SIZES[size]["detail"]
+    args.frames = args.frames or SIZES[size]["frames"]
+    if args.stage == "_walk":
+        print(json.dumps(run_walk(args)))
+        return 0
+
+    from pydynrad.store import FormFactorStore
+
+    report = {"size": size, "detail": args.detail, "resolution": args.resolution, "block_rows": args.block_rows,
+              "cpu_count": os.cpu_count(), "date": time.strftime("%Y-%m-%d %H:%M")}
+    t0 = time.perf_counter()
+    scene = village_spec(args.detail).build()
+    report["scene"] = {"N": len(scene), "build_s": time.perf_counter() - t0}
+    print(f"village(detail={args.detail}): {len(scene)} patches", flush=True)
+    args.store = args.store or Path(tempfile.mkdtemp(prefix=f"largescale-{size}-")) / "store"
+
+    tp = {}
+    sample = list(range(min(args.sample_blocks, -(-len(scene) // args.block_rows))))
+    rows = len(scene) if len(sample) * args.block_rows > len(scene) else len(sample) * args.block_rows
+    for w in (1, 2):
+        # The 2-worker sample goes into the real store, so the whole-store stage resumes from it.
+        path = args.store if w == 2 else args.store.parent / "sample-1-worker"
+        secs = precompute(args, scene, path, w, blocks=sample)
+        tp[w] = {"workers": w, "rows": rows, "seconds": secs, "rows_per_s": rows / secs}
+        print(f"throughput, {w} worker(s): {rows / secs:.1f} rows/s", flush=True)
+    shutil.rmtree(args.store.parent / "sample-1-worker", ignore_errors=True)
+    report["throughput"] = list(tp.values())
+
+    todo = FormFactorStore.open(args.store, scene, resolution=args.resolution,
+                                patching=village_spec(args.detail).recipe()).missing_blocks()
+    if args.max_minutes is not None:
+        per_block = tp[2]["seconds"] / len(sample)
+        todo = todo[: max(0, int(args.max_minutes * 60 / per_block * min(args.workers, 2) / 2))]
+    secs = precompute(args, scene, args.store, args.workers, blocks=todo) if todo else 0.0
+    store = FormFactorStore.open(args.store, scene, resolution=args.resolution, patching=village_spec(args.detail).recipe())
+    report["store"] = {"path": str(args.store), "workers": args.workers, "seconds": secs + tp[2]["seconds"],
+                       "complete": store.complete, **store_numbers(store)}
+    print(json.dumps(report["store"], indent=1), flush=True)
+
+    if store.complete:
+        f_bytes = report["store"]["in_memory_bytes_est"]
+        cache_mib = args.cache_mib or f_bytes / 4 / 2**20
+        walks = [walk_in_subprocess(args, "store", cache_mib)]
+        import psutil
+
+        if f_bytes < psutil.virtual_memory().total / 4:
+            walks.append(walk_in_subprocess(args, "memory", cache_mib))
+        report["walks"] = walks
+    write_report(report, size)
+    return 0
+
+
+def _table(title: str, rows: list[dict]) -> list[str]:
+    if not rows:
+        return []
+    cols = list(dict.fromkeys(k for r in rows for k in r))
+    fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
+    return [f"**{title}**", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols),
+            *("| " + " | ".join(fmt(r.get(c, "")) for c in cols) + " |" for r in rows), ""]
+
+
+def write_report(report: dict, size: str) -> None:
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    md = [f"# Large scenes ({size}, {report['date']})", "",
+          f"village(detail={report['detail']}): N = {report['scene']['N']} patches; hemicube resolution "
+          f"{report['resolution']}; blocks of {report['block_rows']} rows; {report['cpu_count']} CPU cores.", "",
+          *_table("Precompute throughput (cluster start-up included)", report["throughput"]),
+          *_table("Store", [report["store"]]),
+          *_table("Walks (each in its own process)", report.get("walks", []))]
+    for name, text in ((f"largescale-{size}.json", json.dumps(report, indent=1)), (f"largescale-{size}.md", "\n".join(md))):
+        tmp = RESULTS / f".{name}.tmp"
+        tmp.write_text(text)
+        os.replace(tmp, RESULTS / name)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
