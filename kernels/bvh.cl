@@ -137,4 +137,142 @@ inline bool bvh_occluded(__global const float4 *nodes, __global const float4 *tr
     return false;
 }
 
+// ---- Ray packets: BVH_PACKET rays per work-item, one per vector lane ----
+//
+// A CPU OpenCL device (PoCL) runs each work-item's divergent traversal loop as scalar code, so
+// SIMD for a single ray has to come from vector types inside the work-item. Coherent rays (a
+// hemicube scanline: one origin, smoothly varying directions) visit nearly the same nodes, so
+// one walk tests a node or triangle against all lanes in a few vector instructions. Lanes need
+// no activity mask: a ray that misses a box cannot hit the triangles inside it, so testing it
+// anyway changes nothing; masks only steer which subtrees the packet enters.
+#ifndef BVH_PACKET
+#define BVH_PACKET 8
+#endif
+#define BVH_CAT_(a, b) a##b
+#define BVH_CAT(a, b) BVH_CAT_(a, b)
+#define bvh_floatP BVH_CAT(float, BVH_PACKET)
+#define bvh_intP BVH_CAT(int, BVH_PACKET)
+#define bvh_vloadP BVH_CAT(vload, BVH_PACKET)
+#define bvh_vstoreP BVH_CAT(vstore, BVH_PACKET)
+#define bvh_hminP BVH_CAT(bvh_hmin, BVH_PACKET)
+#define bvh_hmaxP BVH_CAT(bvh_hmax, BVH_PACKET)
+
+inline float bvh_hmin4(float4 v) { float2 m = fmin(v.lo, v.hi); return fmin(m.x, m.y); }
+inline float bvh_hmin8(float8 v) { return bvh_hmin4(fmin(v.lo, v.hi)); }
+inline float bvh_hmin16(float16 v) { return bvh_hmin8(fmin(v.lo, v.hi)); }
+inline float bvh_hmax4(float4 v) { float2 m = fmax(v.lo, v.hi); return fmax(m.x, m.y); }
+inline float bvh_hmax8(float8 v) { return bvh_hmax4(fmax(v.lo, v.hi)); }
+inline float bvh_hmax16(float16 v) { return bvh_hmax8(fmax(v.lo, v.hi)); }
+
+typedef struct {
+    bvh_floatP ox, oy, oz;  // origins
+    bvh_floatP dx, dy, dz;  // directions (any length; t is in units of |dir|)
+} RayPacket;
+
+typedef struct {
+    bvh_floatP t, u, v;     // as in Hit, per lane
+    bvh_intP patch, front;  // patch -1 on a miss
+} HitPacket;
+
+// Per-lane slab constants: inverse direction and origin * inverse direction.
+typedef struct {
+    bvh_floatP ix, iy, iz, oix, oiy, oiz;
+} BvhSlabs;
+
+inline bvh_floatP bvh_inv_p(bvh_floatP d)
+{
+    bvh_floatP tiny = copysign((bvh_floatP)(1e-30f), d);
+    return 1.0f / select(d, tiny, isless(fabs(d), (bvh_floatP)(1e-30f)));
+}
+
+// Per-lane entry distance of the box, INFINITY where a lane misses it within [tmin, tmax].
+inline bvh_floatP bvh_box_entry_p(float4 bmin, float4 bmax, const BvhSlabs *s, float tmin, bvh_floatP tmax)
+{
+    bvh_floatP ax = fma((bvh_floatP)bmin.x, s->ix, -s->oix), bx = fma((bvh_floatP)bmax.x, s->ix, -s->oix);
+    bvh_floatP ay = fma((bvh_floatP)bmin.y, s->iy, -s->oiy), by = fma((bvh_floatP)bmax.y, s->iy, -s->oiy);
+    bvh_floatP az = fma((bvh_floatP)bmin.z, s->iz, -s->oiz), bz = fma((bvh_floatP)bmax.z, s->iz, -s->oiz);
+    bvh_floatP enter = fmax(fmax(fmin(ax, bx), fmin(ay, by)), fmax(fmin(az, bz), (bvh_floatP)tmin));
+    bvh_floatP leave = fmin(fmin(fmax(ax, bx), fmax(ay, by)), fmin(fmax(az, bz), tmax));
+    return select((bvh_floatP)INFINITY, enter, enter <= leave);
+}
+
+// bvh_tri_hit for every lane at once (same arithmetic, same edge slack).
+inline void bvh_tri_hit_p(__global const float4 *tris, int k, const RayPacket *r, float tmin, HitPacket *h)
+{
+    float4 v0 = tris[3 * k], e1 = tris[3 * k + 1], e2 = tris[3 * k + 2];
+    bvh_floatP px = r->dy * e2.z - r->dz * e2.y;
+    bvh_floatP py = r->dz * e2.x - r->dx * e2.z;
+    bvh_floatP pz = r->dx * e2.y - r->dy * e2.x;
+    bvh_floatP det = e1.x * px + e1.y * py + e1.z * pz;
+    bvh_floatP inv = 1.0f / det;
+    bvh_floatP sx = r->ox - v0.x, sy = r->oy - v0.y, sz = r->oz - v0.z;
+    bvh_floatP u = (sx * px + sy * py + sz * pz) * inv;
+    bvh_floatP qx = sy * e1.z - sz * e1.y;
+    bvh_floatP qy = sz * e1.x - sx * e1.z;
+    bvh_floatP qz = sx * e1.y - sy * e1.x;
+    bvh_floatP v = (r->dx * qx + r->dy * qy + r->dz * qz) * inv;
+    bvh_floatP t = (e2.x * qx + e2.y * qy + e2.z * qz) * inv;
+    bvh_intP ok = (det != 0.0f) & (u >= -BVH_EDGE_EPS) & (u <= 1.0f + BVH_EDGE_EPS) & (v >= -BVH_EDGE_EPS)
+                  & (u + v <= 1.0f + BVH_EDGE_EPS) & (t > tmin) & (t < h->t);
+    h->t = select(h->t, t, ok);
+    h->u = select(h->u, u, ok);
+    h->v = select(h->v, v, ok);
+    h->patch = select(h->patch, (bvh_intP)k, ok);
+    h->front = select(h->front, (bvh_intP)1 & (det > 0.0f), ok);
+}
+
+// Nearest hit of every lane along org + t dir for t in (tmin, tmax): bvh_closest per lane,
+// one shared walk. A subtree waits on the stack with its least entry distance over the lanes
+// and is skipped when that lies beyond every lane's nearest hit so far.
+inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const float4 *tris,
+                                    __global const int *order, const RayPacket *r, float tmin, bvh_floatP tmax)
+{
+    HitPacket h = {tmax, (bvh_floatP)0.0f, (bvh_floatP)0.0f, (bvh_intP)(-1), (bvh_intP)0};
+    BvhSlabs s;
+    s.ix = bvh_inv_p(r->dx);
+    s.iy = bvh_inv_p(r->dy);
+    s.iz = bvh_inv_p(r->dz);
+    s.oix = r->ox * s.ix;
+    s.oiy = r->oy * s.iy;
+    s.oiz = r->oz * s.iz;
+    int stack[BVH_STACK];
+    float stack_entry[BVH_STACK];
+    int sp = 0, node = 0;
+    bool live = bvh_hminP(bvh_box_entry_p(nodes[0], nodes[1], &s, tmin, h.t)) != INFINITY;
+    while (live) {
+        float4 lo = nodes[2 * node], hi = nodes[2 * node + 1];
+        int count = as_int(hi.w);
+        if (count > 0) {
+            int first = as_int(lo.w);
+            for (int k = first; k < first + count; ++k) bvh_tri_hit_p(tris, k, r, tmin, &h);
+        } else {
+            int left = as_int(lo.w), right = left + 1;
+            float dl = bvh_hminP(bvh_box_entry_p(nodes[2 * left], nodes[2 * left + 1], &s, tmin, h.t));
+            float dr = bvh_hminP(bvh_box_entry_p(nodes[2 * right], nodes[2 * right + 1], &s, tmin, h.t));
+            if (dl != INFINITY && dr != INFINITY) {
+                bool left_first = dl <= dr;
+                stack[sp] = left_first ? right : left;
+                stack_entry[sp++] = left_first ? dr : dl;
+                node = left_first ? left : right;
+                continue;
+            }
+            if (dl != INFINITY || dr != INFINITY) {
+                node = dl != INFINITY ? left : right;
+                continue;
+            }
+        }
+        float reach = bvh_hmaxP(h.t);
+        do {
+            live = sp > 0;
+            if (live) node = stack[--sp];
+        } while (live && stack_entry[sp] > reach);
+    }
+    // Map BVH order to patch indices lane by lane (OpenCL has no vector gather).
+    int ids[BVH_PACKET];
+    bvh_vstoreP(h.patch, 0, ids);
+    for (int i = 0; i < BVH_PACKET; ++i) ids[i] = ids[i] >= 0 ? order[ids[i]] : -1;
+    h.patch = bvh_vloadP(0, ids);
+    return h;
+}
+
 #endif

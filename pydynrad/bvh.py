@@ -20,6 +20,9 @@ __all__ = ["BVH", "cast_rays", "occluded"]
 #: entries than the tree is deep.
 MAX_DEPTH = 64
 
+#: Rays per work-item in :func:`cast_rays` (BVH_PACKET in kernels/bvh.cl): one per vector lane.
+PACKET = 16
+
 
 def _depth(nodes: np.ndarray) -> int:
     offsets, counts = nodes[:, 3].view(np.int32), nodes[:, 7].view(np.int32)
@@ -150,8 +153,8 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
         return patch, t, front.astype(bool)
     mf = cl.mem_flags
     bufs = [cl.Buffer(dev.context, mf.WRITE_ONLY, a.nbytes) for a in (patch, t, front)]
-    knl = dev.kernel("raycast.cl", "cast_closest")
-    knl(dev.queue, (n,), None, *bvh.buffers(dev), dev.to_device(o), dev.to_device(d), dev.to_device(tm),
+    knl = dev.kernel("raycast.cl", "cast_closest", {"BVH_PACKET": PACKET})
+    knl(dev.queue, (-(-n // PACKET),), None, *bvh.buffers(dev), dev.to_device(o), dev.to_device(d), dev.to_device(tm),
         np.int32(n), *bufs)
     for host, buf in zip((patch, t, front), bufs):
         cl.enqueue_copy(dev.queue, host, buf)

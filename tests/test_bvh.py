@@ -159,3 +159,20 @@ def test_bad_rays(device):
         occluded(bvh, o, np.ones((2, 3)), tmax=0.0, device=device)
     with pytest.raises(InvalidInputError, match="Scene or a BVH"):
         cast_rays("scene", o, np.ones((2, 3)), device=device)
+
+
+def test_packet_lanes_are_independent(device):
+    """cast_rays packs consecutive rays into one traversal; a ray's answer must not depend on its
+    neighbours, on where the batch ends (spare lanes of a tail packet) or on the batch size."""
+    rng = np.random.default_rng(6)
+    bvh = BVH.build(random_triangles(rng, 300))
+    o, d = random_rays(rng, 70)
+    tmax = rng.uniform(1.0, 30.0, len(o))
+    whole = cast_rays(bvh, o, d, tmax=tmax, device=device)
+    for start, stop in ((0, 1), (5, 22), (33, 70), (69, 70)):
+        part = cast_rays(bvh, o[start:stop], d[start:stop], tmax=tmax[start:stop], device=device)
+        for a, b in zip(part, whole):
+            np.testing.assert_array_equal(a, b[start:stop])
+    # Each ray alone, in reverse order: neighbours of every kind.
+    single = [cast_rays(bvh, o[k : k + 1], d[k : k + 1], tmax=tmax[k], device=device) for k in range(len(o))[::-1]]
+    np.testing.assert_array_equal(np.concatenate([s[0] for s in single[::-1]]), whole[0])
