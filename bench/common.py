@@ -1,0 +1,61 @@
+"""Shared measuring helpers for the benchmarks: timing and this machine's copy bandwidth.
+
+Bandwidths are reported in GB/s (1e9 bytes/s). A copy counts its bytes twice (read + write),
+so "copy bandwidth" is directly comparable with a kernel's bytes read plus written.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+__all__ = ["time_call", "copy_bandwidth_numpy", "copy_bandwidth_device"]
+
+
+def time_call(fn, repeats: int = 5, warmup: int = 1) -> dict:
+    """Time ``fn()``: ``warmup`` untimed-for-the-median calls (their time is reported as
+    ``warmup_s``: kernel builds, first-touch page faults), then ``repeats`` timed calls.
+
+    Returns {"median_s", "min_s", "warmup_s", "repeats", "result"} (``result``: the last return value).
+    """
+    t0 = time.perf_counter()
+    result = None
+    for _ in range(warmup):
+        result = fn()
+    warm = time.perf_counter() - t0
+    times = []
+    for _ in range(max(1, repeats)):
+        t = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - t)
+    return {"median_s": float(np.median(times)), "min_s": float(min(times)), "warmup_s": warm,
+            "repeats": len(times), "result": result}
+
+
+def copy_bandwidth_numpy(nbytes: int = 256 * 2**20, repeats: int = 5) -> float:
+    """GB/s of ``np.copyto`` between two large float32 arrays (read + write counted)."""
+    src = np.ones(nbytes // 4, dtype=np.float32)
+    dst = np.zeros_like(src)  # both touched before timing: no page faults inside
+    t = time_call(lambda: np.copyto(dst, src), repeats=repeats)
+    return 2 * src.nbytes / t["median_s"] / 1e9
+
+
+def copy_bandwidth_device(device, nbytes: int = 256 * 2**20, repeats: int = 5) -> float:
+    """GB/s of an OpenCL buffer-to-buffer copy on ``device`` (read + write counted)."""
+    import pyopencl as cl
+
+    nbytes = min(nbytes, device.max_alloc_bytes // 2)
+    mf = cl.mem_flags
+    src = cl.Buffer(device.context, mf.READ_WRITE, nbytes)
+    dst = cl.Buffer(device.context, mf.READ_WRITE, nbytes)
+    cl.enqueue_fill_buffer(device.queue, src, np.float32(1), 0, nbytes)
+    cl.enqueue_fill_buffer(device.queue, dst, np.float32(0), 0, nbytes)
+    device.queue.finish()
+
+    def copy():
+        cl.enqueue_copy(device.queue, dst, src)
+        device.queue.finish()
+
+    t = time_call(copy, repeats=repeats)
+    return 2 * nbytes / t["median_s"] / 1e9

@@ -1,0 +1,233 @@
+"""Reference radiosity against numpy/SciPy doing the same algebra, and kernel bandwidths.
+
+``python -m bench.radiosity [--size tiny|quick|full]`` writes ``bench/results/radiosity.json`` and
+``.md``; the suite (``python -m bench``) runs :func:`suite_section` as its "bandwidth" part.
+
+Measured in one run:
+
+* copy bandwidth of this machine: numpy ``np.copyto`` and an OpenCL buffer copy (read + write);
+* ``DeviceMatrix.matvec`` (y = K x, one channel) per storage: GB/s of K streamed, against
+  numpy's float32 ``K @ x`` (BLAS gemv);
+* the full solver (bounce iteration, CSR kernel, tol 1e-6): time and GB/s of F per bounce,
+  against a SciPy sparse Jacobi loop (the same iteration), SciPy GMRES (rtol 1e-6, per
+  channel) and numpy's dense LU solve where it fits (N <= 4096);
+* the multibounce build K = (I - F P)^{-1} F (blocked Gauss-Jordan on the device, float32)
+  against ``numpy.linalg.solve`` on the same dense system in float32 and float64.
+
+Scenes: closed boxes of growing N (and the village when a size asks for it) with hemicube
+form factors from ``pydynrad.form_factors`` when that is available; otherwise a synthetic F
+with the same sparsity (k entries per row, rows summing to 0.95), recorded in the tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .common import copy_bandwidth_device, copy_bandwidth_numpy, time_call
+
+__all__ = ["suite_section", "main", "SIZES"]
+
+SIZES = {
+    "tiny": {"M": (256,), "N": (1000,), "build_M": (256,), "village": None, "R": 16},
+    "quick": {"M": (1024, 2048), "N": (1000, 4000), "build_M": (512, 1024), "village": None, "R": 32},
+    "full": {"M": (1024, 2048, 4096), "N": (1000, 4000, 16000), "build_M": (1024, 2048, 4096),
+             "village": {"houses": 12, "detail": 1.0}, "R": 64},
+}
+TOL = 1e-6
+NNZ_PER_ROW = 400  # synthetic F: about what a hemicube row of a cluttered scene keeps
+
+
+_F_CACHE: dict = {}
+
+
+def _scene_and_F(n: int, device, village=None, resolution: int = 32):
+    """A closed box of about n patches (or the village) and its F, with F's provenance (cached)."""
+    key = (n, str(village), resolution)
+    if key not in _F_CACHE:
+        _F_CACHE[key] = _make_scene_and_F(n, device, village, resolution)
+    return _F_CACHE[key]
+
+
+def _make_scene_and_F(n: int, device, village, resolution: int):
+    import pydynrad
+
+    if village is not None:
+        scene = pydynrad.scenes.village(**village)
+    else:
+        sub = max(1, round(np.log(n / 12) / np.log(4)))  # 12 * 4^sub triangles
+        scene = pydynrad.scenes.closed_box(subdivisions=sub, albedo=0.7, emission=0.0)
+        em = np.zeros((len(scene), 3))
+        em[: max(1, len(scene) // 50)] = 1.0
+        scene = scene.with_materials(emission=em)
+    if hasattr(pydynrad, "form_factors"):
+        F = pydynrad.form_factors(scene, resolution=resolution, device=device, progress=True)
+        return scene, F, f"hemicube R={resolution}"
+    N = len(scene)
+    rng = np.random.default_rng(0)
+    k = min(NNZ_PER_ROW, N - 1)
+    cols = (np.arange(N)[:, None] + rng.integers(1, N, (N, k))) % N
+    F = sp.csr_matrix((rng.random(N * k), cols.ravel(), np.arange(0, N * k + 1, k)), shape=(N, N))
+    F.sum_duplicates()
+    F = sp.diags(0.95 / np.asarray(F.sum(axis=1)).ravel()) @ F
+    return scene, sp.csr_matrix(F, dtype=np.float32), f"synthetic, {k}/row"
+
+
+def _matvec_rows(device, sizes, copy_gbs):
+    from pydynrad.matvec import DeviceMatrix
+
+    rows = []
+    rng = np.random.default_rng(1)
+    for M in sizes:
+        K = rng.random((1, M, M), dtype=np.float32)
+        x = rng.random(M, dtype=np.float32)
+        t_np = time_call(lambda: K[0] @ x)["median_s"]
+        for storage in ("fp16", "fp32", "fp64"):
+            if storage == "fp64" and not device.supports_fp64:
+                continue
+            m = DeviceMatrix(device, K, storage)
+            xb = device.to_device(np.pad(x, (0, m.ld - M)).astype(m.real_dtype))
+            import pyopencl as cl
+
+            yb = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, M * m.real_dtype.itemsize)
+
+            def run():
+                m.enqueue_matvec(0, xb, yb)
+                device.queue.finish()
+
+            t = time_call(run, repeats=9)
+            gbs = m.channel_nbytes / t["median_s"] / 1e9
+            rows.append([M, storage, t["median_s"] * 1e3, gbs, gbs / copy_gbs, t_np * 1e3, K[0].nbytes / t_np / 1e9,
+                         t["warmup_s"] * 1e3])
+    return rows
+
+
+def _jacobi_scipy(F, rho, L):
+    B = L.copy()
+    for it in range(1, 100001):
+        Bn = L + rho * (F @ B)
+        r = np.abs(Bn - B).max() / np.abs(Bn).max()
+        B = Bn
+        if r <= TOL:
+            return B, it
+    return B, it
+
+
+def _gmres_scipy(F, rho, L):
+    n = F.shape[0]
+    A = sp.identity(n, format="csr") - sp.diags(rho[:, 0]) @ F
+    return np.stack([spla.gmres(A, L[:, c], rtol=TOL, restart=50)[0] for c in range(L.shape[1])], axis=1)
+
+
+def _solver_rows(device, Ns, village, resolution):
+    import pydynrad
+    from pydynrad.solve import RadiositySolver
+
+    rows = []
+    cases = [(n, None) for n in Ns] + ([(0, village)] if village else [])
+    for n, vil in cases:
+        scene, F, source = _scene_and_F(n, device, vil, resolution)
+        N = len(scene)
+        L = pydynrad.light_vector(scene, device=device)
+        rho = scene.albedo[:, :1].astype(np.float64)
+        solver = RadiositySolver(scene, F, dtype=np.float32, device=device)
+        ours = time_call(lambda: solver.solve(L, tol=TOL), repeats=3)
+        sol = ours["result"]
+        bytes_per_bounce = F.nnz * 8 + 4 * (N + 1)
+        F64 = sp.csr_matrix(F, dtype=np.float64)
+        jac = time_call(lambda: _jacobi_scipy(F64, rho, L[:, :1]), repeats=1, warmup=0)
+        gm = time_call(lambda: _gmres_scipy(F64, rho, L[:, :1]), repeats=1, warmup=0)
+        dense = np.nan
+        if N <= 4096:
+            dense = time_call(lambda: pydynrad.solve(scene, F, light=L, method="dense"), repeats=1, warmup=0)["median_s"]
+        ref = pydynrad.solve(scene, F, light=L, dtype=np.float64, tol=1e-10, device=device).radiosity
+        err = np.abs(sol.radiosity - ref).max() / np.abs(ref).max()
+        rows.append([scene.name, N, F.nnz, source, sol.iterations, ours["median_s"] * 1e3, err,
+                     bytes_per_bounce * sol.iterations / ours["median_s"] / 1e9, jac["median_s"] * 1e3,
+                     jac["result"][1], gm["median_s"] * 1e3, dense * 1e3])
+    return rows
+
+
+def _build_rows(device, sizes, resolution):
+    import pydynrad
+
+    rows = []
+    for M in sizes:
+        scene, F, source = _scene_and_F(M, device, resolution=resolution)
+        idx = np.arange(min(M, len(scene)))
+        m = len(idx)
+        t = time_call(lambda: pydynrad.multibounce(scene, F, patches=idx, dtype=np.float32, device=device,
+                                                   progress=False), repeats=1)
+        Fd = F[idx][:, idx].toarray().astype(np.float64)
+        A = np.eye(m) - Fd * scene.albedo[idx, 0].astype(np.float64)[None, :]
+        t64 = time_call(lambda: np.linalg.solve(A, Fd), repeats=1, warmup=0)
+        A32, F32 = A.astype(np.float32), Fd.astype(np.float32)
+        t32 = time_call(lambda: np.linalg.solve(A32, F32), repeats=1, warmup=0)
+        err = np.abs(t["result"][0] - t64["result"]).max() / np.abs(t64["result"]).max()
+        flops = 3.0 * m**3
+        rows.append([m, source, t["median_s"], flops / t["median_s"] / 1e9, err, t32["median_s"], t64["median_s"]])
+    return rows
+
+
+def measure(size: str, device) -> dict:
+    """All tables for one size (see the module notes)."""
+    p = SIZES[size]
+    copy_np, copy_dev = copy_bandwidth_numpy(), copy_bandwidth_device(device)
+    tables = [
+        {"title": "Copy bandwidth of this machine (read + write)", "columns": ["copy", "GB/s"],
+         "rows": [["numpy np.copyto, 256 MiB", copy_np], ["OpenCL buffer copy, 256 MiB", copy_dev]]},
+        {"title": "Lighting product y = K x (one channel)",
+         "columns": ["M", "storage", "ms", "GB/s of K", "/ device copy", "numpy f32 gemv ms", "numpy GB/s", "first call ms"],
+         "rows": _matvec_rows(device, p["M"], copy_dev),
+         "note": "K is read once per product; compare its GB/s with the copy bandwidth (read + write) above."},
+        {"title": "Full radiosity solve (bounce iteration, float32, tol 1e-6) vs SciPy/numpy",
+         "columns": ["scene", "N", "nnz(F)", "F", "bounces", "ours ms", "rel. error", "SpMV GB/s", "SciPy Jacobi ms",
+                     "SciPy bounces", "SciPy GMRES ms", "numpy dense ms"],
+         "rows": _solver_rows(device, p["N"], p["village"], p["R"]),
+         "note": "SciPy runs one channel (the scenes are grey), float64. rel. error vs a float64 solve at tol 1e-10."},
+        {"title": "Multibounce build K = (I - F P)^-1 F (float32, grey) vs numpy.linalg.solve",
+         "columns": ["M", "F", "ours s", "GFLOP/s (3 M^3)", "rel. error vs f64", "numpy f32 s", "numpy f64 s"],
+         "rows": _build_rows(device, p["build_M"], p["R"])},
+    ]
+    return {"title": "Reference radiosity and kernel bandwidth", "description": "\n\n".join(__doc__.split("\n\n")[2:4]), "tables": tables}
+
+
+def suite_section(ctx) -> dict:
+    """The suite's "bandwidth" section: matvec sizes from the suite's parameters."""
+    size = ctx.size if ctx.size in SIZES else "quick"
+    p = dict(SIZES[size])
+    p["M"] = tuple(ctx.params.get("M", p["M"]))
+    SIZES["_suite"] = p
+    try:
+        return measure("_suite", ctx.device)
+    finally:
+        del SIZES["_suite"]
+
+
+def main(argv=None) -> int:
+    import pydynrad
+
+    from .report import write_report
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--size", choices=list(SIZES), default="quick")
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
+    args = ap.parse_args(argv)
+    device = pydynrad.default_device()
+    t0 = time.perf_counter()
+    section = measure(args.size, device)
+    results = {"device": device.info(), "date": time.strftime("%Y-%m-%dT%H:%M:%S"), "size": args.size,
+               "sections": {"radiosity": section}, "seconds": time.perf_counter() - t0}
+    written = write_report(results, args.out, "radiosity")
+    print("\n".join(str(p) for p in written.values()), file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
