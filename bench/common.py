@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-__all__ = ["time_call", "copy_bandwidth_numpy", "copy_bandwidth_device"]
+__all__ = ["time_call", "copy_bandwidth_numpy", "copy_bandwidth_device", "run_standalone"]
 
 
 def time_call(fn, repeats: int = 5, warmup: int = 1) -> dict:
@@ -59,3 +59,28 @@ def copy_bandwidth_device(device, nbytes: int = 256 * 2**20, repeats: int = 5) -
 
     t = time_call(copy, repeats=repeats)
     return 2 * nbytes / t["median_s"] / 1e9
+
+
+def run_standalone(name: str, doc: str, sizes, measure, argv=None) -> int:
+    """``python -m bench.<name> [--size S] [--out DIR]``: run ``measure(size, device)`` (one
+    report section) and write ``<out>/<name>.json`` and ``.md`` (default out: bench/results)."""
+    import argparse
+    import sys
+    from pathlib import Path
+
+    import pydynrad
+
+    from .report import write_report
+
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("--size", choices=list(sizes), default="quick")
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
+    args = ap.parse_args(argv)
+    device = pydynrad.default_device()
+    t0 = time.perf_counter()
+    section = measure(args.size, device)
+    results = {"device": device.info(), "date": time.strftime("%Y-%m-%dT%H:%M:%S"), "size": args.size,
+               "sections": {name: section}, "seconds": time.perf_counter() - t0}
+    written = write_report(results, args.out, name)
+    print("\n".join(str(p) for p in written.values()), file=sys.stderr)
+    return 0

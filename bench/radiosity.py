@@ -21,16 +21,11 @@ with the same sparsity (k entries per row, rows summing to 0.95), recorded in th
 
 from __future__ import annotations
 
-import argparse
-import sys
-import time
-from pathlib import Path
-
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .common import copy_bandwidth_device, copy_bandwidth_numpy, time_call
+from .common import copy_bandwidth_device, copy_bandwidth_numpy, run_standalone, time_call
 
 __all__ = ["suite_section", "main", "SIZES"]
 
@@ -211,22 +206,7 @@ def suite_section(ctx) -> dict:
 
 
 def main(argv=None) -> int:
-    import pydynrad
-
-    from .report import write_report
-
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--size", choices=list(SIZES), default="quick")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
-    args = ap.parse_args(argv)
-    device = pydynrad.default_device()
-    t0 = time.perf_counter()
-    section = measure(args.size, device)
-    results = {"device": device.info(), "date": time.strftime("%Y-%m-%dT%H:%M:%S"), "size": args.size,
-               "sections": {"radiosity": section}, "seconds": time.perf_counter() - t0}
-    written = write_report(results, args.out, "radiosity")
-    print("\n".join(str(p) for p in written.values()), file=sys.stderr)
-    return 0
+    return run_standalone("radiosity", __doc__, SIZES, measure, argv)
 
 
 if __name__ == "__main__":
