@@ -15,6 +15,16 @@
 // triangle (dimensionless), so a near-edge ray hits both and the nearer wins.
 #define BVH_EDGE_EPS 1e-6f
 
+// The hot loops below use operators, not OpenCL builtins (fmin, fma, dot, cross, select).
+// PoCL's kernel library can be compiled for a CPU whose features differ from the device's
+// target (on the development machine: library skylake-avx512 with clwb, device rocketlake
+// without); LLVM then refuses to inline any builtin, and each becomes an out-of-line call that
+// spills every vector register. a * b + c is contracted to one FMA all the same.
+#define BVH_MIN(a, b) ((a) < (b) ? (a) : (b))
+#define BVH_MAX(a, b) ((a) > (b) ? (a) : (b))
+#define BVH_DOT(a, b) ((a).x * (b).x + (a).y * (b).y + (a).z * (b).z)
+#define BVH_CROSS(a, b) ((a).yzx * (b).zxy - (a).zxy * (b).yzx)
+
 typedef struct {
     float t;     // ray parameter of the hit
     float u, v;  // barycentrics of v1 and v2
@@ -26,11 +36,11 @@ typedef struct {
 // org_inv = org * inv_dir, so each plane costs one fused multiply-add.
 inline float bvh_box_entry(float4 bmin, float4 bmax, float3 org_inv, float3 inv_dir, float tmin, float tmax)
 {
-    float3 t0 = fma(bmin.xyz, inv_dir, -org_inv);
-    float3 t1 = fma(bmax.xyz, inv_dir, -org_inv);
-    float3 lo = fmin(t0, t1), hi = fmax(t0, t1);
-    float enter = fmax(fmax(lo.x, lo.y), fmax(lo.z, tmin));
-    float leave = fmin(fmin(hi.x, hi.y), fmin(hi.z, tmax));
+    float3 t0 = bmin.xyz * inv_dir - org_inv;
+    float3 t1 = bmax.xyz * inv_dir - org_inv;
+    float3 lo = BVH_MIN(t0, t1), hi = BVH_MAX(t0, t1);
+    float enter = BVH_MAX(BVH_MAX(lo.x, lo.y), BVH_MAX(lo.z, tmin));
+    float leave = BVH_MIN(BVH_MIN(hi.x, hi.y), BVH_MIN(hi.z, tmax));
     return enter <= leave ? enter : INFINITY;
 }
 
@@ -38,17 +48,17 @@ inline float bvh_box_entry(float4 bmin, float4 bmax, float3 org_inv, float3 inv_
 inline bool bvh_tri_hit(__global const float4 *tris, int k, float3 org, float3 dir, float tmin, Hit *hit)
 {
     float3 v0 = tris[3 * k].xyz, e1 = tris[3 * k + 1].xyz, e2 = tris[3 * k + 2].xyz;
-    float3 p = cross(dir, e2);
-    float det = dot(e1, p);
+    float3 p = BVH_CROSS(dir, e2);
+    float det = BVH_DOT(e1, p);
     if (det == 0.0f) return false;
     float inv = 1.0f / det;
     float3 s = org - v0;
-    float u = dot(s, p) * inv;
+    float u = BVH_DOT(s, p) * inv;
     if (u < -BVH_EDGE_EPS || u > 1.0f + BVH_EDGE_EPS) return false;
-    float3 q = cross(s, e1);
-    float v = dot(dir, q) * inv;
+    float3 q = BVH_CROSS(s, e1);
+    float v = BVH_DOT(dir, q) * inv;
     if (v < -BVH_EDGE_EPS || u + v > 1.0f + BVH_EDGE_EPS) return false;
-    float t = dot(e2, q) * inv;
+    float t = BVH_DOT(e2, q) * inv;
     if (t <= tmin || t >= hit->t) return false;
     hit->t = t;
     hit->u = u;
@@ -157,12 +167,12 @@ inline bool bvh_occluded(__global const float4 *nodes, __global const float4 *tr
 #define bvh_hminP BVH_CAT(bvh_hmin, BVH_PACKET)
 #define bvh_hmaxP BVH_CAT(bvh_hmax, BVH_PACKET)
 
-inline float bvh_hmin4(float4 v) { float2 m = fmin(v.lo, v.hi); return fmin(m.x, m.y); }
-inline float bvh_hmin8(float8 v) { return bvh_hmin4(fmin(v.lo, v.hi)); }
-inline float bvh_hmin16(float16 v) { return bvh_hmin8(fmin(v.lo, v.hi)); }
-inline float bvh_hmax4(float4 v) { float2 m = fmax(v.lo, v.hi); return fmax(m.x, m.y); }
-inline float bvh_hmax8(float8 v) { return bvh_hmax4(fmax(v.lo, v.hi)); }
-inline float bvh_hmax16(float16 v) { return bvh_hmax8(fmax(v.lo, v.hi)); }
+inline float bvh_hmin4(float4 v) { float2 m = BVH_MIN(v.lo, v.hi); return BVH_MIN(m.x, m.y); }
+inline float bvh_hmin8(float8 v) { return bvh_hmin4(BVH_MIN(v.lo, v.hi)); }
+inline float bvh_hmin16(float16 v) { return bvh_hmin8(BVH_MIN(v.lo, v.hi)); }
+inline float bvh_hmax4(float4 v) { float2 m = BVH_MAX(v.lo, v.hi); return BVH_MAX(m.x, m.y); }
+inline float bvh_hmax8(float8 v) { return bvh_hmax4(BVH_MAX(v.lo, v.hi)); }
+inline float bvh_hmax16(float16 v) { return bvh_hmax8(BVH_MAX(v.lo, v.hi)); }
 
 typedef struct {
     bvh_floatP ox, oy, oz;  // origins
@@ -188,12 +198,12 @@ inline bvh_floatP bvh_inv_p(bvh_floatP d)
 // Per-lane entry distance of the box, INFINITY where a lane misses it within [tmin, tmax].
 inline bvh_floatP bvh_box_entry_p(float4 bmin, float4 bmax, const BvhSlabs *s, float tmin, bvh_floatP tmax)
 {
-    bvh_floatP ax = fma((bvh_floatP)bmin.x, s->ix, -s->oix), bx = fma((bvh_floatP)bmax.x, s->ix, -s->oix);
-    bvh_floatP ay = fma((bvh_floatP)bmin.y, s->iy, -s->oiy), by = fma((bvh_floatP)bmax.y, s->iy, -s->oiy);
-    bvh_floatP az = fma((bvh_floatP)bmin.z, s->iz, -s->oiz), bz = fma((bvh_floatP)bmax.z, s->iz, -s->oiz);
-    bvh_floatP enter = fmax(fmax(fmin(ax, bx), fmin(ay, by)), fmax(fmin(az, bz), (bvh_floatP)tmin));
-    bvh_floatP leave = fmin(fmin(fmax(ax, bx), fmax(ay, by)), fmin(fmax(az, bz), tmax));
-    return select((bvh_floatP)INFINITY, enter, enter <= leave);
+    bvh_floatP ax = bmin.x * s->ix - s->oix, bx = bmax.x * s->ix - s->oix;
+    bvh_floatP ay = bmin.y * s->iy - s->oiy, by = bmax.y * s->iy - s->oiy;
+    bvh_floatP az = bmin.z * s->iz - s->oiz, bz = bmax.z * s->iz - s->oiz;
+    bvh_floatP enter = BVH_MAX(BVH_MAX(BVH_MIN(ax, bx), BVH_MIN(ay, by)), BVH_MAX(BVH_MIN(az, bz), (bvh_floatP)tmin));
+    bvh_floatP leave = BVH_MIN(BVH_MIN(BVH_MAX(ax, bx), BVH_MAX(ay, by)), BVH_MIN(BVH_MAX(az, bz), tmax));
+    return enter <= leave ? enter : (bvh_floatP)INFINITY;
 }
 
 // bvh_tri_hit for every lane at once (same arithmetic, same edge slack).
@@ -214,11 +224,11 @@ inline void bvh_tri_hit_p(__global const float4 *tris, int k, const RayPacket *r
     bvh_floatP t = (e2.x * qx + e2.y * qy + e2.z * qz) * inv;
     bvh_intP ok = (det != 0.0f) & (u >= -BVH_EDGE_EPS) & (u <= 1.0f + BVH_EDGE_EPS) & (v >= -BVH_EDGE_EPS)
                   & (u + v <= 1.0f + BVH_EDGE_EPS) & (t > tmin) & (t < h->t);
-    h->t = select(h->t, t, ok);
-    h->u = select(h->u, u, ok);
-    h->v = select(h->v, v, ok);
-    h->patch = select(h->patch, (bvh_intP)k, ok);
-    h->front = select(h->front, (bvh_intP)1 & (det > 0.0f), ok);
+    h->t = ok ? t : h->t;
+    h->u = ok ? u : h->u;
+    h->v = ok ? v : h->v;
+    h->patch = ok ? (bvh_intP)k : h->patch;
+    h->front = ok ? (bvh_intP)1 & (det > 0.0f) : h->front;
 }
 
 // Nearest hit of every lane along org + t dir for t in (tmin, tmax): bvh_closest per lane,
