@@ -108,12 +108,13 @@ def _rays(origins, directions, tmax) -> tuple[np.ndarray, np.ndarray, np.ndarray
     d = np.ascontiguousarray(directions, dtype=np.float32)
     if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
         raise InvalidInputError(f"origins and directions must both have shape (n, 3); got {o.shape} and {d.shape}")
-    if not (np.all(np.isfinite(o)) and np.all(np.isfinite(d))):
+    # min/max propagate NaN and expose inf without a temporary the size of the batch.
+    if len(o) and not all(np.isfinite(x) for a in (o, d) for x in (a.min(), a.max())):
         raise InvalidInputError("ray origins or directions contain NaN or infinite values")
-    if len(d) and np.any(np.all(d == 0, axis=1)):
+    if len(d) and np.any((d[:, 0] == 0) & (d[:, 1] == 0) & (d[:, 2] == 0)):
         raise InvalidInputError("ray directions must be non-zero")
     tm = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=np.float32), (len(o),)))
-    if np.any(np.isnan(tm)) or np.any(tm <= 0):
+    if not np.all(tm > 0):  # NaN fails the comparison too
         raise InvalidInputError("tmax must be > 0 (inf for unbounded rays)")
     return o, d, tm
 
