@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .accuracy import median_time, timed, timed_walk
+from .accuracy import timed_walk
+from .common import time_call
 
 __all__ = ["paper_section", "street_walk", "PAPER_LIGHTING_RATIO", "PAPER_UPDATE_RATIO"]
 
@@ -45,12 +46,13 @@ def paper_section(ctx) -> dict:
     p = ctx.params
     scene = ctx.cached(("village", tuple(sorted(p["village"].items()))), lambda: pydynrad.scenes.village(**p["village"]))
     n, R = len(scene), p["resolution"]
-    F, t_ff = timed(lambda: ctx.cached(("F", "village", tuple(sorted(p["village"].items())), R),
-                                       lambda: pydynrad.form_factors(scene, resolution=R, device=ctx.device,
-                                                                     progress=ctx.progress)))
+    t = time_call(lambda: ctx.cached(("F", "village", tuple(sorted(p["village"].items())), R),
+                                     lambda: pydynrad.form_factors(scene, resolution=R, device=ctx.device,
+                                                                   progress=ctx.progress)), repeats=1, warmup=0)
+    F, t_ff = t["result"], t["median_s"]
     L = pydynrad.light_vector(scene, device=ctx.device)
     sol = pydynrad.solve(scene, F, light=L, device=ctx.device)
-    t_naive = median_time(lambda: pydynrad.solve(scene, F, light=L, device=ctx.device), repeats=3)
+    t_naive = time_call(lambda: pydynrad.solve(scene, F, light=L, device=ctx.device), repeats=3)["median_s"]
     walk = street_walk(p["frames"] + 1)
     rows = []
     for M in p["M"]:
@@ -60,9 +62,9 @@ def paper_section(ctx) -> dict:
             dyn, t_build, walked = timed_walk(lambda: pydynrad.DynamicRadiosity(
                 scene, F, local_size=M, update=mode, storage="fp16", device=ctx.device), walk)
             frames = [(dt, stats.swaps) for dt, stats in walked if stats.swaps]
-            t_update = float(np.mean([dt for dt, _ in frames])) if frames else float("nan")
+            t_update = float(np.median([dt for dt, _ in frames])) if frames else float("nan")
             swaps = float(np.mean([k for _, k in frames])) if frames else 0.0
-            t_light = median_time(lambda: dyn.radiosity(L))
+            t_light = time_call(lambda: dyn.radiosity(L))["median_s"]
             rows.append([M, mode, "fp16", n, t_naive * 1e3, sol.iterations, t_build, swaps, t_update * 1e3,
                          t_light * 1e3, t_naive / t_light, PAPER_LIGHTING_RATIO, t_naive / t_update,
                          PAPER_UPDATE_RATIO])

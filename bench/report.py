@@ -7,7 +7,8 @@ A result is plain data, so the JSON is the record and the markdown is a view of 
      "sections": {name: {"title": str, "description": str, "seconds": float,
                          "tables": [{"title", "columns": [...], "rows": [[...]], "note"}],
                          "plots": [{"name", "title", "xlabel", "ylabel", "xscale", "yscale",
-                                    "series": [{"label", "x": [...], "y": [...], "style"}]}],
+                                    "series": [{"label", "x": [...], "y": [...], "style",
+                                                "labels": [...] (optional, one per point)}]}],
                          "error": str (only when the section failed)}}}
 
 Files are written whole (temporary file, then rename), so an interrupted run never leaves a
@@ -96,6 +97,8 @@ def _draw(plot: dict, path: Path) -> None:
     try:
         for s in plot["series"]:
             ax.plot(s["x"], s["y"], s.get("style", "o-"), label=s.get("label"))
+            for x, y, text in zip(s["x"], s["y"], s.get("labels", ())):
+                ax.annotate(str(text), (x, y), textcoords="offset points", xytext=(4, 4), fontsize="x-small")
         ax.set_xscale(plot.get("xscale", "linear"))
         ax.set_yscale(plot.get("yscale", "linear"))
         ax.set_xlabel(plot.get("xlabel", ""))

@@ -137,3 +137,38 @@ def test_bad_input_is_rejected(furnace, kwargs, match):
 def test_bad_camera_is_rejected(furnace):
     with pytest.raises(pydynrad.InvalidInputError, match="Camera"):
         path_trace(furnace, camera="front")
+
+
+def _cornell_vs_radiosity(device, max_edge, resolution, spp):
+    """Path-traced patch radiosities of the Cornell box vs the full radiosity solution:
+    (relative RMS difference, the path tracer's own relative RMS noise, scene, solution)."""
+    from pydynrad.compare import radiosity_error
+
+    scene = pydynrad.scenes.cornell_box(max_edge=max_edge)
+    F = pydynrad.form_factors(scene, resolution=resolution, device=device)
+    b = pydynrad.solve(scene, F, device=device).radiosity
+    # Two independent halves: their difference measures the noise of their mean.
+    h1 = path_trace_patches(scene, spp=spp // 2, seed=1, device=device)
+    h2 = path_trace_patches(scene, spp=spp // 2, seed=2, device=device)
+    noise = 0.5 * radiosity_error(h1, h2, scene.areas)
+    return radiosity_error(b, 0.5 * (h1 + h2), scene.areas), noise, scene, b
+
+
+def test_cornell_box_agrees_with_full_radiosity(device):
+    err, noise, scene, b = _cornell_vs_radiosity(device, max_edge=150.0, resolution=32, spp=64)
+    # Within twice the Monte Carlo noise, plus 1% for what separates the two models at this
+    # patching (centre point vs patch average, hemicube aliasing at R = 32).
+    assert err < np.hypot(2 * noise, 0.01), (err, noise)
+    # Pixel by pixel: the path-traced image and the flat-shaded radiosity image see the same
+    # patches through the same rays; their mean values agree within the noise.
+    cam = Camera((278.0, 273.0, -800.0), (278.0, 273.0, 0.0), fov_y=39.3, width=32, height=24)
+    img = path_trace(scene, cam, spp=64, device=device)
+    ref = pydynrad.render(scene, b, cam, shading="smooth", device=device)
+    assert np.array_equal(img > 0, ref > 0)  # identical coverage: same rays, same visibility
+    np.testing.assert_allclose(img.mean(axis=(0, 1)), ref.mean(axis=(0, 1)), rtol=0.03)
+
+
+@pytest.mark.slow
+def test_cornell_box_agrees_with_full_radiosity_finely_patched(device):
+    err, noise, _, _ = _cornell_vs_radiosity(device, max_edge=60.0, resolution=128, spp=1024)
+    assert err < np.hypot(2 * noise, 0.005), (err, noise)
