@@ -6,13 +6,15 @@ at one size and writes ``<out>/<device-slug>.json`` and ``.md`` with PNG plots
 
 =============  ===========================================================================
 pathtracer     the reference path tracer: furnace error vs samples, throughput
-formfactors    hemicube form factors vs the analytic plates: error and time per R, subdivision
+formfactors    hemicube form factors vs the analytic plates: error and time per R, subdivision;
+               ray throughput against Embree in the same run (bench/formfactors.py)
 paper          the paper's Fig. 12/15 comparison on the village: naive full radiosity vs the
                dynamic method's lighting and update time, M = 1024 and 4096
 accuracy       the trade curve: error vs frame time per M, update mode, storage, resolution,
                against the path-traced reference and the full radiosity solution
-drift          rounding drift of the local matrix over many frames
-bandwidth      matrix kernels vs copy bandwidth and the peers (numpy/SciPy, Embree)
+dynamic        update kernels vs copy bandwidth, whole frames, accuracy near the observer, and
+               the drift of K over many frames (10,000 at --full) (bench/dynamic.py)
+bandwidth      lighting product and solver vs copy bandwidth and numpy/SciPy (bench/radiosity.py)
 =============  ===========================================================================
 
 Each section is a function ``section(ctx) -> dict`` (title, description, tables, plots; see
@@ -37,34 +39,36 @@ __all__ = ["SIZES", "SECTIONS", "Context", "run_suite", "main"]
 #: Where reports go by default: bench/results next to this file.
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
-#: Parameters per size; each section reads its own entry. "tiny" is for the tests only.
+#: Parameters per size; each section reads its own entry ("tiny" is for the tests only). The
+#: sections of bench/formfactors.py, bench/dynamic.py and bench/radiosity.py keep their own
+#: per-size tables (their standalone scripts use them too); an entry here overrides them.
 SIZES: dict[str, dict] = {
     "tiny": {
         "pathtracer": {"furnace_subdivisions": 2, "spp": (4, 16, 64), "image": (16, 12), "image_spp": 8},
-        "formfactors": {"resolutions": (16, 32), "subdivisions": (2,)},
+        "formfactors": {},
         "paper": {"village": {"houses": 1, "detail": 0.25}, "resolution": 16, "M": (64, 128), "frames": 4},
         "accuracy": {"max_edge": 250.0, "resolutions": (16, 32), "M": (48, 96), "base_M": 96,
                      "frames": 3, "ref_spp": 64, "image": (24, 18)},
-        "drift": {"frames": 20},
-        "bandwidth": {"M": (256,)},
+        "dynamic": {},
+        "bandwidth": {},
     },
     "quick": {
         "pathtracer": {"furnace_subdivisions": 3, "spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
-        "formfactors": {"resolutions": (32, 64, 128), "subdivisions": (2, 4)},
+        "formfactors": {},
         "paper": {"village": {"houses": 2, "detail": 1.0}, "resolution": 32, "M": (1024,), "frames": 8},
         "accuracy": {"max_edge": 100.0, "resolutions": (32, 64), "M": (256, 512, 768), "base_M": 512,
                      "frames": 6, "ref_spp": 512, "image": (64, 48)},
-        "drift": {"frames": 1000},
-        "bandwidth": {"M": (1024, 2048)},
+        "dynamic": {},
+        "bandwidth": {},
     },
     "full": {
         "pathtracer": {"furnace_subdivisions": 4, "spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
-        "formfactors": {"resolutions": (32, 64, 128, 256, 512), "subdivisions": (2, 4, 8)},
+        "formfactors": {},
         "paper": {"village": {"houses": 12, "detail": 1.0}, "resolution": 64, "M": (1024, 4096), "frames": 16},
         "accuracy": {"max_edge": 50.0, "resolutions": (64, 128, 256), "M": (1024, 2048, 3072),
                      "base_M": 2048, "frames": 12, "ref_spp": 4096, "image": (320, 240)},
-        "drift": {"frames": 10000},
-        "bandwidth": {"M": (1024, 2048, 4096)},
+        "dynamic": {},
+        "bandwidth": {},
     },
 }
 
@@ -74,7 +78,7 @@ SECTIONS: dict[str, str] = {
     "formfactors": "bench.formfactors:suite_section",
     "paper": "bench.paper:paper_section",
     "accuracy": "bench.accuracy:accuracy_section",
-    "drift": "bench.dynamic:suite_section",
+    "dynamic": "bench.dynamic:suite_section",
     "bandwidth": "bench.radiosity:suite_section",
 }
 
@@ -178,7 +182,7 @@ def main(argv=None) -> int:
     group.add_argument("--quick", dest="size", action="store_const", const="quick",
                        help="CI-scale sizes: a few minutes on two CPU cores (default)")
     group.add_argument("--full", dest="size", action="store_const", const="full",
-                       help="the paper's sizes (village >= 60k patches, M up to 4096, 10,000 frames)")
+                       help="the paper's sizes (village >= 60k patches, M up to 4096, 10,000 drift frames)")
     group.add_argument("--size", choices=list(SIZES), help=argparse.SUPPRESS)
     parser.add_argument("--sections", help=f"comma-separated subset of: {', '.join(SECTIONS)}")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="report folder (default: bench/results)")

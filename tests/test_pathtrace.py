@@ -58,17 +58,11 @@ def test_single_bounce_between_plates_matches_form_factor(device):
         np.log(np.sqrt((1 + x * x) * (1 + y * y) / (1 + x * x + y * y)))
         + x * ys * np.arctan(x / ys) + y * xs * np.arctan(y / xs) - x * np.arctan(x) - y * np.arctan(y)
     )
-    n = 8
-    g = np.linspace(0, 1, n + 1)
-    gx, gy = np.meshgrid(g, g, indexing="ij")
-    bottom = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
-    q = np.array([[i * (n + 1) + j, (i + 1) * (n + 1) + j, (i + 1) * (n + 1) + j + 1, i * (n + 1) + j + 1]
-                  for i in range(n) for j in range(n)])
-    up = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])  # receiver, normal +z
-    down = up[:, ::-1] + len(bottom)  # emitter on the plane z = 1, normal -z
-    k = len(up)
-    scene = Scene(np.vstack([bottom, bottom + [0, 0, 1]]), np.vstack([up, down]),
-                  albedo=np.repeat([0.5, 0.0], k), emission=np.repeat([0.0, 1.0], k))
+    plates = pydynrad.scenes.parallel_plates(1.0, 1.0, 1.0, subdivisions=3)
+    top = plates.source_face // 2 == 1  # the emitter, facing the receiver below
+    scene = plates.with_materials(albedo=np.where(top, 0.0, 0.5), emission=np.where(top, 1.0, 0.0))
+    k = int(np.count_nonzero(~top))
+    assert np.array_equal(np.flatnonzero(~top), np.arange(k))
     b = path_trace_patches(scene, patches=np.arange(k), spp=256, seed=5, device=device)
     mean = float(np.average(b[:, 0], weights=scene.areas[:k]))
     assert abs(mean - 0.5 * f) < 0.02 * 0.5 * f
