@@ -25,7 +25,8 @@
 #define RR_DEPTH 3
 #endif
 
-// Scene arguments shared by both entry points, in this order.
+// Scene arguments shared by both entry points, in this order. em_tri: 4 float4 per emitting
+// patch (v0, e1 = v1 - v0, e2 = v2 - v0, normal); em_cdf: cumulative power shares.
 #define SCENE_ARGS                                                                              \
     __global const float4 *nodes, __global const float4 *tris, __global const int *order,       \
     __global const float4 *normals, __global const float4 *albedo,                            \

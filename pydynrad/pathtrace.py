@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -44,25 +43,18 @@ def _float4(a: np.ndarray) -> np.ndarray:
     return out
 
 
-@dataclass
 class _Tracer:
-    """A scene, its lights and the device buffers the kernels need."""
+    """A scene's and its lights' device buffers (the kernels' SCENE_ARGS) and the bounce limit."""
 
-    device: object
-    args: tuple
-    scene: Scene
-
-    @classmethod
-    def create(cls, scene: Scene, lights, max_depth: int, device) -> "_Tracer":
-        import pyopencl as cl  # noqa: F401 - imported for its side effect of failing early
-
+    def __init__(self, scene: Scene, lights, max_depth: int, device) -> None:
         from .device import default_device
 
         if not isinstance(scene, Scene):
             raise InvalidInputError(f"scene must be a pydynrad.Scene; got {type(scene).__name__}")
         if not isinstance(max_depth, (int, np.integer)) or max_depth < 1:
             raise InvalidInputError(f"max_depth must be a positive integer; got {max_depth!r}")
-        device = device or default_device()
+        self.device = device = device or default_device()
+        self.defines = {"MAX_DEPTH": int(max_depth)}
         em = scene.emitters
         power = scene.emission[em].astype(np.float64).mean(axis=1) * scene.areas[em]
         if len(em):
@@ -73,7 +65,6 @@ class _Tracer:
             tri = np.stack([v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], np.zeros_like(v[:, 0])], axis=1)
             tri = _float4(tri.reshape(-1, 3))
             tri.reshape(len(em), 4, 4)[:, 3, :3] = scene.normals[em]
-            tri.reshape(len(em), 4, 4)[:, 3, 3] = scene.areas[em]
         else:
             inv_power, cdf = 0.0, np.zeros(1)
             tri = np.zeros((4, 4), np.float32)
@@ -81,7 +72,7 @@ class _Tracer:
         packed = np.asarray([light._packed() for light in lights] or [[0.0] * 12], dtype=np.float32)
         up = device.to_device
         nodes, tris, order = scene.bvh.buffers(device)
-        args = (
+        self.args = (
             nodes, tris, order,
             up(_float4(scene.normals)), up(_float4(scene.albedo)), up(_float4(scene.emission)),
             np.int32(len(em)), up(tri), up(_float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
@@ -89,9 +80,6 @@ class _Tracer:
             np.int32(len(lights)), up(packed), np.float32(SHADOW_EPSILON * scene.scale),
             np.float32(2.0 * scene.scale),  # directional shadow rays need only leave the scene
         )
-        tracer = cls(device, args, scene)
-        tracer.defines = {"MAX_DEPTH": int(max_depth)}
-        return tracer
 
     def accumulate(self, kernel_name: str, items: tuple, n_items: int, spp: int, seed: int,
                    progress, time_limit: float | None) -> tuple[np.ndarray, int]:
@@ -166,7 +154,7 @@ def path_trace(scene: Scene, camera, spp: int = 64, lights=(), seed: int = 0, ma
         escapes or reaches a patch's back are 0 (``render``'s default background and backface).
     """
     _check_common(spp, seed, time_limit)
-    tracer = _Tracer.create(scene, lights, max_depth, device)
+    tracer = _Tracer(scene, lights, max_depth, device)
     if not isinstance(camera, Camera):
         raise InvalidInputError(f"camera must be a pydynrad.Camera; got {type(camera).__name__}")
     h, w = camera.shape
@@ -209,7 +197,7 @@ def path_trace_patches(scene: Scene, patches=None, spp: int = 256, lights=(), se
         raise InvalidInputError(f"patch indices must lie in 0..{len(scene) - 1}")
     if len(ids) == 0:
         return np.zeros((0, 3), dtype=np.float32)
-    tracer = _Tracer.create(scene, lights, max_depth, device)
+    tracer = _Tracer(scene, lights, max_depth, device)
     up = tracer.device.to_device
     total, done = tracer.accumulate("gather_patches", (up(ids.astype(np.int32)), up(_float4(scene.centers))),
                                     len(ids), int(spp), int(seed), progress, time_limit)
