@@ -2,16 +2,21 @@
  * Binned-SAH bounding volume hierarchy builder for triangle patches.
  *
  * Host-side by design: building is branchy, sequential and memory-allocating, which suits a
- * CPU and not an OpenCL device. The result is flattened to plain arrays that the traversal
- * in kernels/bvh.cl walks:
+ * CPU and not an OpenCL device. A binary tree is built with binned SAH, then collapsed to a
+ * 4-wide tree (each wide node adopts the children of its largest-area interior children
+ * until it has four), flattened to plain arrays that the traversal in kernels/bvh.cl walks:
  *
- *   node k: float bmin[3]; int32 offset; float bmax[3]; int32 count   (32 bytes, two float4)
- *     count == 0: interior, children at offset and offset + 1
- *     count  > 0: leaf, primitives order[offset .. offset + count)
+ *   wide node k: 8 float4 = 32 floats at nodes[32 k]:
+ *     minx[4], maxx[4], miny[4], maxy[4], minz[4], maxz[4]   the four children's boxes (SoA)
+ *     int32 child[4]                                          bit-cast into the float slots
+ *     4 floats of padding (a node spans exactly two 64-byte cache lines)
+ *   child c: > 0 the wide node of that index; 0 an empty slot (its box is inverted: +inf..-inf,
+ *   which no ray enters); < 0 a leaf ~(first << 3 | (count - 1)): triangles first .. first + count
+ *   in BVH order. Node 0 is the root; the root's own box is not stored (its children's are).
  *
- * Python signature:  _bvh.build(tris, nodes, order, packed) -> n_nodes
- *   tris   : C-contiguous float32 buffer of N*9 values (three corners per triangle)
- *   nodes  : writable float32 buffer of at least max(1, 2N-1)*8 values (int fields bit-cast)
+ * Python signature:  _bvh.build(tris, nodes, order, packed) -> n_nodes (wide nodes written)
+ *   tris   : C-contiguous float32 buffer of N*9 values (three corners per triangle), N < 2^28
+ *   nodes  : writable float32 buffer of at least max(1, N)*32 values
  *   order  : writable int32 buffer of N values, filled with the triangle permutation
  *   packed : writable float32 buffer of N*12 values, filled in BVH order with
  *            v0, 0, e1, 0, e2, 0 (e1 = v1 - v0, e2 = v2 - v0, rounded once from double)
@@ -20,6 +25,7 @@
 #include <Python.h>
 
 #include <float.h>
+#include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -27,6 +33,9 @@
 #define N_BINS 16
 #define MAX_LEAF 4
 #define TRAVERSAL_COST 1.0f
+#define WIDTH 4
+#define NODE_FLOATS 32
+#define MAX_TRIANGLES (1 << 28) /* the leaf encoding keeps 28 bits for the first triangle */
 
 typedef struct {
     float bmin[3];
@@ -92,8 +101,8 @@ static int bin_of(float c, float lo, float scale)
     return b < 0 ? 0 : (b >= N_BINS ? N_BINS - 1 : b);
 }
 
-/* Returns the node count, or -1 when memory runs out. */
-static int32_t build_bvh(const float *tris, int32_t n, Node *nodes, int32_t *order, float *packed)
+/* The binary tree; returns its node count, or -1 when memory runs out. */
+static int32_t build_binary(const float *tris, int32_t n, Node *nodes, int32_t *order, float *packed)
 {
     Prim *prims = malloc(sizeof(Prim) * (size_t)(n > 0 ? n : 1));
     Task *stack = malloc(sizeof(Task) * 128);
@@ -260,6 +269,97 @@ static int32_t build_bvh(const float *tris, int32_t n, Node *nodes, int32_t *ord
     return n_nodes;
 }
 
+static float node_half_area(const Node *b)
+{
+    Box box;
+    memcpy(box.bmin, b->bmin, sizeof box.bmin);
+    memcpy(box.bmax, b->bmax, sizeof box.bmax);
+    return box_half_area(&box);
+}
+
+/* Collapse the binary tree into 4-wide nodes (layout at the top of this file). Returns the
+ * wide node count, or -1 when memory runs out. */
+static int32_t collapse(const Node *bin, float *out)
+{
+    /* Pending wide nodes as (binary node, wide index) pairs; grown on demand. */
+    int32_t cap = 256, sp = 0, n_wide = 1;
+    int32_t *stack = malloc(sizeof(int32_t) * 2 * (size_t)cap);
+    if (!stack) return -1;
+    stack[sp++] = 0;
+    stack[sp++] = 0;
+    while (sp > 0) {
+        int32_t w = stack[--sp], b = stack[--sp];
+        int32_t kids[WIDTH], nk = 0;
+        if (bin[b].count > 0) {
+            kids[nk++] = b; /* the whole tree is one leaf: the root holds it as its only child */
+        } else {
+            kids[nk++] = bin[b].offset;
+            kids[nk++] = bin[b].offset + 1;
+        }
+        while (nk < WIDTH) {
+            int best = -1;
+            float best_area = -1.0f;
+            for (int c = 0; c < nk; ++c) {
+                float area = node_half_area(&bin[kids[c]]);
+                if (bin[kids[c]].count == 0 && area > best_area) {
+                    best = c;
+                    best_area = area;
+                }
+            }
+            if (best < 0) break;
+            int32_t first = bin[kids[best]].offset;
+            kids[best] = first;
+            kids[nk++] = first + 1;
+        }
+        float *node = out + (size_t)w * NODE_FLOATS;
+        int32_t *child = (int32_t *)(node + 6 * WIDTH);
+        for (int c = 0; c < WIDTH; ++c) {
+            if (c >= nk) {
+                for (int a = 0; a < 3; ++a) {
+                    node[(2 * a) * WIDTH + c] = INFINITY;
+                    node[(2 * a + 1) * WIDTH + c] = -INFINITY;
+                }
+                child[c] = 0;
+                continue;
+            }
+            const Node *k = &bin[kids[c]];
+            for (int a = 0; a < 3; ++a) {
+                node[(2 * a) * WIDTH + c] = k->bmin[a];
+                node[(2 * a + 1) * WIDTH + c] = k->bmax[a];
+            }
+            if (k->count > 0) {
+                child[c] = ~((k->offset << 3) | (k->count - 1));
+                continue;
+            }
+            if (sp + 2 > 2 * cap) {
+                int32_t *grown = realloc(stack, sizeof(int32_t) * 4 * (size_t)cap);
+                if (!grown) {
+                    free(stack);
+                    return -1;
+                }
+                stack = grown;
+                cap *= 2;
+            }
+            child[c] = n_wide;
+            stack[sp++] = kids[c];
+            stack[sp++] = n_wide++;
+        }
+        for (int c = 0; c < WIDTH; ++c) node[7 * WIDTH + c] = 0.0f;
+    }
+    free(stack);
+    return n_wide;
+}
+
+/* Binary build, then the wide collapse into nodes; returns the wide node count or -1. */
+static int32_t build_bvh(const float *tris, int32_t n, float *nodes, int32_t *order, float *packed)
+{
+    Node *bin = malloc(sizeof(Node) * (size_t)(2 * n - 1));
+    if (!bin) return -1;
+    int32_t n_wide = build_binary(tris, n, bin, order, packed) < 0 ? -1 : collapse(bin, nodes);
+    free(bin);
+    return n_wide;
+}
+
 static PyObject *py_build(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -267,10 +367,10 @@ static PyObject *py_build(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*w*w*w*", &tris, &nodes, &order, &packed)) return NULL;
     PyObject *result = NULL;
     Py_ssize_t n = tris.len / (Py_ssize_t)(9 * sizeof(float));
-    if (tris.len != n * (Py_ssize_t)(9 * sizeof(float)) || n > INT32_MAX / 2) {
-        PyErr_SetString(PyExc_ValueError, "tris must hold N*9 float32 values with N < 2^30");
-    } else if (nodes.len < (Py_ssize_t)sizeof(Node) * (n > 0 ? 2 * n - 1 : 1)) {
-        PyErr_SetString(PyExc_ValueError, "nodes buffer too small: need (2N-1)*32 bytes");
+    if (tris.len != n * (Py_ssize_t)(9 * sizeof(float)) || n >= MAX_TRIANGLES) {
+        PyErr_SetString(PyExc_ValueError, "tris must hold N*9 float32 values with N < 2^28");
+    } else if (nodes.len < (Py_ssize_t)sizeof(float) * NODE_FLOATS * (n > 0 ? n : 1)) {
+        PyErr_SetString(PyExc_ValueError, "nodes buffer too small: need max(1, N)*128 bytes");
     } else if (order.len < (Py_ssize_t)sizeof(int32_t) * n) {
         PyErr_SetString(PyExc_ValueError, "order buffer too small: need N int32 values");
     } else if (packed.len < (Py_ssize_t)sizeof(float) * 12 * n) {
@@ -280,7 +380,7 @@ static PyObject *py_build(PyObject *self, PyObject *args)
     } else {
         int32_t n_nodes;
         Py_BEGIN_ALLOW_THREADS
-        n_nodes = build_bvh((const float *)tris.buf, (int32_t)n, (Node *)nodes.buf, (int32_t *)order.buf,
+        n_nodes = build_bvh((const float *)tris.buf, (int32_t)n, (float *)nodes.buf, (int32_t *)order.buf,
                             (float *)packed.buf);
         Py_END_ALLOW_THREADS
         if (n_nodes < 0)
@@ -296,7 +396,7 @@ static PyObject *py_build(PyObject *self, PyObject *args)
 }
 
 static PyMethodDef methods[] = {
-    {"build", py_build, METH_VARARGS, "build(tris, nodes, order, packed) -> n_nodes: binned-SAH BVH over triangles"},
+    {"build", py_build, METH_VARARGS, "build(tris, nodes, order, packed) -> n_nodes: binned-SAH 4-wide BVH over triangles"},
     {NULL, NULL, 0, NULL},
 };
 

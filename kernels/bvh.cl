@@ -1,14 +1,19 @@
 // BVH traversal shared by every kernel that casts rays (hemicubes, shadows, rendering,
 // path tracing). Include it; pass the three buffers of pydynrad.bvh.BVH.buffers().
 //
-// nodes: 2 float4 per node: (bmin.xyz, offset), (bmax.xyz, count); offset/count are int
-//        bits. count == 0: interior with children offset, offset + 1; else a leaf.
+// nodes: 4-wide nodes of 8 float4 each (csrc/bvh.c): the four children's boxes as
+//        minx, maxx, miny, maxy, minz, maxz (one float4 per plane, a lane per child), then
+//        the child references as int bits, then padding. child > 0: a wide node; 0: an empty
+//        slot (inverted box, never entered); < 0: a leaf ~(first << 3 | (count - 1)).
 // tris : 3 float4 per triangle in BVH order: v0, e1 = v1 - v0, e2 = v2 - v0.
 // order: patch index of each triangle in BVH order.
 #ifndef PYDYNRAD_BVH_CL
 #define PYDYNRAD_BVH_CL
 
-#define BVH_STACK 64
+#define BVH_NODE 8  // float4 per wide node
+// Traversal stack: a wide node pushes at most four children and the walk pops one, so a tree
+// of D wide levels needs 3 D + 1 entries; pydynrad/bvh.py refuses deeper trees (MAX_DEPTH).
+#define BVH_STACK 96
 
 // Barycentric slack of the triangle test: a ray through the edge shared by two triangles
 // could otherwise slip between them in float32 (a leak in a closed scene). Relative to the
@@ -31,18 +36,6 @@ typedef struct {
     int patch;   // patch index, -1 for a miss
     int front;   // 1 when the ray hits the triangle's front (the side its normal faces)
 } Hit;
-
-// Slab test; returns the entry distance or INFINITY on a miss within [tmin, tmax].
-// org_inv = org * inv_dir, so each plane costs one fused multiply-add.
-inline float bvh_box_entry(float4 bmin, float4 bmax, float3 org_inv, float3 inv_dir, float tmin, float tmax)
-{
-    float3 t0 = bmin.xyz * inv_dir - org_inv;
-    float3 t1 = bmax.xyz * inv_dir - org_inv;
-    float3 lo = BVH_MIN(t0, t1), hi = BVH_MAX(t0, t1);
-    float enter = BVH_MAX(BVH_MAX(lo.x, lo.y), BVH_MAX(lo.z, tmin));
-    float leave = BVH_MIN(BVH_MIN(hi.x, hi.y), BVH_MIN(hi.z, tmax));
-    return enter <= leave ? enter : INFINITY;
-}
 
 // Moller-Trumbore, double-sided; updates hit when closer than hit->t.
 inline bool bvh_tri_hit(__global const float4 *tris, int k, float3 org, float3 dir, float tmin, Hit *hit)
@@ -76,75 +69,75 @@ inline float3 bvh_inv_dir(float3 dir)
     return 1.0f / select(dir, tiny, isless(fabs(dir), (float3)(1e-30f)));
 }
 
+// Push (ref, entry) keeping the entries pushed since `base` sorted far to near, so the nearest
+// child is popped first.
+#define BVH_PUSH_SORTED(stack, stack_entry, sp, base, ref, entry)              \
+    do {                                                                      \
+        int j_ = (sp)++;                                                      \
+        while (j_ > (base) && (stack_entry)[j_ - 1] < (entry)) {              \
+            (stack)[j_] = (stack)[j_ - 1];                                    \
+            (stack_entry)[j_] = (stack_entry)[j_ - 1];                        \
+            --j_;                                                             \
+        }                                                                     \
+        (stack)[j_] = (ref);                                                  \
+        (stack_entry)[j_] = (entry);                                          \
+    } while (0)
+
+// The walk shared by bvh_closest and bvh_occluded (any_hit: stop at the first hit). Returns the
+// hit with its triangle in BVH order. One wide node: the four children's slabs as float4 lanes,
+// near and far planes picked once per ray by the direction's signs (an inverted empty slot then
+// has entry > exit on every axis, so it needs no check).
+inline Hit bvh_walk(__global const float4 *nodes, __global const float4 *tris, float3 org, float3 dir,
+                    float tmin, float tmax, bool any_hit)
+{
+    Hit hit = {tmax, 0.0f, 0.0f, -1, 0};
+    float3 inv = bvh_inv_dir(dir), oi = org * inv;
+    int nx = inv.x < 0.0f, ny = 2 + (inv.y < 0.0f), nz = 4 + (inv.z < 0.0f);
+    int fx = nx ^ 1, fy = ny ^ 1, fz = nz ^ 1;
+    int stack[BVH_STACK];
+    float stack_entry[BVH_STACK];
+    int sp = 0, ref = 0;
+    for (;;) {
+        if (ref < 0) {
+            int first = ~ref >> 3, last = first + (~ref & 7);
+            for (int k = first; k <= last; ++k)
+                if (bvh_tri_hit(tris, k, org, dir, tmin, &hit) && any_hit) return hit;
+        } else {
+            __global const float4 *n = nodes + BVH_NODE * ref;
+            float4 enter = BVH_MAX(BVH_MAX(n[nx] * inv.x - oi.x, n[ny] * inv.y - oi.y),
+                                   BVH_MAX(n[nz] * inv.z - oi.z, (float4)tmin));
+            float4 leave = BVH_MIN(BVH_MIN(n[fx] * inv.x - oi.x, n[fy] * inv.y - oi.y),
+                                   BVH_MIN(n[fz] * inv.z - oi.z, (float4)hit.t));
+            enter = enter <= leave ? enter : (float4)INFINITY;
+            int4 child = as_int4(n[6]);
+            int base = sp;
+            if (enter.x != INFINITY) BVH_PUSH_SORTED(stack, stack_entry, sp, base, child.x, enter.x);
+            if (enter.y != INFINITY) BVH_PUSH_SORTED(stack, stack_entry, sp, base, child.y, enter.y);
+            if (enter.z != INFINITY) BVH_PUSH_SORTED(stack, stack_entry, sp, base, child.z, enter.z);
+            if (enter.w != INFINITY) BVH_PUSH_SORTED(stack, stack_entry, sp, base, child.w, enter.w);
+        }
+        // Pop, skipping subtrees that start beyond the nearest hit found since they were pushed.
+        do {
+            if (sp == 0) return hit;
+            ref = stack[--sp];
+        } while (stack_entry[sp] > hit.t);
+    }
+}
+
 // Nearest hit along org + t dir for t in (tmin, tmax). Returns hit.patch = -1 on a miss.
 inline Hit bvh_closest(__global const float4 *nodes, __global const float4 *tris, __global const int *order,
                        float3 org, float3 dir, float tmin, float tmax)
 {
-    Hit hit = {tmax, 0.0f, 0.0f, -1, 0};
-    float3 inv_dir = bvh_inv_dir(dir), org_inv = org * inv_dir;
-    int stack[BVH_STACK];
-    float stack_entry[BVH_STACK];
-    int sp = 0, node = 0;
-    if (bvh_box_entry(nodes[0], nodes[1], org_inv, inv_dir, tmin, hit.t) == INFINITY) return hit;
-    for (;;) {
-        float4 lo = nodes[2 * node], hi = nodes[2 * node + 1];
-        int count = as_int(hi.w);
-        if (count > 0) {
-            int first = as_int(lo.w);
-            for (int k = first; k < first + count; ++k) bvh_tri_hit(tris, k, org, dir, tmin, &hit);
-        } else {
-            int left = as_int(lo.w), right = left + 1;
-            float dl = bvh_box_entry(nodes[2 * left], nodes[2 * left + 1], org_inv, inv_dir, tmin, hit.t);
-            float dr = bvh_box_entry(nodes[2 * right], nodes[2 * right + 1], org_inv, inv_dir, tmin, hit.t);
-            if (dl != INFINITY && dr != INFINITY) {
-                // Visit the nearer child now; the farther waits with its entry distance.
-                bool left_first = dl <= dr;
-                stack[sp] = left_first ? right : left;
-                stack_entry[sp++] = left_first ? dr : dl;
-                node = left_first ? left : right;
-                continue;
-            }
-            if (dl != INFINITY || dr != INFINITY) {
-                node = dl != INFINITY ? left : right;
-                continue;
-            }
-        }
-        // Pop, skipping subtrees that start beyond the nearest hit found since they were pushed.
-        do {
-            if (sp == 0) {
-                if (hit.patch >= 0) hit.patch = order[hit.patch];
-                return hit;
-            }
-            node = stack[--sp];
-        } while (stack_entry[sp] > hit.t);
-    }
+    Hit hit = bvh_walk(nodes, tris, org, dir, tmin, tmax, false);
+    if (hit.patch >= 0) hit.patch = order[hit.patch];
+    return hit;
 }
 
 // True when anything lies along org + t dir for t in (tmin, tmax): shadow rays.
 inline bool bvh_occluded(__global const float4 *nodes, __global const float4 *tris,
                          float3 org, float3 dir, float tmin, float tmax)
 {
-    Hit hit = {tmax, 0.0f, 0.0f, -1, 0};
-    float3 inv_dir = bvh_inv_dir(dir), org_inv = org * inv_dir;
-    int stack[BVH_STACK];
-    int sp = 0;
-    stack[sp++] = 0;
-    while (sp > 0) {
-        int node = stack[--sp];
-        float4 lo = nodes[2 * node], hi = nodes[2 * node + 1];
-        if (bvh_box_entry(lo, hi, org_inv, inv_dir, tmin, tmax) == INFINITY) continue;
-        int count = as_int(hi.w);
-        if (count > 0) {
-            int first = as_int(lo.w);
-            for (int k = first; k < first + count; ++k)
-                if (bvh_tri_hit(tris, k, org, dir, tmin, &hit)) return true;
-        } else {
-            int left = as_int(lo.w);
-            stack[sp++] = left;
-            stack[sp++] = left + 1;
-        }
-    }
-    return false;
+    return bvh_walk(nodes, tris, org, dir, tmin, tmax, true).patch >= 0;
 }
 
 // ---- Ray packets: BVH_PACKET rays per work-item, one per vector lane ----
@@ -152,11 +145,11 @@ inline bool bvh_occluded(__global const float4 *nodes, __global const float4 *tr
 // A CPU OpenCL device (PoCL) runs each work-item's divergent traversal loop as scalar code, so
 // SIMD for a single ray has to come from vector types inside the work-item. Coherent rays (a
 // hemicube scanline: one origin, smoothly varying directions) visit nearly the same nodes, so
-// one walk tests a node or triangle against all lanes in a few vector instructions. Lanes need
+// one walk tests a box or triangle against all lanes in a few vector instructions. Lanes need
 // no activity mask: a ray that misses a box cannot hit the triangles inside it, so testing it
-// anyway changes nothing; masks only steer which subtrees the packet enters.
+// anyway changes nothing; the lanes' entry distances only steer which subtrees the packet enters.
 #ifndef BVH_PACKET
-#define BVH_PACKET 8
+#define BVH_PACKET 16
 #endif
 #define BVH_CAT_(a, b) a##b
 #define BVH_CAT(a, b) BVH_CAT_(a, b)
@@ -195,15 +188,18 @@ inline bvh_floatP bvh_inv_p(bvh_floatP d)
     return 1.0f / select(d, tiny, isless(fabs(d), (bvh_floatP)(1e-30f)));
 }
 
-// Per-lane entry distance of the box, INFINITY where a lane misses it within [tmin, tmax].
-inline bvh_floatP bvh_box_entry_p(float4 bmin, float4 bmax, const BvhSlabs *s, float tmin, bvh_floatP tmax)
+// Least entry distance over the lanes into child c of wide node n; INFINITY when every lane
+// misses it within [tmin, tmax]. Lanes differ in direction signs, so each takes min/max of
+// its two planes (an empty slot's inverted box would pass this test: callers skip it).
+inline float bvh_child_entry_p(__global const float4 *n, int c, const BvhSlabs *s, float tmin, bvh_floatP tmax)
 {
-    bvh_floatP ax = bmin.x * s->ix - s->oix, bx = bmax.x * s->ix - s->oix;
-    bvh_floatP ay = bmin.y * s->iy - s->oiy, by = bmax.y * s->iy - s->oiy;
-    bvh_floatP az = bmin.z * s->iz - s->oiz, bz = bmax.z * s->iz - s->oiz;
+    __global const float *f = (__global const float *)n;
+    bvh_floatP ax = f[c] * s->ix - s->oix, bx = f[4 + c] * s->ix - s->oix;
+    bvh_floatP ay = f[8 + c] * s->iy - s->oiy, by = f[12 + c] * s->iy - s->oiy;
+    bvh_floatP az = f[16 + c] * s->iz - s->oiz, bz = f[20 + c] * s->iz - s->oiz;
     bvh_floatP enter = BVH_MAX(BVH_MAX(BVH_MIN(ax, bx), BVH_MIN(ay, by)), BVH_MAX(BVH_MIN(az, bz), (bvh_floatP)tmin));
     bvh_floatP leave = BVH_MIN(BVH_MIN(BVH_MAX(ax, bx), BVH_MAX(ay, by)), BVH_MIN(BVH_MAX(az, bz), tmax));
-    return enter <= leave ? enter : (bvh_floatP)INFINITY;
+    return bvh_hminP(enter <= leave ? enter : (bvh_floatP)INFINITY);
 }
 
 // bvh_tri_hit for every lane at once (same arithmetic, same edge slack).
@@ -247,42 +243,35 @@ inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const
     s.oiz = r->oz * s.iz;
     int stack[BVH_STACK];
     float stack_entry[BVH_STACK];
-    int sp = 0, node = 0;
-    bool live = bvh_hminP(bvh_box_entry_p(nodes[0], nodes[1], &s, tmin, h.t)) != INFINITY;
-    while (live) {
-        float4 lo = nodes[2 * node], hi = nodes[2 * node + 1];
-        int count = as_int(hi.w);
-        if (count > 0) {
-            int first = as_int(lo.w);
-            for (int k = first; k < first + count; ++k) bvh_tri_hit_p(tris, k, r, tmin, &h);
+    int sp = 0, ref = 0;
+    for (;;) {
+        if (ref < 0) {
+            int first = ~ref >> 3, last = first + (~ref & 7);
+            for (int k = first; k <= last; ++k) bvh_tri_hit_p(tris, k, r, tmin, &h);
         } else {
-            int left = as_int(lo.w), right = left + 1;
-            float dl = bvh_hminP(bvh_box_entry_p(nodes[2 * left], nodes[2 * left + 1], &s, tmin, h.t));
-            float dr = bvh_hminP(bvh_box_entry_p(nodes[2 * right], nodes[2 * right + 1], &s, tmin, h.t));
-            if (dl != INFINITY && dr != INFINITY) {
-                bool left_first = dl <= dr;
-                stack[sp] = left_first ? right : left;
-                stack_entry[sp++] = left_first ? dr : dl;
-                node = left_first ? left : right;
-                continue;
-            }
-            if (dl != INFINITY || dr != INFINITY) {
-                node = dl != INFINITY ? left : right;
-                continue;
+            __global const float4 *n = nodes + BVH_NODE * ref;
+            int4 child = as_int4(n[6]);
+            int base = sp;
+            for (int c = 0; c < 4; ++c) {
+                int ref_c = c == 0 ? child.x : (c == 1 ? child.y : (c == 2 ? child.z : child.w));
+                if (ref_c == 0) break;  // empty slots come last
+                float entry = bvh_child_entry_p(n, c, &s, tmin, h.t);
+                if (entry != INFINITY) BVH_PUSH_SORTED(stack, stack_entry, sp, base, ref_c, entry);
             }
         }
         float reach = bvh_hmaxP(h.t);
         do {
-            live = sp > 0;
-            if (live) node = stack[--sp];
-        } while (live && stack_entry[sp] > reach);
+            if (sp == 0) {
+                // Map BVH order to patch indices lane by lane (OpenCL has no vector gather).
+                int ids[BVH_PACKET];
+                bvh_vstoreP(h.patch, 0, ids);
+                for (int i = 0; i < BVH_PACKET; ++i) ids[i] = ids[i] >= 0 ? order[ids[i]] : -1;
+                h.patch = bvh_vloadP(0, ids);
+                return h;
+            }
+            ref = stack[--sp];
+        } while (stack_entry[sp] > reach);
     }
-    // Map BVH order to patch indices lane by lane (OpenCL has no vector gather).
-    int ids[BVH_PACKET];
-    bvh_vstoreP(h.patch, 0, ids);
-    for (int i = 0; i < BVH_PACKET; ++i) ids[i] = ids[i] >= 0 ? order[ids[i]] : -1;
-    h.patch = bvh_vloadP(0, ids);
-    return h;
 }
 
 #endif

@@ -1,6 +1,7 @@
 """Bounding volume hierarchy over patch triangles, built natively and traversed on the device.
 
-The builder is ``csrc/bvh.c`` (binned SAH, leaves of at most 4 triangles). This module keeps
+The builder is ``csrc/bvh.c`` (binned SAH, leaves of at most 4 triangles, the binary tree
+collapsed to 4-wide nodes). This module keeps
 its flattened arrays and uploads them once per OpenCL device; kernels include
 ``kernels/bvh.cl`` and take the three buffers of :meth:`BVH.buffers` as arguments.
 """
@@ -16,22 +17,37 @@ from .errors import InvalidInputError
 
 __all__ = ["BVH", "cast_rays", "occluded"]
 
-#: Traversal stack size in kernels/bvh.cl (BVH_STACK); the near-first walk never holds more
-#: entries than the tree is deep.
-MAX_DEPTH = 64
+#: Deepest tree (in wide levels) that the traversal stack of kernels/bvh.cl (BVH_STACK = 96)
+#: holds: a node pushes at most four children and the walk pops one, so D levels need 3 D + 1.
+MAX_DEPTH = 31
+
+#: Lanes of a wide node (csrc/bvh.c WIDTH) and float32 values per node.
+WIDTH, NODE_FLOATS = 4, 32
 
 #: Rays per work-item in :func:`cast_rays` (BVH_PACKET in kernels/bvh.cl): one per vector lane.
 PACKET = 16
 
 
+def _children(nodes: np.ndarray) -> np.ndarray:
+    """(n_nodes, 4) int32 child references of wide nodes (see :class:`BVH`)."""
+    return np.ascontiguousarray(nodes[:, 24:28]).view(np.int32)
+
+
 def _depth(nodes: np.ndarray) -> int:
-    offsets, counts = nodes[:, 3].view(np.int32), nodes[:, 7].view(np.int32)
+    """Wide levels from the root to the deepest interior node."""
+    children = _children(nodes)
     level, depth = np.array([0]), 0
     while len(level):
         depth += 1
-        inner = level[counts[level] == 0]
-        level = np.concatenate([offsets[inner], offsets[inner] + 1])
+        c = children[level].ravel()
+        level = c[c > 0]
     return depth
+
+
+def leaf_ranges(child: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first, count) of the triangles (BVH order) of leaf references ``child < 0``."""
+    code = ~np.asarray(child, np.int32)
+    return code >> 3, (code & 7) + 1
 
 
 @dataclass(eq=False)
@@ -40,9 +56,11 @@ class BVH:
 
     Attributes
     ----------
-    nodes : (n_nodes, 8) float32
-        ``bmin.xyz, offset, bmax.xyz, count`` per node; ``offset`` and ``count`` are int32
-        bit-cast into the float slots (see :attr:`offsets`, :attr:`counts`).
+    nodes : (n_nodes, 32) float32
+        4-wide nodes, root first: ``minx[4], maxx[4], miny[4], maxy[4], minz[4], maxz[4]``
+        (the children's boxes), ``child[4]`` (int32 bit-cast, see :attr:`children`), 4 floats
+        of padding. A child reference > 0 is a node, 0 an empty slot (inverted box), < 0 a
+        leaf (:func:`leaf_ranges`).
     order : (N,) int32
         Patch index of each triangle in BVH order.
     tris : (N, 12) float32
@@ -64,11 +82,11 @@ class BVH:
         if not np.all(np.isfinite(v)):
             raise InvalidInputError("BVH input contains NaN or infinite coordinates")
         n = len(v)
-        nodes = np.empty((max(1, 2 * n - 1), 8), dtype=np.float32)
+        nodes = np.empty((n, NODE_FLOATS), dtype=np.float32)
         order = np.empty(n, dtype=np.int32)
         tris = np.empty((n, 12), dtype=np.float32)
         n_nodes = _bvh.build(v.reshape(-1), nodes, order, tris)
-        nodes = nodes[:n_nodes]
+        nodes = nodes[:n_nodes].copy()
         depth = _depth(nodes)
         if depth > MAX_DEPTH:
             raise InvalidInputError(
@@ -82,12 +100,20 @@ class BVH:
         return len(self.nodes)
 
     @property
-    def offsets(self) -> np.ndarray:
-        return self.nodes[:, 3].view(np.int32)
+    def depth(self) -> int:
+        """Wide levels from the root to the deepest interior node."""
+        return _depth(self.nodes)
 
     @property
-    def counts(self) -> np.ndarray:
-        return self.nodes[:, 7].view(np.int32)
+    def children(self) -> np.ndarray:
+        """(n_nodes, 4) int32 child references."""
+        return _children(self.nodes)
+
+    @property
+    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi), each (n_nodes, 4, 3) float32: the children's boxes."""
+        b = self.nodes[:, :24].reshape(-1, 3, 2, WIDTH)
+        return b[:, :, 0].transpose(0, 2, 1), b[:, :, 1].transpose(0, 2, 1)
 
     @property
     def nbytes(self) -> int:

@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from pydynrad import InvalidInputError, Scene
-from pydynrad.bvh import BVH, MAX_DEPTH, _depth, cast_rays, occluded
+from pydynrad.bvh import BVH, MAX_DEPTH, cast_rays, leaf_ranges, occluded
 
 
 def brute_force(vertices, origins, directions):
@@ -114,22 +114,50 @@ def test_build_is_a_valid_hierarchy():
     v = random_triangles(rng, 5000, spread=50.0).astype(np.float32)
     bvh = BVH.build(v)
     assert np.array_equal(np.sort(bvh.order), np.arange(len(v)))
-    counts, offsets = bvh.counts, bvh.offsets
-    leaves = counts > 0
-    assert counts[leaves].sum() == len(v) and counts.max() <= 4
-    assert _depth(bvh.nodes) <= MAX_DEPTH
-    # Every leaf box holds its triangles; every interior box holds its children's boxes.
-    lo, hi = bvh.nodes[:, :3], bvh.nodes[:, 4:7]
-    for k in np.flatnonzero(leaves):
-        tv = v[bvh.order[offsets[k] : offsets[k] + counts[k]]].reshape(-1, 3)
-        assert np.all(tv >= lo[k]) and np.all(tv <= hi[k])
-    inner = np.flatnonzero(~leaves)
-    for c in (offsets[inner], offsets[inner] + 1):
-        assert np.all(lo[c] >= lo[inner]) and np.all(hi[c] <= hi[inner])
+    assert bvh.depth <= MAX_DEPTH
+    children = bvh.children
+    lo, hi = bvh.boxes
+    # Every node but the root is referenced exactly once; empty slots come last in a node.
+    inner = children[children > 0]
+    assert np.array_equal(np.sort(inner), np.arange(1, bvh.n_nodes))
+    assert np.all(np.diff((children == 0).astype(int), axis=1) >= 0)
+    assert np.all(lo[children == 0] == np.inf) and np.all(hi[children == 0] == -np.inf)
+    # Leaves cover every triangle exactly once, at most 4 each, inside their box.
+    first, count = leaf_ranges(children[children < 0])
+    assert count.max() <= 4
+    covered = np.zeros(len(v), int)
+    for f, c, blo, bhi in zip(first, count, lo[children < 0], hi[children < 0]):
+        covered[f : f + c] += 1
+        tv = v[bvh.order[f : f + c]].reshape(-1, 3)
+        assert np.all(tv >= blo) and np.all(tv <= bhi)
+    assert np.all(covered == 1)
+    # A child node's own children lie inside the box its parent holds for it.
+    parent, slot = np.nonzero(children > 0)
+    node = children[parent, slot]
+    full = children[node] != 0
+    assert np.all((lo[node] >= lo[parent, slot][:, None]) | ~full[..., None])
+    assert np.all((hi[node] <= hi[parent, slot][:, None]) | ~full[..., None])
+    # Collapsing to 4 wide leaves few slots empty: nodes are at least 3/4 full on average.
+    assert np.mean(children != 0) > 0.75
     # The packed triangles are the input corners in BVH order.
     tris = bvh.tris.reshape(-1, 3, 4)[:, :, :3]
     np.testing.assert_allclose(tris[:, 0], v[bvh.order, 0])
     np.testing.assert_allclose(tris[:, 1], v[bvh.order, 1] - v[bvh.order, 0], atol=1e-5)
+
+
+def test_tiny_trees(device):
+    """One triangle (the root holds a single leaf) and a handful (the root's slots part empty)."""
+    rng = np.random.default_rng(7)
+    for n in (1, 2, 5):
+        v = random_triangles(rng, n, spread=0.5, size=2.0)
+        bvh = BVH.build(v)
+        if n == 1:
+            assert bvh.n_nodes == 1 and np.count_nonzero(bvh.children) == 1
+        o, d = random_rays(rng, 500, spread=3.0)
+        bp, bt, _, _ = brute_force(v, o, d)
+        patch, t, _ = cast_rays(bvh, o, d, device=device)
+        np.testing.assert_array_equal(patch, bp)
+        np.testing.assert_array_equal(occluded(bvh, o, d, device=device), bp >= 0)
 
 
 @pytest.mark.parametrize(
