@@ -64,7 +64,7 @@ SIZES: dict[str, dict] = {
     "full": {
         "pathtracer": {"furnace_subdivisions": 4, "spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
         "formfactors": {},
-        "paper": {"village": {"houses": 12, "detail": 1.0}, "resolution": 64, "M": (1024, 4096), "frames": 16},
+        "paper": {"village": {"houses": 12, "detail": 1.0}, "resolution": 32, "M": (1024, 4096), "frames": 16},
         "accuracy": {"max_edge": 50.0, "resolutions": (64, 128, 256), "M": (1024, 2048, 3072),
                      "base_M": 2048, "frames": 12, "ref_spp": 4096, "image": (320, 240)},
         "dynamic": {},
