@@ -9,9 +9,9 @@ Stages (each reported with wall-clock times on this machine):
 2. throughput: ``--sample-blocks`` blocks of the store computed with 1 worker and with 2
    workers (LocalCluster, spawned processes, own OpenCL context each), rows per second,
    cluster start-up included (it is part of what a user waits for).
-3. store: the whole store with the largest worker count, resuming the 2-worker sample:
-   time, bytes on disk, bytes per patch, non-zeros per row. ``--max-minutes`` stops this
-   stage (the store stays resumable) and the report says how far it got.
+3. store: the whole store with ``--workers`` workers, resuming whatever ``--store`` holds:
+   time and rows/s of this run, bytes on disk, bytes per patch, non-zeros per row.
+   ``--max-minutes`` caps this stage (the store stays resumable: run again to finish it).
 4. walk: a DynamicRadiosity walk (M = ``--local-size``, exact update, fp32 K) along a
    street, fed from the store through a :class:`~pydynrad.rowcache.RowCache` smaller than
    the store, prefetching the next candidates; and the same walk fed from F in memory when F
@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results"
-SIZES = {"quick": {"detail": 2.0, "frames": 40}, "full": {"detail": 20.0, "frames": 60}}
+SIZES = {"quick": {"detail": 2.0, "frames": 40}, "full": {"detail": 20.0, "frames": 30}}
 
 
 def village_spec(detail: float):
@@ -183,22 +183,25 @@ def main(argv=None) -> int:
     sample = list(range(min(args.sample_blocks, -(-len(scene) // args.block_rows))))
     rows = len(scene) if len(sample) * args.block_rows > len(scene) else len(sample) * args.block_rows
     for w in (1, 2):
-        # The 2-worker sample goes into the real store, so the whole-store stage resumes from it.
-        path = args.store if w == 2 else args.store.parent / "sample-1-worker"
+        # Scratch stores, so a resumed run measures again instead of finding the blocks done.
+        path = args.store.parent / f"sample-{w}-workers"
+        shutil.rmtree(path, ignore_errors=True)
         secs = precompute(args, scene, path, w, blocks=sample)
+        shutil.rmtree(path, ignore_errors=True)
         tp[w] = {"workers": w, "rows": rows, "seconds": secs, "rows_per_s": rows / secs}
         print(f"throughput, {w} worker(s): {rows / secs:.1f} rows/s", flush=True)
-    shutil.rmtree(args.store.parent / "sample-1-worker", ignore_errors=True)
     report["throughput"] = list(tp.values())
 
     todo = FormFactorStore.open(args.store, scene, resolution=args.resolution,
                                 patching=village_spec(args.detail).recipe()).missing_blocks()
     if args.max_minutes is not None:
         per_block = tp[2]["seconds"] / len(sample)
-        todo = todo[: max(0, int(args.max_minutes * 60 / per_block * min(args.workers, 2) / 2))]
+        todo = todo[: max(0, int(args.max_minutes * 60 / per_block))]
+    rows_todo = sum(len(range(k * args.block_rows, min(len(scene), (k + 1) * args.block_rows))) for k in todo)
     secs = precompute(args, scene, args.store, args.workers, blocks=todo) if todo else 0.0
     store = FormFactorStore.open(args.store, scene, resolution=args.resolution, patching=village_spec(args.detail).recipe())
-    report["store"] = {"path": str(args.store), "workers": args.workers, "seconds": secs + tp[2]["seconds"],
+    report["store"] = {"path": str(args.store), "workers": args.workers, "rows_this_run": rows_todo,
+                       "seconds_this_run": secs, "rows_per_s_this_run": rows_todo / secs if secs else None,
                        "complete": store.complete, **store_numbers(store)}
     print(json.dumps(report["store"], indent=1), flush=True)
 
