@@ -157,9 +157,9 @@ class Scene:
         a = self.albedo
         return bool(np.all(a[:, 0] == a[:, 1]) and np.all(a[:, 0] == a[:, 2]))
 
-    @property
+    @cached_property
     def bbox(self) -> np.ndarray:
-        """(2, 3) min and max corner of the used points."""
+        """(2, 3) min and max corner of the used points (cached: per-call kernels need it)."""
         p = self.points[np.unique(self.triangles)]
         return np.stack([p.min(axis=0), p.max(axis=0)])
 
