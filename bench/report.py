@@ -123,7 +123,7 @@ def markdown(results: dict, slug: str) -> str:
         f"Device: {dev.get('platform', '?')} / {dev.get('device', '?')} ({dev.get('type', '?')}, "
         f"{dev.get('compute_units', '?')} compute units). Date: {results['date']}. "
         f"Size: `{results['size']}`. Total time: {format_value(results.get('seconds'))} s. "
-        f"Produced by `python -m bench --{results['size']}`.",
+        f"Produced by `python -m bench --{results['size']} --sections {','.join(results['sections'])}`.",
         "",
     ]
     for name, sec in results["sections"].items():
