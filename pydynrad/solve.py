@@ -120,7 +120,7 @@ class RadiositySolver:
     device : Device, optional
     """
 
-    def __init__(self, scene, F, dtype=np.float32, device=None) -> None:
+    def __init__(self, scene, F, dtype=np.float32, device=None, *, layout: tuple[int, int] | None = None) -> None:
         from .device import default_device
 
         self.scene, self.device = scene, device or default_device()
@@ -130,6 +130,9 @@ class RadiositySolver:
             raise OutOfMemoryError(f"F has {F.nnz} non-zeros; the CSR kernel indexes with 32-bit integers (< 2^31)")
         d = self.device
         self._n = len(scene)
+        self._lx, n_blocks = _spmv_layout(d, self._n, layout)
+        self._n_blocks = n_blocks
+        self._blk = d.to_device(_row_blocks(F.indptr, n_blocks))
         self._rowptr = d.to_device(F.indptr.astype(np.int32))
         self._cols = d.to_device(F.indices.astype(np.int32))
         self._vals = d.to_device(F.data.astype(self.dtype))
@@ -146,7 +149,7 @@ class RadiositySolver:
         nch = _channels(self.scene, L)
         width = 1 if nch == 1 else 4
         d, n, real = self.device, self._n, self.dtype
-        defines = {"STORAGE_FP64" if real == np.float64 else "STORAGE_FP32": 1, "NCH": width}
+        defines = {"STORAGE_FP64" if real == np.float64 else "STORAGE_FP32": 1, "NCH": width, "LX": self._lx}
         kernel = d.kernel("spmv.cl", "bounce", defines)
 
         def packed(a: np.ndarray) -> np.ndarray:
@@ -158,14 +161,14 @@ class RadiositySolver:
         mf = cl.mem_flags
         x = cl.Buffer(d.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=packed(L))
         y = cl.Buffer(d.context, mf.READ_WRITE, n * width * real.itemsize)
-        n_groups = -(-n // 64)
-        partial_dev = cl.Buffer(d.context, mf.READ_WRITE, 2 * n_groups * real.itemsize)
-        partial = np.empty((n_groups, 2), dtype=real)
+        nb = self._n_blocks
+        partial_dev = cl.Buffer(d.context, mf.READ_WRITE, 2 * nb * real.itemsize)
+        partial = np.empty((nb, 2), dtype=real)
 
         t0 = time.perf_counter()
         history, residual, it = [], np.inf, 0
         while it < max_iterations:
-            kernel(d.queue, (n_groups * 64,), (64,), np.int32(n), self._rowptr, self._cols, self._vals,
+            kernel(d.queue, (nb * self._lx,), (self._lx,), self._blk, self._rowptr, self._cols, self._vals,
                    L_dev, rho_dev, x, y, partial_dev)
             x, y = y, x
             it += 1
@@ -190,6 +193,34 @@ class RadiositySolver:
             radiosity=radiosity.astype(np.float64), light=L, iterations=it, residual=residual, converged=converged,
             method="iterative", dtype=real.name, channels=nch, seconds=seconds, history=history,
         )
+
+
+def _spmv_layout(device, n: int, layout: tuple[int, int] | None) -> tuple[int, int]:
+    """(work-items per row, row blocks) of ``kernels/spmv.cl``'s bounce kernel.
+
+    CPU: one work-item per block, 16 blocks per core so a core slowed by other work hands
+    blocks to the others. GPU: a 64-item work-group per row (CSR-vector), enough blocks to
+    fill every compute unit many times over.
+    """
+    if layout is not None:
+        lx, blocks = layout
+        if lx < 1 or lx & (lx - 1) or blocks < 1:
+            raise InvalidInputError(f"layout must be (LX a power of two, blocks >= 1); got {layout}")
+    elif device.is_cpu:
+        lx, blocks = 1, 16 * device.cl_device.max_compute_units
+    else:
+        lx, blocks = 64, 256 * device.cl_device.max_compute_units
+    return int(lx), max(1, min(int(blocks), n))
+
+
+def _row_blocks(indptr: np.ndarray, blocks: int) -> np.ndarray:
+    """Row boundaries (blocks + 1,) int32 splitting a CSR matrix into ``blocks`` runs of
+    consecutive rows with about equal non-zeros (runs may be empty; together they cover all rows)."""
+    n, nnz = len(indptr) - 1, int(indptr[-1])
+    targets = np.arange(blocks + 1, dtype=np.float64) * (nnz / blocks)
+    blk = np.searchsorted(indptr, targets, side="left").clip(0, n)
+    blk[0], blk[-1] = 0, n
+    return np.maximum.accumulate(blk).astype(np.int32)
 
 
 def _real_dtype(dtype, device) -> np.dtype:

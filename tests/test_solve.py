@@ -216,3 +216,92 @@ def test_cornell_colour_bleeding(cornell):
     # Summed over each region (floor patches under the blocks receive nothing: no 0/0).
     red_over_green = lambda m: B[m, 0].sum() / B[m, 1].sum()  # noqa: E731
     assert red_over_green(near_red) > 1.1 * red_over_green(near_green)
+
+
+def _series(scene, F, L, bounces):
+    """sum_{k <= bounces} (P F)^k L per channel, in float64 numpy."""
+    rho, Fd = scene.albedo.astype(np.float64), sp.csr_matrix(F).toarray()
+    out, term = L.copy(), L.copy()
+    for _ in range(bounces):
+        term = rho * (Fd @ term)
+        out += term
+    return out
+
+
+def _leaky_F_with_empty_rows(scene, seed):
+    """A reciprocal F whose first 5 and last 7 rows (and columns) are empty: patches that see
+    nothing, at both ends of the row range the kernel splits into blocks."""
+    F = reciprocal_F(scene.areas, row_sum=0.9, seed=seed).tolil()
+    for i in [*range(5), *range(len(scene) - 7, len(scene))]:
+        F[i, :] = 0
+        F[:, i] = 0
+    return F.tocsr()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_rgb_pass_equals_three_grey_solves(device, dtype):
+    """One RGB pass over F (all channels per entry) gives what three single-channel solves give."""
+    rng = np.random.default_rng(12)
+    s = box_scene(3)
+    s = s.with_materials(albedo=rng.uniform(0, 0.9, (len(s), 3)), emission=rng.uniform(0, 1, (len(s), 3)))
+    F = reciprocal_F(s.areas, row_sum=0.95, seed=13)
+    rgb = solve(s, F, dtype=dtype, bounces=6, device=device)
+    assert rgb.channels == 3
+    for c in range(3):
+        grey = s.with_materials(albedo=np.repeat(s.albedo[:, c : c + 1], 3, axis=1),
+                                emission=np.repeat(s.emission[:, c : c + 1], 3, axis=1))
+        one = solve(grey, F, dtype=dtype, bounces=6, device=device)
+        assert one.channels == 1
+        rtol = 1e-12 if dtype == np.float64 else 2e-6
+        np.testing.assert_allclose(rgb.radiosity[:, c], one.radiosity[:, 0], rtol=rtol)
+    truth = _series(s, F, s.emission.astype(np.float64), 6)
+    assert np.abs(rgb.radiosity - truth).max() < (1e-12 if dtype == np.float64 else 2e-6) * np.abs(truth).max()
+
+
+@pytest.mark.parametrize("layout", [None, (1, 1), (1, 7), (1, 1000), (16, 5), (64, 1000)])
+@pytest.mark.parametrize("grey", [True, False])
+def test_kernel_layouts_give_the_series(device, layout, grey):
+    """Every work split (one block or many, one work-item per block or a work-group per row,
+    the GPU's CSR-vector path run here on the CPU) computes the same bounces and residual."""
+    from pydynrad.solve import RadiositySolver
+
+    rng = np.random.default_rng(14)
+    s = box_scene(3)
+    albedo = np.full((len(s), 3), 0.8) if grey else rng.uniform(0, 0.9, (len(s), 3))
+    emission = np.repeat(rng.uniform(0, 1, (len(s), 1)), 3, axis=1) if grey else rng.uniform(0, 1, (len(s), 3))
+    s = s.with_materials(albedo=albedo, emission=emission)
+    F = _leaky_F_with_empty_rows(s, seed=15)
+    L = s.emission.astype(np.float64)
+    solver = RadiositySolver(s, F, dtype=np.float64, device=device, layout=layout)
+    sol = solver.solve(L, bounces=4)
+    assert sol.channels == (1 if grey else 3)
+    np.testing.assert_allclose(sol.radiosity, _series(s, F, L, 4), rtol=1e-12)
+    # The residual reduced over blocks is the one of the equation at the third iterate.
+    B3 = _series(s, F, L, 3)
+    r = np.abs(_series(s, F, L, 4) - B3).max() / np.abs(_series(s, F, L, 4)).max()
+    assert sol.residual == pytest.approx(r, rel=1e-9)
+
+
+def test_row_blocks_cover_every_row_with_balanced_entries():
+    from pydynrad.solve import _row_blocks
+
+    rng = np.random.default_rng(16)
+    lengths = rng.integers(0, 300, 1000)
+    lengths[:10] = 0
+    lengths[-25:] = 0  # trailing empty rows still belong to the last block
+    indptr = np.concatenate([[0], np.cumsum(lengths)])
+    for blocks in (1, 3, 32, 1000):
+        blk = _row_blocks(indptr, blocks)
+        assert blk.dtype == np.int32 and len(blk) == blocks + 1
+        assert blk[0] == 0 and blk[-1] == 1000 and np.all(np.diff(blk) >= 0)
+        per_block = np.diff(indptr[blk])
+        assert per_block.sum() == indptr[-1]
+        assert per_block.max() <= indptr[-1] / blocks + lengths.max()
+
+
+def test_bad_layout_refused(device):
+    from pydynrad.solve import RadiositySolver
+
+    s = box_scene(2, emission=1.0)
+    with pytest.raises(pydynrad.InvalidInputError, match="layout"):
+        RadiositySolver(s, reciprocal_F(s.areas), device=device, layout=(3, 4))
