@@ -204,3 +204,20 @@ def test_packet_lanes_are_independent(device):
     # Each ray alone, in reverse order: neighbours of every kind.
     single = [cast_rays(bvh, o[k : k + 1], d[k : k + 1], tmax=tmax[k], device=device) for k in range(len(o))[::-1]]
     np.testing.assert_array_equal(np.concatenate([s[0] for s in single[::-1]]), whole[0])
+
+
+def _depth_recursive(children, node=0):
+    inner = [c for c in children[node] if c > 0]
+    return 1 + max((_depth_recursive(children, c) for c in inner), default=0)
+
+
+def test_depth_guard(monkeypatch):
+    """The wide depth that sizes the kernels' stack, and the refusal of trees deeper than it holds."""
+    # Triangles at x = 2^k: each binned split peels off only a few, so the tree is deep.
+    x = np.ldexp(1.0, np.arange(100))[:, None, None]
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])[None] + x * [1.0, 0, 0]
+    bvh = BVH.build(v)
+    assert bvh.depth == _depth_recursive(bvh.children) > 10
+    monkeypatch.setattr("pydynrad.bvh.MAX_DEPTH", bvh.depth - 1)
+    with pytest.raises(InvalidInputError, match=f"depth {bvh.depth} exceeds"):
+        BVH.build(v)
