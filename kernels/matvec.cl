@@ -6,6 +6,8 @@
 //   LX: work-items per row in `matvec`. LX == 1 gives one row per work-item (a CPU core then
 //       streams whole rows with vector loads); LX > 1 gives one work-group per row whose
 //       items read adjacent vectors (coalesced on a GPU) and reduce in local memory.
+//   NRHS: right-hand sides of `matvec` per pass over K (1 to 4: the colour channels of a
+//       light vector sharing one grey K).
 // Requirements (the host guarantees them): ld % VW == 0, K's padding columns M..ld hold 0,
 // x holds ld entries (zeros past M).
 #include "storage.h"
@@ -16,30 +18,43 @@
 #ifndef LX
 #define LX 1
 #endif
+#ifndef NRHS
+#define NRHS 1
+#endif
 
-// y[i] = sum_j K[i, j] x[j] for i < M.
+// Y[q, i] = sum_j K[i, j] X[q, j] for i < M and the NRHS right-hand sides q: X holds NRHS
+// vectors of ld entries each (stride ld), Y NRHS vectors of M entries (stride M). Each element
+// of K is loaded once for all NRHS products, so r products cost one pass over K, not r.
 __kernel void matvec(__global const STORE_T *K, const int M, const int ld,
                      __global const REAL *x, __global REAL *y)
 {
+    REALV(VW) acc[NRHS];
+    for (int q = 0; q < NRHS; ++q) acc[q] = (REALV(VW))(0);
 #if LX == 1
     const int row = get_global_id(0);
     if (row >= M) return;
     __global const STORE_T *r = K + (size_t)row * ld;
-    REALV(VW) acc = (REALV(VW))(0);
-    for (int j = 0; j < ld; j += VW) acc += LOADV(VW, r, j) * VLOADR(VW, x, j);
-    y[row] = HSUM(VW, acc);
+    for (int j = 0; j < ld; j += VW) {
+        const REALV(VW) k = LOADV(VW, r, j);
+        for (int q = 0; q < NRHS; ++q) acc[q] += k * VLOADR(VW, x + q * ld, j);
+    }
+    for (int q = 0; q < NRHS; ++q) y[q * M + row] = HSUM(VW, acc[q]);
 #else
-    __local REAL part[LX];
+    __local REAL part[NRHS][LX];
     const int row = get_group_id(0), lid = get_local_id(0);
     __global const STORE_T *r = K + (size_t)row * ld;
-    REALV(VW) acc = (REALV(VW))(0);
-    for (int j = lid * VW; j < ld; j += LX * VW) acc += LOADV(VW, r, j) * VLOADR(VW, x, j);
-    part[lid] = HSUM(VW, acc);
+    for (int j = lid * VW; j < ld; j += LX * VW) {
+        const REALV(VW) k = LOADV(VW, r, j);
+        for (int q = 0; q < NRHS; ++q) acc[q] += k * VLOADR(VW, x + q * ld, j);
+    }
+    for (int q = 0; q < NRHS; ++q) part[q][lid] = HSUM(VW, acc[q]);
     for (int s = LX / 2; s > 0; s >>= 1) {
         barrier(CLK_LOCAL_MEM_FENCE);
-        if (lid < s) part[lid] += part[lid + s];
+        if (lid < s)
+            for (int q = 0; q < NRHS; ++q) part[q][lid] += part[q][lid + s];
     }
-    if (lid == 0 && row < M) y[row] = part[0];
+    if (lid == 0 && row < M)
+        for (int q = 0; q < NRHS; ++q) y[q * M + row] = part[q][0];
 #endif
 }
 

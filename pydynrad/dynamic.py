@@ -390,7 +390,7 @@ class DynamicRadiosity:
         if self.C == 3:
             KL = self._matrix.matvec(LS.T)
         else:  # one K serves the three colour channels of L
-            KL = np.stack([self._matrix.matvec(LS[:, ch][None])[0] for ch in range(3)])
+            KL = self._matrix.matmat(LS.T[None])[0]  # all three in one pass over K
         B = L.copy()
         B[S] = LS + self.scene.albedo[S].astype(np.float64) * KL.T
         return B

@@ -5,6 +5,8 @@ per channel, row-major with a padded leading dimension :attr:`DeviceMatrix.ld`. 
 stored as fp16, fp32 or fp64 (``storage``); fp16 and fp32 compute in fp32, fp64 in fp64.
 Lighting a frame is one product per channel, ``y = K x``, which streams K once: the kernels in
 ``kernels/matvec.cl`` are written to run at memory bandwidth (see ``bench/radiosity.py``).
+:meth:`DeviceMatrix.matmat` multiplies several vectors per pass over K (a grey K lit by an
+RGB light vector: three products for the traffic of one).
 
 Other kernels that work on K in place (``kernels/update.cl``) include ``kernels/storage.h``
 and build with :attr:`DeviceMatrix.defines` so they read and write the same element type.
@@ -16,10 +18,14 @@ import numpy as np
 
 from .errors import DeviceError, InvalidInputError, OutOfMemoryError
 
-__all__ = ["DeviceMatrix", "STORAGE_DTYPES", "storage_dtype"]
+__all__ = ["DeviceMatrix", "STORAGE_DTYPES", "storage_dtype", "MAX_RHS"]
 
 #: Element type in device memory per storage name.
 STORAGE_DTYPES = {"fp16": np.dtype(np.float16), "fp32": np.dtype(np.float32), "fp64": np.dtype(np.float64)}
+
+#: Right-hand sides one pass of the ``matvec`` kernel multiplies (``kernels/matvec.cl``'s NRHS):
+#: :meth:`DeviceMatrix.matmat` splits more into passes of at most this many.
+MAX_RHS = 4
 
 #: Rows are padded to a multiple of this many elements (128 bytes of fp16, 256 of fp32), so
 #: every vector load is aligned and rows start on cache-line boundaries.
@@ -126,11 +132,14 @@ class DeviceMatrix:
         self._rb = 64 if cpu else max(16, min(256, (M * n_chunks) // 65536 or 16))
         self._n_blocks = -(-M // self._rb)
         self._x = self._y = self._partial = None
-        prg = device.program("matvec.cl", {**self.defines, "VW": self._vw, "LX": self._lx})
+        prg = self._program(1)
         # Kernel objects hold their arguments: one per matrix, reused by every call.
-        self._k_matvec = cl.Kernel(prg, "matvec")
+        self._k_matvec = {1: cl.Kernel(prg, "matvec")}
         self._k_partial = cl.Kernel(prg, "rmatvec_partial")
         self._k_reduce = cl.Kernel(prg, "rmatvec_reduce")
+
+    def _program(self, nrhs: int):
+        return self.device.program("matvec.cl", {**self.defines, "VW": self._vw, "LX": self._lx, "NRHS": nrhs})
 
     def upload(self, K: np.ndarray) -> None:
         """Overwrite every channel with K (C, M, M)."""
@@ -160,9 +169,19 @@ class DeviceMatrix:
         return {f"STORAGE_{self.storage.upper()}": 1}
 
     # -- device-side products (no host round trip) ---------------------------------------------
-    def enqueue_matvec(self, channel: int, x_buf, y_buf) -> None:
-        """Enqueue y = K[channel] x on device buffers: x holds ld REAL values (zeros past M), y M."""
-        k = self._k_matvec
+    def enqueue_matvec(self, channel: int, x_buf, y_buf, nrhs: int = 1) -> None:
+        """Enqueue y = K[channel] x on device buffers: x holds ld REAL values (zeros past M), y M.
+
+        ``nrhs`` (1 to :data:`MAX_RHS`) products in one pass over K: x then holds nrhs vectors of
+        ld values each (stride ld), y nrhs vectors of M values (stride M).
+        """
+        import pyopencl as cl
+
+        if not 1 <= nrhs <= MAX_RHS:
+            raise InvalidInputError(f"nrhs must be 1 to {MAX_RHS}; got {nrhs}")
+        k = self._k_matvec.get(nrhs)
+        if k is None:
+            k = self._k_matvec[nrhs] = cl.Kernel(self._program(nrhs), "matvec")
         gsize = (-(-self.M // 64) * 64,) if self._lx == 1 else (self.M * self._lx,)
         lsize = None if self._lx == 1 else (self._lx,)
         k(self.device.queue, gsize, lsize, self.buffers[channel], np.int32(self.M), np.int32(self.ld), x_buf, y_buf)
@@ -192,32 +211,65 @@ class DeviceMatrix:
             raise InvalidInputError("x contains NaN or infinite values")
         return x
 
-    def _run(self, x: np.ndarray, enqueue) -> np.ndarray:
+    def _buffers(self):
         import pyopencl as cl
 
-        x = self._vectors(x)
         if self._x is None:
-            mf = cl.mem_flags
-            self._x = cl.Buffer(self.device.context, mf.READ_ONLY, self.ld * self.real_dtype.itemsize)
-            self._y = cl.Buffer(self.device.context, mf.WRITE_ONLY, self.M * self.real_dtype.itemsize)
-        xh = np.zeros(self.ld, dtype=self.real_dtype)
-        yh = np.empty(self.M, dtype=self.real_dtype)
-        out = np.empty((self.C, self.M))
+            mf, w = cl.mem_flags, self.real_dtype.itemsize
+            self._x = cl.Buffer(self.device.context, mf.READ_ONLY, MAX_RHS * self.ld * w)
+            self._y = cl.Buffer(self.device.context, mf.WRITE_ONLY, MAX_RHS * self.M * w)
+        return self._x, self._y
+
+    def matmat(self, X: np.ndarray) -> np.ndarray:
+        """Y[c, q] = K[c] X[c, q] for r right-hand sides per channel, each pass over K serving
+        up to :data:`MAX_RHS` of them (the three colour channels of a light vector under one
+        grey K cost one pass, not three).
+
+        X: (C, r, M), or (r, M) for every channel. Returns (C, r, M) float64.
+        """
+        import pyopencl as cl
+
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim == 2:
+            X = np.broadcast_to(X, (self.C, *X.shape))
+        if X.ndim != 3 or X.shape[0] != self.C or X.shape[2] != self.M or X.shape[1] < 1:
+            raise InvalidInputError(f"X must have shape ({self.C}, r, {self.M}) or (r, {self.M}) with r >= 1; got {X.shape}")
+        if not np.all(np.isfinite(X)):
+            raise InvalidInputError("X contains NaN or infinite values")
+        x_buf, y_buf = self._buffers()
+        r = X.shape[1]
+        xh = np.zeros((MAX_RHS, self.ld), dtype=self.real_dtype)
+        yh = np.empty((MAX_RHS, self.M), dtype=self.real_dtype)
+        out = np.empty((self.C, r, self.M))
+        q = self.device.queue
         for c in range(self.C):
-            xh[: self.M] = x[c]
-            cl.enqueue_copy(self.device.queue, self._x, xh)
-            enqueue(c, self._x, self._y)
-            cl.enqueue_copy(self.device.queue, yh, self._y, is_blocking=True)
-            out[c] = yh
+            for q0 in range(0, r, MAX_RHS):
+                n = min(MAX_RHS, r - q0)
+                xh[:n, : self.M] = X[c, q0 : q0 + n]
+                cl.enqueue_copy(q, x_buf, xh[:n])
+                self.enqueue_matvec(c, x_buf, y_buf, n)
+                cl.enqueue_copy(q, yh[:n], y_buf, is_blocking=True)
+                out[c, q0 : q0 + n] = yh[:n]
         return out
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
         """y = K x per channel. x: (C, M) or (M,) for every channel. Returns (C, M) float64."""
-        return self._run(x, self.enqueue_matvec)
+        return self.matmat(self._vectors(x)[:, None])[:, 0]
 
     def rmatvec(self, x: np.ndarray) -> np.ndarray:
         """y = x^T K per channel (light gathered by row vector x). Returns (C, M) float64."""
-        return self._run(x, self.enqueue_rmatvec)
+        import pyopencl as cl
+
+        x = self._vectors(x)
+        x_buf, y_buf = self._buffers()
+        yh = np.empty(self.M, dtype=self.real_dtype)
+        out = np.empty((self.C, self.M))
+        for c in range(self.C):
+            cl.enqueue_copy(self.device.queue, x_buf, x[c].astype(self.real_dtype))
+            self.enqueue_rmatvec(c, x_buf, y_buf)
+            cl.enqueue_copy(self.device.queue, yh, y_buf, is_blocking=True)
+            out[c] = yh
+        return out
 
     def to_host(self) -> np.ndarray:
         """The stored matrix as (C, M, M) float64 (values as stored: fp16 rounding included)."""
