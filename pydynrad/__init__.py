@@ -33,5 +33,6 @@ from .pathtrace import path_trace, path_trace_patches
 from .store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError, compute_store
 from .rowcache import CSRRows, RowCache, RowSource, as_row_source
 from .distributed import SceneSpec, precompute_distributed
+from .ffio import load_form_factors, open_form_factors, save_form_factors
 
 __version__ = "0.1.0"

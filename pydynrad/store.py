@@ -57,6 +57,7 @@ __all__ = [
     "StoreMismatchError",
     "compute_blocks",
     "compute_store",
+    "write_atomic",
     "form_factor_rows",
     "task_groups",
 ]
@@ -93,7 +94,7 @@ def _library_version() -> str:
     return __version__
 
 
-def _write_atomic(path: Path, payload: bytes) -> None:
+def write_atomic(path: Path, payload: bytes) -> None:
     """Write ``payload`` to ``path`` whole: temp file in the same folder, fsync, rename."""
     tmp = path.with_name(f"{path.name}{TMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}")
     try:
@@ -175,7 +176,7 @@ class FormFactorStore:
             "params": params,
         }
         (path / BLOCK_DIR).mkdir(parents=True, exist_ok=True)
-        _write_atomic(path / HEADER, json.dumps(header, indent=2, sort_keys=True).encode())
+        write_atomic(path / HEADER, json.dumps(header, indent=2, sort_keys=True).encode())
         return cls(path, header)
 
     @classmethod
@@ -244,7 +245,7 @@ class FormFactorStore:
                     np.lib.format.write_array(f, a, allow_pickle=False)
             zf.writestr("meta.json", json.dumps(meta))
         payload = buf.getvalue()
-        _write_atomic(self.block_path(k), payload)
+        write_atomic(self.block_path(k), payload)
         return len(payload)
 
     def remove_stale_temporaries(self) -> int:

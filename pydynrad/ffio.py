@@ -1,0 +1,139 @@
+"""Form factors on disk, one entry point for both layouts.
+
+* a single ``.npz`` file (:func:`save_form_factors` / :func:`load_form_factors`): the CSR
+  arrays of F plus a JSON header (format, scene geometry hash, N, resolution); read whole
+  into memory, for scenes whose F fits in RAM;
+* a form-factor store folder (:class:`pydynrad.store.FormFactorStore`): F in compressed row
+  blocks, read on demand, for scenes whose F does not fit.
+
+:func:`open_form_factors` takes either and returns what :class:`~pydynrad.DynamicRadiosity`
+and :func:`pydynrad.walk` accept: a CSR matrix for a file, a ``RowSource`` for a store
+(behind a bounded :class:`~pydynrad.rowcache.RowCache` when ``cache_bytes`` is given).
+Both refuse data made for another scene geometry.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import InvalidInputError
+
+__all__ = ["FF_FORMAT", "check_parent_folder", "load_form_factors", "open_form_factors", "save_form_factors",
+           "whole_matrix"]
+
+FF_FORMAT = "pydynrad-form-factors"
+FF_VERSION = 1
+
+
+def check_parent_folder(path) -> Path:
+    """``path`` as a Path, or :class:`InvalidInputError` when the folder it goes into is missing."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise InvalidInputError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} does not exist")
+    return path
+
+
+def save_form_factors(path, F, scene, resolution: int) -> Path:
+    """Save sparse F (N, N) for ``scene`` as ``.npz`` with a JSON header; returns the path.
+
+    The header records the format, the scene's name and geometry hash, N, the hemicube
+    ``resolution`` and nnz. Written whole (temporary file in the same folder, then rename).
+    """
+    from .store import write_atomic
+
+    path = check_parent_folder(path)
+    if path.suffix.lower() != ".npz":
+        raise InvalidInputError(f"form-factor file {str(path)!r} must end in .npz")
+    F = sp.csr_matrix(F)
+    n = len(scene)
+    if F.shape != (n, n):
+        raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {F.shape}")
+    header = {"format": FF_FORMAT, "version": FF_VERSION, "scene": scene.name, "geometry_hash": scene.geometry_hash(),
+              "n_patches": n, "resolution": int(resolution), "nnz": int(F.nnz)}
+    buf = io.BytesIO()
+    np.savez(buf, header=np.array(json.dumps(header)), data=F.data.astype(np.float32),
+             indices=F.indices.astype(np.int32), indptr=F.indptr.astype(np.int64))
+    write_atomic(path, buf.getvalue())
+    return path
+
+
+def load_form_factors(path, scene) -> tuple[sp.csr_matrix, dict]:
+    """Read a file written by :func:`save_form_factors` for ``scene``; returns (F (N, N) float32 CSR, header).
+
+    Raises :class:`InvalidInputError` when the file is missing, malformed or made for another
+    scene geometry.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInputError(f"form-factor file {str(path)!r}: no such file")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            header = json.loads(str(z["header"]))
+            n = int(header["n_patches"])
+            F = sp.csr_matrix((z["data"], z["indices"], z["indptr"]), shape=(n, n))
+    except Exception as exc:  # zipfile, KeyError, ValueError, JSON: all mean "not our file"
+        raise InvalidInputError(f"form-factor file {str(path)!r} is not a pydynrad form-factor file ({exc})") from None
+    if header.get("format") != FF_FORMAT:
+        raise InvalidInputError(f"form-factor file {str(path)!r} is not a pydynrad form-factor file")
+    if header.get("geometry_hash") != scene.geometry_hash():
+        raise InvalidInputError(f"form-factor file {str(path)!r} was computed for another scene geometry "
+                                f"({header.get('scene')!r}, {n} patches; this scene has {len(scene)} patches): "
+                                "recompute it with `pydynrad formfactors`")
+    return F, header
+
+
+def _open_store(path: Path, scene):
+    """The complete store at ``path``, checked against ``scene`` with the parameters it records."""
+    from .store import FormFactorStore, StoreIncompleteError
+
+    params = FormFactorStore.read_header(path)["params"]
+    store = FormFactorStore.open(path, scene, resolution=params["resolution"], patching=params["patching"])
+    missing = store.missing_blocks()
+    if missing:
+        raise StoreIncompleteError(f"form-factor store {str(path)!r} is unfinished ({len(missing)} of {store.n_blocks} "
+                                   "blocks missing): run `pydynrad formfactors` with the same options again to finish it")
+    return store
+
+
+def open_form_factors(path, scene, cache_bytes: int | None = None):
+    """F of ``scene`` from a ``.npz`` file or a form-factor store folder.
+
+    Returns a float32 CSR matrix (N, N) for a file. For a store, the
+    :class:`~pydynrad.store.FormFactorStore` itself (every row read goes to disk) or, with
+    ``cache_bytes``, a :class:`~pydynrad.rowcache.RowCache` of that many bytes over it (LRU,
+    with background prefetch; close it when done). ``cache_bytes`` does not apply to a file,
+    which is in memory whole.
+
+    Raises :class:`InvalidInputError` for a missing path or a file that is not a pydynrad
+    form-factor file, :class:`~pydynrad.store.StoreMismatchError` for a store made for
+    another scene geometry (or other parameters), :class:`~pydynrad.store.StoreIncompleteError`
+    for a store not finished yet.
+    """
+    from .rowcache import RowCache
+
+    path = Path(path)
+    if path.is_dir():
+        store = _open_store(path, scene)
+        return store if cache_bytes is None else RowCache(store, cache_bytes)
+    if not path.exists():
+        raise InvalidInputError(f"form factors {str(path)!r}: no such file or store folder")
+    return load_form_factors(path, scene)[0]
+
+
+def whole_matrix(form_factors) -> sp.csr_matrix:
+    """All of F (N, N) as CSR in memory, from a matrix or any RowSource (a RowCache reads past its cache).
+
+    For the full radiosity solve, which needs every row; only for scenes whose F fits in RAM.
+    """
+    from .rowcache import RowCache, RowSource
+
+    if isinstance(form_factors, RowCache):
+        form_factors = form_factors.source  # reading all rows through the cache would only evict it
+    if isinstance(form_factors, RowSource):
+        return sp.csr_matrix(form_factors.rows(np.arange(int(form_factors.n_patches))))
+    return sp.csr_matrix(form_factors)

@@ -1,0 +1,85 @@
+"""Form-factor I/O: the single .npz file and open_form_factors over a file or a store folder."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from test_store import grid_scene, same_csr, synthetic_rows
+
+from pydynrad import InvalidInputError, Scene
+from pydynrad.ffio import load_form_factors, open_form_factors, save_form_factors, whole_matrix
+from pydynrad.rowcache import CSRRows, RowCache
+from pydynrad.store import FormFactorStore, StoreIncompleteError, StoreMismatchError, compute_store
+
+from test_render import grid_box
+
+
+def small_scene():
+    pts, tris = grid_box(n=1)
+    return Scene(pts, tris, albedo=0.5, name="cube")
+
+
+def test_form_factor_file_round_trip_and_checks(tmp_path):
+    scene = small_scene()
+    rng = np.random.default_rng(1)
+    F = sp.random(len(scene), len(scene), density=0.3, random_state=rng, format="csr", dtype=np.float32)
+    path = save_form_factors(tmp_path / "f.npz", F, scene, resolution=32)
+    G, header = load_form_factors(path, scene)
+    assert same_csr(G, F) and header["resolution"] == 32 and header["n_patches"] == len(scene)
+    assert [p.name for p in tmp_path.iterdir()] == ["f.npz"]  # no temporary left behind
+    assert same_csr(open_form_factors(path, scene), F)
+    assert same_csr(open_form_factors(path, scene, cache_bytes=1000), F)  # a file is in memory whole
+    other = Scene(*grid_box(n=2), name="other")
+    with pytest.raises(InvalidInputError, match="another scene geometry"):
+        open_form_factors(path, other)
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"PK\x03\x04 not a zip")
+    with pytest.raises(InvalidInputError, match="not a pydynrad form-factor file"):
+        load_form_factors(junk, scene)
+    np.savez(tmp_path / "alien.npz", x=np.zeros(3))
+    with pytest.raises(InvalidInputError, match="not a pydynrad form-factor file"):
+        open_form_factors(tmp_path / "alien.npz", scene)
+
+
+def test_save_refuses_bad_targets_and_shapes(tmp_path):
+    scene = small_scene()
+    F = sp.eye(len(scene), format="csr", dtype=np.float32) * 0.1
+    with pytest.raises(InvalidInputError, match="does not exist"):
+        save_form_factors(tmp_path / "no" / "f.npz", F, scene, 8)
+    with pytest.raises(InvalidInputError, match=r"\.npz"):
+        save_form_factors(tmp_path / "f.txt", F, scene, 8)
+    with pytest.raises(InvalidInputError, match="shape"):
+        save_form_factors(tmp_path / "f.npz", sp.eye(3, format="csr"), scene, 8)
+    assert not list(tmp_path.iterdir())
+
+
+def test_open_store_plain_and_cached(tmp_path):
+    scene = grid_scene(6)  # 72 patches
+    compute_store(scene, tmp_path / "ff", resolution=8, block_rows=16, progress=False, row_function=synthetic_rows,
+                  patching={"scene": "grid"})
+    truth = synthetic_rows(scene, np.arange(len(scene)), 8)
+    store = open_form_factors(tmp_path / "ff", scene)
+    assert isinstance(store, FormFactorStore)
+    idx = np.array([70, 3, 17, 3])
+    assert same_csr(store.rows(idx), truth[idx])
+    with open_form_factors(tmp_path / "ff", scene, cache_bytes=4096) as cache:
+        assert isinstance(cache, RowCache) and cache.max_bytes == 4096 and cache.source.path == tmp_path / "ff"
+        assert same_csr(cache.rows(idx), truth[idx]) and same_csr(cache.rows(idx), truth[idx])
+        assert cache.stats["hits"] == 3 and cache.stats["misses"] == 3
+        assert same_csr(whole_matrix(cache), truth)
+        assert cache.stats["requested"] == 6  # whole_matrix read the store, not through the cache
+    assert same_csr(whole_matrix(store), truth) and same_csr(whole_matrix(CSRRows(truth)), truth)
+
+
+def test_open_refuses_missing_wrong_and_unfinished(tmp_path):
+    scene = grid_scene(6)
+    with pytest.raises(InvalidInputError, match="no such file or store folder"):
+        open_form_factors(tmp_path / "nothing", scene)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InvalidInputError, match="no form-factor store"):
+        open_form_factors(tmp_path / "empty", scene)
+    compute_store(scene, tmp_path / "ff", resolution=8, block_rows=16, progress=False, row_function=synthetic_rows,
+                  blocks=[0, 2])
+    with pytest.raises(StoreMismatchError, match="geometry_hash"):
+        open_form_factors(tmp_path / "ff", grid_scene(6, z=1.0))
+    with pytest.raises(StoreIncompleteError, match="3 of 5 blocks missing"):
+        open_form_factors(tmp_path / "ff", scene)
