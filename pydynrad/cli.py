@@ -7,8 +7,7 @@ on stderr and exit status 2, never a traceback; warnings print as one line each.
 from __future__ import annotations
 
 import argparse
-import io
-import json
+import contextlib
 import sys
 import time
 import warnings
@@ -18,12 +17,10 @@ import numpy as np
 
 from .errors import InvalidInputError, PydynradError
 
-__all__ = ["main", "build_parser", "load_scene", "save_form_factors", "load_form_factors", "BUILTIN_SCENES"]
+__all__ = ["main", "build_parser", "load_scene", "BUILTIN_SCENES"]
 
 #: Names SCENE may take instead of a mesh file (functions of pydynrad.scenes).
 BUILTIN_SCENES = ("cornell_box", "village", "closed_box", "parallel_plates", "perpendicular_plates")
-FF_FORMAT = "pydynrad-form-factors"
-FF_VERSION = 1
 
 DEMO_DIR = "pydynrad-demo"
 DEMO_EXPOSURE = float(-np.log2(np.pi))
@@ -57,6 +54,12 @@ def _size(text: str) -> tuple[int, int]:
 def _positive_int(text: str) -> int:
     if not text.isdigit() or int(text) < 1:
         raise argparse.ArgumentTypeError(f"expected a whole number >= 1; got {text!r}")
+    return int(text)
+
+
+def _count(text: str) -> int:
+    if not text.isdigit():
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0; got {text!r}")
     return int(text)
 
 
@@ -106,6 +109,7 @@ def load_scene(name: str, max_edge: float | None = None):
 
 def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
     """``path`` as a Path, after checking its folder exists (and its suffix, or image format)."""
+    from .ffio import check_parent_folder
     from .image_io import _format_for
 
     path = Path(path)
@@ -113,61 +117,21 @@ def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
         _format_for(path)
     elif path.suffix.lower() not in suffixes:
         raise InvalidInputError(f"output file {str(path)!r} must end in {' or '.join(suffixes)}")
-    if not path.parent.is_dir():
-        raise InvalidInputError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} does not exist")
-    return path
-
-
-def save_form_factors(path, F, scene, resolution: int) -> Path:
-    """Save sparse F (N, N) as ``.npz`` with a JSON header (format, scene geometry hash, N,
-    resolution); written to a temporary file in the same folder, then renamed."""
-    import scipy.sparse as sp
-
-    path = _checked_target(path, (".npz",))
-    F = sp.csr_matrix(F)
-    header = {"format": FF_FORMAT, "version": FF_VERSION, "scene": scene.name, "geometry_hash": scene.geometry_hash(),
-              "n_patches": len(scene), "resolution": int(resolution), "nnz": int(F.nnz)}
-    from .store import _write_atomic
-
-    buf = io.BytesIO()
-    np.savez(buf, header=np.array(json.dumps(header)), data=F.data.astype(np.float32),
-             indices=F.indices.astype(np.int32), indptr=F.indptr.astype(np.int64))
-    _write_atomic(path, buf.getvalue())
-    return path
-
-
-def load_form_factors(path, scene):
-    """Read a file written by :func:`save_form_factors` for ``scene``; returns (F, header).
-
-    Raises :class:`InvalidInputError` when the file is missing, malformed or made for another
-    scene geometry.
-    """
-    import scipy.sparse as sp
-
-    path = Path(path)
-    if not path.is_file():
-        raise InvalidInputError(f"form-factor file {str(path)!r}: no such file")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            header = json.loads(str(z["header"]))
-            n = int(header["n_patches"])
-            F = sp.csr_matrix((z["data"], z["indices"], z["indptr"]), shape=(n, n))
-    except Exception as exc:  # zipfile, KeyError, ValueError, JSON: all mean "not our file"
-        raise InvalidInputError(f"form-factor file {str(path)!r} is not a pydynrad form-factor file ({exc})") from None
-    if header.get("format") != FF_FORMAT:
-        raise InvalidInputError(f"form-factor file {str(path)!r} is not a pydynrad form-factor file")
-    if header.get("geometry_hash") != scene.geometry_hash():
-        raise InvalidInputError(f"form-factor file {str(path)!r} was computed for another scene geometry "
-                                f"({header.get('scene')!r}, {n} patches; this scene has {len(scene)} patches): "
-                                "recompute it with `pydynrad formfactors`")
-    return F, header
+    return check_parent_folder(path)
 
 
 def _form_factors(args, scene):
-    """F from --form-factors FILE when given, else computed now (with a progress bar)."""
+    """F from --form-factors PATH when given (a matrix for a .npz file, a RowCache of
+    --cache-mb over a store folder, closed when the command ends), else computed now."""
     if getattr(args, "form_factors", None):
-        F, header = load_form_factors(args.form_factors, scene)
-        print(f"form factors: {args.form_factors} (resolution {header['resolution']}, {F.nnz} non-zeros)")
+        from .ffio import open_form_factors
+
+        F = open_form_factors(args.form_factors, scene, cache_bytes=int(args.cache_mb * 2**20))
+        if hasattr(F, "close"):
+            args.cleanup.callback(F.close)
+            print(f"form factors: {F.source!r} through a {args.cache_mb:g} MiB row cache")
+        else:
+            print(f"form factors: {args.form_factors} ({F.nnz} non-zeros)")
         return F
     from .formfactors import form_factors
 
@@ -207,7 +171,20 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _cmd_formfactors(args: argparse.Namespace) -> int:
-    out = _checked_target(args.output, (".npz",))  # fail before the work, not after
+    out = Path(args.output)
+    if out.suffix.lower() == ".npz":
+        return _formfactors_file(args, out)
+    return _formfactors_store(args, out)
+
+
+def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
+    from .ffio import save_form_factors
+
+    given = [o for o, v in (("--workers", args.workers), ("--scheduler", args.scheduler),
+                            ("--block-rows", args.block_rows)) if v is not None]
+    if given:
+        raise InvalidInputError(f"{', '.join(given)} apply to a store folder; {str(out)!r} is a single .npz file")
+    out = _checked_target(out, (".npz",))  # fail before the work, not after
     scene = load_scene(args.scene, args.max_edge)
     print(f"scene: {scene!r}")
     F = _form_factors(args, scene)
@@ -216,7 +193,43 @@ def _cmd_formfactors(args: argparse.Namespace) -> int:
     return 0
 
 
+def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
+    """Create or resume the store at ``out``: in this process (--workers 0) or on a Dask cluster."""
+    from .distributed import SceneSpec, precompute_distributed
+    from .ffio import check_parent_folder
+    from .store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore, compute_store
+
+    check_parent_folder(out)
+    scene = load_scene(args.scene, args.max_edge)
+    print(f"scene: {scene!r}")
+    # The recipe is the store's patching record, the same for every way of computing it, so
+    # a store begun in this process can be finished on a cluster and the other way round.
+    spec = SceneSpec(args.scene, {} if args.max_edge is None else {"max_edge": args.max_edge}).resolved()
+    block_rows = args.block_rows
+    if (out / HEADER).exists():
+        store = FormFactorStore.open(out, scene, resolution=args.resolution, patching=spec.recipe())
+        block_rows = block_rows or store.block_rows
+        done = store.n_blocks - len(store.missing_blocks())
+        print(f"resuming {out}: {done} of {store.n_blocks} blocks already done")
+    block_rows = block_rows or DEFAULT_BLOCK_ROWS
+    t0 = time.perf_counter()
+    if args.workers == 0:
+        store = compute_store(scene, out, resolution=args.resolution, block_rows=block_rows, patching=spec.recipe(),
+                              progress=not args.quiet)
+        where = "this process (no Dask)"
+    else:
+        workers = None if args.scheduler else (args.workers or 2)
+        store = precompute_distributed(spec, out, resolution=args.resolution, block_rows=block_rows, workers=workers,
+                                       scheduler=args.scheduler, progress=not args.quiet)
+        where = f"the cluster at {args.scheduler}" if args.scheduler else f"a LocalCluster of {workers} workers"
+    seconds = time.perf_counter() - t0
+    print(f"wrote store {out}: {store.n_patches} patches in {store.n_blocks} blocks of {store.block_rows} rows, "
+          f"{store.nbytes_on_disk / 2**20:.1f} MiB, {seconds:.1f} s in {where}")
+    return 0
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
+    from .ffio import whole_matrix
     from .image_io import write_image
     from .render import render
     from .solve import solve
@@ -224,8 +237,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     _checked_target(args.output)  # reject a bad image name before any work
     scene = load_scene(args.scene, args.max_edge)
     camera = _default_camera(scene, args)
-    F = _form_factors(args, scene)
-    sol = solve(scene, F, args.light)
+    sol = solve(scene, whole_matrix(_form_factors(args, scene)), args.light)
     img = render(scene, sol.radiosity, camera, args.shading)
     write_image(args.output, img, args.exposure)
     print(f"wrote {args.output} ({camera.width}x{camera.height}, {sol.iterations} bounces)")
@@ -291,6 +303,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 def _cmd_compare(args: argparse.Namespace) -> int:
     from .compare import comparison_image, radiosity_error
     from .dynamic import DynamicRadiosity
+    from .ffio import whole_matrix
     from .image_io import write_image
     from .render import Renderer
     from .solve import solve
@@ -302,7 +315,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     dyn = DynamicRadiosity(scene, F, local_size=min(args.local_size, len(scene)), update=args.update, storage=args.storage)
     dyn.update(camera.position)
     local = np.asarray(dyn.radiosity(args.light))
-    full = solve(scene, F, args.light).radiosity
+    full = solve(scene, whole_matrix(F), args.light).radiosity
     renderer = Renderer(scene)
     img, stats = comparison_image(renderer.render(local, camera, args.shading), renderer.render(full, camera, args.shading),
                                   args.exposure)
@@ -325,8 +338,12 @@ def _add_scene(p: argparse.ArgumentParser) -> None:
 
 
 def _add_form_factors(p: argparse.ArgumentParser, resolution: int = 64) -> None:
-    p.add_argument("--form-factors", metavar="FILE.npz", default=None,
-                   help="precomputed form factors from `pydynrad formfactors`; default: compute them now")
+    p.add_argument("--form-factors", metavar="PATH", default=None,
+                   help="precomputed form factors from `pydynrad formfactors`: a .npz file (read whole) or a store "
+                        "folder (rows read on demand through a cache of --cache-mb); default: compute them now")
+    p.add_argument("--cache-mb", type=_positive_float, default=256.0, metavar="MB",
+                   help="size of the row cache in MiB when --form-factors is a store folder: the form-factor rows "
+                        "held in memory (default 256; not used for a .npz file)")
     p.add_argument("--resolution", type=_positive_int, default=resolution, metavar="R",
                    help=f"hemicube resolution (R x R pixels on the top face) when computing form factors "
                         f"(default {resolution})")
@@ -407,15 +424,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_demo)
 
-    p = sub.add_parser("formfactors", help="precompute a scene's form factors into a file",
-                       description="Compute the sparse form-factor matrix F of SCENE with hemicubes and save it as "
-                                   ".npz (CSR arrays plus a header with the scene's geometry hash and the "
-                                   "parameters, so a file is never used with the wrong scene). The file is written "
-                                   "whole: a temporary file, then a rename.")
+    p = sub.add_parser("formfactors", help="precompute a scene's form factors into a file or a store folder",
+                       description="Compute the sparse form-factor matrix F of SCENE with hemicubes. OUT ending in "
+                                   ".npz: one file (CSR arrays plus a header with the scene's geometry hash and the "
+                                   "parameters), computed in this process, for scenes whose F fits in memory. Any "
+                                   "other OUT: a form-factor store folder (compressed, checksummed row blocks, read "
+                                   "on demand by walk/render/compare), computed with Dask on a LocalCluster "
+                                   "(--workers) or an existing cluster (--scheduler). A store is resumable: running "
+                                   "the same command again computes only the blocks still missing. Either way data is "
+                                   "never used with the wrong scene, and files are written whole (temporary file, "
+                                   "then rename).")
     _add_scene(p)
-    p.add_argument("-o", "--output", required=True, metavar="FILE.npz", help="output file (.npz)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="FILE.npz for a single file, or a folder (new, empty, or a store to resume) for a store; "
+                        "its parent folder must exist")
     p.add_argument("--resolution", type=_positive_int, default=64, metavar="R",
                    help="hemicube resolution (R x R pixels on the top face) (default 64)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_count, default=None, metavar="N",
+                       help="store only: worker processes of a local Dask cluster (LocalCluster, one thread and one "
+                            "OpenCL context each) (default 2); 0 computes in this process without Dask")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="store only: address of an existing Dask cluster's scheduler (e.g. tcp://host:8786); "
+                            "its workers must see OUT's folder and have pydynrad installed")
+    p.add_argument("--block-rows", type=_positive_int, default=None, metavar="ROWS",
+                   help="store only: form-factor rows per block file, the unit of reading and of resuming "
+                        "(default 256, or the existing store's)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_formfactors)
 
@@ -473,7 +507,8 @@ def main(argv: list[str] | None = None) -> int:
     previous = warnings.showwarning
     warnings.showwarning = _one_line_warning
     try:
-        return int(args.func(args) or 0)
+        with contextlib.ExitStack() as args.cleanup:  # closes what a command opened (row caches)
+            return int(args.func(args) or 0)
     except (PydynradError, OSError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         print(f"pydynrad {args.command}: error: {first}", file=sys.stderr)

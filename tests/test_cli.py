@@ -3,12 +3,11 @@ import sys
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
+from test_store import same_csr
 
-from pydynrad import InvalidInputError, Scene
-from pydynrad.cli import build_parser, load_form_factors, main, save_form_factors
-
-from test_render import grid_box
+from pydynrad.cli import build_parser, main
+from pydynrad.ffio import load_form_factors, open_form_factors
+from pydynrad.scenes import cornell_box
 
 
 def run_main(argv, capsys):
@@ -48,7 +47,9 @@ def test_every_option_of_every_subcommand_is_explained():
         (["render", "not_a_scene", "-o", "x.png"], ["neither a mesh file nor a built-in"]),
         (["render", "cornell_box", "-o", "/no/such/folder/x.png"], ["does not exist"]),
         (["render", "cornell_box", "-o", "x.xyz"], ["extensions"]),
-        (["formfactors", "cornell_box", "-o", "f.txt"], [".npz"]),
+        (["formfactors", "cornell_box", "-o", "/no/such/folder/ff"], ["does not exist"]),
+        (["formfactors", "cornell_box", "-o", "/no/such/folder/f.npz"], ["does not exist"]),
+        (["formfactors", "cornell_box", "-o", "f.npz", "--workers", "2"], ["--workers apply to a store folder"]),
         (["walk", "cornell_box", "--path", "missing.json"], ["no such file"]),
     ],
 )
@@ -65,6 +66,9 @@ def test_user_errors_give_one_line(capsys, argv, needles):
         (["render", "cornell_box", "-o", "x.png", "--light", "1,2,3"], "X,Y,Z:R,G,B"),
         (["render", "cornell_box"], "required"),
         (["demo", "--frames", "-3"], "--frames"),
+        (["formfactors", "cornell_box", "-o", "ff", "--workers", "2", "--scheduler", "tcp://h:1"], "not allowed with"),
+        (["formfactors", "cornell_box", "-o", "ff", "--workers", "-1"], "whole number >= 0"),
+        (["walk", "cornell_box", "--path", "p.json", "--cache-mb", "0"], "positive number"),
         (["explode"], "invalid choice"),
     ],
 )
@@ -89,31 +93,6 @@ def test_errors_through_the_installed_entry_point(tmp_path):
                            str(tmp_path / "x.png")], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and "no such file" in proc.stderr and "Traceback" not in proc.stderr
-
-
-def small_scene():
-    pts, tris = grid_box(n=1)
-    return Scene(pts, tris, albedo=0.5, name="cube")
-
-
-def test_form_factor_file_round_trip_and_checks(tmp_path, capsys):
-    scene = small_scene()
-    rng = np.random.default_rng(1)
-    F = sp.random(len(scene), len(scene), density=0.3, random_state=rng, format="csr", dtype=np.float32)
-    path = save_form_factors(tmp_path / "f.npz", F, scene, resolution=32)
-    G, header = load_form_factors(path, scene)
-    assert (G != F).nnz == 0 and header["resolution"] == 32 and header["n_patches"] == len(scene)
-    assert [p.name for p in tmp_path.iterdir()] == ["f.npz"]  # no temporary left behind
-    other = Scene(*grid_box(n=2), name="other")
-    with pytest.raises(InvalidInputError, match="another scene geometry"):
-        load_form_factors(path, other)
-    junk = tmp_path / "junk.npz"
-    junk.write_bytes(b"PK\x03\x04 not a zip")
-    with pytest.raises(InvalidInputError, match="not a pydynrad form-factor file"):
-        load_form_factors(junk, scene)
-    np.savez(tmp_path / "alien.npz", x=np.zeros(3))
-    with pytest.raises(InvalidInputError, match="not a pydynrad form-factor file"):
-        load_form_factors(tmp_path / "alien.npz", scene)
 
 
 def test_demo_runs_reduced_and_writes_readable_images(tmp_path, capsys):
@@ -164,3 +143,106 @@ def test_formfactors_render_walk_compare_chain(tmp_path, capsys):
                                "--size", "24x16", "-o", str(tmp_path / "c.png")], capsys)
     assert code == 0, err
     assert read_image(tmp_path / "c.png").shape[1] > 3 * 24 and "relative RMS error" in out
+
+
+SMALL = ["cornell_box", "--max-edge", "250", "--resolution", "8", "--quiet"]  # 226 patches, 4 blocks of 64 rows
+
+
+def make_file_and_store(tmp_path, capsys, *store_options):
+    """The same form factors as a .npz file and as a store computed with ``store_options``."""
+    assert run_main(["formfactors", *SMALL, "-o", str(tmp_path / "f.npz")], capsys)[0] == 0
+    code, out, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "ff"), "--block-rows", "64",
+                               *store_options], capsys)
+    assert code == 0, err
+    assert "226 patches in 4 blocks of 64 rows" in out
+    scene = cornell_box(max_edge=250)
+    return scene, load_form_factors(tmp_path / "f.npz", scene)[0], open_form_factors(tmp_path / "ff", scene)
+
+
+def test_formfactors_store_equals_file_and_resumes(tmp_path, capsys):
+    scene, F, store = make_file_and_store(tmp_path, capsys, "--workers", "0")
+    assert store.n_blocks == 4 and same_csr(store.to_csr(), F)  # bit for bit: the same rows, in blocks
+    # An interrupted run: blocks 1 and 3 never written, a temporary file left behind.
+    store.block_path(1).unlink()
+    store.block_path(3).unlink()
+    (store.block_path(3).parent / "b000003.npz.tmp-1-abc").write_bytes(b"half")
+    kept = {k: store.block_path(k).stat().st_mtime_ns for k in (0, 2)}
+    code, out, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "ff"), "--workers", "0"], capsys)
+    assert code == 0, err
+    assert "resuming" in out and "2 of 4 blocks already done" in out
+    assert {k: store.block_path(k).stat().st_mtime_ns for k in (0, 2)} == kept  # not recomputed
+    assert same_csr(open_form_factors(tmp_path / "ff", scene).to_csr(), F)
+    assert not list(store.block_path(0).parent.glob("*.tmp-*"))
+
+
+def test_formfactors_store_refuses_other_scene_or_parameters(tmp_path, capsys):
+    ff = str(tmp_path / "ff")
+    assert run_main(["formfactors", *SMALL, "-o", ff, "--workers", "0", "--block-rows", "64"], capsys)[0] == 0
+    for changed, needle in ((["--max-edge", "200"], "geometry_hash"), (["--resolution", "16"], "resolution"),
+                            (["--block-rows", "32"], "block_rows")):
+        code, _, err = run_main(["formfactors", *SMALL, *changed, "-o", ff, "--workers", "0"], capsys)
+        assert_one_line_error(code, err, "does not match" if needle != "block_rows" else "", needle)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("not a store")
+    code, _, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "other"), "--workers", "0"], capsys)
+    assert_one_line_error(code, err, "not an empty folder")
+
+
+def test_commands_read_a_store_like_the_file(tmp_path, capsys):
+    import json
+
+    from pydynrad import read_image
+
+    scene, F, store = make_file_and_store(tmp_path, capsys, "--workers", "0")
+    path = tmp_path / "path.json"
+    path.write_text(json.dumps({"frames": 3, "size": [24, 16], "fov": 40, "keyframes": [
+        {"position": [278, 273, -800], "look_at": [278, 273, 0]}, {"position": [200, 273, -100], "look_at": [278, 273, 0]}]}))
+    images = {}
+    for name, ff in (("file", "f.npz"), ("store", "ff")):
+        out = tmp_path / f"walk-{name}"
+        code, stdout, err = run_main(["walk", "cornell_box", "--max-edge", "250", "--form-factors", str(tmp_path / ff),
+                                      "--cache-mb", "0.05", "--path", str(path), "--local-size", "30", "--format", "exr",
+                                      "--out", str(out), "--reference-frames", "-1", "--quiet"], capsys)
+        assert code == 0, err
+        assert ("row cache" in stdout) == (name == "store")
+        images[name] = [read_image(out / f"frame_{k:04d}.exr") for k in range(3)]
+        assert "local vs full radiosity at frame 2" in stdout
+    for a, b in zip(images["file"], images["store"]):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6 * a.max())
+    code, stdout, err = run_main(["compare", "cornell_box", "--max-edge", "250", "--form-factors", str(tmp_path / "ff"),
+                                  "--local-size", "30", "--size", "24x16", "-o", str(tmp_path / "c.png")], capsys)
+    assert code == 0, err and "relative RMS error" in stdout
+    code, _, err = run_main(["render", "cornell_box", "--max-edge", "250", "--form-factors", str(tmp_path / "ff"),
+                             "--size", "24x16", "-o", str(tmp_path / "r.exr")], capsys)
+    assert code == 0, err
+    assert read_image(tmp_path / "r.exr").max() > 0
+
+
+def test_form_factor_path_errors_give_one_line(tmp_path, capsys):
+    import json
+
+    path = tmp_path / "path.json"
+    path.write_text(json.dumps({"frames": 2, "keyframes": [{"position": [278, 273, -800], "look_at": [278, 273, 0]}]}))
+    walk = ["walk", "cornell_box", "--max-edge", "250", "--path", str(path), "--quiet", "--form-factors"]
+    code, _, err = run_main([*walk, str(tmp_path / "missing")], capsys)
+    assert_one_line_error(code, err, "no such file or store folder")
+    ff = str(tmp_path / "ff")
+    assert run_main(["formfactors", "cornell_box", "--max-edge", "300", "--resolution", "8", "--quiet", "-o", ff,
+                     "--workers", "0", "--block-rows", "64"], capsys)[0] == 0
+    code, _, err = run_main([*walk, ff], capsys)  # made for another patching of the box
+    assert_one_line_error(code, err, "does not match", "geometry_hash")
+    # The right scene, but the run stopped after some blocks.
+    assert run_main(["formfactors", *SMALL, "-o", str(tmp_path / "half"), "--workers", "0", "--block-rows", "64"],
+                    capsys)[0] == 0
+    (tmp_path / "half" / "blocks" / "b000002.npz").unlink()
+    code, _, err = run_main([*walk, str(tmp_path / "half")], capsys)
+    assert_one_line_error(code, err, "unfinished", "1 of 4 blocks missing")
+
+
+@pytest.mark.slow
+def test_formfactors_store_on_a_local_cluster_equals_one_process(tmp_path, capsys):
+    scene, F, store = make_file_and_store(tmp_path, capsys, "--workers", "2")
+    assert same_csr(store.to_csr(), F)
+    code, out, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "ff"), "--workers", "2"], capsys)
+    assert code == 0, err
+    assert "4 of 4 blocks already done" in out
