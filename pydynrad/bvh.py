@@ -137,7 +137,8 @@ def _rays(origins, directions, tmax) -> tuple[np.ndarray, np.ndarray, np.ndarray
     # min/max propagate NaN and expose inf without a temporary the size of the batch.
     if len(o) and not all(np.isfinite(x) for a in (o, d) for x in (a.min(), a.max())):
         raise InvalidInputError("ray origins or directions contain NaN or infinite values")
-    if len(d) and np.any((d[:, 0] == 0) & (d[:, 1] == 0) & (d[:, 2] == 0)):
+    zero = d == 0  # a contiguous pass; the per-ray test below reads strided columns, so only when needed
+    if zero.any() and np.any(zero[:, 0] & zero[:, 1] & zero[:, 2]):
         raise InvalidInputError("ray directions must be non-zero")
     tm = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=np.float32), (len(o),)))
     if not np.all(tm > 0):  # NaN fails the comparison too
