@@ -202,7 +202,7 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
         return out.astype(bool)
     buf = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
     nodes, tris, _ = bvh.buffers(dev)
-    dev.kernel("raycast.cl", "cast_occluded")(
+    dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": PACKET})(  # one program with cast_closest
         dev.queue, (n,), None, nodes, tris, dev.to_device(o), dev.to_device(d), dev.to_device(tm), np.int32(n), buf
     )
     cl.enqueue_copy(dev.queue, out, buf)
