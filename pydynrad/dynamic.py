@@ -77,7 +77,7 @@ class _FormFactors:
 
         n = len(scene)
         self.areas = scene.areas.astype(np.float64)
-        self.csr = self.csc = None
+        self.csr = self.csc = self.source = None
         if form_factors is None:
             self.source = _HemicubeRows(scene, resolution, device)
         elif isinstance(form_factors, RowSource):
@@ -203,6 +203,7 @@ class DynamicRadiosity:
         self._select = NearestSet(scene.centers, pinned)
         self._members: np.ndarray | None = None
         self._included = np.zeros(n, dtype=bool)
+        self._last_observer: np.ndarray | None = None
         self._matrix: DeviceMatrix | None = None
         self._kernels = None
         self._used = None
@@ -312,6 +313,7 @@ class DynamicRadiosity:
         if not self.built:
             t0 = time.perf_counter()
             self._build(self._select.nearest(obs, self.M)[0])
+            self._prefetch_next(obs)
             return FrameStats(self.frame, 0, empty, empty, t_update=time.perf_counter() - t0, refreshed=True)
         t0 = time.perf_counter()
         slots, J = self._select.propose(obs, self._members, self._included, self.max_swaps)
@@ -320,15 +322,35 @@ class DynamicRadiosity:
         t_ff = 0.0
         if len(slots):
             t_ff = self._exact_frame(slots, J) if self.mode == "exact" else self._paper_frame(slots, J)
+        # Before waiting for the device: the background reads overlap the update of K.
+        t_pre = time.perf_counter()
+        self._prefetch_next(obs)
+        t_pre = time.perf_counter() - t_pre
         self.device.queue.finish()
         t2 = time.perf_counter()
-        stats = FrameStats(self.frame, len(slots), removed, J, t_select=t1 - t0, t_form_factors=t_ff, t_update=t2 - t1 - t_ff)
+        stats = FrameStats(self.frame, len(slots), removed, J, t_select=t1 - t0 + t_pre, t_form_factors=t_ff,
+                           t_update=t2 - t1 - t_ff - t_pre)
         if self.refresh_tolerance is not None and self.frame % self.refresh_interval == 0:
             stats.residual = self.residual()
             if stats.residual > self.refresh_tolerance:
                 self.refresh()
                 stats.refreshed = True
         return stats
+
+    def _prefetch_next(self, obs: np.ndarray) -> None:
+        """Ask a row source with ``prefetch`` (a RowCache) for the rows the next frame will likely need.
+
+        Those are the k nearest excluded patches to where the observer will be if it keeps its
+        last step (k = max_swaps_per_frame): one k-d tree query of M + k points, like the
+        selection's own, so O((M + k) log N) per frame.
+        """
+        prefetch = getattr(self._ff.source, "prefetch", None)
+        ahead = obs if self._last_observer is None else 2 * obs - self._last_observer
+        self._last_observer = obs
+        if prefetch is None or self.M >= len(self.scene):
+            return
+        idx, _ = self._select.nearest(ahead, self.M + self.max_swaps)
+        prefetch(idx[~self._included[idx]][: self.max_swaps])
 
     def _swap_members(self, slots: np.ndarray, J: np.ndarray) -> None:
         self._included[self._members[slots]] = False

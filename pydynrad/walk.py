@@ -125,8 +125,10 @@ def walk(
         Built from ``form_factors`` when omitted.
     lights : sequence of lights and LightTrack
         Analytic lights of every frame; a :class:`LightTrack` moves along its keyframes.
-    form_factors : (N, N) scipy.sparse, optional
-        F for building ``dynamic`` and for the reference solves; required for either.
+    form_factors : (N, N) scipy.sparse or RowSource, optional
+        F for building ``dynamic`` and for the reference solves; required for either. A row
+        source (a form-factor store, a RowCache: see :func:`pydynrad.open_form_factors`)
+        streams rows to ``dynamic``; reference frames then read all of F into memory once.
     local_size : int, optional
         M, the local set's size, when building ``dynamic`` (default min(N, 1024)).
     solver_options : dict, optional
@@ -179,6 +181,7 @@ def walk(
         _format_for(out_dir / f"frame.{image_format}")  # reject a bad format before any work
         out_dir.mkdir(parents=True, exist_ok=True)
     renderer = Renderer(scene, device)
+    full_F = None  # all of F in memory, read at the first reference frame
     records, images = [], []
     b = img = None
     bar = tqdm(range(n), desc="walk", unit="frame", disable=not progress)
@@ -197,7 +200,11 @@ def walk(
             rec.image_path = write_image(out_dir / f"frame_{k:04d}.{image_format}", img, exposure)
             rec.seconds["write"] = time.perf_counter() - t3
         if k in refs:
-            _reference(rec, scene, form_factors, frame_lights, b, img, renderer, shading, out_dir, exposure, device)
+            if full_F is None:
+                from .ffio import whole_matrix
+
+                full_F = whole_matrix(form_factors)
+            _reference(rec, scene, full_F, frame_lights, b, img, renderer, shading, out_dir, exposure, device)
         if keep_images:
             images.append(img)
         records.append(rec)

@@ -170,3 +170,54 @@ def test_walk_with_dynamic_radiosity_matches_full_solve_when_local_set_is_everyt
     part = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene) // 3, reference_frames=[-1],
                 progress=False, device=device)
     assert part.errors()[2] > 10 * everything.errors()[2]  # patches outside the local set lack indirect light
+
+
+def reciprocal(scene, F):
+    """Hemicube F made exactly reciprocal, A_i F[i, j] = A_j F[j, i], by averaging the two
+    estimates of each exchange (and scaling so no row sums above 0.99): then F's columns (what
+    DynamicRadiosity reads from a matrix in memory) and reciprocity from its rows (what it does
+    with a row source) are the same numbers."""
+    import scipy.sparse as sp
+
+    a = scene.areas.astype(np.float64)
+    g = sp.diags(a) @ sp.csr_matrix(F, dtype=np.float64)
+    f = sp.diags(1.0 / a) @ ((g + g.T) / 2)
+    f = sp.csr_matrix(f * min(1.0, 0.99 / f.sum(axis=1).max()), dtype=np.float32)
+    f.sort_indices()
+    return f
+
+
+def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
+    """The same F as a .npz file and as a store behind a row cache a third of its size: the same
+    frames, and the cache's prefetch of the next frame's entering rows is what serves them."""
+    from pydynrad.ffio import open_form_factors, save_form_factors
+    from pydynrad.formfactors import form_factors
+    from pydynrad.rowcache import CSRRows
+    from pydynrad.store import compute_store
+
+    pts, tris = grid_box(n=4, inward=True)
+    scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))
+    scene = scene.with_materials(emission=np.where(scene.centers[:, 1] > 0.99, 1.0, 0.0))
+    F = reciprocal(scene, form_factors(scene, resolution=16, device=device, progress=False))
+    save_form_factors(tmp_path / "f.npz", F, scene, resolution=16)
+    compute_store(scene, tmp_path / "ff", resolution=16, block_rows=32, progress=False,
+                  row_function=lambda scene, rows, resolution, device=None: F[rows])
+    path = fly_through([[0.1, 0.5, 0.1], [0.5, 0.5, 0.5], [0.9, 0.5, 0.9]], frames=10, size=(20, 16), fov_y=90)
+    lights = [LightTrack(PointLight((0.3, 0.5, 0.5), 0.2), [[0.3, 0.5, 0.5], [0.7, 0.5, 0.5]])]
+    options = {"storage": "fp64", "max_swaps_per_frame": 4}
+    cache = open_form_factors(tmp_path / "ff", scene, cache_bytes=CSRRows(F).nbytes // 3)
+    walks = {name: walk(scene, path, lights=lights, form_factors=src, local_size=48, solver_options=options,
+                        reference_frames=[-1], keep_images=True, progress=False, device=device)
+             for name, src in (("file", open_form_factors(tmp_path / "f.npz", scene)), ("store", cache))}
+    cache.close()
+    entering = sum(len(f.stats.added) for f in walks["store"].frames)
+    assert entering >= 10  # the local set did move
+    for a, b in zip(walks["file"].frames, walks["store"].frames):
+        np.testing.assert_array_equal(a.stats.added, b.stats.added)
+    np.testing.assert_allclose(walks["store"].radiosity, walks["file"].radiosity, rtol=1e-9, atol=1e-12)
+    for a, b in zip(walks["file"].images, walks["store"].images):
+        np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-7)
+    assert walks["store"].errors()[9] == pytest.approx(walks["file"].errors()[9], rel=1e-6)
+    # Foreground reads: the first frame's M rows; the entering rows were nearly all prefetched.
+    assert cache.stats["prefetch_hits"] >= 0.75 * entering and cache.stats["misses"] <= 48 + entering // 4
+    assert cache.peak_nbytes <= cache.max_bytes
