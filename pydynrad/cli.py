@@ -340,7 +340,8 @@ def _add_scene(p: argparse.ArgumentParser) -> None:
 def _add_form_factors(p: argparse.ArgumentParser, resolution: int = 64) -> None:
     p.add_argument("--form-factors", metavar="PATH", default=None,
                    help="precomputed form factors from `pydynrad formfactors`: a .npz file (read whole) or a store "
-                        "folder (rows read on demand through a cache of --cache-mb); default: compute them now")
+                        "folder (rows read on demand through a cache of --cache-mb; full solves, as in render, "
+                        "compare and reference frames, read all of it once); default: compute them now")
     p.add_argument("--cache-mb", type=_positive_float, default=256.0, metavar="MB",
                    help="size of the row cache in MiB when --form-factors is a store folder: the form-factor rows "
                         "held in memory (default 256; not used for a .npz file)")
