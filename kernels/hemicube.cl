@@ -76,18 +76,33 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
 
     size_t slot = (size_t)g * R;
     int runs = 0, current = -2;
-    for (int x = 0; x < R; ++x) {
-        float3 dir = base + (float)x * step_dir;
-        Hit hit = bvh_closest(nodes, tris, order, org, dir, 0.0f, INFINITY);
-        // A back face occludes and receives nothing; a planar patch cannot see itself.
-        int id = (hit.patch >= 0 && hit.front && hit.patch != i) ? hit.patch : -1;
-        if (id != current) {
-            if (current != -2) {
-                run_patch[slot + runs] = current;
-                run_end[slot + runs] = x;
-                ++runs;
+    // BVH_PACKET pixels of the scanline per traversal, one per vector lane (a short last
+    // packet repeats its last pixel in the spare lanes).
+    const bvh_floatP lane = (bvh_floatP)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    RayPacket r;
+    r.ox = (bvh_floatP)org.x;
+    r.oy = (bvh_floatP)org.y;
+    r.oz = (bvh_floatP)org.z;
+    for (int x0 = 0; x0 < R; x0 += BVH_PACKET) {
+        bvh_floatP xs = BVH_MIN((bvh_floatP)x0 + lane, (bvh_floatP)(R - 1));
+        r.dx = base.x + xs * step_dir.x;
+        r.dy = base.y + xs * step_dir.y;
+        r.dz = base.z + xs * step_dir.z;
+        HitPacket hp = bvh_closest_packet(nodes, tris, order, &r, 0.0f, (bvh_floatP)INFINITY);
+        int ids[BVH_PACKET], fronts[BVH_PACKET];
+        bvh_vstoreP(hp.patch, 0, ids);
+        bvh_vstoreP(hp.front, 0, fronts);
+        for (int l = 0; l < BVH_PACKET && x0 + l < R; ++l) {
+            // A back face occludes and receives nothing; a planar patch cannot see itself.
+            int id = (ids[l] >= 0 && fronts[l] && ids[l] != i) ? ids[l] : -1;
+            if (id != current) {
+                if (current != -2) {
+                    run_patch[slot + runs] = current;
+                    run_end[slot + runs] = x0 + l;
+                    ++runs;
+                }
+                current = id;
             }
-            current = id;
         }
     }
     run_patch[slot + runs] = current;
