@@ -14,8 +14,10 @@ a frame costs O(M^2) device work instead of O(N^2):
 
 Form factors come from a precomputed sparse F, any row source (:mod:`pydynrad.rowcache`:
 a form-factor store on disk, a row cache) or, with ``form_factors=None``, from one hemicube
-per entering patch. With a sparse F in memory the entering patch's column is read from F;
-with a row source or hemicubes it follows by reciprocity, F[a, j] = A_j F[j, a] / A_a.
+per entering patch. Only rows are ever fetched: the entering patches' columns restricted to
+the local set, F[S, J], are read from the rows of S, which are kept (sparse, M rows) from
+when each patch entered. Hemicube form factors are not exactly reciprocal, so deriving
+columns by reciprocity would give a K that differs from a fresh build over the same rows.
 """
 
 from __future__ import annotations
@@ -70,14 +72,19 @@ class _HemicubeRows:
 
 
 class _FormFactors:
-    """Blocks F[rows][:, cols] of the scene's F, from a sparse matrix or a row source."""
+    """Blocks of the scene's F for the local set, from a sparse matrix or a row source.
+
+    ``local`` holds F's rows of the local set in slot order (M, N), so that F[S, J] and F_SS
+    never need rows other than those already fetched.
+    """
 
     def __init__(self, scene, form_factors, resolution: int, device) -> None:
         from .rowcache import RowSource
 
         n = len(scene)
-        self.areas = scene.areas.astype(np.float64)
-        self.csr = self.csc = self.source = None
+        self.n_patches = n
+        self.csr = None
+        self.local: sp.csr_matrix | None = None
         if form_factors is None:
             self.source = _HemicubeRows(scene, resolution, device)
         elif isinstance(form_factors, RowSource):
@@ -91,7 +98,7 @@ class _FormFactors:
             if shape != (n, n):
                 raise InvalidInputError(f"form_factors must have shape ({n}, {n}) for this {n}-patch scene; got {shape}")
             self.csr = check_form_factors(scene, form_factors)  # float64, kept at full precision
-            self.csc = self.csr.tocsc()
+            self.source = None
 
     def rows(self, idx: np.ndarray) -> sp.csr_matrix:
         idx = np.asarray(idx, dtype=np.int64)
@@ -99,28 +106,42 @@ class _FormFactors:
             return self.csr[idx]
         return sp.csr_matrix(self.source.rows(idx), dtype=np.float64)
 
-    def entering(self, members: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """F[S, J] (M, k), F[J, S] (k, M) and F[J, J] (k, k), dense float64."""
+    def fetch_local(self, members: np.ndarray) -> None:
+        """Fetch the rows of a whole new local set (a build or refresh)."""
+        self.local = self.rows(members)
+
+    def entering(self, members: np.ndarray, J: np.ndarray, slots: np.ndarray):
+        """F[S, J] (M, k), F[J, S] (k, M) and F[J, J] (k, k), dense float64, for patches J
+        entering ``slots``; afterwards the kept rows of those slots are J's rows."""
         rows_J = self.rows(J)
         F_JS = rows_J[:, members].toarray()
         F_JJ = rows_J[:, J].toarray()
-        if self.csc is not None:
-            F_SJ = self.csc[:, J][members].toarray()
-        else:  # reciprocity: A_a F[a, j] = A_j F[j, a]
-            F_SJ = F_JS.T * self.areas[J][None, :] / self.areas[members][:, None]
+        F_SJ = self.local[:, J].toarray()
+        M, k = self.local.shape[0], len(J)
+        keep = np.ones(M)
+        keep[slots] = 0.0
+        into_slots = sp.csr_matrix((np.ones(k), (slots, np.arange(k))), shape=(M, k))
+        self.local = sp.csr_matrix(sp.diags(keep) @ self.local + into_slots @ rows_J)
+        self.local.eliminate_zeros()
         return F_SJ, F_JS, F_JJ
 
     def square(self, members: np.ndarray) -> sp.csr_matrix:
-        """F_SS (M, M) sparse, rows and columns in the order of ``members``."""
-        return sp.csr_matrix(self.rows(members)[:, members])
+        """F_SS (M, M) sparse for the current local set, rows and columns in slot order."""
+        return sp.csr_matrix(self.local[:, members])
 
     def full_shape(self, members: np.ndarray) -> sp.csr_matrix:
         """An (N, N) sparse matrix holding F's rows ``members`` (all of F when it is in memory)."""
         if self.csr is not None:
             return self.csr
-        rows = self.rows(members).tocoo()
-        n = len(self.areas)
-        return sp.csr_matrix((rows.data, (members[rows.row], rows.col)), shape=(n, n))
+        rows = self.local.tocoo()
+        return sp.csr_matrix((rows.data, (members[rows.row], rows.col)), shape=(self.n_patches, self.n_patches))
+
+    @property
+    def nbytes(self) -> int:
+        """Host bytes of the kept local rows."""
+        if self.local is None:
+            return 0
+        return self.local.data.nbytes + self.local.indices.nbytes + self.local.indptr.nbytes
 
 
 def _checked_point(p, what: str) -> np.ndarray:
@@ -260,10 +281,11 @@ class DynamicRadiosity:
 
     @property
     def host_memory_bytes(self) -> int:
-        """Host bytes of the bookkeeping: slot map, local mask and (paper mode) the bitsets."""
+        """Host bytes of the bookkeeping: slot map, local mask, the local set's form-factor
+        rows and (paper mode) the bitsets."""
         self._require_built()
         used = self._used.nbytes if self._used is not None else 0
-        return self._members.nbytes + self._included.nbytes + used
+        return self._members.nbytes + self._included.nbytes + self._ff.nbytes + used
 
     def _rho(self, patches: np.ndarray) -> np.ndarray:
         """(C, len(patches)) albedo per K channel."""
@@ -274,6 +296,7 @@ class DynamicRadiosity:
         from .multibounce import multibounce
 
         dtype = np.float64 if self.storage == "fp64" else np.float32
+        self._ff.fetch_local(members)
         return multibounce(self.scene, self._ff.full_shape(members), patches=members, dtype=dtype, device=self.device)
 
     def _build(self, members: np.ndarray) -> None:
@@ -361,7 +384,7 @@ class DynamicRadiosity:
         from .exact import exact_swap
 
         t0 = time.perf_counter()
-        F_SJ, F_JS, F_JJ = self._ff.entering(self._members, J)
+        F_SJ, F_JS, F_JJ = self._ff.entering(self._members, J, slots)
         F_SJ[slots, :] = 0.0  # the leaving patches take no part in the new paths
         F_JS[:, slots] = 0.0
         t_ff = time.perf_counter() - t0
@@ -378,7 +401,7 @@ class DynamicRadiosity:
         for s, j in zip(slots.tolist(), J.tolist()):
             self._swap_members(np.array([s]), np.array([j]))
             t0 = time.perf_counter()
-            F_SJ, F_JS, _ = self._ff.entering(self._members, np.array([j]))
+            F_SJ, F_JS, _ = self._ff.entering(self._members, np.array([j]), np.array([s]))
             t_ff += time.perf_counter() - t0
             f_c, f_r = F_SJ[:, 0], F_JS[0]
             f_c[s] = f_r[s] = 0.0

@@ -172,21 +172,6 @@ def test_walk_with_dynamic_radiosity_matches_full_solve_when_local_set_is_everyt
     assert part.errors()[2] > 10 * everything.errors()[2]  # patches outside the local set lack indirect light
 
 
-def reciprocal(scene, F):
-    """Hemicube F made exactly reciprocal, A_i F[i, j] = A_j F[j, i], by averaging the two
-    estimates of each exchange (and scaling so no row sums above 0.99): then F's columns (what
-    DynamicRadiosity reads from a matrix in memory) and reciprocity from its rows (what it does
-    with a row source) are the same numbers."""
-    import scipy.sparse as sp
-
-    a = scene.areas.astype(np.float64)
-    g = sp.diags(a) @ sp.csr_matrix(F, dtype=np.float64)
-    f = sp.diags(1.0 / a) @ ((g + g.T) / 2)
-    f = sp.csr_matrix(f * min(1.0, 0.99 / f.sum(axis=1).max()), dtype=np.float32)
-    f.sort_indices()
-    return f
-
-
 def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     """The same F as a .npz file and as a store behind a row cache a third of its size: the same
     frames, and the cache's prefetch of the next frame's entering rows is what serves them."""
@@ -198,7 +183,7 @@ def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     pts, tris = grid_box(n=4, inward=True)
     scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))
     scene = scene.with_materials(emission=np.where(scene.centers[:, 1] > 0.99, 1.0, 0.0))
-    F = reciprocal(scene, form_factors(scene, resolution=16, device=device, progress=False))
+    F = form_factors(scene, resolution=16, device=device, progress=False)  # hemicube F: not reciprocal
     save_form_factors(tmp_path / "f.npz", F, scene, resolution=16)
     compute_store(scene, tmp_path / "ff", resolution=16, block_rows=32, progress=False,
                   row_function=lambda scene, rows, resolution, device=None: F[rows])
