@@ -16,6 +16,7 @@
 // Random numbers come from rng.cl keyed by (seed, pixel or patch, sample index), so an image
 // is the same whatever the pass size.
 #include "bvh.cl"
+#include "lights.h"
 #include "rng.cl"
 
 #ifndef MAX_DEPTH
@@ -37,40 +38,6 @@
 #define SCENE_PASS                                                                              \
     nodes, tris, order, normals, albedo, emission, n_emitters, em_tri, em_emission, em_cdf,   \
     inv_power, n_lights, lights, eps, far
-
-// Irradiance at surface point p (normal n) from the analytic lights; shadow rays start at the
-// offset point x. lights: 3 float4 per light in pydynrad/lights.py's packing; the formula is
-// the one kernels/lights.cl's direct_irradiance evaluates at patch centres.
-inline float3 analytic_irradiance(float3 p, float3 x, float3 n, SCENE_ARGS)
-{
-    float3 h = (float3)(0.0f);
-    for (int l = 0; l < n_lights; ++l) {
-        float4 a = lights[3 * l], b = lights[3 * l + 1], c = lights[3 * l + 2];
-        int type = (int)a.w;
-        float3 w;  // unit direction towards the light
-        float dist, scale;
-        if (type == 2) {
-            w = -b.xyz;
-            dist = far;
-            scale = 1.0f;
-        } else {
-            float3 d = a.xyz - p;  // the law from the true point, as lights.cl
-            dist = length(d);
-            if (dist <= 0.0f) continue;
-            w = d / dist;
-            scale = 1.0f / (dist * dist);
-            if (type == 1) {  // spot: smoothstep from the outer to the inner cone
-                float t = clamp((dot(b.xyz, -w) - c.w) * b.w, 0.0f, 1.0f);
-                scale *= t * t * (3.0f - 2.0f * t);
-            }
-        }
-        float cosine = dot(n, w);
-        if (cosine <= 0.0f || scale <= 0.0f) continue;
-        if (bvh_occluded(nodes, tris, x, w, 0.0f, dist - 2.0f * eps)) continue;
-        h += c.xyz * (scale * cosine);
-    }
-    return h;
-}
 
 // Area pdf with which emitter_irradiance picks a point on emitting patch j: its pick
 // probability (power share, power = mean emission * area) over its area.
@@ -134,7 +101,8 @@ inline float3 reflected_radiance(float3 p, float3 n, float3 rho, uint *rng, SCEN
     float3 thr = rho;  // product of albedos along the path
     for (int depth = 0; depth < MAX_DEPTH; ++depth) {
         float3 x = p + n * eps;
-        float3 h = analytic_irradiance(p, x, n, SCENE_PASS) + emitter_irradiance(x, n, rng, SCENE_PASS);
+        float3 h = analytic_irradiance(p, x, n, n_lights, lights, nodes, tris, eps, far)
+                   + emitter_irradiance(x, n, rng, SCENE_PASS);
         acc += thr * h * M_1_PI_F;
         // The cosine pdf cancels the cosine and 1/pi: radiance arriving along the bounce ray
         // enters with weight thr (rho of this vertex included).

@@ -26,7 +26,7 @@ from .image_io import read_image, write_image
 from .walk import CameraPath, LightTrack, WalkResult, fly_through, load_path, orbit, walk
 from .matvec import DeviceMatrix
 from .dynamic import DynamicRadiosity, FrameStats
-from .lights import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector
+from .lights import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector, pack_lights
 from .solve import Solution, solve
 from .multibounce import multibounce, multibounce_radiosity
 from .pathtrace import path_trace, path_trace_patches

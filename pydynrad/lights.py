@@ -23,7 +23,7 @@ import numpy as np
 
 from .errors import InvalidInputError
 
-__all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "light_vector"]
+__all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "light_vector", "pack_lights"]
 
 #: Shadow-ray origins sit this fraction of the scene's bounding-box diagonal off the surface.
 SHADOW_EPSILON = 1e-4
@@ -131,6 +131,16 @@ def _checked_lights(lights) -> list:
     return lights
 
 
+def pack_lights(lights) -> np.ndarray:
+    """(n_lights, 12) float32: ``lights`` (one light or a sequence) in the kernels' packing.
+
+    Three float4 per light, the layout ``kernels/lights.h`` documents; raises
+    InvalidInputError for anything that is not a PointLight, SpotLight or DirectionalLight.
+    """
+    lights = _checked_lights(lights)
+    return np.asarray([light._packed() for light in lights], dtype=np.float32).reshape(len(lights), 12)
+
+
 def direct_irradiance(scene, lights, device=None) -> np.ndarray:
     """(N, 3) float32 irradiance at each patch centre from ``lights``, with shadows.
 
@@ -140,12 +150,11 @@ def direct_irradiance(scene, lights, device=None) -> np.ndarray:
 
     from .device import default_device
 
-    lights = _checked_lights(lights)
+    packed = pack_lights(lights)
     n = len(scene)
-    if not lights:
+    if not len(packed):
         return np.zeros((n, 3), dtype=np.float32)
     device = device or default_device()
-    packed = np.asarray([light._packed() for light in lights], dtype=np.float32)
 
     def float4(a: np.ndarray) -> np.ndarray:
         out = np.zeros((len(a), 4), dtype=np.float32)
@@ -158,7 +167,7 @@ def direct_irradiance(scene, lights, device=None) -> np.ndarray:
     # Directional shadow rays need only reach past the scene: twice its diagonal.
     kernel(
         device.queue, (-(-n // 64) * 64,), None, np.int32(n), device.to_device(float4(scene.centers)),
-        device.to_device(float4(scene.normals)), np.int32(len(lights)), device.to_device(packed), nodes, tris,
+        device.to_device(float4(scene.normals)), np.int32(len(packed)), device.to_device(packed), nodes, tris,
         np.float32(SHADOW_EPSILON * scene.scale), np.float32(2.0 * scene.scale), out_dev,
     )
     out = np.empty((n, 4), dtype=np.float32)

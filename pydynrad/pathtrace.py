@@ -27,7 +27,7 @@ import numpy as np
 
 from .camera import Camera
 from .errors import InvalidInputError
-from .lights import SHADOW_EPSILON, _checked_lights
+from .lights import SHADOW_EPSILON, pack_lights
 from .scene import Scene
 
 __all__ = ["path_trace", "path_trace_patches"]
@@ -68,8 +68,10 @@ class _Tracer:
         else:
             inv_power, cdf = 0.0, np.zeros(1)
             tri = np.zeros((4, 4), np.float32)
-        lights = _checked_lights(lights)
-        packed = np.asarray([light._packed() for light in lights] or [[0.0] * 12], dtype=np.float32)
+        packed = pack_lights(lights)
+        n_lights = len(packed)
+        if not n_lights:
+            packed = np.zeros((1, 12), np.float32)  # a buffer cannot be empty; the kernel reads none
         up = device.to_device
         nodes, tris, order = scene.bvh.buffers(device)
         self.args = (
@@ -77,7 +79,7 @@ class _Tracer:
             up(_float4(scene.normals)), up(_float4(scene.albedo)), up(_float4(scene.emission)),
             np.int32(len(em)), up(tri), up(_float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
             up(cdf.astype(np.float32)), np.float32(inv_power),
-            np.int32(len(lights)), up(packed), np.float32(SHADOW_EPSILON * scene.scale),
+            np.int32(n_lights), up(packed), np.float32(SHADOW_EPSILON * scene.scale),
             np.float32(2.0 * scene.scale),  # directional shadow rays need only leave the scene
         )
 

@@ -120,3 +120,19 @@ def test_light_validation():
     assert spot.direction == (0.0, 0.0, 1.0)
     with pytest.raises(AttributeError):
         spot.intensity = (2, 2, 2)  # frozen
+
+
+def test_pack_lights_layout():
+    # The three float4 per light that kernels/lights.h reads, written out by hand.
+    spot = SpotLight((1, 2, 3), (0, 0, 2), (0.5, 0.25, 1.0), 0.1, 0.3)
+    sun = DirectionalLight((0, -1, 0), 2.0)
+    packed = pydynrad.pack_lights([spot, sun])
+    assert packed.shape == (2, 12) and packed.dtype == np.float32
+    slope = 1.0 / (math.cos(0.1) - math.cos(0.3))
+    np.testing.assert_allclose(packed[0], [1, 2, 3, 1, 0, 0, 1, slope, 0.5, 0.25, 1.0, math.cos(0.3)], rtol=1e-6)
+    np.testing.assert_array_equal(packed[1, :8], [0, 0, 0, 2, 0, -1, 0, 1])
+    np.testing.assert_array_equal(packed[1, 8:11], [2, 2, 2])
+    np.testing.assert_array_equal(pydynrad.pack_lights(PointLight((4, 5, 6), 1.0))[0, :4], [4, 5, 6, 0])
+    assert pydynrad.pack_lights([]).shape == (0, 12)
+    with pytest.raises(pydynrad.InvalidInputError, match="not a light"):
+        pydynrad.pack_lights([spot, "lamp"])
