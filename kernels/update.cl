@@ -3,25 +3,41 @@
 // small vectors are REAL (float, or double with fp64 storage).
 //
 // Everything that touches all of K is memory-bound, so each kernel streams K once:
-//   gather_partial + gather_reduce : one read pass giving K X and Y K for NV vectors at once
-//   rank_update                    : one read-write pass, K += A B (rank NA)
+//   gather (gather_rows on CPUs, gather_partial on GPUs) + gather_reduce :
+//       one read pass giving K X and Y K for NV vectors at once
+//   rank_update_rows (CPUs) / rank_update (GPUs) : one read-write pass, K += A B (rank NA)
 // and the O(M) kernels: read_slots / write_slots (columns and rows of a few slots) and
 // double_reflection (Eq. 1 of the paper).
 //
+// CPU kernels give each work-item (one per work-group) RR rows at a time: every 16-wide
+// vector of B or X read from cache serves RR rows of K, which is what makes a rank-2k pass
+// stream K instead of re-reading the small factors for every row.
+//
 // Layout defines (the host picks them per device):
-//   VW   vector width of K loads (16 on CPUs, 4 on GPUs)
-//   WG   work-items per row block in gather_partial: 1 on a CPU (one item streams whole rows),
-//        64 on a GPU (adjacent items read adjacent vectors: coalesced)
+//   VW   vector width of K loads in the GPU kernels (4)
+//   WG   work-items per row block in gather_partial (64 on a GPU: coalesced)
+//   RR   rows per step of the CPU kernels; CWMAX the widest column strip of gather_rows
 //   NVMAX, NAMAX  the most vectors per gather / terms per rank update (private array sizes)
-// Host guarantees: ld % VW == 0, K's padding columns M..ld are zero, X and B hold ld entries
-// per vector with zeros past M (so padding stays zero after rank_update).
+//   PDR_CLANG_VECTORS  (clang-based CPU compilers such as PoCL) vector loads by aligned
+//        dereference and fp16 conversion by __builtin_convertvector (F16C instructions). PoCL
+//        does not inline its vload*/vstore*/min builtins, and a call inside the inner loop
+//        spills every vector register; the host sets this only when buffers are aligned to
+//        at least 128 bytes.
+// Host guarantees: ld % 64 == 0, K's padding columns M..ld are zero, X and B hold ld entries
+// per vector with zeros past M (so padding stays zero after a rank update).
 #include "storage.h"
 
 #ifndef VW
-#define VW 16
+#define VW 4
 #endif
 #ifndef WG
-#define WG 1
+#define WG 64
+#endif
+#ifndef RR
+#define RR 8
+#endif
+#ifndef CWMAX
+#define CWMAX 512
 #endif
 #ifndef NVMAX
 #define NVMAX 1
@@ -30,7 +46,82 @@
 #define NAMAX 2
 #endif
 
-// Pass 1 of the gather. Item (lid, b) owns the column vectors j = (lid + t*WG)*VW of the rows
+#define IMIN(a, b) ((a) < (b) ? (a) : (b))
+typedef REALV(16) real16;
+
+// K16(p) / K16_STORE(v, p): 16 elements of K at p (64-byte aligned for fp32) as real16;
+// R16(p) / R16_STORE(v, p): the same for REAL arrays.
+#ifdef PDR_CLANG_VECTORS
+#define R16(p) (*(__global const real16 *)(p))
+#define R16_STORE(v, p) (*(__global real16 *)(p) = (v))
+#if defined(STORAGE_FP16)
+typedef __fp16 pdr_half16 __attribute__((ext_vector_type(16)));
+#define K16(p) __builtin_convertvector(*(__global const pdr_half16 *)(p), real16)
+#define K16_STORE(v, p) (*(__global pdr_half16 *)(p) = __builtin_convertvector((v), pdr_half16))
+#else
+#define K16(p) R16(p)
+#define K16_STORE(v, p) R16_STORE(v, p)
+#endif
+#else
+#define R16(p) vload16(0, (p))
+#define R16_STORE(v, p) vstore16((v), 0, (p))
+#define K16(p) LOADV(16, (p), 0)
+#define K16_STORE(v, p) STOREV(16, (v), (p), 0)
+#endif
+
+// CPU gather. Item (s, b) owns columns [s*CW, s*CW + CW) of rows [b*RB, b*RB + RB). For RR
+// rows at a time it converts that tile of K once into private memory, then for each vector m
+//   rowpart[(s*NV + m)*M + i] = sum over its columns of K[i, j] X[m, j]  (partial K X)
+//   colpart[(b*NV + m)*ld + j] += sum over the RR rows of Y[m, i] K[i, j]  (partial Y K)
+// colpart's slab for block b is owned strip-wise by one item, so the += needs no atomics.
+__kernel void gather_rows(__global const STORE_T *K, const int M, const int ld, const int RB, const int CW,
+                          const int NV, __global const REAL *X, __global const REAL *Y,
+                          __global REAL *rowpart, __global REAL *colpart)
+{
+    const int s = get_global_id(0), b = get_global_id(1);
+    const int j0 = s * CW, nc = IMIN(ld - j0, CW);
+    const int i0 = b * RB, i1 = IMIN(M, i0 + RB);
+    __global REAL *cp = colpart + (size_t)b * NV * ld + j0;
+    for (int m = 0; m < NV; ++m)
+        for (int c = 0; c < nc; c += 16) R16_STORE((real16)(0), cp + (size_t)m * ld + c);
+    real16 tile[RR][CWMAX / 16];
+    for (int i = i0; i < i1; i += RR) {
+        const int nr = IMIN(RR, i1 - i);
+#pragma unroll
+        for (int r = 0; r < RR; ++r) {
+            // Rows past the block read a valid row and contribute zeros.
+            __global const STORE_T *row = K + (size_t)IMIN(i + r, M - 1) * ld + j0;
+            for (int c = 0; c < nc; c += 16) tile[r][c / 16] = r < nr ? K16(row + c) : (real16)(0);
+        }
+        for (int m = 0; m < NV; ++m) {
+            REAL y[RR];
+            real16 racc[RR];
+#pragma unroll
+            for (int r = 0; r < RR; ++r) {
+                y[r] = r < nr ? Y[(size_t)m * M + i + r] : 0;
+                racc[r] = (real16)(0);
+            }
+            __global const REAL *x = X + (size_t)m * ld + j0;
+            __global REAL *col = cp + (size_t)m * ld;
+            for (int c = 0; c < nc; c += 16) {
+                const real16 xv = R16(x + c);
+                // Four partial column sums: one chain of RR dependent FMAs would stall on latency.
+                real16 cv[4] = {R16(col + c), (real16)(0), (real16)(0), (real16)(0)};
+#pragma unroll
+                for (int r = 0; r < RR; ++r) {
+                    racc[r] += tile[r][c / 16] * xv;
+                    cv[r % 4] += y[r] * tile[r][c / 16];
+                }
+                R16_STORE((cv[0] + cv[1]) + (cv[2] + cv[3]), col + c);
+            }
+#pragma unroll
+            for (int r = 0; r < RR; ++r)
+                if (r < nr) rowpart[((size_t)s * NV + m) * M + i + r] = HSUM(16, racc[r]);
+        }
+    }
+}
+
+// GPU gather. Item (lid, b) owns the column vectors j = (lid + t*WG)*VW of the rows
 // [b*RB, min(M, b*RB+RB)). It writes
 //   rowpart[(lid*NV + m)*M + i] = sum over its columns of K[i, j] X[m, j]  (partial K X)
 //   colpart[(b*NV + m)*ld + j]  = sum over the block's rows of Y[m, i] K[i, j]  (partial Y K)
@@ -65,22 +156,22 @@ __kernel void gather_partial(__global const STORE_T *K, const int M, const int l
     }
 }
 
-// Pass 2: KX[m*M + i] = sum_lid rowpart, YK[m*M + j] = sum_b colpart. Item (i, m).
+// Second pass of both gathers: KX[m*M + i] = sum over the n_parts row partials,
+// YK[m*M + j] = sum over the n_blocks column partials. Item (i, m).
 __kernel void gather_reduce(__global const REAL *rowpart, __global const REAL *colpart, const int M, const int ld,
-                            const int NV, const int n_blocks, __global REAL *KX, __global REAL *YK)
+                            const int NV, const int n_parts, const int n_blocks, __global REAL *KX, __global REAL *YK)
 {
     const int i = get_global_id(0), m = get_global_id(1);
     if (i >= M) return;
     REAL r = 0, c = 0;
-    for (int l = 0; l < WG; ++l) r += rowpart[((size_t)l * NV + m) * M + i];
+    for (int l = 0; l < n_parts; ++l) r += rowpart[((size_t)l * NV + m) * M + i];
     for (int b = 0; b < n_blocks; ++b) c += colpart[((size_t)b * NV + m) * ld + i];
     KX[(size_t)m * M + i] = r;
     YK[(size_t)m * M + i] = c;
 }
 
-// K[i, j] += sum_{n < NA} A[n*M + i] B[n*ld + j]. Item (g, i) handles the column vectors
-// j = (g + t*G)*VW of row i, G = get_global_size(0): G = 1 on a CPU (a row per item,
-// streamed with wide vectors), G = ld/VW on a GPU (one vector per item, coalesced).
+// GPU rank update: K[i, j] += sum_{n < NA} A[n*M + i] B[n*ld + j]. Item (g, i) handles the
+// column vectors j = (g + t*G)*VW of row i, G = get_global_size(0) = ld/VW (coalesced).
 // Paper mode passes NA = 1 with the bitset's row mask already folded into A.
 __kernel void rank_update(__global STORE_T *K, const int M, const int ld, const int NA,
                           __global const REAL *A, __global const REAL *B)
@@ -94,6 +185,40 @@ __kernel void rank_update(__global STORE_T *K, const int M, const int ld, const 
         REALV(VW) v = LOADV(VW, row, j);
         for (int n = 0; n < NA; ++n) v += a[n] * VLOADR(VW, B, (size_t)n * ld + j);
         STOREV(VW, v, row, j);
+    }
+}
+
+// CPU rank update, same result. Item b owns rows [b*RB, b*RB + RB) and walks them RR at a
+// time along whole rows: the RR x 16 accumulators stay in registers while n runs over the NA
+// terms, each 16-wide vector of B (NA*ld REALs, cache-resident) feeding RR rows.
+__kernel void rank_update_rows(__global STORE_T *K, const int M, const int ld, const int NA, const int RB,
+                               __global const REAL *A, __global const REAL *B)
+{
+    const int i0 = get_global_id(0) * RB, i1 = IMIN(M, i0 + RB);
+    for (int i = i0; i < i1; i += RR) {
+        const int nr = IMIN(RR, i1 - i);
+        REAL a[NAMAX][RR];
+        __global STORE_T *row[RR];
+#pragma unroll
+        for (int r = 0; r < RR; ++r) {
+            // Rows past the block alias a valid row and are computed but never stored.
+            const int ii = IMIN(i + r, M - 1);
+            row[r] = K + (size_t)ii * ld;
+            for (int n = 0; n < NA; ++n) a[n][r] = A[(size_t)n * M + ii];
+        }
+        for (int j = 0; j < ld; j += 16) {
+            real16 acc[RR];
+#pragma unroll
+            for (int r = 0; r < RR; ++r) acc[r] = K16(row[r] + j);
+            for (int n = 0; n < NA; ++n) {
+                const real16 bv = R16(B + (size_t)n * ld + j);
+#pragma unroll
+                for (int r = 0; r < RR; ++r) acc[r] += a[n][r] * bv;
+            }
+#pragma unroll
+            for (int r = 0; r < RR; ++r)
+                if (r < nr) K16_STORE(acc[r], row[r] + j);
+        }
     }
 }
 

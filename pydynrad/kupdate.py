@@ -12,6 +12,8 @@ matrix's compute type on the device). Each method works on one channel's buffer 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .errors import InvalidInputError
@@ -19,29 +21,87 @@ from .errors import InvalidInputError
 __all__ = ["UpdateKernels", "scratch_nbytes"]
 
 
-def _layout(device, M: int) -> tuple[int, int, int]:
-    """(VW, WG, RB): vector width, gather work-items per row block, rows per block.
+#: Work-items per row block of the GPU gather.
+GPU_WG = 64
+#: GPU vector width of K loads.
+GPU_VW = 4
 
-    CPU: one item streams whole rows with 16-wide vectors; GPU: 64 items read adjacent 4-wide
-    vectors (coalesced). The gather's column partials cost NV*ld REALs per block of RB rows,
-    so 64-128-row blocks keep them to ~1% of K's traffic per vector while leaving M/RB groups.
+
+#: Rows per step of the CPU kernels (RR accumulators of 16 lanes stay in vector registers).
+CPU_ROWS = 8
+#: Widest column strip of the CPU gather: an RR x CWMAX tile of K is kept in private memory.
+CPU_STRIP = 512
+
+
+@dataclass(frozen=True)
+class Layout:
+    """How the update kernels split K over work-items on one device (see kernels/update.cl).
+
+    cpu : bool
+        CPU kernels (a few fat work-items, RR rows at a time) or GPU kernels (coalesced).
+    rank_rb : int
+        CPU rank update: rows per work-item.
+    gather_rb, gather_cw : int
+        Gather: rows per block and (CPU) columns per strip.
+    parts : int
+        Row partial sums per row the gather leaves for gather_reduce (strips on a CPU, WG on a GPU).
     """
-    rb = 64 if M < 2048 else 128
-    return (16, 1, rb) if device.is_cpu else (4, 64, rb)
+
+    cpu: bool
+    rank_rb: int
+    gather_rb: int
+    gather_cw: int
+    parts: int
+
+    @staticmethod
+    def make(device, M: int, ld: int, cpu: bool | None = None) -> "Layout":
+        """The layout for an M x M matrix with row pitch ld; ``cpu`` overrides the device type
+        (to test the GPU kernels on a CPU)."""
+        cpu = device.is_cpu if cpu is None else cpu
+        if not cpu:
+            # 64 items read adjacent 4-wide vectors of a 64-128-row block: the column partials
+            # cost NV*ld REALs per block, ~1% of K's traffic per vector.
+            rb = 64 if M < 2048 else 128
+            return Layout(False, 0, rb, ld, GPU_WG)
+        units = max(1, int(device.cl_device.max_compute_units))
+        rows = -(-M // CPU_ROWS)  # row groups of RR
+        # Rank update: about 8 work-items per compute unit, each a whole number of row groups.
+        rank_rb = CPU_ROWS * -(-rows // min(rows, 8 * units))
+        # Gather: strips of CPU_STRIP columns; enough row blocks for ~8 items per unit, but
+        # blocks stay long (each block costs NV*ld REALs of column partials).
+        cw = min(ld, CPU_STRIP)
+        strips = -(-ld // cw)
+        blocks = min(rows, max(1, -(-8 * units // strips)))
+        return Layout(True, rank_rb, CPU_ROWS * -(-rows // blocks), cw, strips)
+
+
+def _n_blocks(M: int, layout: Layout) -> int:
+    """Row blocks of the gather (each leaves NV*ld REALs of column partials)."""
+    return -(-M // layout.gather_rb)
+
+
+def _clang_vectors(device) -> bool:
+    """Whether kernels may use clang vector extensions and aligned vector dereferences.
+
+    True on PoCL CPU devices with buffers aligned to >= 128 bytes (every vector the kernels
+    dereference starts on a multiple of its size from a buffer's start)."""
+    d = device.cl_device
+    return device.is_cpu and "Portable Computing Language" in d.platform.name and int(d.mem_base_addr_align) >= 1024
 
 
 def scratch_nbytes(device, M: int, ld: int, real_itemsize: int, max_vectors: int) -> int:
     """Device bytes of :class:`UpdateKernels`' scratch buffers for these sizes."""
-    _, wg, rb = _layout(device, M)
-    nv, n_blocks = max_vectors, -(-M // rb)
-    reals = nv * ld + nv * M + wg * nv * M + n_blocks * nv * ld + 2 * nv * M + 2 * nv * M + 2 * nv * ld + 3 * M
+    lay = Layout.make(device, M, ld)
+    nv = max_vectors
+    reals = nv * ld + nv * M + lay.parts * nv * M + _n_blocks(M, lay) * nv * ld + 2 * nv * M + 2 * nv * M + 2 * nv * ld + 3 * M
     return real_itemsize * reals + 4 * nv
 
 
 class UpdateKernels:
     """Kernels bound to one DeviceMatrix; scratch buffers sized for ``max_vectors`` at a time."""
 
-    def __init__(self, matrix, max_vectors: int) -> None:
+    def __init__(self, matrix, max_vectors: int, *, cpu_kernels: bool | None = None) -> None:
+        """``cpu_kernels`` overrides the device type's choice of kernels (for testing both)."""
         import pyopencl as cl
 
         if max_vectors < 1:
@@ -50,18 +110,21 @@ class UpdateKernels:
         self.matrix, self.device, self.nv_max = matrix, dev, int(max_vectors)
         self.M, self.ld = matrix.M, matrix.ld
         self.real = matrix.real_dtype
-        cpu = dev.is_cpu
-        self.vw, self.wg, self.rb = _layout(dev, self.M)
-        self.n_blocks = -(-self.M // self.rb)
-        self._rank_g0 = 1 if cpu else self.ld // self.vw
-        defines = {**matrix.defines, "VW": self.vw, "WG": self.wg, "NVMAX": self.nv_max, "NAMAX": 2 * self.nv_max}
+        self.layout = Layout.make(dev, self.M, self.ld, cpu_kernels)
+        self.n_blocks = _n_blocks(self.M, self.layout)
+        defines = {**matrix.defines, "VW": GPU_VW, "WG": GPU_WG, "RR": CPU_ROWS, "CWMAX": CPU_STRIP,
+                   "NVMAX": self.nv_max, "NAMAX": 2 * self.nv_max}
+        if self.layout.cpu and _clang_vectors(dev):
+            defines["PDR_CLANG_VECTORS"] = 1
         prg = dev.program("update.cl", defines)
-        self._k = {n: cl.Kernel(prg, n) for n in ("gather_partial", "gather_reduce", "rank_update", "read_slots", "write_slots", "double_reflection")}
+        names = ("gather_rows", "gather_partial", "gather_reduce", "rank_update_rows", "rank_update", "read_slots",
+                 "write_slots", "double_reflection")
+        self._k = {n: cl.Kernel(prg, n) for n in names}
         mf, ctx, r = cl.mem_flags, dev.context, self.real.itemsize
         nv, M, ld = self.nv_max, self.M, self.ld
         self._X = cl.Buffer(ctx, mf.READ_ONLY, nv * ld * r)
         self._Y = cl.Buffer(ctx, mf.READ_ONLY, nv * M * r)
-        self._rowpart = cl.Buffer(ctx, mf.READ_WRITE, self.wg * nv * M * r)
+        self._rowpart = cl.Buffer(ctx, mf.READ_WRITE, self.layout.parts * nv * M * r)
         self._colpart = cl.Buffer(ctx, mf.READ_WRITE, self.n_blocks * nv * ld * r)
         self._KX = cl.Buffer(ctx, mf.READ_WRITE, nv * M * r)
         self._YK = cl.Buffer(ctx, mf.READ_WRITE, nv * M * r)
@@ -107,12 +170,16 @@ class UpdateKernels:
         self._check(n)
         self._put(self._X, X, self.ld)
         self._put(self._Y, Y, self.M)
-        q, K = self.device.queue, self.matrix.buffers[channel]
-        M, ld, nv = np.int32(self.M), np.int32(self.ld), np.int32(n)
-        self._k["gather_partial"](
-            q, (self.wg, self.n_blocks), (self.wg, 1), K, M, ld, np.int32(self.rb), nv, self._X, self._Y, self._rowpart, self._colpart
-        )
-        self._k["gather_reduce"](q, self._grid(n), None, self._rowpart, self._colpart, M, ld, nv, np.int32(self.n_blocks), self._KX, self._YK)
+        q, K, lay = self.device.queue, self.matrix.buffers[channel], self.layout
+        M, ld, nv, rb = np.int32(self.M), np.int32(self.ld), np.int32(n), np.int32(lay.gather_rb)
+        if lay.cpu:
+            self._k["gather_rows"](q, (lay.parts, self.n_blocks), (1, 1), K, M, ld, rb, np.int32(lay.gather_cw), nv,
+                                   self._X, self._Y, self._rowpart, self._colpart)
+        else:
+            self._k["gather_partial"](q, (GPU_WG, self.n_blocks), (GPU_WG, 1), K, M, ld, rb, nv, self._X, self._Y,
+                                      self._rowpart, self._colpart)
+        self._k["gather_reduce"](q, self._grid(n), None, self._rowpart, self._colpart, M, ld, nv, np.int32(lay.parts),
+                                 np.int32(self.n_blocks), self._KX, self._YK)
         return self._get(self._KX, n), self._get(self._YK, n)
 
     def rank_update(self, channel: int, A: np.ndarray, B: np.ndarray) -> None:
@@ -123,9 +190,13 @@ class UpdateKernels:
             raise InvalidInputError(f"rank update needs A, B of equal shape (n <= {2 * self.nv_max}, M); got {A.shape}, {B.shape}")
         self._put(self._A, A, self.M)
         self._put(self._B, B, self.ld)
-        self._k["rank_update"](
-            self.device.queue, (self._rank_g0, self.M), None, self.matrix.buffers[channel], np.int32(self.M), np.int32(self.ld), np.int32(n), self._A, self._B
-        )
+        q, K, lay = self.device.queue, self.matrix.buffers[channel], self.layout
+        M, ld, na = np.int32(self.M), np.int32(self.ld), np.int32(n)
+        if lay.cpu:
+            items = -(-self.M // lay.rank_rb)
+            self._k["rank_update_rows"](q, (items,), (1,), K, M, ld, na, np.int32(lay.rank_rb), self._A, self._B)
+        else:
+            self._k["rank_update"](q, (self.ld // GPU_VW, self.M), None, K, M, ld, na, self._A, self._B)
 
     def read_slots(self, channel: int, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Columns K[:, slots] and rows K[slots, :], both as (k, M) float64."""
