@@ -15,21 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .checks import vec3
 from .errors import InvalidInputError
 
 __all__ = ["Camera", "MAX_IMAGE_SIDE"]
 
 #: Largest accepted image width or height in pixels (a 16k image already needs 3 GiB of rays).
 MAX_IMAGE_SIDE = 16384
-
-
-def _vec3(value, what: str) -> np.ndarray:
-    a = np.asarray(value, dtype=np.float64)
-    if a.shape != (3,):
-        raise InvalidInputError(f"{what} must be three numbers (x, y, z); got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise InvalidInputError(f"{what} must be finite; got {a.tolist()}")
-    return a
 
 
 def _side(value, what: str) -> int:
@@ -67,9 +59,9 @@ class Camera:
     height: int = 240
 
     def __post_init__(self) -> None:
-        pos = _vec3(self.position, "camera position")
-        target = _vec3(self.look_at, "camera look_at")
-        up = _vec3(self.up, "camera up")
+        pos = vec3(self.position, "camera position")
+        target = vec3(self.look_at, "camera look_at")
+        up = vec3(self.up, "camera up")
         forward = target - pos
         dist = np.linalg.norm(forward)
         if dist <= 1e-9 * max(1.0, np.linalg.norm(pos)):

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from .checks import integer, vec3
 from .errors import InvalidInputError, PydynradError
 from .matvec import DeviceMatrix, storage_dtype
 from .selection import NearestSet
@@ -144,23 +145,6 @@ class _FormFactors:
         return self.local.data.nbytes + self.local.indices.nbytes + self.local.indptr.nbytes
 
 
-def _checked_point(p, what: str) -> np.ndarray:
-    a = np.asarray(p, dtype=np.float64)
-    if a.shape != (3,):
-        raise InvalidInputError(f"{what} must be a 3-vector; got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise InvalidInputError(f"{what} contains NaN or infinite values: {a.tolist()}")
-    return a
-
-
-def _checked_int(value, name: str, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise InvalidInputError(f"{name} must be an integer; got {value!r}")
-    if not lo <= value <= hi:
-        raise InvalidInputError(f"{name} must lie in {lo}..{hi}; got {value}")
-    return int(value)
-
-
 class DynamicRadiosity:
     """The local multibounce matrix of the M patches nearest the observer, updated per frame.
 
@@ -206,19 +190,19 @@ class DynamicRadiosity:
             raise InvalidInputError(f"scene must be a pydynrad.Scene; got {type(scene).__name__}")
         n = len(scene)
         self.scene = scene
-        self.M = _checked_int(local_size, "local_size (M)", 1, n)
+        self.M = integer(local_size, "local_size (M)", 1, n)
         if update not in UPDATE_MODES:
             raise InvalidInputError(f"update must be one of {UPDATE_MODES}; got {update!r}")
         self.mode = update
         storage_dtype(storage)
         self.storage = storage
-        self.max_swaps = _checked_int(max_swaps_per_frame, "max_swaps_per_frame", 1, MAX_SWAPS_LIMIT)
+        self.max_swaps = integer(max_swaps_per_frame, "max_swaps_per_frame", 1, MAX_SWAPS_LIMIT)
         if refresh_tolerance is not None and not (np.isfinite(refresh_tolerance) and refresh_tolerance > 0):
             raise InvalidInputError(f"refresh_tolerance must be a positive number or None; got {refresh_tolerance!r}")
         self.refresh_tolerance = refresh_tolerance
-        self.refresh_interval = _checked_int(refresh_interval, "refresh_interval", 1, 2**31 - 1)
+        self.refresh_interval = integer(refresh_interval, "refresh_interval", 1, 2**31 - 1)
         self.device = device or default_device()
-        self._ff = _FormFactors(scene, form_factors, _checked_int(resolution, "resolution", 8, 4096), self.device)
+        self._ff = _FormFactors(scene, form_factors, integer(resolution, "resolution", 8, 4096), self.device)
         self.C = 1 if scene.is_grey else 3
         pinned = scene.emission.max(axis=1) > 0 if keep_emitters else None
         self._select = NearestSet(scene.centers, pinned)
@@ -232,7 +216,7 @@ class DynamicRadiosity:
         self.refreshes = 0
         self._rng = np.random.default_rng(0x5EEAC106)
         if observer is not None:
-            self._build(self._select.nearest(_checked_point(observer, "observer"), self.M)[0])
+            self._build(self._select.nearest(vec3(observer, "observer"), self.M)[0])
 
     # -- state -------------------------------------------------------------------------------------
     @property
@@ -330,7 +314,7 @@ class DynamicRadiosity:
         Returns a :class:`FrameStats`. The first call builds the set if the constructor had no
         ``observer`` (that frame reports ``refreshed=True`` and no swaps).
         """
-        obs = _checked_point(observer_position, "observer_position")
+        obs = vec3(observer_position, "observer_position")
         self.frame += 1
         empty = np.empty(0, np.int64)
         if not self.built:

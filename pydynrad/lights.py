@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .checks import vec3
 from .errors import InvalidInputError
 
 __all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "light_vector", "pack_lights"]
@@ -30,10 +31,7 @@ SHADOW_EPSILON = 1e-4
 
 
 def _vec3(value, what: str) -> tuple[float, float, float]:
-    a = np.asarray(value, dtype=np.float64)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise InvalidInputError(f"{what} must be 3 finite numbers; got {value!r}")
-    return tuple(float(v) for v in a)
+    return tuple(float(v) for v in vec3(value, what))
 
 
 def _rgb(value, what: str) -> tuple[float, float, float]:

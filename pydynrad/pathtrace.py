@@ -26,6 +26,7 @@ import time
 import numpy as np
 
 from .camera import Camera
+from .checks import integer
 from .errors import InvalidInputError
 from .lights import SHADOW_EPSILON, pack_lights
 from .scene import Scene
@@ -51,8 +52,7 @@ class _Tracer:
 
         if not isinstance(scene, Scene):
             raise InvalidInputError(f"scene must be a pydynrad.Scene; got {type(scene).__name__}")
-        if not isinstance(max_depth, (int, np.integer)) or max_depth < 1:
-            raise InvalidInputError(f"max_depth must be a positive integer; got {max_depth!r}")
+        integer(max_depth, "max_depth")
         self.device = device = device or default_device()
         self.defines = {"MAX_DEPTH": int(max_depth)}
         em = scene.emitters
@@ -118,10 +118,8 @@ class _Tracer:
 
 
 def _check_common(spp, seed, time_limit) -> None:
-    if not isinstance(spp, (int, np.integer)) or spp < 1:
-        raise InvalidInputError(f"spp must be a positive integer; got {spp!r}")
-    if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32:
-        raise InvalidInputError(f"seed must be an integer in [0, 2**32); got {seed!r}")
+    integer(spp, "spp (samples per item)")
+    integer(seed, "seed", 0, 2**32 - 1)
     if time_limit is not None and not time_limit > 0:
         raise InvalidInputError(f"time_limit must be positive seconds or None; got {time_limit!r}")
 

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from .checks import integer
 from .errors import InvalidInputError, PydynradError
 from .rowcache import check_row_indices
 
@@ -116,8 +117,7 @@ def _digest(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> str:
 
 
 def _canonical_params(resolution: int, patching: dict | None) -> dict:
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 1:
-        raise InvalidInputError(f"resolution must be a positive integer (hemicube pixels per side); got {resolution!r}")
+    integer(resolution, "resolution (hemicube pixels per side)")
     try:
         # A JSON round trip makes tuples lists, so the recorded and the requested values compare equal.
         patch = json.loads(json.dumps(dict(patching or {}), sort_keys=True))
@@ -154,8 +154,7 @@ class FormFactorStore:
         always raises :class:`StoreMismatchError`.
         """
         path = Path(path)
-        if isinstance(block_rows, bool) or not isinstance(block_rows, (int, np.integer)) or block_rows < 1:
-            raise InvalidInputError(f"block_rows must be a positive integer; got {block_rows!r}")
+        integer(block_rows, "block_rows")
         params = _canonical_params(resolution, patching)
         if (path / HEADER).exists():
             if not exist_ok:
@@ -355,8 +354,7 @@ def task_groups(store: FormFactorStore, blocks: Iterable[int], task_rows: int) -
     One row-function call per group: a call has fixed costs (device buffers, per-scene
     set-up), so tasks of a few thousand rows amortise them while blocks stay small for reads.
     """
-    if isinstance(task_rows, bool) or not isinstance(task_rows, (int, np.integer)) or task_rows < 1:
-        raise InvalidInputError(f"task_rows must be a positive integer; got {task_rows!r}")
+    integer(task_rows, "task_rows")
     groups: list[list[int]] = []
     for k in sorted(blocks):
         g = groups[-1] if groups else None

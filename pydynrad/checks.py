@@ -1,0 +1,39 @@
+"""Argument validators shared by the public API: each returns the clean value or raises
+:class:`~pydynrad.errors.InvalidInputError` naming the argument and the bad value."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import InvalidInputError
+
+__all__ = ["vec3", "integer"]
+
+
+def vec3(value, what: str) -> np.ndarray:
+    """``value`` as a (3,) float64 array (a point or direction in scene units).
+
+    Raises InvalidInputError naming ``what`` unless ``value`` is three finite numbers.
+    """
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{what} must be a 3-vector (three numbers x, y, z); got {value!r}") from None
+    if a.shape != (3,):
+        raise InvalidInputError(f"{what} must be a 3-vector (three numbers x, y, z); got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"{what} must be finite (no NaN or infinite values); got {a.tolist()}")
+    return a
+
+
+def integer(value, what: str, lo: int = 1, hi: int | None = None) -> int:
+    """``value`` as an int in ``lo..hi`` (inclusive; no upper bound when ``hi`` is None).
+
+    Python and numpy integers pass; bools, floats and strings raise InvalidInputError.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise InvalidInputError(f"{what} must be an integer; got {value!r}")
+    if value < lo or (hi is not None and value > hi):
+        bound = f"lie in {lo}..{hi}" if hi is not None else f"be >= {lo}"
+        raise InvalidInputError(f"{what} must {bound}; got {value}")
+    return int(value)

@@ -1,0 +1,33 @@
+import numpy as np
+import pytest
+
+from pydynrad.checks import integer, vec3
+from pydynrad.errors import InvalidInputError
+
+
+def test_vec3_accepts_three_finite_numbers():
+    a = vec3([1, 2.5, np.float32(-3)], "p")
+    assert a.dtype == np.float64 and a.tolist() == [1.0, 2.5, -3.0]
+
+
+@pytest.mark.parametrize("value, message", [
+    ((1, 2), r"observer must be a 3-vector .* shape \(2,\)"),
+    ([[1, 2, 3]], r"shape \(1, 3\)"),
+    ("abc", "observer must be a 3-vector .*'abc'"),
+    ((0, np.nan, 0), r"observer must be finite .*nan"),
+    ((0, 0, np.inf), "NaN or infinite"),
+])
+def test_vec3_names_the_bad_value(value, message):
+    with pytest.raises(InvalidInputError, match=message):
+        vec3(value, "observer")
+
+
+def test_integer_range_and_type():
+    assert integer(np.int64(4), "k", 1, 4) == 4 and type(integer(np.int64(4), "k")) is int
+    for bad in (True, 2.0, "3", None):
+        with pytest.raises(InvalidInputError, match="k must be an integer"):
+            integer(bad, "k")
+    with pytest.raises(InvalidInputError, match=r"k must lie in 1\.\.4; got 5"):
+        integer(5, "k", 1, 4)
+    with pytest.raises(InvalidInputError, match="k must be >= 1; got 0"):
+        integer(0, "k")
