@@ -205,22 +205,9 @@ def suite_section(ctx) -> dict:
 
 
 def main(argv=None) -> int:
-    import pydynrad
+    from .common import run_standalone
 
-    from .report import write_report
-
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--size", choices=list(SIZES), default="quick")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
-    args = ap.parse_args(argv)
-    device = pydynrad.default_device()
-    t0 = time.perf_counter()
-    section = measure(args.size, device)
-    results = {"device": device.info(), "date": time.strftime("%Y-%m-%dT%H:%M:%S"), "size": args.size,
-               "sections": {"dynamic": section}, "seconds": time.perf_counter() - t0}
-    written = write_report(results, args.out, "dynamic")
-    print("\n".join(str(q) for q in written.values()), file=sys.stderr)
-    return 0
+    return run_standalone("dynamic", __doc__, SIZES, measure, argv)
 
 
 if __name__ == "__main__":

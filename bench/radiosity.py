@@ -42,15 +42,15 @@ NNZ_PER_ROW = 400  # synthetic F: about what a hemicube row of a cluttered scene
 _F_CACHE: dict = {}
 
 
-def _scene_and_F(n: int, device, village=None, resolution: int = 32):
+def _scene_and_F(n: int, device, village=None, resolution: int = 32, progress: bool = True):
     """A closed box of about n patches (or the village) and its F, with F's provenance (cached)."""
     key = (n, str(village), resolution)
     if key not in _F_CACHE:
-        _F_CACHE[key] = _make_scene_and_F(n, device, village, resolution)
+        _F_CACHE[key] = _make_scene_and_F(n, device, village, resolution, progress)
     return _F_CACHE[key]
 
 
-def _make_scene_and_F(n: int, device, village, resolution: int):
+def _make_scene_and_F(n: int, device, village, resolution: int, progress: bool):
     import pydynrad
 
     if village is not None:
@@ -62,7 +62,7 @@ def _make_scene_and_F(n: int, device, village, resolution: int):
         em[: max(1, len(scene) // 50)] = 1.0
         scene = scene.with_materials(emission=em)
     if hasattr(pydynrad, "form_factors"):
-        F = pydynrad.form_factors(scene, resolution=resolution, device=device, progress=True)
+        F = pydynrad.form_factors(scene, resolution=resolution, device=device, progress=progress)
         return scene, F, f"hemicube R={resolution}"
     N = len(scene)
     rng = np.random.default_rng(0)
@@ -128,14 +128,14 @@ def _gmres_scipy(F, rho, L):
     return np.stack([spla.gmres(A, L[:, c], rtol=TOL, restart=50)[0] for c in range(L.shape[1])], axis=1)
 
 
-def _solver_rows(device, Ns, village, resolution):
+def _solver_rows(device, Ns, village, resolution, progress):
     import pydynrad
     from pydynrad.solve import RadiositySolver
 
     rows = []
     cases = [(n, None) for n in Ns] + ([(0, village)] if village else [])
     for n, vil in cases:
-        scene, F, source = _scene_and_F(n, device, vil, resolution)
+        scene, F, source = _scene_and_F(n, device, vil, resolution, progress)
         N = len(scene)
         L = pydynrad.light_vector(scene, device=device)
         rho = scene.albedo[:, :1].astype(np.float64)
@@ -158,12 +158,12 @@ def _solver_rows(device, Ns, village, resolution):
     return rows
 
 
-def _build_rows(device, sizes, resolution):
+def _build_rows(device, sizes, resolution, progress):
     import pydynrad
 
     rows = []
     for M in sizes:
-        scene, F, source = _scene_and_F(M, device, resolution=resolution)
+        scene, F, source = _scene_and_F(M, device, resolution=resolution, progress=progress)
         idx = np.arange(min(M, len(scene)))
         m = len(idx)
         t = time_call(lambda: pydynrad.multibounce(scene, F, patches=idx, dtype=np.float32, device=device,
@@ -179,8 +179,8 @@ def _build_rows(device, sizes, resolution):
     return rows
 
 
-def measure(size: str, device) -> dict:
-    """All tables for one size (see the module notes)."""
+def measure(size: str, device, progress: bool = True) -> dict:
+    """All tables for one size (see the module notes); ``progress``: tqdm bars while F is computed."""
     p = SIZES[size]
     copy_np, copy_dev = copy_bandwidth_numpy(), copy_bandwidth_device(device)
     tables = [
@@ -196,13 +196,13 @@ def measure(size: str, device) -> dict:
         {"title": "Full radiosity solve (bounce iteration, float32, tol 1e-6) vs SciPy/numpy",
          "columns": ["scene", "N", "nnz(F)", "F", "bounces", "ours ms", "rel. error", "SpMV GB/s", "ours RGB ms", "SciPy Jacobi ms",
                      "SciPy bounces", "SciPy GMRES ms", "numpy dense ms"],
-         "rows": _solver_rows(device, p["N"], p["village"], p["R"]),
+         "rows": _solver_rows(device, p["N"], p["village"], p["R"], progress),
          "note": "SciPy runs one channel (the scenes are grey), float64. rel. error vs a float64 solve at tol 1e-10. "
                  "'ours RGB ms': the same scene under a coloured light (three channels, still one pass over F "
                  "per bounce)."},
         {"title": "Multibounce build K = (I - F P)^-1 F (float32, grey) vs numpy.linalg.solve",
          "columns": ["M", "F", "ours s", "GFLOP/s (3 M^3)", "rel. error vs f64", "numpy f32 s", "numpy f64 s"],
-         "rows": _build_rows(device, p["build_M"], p["R"])},
+         "rows": _build_rows(device, p["build_M"], p["R"], progress)},
     ]
     return {"title": "Reference radiosity and kernel bandwidth", "description": "\n\n".join(__doc__.split("\n\n")[2:4]), "tables": tables}
 
@@ -214,7 +214,7 @@ def suite_section(ctx) -> dict:
     p["M"] = tuple(ctx.params.get("M", p["M"]))
     SIZES["_suite"] = p
     try:
-        return measure("_suite", ctx.device)
+        return measure("_suite", ctx.device, ctx.progress)
     finally:
         del SIZES["_suite"]
 
