@@ -345,9 +345,12 @@ def _add_form_factors(p: argparse.ArgumentParser, resolution: int = 64) -> None:
     p.add_argument("--cache-mb", type=_positive_float, default=256.0, metavar="MB",
                    help="size of the row cache in MiB when --form-factors is a store folder: the form-factor rows "
                         "held in memory (default 256; not used for a .npz file)")
-    p.add_argument("--resolution", type=_positive_int, default=resolution, metavar="R",
-                   help=f"hemicube resolution (R x R pixels on the top face) when computing form factors "
-                        f"(default {resolution})")
+    _add_resolution(p, resolution, " when computing form factors")
+
+
+def _add_resolution(p: argparse.ArgumentParser, default: int, when: str = "") -> None:
+    p.add_argument("--resolution", type=_positive_int, default=default, metavar="R",
+                   help=f"hemicube resolution (R x R pixels on the top face){when} (default {default})")
 
 
 def _add_camera(p: argparse.ArgumentParser) -> None:
@@ -439,8 +442,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="OUT",
                    help="FILE.npz for a single file, or a folder (new, empty, or a store to resume) for a store; "
                         "its parent folder must exist")
-    p.add_argument("--resolution", type=_positive_int, default=64, metavar="R",
-                   help="hemicube resolution (R x R pixels on the top face) (default 64)")
+    _add_resolution(p, 64)
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=_count, default=None, metavar="N",
                        help="store only: worker processes of a local Dask cluster (LocalCluster, one thread and one "
