@@ -15,7 +15,8 @@
 // Irradiance (W/unit^2) at surface point p with unit normal n from all n_lights lights, one
 // shadow ray each from the offset point org (off the surface, so the ray cannot hit the patch
 // it starts on; the inverse-square law uses the true point p). A shadow ray stops 2 eps short
-// of the light; a directional light's runs to distance far (past the scene).
+// of the light; a directional light's runs to distance far (past the scene). Operators, not
+// builtins (dot, clamp, length), for the reason bvh.cl gives.
 inline float3 analytic_irradiance(float3 p, float3 org, float3 n, const int n_lights,
                                   __global const float4 *lights, __global const float4 *nodes,
                                   __global const float4 *tris, const float eps, const float far)
@@ -32,16 +33,16 @@ inline float3 analytic_irradiance(float3 p, float3 org, float3 n, const int n_li
             scale = 1.0f;
         } else {
             const float3 d = a.xyz - p;
-            dist = length(d);
+            dist = sqrt(BVH_DOT(d, d));
             if (dist <= 0.0f) continue;
             wi = d / dist;
             scale = 1.0f / (dist * dist);
             if (type == 1) {  // spot: smoothstep from the outer to the inner cone
-                const float t = clamp((dot(b.xyz, -wi) - c.w) * b.w, 0.0f, 1.0f);
+                const float t = BVH_MIN(BVH_MAX((-BVH_DOT(b.xyz, wi) - c.w) * b.w, 0.0f), 1.0f);
                 scale *= t * t * (3.0f - 2.0f * t);
             }
         }
-        const float cosine = dot(n, wi);
+        const float cosine = BVH_DOT(n, wi);
         if (cosine <= 0.0f || scale <= 0.0f) continue;
         if (bvh_occluded(nodes, tris, org, wi, 0.0f, dist - 2.0f * eps)) continue;
         h += c.xyz * (scale * cosine);

@@ -68,10 +68,10 @@ inline float3 emitter_irradiance(float3 x, float3 n, uint *rng, SCENE_ARGS)
     float s = sqrt(rng_next(rng)), t = rng_next(rng);
     float3 y = v0 + e1 * (s * (1.0f - t)) + e2 * (s * t);
     float3 d = y - x;
-    float dist2 = dot(d, d);
+    float dist2 = BVH_DOT(d, d);
     float dist = sqrt(dist2);
     float3 w = d / dist;
-    float cx = dot(n, w), cy = -dot(ny, w);
+    float cx = BVH_DOT(n, w), cy = -BVH_DOT(ny, w);
     if (cx <= 0.0f || cy <= 0.0f) return (float3)(0.0f);
     if (bvh_occluded(nodes, tris, x, w, 0.0f, dist - eps)) return (float3)(0.0f);
     float3 e = em_emission[lo].xyz;
@@ -83,13 +83,13 @@ inline float3 emitter_irradiance(float3 x, float3 n, uint *rng, SCENE_ARGS)
 // Cosine-weighted direction about n (pdf cos / pi); branchless basis of Duff et al. 2017.
 inline float3 sample_cosine(float3 n, uint *rng)
 {
-    float sign = copysign(1.0f, n.z);
+    float sign = as_int(n.z) < 0 ? -1.0f : 1.0f;  // copysign(1, n.z), -0 included
     float a = -1.0f / (sign + n.z);
     float b = n.x * n.y * a;
     float3 t = (float3)(1.0f + sign * n.x * n.x * a, sign * b, -sign * n.x);
     float3 bt = (float3)(b, sign + n.y * n.y * a, -n.y);
     float r = sqrt(rng_next(rng)), phi = 2.0f * M_PI_F * rng_next(rng);
-    float z = sqrt(fmax(0.0f, 1.0f - r * r));
+    float z = sqrt(BVH_MAX(1.0f - r * r, 0.0f));
     return normalize(t * (r * cos(phi)) + bt * (r * sin(phi)) + n * z);
 }
 
@@ -114,14 +114,14 @@ inline float3 reflected_radiance(float3 p, float3 n, float3 rho, uint *rng, SCEN
         if (n_emitters > 0 && (e.x > 0.0f || e.y > 0.0f || e.z > 0.0f)) {
             // The bounce ray found an emitter: its radiance E/pi enters with weight thr,
             // MIS-weighted against NEE having picked the same point.
-            float pdf_light = emitter_area_pdf(e, inv_power) * hit.t * hit.t / fmax(-dot(ny, w), 1e-12f);
-            acc += thr * e * (M_1_PI_F * mis_weight(dot(n, w) * M_1_PI_F, pdf_light));
+            float pdf_light = emitter_area_pdf(e, inv_power) * hit.t * hit.t / BVH_MAX(-BVH_DOT(ny, w), 1e-12f);
+            acc += thr * e * (M_1_PI_F * mis_weight(BVH_DOT(n, w) * M_1_PI_F, pdf_light));
         }
         p = x + w * hit.t;
         n = ny;
         thr *= albedo[hit.patch].xyz;
         if (depth + 1 >= RR_DEPTH) {
-            float q = fmin(fmax(thr.x, fmax(thr.y, thr.z)), 0.95f);
+            float q = BVH_MIN(BVH_MAX(thr.x, BVH_MAX(thr.y, thr.z)), 0.95f);
             if (rng_next(rng) >= q) break;
             thr /= q;
         }
