@@ -1,8 +1,8 @@
 """Form-factor rows on demand: the ``RowSource`` protocol and a bounded, prefetching row cache.
 
-Dynamic radiosity needs only the rows of patches entering the local set (their columns follow
-by reciprocity, ``F[j, i] = A_i F[i, j] / A_j``). Anything with ``n_patches`` and
-``rows(idx) -> csr (len(idx), N)`` can supply them:
+Dynamic radiosity needs only the rows of patches entering the local set (the columns it needs,
+F[S, J], it reads from the local set's own rows, which it keeps; see pydynrad.dynamic).
+Anything with ``n_patches`` and ``rows(idx) -> csr (len(idx), N)`` can supply them:
 
 * :class:`CSRRows`: an in-memory sparse matrix (what :func:`pydynrad.form_factors` returns);
 * :class:`pydynrad.store.FormFactorStore`: rows read from disk block by block;
