@@ -381,13 +381,17 @@ class DynamicRadiosity:
     def _paper_frame(self, slots: np.ndarray, J: np.ndarray) -> float:
         from .paper import paper_swap
 
-        t_ff = 0.0
-        for s, j in zip(slots.tolist(), J.tolist()):
+        # One fetch per frame (slots are distinct): step t's local set is the frame's first set
+        # with slots[:t] holding J[:t], so its f_c and f_r are F_SJ[:, t] and F_JS[t] with those
+        # slots read from F_JJ: the same values a fetch per step would give.
+        t0 = time.perf_counter()
+        F_SJ, F_JS, F_JJ = self._ff.entering(self._members, J, slots)
+        t_ff = time.perf_counter() - t0
+        for t, (s, j) in enumerate(zip(slots.tolist(), J.tolist())):
             self._swap_members(np.array([s]), np.array([j]))
-            t0 = time.perf_counter()
-            F_SJ, F_JS, _ = self._ff.entering(self._members, np.array([j]), np.array([s]))
-            t_ff += time.perf_counter() - t0
-            f_c, f_r = F_SJ[:, 0], F_JS[0]
+            f_c, f_r = F_SJ[:, t].copy(), F_JS[t].copy()
+            f_c[slots[:t]] = F_JJ[:t, t]
+            f_r[slots[:t]] = F_JJ[t, :t]
             f_c[s] = f_r[s] = 0.0
             rho_S, rho_j = self._rho(self._members), self._rho(np.array([j]))[:, 0]
             mask = ~self._used.holding(j)
