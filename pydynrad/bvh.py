@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _bvh
+from .checks import finite
 from .errors import InvalidInputError
 
 __all__ = ["BVH", "cast_rays", "occluded"]
@@ -79,8 +80,7 @@ class BVH:
         v = np.ascontiguousarray(vertices, dtype=np.float32)
         if v.ndim != 3 or v.shape[1:] != (3, 3) or len(v) == 0:
             raise InvalidInputError(f"BVH needs (N, 3, 3) triangle corners with N > 0; got {v.shape}")
-        if not np.all(np.isfinite(v)):
-            raise InvalidInputError("BVH input contains NaN or infinite coordinates")
+        finite(v, "BVH input (triangle corners)")
         n = len(v)
         nodes = np.empty((n, NODE_FLOATS), dtype=np.float32)
         order = np.empty(n, dtype=np.int32)
@@ -142,7 +142,8 @@ def _rays(origins, directions, tmax) -> tuple[np.ndarray, np.ndarray, np.ndarray
         raise InvalidInputError("ray directions must be non-zero")
     tm = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=np.float32), (len(o),)))
     if not np.all(tm > 0):  # NaN fails the comparison too
-        raise InvalidInputError("tmax must be > 0 (inf for unbounded rays)")
+        bad = int(np.argmin(tm > 0))
+        raise InvalidInputError(f"tmax must be > 0 (inf for unbounded rays); got {tm[bad]} for ray {bad}")
     return o, d, tm
 
 

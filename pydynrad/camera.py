@@ -65,10 +65,11 @@ class Camera:
         forward = target - pos
         dist = np.linalg.norm(forward)
         if dist <= 1e-9 * max(1.0, np.linalg.norm(pos)):
-            raise InvalidInputError("camera look_at must differ from its position")
+            raise InvalidInputError(f"camera look_at {target.tolist()} must differ from its position {pos.tolist()}")
         forward /= dist
         if np.linalg.norm(up) == 0 or np.linalg.norm(np.cross(forward, up / np.linalg.norm(up))) < 1e-6:
-            raise InvalidInputError("camera up must not be zero or parallel to the view direction")
+            raise InvalidInputError(f"camera up must not be zero or parallel to the view direction "
+                                    f"{forward.tolist()}; got {up.tolist()}")
         fov = float(self.fov_y)
         if not (np.isfinite(fov) and 0.0 < fov < 180.0):
             raise InvalidInputError(f"camera fov_y must be in (0, 180) degrees; got {self.fov_y!r}")

@@ -7,7 +7,7 @@ import numpy as np
 
 from .errors import InvalidInputError
 
-__all__ = ["vec3", "integer"]
+__all__ = ["vec3", "integer", "finite"]
 
 
 def vec3(value, what: str) -> np.ndarray:
@@ -37,3 +37,13 @@ def integer(value, what: str, lo: int = 1, hi: int | None = None) -> int:
         bound = f"lie in {lo}..{hi}" if hi is not None else f"be >= {lo}"
         raise InvalidInputError(f"{what} must {bound}; got {value}")
     return int(value)
+
+
+def finite(a: np.ndarray, what: str) -> None:
+    """Raise InvalidInputError naming ``what`` and the first NaN or infinite element of ``a``."""
+    bad = ~np.isfinite(a)
+    if bad.any():
+        first = np.unravel_index(int(np.argmax(bad)), np.shape(a))
+        where = first[0] if len(first) == 1 else tuple(int(i) for i in first)
+        raise InvalidInputError(f"{what} contains NaN or infinite values ({bad.sum()} of {bad.size}; "
+                                f"first at index {where}: {a[first]})")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .checks import finite
 from .errors import DeviceError, InvalidInputError, OutOfMemoryError
 
 __all__ = ["DeviceMatrix", "STORAGE_DTYPES", "storage_dtype", "MAX_RHS"]
@@ -207,8 +208,7 @@ class DeviceMatrix:
             x = np.broadcast_to(x, (self.C, self.M))
         if x.shape != (self.C, self.M):
             raise InvalidInputError(f"x must have shape ({self.C}, {self.M}) or ({self.M},); got {x.shape}")
-        if not np.all(np.isfinite(x)):
-            raise InvalidInputError("x contains NaN or infinite values")
+        finite(x, "x")
         return x
 
     def _buffers(self):
@@ -234,8 +234,7 @@ class DeviceMatrix:
             X = np.broadcast_to(X, (self.C, *X.shape))
         if X.ndim != 3 or X.shape[0] != self.C or X.shape[2] != self.M or X.shape[1] < 1:
             raise InvalidInputError(f"X must have shape ({self.C}, r, {self.M}) or (r, {self.M}) with r >= 1; got {X.shape}")
-        if not np.all(np.isfinite(X)):
-            raise InvalidInputError("X contains NaN or infinite values")
+        finite(X, "X")
         x_buf, y_buf = self._buffers()
         r = X.shape[1]
         xh = np.zeros((MAX_RHS, self.ld), dtype=self.real_dtype)

@@ -84,8 +84,9 @@ def _checked_patches(patches, n: int) -> np.ndarray:
         raise InvalidInputError(f"patches must be a non-empty 1-D integer array; got {idx.dtype} shape {idx.shape}")
     if idx.min() < 0 or idx.max() >= n:
         raise InvalidInputError(f"patches must index 0..{n - 1}")
-    if len(np.unique(idx)) != len(idx):
-        raise InvalidInputError("patches contains repeated indices")
+    values, counts = np.unique(idx, return_counts=True)
+    if len(values) != len(idx):
+        raise InvalidInputError(f"patches contains repeated indices, e.g. {values[counts > 1][:5].tolist()}")
     return idx.astype(np.int64)
 
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Camera
+from .checks import finite
 from .errors import InvalidInputError
 
 __all__ = ["Renderer", "Visibility", "render", "smoothing_groups", "SHADINGS"]
@@ -121,8 +122,7 @@ def _as_radiosity(radiosity, n: int) -> np.ndarray:
         b = b[:, None]
     if b.ndim != 2 or b.shape[0] != n or b.shape[1] not in (1, 3):
         raise InvalidInputError(f"radiosity must have shape ({n},), ({n}, 1) or ({n}, 3); got {np.shape(radiosity)}")
-    if not np.all(np.isfinite(b)):
-        raise InvalidInputError("radiosity contains NaN or infinite values")
+    finite(b, "radiosity")
     return np.broadcast_to(b, (n, 3))
 
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from pydynrad.checks import integer, vec3
+from pydynrad.checks import finite, integer, vec3
 from pydynrad.errors import InvalidInputError
 
 
@@ -31,3 +31,11 @@ def test_integer_range_and_type():
         integer(5, "k", 1, 4)
     with pytest.raises(InvalidInputError, match="k must be >= 1; got 0"):
         integer(0, "k")
+
+
+def test_finite_names_the_first_bad_element():
+    finite(np.ones((2, 3)), "K")
+    with pytest.raises(InvalidInputError, match=r"x contains NaN or infinite values \(1 of 4; first at index 2: nan\)"):
+        finite(np.array([0.0, 1.0, np.nan, 3.0]), "x")
+    with pytest.raises(InvalidInputError, match=r"\(2 of 6; first at index \(1, 0\): inf\)"):
+        finite(np.array([[0, 1, 2], [np.inf, 4, -np.inf]]), "B")
