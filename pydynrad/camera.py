@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import vec3
+from .checks import number, vec3
 from .errors import InvalidInputError
 
 __all__ = ["Camera", "MAX_IMAGE_SIDE"]
@@ -70,7 +70,7 @@ class Camera:
         if np.linalg.norm(up) == 0 or np.linalg.norm(np.cross(forward, up / np.linalg.norm(up))) < 1e-6:
             raise InvalidInputError(f"camera up must not be zero or parallel to the view direction "
                                     f"{forward.tolist()}; got {up.tolist()}")
-        fov = float(self.fov_y)
+        fov = number(self.fov_y, "camera fov_y")
         if not (np.isfinite(fov) and 0.0 < fov < 180.0):
             raise InvalidInputError(f"camera fov_y must be in (0, 180) degrees; got {self.fov_y!r}")
         # Frozen dataclass: normalise the fields through object.__setattr__.

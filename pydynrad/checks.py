@@ -7,7 +7,23 @@ import numpy as np
 
 from .errors import InvalidInputError
 
-__all__ = ["vec3", "integer", "finite"]
+__all__ = ["floats", "vec3", "number", "integer", "finite", "scene"]
+
+
+def floats(value, what: str) -> np.ndarray:
+    """``value`` as a float64 array; InvalidInputError naming ``what`` if it holds non-numbers."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{what} must be numbers; got {value!r}") from None
+
+
+def number(value, what: str) -> float:
+    """``value`` as a finite float; InvalidInputError naming ``what`` otherwise."""
+    a = floats(value, what)
+    if a.shape != () or not np.isfinite(a):
+        raise InvalidInputError(f"{what} must be one finite number; got {value!r}")
+    return float(a)
 
 
 def vec3(value, what: str) -> np.ndarray:
@@ -15,10 +31,7 @@ def vec3(value, what: str) -> np.ndarray:
 
     Raises InvalidInputError naming ``what`` unless ``value`` is three finite numbers.
     """
-    try:
-        a = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"{what} must be a 3-vector (three numbers x, y, z); got {value!r}") from None
+    a = floats(value, what)
     if a.shape != (3,):
         raise InvalidInputError(f"{what} must be a 3-vector (three numbers x, y, z); got shape {a.shape}")
     if not np.all(np.isfinite(a)):
@@ -47,3 +60,12 @@ def finite(a: np.ndarray, what: str) -> None:
         where = first[0] if len(first) == 1 else tuple(int(i) for i in first)
         raise InvalidInputError(f"{what} contains NaN or infinite values ({bad.sum()} of {bad.size}; "
                                 f"first at index {where}: {a[first]})")
+
+
+def scene(value, what: str = "scene"):
+    """``value`` if it is a :class:`pydynrad.Scene`, else InvalidInputError naming its type."""
+    from .scene import Scene
+
+    if not isinstance(value, Scene):
+        raise InvalidInputError(f"{what} must be a pydynrad.Scene; got {type(value).__name__}")
+    return value

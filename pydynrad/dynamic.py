@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from .checks import integer, vec3
+from .checks import integer, scene as checked_scene, vec3
 from .errors import InvalidInputError, PydynradError
 from .matvec import DeviceMatrix, storage_dtype
 from .selection import NearestSet
@@ -184,10 +184,8 @@ class DynamicRadiosity:
                  max_swaps_per_frame: int = 8, refresh_tolerance: float | None = None, refresh_interval: int = 32,
                  observer=None, keep_emitters: bool = True, resolution: int = 128, device=None) -> None:
         from .device import default_device
-        from .scene import Scene
 
-        if not isinstance(scene, Scene):
-            raise InvalidInputError(f"scene must be a pydynrad.Scene; got {type(scene).__name__}")
+        checked_scene(scene)
         n = len(scene)
         self.scene = scene
         self.M = integer(local_size, "local_size (M)", 1, n)

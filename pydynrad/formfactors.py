@@ -19,6 +19,7 @@ from functools import lru_cache
 import numpy as np
 import scipy.sparse as sp
 
+from .checks import scene as checked_scene
 from .errors import InvalidInputError
 
 __all__ = ["form_factors", "pixel_form_factors", "SURFACE_OFFSET"]
@@ -139,7 +140,7 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
 
     dev = device or default_device()
     R = _check_resolution(resolution, dev)
-    n = len(scene)
+    n = len(checked_scene(scene))
     rows = _check_rows(rows, n)
     if len(rows) == 0:
         return sp.csr_matrix((0, n), dtype=np.float32)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import vec3
+from .checks import floats, number, scene as checked_scene, vec3
 from .errors import InvalidInputError
 
 __all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "light_vector", "pack_lights"]
@@ -35,7 +35,7 @@ def _vec3(value, what: str) -> tuple[float, float, float]:
 
 
 def _rgb(value, what: str) -> tuple[float, float, float]:
-    a = np.asarray(value, dtype=np.float64)
+    a = floats(value, what)
     if a.ndim == 0:
         a = np.full(3, float(a))
     rgb = _vec3(a, what)
@@ -86,7 +86,8 @@ class SpotLight:
         object.__setattr__(self, "position", _vec3(self.position, "SpotLight.position"))
         object.__setattr__(self, "direction", _unit(self.direction, "SpotLight.direction"))
         object.__setattr__(self, "intensity", _rgb(self.intensity, "SpotLight.intensity"))
-        inner, outer = float(self.inner_angle), float(self.outer_angle)
+        inner = number(self.inner_angle, "SpotLight.inner_angle")
+        outer = number(self.outer_angle, "SpotLight.outer_angle")
         if not (0.0 <= inner <= outer <= math.pi and outer > 0.0):
             raise InvalidInputError(
                 f"SpotLight angles must satisfy 0 <= inner_angle <= outer_angle <= pi, outer_angle > 0 (radians); "
@@ -149,7 +150,7 @@ def direct_irradiance(scene, lights, device=None) -> np.ndarray:
     from .device import default_device
 
     packed = pack_lights(lights)
-    n = len(scene)
+    n = len(checked_scene(scene))
     if not len(packed):
         return np.zeros((n, 3), dtype=np.float32)
     device = device or default_device()
@@ -175,7 +176,7 @@ def direct_irradiance(scene, lights, device=None) -> np.ndarray:
 
 def light_vector(scene, lights=(), device=None) -> np.ndarray:
     """L (N, 3) float64: emission plus the albedo-weighted direct irradiance of ``lights``."""
-    L = scene.emission.astype(np.float64)
+    L = checked_scene(scene).emission.astype(np.float64)
     lights = _checked_lights(lights)
     if lights:
         L = L + scene.albedo.astype(np.float64) * direct_irradiance(scene, lights, device)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .checks import scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
 from .solve import available_host_bytes, check_form_factors
 
@@ -232,7 +233,7 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
         raise InvalidInputError(f"bounces must be None or a non-negative integer; got {bounces!r}")
     device = device or default_device()
     work = _real_dtype(np.float64 if out == np.float64 else np.float32, device)
-    idx = _checked_patches(patches, len(scene))
+    idx = _checked_patches(patches, len(checked_scene(scene)))
     M, C = len(idx), 1 if scene.is_grey else 3
     _check_memory(M, C, out, bounces, device)
     F = check_form_factors(scene, F)

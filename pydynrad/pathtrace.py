@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 from .camera import Camera
-from .checks import integer
+from .checks import integer, scene as checked_scene
 from .errors import InvalidInputError
 from .lights import SHADOW_EPSILON, pack_lights
 from .scene import Scene
@@ -50,8 +50,7 @@ class _Tracer:
     def __init__(self, scene: Scene, lights, max_depth: int, device) -> None:
         from .device import default_device
 
-        if not isinstance(scene, Scene):
-            raise InvalidInputError(f"scene must be a pydynrad.Scene; got {type(scene).__name__}")
+        checked_scene(scene)
         integer(max_depth, "max_depth")
         self.device = device = device or default_device()
         self.defines = {"MAX_DEPTH": int(max_depth)}
@@ -188,8 +187,7 @@ def path_trace_patches(scene: Scene, patches=None, spp: int = 256, lights=(), se
     (n, 3) float32 radiosity (the scene's emission units).
     """
     _check_common(spp, seed, time_limit)
-    if not isinstance(scene, Scene):
-        raise InvalidInputError(f"scene must be a pydynrad.Scene; got {type(scene).__name__}")
+    checked_scene(scene)
     ids = np.arange(len(scene)) if patches is None else np.asarray(patches)
     if ids.ndim != 1 or (len(ids) and not np.issubdtype(ids.dtype, np.integer)):
         raise InvalidInputError(f"patches must be a 1-D array of patch indices; got shape {ids.shape}, dtype {ids.dtype}")

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Camera
-from .checks import finite
+from .checks import finite, number, scene as checked_scene
 from .errors import InvalidInputError
 
 __all__ = ["Renderer", "Visibility", "render", "smoothing_groups", "SHADINGS"]
@@ -149,9 +149,9 @@ class Renderer:
     def __init__(self, scene, device=None, crease_angle: float = 30.0) -> None:
         from .device import default_device
 
-        self.scene = scene
+        self.scene = checked_scene(scene)
         self.device = device or default_device()
-        self.crease_angle = float(crease_angle)
+        self.crease_angle = number(crease_angle, "crease_angle")
 
     @property
     def corner_groups(self) -> tuple[np.ndarray, int]:

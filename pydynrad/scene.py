@@ -18,6 +18,7 @@ from functools import cached_property
 
 import numpy as np
 
+from .checks import floats
 from .errors import InvalidInputError
 
 __all__ = ["Scene", "DegenerateTriangleWarning"]
@@ -28,7 +29,7 @@ class DegenerateTriangleWarning(UserWarning):
 
 
 def _as_rgb(value, n: int, what: str) -> np.ndarray:
-    a = np.asarray(value, dtype=np.float64)
+    a = floats(value, what)
     if a.ndim == 0:
         a = np.full((n, 3), float(a))
     elif a.shape == (3,):
