@@ -15,8 +15,7 @@ Measured in one run:
   against ``numpy.linalg.solve`` on the same dense system in float32 and float64.
 
 Scenes: closed boxes of growing N (and the village when a size asks for it) with hemicube
-form factors from ``pydynrad.form_factors`` when that is available; otherwise a synthetic F
-with the same sparsity (k entries per row, rows summing to 0.95), recorded in the tables.
+hemicube form factors from ``pydynrad.form_factors`` (their resolution recorded in the tables).
 """
 
 from __future__ import annotations
@@ -36,7 +35,6 @@ SIZES = {
              "village": {"houses": 12, "detail": 1.0}, "R": 64},
 }
 TOL = 1e-6
-NNZ_PER_ROW = 400  # synthetic F: about what a hemicube row of a cluttered scene keeps
 
 
 _F_CACHE: dict = {}
@@ -61,17 +59,8 @@ def _make_scene_and_F(n: int, device, village, resolution: int, progress: bool):
         em = np.zeros((len(scene), 3))
         em[: max(1, len(scene) // 50)] = 1.0
         scene = scene.with_materials(emission=em)
-    if hasattr(pydynrad, "form_factors"):
-        F = pydynrad.form_factors(scene, resolution=resolution, device=device, progress=progress)
-        return scene, F, f"hemicube R={resolution}"
-    N = len(scene)
-    rng = np.random.default_rng(0)
-    k = min(NNZ_PER_ROW, N - 1)
-    cols = (np.arange(N)[:, None] + rng.integers(1, N, (N, k))) % N
-    F = sp.csr_matrix((rng.random(N * k), cols.ravel(), np.arange(0, N * k + 1, k)), shape=(N, N))
-    F.sum_duplicates()
-    F = sp.diags(0.95 / np.asarray(F.sum(axis=1)).ravel()) @ F
-    return scene, sp.csr_matrix(F, dtype=np.float32), f"synthetic, {k}/row"
+    F = pydynrad.form_factors(scene, resolution=resolution, device=device, progress=progress)
+    return scene, F, f"hemicube R={resolution}"
 
 
 def _matvec_rows(device, sizes, copy_gbs):
