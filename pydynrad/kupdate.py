@@ -132,6 +132,9 @@ class UpdateKernels:
         self._B = cl.Buffer(ctx, mf.READ_ONLY, 2 * nv * ld * r)
         self._slots = cl.Buffer(ctx, mf.READ_ONLY, nv * 4)
         self._out = cl.Buffer(ctx, mf.READ_WRITE, 3 * M * r)
+        if dev.queue.properties & cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE:
+            raise InvalidInputError("UpdateKernels needs an in-order command queue")
+        self._inflight: list[np.ndarray] = []  # host arrays of uploads not yet known complete
 
     @property
     def nbytes(self) -> int:
@@ -139,21 +142,31 @@ class UpdateKernels:
         return scratch_nbytes(self.device, self.M, self.ld, self.real.itemsize, self.nv_max)
 
     # -- helpers ---------------------------------------------------------------------------------
-    def _put(self, buf, a: np.ndarray, width: int) -> None:
-        """Upload rows of a (n, M) float array into buf with row pitch ``width`` (zero padded)."""
+    def _put(self, buf, a: np.ndarray, width: int, dtype=None) -> None:
+        """Upload rows of a (n, M) array into buf with row pitch ``width`` (zero padded).
+
+        The copy is not waited for: the queue is in order, so the kernels after it see the
+        data, and the host array is kept alive until the next :meth:`_get` has waited."""
         import pyopencl as cl
 
         a = np.atleast_2d(a)
-        host = np.zeros((a.shape[0], width), dtype=self.real)
+        host = np.zeros((a.shape[0], width), dtype=dtype or self.real)
         host[:, : a.shape[1]] = a
-        cl.enqueue_copy(self.device.queue, buf, host)
+        cl.enqueue_copy(self.device.queue, buf, host, is_blocking=False)
+        self._inflight.append(host)
+        if len(self._inflight) > 64:  # callers that never read back: bound what is kept
+            self.device.queue.finish()
+            self._inflight.clear()
 
-    def _get(self, buf, n: int) -> np.ndarray:
+    def _get(self, *bufs: tuple) -> list[np.ndarray]:
+        """Read (buffer, n) pairs, n rows of M each, with one wait; float64 copies."""
         import pyopencl as cl
 
-        host = np.empty((n, self.M), dtype=self.real)
-        cl.enqueue_copy(self.device.queue, host, buf, is_blocking=True)
-        return host.astype(np.float64)
+        hosts = [np.empty((n, self.M), dtype=self.real) for _, n in bufs]
+        events = [cl.enqueue_copy(self.device.queue, h, b, is_blocking=False) for h, (b, _) in zip(hosts, bufs)]
+        events[-1].wait()  # in-order queue: every earlier command is done too
+        self._inflight.clear()
+        return [h.astype(np.float64) for h in hosts]
 
     def _check(self, n: int) -> None:
         if not 1 <= n <= self.nv_max:
@@ -180,7 +193,8 @@ class UpdateKernels:
                                       self._rowpart, self._colpart)
         self._k["gather_reduce"](q, self._grid(n), None, self._rowpart, self._colpart, M, ld, nv, np.int32(lay.parts),
                                  np.int32(self.n_blocks), self._KX, self._YK)
-        return self._get(self._KX, n), self._get(self._YK, n)
+        KX, YK = self._get((self._KX, n), (self._YK, n))
+        return KX, YK
 
     def rank_update(self, channel: int, A: np.ndarray, B: np.ndarray) -> None:
         """K += sum_n outer(A[n], B[n]) for A, B of shape (n, M), n <= 2 * max_vectors."""
@@ -200,36 +214,28 @@ class UpdateKernels:
 
     def read_slots(self, channel: int, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Columns K[:, slots] and rows K[slots, :], both as (k, M) float64."""
-        import pyopencl as cl
-
-        slots = np.ascontiguousarray(slots, dtype=np.int32)
-        self._check(len(slots))
-        cl.enqueue_copy(self.device.queue, self._slots, slots)
-        k = len(slots)
-        cols, rows = self._KX, self._YK
-        self._k["read_slots"](self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M), np.int32(self.ld), self._slots, cols, rows)
-        return self._get(cols, k), self._get(rows, k)
-
-    def write_slots(self, channel: int, slots: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> None:
-        """K[:, slots[m]] = cols[m], K[slots[m], :] = rows[m]; cols/rows must agree where they cross."""
-        import pyopencl as cl
-
         slots = np.ascontiguousarray(slots, dtype=np.int32)
         k = len(slots)
         self._check(k)
-        cl.enqueue_copy(self.device.queue, self._slots, slots)
+        self._put(self._slots, slots, k, np.int32)
+        self._k["read_slots"](self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M),
+                              np.int32(self.ld), self._slots, self._KX, self._YK)
+        cols, rows = self._get((self._KX, k), (self._YK, k))
+        return cols, rows
+
+    def write_slots(self, channel: int, slots: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> None:
+        """K[:, slots[m]] = cols[m], K[slots[m], :] = rows[m]; cols/rows must agree where they cross."""
+        slots = np.ascontiguousarray(slots, dtype=np.int32)
+        k = len(slots)
+        self._check(k)
+        self._put(self._slots, slots, k, np.int32)
         self._put(self._A, cols, self.M)
         self._put(self._Y, rows, self.M)
-        self._k["write_slots"](
-            self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M), np.int32(self.ld), self._slots, np.int32(k), self._A, self._Y
-        )
+        self._k["write_slots"](self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M),
+                               np.int32(self.ld), self._slots, np.int32(k), self._A, self._Y)
 
     def double_reflection(self, f_c: np.ndarray, f_r: np.ndarray, rho: np.ndarray) -> float:
         """Eq. 1: sum_a f_c[a] f_r[a] rho[a] over the M slots, reduced on the device."""
-        import pyopencl as cl
-
         self._put(self._out, np.stack([f_c, f_r, rho]).reshape(1, -1), 3 * self.M)
         self._k["double_reflection"](self.device.queue, (64,), (64,), self._out, np.int32(self.M), self._KX)
-        out = np.empty(1, dtype=self.real)
-        cl.enqueue_copy(self.device.queue, out, self._KX, is_blocking=True)
-        return float(out[0])
+        return float(self._get((self._KX, 1))[0][0, 0])
