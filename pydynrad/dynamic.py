@@ -259,7 +259,7 @@ class DynamicRadiosity:
         device = device or default_device()
         ld = -(-M // LD_ALIGN) * LD_ALIGN
         real = 8 if storage == "fp64" else 4
-        return channels * M * ld * storage_dtype(storage).itemsize + scratch_nbytes(device, M, ld, real, max_swaps_per_frame)
+        return channels * M * ld * storage_dtype(storage).itemsize + scratch_nbytes(device, M, ld, real, max_swaps_per_frame, channels)
 
     @property
     def host_memory_bytes(self) -> int:
@@ -370,9 +370,7 @@ class DynamicRadiosity:
         F_SJ[slots, :] = 0.0  # the leaving patches take no part in the new paths
         F_JS[:, slots] = 0.0
         t_ff = time.perf_counter() - t0
-        rho_S, rho_J = self._rho(self._members), self._rho(J)
-        for c in range(self.C):
-            exact_swap(self._kernels, c, slots, F_SJ, F_JS, F_JJ, rho_S[c], rho_J[c])
+        exact_swap(self._kernels, slots, F_SJ, F_JS, F_JJ, self._rho(self._members), self._rho(J))
         self._swap_members(slots, J)
         return t_ff
 
@@ -393,8 +391,7 @@ class DynamicRadiosity:
             f_c[s] = f_r[s] = 0.0
             rho_S, rho_j = self._rho(self._members), self._rho(np.array([j]))[:, 0]
             mask = ~self._used.holding(j)
-            for c in range(self.C):
-                paper_swap(self._kernels, c, s, f_c, f_r, rho_S[c], rho_j[c], mask)
+            paper_swap(self._kernels, s, f_c, f_r, rho_S, rho_j, mask)
             self._used.add(j)
             self._used.reset(s, self._included)
         return t_ff

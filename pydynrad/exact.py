@@ -83,15 +83,19 @@ def batched_swap(
     return SwapUpdate(A=A, B=B, cols=cols, rows=rows)
 
 
-def exact_swap(kernels, channel: int, slots: np.ndarray, F_SJ: np.ndarray, F_JS: np.ndarray, F_JJ: np.ndarray,
+def exact_swap(kernels, slots: np.ndarray, F_SJ: np.ndarray, F_JS: np.ndarray, F_JJ: np.ndarray,
                rho_S: np.ndarray, rho_J: np.ndarray) -> None:
-    """Apply the exact batch swap to one channel of the device matrix behind ``kernels``.
+    """Apply the exact batch swap to every channel of the device matrix behind ``kernels``.
 
-    Device work: the slots' columns and rows (O(k M)), one read pass (gather), one
-    read-write pass (rank 2k), then J's columns and rows written into the slots.
+    rho_S (C, M) and rho_J (C, k): the albedo per channel. Device work per channel: the
+    slots' columns and rows (O(k M)) and one read pass (gather), all channels enqueued
+    before one read-back; then per channel the host algebra, one read-write pass (rank 2k)
+    and J's columns and rows written into the slots, not waited for.
     """
-    cols_I, rows_I = kernels.read_slots(channel, slots)
-    KPF, FPK = kernels.gather(channel, (rho_S[:, None] * F_SJ).T, F_JS * rho_S[None, :])
-    upd = batched_swap(cols_I.T, rows_I, KPF.T, FPK, F_SJ, F_JS, F_JJ, rho_S, rho_J, slots)
-    kernels.rank_update(channel, upd.A.T, upd.B)
-    kernels.write_slots(channel, slots, upd.cols, upd.rows)
+    X = rho_S[:, None, :] * F_SJ.T[None]  # (P_S F_SJ)^T per channel
+    Y = F_JS[None] * rho_S[:, None, :]  # F_JS P_S per channel
+    KPF, FPK, cols_I, rows_I = kernels.gather_all(X, Y, slots)
+    for c in range(len(rho_S)):
+        upd = batched_swap(cols_I[c].T, rows_I[c], KPF[c].T, FPK[c], F_SJ, F_JS, F_JJ, rho_S[c], rho_J[c], slots)
+        kernels.rank_update(c, upd.A.T, upd.B)
+        kernels.write_slots(c, slots, upd.cols, upd.rows)

@@ -89,12 +89,13 @@ def _clang_vectors(device) -> bool:
     return device.is_cpu and "Portable Computing Language" in d.platform.name and int(d.mem_base_addr_align) >= 1024
 
 
-def scratch_nbytes(device, M: int, ld: int, real_itemsize: int, max_vectors: int) -> int:
+def scratch_nbytes(device, M: int, ld: int, real_itemsize: int, max_vectors: int, channels: int = 1) -> int:
     """Device bytes of :class:`UpdateKernels`' scratch buffers for these sizes."""
     lay = Layout.make(device, M, ld)
     nv = max_vectors
-    reals = nv * ld + nv * M + lay.parts * nv * M + _n_blocks(M, lay) * nv * ld + 2 * nv * M + 2 * nv * M + 2 * nv * ld + 3 * M
-    return real_itemsize * reals + 4 * nv
+    shared = nv * ld + nv * M + lay.parts * nv * M + _n_blocks(M, lay) * nv * ld + 2 * nv * M + 2 * nv * ld + 3 * M
+    per_channel = 4 * nv * M  # K X, Y K, slot columns, slot rows: read back together for all channels
+    return real_itemsize * (shared + channels * per_channel) + 4 * nv
 
 
 class UpdateKernels:
@@ -126,8 +127,9 @@ class UpdateKernels:
         self._Y = cl.Buffer(ctx, mf.READ_ONLY, nv * M * r)
         self._rowpart = cl.Buffer(ctx, mf.READ_WRITE, self.layout.parts * nv * M * r)
         self._colpart = cl.Buffer(ctx, mf.READ_WRITE, self.n_blocks * nv * ld * r)
-        self._KX = cl.Buffer(ctx, mf.READ_WRITE, nv * M * r)
-        self._YK = cl.Buffer(ctx, mf.READ_WRITE, nv * M * r)
+        # Results per channel, so all channels' passes are enqueued before one read-back.
+        self._res = [{name: cl.Buffer(ctx, mf.READ_WRITE, nv * M * r) for name in ("KX", "YK", "cols", "rows")}
+                     for _ in range(matrix.C)]
         self._A = cl.Buffer(ctx, mf.READ_ONLY, 2 * nv * M * r)
         self._B = cl.Buffer(ctx, mf.READ_ONLY, 2 * nv * ld * r)
         self._slots = cl.Buffer(ctx, mf.READ_ONLY, nv * 4)
@@ -139,7 +141,7 @@ class UpdateKernels:
     @property
     def nbytes(self) -> int:
         """Device bytes of the scratch buffers (vectors and partial sums)."""
-        return scratch_nbytes(self.device, self.M, self.ld, self.real.itemsize, self.nv_max)
+        return scratch_nbytes(self.device, self.M, self.ld, self.real.itemsize, self.nv_max, self.matrix.C)
 
     # -- helpers ---------------------------------------------------------------------------------
     def _put(self, buf, a: np.ndarray, width: int, dtype=None) -> None:
@@ -159,11 +161,12 @@ class UpdateKernels:
             self._inflight.clear()
 
     def _get(self, *bufs: tuple) -> list[np.ndarray]:
-        """Read (buffer, n) pairs, n rows of M each, with one wait; float64 copies."""
+        """Read (buffer, n) or (buffer, n, width) items, n rows of ``width`` (default M) each,
+        with one wait; float64 copies."""
         import pyopencl as cl
 
-        hosts = [np.empty((n, self.M), dtype=self.real) for _, n in bufs]
-        events = [cl.enqueue_copy(self.device.queue, h, b, is_blocking=False) for h, (b, _) in zip(hosts, bufs)]
+        hosts = [np.empty((b[1], b[2] if len(b) > 2 else self.M), dtype=self.real) for b in bufs]
+        events = [cl.enqueue_copy(self.device.queue, h, b[0], is_blocking=False) for h, b in zip(hosts, bufs)]
         events[-1].wait()  # in-order queue: every earlier command is done too
         self._inflight.clear()
         return [h.astype(np.float64) for h in hosts]
@@ -176,14 +179,15 @@ class UpdateKernels:
         return (-(-self.M // 64) * 64, n)
 
     # -- operations -------------------------------------------------------------------------------
-    def gather(self, channel: int, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(K X^T)^T and Y K for X, Y of shape (n, M): returns two (n, M) float64 arrays."""
+    def _enqueue_gather(self, channel: int, X: np.ndarray, Y: np.ndarray) -> int:
         X, Y = np.atleast_2d(X), np.atleast_2d(Y)
         n = X.shape[0]
         self._check(n)
+        if Y.shape != X.shape:
+            raise InvalidInputError(f"gather needs X, Y of equal shape; got {X.shape}, {Y.shape}")
         self._put(self._X, X, self.ld)
         self._put(self._Y, Y, self.M)
-        q, K, lay = self.device.queue, self.matrix.buffers[channel], self.layout
+        q, K, lay, res = self.device.queue, self.matrix.buffers[channel], self.layout, self._res[channel]
         M, ld, nv, rb = np.int32(self.M), np.int32(self.ld), np.int32(n), np.int32(lay.gather_rb)
         if lay.cpu:
             self._k["gather_rows"](q, (lay.parts, self.n_blocks), (1, 1), K, M, ld, rb, np.int32(lay.gather_cw), nv,
@@ -191,10 +195,46 @@ class UpdateKernels:
         else:
             self._k["gather_partial"](q, (GPU_WG, self.n_blocks), (GPU_WG, 1), K, M, ld, rb, nv, self._X, self._Y,
                                       self._rowpart, self._colpart)
+        # In-order queue: the next channel's gather reuses the partial sums only after this reduce.
         self._k["gather_reduce"](q, self._grid(n), None, self._rowpart, self._colpart, M, ld, nv, np.int32(lay.parts),
-                                 np.int32(self.n_blocks), self._KX, self._YK)
-        KX, YK = self._get((self._KX, n), (self._YK, n))
+                                 np.int32(self.n_blocks), res["KX"], res["YK"])
+        return n
+
+    def _enqueue_read_slots(self, channel: int, slots: np.ndarray) -> int:
+        slots = np.ascontiguousarray(slots, dtype=np.int32)
+        k = len(slots)
+        self._check(k)
+        self._put(self._slots, slots, k, np.int32)
+        res = self._res[channel]
+        self._k["read_slots"](self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M),
+                              np.int32(self.ld), self._slots, res["cols"], res["rows"])
+        return k
+
+    def gather(self, channel: int, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(K X^T)^T and Y K for X, Y of shape (n, M): returns two (n, M) float64 arrays."""
+        n = self._enqueue_gather(channel, X, Y)
+        KX, YK = self._get((self._res[channel]["KX"], n), (self._res[channel]["YK"], n))
         return KX, YK
+
+    def gather_all(self, X: np.ndarray, Y: np.ndarray, slots: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+        """:meth:`gather` for every channel c with X[c], Y[c] (C, n, M), and with ``slots`` also
+        :meth:`read_slots` (taken before the gathers): all passes enqueued, one wait.
+
+        Returns KX, YK (C, n, M) and, with ``slots``, cols, rows (C, k, M), float64."""
+        C = self.matrix.C
+        if len(X) != C or len(Y) != C:
+            raise InvalidInputError(f"gather_all needs one X and Y per channel ({C}); got {len(X)}, {len(Y)}")
+        reads = []
+        for c in range(C):
+            if slots is not None:
+                k = self._enqueue_read_slots(c, slots)
+                reads += [(self._res[c]["cols"], k), (self._res[c]["rows"], k)]
+            n = self._enqueue_gather(c, X[c], Y[c])
+            reads += [(self._res[c]["KX"], n), (self._res[c]["YK"], n)]
+        out = self._get(*reads)
+        step = 4 if slots is not None else 2
+        per = [np.stack(out[i::step]) for i in range(step)]
+        return (per[2], per[3], per[0], per[1]) if slots is not None else (per[0], per[1])
 
     def rank_update(self, channel: int, A: np.ndarray, B: np.ndarray) -> None:
         """K += sum_n outer(A[n], B[n]) for A, B of shape (n, M), n <= 2 * max_vectors."""
@@ -214,13 +254,8 @@ class UpdateKernels:
 
     def read_slots(self, channel: int, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Columns K[:, slots] and rows K[slots, :], both as (k, M) float64."""
-        slots = np.ascontiguousarray(slots, dtype=np.int32)
-        k = len(slots)
-        self._check(k)
-        self._put(self._slots, slots, k, np.int32)
-        self._k["read_slots"](self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M),
-                              np.int32(self.ld), self._slots, self._KX, self._YK)
-        cols, rows = self._get((self._KX, k), (self._YK, k))
+        k = self._enqueue_read_slots(channel, slots)
+        cols, rows = self._get((self._res[channel]["cols"], k), (self._res[channel]["rows"], k))
         return cols, rows
 
     def write_slots(self, channel: int, slots: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> None:
@@ -234,8 +269,17 @@ class UpdateKernels:
         self._k["write_slots"](self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M),
                                np.int32(self.ld), self._slots, np.int32(k), self._A, self._Y)
 
-    def double_reflection(self, f_c: np.ndarray, f_r: np.ndarray, rho: np.ndarray) -> float:
-        """Eq. 1: sum_a f_c[a] f_r[a] rho[a] over the M slots, reduced on the device."""
-        self._put(self._out, np.stack([f_c, f_r, rho]).reshape(1, -1), 3 * self.M)
-        self._k["double_reflection"](self.device.queue, (64,), (64,), self._out, np.int32(self.M), self._KX)
-        return float(self._get((self._KX, 1))[0][0, 0])
+    def double_reflection(self, f_c: np.ndarray, f_r: np.ndarray, rho: np.ndarray) -> float | np.ndarray:
+        """Eq. 1: sum_a f_c[a] f_r[a] rho[a] over the M slots, reduced on the device.
+
+        ``rho`` (M,) gives a float; (C, M), one albedo row per channel, gives (C,) with one wait."""
+        rho = np.asarray(rho)
+        rows = np.atleast_2d(rho)
+        if rows.shape[0] > self.matrix.C:
+            raise InvalidInputError(f"at most {self.matrix.C} albedo rows; got {rows.shape[0]}")
+        for c, r in enumerate(rows):
+            # The input buffer is reused: in order, each upload lands after the previous kernel.
+            self._put(self._out, np.concatenate([f_c, f_r, r])[None], 3 * self.M)
+            self._k["double_reflection"](self.device.queue, (64,), (64,), self._out, np.int32(self.M), self._res[c]["KX"])
+        dr = np.array([h[0, 0] for h in self._get(*[(self._res[c]["KX"], 1, 1) for c in range(len(rows))])])
+        return float(dr[0]) if rho.ndim == 1 else dr

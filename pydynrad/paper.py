@@ -55,24 +55,27 @@ class UsedPatches:
         self.bits[:, patch >> 3] |= np.uint8(1 << (7 - (patch & 7)))
 
 
-def paper_swap(kernels, channel: int, slot: int, f_c: np.ndarray, f_r: np.ndarray, rho_S: np.ndarray, rho_j: float,
+def paper_swap(kernels, slot: int, f_c: np.ndarray, f_r: np.ndarray, rho_S: np.ndarray, rho_j: np.ndarray,
                row_mask: np.ndarray) -> None:
-    """Steps 1 and 3-7 above on one channel of the device matrix behind ``kernels``.
+    """Steps 1 and 3-7 above on every channel of the device matrix behind ``kernels``.
 
-    f_c, f_r (M,): F[S, j] and F[j, S] with zeros at ``slot``; rho_S (M,) the slots' albedo in
-    this channel; rho_j the entering patch's; row_mask (M,) bool, False on the rows the
-    used-patches table excludes from the rank-one update.
+    f_c, f_r (M,): F[S, j] and F[j, S] with zeros at ``slot``; rho_S (C, M) the slots' albedo
+    per channel; rho_j (C,) the entering patch's; row_mask (M,) bool, False on the rows the
+    used-patches table excludes from the rank-one update. The channels' steps are enqueued
+    together: two waits per swap (for dr and for the gathers), whatever C is.
     """
-    M = len(f_c)
+    C, M = rho_S.shape
     zero = np.zeros((1, M))
-    kernels.write_slots(channel, [slot], zero, zero)  # 1. clear i's row and column
-    dr = kernels.double_reflection(f_c, f_r, rho_S)  # 3. Eq. 1
-    g_c = f_c * (1.0 + rho_j * dr)  # 4.
-    g_r = f_r * (1.0 + rho_j * dr)
-    KPg, gPK = kernels.gather(channel, rho_S * g_c, g_r * rho_S)  # 5. one read pass
-    gp_c = g_c + KPg[0]
-    gp_r = g_r + gPK[0]
-    kernels.rank_update(channel, rho_j * gp_c * row_mask, gp_r)  # 6. masked rank one
-    gp_c[slot] = dr  # 7. the new column, row and diagonal
-    gp_r[slot] = dr
-    kernels.write_slots(channel, [slot], gp_c[None], gp_r[None])
+    for c in range(C):
+        kernels.write_slots(c, [slot], zero, zero)  # 1. clear i's row and column
+    dr = kernels.double_reflection(f_c, f_r, rho_S)  # 3. Eq. 1, (C,)
+    g_c = f_c[None] * (1.0 + rho_j * dr)[:, None]  # 4.
+    g_r = f_r[None] * (1.0 + rho_j * dr)[:, None]
+    KPg, gPK = kernels.gather_all((rho_S * g_c)[:, None], (g_r * rho_S)[:, None])  # 5. one read pass each
+    for c in range(C):
+        gp_c = g_c[c] + KPg[c, 0]
+        gp_r = g_r[c] + gPK[c, 0]
+        kernels.rank_update(c, rho_j[c] * gp_c * row_mask, gp_r)  # 6. masked rank one
+        gp_c[slot] = dr[c]  # 7. the new column, row and diagonal
+        gp_r[slot] = dr[c]
+        kernels.write_slots(c, [slot], gp_c[None], gp_r[None])

@@ -45,3 +45,25 @@ def test_gather_and_rank_update_kernels(device, storage, M, cpu_kernels):
     raw = np.empty((M, m.ld), m.dtype)
     cl.enqueue_copy(device.queue, raw, m.buffers[0], is_blocking=True)
     assert not raw[:, M:].any()  # padding stays zero
+
+
+def test_all_channels_in_one_read_back(device):
+    """gather_all (with the slots' columns and rows) and the per-channel Eq. 1 reduction
+    equal the single-channel operations and numpy on an RGB K."""
+    rng = np.random.default_rng(3)
+    M, C = 70, 3
+    m = DeviceMatrix(device, rng.uniform(-1, 1, (C, M, M)), "fp64")
+    uk = UpdateKernels(m, 4)
+    K = m.to_host()
+    X, Y = rng.uniform(-1, 1, (C, 3, M)), rng.uniform(-1, 1, (C, 3, M))
+    slots = np.array([69, 2])
+    KX, YK, cols, rows = uk.gather_all(X, Y, slots)
+    for c in range(C):
+        np.testing.assert_allclose(KX[c], X[c] @ K[c].T, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(YK[c], Y[c] @ K[c], rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(cols[c], K[c][:, slots].T)
+        np.testing.assert_array_equal(rows[c], K[c][slots])
+    f_c, f_r, rho = rng.random(M), rng.random(M), rng.random((C, M))
+    dr = uk.double_reflection(f_c, f_r, rho)
+    np.testing.assert_allclose(dr, (f_c * f_r * rho).sum(axis=1), rtol=1e-13)
+    assert dr[1] == uk.double_reflection(f_c, f_r, rho[1])
