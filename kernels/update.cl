@@ -87,11 +87,14 @@ __kernel void gather_rows(__global const STORE_T *K, const int M, const int ld, 
     real16 tile[RR][CWMAX / 16];
     for (int i = i0; i < i1; i += RR) {
         const int nr = IMIN(RR, i1 - i);
+        // The RR rows are read side by side (RR streams at once keep more loads in flight than
+        // one row after another). Rows past the block read a valid row and contribute zeros.
+        __global const STORE_T *rows[RR];
 #pragma unroll
-        for (int r = 0; r < RR; ++r) {
-            // Rows past the block read a valid row and contribute zeros.
-            __global const STORE_T *row = K + (size_t)IMIN(i + r, M - 1) * ld + j0;
-            for (int c = 0; c < nc; c += 16) tile[r][c / 16] = r < nr ? K16(row + c) : (real16)(0);
+        for (int r = 0; r < RR; ++r) rows[r] = K + (size_t)IMIN(i + r, M - 1) * ld + j0;
+        for (int c = 0; c < nc; c += 16) {
+#pragma unroll
+            for (int r = 0; r < RR; ++r) tile[r][c / 16] = r < nr ? K16(rows[r] + c) : (real16)(0);
         }
         for (int m = 0; m < NV; ++m) {
             REAL y[RR];

@@ -259,7 +259,8 @@ class DynamicRadiosity:
         device = device or default_device()
         ld = -(-M // LD_ALIGN) * LD_ALIGN
         real = 8 if storage == "fp64" else 4
-        return channels * M * ld * storage_dtype(storage).itemsize + scratch_nbytes(device, M, ld, real, max_swaps_per_frame, channels)
+        item = storage_dtype(storage).itemsize
+        return channels * M * ld * item + scratch_nbytes(device, M, ld, item, real, max_swaps_per_frame, channels)
 
     @property
     def host_memory_bytes(self) -> int:

@@ -33,51 +33,70 @@ CPU_ROWS = 8
 CPU_STRIP = 512
 
 
+#: CPU gather: the shortest row block (more, shorter blocks balance the two-level split better).
+CPU_MIN_BLOCK = 128
+#: CPU gather: column partials (n_blocks * NV * ld REALs, written and re-read) stay under
+#: 1/CPU_PARTIAL_SHARE of the bytes of K that the pass reads.
+CPU_PARTIAL_SHARE = 16
+
+
 @dataclass(frozen=True)
 class Layout:
     """How the update kernels split K over work-items on one device (see kernels/update.cl).
 
     cpu : bool
         CPU kernels (a few fat work-items, RR rows at a time) or GPU kernels (coalesced).
+    M, ld, k_itemsize, real_itemsize : int
+        The matrix: size, row pitch, bytes per stored element and per compute REAL.
     rank_rb : int
         CPU rank update: rows per work-item.
-    gather_rb, gather_cw : int
-        Gather: rows per block and (CPU) columns per strip.
+    gather_cw : int
+        CPU gather: columns per strip.
     parts : int
         Row partial sums per row the gather leaves for gather_reduce (strips on a CPU, WG on a GPU).
     """
 
     cpu: bool
+    M: int
+    ld: int
+    k_itemsize: int
+    real_itemsize: int
     rank_rb: int
-    gather_rb: int
     gather_cw: int
     parts: int
 
     @staticmethod
-    def make(device, M: int, ld: int, cpu: bool | None = None) -> "Layout":
+    def make(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, cpu: bool | None = None) -> "Layout":
         """The layout for an M x M matrix with row pitch ld; ``cpu`` overrides the device type
         (to test the GPU kernels on a CPU)."""
         cpu = device.is_cpu if cpu is None else cpu
         if not cpu:
-            # 64 items read adjacent 4-wide vectors of a 64-128-row block: the column partials
-            # cost NV*ld REALs per block, ~1% of K's traffic per vector.
-            rb = 64 if M < 2048 else 128
-            return Layout(False, 0, rb, ld, GPU_WG)
+            return Layout(False, M, ld, k_itemsize, real_itemsize, 0, ld, GPU_WG)
         units = max(1, int(device.cl_device.max_compute_units))
         rows = -(-M // CPU_ROWS)  # row groups of RR
         # Rank update: about 8 work-items per compute unit, each a whole number of row groups.
         rank_rb = CPU_ROWS * -(-rows // min(rows, 8 * units))
-        # Gather: strips of CPU_STRIP columns; enough row blocks for ~8 items per unit, but
-        # blocks stay long (each block costs NV*ld REALs of column partials).
         cw = min(ld, CPU_STRIP)
-        strips = -(-ld // cw)
-        blocks = min(rows, max(1, -(-8 * units // strips)))
-        return Layout(True, rank_rb, CPU_ROWS * -(-rows // blocks), cw, strips)
+        return Layout(True, M, ld, k_itemsize, real_itemsize, rank_rb, cw, -(-ld // cw))
 
+    def gather_blocks(self, nv: int) -> tuple[int, int]:
+        """(rows per block, blocks) of the gather for nv vectors.
 
-def _n_blocks(M: int, layout: Layout) -> int:
-    """Row blocks of the gather (each leaves NV*ld REALs of column partials)."""
-    return -(-M // layout.gather_rb)
+        GPU: 64-128-row blocks, whose column partials cost NV*ld REALs each, ~1% of K's
+        traffic per vector. CPU: blocks of at least CPU_MIN_BLOCK rows (whole groups of RR),
+        as many as the partial-sum budget allows for nv vectors."""
+        if not self.cpu:
+            rb = 64 if self.M < 2048 else 128
+            return rb, -(-self.M // rb)
+        rows = -(-self.M // CPU_ROWS)
+        budget = self.M * self.k_itemsize // (CPU_PARTIAL_SHARE * nv * self.real_itemsize)
+        blocks = max(1, min(-(-self.M // CPU_MIN_BLOCK), budget, rows))
+        rb = CPU_ROWS * -(-rows // blocks)
+        return rb, -(-self.M // rb)
+
+    def max_partial_blocks(self, nv_max: int) -> int:
+        """The most NV*ld column-partial slabs any gather of 1..nv_max vectors uses."""
+        return max(self.gather_blocks(n)[1] * n for n in range(1, nv_max + 1))
 
 
 def _clang_vectors(device) -> bool:
@@ -89,11 +108,12 @@ def _clang_vectors(device) -> bool:
     return device.is_cpu and "Portable Computing Language" in d.platform.name and int(d.mem_base_addr_align) >= 1024
 
 
-def scratch_nbytes(device, M: int, ld: int, real_itemsize: int, max_vectors: int, channels: int = 1) -> int:
+def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, max_vectors: int,
+                   channels: int = 1) -> int:
     """Device bytes of :class:`UpdateKernels`' scratch buffers for these sizes."""
-    lay = Layout.make(device, M, ld)
+    lay = Layout.make(device, M, ld, k_itemsize, real_itemsize)
     nv = max_vectors
-    shared = nv * ld + nv * M + lay.parts * nv * M + _n_blocks(M, lay) * nv * ld + 2 * nv * M + 2 * nv * ld + 3 * M
+    shared = nv * ld + nv * M + lay.parts * nv * M + lay.max_partial_blocks(nv) * ld + 2 * nv * M + 2 * nv * ld + 3 * M
     per_channel = 4 * nv * M  # K X, Y K, slot columns, slot rows: read back together for all channels
     return real_itemsize * (shared + channels * per_channel) + 4 * nv
 
@@ -111,8 +131,7 @@ class UpdateKernels:
         self.matrix, self.device, self.nv_max = matrix, dev, int(max_vectors)
         self.M, self.ld = matrix.M, matrix.ld
         self.real = matrix.real_dtype
-        self.layout = Layout.make(dev, self.M, self.ld, cpu_kernels)
-        self.n_blocks = _n_blocks(self.M, self.layout)
+        self.layout = Layout.make(dev, self.M, self.ld, matrix.dtype.itemsize, self.real.itemsize, cpu_kernels)
         defines = {**matrix.defines, "VW": GPU_VW, "WG": GPU_WG, "RR": CPU_ROWS, "CWMAX": CPU_STRIP,
                    "NVMAX": self.nv_max, "NAMAX": 2 * self.nv_max}
         if self.layout.cpu and _clang_vectors(dev):
@@ -126,7 +145,7 @@ class UpdateKernels:
         self._X = cl.Buffer(ctx, mf.READ_ONLY, nv * ld * r)
         self._Y = cl.Buffer(ctx, mf.READ_ONLY, nv * M * r)
         self._rowpart = cl.Buffer(ctx, mf.READ_WRITE, self.layout.parts * nv * M * r)
-        self._colpart = cl.Buffer(ctx, mf.READ_WRITE, self.n_blocks * nv * ld * r)
+        self._colpart = cl.Buffer(ctx, mf.READ_WRITE, self.layout.max_partial_blocks(nv) * ld * r)
         # Results per channel, so all channels' passes are enqueued before one read-back.
         self._res = [{name: cl.Buffer(ctx, mf.READ_WRITE, nv * M * r) for name in ("KX", "YK", "cols", "rows")}
                      for _ in range(matrix.C)]
@@ -141,7 +160,8 @@ class UpdateKernels:
     @property
     def nbytes(self) -> int:
         """Device bytes of the scratch buffers (vectors and partial sums)."""
-        return scratch_nbytes(self.device, self.M, self.ld, self.real.itemsize, self.nv_max, self.matrix.C)
+        return scratch_nbytes(self.device, self.M, self.ld, self.matrix.dtype.itemsize, self.real.itemsize, self.nv_max,
+                              self.matrix.C)
 
     # -- helpers ---------------------------------------------------------------------------------
     def _put(self, buf, a: np.ndarray, width: int, dtype=None) -> None:
@@ -188,16 +208,17 @@ class UpdateKernels:
         self._put(self._X, X, self.ld)
         self._put(self._Y, Y, self.M)
         q, K, lay, res = self.device.queue, self.matrix.buffers[channel], self.layout, self._res[channel]
-        M, ld, nv, rb = np.int32(self.M), np.int32(self.ld), np.int32(n), np.int32(lay.gather_rb)
+        rb, blocks = lay.gather_blocks(n)
+        M, ld, nv = np.int32(self.M), np.int32(self.ld), np.int32(n)
         if lay.cpu:
-            self._k["gather_rows"](q, (lay.parts, self.n_blocks), (1, 1), K, M, ld, rb, np.int32(lay.gather_cw), nv,
+            self._k["gather_rows"](q, (lay.parts, blocks), (1, 1), K, M, ld, np.int32(rb), np.int32(lay.gather_cw), nv,
                                    self._X, self._Y, self._rowpart, self._colpart)
         else:
-            self._k["gather_partial"](q, (GPU_WG, self.n_blocks), (GPU_WG, 1), K, M, ld, rb, nv, self._X, self._Y,
+            self._k["gather_partial"](q, (GPU_WG, blocks), (GPU_WG, 1), K, M, ld, np.int32(rb), nv, self._X, self._Y,
                                       self._rowpart, self._colpart)
         # In-order queue: the next channel's gather reuses the partial sums only after this reduce.
         self._k["gather_reduce"](q, self._grid(n), None, self._rowpart, self._colpart, M, ld, nv, np.int32(lay.parts),
-                                 np.int32(self.n_blocks), res["KX"], res["YK"])
+                                 np.int32(blocks), res["KX"], res["YK"])
         return n
 
     def _enqueue_read_slots(self, channel: int, slots: np.ndarray) -> int:
