@@ -22,10 +22,6 @@ Measured in one run:
 
 from __future__ import annotations
 
-import argparse
-import sys
-import time
-from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
@@ -158,7 +154,7 @@ def _accuracy_rows(device, sizes, sub):
     return rows
 
 
-def _drift_rows(device, M, frames):
+def _drift_rows(device, M, frames, progress: bool = True):
     import pydynrad
     from tqdm import tqdm
 
@@ -169,7 +165,8 @@ def _drift_rows(device, M, frames):
             dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update="exact", storage=storage, max_swaps_per_frame=BATCH,
                                             refresh_tolerance=tol, refresh_interval=100, observer=next(_walk(scene, 1)), device=device)
             swaps = 0
-            for p in tqdm(_walk(scene, frames, seed=3), total=frames, desc=f"drift {storage} tol={tol}", leave=False):
+            for p in tqdm(_walk(scene, frames, seed=3), total=frames, desc=f"drift {storage} tol={tol}", leave=False,
+                          disable=not progress):
                 swaps += dyn.update(p).swaps
             K = dyn.matrix.to_host()
             fresh = pydynrad.multibounce(scene, F, patches=dyn.local_patches, dtype=np.float64, device=device)
@@ -178,7 +175,7 @@ def _drift_rows(device, M, frames):
     return rows
 
 
-def measure(size: str, device) -> dict:
+def measure(size: str, device, progress: bool = True) -> dict:
     p = SIZES[size]
     copy_dev = copy_bandwidth_device(device)
     tables = [
@@ -197,14 +194,14 @@ def measure(size: str, device) -> dict:
          "note": "Both modes ignore light from patches outside the set (the paper's limitation 4): that error shrinks as M grows."},
         {"title": "Drift of exact mode: K vs a fresh float64 build over the same set",
          "columns": ["M", "storage", "frames", "swaps", "refresh_tolerance", "refreshes", "max rel. error", "residual()"],
-         "rows": _drift_rows(device, *p["drift"])},
+         "rows": _drift_rows(device, *p["drift"], progress=progress)},
     ]
     return {"title": "Dynamic radiosity", "description": __doc__.split("\n\n")[1], "tables": tables}
 
 
 def suite_section(ctx) -> dict:
     """The suite's "dynamic" section at the suite's size."""
-    return measure(ctx.size if ctx.size in SIZES else "quick", ctx.device)
+    return measure(ctx.size if ctx.size in SIZES else "quick", ctx.device, progress=ctx.progress)
 
 
 def main(argv=None) -> int:

@@ -19,10 +19,14 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import DeviceError, KernelBuildError
+
+if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays cheap
+    import pyopencl as cl
 
 __all__ = ["Device", "default_device", "kernel_dir", "list_devices"]
 
@@ -39,8 +43,8 @@ class Device:
     Create one with :func:`default_device` (the usual way) or wrap an existing context.
     """
 
-    context: "cl.Context"  # noqa: F821 - pyopencl is imported lazily
-    queue: "cl.CommandQueue" = None  # type: ignore[assignment]
+    context: cl.Context
+    queue: cl.CommandQueue = None  # type: ignore[assignment]
     _programs: dict = field(default_factory=dict, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 

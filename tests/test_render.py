@@ -78,7 +78,6 @@ def cluttered_scene():
     extra = centres[:, None, :] + rng.normal(scale=0.15, size=(12, 3, 3))
     all_pts = np.concatenate([pts_in, extra.reshape(-1, 3)])
     all_tris = np.concatenate([tris_in, len(pts_in) + np.arange(36).reshape(12, 3)])
-    n = len(all_tris)
     return Scene(all_pts, all_tris, albedo=0.5, emission=0.0)
 
 
