@@ -24,6 +24,8 @@ most n + 1 hops; what a fixed-bounce renderer computes), one M^3 GEMM per bounce
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 from .checks import scene as checked_scene
@@ -209,7 +211,7 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
         nearest even, the storage rounding) or float64.
     device : Device, optional
     progress : bool, optional
-        Show a tqdm bar (default: only for M >= 2048).
+        Show a tqdm bar (default: only for M >= 2048 and when stderr is a terminal).
 
     Returns
     -------
@@ -244,7 +246,7 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
     steps = (builder.Mp // builder.nb) if bounces is None else int(bounces)
     result = np.empty((C, M, M), dtype=out)
     with tqdm(total=C * steps, desc=f"multibounce M={M}", unit="step",
-              disable=not (M >= 2048 if progress is None else progress)) as bar:
+              disable=not (M >= 2048 and sys.stderr.isatty() if progress is None else progress)) as bar:
         for c in range(C):
             FP = F_SS * rho[:, c][None, :]  # F_SS P_S: column j scaled by rho_j
             if bounces is None:
