@@ -72,6 +72,34 @@ class _HemicubeRows:
         return form_factors(self.scene, resolution=self.resolution, rows=np.asarray(idx), device=self.device)
 
 
+def _replace_rows(A: sp.csr_matrix, slots: np.ndarray, rows: sp.csr_matrix) -> sp.csr_matrix:
+    """A copy of ``A`` (M, N) with row ``slots[m]`` := ``rows[m]`` (explicit zeros dropped).
+
+    Splices the index arrays directly: one copy of A's entries in at most 2k + 1 runs, no
+    sparse products (rows are put in whole, so the result equals the row-wise assignment).
+    """
+    rows = sp.csr_matrix(rows)
+    rows.eliminate_zeros()
+    lengths = np.diff(A.indptr)
+    lengths[slots] = np.diff(rows.indptr)
+    indptr = np.zeros(len(lengths) + 1, dtype=np.int64)
+    np.cumsum(lengths, out=indptr[1:])
+    indices = np.empty(indptr[-1], dtype=A.indices.dtype)
+    data = np.empty(indptr[-1], dtype=A.data.dtype)
+    order = np.argsort(slots)
+    start = 0  # first row of the current run of kept rows
+    for m in order.tolist():
+        s = int(slots[m])
+        src, dst = slice(A.indptr[start], A.indptr[s]), slice(indptr[start], indptr[s])
+        indices[dst], data[dst] = A.indices[src], A.data[src]
+        src, dst = slice(rows.indptr[m], rows.indptr[m + 1]), slice(indptr[s], indptr[s + 1])
+        indices[dst], data[dst] = rows.indices[src], rows.data[src]
+        start = s + 1
+    src, dst = slice(A.indptr[start], A.indptr[-1]), slice(indptr[start], indptr[-1])
+    indices[dst], data[dst] = A.indices[src], A.data[src]
+    return sp.csr_matrix((data, indices, indptr), shape=A.shape)
+
+
 class _FormFactors:
     """Blocks of the scene's F for the local set, from a sparse matrix or a row source.
 
@@ -118,12 +146,7 @@ class _FormFactors:
         F_JS = rows_J[:, members].toarray()
         F_JJ = rows_J[:, J].toarray()
         F_SJ = self.local[:, J].toarray()
-        M, k = self.local.shape[0], len(J)
-        keep = np.ones(M)
-        keep[slots] = 0.0
-        into_slots = sp.csr_matrix((np.ones(k), (slots, np.arange(k))), shape=(M, k))
-        self.local = sp.csr_matrix(sp.diags(keep) @ self.local + into_slots @ rows_J)
-        self.local.eliminate_zeros()
+        self.local = _replace_rows(self.local, np.asarray(slots), rows_J)
         return F_SJ, F_JS, F_JJ
 
     def square(self, members: np.ndarray) -> sp.csr_matrix:
