@@ -113,8 +113,11 @@ def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int,
     """Device bytes of :class:`UpdateKernels`' scratch buffers for these sizes."""
     lay = Layout.make(device, M, ld, k_itemsize, real_itemsize)
     nv = max_vectors
-    shared = nv * ld + nv * M + lay.parts * nv * M + lay.max_partial_blocks(nv) * ld + 2 * nv * M + 2 * nv * ld + 3 * M
-    per_channel = 4 * nv * M  # K X, Y K, slot columns, slot rows: read back together for all channels
+    # X, Y, row and column partials, A, B, zeros (for clearing a slot), f_c, f_r and rho of Eq. 1
+    shared = nv * ld + nv * M + lay.parts * nv * M + lay.max_partial_blocks(nv) * ld + 2 * nv * M + 2 * nv * ld \
+        + M + 3 * M
+    # K X, Y K, slot columns, slot rows (read back together for all channels)
+    per_channel = 4 * nv * M
     return real_itemsize * (shared + channels * per_channel) + 4 * nv
 
 
@@ -153,9 +156,11 @@ class UpdateKernels:
         self._B = cl.Buffer(ctx, mf.READ_ONLY, 2 * nv * ld * r)
         self._slots = cl.Buffer(ctx, mf.READ_ONLY, nv * 4)
         self._out = cl.Buffer(ctx, mf.READ_WRITE, 3 * M * r)
+        self._zeros = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.zeros(M, dtype=self.real))
         if dev.queue.properties & cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE:
             raise InvalidInputError("UpdateKernels needs an in-order command queue")
         self._inflight: list[np.ndarray] = []  # host arrays of uploads not yet known complete
+        self._slots_held: np.ndarray | None = None  # what the last upload put into _slots
 
     @property
     def nbytes(self) -> int:
@@ -172,13 +177,24 @@ class UpdateKernels:
         import pyopencl as cl
 
         a = np.atleast_2d(a)
-        host = np.zeros((a.shape[0], width), dtype=dtype or self.real)
-        host[:, : a.shape[1]] = a
+        if a.shape[1] == width:
+            host = np.array(a, dtype=dtype or self.real, order="C")  # always a copy the caller cannot touch
+        else:
+            host = np.zeros((a.shape[0], width), dtype=dtype or self.real)
+            host[:, : a.shape[1]] = a
         cl.enqueue_copy(self.device.queue, buf, host, is_blocking=False)
         self._inflight.append(host)
         if len(self._inflight) > 64:  # callers that never read back: bound what is kept
             self.device.queue.finish()
             self._inflight.clear()
+
+    def _put_slots(self, slots: np.ndarray) -> None:
+        """Upload slot indices, skipping the copy when the buffer already holds the same ones
+        (a frame's read and write passes, and every channel, use one set of slots)."""
+        if self._slots_held is not None and np.array_equal(self._slots_held, slots):
+            return
+        self._put(self._slots, slots, len(slots), np.int32)
+        self._slots_held = slots.copy()
 
     def _get(self, *bufs: tuple) -> list[np.ndarray]:
         """Read (buffer, n) or (buffer, n, width) items, n rows of ``width`` (default M) each,
@@ -225,7 +241,7 @@ class UpdateKernels:
         slots = np.ascontiguousarray(slots, dtype=np.int32)
         k = len(slots)
         self._check(k)
-        self._put(self._slots, slots, k, np.int32)
+        self._put_slots(slots)
         res = self._res[channel]
         self._k["read_slots"](self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M),
                               np.int32(self.ld), self._slots, res["cols"], res["rows"])
@@ -284,11 +300,17 @@ class UpdateKernels:
         slots = np.ascontiguousarray(slots, dtype=np.int32)
         k = len(slots)
         self._check(k)
-        self._put(self._slots, slots, k, np.int32)
+        self._put_slots(slots)
         self._put(self._A, cols, self.M)
         self._put(self._Y, rows, self.M)
         self._k["write_slots"](self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M),
                                np.int32(self.ld), self._slots, np.int32(k), self._A, self._Y)
+
+    def clear_slot(self, channel: int, slot: int) -> None:
+        """K[:, slot] = 0 and K[slot, :] = 0, from a device buffer of M zeros (no upload)."""
+        self._put_slots(np.array([slot], dtype=np.int32))
+        self._k["write_slots"](self.device.queue, self._grid(1), None, self.matrix.buffers[channel], np.int32(self.M),
+                               np.int32(self.ld), self._slots, np.int32(1), self._zeros, self._zeros)
 
     def double_reflection(self, f_c: np.ndarray, f_r: np.ndarray, rho: np.ndarray) -> float | np.ndarray:
         """Eq. 1: sum_a f_c[a] f_r[a] rho[a] over the M slots, reduced on the device.

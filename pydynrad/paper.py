@@ -64,10 +64,9 @@ def paper_swap(kernels, slot: int, f_c: np.ndarray, f_r: np.ndarray, rho_S: np.n
     used-patches table excludes from the rank-one update. The channels' steps are enqueued
     together: two waits per swap (for dr and for the gathers), whatever C is.
     """
-    C, M = rho_S.shape
-    zero = np.zeros((1, M))
+    C = rho_S.shape[0]
     for c in range(C):
-        kernels.write_slots(c, [slot], zero, zero)  # 1. clear i's row and column
+        kernels.clear_slot(c, slot)  # 1. clear i's row and column
     dr = kernels.double_reflection(f_c, f_r, rho_S)  # 3. Eq. 1, (C,)
     g_c = f_c[None] * (1.0 + rho_j * dr)[:, None]  # 4.
     g_r = f_r[None] * (1.0 + rho_j * dr)[:, None]
