@@ -22,6 +22,16 @@
 #define NRHS 1
 #endif
 
+// 16-wide rows use storage.h's aligned access (rows start on multiples of ld elements,
+// ld % 64 == 0); other widths use vload semantics.
+#if VW == 16
+#define MV_LOADK(p, j) K16((p) + (j))
+#define MV_LOADX(p, j) R16((p) + (j))
+#else
+#define MV_LOADK(p, j) LOADV(VW, p, j)
+#define MV_LOADX(p, j) VLOADR(VW, p, j)
+#endif
+
 // Y[q, i] = sum_j K[i, j] X[q, j] for i < M and the NRHS right-hand sides q: X holds NRHS
 // vectors of ld entries each (stride ld), Y NRHS vectors of M entries (stride M). Each element
 // of K is loaded once for all NRHS products, so r products cost one pass over K, not r.
@@ -35,8 +45,8 @@ __kernel void matvec(__global const STORE_T *K, const int M, const int ld,
     if (row >= M) return;
     __global const STORE_T *r = K + (size_t)row * ld;
     for (int j = 0; j < ld; j += VW) {
-        const REALV(VW) k = LOADV(VW, r, j);
-        for (int q = 0; q < NRHS; ++q) acc[q] += k * VLOADR(VW, x + q * ld, j);
+        const REALV(VW) k = MV_LOADK(r, j);
+        for (int q = 0; q < NRHS; ++q) acc[q] += k * MV_LOADX(x + q * ld, j);
     }
     for (int q = 0; q < NRHS; ++q) y[q * M + row] = HSUM(VW, acc[q]);
 #else

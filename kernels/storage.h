@@ -48,6 +48,33 @@ typedef float REAL;
 #define REALV(n) PDR_XCAT(REAL_BASE, n)
 #define VLOADR(n, p, i) PDR_XCAT(vload, n)(0, (p) + (i))
 
+// 16-wide access for the CPU kernels' inner loops. With PDR_CLANG_VECTORS (set by the host on
+// clang-based CPU compilers such as PoCL, whose buffers are aligned to >= 128 bytes) loads and
+// stores are aligned vector dereferences and fp16 converts with __builtin_convertvector (F16C
+// instructions): PoCL does not inline its vload*/vstore* builtins, and a call inside an inner
+// loop spills every vector register. The pointer must be aligned to the vector's size.
+typedef REALV(16) real16;
+
+// K16(p) / K16_STORE(v, p): 16 elements of K at p (64-byte aligned for fp32) as real16;
+// R16(p) / R16_STORE(v, p): the same for REAL arrays.
+#ifdef PDR_CLANG_VECTORS
+#define R16(p) (*(__global const real16 *)(p))
+#define R16_STORE(v, p) (*(__global real16 *)(p) = (v))
+#if defined(STORAGE_FP16)
+typedef __fp16 pdr_half16 __attribute__((ext_vector_type(16)));
+#define K16(p) __builtin_convertvector(*(__global const pdr_half16 *)(p), real16)
+#define K16_STORE(v, p) (*(__global pdr_half16 *)(p) = __builtin_convertvector((v), pdr_half16))
+#else
+#define K16(p) R16(p)
+#define K16_STORE(v, p) R16_STORE(v, p)
+#endif
+#else
+#define R16(p) vload16(0, (p))
+#define R16_STORE(v, p) vstore16((v), 0, (p))
+#define K16(p) LOADV(16, (p), 0)
+#define K16_STORE(v, p) STOREV(16, (v), (p), 0)
+#endif
+
 // Horizontal sums, pairwise so rounding grows like log(n).
 inline REAL pdr_hsum4(REALV(4) a) { return (a.x + a.y) + (a.z + a.w); }
 #define PDR_HSUM_4(a) pdr_hsum4(a)

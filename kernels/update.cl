@@ -18,11 +18,7 @@
 //   WG   work-items per row block in gather_partial (64 on a GPU: coalesced)
 //   RR   rows per step of the CPU kernels; CWMAX the widest column strip of gather_rows
 //   NVMAX, NAMAX  the most vectors per gather / terms per rank update (private array sizes)
-//   PDR_CLANG_VECTORS  (clang-based CPU compilers such as PoCL) vector loads by aligned
-//        dereference and fp16 conversion by __builtin_convertvector (F16C instructions). PoCL
-//        does not inline its vload*/vstore*/min builtins, and a call inside the inner loop
-//        spills every vector register; the host sets this only when buffers are aligned to
-//        at least 128 bytes.
+//   PDR_CLANG_VECTORS  aligned 16-wide access instead of vload/vstore (see storage.h).
 // Host guarantees: ld % 64 == 0, K's padding columns M..ld are zero, X and B hold ld entries
 // per vector with zeros past M (so padding stays zero after a rank update).
 #include "storage.h"
@@ -47,28 +43,6 @@
 #endif
 
 #define IMIN(a, b) ((a) < (b) ? (a) : (b))
-typedef REALV(16) real16;
-
-// K16(p) / K16_STORE(v, p): 16 elements of K at p (64-byte aligned for fp32) as real16;
-// R16(p) / R16_STORE(v, p): the same for REAL arrays.
-#ifdef PDR_CLANG_VECTORS
-#define R16(p) (*(__global const real16 *)(p))
-#define R16_STORE(v, p) (*(__global real16 *)(p) = (v))
-#if defined(STORAGE_FP16)
-typedef __fp16 pdr_half16 __attribute__((ext_vector_type(16)));
-#define K16(p) __builtin_convertvector(*(__global const pdr_half16 *)(p), real16)
-#define K16_STORE(v, p) (*(__global pdr_half16 *)(p) = __builtin_convertvector((v), pdr_half16))
-#else
-#define K16(p) R16(p)
-#define K16_STORE(v, p) R16_STORE(v, p)
-#endif
-#else
-#define R16(p) vload16(0, (p))
-#define R16_STORE(v, p) vstore16((v), 0, (p))
-#define K16(p) LOADV(16, (p), 0)
-#define K16_STORE(v, p) STOREV(16, (v), (p), 0)
-#endif
-
 // CPU gather. Item (s, b) owns columns [s*CW, s*CW + CW) of rows [b*RB, b*RB + RB). For RR
 // rows at a time it converts that tile of K once into private memory, then for each vector m
 //   rowpart[(s*NV + m)*M + i] = sum over its columns of K[i, j] X[m, j]  (partial K X)

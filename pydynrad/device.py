@@ -74,6 +74,15 @@ class Device:
 
         return bool(self.cl_device.type & cl.device_type.CPU)
 
+    @cached_property
+    def aligned_vector_access(self) -> bool:
+        """Whether kernels may read and write 16-wide vectors by aligned dereference
+        (``PDR_CLANG_VECTORS`` in ``kernels/storage.h``): PoCL CPU devices, whose compiler is
+        clang and whose buffers start on >= 128-byte boundaries. Their vload/vstore builtins
+        are not inlined, which costs about 2x in streaming loops."""
+        d = self.cl_device
+        return self.is_cpu and "portable computing language" in d.platform.name.lower() and int(d.mem_base_addr_align) >= 1024
+
     @property
     def global_mem_bytes(self) -> int:
         return int(self.cl_device.global_mem_size)

@@ -99,15 +99,6 @@ class Layout:
         return max(self.gather_blocks(n)[1] * n for n in range(1, nv_max + 1))
 
 
-def _clang_vectors(device) -> bool:
-    """Whether kernels may use clang vector extensions and aligned vector dereferences.
-
-    True on PoCL CPU devices with buffers aligned to >= 128 bytes (every vector the kernels
-    dereference starts on a multiple of its size from a buffer's start)."""
-    d = device.cl_device
-    return device.is_cpu and "Portable Computing Language" in d.platform.name and int(d.mem_base_addr_align) >= 1024
-
-
 def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, max_vectors: int,
                    channels: int = 1) -> int:
     """Device bytes of :class:`UpdateKernels`' scratch buffers for these sizes."""
@@ -137,7 +128,7 @@ class UpdateKernels:
         self.layout = Layout.make(dev, self.M, self.ld, matrix.dtype.itemsize, self.real.itemsize, cpu_kernels)
         defines = {**matrix.defines, "VW": GPU_VW, "WG": GPU_WG, "RR": CPU_ROWS, "CWMAX": CPU_STRIP,
                    "NVMAX": self.nv_max, "NAMAX": 2 * self.nv_max}
-        if self.layout.cpu and _clang_vectors(dev):
+        if self.layout.cpu and dev.aligned_vector_access:
             defines["PDR_CLANG_VECTORS"] = 1
         prg = dev.program("update.cl", defines)
         names = ("gather_rows", "gather_partial", "gather_reduce", "rank_update_rows", "rank_update", "read_slots",

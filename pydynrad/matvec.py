@@ -140,7 +140,10 @@ class DeviceMatrix:
         self._k_reduce = cl.Kernel(prg, "rmatvec_reduce")
 
     def _program(self, nrhs: int):
-        return self.device.program("matvec.cl", {**self.defines, "VW": self._vw, "LX": self._lx, "NRHS": nrhs})
+        defines = {**self.defines, "VW": self._vw, "LX": self._lx, "NRHS": nrhs}
+        if self.device.aligned_vector_access:
+            defines["PDR_CLANG_VECTORS"] = 1
+        return self.device.program("matvec.cl", defines)
 
     def upload(self, K: np.ndarray) -> None:
         """Overwrite every channel with K (C, M, M)."""
