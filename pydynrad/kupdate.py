@@ -202,8 +202,11 @@ class UpdateKernels:
         if not 1 <= n <= self.nv_max:
             raise InvalidInputError(f"between 1 and {self.nv_max} vectors per call; got {n}")
 
-    def _grid(self, n: int) -> tuple[int, int]:
-        return (-(-self.M // 64) * 64, n)
+    def _grid(self, n: int) -> tuple[tuple[int, int], tuple[int, int]]:
+        """(global, local) sizes of the per-(i, m) kernels. The local size is fixed, not left to
+        the runtime: PoCL compiles a kernel once per local size, and its own choice varies with
+        n, which cost ~50-100 ms per kernel inside the frame loop at each new vector count."""
+        return (-(-self.M // 64) * 64, n), (64, 1)
 
     # -- operations -------------------------------------------------------------------------------
     def _enqueue_gather(self, channel: int, X: np.ndarray, Y: np.ndarray) -> int:
@@ -224,7 +227,7 @@ class UpdateKernels:
             self._k["gather_partial"](q, (GPU_WG, blocks), (GPU_WG, 1), K, M, ld, np.int32(rb), nv, self._X, self._Y,
                                       self._rowpart, self._colpart)
         # In-order queue: the next channel's gather reuses the partial sums only after this reduce.
-        self._k["gather_reduce"](q, self._grid(n), None, self._rowpart, self._colpart, M, ld, nv, np.int32(lay.parts),
+        self._k["gather_reduce"](q, *self._grid(n), self._rowpart, self._colpart, M, ld, nv, np.int32(lay.parts),
                                  np.int32(blocks), res["KX"], res["YK"])
         return n
 
@@ -234,7 +237,7 @@ class UpdateKernels:
         self._check(k)
         self._put_slots(slots)
         res = self._res[channel]
-        self._k["read_slots"](self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M),
+        self._k["read_slots"](self.device.queue, *self._grid(k), self.matrix.buffers[channel], np.int32(self.M),
                               np.int32(self.ld), self._slots, res["cols"], res["rows"])
         return k
 
@@ -294,13 +297,13 @@ class UpdateKernels:
         self._put_slots(slots)
         self._put(self._A, cols, self.M)
         self._put(self._Y, rows, self.M)
-        self._k["write_slots"](self.device.queue, self._grid(k), None, self.matrix.buffers[channel], np.int32(self.M),
+        self._k["write_slots"](self.device.queue, *self._grid(k), self.matrix.buffers[channel], np.int32(self.M),
                                np.int32(self.ld), self._slots, np.int32(k), self._A, self._Y)
 
     def clear_slot(self, channel: int, slot: int) -> None:
         """K[:, slot] = 0 and K[slot, :] = 0, from a device buffer of M zeros (no upload)."""
         self._put_slots(np.array([slot], dtype=np.int32))
-        self._k["write_slots"](self.device.queue, self._grid(1), None, self.matrix.buffers[channel], np.int32(self.M),
+        self._k["write_slots"](self.device.queue, *self._grid(1), self.matrix.buffers[channel], np.int32(self.M),
                                np.int32(self.ld), self._slots, np.int32(1), self._zeros, self._zeros)
 
     def double_reflection(self, f_c: np.ndarray, f_r: np.ndarray, rho: np.ndarray) -> float | np.ndarray:
