@@ -30,7 +30,7 @@ import scipy.sparse as sp
 
 from .checks import integer, scene as checked_scene, vec3
 from .errors import InvalidInputError, PydynradError
-from .matvec import DeviceMatrix, storage_dtype
+from .matvec import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
 from .selection import NearestSet
 
 __all__ = ["DynamicRadiosity", "FrameStats"]
@@ -277,11 +277,10 @@ class DynamicRadiosity:
         """What :attr:`memory_bytes` will be for these sizes, without building anything."""
         from .device import default_device
         from .kupdate import scratch_nbytes
-        from .matvec import LD_ALIGN
 
         device = device or default_device()
-        ld = -(-M // LD_ALIGN) * LD_ALIGN
-        real = 8 if storage == "fp64" else 4
+        ld = padded_ld(M)
+        real = compute_dtype(storage).itemsize
         item = storage_dtype(storage).itemsize
         return channels * M * ld * item + scratch_nbytes(device, M, ld, item, real, max_swaps_per_frame, channels)
 
@@ -301,9 +300,9 @@ class DynamicRadiosity:
     def _fresh_K(self, members: np.ndarray) -> np.ndarray:
         from .multibounce import multibounce
 
-        dtype = np.float64 if self.storage == "fp64" else np.float32
         self._ff.fetch_local(members)
-        return multibounce(self.scene, self._ff.full_shape(members), patches=members, dtype=dtype, device=self.device)
+        return multibounce(self.scene, self._ff.full_shape(members), patches=members, dtype=compute_dtype(self.storage),
+                           device=self.device)
 
     def _build(self, members: np.ndarray) -> None:
         from .kupdate import UpdateKernels

@@ -41,6 +41,16 @@ def storage_dtype(storage: str) -> np.dtype:
         raise InvalidInputError(f"unknown storage {storage!r}; allowed: {', '.join(STORAGE_DTYPES)}") from None
 
 
+def compute_dtype(storage: str) -> np.dtype:
+    """The type kernels compute in and vectors are passed as: float64 for fp64 storage, else float32."""
+    return np.dtype(np.float64 if storage_dtype(storage) == np.float64 else np.float32)
+
+
+def padded_ld(M: int) -> int:
+    """The row pitch (elements) of an M x M matrix: M rounded up to a multiple of :data:`LD_ALIGN`."""
+    return -(-M // LD_ALIGN) * LD_ALIGN
+
+
 def _check_storage_on(device, storage: str) -> None:
     storage_dtype(storage)
     if storage == "fp64" and not device.supports_fp64:
@@ -104,8 +114,8 @@ class DeviceMatrix:
         _check_storage_on(device, storage)
         self.device, self.storage, self.C, self.M = device, storage, C, M
         self.dtype = storage_dtype(storage)
-        self.real_dtype = np.dtype(np.float64 if storage == "fp64" else np.float32)
-        self.ld = -(-M // LD_ALIGN) * LD_ALIGN
+        self.real_dtype = compute_dtype(storage)
+        self.ld = padded_ld(M)
         per = self.channel_nbytes
         if per > device.max_alloc_bytes:
             raise OutOfMemoryError(
