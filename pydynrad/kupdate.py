@@ -179,13 +179,16 @@ class UpdateKernels:
             self.device.queue.finish()
             self._inflight.clear()
 
-    def _put_slots(self, slots: np.ndarray) -> None:
-        """Upload slot indices, skipping the copy when the buffer already holds the same ones
-        (a frame's read and write passes, and every channel, use one set of slots)."""
-        if self._slots_held is not None and np.array_equal(self._slots_held, slots):
-            return
-        self._put(self._slots, slots, len(slots), np.int32)
-        self._slots_held = slots.copy()
+    def _put_slots(self, slots) -> int:
+        """Check and upload slot indices; returns their count. The copy is skipped when the
+        buffer already holds the same ones (a frame's read and write passes, and every
+        channel, use one set of slots)."""
+        slots = np.ascontiguousarray(slots, dtype=np.int32)
+        self._check(len(slots))
+        if self._slots_held is None or not np.array_equal(self._slots_held, slots):
+            self._put(self._slots, slots, len(slots), np.int32)
+            self._slots_held = slots.copy()
+        return len(slots)
 
     def _get(self, *bufs: tuple) -> list[np.ndarray]:
         """Read (buffer, n) or (buffer, n, width) items, n rows of ``width`` (default M) each,
@@ -232,10 +235,7 @@ class UpdateKernels:
         return n
 
     def _enqueue_read_slots(self, channel: int, slots: np.ndarray) -> int:
-        slots = np.ascontiguousarray(slots, dtype=np.int32)
-        k = len(slots)
-        self._check(k)
-        self._put_slots(slots)
+        k = self._put_slots(slots)
         res = self._res[channel]
         self._k["read_slots"](self.device.queue, *self._grid(k), self.matrix.buffers[channel], np.int32(self.M),
                               np.int32(self.ld), self._slots, res["cols"], res["rows"])
@@ -291,10 +291,7 @@ class UpdateKernels:
 
     def write_slots(self, channel: int, slots: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> None:
         """K[:, slots[m]] = cols[m], K[slots[m], :] = rows[m]; cols/rows must agree where they cross."""
-        slots = np.ascontiguousarray(slots, dtype=np.int32)
-        k = len(slots)
-        self._check(k)
-        self._put_slots(slots)
+        k = self._put_slots(slots)
         self._put(self._A, cols, self.M)
         self._put(self._Y, rows, self.M)
         self._k["write_slots"](self.device.queue, *self._grid(k), self.matrix.buffers[channel], np.int32(self.M),
@@ -302,7 +299,7 @@ class UpdateKernels:
 
     def clear_slot(self, channel: int, slot: int) -> None:
         """K[:, slot] = 0 and K[slot, :] = 0, from a device buffer of M zeros (no upload)."""
-        self._put_slots(np.array([slot], dtype=np.int32))
+        self._put_slots([slot])
         self._k["write_slots"](self.device.queue, *self._grid(1), self.matrix.buffers[channel], np.int32(self.M),
                                np.int32(self.ld), self._slots, np.int32(1), self._zeros, self._zeros)
 
