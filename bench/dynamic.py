@@ -47,7 +47,7 @@ KERNEL_SWAPS = (1, 8, 32)
 
 
 def _kernel_rows(device, sizes, copy_gbs):
-    from pydynrad.kupdate import UpdateKernels
+    from pydynrad.dynamic.kupdate import UpdateKernels
     from pydynrad.matvec import DeviceMatrix
 
     rows = []

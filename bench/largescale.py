@@ -13,7 +13,7 @@ Stages (each reported with wall-clock times on this machine):
    time and rows/s of this run, bytes on disk, bytes per patch, non-zeros per row.
    ``--max-minutes`` caps this stage (the store stays resumable: run again to finish it).
 4. walk: a DynamicRadiosity walk (M = ``--local-size``, exact update, fp32 K) along a
-   street, fed from the store through a :class:`~pydynrad.rowcache.RowCache` smaller than
+   street, fed from the store through a :class:`~pydynrad.rows.cache.RowCache` smaller than
    the store, prefetching the next candidates; and the same walk fed from F in memory when F
    fits in a quarter of RAM. Each walk runs in its own process, so its peak RSS is its own.
 
@@ -40,7 +40,7 @@ SIZES = {"quick": {"detail": 2.0, "frames": 40}, "full": {"detail": 20.0, "frame
 
 
 def village_spec(detail: float):
-    from pydynrad.distributed import SceneSpec
+    from pydynrad.rows.distributed import SceneSpec
 
     return SceneSpec("village", {"detail": detail})
 
@@ -69,8 +69,9 @@ def walk_path(scene, frames: int, step: float) -> np.ndarray:
 def run_walk(args) -> dict:
     """One walk in this process (called through the ``_walk`` sub-command); returns its numbers."""
     import pydynrad
-    from pydynrad.rowcache import CSRRows, RowCache
-    from pydynrad.store import FormFactorStore
+    from pydynrad.rows.cache import RowCache
+    from pydynrad.rows.sources import CSRRows
+    from pydynrad.rows.store import FormFactorStore
 
     spec = village_spec(args.detail)
     scene = spec.build()
@@ -126,7 +127,7 @@ def walk_in_subprocess(args, source: str, cache_mib: float) -> dict:
 
 
 def precompute(args, scene, path: Path, workers: int, blocks=None) -> float:
-    from pydynrad.distributed import precompute_distributed
+    from pydynrad.rows.distributed import precompute_distributed
 
     t0 = time.perf_counter()
     precompute_distributed(village_spec(args.detail), path, resolution=args.resolution, block_rows=args.block_rows,
@@ -169,7 +170,7 @@ def main(argv=None) -> int:
         print(json.dumps(run_walk(args)))
         return 0
 
-    from pydynrad.store import FormFactorStore
+    from pydynrad.rows.store import FormFactorStore
 
     report = {"size": size, "detail": args.detail, "resolution": args.resolution, "block_rows": args.block_rows,
               "cpu_count": os.cpu_count(), "date": time.strftime("%Y-%m-%d %H:%M")}

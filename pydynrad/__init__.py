@@ -30,10 +30,11 @@ from .lights import DirectionalLight, PointLight, SpotLight, direct_irradiance, 
 from .solve import Solution, solve
 from .multibounce import multibounce, multibounce_radiosity
 from .pathtrace import path_trace, path_trace_patches
-from .store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError, compute_store
-from .rowcache import CSRRows, RowCache, RowSource, as_row_source
-from .distributed import SceneSpec, precompute_distributed
-from .ffio import load_form_factors, open_form_factors, save_form_factors
+from .rows.store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError, compute_store
+from .rows.cache import RowCache
+from .rows.sources import CSRRows, HemicubeRows, RowSource, as_row_source
+from .rows.distributed import SceneSpec, precompute_distributed
+from .rows.files import load_form_factors, open_form_factors, save_form_factors
 
 __version__ = "0.1.0"
 
@@ -56,6 +57,7 @@ __all__ = [
     "form_factors",
     "FormFactorStore",
     "FrameStats",
+    "HemicubeRows",
     "InvalidInputError",
     "KernelBuildError",
     "light_vector",

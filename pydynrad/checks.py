@@ -1,13 +1,18 @@
 """Argument validators shared by the public API: each returns the clean value or raises
-:class:`~pydynrad.errors.InvalidInputError` naming the argument and the bad value."""
+:class:`~pydynrad.errors.InvalidInputError` naming the argument and the bad value.
+
+Form-factor matrices are validated here too (:func:`check_form_factors`), once per entry
+point, by everything that accepts an F: the full solve, the multibounce build and the dynamic
+solution."""
 
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from .errors import InvalidInputError
 
-__all__ = ["floats", "vec3", "number", "integer", "finite", "scene"]
+__all__ = ["floats", "vec3", "number", "integer", "finite", "scene", "check_form_factors", "ROW_SUM_SLACK"]
 
 
 def floats(value, what: str) -> np.ndarray:
@@ -69,3 +74,40 @@ def scene(value, what: str = "scene"):
     if not isinstance(value, Scene):
         raise InvalidInputError(f"{what} must be a pydynrad.Scene; got {type(value).__name__}")
     return value
+
+
+#: Hemicube rows are sums of discretised delta form factors; allow them to exceed 1 by this much.
+ROW_SUM_SLACK = 1e-3
+
+
+def check_form_factors(scene, F) -> sp.csr_matrix:
+    """F as a validated float64 CSR matrix of shape (N, N) for ``scene``.
+
+    Refuses a wrong shape, NaN/inf or negative entries, and rows summing above 1 (beyond
+    :data:`ROW_SUM_SLACK`): such an F has no physical meaning and can make B diverge.
+    """
+    n = len(scene)
+    if sp.issparse(F):
+        # copy=True: scipy shares indices with the caller's matrix, and sum_duplicates below
+        # sorts them in place, which would scramble the caller's (non-canonical) F.
+        F = sp.csr_matrix(F, dtype=np.float64, copy=True)
+    else:
+        a = np.asarray(F)
+        if a.ndim != 2:
+            raise InvalidInputError(f"F must be a 2-D (sparse or dense) matrix; got shape {a.shape}")
+        F = sp.csr_matrix(a.astype(np.float64))
+    if F.shape != (n, n):
+        raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {F.shape}")
+    F.sum_duplicates()
+    if not np.all(np.isfinite(F.data)):
+        raise InvalidInputError("F contains NaN or infinite entries")
+    if F.nnz and F.data.min() < 0:
+        raise InvalidInputError(f"form factors must be >= 0; F has minimum {F.data.min():g}")
+    rows = np.asarray(F.sum(axis=1)).ravel()
+    if rows.max(initial=0.0) > 1.0 + ROW_SUM_SLACK:
+        i = int(rows.argmax())
+        raise InvalidInputError(
+            f"row {i} of F sums to {rows[i]:.6g} > 1: a patch cannot send out more than all its energy "
+            f"(tolerance {ROW_SUM_SLACK:g})"
+        )
+    return F

@@ -109,7 +109,7 @@ def load_scene(name: str, max_edge: float | None = None):
 
 def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
     """``path`` as a Path, after checking its folder exists (and its suffix, or image format)."""
-    from .ffio import check_parent_folder
+    from .rows.files import check_parent_folder
     from .image_io import _format_for
 
     path = Path(path)
@@ -124,7 +124,7 @@ def _form_factors(args, scene):
     """F from --form-factors PATH when given (a matrix for a .npz file, a RowCache of
     --cache-mb over a store folder, closed when the command ends), else computed now."""
     if getattr(args, "form_factors", None):
-        from .ffio import open_form_factors
+        from .rows.files import open_form_factors
 
         F = open_form_factors(args.form_factors, scene, cache_bytes=int(args.cache_mb * 2**20))
         if hasattr(F, "close"):
@@ -178,7 +178,7 @@ def _cmd_formfactors(args: argparse.Namespace) -> int:
 
 
 def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
-    from .ffio import save_form_factors
+    from .rows.files import save_form_factors
 
     given = [o for o, v in (("--workers", args.workers), ("--scheduler", args.scheduler),
                             ("--block-rows", args.block_rows)) if v is not None]
@@ -195,9 +195,9 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
 
 def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     """Create or resume the store at ``out``: in this process (--workers 0) or on a Dask cluster."""
-    from .distributed import SceneSpec, precompute_distributed
-    from .ffio import check_parent_folder
-    from .store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore, compute_store
+    from .rows.distributed import SceneSpec, precompute_distributed
+    from .rows.files import check_parent_folder
+    from .rows.store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore, compute_store
 
     check_parent_folder(out)
     scene = load_scene(args.scene, args.max_edge)
@@ -229,7 +229,7 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from .ffio import whole_matrix
+    from .rows.files import whole_matrix
     from .image_io import write_image
     from .render import render
     from .solve import solve
@@ -303,7 +303,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 def _cmd_compare(args: argparse.Namespace) -> int:
     from .compare import comparison_image, radiosity_error
     from .dynamic import DynamicRadiosity
-    from .ffio import whole_matrix
+    from .rows.files import whole_matrix
     from .image_io import write_image
     from .render import Renderer
     from .solve import solve

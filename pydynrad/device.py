@@ -23,12 +23,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import DeviceError, KernelBuildError
+from .errors import DeviceError, InvalidInputError, KernelBuildError
 
 if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays cheap
     import pyopencl as cl
 
-__all__ = ["Device", "default_device", "kernel_dir", "list_devices"]
+__all__ = ["Device", "default_device", "kernel_dir", "list_devices", "real_dtype"]
 
 
 def kernel_dir() -> Path:
@@ -209,3 +209,14 @@ def list_devices() -> list[dict[str, object]]:
                 }
             )
     return out
+
+
+def real_dtype(dtype, device) -> np.dtype:
+    """``dtype`` as the working precision of kernels on ``device``: float32, or float64 where
+    the device has ``cl_khr_fp64`` (:class:`DeviceError` otherwise)."""
+    real = np.dtype(dtype)
+    if real not in (np.float32, np.float64):
+        raise InvalidInputError(f"dtype must be float32 or float64; got {real}")
+    if real == np.float64 and not device.supports_fp64:
+        raise DeviceError(f"float64 needs cl_khr_fp64, which {device.name} lacks; use dtype=np.float32")
+    return real

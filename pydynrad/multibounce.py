@@ -30,7 +30,8 @@ import numpy as np
 
 from .checks import scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
-from .solve import available_host_bytes, check_form_factors
+from .checks import check_form_factors
+from .memory import available_host_bytes
 
 __all__ = ["multibounce", "multibounce_radiosity", "multibounce_memory"]
 
@@ -226,7 +227,7 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
     from tqdm import tqdm
 
     from .device import default_device
-    from .solve import _real_dtype
+    from .device import real_dtype
 
     out = np.dtype(dtype)
     if out not in OUTPUT_DTYPES:
@@ -234,7 +235,7 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
     if bounces is not None and (int(bounces) != bounces or bounces < 0):
         raise InvalidInputError(f"bounces must be None or a non-negative integer; got {bounces!r}")
     device = device or default_device()
-    work = _real_dtype(np.float64 if out == np.float64 else np.float32, device)
+    work = real_dtype(np.float64 if out == np.float64 else np.float32, device)
     idx = _checked_patches(patches, len(checked_scene(scene)))
     M, C = len(idx), 1 if scene.is_grey else 3
     _check_memory(M, C, out, bounces, device)

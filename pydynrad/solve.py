@@ -18,19 +18,19 @@ accordingly for albedos near 1.
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
+from .checks import check_form_factors
+from .device import real_dtype
 from .errors import ConvergenceError, InvalidInputError, OutOfMemoryError
+from .memory import available_host_bytes
 
-__all__ = ["Solution", "RadiositySolver", "solve", "check_form_factors", "DENSE_MAX_PATCHES", "ROW_SUM_SLACK"]
+__all__ = ["Solution", "RadiositySolver", "solve", "DENSE_MAX_PATCHES"]
 
-#: Hemicube rows are sums of discretised delta form factors; allow them to exceed 1 by this much.
-ROW_SUM_SLACK = 1e-3
 #: The dense reference solve is refused above this many patches (an N x N float64 LU:
 #: 8192 patches take 0.5 GiB and about a minute on 2 cores).
 DENSE_MAX_PATCHES = 8192
@@ -69,39 +69,6 @@ class Solution:
     history: list = field(default_factory=list, repr=False)
 
 
-def check_form_factors(scene, F) -> sp.csr_matrix:
-    """F as a validated float64 CSR matrix of shape (N, N) for ``scene``.
-
-    Refuses a wrong shape, NaN/inf or negative entries, and rows summing above 1 (beyond
-    :data:`ROW_SUM_SLACK`): such an F has no physical meaning and can make B diverge.
-    """
-    n = len(scene)
-    if sp.issparse(F):
-        # copy=True: scipy shares indices with the caller's matrix, and sum_duplicates below
-        # sorts them in place, which would scramble the caller's (non-canonical) F.
-        F = sp.csr_matrix(F, dtype=np.float64, copy=True)
-    else:
-        a = np.asarray(F)
-        if a.ndim != 2:
-            raise InvalidInputError(f"F must be a 2-D (sparse or dense) matrix; got shape {a.shape}")
-        F = sp.csr_matrix(a.astype(np.float64))
-    if F.shape != (n, n):
-        raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {F.shape}")
-    F.sum_duplicates()
-    if not np.all(np.isfinite(F.data)):
-        raise InvalidInputError("F contains NaN or infinite entries")
-    if F.nnz and F.data.min() < 0:
-        raise InvalidInputError(f"form factors must be >= 0; F has minimum {F.data.min():g}")
-    rows = np.asarray(F.sum(axis=1)).ravel()
-    if rows.max(initial=0.0) > 1.0 + ROW_SUM_SLACK:
-        i = int(rows.argmax())
-        raise InvalidInputError(
-            f"row {i} of F sums to {rows[i]:.6g} > 1: a patch cannot send out more than all its energy "
-            f"(tolerance {ROW_SUM_SLACK:g})"
-        )
-    return F
-
-
 def _channels(scene, L: np.ndarray) -> int:
     grey_light = bool(np.all(L[:, 0] == L[:, 1]) and np.all(L[:, 0] == L[:, 2]))
     return 1 if scene.is_grey and grey_light else 3
@@ -124,7 +91,7 @@ class RadiositySolver:
         from .device import default_device
 
         self.scene, self.device = scene, device or default_device()
-        self.dtype = _real_dtype(dtype, self.device)
+        self.dtype = real_dtype(dtype, self.device)
         F = check_form_factors(scene, F)
         if F.nnz >= 2**31:
             raise OutOfMemoryError(f"F has {F.nnz} non-zeros; the CSR kernel indexes with 32-bit integers (< 2^31)")
@@ -223,17 +190,6 @@ def _row_blocks(indptr: np.ndarray, blocks: int) -> np.ndarray:
     return np.maximum.accumulate(blk).astype(np.int32)
 
 
-def _real_dtype(dtype, device) -> np.dtype:
-    from .errors import DeviceError
-
-    real = np.dtype(dtype)
-    if real not in (np.float32, np.float64):
-        raise InvalidInputError(f"dtype must be float32 or float64; got {real}")
-    if real == np.float64 and not device.supports_fp64:
-        raise DeviceError(f"float64 needs cl_khr_fp64, which {device.name} lacks; use dtype=np.float32")
-    return real
-
-
 def _checked_light(L, n: int) -> np.ndarray:
     L = np.asarray(L, dtype=np.float64)
     if L.shape != (n, 3):
@@ -253,21 +209,6 @@ def _checked_stopping(tol, max_iterations, bounces):
     if int(max_iterations) != max_iterations or max_iterations < 1:
         raise InvalidInputError(f"max_iterations must be a positive integer; got {max_iterations!r}")
     return float(tol), int(max_iterations)
-
-
-def available_host_bytes() -> int:
-    """Host memory available to a new allocation (Linux MemAvailable, else free pages)."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError):
-        return 2**62
 
 
 def _dense_solve(scene, F: sp.csr_matrix, L: np.ndarray) -> Solution:

@@ -201,7 +201,7 @@ def walk(
             rec.seconds["write"] = time.perf_counter() - t3
         if k in refs:
             if full_F is None:
-                from .ffio import whole_matrix
+                from .rows.files import whole_matrix
 
                 full_F = whole_matrix(form_factors)
             _reference(rec, scene, full_F, frame_lights, b, img, renderer, shading, out_dir, exposure, device)

@@ -6,7 +6,7 @@ import pytest
 from test_store import same_csr
 
 from pydynrad.cli import build_parser, main
-from pydynrad.ffio import load_form_factors, open_form_factors
+from pydynrad.rows.files import load_form_factors, open_form_factors
 from pydynrad.scenes import cornell_box
 
 
@@ -194,9 +194,9 @@ def test_commands_read_a_store_like_the_file(tmp_path, capsys, device):
     import json
 
     from pydynrad import read_image
-    from pydynrad.ffio import save_form_factors
+    from pydynrad.rows.files import save_form_factors
     from pydynrad.formfactors import form_factors
-    from pydynrad.store import compute_store
+    from pydynrad.rows.store import compute_store
 
     scene = cornell_box(max_edge=250)
     F = form_factors(scene, resolution=8, device=device, progress=False)

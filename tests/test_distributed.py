@@ -10,8 +10,8 @@ from test_store import grid_scene, same_csr, synthetic_rows
 
 import pydynrad
 from pydynrad import InvalidInputError
-from pydynrad.distributed import _WORKER_SCENE, SceneSpec, _worker_scene, precompute_distributed
-from pydynrad.store import FormFactorStore, StoreMismatchError, compute_store
+from pydynrad.rows.distributed import _WORKER_SCENE, SceneSpec, _worker_scene, precompute_distributed
+from pydynrad.rows.store import FormFactorStore, StoreMismatchError, compute_store
 
 # Workers unpickle the synthetic row function by value: they need not import this test file.
 cloudpickle.register_pickle_by_value(sys.modules["test_store"])

@@ -19,11 +19,11 @@ from radiosity_inputs import box_scene, reciprocal_F
 import pydynrad
 from pydynrad.dynamic import DynamicRadiosity
 from pydynrad.errors import InvalidInputError
-from pydynrad.exact import batched_swap
-from pydynrad.kupdate import UpdateKernels
+from pydynrad.dynamic.exact import batched_swap
+from pydynrad.dynamic.kupdate import UpdateKernels
 from pydynrad.matvec import DeviceMatrix
-from pydynrad.rowcache import CSRRows
-from pydynrad.selection import NearestSet
+from pydynrad.rows.sources import CSRRows
+from pydynrad.dynamic.selection import NearestSet
 
 WALK_TOL = {"fp64": 1e-5, "fp32": 2e-5, "fp16": 3e-3}
 

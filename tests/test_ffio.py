@@ -6,9 +6,10 @@ import scipy.sparse as sp
 from test_store import grid_scene, same_csr, synthetic_rows
 
 from pydynrad import InvalidInputError, Scene
-from pydynrad.ffio import load_form_factors, open_form_factors, save_form_factors, whole_matrix
-from pydynrad.rowcache import CSRRows, RowCache
-from pydynrad.store import FormFactorStore, StoreIncompleteError, StoreMismatchError, compute_store
+from pydynrad.rows.files import load_form_factors, open_form_factors, save_form_factors, whole_matrix
+from pydynrad.rows.cache import RowCache
+from pydynrad.rows.sources import CSRRows
+from pydynrad.rows.store import FormFactorStore, StoreIncompleteError, StoreMismatchError, compute_store
 
 from test_render import grid_box
 

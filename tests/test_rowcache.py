@@ -8,8 +8,9 @@ import scipy.sparse as sp
 from test_store import grid_scene, same_csr, synthetic_rows
 
 from pydynrad import InvalidInputError
-from pydynrad.rowcache import ROW_OVERHEAD, CSRRows, RowCache, RowSource, as_row_source
-from pydynrad.store import StoreCorruptError, compute_store
+from pydynrad.rows.cache import ROW_OVERHEAD, RowCache
+from pydynrad.rows.sources import CSRRows, RowSource, as_row_source
+from pydynrad.rows.store import StoreCorruptError, compute_store
 
 
 class CountingSource:

@@ -8,7 +8,7 @@ import pytest
 import scipy.sparse as sp
 
 from pydynrad import InvalidInputError, Scene
-from pydynrad.store import (
+from pydynrad.rows.store import (
     FormFactorStore,
     StoreCorruptError,
     StoreIncompleteError,

@@ -1,4 +1,4 @@
-"""The update kernels (kernels/update.cl through pydynrad.kupdate) against numpy.
+"""The update kernels (kernels/update.cl through pydynrad.dynamic.kupdate) against numpy.
 
 Both kernel families run here on whatever device the tests use: the CPU kernels (a few fat
 work-items, 8 rows of K per step in vector registers, fp16 converted with F16C on PoCL) and
@@ -10,7 +10,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from pydynrad.kupdate import UpdateKernels
+from pydynrad.dynamic.kupdate import UpdateKernels
 from pydynrad.matvec import DeviceMatrix
 
 

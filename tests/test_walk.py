@@ -175,10 +175,10 @@ def test_walk_with_dynamic_radiosity_matches_full_solve_when_local_set_is_everyt
 def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     """The same F as a .npz file and as a store behind a row cache a third of its size: the same
     frames, and the cache's prefetch of the next frame's entering rows is what serves them."""
-    from pydynrad.ffio import open_form_factors, save_form_factors
+    from pydynrad.rows.files import open_form_factors, save_form_factors
     from pydynrad.formfactors import form_factors
-    from pydynrad.rowcache import CSRRows
-    from pydynrad.store import compute_store
+    from pydynrad.rows.sources import CSRRows
+    from pydynrad.rows.store import compute_store
 
     pts, tris = grid_box(n=4, inward=True)
     scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))

@@ -12,7 +12,7 @@ a frame costs O(M^2) device work instead of O(N^2):
 * ``radiosity(lights)`` returns B = L + P K L on the local patches (one matrix-vector product
   per colour channel) and L (emitted plus direct light) elsewhere.
 
-Form factors come from a precomputed sparse F, any row source (:mod:`pydynrad.rowcache`:
+Form factors come from a precomputed sparse F, any row source (:mod:`pydynrad.rows`:
 a form-factor store on disk, a row cache) or, with ``form_factors=None``, from one hemicube
 per entering patch. Only rows are ever fetched: the entering patches' columns restricted to
 the local set, F[S, J], are read from the rows of S, which are kept (sparse, M rows) from
@@ -26,11 +26,11 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
-from .checks import integer, scene as checked_scene, vec3
-from .errors import InvalidInputError, PydynradError
-from .matvec import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
+from ..checks import integer, scene as checked_scene, vec3
+from ..errors import InvalidInputError, PydynradError
+from ..matvec import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
+from .localrows import LocalRows
 from .selection import NearestSet
 
 __all__ = ["DynamicRadiosity", "FrameStats"]
@@ -57,115 +57,6 @@ class FrameStats:
     @property
     def t_total(self) -> float:
         return self.t_select + self.t_form_factors + self.t_update
-
-
-class _HemicubeRows:
-    """Rows of F from one hemicube per patch (a RowSource over :func:`pydynrad.form_factors`)."""
-
-    def __init__(self, scene, resolution: int, device) -> None:
-        self.scene, self.resolution, self.device = scene, resolution, device
-        self.n_patches = len(scene)
-
-    def rows(self, idx) -> sp.csr_matrix:
-        from .formfactors import form_factors
-
-        return form_factors(self.scene, resolution=self.resolution, rows=np.asarray(idx), device=self.device)
-
-
-def _replace_rows(A: sp.csr_matrix, slots: np.ndarray, rows: sp.csr_matrix) -> sp.csr_matrix:
-    """A copy of ``A`` (M, N) with row ``slots[m]`` := ``rows[m]`` (explicit zeros dropped).
-
-    Splices the index arrays directly: one copy of A's entries in at most 2k + 1 runs, no
-    sparse products (rows are put in whole, so the result equals the row-wise assignment).
-    """
-    rows = sp.csr_matrix(rows)
-    rows.eliminate_zeros()
-    lengths = np.diff(A.indptr)
-    lengths[slots] = np.diff(rows.indptr)
-    indptr = np.zeros(len(lengths) + 1, dtype=np.int64)
-    np.cumsum(lengths, out=indptr[1:])
-    indices = np.empty(indptr[-1], dtype=A.indices.dtype)
-    data = np.empty(indptr[-1], dtype=A.data.dtype)
-    order = np.argsort(slots)
-    start = 0  # first row of the current run of kept rows
-    for m in order.tolist():
-        s = int(slots[m])
-        src, dst = slice(A.indptr[start], A.indptr[s]), slice(indptr[start], indptr[s])
-        indices[dst], data[dst] = A.indices[src], A.data[src]
-        src, dst = slice(rows.indptr[m], rows.indptr[m + 1]), slice(indptr[s], indptr[s + 1])
-        indices[dst], data[dst] = rows.indices[src], rows.data[src]
-        start = s + 1
-    src, dst = slice(A.indptr[start], A.indptr[-1]), slice(indptr[start], indptr[-1])
-    indices[dst], data[dst] = A.indices[src], A.data[src]
-    return sp.csr_matrix((data, indices, indptr), shape=A.shape)
-
-
-class _FormFactors:
-    """Blocks of the scene's F for the local set, from a sparse matrix or a row source.
-
-    ``local`` holds F's rows of the local set in slot order (M, N), so that F[S, J] and F_SS
-    never need rows other than those already fetched.
-    """
-
-    def __init__(self, scene, form_factors, resolution: int, device) -> None:
-        from .rowcache import RowSource
-
-        n = len(scene)
-        self.n_patches = n
-        self.csr = None
-        self.local: sp.csr_matrix | None = None
-        if form_factors is None:
-            self.source = _HemicubeRows(scene, resolution, device)
-        elif isinstance(form_factors, RowSource):
-            if int(form_factors.n_patches) != n:
-                raise InvalidInputError(f"form_factors serves {form_factors.n_patches} patches; the scene has {n}")
-            self.source = form_factors
-        else:
-            from .solve import check_form_factors
-
-            shape = getattr(form_factors, "shape", None)
-            if shape != (n, n):
-                raise InvalidInputError(f"form_factors must have shape ({n}, {n}) for this {n}-patch scene; got {shape}")
-            self.csr = check_form_factors(scene, form_factors)  # float64, kept at full precision
-            self.source = None
-
-    def rows(self, idx: np.ndarray) -> sp.csr_matrix:
-        idx = np.asarray(idx, dtype=np.int64)
-        if self.csr is not None:
-            return self.csr[idx]
-        return sp.csr_matrix(self.source.rows(idx), dtype=np.float64)
-
-    def fetch_local(self, members: np.ndarray) -> None:
-        """Fetch the rows of a whole new local set (a build or refresh)."""
-        self.local = self.rows(members)
-
-    def entering(self, members: np.ndarray, J: np.ndarray, slots: np.ndarray):
-        """F[S, J] (M, k), F[J, S] (k, M) and F[J, J] (k, k), dense float64, for patches J
-        entering ``slots``; afterwards the kept rows of those slots are J's rows."""
-        rows_J = self.rows(J)
-        F_JS = rows_J[:, members].toarray()
-        F_JJ = rows_J[:, J].toarray()
-        F_SJ = self.local[:, J].toarray()
-        self.local = _replace_rows(self.local, np.asarray(slots), rows_J)
-        return F_SJ, F_JS, F_JJ
-
-    def square(self, members: np.ndarray) -> sp.csr_matrix:
-        """F_SS (M, M) sparse for the current local set, rows and columns in slot order."""
-        return sp.csr_matrix(self.local[:, members])
-
-    def full_shape(self, members: np.ndarray) -> sp.csr_matrix:
-        """An (N, N) sparse matrix holding F's rows ``members`` (all of F when it is in memory)."""
-        if self.csr is not None:
-            return self.csr
-        rows = self.local.tocoo()
-        return sp.csr_matrix((rows.data, (members[rows.row], rows.col)), shape=(self.n_patches, self.n_patches))
-
-    @property
-    def nbytes(self) -> int:
-        """Host bytes of the kept local rows."""
-        if self.local is None:
-            return 0
-        return self.local.data.nbytes + self.local.indices.nbytes + self.local.indptr.nbytes
 
 
 class DynamicRadiosity:
@@ -206,7 +97,7 @@ class DynamicRadiosity:
     def __init__(self, scene, form_factors, local_size: int = 1024, update: str = "exact", storage: str = "fp32",
                  max_swaps_per_frame: int = 8, refresh_tolerance: float | None = None, refresh_interval: int = 32,
                  observer=None, keep_emitters: bool = True, resolution: int = 128, device=None) -> None:
-        from .device import default_device
+        from ..device import default_device
 
         checked_scene(scene)
         n = len(scene)
@@ -223,7 +114,7 @@ class DynamicRadiosity:
         self.refresh_tolerance = refresh_tolerance
         self.refresh_interval = integer(refresh_interval, "refresh_interval", 1, 2**31 - 1)
         self.device = device or default_device()
-        self._ff = _FormFactors(scene, form_factors, integer(resolution, "resolution", 8, 4096), self.device)
+        self._ff = LocalRows(scene, form_factors, integer(resolution, "resolution", 8, 4096), self.device)
         self.C = 1 if scene.is_grey else 3
         pinned = scene.emission.max(axis=1) > 0 if keep_emitters else None
         self._select = NearestSet(scene.centers, pinned)
@@ -275,7 +166,7 @@ class DynamicRadiosity:
     @staticmethod
     def estimate_memory_bytes(M: int, channels: int, storage: str, max_swaps_per_frame: int = 8, device=None) -> int:
         """What :attr:`memory_bytes` will be for these sizes, without building anything."""
-        from .device import default_device
+        from ..device import default_device
         from .kupdate import scratch_nbytes
 
         device = device or default_device()
@@ -298,7 +189,7 @@ class DynamicRadiosity:
 
     # -- building ----------------------------------------------------------------------------------
     def _fresh_K(self, members: np.ndarray) -> np.ndarray:
-        from .multibounce import multibounce
+        from ..multibounce import multibounce
 
         self._ff.fetch_local(members)
         return multibounce(self.scene, self._ff.full_shape(members), patches=members, dtype=compute_dtype(self.storage),
@@ -433,7 +324,7 @@ class DynamicRadiosity:
                 raise InvalidInputError(f"a light vector must be a finite ({n}, 3) array; got shape {lights.shape}")
             L = lights.astype(np.float64)
         else:
-            from .lights import light_vector
+            from ..lights import light_vector
 
             L = light_vector(self.scene, lights, device=self.device)
         S = self._members

@@ -47,9 +47,9 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from .checks import integer
-from .errors import InvalidInputError, PydynradError
-from .rowcache import check_row_indices
+from ..checks import integer
+from ..errors import InvalidInputError, PydynradError
+from .cache import check_row_indices
 
 __all__ = [
     "FormFactorStore",
@@ -90,7 +90,7 @@ class StoreIncompleteError(PydynradError):
 
 
 def _library_version() -> str:
-    from . import __version__
+    from .. import __version__
 
     return __version__
 
@@ -131,7 +131,7 @@ class FormFactorStore:
 
     Create with :meth:`create`, reopen with :meth:`open`; both check the scene and the
     parameters against the header. Implements the ``RowSource`` protocol
-    (:meth:`rows`, :attr:`n_patches`), so it can feed a :class:`~pydynrad.rowcache.RowCache`.
+    (:meth:`rows`, :attr:`n_patches`), so it can feed a :class:`~pydynrad.rows.cache.RowCache`.
     """
 
     def __init__(self, path: Path, header: dict) -> None:
@@ -331,7 +331,7 @@ class FormFactorStore:
 
 def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None) -> sp.csr_matrix:
     """The default row function: hemicube rows from :func:`pydynrad.form_factors`."""
-    from .formfactors import form_factors
+    from ..formfactors import form_factors
 
     return form_factors(scene, resolution=resolution, rows=rows, device=device)
 

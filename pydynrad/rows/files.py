@@ -8,7 +8,7 @@
 
 :func:`open_form_factors` takes either and returns what :class:`~pydynrad.DynamicRadiosity`
 and :func:`pydynrad.walk` accept: a CSR matrix for a file, a ``RowSource`` for a store
-(behind a bounded :class:`~pydynrad.rowcache.RowCache` when ``cache_bytes`` is given).
+(behind a bounded :class:`~pydynrad.rows.cache.RowCache` when ``cache_bytes`` is given).
 Both refuse data made for another scene geometry.
 """
 
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
 
 __all__ = ["FF_FORMAT", "check_parent_folder", "load_form_factors", "open_form_factors", "save_form_factors",
            "whole_matrix"]
@@ -105,7 +105,7 @@ def open_form_factors(path, scene, cache_bytes: int | None = None):
 
     Returns a float32 CSR matrix (N, N) for a file. For a store, the
     :class:`~pydynrad.store.FormFactorStore` itself (every row read goes to disk) or, with
-    ``cache_bytes``, a :class:`~pydynrad.rowcache.RowCache` of that many bytes over it (LRU,
+    ``cache_bytes``, a :class:`~pydynrad.rows.cache.RowCache` of that many bytes over it (LRU,
     with background prefetch; close it when done). ``cache_bytes`` does not apply to a file,
     which is in memory whole.
 
@@ -114,7 +114,7 @@ def open_form_factors(path, scene, cache_bytes: int | None = None):
     another scene geometry (or other parameters), :class:`~pydynrad.store.StoreIncompleteError`
     for a store not finished yet.
     """
-    from .rowcache import RowCache
+    from .cache import RowCache
 
     path = Path(path)
     if path.is_dir():
@@ -130,7 +130,8 @@ def whole_matrix(form_factors) -> sp.csr_matrix:
 
     For the full radiosity solve, which needs every row; only for scenes whose F fits in RAM.
     """
-    from .rowcache import RowCache, RowSource
+    from .cache import RowCache
+    from .sources import RowSource
 
     if isinstance(form_factors, RowCache):
         form_factors = form_factors.source  # reading all rows through the cache would only evict it

@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
-from .errors import InvalidInputError
-from .scene import Scene
+from ..errors import InvalidInputError
+from ..scene import Scene
 from .store import (
     DEFAULT_BLOCK_ROWS,
     DEFAULT_TASK_ROWS,
@@ -78,7 +78,7 @@ class SceneSpec:
     def build(self) -> Scene:
         if self.is_builtin:
             return getattr(importlib.import_module("pydynrad.scenes"), self.name)(**self.params)
-        from .loading import load
+        from ..loading import load
 
         return load(self.resolved().name, **self.params)
 
@@ -141,7 +141,7 @@ def _worker_scene(payload, geometry_hash: str) -> Scene:
 def _blocks_task(path: str, group: list[int], payload, geometry_hash: str, resolution: int, patching: dict,
                  row_function: RowFunction) -> tuple[list[int], int, float]:
     """Compute and write the consecutive blocks ``group`` on a worker; returns (group, rows, seconds)."""
-    from .device import default_device
+    from ..device import default_device
 
     t0 = time.perf_counter()
     scene = _worker_scene(payload, geometry_hash)

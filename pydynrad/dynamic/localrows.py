@@ -1,0 +1,109 @@
+"""The form-factor rows a dynamic solution keeps: F's rows of the local set, in slot order.
+
+F[S, J] (what the local set receives from entering patches) is read from these kept rows, so
+only rows are ever fetched from a source (no columns, no reciprocity: hemicube form factors are
+not exactly reciprocal, and a K built from derived columns would differ from a fresh build).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..checks import check_form_factors
+from ..errors import InvalidInputError
+from ..rows.sources import HemicubeRows, RowSource
+
+__all__ = ["LocalRows"]
+
+
+def _replace_rows(A: sp.csr_matrix, slots: np.ndarray, rows: sp.csr_matrix) -> sp.csr_matrix:
+    """A copy of ``A`` (M, N) with row ``slots[m]`` := ``rows[m]`` (explicit zeros dropped).
+
+    Splices the index arrays directly: one copy of A's entries in at most 2k + 1 runs, no
+    sparse products (rows are put in whole, so the result equals the row-wise assignment).
+    """
+    rows = sp.csr_matrix(rows)
+    rows.eliminate_zeros()
+    lengths = np.diff(A.indptr)
+    lengths[slots] = np.diff(rows.indptr)
+    indptr = np.zeros(len(lengths) + 1, dtype=np.int64)
+    np.cumsum(lengths, out=indptr[1:])
+    indices = np.empty(indptr[-1], dtype=A.indices.dtype)
+    data = np.empty(indptr[-1], dtype=A.data.dtype)
+    order = np.argsort(slots)
+    start = 0  # first row of the current run of kept rows
+    for m in order.tolist():
+        s = int(slots[m])
+        src, dst = slice(A.indptr[start], A.indptr[s]), slice(indptr[start], indptr[s])
+        indices[dst], data[dst] = A.indices[src], A.data[src]
+        src, dst = slice(rows.indptr[m], rows.indptr[m + 1]), slice(indptr[s], indptr[s + 1])
+        indices[dst], data[dst] = rows.indices[src], rows.data[src]
+        start = s + 1
+    src, dst = slice(A.indptr[start], A.indptr[-1]), slice(indptr[start], indptr[-1])
+    indices[dst], data[dst] = A.indices[src], A.data[src]
+    return sp.csr_matrix((data, indices, indptr), shape=A.shape)
+
+
+class LocalRows:
+    """Blocks of the scene's F for the local set, from a sparse matrix or a row source.
+
+    ``local`` holds F's rows of the local set in slot order (M, N), so that F[S, J] and F_SS
+    never need rows other than those already fetched.
+    """
+
+    def __init__(self, scene, form_factors, resolution: int, device) -> None:
+        n = len(scene)
+        self.n_patches = n
+        self.csr = None
+        self.local: sp.csr_matrix | None = None
+        if form_factors is None:
+            self.source = HemicubeRows(scene, resolution, device)
+        elif isinstance(form_factors, RowSource):
+            if int(form_factors.n_patches) != n:
+                raise InvalidInputError(f"form_factors serves {form_factors.n_patches} patches; the scene has {n}")
+            self.source = form_factors
+        else:
+            shape = getattr(form_factors, "shape", None)
+            if shape != (n, n):
+                raise InvalidInputError(f"form_factors must have shape ({n}, {n}) for this {n}-patch scene; got {shape}")
+            self.csr = check_form_factors(scene, form_factors)  # float64, kept at full precision
+            self.source = None
+
+    def rows(self, idx: np.ndarray) -> sp.csr_matrix:
+        idx = np.asarray(idx, dtype=np.int64)
+        if self.csr is not None:
+            return self.csr[idx]
+        return sp.csr_matrix(self.source.rows(idx), dtype=np.float64)
+
+    def fetch_local(self, members: np.ndarray) -> None:
+        """Fetch the rows of a whole new local set (a build or refresh)."""
+        self.local = self.rows(members)
+
+    def entering(self, members: np.ndarray, J: np.ndarray, slots: np.ndarray):
+        """F[S, J] (M, k), F[J, S] (k, M) and F[J, J] (k, k), dense float64, for patches J
+        entering ``slots``; afterwards the kept rows of those slots are J's rows."""
+        rows_J = self.rows(J)
+        F_JS = rows_J[:, members].toarray()
+        F_JJ = rows_J[:, J].toarray()
+        F_SJ = self.local[:, J].toarray()
+        self.local = _replace_rows(self.local, np.asarray(slots), rows_J)
+        return F_SJ, F_JS, F_JJ
+
+    def square(self, members: np.ndarray) -> sp.csr_matrix:
+        """F_SS (M, M) sparse for the current local set, rows and columns in slot order."""
+        return sp.csr_matrix(self.local[:, members])
+
+    def full_shape(self, members: np.ndarray) -> sp.csr_matrix:
+        """An (N, N) sparse matrix holding F's rows ``members`` (all of F when it is in memory)."""
+        if self.csr is not None:
+            return self.csr
+        rows = self.local.tocoo()
+        return sp.csr_matrix((rows.data, (members[rows.row], rows.col)), shape=(self.n_patches, self.n_patches))
+
+    @property
+    def nbytes(self) -> int:
+        """Host bytes of the kept local rows."""
+        if self.local is None:
+            return 0
+        return self.local.data.nbytes + self.local.indices.nbytes + self.local.indptr.nbytes
