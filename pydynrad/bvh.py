@@ -4,6 +4,8 @@ The builder is ``csrc/bvh.c`` (binned SAH, leaves of at most 4 triangles, the bi
 collapsed to 4-wide nodes). This module keeps
 its flattened arrays and uploads them once per OpenCL device; kernels include
 ``kernels/bvh.cl`` and take the three buffers of :meth:`BVH.buffers` as arguments.
+
+See docs/design.md, 'BVH'.
 """
 
 from __future__ import annotations

@@ -7,6 +7,8 @@ can never disagree about which pixel looks where.
 Conventions: right-handed world; the image's row 0 is the top row and column 0 the left
 column; the ray of pixel (row r, column c) passes through the centre of that pixel on an
 image plane at distance 1 whose height is ``2 tan(fov_y / 2)``.
+
+See docs/design.md, 'Conventions'.
 """
 
 from __future__ import annotations

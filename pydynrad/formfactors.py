@@ -9,6 +9,8 @@ sum to 1 in closed scenes and to less in open ones.
 Rows are computed in blocks: the device writes each scanline's pixels run-length encoded
 (patch, end pixel), the host turns runs into weights with a prefix sum and sums duplicates
 into CSR. Memory stays bounded by the block, whatever N.
+
+See docs/design.md, 'Hemicube form factors'.
 """
 
 from __future__ import annotations

@@ -12,6 +12,8 @@ multibounce matrix (``B = L + P K L``), never a rebuild:
 Units: positions in scene units; a point or spot light's intensity in W/sr (irradiance
 falls off as intensity * cos(theta) / d^2); a directional light's irradiance in W/unit^2 on
 a surface facing it. Only the front side of a patch (its normal's side) receives light.
+
+See docs/design.md, 'Lights'.
 """
 
 from __future__ import annotations

@@ -10,6 +10,8 @@ RGB light vector: three products for the traffic of one).
 
 Other kernels that work on K in place (``kernels/update.cl``) include ``kernels/storage.h``
 and build with :attr:`DeviceMatrix.defines` so they read and write the same element type.
+
+See docs/design.md, 'Cost model'.
 """
 
 from __future__ import annotations

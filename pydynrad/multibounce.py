@@ -20,6 +20,8 @@ float32 gives ~1e-5 at rho = 0.9 and ~1e-3 at rho = 0.999; use dtype=np.float64 
 
 ``bounces=n`` instead gives the truncated series sum_{k=0}^{n} (F_SS P_S)^k F_SS (paths of at
 most n + 1 hops; what a fixed-bounce renderer computes), one M^3 GEMM per bounce.
+
+See docs/design.md, 'Multibounce build'.
 """
 
 from __future__ import annotations

@@ -16,6 +16,8 @@ bounce rays, combined by multiple importance sampling; see the kernel's header. 
 long paths unbiased. Samples are accumulated in passes (one kernel launch each, so a progress
 bar and a time limit work); random numbers depend only on ``(seed, pixel or patch, sample)``,
 so a result is reproducible bit for bit.
+
+See docs/design.md, 'Path tracer'.
 """
 
 from __future__ import annotations

@@ -17,6 +17,8 @@ Pixel values are the radiosity (radiant exitance, the unit of ``Scene.emission``
 visible surface, linear, float32, shape (height, width, 3); divide by pi for radiance.
 Patches radiate from their front side only, so a ray that meets a patch's back face shows
 ``backface`` (default black) and a ray that leaves the scene shows ``background``.
+
+See docs/design.md, 'Renderer'.
 """
 
 from __future__ import annotations

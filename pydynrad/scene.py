@@ -8,6 +8,8 @@ never see NaNs, degenerate triangles or out-of-range materials.
 Units: lengths in the scene's own unit (the Cornell box uses millimetres), areas in that
 unit squared, albedo dimensionless in [0, 1), emission as radiant exitance (W/unit^2, any
 consistent scale: radiosity is linear in it).
+
+See docs/design.md, 'Conventions'.
 """
 
 from __future__ import annotations

@@ -14,6 +14,8 @@ bounces: 1,400 for q = 0.99 at tol = 1e-6). ``residual`` is the relative max-nor
 ``max |L + P F B - B| / max |B|`` of the second-to-last iterate, an upper bound on the
 returned one's. The error of B is at most ``residual / (1 - q)`` relative: choose ``tol``
 accordingly for albedos near 1.
+
+See docs/design.md, 'Full solve'.
 """
 
 from __future__ import annotations

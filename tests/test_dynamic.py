@@ -94,7 +94,7 @@ def test_single_swap_is_downdate_then_bordering():
     s = 7
     Fs = F[np.ix_(S, S)]
     K = np.linalg.solve(np.eye(20) - Fs * rho[S], Fs)
-    # Sherman-Morrison downdate of slot s (DESIGN.md), then drop its row and column.
+    # Sherman-Morrison downdate of slot s (docs/design.md, 'Exact mode'), then drop its row and column.
     ri = rho[S[s]]
     Kd = K - np.outer(K[:, s], K[s, :]) * ri / (1 + ri * K[s, s])
     keep = np.arange(20) != s

@@ -1,6 +1,6 @@
 """update="paper": the device path equals a plain numpy transcription of the paper's update.
 
-The transcription below follows DESIGN.md's reading of sections 3.2 and 4.1 line by line, on
+The transcription below follows docs/design.md's reading ('Paper mode') of sections 3.2 and 4.1 line by line, on
 dense float64 arrays, with section 4.1's bitset as a plain (M, N) bool table:
 used[a, p] is True when row a of K already holds the reflections of patch p. A swap that puts
 patch j into slot s: clear row and column s; f_c = F[S, j], f_r = F[j, S] (zero at s);

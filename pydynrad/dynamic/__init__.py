@@ -7,6 +7,8 @@
 * :mod:`.exact`: the exact batched swap (block elimination; K equals a fresh build);
 * :mod:`.paper`: the paper's own update (double reflection, rank-one update, bitset);
 * :mod:`.kupdate`: the device kernels both updates drive (gathers, rank-2k, slot reads/writes).
+
+See docs/design.md, 'Paper mode', 'Exact mode', 'Batched swap' and 'Local set'.
 """
 
 from .radiosity import DynamicRadiosity, FrameStats

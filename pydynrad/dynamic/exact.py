@@ -1,6 +1,6 @@
 """Host-side algebra of the exact local update (``update="exact"``), per colour channel.
 
-K = K_S = (I - F_SS P_S)^{-1} F_SS over the slots S of the local set (DESIGN.md). A batch
+K = K_S = (I - F_SS P_S)^{-1} F_SS over the slots S of the local set. A batch
 swap removes the patches in slots ``I`` and puts k new patches J into those slots. The device
 supplies, from one read pass over K, the columns U = K[:, I], the rows V = K[I, :] and the
 products K (P_S F_SJ) and (F_JS P_S) K; everything here is O(M k + k^3) on the host. The
@@ -11,6 +11,8 @@ transcribes both and checks it).
 
 Shapes: M slots, k swaps. F_SJ (M, k) holds F[S[a], J[m]] with the rows of the slots I
 zeroed; F_JS (k, M) holds F[J[m], S[a]] with the columns of I zeroed; F_JJ (k, k).
+
+See docs/design.md, 'Exact mode' and 'Batched swap'.
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ def batched_swap(
     rho_J: np.ndarray,
     slots: np.ndarray,
 ) -> SwapUpdate:
-    """Factors of the exact remove-I / add-J update of one channel (DESIGN.md, "Batched swap").
+    """Factors of the exact remove-I / add-J update of one channel (docs/design.md, 'Batched swap').
 
     U = K[:, I] (M, k); V = K[I, :] (k, M); KPF = K (P_S F_SJ) (M, k); FPK = (F_JS P_S) K (k, M);
     rho_S (M,) albedo of the current slots (those of I are never used: F_SJ/F_JS are zero there);

@@ -8,6 +8,8 @@ matrix's compute type on the device). Each method works on one channel's buffer 
 * :meth:`UpdateKernels.read_slots` / :meth:`UpdateKernels.write_slots`: columns and rows of a
   few slots (O(k M));
 * :meth:`UpdateKernels.double_reflection`: the paper's Eq. 1 reduction.
+
+See docs/design.md, 'Cost model', and kernels/README.md for the kernels' defines and guarantees.
 """
 
 from __future__ import annotations

@@ -3,6 +3,8 @@
 F[S, J] (what the local set receives from entering patches) is read from these kept rows, so
 only rows are ever fetched from a source (no columns, no reciprocity: hemicube form factors are
 not exactly reciprocal, and a K built from derived columns would differ from a fresh build).
+
+See docs/design.md, 'Local set'.
 """
 
 from __future__ import annotations

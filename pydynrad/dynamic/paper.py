@@ -1,4 +1,5 @@
-"""The paper's local update (``update="paper"``), step by step as DESIGN.md reads sections 3-4.
+"""The paper's local update (``update="paper"``), step by step as docs/design.md, 'Paper mode',
+reads sections 3-4.
 
 One swap frees slot s (the evicted patch i) and puts patch j there. Per colour channel:
 

@@ -6,8 +6,8 @@ a frame costs O(M^2) device work instead of O(N^2):
 
 * ``update(observer)`` swaps the farthest included patches for nearer excluded ones (the
   paper's loop, at most ``max_swaps_per_frame`` per frame) and updates K in place, either as
-  the paper does (``update="paper"``, :mod:`pydynrad.paper`) or exactly
-  (``update="exact"``, :mod:`pydynrad.exact`: after any sequence of swaps K equals a fresh
+  the paper does (``update="paper"``, :mod:`pydynrad.dynamic.paper`) or exactly
+  (``update="exact"``, :mod:`pydynrad.dynamic.exact`: after any sequence of swaps K equals a fresh
   build over the same set, to rounding);
 * ``radiosity(lights)`` returns B = L + P K L on the local patches (one matrix-vector product
   per colour channel) and L (emitted plus direct light) elsewhere.
@@ -18,6 +18,8 @@ per entering patch. Only rows are ever fetched: the entering patches' columns re
 the local set, F[S, J], are read from the rows of S, which are kept (sparse, M rows) from
 when each patch entered. Hemicube form factors are not exactly reciprocal, so deriving
 columns by reciprocity would give a K that differs from a fresh build over the same rows.
+
+See docs/design.md, 'Conventions', 'Local set' and 'Drift and refresh'.
 """
 
 from __future__ import annotations

@@ -13,6 +13,8 @@ sorting the N distances:
 So a frame costs O(M + (M + k) log N) here, which is small next to the O(M^2) update of K
 (for M = 4096 it is about a millisecond). Distances are from the observer to patch centres.
 Pinned patches (emitters, by the authors' rule) are never proposed for eviction.
+
+See docs/design.md, 'Local set'.
 """
 
 from __future__ import annotations

@@ -6,6 +6,8 @@
 * :mod:`.files`: one-file ``.npz`` form factors and opening any saved F for a scene;
 * :mod:`.store`: :class:`FormFactorStore`, a chunked, checksummed, resumable store on disk;
 * :mod:`.distributed`: filling a store with a Dask cluster.
+
+See docs/design.md, 'Row sources, stores and caches' and 'Distributed precompute'.
 """
 
 from .cache import RowCache

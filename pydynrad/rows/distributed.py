@@ -11,6 +11,8 @@ shares the local one).
 OpenCL contexts must not cross a fork (a forked child of a process holding one can hang), so
 the LocalCluster starts its worker processes with the ``spawn`` method and every worker builds
 its context after start, in a worker plugin (:func:`opencl_worker_plugin_class`).
+
+See docs/design.md, 'Distributed precompute'.
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ __all__ = ["SceneSpec", "opencl_worker_plugin_class", "precompute_distributed"]
 class SceneSpec:
     """A scene by recipe, cheap to send to workers: a built-in name or a mesh file, plus parameters.
 
-    ``SceneSpec("village", {"n_houses": 400})`` calls ``pydynrad.scenes.village(n_houses=400)``;
+    ``SceneSpec("village", {"houses": 400})`` calls ``pydynrad.scenes.village(houses=400)``;
     ``SceneSpec("/data/house.obj", {"max_patch_area": 0.01})`` calls
     ``pydynrad.loading.load(path, max_patch_area=0.01)``. Parameters must be JSON values
     (they are recorded in the store header as its patching parameters).

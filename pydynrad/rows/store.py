@@ -31,6 +31,8 @@ Guarantees:
 
 One writer run per store at a time: concurrent runs would compute the same blocks twice (the
 results stay correct, each block is still replaced whole).
+
+See docs/design.md, 'Row sources, stores and caches'.
 """
 
 from __future__ import annotations
