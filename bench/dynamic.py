@@ -18,6 +18,8 @@ Measured in one run:
   (``pydynrad.solve``), per M and mode, with hemicube form factors;
 * drift: K against a fresh build over the same set after many frames (10,000 at ``full``),
   with and without ``refresh_tolerance``.
+
+The copy bound and the passes per frame are explained in docs/design.md, 'Cost model'.
 """
 
 from __future__ import annotations
