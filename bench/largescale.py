@@ -94,7 +94,7 @@ def run_walk(args) -> dict:
         if cache is not None:
             # Prefetch the patches next in line: the nearest ones not yet local.
             near, _ = dyn._select.nearest(eye, args.local_size + 4 * args.swaps)
-            cache.prefetch(near[~dyn._included[near]])
+            cache.prefetch(near[~dyn.local_mask[near]])
         t0 = time.perf_counter()
         st = dyn.update(eye)
         dyn.radiosity()
