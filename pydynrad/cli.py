@@ -109,7 +109,7 @@ def load_scene(name: str, max_edge: float | None = None):
 
 def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
     """``path`` as a Path, after checking its folder exists (and its suffix, or image format)."""
-    from .rows.files import check_parent_folder
+    from .atomic import check_parent_folder
     from .image_io import _format_for
 
     path = Path(path)
@@ -196,7 +196,7 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
 def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     """Create or resume the store at ``out``: in this process (--workers 0) or on a Dask cluster."""
     from .rows.distributed import SceneSpec, precompute_distributed
-    from .rows.files import check_parent_folder
+    from .atomic import check_parent_folder
     from .rows.store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore, compute_store
 
     check_parent_folder(out)
@@ -245,6 +245,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames) -> object:
+    from .atomic import write_atomic
     from .walk import walk
 
     opts = {"update": args.update, "storage": args.storage}
@@ -254,7 +255,7 @@ def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames) ->
     summary = result.summary()
     print(summary)
     if out_dir is not None:
-        (Path(out_dir) / "summary.txt").write_text(summary + "\n")
+        write_atomic(Path(out_dir) / "summary.txt", (summary + "\n").encode())
         print(f"images in {out_dir}/")
     return result
 

@@ -21,21 +21,14 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from ..atomic import check_parent_folder, write_atomic
 from ..errors import InvalidInputError
 
-__all__ = ["FF_FORMAT", "check_parent_folder", "load_form_factors", "open_form_factors", "save_form_factors",
+__all__ = ["FF_FORMAT", "load_form_factors", "open_form_factors", "save_form_factors",
            "whole_matrix"]
 
 FF_FORMAT = "pydynrad-form-factors"
 FF_VERSION = 1
-
-
-def check_parent_folder(path) -> Path:
-    """``path`` as a Path, or :class:`InvalidInputError` when the folder it goes into is missing."""
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise InvalidInputError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} does not exist")
-    return path
 
 
 def save_form_factors(path, F, scene, resolution: int) -> Path:
@@ -44,8 +37,6 @@ def save_form_factors(path, F, scene, resolution: int) -> Path:
     The header records the format, the scene's name and geometry hash, N, the hemicube
     ``resolution`` and nnz. Written whole (temporary file in the same folder, then rename).
     """
-    from .store import write_atomic
-
     path = check_parent_folder(path)
     if path.suffix.lower() != ".npz":
         raise InvalidInputError(f"form-factor file {str(path)!r} must end in .npz")

@@ -38,8 +38,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
-import uuid
 import zipfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -47,6 +45,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from ..atomic import TMP_MARK, write_atomic
 from ..checks import integer
 from ..errors import InvalidInputError, PydynradError
 from .cache import check_row_indices
@@ -58,7 +57,6 @@ __all__ = [
     "StoreMismatchError",
     "compute_blocks",
     "compute_store",
-    "write_atomic",
     "form_factor_rows",
     "task_groups",
 ]
@@ -67,7 +65,6 @@ FORMAT = "pydynrad-formfactor-store"
 FORMAT_VERSION = 1
 HEADER = "header.json"
 BLOCK_DIR = "blocks"
-TMP_MARK = ".tmp-"
 DEFAULT_BLOCK_ROWS = 256
 DEFAULT_TASK_ROWS = 4096
 # DEFLATE level 1: F's float32 mantissas are nearly incompressible, so higher levels cost
@@ -93,20 +90,6 @@ def _library_version() -> str:
     from .. import __version__
 
     return __version__
-
-
-def write_atomic(path: Path, payload: bytes) -> None:
-    """Write ``payload`` to ``path`` whole: temp file in the same folder, fsync, rename."""
-    tmp = path.with_name(f"{path.name}{TMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(payload)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def _digest(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> str:
