@@ -57,6 +57,15 @@ def _positive_int(text: str) -> int:
     return int(text)
 
 
+def _resolution(text: str) -> int:
+    from .checks import resolution
+
+    try:
+        return resolution(int(text) if text.isdigit() else text)
+    except InvalidInputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _count(text: str) -> int:
     if not text.isdigit():
         raise argparse.ArgumentTypeError(f"expected a whole number >= 0; got {text!r}")
@@ -350,8 +359,8 @@ def _add_form_factors(p: argparse.ArgumentParser, resolution: int = 64) -> None:
 
 
 def _add_resolution(p: argparse.ArgumentParser, default: int, when: str = "") -> None:
-    p.add_argument("--resolution", type=_positive_int, default=default, metavar="R",
-                   help=f"hemicube resolution (R x R pixels on the top face){when} (default {default})")
+    p.add_argument("--resolution", type=_resolution, default=default, metavar="R",
+                   help=f"hemicube resolution (R x R pixels on the top face; even, 2 to 4096){when} (default {default})")
 
 
 def _add_camera(p: argparse.ArgumentParser) -> None:

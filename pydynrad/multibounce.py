@@ -28,7 +28,7 @@ import sys
 
 import numpy as np
 
-from .checks import scene as checked_scene
+from .checks import patch_indices, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
 from .checks import check_form_factors
 from .memory import available_host_bytes
@@ -81,17 +81,8 @@ def _check_memory(M: int, C: int, out: np.dtype, bounces, device) -> None:
 
 
 def _checked_patches(patches, n: int) -> np.ndarray:
-    if patches is None:
-        return np.arange(n)
-    idx = np.asarray(patches)
-    if idx.ndim != 1 or len(idx) == 0 or not np.issubdtype(idx.dtype, np.integer):
-        raise InvalidInputError(f"patches must be a non-empty 1-D integer array; got {idx.dtype} shape {idx.shape}")
-    if idx.min() < 0 or idx.max() >= n:
-        raise InvalidInputError(f"patches must index 0..{n - 1}")
-    values, counts = np.unique(idx, return_counts=True)
-    if len(values) != len(idx):
-        raise InvalidInputError(f"patches contains repeated indices, e.g. {values[counts > 1][:5].tolist()}")
-    return idx.astype(np.int64)
+    """The set S: all patches, or ``patches`` (K's rows and columns, so distinct and non-empty)."""
+    return np.arange(n) if patches is None else patch_indices(patches, n, "patches", unique=True, nonempty=True)
 
 
 class _Builder:

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks import integer, scene as checked_scene, vec3
+from ..checks import integer, resolution as checked_resolution, scene as checked_scene, vec3
 from ..errors import InvalidInputError, PydynradError
 from ..matvec import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
 from .localrows import LocalRows
@@ -115,7 +115,7 @@ class DynamicRadiosity:
         self.refresh_tolerance = refresh_tolerance
         self.refresh_interval = integer(refresh_interval, "refresh_interval", 1, 2**31 - 1)
         self.device = device or default_device()
-        self._ff = LocalRows(scene, form_factors, integer(resolution, "resolution", 8, 4096), self.device)
+        self._ff = LocalRows(scene, form_factors, checked_resolution(resolution), self.device)
         self.C = 1 if scene.is_grey else 3
         pinned = scene.emission.max(axis=1) > 0 if keep_emitters else None
         self._select = NearestSet(scene.centers, pinned)

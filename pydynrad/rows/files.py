@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..atomic import check_parent_folder, write_atomic
+from ..checks import resolution as checked_resolution
 from ..errors import InvalidInputError
 
 __all__ = ["FF_FORMAT", "load_form_factors", "open_form_factors", "save_form_factors",
@@ -45,7 +46,7 @@ def save_form_factors(path, F, scene, resolution: int) -> Path:
     if F.shape != (n, n):
         raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {F.shape}")
     header = {"format": FF_FORMAT, "version": FF_VERSION, "scene": scene.name, "geometry_hash": scene.geometry_hash(),
-              "n_patches": n, "resolution": int(resolution), "nnz": int(F.nnz)}
+              "n_patches": n, "resolution": checked_resolution(resolution), "nnz": int(F.nnz)}
     buf = io.BytesIO()
     np.savez(buf, header=np.array(json.dumps(header)), data=F.data.astype(np.float32),
              indices=F.indices.astype(np.int32), indptr=F.indptr.astype(np.int64))

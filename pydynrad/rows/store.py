@@ -46,9 +46,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..atomic import TMP_MARK, write_atomic
-from ..checks import integer
+from ..checks import integer, patch_indices, resolution as checked_resolution
 from ..errors import InvalidInputError, PydynradError
-from .cache import check_row_indices
 
 __all__ = [
     "FormFactorStore",
@@ -100,7 +99,7 @@ def _digest(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> str:
 
 
 def _canonical_params(resolution: int, patching: dict | None) -> dict:
-    integer(resolution, "resolution (hemicube pixels per side)")
+    resolution = checked_resolution(resolution)
     try:
         # A JSON round trip makes tuples lists, so the recorded and the requested values compare equal.
         patch = json.loads(json.dumps(dict(patching or {}), sort_keys=True))
@@ -263,7 +262,7 @@ class FormFactorStore:
 
     def rows(self, idx) -> sp.csr_matrix:
         """Rows ``idx`` of F as a (len(idx), N) float32 CSR matrix, in the order given."""
-        idx = check_row_indices(idx, self.n_patches)
+        idx = patch_indices(idx, self.n_patches, "row indices")
         if idx.size == 0:
             return sp.csr_matrix((0, self.n_patches), dtype=np.float32)
         blocks = idx // self.block_rows
