@@ -16,11 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InvalidInputError, PydynradError
+from .scenes.byname import BUILTIN_SCENES
 
 __all__ = ["main", "build_parser", "load_scene", "BUILTIN_SCENES"]
 
-#: Names SCENE may take instead of a mesh file (functions of pydynrad.scenes).
-BUILTIN_SCENES = ("cornell_box", "village", "closed_box", "parallel_plates", "perpendicular_plates")
 
 DEMO_DIR = "pydynrad-demo"
 DEMO_EXPOSURE = float(-np.log2(np.pi))
@@ -95,25 +94,16 @@ def _point_light(text: str):
 
 # -- scenes and form-factor files -------------------------------------------------------------
 def load_scene(name: str, max_edge: float | None = None):
-    """A built-in scene by name (:data:`BUILTIN_SCENES`) or a mesh file trimesh reads.
+    """SCENE: a built-in name or a mesh file (:func:`pydynrad.scenes.byname.scene_by_name`),
+    split to ``max_edge`` (scene units) when given; None keeps each scene's default patching."""
+    from .scenes.byname import scene_by_name
 
-    ``max_edge`` (scene units) subdivides patches; None keeps each scene's default.
-    """
-    kwargs = {} if max_edge is None else {"max_edge": max_edge}
-    if name in BUILTIN_SCENES:
-        from . import scenes
+    return scene_by_name(name, **_patching(max_edge))
 
-        make = getattr(scenes, name, None)
-        if make is None:
-            raise InvalidInputError(f"the built-in scene {name!r} is not available in this installation")
-        return make(**kwargs)
-    path = Path(name)
-    if not path.exists() and not path.suffix:
-        raise InvalidInputError(f"scene {name!r} is neither a mesh file nor a built-in scene "
-                                f"({', '.join(BUILTIN_SCENES)})")
-    from .loading import load
 
-    return load(path, **kwargs)
+def _patching(max_edge: float | None) -> dict:
+    """The scene parameters --max-edge stands for (also what a store records as its patching)."""
+    return {} if max_edge is None else {"max_edge": max_edge}
 
 
 def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
@@ -213,7 +203,7 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     print(f"scene: {scene!r}")
     # The recipe is the store's patching record, the same for every way of computing it, so
     # a store begun in this process can be finished on a cluster and the other way round.
-    spec = SceneSpec(args.scene, {} if args.max_edge is None else {"max_edge": args.max_edge}).resolved()
+    spec = SceneSpec(args.scene, _patching(args.max_edge)).resolved()
     block_rows = args.block_rows
     if (out / HEADER).exists():
         store = FormFactorStore.open(out, scene, resolution=args.resolution, patching=spec.recipe())
