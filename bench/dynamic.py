@@ -129,7 +129,7 @@ def _frame_rows(device, sizes, frames):
                                                 max_swaps_per_frame=BATCH, observer=next(_walk(scene, 1)), device=device)
                 stats = [dyn.update(p) for p in _walk(scene, frames, seed=1)]
                 busy = [s for s in stats if s.swaps]
-                light = time_call(lambda: dyn.radiosity(L), repeats=5)
+                light = time_call(lambda: dyn.radiosity(light=L), repeats=5)
                 rows.append([M, len(scene), mode, storage, float(np.mean([s.swaps for s in stats])),
                              1e3 * float(np.mean([s.t_update for s in busy])) if busy else 0.0,
                              1e3 * float(np.mean([s.t_select for s in stats])),

@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pydynrad.scenes.byname import scene_by_name
+
 from .common import time_call
 
 __all__ = ["SIZES", "hemicube_rays", "throughput", "bvh_build", "accuracy", "measure", "suite_section", "main"]
@@ -95,15 +97,6 @@ def _embree(scene):
     es = rtcore_scene.EmbreeScene()
     TriangleMesh(scene=es, vertices=scene.points.astype(np.float32), indices=scene.triangles.astype(np.int32))
     return es
-
-
-def _scene(name: str):
-    import pydynrad
-
-    make = getattr(pydynrad.scenes, name, None)
-    if make is None:
-        raise ValueError(f"no scene pydynrad.scenes.{name}")
-    return make()
 
 
 def _cpu_seconds() -> float:
@@ -209,7 +202,7 @@ def accuracy(resolutions, subdivisions, device) -> list[dict]:
 
 def measure(params: dict, device) -> dict:
     """The section dict (see bench.report) for one parameter set."""
-    tp = [throughput(_scene(name), params["ray_rows"], params["ray_resolution"], device)
+    tp = [throughput(scene_by_name(name), params["ray_rows"], params["ray_resolution"], device)
           for name in params["scenes"]]
     acc = accuracy(params["resolutions"], params["subdivisions"], device)
     build = bvh_build(int(params.get("bvh_triangles", 1_000_000)))

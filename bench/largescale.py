@@ -94,7 +94,7 @@ def run_walk(args) -> dict:
         if cache is not None:
             # Prefetch the patches next in line: the nearest ones not yet local.
             near, _ = dyn._select.nearest(eye, args.local_size + 4 * args.swaps)
-            cache.prefetch(near[~dyn._included[near]])
+            cache.prefetch(near[~dyn.local_mask[near]])
         t0 = time.perf_counter()
         st = dyn.update(eye)
         dyn.radiosity()
@@ -229,6 +229,8 @@ def _table(title: str, rows: list[dict]) -> list[str]:
 
 
 def write_report(report: dict, size: str) -> None:
+    from pydynrad.atomic import write_atomic
+
     RESULTS.mkdir(parents=True, exist_ok=True)
     md = [f"# Large scenes ({size}, {report['date']})", "",
           f"village(detail={report['detail']}): N = {report['scene']['N']} patches; hemicube resolution "
@@ -237,9 +239,7 @@ def write_report(report: dict, size: str) -> None:
           *_table("Store", [report["store"]]),
           *_table("Walks (each in its own process)", report.get("walks", []))]
     for name, text in ((f"largescale-{size}.json", json.dumps(report, indent=1)), (f"largescale-{size}.md", "\n".join(md))):
-        tmp = RESULTS / f".{name}.tmp"
-        tmp.write_text(text)
-        os.replace(tmp, RESULTS / name)
+        write_atomic(RESULTS / name, text.encode())
 
 
 if __name__ == "__main__":

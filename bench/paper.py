@@ -64,7 +64,7 @@ def paper_section(ctx) -> dict:
             frames = [(dt, stats.swaps) for dt, stats in walked if stats.swaps]
             t_update = float(np.median([dt for dt, _ in frames])) if frames else float("nan")
             swaps = float(np.mean([k for _, k in frames])) if frames else 0.0
-            t_light = time_call(lambda: dyn.radiosity(L))["median_s"]
+            t_light = time_call(lambda: dyn.radiosity(light=L))["median_s"]
             rows.append([M, mode, "fp16", n, t_naive * 1e3, sol.iterations, t_build, swaps, t_update * 1e3,
                          t_light * 1e3, t_naive / t_light, PAPER_LIGHTING_RATIO, t_naive / t_update,
                          PAPER_UPDATE_RATIO])

@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
-import tempfile
 from pathlib import Path
+
+from pydynrad.atomic import write_atomic
 
 __all__ = ["slugify", "write_report", "markdown", "plot_files", "format_value"]
 
@@ -31,19 +31,6 @@ def slugify(text: str) -> str:
     """A file-name-safe lower-case slug: ``"pthread / cpu-haswell"`` -> ``"pthread-cpu-haswell"``."""
     slug = re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")
     return slug[:80] or "device"
-
-
-def _atomic_write(path: Path, write) -> None:
-    """Call ``write(tmp_path)`` and move the result onto ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write(Path(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def format_value(v) -> str:
@@ -108,7 +95,7 @@ def _draw(plot: dict, path: Path) -> None:
         if any(s.get("label") for s in plot["series"]):
             ax.legend(fontsize="small")
         fig.tight_layout()
-        _atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+        write_atomic(path, lambda tmp: fig.savefig(tmp, format="png"))
     finally:
         plt.close(fig)
 
@@ -160,6 +147,7 @@ def write_report(results: dict, out_dir, slug: str) -> dict[str, Path]:
     Returns the paths written, keyed ``"json"``, ``"md"`` and ``"png:<section>:<plot>"``.
     """
     out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
     results = _json_safe(results)
     written: dict[str, Path] = {}
     files = plot_files(slug, results)
@@ -169,7 +157,7 @@ def write_report(results: dict, out_dir, slug: str) -> dict[str, Path]:
             _draw(plot, path)
             written[f"png:{sec}:{plot['name']}"] = path
     json_path, md_path = out / f"{slug}.json", out / f"{slug}.md"
-    _atomic_write(json_path, lambda tmp: tmp.write_text(json.dumps(results, indent=1, allow_nan=False)))
-    _atomic_write(md_path, lambda tmp: tmp.write_text(markdown(results, slug)))
+    write_atomic(json_path, json.dumps(results, indent=1, allow_nan=False).encode())
+    write_atomic(md_path, markdown(results, slug).encode())
     written["json"], written["md"] = json_path, md_path
     return written

@@ -12,7 +12,8 @@ import scipy.sparse as sp
 
 from .errors import InvalidInputError
 
-__all__ = ["floats", "vec3", "number", "integer", "finite", "scene", "check_form_factors", "ROW_SUM_SLACK"]
+__all__ = ["floats", "vec3", "number", "integer", "finite", "scene", "patch_indices", "resolution", "check_form_factors",
+           "ROW_SUM_SLACK", "MAX_RESOLUTION"]
 
 
 def floats(value, what: str) -> np.ndarray:
@@ -74,6 +75,45 @@ def scene(value, what: str = "scene"):
     if not isinstance(value, Scene):
         raise InvalidInputError(f"{what} must be a pydynrad.Scene; got {type(value).__name__}")
     return value
+
+
+def patch_indices(value, n: int, what: str = "patch indices", *, unique: bool = False,
+                  nonempty: bool = False) -> np.ndarray:
+    """``value`` as a 1-D int64 array of patch indices in ``0..n-1``, or InvalidInputError naming ``what``.
+
+    The one rule for every argument that names patches (rows of F, the patches of K, path
+    tracing targets): integers (an empty list of any type is none), 1-D, in range; ``unique``
+    refuses repeats (where each index is a row and column of a matrix), ``nonempty`` an empty set.
+    """
+    a = np.asarray(value)
+    if a.ndim != 1 or (a.size and not np.issubdtype(a.dtype, np.integer)):
+        raise InvalidInputError(f"{what} must be a 1-D array of integers; got shape {a.shape}, dtype {a.dtype}")
+    if nonempty and not a.size:
+        raise InvalidInputError(f"{what} must not be empty")
+    a = a.astype(np.int64)
+    if a.size and (a.min() < 0 or a.max() >= n):
+        raise InvalidInputError(f"{what} must be patch indices in 0..{n - 1}; got values in [{a.min()}, {a.max()}]")
+    if unique and a.size:
+        values, counts = np.unique(a, return_counts=True)
+        if len(values) != len(a):
+            raise InvalidInputError(f"{what} contains repeated indices, e.g. {values[counts > 1][:5].tolist()}")
+    return a
+
+
+#: Largest hemicube resolution accepted anywhere (3 R^2 = 50 M rays per patch already).
+MAX_RESOLUTION = 4096
+
+
+def resolution(value, what: str = "resolution") -> int:
+    """A hemicube resolution R: an even integer in 2..MAX_RESOLUTION (side faces are R x R/2).
+
+    The one rule for every R pydynrad accepts or records: :func:`pydynrad.form_factors`,
+    form-factor files and stores, ``DynamicRadiosity(resolution=)`` and the CLI.
+    """
+    R = integer(value, what, 2, MAX_RESOLUTION)
+    if R % 2:
+        raise InvalidInputError(f"{what} must be an even integer (hemicube side faces are R x R/2); got {R}")
+    return R
 
 
 #: Hemicube rows are sums of discretised delta form factors; allow them to exceed 1 by this much.

@@ -16,11 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InvalidInputError, PydynradError
+from .scenes.byname import BUILTIN_SCENES
 
 __all__ = ["main", "build_parser", "load_scene", "BUILTIN_SCENES"]
 
-#: Names SCENE may take instead of a mesh file (functions of pydynrad.scenes).
-BUILTIN_SCENES = ("cornell_box", "village", "closed_box", "parallel_plates", "perpendicular_plates")
 
 DEMO_DIR = "pydynrad-demo"
 DEMO_EXPOSURE = float(-np.log2(np.pi))
@@ -57,6 +56,15 @@ def _positive_int(text: str) -> int:
     return int(text)
 
 
+def _resolution(text: str) -> int:
+    from .checks import resolution
+
+    try:
+        return resolution(int(text) if text.isdigit() else text)
+    except InvalidInputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _count(text: str) -> int:
     if not text.isdigit():
         raise argparse.ArgumentTypeError(f"expected a whole number >= 0; got {text!r}")
@@ -86,30 +94,21 @@ def _point_light(text: str):
 
 # -- scenes and form-factor files -------------------------------------------------------------
 def load_scene(name: str, max_edge: float | None = None):
-    """A built-in scene by name (:data:`BUILTIN_SCENES`) or a mesh file trimesh reads.
+    """SCENE: a built-in name or a mesh file (:func:`pydynrad.scenes.byname.scene_by_name`),
+    split to ``max_edge`` (scene units) when given; None keeps each scene's default patching."""
+    from .scenes.byname import scene_by_name
 
-    ``max_edge`` (scene units) subdivides patches; None keeps each scene's default.
-    """
-    kwargs = {} if max_edge is None else {"max_edge": max_edge}
-    if name in BUILTIN_SCENES:
-        from . import scenes
+    return scene_by_name(name, **_patching(max_edge))
 
-        make = getattr(scenes, name, None)
-        if make is None:
-            raise InvalidInputError(f"the built-in scene {name!r} is not available in this installation")
-        return make(**kwargs)
-    path = Path(name)
-    if not path.exists() and not path.suffix:
-        raise InvalidInputError(f"scene {name!r} is neither a mesh file nor a built-in scene "
-                                f"({', '.join(BUILTIN_SCENES)})")
-    from .loading import load
 
-    return load(path, **kwargs)
+def _patching(max_edge: float | None) -> dict:
+    """The scene parameters --max-edge stands for (also what a store records as its patching)."""
+    return {} if max_edge is None else {"max_edge": max_edge}
 
 
 def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
     """``path`` as a Path, after checking its folder exists (and its suffix, or image format)."""
-    from .rows.files import check_parent_folder
+    from .atomic import check_parent_folder
     from .image_io import _format_for
 
     path = Path(path)
@@ -196,7 +195,7 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
 def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     """Create or resume the store at ``out``: in this process (--workers 0) or on a Dask cluster."""
     from .rows.distributed import SceneSpec, precompute_distributed
-    from .rows.files import check_parent_folder
+    from .atomic import check_parent_folder
     from .rows.store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore, compute_store
 
     check_parent_folder(out)
@@ -204,7 +203,7 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     print(f"scene: {scene!r}")
     # The recipe is the store's patching record, the same for every way of computing it, so
     # a store begun in this process can be finished on a cluster and the other way round.
-    spec = SceneSpec(args.scene, {} if args.max_edge is None else {"max_edge": args.max_edge}).resolved()
+    spec = SceneSpec(args.scene, _patching(args.max_edge)).resolved()
     block_rows = args.block_rows
     if (out / HEADER).exists():
         store = FormFactorStore.open(out, scene, resolution=args.resolution, patching=spec.recipe())
@@ -245,6 +244,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames) -> object:
+    from .atomic import write_atomic
     from .walk import walk
 
     opts = {"update": args.update, "storage": args.storage}
@@ -254,7 +254,7 @@ def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames) ->
     summary = result.summary()
     print(summary)
     if out_dir is not None:
-        (Path(out_dir) / "summary.txt").write_text(summary + "\n")
+        write_atomic(Path(out_dir) / "summary.txt", (summary + "\n").encode())
         print(f"images in {out_dir}/")
     return result
 
@@ -349,8 +349,8 @@ def _add_form_factors(p: argparse.ArgumentParser, resolution: int = 64) -> None:
 
 
 def _add_resolution(p: argparse.ArgumentParser, default: int, when: str = "") -> None:
-    p.add_argument("--resolution", type=_positive_int, default=default, metavar="R",
-                   help=f"hemicube resolution (R x R pixels on the top face){when} (default {default})")
+    p.add_argument("--resolution", type=_resolution, default=default, metavar="R",
+                   help=f"hemicube resolution (R x R pixels on the top face; even, 2 to 4096){when} (default {default})")
 
 
 def _add_camera(p: argparse.ArgumentParser) -> None:

@@ -21,7 +21,7 @@ from functools import lru_cache
 import numpy as np
 import scipy.sparse as sp
 
-from .checks import scene as checked_scene
+from .checks import patch_indices, resolution as checked_resolution, scene as checked_scene
 from .errors import InvalidInputError
 
 __all__ = ["form_factors", "pixel_form_factors", "SURFACE_OFFSET"]
@@ -77,28 +77,6 @@ def pixel_form_factors(resolution: int) -> np.ndarray:
     return w / w.sum()
 
 
-def _check_resolution(resolution, device) -> int:
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
-        raise InvalidInputError(f"resolution must be an integer; got {resolution!r}")
-    R = int(resolution)
-    if R < 2 or R % 2:
-        raise InvalidInputError(f"resolution must be an even integer >= 2 (side faces are R x R/2); got {R}")
-    if 3 * R * R * 4 > device.max_alloc_bytes:
-        raise InvalidInputError(f"resolution {R} needs more memory per hemicube than the device allows in one buffer")
-    return R
-
-
-def _check_rows(rows, n: int) -> np.ndarray:
-    if rows is None:
-        return np.arange(n, dtype=np.int32)
-    r = np.asarray(rows)
-    if r.ndim != 1 or not (np.issubdtype(r.dtype, np.integer) or r.size == 0):
-        raise InvalidInputError(f"rows must be a 1-D array of patch indices; got shape {r.shape}, dtype {r.dtype}")
-    if r.size and (r.min() < 0 or r.max() >= n):
-        raise InvalidInputError(f"rows must index patches 0..{n - 1}; got values in [{r.min()}, {r.max()}]")
-    return r.astype(np.int32)
-
-
 def _runs_to_csr(patch, end, count, weights_cum, n_cols: int) -> sp.csr_matrix:
     """Sum each row's runs into a CSR block: patch/end (B, 3R, R), count (B, 3R)."""
     B, S, R = patch.shape
@@ -121,7 +99,7 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
     ----------
     scene : Scene
     resolution : int
-        Hemicube resolution R (even, >= 2): top face R x R, sides R x R/2, 3 R^2 rays per patch.
+        Hemicube resolution R (even, 2..4096: :func:`pydynrad.checks.resolution`): top face R x R, sides R x R/2, 3 R^2 rays per patch.
     rows : sequence of int, optional
         Patches whose rows to compute; all by default.
     device : Device, optional
@@ -141,9 +119,11 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
     from .device import default_device
 
     dev = device or default_device()
-    R = _check_resolution(resolution, dev)
+    R = checked_resolution(resolution)
+    if 3 * R * R * 4 > dev.max_alloc_bytes:
+        raise InvalidInputError(f"resolution {R} needs more memory per hemicube than {dev.name} allows in one buffer")
     n = len(checked_scene(scene))
-    rows = _check_rows(rows, n)
+    rows = np.arange(n, dtype=np.int32) if rows is None else patch_indices(rows, n, "rows").astype(np.int32)
     if len(rows) == 0:
         return sp.csr_matrix((0, n), dtype=np.float32)
 

@@ -8,17 +8,18 @@ Renders are linear float32 (H, W, 3). Two kinds of file come out of them:
   with the sRGB transfer curve written out here (OIIO would otherwise clamp linear floats
   without encoding them) and stored as 8-bit.
 
-Files are written whole: into a temporary file in the same folder, then renamed over the
-target, so a reader never sees half an image and a failed write leaves no debris.
+Files are written whole (:func:`pydynrad.atomic.write_atomic`): into a temporary file in the
+same folder, then renamed over the target, so a reader never sees half an image and a failed
+write leaves no debris.
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import check_parent_folder, write_atomic
 from .errors import InvalidInputError
 
 __all__ = ["write_image", "read_image", "srgb_encode", "LINEAR_FORMATS", "DISPLAY_FORMATS"]
@@ -79,8 +80,7 @@ def write_image(path, image, exposure: float = 0.0) -> Path:
     fmt, linear = _format_for(path)
     if not np.isfinite(exposure):
         raise InvalidInputError(f"exposure must be a finite number of stops; got {exposure!r}")
-    if not path.parent.is_dir():
-        raise InvalidInputError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} does not exist")
+    check_parent_folder(path)
     a = _checked_image(image) * np.float32(2.0**exposure)
     if linear:
         spec = oiio.ImageSpec(a.shape[1], a.shape[0], a.shape[2], oiio.FLOAT)
@@ -92,15 +92,12 @@ def write_image(path, image, exposure: float = 0.0) -> Path:
     buf = oiio.ImageBuf(spec)
     if not buf.set_pixels(oiio.ROI(), pixels):
         raise InvalidInputError(f"cannot store the image for {str(path)!r}: {buf.geterror()}")
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
+
+    def write(tmp: Path) -> None:
         if not buf.write(str(tmp), fileformat=fmt) or buf.has_error:
             raise OSError(f"cannot write {str(path)!r}: {buf.geterror().strip() or 'OpenImageIO failed'}")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+
+    return write_atomic(path, write)
 
 
 def read_image(path) -> np.ndarray:

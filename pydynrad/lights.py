@@ -7,7 +7,10 @@ multibounce matrix (``B = L + P K L``), never a rebuild:
 
     K = pydynrad.multibounce(scene, F)                  # once
     L = pydynrad.light_vector(scene, [PointLight(...)]) # per light change
-    B = pydynrad.multibounce_radiosity(scene, K, L)
+    B = pydynrad.multibounce_radiosity(scene, K, light=L)
+
+Every function that takes lights names them the same way: ``lights=`` for light objects
+(the emission is always included), ``light=`` for a precomputed light vector L (N, 3).
 
 Units: positions in scene units; a point or spot light's intensity in W/sr (irradiance
 falls off as intensity * cos(theta) / d^2); a directional light's irradiance in W/unit^2 on
@@ -26,7 +29,8 @@ import numpy as np
 from .checks import floats, number, scene as checked_scene, vec3
 from .errors import InvalidInputError
 
-__all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "light_vector", "pack_lights"]
+__all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "light_vector", "pack_lights",
+           "checked_light_vector", "resolve_light"]
 
 #: Shadow-ray origins sit this fraction of the scene's bounding-box diagonal off the surface.
 SHADOW_EPSILON = 1e-4
@@ -123,6 +127,9 @@ LIGHT_TYPES = (PointLight, SpotLight, DirectionalLight)
 
 
 def _checked_lights(lights) -> list:
+    if isinstance(lights, np.ndarray):
+        raise InvalidInputError("lights= takes light objects (PointLight, SpotLight, DirectionalLight); "
+                                "pass a precomputed light vector as light=L")
     if isinstance(lights, LIGHT_TYPES):
         lights = [lights]
     lights = list(lights)
@@ -183,3 +190,22 @@ def light_vector(scene, lights=(), device=None) -> np.ndarray:
     if lights:
         L = L + scene.albedo.astype(np.float64) * direct_irradiance(scene, lights, device)
     return L
+
+
+def checked_light_vector(L, n: int) -> np.ndarray:
+    """``L`` as a finite, non-negative (n, 3) float64 light vector, or InvalidInputError."""
+    L = floats(L, "the light vector")
+    if L.shape != (n, 3):
+        raise InvalidInputError(f"the light vector must have shape ({n}, 3); got {L.shape}")
+    if not np.all(np.isfinite(L)) or L.min(initial=0.0) < 0:
+        raise InvalidInputError("the light vector must be finite and >= 0")
+    return L
+
+
+def resolve_light(scene, lights=(), light=None, device=None) -> np.ndarray:
+    """L (N, 3) float64 from light objects (``lights``) or a precomputed vector (``light``), not both."""
+    if light is None:
+        return light_vector(scene, lights, device)
+    if len(_checked_lights(lights)):
+        raise InvalidInputError("give lights= (light objects) or light= (a light vector L), not both")
+    return checked_light_vector(light, len(checked_scene(scene)))

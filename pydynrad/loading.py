@@ -35,7 +35,7 @@ import numpy as np
 import trimesh
 
 from .errors import InvalidInputError, SceneFileError
-from .patching import subdivide
+from .patching import subdivide_scene
 from .scene import Scene
 
 __all__ = ["load", "from_mesh", "patched_scene", "soup_scene", "AlbedoClampedWarning", "MissingMaterialWarning", "MAX_ALBEDO", "SUPPORTED_FORMATS"]
@@ -137,9 +137,7 @@ def patched_scene(points, triangles, albedo, emission, source_face=None, max_pat
     scene = Scene(points, triangles, albedo=albedo, emission=emission, source_face=source_face, name=name)
     if max_patch_area is None and max_edge is None:
         return scene
-    pts, tri, parent = subdivide(scene.points, scene.triangles, max_area=max_patch_area, max_edge=max_edge)
-    return Scene(pts, tri, albedo=scene.albedo[parent], emission=scene.emission[parent],
-                 source_face=scene.source_face[parent], name=name)
+    return subdivide_scene(scene, max_area=max_patch_area, max_edge=max_edge)
 
 
 def soup_scene(vertices, albedo, emission, max_patch_area: float | None = None, max_edge: float | None = None,

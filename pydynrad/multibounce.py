@@ -30,7 +30,7 @@ import sys
 
 import numpy as np
 
-from .checks import scene as checked_scene
+from .checks import patch_indices, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
 from .checks import check_form_factors
 from .memory import available_host_bytes
@@ -83,17 +83,8 @@ def _check_memory(M: int, C: int, out: np.dtype, bounces, device) -> None:
 
 
 def _checked_patches(patches, n: int) -> np.ndarray:
-    if patches is None:
-        return np.arange(n)
-    idx = np.asarray(patches)
-    if idx.ndim != 1 or len(idx) == 0 or not np.issubdtype(idx.dtype, np.integer):
-        raise InvalidInputError(f"patches must be a non-empty 1-D integer array; got {idx.dtype} shape {idx.shape}")
-    if idx.min() < 0 or idx.max() >= n:
-        raise InvalidInputError(f"patches must index 0..{n - 1}")
-    values, counts = np.unique(idx, return_counts=True)
-    if len(values) != len(idx):
-        raise InvalidInputError(f"patches contains repeated indices, e.g. {values[counts > 1][:5].tolist()}")
-    return idx.astype(np.int64)
+    """The set S: all patches, or ``patches`` (K's rows and columns, so distinct and non-empty)."""
+    return np.arange(n) if patches is None else patch_indices(patches, n, "patches", unique=True, nonempty=True)
 
 
 class _Builder:
@@ -260,19 +251,20 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
     return result
 
 
-def multibounce_radiosity(scene, K, L, patches=None) -> np.ndarray:
-    """B_S = L_S + P_S K L_S: radiosity (M, 3) float64 of the patches of K.
+def multibounce_radiosity(scene, K, lights=(), *, light=None, patches=None, device=None) -> np.ndarray:
+    """B (N, 3) float64: L + P K L on the patches of K, L elsewhere (as :meth:`DynamicRadiosity.radiosity`).
 
     K : (C, M, M) ndarray or :class:`~pydynrad.matvec.DeviceMatrix` from :func:`multibounce`
-        over ``patches``; L : (N, 3) light vector of the whole scene (:func:`light_vector`).
+        over ``patches`` (all N patches by default).
+    lights : light objects (see :func:`pydynrad.light_vector`), or
+    light : a precomputed (N, 3) light vector L of the whole scene.
     Changing a light or an emission changes only L: one light pass plus this one product.
     """
+    from .lights import resolve_light
     from .matvec import DeviceMatrix
 
-    idx = _checked_patches(patches, len(scene))
-    L = np.asarray(L, dtype=np.float64)
-    if L.shape != (len(scene), 3) or not np.all(np.isfinite(L)):
-        raise InvalidInputError(f"L must be a finite ({len(scene)}, 3) array; got shape {L.shape}")
+    idx = _checked_patches(patches, len(checked_scene(scene)))
+    L = resolve_light(scene, lights, light, device)
     C, M = (K.C, K.M) if isinstance(K, DeviceMatrix) else (np.shape(K)[0], np.shape(K)[1])
     if M != len(idx) or C not in (1, 3) or (not isinstance(K, DeviceMatrix) and np.shape(K) != (C, M, M)):
         raise InvalidInputError(f"K must be (1 or 3, {len(idx)}, {len(idx)}) for these patches; got {np.shape(K)}")
@@ -282,4 +274,6 @@ def multibounce_radiosity(scene, K, L, patches=None) -> np.ndarray:
     else:
         Kd = np.asarray(K, dtype=np.float64)
         KL = np.einsum("cij,cj->ci", Kd if C == 3 else np.repeat(Kd, 3, axis=0), LS)
-    return L[idx] + scene.albedo[idx].astype(np.float64) * KL.T
+    B = L.copy()
+    B[idx] = L[idx] + scene.albedo[idx].astype(np.float64) * KL.T
+    return B

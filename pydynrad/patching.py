@@ -14,7 +14,7 @@ import numpy as np
 
 from .errors import InvalidInputError
 
-__all__ = ["subdivide"]
+__all__ = ["subdivide", "subdivide_scene"]
 
 #: Refuse to produce more patches than this: a typo in a limit should fail fast, not fill memory.
 MAX_TRIANGLES = 1 << 27
@@ -146,3 +146,13 @@ def subdivide(points, triangles, max_area: float | None = None, max_edge: float 
     if n_points >= 2**31:
         raise InvalidInputError(f"subdivision produced {n_points} points, more than int32 indices can address")
     return p, tri[order].astype(np.int32), parent[order]
+
+
+def subdivide_scene(scene, max_area: float | None = None, max_edge: float | None = None):
+    """``scene`` with its patches split by :func:`subdivide`: every child keeps its parent's
+    albedo, emission and source face, so materials and file faces stay as they were."""
+    from .scene import Scene
+
+    points, triangles, parent = subdivide(scene.points, scene.triangles, max_area=max_area, max_edge=max_edge)
+    return Scene(points, triangles, albedo=scene.albedo[parent], emission=scene.emission[parent],
+                 source_face=scene.source_face[parent], name=scene.name)

@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from .camera import Camera
-from .checks import integer, scene as checked_scene
+from .checks import integer, patch_indices, scene as checked_scene
 from .errors import InvalidInputError
 from .lights import SHADOW_EPSILON, pack_lights
 from .scene import Scene
@@ -190,11 +190,7 @@ def path_trace_patches(scene: Scene, patches=None, spp: int = 256, lights=(), se
     """
     _check_common(spp, seed, time_limit)
     checked_scene(scene)
-    ids = np.arange(len(scene)) if patches is None else np.asarray(patches)
-    if ids.ndim != 1 or (len(ids) and not np.issubdtype(ids.dtype, np.integer)):
-        raise InvalidInputError(f"patches must be a 1-D array of patch indices; got shape {ids.shape}, dtype {ids.dtype}")
-    if len(ids) and (ids.min() < 0 or ids.max() >= len(scene)):
-        raise InvalidInputError(f"patch indices must lie in 0..{len(scene) - 1}")
+    ids = np.arange(len(scene)) if patches is None else patch_indices(patches, len(scene), "patches")
     if len(ids) == 0:
         return np.zeros((0, 3), dtype=np.float32)
     tracer = _Tracer(scene, lights, max_depth, device)

@@ -29,6 +29,7 @@ import scipy.sparse as sp
 from .checks import check_form_factors
 from .device import real_dtype
 from .errors import ConvergenceError, InvalidInputError, OutOfMemoryError
+from .lights import checked_light_vector
 from .memory import available_host_bytes
 
 __all__ = ["Solution", "RadiositySolver", "solve", "DENSE_MAX_PATCHES"]
@@ -113,7 +114,7 @@ class RadiositySolver:
         """B for light vector L (N, 3). See :func:`solve` for the parameters."""
         import pyopencl as cl
 
-        L = _checked_light(L, self._n)
+        L = checked_light_vector(L, self._n)
         tol, max_iterations = _checked_stopping(tol, max_iterations, bounces)
         nch = _channels(self.scene, L)
         width = 1 if nch == 1 else 4
@@ -192,15 +193,6 @@ def _row_blocks(indptr: np.ndarray, blocks: int) -> np.ndarray:
     return np.maximum.accumulate(blk).astype(np.int32)
 
 
-def _checked_light(L, n: int) -> np.ndarray:
-    L = np.asarray(L, dtype=np.float64)
-    if L.shape != (n, 3):
-        raise InvalidInputError(f"the light vector must have shape ({n}, 3); got {L.shape}")
-    if not np.all(np.isfinite(L)) or L.min(initial=0.0) < 0:
-        raise InvalidInputError("the light vector must be finite and >= 0")
-    return L
-
-
 def _checked_stopping(tol, max_iterations, bounces):
     if bounces is not None:
         if int(bounces) != bounces or bounces < 0:
@@ -266,17 +258,17 @@ def solve(scene, F, lights=(), method: str = "iterative", tol: float = 1e-6, max
         When the budget runs out before ``tol``: raise :class:`ConvergenceError` (default), or
         return the partial result with ``converged=False``.
     light : (N, 3) array, optional
-        A precomputed light vector, used instead of ``lights``.
+        A precomputed light vector L, instead of ``lights`` (give one or the other).
 
     Returns
     -------
     Solution
     """
-    from .lights import light_vector
+    from .lights import resolve_light
 
     if method not in ("iterative", "dense"):
         raise InvalidInputError(f"unknown method {method!r}; allowed: 'iterative', 'dense'")
-    L = light_vector(scene, lights, device=device) if light is None else _checked_light(light, len(scene))
+    L = resolve_light(scene, lights, light, device)
     if method == "dense":
         return _dense_solve(scene, check_form_factors(scene, F), L)
     solver = RadiositySolver(scene, F, dtype=dtype, device=device)

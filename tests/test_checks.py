@@ -64,3 +64,87 @@ def test_public_entry_points_reject_non_numbers_and_non_scenes():
                  lambda: pydynrad.form_factors("box"), lambda: pydynrad.multibounce(None, np.eye(3))):
         with pytest.raises(InvalidInputError, match="scene must be a pydynrad.Scene"):
             call()
+
+
+def _index_takers(device, tmp_path):
+    """Every public entry point that takes patch indices, as f(indices) on one 16-patch scene."""
+    import pydynrad
+    from pydynrad.rows.cache import RowCache
+
+    s = pydynrad.scenes.parallel_plates(subdivisions=1)
+    F = pydynrad.form_factors(s, resolution=8, device=device)
+    store = pydynrad.compute_store(s, tmp_path / "store", resolution=8, block_rows=4, progress=False, device=device)
+    cache = RowCache(store, 2**20)
+    takers = {
+        "form_factors rows": lambda i: pydynrad.form_factors(s, resolution=8, rows=i, device=device),
+        "CSRRows": lambda i: pydynrad.CSRRows(F).rows(i),
+        "FormFactorStore": store.rows,
+        "RowCache": cache.rows,
+        "HemicubeRows": lambda i: pydynrad.HemicubeRows(s, 8, device).rows(i),
+        "multibounce patches": lambda i: pydynrad.multibounce(s, F, patches=i, device=device),
+        "path_trace_patches": lambda i: pydynrad.path_trace_patches(s, patches=i, spp=1, device=device),
+    }
+    return s, takers, cache
+
+
+@pytest.mark.parametrize("bad, message", [
+    ([0.5], r"1-D array of integers; got shape \(1,\), dtype float64"),
+    ([[0, 1]], r"1-D array of integers; got shape \(1, 2\)"),
+    ([0, 16], r"patch indices in 0\.\.15; got values in \[0, 16\]"),
+    ([-1], r"patch indices in 0\.\.15; got values in \[-1, -1\]"),
+])
+def test_one_patch_index_rule_everywhere(device, tmp_path, bad, message):
+    s, takers, cache = _index_takers(device, tmp_path)
+    try:
+        for name, take in takers.items():
+            with pytest.raises(InvalidInputError, match=message):
+                take(bad)
+            assert np.shape(take(np.array([3, 1]))) == ((2, 3) if name == "path_trace_patches" else
+                                                        (1, 2, 2) if name == "multibounce patches" else (2, len(s)))
+    finally:
+        cache.close()
+
+
+def test_repeats_and_empty_sets_only_refused_where_they_mean_nothing(device, tmp_path):
+    """K's rows and columns are its patches: repeated or no patches are an error there; a
+    row source may serve a row twice, and no rows."""
+    s, takers, cache = _index_takers(device, tmp_path)
+    try:
+        with pytest.raises(InvalidInputError, match=r"patches contains repeated indices, e.g. \[1\]"):
+            takers["multibounce patches"]([1, 1])
+        with pytest.raises(InvalidInputError, match="patches must not be empty"):
+            takers["multibounce patches"]([])
+        for name in ("form_factors rows", "CSRRows", "FormFactorStore", "RowCache"):
+            assert takers[name]([]).shape == (0, len(s))
+            rows = takers[name]([1, 1]).toarray()
+            np.testing.assert_array_equal(rows[0], rows[1])
+    finally:
+        cache.close()
+
+
+@pytest.mark.parametrize("bad, message", [(3, "even"), (0, r"2\.\.4096"), (4098, r"2\.\.4096"), (8.0, "integer"),
+                                          (True, "integer")])
+def test_one_resolution_rule_everywhere(device, tmp_path, bad, message):
+    """Whatever form_factors rejects, no store, file, solver or CLI option accepts or records."""
+    import scipy.sparse as sp
+
+    import pydynrad
+    from pydynrad.cli import build_parser
+
+    s = pydynrad.scenes.parallel_plates(subdivisions=0)
+    F = sp.csr_matrix((len(s), len(s)), dtype=np.float32)
+    takers = [
+        lambda R: pydynrad.form_factors(s, resolution=R, device=device),
+        lambda R: pydynrad.FormFactorStore.create(tmp_path / "st", s, resolution=R),
+        lambda R: pydynrad.compute_store(s, tmp_path / "st", resolution=R, progress=False, device=device),
+        lambda R: pydynrad.save_form_factors(tmp_path / "f.npz", F, s, R),
+        lambda R: pydynrad.HemicubeRows(s, R, device),
+        lambda R: pydynrad.DynamicRadiosity(s, None, local_size=1, resolution=R, device=device),
+    ]
+    for take in takers:
+        with pytest.raises(InvalidInputError, match=message):
+            take(bad)
+    assert not (tmp_path / "st").exists() and not (tmp_path / "f.npz").exists()
+    if isinstance(bad, int) and not isinstance(bad, bool):
+        with pytest.raises(SystemExit):
+            build_parser().parse_args(["render", "cornell_box", "-o", "x.png", "--resolution", str(bad)])

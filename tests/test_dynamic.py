@@ -150,7 +150,7 @@ def test_full_set_reproduces_the_full_solution(device, mode):
     dyn = DynamicRadiosity(scene, F, local_size=len(scene), update=mode, storage="fp64", observer=[0.5, 0.5, 0.5], device=device)
     assert dyn.update([0.1, 0.9, 0.3]).swaps == 0
     L = np.random.default_rng(1).random((len(scene), 3))
-    B = dyn.radiosity(L)
+    B = dyn.radiosity(light=L)
     np.testing.assert_allclose(B, dense_B(scene, F, L), rtol=1e-10)
     ref = pydynrad.solve(scene, F, method="dense").radiosity
     np.testing.assert_allclose(dyn.radiosity(), ref, rtol=1e-8)
@@ -163,10 +163,10 @@ def test_one_patch_gives_its_own_light(device, setup):
     (i,) = dyn.local_patches
     d = np.linalg.norm(scene.centers - [0.5, 0.5, 0.02], axis=1)
     assert d[i] == d.min()
-    np.testing.assert_array_equal(dyn.radiosity(L), L)
+    np.testing.assert_array_equal(dyn.radiosity(light=L), L)
     st = dyn.update([0.5, 0.5, 0.98])
     assert st.swaps == 1 and dyn.local_patches[0] != i
-    np.testing.assert_array_equal(dyn.radiosity(L), L)
+    np.testing.assert_array_equal(dyn.radiosity(light=L), L)
 
 
 @pytest.mark.parametrize("albedo", [0.0, 0.999])
@@ -179,7 +179,7 @@ def test_albedo_extremes(device, albedo, mode):
     for p in walk(np.random.default_rng(4), scene, 10):
         dyn.update(p)
     L = np.random.default_rng(5).random((len(scene), 3))
-    B = dyn.radiosity(L)
+    B = dyn.radiosity(light=L)
     assert np.all(np.isfinite(B)) and np.all(B >= L - 1e-12)
     S = dyn.local_patches
     if albedo == 0.0:  # nothing reflects: K may hold anything, B is L
@@ -209,7 +209,7 @@ def test_lighting_changes_B_not_K(device, setup):
     before = raw()
     rng = np.random.default_rng(6)
     L1, L2 = rng.random((len(scene), 3)), rng.random((len(scene), 3))
-    B1, B2 = dyn.radiosity(L1), dyn.radiosity(L2)
+    B1, B2 = dyn.radiosity(light=L1), dyn.radiosity(light=L2)
     assert np.array_equal(raw(), before)
     K = dyn.matrix.to_host()
     S = dyn.local_patches
@@ -245,7 +245,7 @@ def test_grey_scene_keeps_one_channel(device):
     S = dyn.local_patches
     assert rel(dyn.matrix.to_host(), fresh_K(scene, F, S, 1)) < 1e-10
     L = np.random.default_rng(17).random((len(scene), 3))
-    np.testing.assert_allclose(dyn.radiosity(L)[S], L[S] + scene.albedo[S] * (fresh_K(scene, F, S, 1)[0] @ L[S]), rtol=1e-10)
+    np.testing.assert_allclose(dyn.radiosity(light=L)[S], L[S] + scene.albedo[S] * (fresh_K(scene, F, S, 1)[0] @ L[S]), rtol=1e-10)
 
 
 # -- drift, refresh, memory ----------------------------------------------------------------------
@@ -371,4 +371,32 @@ def test_bad_input(device, setup):
     with pytest.raises(InvalidInputError, match="3-vector"):
         dyn.update([0, 0])
     with pytest.raises(InvalidInputError, match="light vector"):
-        dyn.radiosity(np.ones((N, 2)))
+        dyn.radiosity(light=np.ones((N, 2)))
+    with pytest.raises(InvalidInputError, match="light=L"):  # a vector in lights= names the right keyword
+        dyn.radiosity(np.ones((N, 3)))
+    with pytest.raises(InvalidInputError, match="not both"):
+        dyn.radiosity([pydynrad.PointLight([0.5, 0.5, 0.5], 1.0)], light=np.ones((N, 3)))
+
+
+def test_prefetch_time_is_its_own_field(device, setup):
+    """A prefetching row source's call is timed as t_prefetch, not folded into t_select or
+    t_update (the source sleeps 0.2 s per prefetch call, far above the selection's time)."""
+    import time
+
+    scene, F = setup
+
+    class SlowPrefetch(CSRRows):
+        calls = 0
+
+        def prefetch(self, idx):
+            SlowPrefetch.calls += 1
+            time.sleep(0.2)
+
+    dyn = DynamicRadiosity(scene, SlowPrefetch(F), local_size=20, device=device)
+    first = dyn.update([0.5, 0.5, 0.02])
+    st = dyn.update([0.5, 0.5, 0.98])
+    assert SlowPrefetch.calls == 2 and st.swaps > 0
+    for s in (first, st):
+        assert s.t_prefetch >= 0.2
+        assert s.t_select < 0.2 and s.t_update < 0.2
+        assert s.t_total == s.t_select + s.t_form_factors + s.t_update + s.t_prefetch

@@ -89,15 +89,35 @@ def test_B_from_K_matches_iterative_and_dense(device):
     lights = [pydynrad.PointLight((0.3, 0.6, 0.5), 2.0)]
     L = pydynrad.light_vector(s, lights, device=device)
     K = multibounce(s, F, dtype=np.float64, device=device)
-    B = multibounce_radiosity(s, K, L)
+    B = multibounce_radiosity(s, K, light=L)
     dense = pydynrad.solve(s, F, lights=lights, method="dense", device=device).radiosity
     iterative = pydynrad.solve(s, F, lights=lights, dtype=np.float64, tol=1e-12, device=device).radiosity
     np.testing.assert_allclose(B, dense, rtol=1e-10)
     np.testing.assert_allclose(B, iterative, rtol=1e-9)
     # The same product on the device, from K stored in fp32 and fp16.
     for storage, tol in (("fp32", 1e-5), ("fp16", 2e-3)):
-        Bd = multibounce_radiosity(s, pydynrad.DeviceMatrix(device, K, storage), L)
+        Bd = multibounce_radiosity(s, pydynrad.DeviceMatrix(device, K, storage), light=L)
         assert rel(Bd, dense) < tol
+
+
+def test_B_over_a_subset_is_N_by_3_with_L_outside(device):
+    """multibounce_radiosity over patches S returns the whole (N, 3) B, as DynamicRadiosity does:
+    L + P K L on S (the dense solve of the closed sub-system) and L itself elsewhere."""
+    rng = np.random.default_rng(11)
+    s = box_scene(2)
+    s = s.with_materials(albedo=rng.uniform(0, 0.9, (len(s), 3)), emission=(rng.random((len(s), 3)) < 0.2) * 2.0)
+    F = reciprocal_F(s.areas, row_sum=0.9, seed=12)
+    S = rng.choice(len(s), 20, replace=False)
+    K = multibounce(s, F, patches=S, dtype=np.float64, device=device)
+    L = np.asarray(s.emission, dtype=np.float64)
+    B = multibounce_radiosity(s, K, patches=S, device=device)
+    Fs = F[S][:, S].toarray()
+    rho = s.albedo[S].astype(np.float64)
+    BS = np.stack([np.linalg.solve(np.eye(len(S)) - rho[:, c:c + 1] * Fs, L[S, c]) for c in range(3)], axis=1)
+    outside = np.setdiff1d(np.arange(len(s)), S)
+    assert B.shape == (len(s), 3)
+    np.testing.assert_allclose(B[S], BS, rtol=1e-10, atol=1e-14)
+    np.testing.assert_array_equal(B[outside], L[outside])
 
 
 def test_grey_K_with_coloured_light(device):
@@ -108,8 +128,8 @@ def test_grey_K_with_coloured_light(device):
     K = multibounce(s, F, dtype=np.float64, device=device)
     assert K.shape[0] == 1
     dense = pydynrad.solve(s, F, method="dense", light=L, device=device).radiosity
-    np.testing.assert_allclose(multibounce_radiosity(s, K, L), dense, rtol=1e-10, atol=1e-15)
-    np.testing.assert_allclose(multibounce_radiosity(s, pydynrad.DeviceMatrix(device, K, "fp64"), L), dense, rtol=1e-10, atol=1e-15)
+    np.testing.assert_allclose(multibounce_radiosity(s, K, light=L), dense, rtol=1e-10, atol=1e-15)
+    np.testing.assert_allclose(multibounce_radiosity(s, pydynrad.DeviceMatrix(device, K, "fp64"), light=L), dense, rtol=1e-10, atol=1e-15)
 
 
 def test_paper_scale_refused_quickly(device):
@@ -129,7 +149,7 @@ def test_bad_arguments(device):
     F = reciprocal_F(s.areas, seed=10)
     with pytest.raises(pydynrad.InvalidInputError, match="repeated"):
         multibounce(s, F, patches=[0, 1, 1], device=device)
-    with pytest.raises(pydynrad.InvalidInputError, match="index"):
+    with pytest.raises(pydynrad.InvalidInputError, match=r"patch indices in 0\.\.47"):
         multibounce(s, F, patches=[0, 48], device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="dtype"):
         multibounce(s, F, dtype=np.int8, device=device)

@@ -104,7 +104,7 @@ def test_paper_mode_is_an_approximation(device, setup):
     assert 1e-6 < err < 10 and np.all(np.isfinite(dyn.matrix.to_host()))
     assert dyn.residual() > 1e-6
     L = np.random.default_rng(24).random((len(scene), 3))
-    assert np.all(np.isfinite(dyn.radiosity(L)))
+    assert np.all(np.isfinite(dyn.radiosity(light=L)))
 
 
 def test_bitset_transcription_matches_the_library_table(device, setup):

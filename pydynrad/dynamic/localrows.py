@@ -78,30 +78,30 @@ class LocalRows:
             return self.csr[idx]
         return sp.csr_matrix(self.source.rows(idx), dtype=np.float64)
 
-    def fetch_local(self, members: np.ndarray) -> None:
+    def fetch_local(self, local_patches: np.ndarray) -> None:
         """Fetch the rows of a whole new local set (a build or refresh)."""
-        self.local = self.rows(members)
+        self.local = self.rows(local_patches)
 
-    def entering(self, members: np.ndarray, J: np.ndarray, slots: np.ndarray):
+    def entering(self, local_patches: np.ndarray, J: np.ndarray, slots: np.ndarray):
         """F[S, J] (M, k), F[J, S] (k, M) and F[J, J] (k, k), dense float64, for patches J
         entering ``slots``; afterwards the kept rows of those slots are J's rows."""
         rows_J = self.rows(J)
-        F_JS = rows_J[:, members].toarray()
+        F_JS = rows_J[:, local_patches].toarray()
         F_JJ = rows_J[:, J].toarray()
         F_SJ = self.local[:, J].toarray()
         self.local = _replace_rows(self.local, np.asarray(slots), rows_J)
         return F_SJ, F_JS, F_JJ
 
-    def square(self, members: np.ndarray) -> sp.csr_matrix:
+    def square(self, local_patches: np.ndarray) -> sp.csr_matrix:
         """F_SS (M, M) sparse for the current local set, rows and columns in slot order."""
-        return sp.csr_matrix(self.local[:, members])
+        return sp.csr_matrix(self.local[:, local_patches])
 
-    def full_shape(self, members: np.ndarray) -> sp.csr_matrix:
-        """An (N, N) sparse matrix holding F's rows ``members`` (all of F when it is in memory)."""
+    def full_shape(self, local_patches: np.ndarray) -> sp.csr_matrix:
+        """An (N, N) sparse matrix holding F's rows ``local_patches`` (all of F when it is in memory)."""
         if self.csr is not None:
             return self.csr
         rows = self.local.tocoo()
-        return sp.csr_matrix((rows.data, (members[rows.row], rows.col)), shape=(self.n_patches, self.n_patches))
+        return sp.csr_matrix((rows.data, (local_patches[rows.row], rows.col)), shape=(self.n_patches, self.n_patches))
 
     @property
     def nbytes(self) -> int:

@@ -16,8 +16,8 @@ reflection row a of K already holds. What it masks, precisely: when j enters, ev
 whose set already holds j (j was local before and its paths into a were added then, and
 clearing j's row and column on eviction did not remove them) is left out of step 6's
 rank-one update, so those paths are not added a second time; afterwards j joins every row's
-set. The entering patch's own row (K[s, :] = g'_r) is built from all current members (through
-K), so its set starts as the whole current local set, j included. The initial K is the exact
+set. The entering patch's own row (K[s, :] = g'_r) is built from all current local patches (through
+K), so its set starts as the whole current local set, j with it. The initial K is the exact
 multibounce matrix over the initial set, so every row's set starts as that set.
 """
 
@@ -39,13 +39,13 @@ class UsedPatches:
     def nbytes(self) -> int:
         return self.bits.nbytes
 
-    def reset_all(self, included: np.ndarray) -> None:
-        """Every slot's set := the patches marked in ``included`` (N,) bool."""
-        self.bits[:] = np.packbits(included)[None, :]
+    def reset_all(self, local_mask: np.ndarray) -> None:
+        """Every slot's set := the patches marked in ``local_mask`` (N,) bool."""
+        self.bits[:] = np.packbits(local_mask)[None, :]
 
-    def reset(self, slot: int, included: np.ndarray) -> None:
-        """Slot ``slot``'s set := the patches marked in ``included``."""
-        self.bits[slot] = np.packbits(included)
+    def reset(self, slot: int, local_mask: np.ndarray) -> None:
+        """Slot ``slot``'s set := the patches marked in ``local_mask``."""
+        self.bits[slot] = np.packbits(local_mask)
 
     def holding(self, patch: int) -> np.ndarray:
         """(M,) bool: the slots whose set holds ``patch``."""

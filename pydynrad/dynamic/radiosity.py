@@ -4,12 +4,12 @@
 channel, on the OpenCL device) for the local set S and updates it as the observer moves, so
 a frame costs O(M^2) device work instead of O(N^2):
 
-* ``update(observer)`` swaps the farthest included patches for nearer excluded ones (the
+* ``update(observer)`` swaps the farthest local patches for nearer ones outside the set (the
   paper's loop, at most ``max_swaps_per_frame`` per frame) and updates K in place, either as
   the paper does (``update="paper"``, :mod:`pydynrad.dynamic.paper`) or exactly
   (``update="exact"``, :mod:`pydynrad.dynamic.exact`: after any sequence of swaps K equals a fresh
   build over the same set, to rounding);
-* ``radiosity(lights)`` returns B = L + P K L on the local patches (one matrix-vector product
+* ``radiosity(lights)`` (or ``radiosity(light=L)``) returns B = L + P K L on the local patches (one matrix-vector product
   per colour channel) and L (emitted plus direct light) elsewhere.
 
 Form factors come from a precomputed sparse F, any row source (:mod:`pydynrad.rows`:
@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks import integer, scene as checked_scene, vec3
+from ..checks import integer, resolution as checked_resolution, scene as checked_scene, vec3
 from ..errors import InvalidInputError, PydynradError
 from ..matvec import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
 from .localrows import LocalRows
@@ -53,12 +53,13 @@ class FrameStats:
     t_select: float = 0.0  # choosing the swaps (k-d tree query, partial order of M distances)
     t_form_factors: float = 0.0  # fetching or computing the entering patches' rows and columns
     t_update: float = 0.0  # updating K on the device (all channels), waited for
+    t_prefetch: float = 0.0  # asking a prefetching row source for the next frame's likely rows
     refreshed: bool = False  # K was (re)built from scratch this frame
     residual: float | None = None  # probe estimate of K's relative error, when checked
 
     @property
     def t_total(self) -> float:
-        return self.t_select + self.t_form_factors + self.t_update
+        return self.t_select + self.t_form_factors + self.t_update + self.t_prefetch
 
 
 class DynamicRadiosity:
@@ -116,12 +117,12 @@ class DynamicRadiosity:
         self.refresh_tolerance = refresh_tolerance
         self.refresh_interval = integer(refresh_interval, "refresh_interval", 1, 2**31 - 1)
         self.device = device or default_device()
-        self._ff = LocalRows(scene, form_factors, integer(resolution, "resolution", 8, 4096), self.device)
+        self._ff = LocalRows(scene, form_factors, checked_resolution(resolution), self.device)
         self.C = 1 if scene.is_grey else 3
         pinned = scene.emission.max(axis=1) > 0 if keep_emitters else None
         self._select = NearestSet(scene.centers, pinned)
-        self._members: np.ndarray | None = None
-        self._included = np.zeros(n, dtype=bool)
+        self._local_patches: np.ndarray | None = None
+        self._local_mask = np.zeros(n, dtype=bool)
         self._last_observer: np.ndarray | None = None
         self._matrix: DeviceMatrix | None = None
         self._kernels = None
@@ -135,7 +136,7 @@ class DynamicRadiosity:
     # -- state -------------------------------------------------------------------------------------
     @property
     def built(self) -> bool:
-        return self._members is not None
+        return self._local_patches is not None
 
     def _require_built(self) -> None:
         if not self.built:
@@ -145,13 +146,13 @@ class DynamicRadiosity:
     def local_patches(self) -> np.ndarray:
         """(M,) patch index held by each slot (row/column of K)."""
         self._require_built()
-        return self._members.copy()
+        return self._local_patches.copy()
 
     @property
     def local_mask(self) -> np.ndarray:
         """(N,) bool: True on the patches whose radiosity K computes."""
         self._require_built()
-        return self._included.copy()
+        return self._local_mask.copy()
 
     @property
     def matrix(self) -> DeviceMatrix:
@@ -183,42 +184,42 @@ class DynamicRadiosity:
         rows and (paper mode) the bitsets."""
         self._require_built()
         used = self._used.nbytes if self._used is not None else 0
-        return self._members.nbytes + self._included.nbytes + self._ff.nbytes + used
+        return self._local_patches.nbytes + self._local_mask.nbytes + self._ff.nbytes + used
 
     def _rho(self, patches: np.ndarray) -> np.ndarray:
         """(C, len(patches)) albedo per K channel."""
         return self.scene.albedo[patches, : self.C].T.astype(np.float64)
 
     # -- building ----------------------------------------------------------------------------------
-    def _fresh_K(self, members: np.ndarray) -> np.ndarray:
+    def _fresh_K(self, local_patches: np.ndarray) -> np.ndarray:
         from ..multibounce import multibounce
 
-        self._ff.fetch_local(members)
-        return multibounce(self.scene, self._ff.full_shape(members), patches=members, dtype=compute_dtype(self.storage),
+        self._ff.fetch_local(local_patches)
+        return multibounce(self.scene, self._ff.full_shape(local_patches), patches=local_patches, dtype=compute_dtype(self.storage),
                            device=self.device)
 
-    def _build(self, members: np.ndarray) -> None:
+    def _build(self, local_patches: np.ndarray) -> None:
         from .kupdate import UpdateKernels
         from .paper import UsedPatches
 
-        members = np.asarray(members, dtype=np.int64)
-        K = self._fresh_K(members)
+        local_patches = np.asarray(local_patches, dtype=np.int64)
+        K = self._fresh_K(local_patches)
         if self._matrix is None:
             self._matrix = DeviceMatrix(self.device, K, self.storage)
             self._kernels = UpdateKernels(self._matrix, self.max_swaps)
         else:
             self._matrix.upload(K)
-        self._members = members.copy()
-        self._included[:] = False
-        self._included[members] = True
+        self._local_patches = local_patches.copy()
+        self._local_mask[:] = False
+        self._local_mask[local_patches] = True
         if self.mode == "paper":
             self._used = self._used or UsedPatches(self.M, len(self.scene))
-            self._used.reset_all(self._included)
+            self._used.reset_all(self._local_mask)
 
     def refresh(self) -> None:
         """Rebuild K from scratch over the current local set (slots keep their patches)."""
         self._require_built()
-        self._build(self._members)
+        self._build(self._local_patches)
         self.refreshes += 1
 
     # -- the frame -----------------------------------------------------------------------------------
@@ -234,12 +235,14 @@ class DynamicRadiosity:
         if not self.built:
             t0 = time.perf_counter()
             self._build(self._select.nearest(obs, self.M)[0])
+            t1 = time.perf_counter()
             self._prefetch_next(obs)
-            return FrameStats(self.frame, 0, empty, empty, t_update=time.perf_counter() - t0, refreshed=True)
+            return FrameStats(self.frame, 0, empty, empty, t_update=t1 - t0, t_prefetch=time.perf_counter() - t1,
+                              refreshed=True)
         t0 = time.perf_counter()
-        slots, J = self._select.propose(obs, self._members, self._included, self.max_swaps)
+        slots, J = self._select.propose(obs, self._local_patches, self._local_mask, self.max_swaps)
         t1 = time.perf_counter()
-        removed = self._members[slots].copy()
+        removed = self._local_patches[slots].copy()
         t_ff = 0.0
         if len(slots):
             t_ff = self._exact_frame(slots, J) if self.mode == "exact" else self._paper_frame(slots, J)
@@ -249,8 +252,8 @@ class DynamicRadiosity:
         t_pre = time.perf_counter() - t_pre
         self.device.queue.finish()
         t2 = time.perf_counter()
-        stats = FrameStats(self.frame, len(slots), removed, J, t_select=t1 - t0 + t_pre, t_form_factors=t_ff,
-                           t_update=t2 - t1 - t_ff - t_pre)
+        stats = FrameStats(self.frame, len(slots), removed, J, t_select=t1 - t0, t_form_factors=t_ff,
+                           t_update=t2 - t1 - t_ff - t_pre, t_prefetch=t_pre)
         if self.refresh_tolerance is not None and self.frame % self.refresh_interval == 0:
             stats.residual = self.residual()
             if stats.residual > self.refresh_tolerance:
@@ -261,7 +264,7 @@ class DynamicRadiosity:
     def _prefetch_next(self, obs: np.ndarray) -> None:
         """Ask a row source with ``prefetch`` (a RowCache) for the rows the next frame will likely need.
 
-        Those are the k nearest excluded patches to where the observer will be if it keeps its
+        Those are the k nearest patches outside the local set to where the observer will be if it keeps its
         last step (k = max_swaps_per_frame): one k-d tree query of M + k points, like the
         selection's own, so O((M + k) log N) per frame.
         """
@@ -271,23 +274,23 @@ class DynamicRadiosity:
         if prefetch is None or self.M >= len(self.scene):
             return
         idx, _ = self._select.nearest(ahead, self.M + self.max_swaps)
-        prefetch(idx[~self._included[idx]][: self.max_swaps])
+        prefetch(idx[~self._local_mask[idx]][: self.max_swaps])
 
-    def _swap_members(self, slots: np.ndarray, J: np.ndarray) -> None:
-        self._included[self._members[slots]] = False
-        self._members[slots] = J
-        self._included[J] = True
+    def _swap_local(self, slots: np.ndarray, J: np.ndarray) -> None:
+        self._local_mask[self._local_patches[slots]] = False
+        self._local_patches[slots] = J
+        self._local_mask[J] = True
 
     def _exact_frame(self, slots: np.ndarray, J: np.ndarray) -> float:
         from .exact import exact_swap
 
         t0 = time.perf_counter()
-        F_SJ, F_JS, F_JJ = self._ff.entering(self._members, J, slots)
+        F_SJ, F_JS, F_JJ = self._ff.entering(self._local_patches, J, slots)
         F_SJ[slots, :] = 0.0  # the leaving patches take no part in the new paths
         F_JS[:, slots] = 0.0
         t_ff = time.perf_counter() - t0
-        exact_swap(self._kernels, slots, F_SJ, F_JS, F_JJ, self._rho(self._members), self._rho(J))
-        self._swap_members(slots, J)
+        exact_swap(self._kernels, slots, F_SJ, F_JS, F_JJ, self._rho(self._local_patches), self._rho(J))
+        self._swap_local(slots, J)
         return t_ff
 
     def _paper_frame(self, slots: np.ndarray, J: np.ndarray) -> float:
@@ -297,39 +300,33 @@ class DynamicRadiosity:
         # with slots[:t] holding J[:t], so its f_c and f_r are F_SJ[:, t] and F_JS[t] with those
         # slots read from F_JJ: the same values a fetch per step would give.
         t0 = time.perf_counter()
-        F_SJ, F_JS, F_JJ = self._ff.entering(self._members, J, slots)
+        F_SJ, F_JS, F_JJ = self._ff.entering(self._local_patches, J, slots)
         t_ff = time.perf_counter() - t0
         for t, (s, j) in enumerate(zip(slots.tolist(), J.tolist())):
-            self._swap_members(np.array([s]), np.array([j]))
+            self._swap_local(np.array([s]), np.array([j]))
             f_c, f_r = F_SJ[:, t].copy(), F_JS[t].copy()
             f_c[slots[:t]] = F_JJ[:t, t]
             f_r[slots[:t]] = F_JJ[t, :t]
             f_c[s] = f_r[s] = 0.0
-            rho_S, rho_j = self._rho(self._members), self._rho(np.array([j]))[:, 0]
+            rho_S, rho_j = self._rho(self._local_patches), self._rho(np.array([j]))[:, 0]
             mask = ~self._used.holding(j)
             paper_swap(self._kernels, s, f_c, f_r, rho_S, rho_j, mask)
             self._used.add(j)
-            self._used.reset(s, self._included)
+            self._used.reset(s, self._local_mask)
         return t_ff
 
     # -- lighting ----------------------------------------------------------------------------------------
-    def radiosity(self, lights=()) -> np.ndarray:
+    def radiosity(self, lights=(), *, light=None) -> np.ndarray:
         """B (N, 3) float64: L + P K L on the local patches, L elsewhere.
 
         ``lights``: analytic lights (see :func:`pydynrad.light_vector`; emission alone when
-        empty) or a precomputed light vector L of shape (N, 3). K is only read.
+        empty); or ``light``: a precomputed light vector L of shape (N, 3). K is only read.
         """
-        self._require_built()
-        n = len(self.scene)
-        if isinstance(lights, np.ndarray) and lights.ndim == 2:
-            if lights.shape != (n, 3) or not np.all(np.isfinite(lights)):
-                raise InvalidInputError(f"a light vector must be a finite ({n}, 3) array; got shape {lights.shape}")
-            L = lights.astype(np.float64)
-        else:
-            from ..lights import light_vector
+        from ..lights import resolve_light
 
-            L = light_vector(self.scene, lights, device=self.device)
-        S = self._members
+        self._require_built()
+        L = resolve_light(self.scene, lights, light, self.device)
+        S = self._local_patches
         LS = L[S]
         if self.C == 3:
             KL = self._matrix.matvec(LS.T)
@@ -349,7 +346,7 @@ class DynamicRadiosity:
         from scipy.sparse.linalg import LinearOperator, gmres
 
         self._require_built()
-        S, M = self._members, self.M
+        S, M = self._local_patches, self.M
         F = self._ff.square(S)
         x = self._rng.random(M)
         Kx = self._matrix.matvec(x)

@@ -16,8 +16,9 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 import scipy.sparse as sp
 
+from ..checks import patch_indices
 from ..errors import InvalidInputError
-from .sources import RowSource, check_row_indices
+from .sources import RowSource
 
 __all__ = ["RowCache"]
 
@@ -94,7 +95,7 @@ class RowCache:
 
     # -- RowSource ---------------------------------------------------------------------------
     def rows(self, idx) -> sp.csr_matrix:
-        idx = check_row_indices(idx, self.n_patches)
+        idx = patch_indices(idx, self.n_patches, "row indices")
         wanted = np.unique(idx)
         found: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         waits: dict[int, Future] = {}
@@ -134,7 +135,7 @@ class RowCache:
     # -- prefetch ----------------------------------------------------------------------------
     def prefetch(self, idx) -> Future | None:
         """Start reading rows ``idx`` in the background; returns the job's future, or None if nothing to read."""
-        idx = np.unique(check_row_indices(idx, self.n_patches))
+        idx = np.unique(patch_indices(idx, self.n_patches, "row indices"))
         with self._lock:
             todo = np.array([r for r in idx.tolist() if r not in self._rows and r not in self._pending], dtype=np.int64)
             if not todo.size:

@@ -18,7 +18,6 @@ See docs/design.md, 'Distributed precompute'.
 from __future__ import annotations
 
 import functools
-import importlib
 import json
 import logging
 import os
@@ -30,6 +29,7 @@ from pathlib import Path
 
 from ..errors import InvalidInputError
 from ..scene import Scene
+from ..scenes.byname import BUILTIN_SCENES, is_builtin, scene_by_name
 from .store import (
     DEFAULT_BLOCK_ROWS,
     DEFAULT_TASK_ROWS,
@@ -65,8 +65,7 @@ class SceneSpec:
 
     @property
     def is_builtin(self) -> bool:
-        scenes = importlib.import_module("pydynrad.scenes")
-        return callable(getattr(scenes, self.name, None)) and not self.name.startswith("_")
+        return is_builtin(self.name)
 
     def resolved(self) -> "SceneSpec":
         """The same spec with a file path made absolute, so workers in other folders find it."""
@@ -74,15 +73,13 @@ class SceneSpec:
             return self
         p = Path(self.name).expanduser()
         if not p.is_file():
-            raise InvalidInputError(f"scene {self.name!r} is neither a built-in scene of pydynrad.scenes nor a mesh file")
+            raise InvalidInputError(f"scene {self.name!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) "
+                                    "nor a mesh file")
         return SceneSpec(str(p.resolve()), self.params)
 
     def build(self) -> Scene:
-        if self.is_builtin:
-            return getattr(importlib.import_module("pydynrad.scenes"), self.name)(**self.params)
-        from ..loading import load
-
-        return load(self.resolved().name, **self.params)
+        """The scene, by :func:`pydynrad.scenes.byname.scene_by_name` (as the CLI builds it)."""
+        return scene_by_name(self.resolved().name, **self.params)
 
     def recipe(self) -> dict:
         """JSON description: {"scene": name, **params} (what the store header records)."""

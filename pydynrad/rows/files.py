@@ -21,21 +21,15 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from ..atomic import check_parent_folder, write_atomic
+from ..checks import resolution as checked_resolution
 from ..errors import InvalidInputError
 
-__all__ = ["FF_FORMAT", "check_parent_folder", "load_form_factors", "open_form_factors", "save_form_factors",
+__all__ = ["FF_FORMAT", "load_form_factors", "open_form_factors", "save_form_factors",
            "whole_matrix"]
 
 FF_FORMAT = "pydynrad-form-factors"
 FF_VERSION = 1
-
-
-def check_parent_folder(path) -> Path:
-    """``path`` as a Path, or :class:`InvalidInputError` when the folder it goes into is missing."""
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise InvalidInputError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} does not exist")
-    return path
 
 
 def save_form_factors(path, F, scene, resolution: int) -> Path:
@@ -44,8 +38,6 @@ def save_form_factors(path, F, scene, resolution: int) -> Path:
     The header records the format, the scene's name and geometry hash, N, the hemicube
     ``resolution`` and nnz. Written whole (temporary file in the same folder, then rename).
     """
-    from .store import write_atomic
-
     path = check_parent_folder(path)
     if path.suffix.lower() != ".npz":
         raise InvalidInputError(f"form-factor file {str(path)!r} must end in .npz")
@@ -54,7 +46,7 @@ def save_form_factors(path, F, scene, resolution: int) -> Path:
     if F.shape != (n, n):
         raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {F.shape}")
     header = {"format": FF_FORMAT, "version": FF_VERSION, "scene": scene.name, "geometry_hash": scene.geometry_hash(),
-              "n_patches": n, "resolution": int(resolution), "nnz": int(F.nnz)}
+              "n_patches": n, "resolution": checked_resolution(resolution), "nnz": int(F.nnz)}
     buf = io.BytesIO()
     np.savez(buf, header=np.array(json.dumps(header)), data=F.data.astype(np.float32),
              indices=F.indices.astype(np.int32), indptr=F.indptr.astype(np.int64))

@@ -17,9 +17,10 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import scipy.sparse as sp
 
+from ..checks import patch_indices, resolution as checked_resolution
 from ..errors import InvalidInputError
 
-__all__ = ["RowSource", "CSRRows", "HemicubeRows", "as_row_source", "check_row_indices"]
+__all__ = ["RowSource", "CSRRows", "HemicubeRows", "as_row_source"]
 
 
 @runtime_checkable
@@ -33,17 +34,6 @@ class RowSource(Protocol):
         ...
 
 
-def check_row_indices(idx, n: int) -> np.ndarray:
-    """``idx`` as a 1-D int64 array, or :class:`InvalidInputError` naming what is wrong."""
-    a = np.asarray(idx)
-    if a.ndim != 1 or (a.size and not np.issubdtype(a.dtype, np.integer)):
-        raise InvalidInputError(f"row indices must be a 1-D integer array; got shape {a.shape}, dtype {a.dtype}")
-    a = a.astype(np.int64)
-    if a.size and (a.min() < 0 or a.max() >= n):
-        raise InvalidInputError(f"row indices must lie in 0..{n - 1}")
-    return a
-
-
 class CSRRows:
     """An in-memory (N, N) sparse F as a :class:`RowSource`."""
 
@@ -55,7 +45,7 @@ class CSRRows:
         self.n_patches = f.shape[0]
 
     def rows(self, idx) -> sp.csr_matrix:
-        return self.matrix[check_row_indices(idx, self.n_patches)]
+        return self.matrix[patch_indices(idx, self.n_patches, "row indices")]
 
     @property
     def nbytes(self) -> int:
@@ -83,11 +73,10 @@ class HemicubeRows:
     """
 
     def __init__(self, scene, resolution: int, device=None) -> None:
-        self.scene, self.resolution, self.device = scene, resolution, device
+        self.scene, self.resolution, self.device = scene, checked_resolution(resolution), device
         self.n_patches = len(scene)
 
     def rows(self, idx) -> sp.csr_matrix:
         from ..formfactors import form_factors
 
-        return form_factors(self.scene, resolution=self.resolution, rows=check_row_indices(idx, self.n_patches),
-                            device=self.device)
+        return form_factors(self.scene, resolution=self.resolution, rows=idx, device=self.device)

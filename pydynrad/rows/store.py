@@ -40,8 +40,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
-import uuid
 import zipfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -49,9 +47,9 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import integer
+from ..atomic import TMP_MARK, write_atomic
+from ..checks import integer, patch_indices, resolution as checked_resolution
 from ..errors import InvalidInputError, PydynradError
-from .cache import check_row_indices
 
 __all__ = [
     "FormFactorStore",
@@ -60,7 +58,6 @@ __all__ = [
     "StoreMismatchError",
     "compute_blocks",
     "compute_store",
-    "write_atomic",
     "form_factor_rows",
     "task_groups",
 ]
@@ -69,7 +66,6 @@ FORMAT = "pydynrad-formfactor-store"
 FORMAT_VERSION = 1
 HEADER = "header.json"
 BLOCK_DIR = "blocks"
-TMP_MARK = ".tmp-"
 DEFAULT_BLOCK_ROWS = 256
 DEFAULT_TASK_ROWS = 4096
 # DEFLATE level 1: F's float32 mantissas are nearly incompressible, so higher levels cost
@@ -97,20 +93,6 @@ def _library_version() -> str:
     return __version__
 
 
-def write_atomic(path: Path, payload: bytes) -> None:
-    """Write ``payload`` to ``path`` whole: temp file in the same folder, fsync, rename."""
-    tmp = path.with_name(f"{path.name}{TMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(payload)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def _digest(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> str:
     h = hashlib.sha256()
     for a in (indptr, indices, data):
@@ -119,7 +101,7 @@ def _digest(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> str:
 
 
 def _canonical_params(resolution: int, patching: dict | None) -> dict:
-    integer(resolution, "resolution (hemicube pixels per side)")
+    resolution = checked_resolution(resolution)
     try:
         # A JSON round trip makes tuples lists, so the recorded and the requested values compare equal.
         patch = json.loads(json.dumps(dict(patching or {}), sort_keys=True))
@@ -282,7 +264,7 @@ class FormFactorStore:
 
     def rows(self, idx) -> sp.csr_matrix:
         """Rows ``idx`` of F as a (len(idx), N) float32 CSR matrix, in the order given."""
-        idx = check_row_indices(idx, self.n_patches)
+        idx = patch_indices(idx, self.n_patches, "row indices")
         if idx.size == 0:
             return sp.csr_matrix((0, self.n_patches), dtype=np.float32)
         blocks = idx // self.block_rows

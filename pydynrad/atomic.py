@@ -1,0 +1,49 @@
+"""Writing files whole: every file pydynrad writes (form-factor files and store blocks, images,
+bench reports) goes through :func:`write_atomic`, so a reader sees the old file or the new
+one, never half of one, and a failed write leaves no debris.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+
+from .errors import InvalidInputError
+
+__all__ = ["check_parent_folder", "write_atomic", "TMP_MARK"]
+
+#: Marks temporary files in their names, so a store can find and remove ones a crash left.
+TMP_MARK = ".tmp-"
+
+
+def check_parent_folder(path) -> Path:
+    """``path`` as a Path, or :class:`InvalidInputError` when the folder it goes into is missing."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise InvalidInputError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} does not exist")
+    return path
+
+
+def write_atomic(path, payload: bytes | Callable[[Path], object]) -> Path:
+    """Write ``path`` whole: into a temporary file in the same folder, fsync, then ``os.replace``.
+
+    ``payload`` is the file's bytes, or a function that writes the file at the path it is
+    given (for writers that want a file name: OpenImageIO, matplotlib). The folder must exist.
+    Returns ``path`` as a Path.
+    """
+    path = check_parent_folder(path)
+    # A leading dot hides the temporary file; the same folder makes the rename atomic.
+    tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    try:
+        if callable(payload):
+            payload(tmp)
+        else:
+            tmp.write_bytes(payload)
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
