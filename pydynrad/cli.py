@@ -301,12 +301,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from .compare import comparison_image, radiosity_error
+    from .compare import reference_frame
     from .dynamic import DynamicRadiosity
-    from .rows.files import whole_matrix
     from .image_io import write_image
-    from .render import Renderer
-    from .solve import solve
 
     _checked_target(args.output)
     scene = load_scene(args.scene, args.max_edge)
@@ -314,14 +311,12 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     F = _form_factors(args, scene)
     dyn = DynamicRadiosity(scene, F, local_size=min(args.local_size, len(scene)), update=args.update, storage=args.storage)
     dyn.update(camera.position)
-    local = np.asarray(dyn.radiosity(args.light))
-    full = solve(scene, whole_matrix(F), args.light).radiosity
-    renderer = Renderer(scene)
-    img, stats = comparison_image(renderer.render(local, camera, args.shading), renderer.render(full, camera, args.shading),
-                                  args.exposure)
-    write_image(args.output, img)
+    ref = reference_frame(scene, F, dyn.radiosity(args.light), camera, lights=args.light, shading=args.shading,
+                          exposure=args.exposure)
+    write_image(args.output, ref.image)
+    stats = ref.pixel_error
     print(f"local ({dyn.local_patches.size} of {len(scene)} patches) vs full radiosity: relative RMS error "
-          f"{100 * radiosity_error(local, full, scene.areas):.3g}% over patches; per pixel mean "
+          f"{100 * ref.error:.3g}% over patches; per pixel mean "
           f"{100 * stats['mean']:.3g}%, 99th percentile {100 * stats['p99']:.3g}%")
     print(f"wrote {args.output} (dynamic | full | error map, colour bar 0 to {100 * stats['vmax']:.3g}%)")
     return 0

@@ -2,35 +2,26 @@
 
 :func:`comparison_image` puts three panels side by side: the dynamic render, the full
 render, and a false-colour map of the per-pixel relative error with a labelled colour bar.
-The colour map (viridis, tabulated here) is pure numpy, so matplotlib is not needed at run
-time. :func:`radiosity_error` measures the same thing on the patch vectors.
+Colours and labels come from OpenImageIO (a core dependency already, so the comparison the
+demo writes needs nothing more): ``ImageBufAlgo.color_map`` ("viridis", in linear values,
+the same as matplotlib's viridis decoded from sRGB) and ``ImageBufAlgo.render_text`` with
+the font OpenImageIO ships. :func:`radiosity_error` measures the same thing on the patch
+vectors, and :func:`reference_frame` does both for one frame, as ``walk``'s reference frames
+and ``pydynrad compare`` need.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from .errors import InvalidInputError
+from .errors import InvalidInputError, PydynradError
 
-__all__ = ["radiosity_error", "pixel_error", "false_colour", "comparison_image", "VIRIDIS"]
+__all__ = ["radiosity_error", "pixel_error", "false_colour", "comparison_image", "reference_frame", "ReferenceFrame"]
 
-#: viridis (matplotlib's) sampled at 0, 1/16, ..., 1: sRGB-encoded display colours, interpolated linearly.
-VIRIDIS = np.array([
-    [0.267004, 0.004874, 0.329415], [0.282327, 0.094955, 0.417331], [0.278826, 0.175490, 0.483397],
-    [0.258965, 0.251537, 0.524736], [0.229739, 0.322361, 0.545706], [0.199430, 0.387607, 0.554642],
-    [0.172719, 0.448791, 0.557885], [0.149039, 0.508051, 0.557250], [0.127568, 0.566949, 0.550556],
-    [0.120638, 0.625828, 0.533488], [0.157851, 0.683765, 0.501686], [0.246070, 0.738910, 0.452024],
-    [0.369214, 0.788888, 0.382914], [0.515992, 0.831158, 0.294279], [0.678489, 0.863742, 0.189503],
-    [0.845561, 0.887322, 0.099702], [0.993248, 0.906157, 0.143936],
-])
-
-# A 3 x 5 pixel font for the colour-bar labels: digits, '.', '%', '>' and space.
-_GLYPHS = {
-    "0": "111101101101111", "1": "010110010010111", "2": "111001111100111", "3": "111001111001111",
-    "4": "101101111001001", "5": "111100111001111", "6": "111100111101111", "7": "111001010010010",
-    "8": "111101111101111", "9": "111101111001111", ".": "000000000000010", "%": "101001010100101",
-    " ": "000000000000000", ">": "100010001010100",
-}
+#: The colour map of the error panel (an OpenImageIO ``color_map`` name).
+COLOUR_MAP = "viridis"
 
 
 def radiosity_error(radiosity, reference, areas) -> float:
@@ -60,25 +51,37 @@ def pixel_error(image, reference, floor: float = 1e-3) -> np.ndarray:
 
 
 def false_colour(values, vmax: float) -> np.ndarray:
-    """(..., 3) sRGB-encoded viridis colours of ``values`` scaled to [0, vmax]."""
-    t = np.clip(np.asarray(values, dtype=np.float64) / vmax, 0.0, 1.0) * (len(VIRIDIS) - 1)
-    i = np.minimum(np.floor(t).astype(int), len(VIRIDIS) - 2)
-    f = (t - i)[..., None]
-    return (1.0 - f) * VIRIDIS[i] + f * VIRIDIS[i + 1]
+    """(..., 3) float32 linear viridis colours of ``values`` scaled to [0, vmax] (clipped)."""
+    import OpenImageIO as oiio
+
+    t = np.clip(np.asarray(values, dtype=np.float32) / np.float32(vmax), 0.0, 1.0)
+    flat = np.ascontiguousarray(t.reshape(1, -1, 1))
+    src = oiio.ImageBuf(oiio.ImageSpec(flat.shape[1], 1, 1, oiio.FLOAT))
+    src.set_pixels(oiio.ROI(), flat)
+    out = oiio.ImageBufAlgo.color_map(src, 0, COLOUR_MAP)
+    if out.has_error:
+        raise PydynradError(f"OpenImageIO color_map failed: {out.geterror()}")
+    return np.asarray(out.get_pixels(oiio.FLOAT), dtype=np.float32).reshape(*t.shape, 3)
 
 
-def _srgb_decode(c: np.ndarray) -> np.ndarray:
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+def _label(out: np.ndarray, text: str, x: int, y: int, size: int) -> None:
+    """Draw ``text`` in white into ``out`` (H, W, 3), C-contiguous, with its baseline at row ``y`` from column ``x``."""
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(oiio.ImageSpec(out.shape[1], out.shape[0], 3, oiio.FLOAT))
+    buf.set_pixels(oiio.ROI(), out)
+    if not oiio.ImageBufAlgo.render_text(buf, x, y, text, size, "", (1.0, 1.0, 1.0)):
+        raise PydynradError(f"OpenImageIO could not draw the colour bar's label {text!r} (no font?): "
+                            f"{buf.geterror() or oiio.geterror()}")
+    out[:] = buf.get_pixels(oiio.FLOAT).reshape(out.shape)
 
 
-def _text(label: str, scale: int) -> np.ndarray:
-    """(5 scale, 4 scale len - scale) bool mask of ``label`` in the 3 x 5 font."""
-    cols = []
-    for ch in label:
-        glyph = np.array([int(b) for b in _GLYPHS[ch]], dtype=bool).reshape(5, 3)
-        cols += [glyph, np.zeros((5, 1), dtype=bool)]
-    mask = np.concatenate(cols[:-1], axis=1)
-    return np.kron(mask, np.ones((scale, scale), dtype=bool))
+def _text_box(text: str, size: int) -> tuple[int, int, int]:
+    """(width, ascent, descent) in pixels of ``text`` at font ``size``."""
+    import OpenImageIO as oiio
+
+    roi = oiio.ImageBufAlgo.text_size(text, size, "")
+    return roi.xend - roi.xbegin, -roi.ybegin, roi.yend
 
 
 def _percent(v: float) -> str:
@@ -101,8 +104,8 @@ def comparison_image(dynamic, reference, exposure: float = 0.0, vmax: float | No
 
     Returns
     -------
-    image : (H, 3 W + gaps + bar, 3) float32, linear (the map's colours are sRGB-decoded, so
-        :func:`pydynrad.write_image` shows them as tabulated).
+    image : (H, 3 W + gaps + bar, 3) float32, linear (write it with exposure 0: the map's
+        colours are linear values whose sRGB encoding is viridis).
     stats : dict with ``mean``, ``p99``, ``max`` of the pixel error and the ``vmax`` used.
     """
     err = pixel_error(dynamic, reference)
@@ -115,20 +118,55 @@ def comparison_image(dynamic, reference, exposure: float = 0.0, vmax: float | No
     stats["vmax"] = float(vmax)
     gain = np.float32(2.0**exposure)
     gap = max(2, w // 64)
-    scale = max(1, h // 120)
-    top, bottom = _text(">" + _percent(vmax), scale), _text("0%", scale)
+    size = max(8, h // 16)
+    top_text, bottom_text = ">" + _percent(vmax), "0%"
+    (tw, t_up, _), (bw, _, b_down) = _text_box(top_text, size), _text_box(bottom_text, size)
     bar_w = max(8, w // 16)
-    panel_w = bar_w + 2 * gap + max(top.shape[1], bottom.shape[1])
+    panel_w = bar_w + 2 * gap + max(tw, bw)
     out = np.zeros((h, 3 * w + 3 * gap + panel_w, 3), dtype=np.float32)
     out[:, :w] = np.asarray(dynamic, dtype=np.float32) * gain
     out[:, w + gap:2 * w + gap] = np.asarray(reference, dtype=np.float32) * gain
-    out[:, 2 * (w + gap):3 * w + 2 * gap] = _srgb_decode(false_colour(err, vmax))
+    out[:, 2 * (w + gap):3 * w + 2 * gap] = false_colour(err, vmax)
     x0 = 3 * (w + gap)
     ramp = np.linspace(vmax, 0.0, h)  # the top of the bar is the largest error
-    out[:, x0:x0 + bar_w] = _srgb_decode(false_colour(ramp, vmax))[:, None, :]
-    xl = x0 + bar_w + gap
-    for mask, y in ((top, 0), (bottom, h - bottom.shape[0])):
-        if y >= 0 and mask.shape[0] <= h:
-            region = out[y:y + mask.shape[0], xl:xl + mask.shape[1]]
-            region[mask] = 1.0
+    out[:, x0:x0 + bar_w] = false_colour(ramp, vmax)[:, None, :]
+    if h >= 2 * (t_up + b_down):  # labels that would overlap are left out (tiny images)
+        labels = out[:, x0 + bar_w + gap:].copy()
+        _label(labels, top_text, 0, t_up, size)
+        _label(labels, bottom_text, 0, h - 1 - b_down, size)
+        out[:, x0 + bar_w + gap:] = labels
     return out, stats
+
+
+@dataclass
+class ReferenceFrame:
+    """One frame compared with the full solution (:func:`reference_frame`).
+
+    full : (N, 3) float64 full radiosity; error : patch error (:func:`radiosity_error`);
+    image : the comparison image (:func:`comparison_image`); pixel_error : its stats.
+    """
+
+    full: np.ndarray
+    error: float
+    image: np.ndarray
+    pixel_error: dict
+
+
+def reference_frame(scene, form_factors, radiosity, camera, *, lights=(), renderer=None, image=None,
+                    shading: str = "smooth", exposure: float = 0.0, device=None) -> ReferenceFrame:
+    """Solve the full radiosity for ``lights`` and compare ``radiosity`` (N, 3) with it.
+
+    ``form_factors``: all of F (a matrix, or any row source, read whole); ``camera`` the view
+    of the comparison image; ``image``: ``radiosity`` already rendered from it (rendered
+    here when None); ``renderer``: a :class:`~pydynrad.render.Renderer` of ``scene`` to reuse.
+    """
+    from .render import Renderer
+    from .rows.files import whole_matrix
+    from .solve import solve
+
+    renderer = renderer or Renderer(scene, device)
+    full = solve(scene, whole_matrix(form_factors), lights, device=device).radiosity
+    if image is None:
+        image = renderer.render(radiosity, camera, shading)
+    composite, stats = comparison_image(image, renderer.render(full, camera, shading), exposure)
+    return ReferenceFrame(full, radiosity_error(radiosity, full, scene.areas), composite, stats)

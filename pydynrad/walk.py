@@ -214,13 +214,11 @@ def walk(
 
 def _reference(rec: FrameRecord, scene, F, lights, b, img, renderer, shading, out_dir, exposure, device) -> None:
     """Solve the full radiosity for this frame's lights; record the error and the comparison."""
-    from .compare import comparison_image, radiosity_error
+    from .compare import reference_frame
     from .image_io import write_image
-    from .solve import solve
 
-    full = solve(scene, F, lights, device=device).radiosity
-    rec.error = radiosity_error(b, full, scene.areas)
-    full_img = renderer.render(full, rec.camera, shading)
-    composite, rec.pixel_error = comparison_image(img, full_img, exposure)
+    ref = reference_frame(scene, F, b, rec.camera, lights=lights, renderer=renderer, image=img, shading=shading,
+                          exposure=exposure, device=device)
+    rec.error, rec.pixel_error = ref.error, ref.pixel_error
     if out_dir is not None:
-        rec.comparison_path = write_image(out_dir / f"compare_{rec.index:04d}.png", composite)
+        rec.comparison_path = write_image(out_dir / f"compare_{rec.index:04d}.png", ref.image)
