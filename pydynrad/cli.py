@@ -92,6 +92,11 @@ def _point_light(text: str):
         raise argparse.ArgumentTypeError(f"expected X,Y,Z:R,G,B (position : intensity in W/sr); got {text!r} ({exc})")
 
 
+def _progress(args) -> bool | None:
+    """--quiet: no bars; otherwise the library's rule (bars on a terminal)."""
+    return False if args.quiet else None
+
+
 # -- scenes and form-factor files -------------------------------------------------------------
 def load_scene(name: str, max_edge: float | None = None):
     """SCENE: a built-in name or a mesh file (:func:`pydynrad.scenes.byname.scene_by_name`),
@@ -135,7 +140,7 @@ def _form_factors(args, scene):
     from .formfactors import form_factors
 
     t0 = time.perf_counter()
-    F = form_factors(scene, resolution=args.resolution, progress=not args.quiet)
+    F = form_factors(scene, resolution=args.resolution, progress=_progress(args))
     print(f"form factors: {len(scene)} patches, resolution {args.resolution}, {F.nnz} non-zeros, "
           f"{time.perf_counter() - t0:.1f} s")
     return F
@@ -214,12 +219,12 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     t0 = time.perf_counter()
     if args.workers == 0:
         store = compute_store(scene, out, resolution=args.resolution, block_rows=block_rows, patching=spec.recipe(),
-                              progress=not args.quiet)
+                              progress=_progress(args))
         where = "this process (no Dask)"
     else:
         workers = None if args.scheduler else (args.workers or 2)
         store = precompute_distributed(spec, out, resolution=args.resolution, block_rows=block_rows, workers=workers,
-                                       scheduler=args.scheduler, progress=not args.quiet)
+                                       scheduler=args.scheduler, progress=_progress(args))
         where = f"the cluster at {args.scheduler}" if args.scheduler else f"a LocalCluster of {workers} workers"
     seconds = time.perf_counter() - t0
     print(f"wrote store {out}: {store.n_patches} patches in {store.n_blocks} blocks of {store.block_rows} rows, "
@@ -250,7 +255,7 @@ def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames) ->
     opts = {"update": args.update, "storage": args.storage}
     result = walk(scene, path, lights=lights, form_factors=F, local_size=min(args.local_size, len(scene)),
                   solver_options=opts, shading=args.shading, output=out_dir, image_format=args.format,
-                  exposure=args.exposure, reference_frames=reference_frames, progress=not args.quiet)
+                  exposure=args.exposure, reference_frames=reference_frames, progress=_progress(args))
     summary = result.summary()
     print(summary)
     if out_dir is not None:

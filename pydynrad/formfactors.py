@@ -15,7 +15,6 @@ See docs/design.md, 'Hemicube form factors'.
 
 from __future__ import annotations
 
-import sys
 from functools import lru_cache
 
 import numpy as np
@@ -105,7 +104,7 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
     device : Device, optional
         The OpenCL device (default: :func:`pydynrad.default_device`).
     progress : bool, optional
-        Show a tqdm bar; by default only on a terminal for long runs.
+        Show a tqdm bar; None: on a terminal, for runs over LONG_RUN_RAYS rays (:mod:`pydynrad.progress`).
 
     Returns
     -------
@@ -114,9 +113,9 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
         leaving it that arrives at each). ``F[i, i] = 0``.
     """
     import pyopencl as cl
-    from tqdm.auto import tqdm
 
     from .device import default_device
+    from .progress import progress_bar
 
     dev = device or default_device()
     R = checked_resolution(resolution)
@@ -145,10 +144,9 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
     count_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * 4)
     eps = np.float32(SURFACE_OFFSET * scene.scale)
 
-    if progress is None:
-        progress = len(rows) > block and len(rows) * S * R > LONG_RUN_RAYS and sys.stderr.isatty()
+    long = len(rows) > block and len(rows) * S * R > LONG_RUN_RAYS
     parts = []
-    with tqdm(total=len(rows), unit="patch", desc=f"form factors R={R}", disable=not progress) as bar:
+    with progress_bar(progress, long=long, total=len(rows), unit="patch", desc=f"form factors R={R}") as bar:
         for first in range(0, len(rows), block):
             idx = rows[first : first + block]
             b = len(idx)

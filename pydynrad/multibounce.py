@@ -26,8 +26,6 @@ See docs/design.md, 'Multibounce build'.
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
 from .checks import patch_indices, scene as checked_scene
@@ -205,7 +203,7 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
         nearest even, the storage rounding) or float64.
     device : Device, optional
     progress : bool, optional
-        Show a tqdm bar (default: only for M >= 2048 and when stderr is a terminal).
+        Show a tqdm bar; None: on a terminal, for M >= 2048 (:mod:`pydynrad.progress`).
 
     Returns
     -------
@@ -217,10 +215,8 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
         Before allocating anything, when the result or the working buffers would not fit in
         host memory or on the device (e.g. all 63,125 patches of the paper's scene: 44 GiB).
     """
-    from tqdm import tqdm
-
-    from .device import default_device
-    from .device import real_dtype
+    from .device import default_device, real_dtype
+    from .progress import progress_bar
 
     out = np.dtype(dtype)
     if out not in OUTPUT_DTYPES:
@@ -239,8 +235,7 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
     builder = _Builder(device, M, work)
     steps = (builder.Mp // builder.nb) if bounces is None else int(bounces)
     result = np.empty((C, M, M), dtype=out)
-    with tqdm(total=C * steps, desc=f"multibounce M={M}", unit="step",
-              disable=not (M >= 2048 and sys.stderr.isatty() if progress is None else progress)) as bar:
+    with progress_bar(progress, long=M >= 2048, total=C * steps, desc=f"multibounce M={M}", unit="step") as bar:
         for c in range(C):
             FP = F_SS * rho[:, c][None, :]  # F_SS P_S: column j scaled by rho_j
             if bounces is None:

@@ -89,7 +89,7 @@ class _Tracer:
         """Run passes until ``spp`` samples (or the time limit); return (sum (n, 3), samples)."""
         import pyopencl as cl
 
-        from tqdm.auto import tqdm
+        from .progress import progress_bar
 
         kernel = self.device.kernel("pathtrace.cl", kernel_name, self.defines)
         queue = self.device.queue
@@ -99,7 +99,7 @@ class _Tracer:
         gsize = (max(1, n_items),)
         done, size = 0, 1
         start = time.perf_counter()
-        bar = tqdm(total=spp, unit="spp", desc=f"path tracing ({kernel_name})", disable=not progress)
+        bar = progress_bar(progress, total=spp, unit="spp", desc=f"path tracing ({kernel_name})")
         with bar:
             while done < spp:
                 n = min(size, spp - done)
@@ -142,8 +142,8 @@ def path_trace(scene: Scene, camera, spp: int = 64, lights=(), seed: int = 0, ma
         Random seed in [0, 2**32); the same seed gives the same image bit for bit.
     max_depth : int
         Bounce limit; Russian roulette ends most paths long before it.
-    progress : bool
-        Show a tqdm bar over the samples.
+    progress : bool, optional
+        Show a tqdm bar over the samples; None: when stderr is a terminal.
     time_limit : float, optional
         Stop after the pass that exceeds this many seconds (the image averages the samples done).
 

@@ -110,7 +110,7 @@ def walk(
     exposure: float = 0.0,
     reference_frames=(),
     keep_images: bool = False,
-    progress: bool = True,
+    progress: bool | None = None,
     device=None,
 ) -> WalkResult:
     """Walk a camera through ``scene`` with dynamic radiosity.
@@ -146,18 +146,17 @@ def walk(
         the error; with ``output`` a ``compare_0000.png`` is written there too.
     keep_images : bool
         Return every frame's image in ``WalkResult.images``.
-    progress : bool
-        Show a tqdm progress bar.
+    progress : bool, optional
+        Show a tqdm bar over the frames; None: when stderr is a terminal.
     device : Device, optional
 
     Returns
     -------
     WalkResult
     """
-    from tqdm.auto import tqdm
-
     from .device import default_device
     from .image_io import _format_for, write_image
+    from .progress import progress_bar
     from .render import Renderer
 
     if not isinstance(path, CameraPath):
@@ -184,7 +183,7 @@ def walk(
     full_F = None  # all of F in memory, read at the first reference frame
     records, images = [], []
     b = img = None
-    bar = tqdm(range(n), desc="walk", unit="frame", disable=not progress)
+    bar = progress_bar(progress, iterable=range(n), desc="walk", unit="frame")
     for k in bar:
         cam = path.camera(k)
         frame_lights = lights_at(lights, k, n)

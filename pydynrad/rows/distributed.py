@@ -167,7 +167,7 @@ def _start_client(workers: int | None, scheduler: str | None):
 
 
 def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
-                           workers: int | None = None, scheduler: str | None = None, progress: bool = True,
+                           workers: int | None = None, scheduler: str | None = None, progress: bool | None = None,
                            verify: bool = False, row_function: RowFunction = form_factor_rows,
                            blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS) -> FormFactorStore:
     """Compute every missing block of the store at ``path`` on a Dask cluster; returns the store.
@@ -184,6 +184,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     workers : worker processes of the LocalCluster started by default (one thread each;
         default: one per CPU core).
     scheduler : address of an existing cluster's scheduler (``tcp://host:8786``) instead.
+    progress : a tqdm bar over the rows (None: when stderr is a terminal).
     verify : re-check finished blocks' checksums and recompute corrupt ones.
     row_function : ``f(scene, rows, resolution, device=...) -> csr``; must be importable (or
         cloudpickle-able) on the workers. Default: :func:`pydynrad.store.form_factor_rows`.
@@ -194,7 +195,8 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     The patching parameters recorded in the header are the spec's recipe (empty for a Scene).
     """
     from distributed import as_completed
-    from tqdm.auto import tqdm
+
+    from ..progress import progress_bar
 
     spec = _as_spec(scene_spec)
     scene = spec if isinstance(spec, Scene) else spec.build()
@@ -212,8 +214,8 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
         futures = [client.submit(_blocks_task, str(path), group, payload, ghash, resolution, patching, row_function,
                                  key=f"pydynrad-ffblocks-{ghash[:16]}-{group[0]}-{group[-1]}", pure=False)
                    for group in task_groups(store, todo, task_rows)]
-        with tqdm(total=sum(len(store.block_range(k)) for k in todo), unit="row", desc="form factors",
-                  disable=not progress) as bar:
+        with progress_bar(progress, total=sum(len(store.block_range(k)) for k in todo), unit="row",
+                          desc="form factors") as bar:
             for fut in as_completed(futures):
                 _, nrows, _ = fut.result()  # re-raises a worker's error here, with its traceback
                 bar.update(nrows)

@@ -361,7 +361,7 @@ def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function
 
 
 def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
-                  patching: dict | None = None, progress: bool = True, verify: bool = False,
+                  patching: dict | None = None, progress: bool | None = None, verify: bool = False,
                   row_function: RowFunction = form_factor_rows, device=None,
                   blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS) -> FormFactorStore:
     """Create (or resume) the store at ``path`` and compute every missing block in this process.
@@ -369,15 +369,16 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
     ``row_function(scene, rows, resolution, device=...)`` returns the (len(rows), N) CSR
     rows; the default is :func:`form_factor_rows`; it is called on runs of up to
     ``task_rows`` rows. ``verify`` re-checks finished blocks and recomputes corrupt ones.
-    ``blocks`` restricts the work to some block indices. Returns the store; interrupting it
+    ``blocks`` restricts the work to some block indices; ``progress``: a tqdm bar (None: on a
+    terminal). Returns the store; interrupting it
     loses at most the blocks of the call in progress.
     """
-    from tqdm.auto import tqdm
+    from ..progress import progress_bar
 
     store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
                                 verify=verify, blocks=blocks)
-    with tqdm(total=sum(len(store.block_range(k)) for k in todo), unit="row", desc="form factors",
-              disable=not progress) as bar:
+    with progress_bar(progress, total=sum(len(store.block_range(k)) for k in todo), unit="row",
+                      desc="form factors") as bar:
         for group in task_groups(store, todo, task_rows):
             bar.update(compute_blocks(store, scene, group, row_function, device))
     return store

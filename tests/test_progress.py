@@ -1,0 +1,31 @@
+"""progress=None means "on a terminal" everywhere; True and False force it."""
+
+import sys
+
+import pydynrad
+from pydynrad.progress import shows_progress
+
+
+def test_the_rule(monkeypatch, capsys):
+    assert shows_progress(True) and shows_progress(True, long=False) and not shows_progress(False)
+    assert not shows_progress(None)  # pytest's captured stderr is no terminal
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    assert shows_progress(None) and not shows_progress(None, long=False)
+
+
+def test_long_calls_follow_it(device, capsys, tmp_path):
+    """The path tracer used to treat progress=None as False; walk and the stores as True."""
+    s = pydynrad.scenes.parallel_plates(subdivisions=0)
+    calls = {
+        "path tracing": lambda p: pydynrad.path_trace_patches(s, spp=2, device=device, progress=p),
+        "form factors R=8": lambda p: pydynrad.form_factors(s, resolution=8, device=device, progress=p),
+        "multibounce": lambda p: pydynrad.multibounce(s, pydynrad.form_factors(s, resolution=8, device=device),
+                                                      device=device, progress=p),
+        "form factors": lambda p: pydynrad.compute_store(s, tmp_path / f"store-{p}", resolution=8, device=device,
+                                                         progress=p),
+    }
+    for desc, call in calls.items():
+        call(None)
+        assert capsys.readouterr().err == "", desc
+        call(True)
+        assert desc in capsys.readouterr().err, desc
