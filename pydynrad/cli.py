@@ -22,6 +22,9 @@ __all__ = ["main", "build_parser", "load_scene", "BUILTIN_SCENES"]
 
 
 DEMO_DIR = "pydynrad-demo"
+DEFAULT_WIDTH, DEFAULT_HEIGHT = 320, 240
+#: The Cornell box camera's vertical field of view (degrees).
+DEFAULT_FOV_Y = 39.3
 DEMO_EXPOSURE = float(-np.log2(np.pi))
 
 
@@ -146,8 +149,30 @@ def _form_factors(args, scene):
     return F
 
 
+def _image_size(args) -> tuple[int, int]:
+    """(width, height) from --width/--height, or from the deprecated --size WxH (one release)."""
+    if args.size is not None:
+        if args.width is not None or args.height is not None:
+            raise InvalidInputError("give --width/--height or the deprecated --size, not both")
+        warnings.warn("--size WxH is deprecated and will be removed in the next release; use --width W --height H",
+                      DeprecationWarning, stacklevel=2)
+        return args.size
+    return args.width or DEFAULT_WIDTH, args.height or DEFAULT_HEIGHT
+
+
+def _fov_y(args) -> float:
+    """--fov-y, or the deprecated --fov (one release)."""
+    if args.fov is not None:
+        if args.fov_y is not None:
+            raise InvalidInputError("give --fov-y or the deprecated --fov, not both")
+        warnings.warn("--fov is deprecated and will be removed in the next release; use --fov-y",
+                      DeprecationWarning, stacklevel=2)
+        return args.fov
+    return DEFAULT_FOV_Y if args.fov_y is None else args.fov_y
+
+
 def _default_camera(scene, args):
-    """A camera from --position/--look-at/--up/--fov/--size; unset parts frame the scene:
+    """A camera from --position/--look-at/--up/--fov-y/--width/--height; unset parts frame the scene:
     looking at the bounding-box centre along +z from 1.1 diagonals away (the Cornell box's
     published view)."""
     from .camera import Camera
@@ -156,8 +181,8 @@ def _default_camera(scene, args):
     centre = (lo + hi) / 2
     look_at = np.asarray(args.look_at if args.look_at else centre)
     position = args.position if args.position else look_at - np.array([0.0, 0.0, 1.1 * scene.scale])
-    width, height = args.size
-    return Camera(position, look_at, args.up, args.fov, width, height)
+    width, height = _image_size(args)
+    return Camera(position, look_at, args.up, _fov_y(args), width, height)
 
 
 # -- subcommands -----------------------------------------------------------------------------
@@ -274,7 +299,7 @@ def _cmd_walk(args: argparse.Namespace) -> int:
     return 0
 
 
-def demo_setup(frames: int, size: tuple[int, int]):
+def demo_setup(frames: int, width: int, height: int):
     """The demo's Cornell box walk: the camera moves from the published viewpoint up to the
     box's open side and pans across it, while a point light circles above the blocks."""
     from .lights import PointLight
@@ -282,7 +307,7 @@ def demo_setup(frames: int, size: tuple[int, int]):
 
     positions = [(278, 273, -800), (278, 273, -450), (150, 320, -250), (400, 220, -200)]
     look_ats = [(278, 273, 0), (278, 260, 280), (300, 200, 300), (250, 220, 300)]
-    cam = CameraPath(positions, look_ats, frames, fov_y=39.3, width=size[0], height=size[1])
+    cam = CameraPath(positions, look_ats, frames, fov_y=DEFAULT_FOV_Y, width=width, height=height)
     # Above both blocks (the tall one is 330 mm high), below the ceiling (548.8 mm).
     orbit_keys = [(130, 420, 130), (130, 420, 430), (430, 420, 430), (430, 420, 130), (130, 420, 130)]
     light = LightTrack(PointLight(orbit_keys[0], (60000.0, 50000.0, 30000.0)), orbit_keys)
@@ -296,7 +321,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     scene = cornell_box(max_edge=args.max_edge)
     print(f"scene: {scene!r}")
     F = _form_factors(args, scene)
-    path, lights = demo_setup(args.frames, args.size)
+    path, lights = demo_setup(args.frames, *_image_size(args))
     out = Path(args.out)
     result = _walk_and_report(args, scene, path, lights, F, out, [0, args.frames - 1])
     print(f"comparison images (dynamic | full | relative error): "
@@ -359,9 +384,19 @@ def _add_camera(p: argparse.ArgumentParser) -> None:
     p.add_argument("--look-at", type=_vec3, metavar="X,Y,Z", default=None,
                    help="point the camera looks at (default: the bounding-box centre)")
     p.add_argument("--up", type=_vec3, metavar="X,Y,Z", default=(0.0, 1.0, 0.0), help="up direction (default 0,1,0)")
-    p.add_argument("--fov", type=_positive_float, default=39.3, metavar="DEG",
-                   help="vertical field of view in degrees (default 39.3, the Cornell box camera's)")
-    p.add_argument("--size", type=_size, default=(320, 240), metavar="WxH", help="image size in pixels (default 320x240)")
+    p.add_argument("--fov-y", type=_positive_float, default=None, metavar="DEG",
+                   help=f"vertical field of view in degrees (default {DEFAULT_FOV_Y}, the Cornell box camera's)")
+    p.add_argument("--fov", type=_positive_float, default=None, metavar="DEG", help="deprecated spelling of --fov-y")
+    _add_image_size(p)
+
+
+def _add_image_size(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--width", type=_positive_int, default=None, metavar="PX",
+                   help=f"image width in pixels (default {DEFAULT_WIDTH})")
+    p.add_argument("--height", type=_positive_int, default=None, metavar="PX",
+                   help=f"image height in pixels (default {DEFAULT_HEIGHT})")
+    p.add_argument("--size", type=_size, default=None, metavar="WxH",
+                   help="deprecated: image size in pixels; use --width and --height")
 
 
 def _add_look(p: argparse.ArgumentParser) -> None:
@@ -415,7 +450,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "solved too, giving the local-versus-full error and a comparison image. Prints "
                                    "a table of per-stage timings.")
     p.add_argument("--frames", type=_positive_int, default=24, metavar="N", help="number of frames (default 24)")
-    p.add_argument("--size", type=_size, default=(320, 240), metavar="WxH", help="image size in pixels (default 320x240)")
+    _add_image_size(p)
     p.add_argument("--max-edge", type=_positive_float, default=100.0, metavar="MM",
                    help="longest patch edge in mm (default 100: 1,096 patches)")
     _add_form_factors(p, resolution=32)
@@ -471,10 +506,11 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Follow the camera path in FILE through SCENE: per frame the local multibounce "
                                    "matrix follows the camera, the lights of that frame are applied and an image is "
                                    "rendered. Prints per-stage timings. The path file is JSON: "
-                                   '{"frames": 48, "fov": 39.3, "size": [320, 240], "keyframes": '
+                                   '{"frames": 48, "fov_y": 39.3, "width": 320, "height": 240, "keyframes": '
                                    '[{"position": [x,y,z], "look_at": [x,y,z]}, ...]} (or "orbit": {"center": '
-                                   '[x,y,z], "radius": r, "height": h} instead of keyframes), optionally "lights": '
-                                   '[{"type": "point", "intensity": [r,g,b], "keyframes": [[x,y,z], ...]}].')
+                                   '[x,y,z], "radius": r, "elevation": h} instead of keyframes), optionally "lights": '
+                                   '[{"type": "point", "intensity": [r,g,b], "keyframes": [[x,y,z], ...]}] (also '
+                                   '"spot" and "directional"; every field: pydynrad.paths).')
     _add_scene(p)
     p.add_argument("--path", required=True, metavar="FILE", help="camera path file (JSON, format above)")
     _add_look(p)
@@ -505,19 +541,20 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    previous = warnings.showwarning
-    warnings.showwarning = _one_line_warning
-    try:
-        with contextlib.ExitStack() as args.cleanup:  # closes what a command opened (row caches)
-            return int(args.func(args) or 0)
-    except (PydynradError, OSError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        print(f"pydynrad {args.command}: error: {first}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"pydynrad {args.command}: interrupted", file=sys.stderr)
-        return 130
-    finally:
-        warnings.showwarning = previous
+    with warnings.catch_warnings():
+        # Deprecated options must be seen from the command line too, where Python hides
+        # DeprecationWarning by default; every warning prints as one line.
+        warnings.simplefilter("default", DeprecationWarning)
+        warnings.showwarning = _one_line_warning
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        try:
+            with contextlib.ExitStack() as args.cleanup:  # closes what a command opened (row caches)
+                return int(args.func(args) or 0)
+        except (PydynradError, OSError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            print(f"pydynrad {args.command}: error: {first}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            print(f"pydynrad {args.command}: interrupted", file=sys.stderr)
+            return 130

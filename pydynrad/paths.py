@@ -6,22 +6,28 @@ frame i samples the keyframe curve at parameter ``i (K - 1) / (frames - 1)``, un
 keyframe index (Catmull-Rom, which passes through every keyframe, or linear). A
 :class:`LightTrack` moves a point or spot light the same way.
 
-Path file (JSON)::
+Path file (JSON); its fields are named as the Python API names them (:class:`Camera`,
+:func:`orbit`, :mod:`pydynrad.lights`), and any other field is an error::
 
     {
       "frames": 48,                       # number of frames (>= 1)
-      "fov": 39.3,                        # vertical field of view, degrees (default 45)
-      "size": [320, 240],                 # image width, height in pixels (default 320 x 240)
+      "fov_y": 39.3,                      # vertical field of view, degrees (default 45)
+      "width": 320, "height": 240,        # image size in pixels (default 320 x 240)
       "up": [0, 1, 0],                    # optional, default +y
       "interpolation": "catmull-rom",     # or "linear"
       "keyframes": [{"position": [x, y, z], "look_at": [x, y, z]}, ...],
-      # instead of "keyframes": "orbit": {"center": [..], "radius": r, "height": h,
+      # instead of "keyframes": "orbit": {"center": [..], "radius": r, "elevation": h,
       #                                     "start_angle": degrees, "turns": 1.0}
-      "lights": [{"type": "point", "intensity": [r, g, b], "keyframes": [[x, y, z], ...]}]
+      "lights": [{"type": "point", "intensity": [r, g, b], "keyframes": [[x, y, z], ...]},
+                 {"type": "spot", "direction": [x, y, z], "intensity": [r, g, b],
+                  "inner_angle": 0.3, "outer_angle": 0.5, "keyframes": [[x, y, z], ...]},
+                 {"type": "directional", "direction": [x, y, z], "irradiance": [r, g, b]}]
     }
 
-``"lights"`` is optional; each light is ``"point"`` (intensity, W/sr) with position keyframes
-(one keyframe: a fixed light), or ``"directional"`` (direction, irradiance).
+``"lights"`` is optional. Point and spot lights (intensity in W/sr, spot angles in radians
+as :class:`~pydynrad.lights.SpotLight` takes them) move through their position keyframes
+(one keyframe: a fixed light; ``"interpolation"`` per light, default catmull-rom); a spot
+light keeps its direction. A directional light has a direction and an irradiance.
 """
 
 from __future__ import annotations
@@ -146,12 +152,12 @@ class CameraPath:
         return Camera(eye, target, self.up, self.fov_y, self.width, self.height)
 
 
-def orbit(center, radius: float, height: float, frames: int, *, start_angle: float = 0.0, turns: float = 1.0,
-          up=(0.0, 1.0, 0.0), fov_y: float = 45.0, size: tuple[int, int] = (320, 240)) -> CameraPath:
-    """A circle of ``radius`` around ``center`` at ``height`` above it (along ``up``), always
+def orbit(center, radius: float, elevation: float, frames: int, *, start_angle: float = 0.0, turns: float = 1.0,
+          up=(0.0, 1.0, 0.0), fov_y: float = 45.0, width: int = 320, height: int = 240) -> CameraPath:
+    """A circle of ``radius`` around ``center`` at ``elevation`` above it (along ``up``), always
     looking at ``center``; ``turns`` full turns over ``frames`` frames, starting at
-    ``start_angle`` degrees. ``fov_y`` (degrees) and ``size`` (width, height in pixels) set
-    the lens and the image.
+    ``start_angle`` degrees. ``fov_y`` (degrees), ``width`` and ``height`` (pixels) set the
+    lens and the image, as in :class:`Camera`.
     """
     c = _keyframes(center, "orbit center")[0]
     n = _frame_count(frames)
@@ -164,21 +170,15 @@ def orbit(center, radius: float, height: float, frames: int, *, start_angle: flo
     b = np.cross(up_v, a)
     # Frames sample the full turn without repeating the start when turns == 1.
     angles = np.radians(start_angle) + 2.0 * np.pi * turns * np.arange(n) / n
-    pos = c + radius * (np.cos(angles)[:, None] * a + np.sin(angles)[:, None] * b) + height * up_v
-    return CameraPath(pos, np.repeat(c[None], n, axis=0), n, fov_y, *_size(size), up=tuple(up_v), interpolation="linear")
+    pos = c + radius * (np.cos(angles)[:, None] * a + np.sin(angles)[:, None] * b) + elevation * up_v
+    return CameraPath(pos, np.repeat(c[None], n, axis=0), n, fov_y, width, height, up=tuple(up_v), interpolation="linear")
 
 
-def fly_through(points, frames: int, *, up=(0.0, 1.0, 0.0), fov_y: float = 45.0,
-                size: tuple[int, int] = (320, 240)) -> CameraPath:
+def fly_through(points, frames: int, *, up=(0.0, 1.0, 0.0), fov_y: float = 45.0, width: int = 320,
+                height: int = 240) -> CameraPath:
     """Fly through ``points`` (K >= 2, Catmull-Rom) in ``frames`` frames, looking ahead;
     lens and image as in :func:`orbit`."""
-    return CameraPath(_keyframes(points, "fly-through points"), None, _frame_count(frames), fov_y, *_size(size), up=up)
-
-
-def _size(size) -> tuple[int, int]:
-    if not (isinstance(size, (tuple, list)) and len(size) == 2):
-        raise InvalidInputError(f"size must be (width, height) in pixels; got {size!r}")
-    return size[0], size[1]
+    return CameraPath(_keyframes(points, "fly-through points"), None, _frame_count(frames), fov_y, width, height, up=up)
 
 
 @dataclass(frozen=True, eq=False)
@@ -220,19 +220,43 @@ def _field(doc: dict, key: str, where: str, default=None, required: bool = False
     return doc[key]
 
 
+def _known_fields(doc: dict, allowed: tuple[str, ...], where: str) -> None:
+    """Refuse fields the format does not have (a misspelt or renamed one would be ignored silently)."""
+    unknown = sorted(set(doc) - set(allowed))
+    if unknown:
+        renamed = {k: RENAMED[k] for k in unknown if k in RENAMED}
+        hint = "; ".join(f"{k!r} is now {v}" for k, v in renamed.items())
+        raise InvalidInputError(f"{where}: unknown field {', '.join(map(repr, unknown))} (allowed: {', '.join(allowed)})"
+                                + (f"; {hint}" if hint else ""))
+
+
+#: Fields of earlier path files and what replaced them (named in the error for the old one).
+RENAMED = {"fov": "'fov_y'", "size": "'width' and 'height'"}
+
+_TOP_FIELDS = ("frames", "fov_y", "width", "height", "up", "interpolation", "keyframes", "orbit", "lights")
+_ORBIT_FIELDS = ("center", "radius", "elevation", "start_angle", "turns")
+#: Per light type: the light's own fields (its dataclass's, position aside) and whether it moves.
+_LIGHT_FIELDS = {"point": (("intensity",), True),
+                 "spot": (("direction", "intensity", "inner_angle", "outer_angle"), True),
+                 "directional": (("direction", "irradiance"), False)}
+
+
 def _parse_light(item, where: str):
-    from .lights import DirectionalLight, PointLight
+    from .lights import DirectionalLight, PointLight, SpotLight
 
     if not isinstance(item, dict):
         raise InvalidInputError(f"{where}: a light must be an object with a 'type'")
     kind = _field(item, "type", where, required=True)
-    if kind == "point":
-        keys = _keyframes(_field(item, "keyframes", where, required=True), f"{where}: keyframes")
-        light = PointLight(keys[0], _field(item, "intensity", where, required=True))
-        return LightTrack(light, keys, item.get("interpolation", "catmull-rom")) if len(keys) > 1 else light
-    if kind == "directional":
-        return DirectionalLight(_field(item, "direction", where, required=True), _field(item, "irradiance", where, required=True))
-    raise InvalidInputError(f"{where}: unknown light type {kind!r}; use 'point' or 'directional'")
+    if kind not in _LIGHT_FIELDS:
+        raise InvalidInputError(f"{where}: unknown light type {kind!r}; use {', '.join(map(repr, _LIGHT_FIELDS))}")
+    fields, moves = _LIGHT_FIELDS[kind]
+    _known_fields(item, ("type", *fields, *(("keyframes", "interpolation") if moves else ())), where)
+    values = {f: _field(item, f, where, required=True) for f in fields}
+    if not moves:
+        return DirectionalLight(**values)
+    keys = _keyframes(_field(item, "keyframes", where, required=True), f"{where}: keyframes")
+    light = (PointLight if kind == "point" else SpotLight)(position=keys[0], **values)
+    return LightTrack(light, keys, item.get("interpolation", "catmull-rom")) if len(keys) > 1 else light
 
 
 def load_path(path) -> tuple[CameraPath, list]:
@@ -255,18 +279,19 @@ def load_path(path) -> tuple[CameraPath, list]:
     if not isinstance(doc, dict):
         raise InvalidInputError(f"{where}: the top level must be a JSON object")
     try:
-        size = _field(doc, "size", where, [320, 240])
-        if not (isinstance(size, list) and len(size) == 2):
-            raise InvalidInputError(f"{where}: 'size' must be [width, height]")
-        fov, up = _field(doc, "fov", where, 45.0), tuple(_field(doc, "up", where, (0.0, 1.0, 0.0)))
+        _known_fields(doc, _TOP_FIELDS, where)
+        lens = {"fov_y": _field(doc, "fov_y", where, 45.0), "width": _field(doc, "width", where, 320),
+                "height": _field(doc, "height", where, 240)}
+        up = tuple(_field(doc, "up", where, (0.0, 1.0, 0.0)))
         frames = _field(doc, "frames", where, required=True)
         if "orbit" in doc:
             o = doc["orbit"]
             if not isinstance(o, dict):
                 raise InvalidInputError(f"{where}: 'orbit' must be an object")
+            _known_fields(o, _ORBIT_FIELDS, f"{where}: orbit")
             cam = orbit(_field(o, "center", where, required=True), _field(o, "radius", where, required=True),
-                        _field(o, "height", where, 0.0), frames, start_angle=_field(o, "start_angle", where, 0.0),
-                        turns=_field(o, "turns", where, 1.0), up=up, fov_y=fov, size=size)
+                        _field(o, "elevation", where, 0.0), frames, start_angle=_field(o, "start_angle", where, 0.0),
+                        turns=_field(o, "turns", where, 1.0), up=up, **lens)
         else:
             keys = _field(doc, "keyframes", where, required=True)
             if not isinstance(keys, list) or not keys or not all(isinstance(k, dict) for k in keys):
@@ -274,8 +299,10 @@ def load_path(path) -> tuple[CameraPath, list]:
                                         "{\"position\": [x, y, z], \"look_at\": [x, y, z]} objects")
             positions = [_field(k, "position", f"{where}: keyframe {i}", required=True) for i, k in enumerate(keys)]
             look_ats = [_field(k, "look_at", f"{where}: keyframe {i}", required=True) for i, k in enumerate(keys)]
-            cam = CameraPath(positions, look_ats, frames, fov, size[0], size[1], up,
-                             interpolation=doc.get("interpolation", "catmull-rom"))
+            for i, k in enumerate(keys):
+                _known_fields(k, ("position", "look_at"), f"{where}: keyframe {i}")
+            cam = CameraPath(positions, look_ats, frames, up=up, interpolation=doc.get("interpolation", "catmull-rom"),
+                             **lens)
         items = _field(doc, "lights", where, [])
         if not isinstance(items, list):
             raise InvalidInputError(f"{where}: 'lights' must be a list")

@@ -63,7 +63,8 @@ def test_user_errors_give_one_line(capsys, argv, needles):
     "argv, needle",
     [
         (["render", "cornell_box", "-o", "x.png", "--size", "0x5"], "WIDTHxHEIGHT"),
-        (["render", "cornell_box", "-o", "x.png", "--fov", "abc"], "positive number"),
+        (["render", "cornell_box", "-o", "x.png", "--width", "0"], "whole number >= 1"),
+        (["render", "cornell_box", "-o", "x.png", "--fov-y", "abc"], "positive number"),
         (["render", "cornell_box", "-o", "x.png", "--position", "1,2"], "three finite numbers"),
         (["render", "cornell_box", "-o", "x.png", "--light", "1,2,3"], "X,Y,Z:R,G,B"),
         (["render", "cornell_box"], "required"),
@@ -101,7 +102,7 @@ def test_demo_runs_reduced_and_writes_readable_images(tmp_path, capsys):
     from pydynrad import read_image
 
     out = tmp_path / "demo"
-    code, stdout, err = run_main(["demo", "--frames", "3", "--size", "40x30", "--max-edge", "250", "--resolution", "8",
+    code, stdout, err = run_main(["demo", "--frames", "3", "--width", "40", "--height", "30", "--max-edge", "250", "--resolution", "8",
                                   "--local-size", "40", "--out", str(out), "--quiet"], capsys)
     assert code == 0, err
     for k in range(3):
@@ -123,7 +124,7 @@ def test_formfactors_render_walk_compare_chain(tmp_path, capsys):
     ff = tmp_path / "cbox.npz"
     small = ["--max-edge", "250"]
     assert run_main(["formfactors", "cornell_box", *small, "--resolution", "8", "-o", str(ff), "--quiet"], capsys)[0] == 0
-    code, out, err = run_main(["render", "cornell_box", *small, "--form-factors", str(ff), "--size", "32x24",
+    code, out, err = run_main(["render", "cornell_box", *small, "--form-factors", str(ff), "--width", "32", "--height", "24",
                                "--light", "278,400,280:5e4", "-o", str(tmp_path / "r.exr")], capsys)
     assert code == 0, err
     img = read_image(tmp_path / "r.exr")
@@ -133,7 +134,7 @@ def test_formfactors_render_walk_compare_chain(tmp_path, capsys):
                              str(tmp_path / "x.png")], capsys)
     assert_one_line_error(code, err, "another scene geometry")
     path = tmp_path / "path.json"
-    path.write_text(json.dumps({"frames": 2, "size": [24, 16], "fov": 40, "keyframes": [
+    path.write_text(json.dumps({"frames": 2, "width": 24, "height": 16, "fov_y": 40, "keyframes": [
         {"position": [278, 273, -800], "look_at": [278, 273, 0]}, {"position": [278, 273, -300], "look_at": [278, 273, 0]}]}))
     code, out, err = run_main(["walk", "cornell_box", *small, "--form-factors", str(ff), "--path", str(path),
                                "--local-size", "20", "--out", str(tmp_path / "w"), "--reference-frames", "-1", "--quiet"],
@@ -142,7 +143,7 @@ def test_formfactors_render_walk_compare_chain(tmp_path, capsys):
     assert read_image(tmp_path / "w" / "frame_0001.png").shape == (16, 24, 3)
     assert "local vs full radiosity at frame 1" in out
     code, out, err = run_main(["compare", "cornell_box", *small, "--form-factors", str(ff), "--local-size", "20",
-                               "--size", "24x16", "-o", str(tmp_path / "c.png")], capsys)
+                               "--width", "24", "--height", "16", "-o", str(tmp_path / "c.png")], capsys)
     assert code == 0, err
     assert read_image(tmp_path / "c.png").shape[1] > 3 * 24 and "relative RMS error" in out
 
@@ -206,7 +207,7 @@ def test_commands_read_a_store_like_the_file(tmp_path, capsys, device):
     compute_store(scene, tmp_path / "ff", resolution=8, block_rows=64, progress=False,
                   row_function=lambda scene, rows, resolution, device=None: F[rows])
     path = tmp_path / "path.json"
-    path.write_text(json.dumps({"frames": 3, "size": [24, 16], "fov": 40, "keyframes": [
+    path.write_text(json.dumps({"frames": 3, "width": 24, "height": 16, "fov_y": 40, "keyframes": [
         {"position": [278, 273, -800], "look_at": [278, 273, 0]}, {"position": [200, 273, -100], "look_at": [278, 273, 0]}]}))
     scene_args = ["cornell_box", "--max-edge", "250", "--light", "278,400,280:5e4"]
     images = {}
@@ -223,11 +224,11 @@ def test_commands_read_a_store_like_the_file(tmp_path, capsys, device):
         assert a.max() > 0
         np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-6 * a.max())
     code, stdout, err = run_main(["compare", *scene_args, "--form-factors", str(tmp_path / "ff"), "--local-size", "30",
-                                  "--size", "24x16", "-o", str(tmp_path / "c.png")], capsys)
+                                  "--width", "24", "--height", "16", "-o", str(tmp_path / "c.png")], capsys)
     assert code == 0, err
     assert "relative RMS error" in stdout
     for name, ff in (("file", "f.npz"), ("store", "ff")):
-        code, _, err = run_main(["render", *scene_args, "--form-factors", str(tmp_path / ff), "--size", "24x16",
+        code, _, err = run_main(["render", *scene_args, "--form-factors", str(tmp_path / ff), "--width", "24", "--height", "16",
                                  "-o", str(tmp_path / f"r-{name}.exr")], capsys)
         assert code == 0, err
     np.testing.assert_array_equal(read_image(tmp_path / "r-store.exr"), read_image(tmp_path / "r-file.exr"))
@@ -282,7 +283,7 @@ def test_max_edge_works_on_every_builtin(tmp_path, capsys, name, max_edge, patch
     scene = load_scene(name, max_edge)
     assert len(scene) == patches and _longest_edge(scene) <= max_edge
     assert len(load_scene(name)) < patches or name == "cornell_box"  # cornell_box's default (100 mm) is finer
-    code, out, err = run_main(["render", name, "--max-edge", str(max_edge), "--resolution", "2", "--size", "8x6",
+    code, out, err = run_main(["render", name, "--max-edge", str(max_edge), "--resolution", "2", "--width", "8", "--height", "6",
                                "--quiet", "-o", str(tmp_path / "x.png")], capsys)
     assert code == 0, err
     assert f"form factors: {patches} patches" in out and (tmp_path / "x.png").is_file()
@@ -293,3 +294,34 @@ def test_unknown_builtin_parameters_are_named(capsys):
 
     with pytest.raises(pydynrad.InvalidInputError, match=r"'village' has no parameter 'houses_'.*takes max_edge, seed"):
         scene_by_name("village", houses_=3)
+
+
+def test_deprecated_size_and_fov_still_work_with_one_warning_line(tmp_path, capsys):
+    """--size WxH and --fov (documented in the README) work for one release, warn once each, and
+    give the same image as --width/--height/--fov-y."""
+    from pydynrad import read_image
+
+    common = ["render", "cornell_box", "--max-edge", "250", "--resolution", "4", "--quiet"]
+    code, _, err = run_main([*common, "--size", "20x12", "--fov", "50", "-o", str(tmp_path / "old.exr")], capsys)
+    assert code == 0, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 2 and all(line.startswith("pydynrad: warning: ") for line in lines)
+    assert "--size WxH is deprecated" in lines[0] + lines[1] and "use --fov-y" in lines[0] + lines[1]
+    code, _, err = run_main([*common, "--width", "20", "--height", "12", "--fov-y", "50", "-o", str(tmp_path / "new.exr")],
+                            capsys)
+    assert code == 0 and err == ""
+    np.testing.assert_array_equal(read_image(tmp_path / "old.exr"), read_image(tmp_path / "new.exr"))
+    assert_one_line_error(*run_main([*common, "--size", "20x12", "--width", "20", "-o", "x.png"], capsys)[::2], "not both")
+
+
+def test_deprecated_options_raise_deprecation_warning():
+    import argparse
+    import warnings
+
+    from pydynrad.cli import _fov_y, _image_size
+
+    args = argparse.Namespace(size=(20, 12), width=None, height=None, fov=50.0, fov_y=None)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert _image_size(args) == (20, 12) and _fov_y(args) == 50.0
+    assert [w.category for w in caught] == [DeprecationWarning, DeprecationWarning]

@@ -3,6 +3,7 @@ import json
 import numpy as np
 import pytest
 
+import pydynrad
 from pydynrad import InvalidInputError, Scene, read_image
 from pydynrad.lights import PointLight, light_vector
 from pydynrad.paths import CameraPath, LightTrack, fly_through, load_path, orbit
@@ -30,7 +31,7 @@ def test_keyframes_are_hit_and_interpolation_is_smooth():
 
 def test_orbit_and_fly_through():
     centre = np.array([1.0, 2.0, 3.0])
-    path = orbit(centre, radius=5.0, height=1.5, frames=8, size=(16, 12), fov_y=30)
+    path = orbit(centre, radius=5.0, elevation=1.5, frames=8, width=16, height=12, fov_y=30)
     cams = list(path)
     assert len(cams) == 8 and cams[0].width == 16 and cams[0].fov_y == 30
     pos = np.array([c.position for c in cams])
@@ -38,7 +39,7 @@ def test_orbit_and_fly_through():
     np.testing.assert_allclose(np.linalg.norm((pos - centre)[:, [0, 2]], axis=1), 5.0)
     np.testing.assert_allclose([c.look_at for c in cams], np.repeat(centre[None], 8, 0))
     assert len({tuple(np.round(p, 9)) for p in pos}) == 8  # a full turn without repeating the start
-    fly = fly_through([[0, 0, 0], [0, 0, -4], [0, 0, -8]], frames=5, size=(8, 8))
+    fly = fly_through([[0, 0, 0], [0, 0, -4], [0, 0, -8]], frames=5, width=8, height=8)
     for cam in fly:
         np.testing.assert_allclose(cam.basis()[2], [0, 0, -1], atol=1e-9)  # looks along the path
 
@@ -59,7 +60,7 @@ def write_json(tmp_path, doc, name="path.json"):
 
 
 def test_load_path_file(tmp_path):
-    doc = {"frames": 5, "fov": 50, "size": [40, 30], "interpolation": "linear",
+    doc = {"frames": 5, "fov_y": 50, "width": 40, "height": 30, "interpolation": "linear",
            "keyframes": [{"position": [0, 0, 5], "look_at": [0, 0, 0]}, {"position": [2, 0, 5], "look_at": [0, 0, 0]}],
            "lights": [{"type": "point", "intensity": [1, 2, 3], "keyframes": [[0, 1, 0], [0, 3, 0]]},
                       {"type": "point", "intensity": 4, "keyframes": [[1, 1, 1]]},
@@ -69,7 +70,7 @@ def test_load_path_file(tmp_path):
     np.testing.assert_allclose(path.camera(2).position, [1, 0, 5])
     assert isinstance(lights[0], LightTrack) and lights[0].at(4, 5).position == (0.0, 3.0, 0.0)
     assert lights[1].position == (1.0, 1.0, 1.0)
-    orbit_doc = {"frames": 4, "orbit": {"center": [0, 0, 0], "radius": 2, "height": 1}}
+    orbit_doc = {"frames": 4, "orbit": {"center": [0, 0, 0], "radius": 2, "elevation": 1}}
     path, lights = load_path(write_json(tmp_path, orbit_doc, "o.json"))
     assert len(path) == 4 and lights == []
 
@@ -84,8 +85,22 @@ def test_load_path_file(tmp_path):
         ({"frames": 2, "keyframes": [{"position": [0, 0, 1]}]}, "keyframe 0: missing field 'look_at'"),
         ({"frames": 2, "keyframes": []}, "keyframes"),
         ({"frames": 2, "keyframes": [{"position": [0, 0], "look_at": [0, 0, 0]}]}, "x, y, z"),
-        ({"frames": 2, "size": [10], "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "size"),
-        ({"frames": 2, "fov": 200, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "fov_y"),
+        ({"frames": 2, "width": 0, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "image width"),
+        ({"frames": 2, "fov_y": 200, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "fov_y"),
+        # Renamed fields are named with their new names, never silently ignored.
+        ({"frames": 2, "size": [10, 10], "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]},
+         "unknown field 'size'.*'size' is now 'width' and 'height'"),
+        ({"frames": 2, "fov": 50, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]},
+         "unknown field 'fov'.*'fov' is now 'fov_y'"),
+        ({"frames": 2, "orbit": {"center": [0, 0, 0], "radius": 1, "height": 2}}, "orbit: unknown field 'height'"),
+        ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0], "fov_y": 3}]},
+         "keyframe 0: unknown field 'fov_y'"),
+        ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
+          "lights": [{"type": "spot", "intensity": 1, "direction": [0, -1, 0], "inner_angle": 0.1,
+                      "outer_angle": 0.2, "keyframes": [[0, 1, 0]], "cone": 3}]}, "light 0: unknown field 'cone'"),
+        ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
+          "lights": [{"type": "spot", "intensity": 1, "direction": [0, -1, 0], "keyframes": [[0, 1, 0]]}]},
+         "light 0: missing field 'inner_angle'"),
         ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}], "lights": [{"type": "area"}]},
          "unknown light type"),
         ({"frames": 2, "orbit": {"radius": 1}}, "missing field 'center'"),
@@ -144,7 +159,7 @@ def test_walk_drives_solver_moves_lights_and_writes_frames(device, tmp_path):
 def test_walk_rejects_bad_requests(device):
     pts, tris = grid_box(n=1)
     scene = Scene(pts, tris)
-    path = orbit((0.5, 0.5, 0.5), 0.2, 0.0, frames=2, size=(8, 8), fov_y=60)
+    path = orbit((0.5, 0.5, 0.5), 0.2, 0.0, frames=2, width=8, height=8, fov_y=60)
     with pytest.raises(InvalidInputError, match="form factors"):
         walk(scene, path, progress=False, device=device)
     with pytest.raises(InvalidInputError, match="reference frame"):
@@ -160,7 +175,7 @@ def test_walk_with_dynamic_radiosity_matches_full_solve_when_local_set_is_everyt
     scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))
     scene = scene.with_materials(emission=np.where(scene.centers[:, 1] > 0.99, 1.0, 0.0))  # a glowing ceiling
     F = form_factors(scene, resolution=16, device=device, progress=False)
-    path = orbit((0.5, 0.5, 0.5), 0.3, 0.0, frames=3, size=(20, 16), fov_y=90)
+    path = orbit((0.5, 0.5, 0.5), 0.3, 0.0, frames=3, width=20, height=16, fov_y=90)
     lights = [LightTrack(PointLight((0.3, 0.5, 0.5), 0.2), [[0.3, 0.5, 0.5], [0.7, 0.5, 0.5]])]
     everything = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene), reference_frames=[0, -1],
                       output=tmp_path, progress=False, device=device)
@@ -187,7 +202,7 @@ def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     save_form_factors(tmp_path / "f.npz", F, scene, resolution=16)
     compute_store(scene, tmp_path / "ff", resolution=16, block_rows=32, progress=False,
                   row_function=lambda scene, rows, resolution, device=None: F[rows])
-    path = fly_through([[0.1, 0.5, 0.1], [0.5, 0.5, 0.5], [0.9, 0.5, 0.9]], frames=10, size=(20, 16), fov_y=90)
+    path = fly_through([[0.1, 0.5, 0.1], [0.5, 0.5, 0.5], [0.9, 0.5, 0.9]], frames=10, width=20, height=16, fov_y=90)
     lights = [LightTrack(PointLight((0.3, 0.5, 0.5), 0.2), [[0.3, 0.5, 0.5], [0.7, 0.5, 0.5]])]
     options = {"storage": "fp64", "max_swaps_per_frame": 4}
     cache = open_form_factors(tmp_path / "ff", scene, cache_bytes=CSRRows(F).nbytes // 3)
@@ -206,3 +221,33 @@ def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     # Foreground reads: the first frame's M rows; the entering rows were nearly all prefetched.
     assert cache.stats["prefetch_hits"] >= 0.75 * entering and cache.stats["misses"] <= 48 + entering // 4
     assert cache.peak_nbytes <= cache.max_bytes
+
+
+def test_path_files_track_spot_lights(tmp_path, device):
+    """A spot light in a path file moves through its keyframes like a point light (its docstring
+    promised it; the parser knew only point and directional) and keeps its cone: a walk with
+    the local set holding every patch gives the full solution for the spot at each frame."""
+    from pydynrad.formfactors import form_factors
+    from pydynrad.lights import SpotLight
+    from pydynrad.paths import lights_at
+
+    doc = {"frames": 3, "width": 12, "height": 10, "fov_y": 80,
+           "keyframes": [{"position": [0.5, 0.5, 0.1], "look_at": [0.5, 0.5, 0.9]}],
+           "lights": [{"type": "spot", "direction": [0, -1, 0], "intensity": [0.3, 0.2, 0.1], "inner_angle": 0.2,
+                       "outer_angle": 0.6, "interpolation": "linear", "keyframes": [[0.2, 0.8, 0.5], [0.8, 0.8, 0.5]]}]}
+    path, lights = load_path(write_json(tmp_path, doc))
+    (track,) = lights
+    assert isinstance(track, LightTrack) and isinstance(track.light, SpotLight)
+    expect = [SpotLight((x, 0.8, 0.5), (0, -1, 0), (0.3, 0.2, 0.1), 0.2, 0.6) for x in (0.2, 0.5, 0.8)]
+    for k in range(3):
+        (spot,) = lights_at(lights, k, 3)
+        assert spot == expect[k]
+    pts, tris = grid_box(n=2, inward=True)
+    scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))
+    F = form_factors(scene, resolution=16, device=device, progress=False)
+    result = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene), keep_images=True,
+                  progress=False, device=device)
+    full = pydynrad.solve(scene, F, lights=[expect[-1]], device=device).radiosity
+    assert full.max() > 0 and np.abs(result.radiosity - full).max() < 1e-5 * full.max()
+    first = pydynrad.solve(scene, F, lights=[expect[0]], device=device).radiosity
+    assert np.abs(first - full).max() > 0.1 * full.max()  # the spot did move
