@@ -75,7 +75,7 @@ def run_walk(args) -> dict:
 
     spec = village_spec(args.detail)
     scene = spec.build()
-    store = FormFactorStore.open(args.store, scene, resolution=args.resolution, patching=spec.recipe())
+    store = FormFactorStore.open(scene, args.store, resolution=args.resolution, patching=spec.recipe())
     base = rss_mib()
     cache = None
     if args.source == "memory":
@@ -193,14 +193,14 @@ def main(argv=None) -> int:
         print(f"throughput, {w} worker(s): {rows / secs:.1f} rows/s", flush=True)
     report["throughput"] = list(tp.values())
 
-    todo = FormFactorStore.open(args.store, scene, resolution=args.resolution,
+    todo = FormFactorStore.open(scene, args.store, resolution=args.resolution,
                                 patching=village_spec(args.detail).recipe()).missing_blocks()
     if args.max_minutes is not None:
         per_block = tp[2]["seconds"] / len(sample)
         todo = todo[: max(0, int(args.max_minutes * 60 / per_block))]
     rows_todo = sum(len(range(k * args.block_rows, min(len(scene), (k + 1) * args.block_rows))) for k in todo)
     secs = precompute(args, scene, args.store, args.workers, blocks=todo) if todo else 0.0
-    store = FormFactorStore.open(args.store, scene, resolution=args.resolution, patching=village_spec(args.detail).recipe())
+    store = FormFactorStore.open(scene, args.store, resolution=args.resolution, patching=village_spec(args.detail).recipe())
     report["store"] = {"path": str(args.store), "workers": args.workers, "rows_this_run": rows_todo,
                        "seconds_this_run": secs, "rows_per_s_this_run": rows_todo / secs if secs else None,
                        "complete": store.complete, **store_numbers(store)}

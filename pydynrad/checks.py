@@ -7,6 +7,8 @@ solution."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -73,7 +75,9 @@ def scene(value, what: str = "scene"):
     from .scene import Scene
 
     if not isinstance(value, Scene):
-        raise InvalidInputError(f"{what} must be a pydynrad.Scene; got {type(value).__name__}")
+        # Functions that take a scene and a file take them in that order: f(scene, path, ...).
+        hint = " (the scene comes first, then the path)" if isinstance(value, (str, os.PathLike)) else ""
+        raise InvalidInputError(f"{what} must be a pydynrad.Scene; got {type(value).__name__}{hint}")
     return value
 
 

@@ -133,7 +133,7 @@ def _form_factors(args, scene):
     if getattr(args, "form_factors", None):
         from .rows.files import open_form_factors
 
-        F = open_form_factors(args.form_factors, scene, cache_bytes=int(args.cache_mb * 2**20))
+        F = open_form_factors(scene, args.form_factors, cache_bytes=int(args.cache_mb * 2**20))
         if hasattr(F, "close"):
             args.cleanup.callback(F.close)
             print(f"form factors: {F.source!r} through a {args.cache_mb:g} MiB row cache")
@@ -217,7 +217,7 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
     scene = load_scene(args.scene, args.max_edge)
     print(f"scene: {scene!r}")
     F = _form_factors(args, scene)
-    save_form_factors(out, F, scene, args.resolution)
+    save_form_factors(scene, out, F, args.resolution)
     print(f"wrote {out} ({out.stat().st_size / 2**20:.1f} MiB)")
     return 0
 
@@ -236,7 +236,7 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     spec = SceneSpec(args.scene, _patching(args.max_edge)).resolved()
     block_rows = args.block_rows
     if (out / HEADER).exists():
-        store = FormFactorStore.open(out, scene, resolution=args.resolution, patching=spec.recipe())
+        store = FormFactorStore.open(scene, out, resolution=args.resolution, patching=spec.recipe())
         block_rows = block_rows or store.block_rows
         done = store.n_blocks - len(store.missing_blocks())
         print(f"resuming {out}: {done} of {store.n_blocks} blocks already done")

@@ -135,9 +135,9 @@ def test_one_resolution_rule_everywhere(device, tmp_path, bad, message):
     F = sp.csr_matrix((len(s), len(s)), dtype=np.float32)
     takers = [
         lambda R: pydynrad.form_factors(s, resolution=R, device=device),
-        lambda R: pydynrad.FormFactorStore.create(tmp_path / "st", s, resolution=R),
+        lambda R: pydynrad.FormFactorStore.create(s, tmp_path / "st", resolution=R),
         lambda R: pydynrad.compute_store(s, tmp_path / "st", resolution=R, progress=False, device=device),
-        lambda R: pydynrad.save_form_factors(tmp_path / "f.npz", F, s, R),
+        lambda R: pydynrad.save_form_factors(s, tmp_path / "f.npz", F, R),
         lambda R: pydynrad.HemicubeRows(s, R, device),
         lambda R: pydynrad.DynamicRadiosity(s, None, local_size=1, resolution=R, device=device),
     ]

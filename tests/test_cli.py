@@ -159,7 +159,7 @@ def make_file_and_store(tmp_path, capsys, *store_options):
     assert code == 0, err
     assert "226 patches in 4 blocks of 64 rows" in out
     scene = cornell_box(max_edge=250)
-    return scene, load_form_factors(tmp_path / "f.npz", scene)[0], open_form_factors(tmp_path / "ff", scene)
+    return scene, load_form_factors(scene, tmp_path / "f.npz")[0], open_form_factors(scene, tmp_path / "ff")
 
 
 def test_formfactors_store_equals_file_and_resumes(tmp_path, capsys):
@@ -174,7 +174,7 @@ def test_formfactors_store_equals_file_and_resumes(tmp_path, capsys):
     assert code == 0, err
     assert "resuming" in out and "2 of 4 blocks already done" in out
     assert {k: store.block_path(k).stat().st_mtime_ns for k in (0, 2)} == kept  # not recomputed
-    assert same_csr(open_form_factors(tmp_path / "ff", scene).to_csr(), F)
+    assert same_csr(open_form_factors(scene, tmp_path / "ff").to_csr(), F)
     assert not list(store.block_path(0).parent.glob("*.tmp-*"))
 
 
@@ -203,7 +203,7 @@ def test_commands_read_a_store_like_the_file(tmp_path, capsys, device):
 
     scene = cornell_box(max_edge=250)
     F = form_factors(scene, resolution=8, device=device, progress=False)
-    save_form_factors(tmp_path / "f.npz", F, scene, resolution=8)
+    save_form_factors(scene, tmp_path / "f.npz", F, resolution=8)
     compute_store(scene, tmp_path / "ff", resolution=8, block_rows=64, progress=False,
                   row_function=lambda scene, rows, resolution, device=None: F[rows])
     path = tmp_path / "path.json"

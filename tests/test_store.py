@@ -63,7 +63,7 @@ def test_round_trip(tmp_path):
     assert same_csr(got, ref[idx])
     assert store.rows([]).shape == (0, 72)
     assert store.nbytes_on_disk > 0
-    reopened = FormFactorStore.open(tmp_path / "ff", scene, resolution=8)
+    reopened = FormFactorStore.open(scene, tmp_path / "ff", resolution=8)
     assert same_csr(reopened.rows(np.arange(72)), ref)
     header = json.loads((tmp_path / "ff" / "header.json").read_text())
     assert header["geometry_hash"] == scene.geometry_hash() and header["n_patches"] == 72
@@ -80,24 +80,24 @@ def test_header_mismatch_refused(tmp_path):
                   progress=False, row_function=synthetic_rows)
     moved = grid_scene(z=1.0)  # same N and topology, other geometry
     with pytest.raises(StoreMismatchError, match="geometry_hash"):
-        FormFactorStore.open(tmp_path / "ff", moved, resolution=8, patching={"max_area": 0.5})
+        FormFactorStore.open(moved, tmp_path / "ff", resolution=8, patching={"max_area": 0.5})
     with pytest.raises(StoreMismatchError, match="n_patches"):
-        FormFactorStore.open(tmp_path / "ff", grid_scene(5), resolution=8, patching={"max_area": 0.5})
+        FormFactorStore.open(grid_scene(5), tmp_path / "ff", resolution=8, patching={"max_area": 0.5})
     with pytest.raises(StoreMismatchError, match="resolution: store has 8, requested 16"):
-        FormFactorStore.open(tmp_path / "ff", scene, resolution=16, patching={"max_area": 0.5})
+        FormFactorStore.open(scene, tmp_path / "ff", resolution=16, patching={"max_area": 0.5})
     with pytest.raises(StoreMismatchError, match="patching"):
-        FormFactorStore.open(tmp_path / "ff", scene, resolution=8, patching={"max_area": 0.25})
+        FormFactorStore.open(scene, tmp_path / "ff", resolution=8, patching={"max_area": 0.25})
     with pytest.raises(StoreMismatchError):  # resuming must not silently mix parameters either
         compute_store(scene, tmp_path / "ff", resolution=4, block_rows=16, patching={"max_area": 0.5},
                       progress=False, row_function=synthetic_rows)
     with pytest.raises(StoreMismatchError, match="block_rows"):
-        FormFactorStore.create(tmp_path / "ff", scene, resolution=8, block_rows=8, patching={"max_area": 0.5}, exist_ok=True)
+        FormFactorStore.create(scene, tmp_path / "ff", resolution=8, block_rows=8, patching={"max_area": 0.5}, exist_ok=True)
     with pytest.raises(InvalidInputError, match="already exists"):
-        FormFactorStore.create(tmp_path / "ff", scene, resolution=8, block_rows=16, patching={"max_area": 0.5})
+        FormFactorStore.create(scene, tmp_path / "ff", resolution=8, block_rows=16, patching={"max_area": 0.5})
     assert issubclass(StoreMismatchError, InvalidInputError)
-    FormFactorStore.open(tmp_path / "ff", scene, resolution=8, patching={"max_area": 0.5})  # the matching request opens
+    FormFactorStore.open(scene, tmp_path / "ff", resolution=8, patching={"max_area": 0.5})  # the matching request opens
     with pytest.raises(InvalidInputError, match="no form-factor store"):
-        FormFactorStore.open(tmp_path / "elsewhere", scene, resolution=8)
+        FormFactorStore.open(scene, tmp_path / "elsewhere", resolution=8)
 
 
 class Crash(RuntimeError):
@@ -120,7 +120,7 @@ def test_killed_writer_resumes(tmp_path):
                       row_function=dies_after_three)
     # A writer killed mid-write leaves a temporary file; it must never count as a block.
     (path / "blocks" / "b000003.npz.tmp-999-deadbeef").write_bytes(b"PK\x03\x04 half a zip")
-    store = FormFactorStore.open(path, scene, resolution=8)
+    store = FormFactorStore.open(scene, path, resolution=8)
     assert store.missing_blocks() == [3, 4, 5, 6, 7] and not store.complete
     ref = reference(scene)
     assert same_csr(store.rows([5, 29]), ref[[5, 29]])
@@ -178,7 +178,7 @@ def test_corrupt_block_detected_and_repaired(tmp_path):
 
 def test_bad_input(tmp_path):
     scene = grid_scene(3)  # 18 patches
-    store = FormFactorStore.create(tmp_path / "ff", scene, resolution=8, block_rows=8)
+    store = FormFactorStore.create(scene, tmp_path / "ff", resolution=8, block_rows=8)
     with pytest.raises(InvalidInputError, match="shape"):
         store.write_block(0, sp.csr_matrix((7, 18), dtype=np.float32))
     with pytest.raises(InvalidInputError, match="shape"):
@@ -194,18 +194,18 @@ def test_bad_input(tmp_path):
     with pytest.raises(InvalidInputError, match="integer"):
         store.rows([0.5])
     with pytest.raises(InvalidInputError, match="resolution"):
-        FormFactorStore.create(tmp_path / "g", scene, resolution=0)
+        FormFactorStore.create(scene, tmp_path / "g", resolution=0)
     with pytest.raises(InvalidInputError, match="block_rows"):
-        FormFactorStore.create(tmp_path / "g", scene, resolution=8, block_rows=0)
+        FormFactorStore.create(scene, tmp_path / "g", resolution=8, block_rows=0)
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "x.txt").write_text("x")
     with pytest.raises(InvalidInputError, match="empty folder"):
-        FormFactorStore.create(tmp_path / "full", scene, resolution=8)
+        FormFactorStore.create(scene, tmp_path / "full", resolution=8)
 
 
 def test_write_block_canonicalises_a_copy(tmp_path):
     scene = grid_scene(2)  # 8 patches, one block
-    store = FormFactorStore.create(tmp_path / "ff", scene, resolution=8, block_rows=8)
+    store = FormFactorStore.create(scene, tmp_path / "ff", resolution=8, block_rows=8)
     # Unsorted columns and a duplicate entry (1, 5) twice: stored summed and sorted.
     m = sp.csr_matrix((np.array([0.3, 0.1, 0.2, 0.05], np.float32), np.array([5, 2, 5, 1]), [0, 0, 4, 4, 4, 4, 4, 4, 4]),
                       shape=(8, 8))

@@ -199,16 +199,16 @@ def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))
     scene = scene.with_materials(emission=np.where(scene.centers[:, 1] > 0.99, 1.0, 0.0))
     F = form_factors(scene, resolution=16, device=device, progress=False)  # hemicube F: not reciprocal
-    save_form_factors(tmp_path / "f.npz", F, scene, resolution=16)
+    save_form_factors(scene, tmp_path / "f.npz", F, resolution=16)
     compute_store(scene, tmp_path / "ff", resolution=16, block_rows=32, progress=False,
                   row_function=lambda scene, rows, resolution, device=None: F[rows])
     path = fly_through([[0.1, 0.5, 0.1], [0.5, 0.5, 0.5], [0.9, 0.5, 0.9]], frames=10, width=20, height=16, fov_y=90)
     lights = [LightTrack(PointLight((0.3, 0.5, 0.5), 0.2), [[0.3, 0.5, 0.5], [0.7, 0.5, 0.5]])]
     options = {"storage": "fp64", "max_swaps_per_frame": 4}
-    cache = open_form_factors(tmp_path / "ff", scene, cache_bytes=CSRRows(F).nbytes // 3)
+    cache = open_form_factors(scene, tmp_path / "ff", cache_bytes=CSRRows(F).nbytes // 3)
     walks = {name: walk(scene, path, lights=lights, form_factors=src, local_size=48, solver_options=options,
                         reference_frames=[-1], keep_images=True, progress=False, device=device)
-             for name, src in (("file", open_form_factors(tmp_path / "f.npz", scene)), ("store", cache))}
+             for name, src in (("file", open_form_factors(scene, tmp_path / "f.npz")), ("store", cache))}
     cache.close()
     entering = sum(len(f.stats.added) for f in walks["store"].frames)
     assert entering >= 10  # the local set did move

@@ -144,7 +144,7 @@ def _blocks_task(path: str, group: list[int], payload, geometry_hash: str, resol
 
     t0 = time.perf_counter()
     scene = _worker_scene(payload, geometry_hash)
-    store = FormFactorStore.open(path, scene, resolution=resolution, patching=patching)
+    store = FormFactorStore.open(scene, path, resolution=resolution, patching=patching)
     rows = compute_blocks(store, scene, group, row_function, default_device())
     return group, rows, time.perf_counter() - t0
 

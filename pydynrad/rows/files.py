@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..atomic import check_parent_folder, write_atomic
-from ..checks import resolution as checked_resolution
+from ..checks import resolution as checked_resolution, scene as checked_scene
 from ..errors import InvalidInputError
 
 __all__ = ["FF_FORMAT", "load_form_factors", "open_form_factors", "save_form_factors",
@@ -32,12 +32,13 @@ FF_FORMAT = "pydynrad-form-factors"
 FF_VERSION = 1
 
 
-def save_form_factors(path, F, scene, resolution: int) -> Path:
-    """Save sparse F (N, N) for ``scene`` as ``.npz`` with a JSON header; returns the path.
+def save_form_factors(scene, path, F, resolution: int) -> Path:
+    """Save sparse F (N, N) of ``scene`` at ``path`` as ``.npz`` with a JSON header; returns the path.
 
     The header records the format, the scene's name and geometry hash, N, the hemicube
     ``resolution`` and nnz. Written whole (temporary file in the same folder, then rename).
     """
+    checked_scene(scene)
     path = check_parent_folder(path)
     if path.suffix.lower() != ".npz":
         raise InvalidInputError(f"form-factor file {str(path)!r} must end in .npz")
@@ -54,12 +55,13 @@ def save_form_factors(path, F, scene, resolution: int) -> Path:
     return path
 
 
-def load_form_factors(path, scene) -> tuple[sp.csr_matrix, dict]:
+def load_form_factors(scene, path) -> tuple[sp.csr_matrix, dict]:
     """Read a file written by :func:`save_form_factors` for ``scene``; returns (F (N, N) float32 CSR, header).
 
     Raises :class:`InvalidInputError` when the file is missing, malformed or made for another
     scene geometry.
     """
+    checked_scene(scene)
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"form-factor file {str(path)!r}: no such file")
@@ -79,12 +81,12 @@ def load_form_factors(path, scene) -> tuple[sp.csr_matrix, dict]:
     return F, header
 
 
-def _open_store(path: Path, scene):
+def _open_store(scene, path: Path):
     """The complete store at ``path``, checked against ``scene`` with the parameters it records."""
     from .store import FormFactorStore, StoreIncompleteError
 
     params = FormFactorStore.read_header(path)["params"]
-    store = FormFactorStore.open(path, scene, resolution=params["resolution"], patching=params["patching"])
+    store = FormFactorStore.open(scene, path, resolution=params["resolution"], patching=params["patching"])
     missing = store.missing_blocks()
     if missing:
         raise StoreIncompleteError(f"form-factor store {str(path)!r} is unfinished ({len(missing)} of {store.n_blocks} "
@@ -92,7 +94,7 @@ def _open_store(path: Path, scene):
     return store
 
 
-def open_form_factors(path, scene, cache_bytes: int | None = None):
+def open_form_factors(scene, path, cache_bytes: int | None = None):
     """F of ``scene`` from a ``.npz`` file or a form-factor store folder.
 
     Returns a float32 CSR matrix (N, N) for a file. For a store, the
@@ -108,13 +110,14 @@ def open_form_factors(path, scene, cache_bytes: int | None = None):
     """
     from .cache import RowCache
 
+    checked_scene(scene)
     path = Path(path)
     if path.is_dir():
-        store = _open_store(path, scene)
+        store = _open_store(scene, path)
         return store if cache_bytes is None else RowCache(store, cache_bytes)
     if not path.exists():
         raise InvalidInputError(f"form factors {str(path)!r}: no such file or store folder")
-    return load_form_factors(path, scene)[0]
+    return load_form_factors(scene, path)[0]
 
 
 def whole_matrix(form_factors) -> sp.csr_matrix:

@@ -48,7 +48,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..atomic import TMP_MARK, write_atomic
-from ..checks import integer, patch_indices, resolution as checked_resolution
+from ..checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
 
 __all__ = [
@@ -127,7 +127,7 @@ class FormFactorStore:
 
     # -- creation and opening --------------------------------------------------------------
     @classmethod
-    def create(cls, path, scene, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
+    def create(cls, scene, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
                patching: dict | None = None, exist_ok: bool = False) -> "FormFactorStore":
         """Make a new, empty store for ``scene`` at ``path`` (a folder).
 
@@ -137,13 +137,14 @@ class FormFactorStore:
         existing store with a matching header is opened (to resume it); a mismatching one
         always raises :class:`StoreMismatchError`.
         """
+        checked_scene(scene)
         path = Path(path)
         integer(block_rows, "block_rows")
         params = _canonical_params(resolution, patching)
         if (path / HEADER).exists():
             if not exist_ok:
                 raise InvalidInputError(f"a form-factor store already exists at {path}; open it, or pass exist_ok=True to resume it")
-            store = cls.open(path, scene, resolution=resolution, patching=patching)
+            store = cls.open(scene, path, resolution=resolution, patching=patching)
             if store.block_rows != block_rows:
                 raise StoreMismatchError(f"store {path} has block_rows={store.block_rows}, not {block_rows}")
             return store
@@ -179,8 +180,9 @@ class FormFactorStore:
         return header
 
     @classmethod
-    def open(cls, path, scene, *, resolution: int, patching: dict | None = None) -> "FormFactorStore":
-        """Open the store at ``path``, refusing it unless it was made for this scene and parameters."""
+    def open(cls, scene, path, *, resolution: int, patching: dict | None = None) -> "FormFactorStore":
+        """Open the store of ``scene`` at ``path``, refusing it unless it was made for this scene and parameters."""
+        checked_scene(scene)
         path = Path(path)
         header = cls.read_header(path)
         want = {"geometry_hash": scene.geometry_hash(), "n_patches": int(len(scene)),
@@ -323,7 +325,7 @@ def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None) -> s
 def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: dict | None, verify: bool,
                   blocks: Iterable[int] | None) -> tuple[FormFactorStore, list[int]]:
     """Create or reopen a store for writing: stale temporaries removed; returns it and the blocks to compute."""
-    store = FormFactorStore.create(path, scene, resolution=resolution, block_rows=block_rows,
+    store = FormFactorStore.create(scene, path, resolution=resolution, block_rows=block_rows,
                                    patching=patching, exist_ok=True)
     store.remove_stale_temporaries()
     todo = store.missing_blocks(verify=verify)
