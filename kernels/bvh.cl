@@ -162,9 +162,9 @@ inline bool bvh_occluded(__global const float4 *nodes, __global const float4 *tr
 // one walk tests a box or triangle against all lanes in a few vector instructions. Lanes need
 // no activity mask: a ray that misses a box cannot hit the triangles inside it, so testing it
 // anyway changes nothing; the lanes' entry distances only steer which subtrees the packet enters.
-#ifndef BVH_PACKET
-#define BVH_PACKET 16
-#endif
+// BVH_PACKET (the host's pydynrad.launch.BVH_PACKET) selects this part: programs that trace
+// one ray per work-item leave it undefined.
+#ifdef BVH_PACKET
 #define BVH_CAT_(a, b) a##b
 #define BVH_CAT(a, b) BVH_CAT_(a, b)
 #define bvh_floatP BVH_CAT(float, BVH_PACKET)
@@ -281,5 +281,7 @@ inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const
     h.patch = bvh_vloadP(0, ids);
     return h;
 }
+
+#endif  // BVH_PACKET
 
 #endif

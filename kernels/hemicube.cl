@@ -17,6 +17,10 @@
 #ifndef HC_RES
 #error "HC_RES (the hemicube resolution) must be defined"
 #endif
+// The lane offsets of a scanline's packet below are written out for 16 lanes.
+#if BVH_PACKET != 16
+#error "hemicube.cl needs BVH_PACKET == 16 from the host (pydynrad/launch.py)"
+#endif
 
 // A 32-bit integer hash (lowbias32): the rotation angle of patch i, fixed for all runs.
 inline uint hc_hash(uint x)

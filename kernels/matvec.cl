@@ -8,18 +8,14 @@
 //       items read adjacent vectors (coalesced on a GPU) and reduce in local memory.
 //   NRHS: right-hand sides of `matvec` per pass over K (1 to 4: the colour channels of a
 //       light vector sharing one grey K).
+// All three are required; pydynrad/launch.py (MatvecLayout.defines) picks them per device.
 // Requirements (the host guarantees them): ld % VW == 0, K's padding columns M..ld hold 0,
-// x holds ld entries (zeros past M).
+// x holds ld entries (zeros past M); with LX == 1 the global size is rounded up past M (items
+// i >= M return), with LX > 1 it is exactly M work-groups.
 #include "storage.h"
 
-#ifndef VW
-#define VW 16
-#endif
-#ifndef LX
-#define LX 1
-#endif
-#ifndef NRHS
-#define NRHS 1
+#if !defined(VW) || !defined(LX) || !defined(NRHS)
+#error "matvec.cl needs VW, LX and NRHS from the host (pydynrad/launch.py)"
 #endif
 
 // 16-wide rows use storage.h's aligned access (rows start on multiples of ld elements,

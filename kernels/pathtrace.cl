@@ -20,7 +20,7 @@
 #include "rng.cl"
 
 #ifndef MAX_DEPTH
-#define MAX_DEPTH 256
+#error "MAX_DEPTH (the bounce limit) must come from the host (pydynrad/pathtrace.py)"
 #endif
 #ifndef RR_DEPTH
 #define RR_DEPTH 3

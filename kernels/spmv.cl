@@ -17,13 +17,11 @@
 //           indices per vector load, gathering x from cache. A tight loop of one thread.
 //   LX > 1  (GPUs, CSR-vector): the group's LX items share each row, reading adjacent
 //           entries (coalesced), and reduce in local memory.
+// NCH and LX are required: pydynrad/solve.py picks NCH, pydynrad/launch.py (SpmvLayout) LX.
 #include "storage.h"
 
-#ifndef NCH
-#define NCH 4
-#endif
-#ifndef LX
-#define LX 1
+#if !defined(NCH) || !defined(LX)
+#error "spmv.cl needs NCH and LX from the host (pydynrad/solve.py, pydynrad/launch.py)"
 #endif
 
 #if NCH == 1

@@ -13,33 +13,20 @@
 // vector of B or X read from cache serves RR rows of K, which is what makes a rank-2k pass
 // stream K instead of re-reading the small factors for every row.
 //
-// Layout defines (the host picks them per device):
-//   VW   vector width of K loads in the GPU kernels (4)
-//   WG   work-items per row block in gather_partial (64 on a GPU: coalesced)
+// Layout defines, all required (pydynrad/launch.py, UpdateLayout.defines, picks them per device):
+//   VW   vector width of K loads in the GPU kernels
+//   WG   work-items per row block in gather_partial (a GPU's coalesced group)
 //   RR   rows per step of the CPU kernels; CWMAX the widest column strip of gather_rows
 //   NVMAX, NAMAX  the most vectors per gather / terms per rank update (private array sizes)
+//   RED_WG  items of double_reflection's one work-group (a power of two)
 //   PDR_CLANG_VECTORS  aligned 16-wide access instead of vload/vstore (see storage.h).
 // Host guarantees: ld % 64 == 0, K's padding columns M..ld are zero, X and B hold ld entries
-// per vector with zeros past M (so padding stays zero after a rank update).
+// per vector with zeros past M (so padding stays zero after a rank update); the per-(i, m)
+// kernels run on a global size rounded up past M and return for i >= M.
 #include "storage.h"
 
-#ifndef VW
-#define VW 4
-#endif
-#ifndef WG
-#define WG 64
-#endif
-#ifndef RR
-#define RR 8
-#endif
-#ifndef CWMAX
-#define CWMAX 512
-#endif
-#ifndef NVMAX
-#define NVMAX 1
-#endif
-#ifndef NAMAX
-#define NAMAX 2
+#if !defined(VW) || !defined(WG) || !defined(RR) || !defined(CWMAX) || !defined(NVMAX) || !defined(NAMAX) || !defined(RED_WG)
+#error "update.cl needs VW, WG, RR, CWMAX, NVMAX, NAMAX and RED_WG from the host (pydynrad/launch.py)"
 #endif
 
 #define IMIN(a, b) ((a) < (b) ? (a) : (b))
@@ -228,9 +215,6 @@ __kernel void write_slots(__global STORE_T *K, const int M, const int ld, __glob
 // Eq. 1: out[0] = sum_a f_c[a] f_r[a] rho[a]: light leaving the new patch, reflected once by
 // the local set and returning to it. v holds f_c, f_r, rho back to back (3 M REALs).
 // One work-group of RED_WG items, tree reduction.
-#ifndef RED_WG
-#define RED_WG 64
-#endif
 __kernel void double_reflection(__global const REAL *v, const int M, __global REAL *out)
 {
     __global const REAL *f_c = v, *f_r = v + M, *rho = v + 2 * M;

@@ -2,7 +2,8 @@
 
 The builder is ``csrc/bvh.c`` (binned SAH, leaves of at most 4 triangles, the binary tree
 collapsed to 4-wide nodes). This module keeps
-its flattened arrays and uploads them once per OpenCL device; kernels include
+its flattened arrays and uploads them once per OpenCL device (with the patch arrays of the same
+geometry that kernels read beside them); kernels include
 ``kernels/bvh.cl`` and take the three buffers of :meth:`BVH.buffers` as arguments.
 
 See docs/design.md, 'BVH'.
@@ -17,6 +18,7 @@ import numpy as np
 from . import _bvh
 from .checks import finite
 from .errors import InvalidInputError
+from .launch import BVH_PACKET, global_size
 
 __all__ = ["BVH", "cast_rays", "occluded"]
 
@@ -26,10 +28,6 @@ MAX_DEPTH = 31
 
 #: Lanes of a wide node (csrc/bvh.c WIDTH) and float32 values per node.
 WIDTH, NODE_FLOATS = 4, 32
-
-#: Rays per work-item in :func:`cast_rays` (BVH_PACKET in kernels/bvh.cl): one per vector lane.
-PACKET = 16
-
 
 def _children(nodes: np.ndarray) -> np.ndarray:
     """(n_nodes, 4) int32 child references of wide nodes (see :class:`BVH`)."""
@@ -123,12 +121,21 @@ class BVH:
 
     def buffers(self, device) -> tuple:
         """``(nodes, tris, order)`` device buffers, uploaded once per device."""
+        return self.upload_once(device, "bvh", lambda: tuple(device.to_device(a) for a in (self.nodes, self.tris,
+                                                                                            self.order)))
+
+    def upload_once(self, device, name: str, upload):
+        """``upload()``'s result (device buffers) under ``name``, made once per device and kept
+        with the BVH's own buffers: for arrays of the geometry the BVH was built from (patch
+        centres and normals, see :meth:`pydynrad.Scene.patch_buffers`), which never change."""
         # Keyed by id(); the entry keeps the device alive so the id cannot be reused.
         entry = self._device_buffers.get(id(device))
         if entry is None:
-            bufs = (device.to_device(self.nodes), device.to_device(self.tris), device.to_device(self.order))
-            entry = self._device_buffers[id(device)] = (device, bufs)
-        return entry[1]
+            entry = self._device_buffers[id(device)] = (device, {})
+        uploads = entry[1]
+        if name not in uploads:
+            uploads[name] = upload()
+        return uploads[name]
 
 
 def _rays(origins, directions, tmax) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -184,8 +191,9 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
         return patch, t, front.astype(bool)
     mf = cl.mem_flags
     bufs = [cl.Buffer(dev.context, mf.WRITE_ONLY, a.nbytes) for a in (patch, t, front)]
-    knl = dev.kernel("raycast.cl", "cast_closest", {"BVH_PACKET": PACKET})
-    knl(dev.queue, (-(-n // PACKET),), None, *bvh.buffers(dev), dev.to_device(o), dev.to_device(d), dev.to_device(tm),
+    # One packet of BVH_PACKET consecutive rays per work-item (see kernels/raycast.cl).
+    knl = dev.kernel("raycast.cl", "cast_closest", {"BVH_PACKET": BVH_PACKET})
+    knl(dev.queue, (global_size(-(-n // BVH_PACKET)),), None, *bvh.buffers(dev), dev.to_device(o), dev.to_device(d), dev.to_device(tm),
         np.int32(n), *bufs)
     for host, buf in zip((patch, t, front), bufs):
         cl.enqueue_copy(dev.queue, host, buf)
@@ -205,8 +213,8 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
         return out.astype(bool)
     buf = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
     nodes, tris, _ = bvh.buffers(dev)
-    dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": PACKET})(  # one program with cast_closest
-        dev.queue, (n,), None, nodes, tris, dev.to_device(o), dev.to_device(d), dev.to_device(tm), np.int32(n), buf
+    dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": BVH_PACKET})(  # one program with cast_closest
+        dev.queue, (global_size(n),), None, nodes, tris, dev.to_device(o), dev.to_device(d), dev.to_device(tm), np.int32(n), buf
     )
     cl.enqueue_copy(dev.queue, out, buf)
     dev.queue.finish()

@@ -22,6 +22,7 @@ import scipy.sparse as sp
 
 from .checks import patch_indices, resolution as checked_resolution, scene as checked_scene
 from .errors import InvalidInputError
+from .launch import BVH_PACKET, global_size
 
 __all__ = ["form_factors", "pixel_form_factors", "SURFACE_OFFSET"]
 
@@ -132,12 +133,9 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
     weights_cum = np.zeros((S, R + 1))
     np.cumsum(pixel_form_factors(R), axis=1, out=weights_cum[:, 1:])
 
-    knl = dev.kernel("hemicube.cl", "hemicube_runs", {"HC_RES": R})
+    knl = dev.kernel("hemicube.cl", "hemicube_runs", {"HC_RES": R, "BVH_PACKET": BVH_PACKET})
     nodes, tris, order = scene.bvh.buffers(dev)
-    c4 = np.zeros((n, 4), np.float32)
-    n4 = np.zeros((n, 4), np.float32)
-    c4[:, :3], n4[:, :3] = scene.centers, scene.normals
-    centers, normals = dev.to_device(c4), dev.to_device(n4)
+    centers, normals = scene.patch_buffers(dev)
     mf = cl.mem_flags
     patch_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
     end_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
@@ -150,7 +148,7 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
         for first in range(0, len(rows), block):
             idx = rows[first : first + block]
             b = len(idx)
-            knl(dev.queue, (b * S,), None, nodes, tris, order, centers, normals, dev.to_device(idx), np.int32(b),
+            knl(dev.queue, (global_size(b * S),), None, nodes, tris, order, centers, normals, dev.to_device(idx), np.int32(b),
                 eps, patch_buf, end_buf, count_buf)
             patch = np.empty((b, S, R), np.int32)
             end = np.empty((b, S, R), np.int32)

@@ -28,6 +28,7 @@ import numpy as np
 
 from .checks import floats, number, scene as checked_scene, vec3
 from .errors import InvalidInputError
+from .launch import global_size
 
 __all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "light_vector", "pack_lights",
            "checked_light_vector", "resolve_light"]
@@ -163,20 +164,15 @@ def direct_irradiance(scene, lights, device=None) -> np.ndarray:
     if not len(packed):
         return np.zeros((n, 3), dtype=np.float32)
     device = device or default_device()
-
-    def float4(a: np.ndarray) -> np.ndarray:
-        out = np.zeros((len(a), 4), dtype=np.float32)
-        out[:, :3] = a
-        return out
-
     nodes, tris, _ = scene.bvh.buffers(device)
+    centers, normals = scene.patch_buffers(device)
     out_dev = cl.Buffer(device.context, cl.mem_flags.WRITE_ONLY, n * 16)
     kernel = device.kernel("lights.cl", "direct_irradiance")
     # Directional shadow rays need only reach past the scene: twice its diagonal.
     kernel(
-        device.queue, (-(-n // 64) * 64,), None, np.int32(n), device.to_device(float4(scene.centers)),
-        device.to_device(float4(scene.normals)), np.int32(len(packed)), device.to_device(packed), nodes, tris,
-        np.float32(SHADOW_EPSILON * scene.scale), np.float32(2.0 * scene.scale), out_dev,
+        device.queue, (global_size(n),), None, np.int32(n), centers, normals, np.int32(len(packed)),
+        device.to_device(packed), nodes, tris, np.float32(SHADOW_EPSILON * scene.scale), np.float32(2.0 * scene.scale),
+        out_dev,
     )
     out = np.empty((n, 4), dtype=np.float32)
     cl.enqueue_copy(device.queue, out, out_dev, is_blocking=True)

@@ -20,6 +20,7 @@ import numpy as np
 
 from .checks import finite
 from .errors import DeviceError, InvalidInputError, OutOfMemoryError
+from .launch import global_size, matvec_layout
 
 __all__ = ["DeviceMatrix", "STORAGE_DTYPES", "storage_dtype", "MAX_RHS"]
 
@@ -134,16 +135,8 @@ class DeviceMatrix:
             self.buffers = [cl.Buffer(device.context, cl.mem_flags.READ_WRITE, per) for _ in range(C)]
         except cl.Error as exc:
             raise OutOfMemoryError(f"allocating {C} x {per / 2**20:.1f} MiB on {device.name} failed: {exc}") from exc
-        cpu = device.is_cpu
-        # CPU: one row per work-item, 16-wide loads. GPU: a work-group per row, coalesced loads.
-        self._vw, self._lx = layout or ((16, 1) if cpu else (4, 64))
-        if self._vw not in (4, 8, 16) or self._lx < 1 or self._lx & (self._lx - 1):
-            raise InvalidInputError(f"layout must be (VW in 4/8/16, LX a power of two); got {layout}")
-        # Row block of the transposed product's first pass: long enough to amortise the
-        # partial sums (1/RB of K's traffic), short enough to give a GPU enough work-items.
-        n_chunks = self.ld // self._vw
-        self._rb = 64 if cpu else max(16, min(256, (M * n_chunks) // 65536 or 16))
-        self._n_blocks = -(-M // self._rb)
+        self._layout = matvec_layout(device, M, self.ld, layout)
+        self._n_blocks = -(-M // self._layout.rb)
         self._x = self._y = self._partial = None
         prg = self._program(1)
         # Kernel objects hold their arguments: one per matrix, reused by every call.
@@ -152,10 +145,7 @@ class DeviceMatrix:
         self._k_reduce = cl.Kernel(prg, "rmatvec_reduce")
 
     def _program(self, nrhs: int):
-        defines = {**self.defines, "VW": self._vw, "LX": self._lx, "NRHS": nrhs}
-        if self.device.aligned_vector_access:
-            defines["PDR_CLANG_VECTORS"] = 1
-        return self.device.program("matvec.cl", defines)
+        return self.device.program("matvec.cl", {**self.defines, **self._layout.defines(nrhs)})
 
     def upload(self, K: np.ndarray) -> None:
         """Overwrite every channel with K (C, M, M)."""
@@ -198,9 +188,8 @@ class DeviceMatrix:
         k = self._k_matvec.get(nrhs)
         if k is None:
             k = self._k_matvec[nrhs] = cl.Kernel(self._program(nrhs), "matvec")
-        gsize = (-(-self.M // 64) * 64,) if self._lx == 1 else (self.M * self._lx,)
-        lsize = None if self._lx == 1 else (self._lx,)
-        k(self.device.queue, gsize, lsize, self.buffers[channel], np.int32(self.M), np.int32(self.ld), x_buf, y_buf)
+        k(self.device.queue, *self._layout.matvec_grid(self.M), self.buffers[channel], np.int32(self.M),
+          np.int32(self.ld), x_buf, y_buf)
 
     def enqueue_rmatvec(self, channel: int, x_buf, y_buf) -> None:
         """Enqueue y = x^T K[channel] on device buffers: x holds M REAL values, y M."""
@@ -211,10 +200,9 @@ class DeviceMatrix:
                 self.device.context, cl.mem_flags.READ_WRITE, self._n_blocks * self.ld * self.real_dtype.itemsize
             )
         q, M, ld = self.device.queue, np.int32(self.M), np.int32(self.ld)
-        self._k_partial(
-            q, (ld // self._vw, self._n_blocks), None, self.buffers[channel], M, ld, np.int32(self._rb), x_buf, self._partial
-        )
-        self._k_reduce(q, (-(-self.M // 64) * 64,), None, self._partial, M, ld, np.int32(self._n_blocks), y_buf)
+        self._k_partial(q, (self.ld // self._layout.vw, self._n_blocks), None, self.buffers[channel], M, ld,
+                        np.int32(self._layout.rb), x_buf, self._partial)
+        self._k_reduce(q, (global_size(self.M),), None, self._partial, M, ld, np.int32(self._n_blocks), y_buf)
 
     # -- host-facing products --------------------------------------------------------------------
     def _vectors(self, x: np.ndarray) -> np.ndarray:

@@ -28,27 +28,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from .checks import patch_indices, scene as checked_scene
+from .checks import check_form_factors, patch_indices, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
-from .checks import check_form_factors
+from .launch import GEMM_GRAIN, PANEL, gemm_layout, round_up
 from .memory import available_host_bytes
 
 __all__ = ["multibounce", "multibounce_radiosity", "multibounce_memory"]
 
 OUTPUT_DTYPES = (np.dtype(np.float16), np.dtype(np.float32), np.dtype(np.float64))
-#: Panel width of the elimination (columns per host step); a multiple of every kernel tile.
-PANEL = 128
-
-
-def _layout(device) -> dict[str, int]:
-    # CPU: 16-wide vectors, 8 rows per item; GPU: narrower vectors, more work-items.
-    return {"VW": 16, "TM": 8, "LY": 8} if device.is_cpu else {"VW": 4, "TM": 4, "LY": 16}
 
 
 def _padded(M: int) -> tuple[int, int]:
-    """(panel width, padded size): the system is padded with identity rows to a whole number of panels."""
-    nb = min(PANEL, -(-M // 16) * 16)
-    return nb, -(-M // nb) * nb
+    """(panel width, padded size): the system is padded with identity rows to a whole number of
+    panels, each a multiple of every GEMM tile."""
+    nb = min(PANEL, round_up(M, GEMM_GRAIN))
+    return nb, round_up(M, nb)
 
 
 def multibounce_memory(M: int, channels: int, dtype=np.float32, bounces: int | None = None) -> dict[str, int]:
@@ -93,8 +87,8 @@ class _Builder:
 
         self.device, self.M, self.work = device, M, work
         self.nb, self.Mp = _padded(M)
-        self.lay = _layout(device)
-        defines = {"STORAGE_FP64" if work == np.float64 else "STORAGE_FP32": 1, "VW": self.lay["VW"], "TM": self.lay["TM"]}
+        self.lay = gemm_layout(device)
+        defines = {"STORAGE_FP64" if work == np.float64 else "STORAGE_FP32": 1, **self.lay.defines}
         self.kernel = device.kernel("gemm.cl", "gemm_acc", defines)
         self.square_bytes = self.Mp * self.Mp * work.itemsize
         mf = cl.mem_flags
@@ -111,12 +105,9 @@ class _Builder:
         """out[o_off:] (m x n) = base[b_off:] + U V (see kernels/gemm.cl)."""
         if n == 0:
             return
-        vw, tm, ly = self.lay["VW"], self.lay["TM"], self.lay["LY"]
-        rows = m // tm
-        ly = min(ly, rows)
         i32 = np.int32
         self.kernel(
-            self.device.queue, (n // vw, -(-rows // ly) * ly), (1, ly), i32(m), i32(n), i32(kdim),
+            self.device.queue, *self.lay.grid(m, n), i32(m), i32(n), i32(kdim),
             U, i32(ldu), i32(0), V, i32(ldv), i32(v_off), base, i32(ldb), i32(b_off), out, i32(ldo), i32(o_off),
         )
 

@@ -30,6 +30,7 @@ import numpy as np
 from .camera import Camera
 from .checks import integer, patch_indices, scene as checked_scene
 from .errors import InvalidInputError
+from .launch import global_size
 from .lights import SHADOW_EPSILON, pack_lights
 from .scene import Scene
 
@@ -75,9 +76,12 @@ class _Tracer:
             packed = np.zeros((1, 12), np.float32)  # a buffer cannot be empty; the kernel reads none
         up = device.to_device
         nodes, tris, order = scene.bvh.buffers(device)
+        self.centers, normals = scene.patch_buffers(device)
+        # Materials are uploaded per tracer: scenes that share geometry (and so these cached
+        # buffers) may differ in albedo and emission.
         self.args = (
             nodes, tris, order,
-            up(_float4(scene.normals)), up(_float4(scene.albedo)), up(_float4(scene.emission)),
+            normals, up(_float4(scene.albedo)), up(_float4(scene.emission)),
             np.int32(len(em)), up(tri), up(_float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
             up(cdf.astype(np.float32)), np.float32(inv_power),
             np.int32(n_lights), up(packed), np.float32(SHADOW_EPSILON * scene.scale),
@@ -96,7 +100,7 @@ class _Tracer:
         accum = cl.Buffer(self.device.context, cl.mem_flags.READ_WRITE, size=max(1, n_items) * 16)
         cl.enqueue_fill_buffer(queue, accum, np.float32(0), 0, max(1, n_items) * 16)
         local = None
-        gsize = (max(1, n_items),)
+        gsize = (global_size(n_items),)
         done, size = 0, 1
         start = time.perf_counter()
         bar = progress_bar(progress, total=spp, unit="spp", desc=f"path tracing ({kernel_name})")
@@ -194,7 +198,7 @@ def path_trace_patches(scene: Scene, patches=None, spp: int = 256, lights=(), se
     if len(ids) == 0:
         return np.zeros((0, 3), dtype=np.float32)
     tracer = _Tracer(scene, lights, max_depth, device)
-    up = tracer.device.to_device
-    total, done = tracer.accumulate("gather_patches", (up(ids.astype(np.int32)), up(_float4(scene.centers))),
+    ids_dev = tracer.device.to_device(ids.astype(np.int32))
+    total, done = tracer.accumulate("gather_patches", (ids_dev, tracer.centers),
                                     len(ids), int(spp), int(seed), progress, time_limit)
     return (scene.emission[ids] + total / done).astype(np.float32)

@@ -31,6 +31,7 @@ import numpy as np
 from .camera import Camera
 from .checks import finite, number, scene as checked_scene
 from .errors import InvalidInputError
+from .launch import global_size
 
 __all__ = ["Renderer", "Visibility", "render", "smoothing_groups", "SHADINGS"]
 
@@ -184,7 +185,7 @@ class Renderer:
         d_uvf = cl.Buffer(dev.context, mf.WRITE_ONLY, 16 * n_pix)
         d_depth = cl.Buffer(dev.context, mf.WRITE_ONLY, 4 * n_pix)
         knl = dev.kernel("render.cl", "primary_visibility")
-        knl(dev.queue, (n_pix,), None, nodes, tris, order, origin, d_dirs, np.int32(n_pix), d_patch, d_uvf, d_depth)
+        knl(dev.queue, (global_size(n_pix),), None, nodes, tris, order, origin, d_dirs, np.int32(n_pix), d_patch, d_uvf, d_depth)
         patch = np.empty(n_pix, dtype=np.int32)
         uvf = np.empty((n_pix, 4), dtype=np.float32)
         depth = np.empty(n_pix, dtype=np.float32)

@@ -185,6 +185,23 @@ class Scene:
 
         return BVH.build(self.vertices)
 
+    def patch_buffers(self, device) -> tuple:
+        """``(centers, normals)``: (N, 4) float32 device buffers (xyz, 0) of :attr:`centers` and
+        :attr:`normals`, uploaded once per device and kept beside the BVH's buffers, so kernels
+        run per frame (the light pass, hemicubes) upload nothing of the scene. Scene arrays never
+        change after construction, and scenes share a BVH only when they share geometry
+        (:meth:`with_materials`), so a different scene never sees these buffers."""
+
+        def upload():
+            out = []
+            for a in (self.centers, self.normals):
+                a4 = np.zeros((len(self), 4), dtype=np.float32)
+                a4[:, :3] = a
+                out.append(device.to_device(a4))
+            return tuple(out)
+
+        return self.bvh.upload_once(device, "patch_frames", upload)
+
     def content_hash(self) -> str:
         """SHA-256 of geometry and materials: identifies the scene in file headers."""
         h = hashlib.sha256()

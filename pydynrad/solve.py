@@ -29,6 +29,7 @@ import scipy.sparse as sp
 from .checks import check_form_factors
 from .device import real_dtype
 from .errors import ConvergenceError, InvalidInputError, OutOfMemoryError
+from .launch import spmv_layout
 from .lights import checked_light_vector
 from .memory import available_host_bytes
 
@@ -100,9 +101,8 @@ class RadiositySolver:
             raise OutOfMemoryError(f"F has {F.nnz} non-zeros; the CSR kernel indexes with 32-bit integers (< 2^31)")
         d = self.device
         self._n = len(scene)
-        self._lx, n_blocks = _spmv_layout(d, self._n, layout)
-        self._n_blocks = n_blocks
-        self._blk = d.to_device(_row_blocks(F.indptr, n_blocks))
+        self._layout = spmv_layout(d, self._n, layout)
+        self._blk = d.to_device(_row_blocks(F.indptr, self._layout.blocks))
         self._rowptr = d.to_device(F.indptr.astype(np.int32))
         self._cols = d.to_device(F.indices.astype(np.int32))
         self._vals = d.to_device(F.data.astype(self.dtype))
@@ -119,7 +119,7 @@ class RadiositySolver:
         nch = _channels(self.scene, L)
         width = 1 if nch == 1 else 4
         d, n, real = self.device, self._n, self.dtype
-        defines = {"STORAGE_FP64" if real == np.float64 else "STORAGE_FP32": 1, "NCH": width, "LX": self._lx}
+        defines = {"STORAGE_FP64" if real == np.float64 else "STORAGE_FP32": 1, "NCH": width, **self._layout.defines}
         kernel = d.kernel("spmv.cl", "bounce", defines)
 
         def packed(a: np.ndarray) -> np.ndarray:
@@ -131,14 +131,14 @@ class RadiositySolver:
         mf = cl.mem_flags
         x = cl.Buffer(d.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=packed(L))
         y = cl.Buffer(d.context, mf.READ_WRITE, n * width * real.itemsize)
-        nb = self._n_blocks
+        nb = self._layout.blocks
         partial_dev = cl.Buffer(d.context, mf.READ_WRITE, 2 * nb * real.itemsize)
         partial = np.empty((nb, 2), dtype=real)
 
         t0 = time.perf_counter()
         history, residual, it = [], np.inf, 0
         while it < max_iterations:
-            kernel(d.queue, (nb * self._lx,), (self._lx,), self._blk, self._rowptr, self._cols, self._vals,
+            kernel(d.queue, *self._layout.grid, self._blk, self._rowptr, self._cols, self._vals,
                    L_dev, rho_dev, x, y, partial_dev)
             x, y = y, x
             it += 1
@@ -163,24 +163,6 @@ class RadiositySolver:
             radiosity=radiosity.astype(np.float64), light=L, iterations=it, residual=residual, converged=converged,
             method="iterative", dtype=real.name, channels=nch, seconds=seconds, history=history,
         )
-
-
-def _spmv_layout(device, n: int, layout: tuple[int, int] | None) -> tuple[int, int]:
-    """(work-items per row, row blocks) of ``kernels/spmv.cl``'s bounce kernel.
-
-    CPU: one work-item per block, 16 blocks per core so a core slowed by other work hands
-    blocks to the others. GPU: a 64-item work-group per row (CSR-vector), enough blocks to
-    fill every compute unit many times over.
-    """
-    if layout is not None:
-        lx, blocks = layout
-        if lx < 1 or lx & (lx - 1) or blocks < 1:
-            raise InvalidInputError(f"layout must be (LX a power of two, blocks >= 1); got {layout}")
-    elif device.is_cpu:
-        lx, blocks = 1, 16 * device.cl_device.max_compute_units
-    else:
-        lx, blocks = 64, 256 * device.cl_device.max_compute_units
-    return int(lx), max(1, min(int(blocks), n))
 
 
 def _row_blocks(indptr: np.ndarray, blocks: int) -> np.ndarray:

@@ -14,97 +14,18 @@ See docs/design.md, 'Cost model', and kernels/README.md for the kernels' defines
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..errors import InvalidInputError
+from ..launch import UpdateLayout
 
 __all__ = ["UpdateKernels", "scratch_nbytes"]
-
-
-#: Work-items per row block of the GPU gather.
-GPU_WG = 64
-#: GPU vector width of K loads.
-GPU_VW = 4
-
-
-#: Rows per step of the CPU kernels (RR accumulators of 16 lanes stay in vector registers).
-CPU_ROWS = 8
-#: Widest column strip of the CPU gather: an RR x CWMAX tile of K is kept in private memory.
-CPU_STRIP = 512
-
-
-#: CPU gather: the shortest row block (more, shorter blocks balance the two-level split better).
-CPU_MIN_BLOCK = 128
-#: CPU gather: column partials (n_blocks * NV * ld REALs, written and re-read) stay under
-#: 1/CPU_PARTIAL_SHARE of the bytes of K that the pass reads.
-CPU_PARTIAL_SHARE = 16
-
-
-@dataclass(frozen=True)
-class Layout:
-    """How the update kernels split K over work-items on one device (see kernels/update.cl).
-
-    cpu : bool
-        CPU kernels (a few fat work-items, RR rows at a time) or GPU kernels (coalesced).
-    M, ld, k_itemsize, real_itemsize : int
-        The matrix: size, row pitch, bytes per stored element and per compute REAL.
-    rank_rb : int
-        CPU rank update: rows per work-item.
-    gather_cw : int
-        CPU gather: columns per strip.
-    parts : int
-        Row partial sums per row the gather leaves for gather_reduce (strips on a CPU, WG on a GPU).
-    """
-
-    cpu: bool
-    M: int
-    ld: int
-    k_itemsize: int
-    real_itemsize: int
-    rank_rb: int
-    gather_cw: int
-    parts: int
-
-    @staticmethod
-    def make(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, cpu: bool | None = None) -> "Layout":
-        """The layout for an M x M matrix with row pitch ld; ``cpu`` overrides the device type
-        (to test the GPU kernels on a CPU)."""
-        cpu = device.is_cpu if cpu is None else cpu
-        if not cpu:
-            return Layout(False, M, ld, k_itemsize, real_itemsize, 0, ld, GPU_WG)
-        units = max(1, int(device.cl_device.max_compute_units))
-        rows = -(-M // CPU_ROWS)  # row groups of RR
-        # Rank update: about 8 work-items per compute unit, each a whole number of row groups.
-        rank_rb = CPU_ROWS * -(-rows // min(rows, 8 * units))
-        cw = min(ld, CPU_STRIP)
-        return Layout(True, M, ld, k_itemsize, real_itemsize, rank_rb, cw, -(-ld // cw))
-
-    def gather_blocks(self, nv: int) -> tuple[int, int]:
-        """(rows per block, blocks) of the gather for nv vectors.
-
-        GPU: 64-128-row blocks, whose column partials cost NV*ld REALs each, ~1% of K's
-        traffic per vector. CPU: blocks of at least CPU_MIN_BLOCK rows (whole groups of RR),
-        as many as the partial-sum budget allows for nv vectors."""
-        if not self.cpu:
-            rb = 64 if self.M < 2048 else 128
-            return rb, -(-self.M // rb)
-        rows = -(-self.M // CPU_ROWS)
-        budget = self.M * self.k_itemsize // (CPU_PARTIAL_SHARE * nv * self.real_itemsize)
-        blocks = max(1, min(-(-self.M // CPU_MIN_BLOCK), budget, rows))
-        rb = CPU_ROWS * -(-rows // blocks)
-        return rb, -(-self.M // rb)
-
-    def max_partial_blocks(self, nv_max: int) -> int:
-        """The most NV*ld column-partial slabs any gather of 1..nv_max vectors uses."""
-        return max(self.gather_blocks(n)[1] * n for n in range(1, nv_max + 1))
 
 
 def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, max_vectors: int,
                    channels: int = 1) -> int:
     """Device bytes of :class:`UpdateKernels`' scratch buffers for these sizes."""
-    lay = Layout.make(device, M, ld, k_itemsize, real_itemsize)
+    lay = UpdateLayout.make(device, M, ld, k_itemsize, real_itemsize)
     nv = max_vectors
     # X, Y, row and column partials, A, B, zeros (for clearing a slot), f_c, f_r and rho of Eq. 1
     shared = nv * ld + nv * M + lay.parts * nv * M + lay.max_partial_blocks(nv) * ld + 2 * nv * M + 2 * nv * ld \
@@ -127,12 +48,8 @@ class UpdateKernels:
         self.matrix, self.device, self.nv_max = matrix, dev, int(max_vectors)
         self.M, self.ld = matrix.M, matrix.ld
         self.real = matrix.real_dtype
-        self.layout = Layout.make(dev, self.M, self.ld, matrix.dtype.itemsize, self.real.itemsize, cpu_kernels)
-        defines = {**matrix.defines, "VW": GPU_VW, "WG": GPU_WG, "RR": CPU_ROWS, "CWMAX": CPU_STRIP,
-                   "NVMAX": self.nv_max, "NAMAX": 2 * self.nv_max}
-        if self.layout.cpu and dev.aligned_vector_access:
-            defines["PDR_CLANG_VECTORS"] = 1
-        prg = dev.program("update.cl", defines)
+        self.layout = UpdateLayout.make(dev, self.M, self.ld, matrix.dtype.itemsize, self.real.itemsize, cpu_kernels)
+        prg = dev.program("update.cl", {**matrix.defines, **self.layout.defines(self.nv_max)})
         names = ("gather_rows", "gather_partial", "gather_reduce", "rank_update_rows", "rank_update", "read_slots",
                  "write_slots", "double_reflection")
         self._k = {n: cl.Kernel(prg, n) for n in names}
@@ -207,12 +124,6 @@ class UpdateKernels:
         if not 1 <= n <= self.nv_max:
             raise InvalidInputError(f"between 1 and {self.nv_max} vectors per call; got {n}")
 
-    def _grid(self, n: int) -> tuple[tuple[int, int], tuple[int, int]]:
-        """(global, local) sizes of the per-(i, m) kernels. The local size is fixed, not left to
-        the runtime: PoCL compiles a kernel once per local size, and its own choice varies with
-        n, which cost ~50-100 ms per kernel inside the frame loop at each new vector count."""
-        return (-(-self.M // 64) * 64, n), (64, 1)
-
     # -- operations -------------------------------------------------------------------------------
     def _enqueue_gather(self, channel: int, X: np.ndarray, Y: np.ndarray) -> int:
         X, Y = np.atleast_2d(X), np.atleast_2d(Y)
@@ -226,21 +137,21 @@ class UpdateKernels:
         rb, blocks = lay.gather_blocks(n)
         M, ld, nv = np.int32(self.M), np.int32(self.ld), np.int32(n)
         if lay.cpu:
-            self._k["gather_rows"](q, (lay.parts, blocks), (1, 1), K, M, ld, np.int32(rb), np.int32(lay.gather_cw), nv,
+            self._k["gather_rows"](q, *lay.gather_grid(blocks), K, M, ld, np.int32(rb), np.int32(lay.gather_cw), nv,
                                    self._X, self._Y, self._rowpart, self._colpart)
         else:
-            self._k["gather_partial"](q, (GPU_WG, blocks), (GPU_WG, 1), K, M, ld, np.int32(rb), nv, self._X, self._Y,
+            self._k["gather_partial"](q, *lay.gather_grid(blocks), K, M, ld, np.int32(rb), nv, self._X, self._Y,
                                       self._rowpart, self._colpart)
         # In-order queue: the next channel's gather reuses the partial sums only after this reduce.
-        self._k["gather_reduce"](q, *self._grid(n), self._rowpart, self._colpart, M, ld, nv, np.int32(lay.parts),
+        self._k["gather_reduce"](q, *lay.element_grid(n), self._rowpart, self._colpart, M, ld, nv, np.int32(lay.parts),
                                  np.int32(blocks), res["KX"], res["YK"])
         return n
 
     def _enqueue_read_slots(self, channel: int, slots: np.ndarray) -> int:
         k = self._put_slots(slots)
         res = self._res[channel]
-        self._k["read_slots"](self.device.queue, *self._grid(k), self.matrix.buffers[channel], np.int32(self.M),
-                              np.int32(self.ld), self._slots, res["cols"], res["rows"])
+        self._k["read_slots"](self.device.queue, *self.layout.element_grid(k), self.matrix.buffers[channel],
+                              np.int32(self.M), np.int32(self.ld), self._slots, res["cols"], res["rows"])
         return k
 
     def gather(self, channel: int, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -280,10 +191,9 @@ class UpdateKernels:
         q, K, lay = self.device.queue, self.matrix.buffers[channel], self.layout
         M, ld, na = np.int32(self.M), np.int32(self.ld), np.int32(n)
         if lay.cpu:
-            items = -(-self.M // lay.rank_rb)
-            self._k["rank_update_rows"](q, (items,), (1,), K, M, ld, na, np.int32(lay.rank_rb), self._A, self._B)
+            self._k["rank_update_rows"](q, *lay.rank_grid, K, M, ld, na, np.int32(lay.rank_rb), self._A, self._B)
         else:
-            self._k["rank_update"](q, (self.ld // GPU_VW, self.M), None, K, M, ld, na, self._A, self._B)
+            self._k["rank_update"](q, *lay.rank_grid, K, M, ld, na, self._A, self._B)
 
     def read_slots(self, channel: int, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Columns K[:, slots] and rows K[slots, :], both as (k, M) float64."""
@@ -296,14 +206,14 @@ class UpdateKernels:
         k = self._put_slots(slots)
         self._put(self._A, cols, self.M)
         self._put(self._Y, rows, self.M)
-        self._k["write_slots"](self.device.queue, *self._grid(k), self.matrix.buffers[channel], np.int32(self.M),
-                               np.int32(self.ld), self._slots, np.int32(k), self._A, self._Y)
+        self._k["write_slots"](self.device.queue, *self.layout.element_grid(k), self.matrix.buffers[channel],
+                               np.int32(self.M), np.int32(self.ld), self._slots, np.int32(k), self._A, self._Y)
 
     def clear_slot(self, channel: int, slot: int) -> None:
         """K[:, slot] = 0 and K[slot, :] = 0, from a device buffer of M zeros (no upload)."""
         self._put_slots([slot])
-        self._k["write_slots"](self.device.queue, *self._grid(1), self.matrix.buffers[channel], np.int32(self.M),
-                               np.int32(self.ld), self._slots, np.int32(1), self._zeros, self._zeros)
+        self._k["write_slots"](self.device.queue, *self.layout.element_grid(1), self.matrix.buffers[channel],
+                               np.int32(self.M), np.int32(self.ld), self._slots, np.int32(1), self._zeros, self._zeros)
 
     def double_reflection(self, f_c: np.ndarray, f_r: np.ndarray, rho: np.ndarray) -> float | np.ndarray:
         """Eq. 1: sum_a f_c[a] f_r[a] rho[a] over the M slots, reduced on the device.
@@ -316,6 +226,7 @@ class UpdateKernels:
         for c, r in enumerate(rows):
             # The input buffer is reused: in order, each upload lands after the previous kernel.
             self._put(self._out, np.concatenate([f_c, f_r, r])[None], 3 * self.M)
-            self._k["double_reflection"](self.device.queue, (64,), (64,), self._out, np.int32(self.M), self._res[c]["KX"])
+            self._k["double_reflection"](self.device.queue, *self.layout.reduction_grid(), self._out, np.int32(self.M),
+                                         self._res[c]["KX"])
         dr = np.array([h[0, 0] for h in self._get(*[(self._res[c]["KX"], 1, 1) for c in range(len(rows))])])
         return float(dr[0]) if rho.ndim == 1 else dr

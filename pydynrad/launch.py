@@ -1,0 +1,273 @@
+"""How every kernel splits its work on a device: one place for the CPU and GPU choices.
+
+* Layouts per kernel family, chosen from what the :class:`~pydynrad.device.Device` reports (a
+  CPU or not, compute units): :func:`spmv_layout` (the full solve, ``kernels/spmv.cl``),
+  :func:`gemm_layout` (the multibounce build, ``kernels/gemm.cl``), :func:`matvec_layout`
+  (products with K, ``kernels/matvec.cl``) and :class:`UpdateLayout` (the local update of K,
+  ``kernels/update.cl``).
+* The constants the kernels are built with: each layout's ``defines`` become ``-D`` options.
+  The ``.cl`` files have no defaults for them (a build without one fails), so no number that
+  host and kernel must agree on is written twice.
+* :func:`global_size`: a global size rounded up to whole work-groups; every kernel launched
+  so guards ``if (gid >= n) return;``.
+
+CPU layouts give a few fat work-items long contiguous runs and wide vectors (PoCL runs one
+work-group per core at a time); GPU layouts give many items that read adjacent addresses
+(coalesced loads).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .errors import InvalidInputError
+
+__all__ = [
+    "WG", "RED_WG", "BVH_PACKET", "PANEL", "GEMM_GRAIN", "round_up", "global_size",
+    "SpmvLayout", "spmv_layout", "GemmLayout", "gemm_layout", "MatvecLayout", "matvec_layout", "UpdateLayout",
+]
+
+#: Work-group size of the element-wise kernels (one item per patch, pixel, row or column).
+WG = 64
+#: Items of the one-group tree reduction ``double_reflection`` (a power of two).
+RED_WG = 64
+#: Rays per work-item of the packet traversal in ``kernels/bvh.cl``: one per 16-wide vector lane.
+BVH_PACKET = 16
+
+
+def round_up(n: int, multiple: int) -> int:
+    """The least multiple of ``multiple`` that is >= ``n``."""
+    return -(-int(n) // int(multiple)) * int(multiple)
+
+
+def global_size(n: int, local: int = WG) -> int:
+    """``n`` work-items rounded up to whole work-groups of ``local`` (at least one group).
+
+    A fixed multiple also spares PoCL a kernel compile per new local size: with an awkward n
+    (a prime) it would otherwise pick a local size that divides n."""
+    return max(int(local), round_up(n, local))
+
+
+# -- the full solve: CSR bounce kernel (kernels/spmv.cl) -------------------------------------------
+@dataclass(frozen=True)
+class SpmvLayout:
+    """Row blocks of ``bounce``: one work-group of ``lx`` items per block of about equal non-zeros."""
+
+    lx: int
+    blocks: int
+
+    @property
+    def defines(self) -> dict[str, int]:
+        return {"LX": self.lx}
+
+    @property
+    def grid(self) -> tuple[tuple[int], tuple[int]]:
+        return (self.blocks * self.lx,), (self.lx,)
+
+
+def spmv_layout(device, n: int, override: tuple[int, int] | None = None) -> SpmvLayout:
+    """The bounce kernel's layout for an n-row F; ``override`` = (LX, blocks) for tuning and tests.
+
+    CPU: one work-item per block, 16 blocks per core so a core slowed by other work hands
+    blocks to the others. GPU: a 64-item work-group per row (CSR-vector), enough blocks to
+    fill every compute unit many times over.
+    """
+    if override is not None:
+        lx, blocks = override
+        if lx < 1 or lx & (lx - 1) or blocks < 1:
+            raise InvalidInputError(f"layout must be (LX a power of two, blocks >= 1); got {override}")
+    elif device.is_cpu:
+        lx, blocks = 1, 16 * device.cl_device.max_compute_units
+    else:
+        lx, blocks = 64, 256 * device.cl_device.max_compute_units
+    return SpmvLayout(int(lx), max(1, min(int(blocks), n)))
+
+
+# -- the multibounce build: register-blocked GEMM (kernels/gemm.cl) ---------------------------------
+@dataclass(frozen=True)
+class GemmLayout:
+    """``gemm_acc``: each item owns a TM x VW block of the output; LY items per work-group
+    stack along the rows and share one strip of V."""
+
+    vw: int
+    tm: int
+    ly: int
+
+    @property
+    def defines(self) -> dict[str, int]:
+        return {"VW": self.vw, "TM": self.tm}
+
+    def grid(self, m: int, n: int) -> tuple[tuple[int, int], tuple[int, int]]:
+        """(global, local) for an m x n output (n % VW == 0, m % TM == 0)."""
+        rows = m // self.tm
+        ly = min(self.ly, rows)
+        return (n // self.vw, round_up(rows, ly)), (1, ly)
+
+
+#: CPU: 16-wide vectors, 8 rows per item; GPU: narrower vectors, more work-items.
+_GEMM = {True: GemmLayout(vw=16, tm=8, ly=8), False: GemmLayout(vw=4, tm=4, ly=16)}
+
+#: Panel width of the elimination (columns per host step).
+PANEL = 128
+#: Panels and padded sizes are multiples of this: of every layout's VW and TM.
+GEMM_GRAIN = math.lcm(*(x for lay in _GEMM.values() for x in (lay.vw, lay.tm)))
+assert PANEL % GEMM_GRAIN == 0
+
+
+def gemm_layout(device) -> GemmLayout:
+    return _GEMM[bool(device.is_cpu)]
+
+
+# -- products with K (kernels/matvec.cl) ------------------------------------------------------------
+@dataclass(frozen=True)
+class MatvecLayout:
+    """How ``matvec`` and the transposed product split an M x M matrix of row pitch ld.
+
+    vw : vector width of K loads; lx : work-items per row of ``matvec`` (1: one row per item);
+    rb : rows per block of the transposed product's first pass; aligned : 16-wide aligned
+    dereference instead of vload (``PDR_CLANG_VECTORS``, see ``kernels/storage.h``).
+    """
+
+    vw: int
+    lx: int
+    rb: int
+    aligned: bool
+
+    def defines(self, nrhs: int) -> dict[str, int]:
+        out = {"VW": self.vw, "LX": self.lx, "NRHS": nrhs}
+        if self.aligned:
+            out["PDR_CLANG_VECTORS"] = 1
+        return out
+
+    def matvec_grid(self, M: int) -> tuple[tuple[int], tuple[int] | None]:
+        if self.lx == 1:
+            return (global_size(M),), None
+        return (M * self.lx,), (self.lx,)
+
+
+def matvec_layout(device, M: int, ld: int, override: tuple[int, int] | None = None) -> MatvecLayout:
+    """CPU: one row per work-item, 16-wide loads. GPU: a work-group per row, coalesced loads.
+    ``override`` = (VW, LX) for tuning and for testing the GPU path on a CPU."""
+    cpu = device.is_cpu
+    vw, lx = override or ((16, 1) if cpu else (4, 64))
+    if vw not in (4, 8, 16) or lx < 1 or lx & (lx - 1):
+        raise InvalidInputError(f"layout must be (VW in 4/8/16, LX a power of two); got {override}")
+    # Row block of the transposed product's first pass: long enough to amortise the partial
+    # sums (1/RB of K's traffic), short enough to give a GPU enough work-items.
+    rb = 64 if cpu else max(16, min(256, (M * (ld // vw)) // 65536 or 16))
+    return MatvecLayout(int(vw), int(lx), rb, bool(device.aligned_vector_access))
+
+
+# -- the local update of K (kernels/update.cl) ------------------------------------------------------
+#: Work-items per row block of the GPU gather.
+GPU_WG = 64
+#: GPU vector width of K loads.
+GPU_VW = 4
+#: Rows per step of the CPU kernels (RR accumulators of 16 lanes stay in vector registers).
+CPU_ROWS = 8
+#: Widest column strip of the CPU gather: an RR x CWMAX tile of K is kept in private memory.
+CPU_STRIP = 512
+#: CPU gather: the shortest row block (more, shorter blocks balance the two-level split better).
+CPU_MIN_BLOCK = 128
+#: CPU gather: column partials (n_blocks * NV * ld REALs, written and re-read) stay under
+#: 1/CPU_PARTIAL_SHARE of the bytes of K that the pass reads.
+CPU_PARTIAL_SHARE = 16
+
+
+@dataclass(frozen=True)
+class UpdateLayout:
+    """How the update kernels split K over work-items on one device (see kernels/update.cl).
+
+    cpu : bool
+        CPU kernels (a few fat work-items, RR rows at a time) or GPU kernels (coalesced).
+    M, ld, k_itemsize, real_itemsize : int
+        The matrix: size, row pitch, bytes per stored element and per compute REAL.
+    rank_rb : int
+        CPU rank update: rows per work-item.
+    gather_cw : int
+        CPU gather: columns per strip.
+    parts : int
+        Row partial sums per row the gather leaves for gather_reduce (strips on a CPU, WG on a GPU).
+    aligned : bool
+        CPU kernels use 16-wide aligned dereference (``PDR_CLANG_VECTORS``).
+    """
+
+    cpu: bool
+    M: int
+    ld: int
+    k_itemsize: int
+    real_itemsize: int
+    rank_rb: int
+    gather_cw: int
+    parts: int
+    aligned: bool = False
+
+    @staticmethod
+    def make(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, cpu: bool | None = None) -> "UpdateLayout":
+        """The layout for an M x M matrix with row pitch ld; ``cpu`` overrides the device type
+        (to test the GPU kernels on a CPU)."""
+        cpu = device.is_cpu if cpu is None else cpu
+        if not cpu:
+            return UpdateLayout(False, M, ld, k_itemsize, real_itemsize, 0, ld, GPU_WG)
+        units = max(1, int(device.cl_device.max_compute_units))
+        rows = -(-M // CPU_ROWS)  # row groups of RR
+        # Rank update: about 8 work-items per compute unit, each a whole number of row groups.
+        rank_rb = CPU_ROWS * -(-rows // min(rows, 8 * units))
+        cw = min(ld, CPU_STRIP)
+        return UpdateLayout(True, M, ld, k_itemsize, real_itemsize, rank_rb, cw, -(-ld // cw),
+                            bool(device.aligned_vector_access))
+
+    def defines(self, nv_max: int) -> dict[str, int]:
+        """Build defines for at most ``nv_max`` vectors per gather (2 nv_max terms per rank update)."""
+        out = {"VW": GPU_VW, "WG": GPU_WG, "RR": CPU_ROWS, "CWMAX": CPU_STRIP, "NVMAX": nv_max, "NAMAX": 2 * nv_max,
+               "RED_WG": RED_WG}
+        if self.cpu and self.aligned:
+            out["PDR_CLANG_VECTORS"] = 1
+        return out
+
+    def gather_blocks(self, nv: int) -> tuple[int, int]:
+        """(rows per block, blocks) of the gather for nv vectors.
+
+        GPU: 64-128-row blocks, whose column partials cost NV*ld REALs each, ~1% of K's
+        traffic per vector. CPU: blocks of at least CPU_MIN_BLOCK rows (whole groups of RR),
+        as many as the partial-sum budget allows for nv vectors."""
+        if not self.cpu:
+            rb = 64 if self.M < 2048 else 128
+            return rb, -(-self.M // rb)
+        rows = -(-self.M // CPU_ROWS)
+        budget = self.M * self.k_itemsize // (CPU_PARTIAL_SHARE * nv * self.real_itemsize)
+        blocks = max(1, min(-(-self.M // CPU_MIN_BLOCK), budget, rows))
+        rb = CPU_ROWS * -(-rows // blocks)
+        return rb, -(-self.M // rb)
+
+    def max_partial_blocks(self, nv_max: int) -> int:
+        """The most NV*ld column-partial slabs any gather of 1..nv_max vectors uses."""
+        return max(self.gather_blocks(n)[1] * n for n in range(1, nv_max + 1))
+
+    def element_grid(self, n: int) -> tuple[tuple[int, int], tuple[int, int]]:
+        """(global, local) of the per-(i, m) kernels for n vectors. The local size is fixed, not
+        left to the runtime: PoCL compiles a kernel once per local size, and its own choice
+        varies with n, which cost ~50-100 ms per kernel inside the frame loop at each new
+        vector count."""
+        return (global_size(self.M), n), (WG, 1)
+
+    def gather_grid(self, blocks: int) -> tuple[tuple[int, int], tuple[int, int]]:
+        """(global, local) of the gather over ``blocks`` row blocks: an item per (strip, block)
+        on a CPU, a work-group of GPU_WG items per block on a GPU."""
+        if self.cpu:
+            return (self.parts, blocks), (1, 1)
+        return (GPU_WG, blocks), (GPU_WG, 1)
+
+    @property
+    def rank_grid(self) -> tuple[tuple[int, ...], tuple[int, ...] | None]:
+        """(global, local) of the rank update: an item per rank_rb rows on a CPU; on a GPU an
+        item per (VW-vector column, row), local size left to the runtime."""
+        if self.cpu:
+            return (-(-self.M // self.rank_rb),), (1,)
+        return (self.ld // GPU_VW, self.M), None
+
+    @staticmethod
+    def reduction_grid() -> tuple[tuple[int], tuple[int]]:
+        """``double_reflection``: one work-group of RED_WG items."""
+        return (RED_WG,), (RED_WG,)
