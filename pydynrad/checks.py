@@ -15,7 +15,7 @@ import scipy.sparse as sp
 from .errors import InvalidInputError
 
 __all__ = ["floats", "vec3", "number", "integer", "finite", "scene", "patch_indices", "resolution", "check_form_factors",
-           "ROW_SUM_SLACK", "MAX_RESOLUTION"]
+           "check_form_factor_rows", "ROW_SUM_SLACK", "MAX_RESOLUTION"]
 
 
 def floats(value, what: str) -> np.ndarray:
@@ -142,16 +142,23 @@ def check_form_factors(scene, F) -> sp.csr_matrix:
         F = sp.csr_matrix(a.astype(np.float64))
     if F.shape != (n, n):
         raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {F.shape}")
-    F.sum_duplicates()
-    if not np.all(np.isfinite(F.data)):
-        raise InvalidInputError("F contains NaN or infinite entries")
-    if F.nnz and F.data.min() < 0:
-        raise InvalidInputError(f"form factors must be >= 0; F has minimum {F.data.min():g}")
-    rows = np.asarray(F.sum(axis=1)).ravel()
-    if rows.max(initial=0.0) > 1.0 + ROW_SUM_SLACK:
-        i = int(rows.argmax())
+    return check_form_factor_rows(F)
+
+
+def check_form_factor_rows(rows: sp.csr_matrix, what: str = "F") -> sp.csr_matrix:
+    """``rows`` (some rows of F, or a block of them) after the checks of :func:`check_form_factors`
+    that need no shape: NaN/inf or negative entries, rows summing above 1 (beyond
+    :data:`ROW_SUM_SLACK`). Duplicate entries are summed in place."""
+    rows.sum_duplicates()
+    if not np.all(np.isfinite(rows.data)):
+        raise InvalidInputError(f"{what} contains NaN or infinite entries")
+    if rows.nnz and rows.data.min() < 0:
+        raise InvalidInputError(f"form factors must be >= 0; {what} has minimum {rows.data.min():g}")
+    sums = np.asarray(rows.sum(axis=1)).ravel()
+    if sums.max(initial=0.0) > 1.0 + ROW_SUM_SLACK:
+        i = int(sums.argmax())
         raise InvalidInputError(
-            f"row {i} of F sums to {rows[i]:.6g} > 1: a patch cannot send out more than all its energy "
+            f"row {i} of {what} sums to {sums[i]:.6g} > 1: a patch cannot send out more than all its energy "
             f"(tolerance {ROW_SUM_SLACK:g})"
         )
-    return F
+    return rows

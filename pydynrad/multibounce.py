@@ -27,13 +27,14 @@ See docs/design.md, 'Multibounce build'.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
-from .checks import check_form_factors, patch_indices, scene as checked_scene
+from .checks import check_form_factors, check_form_factor_rows, patch_indices, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
 from .launch import GEMM_GRAIN, PANEL, gemm_layout, round_up
 from .memory import available_host_bytes
 
-__all__ = ["multibounce", "multibounce_radiosity", "multibounce_memory"]
+__all__ = ["multibounce", "multibounce_block", "multibounce_radiosity", "multibounce_memory"]
 
 OUTPUT_DTYPES = (np.dtype(np.float16), np.dtype(np.float32), np.dtype(np.float64))
 
@@ -185,7 +186,8 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
     F : (N, N) scipy.sparse or dense
         Gathering form factors (validated: shape, finite, >= 0, rows summing to <= 1).
     patches : (M,) int, optional
-        The set S, in the order of K's rows and columns (all patches by default).
+        The set S, in the order of K's rows and columns (all patches by default). A caller
+        that already holds F_SS passes it to :func:`multibounce_block` instead.
     bounces : int, optional
         None: the exact inverse (blocked Gauss-Jordan). n: the series truncated after n
         reflections, sum_{k<=n} (F P)^k F.
@@ -206,25 +208,76 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
         Before allocating anything, when the result or the working buffers would not fit in
         host memory or on the device (e.g. all 63,125 patches of the paper's scene: 44 GiB).
     """
-    from .device import default_device, real_dtype
-    from .progress import progress_bar
+    from .device import default_device
 
+    out, bounces = _checked_options(dtype, bounces)
+    device = device or default_device()
+    idx = _checked_patches(patches, len(checked_scene(scene)))
+    M, C = len(idx), 1 if scene.is_grey else 3
+    _check_memory(M, C, out, bounces, device)
+    F = check_form_factors(scene, F)
+    return _build(F[idx][:, idx].toarray(), scene.albedo[idx, :C].astype(np.float64), bounces, out, device, progress)
+
+
+def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32, device=None,
+                      progress: bool | None = None) -> np.ndarray:
+    """K = (I - F_SS P)^{-1} F_SS from the block of F over the set, for callers that hold it.
+
+    :func:`multibounce` with ``patches`` validates all of F and cuts this block out of it; a
+    caller that keeps the set's rows of F (:class:`~pydynrad.DynamicRadiosity` on a refresh)
+    passes the block and the set's albedos instead, and only they are checked.
+
+    Parameters
+    ----------
+    F_SS : (M, M) scipy.sparse or dense
+        F's rows and columns of the set, in K's order (validated: finite, >= 0, rows summing
+        to <= 1; they are parts of F's rows, whose sums the caller checked when it got them).
+    albedo : (M, C) float
+        The set's albedo per channel of K (C = 1 for a grey scene, else 3), each in [0, 1).
+    bounces, dtype, device, progress
+        As in :func:`multibounce`.
+
+    Returns
+    -------
+    (C, M, M) ndarray of ``dtype``.
+    """
+    from .device import default_device
+
+    out, bounces = _checked_options(dtype, bounces)
+    device = device or default_device()
+    shape = np.shape(F_SS)
+    if len(shape) != 2 or shape[0] != shape[1] or shape[0] == 0:
+        raise InvalidInputError(f"F_SS must be a non-empty square (M, M) matrix; got shape {shape}")
+    M = shape[0]
+    rho = np.asarray(albedo, dtype=np.float64)
+    if rho.ndim != 2 or rho.shape[0] != M or rho.shape[1] not in (1, 3):
+        raise InvalidInputError(f"albedo must have shape ({M}, 1) or ({M}, 3) for a {M} x {M} block; got {rho.shape}")
+    if not np.all(np.isfinite(rho)) or rho.min() < 0 or rho.max() >= 1:
+        raise InvalidInputError("albedo must be finite and in [0, 1)")
+    _check_memory(M, rho.shape[1], out, bounces, device)
+    # copy=True: sum_duplicates sorts indices in place, which must not touch the caller's matrix.
+    block = check_form_factor_rows(sp.csr_matrix(F_SS, dtype=np.float64, copy=True), "F_SS")
+    return _build(block.toarray(), rho, bounces, out, device, progress)
+
+
+def _checked_options(dtype, bounces) -> tuple[np.dtype, int | None]:
     out = np.dtype(dtype)
     if out not in OUTPUT_DTYPES:
         raise InvalidInputError(f"dtype must be float16, float32 or float64; got {out}")
     if bounces is not None and (int(bounces) != bounces or bounces < 0):
         raise InvalidInputError(f"bounces must be None or a non-negative integer; got {bounces!r}")
-    device = device or default_device()
-    work = real_dtype(np.float64 if out == np.float64 else np.float32, device)
-    idx = _checked_patches(patches, len(checked_scene(scene)))
-    M, C = len(idx), 1 if scene.is_grey else 3
-    _check_memory(M, C, out, bounces, device)
-    F = check_form_factors(scene, F)
-    F_SS = F[idx][:, idx].toarray()
-    rho = scene.albedo[idx].astype(np.float64)
+    return out, None if bounces is None else int(bounces)
 
+
+def _build(F_SS: np.ndarray, rho: np.ndarray, bounces: int | None, out: np.dtype, device, progress) -> np.ndarray:
+    """K per channel from a validated dense F_SS (M, M) and albedos rho (M, C), float64."""
+    from .device import real_dtype
+    from .progress import progress_bar
+
+    work = real_dtype(np.float64 if out == np.float64 else np.float32, device)
+    M, C = rho.shape
     builder = _Builder(device, M, work)
-    steps = (builder.Mp // builder.nb) if bounces is None else int(bounces)
+    steps = (builder.Mp // builder.nb) if bounces is None else bounces
     result = np.empty((C, M, M), dtype=out)
     with progress_bar(progress, long=M >= 2048, total=C * steps, desc=f"multibounce M={M}", unit="step") as bar:
         for c in range(C):
@@ -232,7 +285,7 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
             if bounces is None:
                 K = builder.gauss_jordan(np.eye(M) - FP, F_SS, bar)
             else:
-                K = builder.series(FP, F_SS, int(bounces), bar)
+                K = builder.series(FP, F_SS, bounces, bar)
             result[c] = K
     return result
 

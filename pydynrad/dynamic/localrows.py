@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factors
+from ..checks import check_form_factor_rows, check_form_factors
 from ..errors import InvalidInputError
 from ..rows.sources import HemicubeRows, RowSource
 
@@ -56,7 +56,6 @@ class LocalRows:
 
     def __init__(self, scene, form_factors, resolution: int, device) -> None:
         n = len(scene)
-        self.n_patches = n
         self.csr = None
         self.local: sp.csr_matrix | None = None
         if form_factors is None:
@@ -79,8 +78,11 @@ class LocalRows:
         return sp.csr_matrix(self.source.rows(idx), dtype=np.float64)
 
     def fetch_local(self, local_patches: np.ndarray) -> None:
-        """Fetch the rows of a whole new local set (a build or refresh)."""
+        """Fetch the rows of a whole new local set (a build or refresh). Rows from a source are
+        validated here, once (an in-memory F was when it was given)."""
         self.local = self.rows(local_patches)
+        if self.csr is None:
+            check_form_factor_rows(self.local, "F's rows of the local set")
 
     def entering(self, local_patches: np.ndarray, J: np.ndarray, slots: np.ndarray):
         """F[S, J] (M, k), F[J, S] (k, M) and F[J, J] (k, k), dense float64, for patches J
@@ -95,13 +97,6 @@ class LocalRows:
     def square(self, local_patches: np.ndarray) -> sp.csr_matrix:
         """F_SS (M, M) sparse for the current local set, rows and columns in slot order."""
         return sp.csr_matrix(self.local[:, local_patches])
-
-    def full_shape(self, local_patches: np.ndarray) -> sp.csr_matrix:
-        """An (N, N) sparse matrix holding F's rows ``local_patches`` (all of F when it is in memory)."""
-        if self.csr is not None:
-            return self.csr
-        rows = self.local.tocoo()
-        return sp.csr_matrix((rows.data, (local_patches[rows.row], rows.col)), shape=(self.n_patches, self.n_patches))
 
     @property
     def nbytes(self) -> int:

@@ -192,11 +192,11 @@ class DynamicRadiosity:
 
     # -- building ----------------------------------------------------------------------------------
     def _fresh_K(self, local_patches: np.ndarray) -> np.ndarray:
-        from ..multibounce import multibounce
+        from ..multibounce import multibounce_block
 
         self._ff.fetch_local(local_patches)
-        return multibounce(self.scene, self._ff.full_shape(local_patches), patches=local_patches, dtype=compute_dtype(self.storage),
-                           device=self.device)
+        return multibounce_block(self._ff.square(local_patches), self._rho(local_patches).T,
+                                 dtype=compute_dtype(self.storage), device=self.device)
 
     def _build(self, local_patches: np.ndarray) -> None:
         from .kupdate import UpdateKernels
