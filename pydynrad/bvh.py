@@ -193,8 +193,8 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
     bufs = [cl.Buffer(dev.context, mf.WRITE_ONLY, a.nbytes) for a in (patch, t, front)]
     # One packet of BVH_PACKET consecutive rays per work-item (see kernels/raycast.cl).
     knl = dev.kernel("raycast.cl", "cast_closest", {"BVH_PACKET": BVH_PACKET})
-    knl(dev.queue, (global_size(-(-n // BVH_PACKET)),), None, *bvh.buffers(dev), dev.to_device(o), dev.to_device(d), dev.to_device(tm),
-        np.int32(n), *bufs)
+    knl(dev.queue, (global_size(-(-n // BVH_PACKET)),), None, *bvh.buffers(dev), dev.to_device(o), dev.to_device(d),
+        dev.to_device(tm), np.int32(n), *bufs)
     for host, buf in zip((patch, t, front), bufs):
         cl.enqueue_copy(dev.queue, host, buf)
     dev.queue.finish()

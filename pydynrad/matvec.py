@@ -20,7 +20,7 @@ import numpy as np
 
 from .checks import finite
 from .errors import DeviceError, InvalidInputError, OutOfMemoryError
-from .launch import global_size, matvec_layout
+from .launch import global_size, matvec_layout, round_up
 
 __all__ = ["DeviceMatrix", "STORAGE_DTYPES", "storage_dtype", "MAX_RHS"]
 
@@ -51,7 +51,7 @@ def compute_dtype(storage: str) -> np.dtype:
 
 def padded_ld(M: int) -> int:
     """The row pitch (elements) of an M x M matrix: M rounded up to a multiple of :data:`LD_ALIGN`."""
-    return -(-M // LD_ALIGN) * LD_ALIGN
+    return round_up(M, LD_ALIGN)
 
 
 def _check_storage_on(device, storage: str) -> None:
