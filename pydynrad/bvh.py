@@ -121,8 +121,8 @@ class BVH:
 
     def buffers(self, device) -> tuple:
         """``(nodes, tris, order)`` device buffers, uploaded once per device."""
-        return self.upload_once(device, "bvh", lambda: tuple(device.to_device(a) for a in (self.nodes, self.tris,
-                                                                                            self.order)))
+        arrays = (self.nodes, self.tris, self.order)
+        return self.upload_once(device, "bvh", lambda: tuple(map(device.to_device, arrays)))
 
     def upload_once(self, device, name: str, upload):
         """``upload()``'s result (device buffers) under ``name``, made once per device and kept
@@ -214,7 +214,8 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
     buf = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
     nodes, tris, _ = bvh.buffers(dev)
     dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": BVH_PACKET})(  # one program with cast_closest
-        dev.queue, (global_size(n),), None, nodes, tris, dev.to_device(o), dev.to_device(d), dev.to_device(tm), np.int32(n), buf
+        dev.queue, (global_size(n),), None, nodes, tris, dev.to_device(o), dev.to_device(d), dev.to_device(tm),
+        np.int32(n), buf,
     )
     cl.enqueue_copy(dev.queue, out, buf)
     dev.queue.finish()

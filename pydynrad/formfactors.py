@@ -148,8 +148,8 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
         for first in range(0, len(rows), block):
             idx = rows[first : first + block]
             b = len(idx)
-            knl(dev.queue, (global_size(b * S),), None, nodes, tris, order, centers, normals, dev.to_device(idx), np.int32(b),
-                eps, patch_buf, end_buf, count_buf)
+            knl(dev.queue, (global_size(b * S),), None, nodes, tris, order, centers, normals, dev.to_device(idx),
+                np.int32(b), eps, patch_buf, end_buf, count_buf)
             patch = np.empty((b, S, R), np.int32)
             end = np.empty((b, S, R), np.int32)
             count = np.empty((b, S), np.int32)

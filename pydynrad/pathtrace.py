@@ -76,7 +76,7 @@ class _Tracer:
             packed = np.zeros((1, 12), np.float32)  # a buffer cannot be empty; the kernel reads none
         up = device.to_device
         nodes, tris, order = scene.bvh.buffers(device)
-        self.centers, normals = scene.patch_buffers(device)
+        normals = scene.patch_buffers(device)[1]
         # Materials are uploaded per tracer: scenes that share geometry (and so these cached
         # buffers) may differ in albedo and emission.
         self.args = (
@@ -199,6 +199,7 @@ def path_trace_patches(scene: Scene, patches=None, spp: int = 256, lights=(), se
         return np.zeros((0, 3), dtype=np.float32)
     tracer = _Tracer(scene, lights, max_depth, device)
     ids_dev = tracer.device.to_device(ids.astype(np.int32))
-    total, done = tracer.accumulate("gather_patches", (ids_dev, tracer.centers),
+    centers = scene.patch_buffers(tracer.device)[0]
+    total, done = tracer.accumulate("gather_patches", (ids_dev, centers),
                                     len(ids), int(spp), int(seed), progress, time_limit)
     return (scene.emission[ids] + total / done).astype(np.float32)

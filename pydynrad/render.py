@@ -185,7 +185,8 @@ class Renderer:
         d_uvf = cl.Buffer(dev.context, mf.WRITE_ONLY, 16 * n_pix)
         d_depth = cl.Buffer(dev.context, mf.WRITE_ONLY, 4 * n_pix)
         knl = dev.kernel("render.cl", "primary_visibility")
-        knl(dev.queue, (global_size(n_pix),), None, nodes, tris, order, origin, d_dirs, np.int32(n_pix), d_patch, d_uvf, d_depth)
+        knl(dev.queue, (global_size(n_pix),), None, nodes, tris, order, origin, d_dirs, np.int32(n_pix), d_patch, d_uvf,
+            d_depth)
         patch = np.empty(n_pix, dtype=np.int32)
         uvf = np.empty((n_pix, 4), dtype=np.float32)
         depth = np.empty(n_pix, dtype=np.float32)
