@@ -3,7 +3,7 @@ import sys
 
 import numpy as np
 import pytest
-from test_store import same_csr
+from helpers import same_csr
 
 import pydynrad
 

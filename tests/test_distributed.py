@@ -6,15 +6,15 @@ import cloudpickle
 import numpy as np
 import pytest
 import trimesh
-from test_store import grid_scene, same_csr, synthetic_rows
+from helpers import grid_scene, same_csr, synthetic_rows
 
 import pydynrad
 from pydynrad import InvalidInputError
 from pydynrad.rows.distributed import _WORKER_SCENE, SceneSpec, _worker_scene, precompute_distributed
 from pydynrad.rows.store import FormFactorStore, StoreMismatchError, compute_store
 
-# Workers unpickle the synthetic row function by value: they need not import this test file.
-cloudpickle.register_pickle_by_value(sys.modules["test_store"])
+# Workers unpickle the synthetic row function by value: they need not import the tests' helpers.
+cloudpickle.register_pickle_by_value(sys.modules["helpers"])
 
 
 def test_local_cluster_resumes_and_equals_single_process(tmp_path):

@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import plane_mesh
 
 import pydynrad
 from pydynrad import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector
@@ -12,15 +13,7 @@ from pydynrad import DirectionalLight, PointLight, SpotLight, direct_irradiance,
 def plate(n=12, size=2.0, z=0.0, extra=None, albedo=0.5):
     """An n x n grid of quads (2 triangles each) on z = const, normals +z, centred on the
     origin; ``extra`` = (points, triangles) appended (e.g. a blocker)."""
-    g = np.linspace(-size / 2, size / 2, n + 1)
-    X, Y = np.meshgrid(g, g, indexing="ij")
-    pts = np.stack([X.ravel(), Y.ravel(), np.full(X.size, z)], axis=1)
-    tris = []
-    for i in range(n):
-        for j in range(n):
-            a, b, c, d = i * (n + 1) + j, (i + 1) * (n + 1) + j, (i + 1) * (n + 1) + j + 1, i * (n + 1) + j + 1
-            tris += [[a, b, c], [a, c, d]]
-    tris = np.array(tris)
+    pts, tris = plane_mesh(n, size, z, origin=(-size / 2, -size / 2))
     if extra is not None:
         tris = np.vstack([tris, extra[1] + len(pts)])
         pts = np.vstack([pts, extra[0]])

@@ -7,16 +7,13 @@ compute type (fp32 for fp16/fp32, fp64 for fp64). So fp16 ~1e-3, fp32 ~1e-6, fp6
 
 import numpy as np
 import pytest
+from helpers import rel
 
 import pydynrad
 from pydynrad.matvec import DeviceMatrix
 
 TOL = {"fp16": 1e-3, "fp32": 2e-6, "fp64": 1e-13}
 LAYOUTS = [None, (4, 64), (8, 4)]  # the default, the GPU layout, one in between
-
-
-def _rel(a, b):
-    return np.abs(a - b).max() / np.abs(b).max()
 
 
 @pytest.mark.parametrize("storage", ["fp16", "fp32", "fp64"])
@@ -33,8 +30,8 @@ def test_products_match_numpy(device, storage, layout):
     assert m.nbytes == C * M * m.ld * np.dtype(np.float16 if storage == "fp16" else np.float32 if storage == "fp32" else np.float64).itemsize
     y = m.matvec(x)
     assert y.dtype == np.float64 and y.shape == (C, M)
-    assert _rel(y, np.einsum("cij,cj->ci", K, x)) < TOL[storage]
-    assert _rel(m.rmatvec(x), np.einsum("cij,ci->cj", K, x)) < TOL[storage]
+    assert rel(y, np.einsum("cij,cj->ci", K, x)) < TOL[storage]
+    assert rel(m.rmatvec(x), np.einsum("cij,ci->cj", K, x)) < TOL[storage]
 
 
 @pytest.mark.parametrize("storage", ["fp16", "fp32", "fp64"])
@@ -104,12 +101,12 @@ def test_matmat_matches_numpy_and_per_vector_products(device, storage, layout, r
     m = DeviceMatrix(device, K, storage, layout=layout)
     Y = m.matmat(X)
     assert Y.dtype == np.float64 and Y.shape == (C, r, M)
-    assert _rel(Y, np.einsum("cij,cqj->cqi", K, X)) < TOL[storage]
+    assert rel(Y, np.einsum("cij,cqj->cqi", K, X)) < TOL[storage]
     single = np.stack([m.matvec(X[:, q]) for q in range(r)], axis=1)
     if storage == "fp64":
         np.testing.assert_allclose(Y, single, rtol=1e-15, atol=0)
     else:
-        assert _rel(Y, single) < 1e-6
+        assert rel(Y, single) < 1e-6
 
 
 def test_matmat_one_grey_K_three_colour_channels(device):

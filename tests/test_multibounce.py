@@ -14,17 +14,7 @@ import scipy.sparse as sp
 import pydynrad
 from pydynrad import multibounce, multibounce_radiosity
 from pydynrad.multibounce import multibounce_memory
-from radiosity_inputs import box_scene, reciprocal_F
-
-
-def K_truth(scene, F, idx, channel):
-    Fd = sp.csr_matrix(F).toarray()[np.ix_(idx, idx)]
-    rho = scene.albedo[idx, channel].astype(np.float64)
-    return np.linalg.solve(np.eye(len(idx)) - Fd * rho[None, :], Fd)
-
-
-def rel(a, b):
-    return np.abs(a - b).max() / np.abs(b).max()
+from helpers import box_scene, dense_K, reciprocal_F, rel
 
 
 @pytest.mark.parametrize("dtype,tol", [(np.float64, 1e-12), (np.float32, 1e-5)])
@@ -37,7 +27,7 @@ def test_full_K_matches_dense_inverse_coloured(device, dtype, tol):
     assert K.shape == (3, len(s), len(s)) and K.dtype == dtype
     idx = np.arange(len(s))
     for c in range(3):
-        assert rel(K[c], K_truth(s, F, idx, c)) < tol
+        assert rel(K[c], dense_K(s, F, idx)[c]) < tol
 
 
 def test_subset_in_given_order_grey(device):
@@ -46,14 +36,14 @@ def test_subset_in_given_order_grey(device):
     idx = np.random.default_rng(3).permutation(len(s))[:150]
     K = multibounce(s, F, patches=idx, dtype=np.float64, device=device)
     assert K.shape == (1, 150, 150)
-    assert rel(K[0], K_truth(s, F, idx, 0)) < 1e-12
+    assert rel(K[0], dense_K(s, F, idx)[0]) < 1e-12
 
 
 def test_albedo_0999_exact_in_float64(device):
     s = box_scene(3, albedo=0.999)
     F = reciprocal_F(s.areas, seed=4)
     idx = np.arange(len(s))
-    truth = K_truth(s, F, idx, 0)
+    truth = dense_K(s, F, idx)[0]
     assert rel(multibounce(s, F, dtype=np.float64, device=device)[0], truth) < 1e-10
     assert rel(multibounce(s, F, dtype=np.float32, device=device)[0], truth) < 1e-3
 

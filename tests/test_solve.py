@@ -1,7 +1,7 @@
 """The full radiosity solver against independent truths: the furnace B = E / (1 - rho), a
 dense float64 solve written here in numpy, energy conservation, and the extremes.
 
-Synthetic F (tests/radiosity_inputs.py) satisfies reciprocity and its row sums exactly, so
+Synthetic F (tests/helpers.py) satisfies reciprocity and its row sums exactly, so
 these tests check the solver's algebra apart from any form-factor discretisation.
 
 float32 bound: the iteration stops at relative residual tol, so B's relative error is at most
@@ -14,14 +14,7 @@ import scipy.sparse as sp
 
 import pydynrad
 from pydynrad import solve
-from radiosity_inputs import box_scene, reciprocal_F
-
-
-def dense_truth(scene, F, L):
-    """(I - P F) B = L per channel in float64, written plainly."""
-    Fd = sp.csr_matrix(F).toarray().astype(np.float64)
-    rho = scene.albedo.astype(np.float64)
-    return np.stack([np.linalg.solve(np.eye(len(scene)) - rho[:, c : c + 1] * Fd, L[:, c]) for c in range(3)], axis=1)
+from helpers import box_scene, dense_radiosity, reciprocal_F
 
 
 @pytest.mark.parametrize("rho", [0.5, 0.99])
@@ -53,7 +46,7 @@ def test_iterative_matches_dense_coloured_leaky(device):
     s = box_scene(3)
     s = s.with_materials(albedo=rng.uniform(0, 0.9, (len(s), 3)), emission=rng.uniform(0, 1, (len(s), 3)) * (rng.random((len(s), 1)) < 0.2))
     F = reciprocal_F(s.areas, row_sum=0.9, seed=2)
-    truth = dense_truth(s, F, s.emission.astype(np.float64))
+    truth = dense_radiosity(s, F, s.emission.astype(np.float64))
     dense = solve(s, F, method="dense", device=device)
     np.testing.assert_allclose(dense.radiosity, truth, rtol=1e-12, atol=1e-14)
     it64 = solve(s, F, dtype=np.float64, tol=1e-12, device=device)
@@ -85,7 +78,7 @@ def test_grey_scene_with_coloured_light_uses_three_channels(device):
     F = reciprocal_F(s.areas, seed=6)
     sol = solve(s, F, dtype=np.float64, tol=1e-12, device=device)
     assert sol.channels == 3
-    np.testing.assert_allclose(sol.radiosity, dense_truth(s, F, s.emission.astype(np.float64)), rtol=1e-10)
+    np.testing.assert_allclose(sol.radiosity, dense_radiosity(s, F, s.emission.astype(np.float64)), rtol=1e-10)
 
 
 def test_analytic_lights_enter_through_L(device):
@@ -95,7 +88,7 @@ def test_analytic_lights_enter_through_L(device):
     L = pydynrad.light_vector(s, lights, device=device)
     assert L.max() > 0
     sol = solve(s, F, lights=lights, dtype=np.float64, tol=1e-12, device=device)
-    np.testing.assert_allclose(sol.radiosity, dense_truth(s, F, L), rtol=1e-10)
+    np.testing.assert_allclose(sol.radiosity, dense_radiosity(s, F, L), rtol=1e-10)
     np.testing.assert_allclose(sol.light, L)
 
 

@@ -9,13 +9,10 @@ Truth: the same products and updates in float64 numpy on the matrix the device h
 import numpy as np
 import pyopencl as cl
 import pytest
+from helpers import rel
 
 from pydynrad.dynamic.kupdate import UpdateKernels
 from pydynrad.matvec import DeviceMatrix
-
-
-def rel(a, b):
-    return np.abs(a - b).max() / np.abs(b).max()
 
 
 # M = 13: one partial row group; 600: ld = 640, a full and a partial column strip of the CPU

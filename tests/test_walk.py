@@ -2,6 +2,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers import box_mesh
 
 import pydynrad
 from pydynrad import InvalidInputError, Scene, read_image
@@ -9,8 +10,6 @@ from pydynrad.lights import PointLight, light_vector
 from pydynrad.paths import CameraPath, LightTrack, fly_through, load_path, orbit
 from pydynrad.render import Renderer
 from pydynrad.walk import walk
-
-from test_render import grid_box
 
 
 def test_keyframes_are_hit_and_interpolation_is_smooth():
@@ -134,7 +133,7 @@ class DirectOnly:
 
 
 def test_walk_drives_solver_moves_lights_and_writes_frames(device, tmp_path):
-    pts, tris = grid_box(n=4, inward=True)
+    pts, tris = box_mesh(n=4, inward=True)
     scene = Scene(pts, tris, albedo=0.5)
     path = CameraPath([[0.5, 0.5, 0.9], [0.4, 0.6, 0.8]], [[0.5, 0.5, 0.0], [0.2, 0.4, 0.0]], frames=3,
                       width=24, height=16, fov_y=80, interpolation="linear")
@@ -157,7 +156,7 @@ def test_walk_drives_solver_moves_lights_and_writes_frames(device, tmp_path):
 
 
 def test_walk_rejects_bad_requests(device):
-    pts, tris = grid_box(n=1)
+    pts, tris = box_mesh(n=1)
     scene = Scene(pts, tris)
     path = orbit((0.5, 0.5, 0.5), 0.2, 0.0, frames=2, width=8, height=8, fov_y=60)
     with pytest.raises(InvalidInputError, match="form factors"):
@@ -171,7 +170,7 @@ def test_walk_rejects_bad_requests(device):
 def test_walk_with_dynamic_radiosity_matches_full_solve_when_local_set_is_everything(device, tmp_path):
     from pydynrad.formfactors import form_factors
 
-    pts, tris = grid_box(n=2, inward=True)
+    pts, tris = box_mesh(n=2, inward=True)
     scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))
     scene = scene.with_materials(emission=np.where(scene.centers[:, 1] > 0.99, 1.0, 0.0))  # a glowing ceiling
     F = form_factors(scene, resolution=16, device=device, progress=False)
@@ -195,7 +194,7 @@ def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     from pydynrad.rows.sources import CSRRows
     from pydynrad.rows.store import compute_store
 
-    pts, tris = grid_box(n=4, inward=True)
+    pts, tris = box_mesh(n=4, inward=True)
     scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))
     scene = scene.with_materials(emission=np.where(scene.centers[:, 1] > 0.99, 1.0, 0.0))
     F = form_factors(scene, resolution=16, device=device, progress=False)  # hemicube F: not reciprocal
