@@ -6,7 +6,8 @@ from pydynrad.compare import comparison_image, false_colour, pixel_error, radios
 
 
 def _linear_viridis(t):
-    mpl = pytest.importorskip("matplotlib")
+    import matplotlib as mpl
+
     c = mpl.colormaps["viridis"](t)[..., :3]
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 

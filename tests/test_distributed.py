@@ -8,7 +8,6 @@ import pytest
 import trimesh
 from helpers import grid_scene, same_csr, synthetic_rows
 
-import pydynrad
 from pydynrad import InvalidInputError
 from pydynrad.rows.distributed import _WORKER_SCENE, SceneSpec, _worker_scene, precompute_distributed
 from pydynrad.rows.store import FormFactorStore, StoreMismatchError, compute_store
@@ -37,7 +36,6 @@ def test_local_cluster_resumes_and_equals_single_process(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not hasattr(pydynrad, "form_factors"), reason="pydynrad.form_factors not available yet")
 def test_real_form_factors_distributed_equal_single_process(tmp_path):
     """Hemicube rows from a mesh-file SceneSpec on 2 workers (own OpenCL contexts) = one process."""
     box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))

@@ -107,6 +107,30 @@ def test_row_source_matches_sparse(device, setup):
     assert rel(b.matrix.to_host(), a.matrix.to_host()) < 1e-6  # a row source serves F rounded to float32
 
 
+def test_hemicube_rows_on_demand(device):
+    """form_factors=None: one hemicube per entering patch. The walk equals, bit for bit, the walk
+    over the rows of the whole hemicube matrix; K is the dense multibounce matrix of those rows;
+    with every patch in the set, B is the full solve of that matrix."""
+    scene = coloured_box(3, seed=26, emitters=2)  # 108 patches
+    F = pydynrad.form_factors(scene, resolution=16, device=device)
+    kw = dict(local_size=40, update="exact", storage="fp64", max_swaps_per_frame=4, observer=[0.5, 0.5, 0.5],
+              device=device)
+    lazy, full = DynamicRadiosity(scene, None, resolution=16, **kw), DynamicRadiosity(scene, CSRRows(F), **kw)
+    swaps = 0
+    for p in observer_walk(np.random.default_rng(27), 12):
+        st = lazy.update(p)
+        assert st.swaps == full.update(p).swaps
+        swaps += st.swaps
+    assert swaps >= 10
+    np.testing.assert_array_equal(lazy.local_patches, full.local_patches)
+    K = lazy.matrix.to_host()
+    np.testing.assert_array_equal(K, full.matrix.to_host())
+    assert rel(K, dense_K(scene, F, lazy.local_patches)) < 1e-13  # observed 6e-16 (PoCL/Xeon, 2026-12-01)
+    everything = DynamicRadiosity(scene, None, local_size=len(scene), resolution=16, storage="fp64", device=device)
+    everything.update([0.5, 0.5, 0.5])
+    assert rel(everything.radiosity(), pydynrad.solve(scene, F, method="dense").radiosity) < 1e-13  # observed 5e-16
+
+
 # -- lighting ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("mode", ["exact", "paper"])
 def test_full_set_reproduces_the_full_solution(device, mode):

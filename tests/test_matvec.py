@@ -127,3 +127,19 @@ def test_matmat_bad_inputs(device):
         m.matmat(np.full((2, 8), np.nan))
     with pytest.raises(pydynrad.InvalidInputError, match="nrhs"):
         m.enqueue_matvec(0, None, None, nrhs=5)
+
+
+@pytest.mark.parametrize("storage", ["fp16", "fp32", "fp64"])
+def test_portable_kernels_equal_clang_vector_kernels(device, portable_kernels, storage):
+    """The vload/vstore build (any OpenCL CPU) computes what PoCL's 16-wide dereference build
+    computes: the same sums in the same order, bit for bit."""
+    rng = np.random.default_rng(6)
+    C, M = 2, 203
+    K, x, X = rng.random((C, M, M)), rng.random((C, M)), rng.random((C, 3, M))
+    clang = DeviceMatrix(device, K, storage)
+    with portable_kernels():
+        portable = DeviceMatrix(device, K, storage)
+        got = portable.matvec(x), portable.rmatvec(x), portable.matmat(X)
+    for a, b in zip(got, (clang.matvec(x), clang.rmatvec(x), clang.matmat(X))):
+        np.testing.assert_array_equal(a, b)
+    assert rel(got[0], np.einsum("cij,cj->ci", K, x)) < TOL[storage]

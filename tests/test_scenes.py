@@ -44,7 +44,8 @@ def test_cornell_dimensions_and_patching(cbox):
     np.testing.assert_allclose(cbox.bbox, [[0, 0, 0], BOX], atol=1e-3)
     v = cbox.vertices.astype(np.float64)
     assert np.linalg.norm(v - np.roll(v, 1, axis=1), axis=2).max() <= 100.0 + 1e-3
-    assert 500 < len(cbox) < 3000
+    assert len(cbox) == 1096  # the documented default (max_edge=100 mm)
+    assert len(cornell_box(max_edge=50.0)) == 4384  # README's accuracy table
     assert len(cbox.points) < len(cbox)  # corners are shared: one connected mesh
     fine = cornell_box(max_patch_area=2000.0, max_edge=None)
     assert fine.areas.max() <= 2000.0
@@ -144,7 +145,7 @@ def test_village_is_deterministic_from_its_seed():
 
 def test_village_default_size_and_materials():
     s = village()
-    assert len(s) >= 60_000
+    assert len(s) == 66_154  # the documented default (seed 0, 12 houses, detail 1)
     assert not s.is_grey
     assert s.albedo.min() >= 0 and s.albedo.max() < 1
     # Lit by its lamps alone: a pendant lamp in every room, a street lamp per lot.
@@ -195,5 +196,4 @@ def test_village_normals_face_open_space_finer(seed):
 
 @pytest.mark.slow
 def test_village_scales_to_a_million_patches():
-    s = village(detail=20)
-    assert len(s) >= 1_000_000
+    assert len(village(detail=20)) == 1_065_668

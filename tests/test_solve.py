@@ -171,7 +171,8 @@ def test_dense_refused_when_too_large(device, monkeypatch):
 
 @pytest.fixture(scope="module")
 def cornell(device):
-    s = pydynrad.scenes.cornell_box(max_edge=200.0)  # 274 patches
+    s = pydynrad.scenes.cornell_box(max_edge=200.0)
+    assert len(s) == 274
     F = pydynrad.form_factors(s, resolution=32, device=device)
     return s, F, solve(s, F, dtype=np.float64, tol=1e-12, device=device)
 
