@@ -242,7 +242,7 @@ def test_pixel_weights_are_the_hemisphere():
     for R in (2, 16, 64):
         w = pixel_form_factors(R)
         assert w.shape == (3 * R, R)
-        assert w.sum() == pytest.approx(1.0, abs=1e-12) and w.min() > 0
+        assert w.sum() == pytest.approx(1.0, abs=1e-14) and w.min() > 0
     # Midpoint rule for a central top pixel: cos^2 / (pi r^4) dA with r = 1.
     R = 256
     assert pixel_form_factors(R)[R // 2, R // 2] == pytest.approx((2 / R) ** 2 / np.pi, rel=1e-3)

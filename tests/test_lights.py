@@ -84,7 +84,7 @@ def test_directional_light(device):
     s = plate()
     d = np.array([1.0, 0.0, -1.0])
     E = direct_irradiance(s, [DirectionalLight(d, (2.0, 1.0, 0.5))], device=device)
-    np.testing.assert_allclose(E, np.tile([2.0, 1.0, 0.5], (len(s), 1)) * math.cos(math.pi / 4), rtol=1e-5)
+    np.testing.assert_allclose(E, np.tile([2.0, 1.0, 0.5], (len(s), 1)) * math.cos(math.pi / 4), rtol=1e-6)
 
 
 def test_light_vector_is_emission_plus_reflected_direct_light(device):

@@ -15,7 +15,7 @@ from helpers import coloured_box, dense_K, observer_walk, reciprocal_F, rel
 
 from pydynrad.dynamic import DynamicRadiosity
 
-TOL = {"fp64": 1e-12, "fp32": 1e-5, "fp16": 5e-3}  # observed: 7e-17, 2.4e-7, 1.2e-3
+TOL = {"fp64": 1e-14, "fp32": 1e-5, "fp16": 5e-3}  # observed: 7e-17, 2.4e-7, 1.2e-3 (PoCL/Xeon, 2026-12-01)
 
 
 class PaperReference:
@@ -100,8 +100,8 @@ def test_paper_mode_is_an_approximation(device, setup):
     dyn, ref, _, _ = run_walk(device, scene, F, "fp64", frames=30)
     fresh = dense_K(scene, F, dyn.local_patches, 3)
     err = rel(dyn.matrix.to_host(), fresh)
-    assert 1e-6 < err < 10 and np.all(np.isfinite(dyn.matrix.to_host()))
-    assert dyn.residual() > 1e-6
+    assert 0.01 < err < 1 and np.all(np.isfinite(dyn.matrix.to_host()))  # observed 0.13
+    assert dyn.residual() > 1e-3
     L = np.random.default_rng(24).random((len(scene), 3))
     assert np.all(np.isfinite(dyn.radiosity(light=L)))
 

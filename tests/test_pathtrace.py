@@ -86,7 +86,7 @@ def test_analytic_lights_match_direct_irradiance(device):
     truth = 0.7 * direct_irradiance(scene, lights, device=device)[:k]
     assert (truth[:, 1] == 0).any() and (truth[:, 1] > 0).sum() > k // 2  # some shadowed, most lit
     b = path_trace_patches(scene, patches=np.arange(k), spp=3, lights=lights, device=device)
-    np.testing.assert_allclose(b, truth, rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(b, truth, rtol=1e-5)  # observed 1.1e-7; shadowed patches exactly 0
 
 
 def test_seed_determinism_and_pass_independence(furnace, device):

@@ -28,7 +28,8 @@ def test_gather_and_rank_update_kernels(device, storage, M, cpu_kernels):
     uk = UpdateKernels(m, 32, cpu_kernels=cpu_kernels)
     K = m.to_host()[0]
     # fp16 storage: the update is computed in fp32 and rounded once to fp16 per element.
-    tol = {"fp64": 1e-12, "fp32": 1e-5, "fp16": 2e-3}[storage]
+    # Observed (PoCL/Xeon, 2026-12-01): fp64 1.7e-15, fp32 6.5e-7, fp16 3.9e-4.
+    tol = {"fp64": 1e-13, "fp32": 1e-5, "fp16": 2e-3}[storage]
     for n in (1, 7, 32):
         X, Y = rng.uniform(-1, 1, (n, M)), rng.uniform(-1, 1, (n, M))
         KX, YK = uk.gather(0, X, Y)
@@ -56,13 +57,13 @@ def test_all_channels_in_one_read_back(device):
     slots = np.array([69, 2])
     KX, YK, cols, rows = uk.gather_all(X, Y, slots)
     for c in range(C):
-        np.testing.assert_allclose(KX[c], X[c] @ K[c].T, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(YK[c], Y[c] @ K[c], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(KX[c], X[c] @ K[c].T, rtol=0, atol=1e-13)  # observed 4.4e-15
+        np.testing.assert_allclose(YK[c], Y[c] @ K[c], rtol=0, atol=1e-13)
         np.testing.assert_array_equal(cols[c], K[c][:, slots].T)
         np.testing.assert_array_equal(rows[c], K[c][slots])
     f_c, f_r, rho = rng.random(M), rng.random(M), rng.random((C, M))
     dr = uk.double_reflection(f_c, f_r, rho)
-    np.testing.assert_allclose(dr, (f_c * f_r * rho).sum(axis=1), rtol=1e-13)
+    np.testing.assert_allclose(dr, (f_c * f_r * rho).sum(axis=1), rtol=1e-14)  # observed 1.3e-16
     assert dr[1] == uk.double_reflection(f_c, f_r, rho[1])
 
 
