@@ -122,11 +122,13 @@ def rel(a, b) -> float:
     return float(np.abs(np.asarray(a) - b).max() / np.abs(b).max())
 
 
-def dense_radiosity(scene, F, L) -> np.ndarray:
-    """B = L + P F B solved per colour channel in float64, L (N, 3): (N, 3)."""
-    Fd = sp.csr_matrix(F).toarray().astype(np.float64)
-    rho = scene.albedo.astype(np.float64)
-    return np.stack([np.linalg.solve(np.eye(len(scene)) - rho[:, c : c + 1] * Fd, L[:, c]) for c in range(3)], axis=1)
+def dense_radiosity(scene, F, L, patches=None) -> np.ndarray:
+    """B = L + P F B solved per colour channel in float64, L (N, 3): (N, 3); with ``patches`` S,
+    B_S of the closed sub-system B_S = L_S + P_S F_SS B_S: (len(S), 3)."""
+    S = np.arange(len(scene)) if patches is None else np.asarray(patches)
+    Fs = sp.csr_matrix(F).toarray().astype(np.float64)[np.ix_(S, S)]
+    rho, L = scene.albedo[S].astype(np.float64), np.asarray(L, np.float64)[S]
+    return np.stack([np.linalg.solve(np.eye(len(S)) - rho[:, c : c + 1] * Fs, L[:, c]) for c in range(3)], axis=1)
 
 
 def dense_K(scene, F, patches=None, channels: int = 3) -> np.ndarray:
