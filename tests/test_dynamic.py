@@ -63,8 +63,7 @@ def test_single_swap_is_downdate_then_bordering():
     S = rng.choice(len(scene), 20, replace=False)
     j = next(x for x in range(len(scene)) if x not in S)
     s = 7
-    Fs = F[np.ix_(S, S)]
-    K = np.linalg.solve(np.eye(20) - Fs * rho[S], Fs)
+    K = dense_K(scene, F, S, channels=2)[1]
     # Sherman-Morrison downdate of slot s (docs/design.md, 'Exact mode'), then drop its row and column.
     ri = rho[S[s]]
     Kd = K - np.outer(K[:, s], K[s, :]) * ri / (1 + ri * K[s, s])
@@ -92,8 +91,7 @@ def test_single_swap_is_downdate_then_bordering():
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-15)  # observed 1.4e-17 (PoCL/Xeon, 2026-12-01)
     S2 = S.copy()
     S2[s] = j
-    np.testing.assert_allclose(got, np.linalg.solve(np.eye(20) - F[np.ix_(S2, S2)] * rho[S2], F[np.ix_(S2, S2)]),
-                               rtol=0, atol=1e-15)  # observed 3.5e-17
+    np.testing.assert_allclose(got, dense_K(scene, F, S2, channels=2)[1], rtol=0, atol=1e-15)  # observed 3.5e-17
 
 
 def test_row_source_matches_sparse(device, setup):

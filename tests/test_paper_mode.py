@@ -120,4 +120,4 @@ def test_long_paper_walk_stays_finite(device, setup):
     dyn, ref, _, swaps = run_walk(device, scene, F, "fp32", frames=2000, seed=25)
     assert swaps > 1000
     assert np.all(np.isfinite(dyn.matrix.to_host()))
-    assert rel(dyn.matrix.to_host(), ref.K) < 1e-3
+    assert rel(dyn.matrix.to_host(), ref.K) < 3e-5  # observed 3.4e-7 (PoCL/Xeon, 2026-12-01)
