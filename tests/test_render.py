@@ -37,7 +37,7 @@ def test_patch_ids_match_brute_force(device, cluttered_scene):
     assert clear.mean() > 0.95
     np.testing.assert_array_equal(vis.patch[clear], patch[clear])
     np.testing.assert_array_equal(vis.front[clear], front[clear])
-    np.testing.assert_allclose(vis.barycentric[clear], bary[clear], atol=1e-5)  # observed 6e-7
+    np.testing.assert_allclose(vis.barycentric[clear], bary[clear], atol=5e-5)  # float32 kernel: observed 6e-7
     # The view really covers the three cases.
     assert (patch == -1).any() and front.any() and ((patch >= 0) & ~front).any()
 
@@ -108,7 +108,7 @@ def test_smooth_pixels_interpolate_corner_values(device, cluttered_scene):
     corners = r.corner_radiosity(b)
     sel = clear & front
     expect = np.einsum("pk,pkc->pc", bary[sel], corners[patch[sel]])
-    np.testing.assert_allclose(img[sel], expect, rtol=1e-5, atol=1e-5)  # observed 8e-7
+    np.testing.assert_allclose(img[sel], expect, rtol=5e-5, atol=5e-6)  # float32 kernel: observed 6e-7 relative
     np.testing.assert_allclose(flat[sel], b[patch[sel]], rtol=1e-6)
     np.testing.assert_array_equal(img[clear & (patch == -1)], -1.0)
     np.testing.assert_array_equal(img[clear & (patch >= 0) & ~front], -2.0)
