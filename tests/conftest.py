@@ -1,3 +1,4 @@
+import contextlib
 import os
 
 import pytest
@@ -12,3 +13,29 @@ def device():
     import pydynrad
 
     return pydynrad.default_device()
+
+
+@pytest.fixture
+def portable_kernels(device, monkeypatch):
+    """A context manager under which kernels are built as on any OpenCL CPU: vload/vstore
+    instead of the 16-wide aligned dereference PoCL's clang allows (``PDR_CLANG_VECTORS``).
+    On leaving it checks that programs were built and none with that define. Skips where the
+    device never takes the clang path (every kernel there is the portable one)."""
+    if not device.aligned_vector_access:
+        pytest.skip(f"{device.name} builds only the portable kernels")
+
+    @contextlib.contextmanager
+    def portable():
+        built, program = [], device.program
+
+        def recording(filename, defines=None):
+            built.append(dict(defines or {}))
+            return program(filename, defines)
+
+        with monkeypatch.context() as m:
+            m.setattr(type(device), "aligned_vector_access", property(lambda self: False))
+            m.setattr(device, "program", recording)
+            yield
+        assert built and not any("PDR_CLANG_VECTORS" in d for d in built)
+
+    return portable

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import scipy.sparse as sp
-from test_store import grid_scene, same_csr, synthetic_rows
+from helpers import box_mesh, grid_scene, same_csr, synthetic_rows
 
 from pydynrad import InvalidInputError, Scene
 from pydynrad.rows.files import load_form_factors, open_form_factors, save_form_factors, whole_matrix
@@ -11,11 +11,9 @@ from pydynrad.rows.cache import RowCache
 from pydynrad.rows.sources import CSRRows
 from pydynrad.rows.store import FormFactorStore, StoreIncompleteError, StoreMismatchError, compute_store
 
-from test_render import grid_box
-
 
 def small_scene():
-    pts, tris = grid_box(n=1)
+    pts, tris = box_mesh(n=1)
     return Scene(pts, tris, albedo=0.5, name="cube")
 
 
@@ -29,7 +27,7 @@ def test_form_factor_file_round_trip_and_checks(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["f.npz"]  # no temporary left behind
     assert same_csr(open_form_factors(scene, path), F)
     assert same_csr(open_form_factors(scene, path, cache_bytes=1000), F)  # a file is in memory whole
-    other = Scene(*grid_box(n=2), name="other")
+    other = Scene(*box_mesh(n=2), name="other")
     with pytest.raises(InvalidInputError, match="another scene geometry"):
         open_form_factors(other, path)
     junk = tmp_path / "junk.npz"

@@ -11,6 +11,7 @@ Truths, written out here so the test does not trust the code under test:
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from helpers import same_csr
 
 from pydynrad import InvalidInputError, Scene
 from pydynrad.formfactors import form_factors, pixel_form_factors
@@ -75,6 +76,7 @@ def plate_errors(device):
     for name, (make, truth) in CASES.items():
         for sub in (1, 2, 3):
             scene = make(subdivisions=sub)
+            assert len(scene) == 2 * 2 * 4**sub  # two rectangles of 2 * 4**sub patches
             F = form_factors(scene, resolution=64, device=device)
             assert F.dtype == np.float32 and F.shape == (len(scene), len(scene))
             assert np.all(F.diagonal() == 0)
@@ -142,6 +144,7 @@ def test_no_aliasing_spikes_r16_to_r256(device):
 @pytest.fixture(scope="module")
 def box(device):
     scene = closed_box(1.0, subdivisions=2)
+    assert len(scene) == 6 * 2 * 4**2
     return scene, form_factors(scene, resolution=32, device=device)
 
 
@@ -214,11 +217,32 @@ def test_rows_subset_matches_full_matrix(device):
     np.testing.assert_array_equal(form_factors(scene, resolution=16, device=device).toarray(), full.toarray())
 
 
+@pytest.mark.parametrize("block_rows", [1, 7])
+def test_row_blocks_give_the_single_block_rows(device, monkeypatch, block_rows):
+    """A block budget of 1 or 7 rows (64 rows: 64 blocks, or 9 full and a short one) gives the
+    matrix one block gives, bit for bit, for all rows and an unordered subset."""
+    import pydynrad.formfactors as ff
+
+    scene = perpendicular_plates(subdivisions=2)
+    idx = np.array([63, 0, 17, 17, 40, 5, 62, 1, 30])
+    whole, part = form_factors(scene, resolution=16, device=device), form_factors(scene, resolution=16, rows=idx,
+                                                                                 device=device)
+    per_row = 3 * 16 * 16 * 8  # run buffers per row: 3R x R slots of 8 bytes
+    assert ff.BLOCK_BYTES >= len(scene) * per_row  # the default holds all 64 rows in one block
+    monkeypatch.setattr(ff, "BLOCK_BYTES", block_rows * per_row)
+    blocks = []
+    to_csr = ff._runs_to_csr
+    monkeypatch.setattr(ff, "_runs_to_csr", lambda patch, *a: blocks.append(len(patch)) or to_csr(patch, *a))
+    assert same_csr(form_factors(scene, resolution=16, device=device), whole)
+    assert blocks == [block_rows] * (64 // block_rows) + [64 % block_rows] * (64 % block_rows > 0)
+    assert same_csr(form_factors(scene, resolution=16, rows=idx, device=device), part)
+
+
 def test_pixel_weights_are_the_hemisphere():
     for R in (2, 16, 64):
         w = pixel_form_factors(R)
         assert w.shape == (3 * R, R)
-        assert w.sum() == pytest.approx(1.0, abs=1e-12) and w.min() > 0
+        assert w.sum() == pytest.approx(1.0, abs=1e-14) and w.min() > 0
     # Midpoint rule for a central top pixel: cos^2 / (pi r^4) dA with r = 1.
     R = 256
     assert pixel_form_factors(R)[R // 2, R // 2] == pytest.approx((2 / R) ** 2 / np.pi, rel=1e-3)

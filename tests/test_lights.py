@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import plane_mesh
 
 import pydynrad
 from pydynrad import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector
@@ -12,15 +13,7 @@ from pydynrad import DirectionalLight, PointLight, SpotLight, direct_irradiance,
 def plate(n=12, size=2.0, z=0.0, extra=None, albedo=0.5):
     """An n x n grid of quads (2 triangles each) on z = const, normals +z, centred on the
     origin; ``extra`` = (points, triangles) appended (e.g. a blocker)."""
-    g = np.linspace(-size / 2, size / 2, n + 1)
-    X, Y = np.meshgrid(g, g, indexing="ij")
-    pts = np.stack([X.ravel(), Y.ravel(), np.full(X.size, z)], axis=1)
-    tris = []
-    for i in range(n):
-        for j in range(n):
-            a, b, c, d = i * (n + 1) + j, (i + 1) * (n + 1) + j, (i + 1) * (n + 1) + j + 1, i * (n + 1) + j + 1
-            tris += [[a, b, c], [a, c, d]]
-    tris = np.array(tris)
+    pts, tris = plane_mesh(n, size, z, origin=(-size / 2, -size / 2))
     if extra is not None:
         tris = np.vstack([tris, extra[1] + len(pts)])
         pts = np.vstack([pts, extra[0]])
@@ -91,7 +84,7 @@ def test_directional_light(device):
     s = plate()
     d = np.array([1.0, 0.0, -1.0])
     E = direct_irradiance(s, [DirectionalLight(d, (2.0, 1.0, 0.5))], device=device)
-    np.testing.assert_allclose(E, np.tile([2.0, 1.0, 0.5], (len(s), 1)) * math.cos(math.pi / 4), rtol=1e-5)
+    np.testing.assert_allclose(E, np.tile([2.0, 1.0, 0.5], (len(s), 1)) * math.cos(math.pi / 4), rtol=1e-6)
 
 
 def test_light_vector_is_emission_plus_reflected_direct_light(device):

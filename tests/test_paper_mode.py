@@ -11,12 +11,11 @@ K[s, s] = dr; then used[:, j] = True and used[s, :] = the current local set.
 
 import numpy as np
 import pytest
-from radiosity_inputs import reciprocal_F
-from test_dynamic import fresh_K, make_scene, rel, walk
+from helpers import coloured_box, dense_K, observer_walk, reciprocal_F, rel
 
 from pydynrad.dynamic import DynamicRadiosity
 
-TOL = {"fp64": 1e-12, "fp32": 1e-5, "fp16": 5e-3}  # observed: 7e-17, 2.4e-7, 1.2e-3
+TOL = {"fp64": 1e-14, "fp32": 1e-5, "fp16": 5e-3}  # observed: 7e-17, 2.4e-7, 1.2e-3 (PoCL/Xeon, 2026-12-01)
 
 
 class PaperReference:
@@ -28,7 +27,7 @@ class PaperReference:
         self.members = np.array(members)
         self.included = np.zeros(len(scene), bool)
         self.included[self.members] = True
-        self.K = fresh_K(scene, F, self.members, 3)
+        self.K = dense_K(scene, F, self.members, 3)
         self.used = np.tile(self.included, (len(members), 1))
         self.use_bitset = use_bitset
         self.masked_rows = 0
@@ -62,7 +61,7 @@ class PaperReference:
 
 @pytest.fixture(scope="module")
 def setup():
-    scene = make_scene(4, seed=21, emitters=2)
+    scene = coloured_box(4, seed=21, emitters=2)
     F = reciprocal_F(scene.areas, row_sum=0.95, density=0.08, seed=22)
     return scene, F
 
@@ -73,7 +72,7 @@ def run_walk(device, scene, F, storage, frames=60, seed=23):
     ref = PaperReference(scene, F, dyn.local_patches)
     plain = PaperReference(scene, F, dyn.local_patches, use_bitset=False)
     swaps = 0
-    for p in walk(np.random.default_rng(seed), scene, frames):
+    for p in observer_walk(np.random.default_rng(seed), frames):
         st = dyn.update(p)
         swaps += st.swaps
         for i, j in zip(st.removed, st.added):
@@ -99,10 +98,10 @@ def test_paper_mode_is_an_approximation(device, setup):
     """Paper K drifts from the exact multibounce matrix of its set; exact mode does not."""
     scene, F = setup
     dyn, ref, _, _ = run_walk(device, scene, F, "fp64", frames=30)
-    fresh = fresh_K(scene, F, dyn.local_patches, 3)
+    fresh = dense_K(scene, F, dyn.local_patches, 3)
     err = rel(dyn.matrix.to_host(), fresh)
-    assert 1e-6 < err < 10 and np.all(np.isfinite(dyn.matrix.to_host()))
-    assert dyn.residual() > 1e-6
+    assert 0.01 < err < 1 and np.all(np.isfinite(dyn.matrix.to_host()))  # observed 0.13
+    assert dyn.residual() > 1e-3
     L = np.random.default_rng(24).random((len(scene), 3))
     assert np.all(np.isfinite(dyn.radiosity(light=L)))
 
@@ -121,4 +120,4 @@ def test_long_paper_walk_stays_finite(device, setup):
     dyn, ref, _, swaps = run_walk(device, scene, F, "fp32", frames=2000, seed=25)
     assert swaps > 1000
     assert np.all(np.isfinite(dyn.matrix.to_host()))
-    assert rel(dyn.matrix.to_host(), ref.K) < 1e-3
+    assert rel(dyn.matrix.to_host(), ref.K) < 3e-5  # observed 3.4e-7 (PoCL/Xeon, 2026-12-01)

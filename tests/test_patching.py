@@ -21,7 +21,7 @@ def test_split_conserves_area_orientation_and_connectivity():
     a = tri_areas(p, t)
     assert a.max() <= limit
     # Children tile their parent exactly.
-    np.testing.assert_allclose(np.bincount(parent, weights=a), mesh.area_faces, rtol=1e-12)
+    np.testing.assert_allclose(np.bincount(parent, weights=a), mesh.area_faces, rtol=1e-13)
     # Normals keep their parent's direction (planar split, orientation preserved).
     v = p[t]
     n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])

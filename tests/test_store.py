@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from pydynrad import InvalidInputError, Scene
+from helpers import grid_scene, same_csr, synthetic_rows
+
+from pydynrad import InvalidInputError
 from pydynrad.rows.store import (
     FormFactorStore,
     StoreCorruptError,
@@ -17,38 +19,8 @@ from pydynrad.rows.store import (
 )
 
 
-def grid_scene(n_side: int = 6, z: float = 0.0) -> Scene:
-    """A flat n_side x n_side grid of squares, two triangles each: 2 n_side^2 patches."""
-    xs = np.arange(n_side + 1, dtype=np.float64)
-    px, py = np.meshgrid(xs, xs, indexing="ij")
-    points = np.stack([px.ravel(), py.ravel(), np.full(px.size, z)], axis=1)
-    v = lambda i, j: i * (n_side + 1) + j  # noqa: E731
-    tris = []
-    for i in range(n_side):
-        for j in range(n_side):
-            tris += [(v(i, j), v(i + 1, j), v(i + 1, j + 1)), (v(i, j), v(i + 1, j + 1), v(i, j + 1))]
-    return Scene(points, np.array(tris), name="grid")
-
-
-def synthetic_rows(scene, rows, resolution, device=None) -> sp.csr_matrix:
-    """Deterministic stand-in for hemicube rows: row i depends only on (i, N, resolution)."""
-    n = len(scene)
-    parts = []
-    for i in rows:
-        rng = np.random.default_rng([int(i), n, resolution])
-        cols = np.sort(rng.choice(n, size=int(rng.integers(0, min(n, 20))), replace=False))
-        vals = rng.random(cols.size).astype(np.float32) / 40
-        parts.append(sp.csr_matrix((vals, cols, [0, cols.size]), shape=(1, n)))
-    return sp.vstack(parts, format="csr").astype(np.float32)
-
-
 def reference(scene, resolution=8):
     return synthetic_rows(scene, np.arange(len(scene)), resolution)
-
-
-def same_csr(a, b) -> bool:
-    a, b = sp.csr_matrix(a), sp.csr_matrix(b)
-    return a.shape == b.shape and a.dtype == b.dtype and (a != b).nnz == 0
 
 
 def test_round_trip(tmp_path):
