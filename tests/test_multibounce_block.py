@@ -8,7 +8,7 @@ import scipy.sparse as sp
 import pydynrad
 from pydynrad.multibounce import multibounce, multibounce_block
 from pydynrad.rows.sources import CSRRows
-from radiosity_inputs import box_scene, reciprocal_F
+from helpers import box_scene, reciprocal_F
 
 
 def test_block_matches_dense_inverse_and_multibounce(device):

@@ -242,7 +242,7 @@ def test_path_files_track_spot_lights(tmp_path, device):
     for k in range(3):
         (spot,) = lights_at(lights, k, 3)
         assert spot == expect[k]
-    pts, tris = grid_box(n=2, inward=True)
+    pts, tris = box_mesh(n=2, inward=True)
     scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))
     F = form_factors(scene, resolution=16, device=device, progress=False)
     result = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene), keep_images=True,
