@@ -1,0 +1,114 @@
+"""Patch-to-cluster form factors G = F Pr by hemicube, without forming F.
+
+The far field needs every patch's row of F, but only summed over each cluster's patches (see
+docs/design.md, 'Far field'). A hemicube that records cluster ids instead of patch ids gives
+those sums directly: neighbouring pixels on different patches of one cluster merge into one
+run, so a row of G costs the rays of a row of F and far fewer runs. Rows are computed in the
+same bounded blocks as F (:func:`pydynrad.formfactors.hemicube_blocks`), so no more than one
+block of rows ever exists, whatever N.
+
+Prolongations. ``Pr`` (N, C) maps cluster values to patches. The indicator one
+(Pr[i, c] = 1 for i in c) is gathered with cluster ids on the device; a weighted one with one
+entry per row (Pr_w[i, c] = w_i / mean_c(w)) also weighs each pixel by its patch's entry, on
+the device (``weights_on="device"``) or from the patch runs on the host (``"host"``: F's
+block, then a sparse product), whichever bench/gather.py measured faster; a prolongation
+with several entries in a row (a patch shared by clusters) takes the host path.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..checks import scene as checked_scene
+from ..errors import InvalidInputError
+from ..formfactors import hemicube_blocks, stack_blocks
+
+__all__ = ["cluster_form_factors", "split_prolongation"]
+
+
+def check_prolongation(prolongation, n: int) -> sp.csr_matrix:
+    """``prolongation`` as a float64 (N, C) CSR matrix with explicit zeros removed, or InvalidInputError."""
+    if sp.issparse(prolongation):
+        pr = sp.csr_matrix(prolongation, dtype=np.float64, copy=True)
+    else:
+        try:
+            a = np.asarray(prolongation, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"prolongation must be an (N, C) matrix of numbers; got {type(prolongation).__name__}") from None
+        if a.ndim != 2:
+            raise InvalidInputError(f"prolongation must be a 2-D (N, C) matrix; got shape {a.shape}")
+        pr = sp.csr_matrix(a)
+    if pr.shape[0] != n or pr.shape[1] < 1:
+        raise InvalidInputError(f"prolongation must have shape (N, C) = ({n}, C >= 1) for this scene; got {pr.shape}")
+    if not np.all(np.isfinite(pr.data)):
+        raise InvalidInputError("prolongation holds NaN or infinite entries")
+    if pr.data.size and pr.data.min() < 0:
+        raise InvalidInputError(f"prolongation entries must be >= 0; the smallest is {pr.data.min():g}")
+    pr.eliminate_zeros()
+    pr.sort_indices()
+    return pr
+
+
+def split_prolongation(prolongation) -> tuple[np.ndarray, np.ndarray] | None:
+    """(labels, scale) of a prolongation with at most one entry per row, else None.
+
+    ``labels[i]``: the cluster of patch i (-1 where its row is empty); ``scale[i]``: the entry
+    (0 where empty). A checked CSR matrix (:func:`check_prolongation`) is expected.
+    """
+    per_row = np.diff(prolongation.indptr)
+    if per_row.size and per_row.max() > 1:
+        return None
+    has = per_row == 1
+    labels = np.full(prolongation.shape[0], -1, np.int32)
+    scale = np.zeros(prolongation.shape[0], np.float64)
+    labels[has] = prolongation.indices
+    scale[has] = prolongation.data
+    return labels, scale
+
+
+def cluster_form_factors(scene, prolongation, resolution: int = 16, rows=None, device=None,
+                         progress: bool | None = None, *, weights_on: str = "device") -> sp.csr_matrix:
+    """Rows of the patch-to-cluster form factors G = F Pr by hemicube, F never formed.
+
+    Parameters
+    ----------
+    scene : Scene
+        N patches.
+    prolongation : (N, C) sparse or dense matrix
+        Finite entries >= 0: the indicator of each patch's cluster, or a weighted one.
+    resolution : int
+        Hemicube resolution R (even, >= 2; the rule of :func:`pydynrad.form_factors`).
+    rows : sequence of int, optional
+        Patches whose rows of G to compute; all by default.
+    device : Device, optional
+    progress : bool, optional
+        tqdm bar; by default only on a terminal for long runs.
+    weights_on : {"device", "host"}
+        Where a weighted prolongation's entries multiply the pixel weights (the indicator is
+        always mapped on the device; several entries per row always go to the host).
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, float32, shape (len(rows), C)
+        Row k: the fraction of the energy leaving patch ``rows[k]`` that arrives at each
+        cluster, weighted by Pr; equal to ``form_factors(scene, resolution, rows) @ Pr`` up to
+        float32 rounding.
+    """
+    n = len(checked_scene(scene))
+    pr = check_prolongation(prolongation, n)
+    if weights_on not in ("device", "host"):
+        raise InvalidInputError(f'weights_on must be "device" or "host"; got {weights_on!r}')
+    C = pr.shape[1]
+    single = split_prolongation(pr)
+    desc = "cluster form factors"
+    if single is not None:
+        labels, scale = single
+        if np.all(scale[labels >= 0] == 1.0):
+            return stack_blocks(hemicube_blocks(scene, resolution, rows, device, progress, desc=desc, labels=labels,
+                                                n_cols=C), C)
+        if weights_on == "device":
+            return stack_blocks(hemicube_blocks(scene, resolution, rows, device, progress, desc=desc, labels=labels,
+                                                scale=scale, n_cols=C), C)
+    blocks = (block @ pr for block in hemicube_blocks(scene, resolution, rows, device, progress, desc=desc))
+    return stack_blocks(blocks, C)
