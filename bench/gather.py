@@ -1,0 +1,150 @@
+"""Patch-to-cluster form factors G = F Pr (the far field's G): the resolution G needs, its cost.
+
+``python -m bench.gather [--size quick|full|tiny]`` writes ``bench/results/gather.{json,md}``;
+the suite runs the same measurement as its "gather" section.
+
+* Error vs resolution: G from cluster-id hemicubes (``pydynrad.farfield.cluster_form_factors``)
+  at R = 8 .. 64 against G from F at a high resolution (``form_factors(R_ref) @ Pr``), row by
+  row: relative L1, ||G_R[i] - G_ref[i]||_1 / ||G_ref[i]||_1, over a sample of rows. Both the
+  indicator prolongation and an exposure-weighted one (w_i = the fraction of patch i's
+  hemisphere open to the sky, from the same hemicubes, plus 0.05; Pr_w[i, c] = w_i / mean_c(w)).
+* Time per row of F and of G at the same R, and both ways of weighting G's pixels (on the
+  device, or from patch runs on the host).
+* Precompute cost: G at its resolution as a share of F at a store's resolution (the issue's
+  target: clusters + K_c + G <= 20% of F).
+
+Clusters are compact, one orientation each: patches grouped by their dominant normal axis and
+sign and a grid cell sized for the requested patches per cluster (:func:`grid_clusters`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from .common import run_standalone, time_call
+
+__all__ = ["SIZES", "grid_clusters", "indicator", "weighted", "measure", "suite_section", "main"]
+
+SIZES = {
+    "tiny": {"scenes": {"cornell_box": {"max_edge": 250.0}}, "resolutions": (4, 8), "reference": 16,
+             "sample": 32, "per_cluster": 8, "store_resolution": 16, "repeats": 1},
+    "quick": {"scenes": {"cornell_box": {}, "village": {"houses": 2, "detail": 0.5}}, "resolutions": (8, 16, 32, 64),
+              "reference": 128, "sample": 256, "per_cluster": 8, "store_resolution": 64, "repeats": 3},
+    "full": {"scenes": {"cornell_box": {}, "village": {"houses": 12, "detail": 1.0}}, "resolutions": (8, 16, 32, 64),
+             "reference": 128, "sample": 1024, "per_cluster": 8, "store_resolution": 64, "repeats": 3},
+}
+
+
+def grid_clusters(scene, per_cluster: float) -> np.ndarray:
+    """(N,) cluster labels: dominant normal axis and sign, then a grid cell of side
+    sqrt(per_cluster * median patch area), so a flat wall's cluster holds about per_cluster patches."""
+    n = scene.normals.astype(np.float64)
+    axis = np.argmax(np.abs(n), axis=1)
+    sign = np.sign(n[np.arange(len(n)), axis]).astype(np.int64)
+    cell = np.sqrt(per_cluster * np.median(scene.areas))
+    cells = np.floor(scene.centers / cell).astype(np.int64)
+    return np.unique(np.column_stack([axis, sign, cells]), axis=0, return_inverse=True)[1].ravel()
+
+
+def indicator(labels: np.ndarray) -> sp.csr_matrix:
+    """The (N, C) indicator prolongation of ``labels``."""
+    n = len(labels)
+    return sp.csr_matrix((np.ones(n), (np.arange(n), labels)), shape=(n, labels.max() + 1))
+
+
+def weighted(labels: np.ndarray, areas: np.ndarray, w: np.ndarray) -> sp.csr_matrix:
+    """The exposure-weighted prolongation Pr_w[i, c] = w_i / (area-weighted mean of w over c)."""
+    c = labels.max() + 1
+    mean = np.bincount(labels, areas * w, c) / np.bincount(labels, areas, c)
+    return sp.csr_matrix((w / mean[labels], (np.arange(len(labels)), labels)), shape=(len(labels), c))
+
+
+def _row_l1(G, ref) -> np.ndarray:
+    g, r = G.toarray().astype(np.float64), np.asarray(ref.todense())
+    norm = np.abs(r).sum(axis=1)
+    keep = norm > 0
+    return np.abs(g - r).sum(axis=1)[keep] / norm[keep]
+
+
+def measure(size: str, device, overrides: dict | None = None) -> dict:
+    """The section at ``size`` (SIZES), its entries replaced by ``overrides``."""
+    from pydynrad import scenes
+    from pydynrad.farfield.gather import cluster_form_factors
+    from pydynrad.formfactors import form_factors
+
+    p = {**SIZES[size], **(overrides or {})}
+    err_rows, time_rows, cost_rows = [], [], []
+    plot_series = []
+    for name, kwargs in p["scenes"].items():
+        scene = getattr(scenes, name)(**kwargs)
+        n = len(scene)
+        labels = grid_clusters(scene, p["per_cluster"])
+        ind = indicator(labels)
+        C = ind.shape[1]
+        sample = np.sort(np.random.default_rng(0).choice(n, min(n, p["sample"]), replace=False))
+        r_low = min(p["resolutions"])
+        open_sky = 1.0 - np.asarray(cluster_form_factors(scene, ind, r_low, device=device).sum(axis=1)).ravel()
+        wtd = weighted(labels, scene.areas.astype(np.float64), np.clip(open_sky, 0, 1) + 0.05)
+        F_ref = form_factors(scene, p["reference"], rows=sample, device=device).astype(np.float64)
+        refs = {"indicator": F_ref @ ind, "weighted": F_ref @ wtd}
+        for R in p["resolutions"]:
+            row = [name, n, C, R]
+            for kind, pr in (("indicator", ind), ("weighted", wtd)):
+                e = _row_l1(cluster_form_factors(scene, pr, R, rows=sample, device=device), refs[kind])
+                row += [float(e.mean()), float(np.percentile(e, 95)), float(e.max())]
+            err_rows.append(row)
+
+            def per_row(fn):
+                t = time_call(fn, repeats=p["repeats"])
+                return t["median_s"] / len(sample) * 1e3, t["result"]
+
+            tf, F = per_row(lambda: form_factors(scene, R, rows=sample, device=device))
+            tg, G = per_row(lambda: cluster_form_factors(scene, ind, R, rows=sample, device=device))
+            twd, _ = per_row(lambda: cluster_form_factors(scene, wtd, R, rows=sample, device=device))
+            twh, _ = per_row(lambda: cluster_form_factors(scene, wtd, R, rows=sample, device=device, weights_on="host"))
+            time_rows.append([name, n, C, R, tf, tg, twd, twh, F.nnz / len(sample), G.nnz / len(sample)])
+        for kind, col in (("indicator", 4), ("weighted", 7)):
+            pts = [r for r in err_rows if r[0] == name]
+            plot_series.append({"label": f"{name} {kind}", "x": [r[3] for r in pts], "y": [r[col] for r in pts],
+                                "style": "o-" if kind == "indicator" else "s--"})
+        tF = {r[3]: r[4] for r in time_rows if r[0] == name}
+        tF_store = tF.get(p["store_resolution"])
+        if tF_store is None:
+            tF_store = time_call(lambda: form_factors(scene, p["store_resolution"], rows=sample, device=device),
+                                 repeats=p["repeats"])["median_s"] / len(sample) * 1e3
+        for r in (r for r in time_rows if r[0] == name):
+            cost_rows.append([name, p["store_resolution"], r[3], r[5] / tF_store, r[6] / tF_store])
+    e_cols = ["scene", "N", "C", "R"] + [f"{k} {s}" for k in ("indicator", "weighted") for s in ("mean", "p95", "max")]
+    return {
+        "title": "Patch-to-cluster form factors G (far field): resolution and cost",
+        "description": __doc__.split("\n\n", 1)[1],
+        "tables": [
+            {"title": f"Row-wise relative L1 error of G at R against G = F Pr at R = {p['reference']}",
+             "columns": e_cols, "rows": err_rows,
+             "note": f"{p['sample']} sampled rows per scene; clusters of about {p['per_cluster']} patches"},
+            {"title": "Time per row (ms) of F and of G at the same resolution, and non-zeros per row",
+             "columns": ["scene", "N", "C", "R", "F ms/row", "G indicator ms/row", "G weighted (device) ms/row",
+                         "G weighted (host) ms/row", "F nnz/row", "G nnz/row"],
+             "rows": time_rows, "note": f"median of {p['repeats']} runs over the sampled rows, kernel builds excluded"},
+            {"title": "Precompute: G at R as a fraction of F at the store's resolution",
+             "columns": ["scene", "F's R", "G's R", "G indicator / F", "G weighted / F"], "rows": cost_rows,
+             "note": "issue target: clusters + K_c + G <= 0.2 of F"},
+        ],
+        "plots": [{"name": "error", "title": "G's row-wise relative L1 error vs hemicube resolution",
+                   "xlabel": "resolution R", "ylabel": "mean relative L1 error", "xscale": "log", "yscale": "log",
+                   "series": plot_series}],
+    }
+
+
+def suite_section(ctx) -> dict:
+    """The suite's "gather" section: this size's parameters, overridden by the suite's."""
+    return measure(ctx.size, ctx.device, ctx.params)
+
+
+def main(argv=None) -> int:
+    return run_standalone("gather", __doc__, SIZES, measure, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

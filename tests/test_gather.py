@@ -1,0 +1,134 @@
+"""Patch-to-cluster form factors G = F Pr from cluster-id hemicubes (pydynrad.farfield.gather).
+
+Truths: G equals ``form_factors(scene, R) @ Pr`` (F's own hemicubes, summed in float64 by
+SciPy) to float32 rounding; in a closed box every row sums to 1 like F's, and with the six
+walls as clusters the area-weighted wall-to-wall sums are the catalogue form factors of two
+unit squares (parallel 0.19982, perpendicular 0.20004; Howell C-11, C-14).
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from pydynrad import InvalidInputError
+from pydynrad import formfactors as ff_module
+from pydynrad.farfield.gather import cluster_form_factors
+from pydynrad.formfactors import form_factors
+from pydynrad.scenes.analytic import closed_box
+from pydynrad.scenes.cornell import cornell_box
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package lives in the repo root
+
+from bench.gather import grid_clusters, indicator, weighted  # noqa: E402  (compact clusters, the two prolongations)
+
+R = 16
+
+
+@pytest.fixture(scope="module")
+def cornell(device):
+    scene = cornell_box()
+    labels = grid_clusters(scene, 8)
+    w = np.random.default_rng(1).uniform(0.1, 2.0, len(scene))
+    F = form_factors(scene, resolution=R, device=device).astype(np.float64)
+    return scene, labels, w, F
+
+
+def assert_float32_equal(G, ref):
+    """Entries agree to a few float32 ulps of the row's largest entry (observed <= 7e-8 relative)."""
+    assert G.dtype == np.float32
+    g, r = G.toarray().astype(np.float64), np.asarray(ref.todense() if sp.issparse(ref) else ref)
+    scale = np.abs(r).max(axis=1, keepdims=True) + 1e-30
+    assert np.max(np.abs(g - r) / scale) < 1e-6
+
+
+def test_indicator_equals_f_times_pr(cornell, device):
+    scene, labels, _, F = cornell
+    Pr = indicator(labels)
+    assert Pr.shape[1] < len(scene) / 4  # clusters really merge patches
+    G = cluster_form_factors(scene, Pr, resolution=R, device=device)
+    assert G.shape == (len(scene), Pr.shape[1])
+    assert_float32_equal(G, F @ Pr)
+    # Runs merged on the device: G holds fewer non-zeros than F.
+    assert G.nnz < F.nnz / 2
+
+
+@pytest.mark.parametrize("weights_on", ["device", "host"])
+def test_weighted_equals_f_times_pr(cornell, device, weights_on):
+    scene, labels, w, F = cornell
+    Pr = weighted(labels, scene.areas.astype(np.float64), w)
+    G = cluster_form_factors(scene, Pr, resolution=R, device=device, weights_on=weights_on)
+    assert_float32_equal(G, F @ Pr)
+
+
+def test_shared_patches_and_dense_input(cornell, device):
+    """A patch in two clusters (two entries in its row) and a dense Pr take the host path, same truth."""
+    scene, labels, _, F = cornell
+    Pr = indicator(labels).toarray()
+    Pr[::7, 0] += 0.5
+    G = cluster_form_factors(scene, Pr, resolution=R, device=device)
+    assert_float32_equal(G, F @ Pr)
+
+
+def test_rows_and_small_blocks(cornell, device, monkeypatch):
+    scene, labels, _, _ = cornell
+    Pr = indicator(labels)
+    rows = np.array([5, 900, 17, 5, 300])
+    whole = cluster_form_factors(scene, Pr, resolution=R, device=device)
+    some = cluster_form_factors(scene, Pr, resolution=R, rows=rows, device=device)
+    assert (some != whole[rows]).nnz == 0
+    # Three rows per block: the same rows, bit for bit.
+    monkeypatch.setattr(ff_module, "BLOCK_BYTES", 3 * 3 * R * R * 8)
+    small = cluster_form_factors(scene, Pr, resolution=R, rows=rows, device=device)
+    assert (small != some).nnz == 0
+    assert cluster_form_factors(scene, Pr, resolution=R, rows=[], device=device).shape == (0, Pr.shape[1])
+
+
+def test_closed_box_rows_sum_to_one_and_catalogue(device):
+    scene = closed_box(1.0, subdivisions=2)
+    walls = scene.source_face // 2
+    Pr = indicator(walls)
+    G = cluster_form_factors(scene, Pr, resolution=32, device=device).toarray().astype(np.float64)
+    np.testing.assert_allclose(G.sum(axis=1), 1.0, atol=1e-5)
+    assert np.all(G[np.arange(len(scene)), walls] == 0)  # a planar wall does not see itself
+    a = scene.areas.astype(np.float64)
+    for f in range(6):
+        rows = walls == f
+        for g in range(6):
+            if g != f:
+                truth = 0.19982 if f // 2 == g // 2 else 0.20004
+                assert a[rows] @ G[rows, g] / a[rows].sum() == pytest.approx(truth, rel=0.02)
+    F = form_factors(scene, resolution=32, device=device).astype(np.float64)
+    assert_float32_equal(sp.csr_matrix(G.astype(np.float32)), F @ Pr)
+
+
+def test_bad_input(cornell, device):
+    scene, labels, _, _ = cornell
+    Pr = indicator(labels)
+    n, c = Pr.shape
+    with pytest.raises(InvalidInputError, match="shape"):
+        cluster_form_factors(scene, Pr[:-1], device=device)
+    with pytest.raises(InvalidInputError, match="shape"):
+        cluster_form_factors(scene, np.ones(n), device=device)
+    with pytest.raises(InvalidInputError, match="shape"):
+        cluster_form_factors(scene, sp.csr_matrix((n, 0)), device=device)
+    bad = Pr.toarray()
+    bad[3, 0] = np.nan
+    with pytest.raises(InvalidInputError, match="NaN"):
+        cluster_form_factors(scene, bad, device=device)
+    bad[3, 0] = -1.0
+    with pytest.raises(InvalidInputError, match=">= 0"):
+        cluster_form_factors(scene, bad, device=device)
+    with pytest.raises(InvalidInputError, match="numbers"):
+        cluster_form_factors(scene, [["a"] * c] * n, device=device)
+    for r in (7, 0, 16.0, True):
+        with pytest.raises(InvalidInputError, match="resolution"):
+            cluster_form_factors(scene, Pr, resolution=r, device=device)
+    with pytest.raises(InvalidInputError, match="rows"):
+        cluster_form_factors(scene, Pr, rows=[n], device=device)
+    with pytest.raises(InvalidInputError, match="weights_on"):
+        cluster_form_factors(scene, Pr, weights_on="gpu", device=device)
+    with pytest.raises(InvalidInputError, match="Scene"):
+        cluster_form_factors(Pr, Pr, device=device)
