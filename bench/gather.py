@@ -8,8 +8,10 @@ the suite runs the same measurement as its "gather" section.
   row: relative L1, ||G_R[i] - G_ref[i]||_1 / ||G_ref[i]||_1, over a sample of rows. Both the
   indicator prolongation and an exposure-weighted one (w_i = the fraction of patch i's
   hemisphere open to the sky, from the same hemicubes, plus 0.05; Pr_w[i, c] = w_i / mean_c(w)).
-* Time per row of F and of G at the same R, and both ways of weighting G's pixels (on the
-  device, or from patch runs on the host).
+  Also the relative RMS of G x against G_ref x for a random cluster radiosity x: the product
+  the far field forms with G.
+* Time per row of F and of G at the same R, and the two ways of weighting G's pixels: on the
+  device (what cluster_form_factors does) or F's patch rows times Pr_w on the host.
 * Precompute cost: G at its resolution as a share of F at a store's resolution (the issue's
   target: clusters + K_c + G <= 20% of F).
 
@@ -67,6 +69,12 @@ def _row_l1(G, ref) -> np.ndarray:
     return np.abs(g - r).sum(axis=1)[keep] / norm[keep]
 
 
+def _transport_error(G, ref, x) -> float:
+    """Relative RMS of G x against G_ref x: what the far field does with G (B_far = L + P G B_c)."""
+    g, r = G.astype(np.float64) @ x, ref @ x
+    return float(np.sqrt(np.mean((g - r) ** 2) / np.mean(r**2)))
+
+
 def measure(size: str, device, overrides: dict | None = None) -> dict:
     """The section at ``size`` (SIZES), its entries replaced by ``overrides``."""
     from pydynrad import scenes
@@ -88,11 +96,13 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
         wtd = weighted(labels, scene.areas.astype(np.float64), np.clip(open_sky, 0, 1) + 0.05)
         F_ref = form_factors(scene, p["reference"], rows=sample, device=device).astype(np.float64)
         refs = {"indicator": F_ref @ ind, "weighted": F_ref @ wtd}
+        x = np.random.default_rng(1).uniform(0.0, 1.0, C)
         for R in p["resolutions"]:
             row = [name, n, C, R]
             for kind, pr in (("indicator", ind), ("weighted", wtd)):
-                e = _row_l1(cluster_form_factors(scene, pr, R, rows=sample, device=device), refs[kind])
-                row += [float(e.mean()), float(np.percentile(e, 95)), float(e.max())]
+                G = cluster_form_factors(scene, pr, R, rows=sample, device=device)
+                e = _row_l1(G, refs[kind])
+                row += [float(e.mean()), float(np.percentile(e, 95)), float(e.max()), _transport_error(G, refs[kind], x)]
             err_rows.append(row)
 
             def per_row(fn):
@@ -102,9 +112,9 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
             tf, F = per_row(lambda: form_factors(scene, R, rows=sample, device=device))
             tg, G = per_row(lambda: cluster_form_factors(scene, ind, R, rows=sample, device=device))
             twd, _ = per_row(lambda: cluster_form_factors(scene, wtd, R, rows=sample, device=device))
-            twh, _ = per_row(lambda: cluster_form_factors(scene, wtd, R, rows=sample, device=device, weights_on="host"))
+            twh, _ = per_row(lambda: form_factors(scene, R, rows=sample, device=device) @ wtd)
             time_rows.append([name, n, C, R, tf, tg, twd, twh, F.nnz / len(sample), G.nnz / len(sample)])
-        for kind, col in (("indicator", 4), ("weighted", 7)):
+        for kind, col in (("indicator", 4), ("weighted", 8)):
             pts = [r for r in err_rows if r[0] == name]
             plot_series.append({"label": f"{name} {kind}", "x": [r[3] for r in pts], "y": [r[col] for r in pts],
                                 "style": "o-" if kind == "indicator" else "s--"})
@@ -115,17 +125,19 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
                                  repeats=p["repeats"])["median_s"] / len(sample) * 1e3
         for r in (r for r in time_rows if r[0] == name):
             cost_rows.append([name, p["store_resolution"], r[3], r[5] / tF_store, r[6] / tF_store])
-    e_cols = ["scene", "N", "C", "R"] + [f"{k} {s}" for k in ("indicator", "weighted") for s in ("mean", "p95", "max")]
+    e_cols = ["scene", "N", "C", "R"] + [f"{k} {s}" for k in ("indicator", "weighted")
+                                         for s in ("row L1 mean", "row L1 p95", "row L1 max", "G x rel. RMS")]
     return {
         "title": "Patch-to-cluster form factors G (far field): resolution and cost",
         "description": __doc__.split("\n\n", 1)[1],
         "tables": [
             {"title": f"Row-wise relative L1 error of G at R against G = F Pr at R = {p['reference']}",
              "columns": e_cols, "rows": err_rows,
-             "note": f"{p['sample']} sampled rows per scene; clusters of about {p['per_cluster']} patches"},
+             "note": f"{p['sample']} sampled rows per scene; clusters of about {p['per_cluster']} patches; "
+                     "G x: a random cluster radiosity x in [0, 1) through G"},
             {"title": "Time per row (ms) of F and of G at the same resolution, and non-zeros per row",
              "columns": ["scene", "N", "C", "R", "F ms/row", "G indicator ms/row", "G weighted (device) ms/row",
-                         "G weighted (host) ms/row", "F nnz/row", "G nnz/row"],
+                         "F rows @ Pr_w (host) ms/row", "F nnz/row", "G nnz/row"],
              "rows": time_rows, "note": f"median of {p['repeats']} runs over the sampled rows, kernel builds excluded"},
             {"title": "Precompute: G at R as a fraction of F at the store's resolution",
              "columns": ["scene", "F's R", "G's R", "G indicator / F", "G weighted / F"], "rows": cost_rows,

@@ -13,13 +13,13 @@
 // form one run (id, end pixel). The host turns runs into weights with a prefix sum of the
 // pixel form factors, so nothing N-sized per row ever exists on the device.
 //
-// With HC_LABELS defined (the patch-to-cluster form factors G = F Pr of the far field) the
-// kernel takes one more argument, labels (int per patch: its cluster, or -1 for none), and
-// records labels[patch] instead of the patch: neighbouring pixels on different patches of one
-// cluster then form one run, so a row has a few runs per cluster it sees, not per patch.
-// With HC_WEIGHTED as well, each pixel's weight is its delta form factor (pixel_weights, the
-// 3R x R layout above) times scale[patch] (a weighted prolongation's entry), summed per run on
-// the device; run_end then holds the run's float weight instead of its end pixel.
+// With HC_CLUSTERS defined (the far field's patch-to-cluster form factors G = F Pr) the kernel
+// takes three more arguments: labels (int per patch: its cluster, or -1 for none), scale (float
+// per patch: its entry of Pr, 1 for the indicator) and pixel_weights (the delta form factors,
+// 3R x R as above). It records labels[patch] instead of the patch, so neighbouring pixels on
+// different patches of one cluster form one run, and sums each run's weight on the device:
+// run_end holds that float weight instead of an end pixel. (Summing here measured faster than
+// the host's prefix sums, bench/gather.py.)
 #include "bvh.cl"
 
 #ifndef HC_RES
@@ -30,16 +30,9 @@
 #error "hemicube.cl needs BVH_PACKET == 16 from the host (pydynrad/launch.py)"
 #endif
 
-#if defined(HC_WEIGHTED) && !defined(HC_LABELS)
-#error "HC_WEIGHTED needs HC_LABELS"
-#endif
-
-#ifdef HC_WEIGHTED
+#ifdef HC_CLUSTERS
 #define HC_EXTRA_ARGS , __global const int *labels, __global const float *scale, __global const float *pixel_weights
 #define HC_END_TYPE float
-#elif defined(HC_LABELS)
-#define HC_EXTRA_ARGS , __global const int *labels
-#define HC_END_TYPE int
 #else
 #define HC_EXTRA_ARGS
 #define HC_END_TYPE int
@@ -104,7 +97,7 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
 
     size_t slot = (size_t)g * R;
     int runs = 0, current = -2;
-#ifdef HC_WEIGHTED
+#ifdef HC_CLUSTERS
     float acc = 0.0f;
     __global const float *pw = pixel_weights + (size_t)s * R;
 #endif
@@ -127,7 +120,7 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
         for (int l = 0; l < BVH_PACKET && x0 + l < R; ++l) {
             // A back face occludes and receives nothing; a planar patch cannot see itself.
             int hit = (ids[l] >= 0 && fronts[l] && ids[l] != i) ? ids[l] : -1;
-#ifdef HC_LABELS
+#ifdef HC_CLUSTERS
             int id = hit >= 0 ? labels[hit] : -1;
 #else
             int id = hit;
@@ -135,7 +128,7 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
             if (id != current) {
                 if (current != -2) {
                     run_patch[slot + runs] = current;
-#ifdef HC_WEIGHTED
+#ifdef HC_CLUSTERS
                     run_end[slot + runs] = acc;
                     acc = 0.0f;
 #else
@@ -145,13 +138,13 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
                 }
                 current = id;
             }
-#ifdef HC_WEIGHTED
+#ifdef HC_CLUSTERS
             if (id >= 0) acc += pw[x0 + l] * scale[hit];
 #endif
         }
     }
     run_patch[slot + runs] = current;
-#ifdef HC_WEIGHTED
+#ifdef HC_CLUSTERS
     run_end[slot + runs] = acc;
 #else
     run_end[slot + runs] = R;

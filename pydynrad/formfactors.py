@@ -99,15 +99,15 @@ def _runs_to_csr(patch, end, count, weights_cum, n_cols: int) -> sp.csr_matrix:
 
 
 def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | None = None, *,
-                    desc: str = "form factors", labels=None, scale=None, n_cols: int | None = None):
-    """Rows of hemicube form factors in bounded blocks: yields one CSR block (float64) at a time.
+                    desc: str = "form factors", clusters: tuple[np.ndarray, np.ndarray, int] | None = None):
+    """Rows of hemicube form factors in bounded blocks: yields one float64 CSR block at a time.
 
     The one block loop behind :func:`form_factors` and
-    :func:`pydynrad.farfield.gather.cluster_form_factors`. Without ``labels`` a block is
-    (b, N): F's rows. With ``labels`` (int per patch: its column in [0, n_cols), or -1) the
-    device records ``labels[patch]`` instead of the patch, so a block is (b, n_cols); with
-    ``scale`` (float per patch) too, each pixel weighs its delta form factor times
-    ``scale[patch]``, summed on the device. ``rows`` and ``resolution`` are checked here.
+    :func:`pydynrad.farfield.gather.cluster_form_factors`. Without ``clusters`` a block is
+    (b, N): F's rows. With ``clusters = (labels, scale, C)`` (per patch: its column in [0, C)
+    or -1, and its weight) the device records ``labels[patch]`` instead of the patch and weighs
+    each pixel by ``scale[patch]``, so a block is (b, C): rows of F Pr for the prolongation
+    Pr[i, labels[i]] = scale[i]. ``rows`` and ``resolution`` are checked here.
     """
     import pyopencl as cl
 
@@ -122,24 +122,20 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     rows = np.arange(n, dtype=np.int32) if rows is None else patch_indices(rows, n, "rows").astype(np.int32)
     if len(rows) == 0:
         return
-    n_cols = n if n_cols is None else n_cols
     S = 3 * R
     per_row = S * R * 8
     block = int(max(1, min(len(rows), BLOCK_BYTES // per_row)))
-    weights = pixel_form_factors(R)
-    weights_cum = np.zeros((S, R + 1))
-    np.cumsum(weights, axis=1, out=weights_cum[:, 1:])
-
-    defines = {"HC_RES": R, "BVH_PACKET": BVH_PACKET}
-    extra = []
-    if labels is not None:
-        defines["HC_LABELS"] = 1
-        extra.append(dev.to_device(np.ascontiguousarray(labels, dtype=np.int32)))
-    if scale is not None:
-        defines["HC_WEIGHTED"] = 1
-        extra += [dev.to_device(np.ascontiguousarray(scale, dtype=np.float32)),
-                  dev.to_device(weights.astype(np.float32))]
-        weights_cum = None
+    defines, extra = {"HC_RES": R, "BVH_PACKET": BVH_PACKET}, []
+    if clusters is None:
+        n_cols, end_dtype = n, np.int32
+        weights_cum = np.zeros((S, R + 1))
+        np.cumsum(pixel_form_factors(R), axis=1, out=weights_cum[:, 1:])
+    else:
+        labels, scale, n_cols = clusters
+        end_dtype, weights_cum = np.float32, None
+        defines["HC_CLUSTERS"] = 1
+        extra = [dev.to_device(np.ascontiguousarray(a, dtype=t)) for a, t in
+                 ((labels, np.int32), (scale, np.float32), (pixel_form_factors(R), np.float32))]
     knl = dev.kernel("hemicube.cl", "hemicube_runs", defines)
     nodes, tris, order = scene.bvh.buffers(dev)
     centers, normals = scene.patch_buffers(dev)
@@ -148,7 +144,6 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     end_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
     count_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * 4)
     eps = np.float32(SURFACE_OFFSET * scene.scale)
-    end_dtype = np.int32 if weights_cum is not None else np.float32
 
     long = len(rows) > block and len(rows) * S * R > LONG_RUN_RAYS
     with progress_bar(progress, long=long, total=len(rows), unit="patch", desc=f"{desc} R={R}") as bar:

@@ -55,11 +55,10 @@ def test_indicator_equals_f_times_pr(cornell, device):
     assert G.nnz < F.nnz / 2
 
 
-@pytest.mark.parametrize("weights_on", ["device", "host"])
-def test_weighted_equals_f_times_pr(cornell, device, weights_on):
+def test_weighted_equals_f_times_pr(cornell, device):
     scene, labels, w, F = cornell
     Pr = weighted(labels, scene.areas.astype(np.float64), w)
-    G = cluster_form_factors(scene, Pr, resolution=R, device=device, weights_on=weights_on)
+    G = cluster_form_factors(scene, Pr, resolution=R, device=device)
     assert_float32_equal(G, F @ Pr)
 
 
@@ -128,7 +127,5 @@ def test_bad_input(cornell, device):
             cluster_form_factors(scene, Pr, resolution=r, device=device)
     with pytest.raises(InvalidInputError, match="rows"):
         cluster_form_factors(scene, Pr, rows=[n], device=device)
-    with pytest.raises(InvalidInputError, match="weights_on"):
-        cluster_form_factors(scene, Pr, weights_on="gpu", device=device)
     with pytest.raises(InvalidInputError, match="Scene"):
         cluster_form_factors(Pr, Pr, device=device)
