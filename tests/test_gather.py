@@ -129,3 +129,86 @@ def test_bad_input(cornell, device):
         cluster_form_factors(scene, Pr, rows=[n], device=device)
     with pytest.raises(InvalidInputError, match="Scene"):
         cluster_form_factors(Pr, Pr, device=device)
+
+
+# -- G in the form-factor store ----------------------------------------------------------------
+from pydynrad.rows.store import (  # noqa: E402
+    FormFactorStore,
+    StoreCorruptError,
+    StoreIncompleteError,
+    StoreMismatchError,
+    compute_store,
+)
+
+
+@pytest.fixture(scope="module")
+def box(device):
+    """A closed box of 192 patches in 8 clusters (the walls, four of them split along a diagonal), its G at R = 8."""
+    scene = closed_box(1.0, subdivisions=2)
+    labels = (scene.source_face // 2) * 2 + (scene.centers[:, 0] + scene.centers[:, 1] > 1.0)
+    labels = np.unique(labels, return_inverse=True)[1].ravel()
+    return scene, labels, cluster_form_factors(scene, indicator(labels), resolution=8, device=device)
+
+
+def same_csr(a, b) -> bool:
+    return a.shape == b.shape and a.dtype == b.dtype and (a != b).nnz == 0
+
+
+def test_store_holds_g_beside_f(box, tmp_path, device):
+    scene, labels, G = box
+    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=10, clusters=labels, cluster_resolution=8,
+                          cluster_params={"method": "diagonals"}, progress=False, device=device)
+    assert store.complete and store.complete_clusters and store.n_clusters == labels.max() + 1
+    assert same_csr(store.to_csr(), form_factors(scene, resolution=8, device=device))
+    assert same_csr(store.cluster_form_factors(labels), G)  # rows in blocks of 10 and whole: bit for bit
+    idx = np.array([95, 3, 3, 40, 0])
+    assert same_csr(store.cluster_rows(idx), G[idx])
+    np.testing.assert_array_equal(store.cluster_labels(), labels)
+    assert same_csr(store.prolongation(), indicator(labels).astype(np.float32))
+    again = FormFactorStore.open(scene, tmp_path / "s", resolution=8)
+    assert again.cluster_resolution == 8 and again.cluster_params == {"method": "diagonals"} and "G: C=" in repr(again)
+    assert same_csr(again.cluster_form_factors(), G)
+
+
+def test_store_of_g_alone_and_resume(box, tmp_path, device):
+    scene, labels, G = box
+    path = tmp_path / "g"
+    store = compute_store(scene, path, resolution=8, block_rows=16, clusters=indicator(labels), cluster_resolution=8,
+                          compute_f=False, progress=False, device=device)
+    assert store.complete_clusters and not store.complete and store.missing_blocks() == list(range(12))
+    with pytest.raises(StoreIncompleteError, match="block 0"):
+        store.rows([0])
+    store.block_path(2, "G").unlink()
+    store.block_path(4, "G").write_bytes(b"torn")
+    with pytest.raises(StoreIncompleteError, match="1 of 12 blocks of G"):
+        store.cluster_form_factors()
+    with pytest.raises(StoreCorruptError):
+        store.cluster_rows([70])
+    # Resumed without naming the clusters again: the recorded ones finish G.
+    store = compute_store(scene, path, resolution=8, block_rows=16, compute_f=False, verify=True, progress=False,
+                          device=device)
+    assert same_csr(store.cluster_form_factors(), G)
+
+
+def test_store_refuses_other_clusters(box, tmp_path, device):
+    scene, labels, _ = box
+    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8,
+                          compute_f=False, progress=False, device=device)
+    other = labels.copy()
+    other[[0, 1]] = other[[1, 0]] if other[0] != other[1] else (other[0] + 1) % (labels.max() + 1)
+    for bad in (other, scene.source_face // 2, weighted(labels, scene.areas, np.linspace(1, 2, len(scene)))):
+        with pytest.raises(StoreMismatchError, match="other clusters"):
+            store.cluster_form_factors(bad)
+        with pytest.raises(StoreMismatchError, match="prolongation_sha256"):
+            compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=bad, cluster_resolution=8,
+                          compute_f=False, progress=False, device=device)
+    with pytest.raises(StoreMismatchError, match="resolution"):
+        store.set_clusters(labels, resolution=16)
+    with pytest.raises(StoreMismatchError, match="geometry_hash"):  # G of another scene: the store refuses the scene
+        FormFactorStore.open(closed_box(2.0, subdivisions=2), tmp_path / "s", resolution=8)
+    with pytest.raises(InvalidInputError, match="labels"):
+        store.check_clusters(labels[:-1])
+    plain = compute_store(scene, tmp_path / "f", resolution=8, block_rows=48, progress=False, device=device)
+    assert not plain.has_clusters
+    with pytest.raises(StoreIncompleteError, match="holds no patch-to-cluster"):
+        plain.cluster_rows([0])

@@ -24,7 +24,7 @@ from ..checks import scene as checked_scene
 from ..errors import InvalidInputError
 from ..formfactors import hemicube_blocks, stack_blocks
 
-__all__ = ["cluster_form_factors", "check_prolongation", "split_prolongation"]
+__all__ = ["cluster_form_factors", "as_prolongation", "check_prolongation", "split_prolongation"]
 
 
 def check_prolongation(prolongation, n: int) -> sp.csr_matrix:
@@ -48,6 +48,24 @@ def check_prolongation(prolongation, n: int) -> sp.csr_matrix:
     pr.eliminate_zeros()
     pr.sort_indices()
     return pr
+
+
+def as_prolongation(clusters, n: int) -> sp.csr_matrix:
+    """A checked (N, C) prolongation from an (N, C) matrix, (N,) integer cluster labels (the
+    indicator) or a clusters object with ``labels`` (:class:`pydynrad.farfield.Clusters`)."""
+    labels = getattr(clusters, "labels", None)
+    if labels is None and not sp.issparse(clusters):
+        a = np.asarray(clusters)
+        if a.ndim == 1:
+            labels = a
+    if labels is None:
+        return check_prolongation(clusters, n)
+    labels = np.asarray(labels)
+    if labels.shape != (n,) or not np.issubdtype(labels.dtype, np.integer) or (n and labels.min() < 0):
+        raise InvalidInputError(f"cluster labels must be {n} integers >= 0 (one per patch); got shape {labels.shape}, "
+                                f"dtype {labels.dtype}")
+    C = int(getattr(clusters, "count", labels.max() + 1 if n else 1))
+    return check_prolongation(sp.csr_matrix((np.ones(n), (np.arange(n), labels)), shape=(n, C)), n)
 
 
 def split_prolongation(prolongation) -> tuple[np.ndarray, np.ndarray] | None:
