@@ -30,11 +30,11 @@ __all__ = ["SIZES", "grid_clusters", "indicator", "weighted", "measure", "suite_
 
 SIZES = {
     "tiny": {"scenes": {"cornell_box": {"max_edge": 250.0}}, "resolutions": (4, 8), "reference": 16,
-             "sample": 32, "per_cluster": 8, "store_resolution": 16, "repeats": 1},
+             "sample": 32, "time_rows": 32, "per_cluster": 8, "store_resolution": 16, "repeats": 1},
     "quick": {"scenes": {"cornell_box": {}, "village": {"houses": 2, "detail": 0.5}}, "resolutions": (8, 16, 32, 64),
-              "reference": 128, "sample": 256, "per_cluster": 8, "store_resolution": 64, "repeats": 3},
+              "reference": 128, "sample": 256, "time_rows": 1024, "per_cluster": 8, "store_resolution": 64, "repeats": 3},
     "full": {"scenes": {"cornell_box": {}, "village": {"houses": 12, "detail": 1.0}}, "resolutions": (8, 16, 32, 64),
-             "reference": 128, "sample": 1024, "per_cluster": 8, "store_resolution": 64, "repeats": 3},
+             "reference": 128, "sample": 1024, "time_rows": 4096, "per_cluster": 8, "store_resolution": 64, "repeats": 3},
 }
 
 
@@ -90,7 +90,9 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
         labels = grid_clusters(scene, p["per_cluster"])
         ind = indicator(labels)
         C = ind.shape[1]
-        sample = np.sort(np.random.default_rng(0).choice(n, min(n, p["sample"]), replace=False))
+        rng = np.random.default_rng(0)
+        sample = np.sort(rng.choice(n, min(n, p["sample"]), replace=False))
+        timed = np.sort(rng.choice(n, min(n, p["time_rows"]), replace=False))
         r_low = min(p["resolutions"])
         open_sky = 1.0 - np.asarray(cluster_form_factors(scene, ind, r_low, device=device).sum(axis=1)).ravel()
         wtd = weighted(labels, scene.areas.astype(np.float64), np.clip(open_sky, 0, 1) + 0.05)
@@ -107,13 +109,13 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
 
             def per_row(fn):
                 t = time_call(fn, repeats=p["repeats"])
-                return t["median_s"] / len(sample) * 1e3, t["result"]
+                return t["median_s"] / len(timed) * 1e3, t["result"]
 
-            tf, F = per_row(lambda: form_factors(scene, R, rows=sample, device=device))
-            tg, G = per_row(lambda: cluster_form_factors(scene, ind, R, rows=sample, device=device))
-            twd, _ = per_row(lambda: cluster_form_factors(scene, wtd, R, rows=sample, device=device))
-            twh, _ = per_row(lambda: form_factors(scene, R, rows=sample, device=device) @ wtd)
-            time_rows.append([name, n, C, R, tf, tg, twd, twh, F.nnz / len(sample), G.nnz / len(sample)])
+            tf, F = per_row(lambda: form_factors(scene, R, rows=timed, device=device))
+            tg, G = per_row(lambda: cluster_form_factors(scene, ind, R, rows=timed, device=device))
+            twd, _ = per_row(lambda: cluster_form_factors(scene, wtd, R, rows=timed, device=device))
+            twh, _ = per_row(lambda: form_factors(scene, R, rows=timed, device=device) @ wtd)
+            time_rows.append([name, n, C, R, tf, tg, twd, twh, F.nnz / len(timed), G.nnz / len(timed)])
         for kind, col in (("indicator", 4), ("weighted", 8)):
             pts = [r for r in err_rows if r[0] == name]
             plot_series.append({"label": f"{name} {kind}", "x": [r[3] for r in pts], "y": [r[col] for r in pts],
@@ -121,8 +123,8 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
         tF = {r[3]: r[4] for r in time_rows if r[0] == name}
         tF_store = tF.get(p["store_resolution"])
         if tF_store is None:
-            tF_store = time_call(lambda: form_factors(scene, p["store_resolution"], rows=sample, device=device),
-                                 repeats=p["repeats"])["median_s"] / len(sample) * 1e3
+            tF_store = time_call(lambda: form_factors(scene, p["store_resolution"], rows=timed, device=device),
+                                 repeats=p["repeats"])["median_s"] / len(timed) * 1e3
         for r in (r for r in time_rows if r[0] == name):
             cost_rows.append([name, p["store_resolution"], r[3], r[5] / tF_store, r[6] / tF_store])
     e_cols = ["scene", "N", "C", "R"] + [f"{k} {s}" for k in ("indicator", "weighted")
@@ -138,7 +140,8 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
             {"title": "Time per row (ms) of F and of G at the same resolution, and non-zeros per row",
              "columns": ["scene", "N", "C", "R", "F ms/row", "G indicator ms/row", "G weighted (device) ms/row",
                          "F rows @ Pr_w (host) ms/row", "F nnz/row", "G nnz/row"],
-             "rows": time_rows, "note": f"median of {p['repeats']} runs over the sampled rows, kernel builds excluded"},
+             "rows": time_rows, "note": f"median of {p['repeats']} runs over {p['time_rows']} sampled rows (or all), "
+                                         "kernel builds excluded"},
             {"title": "Precompute: G at R as a fraction of F at the store's resolution",
              "columns": ["scene", "F's R", "G's R", "G indicator / F", "G weighted / F"], "rows": cost_rows,
              "note": "issue target: clusters + K_c + G <= 0.2 of F"},
