@@ -10,6 +10,10 @@ the suite runs the same measurement as its "gather" section.
   hemisphere open to the sky, from the same hemicubes, plus 0.05; Pr_w[i, c] = w_i / mean_c(w)).
   Also the relative RMS of G x against G_ref x for a random cluster radiosity x: the product
   the far field forms with G.
+* The far field's error with that G: B_far = L + P G B_c, B_c = (I - P_c R G)^-1 R L (dense,
+  float64) for the scene's own emitters, against the full solve B = L + P F B with F at the
+  reference resolution ("vs full": clusters and G's resolution together) and against B_far from
+  G = F Pr at the reference resolution ("vs G at ref": G's resolution alone).
 * Time per row of F and of G at the same R, and the two ways of weighting G's pixels: on the
   device (what cluster_form_factors does) or F's patch rows times Pr_w on the host.
 * Precompute cost: G at its resolution as a share of F at a store's resolution (the issue's
@@ -39,14 +43,16 @@ SIZES = {
 
 
 def grid_clusters(scene, per_cluster: float) -> np.ndarray:
-    """(N,) cluster labels: dominant normal axis and sign, then a grid cell of side
+    """(N,) cluster labels, each cluster pure in albedo and emission and of one orientation:
+    patches grouped by material, dominant normal axis and sign, then a grid cell of side
     sqrt(per_cluster * median patch area), so a flat wall's cluster holds about per_cluster patches."""
     n = scene.normals.astype(np.float64)
     axis = np.argmax(np.abs(n), axis=1)
-    sign = np.sign(n[np.arange(len(n)), axis]).astype(np.int64)
+    sign = np.sign(n[np.arange(len(n)), axis])
     cell = np.sqrt(per_cluster * np.median(scene.areas))
-    cells = np.floor(scene.centers / cell).astype(np.int64)
-    return np.unique(np.column_stack([axis, sign, cells]), axis=0, return_inverse=True)[1].ravel()
+    cells = np.floor(scene.centers / cell)
+    keys = np.column_stack([scene.albedo, scene.emission, axis, sign, cells]).astype(np.float64)
+    return np.unique(keys, axis=0, return_inverse=True)[1].ravel()
 
 
 def indicator(labels: np.ndarray) -> sp.csr_matrix:
@@ -75,6 +81,38 @@ def _transport_error(G, ref, x) -> float:
     return float(np.sqrt(np.mean((g - r) ** 2) / np.mean(r**2)))
 
 
+def _restriction(labels, areas) -> sp.csr_matrix:
+    """(C, N) R[c, i] = A_i / A_c for i in c: the area-weighted average (R Pr = I)."""
+    a = np.asarray(areas, dtype=np.float64)
+    a_c = np.bincount(labels, a)
+    return sp.csr_matrix((a / a_c[labels], (labels, np.arange(len(labels)))), shape=(len(a_c), len(labels)))
+
+
+def _full_radiosity(F, rho, L, tol=1e-10) -> np.ndarray:
+    """B = L + P F B by Jacobi sweeps in float64 (albedo < 1: a contraction)."""
+    B = L.copy()
+    for _ in range(10_000):
+        nxt = L + rho * (F @ B)
+        if np.max(np.abs(nxt - B)) <= tol * np.max(np.abs(nxt)):
+            return nxt
+        B = nxt
+    raise RuntimeError("the reference radiosity did not converge")
+
+
+def _far_radiosity(G, Rm, rho, L) -> np.ndarray:
+    """B_far = L + P G B_c with B_c = (I - P_c F_c)^-1 L_c, F_c = R G (pure clusters: P_c = R P):
+    the far field's coarse level in dense float64 (docs/design.md, 'Far field')."""
+    G = G.astype(np.float64)
+    F_c = (Rm @ G).toarray()
+    L_c, rho_c = Rm @ L, Rm @ rho
+    B_c = np.column_stack([np.linalg.solve(np.eye(len(F_c)) - rho_c[:, [k]] * F_c, L_c[:, k]) for k in range(L.shape[1])])
+    return L + rho * (G @ B_c)
+
+
+def _rel_rms(a, b) -> float:
+    return float(np.sqrt(np.sum((a - b) ** 2) / np.sum(b**2)))
+
+
 def measure(size: str, device, overrides: dict | None = None) -> dict:
     """The section at ``size`` (SIZES), its entries replaced by ``overrides``."""
     from pydynrad import scenes
@@ -82,7 +120,7 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
     from pydynrad.formfactors import form_factors
 
     p = {**SIZES[size], **(overrides or {})}
-    err_rows, time_rows, cost_rows = [], [], []
+    err_rows, far_rows, time_rows, cost_rows = [], [], [], []
     plot_series = []
     for name, kwargs in p["scenes"].items():
         scene = getattr(scenes, name)(**kwargs)
@@ -96,16 +134,26 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
         r_low = min(p["resolutions"])
         open_sky = 1.0 - np.asarray(cluster_form_factors(scene, ind, r_low, device=device).sum(axis=1)).ravel()
         wtd = weighted(labels, scene.areas.astype(np.float64), np.clip(open_sky, 0, 1) + 0.05)
-        F_ref = form_factors(scene, p["reference"], rows=sample, device=device).astype(np.float64)
+        F_full = form_factors(scene, p["reference"], device=device).astype(np.float64)
+        F_ref = F_full[sample]
         refs = {"indicator": F_ref @ ind, "weighted": F_ref @ wtd}
         x = np.random.default_rng(1).uniform(0.0, 1.0, C)
+        # The far field's B_far (plain algebra) against the full solve with the reference F.
+        Rm = _restriction(labels, scene.areas)
+        rho, L = scene.albedo.astype(np.float64), scene.emission.astype(np.float64)
+        B_full = _full_radiosity(F_full, rho, L)
+        B_far_ref = {kind: _far_radiosity(F_full @ pr, Rm, rho, L) for kind, pr in (("indicator", ind), ("weighted", wtd))}
         for R in p["resolutions"]:
-            row = [name, n, C, R]
+            row, far = [name, n, C, R], [name, n, C, R]
             for kind, pr in (("indicator", ind), ("weighted", wtd)):
-                G = cluster_form_factors(scene, pr, R, rows=sample, device=device)
+                G_all = cluster_form_factors(scene, pr, R, device=device)
+                G = G_all[sample]
                 e = _row_l1(G, refs[kind])
                 row += [float(e.mean()), float(np.percentile(e, 95)), float(e.max()), _transport_error(G, refs[kind], x)]
+                B_far = _far_radiosity(G_all, Rm, rho, L)
+                far += [_rel_rms(B_far, B_full), _rel_rms(B_far, B_far_ref[kind])]
             err_rows.append(row)
+            far_rows.append(far)
 
             def per_row(fn):
                 t = time_call(fn, repeats=p["repeats"])
@@ -137,6 +185,12 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
              "columns": e_cols, "rows": err_rows,
              "note": f"{p['sample']} sampled rows per scene; clusters of about {p['per_cluster']} patches; "
                      "G x: a random cluster radiosity x in [0, 1) through G"},
+            {"title": f"Far-field error: B_far = L + P G B_c with G at R, relative RMS over all patches",
+             "columns": ["scene", "N", "C", "R", "indicator vs full solve", "indicator vs G at ref",
+                         "weighted vs full solve", "weighted vs G at ref"],
+             "rows": far_rows,
+             "note": f"the scene's own emitters; full solve and 'G at ref': F at R = {p['reference']}; the coarse "
+                     "level solved densely in float64 (what the far field computes, in plain numpy)"},
             {"title": "Time per row (ms) of F and of G at the same resolution, and non-zeros per row",
              "columns": ["scene", "N", "C", "R", "F ms/row", "G indicator ms/row", "G weighted (device) ms/row",
                          "F rows @ Pr_w (host) ms/row", "F nnz/row", "G nnz/row"],
