@@ -24,7 +24,7 @@ from .checks import patch_indices, resolution as checked_resolution, scene as ch
 from .errors import InvalidInputError
 from .launch import BVH_PACKET, global_size
 
-__all__ = ["form_factors", "hemicube_blocks", "pixel_form_factors", "stack_blocks", "SURFACE_OFFSET"]
+__all__ = ["form_factors", "hemicube_blocks", "pixel_form_factors", "stack_blocks", "CLUSTER_RESOLUTION", "SURFACE_OFFSET"]
 
 #: Hemicube centres sit this far off their patch, times the scene's bounding-box diagonal:
 #: far above float32 rounding of coordinates (about 6e-8 of them), far below any patch size.
@@ -32,6 +32,10 @@ SURFACE_OFFSET = 1e-5
 
 #: Bytes of run buffers per block (8 bytes per pixel slot); bounds memory for any N.
 BLOCK_BYTES = 128 * 2**20
+
+#: The default hemicube resolution of the far field's patch-to-cluster form factors G
+#: (bench/gather.py: G's share of the far field's error and its cost against F's).
+CLUSTER_RESOLUTION = 16
 
 #: Show a progress bar on a terminal when a call casts more rays than this.
 LONG_RUN_RAYS = 50_000_000

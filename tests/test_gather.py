@@ -212,3 +212,26 @@ def test_store_refuses_other_clusters(box, tmp_path, device):
     assert not plain.has_clusters
     with pytest.raises(StoreIncompleteError, match="holds no patch-to-cluster"):
         plain.cluster_rows([0])
+
+
+def test_g_for_each_kind_of_row_source(box, tmp_path, device):
+    """A store's own G (also through a row cache), F Pr from F in memory, hemicubes on demand;
+    a store without G or of another scene is refused."""
+    from pydynrad import CSRRows, HemicubeRows, RowCache
+    from pydynrad.farfield.gather import cluster_form_factors_for
+
+    scene, labels, G = box
+    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8,
+                          compute_f=False, progress=False, device=device)
+    assert same_csr(cluster_form_factors_for(scene, store, labels), G)
+    assert same_csr(cluster_form_factors_for(scene, RowCache(store, 2**20), labels), G)
+    assert same_csr(cluster_form_factors_for(scene, HemicubeRows(scene, 64, device), labels, resolution=8, device=device), G)
+    F = form_factors(scene, resolution=8, device=device)
+    assert_float32_equal(cluster_form_factors_for(scene, CSRRows(F), labels), F.astype(np.float64) @ indicator(labels))
+    with pytest.raises(StoreMismatchError, match="other clusters"):
+        cluster_form_factors_for(scene, store, scene.source_face // 2)
+    plain = compute_store(scene, tmp_path / "f", resolution=8, block_rows=48, progress=False, device=device)
+    with pytest.raises(StoreIncompleteError, match="holds no patch-to-cluster"):
+        cluster_form_factors_for(scene, plain, labels)
+    with pytest.raises(InvalidInputError, match="another scene"):
+        cluster_form_factors_for(closed_box(2.0, subdivisions=2), store, labels)

@@ -1,5 +1,5 @@
 """The far field: light from the patches outside the local set, through a coarse level of clusters."""
 
-from .gather import cluster_form_factors, split_prolongation
+from .gather import cluster_form_factors, cluster_form_factors_for
 
-__all__ = ["cluster_form_factors", "split_prolongation"]
+__all__ = ["cluster_form_factors", "cluster_form_factors_for"]

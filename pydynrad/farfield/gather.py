@@ -22,9 +22,9 @@ import scipy.sparse as sp
 
 from ..checks import scene as checked_scene
 from ..errors import InvalidInputError
-from ..formfactors import hemicube_blocks, stack_blocks
+from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
 
-__all__ = ["cluster_form_factors", "as_prolongation", "check_prolongation", "split_prolongation"]
+__all__ = ["cluster_form_factors", "cluster_form_factors_for", "as_prolongation", "check_prolongation", "split_prolongation"]
 
 
 def check_prolongation(prolongation, n: int) -> sp.csr_matrix:
@@ -85,7 +85,7 @@ def split_prolongation(prolongation) -> tuple[np.ndarray, np.ndarray] | None:
     return labels, scale
 
 
-def cluster_form_factors(scene, prolongation, resolution: int = 16, rows=None, device=None,
+def cluster_form_factors(scene, prolongation, resolution: int = CLUSTER_RESOLUTION, rows=None, device=None,
                          progress: bool | None = None) -> sp.csr_matrix:
     """Rows of the patch-to-cluster form factors G = F Pr by hemicube, F never formed.
 
@@ -96,7 +96,8 @@ def cluster_form_factors(scene, prolongation, resolution: int = 16, rows=None, d
     prolongation : (N, C) sparse or dense matrix
         Finite entries >= 0: the indicator of each patch's cluster, or a weighted one.
     resolution : int
-        Hemicube resolution R (even, >= 2; the rule of :func:`pydynrad.form_factors`).
+        Hemicube resolution R (even, >= 2; the rule of :func:`pydynrad.form_factors`); default
+        :data:`pydynrad.formfactors.CLUSTER_RESOLUTION`.
     rows : sequence of int, optional
         Patches whose rows of G to compute; all by default.
     device : Device, optional
@@ -121,3 +122,33 @@ def cluster_form_factors(scene, prolongation, resolution: int = 16, rows=None, d
         blocks = (b @ pr for b in hemicube_blocks(scene, resolution, rows, device, progress,
                                                    desc="cluster form factors"))
     return stack_blocks(blocks, C)
+
+
+def cluster_form_factors_for(scene, source, clusters, resolution: int = CLUSTER_RESOLUTION, device=None,
+                             progress: bool | None = None) -> sp.csr_matrix:
+    """The whole (N, C) G for a dynamic solution's form factors, F never formed.
+
+    ``source`` is what :class:`~pydynrad.DynamicRadiosity` reads F's rows from: a
+    :class:`~pydynrad.rows.store.FormFactorStore` (or a :class:`~pydynrad.RowCache` over one)
+    must hold G for these clusters (else :class:`~pydynrad.StoreIncompleteError` or
+    :class:`~pydynrad.StoreMismatchError`); F in memory (:class:`~pydynrad.CSRRows`) gives
+    F Pr exactly; any other source (the on-demand :class:`~pydynrad.HemicubeRows`) gets G from
+    cluster-id hemicubes of ``resolution``. ``clusters``: Pr (N, C), (N,) labels or a
+    :class:`pydynrad.farfield.Clusters`. Returns float32 CSR.
+    """
+    from ..rows.sources import CSRRows
+    from ..rows.store import FormFactorStore
+
+    pr = as_prolongation(clusters, len(checked_scene(scene)))
+    inner = source
+    while not isinstance(inner, FormFactorStore) and hasattr(inner, "source"):
+        inner = inner.source  # through row caches
+    if isinstance(inner, FormFactorStore):
+        if inner.header["geometry_hash"] != scene.geometry_hash():
+            raise InvalidInputError(f"form-factor store {inner.path} was made for another scene geometry")
+        return inner.cluster_form_factors(pr)
+    if isinstance(inner, CSRRows):
+        if inner.n_patches != pr.shape[0]:
+            raise InvalidInputError(f"F has {inner.n_patches} rows; the scene has {pr.shape[0]} patches")
+        return stack_blocks([inner.matrix.astype(np.float64) @ pr], pr.shape[1])
+    return cluster_form_factors(scene, pr, resolution, device=device, progress=progress)

@@ -59,6 +59,7 @@ import scipy.sparse as sp
 from ..atomic import TMP_MARK, write_atomic
 from ..checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
+from ..formfactors import CLUSTER_RESOLUTION
 
 __all__ = [
     "FormFactorStore",
@@ -85,8 +86,7 @@ DEFAULT_TASK_ROWS = 4096
 # DEFLATE level 1: F's float32 mantissas are nearly incompressible, so higher levels cost
 # several times the CPU time for a few percent of size.
 COMPRESS_LEVEL = 1
-#: G's default hemicube resolution (bench/gather.py: error against F Pr at R = 128, and cost).
-DEFAULT_CLUSTER_RESOLUTION = 16
+DEFAULT_CLUSTER_RESOLUTION = CLUSTER_RESOLUTION
 
 RowFunction = Callable[..., sp.csr_matrix]
 
