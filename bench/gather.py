@@ -35,9 +35,9 @@ __all__ = ["SIZES", "grid_clusters", "indicator", "weighted", "measure", "suite_
 SIZES = {
     "tiny": {"scenes": {"cornell_box": {"max_edge": 250.0}}, "resolutions": (4, 8), "reference": 16,
              "sample": 32, "time_rows": 32, "per_cluster": 8, "store_resolution": 16, "repeats": 1},
-    "quick": {"scenes": {"cornell_box": {}, "village": {"houses": 2, "detail": 0.5}}, "resolutions": (8, 16, 32, 64),
+    "quick": {"scenes": {"cornell_box": {}, "village": {"houses": 2, "detail": 0.5}}, "resolutions": (8, 16, 24, 32, 64),
               "reference": 128, "sample": 256, "time_rows": 1024, "per_cluster": 8, "store_resolution": 64, "repeats": 5},
-    "full": {"scenes": {"cornell_box": {}, "village": {"houses": 12, "detail": 1.0}}, "resolutions": (8, 16, 32, 64),
+    "full": {"scenes": {"cornell_box": {}, "village": {"houses": 12, "detail": 1.0}}, "resolutions": (8, 16, 24, 32, 64),
              "reference": 128, "sample": 1024, "time_rows": 4096, "per_cluster": 8, "store_resolution": 64, "repeats": 3},
 }
 
@@ -174,7 +174,8 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
             tF_store = time_call(lambda: form_factors(scene, p["store_resolution"], rows=timed, device=device),
                                  repeats=p["repeats"])["min_s"] / len(timed) * 1e3
         for r in (r for r in time_rows if r[0] == name):
-            cost_rows.append([name, p["store_resolution"], r[3], r[5] / tF_store, r[6] / tF_store])
+            cost_rows.append([name, p["store_resolution"], r[3], (r[3] / p["store_resolution"]) ** 2, r[5] / tF_store,
+                              r[6] / tF_store])
     e_cols = ["scene", "N", "C", "R"] + [f"{k} {s}" for k in ("indicator", "weighted")
                                          for s in ("row L1 mean", "row L1 p95", "row L1 max", "G x rel. RMS")]
     return {
@@ -198,8 +199,10 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
                                          f"least disturbed) over {p['time_rows']} sampled rows (or all), kernel builds "
                                          "excluded"},
             {"title": "Precompute: G at R as a fraction of F at the store's resolution",
-             "columns": ["scene", "F's R", "G's R", "G indicator / F", "G weighted / F"], "rows": cost_rows,
-             "note": "issue target: clusters + K_c + G <= 0.2 of F"},
+             "columns": ["scene", "F's R", "G's R", "rays G / F", "G indicator / F (time)", "G weighted / F (time)"],
+             "rows": cost_rows,
+             "note": "rays: (R_G / R_F)^2, what the times follow where the shared machine is quiet; issue target: "
+                     "clusters + K_c + G <= 0.2 of F"},
         ],
         "plots": [{"name": "error", "title": "G's row-wise relative L1 error vs hemicube resolution",
                    "xlabel": "resolution R", "ylabel": "mean relative L1 error", "xscale": "log", "yscale": "log",
