@@ -109,6 +109,25 @@ def _far_radiosity(G, Rm, rho, L) -> np.ndarray:
     return L + rho * (G @ B_c)
 
 
+def _store_times(scene, labels, resolution: int, device) -> list:
+    """Seconds and MiB of a whole store of F at ``resolution`` and of one of G alone at the default
+    cluster resolution, each computed in this process into a temporary folder."""
+    import tempfile
+    import time
+    from pathlib import Path
+
+    from pydynrad.formfactors import CLUSTER_RESOLUTION
+    from pydynrad.rows.store import compute_store
+
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, kw in (("F", {}), ("G", {"clusters": labels, "compute_f": False})):
+            t0 = time.perf_counter()
+            store = compute_store(scene, Path(tmp) / name, resolution=resolution, progress=False, device=device, **kw)
+            out += [time.perf_counter() - t0, store.nbytes_on_disk / 2**20]
+    return [resolution, CLUSTER_RESOLUTION, out[0], out[2], out[2] / out[0], out[1], out[3]]
+
+
 def _rel_rms(a, b) -> float:
     return float(np.sqrt(np.sum((a - b) ** 2) / np.sum(b**2)))
 
@@ -120,7 +139,7 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
     from pydynrad.formfactors import form_factors
 
     p = {**SIZES[size], **(overrides or {})}
-    err_rows, far_rows, time_rows, cost_rows = [], [], [], []
+    err_rows, far_rows, time_rows, cost_rows, store_rows = [], [], [], [], []
     plot_series = []
     for name, kwargs in p["scenes"].items():
         scene = getattr(scenes, name)(**kwargs)
@@ -173,6 +192,7 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
         if tF_store is None:
             tF_store = time_call(lambda: form_factors(scene, p["store_resolution"], rows=timed, device=device),
                                  repeats=p["repeats"])["min_s"] / len(timed) * 1e3
+        store_rows.append([name, n, C, *_store_times(scene, labels, p["store_resolution"], device)])
         for r in (r for r in time_rows if r[0] == name):
             cost_rows.append([name, p["store_resolution"], r[3], (r[3] / p["store_resolution"]) ** 2, r[5] / tF_store,
                               r[6] / tF_store])
@@ -203,6 +223,9 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
              "rows": cost_rows,
              "note": "rays: (R_G / R_F)^2, what the times follow where the shared machine is quiet; issue target: "
                      "clusters + K_c + G <= 0.2 of F"},
+            {"title": "Whole-store precompute in this process: F at the store's resolution, G alone at the default",
+             "columns": ["scene", "N", "C", "F's R", "G's R", "F s", "G s", "G / F", "F MiB", "G MiB"],
+             "rows": store_rows, "note": "compute_store with the default block and task sizes, one run each"},
         ],
         "plots": [{"name": "error", "title": "G's row-wise relative L1 error vs hemicube resolution",
                    "xlabel": "resolution R", "ylabel": "mean relative L1 error", "xscale": "log", "yscale": "log",
