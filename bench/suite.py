@@ -15,6 +15,8 @@ accuracy       the trade curve: error vs frame time per M, update mode, storage,
 dynamic        update kernels vs copy bandwidth, whole frames, accuracy near the observer, and
                the drift of K over many frames (10,000 at --full) (bench/dynamic.py)
 bandwidth      lighting product and solver vs copy bandwidth and numpy/SciPy (bench/radiosity.py)
+gather         the far field's patch-to-cluster form factors G: error vs hemicube resolution, time
+               per row against F's, precompute share (bench/gather.py)
 =============  ===========================================================================
 
 Each section is a function ``section(ctx) -> dict`` (title, description, tables, plots; see
@@ -40,7 +42,7 @@ __all__ = ["SIZES", "SECTIONS", "Context", "run_suite", "main"]
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 #: Parameters per size; each section reads its own entry ("tiny" is for the tests only). The
-#: sections of bench/formfactors.py, bench/dynamic.py and bench/radiosity.py keep their own
+#: sections of bench/formfactors.py, bench/dynamic.py, bench/radiosity.py and bench/gather.py keep their own
 #: per-size tables (their standalone scripts use them too); an entry here overrides them.
 SIZES: dict[str, dict] = {
     "tiny": {
@@ -51,6 +53,7 @@ SIZES: dict[str, dict] = {
                      "frames": 3, "ref_spp": 64, "image": (24, 18)},
         "dynamic": {},
         "bandwidth": {},
+        "gather": {},
     },
     "quick": {
         "pathtracer": {"furnace_subdivisions": 3, "spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
@@ -60,6 +63,7 @@ SIZES: dict[str, dict] = {
                      "frames": 6, "ref_spp": 512, "image": (64, 48)},
         "dynamic": {},
         "bandwidth": {},
+        "gather": {},
     },
     "full": {
         "pathtracer": {"furnace_subdivisions": 4, "spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
@@ -69,6 +73,7 @@ SIZES: dict[str, dict] = {
                      "base_M": 2048, "frames": 12, "ref_spp": 4096, "image": (320, 240)},
         "dynamic": {},
         "bandwidth": {},
+        "gather": {},
     },
 }
 
@@ -80,6 +85,7 @@ SECTIONS: dict[str, str] = {
     "accuracy": "bench.accuracy:accuracy_section",
     "dynamic": "bench.dynamic:suite_section",
     "bandwidth": "bench.radiosity:suite_section",
+    "gather": "bench.gather:suite_section",
 }
 
 

@@ -12,6 +12,14 @@
 // Each scanline's pixels are run-length encoded: consecutive pixels that see the same patch
 // form one run (id, end pixel). The host turns runs into weights with a prefix sum of the
 // pixel form factors, so nothing N-sized per row ever exists on the device.
+//
+// With HC_CLUSTERS defined (the far field's patch-to-cluster form factors G = F Pr) the kernel
+// takes three more arguments: labels (int per patch: its cluster, or -1 for none), scale (float
+// per patch: its entry of Pr, 1 for the indicator) and pixel_weights (the delta form factors,
+// 3R x R as above). It records labels[patch] instead of the patch, so neighbouring pixels on
+// different patches of one cluster form one run, and sums each run's weight on the device:
+// run_end holds that float weight instead of an end pixel. (Summing here measured faster than
+// the host's prefix sums, bench/gather.py.)
 #include "bvh.cl"
 
 #ifndef HC_RES
@@ -20,6 +28,14 @@
 // The lane offsets of a scanline's packet below are written out for 16 lanes.
 #if BVH_PACKET != 16
 #error "hemicube.cl needs BVH_PACKET == 16 from the host (pydynrad/launch.py)"
+#endif
+
+#ifdef HC_CLUSTERS
+#define HC_EXTRA_ARGS , __global const int *labels, __global const float *scale, __global const float *pixel_weights
+#define HC_END_TYPE float
+#else
+#define HC_EXTRA_ARGS
+#define HC_END_TYPE int
 #endif
 
 // A 32-bit integer hash (lowbias32): the rotation angle of patch i, fixed for all runs.
@@ -39,7 +55,8 @@ inline uint hc_hash(uint x)
 __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 *tris, __global const int *order,
                             __global const float4 *centers, __global const float4 *normals,
                             __global const int *rows, int n_rows, float eps,
-                            __global int *run_patch, __global int *run_end, __global int *run_count)
+                            __global int *run_patch, __global HC_END_TYPE *run_end, __global int *run_count
+                            HC_EXTRA_ARGS)
 {
     const int R = HC_RES, H = HC_RES / 2;
     int g = get_global_id(0);
@@ -80,6 +97,10 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
 
     size_t slot = (size_t)g * R;
     int runs = 0, current = -2;
+#ifdef HC_CLUSTERS
+    float acc = 0.0f;
+    __global const float *pw = pixel_weights + (size_t)s * R;
+#endif
     // BVH_PACKET pixels of the scanline per traversal, one per vector lane (a short last
     // packet repeats its last pixel in the spare lanes).
     const bvh_floatP lane = (bvh_floatP)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
@@ -98,18 +119,35 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
         bvh_vstoreP(hp.front, 0, fronts);
         for (int l = 0; l < BVH_PACKET && x0 + l < R; ++l) {
             // A back face occludes and receives nothing; a planar patch cannot see itself.
-            int id = (ids[l] >= 0 && fronts[l] && ids[l] != i) ? ids[l] : -1;
+            int hit = (ids[l] >= 0 && fronts[l] && ids[l] != i) ? ids[l] : -1;
+#ifdef HC_CLUSTERS
+            int id = hit >= 0 ? labels[hit] : -1;
+#else
+            int id = hit;
+#endif
             if (id != current) {
                 if (current != -2) {
                     run_patch[slot + runs] = current;
+#ifdef HC_CLUSTERS
+                    run_end[slot + runs] = acc;
+                    acc = 0.0f;
+#else
                     run_end[slot + runs] = x0 + l;
+#endif
                     ++runs;
                 }
                 current = id;
             }
+#ifdef HC_CLUSTERS
+            if (id >= 0) acc += pw[x0 + l] * scale[hit];
+#endif
         }
     }
     run_patch[slot + runs] = current;
+#ifdef HC_CLUSTERS
+    run_end[slot + runs] = acc;
+#else
     run_end[slot + runs] = R;
+#endif
     run_count[g] = runs + 1;
 }

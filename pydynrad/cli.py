@@ -210,7 +210,10 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
     from .rows.files import save_form_factors
 
     given = [o for o, v in (("--workers", args.workers), ("--scheduler", args.scheduler),
-                            ("--block-rows", args.block_rows)) if v is not None]
+                            ("--block-rows", args.block_rows), ("--clusters", args.clusters),
+                            ("--cluster-resolution", args.cluster_resolution)) if v is not None]
+    if args.no_f:
+        given.append("--no-f")
     if given:
         raise InvalidInputError(f"{', '.join(given)} apply to a store folder; {str(out)!r} is a single .npz file")
     out = _checked_target(out, (".npz",))  # fail before the work, not after
@@ -222,15 +225,33 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
     return 0
 
 
+def _cluster_labels(args: argparse.Namespace, scene) -> tuple[np.ndarray | None, dict]:
+    """--clusters LABELS.npy as (N,) labels and the record of where they came from, or (None, {})."""
+    if args.clusters is None:
+        if args.cluster_resolution is not None or args.no_f:
+            raise InvalidInputError("--cluster-resolution and --no-f need --clusters (the clusters G is made for)")
+        return None, {}
+    path = Path(args.clusters)
+    try:
+        labels = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise InvalidInputError(f"--clusters {str(path)!r}: not a readable .npy file of cluster labels ({exc})") from None
+    if labels.shape != (len(scene),) or not np.issubdtype(labels.dtype, np.integer) or labels.min() < 0:
+        raise InvalidInputError(f"--clusters {str(path)!r} must hold {len(scene)} integers >= 0 (one cluster per "
+                                f"patch); got shape {labels.shape}, dtype {labels.dtype}")
+    return labels, {"labels_file": str(path.resolve())}
+
+
 def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     """Create or resume the store at ``out``: in this process (--workers 0) or on a Dask cluster."""
     from .rows.distributed import SceneSpec, precompute_distributed
     from .atomic import check_parent_folder
-    from .rows.store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore, compute_store
+    from .rows.store import DEFAULT_BLOCK_ROWS, DEFAULT_CLUSTER_RESOLUTION, HEADER, FormFactorStore, compute_store
 
     check_parent_folder(out)
     scene = load_scene(args.scene, args.max_edge)
     print(f"scene: {scene!r}")
+    labels, cluster_params = _cluster_labels(args, scene)
     # The recipe is the store's patching record, the same for every way of computing it, so
     # a store begun in this process can be finished on a cluster and the other way round.
     spec = SceneSpec(args.scene, _patching(args.max_edge)).resolved()
@@ -241,18 +262,23 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
         done = store.n_blocks - len(store.missing_blocks())
         print(f"resuming {out}: {done} of {store.n_blocks} blocks already done")
     block_rows = block_rows or DEFAULT_BLOCK_ROWS
+    common = dict(resolution=args.resolution, block_rows=block_rows, progress=_progress(args), clusters=labels,
+                  cluster_resolution=args.cluster_resolution or DEFAULT_CLUSTER_RESOLUTION,
+                  cluster_params=cluster_params, compute_f=not args.no_f)
     t0 = time.perf_counter()
     if args.workers == 0:
-        store = compute_store(scene, out, resolution=args.resolution, block_rows=block_rows, patching=spec.recipe(),
-                              progress=_progress(args))
+        store = compute_store(scene, out, patching=spec.recipe(), **common)
         where = "this process (no Dask)"
     else:
         workers = None if args.scheduler else (args.workers or 2)
-        store = precompute_distributed(spec, out, resolution=args.resolution, block_rows=block_rows, workers=workers,
-                                       scheduler=args.scheduler, progress=_progress(args))
+        store = precompute_distributed(spec, out, workers=workers, scheduler=args.scheduler, **common)
         where = f"the cluster at {args.scheduler}" if args.scheduler else f"a LocalCluster of {workers} workers"
     seconds = time.perf_counter() - t0
-    print(f"wrote store {out}: {store.n_patches} patches in {store.n_blocks} blocks of {store.block_rows} rows, "
+    g = ""
+    if store.has_clusters:
+        g = f", G for {store.n_clusters} clusters at resolution {store.cluster_resolution}"
+    f_done = "" if store.complete else " (F's rows not computed)"
+    print(f"wrote store {out}: {store.n_patches} patches in {store.n_blocks} blocks of {store.block_rows} rows{f_done}{g}, "
           f"{store.nbytes_on_disk / 2**20:.1f} MiB, {seconds:.1f} s in {where}")
     return 0
 
@@ -431,6 +457,8 @@ def _add_walk_output(p: argparse.ArgumentParser, out: str | None) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .rows.store import DEFAULT_CLUSTER_RESOLUTION
+
     parser = _Parser(
         prog="pydynrad",
         description="Dynamic Radiosity on OpenCL: form factors, local multibounce matrices, frame loops. "
@@ -488,6 +516,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--block-rows", type=_positive_int, default=None, metavar="ROWS",
                    help="store only: form-factor rows per block file, the unit of reading and of resuming "
                         "(default 256, or the existing store's)")
+    p.add_argument("--clusters", default=None, metavar="LABELS.npy",
+                   help="store only: also store the far field's patch-to-cluster form factors G = F Pr for these "
+                        "clusters (a .npy file of one integer cluster label per patch), from hemicubes that record "
+                        "cluster ids; a store resumed later finishes its G too")
+    p.add_argument("--cluster-resolution", type=_positive_int, default=None, metavar="R",
+                   help=f"store only: hemicube resolution of G (default {DEFAULT_CLUSTER_RESOLUTION})")
+    p.add_argument("--no-f", action="store_true",
+                   help="store only: store G alone, not F's rows (walks then compute F's rows on demand)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_formfactors)
 

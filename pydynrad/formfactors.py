@@ -24,7 +24,7 @@ from .checks import patch_indices, resolution as checked_resolution, scene as ch
 from .errors import InvalidInputError
 from .launch import BVH_PACKET, global_size
 
-__all__ = ["form_factors", "pixel_form_factors", "SURFACE_OFFSET"]
+__all__ = ["form_factors", "hemicube_blocks", "pixel_form_factors", "stack_blocks", "CLUSTER_RESOLUTION", "SURFACE_OFFSET"]
 
 #: Hemicube centres sit this far off their patch, times the scene's bounding-box diagonal:
 #: far above float32 rounding of coordinates (about 6e-8 of them), far below any patch size.
@@ -32,6 +32,12 @@ SURFACE_OFFSET = 1e-5
 
 #: Bytes of run buffers per block (8 bytes per pixel slot); bounds memory for any N.
 BLOCK_BYTES = 128 * 2**20
+
+#: The default hemicube resolution of the far field's patch-to-cluster form factors G. In
+#: bench/gather.py (2026-12-01) G at R = 24 moved the far field's all-patch error by 0.24-0.52%
+#: against G from F at R = 128 (R = 16: 0.45-1.04%, too close to the 1% target) for 14% of the
+#: rays of F at R = 64 and 3.5% of those at R = 128.
+CLUSTER_RESOLUTION = 24
 
 #: Show a progress bar on a terminal when a call casts more rays than this.
 LONG_RUN_RAYS = 50_000_000
@@ -78,17 +84,97 @@ def pixel_form_factors(resolution: int) -> np.ndarray:
 
 
 def _runs_to_csr(patch, end, count, weights_cum, n_cols: int) -> sp.csr_matrix:
-    """Sum each row's runs into a CSR block: patch/end (B, 3R, R), count (B, 3R)."""
+    """Sum each row's runs into a CSR block: patch/end (B, 3R, R), count (B, 3R).
+
+    ``end`` holds each run's end pixel, weighed by the prefix sums ``weights_cum`` (3R, R + 1)
+    of the pixel form factors; with ``weights_cum=None`` it holds each run's weight itself.
+    """
     B, S, R = patch.shape
-    start = np.empty_like(end)
-    start[..., 0] = 0
-    start[..., 1:] = end[..., :-1]
     used = np.arange(R)[None, None, :] < count[..., None]
     b, s, j = np.nonzero(used & (patch >= 0))
     cols = patch[b, s, j]
-    w = weights_cum[s, end[b, s, j]] - weights_cum[s, start[b, s, j]]
+    if weights_cum is None:
+        w = end[b, s, j].astype(np.float64)
+    else:
+        start = np.zeros_like(end)
+        start[..., 1:] = end[..., :-1]
+        w = weights_cum[s, end[b, s, j]] - weights_cum[s, start[b, s, j]]
     m = sp.csr_matrix((w, (b, cols)), shape=(B, n_cols))  # duplicates summed, in float64
     m.sum_duplicates()
+    return m
+
+
+def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | None = None, *,
+                    desc: str = "form factors", clusters: tuple[np.ndarray, np.ndarray, int] | None = None):
+    """Rows of hemicube form factors in bounded blocks: yields one float64 CSR block at a time.
+
+    The one block loop behind :func:`form_factors` and
+    :func:`pydynrad.farfield.gather.cluster_form_factors`. Without ``clusters`` a block is
+    (b, N): F's rows. With ``clusters = (labels, scale, C)`` (per patch: its column in [0, C)
+    or -1, and its weight) the device records ``labels[patch]`` instead of the patch and weighs
+    each pixel by ``scale[patch]``, so a block is (b, C): rows of F Pr for the prolongation
+    Pr[i, labels[i]] = scale[i]. ``rows`` and ``resolution`` are checked here.
+    """
+    import pyopencl as cl
+
+    from .device import default_device
+    from .progress import progress_bar
+
+    dev = device or default_device()
+    R = checked_resolution(resolution)
+    if 3 * R * R * 4 > dev.max_alloc_bytes:
+        raise InvalidInputError(f"resolution {R} needs more memory per hemicube than {dev.name} allows in one buffer")
+    n = len(checked_scene(scene))
+    rows = np.arange(n, dtype=np.int32) if rows is None else patch_indices(rows, n, "rows").astype(np.int32)
+    if len(rows) == 0:
+        return
+    S = 3 * R
+    per_row = S * R * 8
+    block = int(max(1, min(len(rows), BLOCK_BYTES // per_row)))
+    defines, extra = {"HC_RES": R, "BVH_PACKET": BVH_PACKET}, []
+    if clusters is None:
+        n_cols, end_dtype = n, np.int32
+        weights_cum = np.zeros((S, R + 1))
+        np.cumsum(pixel_form_factors(R), axis=1, out=weights_cum[:, 1:])
+    else:
+        labels, scale, n_cols = clusters
+        end_dtype, weights_cum = np.float32, None
+        defines["HC_CLUSTERS"] = 1
+        extra = [dev.to_device(np.ascontiguousarray(a, dtype=t)) for a, t in
+                 ((labels, np.int32), (scale, np.float32), (pixel_form_factors(R), np.float32))]
+    knl = dev.kernel("hemicube.cl", "hemicube_runs", defines)
+    nodes, tris, order = scene.bvh.buffers(dev)
+    centers, normals = scene.patch_buffers(dev)
+    mf = cl.mem_flags
+    patch_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
+    end_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
+    count_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * 4)
+    eps = np.float32(SURFACE_OFFSET * scene.scale)
+
+    long = len(rows) > block and len(rows) * S * R > LONG_RUN_RAYS
+    with progress_bar(progress, long=long, total=len(rows), unit="patch", desc=f"{desc} R={R}") as bar:
+        for first in range(0, len(rows), block):
+            idx = rows[first : first + block]
+            b = len(idx)
+            knl(dev.queue, (global_size(b * S),), None, nodes, tris, order, centers, normals, dev.to_device(idx),
+                np.int32(b), eps, patch_buf, end_buf, count_buf, *extra)
+            patch = np.empty((b, S, R), np.int32)
+            end = np.empty((b, S, R), end_dtype)
+            count = np.empty((b, S), np.int32)
+            cl.enqueue_copy(dev.queue, patch, patch_buf)
+            cl.enqueue_copy(dev.queue, end, end_buf)
+            cl.enqueue_copy(dev.queue, count, count_buf)
+            yield _runs_to_csr(patch, end, count, weights_cum, n_cols)
+            bar.update(b)
+
+
+def stack_blocks(blocks, n_cols: int) -> sp.csr_matrix:
+    """Blocks from :func:`hemicube_blocks` as one float32 CSR matrix with sorted indices."""
+    parts = list(blocks)
+    if not parts:
+        return sp.csr_matrix((0, n_cols), dtype=np.float32)
+    m = sp.vstack(parts, format="csr").astype(np.float32)
+    m.sort_indices()
     return m
 
 
@@ -113,51 +199,5 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
         Row k holds patch ``rows[k]``'s form factors to every patch (fraction of the energy
         leaving it that arrives at each). ``F[i, i] = 0``.
     """
-    import pyopencl as cl
-
-    from .device import default_device
-    from .progress import progress_bar
-
-    dev = device or default_device()
-    R = checked_resolution(resolution)
-    if 3 * R * R * 4 > dev.max_alloc_bytes:
-        raise InvalidInputError(f"resolution {R} needs more memory per hemicube than {dev.name} allows in one buffer")
     n = len(checked_scene(scene))
-    rows = np.arange(n, dtype=np.int32) if rows is None else patch_indices(rows, n, "rows").astype(np.int32)
-    if len(rows) == 0:
-        return sp.csr_matrix((0, n), dtype=np.float32)
-
-    S = 3 * R
-    per_row = S * R * 8
-    block = int(max(1, min(len(rows), BLOCK_BYTES // per_row)))
-    weights_cum = np.zeros((S, R + 1))
-    np.cumsum(pixel_form_factors(R), axis=1, out=weights_cum[:, 1:])
-
-    knl = dev.kernel("hemicube.cl", "hemicube_runs", {"HC_RES": R, "BVH_PACKET": BVH_PACKET})
-    nodes, tris, order = scene.bvh.buffers(dev)
-    centers, normals = scene.patch_buffers(dev)
-    mf = cl.mem_flags
-    patch_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
-    end_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
-    count_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * 4)
-    eps = np.float32(SURFACE_OFFSET * scene.scale)
-
-    long = len(rows) > block and len(rows) * S * R > LONG_RUN_RAYS
-    parts = []
-    with progress_bar(progress, long=long, total=len(rows), unit="patch", desc=f"form factors R={R}") as bar:
-        for first in range(0, len(rows), block):
-            idx = rows[first : first + block]
-            b = len(idx)
-            knl(dev.queue, (global_size(b * S),), None, nodes, tris, order, centers, normals, dev.to_device(idx),
-                np.int32(b), eps, patch_buf, end_buf, count_buf)
-            patch = np.empty((b, S, R), np.int32)
-            end = np.empty((b, S, R), np.int32)
-            count = np.empty((b, S), np.int32)
-            cl.enqueue_copy(dev.queue, patch, patch_buf)
-            cl.enqueue_copy(dev.queue, end, end_buf)
-            cl.enqueue_copy(dev.queue, count, count_buf)
-            parts.append(_runs_to_csr(patch, end, count, weights_cum, n))
-            bar.update(b)
-    F = sp.vstack(parts, format="csr").astype(np.float32)
-    F.sort_indices()
-    return F
+    return stack_blocks(hemicube_blocks(scene, resolution, rows, device, progress), n)

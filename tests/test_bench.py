@@ -85,6 +85,14 @@ def test_pathtracer_section_tiny(tmp_path, device):
     assert rows[-1][4] < rows[0][4]
 
 
+def test_gather_section_tiny(tmp_path, device):
+    results, written = suite.run_suite("tiny", ["gather"], tmp_path, device=device, progress=False, strict=True)
+    _check_report(results, written, ["gather"])
+    errors = results["sections"]["gather"]["tables"][0]["rows"]
+    # G's error against the high-resolution reference falls as its resolution grows (both prolongations).
+    assert errors[-1][3] > errors[0][3] and errors[-1][4] < errors[0][4] and errors[-1][8] < errors[0][8]
+
+
 def test_unknown_section_or_size_is_rejected(tmp_path):
     with pytest.raises(ValueError, match="unknown section"):
         suite.run_suite("tiny", ["nope"], tmp_path)

@@ -325,3 +325,35 @@ def test_deprecated_options_raise_deprecation_warning():
         warnings.simplefilter("always")
         assert _image_size(args) == (20, 12) and _fov_y(args) == 50.0
     assert [w.category for w in caught] == [DeprecationWarning, DeprecationWarning]
+
+
+def test_formfactors_store_with_clusters(tmp_path, capsys):
+    """--clusters LABELS.npy stores G beside F (equal to the library's G), --no-f G alone; other
+    clusters for the same store are refused with one line."""
+    from pydynrad.farfield.gather import cluster_form_factors
+    from pydynrad.rows.store import FormFactorStore
+
+    scene = cornell_box(max_edge=250)
+    labels = np.arange(len(scene)) // 8
+    np.save(tmp_path / "labels.npy", labels)
+    clusters = ["--clusters", str(tmp_path / "labels.npy"), "--cluster-resolution", "8", "--workers", "0"]
+    code, out, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "ff"), *clusters], capsys)
+    assert code == 0, err
+    assert f"G for {labels.max() + 1} clusters at resolution 8" in out
+    store = FormFactorStore.open(scene, tmp_path / "ff", resolution=8, patching={"scene": "cornell_box", "max_edge": 250.0})
+    G = cluster_form_factors(scene, np.eye(labels.max() + 1)[labels], resolution=8)
+    assert store.complete and (store.cluster_form_factors(labels) != G).nnz == 0
+    code, out, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "g"), *clusters, "--no-f"], capsys)
+    assert code == 0 and "F's rows not computed" in out, err
+    np.save(tmp_path / "other.npy", labels[::-1].copy())
+    code, _, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "g"), "--clusters", str(tmp_path / "other.npy"),
+                             "--workers", "0"], capsys)
+    assert_one_line_error(code, err, "other clusters")
+    np.save(tmp_path / "short.npy", labels[:-1])
+    for bad, msg in ((["--clusters", str(tmp_path / "short.npy")], "one cluster per patch"),
+                     (["--clusters", str(tmp_path / "none.npy")], "not a readable .npy"),
+                     (["--no-f"], "need --clusters")):
+        code, _, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "h"), "--workers", "0", *bad], capsys)
+        assert_one_line_error(code, err, msg)
+    code, _, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "f.npz"), *clusters[:2]], capsys)
+    assert_one_line_error(code, err, "--clusters apply to a store folder")

@@ -80,3 +80,19 @@ def test_bad_arguments(tmp_path):
         precompute_distributed(scene, tmp_path / "d", resolution=16, block_rows=4, progress=False)
     done = precompute_distributed(scene, tmp_path / "d", resolution=8, block_rows=4, progress=False)
     assert isinstance(done, FormFactorStore) and done.complete  # nothing to do: no cluster started
+
+
+def test_cluster_form_factors_distributed_equal_single_process(tmp_path):
+    """G alone (no F rows) on 2 workers, finishing a store begun in this process: workers read the
+    prolongation from the store and their G blocks equal the single-process ones bit for bit."""
+    spec = SceneSpec("closed_box", {"subdivisions": 2})
+    scene = spec.build()
+    walls = scene.source_face // 2
+    kw = dict(resolution=8, block_rows=32, clusters=walls, cluster_resolution=8, compute_f=False, progress=False)
+    single = compute_store(scene, tmp_path / "single", patching=spec.recipe(), **kw)
+    compute_store(scene, tmp_path / "dist", patching=spec.recipe(), blocks=[1, 4], **kw)
+    store = precompute_distributed(spec, tmp_path / "dist", workers=2, **kw)
+    assert store.complete_clusters and store.missing_blocks() == list(range(store.n_blocks))
+    for k in range(store.n_blocks):
+        assert same_csr(store.read_block(k, "G"), single.read_block(k, "G"))
+    np.testing.assert_allclose(np.asarray(store.cluster_form_factors(walls).sum(axis=1)).ravel(), 1.0, atol=1e-5)

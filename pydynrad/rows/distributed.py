@@ -32,6 +32,7 @@ from ..scene import Scene
 from ..scenes.byname import BUILTIN_SCENES, is_builtin, scene_by_name
 from .store import (
     DEFAULT_BLOCK_ROWS,
+    DEFAULT_CLUSTER_RESOLUTION,
     DEFAULT_TASK_ROWS,
     FormFactorStore,
     RowFunction,
@@ -137,15 +138,30 @@ def _worker_scene(payload, geometry_hash: str) -> Scene:
     return scene
 
 
+# Per worker process: the last prolongation read, keyed by its checksum (G's tasks all need it).
+_WORKER_PROLONGATION: dict[str, object] = {}
+
+
+def _worker_prolongation(store: FormFactorStore):
+    digest = store._require_clusters()["prolongation_sha256"]
+    pr = _WORKER_PROLONGATION.get(digest)
+    if pr is None:
+        pr = store.prolongation()
+        _WORKER_PROLONGATION.clear()
+        _WORKER_PROLONGATION[digest] = pr
+    return pr
+
+
 def _blocks_task(path: str, group: list[int], payload, geometry_hash: str, resolution: int, patching: dict,
-                 row_function: RowFunction) -> tuple[list[int], int, float]:
-    """Compute and write the consecutive blocks ``group`` on a worker; returns (group, rows, seconds)."""
+                 row_function: RowFunction, part: str = "F") -> tuple[list[int], int, float]:
+    """Compute and write the consecutive blocks ``group`` of F or G on a worker; returns (group, rows, seconds)."""
     from ..device import default_device
 
     t0 = time.perf_counter()
     scene = _worker_scene(payload, geometry_hash)
     store = FormFactorStore.open(scene, path, resolution=resolution, patching=patching)
-    rows = compute_blocks(store, scene, group, row_function, default_device())
+    pr = _worker_prolongation(store) if part == "G" else None
+    rows = compute_blocks(store, scene, group, row_function, default_device(), part, pr)
     return group, rows, time.perf_counter() - t0
 
 
@@ -169,7 +185,9 @@ def _start_client(workers: int | None, scheduler: str | None):
 def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
                            workers: int | None = None, scheduler: str | None = None, progress: bool | None = None,
                            verify: bool = False, row_function: RowFunction = form_factor_rows,
-                           blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS) -> FormFactorStore:
+                           blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS, clusters=None,
+                           cluster_resolution: int = DEFAULT_CLUSTER_RESOLUTION, cluster_params: dict | None = None,
+                           compute_f: bool = True) -> FormFactorStore:
     """Compute every missing block of the store at ``path`` on a Dask cluster; returns the store.
 
     Parameters
@@ -191,6 +209,8 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     blocks : compute only these block indices (to split one store over several runs).
     task_rows : rows per task: consecutive missing blocks are computed by one row-function
         call of at most this many rows (at least one block), amortising per-call set-up.
+    clusters, cluster_resolution, cluster_params, compute_f : the far field's G beside F, as
+        for :func:`pydynrad.rows.store.compute_store`; workers read the prolongation from the store.
 
     The patching parameters recorded in the header are the spec's recipe (empty for a Scene).
     """
@@ -203,8 +223,9 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     patching = {} if isinstance(spec, Scene) else spec.recipe()
     path = Path(path).resolve()
     store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
-                                verify=verify, blocks=blocks)
-    if not todo:
+                                verify=verify, blocks=blocks, clusters=clusters, cluster_resolution=cluster_resolution,
+                                cluster_params=cluster_params, compute_f=compute_f)
+    if not todo["F"] and not todo["G"]:
         return store
     client, cluster = _start_client(workers, scheduler)
     try:
@@ -212,10 +233,10 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
         payload = spec if isinstance(spec, SceneSpec) else client.scatter((scene.points, scene.triangles), broadcast=True)
         ghash = scene.geometry_hash()
         futures = [client.submit(_blocks_task, str(path), group, payload, ghash, resolution, patching, row_function,
-                                 key=f"pydynrad-ffblocks-{ghash[:16]}-{group[0]}-{group[-1]}", pure=False)
-                   for group in task_groups(store, todo, task_rows)]
-        with progress_bar(progress, total=sum(len(store.block_range(k)) for k in todo), unit="row",
-                          desc="form factors") as bar:
+                                 part, key=f"pydynrad-{part}blocks-{ghash[:16]}-{group[0]}-{group[-1]}", pure=False)
+                   for part in ("F", "G") for group in task_groups(store, todo[part], task_rows)]
+        rows = sum(len(store.block_range(k)) for part in ("F", "G") for k in todo[part])
+        with progress_bar(progress, total=rows, unit="row", desc="form factors" + (" and G" if todo["G"] else "")) as bar:
             for fut in as_completed(futures):
                 _, nrows, _ = fut.result()  # re-raises a worker's error here, with its traceback
                 bar.update(nrows)

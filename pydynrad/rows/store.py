@@ -7,6 +7,15 @@ disk. A store is a folder::
     STORE/blocks/b000000.npz   rows [0, block_rows) as one CSR block
     STORE/blocks/b000001.npz   rows [block_rows, 2 block_rows), ...
 
+and, when the far field's patch-to-cluster form factors G = F Pr are stored beside F::
+
+    STORE/clusters.json        C, G's hemicube resolution, the prolongation's SHA-256, parameters
+    STORE/prolongation.npz     Pr (N, C), float32, as one CSR block (the clusters G was made with)
+    STORE/gblocks/g000000.npz  rows [0, block_rows) of G, ...
+
+A store may hold G without F's rows (a walk then computes F's rows on demand); G from other
+clusters is refused (:class:`StoreMismatchError`), never mixed in.
+
 Format choice. Each block is a standard NumPy ``.npz`` (a zip archive, DEFLATE-compressed)
 holding ``indptr.npy`` (int64, block-local), ``indices.npy`` (int32 column = patch index),
 ``data.npy`` (float32 F[i, j]) and ``meta.json`` (block index, row range, nnz and the
@@ -50,12 +59,14 @@ import scipy.sparse as sp
 from ..atomic import TMP_MARK, write_atomic
 from ..checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
+from ..formfactors import CLUSTER_RESOLUTION
 
 __all__ = [
     "FormFactorStore",
     "StoreCorruptError",
     "StoreIncompleteError",
     "StoreMismatchError",
+    "DEFAULT_CLUSTER_RESOLUTION",
     "compute_blocks",
     "compute_store",
     "form_factor_rows",
@@ -66,11 +77,16 @@ FORMAT = "pydynrad-formfactor-store"
 FORMAT_VERSION = 1
 HEADER = "header.json"
 BLOCK_DIR = "blocks"
+CLUSTER_HEADER = "clusters.json"
+PROLONGATION = "prolongation.npz"
+#: The two matrices a store holds: F (N columns) and G (C columns), each in its own block folder.
+PARTS = {"F": (BLOCK_DIR, "b"), "G": ("gblocks", "g")}
 DEFAULT_BLOCK_ROWS = 256
 DEFAULT_TASK_ROWS = 4096
 # DEFLATE level 1: F's float32 mantissas are nearly incompressible, so higher levels cost
 # several times the CPU time for a few percent of size.
 COMPRESS_LEVEL = 1
+DEFAULT_CLUSTER_RESOLUTION = CLUSTER_RESOLUTION
 
 RowFunction = Callable[..., sp.csr_matrix]
 
@@ -100,6 +116,52 @@ def _digest(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> str:
     return h.hexdigest()
 
 
+def _write_csr(path: Path, k: int, rows: range, block, n_cols: int) -> int:
+    """Write a (len(rows), n_cols) sparse block as one compressed, checksummed .npz, atomically; returns bytes."""
+    csr = sp.csr_matrix(block, copy=True)  # canonicalised below: never touch the caller's arrays
+    if csr.shape != (len(rows), n_cols):
+        raise InvalidInputError(f"block {k} must have shape ({len(rows)}, {n_cols}); got {csr.shape}")
+    csr.sum_duplicates()
+    csr.sort_indices()
+    data = csr.data.astype(np.float32)
+    if not np.all(np.isfinite(data)) or (data.size and data.min() < 0):
+        raise InvalidInputError(f"block {k} holds negative, NaN or infinite form factors")
+    indptr = csr.indptr.astype(np.int64)
+    indices = csr.indices.astype(np.int32)
+    meta = {"block": int(k), "row_start": rows.start, "row_stop": rows.stop, "nnz": int(indices.size),
+            "sha256": _digest(indptr, indices, data)}
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=COMPRESS_LEVEL) as zf:
+        for name, a in (("indptr", indptr), ("indices", indices), ("data", data)):
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, a, allow_pickle=False)
+        zf.writestr("meta.json", json.dumps(meta))
+    payload = buf.getvalue()
+    write_atomic(path, payload)
+    return len(payload)
+
+
+def _read_csr(path: Path, k: int, rows: range, n_cols: int, what: str, store: Path) -> sp.csr_matrix:
+    """Read and verify a block written by :func:`_write_csr`; ``what`` names it in errors."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            meta = json.loads(zf.read("meta.json"))
+            arrays = {n: np.lib.format.read_array(zf.open(f"{n}.npy"), allow_pickle=False)
+                      for n in ("indptr", "indices", "data")}
+    except FileNotFoundError:
+        raise StoreIncompleteError(f"{what} of store {store} has not been computed; run compute_store to finish "
+                                   "the store") from None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise StoreCorruptError(f"file {path} is corrupt ({type(exc).__name__}: {exc}); delete it and "
+                                "re-run compute_store to recompute it") from exc
+    indptr, indices, data = arrays["indptr"], arrays["indices"], arrays["data"]
+    if (meta.get("block") != k or meta.get("row_start") != rows.start or meta.get("row_stop") != rows.stop
+            or meta.get("sha256") != _digest(indptr, indices, data)):
+        raise StoreCorruptError(f"file {path} fails its checksum or belongs elsewhere; delete it and "
+                                "re-run compute_store to recompute it")
+    return sp.csr_matrix((data, indices, indptr), shape=(len(rows), n_cols))
+
+
 def _canonical_params(resolution: int, patching: dict | None) -> dict:
     resolution = checked_resolution(resolution)
     try:
@@ -124,6 +186,7 @@ class FormFactorStore:
         self.n_patches = int(header["n_patches"])
         self.block_rows = int(header["block_rows"])
         self.n_blocks = -(-self.n_patches // self.block_rows)
+        self._cluster_header = self._read_cluster_header()
 
     # -- creation and opening --------------------------------------------------------------
     @classmethod
@@ -194,8 +257,10 @@ class FormFactorStore:
         return cls(path, header)
 
     # -- layout ----------------------------------------------------------------------------
-    def block_path(self, k: int) -> Path:
-        return self.path / BLOCK_DIR / f"b{k:06d}.npz"
+    def block_path(self, k: int, part: str = "F") -> Path:
+        """The file of block ``k`` of F (``part="F"``) or of G (``part="G"``)."""
+        folder, prefix = PARTS[part]
+        return self.path / folder / f"{prefix}{k:06d}.npz"
 
     def block_range(self, k: int) -> range:
         """The scene rows held by block ``k``."""
@@ -203,106 +268,195 @@ class FormFactorStore:
             raise InvalidInputError(f"block index {k} outside 0..{self.n_blocks - 1}")
         return range(k * self.block_rows, min(self.n_patches, (k + 1) * self.block_rows))
 
-    # -- writing ---------------------------------------------------------------------------
-    def write_block(self, k: int, block) -> int:
-        """Write rows ``block_range(k)`` as one compressed, checksummed file; returns its size in bytes.
+    def _columns(self, part: str) -> int:
+        if part == "F":
+            return self.n_patches
+        if part == "G":
+            return self._require_clusters()["n_clusters"]
+        raise InvalidInputError(f'part must be "F" or "G"; got {part!r}')
 
-        ``block`` is a sparse (rows in block, N) matrix of float32-representable form
-        factors (finite, >= 0). The file appears whole or not at all.
+    # -- writing ---------------------------------------------------------------------------
+    def write_block(self, k: int, block, part: str = "F") -> int:
+        """Write rows ``block_range(k)`` of F (or of G) as one compressed, checksummed file; returns its size in bytes.
+
+        ``block`` is a sparse (rows in block, N) matrix (C columns for G) of float32-representable
+        form factors (finite, >= 0). The file appears whole or not at all.
         """
         rows = self.block_range(k)
-        csr = sp.csr_matrix(block, copy=True)  # canonicalised below: never touch the caller's arrays
-        if csr.shape != (len(rows), self.n_patches):
-            raise InvalidInputError(f"block {k} must have shape ({len(rows)}, {self.n_patches}); got {csr.shape}")
-        csr.sum_duplicates()
-        csr.sort_indices()
-        data = csr.data.astype(np.float32)
-        if not np.all(np.isfinite(data)) or (data.size and data.min() < 0):
-            raise InvalidInputError(f"block {k} holds negative, NaN or infinite form factors")
-        indptr = csr.indptr.astype(np.int64)
-        indices = csr.indices.astype(np.int32)
-        meta = {"block": int(k), "row_start": rows.start, "row_stop": rows.stop, "nnz": int(indices.size),
-                "sha256": _digest(indptr, indices, data)}
-        buf = io.BytesIO()
-        with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=COMPRESS_LEVEL) as zf:
-            for name, a in (("indptr", indptr), ("indices", indices), ("data", data)):
-                with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
-                    np.lib.format.write_array(f, a, allow_pickle=False)
-            zf.writestr("meta.json", json.dumps(meta))
-        payload = buf.getvalue()
-        write_atomic(self.block_path(k), payload)
-        return len(payload)
+        return _write_csr(self.block_path(k, part), k, rows, block, self._columns(part))
 
     def remove_stale_temporaries(self) -> int:
         """Delete temporary files left by interrupted writers; returns how many. Not while a writer runs."""
         n = 0
-        for p in (self.path / BLOCK_DIR).glob(f"*{TMP_MARK}*"):
-            p.unlink(missing_ok=True)
-            n += 1
+        for p in (*(self.path / folder for folder, _ in PARTS.values()), self.path):
+            for t in p.glob(f"*{TMP_MARK}*"):
+                t.unlink(missing_ok=True)
+                n += 1
         return n
 
     # -- reading ---------------------------------------------------------------------------
-    def read_block(self, k: int) -> sp.csr_matrix:
-        """Block ``k`` as a (rows in block, N) float32 CSR matrix, checksum verified."""
+    def read_block(self, k: int, part: str = "F") -> sp.csr_matrix:
+        """Block ``k`` of F (or of G) as a (rows in block, N or C) float32 CSR matrix, checksum verified."""
         rows = self.block_range(k)
-        path = self.block_path(k)
-        try:
-            with zipfile.ZipFile(path) as zf:
-                meta = json.loads(zf.read("meta.json"))
-                arrays = {n: np.lib.format.read_array(zf.open(f"{n}.npy"), allow_pickle=False)
-                          for n in ("indptr", "indices", "data")}
-        except FileNotFoundError:
-            raise StoreIncompleteError(f"block {k} (rows {rows.start}..{rows.stop - 1}) of store {self.path} "
-                                       "has not been computed; run compute_store to finish the store") from None
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
-            raise StoreCorruptError(f"block file {path} is corrupt ({type(exc).__name__}: {exc}); delete it and "
-                                    "re-run compute_store to recompute it") from exc
-        indptr, indices, data = arrays["indptr"], arrays["indices"], arrays["data"]
-        if (meta.get("block") != k or meta.get("row_start") != rows.start or meta.get("row_stop") != rows.stop
-                or meta.get("sha256") != _digest(indptr, indices, data)):
-            raise StoreCorruptError(f"block file {path} fails its checksum or belongs elsewhere; delete it and "
-                                    "re-run compute_store to recompute it")
-        return sp.csr_matrix((data, indices, indptr), shape=(len(rows), self.n_patches))
+        what = f"block {k} (rows {rows.start}..{rows.stop - 1})" + (" of G" if part == "G" else "")
+        return _read_csr(self.block_path(k, part), k, rows, self._columns(part), what, self.path)
 
-    def rows(self, idx) -> sp.csr_matrix:
-        """Rows ``idx`` of F as a (len(idx), N) float32 CSR matrix, in the order given."""
+    def rows(self, idx, part: str = "F") -> sp.csr_matrix:
+        """Rows ``idx`` of F (or of G) as a (len(idx), N or C) float32 CSR matrix, in the order given."""
         idx = patch_indices(idx, self.n_patches, "row indices")
         if idx.size == 0:
-            return sp.csr_matrix((0, self.n_patches), dtype=np.float32)
+            return sp.csr_matrix((0, self._columns(part)), dtype=np.float32)
         blocks = idx // self.block_rows
         order = np.argsort(blocks, kind="stable")
         parts = []
         for k, first, count in zip(*np.unique(blocks[order], return_index=True, return_counts=True)):
             sel = order[first:first + count]
-            parts.append(self.read_block(int(k))[idx[sel] - k * self.block_rows])
+            parts.append(self.read_block(int(k), part)[idx[sel] - k * self.block_rows])
         stacked = sp.vstack(parts, format="csr")
         # stacked holds the rows in block order; put them back in the caller's order.
         return stacked[np.argsort(order, kind="stable")].astype(np.float32)
 
     read_rows = rows
 
+    # -- the far field's G -----------------------------------------------------------------
+    def _read_cluster_header(self) -> dict | None:
+        try:
+            return json.loads((self.path / CLUSTER_HEADER).read_text())
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError) as exc:
+            raise StoreCorruptError(f"unreadable {self.path / CLUSTER_HEADER}: {exc}") from exc
+
+    def _require_clusters(self) -> dict:
+        if self._cluster_header is None:
+            raise StoreIncompleteError(
+                f"store {self.path} holds no patch-to-cluster form factors G; compute them with "
+                "compute_store(..., clusters=...) or `pydynrad formfactors SCENE -o STORE --clusters C`")
+        return self._cluster_header
+
+    @property
+    def has_clusters(self) -> bool:
+        """Whether clusters (a prolongation) are recorded, so G's blocks can be written and read."""
+        return self._cluster_header is not None
+
+    @property
+    def n_clusters(self) -> int:
+        return int(self._require_clusters()["n_clusters"])
+
+    @property
+    def cluster_params(self) -> dict:
+        """How the clusters were made, as recorded by :meth:`set_clusters`."""
+        return dict(self._require_clusters().get("params", {}))
+
+    @property
+    def cluster_resolution(self) -> int:
+        """The hemicube resolution G is computed with."""
+        return int(self._require_clusters()["resolution"])
+
+    def set_clusters(self, clusters, *, resolution: int, params: dict | None = None) -> None:
+        """Record the prolongation Pr (N, C) that G = F Pr is made with, and G's resolution.
+
+        ``clusters``: Pr itself, (N,) cluster labels or a :class:`pydynrad.farfield.Clusters`
+        (both meaning the indicator). Entries are stored in float32 (G's precision). Setting the same clusters again is a
+        no-op; other clusters or another resolution raise :class:`StoreMismatchError` (a
+        store holds one G). ``params`` (JSON) records how the clusters were made.
+        """
+        integer(resolution, "cluster resolution (G's hemicube pixels per side)")
+        pr, digest = self._canonical_prolongation(clusters)
+        try:
+            extra = json.loads(json.dumps(dict(params or {}), sort_keys=True))
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError(f"cluster parameters must be JSON-serialisable: {exc}") from exc
+        header = {"n_clusters": int(pr.shape[1]), "resolution": int(resolution), "prolongation_sha256": digest}
+        if self._cluster_header is not None:
+            self._match_clusters(header)  # params are a record of how, not part of what G is
+            return
+        header["params"] = extra
+        _write_csr(self.path / PROLONGATION, 0, range(self.n_patches), pr, pr.shape[1])
+        (self.path / PARTS["G"][0]).mkdir(exist_ok=True)
+        write_atomic(self.path / CLUSTER_HEADER, json.dumps(header, indent=2, sort_keys=True).encode())
+        self._cluster_header = header
+
+    def _match_clusters(self, want: dict) -> None:
+        have = self._require_clusters()
+        diff = [f"{k}: store has {have.get(k)!r}, requested {v!r}" for k, v in want.items() if have.get(k) != v]
+        if diff:
+            raise StoreMismatchError(
+                f"store {self.path} holds G for other clusters or parameters ({'; '.join(diff)}); use another "
+                f"store, or delete {CLUSTER_HEADER}, {PROLONGATION} and {PARTS['G'][0]}/ there to replace G")
+
+    def _canonical_prolongation(self, clusters) -> tuple[sp.csr_matrix, str]:
+        from ..farfield.gather import as_prolongation
+
+        pr = as_prolongation(clusters, self.n_patches).astype(np.float32)
+        return pr, _digest(pr.indptr.astype(np.int64), pr.indices.astype(np.int32), pr.data)
+
+    def check_clusters(self, clusters) -> None:
+        """Raise :class:`StoreMismatchError` unless ``clusters`` (as for :meth:`set_clusters`) are the ones G was made with."""
+        pr, digest = self._canonical_prolongation(clusters)
+        self._match_clusters({"n_clusters": int(pr.shape[1]), "prolongation_sha256": digest})
+
+    def prolongation(self) -> sp.csr_matrix:
+        """The (N, C) float32 prolongation G was made with, checksum verified."""
+        h = self._require_clusters()
+        pr = _read_csr(self.path / PROLONGATION, 0, range(self.n_patches), h["n_clusters"], "the prolongation", self.path)
+        if _digest(pr.indptr.astype(np.int64), pr.indices, pr.data) != h["prolongation_sha256"]:
+            raise StoreCorruptError(f"{self.path / PROLONGATION} is not the prolongation {CLUSTER_HEADER} records")
+        return pr
+
+    def cluster_labels(self) -> np.ndarray:
+        """(N,) int: each patch's cluster (-1 for none), for a prolongation with one entry per row."""
+        from ..farfield.gather import split_prolongation
+
+        single = split_prolongation(self.prolongation())
+        if single is None:
+            raise InvalidInputError(f"the prolongation of store {self.path} puts some patches in several clusters")
+        return single[0]
+
+    def cluster_rows(self, idx) -> sp.csr_matrix:
+        """Rows ``idx`` of G as a (len(idx), C) float32 CSR matrix, in the order given."""
+        return self.rows(idx, part="G")
+
+    def cluster_form_factors(self, clusters=None) -> sp.csr_matrix:
+        """The whole (N, C) float32 G; with ``clusters``, first checked to be the ones G was made with."""
+        if clusters is not None:
+            self.check_clusters(clusters)
+        missing = self.missing_blocks(part="G")
+        if missing:
+            raise StoreIncompleteError(f"{len(missing)} of {self.n_blocks} blocks of G in store {self.path} have not "
+                                       "been computed; run compute_store with the same clusters to finish them")
+        return sp.vstack([self.read_block(k, "G") for k in range(self.n_blocks)], format="csr")
+
     # -- state -----------------------------------------------------------------------------
-    def missing_blocks(self, verify: bool = False) -> list[int]:
-        """Blocks not yet on disk; with ``verify``, also blocks whose checksum fails."""
+    def missing_blocks(self, verify: bool = False, part: str = "F") -> list[int]:
+        """Blocks of F (or of G) not yet on disk; with ``verify``, also blocks whose checksum fails."""
+        self._columns(part)
         out = []
         for k in range(self.n_blocks):
-            if not self.block_path(k).exists():
+            if not self.block_path(k, part).exists():
                 out.append(k)
             elif verify:
                 try:
-                    self.read_block(k)
+                    self.read_block(k, part)
                 except StoreCorruptError:
                     out.append(k)
         return out
 
     @property
     def complete(self) -> bool:
+        """Every block of F is on disk."""
         return not self.missing_blocks()
 
     @property
+    def complete_clusters(self) -> bool:
+        """Clusters are recorded and every block of G is on disk."""
+        return self.has_clusters and not self.missing_blocks(part="G")
+
+    @property
     def nbytes_on_disk(self) -> int:
-        """Bytes of the header plus every finished block file."""
-        files = [self.path / HEADER, *(self.path / BLOCK_DIR).glob("b*.npz")]
+        """Bytes of the headers, the prolongation and every finished block file of F and G."""
+        files = [self.path / HEADER, self.path / CLUSTER_HEADER, self.path / PROLONGATION,
+                 *(f for folder, prefix in PARTS.values() for f in (self.path / folder).glob(f"{prefix}*.npz"))]
         return sum(p.stat().st_size for p in files if p.exists())
 
     def to_csr(self) -> sp.csr_matrix:
@@ -311,8 +465,12 @@ class FormFactorStore:
 
     def __repr__(self) -> str:
         done = self.n_blocks - len(self.missing_blocks())
+        g = ""
+        if self.has_clusters:
+            g = (f", G: C={self.n_clusters}, {self.n_blocks - len(self.missing_blocks(part='G'))}/{self.n_blocks} "
+                 f"blocks, resolution={self.cluster_resolution}")
         return (f"FormFactorStore({str(self.path)!r}, N={self.n_patches}, {done}/{self.n_blocks} blocks of "
-                f"{self.block_rows} rows, resolution={self.header['params']['resolution']})")
+                f"{self.block_rows} rows, resolution={self.header['params']['resolution']}{g})")
 
 
 def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None) -> sp.csr_matrix:
@@ -323,14 +481,25 @@ def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None) -> s
 
 
 def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: dict | None, verify: bool,
-                  blocks: Iterable[int] | None) -> tuple[FormFactorStore, list[int]]:
-    """Create or reopen a store for writing: stale temporaries removed; returns it and the blocks to compute."""
+                  blocks: Iterable[int] | None, clusters=None, cluster_resolution: int = DEFAULT_CLUSTER_RESOLUTION,
+                  cluster_params: dict | None = None,
+                  compute_f: bool = True) -> tuple[FormFactorStore, dict[str, list[int]]]:
+    """Create or reopen a store for writing: stale temporaries removed, ``clusters`` recorded.
+
+    Returns the store and the blocks to compute per part: {"F": [...], "G": [...]} (G's when
+    the store has clusters, recorded now or before; F's unless ``compute_f`` is False).
+    """
     store = FormFactorStore.create(scene, path, resolution=resolution, block_rows=block_rows,
                                    patching=patching, exist_ok=True)
     store.remove_stale_temporaries()
-    todo = store.missing_blocks(verify=verify)
-    if blocks is not None:
-        todo = sorted(set(todo) & {int(b) for b in blocks})
+    if clusters is not None:
+        store.set_clusters(clusters, resolution=cluster_resolution, params=cluster_params)
+    todo = {}
+    for part in ("F", "G"):
+        wanted = part == "G" and store.has_clusters or part == "F" and compute_f
+        todo[part] = store.missing_blocks(verify=verify, part=part) if wanted else []
+        if blocks is not None:
+            todo[part] = sorted(set(todo[part]) & {int(b) for b in blocks})
     return store, todo
 
 
@@ -351,21 +520,35 @@ def task_groups(store: FormFactorStore, blocks: Iterable[int], task_rows: int) -
     return groups
 
 
-def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function: RowFunction, device=None) -> int:
-    """Compute the consecutive blocks ``group`` in one row-function call and write each; returns rows done."""
+def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function: RowFunction, device=None,
+                   part: str = "F", prolongation=None) -> int:
+    """Compute the consecutive blocks ``group`` of F (or of G) in one call and write each; returns rows done.
+
+    F's rows come from ``row_function``; G's from
+    :func:`pydynrad.farfield.gather.cluster_form_factors` with the store's prolongation
+    (pass it as ``prolongation`` to save reading it per group).
+    """
     first, last = store.block_range(group[0]), store.block_range(group[-1])
-    csr = sp.csr_matrix(row_function(scene, np.arange(first.start, last.stop), store.header["params"]["resolution"],
-                                     device=device))
+    rows = np.arange(first.start, last.stop)
+    if part == "G":
+        from ..farfield.gather import cluster_form_factors
+
+        pr = store.prolongation() if prolongation is None else prolongation
+        csr = cluster_form_factors(scene, pr, store.cluster_resolution, rows=rows, device=device)
+    else:
+        csr = sp.csr_matrix(row_function(scene, rows, store.header["params"]["resolution"], device=device))
     for k in group:
         r = store.block_range(k)
-        store.write_block(k, csr[r.start - first.start:r.stop - first.start])
+        store.write_block(k, csr[r.start - first.start:r.stop - first.start], part)
     return last.stop - first.start
 
 
 def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
                   patching: dict | None = None, progress: bool | None = None, verify: bool = False,
                   row_function: RowFunction = form_factor_rows, device=None,
-                  blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS) -> FormFactorStore:
+                  blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS, clusters=None,
+                  cluster_resolution: int = DEFAULT_CLUSTER_RESOLUTION, cluster_params: dict | None = None,
+                  compute_f: bool = True) -> FormFactorStore:
     """Create (or resume) the store at ``path`` and compute every missing block in this process.
 
     ``row_function(scene, rows, resolution, device=...)`` returns the (len(rows), N) CSR
@@ -374,13 +557,22 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
     ``blocks`` restricts the work to some block indices; ``progress``: a tqdm bar (None: on a
     terminal). Returns the store; interrupting it
     loses at most the blocks of the call in progress.
+
+    The far field's G = F Pr: ``clusters`` (Pr (N, C), (N,) labels or a
+    :class:`pydynrad.farfield.Clusters`) records the clusters and computes G beside F, from
+    hemicubes of ``cluster_resolution`` (:func:`pydynrad.farfield.gather.cluster_form_factors`);
+    a store with clusters already recorded resumes its G too. ``compute_f=False`` leaves F's
+    rows out (a store of G alone, for walks that compute F's rows on demand).
     """
     from ..progress import progress_bar
 
     store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
-                                verify=verify, blocks=blocks)
-    with progress_bar(progress, total=sum(len(store.block_range(k)) for k in todo), unit="row",
-                      desc="form factors") as bar:
-        for group in task_groups(store, todo, task_rows):
-            bar.update(compute_blocks(store, scene, group, row_function, device))
+                                verify=verify, blocks=blocks, clusters=clusters, cluster_resolution=cluster_resolution,
+                                cluster_params=cluster_params, compute_f=compute_f)
+    pr = store.prolongation() if todo["G"] else None
+    for part, desc in (("F", "form factors"), ("G", "cluster form factors")):
+        with progress_bar(progress if todo[part] else False, total=sum(len(store.block_range(k)) for k in todo[part]),
+                          unit="row", desc=desc) as bar:
+            for group in task_groups(store, todo[part], task_rows):
+                bar.update(compute_blocks(store, scene, group, row_function, device, part, pr))
     return store

@@ -1,0 +1,155 @@
+"""Patch-to-cluster form factors G = F Pr by hemicube, without forming F.
+
+The far field needs every patch's row of F, but only summed over each cluster's patches (see
+docs/design.md, 'Far field'). A hemicube that records cluster ids instead of patch ids gives
+those sums directly: neighbouring pixels on different patches of one cluster merge into one
+run, so a row of G costs the rays of a row of F and far fewer runs. Rows are computed in the
+same bounded blocks as F (:func:`pydynrad.formfactors.hemicube_blocks`), so no more than one
+block of rows ever exists, whatever N.
+
+Prolongations. ``Pr`` (N, C) maps cluster values to patches: the indicator one (Pr[i, c] = 1
+for i in c) or a weighted one (Pr_w[i, c] = w_i / mean_c(w)). With one entry per row, as both
+have, the device records cluster ids and weighs each pixel by its patch's entry. A row of G
+then costs about what a row of F does at the same resolution (the rays dominate: 0.75-1.05x at
+R >= 24 on the PoCL CPU), and 5-45% less than F's patch runs weighted on the host
+(bench/gather.py, 2026-12-01). A prolongation with several entries in a row (a patch shared by
+clusters) takes that host path: F's block, then a sparse product.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..checks import scene as checked_scene
+from ..errors import InvalidInputError
+from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
+
+__all__ = ["cluster_form_factors", "cluster_form_factors_for", "as_prolongation", "check_prolongation", "split_prolongation"]
+
+
+def check_prolongation(prolongation, n: int) -> sp.csr_matrix:
+    """``prolongation`` as a float64 (N, C) CSR matrix with explicit zeros removed, or InvalidInputError."""
+    if sp.issparse(prolongation):
+        pr = sp.csr_matrix(prolongation, dtype=np.float64, copy=True)
+    else:
+        try:
+            a = np.asarray(prolongation, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"prolongation must be an (N, C) matrix of numbers; got {type(prolongation).__name__}") from None
+        if a.ndim != 2:
+            raise InvalidInputError(f"prolongation must be a 2-D (N, C) matrix; got shape {a.shape}")
+        pr = sp.csr_matrix(a)
+    if pr.shape[0] != n or pr.shape[1] < 1:
+        raise InvalidInputError(f"prolongation must have shape (N, C) = ({n}, C >= 1) for this scene; got {pr.shape}")
+    if not np.all(np.isfinite(pr.data)):
+        raise InvalidInputError("prolongation holds NaN or infinite entries")
+    if pr.data.size and pr.data.min() < 0:
+        raise InvalidInputError(f"prolongation entries must be >= 0; the smallest is {pr.data.min():g}")
+    pr.eliminate_zeros()
+    pr.sort_indices()
+    return pr
+
+
+def as_prolongation(clusters, n: int) -> sp.csr_matrix:
+    """A checked (N, C) prolongation from an (N, C) matrix, (N,) integer cluster labels (the
+    indicator) or a clusters object with ``labels`` (:class:`pydynrad.farfield.Clusters`)."""
+    labels = getattr(clusters, "labels", None)
+    if labels is None and not sp.issparse(clusters):
+        a = np.asarray(clusters)
+        if a.ndim == 1:
+            labels = a
+    if labels is None:
+        return check_prolongation(clusters, n)
+    labels = np.asarray(labels)
+    if labels.shape != (n,) or not np.issubdtype(labels.dtype, np.integer) or (n and labels.min() < 0):
+        raise InvalidInputError(f"cluster labels must be {n} integers >= 0 (one per patch); got shape {labels.shape}, "
+                                f"dtype {labels.dtype}")
+    C = int(getattr(clusters, "count", labels.max() + 1 if n else 1))
+    return check_prolongation(sp.csr_matrix((np.ones(n), (np.arange(n), labels)), shape=(n, C)), n)
+
+
+def split_prolongation(prolongation) -> tuple[np.ndarray, np.ndarray] | None:
+    """(labels, scale) of a prolongation with at most one entry per row, else None.
+
+    ``labels[i]``: the cluster of patch i (-1 where its row is empty); ``scale[i]``: the entry
+    (0 where empty). A checked CSR matrix (:func:`check_prolongation`) is expected.
+    """
+    per_row = np.diff(prolongation.indptr)
+    if per_row.size and per_row.max() > 1:
+        return None
+    has = per_row == 1
+    labels = np.full(prolongation.shape[0], -1, np.int32)
+    scale = np.zeros(prolongation.shape[0], np.float64)
+    labels[has] = prolongation.indices
+    scale[has] = prolongation.data
+    return labels, scale
+
+
+def cluster_form_factors(scene, prolongation, resolution: int = CLUSTER_RESOLUTION, rows=None, device=None,
+                         progress: bool | None = None) -> sp.csr_matrix:
+    """Rows of the patch-to-cluster form factors G = F Pr by hemicube, F never formed.
+
+    Parameters
+    ----------
+    scene : Scene
+        N patches.
+    prolongation : (N, C) sparse or dense matrix
+        Finite entries >= 0: the indicator of each patch's cluster, or a weighted one.
+    resolution : int
+        Hemicube resolution R (even, >= 2; the rule of :func:`pydynrad.form_factors`); default
+        :data:`pydynrad.formfactors.CLUSTER_RESOLUTION`.
+    rows : sequence of int, optional
+        Patches whose rows of G to compute; all by default.
+    device : Device, optional
+    progress : bool, optional
+        tqdm bar; by default only on a terminal for long runs.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, float32, shape (len(rows), C)
+        Row k: the fraction of the energy leaving patch ``rows[k]`` that arrives at each
+        cluster, weighted by Pr; equal to ``form_factors(scene, resolution, rows) @ Pr`` up to
+        float32 rounding.
+    """
+    n = len(checked_scene(scene))
+    pr = check_prolongation(prolongation, n)
+    C = pr.shape[1]
+    single = split_prolongation(pr)
+    if single is not None:
+        blocks = hemicube_blocks(scene, resolution, rows, device, progress, desc="cluster form factors",
+                                 clusters=(*single, C))
+    else:
+        blocks = (b @ pr for b in hemicube_blocks(scene, resolution, rows, device, progress,
+                                                   desc="cluster form factors"))
+    return stack_blocks(blocks, C)
+
+
+def cluster_form_factors_for(scene, source, clusters, resolution: int = CLUSTER_RESOLUTION, device=None,
+                             progress: bool | None = None) -> sp.csr_matrix:
+    """The whole (N, C) G for a dynamic solution's form factors, F never formed.
+
+    ``source`` is what :class:`~pydynrad.DynamicRadiosity` reads F's rows from: a
+    :class:`~pydynrad.rows.store.FormFactorStore` (or a :class:`~pydynrad.RowCache` over one)
+    must hold G for these clusters (else :class:`~pydynrad.StoreIncompleteError` or
+    :class:`~pydynrad.StoreMismatchError`); F in memory (:class:`~pydynrad.CSRRows`) gives
+    F Pr exactly; any other source (the on-demand :class:`~pydynrad.HemicubeRows`) gets G from
+    cluster-id hemicubes of ``resolution``. ``clusters``: Pr (N, C), (N,) labels or a
+    :class:`pydynrad.farfield.Clusters`. Returns float32 CSR.
+    """
+    from ..rows.sources import CSRRows
+    from ..rows.store import FormFactorStore
+
+    pr = as_prolongation(clusters, len(checked_scene(scene)))
+    inner = source
+    while not isinstance(inner, FormFactorStore) and hasattr(inner, "source"):
+        inner = inner.source  # through row caches
+    if isinstance(inner, FormFactorStore):
+        if inner.header["geometry_hash"] != scene.geometry_hash():
+            raise InvalidInputError(f"form-factor store {inner.path} was made for another scene geometry")
+        return inner.cluster_form_factors(pr)
+    if isinstance(inner, CSRRows):
+        if inner.n_patches != pr.shape[0]:
+            raise InvalidInputError(f"F has {inner.n_patches} rows; the scene has {pr.shape[0]} patches")
+        return stack_blocks([inner.matrix.astype(np.float64) @ pr], pr.shape[1])
+    return cluster_form_factors(scene, pr, resolution, device=device, progress=progress)

@@ -1,0 +1,237 @@
+"""Patch-to-cluster form factors G = F Pr from cluster-id hemicubes (pydynrad.farfield.gather).
+
+Truths: G equals ``form_factors(scene, R) @ Pr`` (F's own hemicubes, summed in float64 by
+SciPy) to float32 rounding; in a closed box every row sums to 1 like F's, and with the six
+walls as clusters the area-weighted wall-to-wall sums are the catalogue form factors of two
+unit squares (parallel 0.19982, perpendicular 0.20004; Howell C-11, C-14).
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from pydynrad import InvalidInputError
+from pydynrad import formfactors as ff_module
+from pydynrad.farfield.gather import cluster_form_factors
+from pydynrad.formfactors import form_factors
+from pydynrad.scenes.analytic import closed_box
+from pydynrad.scenes.cornell import cornell_box
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package lives in the repo root
+
+from bench.gather import grid_clusters, indicator, weighted  # noqa: E402  (compact clusters, the two prolongations)
+
+R = 16
+
+
+@pytest.fixture(scope="module")
+def cornell(device):
+    scene = cornell_box()
+    labels = grid_clusters(scene, 8)
+    w = np.random.default_rng(1).uniform(0.1, 2.0, len(scene))
+    F = form_factors(scene, resolution=R, device=device).astype(np.float64)
+    return scene, labels, w, F
+
+
+def assert_float32_equal(G, ref):
+    """Entries agree to a few float32 ulps of the row's largest entry (observed <= 7e-8 relative)."""
+    assert G.dtype == np.float32
+    g, r = G.toarray().astype(np.float64), np.asarray(ref.todense() if sp.issparse(ref) else ref)
+    scale = np.abs(r).max(axis=1, keepdims=True) + 1e-30
+    assert np.max(np.abs(g - r) / scale) < 1e-6
+
+
+def test_indicator_equals_f_times_pr(cornell, device):
+    scene, labels, _, F = cornell
+    Pr = indicator(labels)
+    assert Pr.shape[1] < len(scene) / 4  # clusters really merge patches
+    G = cluster_form_factors(scene, Pr, resolution=R, device=device)
+    assert G.shape == (len(scene), Pr.shape[1])
+    assert_float32_equal(G, F @ Pr)
+    # Runs merged on the device: G holds fewer non-zeros than F.
+    assert G.nnz < F.nnz / 2
+
+
+def test_weighted_equals_f_times_pr(cornell, device):
+    scene, labels, w, F = cornell
+    Pr = weighted(labels, scene.areas.astype(np.float64), w)
+    G = cluster_form_factors(scene, Pr, resolution=R, device=device)
+    assert_float32_equal(G, F @ Pr)
+
+
+def test_shared_patches_and_dense_input(cornell, device):
+    """A patch in two clusters (two entries in its row) and a dense Pr take the host path, same truth."""
+    scene, labels, _, F = cornell
+    Pr = indicator(labels).toarray()
+    Pr[::7, 0] += 0.5
+    G = cluster_form_factors(scene, Pr, resolution=R, device=device)
+    assert_float32_equal(G, F @ Pr)
+
+
+def test_rows_and_small_blocks(cornell, device, monkeypatch):
+    scene, labels, _, _ = cornell
+    Pr = indicator(labels)
+    rows = np.array([5, 900, 17, 5, 300])
+    whole = cluster_form_factors(scene, Pr, resolution=R, device=device)
+    some = cluster_form_factors(scene, Pr, resolution=R, rows=rows, device=device)
+    assert (some != whole[rows]).nnz == 0
+    # Three rows per block: the same rows, bit for bit.
+    monkeypatch.setattr(ff_module, "BLOCK_BYTES", 3 * 3 * R * R * 8)
+    small = cluster_form_factors(scene, Pr, resolution=R, rows=rows, device=device)
+    assert (small != some).nnz == 0
+    assert cluster_form_factors(scene, Pr, resolution=R, rows=[], device=device).shape == (0, Pr.shape[1])
+
+
+def test_closed_box_rows_sum_to_one_and_catalogue(device):
+    scene = closed_box(1.0, subdivisions=2)
+    walls = scene.source_face // 2
+    Pr = indicator(walls)
+    G = cluster_form_factors(scene, Pr, resolution=32, device=device).toarray().astype(np.float64)
+    np.testing.assert_allclose(G.sum(axis=1), 1.0, atol=1e-5)
+    assert np.all(G[np.arange(len(scene)), walls] == 0)  # a planar wall does not see itself
+    a = scene.areas.astype(np.float64)
+    for f in range(6):
+        rows = walls == f
+        for g in range(6):
+            if g != f:
+                truth = 0.19982 if f // 2 == g // 2 else 0.20004
+                assert a[rows] @ G[rows, g] / a[rows].sum() == pytest.approx(truth, rel=0.02)
+    F = form_factors(scene, resolution=32, device=device).astype(np.float64)
+    assert_float32_equal(sp.csr_matrix(G.astype(np.float32)), F @ Pr)
+
+
+def test_bad_input(cornell, device):
+    scene, labels, _, _ = cornell
+    Pr = indicator(labels)
+    n, c = Pr.shape
+    with pytest.raises(InvalidInputError, match="shape"):
+        cluster_form_factors(scene, Pr[:-1], device=device)
+    with pytest.raises(InvalidInputError, match="shape"):
+        cluster_form_factors(scene, np.ones(n), device=device)
+    with pytest.raises(InvalidInputError, match="shape"):
+        cluster_form_factors(scene, sp.csr_matrix((n, 0)), device=device)
+    bad = Pr.toarray()
+    bad[3, 0] = np.nan
+    with pytest.raises(InvalidInputError, match="NaN"):
+        cluster_form_factors(scene, bad, device=device)
+    bad[3, 0] = -1.0
+    with pytest.raises(InvalidInputError, match=">= 0"):
+        cluster_form_factors(scene, bad, device=device)
+    with pytest.raises(InvalidInputError, match="numbers"):
+        cluster_form_factors(scene, [["a"] * c] * n, device=device)
+    for r in (7, 0, 16.0, True):
+        with pytest.raises(InvalidInputError, match="resolution"):
+            cluster_form_factors(scene, Pr, resolution=r, device=device)
+    with pytest.raises(InvalidInputError, match="rows"):
+        cluster_form_factors(scene, Pr, rows=[n], device=device)
+    with pytest.raises(InvalidInputError, match="Scene"):
+        cluster_form_factors(Pr, Pr, device=device)
+
+
+# -- G in the form-factor store ----------------------------------------------------------------
+from pydynrad.rows.store import (  # noqa: E402
+    FormFactorStore,
+    StoreCorruptError,
+    StoreIncompleteError,
+    StoreMismatchError,
+    compute_store,
+)
+
+
+@pytest.fixture(scope="module")
+def box(device):
+    """A closed box of 192 patches in 8 clusters (the walls, four of them split along a diagonal), its G at R = 8."""
+    scene = closed_box(1.0, subdivisions=2)
+    labels = (scene.source_face // 2) * 2 + (scene.centers[:, 0] + scene.centers[:, 1] > 1.0)
+    labels = np.unique(labels, return_inverse=True)[1].ravel()
+    return scene, labels, cluster_form_factors(scene, indicator(labels), resolution=8, device=device)
+
+
+def same_csr(a, b) -> bool:
+    return a.shape == b.shape and a.dtype == b.dtype and (a != b).nnz == 0
+
+
+def test_store_holds_g_beside_f(box, tmp_path, device):
+    scene, labels, G = box
+    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=10, clusters=labels, cluster_resolution=8,
+                          cluster_params={"method": "diagonals"}, progress=False, device=device)
+    assert store.complete and store.complete_clusters and store.n_clusters == labels.max() + 1
+    assert same_csr(store.to_csr(), form_factors(scene, resolution=8, device=device))
+    assert same_csr(store.cluster_form_factors(labels), G)  # rows in blocks of 10 and whole: bit for bit
+    idx = np.array([95, 3, 3, 40, 0])
+    assert same_csr(store.cluster_rows(idx), G[idx])
+    np.testing.assert_array_equal(store.cluster_labels(), labels)
+    assert same_csr(store.prolongation(), indicator(labels).astype(np.float32))
+    again = FormFactorStore.open(scene, tmp_path / "s", resolution=8)
+    assert again.cluster_resolution == 8 and again.cluster_params == {"method": "diagonals"} and "G: C=" in repr(again)
+    assert same_csr(again.cluster_form_factors(), G)
+
+
+def test_store_of_g_alone_and_resume(box, tmp_path, device):
+    scene, labels, G = box
+    path = tmp_path / "g"
+    store = compute_store(scene, path, resolution=8, block_rows=16, clusters=indicator(labels), cluster_resolution=8,
+                          compute_f=False, progress=False, device=device)
+    assert store.complete_clusters and not store.complete and store.missing_blocks() == list(range(12))
+    with pytest.raises(StoreIncompleteError, match="block 0"):
+        store.rows([0])
+    store.block_path(2, "G").unlink()
+    store.block_path(4, "G").write_bytes(b"torn")
+    with pytest.raises(StoreIncompleteError, match="1 of 12 blocks of G"):
+        store.cluster_form_factors()
+    with pytest.raises(StoreCorruptError):
+        store.cluster_rows([70])
+    # Resumed without naming the clusters again: the recorded ones finish G.
+    store = compute_store(scene, path, resolution=8, block_rows=16, compute_f=False, verify=True, progress=False,
+                          device=device)
+    assert same_csr(store.cluster_form_factors(), G)
+
+
+def test_store_refuses_other_clusters(box, tmp_path, device):
+    scene, labels, _ = box
+    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8,
+                          compute_f=False, progress=False, device=device)
+    other = labels.copy()
+    other[[0, 1]] = other[[1, 0]] if other[0] != other[1] else (other[0] + 1) % (labels.max() + 1)
+    for bad in (other, scene.source_face // 2, weighted(labels, scene.areas, np.linspace(1, 2, len(scene)))):
+        with pytest.raises(StoreMismatchError, match="other clusters"):
+            store.cluster_form_factors(bad)
+        with pytest.raises(StoreMismatchError, match="prolongation_sha256"):
+            compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=bad, cluster_resolution=8,
+                          compute_f=False, progress=False, device=device)
+    with pytest.raises(StoreMismatchError, match="resolution"):
+        store.set_clusters(labels, resolution=16)
+    with pytest.raises(StoreMismatchError, match="geometry_hash"):  # G of another scene: the store refuses the scene
+        FormFactorStore.open(closed_box(2.0, subdivisions=2), tmp_path / "s", resolution=8)
+    with pytest.raises(InvalidInputError, match="labels"):
+        store.check_clusters(labels[:-1])
+    plain = compute_store(scene, tmp_path / "f", resolution=8, block_rows=48, progress=False, device=device)
+    assert not plain.has_clusters
+    with pytest.raises(StoreIncompleteError, match="holds no patch-to-cluster"):
+        plain.cluster_rows([0])
+
+
+def test_g_for_each_kind_of_row_source(box, tmp_path, device):
+    """A store's own G (also through a row cache), F Pr from F in memory, hemicubes on demand;
+    a store without G or of another scene is refused."""
+    from pydynrad import CSRRows, HemicubeRows, RowCache
+    from pydynrad.farfield.gather import cluster_form_factors_for
+
+    scene, labels, G = box
+    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8,
+                          compute_f=False, progress=False, device=device)
+    assert same_csr(cluster_form_factors_for(scene, store, labels), G)
+    assert same_csr(cluster_form_factors_for(scene, RowCache(store, 2**20), labels), G)
+    assert same_csr(cluster_form_factors_for(scene, HemicubeRows(scene, 64, device), labels, resolution=8, device=device), G)
+    F = form_factors(scene, resolution=8, device=device)
+    assert_float32_equal(cluster_form_factors_for(scene, CSRRows(F), labels), F.astype(np.float64) @ indicator(labels))
+    with pytest.raises(StoreMismatchError, match="other clusters"):
+        cluster_form_factors_for(scene, store, scene.source_face // 2)
+    plain = compute_store(scene, tmp_path / "f", resolution=8, block_rows=48, progress=False, device=device)
+    with pytest.raises(StoreIncompleteError, match="holds no patch-to-cluster"):
+        cluster_form_factors_for(scene, plain, labels)
+    with pytest.raises(InvalidInputError, match="another scene"):
+        cluster_form_factors_for(closed_box(2.0, subdivisions=2), store, labels)
