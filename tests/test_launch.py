@@ -1,0 +1,56 @@
+"""pydynrad.launch: global sizes, the kernels' required layout defines, and the per-device
+cache of scene arrays beside the BVH buffers."""
+
+import numpy as np
+import pytest
+
+import pydynrad
+from pydynrad.launch import WG, global_size, round_up
+from helpers import box_scene
+
+
+def test_global_size_rounds_up_to_whole_work_groups():
+    assert [global_size(n) for n in (0, 1, WG - 1, WG, WG + 1, 1000)] == [WG, WG, WG, WG, 2 * WG, 1024]
+    assert global_size(5, 4) == 8 and round_up(96, 128) == 128 and round_up(256, 128) == 256
+
+
+@pytest.mark.parametrize("filename,missing", [
+    ("update.cl", "VW, WG, RR, CWMAX, NVMAX, NAMAX and RED_WG"),
+    ("matvec.cl", "VW, LX and NRHS"),
+    ("spmv.cl", "NCH and LX"),
+    ("gemm.cl", "VW and TM"),
+])
+def test_kernels_take_layout_defines_from_the_host(device, filename, missing):
+    with pytest.raises(pydynrad.KernelBuildError) as info:
+        device.program(filename, {"STORAGE_FP32": 1})
+    assert f"needs {missing} from the host" in info.value.build_log
+
+
+def test_path_tracer_needs_the_bounce_limit(device):
+    with pytest.raises(pydynrad.KernelBuildError) as info:
+        device.program("pathtrace.cl")
+    assert "MAX_DEPTH (the bounce limit) must come from the host" in info.value.build_log
+
+
+def test_hemicube_needs_the_hosts_packet_width(device):
+    for defines in ({"HC_RES": 8}, {"HC_RES": 8, "BVH_PACKET": 8}):
+        with pytest.raises(pydynrad.KernelBuildError) as info:
+            device.program("hemicube.cl", defines)
+        assert "needs BVH_PACKET == 16" in info.value.build_log
+
+
+def test_patch_buffers_once_per_device_and_per_geometry(device):
+    import pyopencl as cl
+
+    s = box_scene(2)
+    centers, normals = s.patch_buffers(device)
+    assert s.patch_buffers(device) == (centers, normals)  # uploaded once
+    host = np.empty((len(s), 4), np.float32)
+    cl.enqueue_copy(device.queue, host, normals, is_blocking=True)
+    assert np.array_equal(host[:, :3], s.normals) and not host[:, 3].any()
+    # Same geometry (with_materials shares the BVH): the same buffers; other geometry: its own.
+    assert s.with_materials(albedo=0.3).patch_buffers(device) == (centers, normals)
+    other = box_scene(2, size=2.0)
+    c2, _ = other.patch_buffers(device)
+    cl.enqueue_copy(device.queue, host, c2, is_blocking=True)
+    assert np.array_equal(host[:, :3], other.centers) and not np.array_equal(other.centers, s.centers)
