@@ -9,8 +9,8 @@ Renders are linear float32 (H, W, 3). Two kinds of file come out of them:
   without encoding them) and stored as 8-bit.
 
 Files are written whole (:func:`pydynrad.atomic.write_atomic`): into a temporary file in the
-same folder, then renamed over the target, so a reader never sees half an image and a failed
-write leaves no debris.
+same folder, read back and compared with the image, then renamed over the target, so a reader
+never sees half an image or one the encoder changed, and a failed write leaves no debris.
 """
 
 from __future__ import annotations
@@ -96,8 +96,42 @@ def write_image(path, image, exposure: float = 0.0) -> Path:
     def write(tmp: Path) -> None:
         if not buf.write(str(tmp), fileformat=fmt) or buf.has_error:
             raise OSError(f"cannot write {str(path)!r}: {buf.geterror().strip() or 'OpenImageIO failed'}")
+        _check_read_back(tmp, path, pixels, fmt)
 
     return write_atomic(path, write)
+
+
+def _check_read_back(tmp: Path, path: Path, pixels: np.ndarray, fmt: str) -> None:
+    """OSError unless the file at ``tmp`` reads back as ``pixels``: exactly, to RGBE's 8-bit
+    mantissa for .hdr, in shape only for JPEG (lossy by design)."""
+    back = _read_pixels(tmp, path)
+    want = pixels.astype(np.float32)
+    if pixels.dtype == np.uint8:  # compared as code values: OIIO scales them to [0, 1] on reading
+        back = np.round(back * 255.0)
+    if back.shape != want.shape:
+        raise OSError(f"cannot write {str(path)!r}: it reads back as {back.shape}, not {want.shape}")
+    if fmt == "jpeg":
+        return
+    # RGBE shares one exponent per pixel: each channel keeps 8 bits relative to the pixel's largest.
+    tol = want.max(axis=2, keepdims=True) / 128.0 if fmt == "hdr" else 0.0
+    if not np.all(np.abs(back - want) <= tol):
+        raise OSError(f"cannot write {str(path)!r}: the file read back differs from the image written")
+
+
+def _read_pixels(path: Path, name: Path) -> np.ndarray:
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InvalidInputError(f"cannot read image {str(name)!r}: {oiio.geterror().strip() or 'unknown format'}")
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        if pixels is None or inp.has_error:
+            raise InvalidInputError(f"cannot read image {str(name)!r}: {inp.geterror().strip()}")
+    finally:
+        inp.close()
+    return np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
 
 
 def read_image(path) -> np.ndarray:
@@ -106,19 +140,7 @@ def read_image(path) -> np.ndarray:
     Values are the file's own: linear floats from EXR/HDR/TIFF, and the stored sRGB-encoded
     code values scaled to [0, 1] from 8-bit files (no decoding).
     """
-    import OpenImageIO as oiio
-
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"cannot read image {str(path)!r}: no such file")
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise InvalidInputError(f"cannot read image {str(path)!r}: {oiio.geterror().strip() or 'unknown format'}")
-    try:
-        spec = inp.spec()
-        pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        if pixels is None or inp.has_error:
-            raise InvalidInputError(f"cannot read image {str(path)!r}: {inp.geterror().strip()}")
-    finally:
-        inp.close()
-    return np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    return _read_pixels(path, path)

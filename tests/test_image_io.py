@@ -68,3 +68,16 @@ def test_bad_paths_and_images_give_clear_errors(tmp_path):
     with pytest.raises(InvalidInputError, match="cannot read"):
         read_image(tmp_path / "junk.png")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["junk.png"]
+
+
+def test_a_file_that_reads_back_different_is_not_kept(tmp_path, monkeypatch):
+    """Each image is read back before it replaces the target: an encoder that changed the
+    values (simulated here) leaves neither the target nor a temporary file."""
+    from pydynrad import image_io
+
+    real = image_io._read_pixels
+    monkeypatch.setattr(image_io, "_read_pixels", lambda path, name: real(path, name) + 1.0)
+    target = tmp_path / "x.exr"
+    with pytest.raises(OSError, match="read back differs"):
+        write_image(target, np.ones((3, 4, 3), dtype=np.float32))
+    assert list(tmp_path.iterdir()) == []
