@@ -35,11 +35,13 @@ from .rows.cache import RowCache
 from .rows.sources import CSRRows, HemicubeRows, RowSource, as_row_source
 from .rows.distributed import SceneSpec, precompute_distributed
 from .rows.files import load_form_factors, open_form_factors, save_form_factors
+from .bake import GroupRadiosity, Lightmap, LightGroups, bake_lightmap, export_mesh
 
 __version__ = "0.1.0"
 
 __all__ = [
     "as_row_source",
+    "bake_lightmap",
     "Camera",
     "CameraPath",
     "compute_store",
@@ -53,14 +55,18 @@ __all__ = [
     "direct_irradiance",
     "DirectionalLight",
     "DynamicRadiosity",
+    "export_mesh",
     "fly_through",
     "form_factors",
     "FormFactorStore",
     "FrameStats",
+    "GroupRadiosity",
     "HemicubeRows",
     "InvalidInputError",
     "KernelBuildError",
     "light_vector",
+    "LightGroups",
+    "Lightmap",
     "LightTrack",
     "list_devices",
     "load",

@@ -1,0 +1,308 @@
+"""Radiosity baked into a lightmap: a linear float texture over an automatic UV atlas.
+
+* **UVs** from xatlas (the PyPI package of Jonathan Young's library) over the scene's smooth
+  vertices (:mod:`pydynrad.smoothing`): the mesh is already split at creases and material
+  borders there, so no chart spans one, and xatlas packs the charts ``padding`` texels apart at
+  ``texels_per_unit`` texels per scene unit of length.
+* **Reconstruction**: every texel is the radiosity of its triangle at the texel's centre,
+  interpolated linearly from the smooth-vertex values (what smooth shading in
+  :func:`pydynrad.render` shows), not one flat value per patch. A texel within one texel of a
+  triangle (one a bilinear lookup inside the triangle can reach) but whose centre lies outside
+  it takes the triangle's plane extended to its centre, kept within the triangle's corner
+  values; where several triangles reach a texel, the one it lies most inside wins. Bilinear
+  filtering inside a triangle then reproduces the linear interpolation exactly wherever the
+  four texels it reads belong to that triangle.
+* **Dilation**: the remaining padding texels take the mean of their filled neighbours, ring
+  by ring, ``padding`` rings out, so filtering and mipmapping at a chart's border read no
+  black.
+
+Texel (x, y) covers ``[x, x+1] x [y, y+1]`` in texel units, row 0 at the top of the image;
+a vertex's ``uv`` is its texel position divided by (width, height), so ``(0, 0)`` is the
+image's top-left corner, glTF's convention.
+
+See docs/design.md, 'Renderer' (smoothing groups).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..checks import number, scene as checked_scene
+from ..errors import InvalidInputError, OutOfMemoryError
+from ..image_io import LINEAR_FORMATS, write_image
+from ..memory import available_host_bytes
+from ..smoothing import smooth_vertices
+from .files import write_checked
+from .vertex import checked_mesh_path, mesh_bytes, mesh_metadata
+
+__all__ = ["Lightmap", "bake_lightmap", "BYTES_PER_TEXEL"]
+
+#: Host bytes a texel costs while baking: the image, its masks and the rasteriser's best scores.
+BYTES_PER_TEXEL = 12 + 4 + 4 + 2
+# Texel candidates the rasteriser handles at once (each costs ~100 bytes of temporaries).
+_CHUNK = 1 << 21
+
+
+@dataclass
+class Lightmap:
+    """A baked lightmap and the mesh its UVs belong to.
+
+    Attributes
+    ----------
+    image : (height, width, 3) float32
+        Linear radiosity per texel (the unit of the scene's emission); 0 where nothing reached.
+    covered : (height, width) bool
+        Texels a triangle overlaps: the charts.
+    filled : (height, width) bool
+        Texels holding a value: the charts, their bilinear reach and the dilated padding.
+    uv : (U, 2) float32
+        Lightmap coordinates of each lightmap vertex, in [0, 1] (see the module docstring).
+    faces : (N, 3) int64
+        Lightmap vertices of each patch's corners (triangle i is patch i).
+    vertex : (U,) int64
+        The smooth vertex each lightmap vertex comes from (xatlas splits them along chart seams).
+    vertex_radiosity : (U, 3) float64
+        Radiosity of each lightmap vertex.
+    positions : (U, 3) float32
+        Position of each lightmap vertex, scene units.
+    texels_per_unit, padding, crease_angle :
+        The parameters it was baked with.
+    """
+
+    image: np.ndarray
+    covered: np.ndarray
+    filled: np.ndarray
+    uv: np.ndarray
+    faces: np.ndarray
+    vertex: np.ndarray
+    vertex_radiosity: np.ndarray
+    positions: np.ndarray
+    texels_per_unit: float
+    padding: int
+    crease_angle: float
+    scene_name: str = "scene"
+    n_patches: int = 0
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width) in texels."""
+        return self.image.shape[:2]
+
+    @property
+    def coverage(self) -> float:
+        """Fraction of the image's texels that lie in a chart."""
+        return float(self.covered.mean())
+
+    def sample(self, uv) -> np.ndarray:
+        """(P, 3) float64 bilinear lookup at lightmap coordinates ``uv`` (P, 2), as a GPU's
+        linear filter with clamp-to-edge reads the image."""
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        h, w = self.shape
+        x = uv[:, 0] * w - 0.5
+        y = uv[:, 1] * h - 0.5
+        x0, y0 = np.floor(x), np.floor(y)
+        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+        x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+        img = self.image.astype(np.float64)
+
+        def tap(dx, dy):
+            return img[np.clip(y0 + dy, 0, h - 1), np.clip(x0 + dx, 0, w - 1)]
+
+        return ((1 - fx) * (1 - fy) * tap(0, 0) + fx * (1 - fy) * tap(1, 0)
+                + (1 - fx) * fy * tap(0, 1) + fx * fy * tap(1, 1))
+
+    def patch_uv(self, patch, barycentric) -> np.ndarray:
+        """(P, 2) lightmap coordinates of points given by patch index (P,) and barycentrics (P, 3)."""
+        return np.einsum("pk,pkd->pd", np.asarray(barycentric, dtype=np.float64),
+                         self.uv[self.faces[np.asarray(patch)]].astype(np.float64))
+
+    def write(self, path) -> Path:
+        """Write the image as a linear float file (.exr, .hdr, .tif, .pfm; see :func:`pydynrad.write_image`)."""
+        if Path(path).suffix.lower() not in LINEAR_FORMATS:
+            raise InvalidInputError(f"a lightmap holds linear radiosity: write it as {', '.join(LINEAR_FORMATS)}, "
+                                    f"not {str(path)!r}")
+        return write_image(path, self.image)
+
+    def write_mesh(self, path, *, exposure: float = 0.0, image_name: str | None = None) -> Path:
+        """Write the lightmap's mesh as .glb: the lightmap UVs as ``TEXCOORD_0`` and ``TEXCOORD_1``
+        (the second set, where engines look for lightmaps), vertex colours as :func:`export_mesh`
+        writes them, and the lightmap's size, texel density and file name in the metadata."""
+        path = checked_mesh_path(path, (".glb",))
+        meta = mesh_metadata(_Named(self.scene_name, self.n_patches), number(exposure, "exposure"), self.crease_angle)
+        h, w = self.shape
+        meta["lightmap"] = {"image": image_name, "width": w, "height": h, "texels_per_unit": self.texels_per_unit,
+                            "padding_texels": self.padding, "uv_set": "TEXCOORD_1 (TEXCOORD_0 holds the same)",
+                            "uv_origin": "top-left of the image, v down"}
+        data = mesh_bytes(path, _Named(self.scene_name, self.n_patches), self.positions, self.faces,
+                          self.vertex_radiosity, meta, uv=self.uv)
+        return write_checked(path, data)
+
+
+@dataclass(frozen=True)
+class _Named:
+    """What the file writers read of a scene (its name and size), for a lightmap without one."""
+
+    name: str
+    n: int
+
+    def __len__(self) -> int:
+        return self.n
+
+
+def _check_memory(texels: float, what: str) -> None:
+    need = texels * BYTES_PER_TEXEL
+    have = available_host_bytes()
+    if need > have / 2:
+        raise OutOfMemoryError(f"a lightmap of {what} would need {need / 2**30:.1f} GiB while baking, more than half "
+                               f"of the {have / 2**30:.1f} GiB available; lower texels_per_unit")
+
+
+def _atlas(positions: np.ndarray, faces: np.ndarray, texels_per_unit: float, padding: int):
+    import xatlas
+
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(positions, faces.astype(np.uint32))
+    pack = xatlas.PackOptions()
+    pack.texels_per_unit = texels_per_unit
+    pack.padding = padding
+    pack.bilinear = True  # charts a full texel apart at least, so filtering never mixes two of them
+    pack.resolution = 0  # one atlas, as large as the texel density needs
+    atlas.generate(xatlas.ChartOptions(), pack)
+    vmapping, indices, uv = atlas[0]
+    return (vmapping.astype(np.int64), indices.reshape(-1, 3).astype(np.int64), uv.astype(np.float32),
+            int(atlas.width), int(atlas.height))
+
+
+def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int):
+    """Per-texel value and masks from triangles ``corners`` (T, 3, 2) in texel units with
+    vertex ``values`` (T, 3, 3); see the module docstring for the rules."""
+    best = np.full(h * w, -np.inf, dtype=np.float32)
+    image = np.zeros((h * w, 3), dtype=np.float32)
+    covered = np.zeros(h * w, dtype=bool)
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    ok = np.abs(area2) > 1e-12
+    lo = np.floor(corners.min(axis=1) - 0.5).astype(np.int64)
+    hi = np.floor(corners.max(axis=1) + 0.5).astype(np.int64)
+    lo = np.clip(lo, 0, [w - 1, h - 1])
+    hi = np.clip(hi, 0, [w - 1, h - 1])
+    span = (hi - lo + 1) * ok[:, None]
+    count = span[:, 0] * span[:, 1]
+    ends = np.cumsum(count)
+    start = 0
+    while start < len(count):
+        stop = int(np.searchsorted(ends, (ends[start - 1] if start else 0) + _CHUNK, side="right"))
+        stop = max(stop, start + 1)
+        tri = np.repeat(np.arange(start, stop), count[start:stop])
+        if not len(tri):
+            start = stop
+            continue
+        local = np.arange(len(tri)) - np.repeat(ends[start:stop] - count[start:stop], count[start:stop])
+        tx = lo[tri, 0] + local % span[tri, 0]
+        ty = lo[tri, 1] + local // span[tri, 0]
+        px, py = tx + 0.5, ty + 0.5
+        # Barycentrics of the texel centre (signed: negative outside). Barycentric k grows by
+        # reach[k] per texel along the best axis direction, so a square of half-size s around
+        # the centre reaches into the triangle's side of edge k when bary + s * reach >= 0.
+        A, B, C = a[tri], b[tri], c[tri]
+        inv = 1.0 / area2[tri]
+        bary = np.empty((len(tri), 3))
+        reach = np.empty((len(tri), 3))
+        for k, (p, q) in enumerate(((B, C), (C, A), (A, B))):
+            ex, ey = q[:, 0] - p[:, 0], q[:, 1] - p[:, 1]
+            bary[:, k] = (ex * (py - p[:, 1]) - ey * (px - p[:, 0])) * inv
+            reach[:, k] = (np.abs(ex) + np.abs(ey)) * np.abs(inv)
+        score = bary.min(axis=1)
+        near = np.all(bary + reach >= 0, axis=1)  # a texel a bilinear lookup inside the triangle reads
+        touches = np.all(bary + 0.5 * reach >= 0, axis=1) & _bbox_overlap(px, py, A, B, C)
+        texel = ty * w + tx
+        covered[texel[touches]] = True
+        keep = near
+        texel, tri, bary, score = texel[keep], tri[keep], bary[keep], score[keep]
+        # The most-inside candidate per texel: sort by (texel, score), keep each texel's last.
+        order = np.lexsort((score, texel))
+        texel, tri, bary, score = texel[order], tri[order], bary[order], score[order]
+        last = np.r_[texel[1:] != texel[:-1], True]
+        texel, tri, bary, score = texel[last], tri[last], bary[last], score[last]
+        better = score > best[texel]
+        texel, tri, bary, score = texel[better], tri[better], bary[better], score[better]
+        v = values[tri]
+        lin = np.einsum("pk,pkc->pc", bary, v)
+        image[texel] = np.clip(lin, v.min(axis=1), v.max(axis=1))
+        best[texel] = score
+        start = stop
+    return image.reshape(h, w, 3), covered.reshape(h, w), np.isfinite(best).reshape(h, w)
+
+
+def _bbox_overlap(px, py, A, B, C) -> np.ndarray:
+    """Texel squares (centres px, py) that overlap the triangles' bounding boxes (the SAT's box axes)."""
+    xs = np.stack([A[:, 0], B[:, 0], C[:, 0]], axis=1)
+    ys = np.stack([A[:, 1], B[:, 1], C[:, 1]], axis=1)
+    return ((px + 0.5 >= xs.min(axis=1)) & (px - 0.5 <= xs.max(axis=1))
+            & (py + 0.5 >= ys.min(axis=1)) & (py - 0.5 <= ys.max(axis=1)))
+
+
+def _dilate(image: np.ndarray, filled: np.ndarray, rings: int) -> None:
+    """Fill, in place, up to ``rings`` rings of unfilled texels around the filled ones with
+    the mean of their filled 8-neighbours."""
+    h, w = filled.shape
+    for _ in range(rings):
+        total = np.zeros((h + 2, w + 2, 3))
+        count = np.zeros((h + 2, w + 2))
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dx or dy:
+                    sl = (slice(1 + dy, h + 1 + dy), slice(1 + dx, w + 1 + dx))
+                    total[sl] += image * filled[:, :, None]
+                    count[sl] += filled
+        total, count = total[1:-1, 1:-1], count[1:-1, 1:-1]
+        grow = ~filled & (count > 0)
+        if not grow.any():
+            break
+        image[grow] = (total[grow] / count[grow][:, None]).astype(np.float32)
+        filled |= grow
+
+
+def bake_lightmap(scene, radiosity, texels_per_unit: float, *, padding: int = 2, crease_angle: float = 30.0) -> Lightmap:
+    """Bake a radiosity solution into a lightmap.
+
+    Parameters
+    ----------
+    scene : Scene
+    radiosity : (N, 3) or (N,) float
+        Patch radiosity (e.g. ``pydynrad.solve(...).radiosity``), finite.
+    texels_per_unit : float
+        Texel density: texels per scene unit of length (the Cornell box is in mm: 0.1 is one
+        texel per cm). The image has about ``total area * texels_per_unit**2 / utilisation``
+        texels; refused before any allocation when that would not fit in memory.
+    padding : int
+        Texels between charts (>= 1), filled by dilation.
+    crease_angle : float
+        Degrees; see :func:`pydynrad.render`.
+
+    Returns
+    -------
+    Lightmap
+        Write it with :meth:`Lightmap.write` (EXR) and :meth:`Lightmap.write_mesh` (GLB).
+    """
+    scene = checked_scene(scene)
+    tpu = number(texels_per_unit, "texels_per_unit")
+    if not tpu > 0:
+        raise InvalidInputError(f"texels_per_unit must be > 0; got {texels_per_unit!r}")
+    if isinstance(padding, bool) or not isinstance(padding, (int, np.integer)) or not 1 <= padding <= 64:
+        raise InvalidInputError(f"padding must be a whole number of texels in 1..64; got {padding!r}")
+    smooth = smooth_vertices(scene, crease_angle)
+    values = smooth.radiosity(radiosity)  # checks the radiosity before the atlas is built
+    _check_memory(float(scene.areas.sum(dtype=np.float64)) * tpu * tpu, f"{tpu:g} texels per unit")
+    vmapping, faces, uv, w, h = _atlas(smooth.positions, smooth.corner_vertex, tpu, int(padding))
+    _check_memory(float(w) * h, f"{w}x{h} texels")
+    vertex_values = values[vmapping]
+    corners = (uv.astype(np.float64) * [w, h])[faces]
+    image, covered, filled = _rasterise(corners, vertex_values[faces], h, w)
+    _dilate(image, filled, int(padding))
+    return Lightmap(image=image, covered=covered, filled=filled, uv=uv, faces=faces, vertex=vmapping,
+                    vertex_radiosity=vertex_values, positions=smooth.positions[vmapping], texels_per_unit=tpu,
+                    padding=int(padding), crease_angle=float(crease_angle), scene_name=scene.name, n_patches=len(scene))

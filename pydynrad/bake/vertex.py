@@ -1,0 +1,118 @@
+"""Radiosity baked into vertex colours: meshes other tools open (Blender, game engines, web viewers).
+
+The mesh is the scene's patches, in the scene's units (glTF readers assume metres: a scene in
+millimetres, like the Cornell box, stays in millimetres), triangle i being patch i. Vertices
+are the scene's smooth vertices (:mod:`pydynrad.smoothing`): one per smoothing group, so the
+colours are smooth across the faces of one surface and split at creases and material
+borders, exactly the corner values the renderer's smooth shading interpolates.
+
+Formats, by the path's extension:
+
+* ``.glb`` (glTF 2.0): ``_RADIOSITY``, float32 linear radiosity (unclipped, the unit of the
+  scene's emission); ``COLOR_0``, float32 linear ``radiosity * 2**exposure`` clipped to
+  [0, 1] (glTF colours are linear; viewers clamp), on an unlit material;
+* ``.ply``: float32 ``radiosity_r/g/b`` (linear, unclipped) and the 8-bit ``red green blue``
+  viewers show: ``radiosity * 2**exposure`` clipped to [0, 1] and sRGB-encoded.
+
+Either file states the exposure, the encoding and the units in its metadata (glTF
+``asset.extras["pydynrad"]``, PLY header comments). Files are written whole and checked
+(:func:`pydynrad.bake.files.write_checked`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..atomic import check_parent_folder
+from ..checks import number, scene as checked_scene
+from ..errors import InvalidInputError
+from ..image_io import srgb_encode
+from ..smoothing import smooth_vertices
+from .files import write_checked
+from .gltf import glb_bytes
+from .ply import ply_bytes
+
+__all__ = ["export_mesh", "MESH_FORMATS"]
+
+MESH_FORMATS = (".glb", ".ply")
+
+
+def checked_mesh_path(path, formats: tuple[str, ...] = MESH_FORMATS) -> Path:
+    """``path`` as a Path whose extension is one of ``formats`` and whose folder exists."""
+    path = Path(path)
+    if path.suffix.lower() not in formats:
+        raise InvalidInputError(f"cannot tell the mesh format of {str(path)!r}: use one of the extensions "
+                                f"{', '.join(formats)}")
+    return check_parent_folder(path)
+
+
+def mesh_metadata(scene, exposure: float, crease_angle: float) -> dict:
+    """What a baked file's values mean, for its metadata."""
+    return {
+        "scene": scene.name,
+        "patches": len(scene),
+        "triangles": "triangle i is patch i of the scene",
+        "length_unit": "the scene's own unit (not rescaled to metres)",
+        "radiosity": "linear radiosity (radiant exitance, the unit of the scene's emission); radiance is radiosity / pi",
+        "exposure": exposure,
+        "display_encoding": "radiosity * 2**exposure, clipped to [0, 1]; 8-bit values are sRGB-encoded (IEC 61966-2-1)",
+        "crease_angle_degrees": crease_angle,
+    }
+
+
+def display_values(radiosity: np.ndarray, exposure: float) -> np.ndarray:
+    """(V, 3) float32 linear ``radiosity * 2**exposure`` clipped to [0, 1]."""
+    return np.clip(radiosity * 2.0**exposure, 0.0, 1.0).astype(np.float32)
+
+
+def mesh_bytes(path: Path, scene, positions, faces, radiosity, meta: dict, uv=None) -> bytes:
+    """The GLB or PLY file (by ``path``'s extension) of a mesh with per-vertex ``radiosity`` (V, 3)
+    and, for GLB, lightmap coordinates ``uv`` (V, 2) as ``TEXCOORD_0`` and ``TEXCOORD_1``."""
+    shown = display_values(radiosity, meta["exposure"])
+    if path.suffix.lower() == ".glb":
+        attributes = {"POSITION": positions, "COLOR_0": shown, "_RADIOSITY": radiosity}
+        if uv is not None:
+            # glTF numbers UV sets from 0: engines take lightmaps from the second set, and the
+            # scene has no texture coordinates of its own to put in the first.
+            attributes["TEXCOORD_0"] = attributes["TEXCOORD_1"] = uv
+        return glb_bytes(faces, attributes, {"pydynrad": meta}, name=scene.name)
+    if uv is not None:
+        raise InvalidInputError(f"a lightmap's mesh needs two UV sets: write it as .glb, not {path.suffix}")
+    eight_bit = np.round(srgb_encode(shown) * 255.0).astype(np.uint8)
+    props = {"x": positions[:, 0], "y": positions[:, 1], "z": positions[:, 2]}
+    props.update({f"radiosity_{c}": radiosity[:, i].astype(np.float32) for i, c in enumerate("rgb")})
+    props.update({c: eight_bit[:, i] for i, c in enumerate(("red", "green", "blue"))})
+    comments = [f"pydynrad {k}: {v}" for k, v in meta.items()]
+    comments.append("pydynrad properties: radiosity_r/g/b linear float32; red/green/blue the 8-bit display encoding")
+    return ply_bytes(faces, props, comments)
+
+
+def export_mesh(scene, radiosity, path, *, exposure: float = 0.0, crease_angle: float = 30.0) -> Path:
+    """Write a radiosity solution as a mesh with per-vertex colours.
+
+    Parameters
+    ----------
+    scene : Scene
+    radiosity : (N, 3) or (N,) float
+        Patch radiosity (e.g. ``pydynrad.solve(...).radiosity``), finite.
+    path : str or Path
+        ``.glb`` or ``.ply`` (see the module docstring); the folder must exist.
+    exposure : float
+        Stops applied to the display colours (``COLOR_0``, 8-bit PLY colours) only; the linear
+        radiosity is stored unscaled. ``-log2(pi)`` shows radiance.
+    crease_angle : float
+        Degrees; colours are never averaged across a sharper angle (as in :func:`pydynrad.render`).
+
+    Returns
+    -------
+    The path written.
+    """
+    scene = checked_scene(scene)
+    path = checked_mesh_path(path)
+    exposure = number(exposure, "exposure")
+    smooth = smooth_vertices(scene, crease_angle)
+    values = smooth.radiosity(radiosity)
+    meta = mesh_metadata(scene, exposure, float(crease_angle))
+    return write_checked(path, mesh_bytes(path, scene, smooth.positions, smooth.corner_vertex, values, meta))
