@@ -22,6 +22,8 @@ __all__ = ["main", "build_parser", "load_scene", "BUILTIN_SCENES"]
 
 
 DEMO_DIR = "pydynrad-demo"
+#: Chart texels of a lightmap when --texels-per-unit is not given (about a 1024 x 1024 image).
+LIGHTMAP_TEXELS = 0.75 * 2**20
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 320, 240
 #: The Cornell box camera's vertical field of view (degrees).
 DEFAULT_FOV_Y = 39.3
@@ -84,15 +86,13 @@ def _positive_float(text: str) -> float:
     return v
 
 
-def _point_light(text: str):
-    from .lights import PointLight
+def _light(text: str):
+    from .lighttext import parse_light
 
     try:
-        pos, rgb = text.split(":")
-        intensity = [float(x) for x in rgb.split(",")]
-        return PointLight(_vec3(pos), intensity[0] if len(intensity) == 1 else intensity)
-    except (ValueError, argparse.ArgumentTypeError, PydynradError) as exc:
-        raise argparse.ArgumentTypeError(f"expected X,Y,Z:R,G,B (position : intensity in W/sr); got {text!r} ({exc})")
+        return parse_light(text)
+    except PydynradError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _progress(args) -> bool | None:
@@ -299,6 +299,44 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _texels_per_unit(args, scene) -> float:
+    """--texels-per-unit, or a density giving about LIGHTMAP_TEXELS texels of charts."""
+    if args.texels_per_unit is not None:
+        return args.texels_per_unit
+    tpu = float(np.sqrt(LIGHTMAP_TEXELS / scene.areas.sum(dtype=np.float64)))
+    return float(f"{tpu:.2g}")
+
+
+def _cmd_bake(args: argparse.Namespace) -> int:
+    from .bake import MESH_FORMATS, bake_lightmap, export_mesh
+    from .rows.files import whole_matrix
+    from .solve import solve
+
+    # Names are checked before any work: a typo must not cost a solve.
+    out = _checked_target(args.output, (".glb",) if args.lightmap else MESH_FORMATS)
+    if args.lightmap:
+        from .image_io import LINEAR_FORMATS
+
+        lightmap_path = _checked_target(args.lightmap, tuple(LINEAR_FORMATS))
+    scene = load_scene(args.scene, args.max_edge)
+    print(f"scene: {scene!r}")
+    sol = solve(scene, whole_matrix(_form_factors(args, scene)), args.light)
+    print(f"solved: {sol.iterations} bounces, {len(args.light)} light(s) besides the emission")
+    t0 = time.perf_counter()
+    if not args.lightmap:
+        export_mesh(scene, sol.radiosity, out, exposure=args.exposure, crease_angle=args.crease_angle)
+        print(f"wrote {out} (vertex colours, {time.perf_counter() - t0:.2f} s)")
+        return 0
+    tpu = _texels_per_unit(args, scene)
+    lm = bake_lightmap(scene, sol.radiosity, tpu, padding=args.padding, crease_angle=args.crease_angle)
+    lm.write(lightmap_path)
+    lm.write_mesh(out, exposure=args.exposure, image_name=lightmap_path.name)
+    h, w = lm.shape
+    print(f"wrote {lightmap_path} ({w}x{h} texels at {tpu:g} per unit, {100 * lm.coverage:.0f}% in charts) and {out} "
+          f"(lightmap UVs in TEXCOORD_1, vertex colours) in {time.perf_counter() - t0:.2f} s")
+    return 0
+
+
 def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames) -> object:
     from .atomic import write_atomic
     from .walk import walk
@@ -431,10 +469,18 @@ def _add_look(p: argparse.ArgumentParser) -> None:
                         "flat: one value per patch (default smooth)")
     p.add_argument("--exposure", type=float, default=0.0, metavar="STOPS",
                    help="multiply the written image by 2**STOPS: brighter (positive) or darker (negative) (default 0)")
-    p.add_argument("--light", type=_point_light, action="append", default=[], metavar="X,Y,Z:R,G,B",
-                   help="add a point light at X,Y,Z with intensity R,G,B in W/sr (repeatable); emitting patches "
-                        "of the scene always shine")
+    _add_lights(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _add_lights(p: argparse.ArgumentParser) -> None:
+    from .lighttext import light_syntax
+
+    p.add_argument("--light", type=_light, action="append", default=[], metavar="KIND:FIELD=VALUE;...",
+                   help="add a light (repeatable, any mix of kinds; quote it: ';' ends a shell command), e.g. "
+                        "'point:pos=278,500,280;intensity=5e4' or 'sun:dir=0.3,-1,0.2;irradiance=800'. Kinds: "
+                        f"{light_syntax()}. X,Y,Z:R,G,B is a point light too. Emitting patches of the scene always "
+                        "shine")
 
 
 def _add_dynamic(p: argparse.ArgumentParser, local_size: int = 1024) -> None:
@@ -537,6 +583,32 @@ def build_parser() -> argparse.ArgumentParser:
     _add_look(p)
     _add_form_factors(p)
     p.set_defaults(func=_cmd_render)
+
+    p = sub.add_parser("bake", help="bake a full radiosity solution into a mesh other tools open",
+                       description="Solve the radiosity of SCENE over all patches (emitting patches plus any --light) "
+                                   "and write it where Blender, game engines and web viewers read it: per-vertex "
+                                   "colours (OUT.glb or OUT.ply, smooth across each surface, split at creases and "
+                                   "material borders), or with --lightmap a linear float lightmap image plus OUT.glb "
+                                   "carrying its UVs. Linear radiosity is stored unscaled; the 8-bit or clipped "
+                                   "display colours use --exposure, stated in the file's metadata.")
+    _add_scene(p)
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="the mesh: .glb (glTF 2.0) or .ply; .glb with --lightmap")
+    p.add_argument("--lightmap", metavar="IMAGE", default=None,
+                   help="also bake a lightmap into IMAGE (.exr recommended; .hdr/.tif/.pfm are linear too); "
+                        "OUT then holds its UVs (TEXCOORD_1)")
+    p.add_argument("--texels-per-unit", type=_positive_float, default=None, metavar="T",
+                   help="lightmap texels per scene unit of length (default: about a 1024x1024 lightmap)")
+    p.add_argument("--padding", type=_positive_int, default=2, metavar="PX",
+                   help="lightmap texels between charts, filled by dilation (default 2)")
+    p.add_argument("--crease-angle", type=float, default=30.0, metavar="DEG",
+                   help="never smooth across a sharper angle (default 30)")
+    p.add_argument("--exposure", type=float, default=0.0, metavar="STOPS",
+                   help="display colours are radiosity * 2**STOPS (default 0; log2(1/pi) = -1.65 shows radiance)")
+    _add_lights(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    _add_form_factors(p)
+    p.set_defaults(func=_cmd_bake)
 
     p = sub.add_parser("walk", help="walk a camera path through a scene with dynamic radiosity",
                        description="Follow the camera path in FILE through SCENE: per frame the local multibounce "

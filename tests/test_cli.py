@@ -34,7 +34,7 @@ def assert_one_line_error(code, err, *needles):
 def test_every_option_of_every_subcommand_is_explained():
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")
-    assert set(sub.choices) == {"info", "demo", "formfactors", "render", "walk", "compare"}
+    assert set(sub.choices) == {"info", "demo", "formfactors", "render", "walk", "compare", "bake"}
     for name, p in sub.choices.items():
         assert p.description, name
         for action in p._actions:

@@ -185,8 +185,9 @@ def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int):
     a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
     area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
     ok = np.abs(area2) > 1e-12
-    lo = np.floor(corners.min(axis=1) - 0.5).astype(np.int64)
-    hi = np.floor(corners.max(axis=1) + 0.5).astype(np.int64)
+    box_lo, box_hi = corners.min(axis=1), corners.max(axis=1)
+    lo = np.floor(box_lo - 0.5).astype(np.int64)
+    hi = np.floor(box_hi + 0.5).astype(np.int64)
     lo = np.clip(lo, 0, [w - 1, h - 1])
     hi = np.clip(hi, 0, [w - 1, h - 1])
     span = (hi - lo + 1) * ok[:, None]
@@ -217,7 +218,10 @@ def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int):
             reach[:, k] = (np.abs(ex) + np.abs(ey)) * np.abs(inv)
         score = bary.min(axis=1)
         near = np.all(bary + reach >= 0, axis=1)  # a texel a bilinear lookup inside the triangle reads
-        touches = np.all(bary + 0.5 * reach >= 0, axis=1) & _bbox_overlap(px, py, A, B, C)
+        # The separating-axis test of texel square and triangle: the three edges, and the box axes.
+        touches = (np.all(bary + 0.5 * reach >= 0, axis=1)
+                   & np.all(np.abs(np.stack([px, py], axis=1) - np.clip(np.stack([px, py], axis=1), box_lo[tri],
+                                                                          box_hi[tri])) <= 0.5, axis=1))
         texel = ty * w + tx
         covered[texel[touches]] = True
         keep = near
@@ -235,14 +239,6 @@ def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int):
         best[texel] = score
         start = stop
     return image.reshape(h, w, 3), covered.reshape(h, w), np.isfinite(best).reshape(h, w)
-
-
-def _bbox_overlap(px, py, A, B, C) -> np.ndarray:
-    """Texel squares (centres px, py) that overlap the triangles' bounding boxes (the SAT's box axes)."""
-    xs = np.stack([A[:, 0], B[:, 0], C[:, 0]], axis=1)
-    ys = np.stack([A[:, 1], B[:, 1], C[:, 1]], axis=1)
-    return ((px + 0.5 >= xs.min(axis=1)) & (px - 0.5 <= xs.max(axis=1))
-            & (py + 0.5 >= ys.min(axis=1)) & (py - 0.5 <= ys.max(axis=1)))
 
 
 def _dilate(image: np.ndarray, filled: np.ndarray, rings: int) -> None:
