@@ -160,19 +160,49 @@ def _check_memory(texels: float, what: str) -> None:
                                f"of the {have / 2**30:.1f} GiB available; lower texels_per_unit")
 
 
+def _surfaces(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, int]:
+    """(N,) label of each face's surface (faces joined through shared smooth vertices), and their count."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rows = faces[:, [0, 1, 2]].reshape(-1)
+    cols = faces[:, [1, 2, 0]].reshape(-1)
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n_vertices, n_vertices))
+    n, labels = connected_components(graph, directed=False)
+    return labels[faces[:, 0]], n
+
+
 def _atlas(positions: np.ndarray, faces: np.ndarray, texels_per_unit: float, padding: int):
+    """(vertex, faces, uv, width, height): the atlas's vertices (each naming its smooth vertex),
+    the faces over them in the scene's patch order, their uv in [0, 1], and the image size."""
     import xatlas
 
+    # One xatlas mesh per surface: xatlas joins faces at coincident positions, which would let
+    # a chart span a material border (a road meeting grass) that the smooth vertices split.
+    surface, n_surfaces = _surfaces(faces, len(positions))
+    order = np.argsort(surface, kind="stable")
+    bounds = np.searchsorted(surface[order], np.arange(n_surfaces + 1))
     atlas = xatlas.Atlas()
-    atlas.add_mesh(positions, faces.astype(np.uint32))
+    members = []
+    for s in range(n_surfaces):
+        mine = order[bounds[s] : bounds[s + 1]]
+        used, local = np.unique(faces[mine], return_inverse=True)
+        atlas.add_mesh(positions[used], local.reshape(-1, 3).astype(np.uint32))
+        members.append((mine, used))
     pack = xatlas.PackOptions()
     pack.texels_per_unit = texels_per_unit
     pack.padding = padding
     pack.bilinear = True  # charts a full texel apart at least, so filtering never mixes two of them
     pack.resolution = 0  # one atlas, as large as the texel density needs
     atlas.generate(xatlas.ChartOptions(), pack)
-    vmapping, indices, uv = atlas[0]
-    return (vmapping.astype(np.int64), indices.reshape(-1, 3).astype(np.int64), uv.astype(np.float32),
+    vertex, uvs, out_faces, offset = [], [], np.empty_like(faces, dtype=np.int64), 0
+    for s, (mine, used) in enumerate(members):
+        vmapping, indices, uv = atlas[s]
+        out_faces[mine] = indices.reshape(-1, 3).astype(np.int64) + offset
+        vertex.append(used[vmapping])
+        uvs.append(uv)
+        offset += len(vmapping)
+    return (np.concatenate(vertex).astype(np.int64), out_faces, np.concatenate(uvs).astype(np.float32),
             int(atlas.width), int(atlas.height))
 
 
