@@ -1,10 +1,12 @@
 """Radiosity baked into a lightmap: a linear float texture over an automatic UV atlas.
 
-* **UVs** from xatlas (the PyPI package of Jonathan Young's library) over the scene's smooth
-  vertices (:mod:`pydynrad.smoothing`): the mesh is already split at creases and material
-  borders there, so no chart spans one, and xatlas packs the charts ``padding`` texels apart at
-  ``texels_per_unit`` texels per scene unit of length.
-* **Reconstruction**: every texel is the radiosity of its triangle at the texel's centre,
+* **UVs** from xatlas (the PyPI package of Jonathan Young's library), one xatlas mesh per
+  surface: faces joined through the scene's smooth vertices (:mod:`pydynrad.smoothing`), which
+  split at creases and material borders, so no chart spans one (xatlas alone joins coplanar
+  faces at coincident positions: a road and the grass beside it). xatlas packs all charts into
+  one image ``padding`` texels apart at ``texels_per_unit`` texels per scene unit of length.
+* **Reconstruction** (``kernels/lightmap.cl`` finds each texel's triangle, the host computes
+  the value in float64): every texel is the radiosity of its triangle at the texel's centre,
   interpolated linearly from the smooth-vertex values (what smooth shading in
   :func:`pydynrad.render` shows), not one flat value per patch. A texel within one texel of a
   triangle (one a bilinear lookup inside the triangle can reach) but whose centre lies outside
@@ -40,10 +42,11 @@ from .vertex import checked_mesh_path, mesh_bytes, mesh_metadata
 
 __all__ = ["Lightmap", "bake_lightmap", "BYTES_PER_TEXEL"]
 
-#: Host bytes a texel costs while baking: the image, its masks and the rasteriser's best scores.
-BYTES_PER_TEXEL = 12 + 4 + 4 + 2
-# Texel candidates the rasteriser handles at once (each costs ~100 bytes of temporaries).
-_CHUNK = 1 << 21
+#: Host bytes a texel costs while baking at most: the image, its owner triangle and masks, and
+#: for a filled texel its barycentrics and value temporaries (the device holds 9 bytes a texel).
+BYTES_PER_TEXEL = 12 + 4 + 2 + 160
+#: Most texels a lightmap may have: the kernels index texels with 32-bit integers.
+MAX_TEXELS = 2**31 - 1
 
 
 @dataclass
@@ -153,6 +156,9 @@ class _Named:
 
 
 def _check_memory(texels: float, what: str) -> None:
+    if texels > MAX_TEXELS:
+        raise OutOfMemoryError(f"a lightmap of {what} would have {texels:.3g} texels, more than the {MAX_TEXELS} "
+                               "the kernels can index; lower texels_per_unit")
     need = texels * BYTES_PER_TEXEL
     have = available_host_bytes()
     if need > have / 2:
@@ -206,69 +212,52 @@ def _atlas(positions: np.ndarray, faces: np.ndarray, texels_per_unit: float, pad
             int(atlas.width), int(atlas.height))
 
 
-def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int):
+def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int, device):
     """Per-texel value and masks from triangles ``corners`` (T, 3, 2) in texel units with
-    vertex ``values`` (T, 3, 3); see the module docstring for the rules."""
-    best = np.full(h * w, -np.inf, dtype=np.float32)
-    image = np.zeros((h * w, 3), dtype=np.float32)
-    covered = np.zeros(h * w, dtype=bool)
+    vertex ``values`` (T, 3, 3); see the module docstring and ``kernels/lightmap.cl``."""
+    import pyopencl as cl
+
+    n = len(corners)
     a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
     area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    ok = np.abs(area2) > 1e-12
-    box_lo, box_hi = corners.min(axis=1), corners.max(axis=1)
-    lo = np.floor(box_lo - 0.5).astype(np.int64)
-    hi = np.floor(box_hi + 0.5).astype(np.int64)
-    lo = np.clip(lo, 0, [w - 1, h - 1])
-    hi = np.clip(hi, 0, [w - 1, h - 1])
-    span = (hi - lo + 1) * ok[:, None]
-    count = span[:, 0] * span[:, 1]
-    ends = np.cumsum(count)
-    start = 0
-    while start < len(count):
-        stop = int(np.searchsorted(ends, (ends[start - 1] if start else 0) + _CHUNK, side="right"))
-        stop = max(stop, start + 1)
-        tri = np.repeat(np.arange(start, stop), count[start:stop])
-        if not len(tri):
-            start = stop
-            continue
-        local = np.arange(len(tri)) - np.repeat(ends[start:stop] - count[start:stop], count[start:stop])
-        tx = lo[tri, 0] + local % span[tri, 0]
-        ty = lo[tri, 1] + local // span[tri, 0]
-        px, py = tx + 0.5, ty + 0.5
-        # Barycentrics of the texel centre (signed: negative outside). Barycentric k grows by
-        # reach[k] per texel along the best axis direction, so a square of half-size s around
-        # the centre reaches into the triangle's side of edge k when bary + s * reach >= 0.
-        A, B, C = a[tri], b[tri], c[tri]
-        inv = 1.0 / area2[tri]
-        bary = np.empty((len(tri), 3))
-        reach = np.empty((len(tri), 3))
-        for k, (p, q) in enumerate(((B, C), (C, A), (A, B))):
-            ex, ey = q[:, 0] - p[:, 0], q[:, 1] - p[:, 1]
-            bary[:, k] = (ex * (py - p[:, 1]) - ey * (px - p[:, 0])) * inv
-            reach[:, k] = (np.abs(ex) + np.abs(ey)) * np.abs(inv)
-        score = bary.min(axis=1)
-        near = np.all(bary + reach >= 0, axis=1)  # a texel a bilinear lookup inside the triangle reads
-        # The separating-axis test of texel square and triangle: the three edges, and the box axes.
-        touches = (np.all(bary + 0.5 * reach >= 0, axis=1)
-                   & np.all(np.abs(np.stack([px, py], axis=1) - np.clip(np.stack([px, py], axis=1), box_lo[tri],
-                                                                          box_hi[tri])) <= 0.5, axis=1))
-        texel = ty * w + tx
-        covered[texel[touches]] = True
-        keep = near
-        texel, tri, bary, score = texel[keep], tri[keep], bary[keep], score[keep]
-        # The most-inside candidate per texel: sort by (texel, score), keep each texel's last.
-        order = np.lexsort((score, texel))
-        texel, tri, bary, score = texel[order], tri[order], bary[order], score[order]
-        last = np.r_[texel[1:] != texel[:-1], True]
-        texel, tri, bary, score = texel[last], tri[last], bary[last], score[last]
-        better = score > best[texel]
-        texel, tri, bary, score = texel[better], tri[better], bary[better], score[better]
-        v = values[tri]
-        lin = np.einsum("pk,pkc->pc", bary, v)
-        image[texel] = np.clip(lin, v.min(axis=1), v.max(axis=1))
-        best[texel] = score
-        start = stop
-    return image.reshape(h, w, 3), covered.reshape(h, w), np.isfinite(best).reshape(h, w)
+    lo = np.clip(np.floor(corners.min(axis=1) - 0.5), 0, [w - 1, h - 1]).astype(np.int64)
+    hi = np.clip(np.floor(corners.max(axis=1) + 0.5), 0, [w - 1, h - 1]).astype(np.int64)
+    box = np.zeros((n, 4), dtype=np.int32)
+    box[:, :2] = lo
+    box[:, 2:] = (hi - lo + 1) * (np.abs(area2) > 1e-12)[:, None]  # a zero-area triangle reaches nothing
+    # Corners relative to their box, so float32 keeps a fraction of a texel's precision anywhere in the image.
+    rel = np.ascontiguousarray((corners - lo[:, None, :]).astype(np.float32))
+    mf = cl.mem_flags
+    d_box, d_corner = device.to_device(box), device.to_device(rel.reshape(-1, 2))
+    d_best = cl.Buffer(device.context, mf.READ_WRITE, 4 * h * w)
+    d_owner = cl.Buffer(device.context, mf.READ_WRITE, 4 * h * w)
+    d_covered = cl.Buffer(device.context, mf.READ_WRITE, h * w)
+    cl.enqueue_fill_buffer(device.queue, d_best, np.int32(np.iinfo(np.int32).min), 0, 4 * h * w)
+    cl.enqueue_fill_buffer(device.queue, d_owner, np.int32(-1), 0, 4 * h * w)
+    cl.enqueue_fill_buffer(device.queue, d_covered, np.uint8(0), 0, h * w)
+    size = (-(-n // 64) * 64,)
+    device.kernel("lightmap.cl", "lightmap_best")(device.queue, size, None, np.int32(n), d_box, d_corner,
+                                                  np.int32(w), d_best, d_covered)
+    device.kernel("lightmap.cl", "lightmap_owner")(device.queue, size, None, np.int32(n), d_box, d_corner,
+                                                   np.int32(w), d_best, d_owner)
+    owner = np.empty(h * w, dtype=np.int32)
+    covered = np.empty(h * w, dtype=np.uint8)
+    cl.enqueue_copy(device.queue, owner, d_owner)
+    cl.enqueue_copy(device.queue, covered, d_covered, is_blocking=True)
+    # Values on the host in float64, from the owner's corners: the texel centre's barycentrics,
+    # the plane beyond the triangle kept within its corner values.
+    texel = np.flatnonzero(owner >= 0)
+    tri = owner[texel]
+    px, py = texel % w + 0.5, texel // w + 0.5
+    inv = 1.0 / area2[tri]
+    bary = np.empty((len(tri), 3))
+    for k, (p, q) in enumerate(((b, c), (c, a), (a, b))):
+        p0, p1, q0, q1 = p[tri, 0], p[tri, 1], q[tri, 0], q[tri, 1]
+        bary[:, k] = ((q0 - p0) * (py - p1) - (q1 - p1) * (px - p0)) * inv
+    image = np.zeros((h * w, 3), dtype=np.float32)
+    lin = sum(bary[:, k, None] * values[tri, k] for k in range(3))
+    image[texel] = np.clip(lin, values.min(axis=1)[tri], values.max(axis=1)[tri])
+    return image.reshape(h, w, 3), covered.reshape(h, w).astype(bool), (owner >= 0).reshape(h, w)
 
 
 def _dilate(image: np.ndarray, filled: np.ndarray, rings: int) -> None:
@@ -276,23 +265,26 @@ def _dilate(image: np.ndarray, filled: np.ndarray, rings: int) -> None:
     the mean of their filled 8-neighbours."""
     h, w = filled.shape
     for _ in range(rings):
-        total = np.zeros((h + 2, w + 2, 3))
-        count = np.zeros((h + 2, w + 2))
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dx or dy:
-                    sl = (slice(1 + dy, h + 1 + dy), slice(1 + dx, w + 1 + dx))
-                    total[sl] += image * filled[:, :, None]
-                    count[sl] += filled
-        total, count = total[1:-1, 1:-1], count[1:-1, 1:-1]
+        weight = np.zeros((h + 2, w + 2), dtype=np.float32)
+        weight[1:-1, 1:-1] = filled
+        masked = np.zeros((h + 2, w + 2, 3), dtype=np.float32)
+        masked[1:-1, 1:-1] = image * weight[1:-1, 1:-1, None]
+        total = np.zeros((h, w, 3), dtype=np.float32)
+        count = np.zeros((h, w), dtype=np.float32)
+        for dy in (0, 1, 2):
+            for dx in (0, 1, 2):
+                if (dx, dy) != (1, 1):
+                    total += masked[dy : dy + h, dx : dx + w]
+                    count += weight[dy : dy + h, dx : dx + w]
         grow = ~filled & (count > 0)
         if not grow.any():
             break
-        image[grow] = (total[grow] / count[grow][:, None]).astype(np.float32)
+        image[grow] = total[grow] / count[grow][:, None]
         filled |= grow
 
 
-def bake_lightmap(scene, radiosity, texels_per_unit: float, *, padding: int = 2, crease_angle: float = 30.0) -> Lightmap:
+def bake_lightmap(scene, radiosity, texels_per_unit: float, *, padding: int = 2, crease_angle: float = 30.0,
+                  device=None) -> Lightmap:
     """Bake a radiosity solution into a lightmap.
 
     Parameters
@@ -308,6 +300,8 @@ def bake_lightmap(scene, radiosity, texels_per_unit: float, *, padding: int = 2,
         Texels between charts (>= 1), filled by dilation.
     crease_angle : float
         Degrees; see :func:`pydynrad.render`.
+    device : Device, optional
+        Runs the rasterising kernels (``kernels/lightmap.cl``); the process default when omitted.
 
     Returns
     -------
@@ -327,7 +321,9 @@ def bake_lightmap(scene, radiosity, texels_per_unit: float, *, padding: int = 2,
     _check_memory(float(w) * h, f"{w}x{h} texels")
     vertex_values = values[vmapping]
     corners = (uv.astype(np.float64) * [w, h])[faces]
-    image, covered, filled = _rasterise(corners, vertex_values[faces], h, w)
+    from ..device import default_device
+
+    image, covered, filled = _rasterise(corners, vertex_values[faces], h, w, device or default_device())
     _dilate(image, filled, int(padding))
     return Lightmap(image=image, covered=covered, filled=filled, uv=uv, faces=faces, vertex=vmapping,
                     vertex_radiosity=vertex_values, positions=smooth.positions[vmapping], texels_per_unit=tpu,
