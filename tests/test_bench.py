@@ -109,3 +109,11 @@ def test_cli_writes_report(tmp_path, device):
 def test_whole_suite_tiny(tmp_path, device):
     results, written = suite.run_suite("tiny", None, tmp_path, device=device, progress=False, strict=True)
     _check_report(results, written, list(suite.SECTIONS))
+
+
+def test_bake_section_tiny(tmp_path, device):
+    results, written = suite.run_suite("tiny", ["bake"], tmp_path, device=device, progress=False, strict=True)
+    _check_report(results, written, ["bake"])
+    bake = results["sections"]["bake"]["tables"][1]["rows"][0]
+    # Coverage is a fraction, and the seam error inside charts is below the one at their borders.
+    assert 0 < bake[3] < 1 and bake[7] < bake[10]
