@@ -198,3 +198,26 @@ def brute_force_hits(vertices, origins, directions, chunk: int = 128) -> Hits:
         bary[sl] = np.where(hit[:, None], np.stack([1 - bu - bw, bu, bw], axis=1), 0.0)
     margin = np.where(patch >= 0, bary.min(axis=1), np.inf)
     return Hits(patch, t_near, front, second, bary, margin)
+
+
+# -- the command line ----------------------------------------------------------------------------
+def run_main(argv, capsys):
+    """pydynrad.cli.main(argv) -> (exit code, stdout, stderr); argparse's own exits count as exit codes."""
+    from pydynrad.cli import main
+
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line_error(code, err, *needles):
+    """A user error: exit status 2 and one line on stderr holding every needle, no traceback."""
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for n in needles:
+        assert n in lines[0], lines[0]

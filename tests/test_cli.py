@@ -3,32 +3,13 @@ import sys
 
 import numpy as np
 import pytest
-from helpers import same_csr
+from helpers import assert_one_line_error, run_main, same_csr
 
 import pydynrad
 
-from pydynrad.cli import build_parser, main
+from pydynrad.cli import build_parser
 from pydynrad.rows.files import load_form_factors, open_form_factors
 from pydynrad.scenes import cornell_box
-
-
-def run_main(argv, capsys):
-    """main(argv) -> (exit code, stdout, stderr); argparse's own exits count as exit codes."""
-    try:
-        code = main(argv)
-    except SystemExit as exc:
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def assert_one_line_error(code, err, *needles):
-    assert code == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    for n in needles:
-        assert n in lines[0], lines[0]
 
 
 def test_every_option_of_every_subcommand_is_explained():

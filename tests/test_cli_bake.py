@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 import trimesh
-from test_cli import assert_one_line_error, run_main
+from helpers import assert_one_line_error, run_main
 
 import pydynrad
 from pydynrad import DirectionalLight, InvalidInputError, PointLight, SpotLight

@@ -217,6 +217,8 @@ def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int, device):
     vertex ``values`` (T, 3, 3); see the module docstring and ``kernels/lightmap.cl``."""
     import pyopencl as cl
 
+    from ..launch import global_size
+
     n = len(corners)
     a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
     area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
@@ -235,7 +237,7 @@ def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int, device):
     cl.enqueue_fill_buffer(device.queue, d_best, np.int32(np.iinfo(np.int32).min), 0, 4 * h * w)
     cl.enqueue_fill_buffer(device.queue, d_owner, np.int32(-1), 0, 4 * h * w)
     cl.enqueue_fill_buffer(device.queue, d_covered, np.uint8(0), 0, h * w)
-    size = (-(-n // 64) * 64,)
+    size = (global_size(n),)
     device.kernel("lightmap.cl", "lightmap_best")(device.queue, size, None, np.int32(n), d_box, d_corner,
                                                   np.int32(w), d_best, d_covered)
     device.kernel("lightmap.cl", "lightmap_owner")(device.queue, size, None, np.int32(n), d_box, d_corner,
