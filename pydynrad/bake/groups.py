@@ -17,7 +17,7 @@ return a :class:`GroupRadiosity`, whose :meth:`~GroupRadiosity.combine` is the o
     B = per_group.combine({"sun": 0.3, "lamps": (1.0, 0.8, 0.6)}) # dusk: one weighted sum
 
 Weights may be any finite numbers (a negative one subtracts a group: the result then need not
-be non-negative, so a solve of it would be refused). See docs/design.md, 'Lights'.
+be non-negative, so a solve of it would be refused). See docs/design.md, 'Baking'.
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ Texel (x, y) covers ``[x, x+1] x [y, y+1]`` in texel units, row 0 at the top of 
 a vertex's ``uv`` is its texel position divided by (width, height), so ``(0, 0)`` is the
 image's top-left corner, glTF's convention.
 
-See docs/design.md, 'Renderer' (smoothing groups).
+See docs/design.md, 'Baking'.
 """
 
 from __future__ import annotations
@@ -73,6 +73,8 @@ class Lightmap:
         Position of each lightmap vertex, scene units.
     texels_per_unit, padding, crease_angle :
         The parameters it was baked with.
+    scene_name, n_patches :
+        The scene it was baked from, for the metadata of :meth:`write_mesh`.
     """
 
     image: np.ndarray
@@ -134,25 +136,13 @@ class Lightmap:
         (the second set, where engines look for lightmaps), vertex colours as :func:`export_mesh`
         writes them, and the lightmap's size, texel density and file name in the metadata."""
         path = checked_mesh_path(path, (".glb",))
-        meta = mesh_metadata(_Named(self.scene_name, self.n_patches), number(exposure, "exposure"), self.crease_angle)
+        meta = mesh_metadata(self.scene_name, self.n_patches, number(exposure, "exposure"), self.crease_angle)
         h, w = self.shape
         meta["lightmap"] = {"image": image_name, "width": w, "height": h, "texels_per_unit": self.texels_per_unit,
                             "padding_texels": self.padding, "uv_set": "TEXCOORD_1 (TEXCOORD_0 holds the same)",
                             "uv_origin": "top-left of the image, v down"}
-        data = mesh_bytes(path, _Named(self.scene_name, self.n_patches), self.positions, self.faces,
-                          self.vertex_radiosity, meta, uv=self.uv)
+        data = mesh_bytes(path, self.positions, self.faces, self.vertex_radiosity, meta, uv=self.uv)
         return write_checked(path, data)
-
-
-@dataclass(frozen=True)
-class _Named:
-    """What the file writers read of a scene (its name and size), for a lightmap without one."""
-
-    name: str
-    n: int
-
-    def __len__(self) -> int:
-        return self.n
 
 
 def _check_memory(texels: float, what: str) -> None:

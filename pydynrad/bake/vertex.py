@@ -16,7 +16,7 @@ Formats, by the path's extension:
 
 Either file states the exposure, the encoding and the units in its metadata (glTF
 ``asset.extras["pydynrad"]``, PLY header comments). Files are written whole and checked
-(:func:`pydynrad.bake.files.write_checked`).
+(:func:`pydynrad.bake.files.write_checked`). See docs/design.md, 'Baking'.
 """
 
 from __future__ import annotations
@@ -48,11 +48,11 @@ def checked_mesh_path(path, formats: tuple[str, ...] = MESH_FORMATS) -> Path:
     return check_parent_folder(path)
 
 
-def mesh_metadata(scene, exposure: float, crease_angle: float) -> dict:
+def mesh_metadata(scene_name: str, n_patches: int, exposure: float, crease_angle: float) -> dict:
     """What a baked file's values mean, for its metadata."""
     return {
-        "scene": scene.name,
-        "patches": len(scene),
+        "scene": scene_name,
+        "patches": n_patches,
         "triangles": "triangle i is patch i of the scene",
         "length_unit": "the scene's own unit (not rescaled to metres)",
         "radiosity": "linear radiosity (radiant exitance, the unit of the scene's emission); radiance is radiosity / pi",
@@ -67,7 +67,7 @@ def display_values(radiosity: np.ndarray, exposure: float) -> np.ndarray:
     return np.clip(radiosity * 2.0**exposure, 0.0, 1.0).astype(np.float32)
 
 
-def mesh_bytes(path: Path, scene, positions, faces, radiosity, meta: dict, uv=None) -> bytes:
+def mesh_bytes(path: Path, positions, faces, radiosity, meta: dict, uv=None) -> bytes:
     """The GLB or PLY file (by ``path``'s extension) of a mesh with per-vertex ``radiosity`` (V, 3)
     and, for GLB, lightmap coordinates ``uv`` (V, 2) as ``TEXCOORD_0`` and ``TEXCOORD_1``."""
     shown = display_values(radiosity, meta["exposure"])
@@ -77,7 +77,7 @@ def mesh_bytes(path: Path, scene, positions, faces, radiosity, meta: dict, uv=No
             # glTF numbers UV sets from 0: engines take lightmaps from the second set, and the
             # scene has no texture coordinates of its own to put in the first.
             attributes["TEXCOORD_0"] = attributes["TEXCOORD_1"] = uv
-        return glb_bytes(faces, attributes, {"pydynrad": meta}, name=scene.name)
+        return glb_bytes(faces, attributes, {"pydynrad": meta}, name=meta["scene"])
     if uv is not None:
         raise InvalidInputError(f"a lightmap's mesh needs two UV sets: write it as .glb, not {path.suffix}")
     eight_bit = np.round(srgb_encode(shown) * 255.0).astype(np.uint8)
@@ -114,5 +114,5 @@ def export_mesh(scene, radiosity, path, *, exposure: float = 0.0, crease_angle: 
     exposure = number(exposure, "exposure")
     smooth = smooth_vertices(scene, crease_angle)
     values = smooth.radiosity(radiosity)
-    meta = mesh_metadata(scene, exposure, float(crease_angle))
-    return write_checked(path, mesh_bytes(path, scene, smooth.positions, smooth.corner_vertex, values, meta))
+    meta = mesh_metadata(scene.name, len(scene), exposure, float(crease_angle))
+    return write_checked(path, mesh_bytes(path, smooth.positions, smooth.corner_vertex, values, meta))
