@@ -333,7 +333,8 @@ def _cmd_bake(args: argparse.Namespace) -> int:
     lm.write_mesh(out, exposure=args.exposure, image_name=lightmap_path.name)
     h, w = lm.shape
     print(f"wrote {lightmap_path} ({w}x{h} texels at {tpu:g} per unit, {100 * lm.coverage:.0f}% in charts) and {out} "
-          f"(lightmap UVs in TEXCOORD_1, vertex colours) in {time.perf_counter() - t0:.2f} s")
+          f"(lightmap UVs in TEXCOORD_1, the lightmap embedded as 8-bit sRGB at the exposure) in "
+          f"{time.perf_counter() - t0:.2f} s")
     return 0
 
 
@@ -589,7 +590,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and write it where Blender, game engines and web viewers read it: per-vertex "
                                    "colours (OUT.glb or OUT.ply, smooth across each surface, split at creases and "
                                    "material borders), or with --lightmap a linear float lightmap image plus OUT.glb "
-                                   "carrying its UVs. Linear radiosity is stored unscaled; the 8-bit or clipped "
+                                   "carrying its UVs and an 8-bit copy of it any glTF viewer shows. Linear radiosity is stored unscaled; the 8-bit or clipped "
                                    "display colours use --exposure, stated in the file's metadata.")
     _add_scene(p)
     p.add_argument("-o", "--output", required=True, metavar="OUT",

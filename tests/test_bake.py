@@ -261,3 +261,15 @@ def test_lightmap_refuses_bad_input(solved, lightmap, tmp_path):
     with pytest.raises(InvalidInputError, match=r"\.glb"):
         lightmap.write_mesh(tmp_path / "lm.ply")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_lightmap_mesh_embeds_the_exposed_srgb_lightmap_for_viewers(lightmap, tmp_path):
+    mesh = _load_one(lightmap.write_mesh(tmp_path / "box.glb", exposure=-6.0))
+    texture = np.asarray(mesh.visual.material.baseColorTexture.convert("RGB"))
+    np.testing.assert_array_equal(texture, np.round(_srgb(lightmap.image.astype(np.float64) * 2.0**-6) * 255))
+    doc, attributes, _ = read_glb((tmp_path / "box.glb").read_bytes())
+    assert doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["texCoord"] == 1
+    assert "COLOR_0" not in attributes and "sRGB" in doc["asset"]["extras"]["pydynrad"]["lightmap"]["embedded"]
+    # Without the texture, the vertex colours take its place.
+    _, attributes, _ = read_glb(lightmap.write_mesh(tmp_path / "plain.glb", embed=False).read_bytes())
+    assert "COLOR_0" in attributes and "images" not in read_glb((tmp_path / "plain.glb").read_bytes())[0]

@@ -3,7 +3,7 @@
 One buffer, one mesh, one primitive of triangles with uint32 indices; every vertex attribute
 is float32 (glTF's ``POSITION``, ``COLOR_0``, ``TEXCOORD_n``, or an application attribute
 whose name starts with ``_``). The material is unlit (``KHR_materials_unlit``) so viewers show
-baked light as stored, not lit again. ``extras`` goes into ``asset.extras``: the place for
+baked light as stored, not lit again; it may carry one embedded PNG texture. ``extras`` goes into ``asset.extras``: the place for
 what the values mean (units, exposure, encoding).
 
 See https://registry.khronos.org/glTF/specs/2.0/glTF-2.0.html, 'GLB File Format Specification'.
@@ -23,6 +23,7 @@ __all__ = ["glb_bytes", "read_glb"]
 _MAGIC, _JSON, _BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
 _FLOAT, _UINT = 5126, 5125
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+_LINEAR, _CLAMP = 9729, 33071
 _TYPES = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
 _WIDTH = {v: k for k, v in _TYPES.items()}
 
@@ -31,7 +32,8 @@ def _padded(data: bytes, fill: bytes) -> bytes:
     return data + fill * (-len(data) % 4)
 
 
-def glb_bytes(faces: np.ndarray, attributes: dict, extras: dict, name: str = "mesh", generator: str = "pydynrad") -> bytes:
+def glb_bytes(faces: np.ndarray, attributes: dict, extras: dict, name: str = "mesh", generator: str = "pydynrad",
+              texture: bytes | None = None, texcoord: int = 0) -> bytes:
     """The GLB file of one mesh.
 
     Parameters
@@ -42,6 +44,9 @@ def glb_bytes(faces: np.ndarray, attributes: dict, extras: dict, name: str = "me
         Must hold ``"POSITION"`` (V, 3); every array has the same V.
     extras : dict
         JSON-serialisable description stored as ``asset.extras``.
+    texture : bytes, optional
+        A PNG file, embedded as the material's base colour (an unlit material shows it as it
+        is), looked up bilinearly, clamped to the edge, through ``TEXCOORD_<texcoord>``.
     """
     positions = attributes["POSITION"]
     n_vertices = len(positions)
@@ -67,6 +72,15 @@ def glb_bytes(faces: np.ndarray, attributes: dict, extras: dict, name: str = "me
             raise InvalidInputError(f"glTF attribute {key} must be ({n_vertices}, 1..4); got {a.shape}")
         named[key] = add(a, _FLOAT, _ARRAY_BUFFER, _TYPES[a.shape[1]], bounds=key == "POSITION")
     indices = add(np.asarray(faces, dtype=np.uint32).reshape(-1), _UINT, _ELEMENT_ARRAY_BUFFER, "SCALAR")
+    pbr = {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0.0, "roughnessFactor": 1.0}
+    images = {}
+    if texture is not None:
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(texture)})
+        blob.extend(_padded(texture, b"\0"))
+        pbr["baseColorTexture"] = {"index": 0, "texCoord": texcoord}
+        images = {"images": [{"bufferView": len(views) - 1, "mimeType": "image/png"}],
+                  "samplers": [{"magFilter": _LINEAR, "minFilter": _LINEAR, "wrapS": _CLAMP, "wrapT": _CLAMP}],
+                  "textures": [{"source": 0, "sampler": 0}]}
     doc = {
         "asset": {"version": "2.0", "generator": generator, "extras": extras},
         "extensionsUsed": ["KHR_materials_unlit"],
@@ -74,9 +88,8 @@ def glb_bytes(faces: np.ndarray, attributes: dict, extras: dict, name: str = "me
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": name}],
         "meshes": [{"name": name, "primitives": [{"attributes": named, "indices": indices, "material": 0, "mode": 4}]}],
-        "materials": [{"name": "baked", "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0.0,
-                                                                   "roughnessFactor": 1.0},
-                       "extensions": {"KHR_materials_unlit": {}}}],
+        "materials": [{"name": "baked", "pbrMetallicRoughness": pbr, "extensions": {"KHR_materials_unlit": {}}}],
+        **images,
         "buffers": [{"byteLength": len(blob)}],
         "bufferViews": views,
         "accessors": accessors,

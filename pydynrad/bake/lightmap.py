@@ -131,18 +131,36 @@ class Lightmap:
                                     f"not {str(path)!r}")
         return write_image(path, self.image)
 
-    def write_mesh(self, path, *, exposure: float = 0.0, image_name: str | None = None) -> Path:
+    def write_mesh(self, path, *, exposure: float = 0.0, image_name: str | None = None, embed: bool = True) -> Path:
         """Write the lightmap's mesh as .glb: the lightmap UVs as ``TEXCOORD_0`` and ``TEXCOORD_1``
-        (the second set, where engines look for lightmaps), vertex colours as :func:`export_mesh`
-        writes them, and the lightmap's size, texel density and file name in the metadata."""
+        (the second set, where engines look for lightmaps), the linear vertex radiosity as
+        ``_RADIOSITY``, and the lightmap's size, texel density and file name in the metadata.
+
+        ``embed``: the lightmap goes into the file as an 8-bit PNG, ``image * 2**exposure``
+        clipped to [0, 1] and sRGB-encoded, the unlit material's base colour, so any glTF viewer
+        shows it (the linear values are in the image :meth:`write` writes); otherwise the
+        vertex colours of :func:`export_mesh` are written instead."""
         path = checked_mesh_path(path, (".glb",))
-        meta = mesh_metadata(self.scene_name, self.n_patches, number(exposure, "exposure"), self.crease_angle)
+        exposure = number(exposure, "exposure")
+        meta = mesh_metadata(self.scene_name, self.n_patches, exposure, self.crease_angle)
         h, w = self.shape
         meta["lightmap"] = {"image": image_name, "width": w, "height": h, "texels_per_unit": self.texels_per_unit,
                             "padding_texels": self.padding, "uv_set": "TEXCOORD_1 (TEXCOORD_0 holds the same)",
                             "uv_origin": "top-left of the image, v down"}
-        data = mesh_bytes(path, self.positions, self.faces, self.vertex_radiosity, meta, uv=self.uv)
+        texture = None
+        if embed:
+            texture = self._png(exposure)
+            meta["lightmap"]["embedded"] = ("base colour texture: 8-bit PNG of radiosity * 2**exposure clipped to "
+                                            "[0, 1], sRGB-encoded; no COLOR_0 (glTF would multiply it in)")
+        data = mesh_bytes(path, self.positions, self.faces, self.vertex_radiosity, meta, uv=self.uv, texture=texture)
         return write_checked(path, data)
+
+    def _png(self, exposure: float) -> bytes:
+        """The image as an exposed, sRGB-encoded 8-bit PNG file's bytes."""
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as tmp:
+            return write_image(Path(tmp) / "lightmap.png", self.image, exposure).read_bytes()
 
 
 def _check_memory(texels: float, what: str) -> None:

@@ -10,7 +10,8 @@ Formats, by the path's extension:
 
 * ``.glb`` (glTF 2.0): ``_RADIOSITY``, float32 linear radiosity (unclipped, the unit of the
   scene's emission); ``COLOR_0``, float32 linear ``radiosity * 2**exposure`` clipped to
-  [0, 1] (glTF colours are linear; viewers clamp), on an unlit material;
+  [0, 1] (glTF colours are linear; viewers clamp), on an unlit material (a lightmap's mesh,
+  :meth:`~pydynrad.bake.lightmap.Lightmap.write_mesh`, shows its embedded lightmap instead);
 * ``.ply``: float32 ``radiosity_r/g/b`` (linear, unclipped) and the 8-bit ``red green blue``
   viewers show: ``radiosity * 2**exposure`` clipped to [0, 1] and sRGB-encoded.
 
@@ -67,17 +68,20 @@ def display_values(radiosity: np.ndarray, exposure: float) -> np.ndarray:
     return np.clip(radiosity * 2.0**exposure, 0.0, 1.0).astype(np.float32)
 
 
-def mesh_bytes(path: Path, positions, faces, radiosity, meta: dict, uv=None) -> bytes:
+def mesh_bytes(path: Path, positions, faces, radiosity, meta: dict, uv=None, texture: bytes | None = None) -> bytes:
     """The GLB or PLY file (by ``path``'s extension) of a mesh with per-vertex ``radiosity`` (V, 3)
-    and, for GLB, lightmap coordinates ``uv`` (V, 2) as ``TEXCOORD_0`` and ``TEXCOORD_1``."""
+    and, for GLB, lightmap coordinates ``uv`` (V, 2) as ``TEXCOORD_0`` and ``TEXCOORD_1``, and
+    a PNG ``texture`` seen through ``TEXCOORD_1`` in place of the vertex colours."""
     shown = display_values(radiosity, meta["exposure"])
     if path.suffix.lower() == ".glb":
-        attributes = {"POSITION": positions, "COLOR_0": shown, "_RADIOSITY": radiosity}
+        attributes = {"POSITION": positions, "_RADIOSITY": radiosity}
+        if texture is None:  # glTF multiplies COLOR_0 into the base colour texture: one or the other
+            attributes["COLOR_0"] = shown
         if uv is not None:
             # glTF numbers UV sets from 0: engines take lightmaps from the second set, and the
             # scene has no texture coordinates of its own to put in the first.
             attributes["TEXCOORD_0"] = attributes["TEXCOORD_1"] = uv
-        return glb_bytes(faces, attributes, {"pydynrad": meta}, name=meta["scene"])
+        return glb_bytes(faces, attributes, {"pydynrad": meta}, name=meta["scene"], texture=texture, texcoord=1)
     if uv is not None:
         raise InvalidInputError(f"a lightmap's mesh needs two UV sets: write it as .glb, not {path.suffix}")
     eight_bit = np.round(srgb_encode(shown) * 255.0).astype(np.uint8)
