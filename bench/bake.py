@@ -4,14 +4,15 @@ the lightmap's error against ``render`` along chart borders.
 The radiosity baked is the village's light vector under a low sun plus its emission
 (``light_vector``: direct light with hard shadows, no bounces): export and bake time do not
 depend on the values, and hard shadow edges are the hardest field for a lightmap's
-reconstruction, so the seam error here bounds a smoother solution's.
+reconstruction (a pessimistic case for the seam error).
 
 Seam error: one view of the village is rendered with smooth shading (``Renderer.shade``) and
 again by looking the lightmap up bilinearly (``Lightmap.sample``) at the same surface points
-through the lightmap UVs. A pixel is at a chart border when a texel its lookup reads can lie beyond the chart: its surface point is within one texel of an edge of
-the chart's outline (a lightmap triangle edge no other triangle shares); otherwise it is inside. Errors are max over RGB of |lightmap - render|,
-relative to the 99th percentile of the rendered values (dark pixels would make a per-pixel
-ratio meaningless).
+through the lightmap UVs. A pixel is at a chart border when a texel its lookup reads can lie
+beyond the chart: its surface point is within one texel of an edge of the chart's outline (a
+lightmap triangle edge no other triangle shares); otherwise it is inside. Errors are max over
+RGB of |lightmap - render|, relative to the 99th percentile of the rendered values (dark
+pixels would make a per-pixel ratio meaningless).
 """
 
 from __future__ import annotations
@@ -93,7 +94,8 @@ def bake_section(ctx) -> dict:
 
     p = {**SIZES[ctx.size], **ctx.params}
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    scene = ctx.cached(("village", tuple(sorted(p["village"].items()))), lambda: pydynrad.scenes.village(**p["village"]))
+    key = ("village", tuple(sorted(p["village"].items())))
+    scene = ctx.cached(key, lambda: pydynrad.scenes.village(**p["village"]))
     B = pydynrad.light_vector(scene, [pydynrad.DirectionalLight(**SUN)], device=ctx.device)
     camera = _view(scene, *p["image"])
     export_rows, bake_rows = [], []
@@ -111,14 +113,16 @@ def bake_section(ctx) -> dict:
             t_write = time.perf_counter() - t0
             h, w = lm.shape
             e = _border_errors(scene, lm, B, camera, ctx.device)
-            bake_rows.append([tpu, w, h, lm.coverage, t_bake, t_write, e["border_fraction"], *e["inside"], *e["border"]])
+            bake_rows.append([tpu, w, h, lm.coverage, t_bake, t_write, e["border_fraction"], *e["inside"],
+                              *e["border"]])
     return {
         "title": "Baking: vertex colours and lightmaps of the village",
         "description": (
             f"Village, {len(scene)} patches, lengths in metres; the radiosity baked is direct sunlight plus "
             "emission (see bench/bake.py). Export: `export_mesh` to GLB and PLY, cold = first call (smoothing "
             "groups computed), warm = median of 3 (groups cached). Lightmap: `bake_lightmap` (xatlas atlas, "
-            "rasterising, dilation; groups cached; median of 2 after one warm-up) and writing its EXR and GLB (each read back and checked). "
+            "rasterising, dilation; groups cached; median of 2 after one warm-up) and writing its EXR and GLB "
+            "(each read back and checked). "
             f"Seam error over {p['image'][0]}x{p['image'][1]} pixels of one view, relative to the render's 99th "
             f"percentile: inside charts vs at chart borders. Host load average at the start: {load:.1f} "
             f"on {os.cpu_count()} CPUs (times on a shared machine vary by 2-3x)."

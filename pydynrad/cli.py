@@ -590,8 +590,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and write it where Blender, game engines and web viewers read it: per-vertex "
                                    "colours (OUT.glb or OUT.ply, smooth across each surface, split at creases and "
                                    "material borders), or with --lightmap a linear float lightmap image plus OUT.glb "
-                                   "carrying its UVs and an 8-bit copy of it any glTF viewer shows. Linear radiosity is stored unscaled; the 8-bit or clipped "
-                                   "display colours use --exposure, stated in the file's metadata.")
+                                   "carrying its UVs and an 8-bit copy of it any glTF viewer shows. Linear radiosity "
+                                   "is stored unscaled; the 8-bit or clipped display colours use --exposure, stated "
+                                   "in the file's metadata.")
     _add_scene(p)
     p.add_argument("-o", "--output", required=True, metavar="OUT",
                    help="the mesh: .glb (glTF 2.0) or .ply; .glb with --lightmap")

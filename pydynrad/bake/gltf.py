@@ -3,8 +3,8 @@
 One buffer, one mesh, one primitive of triangles with uint32 indices; every vertex attribute
 is float32 (glTF's ``POSITION``, ``COLOR_0``, ``TEXCOORD_n``, or an application attribute
 whose name starts with ``_``). The material is unlit (``KHR_materials_unlit``) so viewers show
-baked light as stored, not lit again; it may carry one embedded PNG texture. ``extras`` goes into ``asset.extras``: the place for
-what the values mean (units, exposure, encoding).
+baked light as stored, not lit again; it may carry one embedded PNG texture. ``extras`` goes
+into ``asset.extras``: the place for what the values mean (units, exposure, encoding).
 
 See https://registry.khronos.org/glTF/specs/2.0/glTF-2.0.html, 'GLB File Format Specification'.
 """

@@ -51,7 +51,8 @@ def _weights(names: tuple[str, ...], weights) -> np.ndarray:
     else:
         seq = list(weights)
         if len(seq) != len(names):
-            raise InvalidInputError(f"give one weight per light group ({len(names)}: {', '.join(names)}); got {len(seq)}")
+            raise InvalidInputError(f"give one weight per light group ({len(names)}: {', '.join(names)}); "
+                                    f"got {len(seq)}")
         items = list(enumerate(seq))
     for i, value in items:
         w = floats(value, f"the weight of light group {names[i]!r}")

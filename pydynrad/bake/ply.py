@@ -63,7 +63,8 @@ def read_ply(data: bytes) -> tuple[list[str], dict, np.ndarray]:
         vdtype = np.dtype(fields)
         n_v, n_f = counts["vertex"], counts["face"]
         vertices = np.frombuffer(data, dtype=vdtype, count=n_v, offset=end)
-        rows = np.frombuffer(data, dtype=[("n", "u1"), ("v", "<i4", (3,))], count=n_f, offset=end + n_v * vdtype.itemsize)
+        rows = np.frombuffer(data, dtype=[("n", "u1"), ("v", "<i4", (3,))], count=n_f,
+                             offset=end + n_v * vdtype.itemsize)
         if np.any(rows["n"] != 3) or end + n_v * vdtype.itemsize + rows.nbytes != len(data):
             raise ValueError("faces are not triangles or the file's length is wrong")
     except (ValueError, KeyError, IndexError, UnicodeDecodeError) as exc:

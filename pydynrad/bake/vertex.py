@@ -56,7 +56,8 @@ def mesh_metadata(scene_name: str, n_patches: int, exposure: float, crease_angle
         "patches": n_patches,
         "triangles": "triangle i is patch i of the scene",
         "length_unit": "the scene's own unit (not rescaled to metres)",
-        "radiosity": "linear radiosity (radiant exitance, the unit of the scene's emission); radiance is radiosity / pi",
+        "radiosity": ("linear radiosity (radiant exitance, the unit of the scene's emission); "
+                      "radiance is radiosity / pi"),
         "exposure": exposure,
         "display_encoding": "radiosity * 2**exposure, clipped to [0, 1]; 8-bit values are sRGB-encoded (IEC 61966-2-1)",
         "crease_angle_degrees": crease_angle,
