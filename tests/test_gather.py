@@ -214,24 +214,33 @@ def test_store_refuses_other_clusters(box, tmp_path, device):
         plain.cluster_rows([0])
 
 
-def test_g_for_each_kind_of_row_source(box, tmp_path, device):
-    """A store's own G (also through a row cache), F Pr from F in memory, hemicubes on demand;
-    a store without G or of another scene is refused."""
+def test_g_for_each_kind_of_row_source(box, tmp_path, device, monkeypatch):
+    """A store's own G (also through a row cache), cluster-id hemicubes for on-demand rows, and
+    F Pr from the source's own rows otherwise (F in memory, a store of F alone); a store with
+    neither G nor all of F, one of another scene or other clusters is refused."""
     from pydynrad import CSRRows, HemicubeRows, RowCache
-    from pydynrad.farfield.gather import cluster_form_factors_for
+    from pydynrad.farfield import gather
 
     scene, labels, G = box
     store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8,
                           compute_f=False, progress=False, device=device)
-    assert same_csr(cluster_form_factors_for(scene, store, labels), G)
-    assert same_csr(cluster_form_factors_for(scene, RowCache(store, 2**20), labels), G)
-    assert same_csr(cluster_form_factors_for(scene, HemicubeRows(scene, 64, device), labels, resolution=8, device=device), G)
+    assert same_csr(gather.cluster_form_factors_for(scene, store, labels), G)
+    assert same_csr(gather.cluster_form_factors_for(scene, RowCache(store, 2**20), labels), G)
+    on_demand = HemicubeRows(scene, 64, device)
+    assert same_csr(gather.cluster_form_factors_for(scene, on_demand, labels, resolution=8, device=device), G)
     F = form_factors(scene, resolution=8, device=device)
-    assert_float32_equal(cluster_form_factors_for(scene, CSRRows(F), labels), F.astype(np.float64) @ indicator(labels))
-    with pytest.raises(StoreMismatchError, match="other clusters"):
-        cluster_form_factors_for(scene, store, scene.source_face // 2)
+    Pr = indicator(labels)
+    assert_float32_equal(gather.cluster_form_factors_for(scene, CSRRows(F), labels), F.astype(np.float64) @ Pr)
     plain = compute_store(scene, tmp_path / "f", resolution=8, block_rows=48, progress=False, device=device)
-    with pytest.raises(StoreIncompleteError, match="holds no patch-to-cluster"):
-        cluster_form_factors_for(scene, plain, labels)
+    monkeypatch.setattr(gather, "SUM_BLOCK_ROWS", 40)  # several blocks, across the store's blocks of 48 rows
+    summed = gather.cluster_form_factors_for(scene, RowCache(plain, 2**20), labels)
+    assert same_csr(summed, gather.cluster_form_factors_for(scene, CSRRows(F), labels))
+    with pytest.raises(StoreMismatchError, match="other clusters"):
+        gather.cluster_form_factors_for(scene, store, scene.source_face // 2)
+    plain.block_path(1).unlink()
+    with pytest.raises(StoreIncompleteError, match="holds no patch-to-cluster form factors G and only part of F"):
+        gather.cluster_form_factors_for(scene, plain, labels)
     with pytest.raises(InvalidInputError, match="another scene"):
-        cluster_form_factors_for(closed_box(2.0, subdivisions=2), store, labels)
+        gather.cluster_form_factors_for(closed_box(2.0, subdivisions=2), store, labels)
+    with pytest.raises(InvalidInputError, match="rows; the scene has"):
+        gather.cluster_form_factors_for(scene, CSRRows(F[:10, :10]), labels)

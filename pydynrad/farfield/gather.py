@@ -125,31 +125,57 @@ def cluster_form_factors(scene, prolongation, resolution: int = CLUSTER_RESOLUTI
     return stack_blocks(blocks, C)
 
 
+#: Rows per block when G is summed from a row source's rows of F (bounded memory).
+SUM_BLOCK_ROWS = 4096
+
+
 def cluster_form_factors_for(scene, source, clusters, resolution: int = CLUSTER_RESOLUTION, device=None,
                              progress: bool | None = None) -> sp.csr_matrix:
-    """The whole (N, C) G for a dynamic solution's form factors, F never formed.
+    """The whole (N, C) G for a dynamic solution's source of F's rows, F never held whole.
 
-    ``source`` is what :class:`~pydynrad.DynamicRadiosity` reads F's rows from: a
-    :class:`~pydynrad.rows.store.FormFactorStore` (or a :class:`~pydynrad.RowCache` over one)
-    must hold G for these clusters (else :class:`~pydynrad.StoreIncompleteError` or
-    :class:`~pydynrad.StoreMismatchError`); F in memory (:class:`~pydynrad.CSRRows`) gives
-    F Pr exactly; any other source (the on-demand :class:`~pydynrad.HemicubeRows`) gets G from
-    cluster-id hemicubes of ``resolution``. ``clusters``: Pr (N, C), (N,) labels or a
-    :class:`pydynrad.farfield.Clusters`. Returns float32 CSR.
+    ``source`` is what :class:`~pydynrad.DynamicRadiosity` reads F's rows from:
+
+    * a :class:`~pydynrad.rows.store.FormFactorStore` (or a :class:`~pydynrad.RowCache` over
+      one) holding G gives its G, checked to be for these clusters
+      (:class:`~pydynrad.StoreMismatchError` otherwise);
+    * the on-demand :class:`~pydynrad.HemicubeRows` gets G from cluster-id hemicubes of
+      ``resolution`` (:func:`cluster_form_factors`);
+    * any other source (F in memory, a store of F without G) gets F Pr from its own rows,
+      :data:`SUM_BLOCK_ROWS` at a time, so G agrees with that F; a store with neither G nor all
+      of F raises :class:`~pydynrad.StoreIncompleteError`.
+
+    ``clusters``: Pr (N, C), (N,) labels or a :class:`pydynrad.farfield.Clusters`.
+    Returns float32 CSR.
     """
-    from ..rows.sources import CSRRows
-    from ..rows.store import FormFactorStore
+    from ..progress import progress_bar
+    from ..rows.sources import HemicubeRows
+    from ..rows.store import FormFactorStore, StoreIncompleteError
 
-    pr = as_prolongation(clusters, len(checked_scene(scene)))
+    n = len(checked_scene(scene))
+    pr = as_prolongation(clusters, n)
     inner = source
-    while not isinstance(inner, FormFactorStore) and hasattr(inner, "source"):
-        inner = inner.source  # through row caches
+    while not isinstance(inner, (FormFactorStore, HemicubeRows)) and hasattr(inner, "source"):
+        inner = inner.source  # through row caches: a whole pass over F would only evict them
+    if getattr(inner, "n_patches", None) != n:
+        raise InvalidInputError(f"the form factors have {getattr(inner, 'n_patches', None)} rows; the scene has {n} patches")
+    if isinstance(inner, HemicubeRows):
+        return cluster_form_factors(scene, pr, resolution, device=device, progress=progress)
     if isinstance(inner, FormFactorStore):
         if inner.header["geometry_hash"] != scene.geometry_hash():
             raise InvalidInputError(f"form-factor store {inner.path} was made for another scene geometry")
-        return inner.cluster_form_factors(pr)
-    if isinstance(inner, CSRRows):
-        if inner.n_patches != pr.shape[0]:
-            raise InvalidInputError(f"F has {inner.n_patches} rows; the scene has {pr.shape[0]} patches")
-        return stack_blocks([inner.matrix.astype(np.float64) @ pr], pr.shape[1])
-    return cluster_form_factors(scene, pr, resolution, device=device, progress=progress)
+        if inner.has_clusters:
+            return inner.cluster_form_factors(pr)
+        missing = inner.missing_blocks()
+        if missing:
+            raise StoreIncompleteError(
+                f"form-factor store {inner.path} holds no patch-to-cluster form factors G and only part of F "
+                f"({len(missing)} of {inner.n_blocks} blocks missing); add G with compute_store(..., clusters=...) or "
+                "`pydynrad formfactors SCENE -o STORE --clusters ...`")
+    starts = range(0, n, SUM_BLOCK_ROWS)
+    with progress_bar(progress, long=n > 8 * SUM_BLOCK_ROWS, total=n, unit="row", desc="far field G") as bar:
+        blocks = []
+        for first in starts:
+            rows = np.arange(first, min(n, first + SUM_BLOCK_ROWS))
+            blocks.append(sp.csr_matrix(inner.rows(rows), dtype=np.float64) @ pr)
+            bar.update(len(rows))
+    return stack_blocks(blocks, pr.shape[1])
