@@ -65,8 +65,8 @@ class BVH:
     order : (N,) int32
         Patch index of each triangle in BVH order.
     tris : (N, 12) float32
-        Per triangle in BVH order: ``v0, 0, e1, 0, e2, 0`` (e1 = v1 - v0, e2 = v2 - v0),
-        laid out as three float4 for the Moller-Trumbore test in the kernel.
+        Per triangle in BVH order: its corners ``v0, 0, v1, 0, v2, 0`` as three float4, for
+        the watertight test in the kernel (shared corners stay bit-identical).
     """
 
     nodes: np.ndarray
@@ -87,6 +87,14 @@ class BVH:
         tris = np.empty((n, 12), dtype=np.float32)
         n_nodes = _bvh.build(v.reshape(-1), nodes, order, tris)
         nodes = nodes[:n_nodes].copy()
+        # Boxes grown by 8 float32 ulps of the largest coordinate: the watertight triangle test
+        # works in each ray's own frame, whose axis differs from the ray by rounding (~1e-7 rad),
+        # so near an edge it can pick the triangle whose exact box the ray just misses (at grazing
+        # angles, by far more than a relative margin on t would cover).
+        pad = np.float32(2.0**-20 * float(np.abs(v).max()))
+        boxes = nodes[:, :24].reshape(-1, 3, 2, WIDTH)  # a view: (node, axis, min/max, child)
+        boxes[:, :, 0] -= pad
+        boxes[:, :, 1] += pad
         depth = _depth(nodes)
         if depth > MAX_DEPTH:
             raise InvalidInputError(
