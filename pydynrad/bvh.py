@@ -146,9 +146,10 @@ class BVH:
         return uploads[name]
 
 
-def _rays(origins, directions, tmax) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    o = np.ascontiguousarray(origins, dtype=np.float32)
-    d = np.ascontiguousarray(directions, dtype=np.float32)
+def _rays(origins, directions, tmax, frame=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Checked float32 rays, moved into ``frame`` (a scene's DeviceFrame; t is unchanged) if given."""
+    o = np.ascontiguousarray(origins if frame is None else frame.points(origins), dtype=np.float32)
+    d = np.ascontiguousarray(directions if frame is None else frame.directions(directions), dtype=np.float32)
     if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
         raise InvalidInputError(f"origins and directions must both have shape (n, 3); got {o.shape} and {d.shape}")
     # min/max propagate NaN and expose inf without a temporary the size of the batch.
@@ -165,12 +166,13 @@ def _rays(origins, directions, tmax) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def _resolve(scene_or_bvh, device):
+    """(bvh, device, frame): a Scene's BVH lives in the scene's DeviceFrame, a bare BVH in the rays' own."""
     from .device import default_device
 
     bvh = scene_or_bvh if isinstance(scene_or_bvh, BVH) else getattr(scene_or_bvh, "bvh", None)
     if not isinstance(bvh, BVH):
         raise InvalidInputError(f"expected a Scene or a BVH; got {type(scene_or_bvh).__name__}")
-    return bvh, device or default_device()
+    return bvh, device or default_device(), None if bvh is scene_or_bvh else scene_or_bvh.frame
 
 
 def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -191,8 +193,8 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
     """
     import pyopencl as cl
 
-    bvh, dev = _resolve(scene_or_bvh, device)
-    o, d, tm = _rays(origins, directions, tmax)
+    bvh, dev, frame = _resolve(scene_or_bvh, device)
+    o, d, tm = _rays(origins, directions, tmax, frame)
     n = len(o)
     patch, t, front = np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.int8)
     if n == 0:
@@ -213,8 +215,8 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
     """(n,) bool: True where any triangle lies on ``origins + t * directions``, ``0 < t < tmax``."""
     import pyopencl as cl
 
-    bvh, dev = _resolve(scene_or_bvh, device)
-    o, d, tm = _rays(origins, directions, tmax)
+    bvh, dev, frame = _resolve(scene_or_bvh, device)
+    o, d, tm = _rays(origins, directions, tmax, frame)
     n = len(o)
     out = np.zeros(n, np.int8)
     if n == 0:

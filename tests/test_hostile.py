@@ -16,6 +16,7 @@ import scipy.sparse as sp
 import pydynrad
 from pydynrad.checks import sparse_structure
 from pydynrad.errors import InvalidInputError
+from pydynrad.render import Renderer
 
 
 @pytest.fixture(scope="module")
@@ -157,3 +158,53 @@ def test_closed_boxes_rows_sum_to_one_at_every_resolution(device, size, subdivis
         sums = np.asarray(F.sum(axis=1)).ravel()
         # float32 pixel weights summed: the observed worst is 2.4e-7.
         assert np.abs(sums - 1).max() < 1e-6, (R, int(np.argmax(np.abs(sums - 1))), np.abs(sums - 1).max())
+
+
+# Far from the origin and at extreme scales: the device frame (docs/design.md, 'Device frame').
+SHIFT = np.array([1.0, -0.5, 0.25])
+
+
+def _moved_box(scale, offset, albedo=0.5, emission=1.0):
+    base = pydynrad.scenes.closed_box(subdivisions=1)
+    return pydynrad.Scene(base.points * scale + offset * SHIFT, base.triangles, albedo=albedo, emission=emission)
+
+
+@pytest.mark.parametrize("scale, offset", [(1e-6, 0.0), (1e6, 0.0), (1.0, 1e6), (1.0, 1e7), (1e-3, 1e4), (1e6, -1e7),
+                                           (1e-15, 0.0), (1e14, 0.0)])
+def test_furnace_far_from_origin_and_at_extreme_scales(device, scale, offset):
+    # Closed box, albedo 0.5, emission 1: B = E / (1 - rho) = 2 everywhere. Before the device
+    # frame a unit box at 1e6 gave 1.961 and its F was empty at 1e14 or 1e-15.
+    scene = _moved_box(scale, offset)
+    F = pydynrad.form_factors(scene, resolution=16, device=device)
+    B = pydynrad.solve(scene, F, device=device).radiosity
+    assert np.abs(B / 2 - 1).max() < 1e-4  # observed 5.4e-7 at every scale and offset
+
+
+@pytest.mark.parametrize("scale, offset", [(1.0, 0.0), (1e-4, 1e3), (1e3, 1e7)])
+def test_point_light_and_rays_in_the_users_frame(device, scale, offset):
+    scene = _moved_box(scale, offset, emission=0.0)
+    light = scene.bbox.mean(axis=0) + 0.1 * scale
+    E = pydynrad.direct_irradiance(scene, [pydynrad.PointLight(light, 5.0)], device=device)[:, 0]
+    # Nothing inside a convex box occludes: E = I cos / r^2 in float64.
+    to_light = light - scene.centers
+    r = np.linalg.norm(to_light, axis=1)
+    expected = 5.0 * np.einsum("ij,ij->i", scene.normals.astype(np.float64), to_light) / r**3
+    np.testing.assert_allclose(E, expected, rtol=1e-5)
+    # A ray from the light to each patch centre stops there: t = 1 for directions of that length.
+    patch, t, front = pydynrad.bvh.cast_rays(scene, np.broadcast_to(light, to_light.shape), -to_light, device=device)
+    np.testing.assert_allclose(t, 1.0, rtol=1e-5)
+    assert front.all() and np.mean(patch == np.arange(len(scene))) > 0.99  # a centre may sit on an edge
+    # Depth from the renderer in the user's unit: the box is [0, scale]^3 shifted.
+    cam = pydynrad.Camera(light, light + [1.0, 0.0, 0.0], up=(0, 0, 1), fov_y=10.0, width=8, height=8)
+    depth = Renderer(scene, device=device).visibility(cam).depth
+    wall_x = scale + offset * SHIFT[0]
+    assert np.abs(depth.min() / (wall_x - light[0]) - 1) < 1e-3  # the centre pixels are off-axis by < fov
+
+
+def test_patches_too_small_for_float32_warn():
+    base = pydynrad.scenes.closed_box(subdivisions=0)
+    tiny = np.array([[0.5, 0.5, 0.5], [0.5 + 1e-7, 0.5, 0.5], [0.5, 0.5 + 1e-7, 0.5]])
+    points = np.concatenate([base.points, tiny])
+    triangles = np.concatenate([base.triangles, [[len(base.points), len(base.points) + 1, len(base.points) + 2]]])
+    with pytest.warns(pydynrad.scene.PrecisionWarning, match="1 patch"):
+        pydynrad.Scene(points, triangles)
