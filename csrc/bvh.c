@@ -19,7 +19,7 @@
  *   nodes  : writable float32 buffer of at least max(1, N)*32 values
  *   order  : writable int32 buffer of N values, filled with the triangle permutation
  *   packed : writable float32 buffer of N*12 values, filled in BVH order with
- *            v0, 0, e1, 0, e2, 0 (e1 = v1 - v0, e2 = v2 - v0, rounded once from double)
+ *            v0, 0, v1, 0, v2, 0 (the corners, so shared corners stay bit-identical)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -257,11 +257,8 @@ static int32_t build_binary(const float *tris, int32_t n, Node *nodes, int32_t *
         const float *v = tris + 9 * (size_t)k;
         float *out = packed + 12 * (size_t)i;
         order[i] = k;
-        for (int a = 0; a < 3; ++a) {
-            out[a] = v[a];
-            out[4 + a] = (float)((double)v[3 + a] - (double)v[a]);
-            out[8 + a] = (float)((double)v[6 + a] - (double)v[a]);
-        }
+        for (int c = 0; c < 3; ++c)
+            for (int a = 0; a < 3; ++a) out[4 * c + a] = v[3 * c + a];
         out[3] = out[7] = out[11] = 0.0f;
     }
     free(prims);

@@ -5,7 +5,9 @@
 //        minx, maxx, miny, maxy, minz, maxz (one float4 per plane, a lane per child), then
 //        the child references as int bits, then padding. child > 0: a wide node; 0: an empty
 //        slot (inverted box, never entered); < 0: a leaf ~(first << 3 | (count - 1)).
-// tris : 3 float4 per triangle in BVH order: v0, e1 = v1 - v0, e2 = v2 - v0.
+// tris : 3 float4 per triangle in BVH order: its corners v0, v1, v2 (w unused). Corners, not
+//        edges: two triangles sharing an edge then see bit-identical endpoints, which the
+//        watertight test below needs.
 // order: patch index of each triangle in BVH order.
 #ifndef PYDYNRAD_BVH_CL
 #define PYDYNRAD_BVH_CL
@@ -14,11 +16,6 @@
 // Traversal stack: a wide node pushes at most four children and the walk pops one, so a tree
 // of D wide levels needs 3 D + 1 entries; pydynrad/bvh.py refuses deeper trees (MAX_DEPTH).
 #define BVH_STACK 96
-
-// Barycentric slack of the triangle test: a ray through the edge shared by two triangles
-// could otherwise slip between them in float32 (a leak in a closed scene). Relative to the
-// triangle (dimensionless), so a near-edge ray hits both and the nearer wins.
-#define BVH_EDGE_EPS 1e-6f
 
 // The hot loops below use operators, not OpenCL builtins (fmin, fma, dot, cross, select).
 // PoCL's kernel library can be compiled for a CPU whose features differ from the device's
@@ -41,27 +38,65 @@ typedef struct {
     int front;   // 1 when the ray hits the triangle's front (the side its normal faces)
 } Hit;
 
-// Moller-Trumbore, double-sided; updates hit when closer than hit->t.
-inline bool bvh_tri_hit(__global const float4 *tris, int k, float3 org, float3 dir, float tmin, Hit *hit)
+// ---- Watertight ray-triangle test (Woop, Benthin and Wald 2013, "Watertight Ray/Triangle
+// Intersection", JCGT 2(1)), in a per-ray frame instead of their axis permutation ----
+//
+// Each corner is moved into the ray's frame once, from the same float32 corner and ray by
+// the same arithmetic, so a corner shared by two triangles lands on the same 2-D point (X, Y)
+// in both. The sign of each edge function X_a Y_b - Y_a X_b is then exact or zero (rounding
+// is monotone, and with contraction off both products are rounded alike), and an edge shared
+// by two triangles gets exactly opposite values from them. A ray through a shared edge or
+// corner therefore hits at least one of the triangles (zeros count as inside): no leaks in a
+// closed mesh, no slack. The frame is (P, Q, D / |D|) with P, Q perpendicular to D (Duff et
+// al. 2017, branchless), in place of Woop et al.'s shear along the dominant axis, which would
+// need a per-lane permutation in ray packets. t comes from the same barycentrics (hit point
+// = (U A + V B + W C) / det, dotted with D / |D|^2).
+
+// The edge function of corners a -> b; contraction off so that edge(a, b) == -edge(b, a) bit
+// for bit (an FMA would round the two products differently).
+inline float bvh_edge(float ax, float ay, float bx, float by)
 {
-    float3 v0 = tris[3 * k].xyz, e1 = tris[3 * k + 1].xyz, e2 = tris[3 * k + 2].xyz;
-    float3 p = BVH_CROSS(dir, e2);
-    float det = BVH_DOT(e1, p);
+#pragma OPENCL FP_CONTRACT OFF
+    return ax * by - ay * bx;
+}
+
+// The ray's frame: P, Q (unit, perpendicular to dir and to each other, right-handed with dir),
+// and dir / |dir|^2 (a corner's dot with it is its distance along the ray in units of |dir|).
+typedef struct {
+    float3 p, q, w;
+} RayFrame;
+
+inline RayFrame bvh_ray_frame(float3 dir)
+{
+    float3 d = dir * rsqrt(BVH_DOT(dir, dir));
+    float sg = copysign(1.0f, d.z);
+    float a = -1.0f / (sg + d.z), b = d.x * d.y * a;
+    RayFrame f;
+    f.p = (float3)(1.0f + sg * d.x * d.x * a, sg * b, -sg * d.x);
+    f.q = (float3)(b, sg + d.y * d.y * a, -d.y);
+    f.w = dir / BVH_DOT(dir, dir);
+    return f;
+}
+
+// Double-sided; updates hit when closer than hit->t.
+inline bool bvh_tri_hit(__global const float4 *tris, int k, float3 org, const RayFrame *f, float tmin, Hit *hit)
+{
+    float3 a = tris[3 * k].xyz - org, b = tris[3 * k + 1].xyz - org, c = tris[3 * k + 2].xyz - org;
+    float ax = BVH_DOT(a, f->p), ay = BVH_DOT(a, f->q);
+    float bx = BVH_DOT(b, f->p), by = BVH_DOT(b, f->q);
+    float cx = BVH_DOT(c, f->p), cy = BVH_DOT(c, f->q);
+    float U = bvh_edge(cx, cy, bx, by), V = bvh_edge(ax, ay, cx, cy), W = bvh_edge(bx, by, ax, ay);
+    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return false;
+    float det = U + V + W;
     if (det == 0.0f) return false;
     float inv = 1.0f / det;
-    float3 s = org - v0;
-    float u = BVH_DOT(s, p) * inv;
-    if (u < -BVH_EDGE_EPS || u > 1.0f + BVH_EDGE_EPS) return false;
-    float3 q = BVH_CROSS(s, e1);
-    float v = BVH_DOT(dir, q) * inv;
-    if (v < -BVH_EDGE_EPS || u + v > 1.0f + BVH_EDGE_EPS) return false;
-    float t = BVH_DOT(e2, q) * inv;
+    float t = (U * BVH_DOT(a, f->w) + V * BVH_DOT(b, f->w) + W * BVH_DOT(c, f->w)) * inv;
     if (t <= tmin || t >= hit->t) return false;
     hit->t = t;
-    hit->u = u;
-    hit->v = v;
+    hit->u = V * inv;
+    hit->v = W * inv;
     hit->patch = k;            // BVH order until bvh_closest maps it to the patch index
-    hit->front = det > 0.0f;   // det = -dot(dir, e1 x e2): positive when dir opposes the normal
+    hit->front = det > 0.0f;   // the frame keeps handedness: det > 0 when dir opposes the normal
     return true;
 }
 
@@ -111,6 +146,7 @@ inline Hit bvh_walk(__global const float4 *nodes, __global const float4 *tris, f
                     float tmin, float tmax, bool any_hit)
 {
     Hit hit = {tmax, 0.0f, 0.0f, -1, 0};
+    RayFrame frame = bvh_ray_frame(dir);
     float3 inv = bvh_inv_dir(dir), oi = org * inv;
     int nx = inv.x < 0.0f, ny = 2 + (inv.y < 0.0f), nz = 4 + (inv.z < 0.0f);
     int fx = nx ^ 1, fy = ny ^ 1, fz = nz ^ 1;
@@ -119,7 +155,7 @@ inline Hit bvh_walk(__global const float4 *nodes, __global const float4 *tris, f
     for (;;) {
         if (ref < 0) {
             for (int k = BVH_LEAF_FIRST(ref), end = k + BVH_LEAF_SIZE(ref); k < end; ++k)
-                if (bvh_tri_hit(tris, k, org, dir, tmin, &hit) && any_hit) return hit;
+                if (bvh_tri_hit(tris, k, org, &frame, tmin, &hit) && any_hit) return hit;
         } else {
             __global const float4 *n = nodes + BVH_NODE * ref;
             float4 enter = BVH_MAX(BVH_MAX(n[nx] * inv.x - oi.x, n[ny] * inv.y - oi.y),
@@ -191,6 +227,36 @@ typedef struct {
     bvh_intP patch, front;  // patch -1 on a miss
 } HitPacket;
 
+// RayFrame per lane (bvh_ray_frame, same arithmetic).
+typedef struct {
+    bvh_floatP px, py, pz, qx, qy, qz, wx, wy, wz;
+} RayFrameP;
+
+inline RayFrameP bvh_ray_frame_p(const RayPacket *r)
+{
+    bvh_floatP len2 = r->dx * r->dx + r->dy * r->dy + r->dz * r->dz, s = rsqrt(len2), il2 = 1.0f / len2;
+    bvh_floatP x = r->dx * s, y = r->dy * s, z = r->dz * s;
+    bvh_floatP sg = copysign((bvh_floatP)1.0f, z);
+    bvh_floatP a = -1.0f / (sg + z), b = x * y * a;
+    RayFrameP f;
+    f.px = 1.0f + sg * x * x * a;
+    f.py = sg * b;
+    f.pz = -sg * x;
+    f.qx = b;
+    f.qy = sg + y * y * a;
+    f.qz = -y;
+    f.wx = r->dx * il2;
+    f.wy = r->dy * il2;
+    f.wz = r->dz * il2;
+    return f;
+}
+
+inline bvh_floatP bvh_edge_p(bvh_floatP ax, bvh_floatP ay, bvh_floatP bx, bvh_floatP by)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    return ax * by - ay * bx;
+}
+
 // Per-lane slab constants: inverse direction and origin * inverse direction.
 typedef struct {
     bvh_floatP ix, iy, iz, oix, oiy, oiz;
@@ -216,27 +282,27 @@ inline float bvh_child_entry_p(__global const float4 *n, int c, const BvhSlabs *
     return bvh_hminP(enter <= leave ? enter : (bvh_floatP)INFINITY);
 }
 
-// bvh_tri_hit for every lane at once (same arithmetic, same edge slack).
-inline void bvh_tri_hit_p(__global const float4 *tris, int k, const RayPacket *r, float tmin, HitPacket *h)
+// bvh_tri_hit for every lane at once (same arithmetic).
+inline void bvh_tri_hit_p(__global const float4 *tris, int k, const RayPacket *r, const RayFrameP *f, float tmin,
+                          HitPacket *h)
 {
-    float4 v0 = tris[3 * k], e1 = tris[3 * k + 1], e2 = tris[3 * k + 2];
-    bvh_floatP px = r->dy * e2.z - r->dz * e2.y;
-    bvh_floatP py = r->dz * e2.x - r->dx * e2.z;
-    bvh_floatP pz = r->dx * e2.y - r->dy * e2.x;
-    bvh_floatP det = e1.x * px + e1.y * py + e1.z * pz;
+    float4 v0 = tris[3 * k], v1 = tris[3 * k + 1], v2 = tris[3 * k + 2];
+    bvh_floatP ax = v0.x - r->ox, ay = v0.y - r->oy, az = v0.z - r->oz;
+    bvh_floatP bx = v1.x - r->ox, by = v1.y - r->oy, bz = v1.z - r->oz;
+    bvh_floatP cx = v2.x - r->ox, cy = v2.y - r->oy, cz = v2.z - r->oz;
+    bvh_floatP aX = ax * f->px + ay * f->py + az * f->pz, aY = ax * f->qx + ay * f->qy + az * f->qz;
+    bvh_floatP bX = bx * f->px + by * f->py + bz * f->pz, bY = bx * f->qx + by * f->qy + bz * f->qz;
+    bvh_floatP cX = cx * f->px + cy * f->py + cz * f->pz, cY = cx * f->qx + cy * f->qy + cz * f->qz;
+    bvh_floatP U = bvh_edge_p(cX, cY, bX, bY), V = bvh_edge_p(aX, aY, cX, cY), W = bvh_edge_p(bX, bY, aX, aY);
+    bvh_floatP det = U + V + W;
     bvh_floatP inv = 1.0f / det;
-    bvh_floatP sx = r->ox - v0.x, sy = r->oy - v0.y, sz = r->oz - v0.z;
-    bvh_floatP u = (sx * px + sy * py + sz * pz) * inv;
-    bvh_floatP qx = sy * e1.z - sz * e1.y;
-    bvh_floatP qy = sz * e1.x - sx * e1.z;
-    bvh_floatP qz = sx * e1.y - sy * e1.x;
-    bvh_floatP v = (r->dx * qx + r->dy * qy + r->dz * qz) * inv;
-    bvh_floatP t = (e2.x * qx + e2.y * qy + e2.z * qz) * inv;
-    bvh_intP ok = (det != 0.0f) & (u >= -BVH_EDGE_EPS) & (u <= 1.0f + BVH_EDGE_EPS) & (v >= -BVH_EDGE_EPS)
-                  & (u + v <= 1.0f + BVH_EDGE_EPS) & (t > tmin) & (t < h->t);
+    bvh_floatP t = (U * (ax * f->wx + ay * f->wy + az * f->wz) + V * (bx * f->wx + by * f->wy + bz * f->wz)
+                    + W * (cx * f->wx + cy * f->wy + cz * f->wz)) * inv;
+    bvh_intP ok = (((U >= 0.0f) & (V >= 0.0f) & (W >= 0.0f)) | ((U <= 0.0f) & (V <= 0.0f) & (W <= 0.0f)))
+                  & (det != 0.0f) & (t > tmin) & (t < h->t);
     h->t = ok ? t : h->t;
-    h->u = ok ? u : h->u;
-    h->v = ok ? v : h->v;
+    h->u = ok ? V * inv : h->u;
+    h->v = ok ? W * inv : h->v;
     h->patch = ok ? (bvh_intP)k : h->patch;
     h->front = ok ? (bvh_intP)1 & (det > 0.0f) : h->front;
 }
@@ -248,6 +314,7 @@ inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const
                                     __global const int *order, const RayPacket *r, float tmin, bvh_floatP tmax)
 {
     HitPacket h = {tmax, (bvh_floatP)0.0f, (bvh_floatP)0.0f, (bvh_intP)(-1), (bvh_intP)0};
+    RayFrameP frame = bvh_ray_frame_p(r);
     BvhSlabs s;
     s.ix = bvh_inv_p(r->dx);
     s.iy = bvh_inv_p(r->dy);
@@ -260,7 +327,7 @@ inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const
     for (;;) {
         if (ref < 0) {
             for (int k = BVH_LEAF_FIRST(ref), end = k + BVH_LEAF_SIZE(ref); k < end; ++k)
-                bvh_tri_hit_p(tris, k, r, tmin, &h);
+                bvh_tri_hit_p(tris, k, r, &frame, tmin, &h);
         } else {
             __global const float4 *n = nodes + BVH_NODE * ref;
             int4 child = as_int4(n[6]);

@@ -65,8 +65,8 @@ class BVH:
     order : (N,) int32
         Patch index of each triangle in BVH order.
     tris : (N, 12) float32
-        Per triangle in BVH order: ``v0, 0, e1, 0, e2, 0`` (e1 = v1 - v0, e2 = v2 - v0),
-        laid out as three float4 for the Moller-Trumbore test in the kernel.
+        Per triangle in BVH order: its corners ``v0, 0, v1, 0, v2, 0`` as three float4, for
+        the watertight test in the kernel (shared corners stay bit-identical).
     """
 
     nodes: np.ndarray
@@ -87,6 +87,14 @@ class BVH:
         tris = np.empty((n, 12), dtype=np.float32)
         n_nodes = _bvh.build(v.reshape(-1), nodes, order, tris)
         nodes = nodes[:n_nodes].copy()
+        # Boxes grown by 8 float32 ulps of the largest coordinate: the watertight triangle test
+        # works in each ray's own frame, whose axis differs from the ray by rounding (~1e-7 rad),
+        # so near an edge it can pick the triangle whose exact box the ray just misses (at grazing
+        # angles, by far more than a relative margin on t would cover).
+        pad = np.float32(2.0**-20 * float(np.abs(v).max()))
+        boxes = nodes[:, :24].reshape(-1, 3, 2, WIDTH)  # a view: (node, axis, min/max, child)
+        boxes[:, :, 0] -= pad
+        boxes[:, :, 1] += pad
         depth = _depth(nodes)
         if depth > MAX_DEPTH:
             raise InvalidInputError(
@@ -138,9 +146,10 @@ class BVH:
         return uploads[name]
 
 
-def _rays(origins, directions, tmax) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    o = np.ascontiguousarray(origins, dtype=np.float32)
-    d = np.ascontiguousarray(directions, dtype=np.float32)
+def _rays(origins, directions, tmax, frame=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Checked float32 rays, moved into ``frame`` (a scene's DeviceFrame; t is unchanged) if given."""
+    o = np.ascontiguousarray(origins if frame is None else frame.points(origins), dtype=np.float32)
+    d = np.ascontiguousarray(directions if frame is None else frame.directions(directions), dtype=np.float32)
     if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
         raise InvalidInputError(f"origins and directions must both have shape (n, 3); got {o.shape} and {d.shape}")
     # min/max propagate NaN and expose inf without a temporary the size of the batch.
@@ -157,12 +166,13 @@ def _rays(origins, directions, tmax) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def _resolve(scene_or_bvh, device):
+    """(bvh, device, frame): a Scene's BVH lives in the scene's DeviceFrame, a bare BVH in the rays' own."""
     from .device import default_device
 
     bvh = scene_or_bvh if isinstance(scene_or_bvh, BVH) else getattr(scene_or_bvh, "bvh", None)
     if not isinstance(bvh, BVH):
         raise InvalidInputError(f"expected a Scene or a BVH; got {type(scene_or_bvh).__name__}")
-    return bvh, device or default_device()
+    return bvh, device or default_device(), None if bvh is scene_or_bvh else scene_or_bvh.frame
 
 
 def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -183,8 +193,8 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
     """
     import pyopencl as cl
 
-    bvh, dev = _resolve(scene_or_bvh, device)
-    o, d, tm = _rays(origins, directions, tmax)
+    bvh, dev, frame = _resolve(scene_or_bvh, device)
+    o, d, tm = _rays(origins, directions, tmax, frame)
     n = len(o)
     patch, t, front = np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.int8)
     if n == 0:
@@ -205,8 +215,8 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
     """(n,) bool: True where any triangle lies on ``origins + t * directions``, ``0 < t < tmax``."""
     import pyopencl as cl
 
-    bvh, dev = _resolve(scene_or_bvh, device)
-    o, d, tm = _rays(origins, directions, tmax)
+    bvh, dev, frame = _resolve(scene_or_bvh, device)
+    o, d, tm = _rays(origins, directions, tmax, frame)
     n = len(o)
     out = np.zeros(n, np.int8)
     if n == 0:

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 from .errors import InvalidInputError
 
 __all__ = ["floats", "vec3", "number", "integer", "finite", "scene", "patch_indices", "resolution", "check_form_factors",
-           "check_form_factor_rows", "ROW_SUM_SLACK", "MAX_RESOLUTION"]
+           "check_form_factor_rows", "sparse_structure", "ROW_SUM_SLACK", "MAX_RESOLUTION"]
 
 
 def floats(value, what: str) -> np.ndarray:
@@ -124,41 +124,112 @@ def resolution(value, what: str = "resolution") -> int:
 ROW_SUM_SLACK = 1e-3
 
 
+def _row_namer(row_names):
+    """Row i of a block by the name the caller knows it by (its patch index), or i itself."""
+    return (lambda i: int(i)) if row_names is None else (lambda i: int(np.asarray(row_names)[i]))
+
+
+def sparse_structure(indptr, indices, shape, what: str = "F", nnz: int | None = None, row_names=None) -> None:
+    """Refuse compressed-row arrays that would send a reader outside them; O(nnz), vectorised.
+
+    scipy's sparse kernels (and ours) trust ``indptr`` and ``indices``: an index out of range,
+    a decreasing or negative ``indptr`` or a short array reads or writes past memory, which
+    crashes the process or returns garbage. Checks that ``indptr`` has ``shape[0] + 1``
+    integer entries, starts at 0, never decreases and ends at ``nnz`` (default: the length of
+    ``indices``), and that every entry of ``indices`` is an integer in ``0..shape[1]-1``.
+    The message names the first offending row (``row_names[i]`` when given, e.g. the patch a
+    block row belongs to).
+    """
+    indptr, indices = np.asarray(indptr), np.asarray(indices)
+    m, n = (int(v) for v in shape)
+    name = _row_namer(row_names)
+    for arr, label in ((indptr, "indptr"), (indices, "indices")):
+        if arr.ndim != 1 or not (np.issubdtype(arr.dtype, np.integer) or arr.size == 0):
+            raise InvalidInputError(f"{what}: {label} must be a 1-D integer array; got shape {arr.shape}, dtype {arr.dtype}")
+    if len(indptr) != m + 1:
+        raise InvalidInputError(f"{what}: indptr has {len(indptr)} entries; {m} rows need {m + 1}")
+    nnz = len(indices) if nnz is None else int(nnz)
+    if indptr[0] != 0:
+        raise InvalidInputError(f"{what}: indptr must start at 0; got {int(indptr[0])}")
+    steps = np.diff(indptr)
+    if steps.size and steps.min() < 0:
+        i = int(np.argmax(steps < 0))
+        raise InvalidInputError(f"{what}: row {name(i)} has a negative length (indptr decreases from "
+                                f"{int(indptr[i])} to {int(indptr[i + 1])})")
+    if indptr[-1] != nnz or len(indices) != nnz:
+        raise InvalidInputError(f"{what}: indptr ends at {int(indptr[-1])} but there are {len(indices)} indices "
+                                f"and {nnz} values")
+    if nnz:
+        bad = (indices < 0) | (indices >= n)
+        if bad.any():
+            p = int(np.argmax(bad))
+            i = int(np.searchsorted(indptr, p, side="right")) - 1
+            hint = " (1-based indices? pydynrad's are 0-based)" if indices.min() == 1 and indices.max() == n else ""
+            raise InvalidInputError(f"{what}: row {name(i)} has column index {int(indices[p])} outside 0..{n - 1}{hint}")
+
+
+def _as_safe_csr(F, what: str, row_names=None) -> sp.csr_matrix:
+    """Sparse ``F`` as a float64 CSR copy, its structure checked before scipy converts it."""
+    if F.format == "csr":
+        sparse_structure(F.indptr, F.indices, F.shape, what, nnz=len(F.data), row_names=row_names)
+    elif F.format == "csc":
+        sparse_structure(F.indptr, F.indices, F.shape[::-1], f"{what} (CSC; its rows are columns)", nnz=len(F.data))
+    elif F.format == "coo":
+        for arr, dim, label in ((F.row, F.shape[0], "row"), (F.col, F.shape[1], "column")):
+            if arr.size and (arr.min() < 0 or arr.max() >= dim):
+                raise InvalidInputError(f"{what}: COO {label} indices in [{arr.min()}, {arr.max()}] lie outside "
+                                        f"0..{dim - 1}")
+    # copy=True: scipy shares indices with the caller's matrix, and sum_duplicates later
+    # sorts them in place, which would scramble the caller's (non-canonical) F.
+    return sp.csr_matrix(F, dtype=np.float64, copy=True)
+
+
 def check_form_factors(scene, F) -> sp.csr_matrix:
     """F as a validated float64 CSR matrix of shape (N, N) for ``scene``.
 
-    Refuses a wrong shape, NaN/inf or negative entries, and rows summing above 1 (beyond
-    :data:`ROW_SUM_SLACK`): such an F has no physical meaning and can make B diverge.
+    Refuses a broken sparse structure (:func:`sparse_structure`), a wrong shape, NaN/inf or
+    negative entries, and rows summing above 1 (beyond :data:`ROW_SUM_SLACK`): such an F has
+    no physical meaning and can make B diverge.
     """
     n = len(scene)
-    if sp.issparse(F):
-        # copy=True: scipy shares indices with the caller's matrix, and sum_duplicates below
-        # sorts them in place, which would scramble the caller's (non-canonical) F.
-        F = sp.csr_matrix(F, dtype=np.float64, copy=True)
-    else:
-        a = np.asarray(F)
-        if a.ndim != 2:
-            raise InvalidInputError(f"F must be a 2-D (sparse or dense) matrix; got shape {a.shape}")
-        F = sp.csr_matrix(a.astype(np.float64))
-    if F.shape != (n, n):
-        raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {F.shape}")
+    shape = np.shape(F)
+    if len(shape) != 2:
+        raise InvalidInputError(f"F must be a 2-D (sparse or dense) matrix; got shape {shape}")
+    if shape != (n, n):
+        raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {shape}")
     return check_form_factor_rows(F)
 
 
-def check_form_factor_rows(rows: sp.csr_matrix, what: str = "F") -> sp.csr_matrix:
-    """``rows`` (some rows of F, or a block of them) after the checks of :func:`check_form_factors`
-    that need no shape: NaN/inf or negative entries, rows summing above 1 (beyond
-    :data:`ROW_SUM_SLACK`). Duplicate entries are summed in place."""
-    rows.sum_duplicates()
-    if not np.all(np.isfinite(rows.data)):
-        raise InvalidInputError(f"{what} contains NaN or infinite entries")
-    if rows.nnz and rows.data.min() < 0:
-        raise InvalidInputError(f"form factors must be >= 0; {what} has minimum {rows.data.min():g}")
-    sums = np.asarray(rows.sum(axis=1)).ravel()
+def check_form_factor_rows(rows, what: str = "F", row_names=None, shape: tuple | None = None) -> sp.csr_matrix:
+    """``rows`` (F, some rows of it, or a block) as a validated float64 CSR copy.
+
+    The checks of :func:`check_form_factors` that need no scene, once per matrix or block: the
+    sparse structure (:func:`sparse_structure`, before scipy touches it), ``shape`` when given,
+    NaN/inf or negative entries, rows summing above 1 (beyond :data:`ROW_SUM_SLACK`). Messages
+    name the offending row as ``row_names[i]`` when given (the patch a row source's row
+    belongs to). The caller's matrix is never modified.
+    """
+    if not sp.issparse(rows):
+        a = np.asarray(rows)
+        if a.ndim != 2 or not np.issubdtype(a.dtype, np.number):
+            raise InvalidInputError(f"{what} must be a (sparse or dense) 2-D matrix of numbers; got {type(rows).__name__}")
+        rows = sp.csr_matrix(a.astype(np.float64))
+    if shape is not None and rows.shape != tuple(shape):
+        raise InvalidInputError(f"{what} must have shape {tuple(shape)}; got {rows.shape}")
+    F = _as_safe_csr(rows, what, row_names)
+    F.sum_duplicates()
+    name = _row_namer(row_names)
+    if not np.all(np.isfinite(F.data)):
+        bad = int(np.searchsorted(F.indptr, int(np.argmax(~np.isfinite(F.data))), side="right")) - 1
+        raise InvalidInputError(f"{what} contains NaN or infinite entries (first in row {name(bad)})")
+    if F.nnz and F.data.min() < 0:
+        bad = int(np.searchsorted(F.indptr, int(np.argmin(F.data)), side="right")) - 1
+        raise InvalidInputError(f"form factors must be >= 0; {what} has minimum {F.data.min():g} (row {name(bad)})")
+    sums = np.asarray(F.sum(axis=1)).ravel()
     if sums.max(initial=0.0) > 1.0 + ROW_SUM_SLACK:
         i = int(sums.argmax())
         raise InvalidInputError(
-            f"row {i} of {what} sums to {sums[i]:.6g} > 1: a patch cannot send out more than all its energy "
+            f"row {name(i)} of {what} sums to {sums[i]:.6g} > 1: a patch cannot send out more than all its energy "
             f"(tolerance {ROW_SUM_SLACK:g})"
         )
-    return rows
+    return F

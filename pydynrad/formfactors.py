@@ -149,7 +149,7 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     patch_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
     end_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
     count_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * 4)
-    eps = np.float32(SURFACE_OFFSET * scene.scale)
+    eps = np.float32(scene.frame.length(SURFACE_OFFSET * scene.scale))
 
     long = len(rows) > block and len(rows) * S * R > LONG_RUN_RAYS
     with progress_bar(progress, long=long, total=len(rows), unit="patch", desc=f"{desc} R={R}") as bar:

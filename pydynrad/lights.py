@@ -140,14 +140,27 @@ def _checked_lights(lights) -> list:
     return lights
 
 
-def pack_lights(lights) -> np.ndarray:
+def pack_lights(lights, frame=None) -> np.ndarray:
     """(n_lights, 12) float32: ``lights`` (one light or a sequence) in the kernels' packing.
 
     Three float4 per light, the layout ``kernels/lights.h`` documents; raises
     InvalidInputError for anything that is not a PointLight, SpotLight or DirectionalLight.
+    With ``frame`` (a :class:`pydynrad.scene.DeviceFrame`) positions are moved into it and the
+    intensities of point and spot lights divided by its unit squared, so that the kernels'
+    I / r^2 over device distances gives the irradiance of the user's frame.
     """
     lights = _checked_lights(lights)
-    return np.asarray([light._packed() for light in lights], dtype=np.float32).reshape(len(lights), 12)
+    packed = np.asarray([light._packed() for light in lights], dtype=np.float64).reshape(len(lights), 12)
+    if frame is not None:
+        positional = packed[:, 3] < 2.0  # point (0) and spot (1) lights; directional is 2
+        packed[positional, :3] = frame.points(packed[positional, :3])
+        packed[positional, 8:11] /= frame.unit**2
+    with np.errstate(over="ignore"):
+        out = packed.astype(np.float32)
+    if not np.all(np.isfinite(out)):
+        raise InvalidInputError("a light's position or intensity overflows float32 on the device "
+                                "(beyond ~3e38 once the scene is scaled to its own size)")
+    return out
 
 
 def direct_irradiance(scene, lights, device=None) -> np.ndarray:
@@ -159,8 +172,8 @@ def direct_irradiance(scene, lights, device=None) -> np.ndarray:
 
     from .device import default_device
 
-    packed = pack_lights(lights)
     n = len(checked_scene(scene))
+    packed = pack_lights(lights, scene.frame)
     if not len(packed):
         return np.zeros((n, 3), dtype=np.float32)
     device = device or default_device()
@@ -171,7 +184,8 @@ def direct_irradiance(scene, lights, device=None) -> np.ndarray:
     # Directional shadow rays need only reach past the scene: twice its diagonal.
     kernel(
         device.queue, (global_size(n),), None, np.int32(n), centers, normals, np.int32(len(packed)),
-        device.to_device(packed), nodes, tris, np.float32(SHADOW_EPSILON * scene.scale), np.float32(2.0 * scene.scale),
+        device.to_device(packed), nodes, tris, np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
+        np.float32(scene.frame.length(2.0 * scene.scale)),
         out_dev,
     )
     out = np.empty((n, 4), dtype=np.float32)

@@ -255,8 +255,7 @@ def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32
     if not np.all(np.isfinite(rho)) or rho.min() < 0 or rho.max() >= 1:
         raise InvalidInputError("albedo must be finite and in [0, 1)")
     _check_memory(M, rho.shape[1], out, bounces, device)
-    # copy=True: sum_duplicates sorts indices in place, which must not touch the caller's matrix.
-    block = check_form_factor_rows(sp.csr_matrix(F_SS, dtype=np.float64, copy=True), "F_SS")
+    block = check_form_factor_rows(F_SS, "F_SS")  # a copy: the caller's matrix is never touched
     return _build(block.toarray(), rho, bounces, out, device, progress)
 
 

@@ -58,19 +58,20 @@ class _Tracer:
         self.device = device = device or default_device()
         self.defines = {"MAX_DEPTH": int(max_depth)}
         em = scene.emitters
-        power = scene.emission[em].astype(np.float64).mean(axis=1) * scene.areas[em]
+        # Areas in the device frame, where the kernel measures distances: the pdf per device area.
+        power = scene.emission[em].astype(np.float64).mean(axis=1) * (scene.areas[em] / scene.frame.unit**2)
         if len(em):
             inv_power = 1.0 / power.sum()  # the kernel turns this into each emitter's area pdf
             cdf = np.cumsum(power * inv_power)
             cdf[-1] = 1.0 + 1e-6  # every u in [0, 1) finds an emitter despite rounding
-            v = scene.vertices[em].astype(np.float64)
+            v = scene.frame.points(scene.vertices[em]).astype(np.float64)
             tri = np.stack([v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], np.zeros_like(v[:, 0])], axis=1)
             tri = _float4(tri.reshape(-1, 3))
             tri.reshape(len(em), 4, 4)[:, 3, :3] = scene.normals[em]
         else:
             inv_power, cdf = 0.0, np.zeros(1)
             tri = np.zeros((4, 4), np.float32)
-        packed = pack_lights(lights)
+        packed = pack_lights(lights, scene.frame)
         n_lights = len(packed)
         if not n_lights:
             packed = np.zeros((1, 12), np.float32)  # a buffer cannot be empty; the kernel reads none
@@ -84,8 +85,8 @@ class _Tracer:
             normals, up(_float4(scene.albedo)), up(_float4(scene.emission)),
             np.int32(len(em)), up(tri), up(_float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
             up(cdf.astype(np.float32)), np.float32(inv_power),
-            np.int32(n_lights), up(packed), np.float32(SHADOW_EPSILON * scene.scale),
-            np.float32(2.0 * scene.scale),  # directional shadow rays need only leave the scene
+            np.int32(n_lights), up(packed), np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
+            np.float32(scene.frame.length(2.0 * scene.scale)),  # directional shadow rays need only leave the scene
         )
 
     def accumulate(self, kernel_name: str, items: tuple, n_items: int, spp: int, seed: int,
@@ -164,7 +165,7 @@ def path_trace(scene: Scene, camera, spp: int = 64, lights=(), seed: int = 0, ma
         raise InvalidInputError(f"camera must be a pydynrad.Camera; got {type(camera).__name__}")
     h, w = camera.shape
     origin = np.zeros(4, dtype=np.float32)
-    origin[:3] = camera.position
+    origin[:3] = scene.frame.points(camera.position)
     directions = tracer.device.to_device(_float4(camera.ray_directions().reshape(-1, 3)))
     total, done = tracer.accumulate("trace_pixels", (origin, directions), h * w, int(spp), int(seed),
                                     progress, time_limit)

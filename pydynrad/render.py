@@ -95,7 +95,7 @@ class Renderer:
         dirs = np.zeros((n_pix, 4), dtype=np.float32)
         dirs[:, :3] = camera.ray_directions().reshape(n_pix, 3)
         origin = np.zeros(4, dtype=np.float32)
-        origin[:3] = camera.position
+        origin[:3] = self.scene.frame.points(camera.position)  # unit directions: t in device units
         nodes, tris, order = self.scene.bvh.buffers(dev)
         mf = cl.mem_flags
         d_dirs = dev.to_device(dirs)
@@ -119,7 +119,7 @@ class Renderer:
             patch=patch.reshape(h, w),
             barycentric=bary.reshape(h, w, 3),
             front=(uvf[:, 2] > 0.5).reshape(h, w) & hit.reshape(h, w),
-            depth=depth.reshape(h, w),
+            depth=(depth * np.float32(self.scene.frame.unit)).reshape(h, w),
         )
 
     def corner_radiosity(self, radiosity) -> np.ndarray:

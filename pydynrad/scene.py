@@ -23,11 +23,51 @@ import numpy as np
 from .checks import floats
 from .errors import InvalidInputError
 
-__all__ = ["Scene", "DegenerateTriangleWarning"]
+__all__ = ["Scene", "DegenerateTriangleWarning", "DeviceFrame", "PrecisionWarning"]
 
 
 class DegenerateTriangleWarning(UserWarning):
     """Zero-area triangles were dropped from a scene."""
+
+
+class PrecisionWarning(UserWarning):
+    """Some patches are too small, against the whole scene, for float32 ray casting."""
+
+
+#: Patches whose longest edge is below this fraction of the scene's diagonal get a
+#: :class:`PrecisionWarning`: float32 on the device resolves ~6e-8 of the scene's extent, and
+#: hemicube rays start SURFACE_OFFSET (1e-5) of it above their patch.
+MIN_RELATIVE_SIZE = 1e-5
+
+
+class DeviceFrame:
+    """The frame geometry is in on the device: x_device = (x - origin) / unit, float32.
+
+    Re-centred on the scene's bounding box and scaled by a power of two near its diagonal, so a
+    scene far from the origin (a unit box at 1e7) or at an extreme scale (1e-15, 1e14) becomes
+    float32 without losing its patches: float32 keeps 24 bits relative to the scene's size
+    instead of to its distance from the origin, and the ray-triangle test's products (lengths
+    cubed) stay far from float32's overflow and underflow. Ray parameters t are unchanged when
+    directions are scaled by the same unit (:meth:`directions`); lengths convert by ``unit``.
+    """
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        self.origin = 0.5 * (lo + hi)
+        diag = float(np.linalg.norm(hi - lo))
+        self.unit = float(2.0 ** np.round(np.log2(diag))) if diag > 0 else 1.0  # exact divisions
+
+    def points(self, p) -> np.ndarray:
+        """Positions (..., 3) in the user's frame -> float32 device positions."""
+        return ((np.asarray(p, np.float64) - self.origin) / self.unit).astype(np.float32)
+
+    def directions(self, d) -> np.ndarray:
+        """Ray directions (..., 3) -> float32 device directions with the same ray parameter t."""
+        return (np.asarray(d, np.float64) / self.unit).astype(np.float32)
+
+    def length(self, x: float) -> float:
+        """A length in the user's unit -> device units."""
+        return float(x) / self.unit
 
 
 def _as_rgb(value, n: int, what: str) -> np.ndarray:
@@ -123,16 +163,25 @@ class Scene:
             tri, albedo, emission, source_face = tri[keep], albedo[keep], emission[keep], source_face[keep]
             cross, dbl_area = cross[keep], dbl_area[keep]
 
-        self.points = np.ascontiguousarray(pts, dtype=np.float32)
+        # float64: a scene far from the origin keeps its shape; DeviceFrame makes it float32.
+        self.points = np.ascontiguousarray(pts, dtype=np.float64)
         self.triangles = np.ascontiguousarray(tri, dtype=np.int32)
         self.albedo = albedo
         self.emission = emission
         self.source_face = source_face
         self.name = str(name)
         v = pts[tri]
-        self.centers = np.ascontiguousarray(v.mean(axis=1), dtype=np.float32)
+        self.centers = np.ascontiguousarray(v.mean(axis=1), dtype=np.float64)
         self.normals = np.ascontiguousarray(cross / dbl_area[:, None], dtype=np.float32)
         self.areas = np.ascontiguousarray(0.5 * dbl_area, dtype=np.float32)
+        if not (np.all(np.isfinite(self.areas)) and self.areas.min() > 0):
+            raise InvalidInputError("patch areas overflow or underflow float32 (coordinates beyond ~1e18 or "
+                                    "patches below ~1e-22 units): rescale the scene")
+        size, diag = np.sqrt(edge2[keep]), self.scale
+        if size.min() < MIN_RELATIVE_SIZE * diag:
+            warnings.warn(f"{int(np.count_nonzero(size < MIN_RELATIVE_SIZE * diag))} patch(es) are smaller than "
+                          f"{MIN_RELATIVE_SIZE:g} of the scene's diagonal ({diag:g}): float32 ray casting cannot "
+                          "resolve them reliably", PrecisionWarning, stacklevel=2)
 
     @classmethod
     def from_mesh(cls, mesh, **kw) -> "Scene":
@@ -151,7 +200,7 @@ class Scene:
 
     @property
     def vertices(self) -> np.ndarray:
-        """(N, 3, 3) float32 corner positions of every patch."""
+        """(N, 3, 3) float64 corner positions of every patch."""
         return self.points[self.triangles]
 
     @property
@@ -179,22 +228,27 @@ class Scene:
 
     # -- derived structures ----------------------------------------------------------------
     @cached_property
+    def frame(self) -> DeviceFrame:
+        """The device frame (:class:`DeviceFrame`): every upload of positions goes through it."""
+        return DeviceFrame(*self.bbox)
+
+    @cached_property
     def bvh(self):
-        """The patch BVH, built on first use and shared by every kernel that casts rays."""
+        """The patch BVH (in :attr:`frame`), built on first use and shared by every kernel that casts rays."""
         from .bvh import BVH
 
-        return BVH.build(self.vertices)
+        return BVH.build(self.frame.points(self.vertices))
 
     def patch_buffers(self, device) -> tuple:
-        """``(centers, normals)``: (N, 4) float32 device buffers (xyz, 0) of :attr:`centers` and
-        :attr:`normals`, uploaded once per device and kept beside the BVH's buffers, so kernels
+        """``(centers, normals)``: (N, 4) float32 device buffers (xyz, 0) of :attr:`centers` (in
+        :attr:`frame`) and :attr:`normals`, uploaded once per device and kept beside the BVH's buffers, so kernels
         run per frame (the light pass, hemicubes) upload nothing of the scene. Scene arrays never
         change after construction, and scenes share a BVH only when they share geometry
         (:meth:`with_materials`), so a different scene never sees these buffers."""
 
         def upload():
             out = []
-            for a in (self.centers, self.normals):
+            for a in (self.frame.points(self.centers), self.normals):
                 a4 = np.zeros((len(self), 4), dtype=np.float32)
                 a4[:, :3] = a
                 out.append(device.to_device(a4))
@@ -205,14 +259,17 @@ class Scene:
     def content_hash(self) -> str:
         """SHA-256 of geometry and materials: identifies the scene in file headers."""
         h = hashlib.sha256()
-        for a in (self.points, self.triangles, self.albedo, self.emission):
+        for a in (self.points.astype(np.float32), self.triangles, self.albedo, self.emission):
             h.update(np.ascontiguousarray(a).tobytes())
         return h.hexdigest()
 
     def geometry_hash(self) -> str:
-        """SHA-256 of geometry only: form factors depend on this and not on materials."""
+        """SHA-256 of geometry only: form factors depend on this and not on materials.
+
+        Hashes the points as float32, as scenes stored them before they kept float64, so files
+        and stores made then still match."""
         h = hashlib.sha256()
-        for a in (self.points, self.triangles):
+        for a in (self.points.astype(np.float32), self.triangles):
             h.update(np.ascontiguousarray(a).tobytes())
         return h.hexdigest()
 

@@ -35,8 +35,8 @@ def test_glb_round_trip_holds_the_smooth_vertex_radiosity(solved, tmp_path):
     scene, B = solved
     path = export_mesh(scene, B, tmp_path / "box.glb", exposure=-6.0)
     mesh = _load_one(path)
-    # Triangle i is patch i, at the scene's own coordinates (millimetres, not rescaled).
-    np.testing.assert_array_equal(mesh.vertices[mesh.faces], scene.vertices)
+    # Triangle i is patch i, at the scene's own coordinates (millimetres, not rescaled; glTF holds float32).
+    np.testing.assert_array_equal(mesh.vertices[mesh.faces], scene.vertices.astype(np.float32))
     radiosity = np.asarray(mesh.vertex_attributes["_RADIOSITY"])
     # Every corner carries what smooth shading interpolates there, to float32 rounding.
     corners = Renderer(scene).corner_radiosity(B)

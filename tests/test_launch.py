@@ -53,4 +53,5 @@ def test_patch_buffers_once_per_device_and_per_geometry(device):
     other = box_scene(2, size=2.0)
     c2, _ = other.patch_buffers(device)
     cl.enqueue_copy(device.queue, host, c2, is_blocking=True)
-    assert np.array_equal(host[:, :3], other.centers) and not np.array_equal(other.centers, s.centers)
+    # Centres go up in the scene's device frame (re-centred and scaled: docs/design.md, 'Device frame').
+    assert np.array_equal(host[:, :3], other.frame.points(other.centers)) and not np.array_equal(other.centers, s.centers)

@@ -46,6 +46,15 @@ def test_dynamic_refuses_source_rows_summing_above_one(device):
     F = sp.csr_matrix(reciprocal_F(s.areas, seed=7)).astype(np.float32)
     F = F.tolil()
     F[0, 1] = F[0, 1] + 2.0  # row 0 now sums above 1
-    source = CSRRows(F.tocsr())
-    with pytest.raises(pydynrad.InvalidInputError, match="sums to"):
+    with pytest.raises(pydynrad.InvalidInputError, match="row 0 of form-factor matrix sums to"):
+        CSRRows(F.tocsr())  # CSRRows checks on construction; a source of its own is checked per block
+
+    class Source:
+        n_patches = len(s)
+
+        def rows(self, idx):
+            return F.tocsr()[idx]
+
+    source = Source()
+    with pytest.raises(pydynrad.InvalidInputError, match="row 0 of form-factor rows sums to"):
         pydynrad.DynamicRadiosity(s, source, local_size=len(s), observer=s.centers[0], device=device)

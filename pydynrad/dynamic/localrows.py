@@ -56,6 +56,7 @@ class LocalRows:
 
     def __init__(self, scene, form_factors, resolution: int, device) -> None:
         n = len(scene)
+        self.n_patches = n
         self.csr = None
         self.local: sp.csr_matrix | None = None
         if form_factors is None:
@@ -75,14 +76,12 @@ class LocalRows:
         idx = np.asarray(idx, dtype=np.int64)
         if self.csr is not None:
             return self.csr[idx]
-        return sp.csr_matrix(self.source.rows(idx), dtype=np.float64)
+        # Every block a source serves is checked (structure first: scipy indexes with it unchecked).
+        return check_form_factor_rows(self.source.rows(idx), "form-factor rows", idx, (len(idx), self.n_patches))
 
     def fetch_local(self, local_patches: np.ndarray) -> None:
-        """Fetch the rows of a whole new local set (a build or refresh). Rows from a source are
-        validated here, once (an in-memory F was when it was given)."""
+        """Fetch the rows of a whole new local set (a build or refresh), validated by :meth:`rows`."""
         self.local = self.rows(local_patches)
-        if self.csr is None:
-            check_form_factor_rows(self.local, "F's rows of the local set")
 
     def entering(self, local_patches: np.ndarray, J: np.ndarray, slots: np.ndarray):
         """F[S, J] (M, k), F[J, S] (k, M) and F[J, J] (k, k), dense float64, for patches J

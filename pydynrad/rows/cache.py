@@ -16,7 +16,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import patch_indices
+from ..checks import check_form_factor_rows, patch_indices
 from ..errors import InvalidInputError
 from .sources import RowSource
 
@@ -91,7 +91,9 @@ class RowCache:
         self.peak_nbytes = max(self.peak_nbytes, self.nbytes)
 
     def _read(self, idx: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        return _split_rows(sp.csr_matrix(self.source.rows(idx)), idx)
+        # Checked before caching: a broken block is refused with its row named, never served later.
+        return _split_rows(check_form_factor_rows(self.source.rows(idx), "form-factor rows", idx,
+                                                 (len(idx), self.n_patches)), idx)
 
     # -- RowSource ---------------------------------------------------------------------------
     def rows(self, idx) -> sp.csr_matrix:

@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..atomic import check_parent_folder, write_atomic
-from ..checks import resolution as checked_resolution, scene as checked_scene
+from ..checks import resolution as checked_resolution, scene as checked_scene, sparse_structure
 from ..errors import InvalidInputError
 
 __all__ = ["FF_FORMAT", "load_form_factors", "open_form_factors", "save_form_factors",
@@ -69,7 +69,7 @@ def load_form_factors(scene, path) -> tuple[sp.csr_matrix, dict]:
         with np.load(path, allow_pickle=False) as z:
             header = json.loads(str(z["header"]))
             n = int(header["n_patches"])
-            F = sp.csr_matrix((z["data"], z["indices"], z["indptr"]), shape=(n, n))
+            data, indices, indptr = z["data"], z["indices"], z["indptr"]
     except Exception as exc:  # zipfile, KeyError, ValueError, JSON: all mean "not our file"
         raise InvalidInputError(f"form-factor file {str(path)!r} is not a pydynrad form-factor file ({exc})") from None
     if header.get("format") != FF_FORMAT:
@@ -78,7 +78,12 @@ def load_form_factors(scene, path) -> tuple[sp.csr_matrix, dict]:
         raise InvalidInputError(f"form-factor file {str(path)!r} was computed for another scene geometry "
                                 f"({header.get('scene')!r}, {n} patches; this scene has {len(scene)} patches): "
                                 "recompute it with `pydynrad formfactors`")
-    return F, header
+    if n != len(scene) or data.ndim != 1:
+        raise InvalidInputError(f"form-factor file {str(path)!r} is damaged: header says {n} patches, "
+                                f"data has shape {data.shape}; this scene has {len(scene)} patches")
+    # Before scipy sees them: its kernels index memory with these arrays unchecked.
+    sparse_structure(indptr, indices, (n, n), f"form-factor file {str(path)!r}", nnz=len(data))
+    return sp.csr_matrix((data, indices, indptr), shape=(n, n)), header
 
 
 def _open_store(scene, path: Path):

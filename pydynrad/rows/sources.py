@@ -17,7 +17,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import patch_indices, resolution as checked_resolution
+from ..checks import check_form_factor_rows, patch_indices, resolution as checked_resolution
 from ..errors import InvalidInputError
 
 __all__ = ["RowSource", "CSRRows", "HemicubeRows", "as_row_source"]
@@ -38,9 +38,10 @@ class CSRRows:
     """An in-memory (N, N) sparse F as a :class:`RowSource`."""
 
     def __init__(self, matrix) -> None:
-        f = sp.csr_matrix(matrix, dtype=np.float32)
-        if f.shape[0] != f.shape[1]:
-            raise InvalidInputError(f"a form-factor matrix must be square (N, N); got {f.shape}")
+        shape = getattr(matrix, "shape", ())
+        if len(shape) != 2 or shape[0] != shape[1]:
+            raise InvalidInputError(f"a form-factor matrix must be square (N, N); got shape {shape}")
+        f = check_form_factor_rows(matrix, "form-factor matrix").astype(np.float32)
         self.matrix = f
         self.n_patches = f.shape[0]
 

@@ -1,0 +1,210 @@
+"""Hostile input: what used to crash the process or answer wrongly is refused, naming the problem.
+
+Each test here was a defect of issue 14; the broken-F cases that segfaulted run in a
+subprocess, so a crash fails the test instead of killing the run.
+"""
+
+import re
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import pydynrad
+from pydynrad.checks import sparse_structure
+from pydynrad.errors import InvalidInputError
+from pydynrad.render import Renderer
+
+
+@pytest.fixture(scope="module")
+def box():
+    return pydynrad.scenes.closed_box(subdivisions=1)  # 48 patches
+
+
+@pytest.fixture(scope="module")
+def box_F(box, device):
+    return pydynrad.form_factors(box, resolution=16, device=device)
+
+
+def _broken(F: sp.csr_matrix, kind: str) -> sp.csr_matrix:
+    """A copy of F with its structure broken one way (scipy does not check any of these)."""
+    G = F.copy()
+    if kind == "column out of range":
+        G.indices[3] = F.shape[1] + 10**6
+    elif kind == "negative column":
+        G.indices[-1] = -1
+    elif kind == "1-based":
+        G.indices += 1
+    elif kind == "negative indptr":
+        G.indptr[5] = -3
+    elif kind == "reversed indptr":
+        G.indptr[5], G.indptr[6] = G.indptr[6], G.indptr[5]
+    return G
+
+
+KINDS = {"column out of range": r"row 0 has column index 1000048 outside 0\.\.47",
+         "negative column": r"row 47 has column index -1 outside 0\.\.47",
+         "1-based": r"column index 48 outside 0\.\.47 \(1-based indices\?",
+         "negative indptr": r"row 4 has a negative length \(indptr decreases from \d+ to -3\)",
+         "reversed indptr": r"row 5 has a negative length"}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_broken_F_is_refused_by_every_entry_point(box, box_F, device, kind):
+    G = _broken(box_F, kind)
+    calls = {"solve": lambda: pydynrad.solve(box, G, device=device),
+             "multibounce": lambda: pydynrad.multibounce(box, G, np.arange(8), device=device),
+             "DynamicRadiosity": lambda: pydynrad.DynamicRadiosity(box, G, local_size=8, device=device),
+             "CSRRows": lambda: pydynrad.CSRRows(G),
+             "CSC input": lambda: pydynrad.solve(box, sp.csc_matrix((G.data, G.indices, G.indptr), shape=G.shape),
+                                                 device=device)}
+    for name, call in calls.items():
+        with pytest.raises(InvalidInputError, match=KINDS[kind] if name != "CSC input" else "CSC"):
+            call()
+
+
+def test_broken_F_in_a_subprocess_fails_cleanly_instead_of_crashing(tmp_path):
+    # multibounce with 1-based indices segfaulted on main before issue 14.
+    script = textwrap.dedent("""
+        import numpy as np, pydynrad
+        scene = pydynrad.scenes.closed_box(subdivisions=1)
+        F = pydynrad.form_factors(scene, resolution=8)
+        F.indices += 1
+        try:
+            pydynrad.multibounce(scene, F, np.arange(len(scene)))
+        except pydynrad.InvalidInputError as exc:
+            print("refused:", exc)
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, f"crashed with rc {run.returncode}: {run.stderr[-2000:]}"
+    assert re.search(r"refused: F: row \d+ has column index 48 outside 0\.\.47 \(1-based", run.stdout), run.stdout
+
+
+class _Source:
+    """A row source that serves F's rows with one block broken."""
+
+    def __init__(self, F, kind, bad_patch):
+        self.F, self.kind, self.bad_patch, self.n_patches = F, kind, bad_patch, F.shape[0]
+
+    def rows(self, idx):
+        block = self.F[idx]
+        if self.bad_patch in set(np.asarray(idx).tolist()):
+            k = int(np.flatnonzero(np.asarray(idx) == self.bad_patch)[0])
+            if self.kind == "column":
+                block.indices[block.indptr[k]] = self.n_patches + 7
+            elif self.kind == "value":
+                block.data[block.indptr[k]] = np.nan
+            elif self.kind == "shape":
+                block = block[:, :-1]
+        return block
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("column", r"row 30 has column index 55 outside 0\.\.47"),
+    ("value", "NaN or infinite"),
+    ("shape", r"must have shape \(\d+, 48\); got \(\d+, 47\)"),
+])
+def test_row_source_blocks_are_checked_with_the_patch_named(box, box_F, device, kind, message):
+    source = _Source(box_F, kind, bad_patch=30)
+    # Row 30's patch is near the observer below, so it enters the local set on the first update.
+    dyn = pydynrad.DynamicRadiosity(box, source, local_size=48, device=device)
+    with pytest.raises(InvalidInputError, match=message):
+        dyn.update(box.centers[30])
+    with pydynrad.RowCache(source, 1 << 20) as cache, pytest.raises(InvalidInputError, match=message):
+        cache.rows([29, 30])
+
+
+def test_a_form_factor_file_with_broken_arrays_is_refused(box, box_F, tmp_path):
+    path = pydynrad.save_form_factors(box, tmp_path / "F.npz", box_F, 16)
+    with np.load(path) as z:
+        arrays = dict(z)
+    arrays["indices"] = arrays["indices"].copy()
+    arrays["indices"][arrays["indptr"][9]] = 4096
+    np.savez(path, **arrays)
+    with pytest.raises(InvalidInputError, match=r"F\.npz'.*row 9 has column index 4096 outside 0\.\.47"):
+        pydynrad.load_form_factors(box, path)
+    arrays["indptr"] = arrays["indptr"][:-1]
+    np.savez(path, **arrays)
+    with pytest.raises(InvalidInputError, match="indptr has 48 entries; 48 rows need 49"):
+        pydynrad.load_form_factors(box, path)
+
+
+def test_sparse_structure_accepts_what_scipy_builds():
+    A = sp.random(50, 40, density=0.2, format="csr", random_state=1)
+    sparse_structure(A.indptr, A.indices, A.shape)
+    sparse_structure(np.zeros(4, np.int64), np.zeros(0, np.int32), (3, 3))  # all rows empty
+    with pytest.raises(InvalidInputError, match="indptr must start at 0"):
+        sparse_structure(A.indptr + 1, A.indices, A.shape)
+    with pytest.raises(InvalidInputError, match="indptr ends at"):
+        sparse_structure(A.indptr, A.indices[:-1], A.shape)
+    with pytest.raises(InvalidInputError, match="indices must be a 1-D integer array"):
+        sparse_structure(A.indptr, A.indices.astype(float), A.shape)
+
+
+@pytest.mark.parametrize("size, subdivisions, resolutions, rows", [
+    ((1, 1, 1), 2, (2, 6, 16, 64), None),
+    ((3, 1, 0.1), 1, (2, 16, 64), None),
+    # A thin box seen edge-on from its side walls: rays graze the big walls' shared edges. The
+    # Moller-Trumbore test with slack lost one pixel of one of these rows at R = 128 (2.2e-5).
+    ((1, 1, 0.01), 2, (16, 128), np.arange(128)),
+])
+def test_closed_boxes_rows_sum_to_one_at_every_resolution(device, size, subdivisions, resolutions, rows):
+    scene = pydynrad.scenes.closed_box(size=size, subdivisions=subdivisions)
+    for R in resolutions:
+        F = pydynrad.form_factors(scene, resolution=R, rows=rows, device=device)
+        sums = np.asarray(F.sum(axis=1)).ravel()
+        # float32 pixel weights summed: the observed worst is 2.4e-7.
+        assert np.abs(sums - 1).max() < 1e-6, (R, int(np.argmax(np.abs(sums - 1))), np.abs(sums - 1).max())
+
+
+# Far from the origin and at extreme scales: the device frame (docs/design.md, 'Device frame').
+SHIFT = np.array([1.0, -0.5, 0.25])
+
+
+def _moved_box(scale, offset, albedo=0.5, emission=1.0):
+    base = pydynrad.scenes.closed_box(subdivisions=1)
+    return pydynrad.Scene(base.points * scale + offset * SHIFT, base.triangles, albedo=albedo, emission=emission)
+
+
+@pytest.mark.parametrize("scale, offset", [(1e-6, 0.0), (1e6, 0.0), (1.0, 1e6), (1.0, 1e7), (1e-3, 1e4), (1e6, -1e7),
+                                           (1e-15, 0.0), (1e14, 0.0)])
+def test_furnace_far_from_origin_and_at_extreme_scales(device, scale, offset):
+    # Closed box, albedo 0.5, emission 1: B = E / (1 - rho) = 2 everywhere. Before the device
+    # frame a unit box at 1e6 gave 1.961 and its F was empty at 1e14 or 1e-15.
+    scene = _moved_box(scale, offset)
+    F = pydynrad.form_factors(scene, resolution=16, device=device)
+    B = pydynrad.solve(scene, F, device=device).radiosity
+    assert np.abs(B / 2 - 1).max() < 1e-4  # observed 5.4e-7 at every scale and offset
+
+
+@pytest.mark.parametrize("scale, offset", [(1.0, 0.0), (1e-4, 1e3), (1e3, 1e7)])
+def test_point_light_and_rays_in_the_users_frame(device, scale, offset):
+    scene = _moved_box(scale, offset, emission=0.0)
+    light = scene.bbox.mean(axis=0) + 0.1 * scale
+    E = pydynrad.direct_irradiance(scene, [pydynrad.PointLight(light, 5.0)], device=device)[:, 0]
+    # Nothing inside a convex box occludes: E = I cos / r^2 in float64.
+    to_light = light - scene.centers
+    r = np.linalg.norm(to_light, axis=1)
+    expected = 5.0 * np.einsum("ij,ij->i", scene.normals.astype(np.float64), to_light) / r**3
+    np.testing.assert_allclose(E, expected, rtol=1e-5)
+    # A ray from the light to each patch centre stops there: t = 1 for directions of that length.
+    patch, t, front = pydynrad.bvh.cast_rays(scene, np.broadcast_to(light, to_light.shape), -to_light, device=device)
+    np.testing.assert_allclose(t, 1.0, rtol=1e-5)
+    assert front.all() and np.mean(patch == np.arange(len(scene))) > 0.99  # a centre may sit on an edge
+    # Depth from the renderer in the user's unit: the box is [0, scale]^3 shifted.
+    cam = pydynrad.Camera(light, light + [1.0, 0.0, 0.0], up=(0, 0, 1), fov_y=10.0, width=8, height=8)
+    depth = Renderer(scene, device=device).visibility(cam).depth
+    wall_x = scale + offset * SHIFT[0]
+    assert np.abs(depth.min() / (wall_x - light[0]) - 1) < 1e-3  # the centre pixels are off-axis by < fov
+
+
+def test_patches_too_small_for_float32_warn():
+    base = pydynrad.scenes.closed_box(subdivisions=0)
+    tiny = np.array([[0.5, 0.5, 0.5], [0.5 + 1e-7, 0.5, 0.5], [0.5, 0.5 + 1e-7, 0.5]])
+    points = np.concatenate([base.points, tiny])
+    triangles = np.concatenate([base.triangles, [[len(base.points), len(base.points) + 1, len(base.points) + 2]]])
+    with pytest.warns(pydynrad.scene.PrecisionWarning, match="1 patch"):
+        pydynrad.Scene(points, triangles)
