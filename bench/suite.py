@@ -17,6 +17,8 @@ dynamic        update kernels vs copy bandwidth, whole frames, accuracy near the
 bandwidth      lighting product and solver vs copy bandwidth and numpy/SciPy (bench/radiosity.py)
 gather         the far field's patch-to-cluster form factors G: error vs hemicube resolution, time
                per row against F's, precompute share (bench/gather.py)
+farfield       the far field: error and frame time off and on, over C and M, Cornell box and village
+               at night and under a sun (bench/farfield.py)
 =============  ===========================================================================
 
 Each section is a function ``section(ctx) -> dict`` (title, description, tables, plots; see
@@ -54,6 +56,7 @@ SIZES: dict[str, dict] = {
         "dynamic": {},
         "bandwidth": {},
         "gather": {},
+        "farfield": {},
     },
     "quick": {
         "pathtracer": {"furnace_subdivisions": 3, "spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
@@ -64,6 +67,7 @@ SIZES: dict[str, dict] = {
         "dynamic": {},
         "bandwidth": {},
         "gather": {},
+        "farfield": {},
     },
     "full": {
         "pathtracer": {"furnace_subdivisions": 4, "spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
@@ -74,6 +78,7 @@ SIZES: dict[str, dict] = {
         "dynamic": {},
         "bandwidth": {},
         "gather": {},
+        "farfield": {},
     },
 }
 
@@ -86,6 +91,7 @@ SECTIONS: dict[str, str] = {
     "dynamic": "bench.dynamic:suite_section",
     "bandwidth": "bench.radiosity:suite_section",
     "gather": "bench.gather:suite_section",
+    "farfield": "bench.farfield:farfield_section",
 }
 
 
