@@ -1,0 +1,296 @@
+"""The far field: every patch's radiosity at a coarse level, and its light injected into the local set.
+
+docs/design.md, 'Far field', gives the algebra. With clusters c (pure albedo), an area-weighted
+restriction R (C x N), a prolongation Pr (N x C, R Pr = I) and the patch-to-cluster form factors
+G = F Pr (N x C):
+
+    F_c = R G                         the coarse (Galerkin) form factors, C x C
+    L_c = R L ;  B_c = L_c + P_c F_c B_c                     (per light change)
+    B_far = L + P (G B_c)             every patch, at the coarse level's accuracy
+
+and per frame, for the local set S and X the patches outside it,
+
+    L'_S = L_S + P_S F[S, X] B_far[X]                         (from the local set's kept rows)
+    B_S  = L'_S + P_S K_S L'_S        the local lighting product, exact given B_far.
+
+With C = N (every patch its own cluster) G = F and B_far is the full solution.
+
+The coarse system is solved by Jacobi sweeps of the sparse F_c on the device, warm-started from
+the previous B_c when the lights change (bench/farfield.py measures sweeps and time; docs/design.md,
+'Far field', 'As built', says why there is no dense K_c). Two refinements, both measured there:
+
+* ``prolongation="exposure"``: Pr_w[i, c] = w_i / mean_c(w) (area-weighted mean; the indicator
+  where the mean is 0) with w the radiosity under a uniform sky of directional lights, so a
+  cluster's light goes to its exposed members and not to shadowed or enclosed ones (the leaks
+  of plain cluster averages). Needs F. It lost at night (the sky is not where lamps shine).
+* ``first_bounce=True`` (the default with F): B_far = L + P F (L + D), where every patch's
+  indirect light D is its cluster's B_c - L_c shared in proportion to the patch's own first
+  bounce P F L, then ``fine_sweeps`` bounces of the full F (default 1): three passes over F per
+  light change, and no leaks into patches that one bounce of the direct light does not reach.
+  Needs F.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..checks import ROW_SUM_SLACK, check_form_factors, integer, scene as checked_scene
+from ..errors import InvalidInputError, PydynradError
+from .clusters import Clusters, cluster_patches, light_components
+
+__all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS"]
+
+PROLONGATIONS = ("indicator", "exposure")
+
+#: Directional lights of the uniform sky that the exposure weights are solved under.
+SKY_DIRECTIONS = 128
+
+
+def sky_directions(n: int = SKY_DIRECTIONS) -> np.ndarray:
+    """(n, 3) unit directions evenly over the sphere (a Fibonacci lattice): deterministic."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (1.0 + 5**0.5) * k
+    r = np.sqrt(1.0 - z * z)
+    return np.column_stack([r * np.cos(phi), z, r * np.sin(phi)])
+
+
+def exposure_weights(scene, F: sp.csr_matrix, device, tol: float = 1e-4) -> np.ndarray:
+    """(N,) radiosity (grey, channel mean) under a uniform sky of :data:`SKY_DIRECTIONS` lights."""
+    from ..devicecsr import DeviceCSR
+    from ..lights import DirectionalLight, light_vector
+
+    sky = [DirectionalLight(tuple(d), (1.0 / SKY_DIRECTIONS,) * 3) for d in sky_directions()]
+    L = light_vector(scene.with_materials(emission=0.0), sky, device=device).mean(axis=1, keepdims=True)
+    rho = scene.albedo.astype(np.float64).mean(axis=1, keepdims=True)
+    w = DeviceCSR(device, F).jacobi(L, rho, L, tol, 200)[0]
+    return np.maximum(w[:, 0], 0.0)
+
+
+def weighted_prolongation(clusters: Clusters, areas: np.ndarray, w: np.ndarray) -> sp.csr_matrix:
+    """(N, C) Pr_w[i, c] = w_i / mean_c(w), the area-weighted mean; the indicator where the mean is 0."""
+    a = np.asarray(areas, dtype=np.float64)
+    lab = clusters.labels
+    mean = np.bincount(lab, weights=a * w, minlength=clusters.count) / np.bincount(lab, weights=a, minlength=clusters.count)
+    scale = np.where(mean[lab] > 0, w / np.where(mean[lab] > 0, mean[lab], 1.0), 1.0)
+    n = len(lab)
+    return sp.csr_matrix((scale, (np.arange(n), lab)), shape=(n, clusters.count))
+
+
+class FarField:
+    """The coarse level of a scene: clusters, F_c, G, and the far radiosity B_far per light vector.
+
+    Parameters
+    ----------
+    scene : pydynrad.Scene
+    form_factors : (N, N) sparse, optional
+        F in memory. Without it ``G`` must be given (from
+        :func:`pydynrad.farfield.gather.cluster_form_factors` or a form-factor store).
+    clusters : Clusters or int, optional
+        A partition (:func:`cluster_patches`), or C for one; default C from N.
+    G : (N, C) sparse, optional
+        The patch-to-cluster form factors F Pr for these clusters (computed from F if omitted).
+    prolongation : "indicator" | "exposure"
+    first_bounce : bool, optional
+        Gather the final bounce with F's rows, sharing each cluster's indirect light by the
+        patches' first bounce (default: when F is given).
+    fine_sweeps : int
+        With the first bounce: bounces B <- L + P F B of the full F after the gather, each
+        about halving the far field's error (bench/farfield.py); 0 for none.
+    tol : float
+        Relative max-norm change of B_c at which the coarse sweeps stop.
+    max_sweeps : int
+        The most coarse sweeps per light change.
+    dtype : np.float32 | np.float64
+        Precision of the device products.
+    device : pydynrad.Device, optional
+    checked : bool
+        ``form_factors`` already passed :func:`pydynrad.checks.check_form_factors` (a
+        DynamicRadiosity's own copy): skip validating it again.
+
+    Attributes
+    ----------
+    clusters : Clusters
+    R, G, F_c : scipy.sparse.csr_matrix
+        (C, N) restriction, (N, C) patch-to-cluster and (C, C) coarse form factors, float64.
+    B_far : (N, 3) float64 or None
+        Every patch's far radiosity for the last light vector (:meth:`light`).
+    sweeps : int
+        Coarse sweeps the last light change took.
+    seconds_build, seconds_light, seconds_coarse : float
+        Wall time of the construction, of the last light change and of its coarse solve.
+    """
+
+    def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str = "indicator",
+                 first_bounce: bool | None = None, fine_sweeps: int = 1, tol: float = 1e-5, max_sweeps: int = 1000,
+                 dtype=np.float32, device=None, *, checked: bool = False) -> None:
+        from ..device import default_device
+        from ..devicecsr import DeviceCSR
+
+        t0 = time.perf_counter()
+        self.scene = checked_scene(scene)
+        n = len(scene)
+        self.device = device or default_device()
+        if prolongation not in PROLONGATIONS:
+            raise InvalidInputError(f"prolongation must be one of {PROLONGATIONS}; got {prolongation!r}")
+        if not (np.isfinite(tol) and tol >= 0):
+            raise InvalidInputError(f"tol must be a finite number >= 0; got {tol!r}")
+        max_sweeps = integer(max_sweeps, "max_sweeps", 1)
+        F = form_factors if form_factors is None or checked else check_form_factors(scene, form_factors)
+        first_bounce = F is not None if first_bounce is None else bool(first_bounce)
+        if F is None and G is None:
+            raise InvalidInputError("the far field needs F in memory or its patch-to-cluster form factors G "
+                                    "(pydynrad.farfield.gather.cluster_form_factors, or a store holding G)")
+        if F is None and (first_bounce or prolongation == "exposure"):
+            raise InvalidInputError(f"first_bounce and prolongation='exposure' need F in memory; got "
+                                    f"first_bounce={first_bounce}, prolongation={prolongation!r} without F")
+        if clusters is None or not isinstance(clusters, Clusters):
+            clusters = cluster_patches(scene, clusters, components=None if F is None else light_components(F))
+        elif clusters.scene_hash != scene.content_hash() or len(clusters.labels) != n:
+            raise InvalidInputError("these clusters were made for another scene (content hash differs)")
+        self.clusters = clusters
+        C = clusters.count
+        self.R = clusters.restriction(scene.areas)
+        if prolongation == "exposure":
+            self.weights = exposure_weights(scene, F, self.device)
+            Pr = weighted_prolongation(clusters, scene.areas, self.weights)
+        else:
+            self.weights = None
+            Pr = clusters.indicator()
+        if G is None:
+            G = F @ Pr
+        G = sp.csr_matrix(G, dtype=np.float64)
+        if G.shape != (n, C):
+            raise InvalidInputError(f"G must have shape ({n}, {C}) (patches x clusters); got {G.shape}")
+        if G.nnz and (not np.all(np.isfinite(G.data)) or G.data.min() < 0):
+            raise InvalidInputError("G must hold finite, non-negative form factors")
+        rows = np.asarray(G.sum(axis=1)).ravel()
+        if rows.max(initial=0.0) > 1.0 + ROW_SUM_SLACK:  # a row of G is a row of F summed by cluster
+            i = int(rows.argmax())
+            raise InvalidInputError(f"row {i} of G sums to {rows[i]:.6g} > 1: not this scene's form factors summed by "
+                                    "cluster")
+        self.prolongation, self.first_bounce, self.tol, self.max_sweeps = prolongation, bool(first_bounce), tol, max_sweeps
+        self.fine_sweeps = integer(fine_sweeps, "fine_sweeps", 0)
+        self.G = G
+        self.F_c = sp.csr_matrix(self.R @ G)
+        self.rho = scene.albedo.astype(np.float64)
+        # Pure clusters: every member has the cluster's albedo.
+        first = np.zeros(C, dtype=np.int64)
+        first[clusters.labels[::-1]] = np.arange(n)[::-1]
+        self.rho_c = self.rho[first]
+        # The first-bounce gather goes through F's rows: G then only makes F_c.
+        self._G_dev = None if first_bounce else DeviceCSR(self.device, G, dtype)
+        self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype)
+        self._F_dev = DeviceCSR(self.device, F, dtype) if first_bounce else None
+        self._B_c = None
+        self._L = None
+        self.B_far = None
+        self._injected = None  # (B_far, local rows, members, injection) of the last injection
+        self.sweeps = 0
+        self.seconds_build = time.perf_counter() - t0
+        self.seconds_light = self.seconds_coarse = 0.0  # the last light change, and its coarse solve
+
+    @property
+    def C(self) -> int:
+        return self.clusters.count
+
+    @property
+    def device_memory_bytes(self) -> int:
+        """Device bytes of F_c and G (or F, for the first-bounce gather)."""
+        return sum(m.nbytes for m in (self._G_dev, self._Fc_dev, self._F_dev) if m is not None)
+
+    @property
+    def host_memory_bytes(self) -> int:
+        """Host bytes of G, F_c, R, the labels and B_far."""
+        mats = (self.G, self.F_c, self.R)
+        held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats)
+        far = 0 if self.B_far is None else self.B_far.nbytes
+        return held + self.clusters.labels.nbytes + far
+
+    def light(self, L: np.ndarray) -> np.ndarray:
+        """B_far (N, 3) float64 for light vector L (N, 3); cached while L is unchanged."""
+        if self._L is not None and np.array_equal(L, self._L):
+            return self.B_far
+        t0 = time.perf_counter()
+        grey = self.scene.is_grey and bool(np.all(L[:, :1] == L))
+        k = 1 if grey else 3
+        L_c = self.R @ L[:, :k]
+        x0 = L_c if self._B_c is None or self._B_c.shape[1] != k else self._B_c
+        B_c, self.sweeps, _, _ = self._Fc_dev.jacobi(L_c, self.rho_c[:, :k], x0, self.tol, self.max_sweeps)
+        self.seconds_coarse = time.perf_counter() - t0
+        self._B_c = B_c
+        if self.first_bounce:
+            B = self._gather_with_first_bounce(L[:, :k], B_c - L_c)
+            if self.fine_sweeps:
+                B = self._F_dev.jacobi(L[:, :k], self.rho[:, :k], B, 0.0, self.fine_sweeps)[0]
+        else:
+            B = self._G_dev.bounce(L[:, :k], self.rho[:, :k], B_c)
+        self.B_far = np.repeat(B, 3, axis=1) if k == 1 else B
+        self._L = np.array(L, dtype=np.float64)
+        self.seconds_light = time.perf_counter() - t0
+        return self.B_far
+
+    def _gather_with_first_bounce(self, L: np.ndarray, D_c: np.ndarray) -> np.ndarray:
+        """L + P F (L + D): the indirect light D of every patch prolongated from the clusters'
+        D_c = B_c - L_c in proportion to its own first bounce D1 = P F L (the cluster's
+        area-weighted mean of D1 maps to D_c; the indicator where that mean is 0), then one
+        gather with F's rows. A patch no direct light reaches by one bounce gets no share of
+        its cluster's indirect light, so light does not leak to shadowed members."""
+        lab = self.clusters.labels
+        rho = self.rho[:, : L.shape[1]]
+        D1 = self._F_dev.bounce(np.zeros_like(L), rho, L)
+        mean = (self.R @ D1)[lab]
+        share = np.where(mean > 0, D1 / np.where(mean > 0, mean, 1.0), 1.0)
+        return self._F_dev.bounce(L, rho, L + share * D_c[lab])
+
+    def injection(self, local_rows: sp.csr_matrix, members: np.ndarray) -> np.ndarray:
+        """L'_S - L_S = P_S F[S, X] B_far[X] (M, 3) for the local set ``members`` (slot order)
+        whose F rows are ``local_rows`` (M, N)."""
+        if self.B_far is None:
+            raise PydynradError("light() the far field before injecting it")
+        key = self._injected
+        # A frame with the same lights and local set (rows replaced on every swap) reuses it.
+        if key is not None and key[0] is self.B_far and key[1] is local_rows and np.array_equal(key[2], members):
+            return key[3]
+        far = self.B_far.copy()
+        far[members] = 0.0  # X: only the patches outside S
+        out = self.rho[members] * (local_rows @ far)
+        self._injected = (self.B_far, local_rows, np.array(members), out)
+        return out
+
+
+def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarField:
+    """The FarField a :class:`~pydynrad.DynamicRadiosity` uses for its form factors
+    (:class:`pydynrad.dynamic.localrows.LocalRows`).
+
+    F in memory (a matrix, or :class:`~pydynrad.CSRRows`): everything from F. A form-factor
+    store (also behind a row cache): its own clusters and G (refused when it holds none). Rows
+    computed on demand: G from cluster-id hemicubes
+    (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
+    """
+    from ..rows.sources import CSRRows
+    from ..rows.store import FormFactorStore
+    from .gather import cluster_form_factors_for
+
+    if local_rows.csr is not None:
+        return FarField(scene, local_rows.csr, clusters, G, device=device, checked=True)
+    inner = local_rows.source
+    while not isinstance(inner, (FormFactorStore, CSRRows)) and hasattr(inner, "source"):
+        inner = inner.source  # through row caches
+    if isinstance(inner, CSRRows):
+        return FarField(scene, inner.matrix, clusters, G, device=device)
+    if isinstance(inner, FormFactorStore) and G is None:
+        if not inner.has_clusters:
+            raise InvalidInputError(
+                f"form-factor store {inner.path} holds no far-field G: compute it (compute_store(..., clusters=...) or "
+                "`pydynrad formfactors SCENE -o STORE --clusters C`), or pass far_field=False (--no-far-field)")
+        if clusters is None:
+            clusters = Clusters.from_labels(scene, inner.cluster_labels())
+    if not isinstance(clusters, Clusters):
+        clusters = cluster_patches(scene, clusters)
+    if G is None:
+        G = cluster_form_factors_for(scene, local_rows.source, clusters, device=device)
+    return FarField(scene, None, clusters, G, device=device)
