@@ -244,3 +244,32 @@ def test_g_for_each_kind_of_row_source(box, tmp_path, device, monkeypatch):
         gather.cluster_form_factors_for(closed_box(2.0, subdivisions=2), store, labels)
     with pytest.raises(InvalidInputError, match="rows; the scene has"):
         gather.cluster_form_factors_for(scene, CSRRows(F[:10, :10]), labels)
+
+
+def test_store_of_g_alone_lights_a_walk_with_rows_on_demand(tmp_path, device):
+    """A store holding only G (no F rows) plus F's rows on demand: the same far field, bit for
+    bit, as G computed by hemicubes on the spot, and close to the full solve."""
+    from pydynrad import DynamicRadiosity, PointLight, light_vector, solve
+    from pydynrad.farfield import Clusters, cluster_patches
+
+    scene = cornell_box(max_edge=250)
+    cl = cluster_patches(scene)
+    store = compute_store(scene, tmp_path / "g", resolution=32, clusters=cl, compute_f=False, progress=False,
+                          device=device)
+    assert not store.complete and store.complete_clusters
+    kw = dict(local_size=30, observer=[278, 273, 280], resolution=32, device=device)
+    from_store = DynamicRadiosity(scene, None, clusters=Clusters.from_labels(scene, store.cluster_labels()),
+                                  cluster_form_factors=store.cluster_form_factors(cl), **kw)
+    on_the_spot = DynamicRadiosity(scene, None, clusters=cl, **kw)
+    lights = [PointLight(position=[278, 450, 280], intensity=[2e5] * 3)]
+    B = from_store.radiosity(lights)
+    np.testing.assert_array_equal(B, on_the_spot.radiosity(lights))
+    L = light_vector(scene, lights, device=device)
+    full = solve(scene, form_factors(scene, resolution=32, device=device), light=L, dtype=np.float64,
+                 tol=1e-10, device=device).radiosity
+    def error(b):
+        return np.sqrt(np.sum((b - full) ** 2) / np.sum(full**2))
+
+    # Observed 3.5% (29 clusters, no first bounce without F; G = F Pr at R = 32 gives 3.45%, so G's
+    # resolution adds 0.04 points), local only 18.8% (M = 30 of 226).
+    assert error(B) < 0.05 and error(B) < error(from_store.radiosity(lights, far_field=False)) / 4

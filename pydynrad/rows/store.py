@@ -13,8 +13,11 @@ and, when the far field's patch-to-cluster form factors G = F Pr are stored besi
     STORE/prolongation.npz     Pr (N, C), float32, as one CSR block (the clusters G was made with)
     STORE/gblocks/g000000.npz  rows [0, block_rows) of G, ...
 
-A store may hold G without F's rows (a walk then computes F's rows on demand); G from other
-clusters is refused (:class:`StoreMismatchError`), never mixed in.
+A store may hold G without F's rows (``compute_f=False``): a dynamic solution then computes
+F's rows on demand and takes G from the store,
+``DynamicRadiosity(scene, None, clusters=Clusters.from_labels(scene, store.cluster_labels()),
+cluster_form_factors=store.cluster_form_factors())``. G from other clusters is refused
+(:class:`StoreMismatchError`), never mixed in.
 
 Format choice. Each block is a standard NumPy ``.npz`` (a zip archive, DEFLATE-compressed)
 holding ``indptr.npy`` (int64, block-local), ``indices.npy`` (int32 column = patch index),
