@@ -30,6 +30,8 @@ from .lights import DirectionalLight, PointLight, SpotLight, direct_irradiance, 
 from .solve import Solution, solve
 from .multibounce import multibounce, multibounce_radiosity
 from .pathtrace import path_trace, path_trace_patches
+from . import photometry
+from .photometry import SkyLight, illuminance
 from .rows.store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError, compute_store
 from .rows.cache import RowCache
 from .rows.sources import CSRRows, HemicubeRows, RowSource, as_row_source
@@ -62,6 +64,7 @@ __all__ = [
     "FrameStats",
     "GroupRadiosity",
     "HemicubeRows",
+    "illuminance",
     "InvalidInputError",
     "KernelBuildError",
     "light_vector",
@@ -80,6 +83,7 @@ __all__ = [
     "pack_lights",
     "path_trace",
     "path_trace_patches",
+    "photometry",
     "PointLight",
     "precompute_distributed",
     "PydynradError",
@@ -92,6 +96,7 @@ __all__ = [
     "SceneFileError",
     "scenes",
     "SceneSpec",
+    "SkyLight",
     "Solution",
     "solve",
     "SpotLight",

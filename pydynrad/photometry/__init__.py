@@ -1,4 +1,16 @@
-"""Light as lighting people measure it: photometric units.
+"""Light as lighting people measure it: photometric units, sensors and work planes, sky.
 
-See docs/design.md, 'Units and photometry'.
+See docs/design.md, 'Units and photometry', 'Sensors and work planes' and 'Sky'.
 """
+
+from .report import IlluminanceStats, illuminance_statistics, plot_work_plane, write_illuminance_csv
+from .sensors import illuminance
+from .sky import CIE_GENERAL_SKIES, SkyLight
+from .units import (exitance_from_luminance, isotropic_intensity, lambertian_peak_intensity,
+                    luminance_from_exitance, photometric)
+from .workplane import WorkPlane, en12464_spacing, work_plane
+
+__all__ = ["CIE_GENERAL_SKIES", "en12464_spacing", "exitance_from_luminance", "illuminance",
+           "illuminance_statistics", "IlluminanceStats", "isotropic_intensity", "lambertian_peak_intensity",
+           "luminance_from_exitance", "photometric", "plot_work_plane", "SkyLight", "work_plane", "WorkPlane",
+           "write_illuminance_csv"]
