@@ -37,11 +37,12 @@
     __global const float4 *emission,                                                          \
     const int n_emitters, __global const float4 *em_tri, __global const float4 *em_emission,  \
     __global const float *em_cdf, const float inv_power,                                      \
-    const int n_lights, __global const float4 *lights, __global const float4 *sky,            \
+    const int n_lights, __global const float4 *lights, __global const float *light_tables,    \
+    __global const float4 *sky,                                                               \
     const float eps, const float far
 #define SCENE_PASS                                                                              \
     nodes, tris, order, normals, albedo, emission, n_emitters, em_tri, em_emission, em_cdf,   \
-    inv_power, n_lights, lights, sky, eps, far
+    inv_power, n_lights, lights, light_tables, sky, eps, far
 
 // Area pdf with which emitter_irradiance picks a point on emitting patch j: its pick
 // probability (power share, power = mean emission * area) over its area.
@@ -105,7 +106,7 @@ inline float3 reflected_radiance(float3 p, float3 n, float3 rho, uint *rng, SCEN
     float3 thr = rho;  // product of albedos along the path
     for (int depth = 0; depth < MAX_DEPTH; ++depth) {
         float3 x = p + n * eps;
-        float3 h = analytic_irradiance(p, x, n, n_lights, lights, nodes, tris, eps, far)
+        float3 h = analytic_irradiance(p, x, n, n_lights, lights, light_tables, nodes, tris, eps, far)
                    + emitter_irradiance(x, n, rng, SCENE_PASS);
         acc += thr * h * M_1_PI_F;
         // The cosine pdf cancels the cosine and 1/pi: radiance arriving along the bounce ray

@@ -31,7 +31,7 @@ from .solve import Solution, solve
 from .multibounce import multibounce, multibounce_radiosity
 from .pathtrace import path_trace, path_trace_patches
 from . import photometry
-from .photometry import SkyLight, illuminance
+from .photometry import LuminaireLight, PhotometricDistribution, SkyLight, illuminance, read_ies, read_ldt
 from .rows.store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError, compute_store
 from .rows.cache import RowCache
 from .rows.sources import CSRRows, HemicubeRows, RowSource, as_row_source
@@ -71,6 +71,7 @@ __all__ = [
     "LightGroups",
     "Lightmap",
     "LightTrack",
+    "LuminaireLight",
     "list_devices",
     "load",
     "load_form_factors",
@@ -83,11 +84,14 @@ __all__ = [
     "pack_lights",
     "path_trace",
     "path_trace_patches",
+    "PhotometricDistribution",
     "photometry",
     "PointLight",
     "precompute_distributed",
     "PydynradError",
+    "read_ies",
     "read_image",
+    "read_ldt",
     "render",
     "RowCache",
     "RowSource",

@@ -34,7 +34,7 @@ from .errors import InvalidInputError
 from .launch import global_size
 
 __all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "point_irradiance", "light_vector",
-           "pack_lights", "checked_lights", "checked_light_vector", "resolve_light"]
+           "pack_lights", "pack_light_tables", "checked_lights", "checked_light_vector", "resolve_light"]
 
 #: Shadow-ray origins sit this fraction of the scene's bounding-box diagonal off the surface.
 SHADOW_EPSILON = 1e-4
@@ -128,38 +128,59 @@ class DirectionalLight:
         return [0.0, 0.0, 0.0, 2.0, *self.direction, 1.0, *self.irradiance, -2.0]
 
 
-#: The lights analytic_irradiance (kernels/lights.h) evaluates with one shadow ray each.
+#: The lights of this module that analytic_irradiance (kernels/lights.h) evaluates with one
+#: shadow ray each; photometry's LuminaireLight is the fourth (see _shadow_ray_lights).
 LIGHT_TYPES = (PointLight, SpotLight, DirectionalLight)
-_LIGHT_NAMES = "PointLight, SpotLight, DirectionalLight or SkyLight"
+_LIGHT_NAMES = "PointLight, SpotLight, DirectionalLight, LuminaireLight or SkyLight"
+
+
+def _photometric_types() -> tuple:
+    # Imported late: the photometry package builds on this module.
+    from .photometry.luminaires import LuminaireLight
+    from .photometry.sky import SkyLight
+
+    return LuminaireLight, SkyLight
 
 
 def checked_lights(lights) -> list:
     """``lights`` (one light object or a sequence) as a list, or InvalidInputError."""
-    from .photometry.sky import SkyLight
-
+    kinds = (*LIGHT_TYPES, *_photometric_types())
     if isinstance(lights, np.ndarray):
         raise InvalidInputError(f"lights= takes light objects ({_LIGHT_NAMES}); "
                                 "pass a precomputed light vector as light=L")
-    if isinstance(lights, (*LIGHT_TYPES, SkyLight)):
+    if isinstance(lights, kinds):
         lights = [lights]
     lights = list(lights)
     for light in lights:
-        if not isinstance(light, (*LIGHT_TYPES, SkyLight)):
+        if not isinstance(light, kinds):
             raise InvalidInputError(f"not a light: {light!r}; use {_LIGHT_NAMES}")
     return lights
 
 
-def pack_lights(lights, frame=None) -> np.ndarray:
-    """(n_lights, 12) float32: the point, spot and directional lights among ``lights`` packed.
+def _shadow_ray_lights(lights) -> list:
+    luminaire = _photometric_types()[0]
+    return [light for light in checked_lights(lights) if isinstance(light, (*LIGHT_TYPES, luminaire))]
 
-    Three float4 per light, the layout ``kernels/lights.h`` documents (a sky is packed apart,
-    by :func:`pydynrad.photometry.sky.pack_sky`); raises InvalidInputError for anything that
-    is not a light. With ``frame`` (a :class:`pydynrad.scene.DeviceFrame`) positions are moved
-    into it and the intensities of point and spot lights divided by its unit squared, so that
-    the kernels' I / r^2 over device distances gives the irradiance of the user's frame.
+
+def pack_lights(lights, frame=None) -> np.ndarray:
+    """(n_lights, 12) float32: the point, spot, directional and luminaire lights among ``lights``.
+
+    Three float4 per light, the layout ``kernels/lights.h`` documents; a luminaire's record
+    points into :func:`pack_light_tables` (a sky is packed apart, by
+    :func:`pydynrad.photometry.sky.pack_sky`). Raises InvalidInputError for anything that is
+    not a light. With ``frame`` (a :class:`pydynrad.scene.DeviceFrame`) positions are moved
+    into it and the intensities (a luminaire's: its scale on the table) divided by its unit
+    squared, so that the kernels' I / r^2 over device distances gives the irradiance of the
+    user's frame.
     """
-    lights = [light for light in checked_lights(lights) if isinstance(light, LIGHT_TYPES)]
-    packed = np.asarray([light._packed() for light in lights], dtype=np.float64).reshape(len(lights), 12)
+    packed, offset = [], 0
+    for light in _shadow_ray_lights(lights):
+        if isinstance(light, LIGHT_TYPES):
+            packed.append(light._packed())
+        else:
+            packed.append(light._packed(offset))
+            offset += len(light._table())
+    packed = np.asarray(packed, dtype=np.float64).reshape(len(packed), 12)
     if frame is not None:
         positional = packed[:, 3] != 2.0  # every light but the directional (type 2) has a position
         packed[positional, :3] = frame.points(packed[positional, :3])
@@ -172,10 +193,17 @@ def pack_lights(lights, frame=None) -> np.ndarray:
     return out
 
 
+def pack_light_tables(lights) -> np.ndarray:
+    """(n,) float32: the luminaires' intensity tables, one after another in ``lights``' order
+    (the offsets :func:`pack_lights` records); one zero when there is no luminaire."""
+    tables = [light._table() for light in _shadow_ray_lights(lights) if not isinstance(light, LIGHT_TYPES)]
+    return np.concatenate(tables).astype(np.float32) if tables else np.zeros(1, np.float32)
+
+
 def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
     """(n, 3) float32 irradiance at ``points`` (normals ``normals``) from the analytic lights.
 
-    One shadow ray per point and point, spot or directional light, traced through
+    One shadow ray per point and point, spot, directional or luminaire light, traced through
     ``scene.bvh`` on the device from the point offset along its normal; a sky is not included.
     ``points = normals = None``: the patch centres (``Scene.patch_buffers``, uploaded once).
     """
@@ -183,6 +211,7 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
 
     from .device import default_device
 
+    lights = checked_lights(lights)
     packed = pack_lights(lights, scene.frame)
     n = len(scene) if points is None else len(points)
     if not len(packed) or not n:
@@ -203,7 +232,8 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
     # farthest sensor's distance outside it).
     kernel(
         device.queue, (global_size(n),), None, np.int32(n), centers, normals, np.int32(len(packed)),
-        device.to_device(packed), nodes, tris, np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
+        device.to_device(packed), device.to_device(pack_light_tables(lights)), nodes, tris,
+        np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
         np.float32(scene.frame.length(2.0 * scene.scale + outside)), out_dev,
     )
     out = np.empty((n, 4), dtype=np.float32)

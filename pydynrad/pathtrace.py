@@ -31,7 +31,7 @@ from .camera import Camera
 from .checks import integer, patch_indices, scene as checked_scene
 from .errors import InvalidInputError
 from .launch import global_size
-from .lights import SHADOW_EPSILON, checked_lights, pack_lights
+from .lights import SHADOW_EPSILON, checked_lights, pack_light_tables, pack_lights
 from .photometry.sky import pack_sky
 from .scene import Scene
 
@@ -87,7 +87,7 @@ class _Tracer:
             normals, up(_float4(scene.albedo)), up(_float4(scene.emission)),
             np.int32(len(em)), up(tri), up(_float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
             up(cdf.astype(np.float32)), np.float32(inv_power),
-            np.int32(n_lights), up(packed), up(pack_sky(lights)),
+            np.int32(n_lights), up(packed), up(pack_light_tables(lights)), up(pack_sky(lights)),
             np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
             np.float32(scene.frame.length(2.0 * scene.scale)),  # directional shadow rays need only leave the scene
         )
