@@ -14,6 +14,7 @@ import numpy as np
 from ..checks import floats, patch_indices, scene as checked_scene
 from ..errors import InvalidInputError
 from ..lights import checked_lights, point_irradiance
+from .areas import emitter_irradiance
 from .gather import gather_irradiance
 from .sky import SkyLight, pack_sky
 
@@ -46,7 +47,8 @@ def checked_sensors(points, normals) -> tuple[np.ndarray, np.ndarray]:
 
 
 def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, patches=None,
-                resolution: int = 64, device=None) -> np.ndarray:
+                resolution: int = 64, emitters: str = "hemicube", visibility_grid: int = 4,
+                device=None) -> np.ndarray:
     """Irradiance at sensor points (lux when the scene's light is photometric).
 
     Parameters
@@ -71,6 +73,11 @@ def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, 
         ``(F @ B)[patches]`` of a hemicube F of the same resolution.
     resolution : int
         Hemicube resolution R of the gather (3 R^2 rays per sensor).
+    emitters : "hemicube" or "analytic"
+        How the direct light of emitting patches is found: through their radiosity in the
+        hemicube, or by the exact point-to-polygon form factor with ``visibility_grid^2``
+        shadow rays per emitter (:mod:`pydynrad.photometry.areas`; the hemicube then gathers
+        only ``B - E``). Use "analytic" near emitters, where the hemicube is coarse.
 
     Returns
     -------
@@ -97,7 +104,13 @@ def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, 
             raise InvalidInputError(f"radiosity must have shape ({n_patches}, 3); got {radiosity.shape}")
         if not np.all(np.isfinite(radiosity)) or radiosity.min(initial=0.0) < 0:
             raise InvalidInputError("radiosity must be finite and >= 0")
+    if emitters not in ("hemicube", "analytic"):
+        raise InvalidInputError(f"emitters must be 'hemicube' or 'analytic'; got {emitters!r}")
     E = point_irradiance(scene, points, normals, lights, device).astype(np.float64)
+    if emitters == "analytic":
+        E += emitter_irradiance(scene, points, normals, visibility_grid, device)
+        if radiosity is not None:
+            radiosity = radiosity - scene.emission
     has_sky = any(isinstance(light, SkyLight) for light in lights)
     if radiosity is not None or has_sky:
         E += gather_irradiance(scene, points, normals, radiosity, pack_sky(lights) if has_sky else None,

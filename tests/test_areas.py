@@ -1,0 +1,73 @@
+"""Direct light of emitting patches by Lambert's contour integral with shadow-ray visibility."""
+
+import numpy as np
+import pytest
+
+import pydynrad
+from pydynrad.formfactors import _polygon_form_factor
+from pydynrad.photometry import illuminance
+
+EMITTER = np.array([[0, 0, 1], [0, 1, 1], [1, 1, 1], [1, 0, 1]], float)  # 1 x 1 m at z = 1, facing down
+
+
+def exact(polygon, p, n):
+    """Point-to-polygon form factor, the polygon clipped to the point's half-space (numpy, float64)."""
+    z = n / np.linalg.norm(n)
+    x = np.cross(z, [0.123, 1.0, 0.2])
+    x /= np.linalg.norm(x)
+    q = (polygon - p) @ np.stack([x, np.cross(z, x), z], 1)
+    out = []
+    for a, b in zip(q, np.roll(q, -1, axis=0)):
+        if a[2] >= 0:
+            out.append(a)
+        if (a[2] >= 0) != (b[2] >= 0):
+            out.append(a + (b - a) * (a[2] / (a[2] - b[2])))
+    return float(_polygon_form_factor(np.array(out))) if len(out) >= 3 else 0.0
+
+
+def test_unoccluded_emitter_matches_the_contour_integral(device):
+    scene = pydynrad.Scene(EMITTER, [[0, 1, 2], [0, 2, 3]], albedo=0.0, emission=100.0)
+    points = np.array([[0.3, 0.4, 0.0], [0.5, 0.5, 0.94], [1.06, 0.5, 0.94], [0.2, 0.7, 0.5], [0.5, 0.5, 0.999]])
+    normals = np.array([[0, 0, 1], [1, 0, 0], [-1, 0, 0], [0.3, -0.2, 1], [0, 1, 0.01]], float)
+    E = illuminance(scene, None, points, normals, emitters="analytic", device=device)
+    expected = [100.0 * exact(EMITTER, p, n / np.linalg.norm(n)) for p, n in zip(points, normals)]
+    # Straddling the receiver's plane (points 1, 2, 4) included; float32 on the device: 1e-6.
+    np.testing.assert_allclose(E[:, 0], expected, rtol=2e-5)
+    # Behind the emitter nothing arrives.
+    assert illuminance(scene, None, [0.5, 0.5, 1.5], [0, 0, -1], emitters="analytic", device=device)[0, 0] == 0
+
+
+def test_occluders_hide_the_emitter(device):
+    # A black blocker at z = 0.5 over x < 0.5, between the emitter and points on the floor.
+    blocker = np.array([[-1, -1, 0.5], [0.5, -1, 0.5], [0.5, 2, 0.5], [-1, 2, 0.5]], float)
+    pts = np.vstack([EMITTER, blocker])
+    tris = [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]
+    emission = np.array([100.0, 100.0, 0.0, 0.0])[:, None].repeat(3, 1)
+    scene = pydynrad.Scene(pts, tris, albedo=0.0, emission=emission)
+    # From (0.4, 0.5, 0) the blocker's edge hides the emitter where x < 0.6.
+    p = np.array([0.4, 0.5, 0.0])
+    E = illuminance(scene, None, p, [0, 0, 1], emitters="analytic", visibility_grid=16, device=device)[0, 0]
+    visible = 100.0 * exact(np.array([[0.6, 0, 1], [0.6, 1, 1], [1, 1, 1], [1, 0, 1]], float), p, np.array([0, 0, 1.0]))
+    # The visible share is sampled (16 x 16 points per triangle, weighted by cos cos / r^2):
+    # -1.9% here; the same estimator in numpy gives +0.1% at 256 x 256.
+    assert E == pytest.approx(visible, rel=0.04)
+    hidden = illuminance(scene, None, [0.0, 0.5, 0.0], [0, 0, 1], emitters="analytic", device=device)[0, 0]
+    assert hidden == 0.0  # from x = 0 all of the emitter is behind the blocker
+
+
+def test_analytic_emitters_and_hemicube_agree_in_a_lit_box(device):
+    # The box lit by its ceiling, solved with hemicube F; sensors from 0.9 m to 3 cm below the
+    # ceiling, facing up and sideways, both ways (the hemicube gathering B, or B - E plus the
+    # contour integral).
+    room = pydynrad.scenes.closed_box(subdivisions=2, albedo=0.5, emission=0.0)
+    top = np.flatnonzero(room.source_face // 2 == 5)
+    emission = np.zeros((len(room), 3))
+    emission[top] = 10.0
+    room = room.with_materials(emission=emission)
+    B = pydynrad.solve(room, pydynrad.form_factors(room, 64, device=device), device=device).radiosity
+    points = np.array([[0.5, 0.5, 0.1], [0.3, 0.7, 0.2], [0.5, 0.5, 0.9], [0.2, 0.5, 0.95], [0.5, 0.5, 0.97]])
+    for normal in ([0, 0, 1], [1, 0, 0]):
+        a = illuminance(room, B, points, normal, emitters="analytic", resolution=128, device=device)
+        h = illuminance(room, B, points, normal, resolution=128, device=device)
+        # 0.2% at most observed at R = 128 (the hemicube's pixels against the emitter's edges).
+        np.testing.assert_allclose(h, a, rtol=5e-3)
