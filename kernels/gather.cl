@@ -9,11 +9,6 @@
 #include "hemicube.h"
 #include "sky.h"
 
-// The lane offsets of a scanline's packet below are written out for 16 lanes.
-#if BVH_PACKET != 16
-#error "gather.cl needs BVH_PACKET == 16 from the host (pydynrad/launch.py)"
-#endif
-
 // points, normals: float4 per point; keys: each point's rotation key; own: the patch a point
 // lies on (-1: none). This launch does points first .. first + n_points - 1. Output:
 // partial[k * 3R + s].xyz, scanline s's share of point first + k.
@@ -34,20 +29,9 @@ __kernel void hemicube_gather(__global const float4 *nodes, __global const float
     hc_scanline(n, (uint)keys[q], s, &base, &step_dir);
 
     float3 acc = (float3)(0.0f);
-    const bvh_floatP lane = (bvh_floatP)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-    RayPacket r;
-    r.ox = (bvh_floatP)org.x;
-    r.oy = (bvh_floatP)org.y;
-    r.oz = (bvh_floatP)org.z;
     for (int x0 = 0; x0 < R; x0 += BVH_PACKET) {
-        bvh_floatP xs = BVH_MIN((bvh_floatP)x0 + lane, (bvh_floatP)(R - 1));
-        r.dx = base.x + xs * step_dir.x;
-        r.dy = base.y + xs * step_dir.y;
-        r.dz = base.z + xs * step_dir.z;
-        HitPacket hp = bvh_closest_packet(nodes, tris, order, &r, 0.0f, (bvh_floatP)INFINITY);
         int ids[BVH_PACKET], fronts[BVH_PACKET];
-        bvh_vstoreP(hp.patch, 0, ids);
-        bvh_vstoreP(hp.front, 0, fronts);
+        hc_trace_packet(nodes, tris, order, org, base, step_dir, x0, ids, fronts);
         for (int l = 0; l < BVH_PACKET && x0 + l < R; ++l) {
             const float w = weights[s * R + x0 + l];
             const int id = ids[l];

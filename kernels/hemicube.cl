@@ -15,11 +15,6 @@
 #include "bvh.cl"
 #include "hemicube.h"
 
-// The lane offsets of a scanline's packet below are written out for 16 lanes.
-#if BVH_PACKET != 16
-#error "hemicube.cl needs BVH_PACKET == 16 from the host (pydynrad/launch.py)"
-#endif
-
 #ifdef HC_CLUSTERS
 #define HC_EXTRA_ARGS , __global const int *labels, __global const float *scale, __global const float *pixel_weights
 #define HC_END_TYPE float
@@ -56,20 +51,9 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
 #endif
     // BVH_PACKET pixels of the scanline per traversal, one per vector lane (a short last
     // packet repeats its last pixel in the spare lanes).
-    const bvh_floatP lane = (bvh_floatP)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-    RayPacket r;
-    r.ox = (bvh_floatP)org.x;
-    r.oy = (bvh_floatP)org.y;
-    r.oz = (bvh_floatP)org.z;
     for (int x0 = 0; x0 < R; x0 += BVH_PACKET) {
-        bvh_floatP xs = BVH_MIN((bvh_floatP)x0 + lane, (bvh_floatP)(R - 1));
-        r.dx = base.x + xs * step_dir.x;
-        r.dy = base.y + xs * step_dir.y;
-        r.dz = base.z + xs * step_dir.z;
-        HitPacket hp = bvh_closest_packet(nodes, tris, order, &r, 0.0f, (bvh_floatP)INFINITY);
         int ids[BVH_PACKET], fronts[BVH_PACKET];
-        bvh_vstoreP(hp.patch, 0, ids);
-        bvh_vstoreP(hp.front, 0, fronts);
+        hc_trace_packet(nodes, tris, order, org, base, step_dir, x0, ids, fronts);
         for (int l = 0; l < BVH_PACKET && x0 + l < R; ++l) {
             // A back face occludes and receives nothing; a planar patch cannot see itself.
             int hit = (ids[l] >= 0 && fronts[l] && ids[l] != i) ? ids[l] : -1;

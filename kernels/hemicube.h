@@ -1,5 +1,6 @@
 // Hemicube ray generation shared by the form-factor rows (hemicube.cl) and the gathers at
-// arbitrary points (gather.cl): the frame at a point and the direction of every pixel.
+// arbitrary points (gather.cl): the frame at a point, the direction of every pixel, and a
+// scanline's packet of rays traced. Include bvh.cl first.
 //
 // A hemicube of resolution R (HC_RES) has a top face of R x R pixels and four side faces of
 // R x R/2, i.e. 3R scanlines of R pixels each:
@@ -14,6 +15,10 @@
 
 #ifndef HC_RES
 #error "HC_RES (the hemicube resolution) must be defined"
+#endif
+// The lane offsets of hc_trace_packet are written out for 16 lanes.
+#if BVH_PACKET != 16
+#error "hemicube.h needs BVH_PACKET == 16 from the host (pydynrad/launch.py)"
 #endif
 
 // A 32-bit integer hash (lowbias32): the rotation angle of key, fixed for all runs.
@@ -59,6 +64,26 @@ inline void hc_scanline(float3 n, uint key, int s, float3 *base, float3 *step)
     }
     *base = b_ + 0.5f * px * d_;
     *step = d_ * px;
+}
+
+// Pixels x0 .. x0 + BVH_PACKET - 1 of a scanline (base, step from hc_scanline; lanes past the
+// scanline's end repeat its last pixel) traced from org as one packet: each ray's nearest patch
+// (-1: none) and whether it met that patch's front. Needs bvh.cl's packet part (BVH_PACKET).
+inline void hc_trace_packet(__global const float4 *nodes, __global const float4 *tris, __global const int *order,
+                            float3 org, float3 base, float3 step, int x0, int *ids, int *fronts)
+{
+    const bvh_floatP lane = (bvh_floatP)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    RayPacket r;
+    r.ox = (bvh_floatP)org.x;
+    r.oy = (bvh_floatP)org.y;
+    r.oz = (bvh_floatP)org.z;
+    const bvh_floatP xs = BVH_MIN((bvh_floatP)x0 + lane, (bvh_floatP)(HC_RES - 1));
+    r.dx = base.x + xs * step.x;
+    r.dy = base.y + xs * step.y;
+    r.dz = base.z + xs * step.z;
+    HitPacket hp = bvh_closest_packet(nodes, tris, order, &r, 0.0f, (bvh_floatP)INFINITY);
+    bvh_vstoreP(hp.patch, 0, ids);
+    bvh_vstoreP(hp.front, 0, fronts);
 }
 
 #endif

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import floats, number, scene as checked_scene, vec3
+from .checks import floats, number, scene as checked_scene, unit_vector, vec3
 from .errors import InvalidInputError
 from .launch import global_size
 
@@ -55,11 +55,7 @@ def _rgb(value, what: str) -> tuple[float, float, float]:
 
 
 def _unit(value, what: str) -> tuple[float, float, float]:
-    a = np.asarray(_vec3(value, what))
-    norm = float(np.linalg.norm(a))
-    if norm == 0:
-        raise InvalidInputError(f"{what} must be a non-zero vector")
-    return tuple(float(v) for v in a / norm)
+    return tuple(float(v) for v in unit_vector(value, what))
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,8 @@ import pydynrad
 from pydynrad.formfactors import _polygon_form_factor
 from pydynrad.photometry import illuminance
 
+from helpers import ceiling_lit_box
+
 EMITTER = np.array([[0, 0, 1], [0, 1, 1], [1, 1, 1], [1, 0, 1]], float)  # 1 x 1 m at z = 1, facing down
 
 
@@ -59,11 +61,7 @@ def test_analytic_emitters_and_hemicube_agree_in_a_lit_box(device):
     # The box lit by its ceiling, solved with hemicube F; sensors from 0.9 m to 3 cm below the
     # ceiling, facing up and sideways, both ways (the hemicube gathering B, or B - E plus the
     # contour integral).
-    room = pydynrad.scenes.closed_box(subdivisions=2, albedo=0.5, emission=0.0)
-    top = np.flatnonzero(room.source_face // 2 == 5)
-    emission = np.zeros((len(room), 3))
-    emission[top] = 10.0
-    room = room.with_materials(emission=emission)
+    room = ceiling_lit_box(albedo=0.5)
     B = pydynrad.solve(room, pydynrad.form_factors(room, 64, device=device), device=device).radiosity
     points = np.array([[0.5, 0.5, 0.1], [0.3, 0.7, 0.2], [0.5, 0.5, 0.9], [0.2, 0.5, 0.95], [0.5, 0.5, 0.97]])
     for normal in ([0, 0, 1], [1, 0, 0]):

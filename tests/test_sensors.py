@@ -7,15 +7,13 @@ import pydynrad
 from pydynrad import InvalidInputError, PointLight
 from pydynrad.photometry import illuminance
 
+from helpers import ceiling_lit_box
+
 
 @pytest.fixture(scope="module")
 def lit_box(device):
     """A closed box, lit by its emitting top wall and a point light, solved with R = 16 rows."""
-    scene = pydynrad.scenes.closed_box(subdivisions=2, albedo=0.6, emission=0.0)
-    top = np.flatnonzero(scene.source_face // 2 == 5)
-    emission = np.zeros((len(scene), 3))
-    emission[top] = 10.0
-    scene = scene.with_materials(emission=emission)
+    scene = ceiling_lit_box(albedo=0.6)
     light = PointLight([0.3, 0.6, 0.5], 2.0)
     F = pydynrad.form_factors(scene, 16, device=device)
     B = pydynrad.solve(scene, F, lights=[light], tol=1e-9, device=device).radiosity

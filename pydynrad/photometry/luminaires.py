@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks import floats, vec3
+from ..checks import floats, unit_vector
 from ..errors import InvalidInputError
 
 __all__ = ["PhotometricDistribution", "LuminaireLight"]
@@ -115,13 +115,6 @@ class PhotometricDistribution:
                                np.radians(self.gamma_angles), self.candela.ravel()]).astype(np.float32)
 
 
-def _unit(value, what: str) -> np.ndarray:
-    v = vec3(value, what).astype(np.float64)
-    norm = float(np.linalg.norm(v))
-    if norm == 0:
-        raise InvalidInputError(f"{what} must be a non-zero vector")
-    return v / norm
-
 
 @dataclass(frozen=True, eq=False)
 class LuminaireLight:
@@ -156,8 +149,8 @@ class LuminaireLight:
             raise InvalidInputError("LuminaireLight.distribution must be a PhotometricDistribution "
                                     "(read_ies, read_ldt, PhotometricDistribution.lambertian)")
         object.__setattr__(self, "position", _vec3(self.position, "LuminaireLight.position"))
-        nadir = _unit(self.nadir, "LuminaireLight.nadir")
-        c0 = _unit(self.c0, "LuminaireLight.c0")
+        nadir = unit_vector(self.nadir, "LuminaireLight.nadir")
+        c0 = unit_vector(self.c0, "LuminaireLight.c0")
         c0 = c0 - nadir * float(c0 @ nadir)
         if np.linalg.norm(c0) < 1e-6:
             raise InvalidInputError("LuminaireLight.c0 must not be parallel to nadir")

@@ -28,10 +28,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
-from ..checks import number, resolution as checked_resolution, vec3
+from ..checks import number, resolution as checked_resolution, unit_vector
 from ..errors import InvalidInputError
 
 __all__ = ["SkyLight", "CIE_GENERAL_SKIES", "pack_sky"]
@@ -47,13 +48,6 @@ _TYPES = {1: (1, 1), 2: (1, 2), 3: (2, 1), 4: (2, 2), 5: (3, 1), 6: (3, 2), 7: (
 CIE_GENERAL_SKIES = {t: _GRADATION[g] + _INDICATRIX[i] for t, (g, i) in _TYPES.items()}
 _ALIASES = {"overcast": 1, "clear": 12}
 
-
-def _unit(value, what: str) -> np.ndarray:
-    v = vec3(value, what).astype(np.float64)
-    norm = float(np.linalg.norm(v))
-    if norm == 0.0:
-        raise InvalidInputError(f"{what} must be a non-zero vector")
-    return v / norm
 
 
 @dataclass(frozen=True)
@@ -98,14 +92,14 @@ class SkyLight:
             raise InvalidInputError(f"sky kind must be 'uniform', 'cie_overcast', 'overcast', 'clear' or 1..15; "
                                     f"got {self.kind!r}")
         object.__setattr__(self, "kind", kind)
-        object.__setattr__(self, "up", tuple(_unit(self.up, "SkyLight.up")))
+        object.__setattr__(self, "up", tuple(unit_vector(self.up, "SkyLight.up")))
         needs_sun = isinstance(kind, int) and (CIE_GENERAL_SKIES[kind][2] != 0 or CIE_GENERAL_SKIES[kind][4] != 0)
         if self.sun_direction is None:
             if needs_sun:
                 raise InvalidInputError(f"CIE sky type {kind} depends on the sun's position: give sun_direction")
             object.__setattr__(self, "sun_direction", self.up)
         else:
-            object.__setattr__(self, "sun_direction", tuple(_unit(self.sun_direction, "SkyLight.sun_direction")))
+            object.__setattr__(self, "sun_direction", tuple(unit_vector(self.sun_direction, "SkyLight.sun_direction")))
         given = [v is not None for v in (self.zenith_luminance, self.horizontal_illuminance)]
         if sum(given) != 1:
             raise InvalidInputError("give a SkyLight exactly one of zenith_luminance (cd/m2) or "
@@ -157,8 +151,18 @@ class SkyLight:
         """E_h / L_z: the unobstructed horizontal illuminance per unit zenith luminance (sr).
 
         Midpoint quadrature over (cos Z, azimuth), n x 2n cells (relative error ~1e-6 for
-        the smooth CIE distributions); exactly pi for the uniform sky.
+        the smooth CIE distributions); exactly pi for the uniform sky. The default n's value
+        is computed once per sky (0.3 s).
         """
+        if n == 1024:
+            return self._horizontal_factor
+        return self._quadrature(n)
+
+    @cached_property
+    def _horizontal_factor(self) -> float:
+        return self._quadrature(1024)
+
+    def _quadrature(self, n: int) -> float:
         if self.kind == "uniform":
             return math.pi
         up = np.asarray(self.up)
@@ -190,7 +194,7 @@ class SkyLight:
     @property
     def ground_luminance(self) -> float:
         """Luminance of the ground below the horizon, cd/m2: rho_g E_h / pi."""
-        return self.ground_reflectance * self.horizontal / math.pi
+        return self.ground_reflectance * self.horizontal / math.pi if self.ground_reflectance else 0.0
 
     def luminance(self, directions) -> np.ndarray:
         """Luminance (cd/m2) along unit ``directions`` (..., 3), the ground's below the horizon."""
