@@ -154,8 +154,8 @@ class LuminaireLight:
         c0 = c0 - nadir * float(c0 @ nadir)
         if np.linalg.norm(c0) < 1e-6:
             raise InvalidInputError("LuminaireLight.c0 must not be parallel to nadir")
-        object.__setattr__(self, "nadir", tuple(nadir))
-        object.__setattr__(self, "c0", tuple(c0 / np.linalg.norm(c0)))
+        object.__setattr__(self, "nadir", tuple(map(float, nadir)))
+        object.__setattr__(self, "c0", tuple(map(float, c0 / np.linalg.norm(c0))))
         object.__setattr__(self, "scale", _rgb(self.scale, "LuminaireLight.scale"))
 
     @property

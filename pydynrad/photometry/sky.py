@@ -92,14 +92,15 @@ class SkyLight:
             raise InvalidInputError(f"sky kind must be 'uniform', 'cie_overcast', 'overcast', 'clear' or 1..15; "
                                     f"got {self.kind!r}")
         object.__setattr__(self, "kind", kind)
-        object.__setattr__(self, "up", tuple(unit_vector(self.up, "SkyLight.up")))
+        object.__setattr__(self, "up", tuple(map(float, unit_vector(self.up, "SkyLight.up"))))
         needs_sun = isinstance(kind, int) and (CIE_GENERAL_SKIES[kind][2] != 0 or CIE_GENERAL_SKIES[kind][4] != 0)
         if self.sun_direction is None:
             if needs_sun:
                 raise InvalidInputError(f"CIE sky type {kind} depends on the sun's position: give sun_direction")
             object.__setattr__(self, "sun_direction", self.up)
         else:
-            object.__setattr__(self, "sun_direction", tuple(unit_vector(self.sun_direction, "SkyLight.sun_direction")))
+            object.__setattr__(self, "sun_direction",
+                               tuple(map(float, unit_vector(self.sun_direction, "SkyLight.sun_direction"))))
         given = [v is not None for v in (self.zenith_luminance, self.horizontal_illuminance)]
         if sum(given) != 1:
             raise InvalidInputError("give a SkyLight exactly one of zenith_luminance (cd/m2) or "
