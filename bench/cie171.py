@@ -160,8 +160,8 @@ def case_5_3(device=None, resolution=128):
     hemi = pydynrad.illuminance(scene, B, points, normals, resolution=resolution, device=device)
     exact = pydynrad.illuminance(scene, B, points, normals, emitters="analytic", device=device)
     labels = [_label(p) for p in points]
-    return _rows(f"5.3 hemicube R={resolution}", labels, reference, hemi[:, 0]) + _rows("5.3 contour", labels, reference,
-                                                                                        exact[:, 0])
+    return (_rows(f"5.3 hemicube R={resolution}", labels, reference, hemi[:, 0])
+            + _rows("5.3 contour", labels, reference, exact[:, 0]))
 
 
 # -- 5.4 flux conservation ------------------------------------------------------------------------
@@ -214,7 +214,8 @@ def reflected_reference(points, normals, obstruction=None, order: int = 16, piec
     for p, nrm in zip(np.asarray(points, float), np.asarray(normals, float)):
         holes = [] if obstruction is None else [r for r in (_shadow_rectangle(FLOOR_SOURCE, obstruction),
                                                            _shadow_rectangle(p, obstruction)) if r is not None]
-        cuts = [np.unique(np.clip([0.0, 4.0, *[h[k] for h in holes for k in axis]], 0.0, 4.0)) for axis in ((0, 1), (2, 3))]
+        cuts = [np.unique(np.clip([0.0, 4.0, *[h[k] for h in holes for k in axis]], 0.0, 4.0))
+                for axis in ((0, 1), (2, 3))]
         total = 0.0
         for xa, xb in zip(cuts[0][:-1], cuts[0][1:]):
             for ya, yb in zip(cuts[1][:-1], cuts[1][1:]):
@@ -290,7 +291,8 @@ def case_5_8(device=None, resolution=64, cell=0.25):
     A = scene.areas.astype(np.float64)
     phi = 4 * math.pi * 1000.0
     reference = phi * rho / (A.sum() * (1 - rho))
-    return _rows(f"5.8 R={resolution}, {len(scene)} patches", ["area average"], [reference], [np.sum(indirect * A) / A.sum()])
+    return _rows(f"5.8 R={resolution}, {len(scene)} patches", ["area average"], [reference],
+                 [np.sum(indirect * A) / A.sum()])
 
 
 # -- 5.9 roof opening under a uniform sky ----------------------------------------------------------
@@ -332,12 +334,14 @@ def cie171_section(ctx) -> dict:
         "title": "CIE 171:2006 analytic test cases",
         "description": (
             "Each row: the case, the measuring point (m), the reference from the published formula "
-            "(closed form, or for 5.6/5.7 the defining integral by Gauss-Legendre quadrature on cells cut along the shadow edges), "
+            "(closed form, or for 5.6/5.7 the defining integral by Gauss-Legendre quadrature on cells cut "
+            "along the shadow edges), "
             "ours, and the relative error. CIE's own validation practice accepts 5% per point; the "
             "tests (tests/test_cie171.py) require 2%. Geometry: a 4 x 4 x 3 m room; see bench/cie171.py."
         ),
         "tables": [
-            {"title": "Points", "columns": ["case", "point", "reference (lx or lm)", "ours", "rel. error"], "rows": rows},
+            {"title": "Points", "columns": ["case", "point", "reference (lx or lm)", "ours", "rel. error"],
+             "rows": rows},
             {"title": "Worst point per case", "columns": ["case", "points", "max |rel. error|", "time s"],
              "rows": worst},
         ],

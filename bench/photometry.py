@@ -67,7 +67,8 @@ def photometry_section(ctx) -> dict:
     return {
         "title": "Photometry: sensors, sky, area emitters",
         "description": (
-            f"Sensors: a work plane 0.75 m high in a 4 x 4 x 3 m room ({p['cell']} m patches, reflectance 0.5, a 1 x 1 m "
+            f"Sensors: a work plane 0.75 m high in a 4 x 4 x 3 m room ({p['cell']} m patches, reflectance 0.5, "
+            "a 1 x 1 m "
             "ceiling source), irradiance by a hemicube per sensor (best of 3). Sky: the direct term of a CIE "
             "overcast sky on every patch of the room with a roof opening (one hemicube per patch) against one "
             "point light's shadow-ray pass. Near an emitter: the hemicube's error against the contour integral "
@@ -83,7 +84,8 @@ def photometry_section(ctx) -> dict:
                                                               "rel. error"], "rows": near_rows},
         ],
         "plots": [{
-            "name": "near-emitter", "title": "Hemicube error near a 1 x 1 m emitter", "xlabel": "distance from the emitter plane (m)",
+            "name": "near-emitter", "title": "Hemicube error near a 1 x 1 m emitter",
+            "xlabel": "distance from the emitter plane (m)",
             "ylabel": "relative error", "xscale": "log", "yscale": "log",
             "series": [{"label": f"{label}, R = {R}", "x": list(p["distances"]), "y": [max(e, 1e-9) for e in errs]}
                        for (label, R), errs in series.items()],

@@ -63,7 +63,8 @@ SIZES: dict[str, dict] = {
         "bake": {},
         "farfield": {},
         "cie171": {"resolution": 64, "room_resolution": 32, "room_cell": 0.5},
-        "photometry": {"cell": 1.0, "sensors": 16, "resolutions": (16,), "sky_resolutions": (8,), "distances": (0.1, 1.0)},
+        "photometry": {"cell": 1.0, "sensors": 16, "resolutions": (16,), "sky_resolutions": (8,),
+                       "distances": (0.1, 1.0)},
     },
     "quick": {
         "pathtracer": {"furnace_subdivisions": 3, "spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
@@ -92,7 +93,8 @@ SIZES: dict[str, dict] = {
         "bake": {},
         "farfield": {},
         "cie171": {"resolution": 256, "room_resolution": 128, "room_cell": 0.25},
-        "photometry": {"cell": 0.25, "sensors": 4096, "resolutions": (32, 64, 128, 256), "sky_resolutions": (32, 64, 128),
+        "photometry": {"cell": 0.25, "sensors": 4096, "resolutions": (32, 64, 128, 256),
+                       "sky_resolutions": (32, 64, 128),
                        "distances": (0.003, 0.01, 0.03, 0.1, 0.3, 1.0)},
     },
 }

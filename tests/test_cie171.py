@@ -47,12 +47,15 @@ def test_5_2_point_sources(device):
 def _corner(a, b, h):
     # Point h below a corner of an a x b rectangle in a parallel plane (signed a, b).
     A, B = a / h, b / h
-    return (A / math.hypot(1, A) * math.atan(B / math.hypot(1, A)) + B / math.hypot(1, B) * math.atan(A / math.hypot(1, B))) / (2 * math.pi)
+    a_side = A / math.hypot(1, A) * math.atan(B / math.hypot(1, A))
+    b_side = B / math.hypot(1, B) * math.atan(A / math.hypot(1, B))
+    return (a_side + b_side) / (2 * math.pi)
 
 
 def _parallel(x, y, rect, h):
     x0, x1, y0, y1 = rect
-    return _corner(x1 - x, y1 - y, h) - _corner(x0 - x, y1 - y, h) - _corner(x1 - x, y0 - y, h) + _corner(x0 - x, y0 - y, h)
+    return (_corner(x1 - x, y1 - y, h) - _corner(x0 - x, y1 - y, h)
+            - _corner(x1 - x, y0 - y, h) + _corner(x0 - x, y0 - y, h))
 
 
 def _lambert(p, n, corners):
@@ -73,7 +76,9 @@ def test_5_3_area_source(device):
     ref = {}
     for r in rows:
         x, y, z = _point(r[1])
-        ref[r[1]] = 1000.0 * (_parallel(x, y, cie171.AREA_SOURCE, 3.0) if z == 0 else _lambert((x, y, z), (1, 0, 0), square))
+        on_floor = z == 0
+        ref[r[1]] = 1000.0 * (_parallel(x, y, cie171.AREA_SOURCE, 3.0) if on_floor
+                              else _lambert((x, y, z), (1, 0, 0), square))
     contour = [r for r in rows if r[0] == "5.3 contour"]
     _check(contour, np.array([ref[r[1]] for r in contour]), 1e-5)  # 2.2e-7 observed
     # The hemicube, except 20 cm below the ceiling on the wall, where it sees the source
@@ -93,7 +98,8 @@ def test_5_4_flux_conservation(device):
         for ca, cb in zip(lm63.c_angles[:-1], lm63.c_angles[1:]):
             c = 0.5 * (ca + cb) + 0.5 * (cb - ca) * g_nodes
             I = lm63.intensity(c[:, None], gam[None, :])
-            flux += float(g_w @ (I * np.sin(np.radians(gam))[None, :]) @ g_w) * np.radians(cb - ca) * np.radians(gb - ga) / 4
+            cell = np.radians(cb - ca) * np.radians(gb - ga) / 4
+            flux += float(g_w @ (I * np.sin(np.radians(gam))[None, :]) @ g_w) * cell
     _check(rows, np.array([4 * math.pi * 1000.0, flux]), 2e-3)  # 1.3e-4 and 4.1e-4 observed
 
 

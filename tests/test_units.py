@@ -21,7 +21,8 @@ def test_conversions_match_their_integrals():
     dw = 2 * math.pi * np.sin(theta) * (math.pi / n)
     assert np.sum(units.isotropic_intensity(1000.0) * dw) == pytest.approx(1000.0, rel=1e-7)
     up = theta < math.pi / 2
-    assert np.sum(units.lambertian_peak_intensity(1000.0) * np.cos(theta[up]) * dw[up]) == pytest.approx(1000.0, rel=1e-7)
+    cosine_flux = np.sum(units.lambertian_peak_intensity(1000.0) * np.cos(theta[up]) * dw[up])
+    assert cosine_flux == pytest.approx(1000.0, rel=1e-7)
     # A Lambertian surface of luminance L emits pi L per unit area (integral of L cos over the hemisphere).
     assert units.exitance_from_luminance(300.0) == pytest.approx(np.sum(300.0 * np.cos(theta[up]) * dw[up]), rel=1e-7)
     assert units.luminance_from_exitance(units.exitance_from_luminance(300.0)) == pytest.approx(300.0)

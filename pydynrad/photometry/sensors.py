@@ -65,7 +65,8 @@ def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, 
         work plane faces up.
     lights : light object or sequence
         The lights the radiosity was computed with (PointLight, SpotLight, DirectionalLight,
-        SkyLight): their direct light at the sensors, by shadow rays (sky: by the hemicube).
+        LuminaireLight, SkyLight): their direct light at the sensors, by shadow rays (sky: by
+        the hemicube).
         Pass the same ones as to ``solve``, or the direct light is missing.
     patches : (n,) int, optional
         Instead of points: the centres of these patches, facing their normals; each hemicube

@@ -21,7 +21,8 @@ __all__ = ["WorkPlane", "work_plane", "en12464_spacing"]
 
 
 def en12464_spacing(d: float) -> float:
-    """EN 12464-1 maximum grid spacing p (m) for an area whose longer dimension is d (m): 0.2 * 5^log10(d), at most 10."""
+    """EN 12464-1's maximum grid spacing p (m) for an area whose longer dimension is d (m):
+    0.2 * 5^log10(d), at most 10."""
     d = number(d, "the area's longer dimension")
     if not (math.isfinite(d) and d > 0):
         raise InvalidInputError(f"the area's longer dimension must be a positive length; got {d!r}")
