@@ -21,6 +21,8 @@ bake           vertex-colour export and lightmap bake of the village: time, texe
                error against render along chart borders (bench/bake.py)
 farfield       the far field: error and frame time off and on, over C and M, Cornell box and village
                at night and under a sun (bench/farfield.py)
+cie171         the CIE 171:2006 analytic test cases: reference, ours and error per point (bench/cie171.py)
+photometry     sensor throughput, the sky term's cost, the hemicube's error near an area emitter (bench/photometry.py)
 =============  ===========================================================================
 
 Each section is a function ``section(ctx) -> dict`` (title, description, tables, plots; see
@@ -60,6 +62,9 @@ SIZES: dict[str, dict] = {
         "gather": {},
         "bake": {},
         "farfield": {},
+        "cie171": {"resolution": 64, "room_resolution": 32, "room_cell": 0.5},
+        "photometry": {"cell": 1.0, "sensors": 16, "resolutions": (16,), "sky_resolutions": (8,),
+                       "distances": (0.1, 1.0)},
     },
     "quick": {
         "pathtracer": {"furnace_subdivisions": 3, "spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
@@ -72,6 +77,9 @@ SIZES: dict[str, dict] = {
         "gather": {},
         "bake": {},
         "farfield": {},
+        "cie171": {"resolution": 128, "room_resolution": 64, "room_cell": 0.25},
+        "photometry": {"cell": 0.25, "sensors": 1024, "resolutions": (32, 64, 128), "sky_resolutions": (32, 64),
+                       "distances": (0.01, 0.03, 0.1, 0.3, 1.0)},
     },
     "full": {
         "pathtracer": {"furnace_subdivisions": 4, "spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
@@ -84,6 +92,10 @@ SIZES: dict[str, dict] = {
         "gather": {},
         "bake": {},
         "farfield": {},
+        "cie171": {"resolution": 256, "room_resolution": 128, "room_cell": 0.25},
+        "photometry": {"cell": 0.25, "sensors": 4096, "resolutions": (32, 64, 128, 256),
+                       "sky_resolutions": (32, 64, 128),
+                       "distances": (0.003, 0.01, 0.03, 0.1, 0.3, 1.0)},
     },
 }
 
@@ -98,6 +110,8 @@ SECTIONS: dict[str, str] = {
     "gather": "bench.gather:suite_section",
     "bake": "bench.bake:bake_section",
     "farfield": "bench.farfield:farfield_section",
+    "cie171": "bench.cie171:cie171_section",
+    "photometry": "bench.photometry:photometry_section",
 }
 
 

@@ -1,13 +1,5 @@
-// Hemicube form factors by ray casting: one work-item per hemicube scanline.
-//
-// A hemicube of resolution R (HC_RES) at patch i has a top face of R x R pixels and four
-// side faces of R x R/2, i.e. 3R scanlines of R pixels each:
-//   s <  R : top face z = 1, pixel (x, s) centred at (u, v) = (-1 + (x + .5) 2/R, -1 + (s + .5) 2/R)
-//   s >= R : side f = (s - R) / (R/2), row r = (s - R) % (R/2), height h = (r + .5) 2/R,
-//            across a = -1 + (x + .5) 2/R; f = 0: (1, a, h), 1: (-1, -a, h), 2: (-a, 1, h), 3: (a, -1, h)
-// in the patch's frame (T, B, N), T rotated about N by a per-patch pseudo-random angle so that
-// regular structures do not alias the same way at every patch. pydynrad/formfactors.py
-// computes the pixels' delta form factors with the same layout.
+// Hemicube form factors by ray casting: one work-item per hemicube scanline (the layout and
+// the ray directions are hemicube.h's; the key of patch i's rotation is i).
 //
 // Each scanline's pixels are run-length encoded: consecutive pixels that see the same patch
 // form one run (id, end pixel). The host turns runs into weights with a prefix sum of the
@@ -21,14 +13,7 @@
 // run_end holds that float weight instead of an end pixel. (Summing here measured faster than
 // the host's prefix sums, bench/gather.py.)
 #include "bvh.cl"
-
-#ifndef HC_RES
-#error "HC_RES (the hemicube resolution) must be defined"
-#endif
-// The lane offsets of a scanline's packet below are written out for 16 lanes.
-#if BVH_PACKET != 16
-#error "hemicube.cl needs BVH_PACKET == 16 from the host (pydynrad/launch.py)"
-#endif
+#include "hemicube.h"
 
 #ifdef HC_CLUSTERS
 #define HC_EXTRA_ARGS , __global const int *labels, __global const float *scale, __global const float *pixel_weights
@@ -37,17 +22,6 @@
 #define HC_EXTRA_ARGS
 #define HC_END_TYPE int
 #endif
-
-// A 32-bit integer hash (lowbias32): the rotation angle of patch i, fixed for all runs.
-inline uint hc_hash(uint x)
-{
-    x ^= x >> 16;
-    x *= 0x7feb352dU;
-    x ^= x >> 15;
-    x *= 0x846ca68bU;
-    x ^= x >> 16;
-    return x;
-}
 
 // centers, normals: float4 per patch. rows: the patches whose hemicubes this block renders.
 // Outputs per (row k, scanline s): run_patch / run_end at [(k * 3R + s) * R + j] for the j-th
@@ -58,7 +32,7 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
                             __global int *run_patch, __global HC_END_TYPE *run_end, __global int *run_count
                             HC_EXTRA_ARGS)
 {
-    const int R = HC_RES, H = HC_RES / 2;
+    const int R = HC_RES;
     int g = get_global_id(0);
     if (g >= n_rows * 3 * R) return;
     int k = g / (3 * R), s = g % (3 * R);
@@ -66,34 +40,8 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
     float3 n = normals[i].xyz;
     float3 org = centers[i].xyz + eps * n;
 
-    // Orthonormal basis around n without a branch on its direction (Duff et al. 2017),
-    // then rotated about n by the patch's angle.
-    float sg = copysign(1.0f, n.z);
-    float a = -1.0f / (sg + n.z);
-    float b = n.x * n.y * a;
-    float3 t0 = (float3)(1.0f + sg * n.x * n.x * a, sg * b, -sg * n.x);
-    float3 b0 = (float3)(b, sg + n.y * n.y * a, -n.y);
-    float ang = (float)hc_hash((uint)i) * (6.283185307179586f / 4294967296.0f);
-    float cs = cos(ang), sn = sin(ang);
-    float3 T = cs * t0 + sn * b0, B = cs * b0 - sn * t0;
-
-    // Per scanline: dir(x) = base + x * step_dir, both in world space.
-    float px = 2.0f / R;
     float3 base, step_dir;
-    if (s < R) {
-        float v = -1.0f + (s + 0.5f) * px;
-        base = -T + v * B + n;
-        step_dir = T;
-    } else {
-        int f = (s - R) / H, r = (s - R) % H;
-        float h = (r + 0.5f) * px;
-        float3 out = f == 0 ? T : (f == 1 ? -T : (f == 2 ? B : -B));
-        float3 across = f == 0 ? B : (f == 1 ? -B : (f == 2 ? -T : T));
-        base = out - across + h * n;
-        step_dir = across;
-    }
-    base += 0.5f * px * step_dir;
-    step_dir *= px;
+    hc_scanline(n, (uint)i, s, &base, &step_dir);
 
     size_t slot = (size_t)g * R;
     int runs = 0, current = -2;
@@ -103,20 +51,9 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
 #endif
     // BVH_PACKET pixels of the scanline per traversal, one per vector lane (a short last
     // packet repeats its last pixel in the spare lanes).
-    const bvh_floatP lane = (bvh_floatP)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-    RayPacket r;
-    r.ox = (bvh_floatP)org.x;
-    r.oy = (bvh_floatP)org.y;
-    r.oz = (bvh_floatP)org.z;
     for (int x0 = 0; x0 < R; x0 += BVH_PACKET) {
-        bvh_floatP xs = BVH_MIN((bvh_floatP)x0 + lane, (bvh_floatP)(R - 1));
-        r.dx = base.x + xs * step_dir.x;
-        r.dy = base.y + xs * step_dir.y;
-        r.dz = base.z + xs * step_dir.z;
-        HitPacket hp = bvh_closest_packet(nodes, tris, order, &r, 0.0f, (bvh_floatP)INFINITY);
         int ids[BVH_PACKET], fronts[BVH_PACKET];
-        bvh_vstoreP(hp.patch, 0, ids);
-        bvh_vstoreP(hp.front, 0, fronts);
+        hc_trace_packet(nodes, tris, order, org, base, step_dir, x0, ids, fronts);
         for (int l = 0; l < BVH_PACKET && x0 + l < R; ++l) {
             // A back face occludes and receives nothing; a planar patch cannot see itself.
             int hit = (ids[l] >= 0 && fronts[l] && ids[l] != i) ? ids[l] : -1;

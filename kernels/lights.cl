@@ -1,15 +1,15 @@
-// Direct irradiance from analytic lights at patch centres, with one shadow ray per light
+// Direct irradiance from analytic lights at patch centres or sensors, with one shadow ray per light
 // (lights.h holds the light packing and the formula).
 #include "lights.h"
 
 __kernel void direct_irradiance(const int n, __global const float4 *centers, __global const float4 *normals,
-                                const int n_lights, __global const float4 *lights,
+                                const int n_lights, __global const float4 *lights, __global const float *tables,
                                 __global const float4 *nodes, __global const float4 *tris,
                                 const float eps, const float far, __global float4 *irradiance)
 {
     const int i = get_global_id(0);
     if (i >= n) return;
     const float3 c = centers[i].xyz, nrm = normals[i].xyz;
-    const float3 e = analytic_irradiance(c, c + eps * nrm, nrm, n_lights, lights, nodes, tris, eps, far);
+    const float3 e = analytic_irradiance(c, c + eps * nrm, nrm, n_lights, lights, tables, nodes, tris, eps, far);
     irradiance[i] = (float4)(e, 0.0f);
 }

@@ -11,6 +11,8 @@
 // multiple importance sampling (balance heuristic), so neither double counts and neither
 // has the 1/d^2 spikes of NEE alone next to an emitter. A camera ray's first hit adds its
 // emission in full. The analytic lights (points, spots, directional) are deltas: NEE only.
+// A bounce ray that leaves the scene sees the sky (sky.h; none when its mode is 0), which is
+// smooth enough for the cosine-sampled bounce alone.
 // Russian roulette after RR_DEPTH bounces, at most MAX_DEPTH bounces.
 //
 // Random numbers come from rng.cl keyed by (seed, pixel or patch, sample index), so an image
@@ -18,6 +20,7 @@
 #include "bvh.cl"
 #include "lights.h"
 #include "rng.cl"
+#include "sky.h"
 
 #ifndef MAX_DEPTH
 #error "MAX_DEPTH (the bounce limit) must come from the host (pydynrad/pathtrace.py)"
@@ -34,10 +37,12 @@
     __global const float4 *emission,                                                          \
     const int n_emitters, __global const float4 *em_tri, __global const float4 *em_emission,  \
     __global const float *em_cdf, const float inv_power,                                      \
-    const int n_lights, __global const float4 *lights, const float eps, const float far
+    const int n_lights, __global const float4 *lights, __global const float *light_tables,    \
+    __global const float4 *sky,                                                               \
+    const float eps, const float far
 #define SCENE_PASS                                                                              \
     nodes, tris, order, normals, albedo, emission, n_emitters, em_tri, em_emission, em_cdf,   \
-    inv_power, n_lights, lights, eps, far
+    inv_power, n_lights, lights, light_tables, sky, eps, far
 
 // Area pdf with which emitter_irradiance picks a point on emitting patch j: its pick
 // probability (power share, power = mean emission * area) over its area.
@@ -101,14 +106,18 @@ inline float3 reflected_radiance(float3 p, float3 n, float3 rho, uint *rng, SCEN
     float3 thr = rho;  // product of albedos along the path
     for (int depth = 0; depth < MAX_DEPTH; ++depth) {
         float3 x = p + n * eps;
-        float3 h = analytic_irradiance(p, x, n, n_lights, lights, nodes, tris, eps, far)
+        float3 h = analytic_irradiance(p, x, n, n_lights, lights, light_tables, nodes, tris, eps, far)
                    + emitter_irradiance(x, n, rng, SCENE_PASS);
         acc += thr * h * M_1_PI_F;
         // The cosine pdf cancels the cosine and 1/pi: radiance arriving along the bounce ray
         // enters with weight thr (rho of this vertex included).
         float3 w = sample_cosine(n, rng);
         Hit hit = bvh_closest(nodes, tris, order, x, w, 0.0f, INFINITY);
-        if (hit.patch < 0 || !hit.front) break;
+        if (hit.patch < 0) {  // radiance L of the sky enters with weight thr, as an emitter's does
+            acc += thr * sky_luminance(sky, w);
+            break;
+        }
+        if (!hit.front) break;
         float3 e = emission[hit.patch].xyz;
         float3 ny = normals[hit.patch].xyz;
         if (n_emitters > 0 && (e.x > 0.0f || e.y > 0.0f || e.z > 0.0f)) {

@@ -30,6 +30,8 @@ from .lights import DirectionalLight, PointLight, SpotLight, direct_irradiance, 
 from .solve import Solution, solve
 from .multibounce import multibounce, multibounce_radiosity
 from .pathtrace import path_trace, path_trace_patches
+from . import photometry
+from .photometry import LuminaireLight, PhotometricDistribution, SkyLight, illuminance, read_ies, read_ldt
 from .rows.store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError, compute_store
 from .rows.cache import RowCache
 from .rows.sources import CSRRows, HemicubeRows, RowSource, as_row_source
@@ -62,12 +64,14 @@ __all__ = [
     "FrameStats",
     "GroupRadiosity",
     "HemicubeRows",
+    "illuminance",
     "InvalidInputError",
     "KernelBuildError",
     "light_vector",
     "LightGroups",
     "Lightmap",
     "LightTrack",
+    "LuminaireLight",
     "list_devices",
     "load",
     "load_form_factors",
@@ -80,10 +84,14 @@ __all__ = [
     "pack_lights",
     "path_trace",
     "path_trace_patches",
+    "PhotometricDistribution",
+    "photometry",
     "PointLight",
     "precompute_distributed",
     "PydynradError",
+    "read_ies",
     "read_image",
+    "read_ldt",
     "render",
     "RowCache",
     "RowSource",
@@ -92,6 +100,7 @@ __all__ = [
     "SceneFileError",
     "scenes",
     "SceneSpec",
+    "SkyLight",
     "Solution",
     "solve",
     "SpotLight",

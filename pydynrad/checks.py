@@ -14,8 +14,8 @@ import scipy.sparse as sp
 
 from .errors import InvalidInputError
 
-__all__ = ["floats", "vec3", "number", "integer", "finite", "scene", "patch_indices", "resolution", "check_form_factors",
-           "check_form_factor_rows", "sparse_structure", "ROW_SUM_SLACK", "MAX_RESOLUTION"]
+__all__ = ["floats", "vec3", "unit_vector", "number", "integer", "finite", "scene", "patch_indices", "resolution",
+           "check_form_factors", "check_form_factor_rows", "sparse_structure", "ROW_SUM_SLACK", "MAX_RESOLUTION"]
 
 
 def floats(value, what: str) -> np.ndarray:
@@ -45,6 +45,15 @@ def vec3(value, what: str) -> np.ndarray:
     if not np.all(np.isfinite(a)):
         raise InvalidInputError(f"{what} must be finite (no NaN or infinite values); got {a.tolist()}")
     return a
+
+
+def unit_vector(value, what: str) -> np.ndarray:
+    """``value`` as a unit 3-vector (float64, normalised here), or InvalidInputError if it is zero."""
+    v = vec3(value, what).astype(np.float64)
+    norm = float(np.linalg.norm(v))
+    if norm == 0.0:
+        raise InvalidInputError(f"{what} must be a non-zero vector")
+    return v / norm
 
 
 def integer(value, what: str, lo: int = 1, hi: int | None = None) -> int:

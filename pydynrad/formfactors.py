@@ -62,7 +62,7 @@ def pixel_form_factors(resolution: int) -> np.ndarray:
     """(3R, R) float64 delta form factors of the hemicube's pixels, in the kernel's layout.
 
     Rows 0..R-1 are the top face's scanlines, then R/2 scanlines per side face (see
-    kernels/hemicube.cl). Normalised to sum to 1 (analytically they already do, to rounding).
+    kernels/hemicube.h). Normalised to sum to 1 (analytically they already do, to rounding).
     """
     R, H = resolution, resolution // 2
     edges = -1.0 + 2.0 * np.arange(R + 1) / R  # pixel boundaries across a face

@@ -12,9 +12,12 @@ multibounce matrix (``B = L + P K L``), never a rebuild:
 Every function that takes lights names them the same way: ``lights=`` for light objects
 (the emission is always included), ``light=`` for a precomputed light vector L (N, 3).
 
-Units: positions in scene units; a point or spot light's intensity in W/sr (irradiance
-falls off as intensity * cos(theta) / d^2); a directional light's irradiance in W/unit^2 on
-a surface facing it. Only the front side of a patch (its normal's side) receives light.
+Units: positions in scene units; a point or spot light's intensity in W/sr, or cd
+photometrically (irradiance falls off as intensity * cos(theta) / d^2: lux with metres); a
+directional light's irradiance in W/unit^2 (lux) on a surface facing it; see docs/design.md,
+'Units and photometry'. Only the front side of a patch (its normal's side) receives light.
+A :class:`~pydynrad.photometry.SkyLight` is accepted wherever lights are: its direct light
+comes from a hemicube per patch (sky visibility), not from shadow rays.
 
 See docs/design.md, 'Lights'.
 """
@@ -26,12 +29,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import floats, number, scene as checked_scene, vec3
+from .checks import floats, number, scene as checked_scene, unit_vector, vec3
 from .errors import InvalidInputError
 from .launch import global_size
 
-__all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "light_vector", "pack_lights",
-           "checked_light_vector", "resolve_light"]
+__all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "point_irradiance", "light_vector",
+           "pack_lights", "pack_light_tables", "checked_lights", "checked_light_vector", "resolve_light"]
 
 #: Shadow-ray origins sit this fraction of the scene's bounding-box diagonal off the surface.
 SHADOW_EPSILON = 1e-4
@@ -52,16 +55,12 @@ def _rgb(value, what: str) -> tuple[float, float, float]:
 
 
 def _unit(value, what: str) -> tuple[float, float, float]:
-    a = np.asarray(_vec3(value, what))
-    norm = float(np.linalg.norm(a))
-    if norm == 0:
-        raise InvalidInputError(f"{what} must be a non-zero vector")
-    return tuple(float(v) for v in a / norm)
+    return tuple(float(v) for v in unit_vector(value, what))
 
 
 @dataclass(frozen=True)
 class PointLight:
-    """An isotropic point light: position (3,), intensity RGB in W/sr (scalar = grey)."""
+    """An isotropic point light: position (3,), intensity RGB in W/sr or cd (scalar = grey)."""
 
     position: tuple
     intensity: tuple
@@ -78,7 +77,7 @@ class PointLight:
 class SpotLight:
     """A point light restricted to a cone.
 
-    position (3,); direction (3,), the cone axis (normalised here); intensity RGB W/sr on the
+    position (3,); direction (3,), the cone axis (normalised here); intensity RGB W/sr (cd) on the
     axis; full intensity within ``inner_angle`` of the axis, smoothly falling to 0 at
     ``outer_angle`` (radians, 0 <= inner <= outer <= pi, outer > 0).
     """
@@ -111,7 +110,8 @@ class SpotLight:
 
 @dataclass(frozen=True)
 class DirectionalLight:
-    """A light at infinity: direction (3,) it travels in (normalised here), irradiance RGB W/unit^2."""
+    """A light at infinity (the sun): direction (3,) it travels in (normalised here), irradiance RGB
+    W/unit^2 (lux) on a surface facing it."""
 
     direction: tuple
     irradiance: tuple
@@ -124,35 +124,61 @@ class DirectionalLight:
         return [0.0, 0.0, 0.0, 2.0, *self.direction, 1.0, *self.irradiance, -2.0]
 
 
+#: The lights of this module that analytic_irradiance (kernels/lights.h) evaluates with one
+#: shadow ray each; photometry's LuminaireLight is the fourth (see _shadow_ray_lights).
 LIGHT_TYPES = (PointLight, SpotLight, DirectionalLight)
+_LIGHT_NAMES = "PointLight, SpotLight, DirectionalLight, LuminaireLight or SkyLight"
 
 
-def _checked_lights(lights) -> list:
+def _photometric_types() -> tuple:
+    # Imported late: the photometry package builds on this module.
+    from .photometry.luminaires import LuminaireLight
+    from .photometry.sky import SkyLight
+
+    return LuminaireLight, SkyLight
+
+
+def checked_lights(lights) -> list:
+    """``lights`` (one light object or a sequence) as a list, or InvalidInputError."""
+    kinds = (*LIGHT_TYPES, *_photometric_types())
     if isinstance(lights, np.ndarray):
-        raise InvalidInputError("lights= takes light objects (PointLight, SpotLight, DirectionalLight); "
+        raise InvalidInputError(f"lights= takes light objects ({_LIGHT_NAMES}); "
                                 "pass a precomputed light vector as light=L")
-    if isinstance(lights, LIGHT_TYPES):
+    if isinstance(lights, kinds):
         lights = [lights]
     lights = list(lights)
     for light in lights:
-        if not isinstance(light, LIGHT_TYPES):
-            raise InvalidInputError(f"not a light: {light!r}; use PointLight, SpotLight or DirectionalLight")
+        if not isinstance(light, kinds):
+            raise InvalidInputError(f"not a light: {light!r}; use {_LIGHT_NAMES}")
     return lights
 
 
-def pack_lights(lights, frame=None) -> np.ndarray:
-    """(n_lights, 12) float32: ``lights`` (one light or a sequence) in the kernels' packing.
+def _shadow_ray_lights(lights) -> list:
+    luminaire = _photometric_types()[0]
+    return [light for light in checked_lights(lights) if isinstance(light, (*LIGHT_TYPES, luminaire))]
 
-    Three float4 per light, the layout ``kernels/lights.h`` documents; raises
-    InvalidInputError for anything that is not a PointLight, SpotLight or DirectionalLight.
-    With ``frame`` (a :class:`pydynrad.scene.DeviceFrame`) positions are moved into it and the
-    intensities of point and spot lights divided by its unit squared, so that the kernels'
-    I / r^2 over device distances gives the irradiance of the user's frame.
+
+def pack_lights(lights, frame=None) -> np.ndarray:
+    """(n_lights, 12) float32: the point, spot, directional and luminaire lights among ``lights``.
+
+    Three float4 per light, the layout ``kernels/lights.h`` documents; a luminaire's record
+    points into :func:`pack_light_tables` (a sky is packed apart, by
+    :func:`pydynrad.photometry.sky.pack_sky`). Raises InvalidInputError for anything that is
+    not a light. With ``frame`` (a :class:`pydynrad.scene.DeviceFrame`) positions are moved
+    into it and the intensities (a luminaire's: its scale on the table) divided by its unit
+    squared, so that the kernels' I / r^2 over device distances gives the irradiance of the
+    user's frame.
     """
-    lights = _checked_lights(lights)
-    packed = np.asarray([light._packed() for light in lights], dtype=np.float64).reshape(len(lights), 12)
+    packed, offset = [], 0
+    for light in _shadow_ray_lights(lights):
+        if isinstance(light, LIGHT_TYPES):
+            packed.append(light._packed())
+        else:
+            packed.append(light._packed(offset))
+            offset += len(light._table())
+    packed = np.asarray(packed, dtype=np.float64).reshape(len(packed), 12)
     if frame is not None:
-        positional = packed[:, 3] < 2.0  # point (0) and spot (1) lights; directional is 2
+        positional = packed[:, 3] != 2.0  # every light but the directional (type 2) has a position
         packed[positional, :3] = frame.points(packed[positional, :3])
         packed[positional, 8:11] /= frame.unit**2
     with np.errstate(over="ignore"):
@@ -163,40 +189,85 @@ def pack_lights(lights, frame=None) -> np.ndarray:
     return out
 
 
-def direct_irradiance(scene, lights, device=None) -> np.ndarray:
-    """(N, 3) float32 irradiance at each patch centre from ``lights``, with shadows.
+def pack_light_tables(lights) -> np.ndarray:
+    """(n,) float32: the luminaires' intensity tables, one after another in ``lights``' order
+    (the offsets :func:`pack_lights` records); one zero when there is no luminaire."""
+    tables = [light._table() for light in _shadow_ray_lights(lights) if not isinstance(light, LIGHT_TYPES)]
+    return np.concatenate(tables).astype(np.float32) if tables else np.zeros(1, np.float32)
 
-    One shadow ray per patch and light, traced through ``scene.bvh`` on the device.
+
+def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
+    """(n, 3) float32 irradiance at ``points`` (normals ``normals``) from the analytic lights.
+
+    One shadow ray per point and point, spot, directional or luminaire light, traced through
+    ``scene.bvh`` on the device from the point offset along its normal; a sky is not included.
+    ``points = normals = None``: the patch centres (``Scene.patch_buffers``, uploaded once).
     """
     import pyopencl as cl
 
     from .device import default_device
 
-    n = len(checked_scene(scene))
+    lights = checked_lights(lights)
     packed = pack_lights(lights, scene.frame)
-    if not len(packed):
+    n = len(scene) if points is None else len(points)
+    if not len(packed) or not n:
         return np.zeros((n, 3), dtype=np.float32)
     device = device or default_device()
     nodes, tris, _ = scene.bvh.buffers(device)
-    centers, normals = scene.patch_buffers(device)
+    if points is None:
+        centers, normals, outside = *scene.patch_buffers(device), 0.0
+    else:
+        p = np.asarray(points, np.float64)
+        lo, hi = scene.bbox.astype(np.float64)
+        # Sensors may lie outside the scene's box: directional shadow rays must reach past it from there.
+        outside = float(np.max(np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)))
+        centers, normals = device.to_device(_float4(scene.frame.points(p))), device.to_device(_float4(normals))
     out_dev = cl.Buffer(device.context, cl.mem_flags.WRITE_ONLY, n * 16)
     kernel = device.kernel("lights.cl", "direct_irradiance")
-    # Directional shadow rays need only reach past the scene: twice its diagonal.
+    # Directional shadow rays need only reach past the scene: twice its diagonal (plus the
+    # farthest sensor's distance outside it).
     kernel(
         device.queue, (global_size(n),), None, np.int32(n), centers, normals, np.int32(len(packed)),
-        device.to_device(packed), nodes, tris, np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
-        np.float32(scene.frame.length(2.0 * scene.scale)),
-        out_dev,
+        device.to_device(packed), device.to_device(pack_light_tables(lights)), nodes, tris,
+        np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
+        np.float32(scene.frame.length(2.0 * scene.scale + outside)), out_dev,
     )
     out = np.empty((n, 4), dtype=np.float32)
     cl.enqueue_copy(device.queue, out, out_dev, is_blocking=True)
     return np.ascontiguousarray(out[:, :3])
 
 
+def _float4(a) -> np.ndarray:
+    out = np.zeros((len(a), 4), dtype=np.float32)
+    out[:, :3] = a
+    return out
+
+
+def direct_irradiance(scene, lights, device=None) -> np.ndarray:
+    """(N, 3) float32 irradiance at each patch centre from ``lights``, with shadows.
+
+    Point, spot and directional lights: one shadow ray per patch and light. A sky: a hemicube
+    at each patch centre whose escaping rays see it (sky visibility, the sky's resolution).
+    """
+    from .photometry.sky import SkyLight, pack_sky
+
+    lights = checked_lights(lights)
+    checked_scene(scene)
+    E = point_irradiance(scene, None, None, lights, device)
+    skies = [light for light in lights if isinstance(light, SkyLight)]
+    if skies:
+        from .photometry.gather import gather_irradiance
+
+        ids = np.arange(len(scene))
+        E = E + gather_irradiance(scene, None, None, sky=pack_sky(lights), resolution=skies[0].resolution,
+                                  keys=ids, own=ids, device=device)
+    return E.astype(np.float32)
+
+
 def light_vector(scene, lights=(), device=None) -> np.ndarray:
     """L (N, 3) float64: emission plus the albedo-weighted direct irradiance of ``lights``."""
     L = checked_scene(scene).emission.astype(np.float64)
-    lights = _checked_lights(lights)
+    lights = checked_lights(lights)
     if lights:
         L = L + scene.albedo.astype(np.float64) * direct_irradiance(scene, lights, device)
     return L
@@ -216,6 +287,6 @@ def resolve_light(scene, lights=(), light=None, device=None) -> np.ndarray:
     """L (N, 3) float64 from light objects (``lights``) or a precomputed vector (``light``), not both."""
     if light is None:
         return light_vector(scene, lights, device)
-    if len(_checked_lights(lights)):
+    if len(checked_lights(lights)):
         raise InvalidInputError("give lights= (light objects) or light= (a light vector L), not both")
     return checked_light_vector(light, len(checked_scene(scene)))

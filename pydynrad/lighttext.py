@@ -3,6 +3,9 @@
     point:pos=278,500,280;intensity=5e4            # W/sr; one number is grey, or R,G,B
     spot:pos=278,540,280;dir=0,-1,0;intensity=1e5;outer=30;inner=20   # cone angles in degrees
     sun:dir=0.3,-1,0.2;irradiance=800              # W/unit^2 on a surface facing it
+    sky:model=cie_overcast;zenith=3000;up=0,0,1    # cd/m2 at the zenith (or horizontal= lx)
+    sky:model=clear;horizontal=20000;sun=0.5,0.2,0.6;ground=0.2
+    luminaire:pos=2,2,2.8;file=lamp.ies;nadir=0,0,-1;c0=1,0,0    # an IES or EULUMDAT (.ldt) file
 
 ``directional`` is another name for ``sun``. The older ``X,Y,Z:R,G,B`` (a point light at X,Y,Z
 of intensity R,G,B, or one grey number) still reads as a point light. Each kind is one entry
@@ -79,6 +82,33 @@ class LightKind:
                                 f"{', '.join(f.name for f in self.fields)}")
 
 
+def number(text: str, what: str) -> float:
+    """One finite number."""
+    return _numbers(text, (1,), what)[0]
+
+
+def sky_model(text: str, what: str):
+    """A sky model name, or a CIE general sky type 1..15."""
+    text = text.strip().lower()
+    return int(text) if text.isdigit() else text
+
+
+def _sky(model="uniform", zenith=None, horizontal=None, sun=None, up=(0.0, 0.0, 1.0), ground=0.0, resolution=64):
+    from .photometry.sky import SkyLight
+
+    return SkyLight(model, zenith_luminance=zenith, horizontal_illuminance=horizontal, sun_direction=sun, up=up,
+                    ground_reflectance=ground, resolution=int(resolution))
+
+
+def _luminaire(pos, file, nadir=(0.0, 0.0, -1.0), c0=(1.0, 0.0, 0.0), scale=1.0):
+    from .photometry.ies import read_ies
+    from .photometry.ldt import read_ldt
+    from .photometry.luminaires import LuminaireLight
+
+    read = read_ldt if file.lower().endswith(".ldt") else read_ies
+    return LuminaireLight(pos, read(file), nadir=nadir, c0=c0, scale=scale)
+
+
 def _point(pos, intensity):
     from .lights import PointLight
 
@@ -114,6 +144,21 @@ LIGHT_KINDS: dict[str, LightKind] = {
                       "a point light in a cone (smooth falloff from inner to outer)"),
     "sun": LightKind(_sun, (_DIR, Field("irradiance", colour, "W/unit^2 on a surface facing it, one number or R,G,B")),
                      "a directional light at infinity"),
+    "sky": LightKind(_sky, (
+        Field("model", sky_model, "uniform, cie_overcast, overcast, clear or a CIE sky type 1..15", default="uniform"),
+        Field("zenith", number, "zenith luminance, cd/m2 (give this or horizontal)", default=None),
+        Field("horizontal", number, "unobstructed horizontal illuminance, lx", default=None),
+        Field("sun", vector, "direction X,Y,Z towards the sun (CIE skies that depend on it)", default=None),
+        Field("up", vector, "the zenith X,Y,Z", default=(0.0, 0.0, 1.0)),
+        Field("ground", number, "ground reflectance in [0, 1)", default=0.0),
+        Field("resolution", number, "hemicube resolution of the sky pass", default=64)),
+        "a sky over a uniform ground, seen by every patch through the scene's openings"),
+    "luminaire": LightKind(_luminaire, (
+        _POS, Field("file", lambda text, what: text.strip(), "an IES LM-63 (.ies) or EULUMDAT (.ldt) file"),
+        Field("nadir", vector, "direction X,Y,Z of gamma = 0", default=(0.0, 0.0, -1.0)),
+        Field("c0", vector, "direction X,Y,Z of the C = 0 plane", default=(1.0, 0.0, 0.0)),
+        Field("scale", colour, "factor on the file's candela, one number or R,G,B", default=1.0)),
+        "a point source with a measured intensity distribution"),
 }
 #: Other names of kinds.
 LIGHT_ALIASES = {"directional": "sun"}

@@ -31,7 +31,8 @@ from .camera import Camera
 from .checks import integer, patch_indices, scene as checked_scene
 from .errors import InvalidInputError
 from .launch import global_size
-from .lights import SHADOW_EPSILON, pack_lights
+from .lights import SHADOW_EPSILON, checked_lights, pack_light_tables, pack_lights
+from .photometry.sky import pack_sky
 from .scene import Scene
 
 __all__ = ["path_trace", "path_trace_patches"]
@@ -71,6 +72,7 @@ class _Tracer:
         else:
             inv_power, cdf = 0.0, np.zeros(1)
             tri = np.zeros((4, 4), np.float32)
+        lights = checked_lights(lights)
         packed = pack_lights(lights, scene.frame)
         n_lights = len(packed)
         if not n_lights:
@@ -85,7 +87,8 @@ class _Tracer:
             normals, up(_float4(scene.albedo)), up(_float4(scene.emission)),
             np.int32(len(em)), up(tri), up(_float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
             up(cdf.astype(np.float32)), np.float32(inv_power),
-            np.int32(n_lights), up(packed), np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
+            np.int32(n_lights), up(packed), up(pack_light_tables(lights)), up(pack_sky(lights)),
+            np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
             np.float32(scene.frame.length(2.0 * scene.scale)),  # directional shadow rays need only leave the scene
         )
 
@@ -141,8 +144,9 @@ def path_trace(scene: Scene, camera, spp: int = 64, lights=(), seed: int = 0, ma
         The renderer's camera; its pixel-centre rays are used, so pixels match ``render``.
     spp : int
         Samples per pixel (paths started from each pixel's visible point).
-    lights : sequence of PointLight, SpotLight, DirectionalLight
-        Analytic lights (in addition to the scene's emitting patches).
+    lights : sequence of PointLight, SpotLight, DirectionalLight, SkyLight
+        Lights in addition to the scene's emitting patches; bounce rays that leave the scene
+        see the sky (camera rays that miss show 0, ``render``'s background).
     seed : int
         Random seed in [0, 2**32); the same seed gives the same image bit for bit.
     max_depth : int

@@ -170,7 +170,7 @@ def _dense_solve(scene, F: sp.csr_matrix, L: np.ndarray) -> Solution:
 
 def solve(scene, F, lights=(), method: str = "iterative", tol: float = 1e-6, max_iterations: int = 10000,
           dtype=np.float32, device=None, bounces: int | None = None, raise_on_failure: bool = True,
-          light=None) -> Solution:
+          light=None, emitters: str = "hemicube") -> Solution:
     """Radiosity B = L + P F B over all patches.
 
     Parameters
@@ -194,17 +194,30 @@ def solve(scene, F, lights=(), method: str = "iterative", tol: float = 1e-6, max
         return the partial result with ``converged=False``.
     light : (N, 3) array, optional
         A precomputed light vector L, instead of ``lights`` (give one or the other).
+    emitters : "hemicube" or "analytic"
+        How emitting patches light the others: through F, or (for receivers close to emitters,
+        where hemicube rows are coarse) by the exact point-to-polygon form factor with shadow
+        rays, solving for ``B - E`` (:func:`pydynrad.photometry.areas.reflected_light_vector`);
+        then ``Solution.light`` is that reflected light vector. Only with ``lights=``.
 
     Returns
     -------
     Solution
     """
     from .lights import resolve_light
+    from .photometry.areas import analytic_emitter_light
 
     if method not in ("iterative", "dense"):
         raise InvalidInputError(f"unknown method {method!r}; allowed: 'iterative', 'dense'")
-    L = resolve_light(scene, lights, light, device)
+    L, E = analytic_emitter_light(scene, lights, light, emitters, device)
+    if E is None:
+        L = resolve_light(scene, lights, light, device)
     if method == "dense":
-        return _dense_solve(scene, check_form_factors(scene, F), L)
-    solver = RadiositySolver(scene, F, dtype=dtype, device=device)
-    return solver.solve(L, tol=tol, max_iterations=max_iterations, bounces=bounces, raise_on_failure=raise_on_failure)
+        sol = _dense_solve(scene, check_form_factors(scene, F), L)
+    else:
+        solver = RadiositySolver(scene, F, dtype=dtype, device=device)
+        sol = solver.solve(L, tol=tol, max_iterations=max_iterations, bounces=bounces,
+                           raise_on_failure=raise_on_failure)
+    if E is not None:
+        sol.radiosity = sol.radiosity + E
+    return sol

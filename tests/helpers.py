@@ -221,3 +221,11 @@ def assert_one_line_error(code, err, *needles):
     assert "Traceback" not in err
     for n in needles:
         assert n in lines[0], lines[0]
+
+
+def ceiling_lit_box(albedo: float, exitance: float = 10.0, subdivisions: int = 2) -> pydynrad.Scene:
+    """The unit closed box whose ceiling (wall 5, z = 1) emits ``exitance``; the rest emits nothing."""
+    scene = pydynrad.scenes.closed_box(subdivisions=subdivisions, albedo=albedo, emission=0.0)
+    emission = np.zeros((len(scene), 3))
+    emission[scene.source_face // 2 == 5] = exitance
+    return scene.with_materials(emission=emission)

@@ -8,10 +8,12 @@ import trimesh
 from helpers import assert_one_line_error, run_main
 
 import pydynrad
-from pydynrad import DirectionalLight, InvalidInputError, PointLight, SpotLight
+from bench.cie171_data import LM63_EXAMPLE
+from pydynrad import DirectionalLight, InvalidInputError, PointLight, SkyLight, SpotLight
 from pydynrad.bake.gltf import read_glb
 from pydynrad.cli import build_parser
 from pydynrad.lighttext import parse_light
+from pydynrad.photometry import parse_ies
 from pydynrad.render import Renderer
 
 SPOT = "spot:pos=278,540,280;dir=0,-1,0.2;intensity=1e5,8e4,6e4;outer=35;inner=25"
@@ -27,10 +29,25 @@ def test_every_light_kind_reads_as_its_object():
     assert parse_light(SUN) == DirectionalLight((0.1, -0.2, 1), 0.01)
     assert parse_light("directional:direction=0,-1,0;irradiance=2") == DirectionalLight((0, -1, 0), 2)
     assert parse_light("278,400,280:5e4") == PointLight((278, 400, 280), 5e4)  # the older form
+    assert parse_light("sky:model=cie_overcast;zenith=3000;ground=0.2") == SkyLight(
+        "cie_overcast", zenith_luminance=3000.0, ground_reflectance=0.2)
+    assert parse_light("sky:model=12;horizontal=2e4;sun=0.5,0.2,0.6;up=0,1,0;resolution=32") == SkyLight(
+        12, horizontal_illuminance=2e4, sun_direction=(0.5, 0.2, 0.6), up=(0, 1, 0), resolution=32)
+
+
+def test_a_luminaire_reads_its_file(tmp_path):
+    path = tmp_path / "lamp.ies"
+    path.write_text(LM63_EXAMPLE)
+    lum = parse_light(f"luminaire:pos=1,2,3;file={path};nadir=0,0,-2;scale=0.5")
+    assert lum.position == (1, 2, 3) and lum.nadir == (0, 0, -1) and lum.scale == (0.5, 0.5, 0.5)
+    np.testing.assert_array_equal(lum.distribution.candela, parse_ies(LM63_EXAMPLE).candela)
 
 
 @pytest.mark.parametrize("text, needle", [
-    ("sky:zenith=1", "unknown light kind 'sky'"),
+    ("lamp:zenith=1", "unknown light kind 'lamp'"),
+    ("sky:zenith=-1", "zenith_luminance must be finite and >= 0"),
+    ("sky:model=clear;zenith=1", "give sun_direction"),
+    ("luminaire:pos=1,2,3;file=/no/such.ies", "cannot read '/no/such.ies'"),
     ("point:pos=1,2,3;colour=1", "unknown field 'colour'; its fields are pos, intensity"),
     ("point:pos=1,2,3", "missing intensity"),
     ("point:pos=1,2;intensity=1", "pos must be three numbers"),
@@ -55,8 +72,8 @@ def test_render_walk_compare_and_bake_take_several_lights_of_any_kind(command):
 
 
 def test_a_bad_light_on_the_command_line_is_one_line(capsys):
-    assert_one_line_error(*run_main(["render", "cornell_box", "-o", "x.png", "--light", "sky:x=1"], capsys)[::2],
-                          "unknown light kind 'sky'")
+    assert_one_line_error(*run_main(["render", "cornell_box", "-o", "x.png", "--light", "lamp:x=1"], capsys)[::2],
+                          "unknown light kind 'lamp'")
 
 
 @pytest.fixture(scope="module")

@@ -359,7 +359,7 @@ class DynamicRadiosity:
         return t_ff
 
     # -- lighting ----------------------------------------------------------------------------------------
-    def radiosity(self, lights=(), *, light=None, far_field: bool = True) -> np.ndarray:
+    def radiosity(self, lights=(), *, light=None, far_field: bool = True, emitters: str = "hemicube") -> np.ndarray:
         """B (N, 3) float64 for every patch (see :attr:`patch_levels` for how each was solved).
 
         With the far field: B_far (the coarse level, recomputed when the light vector changes)
@@ -370,11 +370,17 @@ class DynamicRadiosity:
         empty); or ``light``: a precomputed light vector L of shape (N, 3). K is only read.
         ``far_field=False`` gives the paper's answer from the same K (the local-only
         comparison), also when this solution has a far field.
+        ``emitters="analytic"``: emitting patches light the others by the exact point-to-polygon
+        form factor, not through K (as in :func:`pydynrad.solve`): the same solution for B - E
+        with the reflected light vector L_r, plus E.
         """
         from ..lights import resolve_light
+        from ..photometry.areas import analytic_emitter_light
 
         self._require_built()
-        L = resolve_light(self.scene, lights, light, self.device)
+        L, E = analytic_emitter_light(self.scene, lights, light, emitters, self.device)
+        if E is None:
+            L = resolve_light(self.scene, lights, light, self.device)
         S = self._local_patches
         LS = L[S]
         far = self.far.light(L) if far_field and self.far is not None else None
@@ -386,7 +392,7 @@ class DynamicRadiosity:
             KL = self._matrix.matmat(LS.T[None])[0]  # all three in one pass over K
         B = far.copy() if far is not None else L.copy()
         B[S] = LS + self.scene.albedo[S].astype(np.float64) * KL.T
-        return B
+        return B if E is None else B + E
 
     # -- drift -------------------------------------------------------------------------------------------
     def residual(self, tol: float = 1e-10) -> float:

@@ -1,0 +1,100 @@
+"""What a lighting designer reads off a work plane: Em, Emin, Emax, U0, as CSV and as a picture."""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ..atomic import write_atomic
+from ..checks import floats
+from ..errors import InvalidInputError
+from .units import photometric
+
+__all__ = ["IlluminanceStats", "illuminance_statistics", "write_illuminance_csv", "plot_work_plane"]
+
+
+@dataclass(frozen=True)
+class IlluminanceStats:
+    """Statistics of a grid of illuminances (lx): mean Em, minimum, maximum, uniformities
+    U0 = Emin / Em (EN 12464-1) and Ud = Emin / Emax, over n points."""
+
+    n: int
+    Em: float
+    Emin: float
+    Emax: float
+    U0: float
+    Ud: float
+
+
+def _values(E) -> np.ndarray:
+    """One value per point: (n,) as is, (n, 3) reduced by :func:`photometric`."""
+    a = floats(E, "illuminance")
+    if a.ndim == 2 and a.shape[1] == 3:
+        a = photometric(a)
+    if a.ndim != 1 or len(a) == 0 or not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"illuminance must be finite, (n,) or (n, 3) with n >= 1; got shape {np.shape(E)}")
+    return a
+
+
+def illuminance_statistics(E) -> IlluminanceStats:
+    """Em, Emin, Emax, U0, Ud of illuminances ``E`` ((n,), or (n, 3): Rec. 709-weighted)."""
+    a = _values(E)
+    em, lo, hi = float(a.mean()), float(a.min()), float(a.max())
+    return IlluminanceStats(len(a), em, lo, hi, lo / em if em > 0 else float("nan"),
+                            lo / hi if hi > 0 else float("nan"))
+
+
+def write_illuminance_csv(path, points, E) -> IlluminanceStats:
+    """Write ``points`` (n, 3) and their illuminance ``E`` to a CSV file, atomically.
+
+    Columns ``x, y, z, E_lx``, then a blank line and a ``statistic, value`` table (Em, Emin,
+    Emax, U0, Ud, n). Returns the statistics.
+    """
+    p = floats(points, "points")
+    a = _values(E)
+    if p.shape != (len(a), 3):
+        raise InvalidInputError(f"points must have shape ({len(a)}, 3); got {p.shape}")
+    stats = illuminance_statistics(a)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["x", "y", "z", "E_lx"])
+    w.writerows([f"{v:.6g}" for v in row] for row in np.column_stack([p, a]))
+    w.writerow([])
+    w.writerow(["statistic", "value"])
+    w.writerows([k, f"{v:.6g}"] for k, v in asdict(stats).items())
+    write_atomic(path, buf.getvalue().encode())
+    return stats
+
+
+def plot_work_plane(path, plane, E, title: str = "", cmap: str = "jet") -> IlluminanceStats:
+    """A false-colour picture of a :class:`~pydynrad.photometry.workplane.WorkPlane`'s illuminance.
+
+    Cells outside the polygon stay blank; the colour bar is in lx; the title carries Em and U0.
+    The format follows the file's suffix (png, pdf, svg). Needs matplotlib. Returns the statistics.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    a = _values(E)
+    if len(a) != len(plane):
+        raise InvalidInputError(f"illuminance has {len(a)} values for {len(plane)} work-plane points")
+    stats = illuminance_statistics(a)
+    grid = np.full(plane.shape, np.nan)
+    grid[plane.cells[:, 0], plane.cells[:, 1]] = a
+    (u0, v0), (du, dv) = plane.origin, plane.spacing
+    extent = (u0, u0 + du * plane.shape[1], v0, v0 + dv * plane.shape[0])
+    fig, ax = plt.subplots(figsize=(6, 5))
+    im = ax.imshow(grid, origin="lower", extent=extent, cmap=cmap, interpolation="nearest")
+    fig.colorbar(im, ax=ax, label="illuminance (lx)")
+    ax.set_aspect("equal")
+    heading = f"Em = {stats.Em:.4g} lx, Emin = {stats.Emin:.4g} lx, U0 = {stats.U0:.3f}"
+    ax.set_title(f"{title}\n{heading}" if title else heading, fontsize=10)
+    fmt = str(path).rsplit(".", 1)[-1] if "." in str(path) else "png"
+    write_atomic(path, lambda tmp: fig.savefig(tmp, format=fmt, dpi=120, bbox_inches="tight"))
+    plt.close(fig)
+    return stats

@@ -1,0 +1,119 @@
+"""Sensors: illuminance at points that are not part of the scene (they cast no shadows).
+
+``illuminance`` adds, at every point, the direct light of the analytic lights (one shadow ray
+per point and light, the patch light pass's kernel), and a hemicube gather of the patches'
+radiosity and the sky (``kernels/gather.cl``): emitting patches enter through their radiosity,
+which includes their emission, and so does every reflected (indirect) contribution. With a
+photometric scene (docs/design.md, 'Units and photometry') the result is in lux.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..checks import floats, patch_indices, scene as checked_scene
+from ..errors import InvalidInputError
+from ..lights import checked_lights, point_irradiance
+from .areas import emitter_irradiance
+from .gather import gather_irradiance
+from .sky import SkyLight, pack_sky
+
+__all__ = ["illuminance", "checked_sensors"]
+
+
+def checked_sensors(points, normals) -> tuple[np.ndarray, np.ndarray]:
+    """``points`` (n, 3) and unit ``normals`` (n, 3) float64 (normalised here), or InvalidInputError.
+
+    A single point (3,) is accepted as (1, 3); a zero or non-finite normal is an error
+    naming the first offending sensor.
+    """
+    p = floats(points, "sensor points")
+    nrm = floats(normals, "sensor normals")
+    p = p.reshape(1, 3) if p.shape == (3,) else p
+    nrm = np.broadcast_to(nrm, p.shape) if nrm.shape == (3,) else nrm
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InvalidInputError(f"sensor points must have shape (n, 3); got {np.shape(points)}")
+    if nrm.shape != p.shape:
+        raise InvalidInputError(f"sensor normals must have shape {p.shape} (or (3,)); got {np.shape(normals)}")
+    for a, what in ((p, "points"), (nrm, "normals")):
+        bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
+        if len(bad):
+            raise InvalidInputError(f"sensor {what}[{bad[0]}] is not finite: {a[bad[0]].tolist()}")
+    length = np.linalg.norm(nrm, axis=1)
+    bad = np.flatnonzero(length < 1e-12)
+    if len(bad):
+        raise InvalidInputError(f"sensor normals[{bad[0]}] is zero: a sensor needs the direction it faces")
+    return np.ascontiguousarray(p), np.ascontiguousarray(nrm / length[:, None])
+
+
+def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, patches=None,
+                resolution: int = 64, emitters: str = "hemicube", visibility_grid: int = 4,
+                device=None) -> np.ndarray:
+    """Irradiance at sensor points (lux when the scene's light is photometric).
+
+    Parameters
+    ----------
+    scene : Scene
+    radiosity : (N, 3) array, optional
+        Patch radiosity B (``solve(...).radiosity``, ``DynamicRadiosity.radiosity(...)``),
+        gathered by a hemicube at every point: the light of emitting patches and all reflected
+        light. None: the direct light of ``lights`` only.
+    points : (n, 3) or (3,) float
+        Sensor positions in scene units. Sensors do not occlude anything.
+    normals : (n, 3) or (3,) float
+        The direction each sensor faces (normalised here; zero is an error). A horizontal
+        work plane faces up.
+    lights : light object or sequence
+        The lights the radiosity was computed with (PointLight, SpotLight, DirectionalLight,
+        LuminaireLight, SkyLight): their direct light at the sensors, by shadow rays (sky: by
+        the hemicube).
+        Pass the same ones as to ``solve``, or the direct light is missing.
+    patches : (n,) int, optional
+        Instead of points: the centres of these patches, facing their normals; each hemicube
+        ignores its own patch and uses that patch's row rotation, so the gather equals
+        ``(F @ B)[patches]`` of a hemicube F of the same resolution.
+    resolution : int
+        Hemicube resolution R of the gather (3 R^2 rays per sensor).
+    emitters : "hemicube" or "analytic"
+        How the direct light of emitting patches is found: through their radiosity in the
+        hemicube, or by the exact point-to-polygon form factor with ``visibility_grid^2``
+        shadow rays per emitter (:mod:`pydynrad.photometry.areas`; the hemicube then gathers
+        only ``B - E``). Use "analytic" near emitters, where the hemicube is coarse.
+
+    Returns
+    -------
+    (n, 3) float64
+        Irradiance per colour channel (W/unit^2, or lux).
+    """
+    checked_scene(scene)
+    lights = checked_lights(lights)
+    n_patches = len(scene)
+    if patches is not None:
+        if points is not None or normals is not None:
+            raise InvalidInputError("give sensor points and normals, or patches, not both")
+        ids = patch_indices(patches, n_patches, "patches")
+        points, normals = scene.centers[ids].astype(np.float64), scene.normals[ids].astype(np.float64)
+        keys = own = ids
+    else:
+        if points is None or normals is None:
+            raise InvalidInputError("illuminance needs sensor points and normals (or patches=)")
+        points, normals = checked_sensors(points, normals)
+        keys, own = None, None
+    if radiosity is not None:
+        radiosity = floats(radiosity, "radiosity")
+        if radiosity.shape != (n_patches, 3):
+            raise InvalidInputError(f"radiosity must have shape ({n_patches}, 3); got {radiosity.shape}")
+        if not np.all(np.isfinite(radiosity)) or radiosity.min(initial=0.0) < 0:
+            raise InvalidInputError("radiosity must be finite and >= 0")
+    if emitters not in ("hemicube", "analytic"):
+        raise InvalidInputError(f"emitters must be 'hemicube' or 'analytic'; got {emitters!r}")
+    E = point_irradiance(scene, points, normals, lights, device).astype(np.float64)
+    if emitters == "analytic":
+        E += emitter_irradiance(scene, points, normals, visibility_grid, device)
+        if radiosity is not None:
+            radiosity = radiosity - scene.emission
+    has_sky = any(isinstance(light, SkyLight) for light in lights)
+    if radiosity is not None or has_sky:
+        E += gather_irradiance(scene, points, normals, radiosity, pack_sky(lights) if has_sky else None,
+                               resolution, keys, own, device)
+    return E

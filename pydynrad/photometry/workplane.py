@@ -1,0 +1,128 @@
+"""Work planes: a grid of upward-facing sensors at a height over a floor polygon.
+
+The default spacing is EN 12464-1's rule for calculation grids: the maximum grid size
+``p = 0.2 * 5^log10(d)`` m, d the longer side of the area's bounding box in metres (p <= 10 m),
+with ``ceil(side / p)`` points along each side, at the centres of equal cells (so the spacing
+never exceeds p). A border strip (EN 12464-1 excludes 0.5 m along walls from task areas when
+their position is unknown) can be left out with ``border``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..checks import floats, number
+from ..errors import InvalidInputError
+
+__all__ = ["WorkPlane", "work_plane", "en12464_spacing"]
+
+
+def en12464_spacing(d: float) -> float:
+    """EN 12464-1's maximum grid spacing p (m) for an area whose longer dimension is d (m):
+    0.2 * 5^log10(d), at most 10."""
+    d = number(d, "the area's longer dimension")
+    if not (math.isfinite(d) and d > 0):
+        raise InvalidInputError(f"the area's longer dimension must be a positive length; got {d!r}")
+    return min(10.0, 0.2 * 5.0 ** math.log10(d))
+
+
+@dataclass(frozen=True)
+class WorkPlane:
+    """Sensor points of a work plane.
+
+    points, normals : (n, 3) float64, scene coordinates; the normals point along ``up``.
+    cells : (n, 2) int, each point's (row, column) in the grid of ``shape`` (rows along the
+        polygon's second coordinate), for plots; grid cells outside the polygon hold no point.
+    spacing : (2,) the grid steps along the polygon's two coordinates.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    cells: np.ndarray
+    shape: tuple
+    spacing: tuple
+    origin: tuple
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+def _inside(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Even-odd rule: which of the 2-D points p (m, 2) lie inside the polygon (K, 2)."""
+    x, y = p[:, 0:1], p[:, 1:2]
+    a, b = poly, np.roll(poly, -1, axis=0)
+    crosses = (a[:, 1] > y) != (b[:, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xc = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return np.count_nonzero(crosses & (x < xc), axis=1) % 2 == 1
+
+
+def _edge_distance(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Distance of 2-D points p (m, 2) to the polygon's boundary."""
+    a, b = poly[None], np.roll(poly, -1, axis=0)[None]
+    ab = b - a
+    t = np.clip(np.sum((p[:, None] - a) * ab, axis=2) / np.maximum(np.sum(ab * ab, axis=2), 1e-300), 0.0, 1.0)
+    return np.min(np.linalg.norm(p[:, None] - (a + t[..., None] * ab), axis=2), axis=1)
+
+
+def work_plane(polygon, height: float, spacing: float | None = None, border: float = 0.0, up: int = 2) -> WorkPlane:
+    """A grid of sensors at ``height`` over ``polygon``, facing up.
+
+    Parameters
+    ----------
+    polygon : (K, 2) float
+        The floor area's corners in order (either orientation), in the two coordinates other
+        than ``up`` (x, y for ``up=2``; z, x for ``up=1``; y, z for ``up=0``), scene units.
+    height : float
+        The plane's coordinate along ``up`` (e.g. 0.75 m above a floor at 0 for desks).
+    spacing : float, optional
+        Largest grid step; by default EN 12464-1's p for the polygon's longer side
+        (:func:`en12464_spacing`, lengths read as metres).
+    border : float
+        Width of the strip along the polygon's edges left without points.
+    up : int
+        The axis (0, 1, 2) the plane faces.
+    """
+    poly = floats(polygon, "polygon")
+    if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3 or not np.all(np.isfinite(poly)):
+        raise InvalidInputError(f"polygon must be (K >= 3, 2) finite corners; got shape {poly.shape}")
+    area2 = float(np.sum(poly[:, 0] * np.roll(poly[:, 1], -1) - np.roll(poly[:, 0], -1) * poly[:, 1]))
+    if abs(area2) < 1e-12 * float(np.ptp(poly, axis=0).max()) ** 2:
+        raise InvalidInputError("polygon has no area")
+    if up not in (0, 1, 2):
+        raise InvalidInputError(f"up must be an axis 0, 1 or 2; got {up!r}")
+    height = number(height, "height")
+    border = number(border, "border")
+    if not border >= 0:
+        raise InvalidInputError(f"border must be >= 0; got {border!r}")
+    lo, hi = poly.min(axis=0), poly.max(axis=0)
+    size = hi - lo
+    if spacing is None:
+        spacing = en12464_spacing(float(size.max()))
+    spacing = number(spacing, "spacing")
+    if not (math.isfinite(spacing) and spacing > 0):
+        raise InvalidInputError(f"spacing must be a positive length; got {spacing!r}")
+    counts = np.maximum(1, np.ceil(size / spacing - 1e-9)).astype(int)
+    steps = size / counts
+    u = lo[0] + (np.arange(counts[0]) + 0.5) * steps[0]
+    v = lo[1] + (np.arange(counts[1]) + 0.5) * steps[1]
+    vv, uu = np.meshgrid(v, u, indexing="ij")
+    rows, cols = np.meshgrid(np.arange(counts[1]), np.arange(counts[0]), indexing="ij")
+    flat = np.stack([uu.ravel(), vv.ravel()], axis=1)
+    keep = _inside(flat, poly)
+    if border > 0:
+        keep &= _edge_distance(flat, poly) >= border
+    if not np.any(keep):
+        raise InvalidInputError("no grid point lies inside the polygon (and outside its border strip)")
+    flat = flat[keep]
+    axes = [(1, 2), (2, 0), (0, 1)][up]
+    points = np.zeros((len(flat), 3))
+    points[:, axes[0]], points[:, axes[1]], points[:, up] = flat[:, 0], flat[:, 1], height
+    normals = np.zeros_like(points)
+    normals[:, up] = 1.0
+    cells = np.stack([rows.ravel()[keep], cols.ravel()[keep]], axis=1)
+    return WorkPlane(points, normals, cells, (int(counts[1]), int(counts[0])), (float(steps[0]), float(steps[1])),
+                     (float(lo[0]), float(lo[1])))
