@@ -185,7 +185,7 @@ def accuracy_section(ctx) -> dict:
         M = min(s["M"], n)
         F = form_factors(s["R"])
         dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=s["update"], storage=s["storage"],
-                                        device=ctx.device)
+                                        far_field=False, device=ctx.device)
         _, frames = timed_walk(dyn, path)
         t_update = [dt for dt, _ in frames]
         b, t_light = dyn.radiosity(), time_call(dyn.radiosity)["median_s"]

@@ -126,7 +126,8 @@ def _frame_rows(device, sizes, frames):
         for mode in ("exact", "paper"):
             for storage in STORAGES:
                 dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=mode, storage=storage,
-                                                max_swaps_per_frame=BATCH, observer=next(_walk(scene, 1)), device=device)
+                                                max_swaps_per_frame=BATCH, observer=next(_walk(scene, 1)), far_field=False,
+                                                device=device)
                 stats = [dyn.update(p) for p in _walk(scene, frames, seed=1)]
                 busy = [s for s in stats if s.swaps]
                 light = time_call(lambda: dyn.radiosity(light=L), repeats=5)
@@ -149,7 +150,8 @@ def _accuracy_rows(device, sizes, sub):
             continue
         for mode in ("exact", "paper"):
             dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=mode, storage="fp32",
-                                            max_swaps_per_frame=BATCH, observer=next(_walk(scene, 1)), device=device)
+                                            max_swaps_per_frame=BATCH, observer=next(_walk(scene, 1)), far_field=False,
+                                            device=device)
             for p in _walk(scene, 40, seed=2):
                 dyn.update(p)
             B = dyn.radiosity()
@@ -168,7 +170,8 @@ def _drift_rows(device, M, frames, progress: bool = True):
     for storage in ("fp16", "fp32"):
         for tol in (None, DRIFT_REFRESH_TOLERANCE):
             dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update="exact", storage=storage, max_swaps_per_frame=BATCH,
-                                            refresh_tolerance=tol, refresh_interval=100, observer=next(_walk(scene, 1)), device=device)
+                                            refresh_tolerance=tol, refresh_interval=100, observer=next(_walk(scene, 1)),
+                                            far_field=False, device=device)
             swaps = 0
             for p in tqdm(_walk(scene, frames, seed=3), total=frames, desc=f"drift {storage} tol={tol}", leave=False,
                           disable=not progress):

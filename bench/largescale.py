@@ -84,7 +84,7 @@ def run_walk(args) -> dict:
         source = cache = RowCache(store, max_bytes=int(args.cache_mib * 2**20))
     loaded = rss_mib()
     dyn = pydynrad.DynamicRadiosity(scene, source, local_size=args.local_size, update="exact", storage="fp32",
-                                    max_swaps_per_frame=args.swaps)
+                                    max_swaps_per_frame=args.swaps, far_field=False)
     eyes = walk_path(scene, args.frames, args.step)
     times, ff_times, swaps = [], [], []
     t0 = time.perf_counter()

@@ -59,7 +59,8 @@ def paper_section(ctx) -> dict:
         if M > n:
             continue
         for mode in ("paper", "exact"):
-            dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=mode, storage="fp16", device=ctx.device)
+            dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=mode, storage="fp16", far_field=False,
+                                            device=ctx.device)
             t_build, walked = timed_walk(dyn, walk)
             frames = [(dt, stats.swaps) for dt, stats in walked if stats.swaps]
             t_update = float(np.median([dt for dt, _ in frames])) if frames else float("nan")

@@ -342,7 +342,8 @@ def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames) ->
     from .atomic import write_atomic
     from .walk import walk
 
-    opts = {"update": args.update, "storage": args.storage}
+    # The paper's local-only solution until the CLI gains its far-field options.
+    opts = {"update": args.update, "storage": args.storage, "far_field": False}
     result = walk(scene, path, lights=lights, form_factors=F, local_size=min(args.local_size, len(scene)),
                   solver_options=opts, shading=args.shading, output=out_dir, image_format=args.format,
                   exposure=args.exposure, reference_frames=reference_frames, progress=_progress(args))
@@ -404,7 +405,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, args.max_edge)
     camera = _default_camera(scene, args)
     F = _form_factors(args, scene)
-    dyn = DynamicRadiosity(scene, F, local_size=min(args.local_size, len(scene)), update=args.update, storage=args.storage)
+    dyn = DynamicRadiosity(scene, F, local_size=min(args.local_size, len(scene)), update=args.update, storage=args.storage,
+                           far_field=False)
     dyn.update(camera.position)
     ref = reference_frame(scene, F, dyn.radiosity(args.light), camera, lights=args.light, shading=args.shading,
                           exposure=args.exposure)

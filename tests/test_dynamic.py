@@ -146,7 +146,7 @@ def test_full_set_reproduces_the_full_solution(device, mode):
 
 def test_one_patch_gives_its_own_light(device, setup):
     scene, F = setup
-    dyn = DynamicRadiosity(scene, F, local_size=1, observer=[0.5, 0.5, 0.02], device=device)
+    dyn = DynamicRadiosity(scene, F, local_size=1, observer=[0.5, 0.5, 0.02], far_field=False, device=device)
     L = np.random.default_rng(3).random((len(scene), 3))
     (i,) = dyn.local_patches
     d = np.linalg.norm(scene.centers - [0.5, 0.5, 0.02], axis=1)
@@ -163,7 +163,7 @@ def test_albedo_extremes(device, albedo, mode):
     scene = coloured_box(3, albedo=albedo, emitters=2, seed=9)
     F = reciprocal_F(scene.areas, row_sum=1.0, density=0.2, seed=10)
     dyn = DynamicRadiosity(scene, F, local_size=50, update=mode, storage="fp64", max_swaps_per_frame=3,
-                           observer=[0.5, 0.5, 0.5], device=device)
+                           observer=[0.5, 0.5, 0.5], far_field=False, device=device)
     for p in observer_walk(np.random.default_rng(4), 10):
         dyn.update(p)
     L = np.random.default_rng(5).random((len(scene), 3))
@@ -182,7 +182,8 @@ def test_lighting_changes_B_not_K(device, setup):
     import pyopencl as cl
 
     scene, F = setup
-    dyn = DynamicRadiosity(scene, F, local_size=32, storage="fp16", observer=[0.5, 0.5, 0.5], device=device)
+    dyn = DynamicRadiosity(scene, F, local_size=32, storage="fp16", observer=[0.5, 0.5, 0.5], far_field=False,
+                           device=device)
     dyn.update([0.3, 0.6, 0.5])
 
     def raw():
@@ -225,7 +226,8 @@ def test_emitters_are_never_evicted(device):
 def test_grey_scene_keeps_one_channel(device):
     scene = coloured_box(3, grey=True, seed=14)
     F = reciprocal_F(scene.areas, row_sum=0.95, density=0.2, seed=15)
-    dyn = DynamicRadiosity(scene, F, local_size=30, storage="fp64", max_swaps_per_frame=4, observer=[0.5, 0.5, 0.1], device=device)
+    dyn = DynamicRadiosity(scene, F, local_size=30, storage="fp64", max_swaps_per_frame=4, observer=[0.5, 0.5, 0.1],
+                           far_field=False, device=device)
     for p in observer_walk(np.random.default_rng(16), 12):
         dyn.update(p)
     assert dyn.matrix.C == 1
@@ -263,7 +265,8 @@ def test_residual_and_refresh(device, setup):
 
 def test_memory_bytes(device, setup):
     scene, F = setup
-    dyn = DynamicRadiosity(scene, F, local_size=64, storage="fp16", max_swaps_per_frame=8, observer=[0.5, 0.5, 0.5], device=device)
+    dyn = DynamicRadiosity(scene, F, local_size=64, storage="fp16", max_swaps_per_frame=8, observer=[0.5, 0.5, 0.5],
+                           far_field=False, device=device)
     assert dyn.memory_bytes == DynamicRadiosity.estimate_memory_bytes(64, 3, "fp16", 8, device)
     assert dyn.memory_bytes >= 3 * 64 * 64 * 2
     # The paper's figure: M = 4096, RGB, fp16 is about 96 MiB: K alone is exactly 96 MiB, the

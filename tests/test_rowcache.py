@@ -181,7 +181,7 @@ def test_streamed_walk_equals_in_memory_walk(tmp_path, device):
     cache = RowCache(store, max_bytes=CSRRows(f).nbytes // 3)
     sources = {"rows in memory": CSRRows(f), "streamed": cache, "matrix in memory": f}
     walks = {name: DynamicRadiosity(scene, src, local_size=48, update="exact", storage="fp64", max_swaps_per_frame=6,
-                                    device=device)
+                                    far_field=False, device=device)
              for name, src in sources.items()}
     lo, hi = scene.bbox.astype(np.float64)
     swaps = 0

@@ -192,6 +192,7 @@ def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     from pydynrad.rows.files import open_form_factors, save_form_factors
     from pydynrad.formfactors import form_factors
     from pydynrad.rows.sources import CSRRows
+    from pydynrad.farfield import FarField, cluster_patches
     from pydynrad.rows.store import compute_store
 
     pts, tris = box_mesh(n=4, inward=True)
@@ -203,9 +204,14 @@ def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
                   row_function=lambda scene, rows, resolution, device=None: F[rows])
     path = fly_through([[0.1, 0.5, 0.1], [0.5, 0.5, 0.5], [0.9, 0.5, 0.9]], frames=10, width=20, height=16, fov_y=90)
     lights = [LightTrack(PointLight((0.3, 0.5, 0.5), 0.2), [[0.3, 0.5, 0.5], [0.7, 0.5, 0.5]])]
+    # Equal far fields for both (from G, as a store has it; fresh, since the coarse solve starts
+    # from the previous one), so only the rows' origin differs.
+    clusters = cluster_patches(scene)
+    G = F @ clusters.indicator()
     options = {"storage": "fp64", "max_swaps_per_frame": 4}
     cache = open_form_factors(scene, tmp_path / "ff", cache_bytes=CSRRows(F).nbytes // 3)
-    walks = {name: walk(scene, path, lights=lights, form_factors=src, local_size=48, solver_options=options,
+    walks = {name: walk(scene, path, lights=lights, form_factors=src, local_size=48,
+                        solver_options={**options, "far_field": FarField(scene, None, clusters, G, device=device)},
                         reference_frames=[-1], keep_images=True, progress=False, device=device)
              for name, src in (("file", open_form_factors(scene, tmp_path / "f.npz")), ("store", cache))}
     cache.close()

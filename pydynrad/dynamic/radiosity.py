@@ -9,8 +9,11 @@ a frame costs O(M^2) device work instead of O(N^2):
   the paper does (``update="paper"``, :mod:`pydynrad.dynamic.paper`) or exactly
   (``update="exact"``, :mod:`pydynrad.dynamic.exact`: after any sequence of swaps K equals a fresh
   build over the same set, to rounding);
-* ``radiosity(lights)`` (or ``radiosity(light=L)``) returns B = L + P K L on the local patches (one matrix-vector product
-  per colour channel) and L (emitted plus direct light) elsewhere.
+* ``radiosity(lights)`` (or ``radiosity(light=L)``) returns B (N, 3) for every patch. With the far field (the default,
+  :mod:`pydynrad.farfield`) patches outside the local set get a coarse cluster-level solution
+  B_far, and the light they reflect is injected into the local set before B = L' + P K L';
+  with ``far_field=False`` (the paper's method) the local set gets B = L + P K L and every other
+  patch only L (emitted plus direct light). :attr:`DynamicRadiosity.patch_levels` says which.
 
 Form factors come from a precomputed sparse F, any row source (:mod:`pydynrad.rows`:
 a form-factor store on disk, a row cache) or, with ``form_factors=None``, from one hemicube
@@ -94,12 +97,21 @@ class DynamicRadiosity:
         nothing). If every slot holds an emitter, no more swaps happen.
     resolution : int
         Hemicube resolution when ``form_factors`` is None.
+    far_field : bool or pydynrad.farfield.FarField
+        Light the patches outside the local set with the coarse level and inject their light
+        into it (default), or leave them at L as the paper does (False). A ready FarField
+        (built for this scene) is used as given.
+    clusters : int or pydynrad.farfield.Clusters, optional
+        The far field's clusters, or their count C (default: from N).
+    cluster_form_factors : (N, C) sparse, optional
+        G for those clusters; by default F Pr from F, or from the row source's rows.
     device : pydynrad.Device, optional
     """
 
     def __init__(self, scene, form_factors, local_size: int = 1024, update: str = "exact", storage: str = "fp32",
                  max_swaps_per_frame: int = 8, refresh_tolerance: float | None = None, refresh_interval: int = 32,
-                 observer=None, keep_emitters: bool = True, resolution: int = 128, device=None) -> None:
+                 observer=None, keep_emitters: bool = True, resolution: int = 128, far_field=True, clusters=None,
+                 cluster_form_factors=None, device=None) -> None:
         from ..device import default_device
 
         checked_scene(scene)
@@ -130,6 +142,7 @@ class DynamicRadiosity:
         self.frame = 0
         self.refreshes = 0
         self._rng = np.random.default_rng(0x5EEAC106)
+        self.far = self._far_field(far_field, clusters, cluster_form_factors)
         if observer is not None:
             self._build(self._select.nearest(vec3(observer, "observer"), self.M)[0])
 
@@ -155,6 +168,28 @@ class DynamicRadiosity:
         return self._local_mask.copy()
 
     @property
+    def patch_levels(self) -> np.ndarray:
+        """(N,) str: how the last :meth:`radiosity` call solved each patch: ``"local"`` (the local
+        matrix K), ``"far"`` (the far field's coarse level) or ``"light"`` (L only: far_field=False)."""
+        self._require_built()
+        levels = np.full(len(self.scene), "far" if self.far is not None else "light", dtype="<U5")
+        levels[self._local_patches] = "local"
+        return levels
+
+    def _far_field(self, far_field, clusters, G):
+        from ..farfield import FarField, far_field_for
+
+        if far_field is False or far_field is None:
+            return None
+        if isinstance(far_field, FarField):
+            if far_field.scene.content_hash() != self.scene.content_hash():
+                raise InvalidInputError("far_field was built for another scene (content hash differs)")
+            return far_field
+        if far_field is not True:
+            raise InvalidInputError(f"far_field must be True, False or a FarField; got {far_field!r}")
+        return far_field_for(self.scene, self._ff, clusters, G, self.device)
+
+    @property
     def matrix(self) -> DeviceMatrix:
         """The device-resident K (C, M, M) in slot order (see :attr:`local_patches`)."""
         self._require_built()
@@ -162,9 +197,10 @@ class DynamicRadiosity:
 
     @property
     def memory_bytes(self) -> int:
-        """Device bytes of K (all channels) and the update's scratch buffers."""
+        """Device bytes of K (all channels), the update's scratch buffers and the far field's G and F_c."""
         self._require_built()
-        return self._matrix.nbytes + self._kernels.nbytes
+        far = self.far.device_memory_bytes if self.far is not None else 0
+        return self._matrix.nbytes + self._kernels.nbytes + far
 
     @staticmethod
     def estimate_memory_bytes(M: int, channels: int, storage: str, max_swaps_per_frame: int = 8, device=None) -> int:
@@ -181,10 +217,11 @@ class DynamicRadiosity:
     @property
     def host_memory_bytes(self) -> int:
         """Host bytes of the bookkeeping: slot map, local mask, the local set's form-factor
-        rows and (paper mode) the bitsets."""
+        rows, (paper mode) the bitsets and the far field (G, F_c, R, labels, B_far)."""
         self._require_built()
         used = self._used.nbytes if self._used is not None else 0
-        return self._local_patches.nbytes + self._local_mask.nbytes + self._ff.nbytes + used
+        far = self.far.host_memory_bytes if self.far is not None else 0
+        return self._local_patches.nbytes + self._local_mask.nbytes + self._ff.nbytes + used + far
 
     def _rho(self, patches: np.ndarray) -> np.ndarray:
         """(C, len(patches)) albedo per K channel."""
@@ -317,7 +354,11 @@ class DynamicRadiosity:
 
     # -- lighting ----------------------------------------------------------------------------------------
     def radiosity(self, lights=(), *, light=None) -> np.ndarray:
-        """B (N, 3) float64: L + P K L on the local patches, L elsewhere.
+        """B (N, 3) float64 for every patch (see :attr:`patch_levels` for how each was solved).
+
+        With the far field: B_far (the coarse level, recomputed when the light vector changes)
+        outside the local set S, and L'_S + P_S K L'_S on S, where L'_S = L_S + P_S F[S, X] B_far[X]
+        adds the light reflected by the patches outside. Without it: L + P K L on S, L elsewhere.
 
         ``lights``: analytic lights (see :func:`pydynrad.light_vector`; emission alone when
         empty); or ``light``: a precomputed light vector L of shape (N, 3). K is only read.
@@ -328,11 +369,14 @@ class DynamicRadiosity:
         L = resolve_light(self.scene, lights, light, self.device)
         S = self._local_patches
         LS = L[S]
+        if self.far is not None:
+            far = self.far.light(L)
+            LS = LS + self.far.injection(self._ff.local, S)
         if self.C == 3:
             KL = self._matrix.matvec(LS.T)
         else:  # one K serves the three colour channels of L
             KL = self._matrix.matmat(LS.T[None])[0]  # all three in one pass over K
-        B = L.copy()
+        B = far.copy() if self.far is not None else L.copy()
         B[S] = LS + self.scene.albedo[S].astype(np.float64) * KL.T
         return B
 

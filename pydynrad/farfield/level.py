@@ -1,0 +1,256 @@
+"""The far field: every patch's radiosity at a coarse level, and its light injected into the local set.
+
+docs/design.md, 'Far field', gives the algebra. With clusters c (pure albedo), an area-weighted
+restriction R (C x N), a prolongation Pr (N x C, R Pr = I) and the patch-to-cluster form factors
+G = F Pr (N x C):
+
+    F_c = R G                         the coarse (Galerkin) form factors, C x C
+    L_c = R L ;  B_c = L_c + P_c F_c B_c                     (per light change)
+    B_far = L + P (G B_c)             every patch, at the coarse level's accuracy
+
+and per frame, for the local set S and X the patches outside it,
+
+    L'_S = L_S + P_S F[S, X] B_far[X]                         (from the local set's kept rows)
+    B_S  = L'_S + P_S K_S L'_S        the local lighting product, exact given B_far.
+
+With C = N (every patch its own cluster) G = F and B_far is the full solution.
+
+The coarse system is solved by Jacobi sweeps of the sparse F_c on the device, warm-started from
+the previous B_c when the lights change (bench/farfield.py measures sweeps and time against a
+dense K_c). Two refinements, both measured there:
+
+* ``prolongation="exposure"``: Pr_w[i, c] = w_i / mean_c(w) (area-weighted mean; the indicator
+  where the mean is 0) with w the radiosity under a uniform sky of directional lights, so a
+  cluster's light goes to its exposed members and not to shadowed or enclosed ones (the leaks
+  of plain cluster averages). Needs F (or a G built with the same Pr_w).
+* ``first_bounce=True`` (the default with F): B_far = L + P F (L + D), where every patch's
+  indirect light D is its cluster's B_c - L_c shared in proportion to the patch's own first
+  bounce P F L: two passes over F per light change, and no leaks into patches that one bounce
+  of the direct light does not reach. Needs F.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..checks import check_form_factors, scene as checked_scene
+from ..errors import InvalidInputError, PydynradError
+from .clusters import Clusters, cluster_patches, light_components
+
+__all__ = ["FarField", "sky_directions", "PROLONGATIONS"]
+
+PROLONGATIONS = ("indicator", "exposure")
+
+#: Directional lights of the uniform sky that the exposure weights are solved under.
+SKY_DIRECTIONS = 128
+
+
+def sky_directions(n: int = SKY_DIRECTIONS) -> np.ndarray:
+    """(n, 3) unit directions evenly over the sphere (a Fibonacci lattice): deterministic."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (1.0 + 5**0.5) * k
+    r = np.sqrt(1.0 - z * z)
+    return np.column_stack([r * np.cos(phi), z, r * np.sin(phi)])
+
+
+def exposure_weights(scene, F: sp.csr_matrix, device, tol: float = 1e-4) -> np.ndarray:
+    """(N,) radiosity (grey, channel mean) under a uniform sky of :data:`SKY_DIRECTIONS` lights."""
+    from ..lights import DirectionalLight, light_vector
+    from .devicecsr import DeviceCSR
+
+    sky = [DirectionalLight(tuple(d), (1.0 / SKY_DIRECTIONS,) * 3) for d in sky_directions()]
+    L = light_vector(scene.with_materials(emission=0.0), sky, device=device).mean(axis=1, keepdims=True)
+    rho = scene.albedo.astype(np.float64).mean(axis=1, keepdims=True)
+    w, _, _ = DeviceCSR(device, F).jacobi(L, rho, L, tol, 200)
+    return np.maximum(w[:, 0], 0.0)
+
+
+def weighted_prolongation(clusters: Clusters, areas: np.ndarray, w: np.ndarray) -> sp.csr_matrix:
+    """(N, C) Pr_w[i, c] = w_i / mean_c(w), the area-weighted mean; the indicator where the mean is 0."""
+    a = np.asarray(areas, dtype=np.float64)
+    lab = clusters.labels
+    mean = np.bincount(lab, weights=a * w, minlength=clusters.count) / np.bincount(lab, weights=a, minlength=clusters.count)
+    scale = np.where(mean[lab] > 0, w / np.where(mean[lab] > 0, mean[lab], 1.0), 1.0)
+    n = len(lab)
+    return sp.csr_matrix((scale, (np.arange(n), lab)), shape=(n, clusters.count))
+
+
+class FarField:
+    """The coarse level of a scene: clusters, F_c, G, and the far radiosity B_far per light vector.
+
+    Parameters
+    ----------
+    scene : pydynrad.Scene
+    form_factors : (N, N) sparse, optional
+        F in memory. Without it ``G`` must be given (from
+        :func:`pydynrad.farfield.gather.cluster_form_factors` or a form-factor store).
+    clusters : Clusters or int, optional
+        A partition (:func:`cluster_patches`), or C for one; default C from N.
+    G : (N, C) sparse, optional
+        The patch-to-cluster form factors F Pr for these clusters (computed from F if omitted).
+    prolongation : "indicator" | "exposure"
+    first_bounce : bool, optional
+        Gather the final bounce with F's rows, sharing each cluster's indirect light by the
+        patches' first bounce (default: when F is given).
+    tol : float
+        Relative max-norm change of B_c at which the coarse sweeps stop.
+    max_sweeps : int
+        The most coarse sweeps per light change.
+    dtype : np.float32 | np.float64
+        Precision of the device products.
+    device : pydynrad.Device, optional
+    """
+
+    def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str = "indicator",
+                 first_bounce: bool | None = None, tol: float = 1e-5, max_sweeps: int = 1000, dtype=np.float32,
+                 device=None) -> None:
+        from ..device import default_device
+        from .devicecsr import DeviceCSR
+
+        t0 = time.perf_counter()
+        self.scene = checked_scene(scene)
+        n = len(scene)
+        self.device = device or default_device()
+        if prolongation not in PROLONGATIONS:
+            raise InvalidInputError(f"prolongation must be one of {PROLONGATIONS}; got {prolongation!r}")
+        F = None if form_factors is None else check_form_factors(scene, form_factors)
+        first_bounce = F is not None if first_bounce is None else bool(first_bounce)
+        if F is None and G is None:
+            raise InvalidInputError("the far field needs F in memory or its patch-to-cluster form factors G "
+                                    "(pydynrad.farfield.gather.cluster_form_factors, or a store holding G)")
+        if F is None and (first_bounce or prolongation == "exposure"):
+            raise InvalidInputError(f"first_bounce and prolongation='exposure' need F in memory; got "
+                                    f"first_bounce={first_bounce}, prolongation={prolongation!r} without F")
+        if clusters is None or not isinstance(clusters, Clusters):
+            clusters = cluster_patches(scene, clusters, components=None if F is None else light_components(F))
+        elif clusters.scene_hash != scene.content_hash() or len(clusters.labels) != n:
+            raise InvalidInputError("these clusters were made for another scene (content hash differs)")
+        self.clusters = clusters
+        C = clusters.count
+        self.R = clusters.restriction(scene.areas)
+        if prolongation == "exposure":
+            self.weights = exposure_weights(scene, F, self.device)
+            Pr = weighted_prolongation(clusters, scene.areas, self.weights)
+        else:
+            self.weights = None
+            Pr = clusters.indicator()
+        if G is None:
+            G = F @ Pr
+        G = sp.csr_matrix(G, dtype=np.float64)
+        if G.shape != (n, C):
+            raise InvalidInputError(f"G must have shape ({n}, {C}) (patches x clusters); got {G.shape}")
+        if G.nnz and (not np.all(np.isfinite(G.data)) or G.data.min() < 0):
+            raise InvalidInputError("G must hold finite, non-negative form factors")
+        self.prolongation, self.first_bounce, self.tol, self.max_sweeps = prolongation, bool(first_bounce), tol, max_sweeps
+        self.G = G
+        self.F_c = sp.csr_matrix(self.R @ G)
+        self.rho = scene.albedo.astype(np.float64)
+        # Pure clusters: every member has the cluster's albedo.
+        first = np.zeros(C, dtype=np.int64)
+        first[clusters.labels[::-1]] = np.arange(n)[::-1]
+        self.rho_c = self.rho[first]
+        self._G_dev = DeviceCSR(self.device, G, dtype)
+        self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype)
+        self._F_dev = DeviceCSR(self.device, F, dtype) if first_bounce else None
+        self._B_c = None
+        self._L = None
+        self.B_far = None
+        self.sweeps = 0
+        self.seconds_build = time.perf_counter() - t0
+        self.seconds_light = 0.0
+
+    @property
+    def C(self) -> int:
+        return self.clusters.count
+
+    @property
+    def device_memory_bytes(self) -> int:
+        """Device bytes of G, F_c (and F for the first bounce)."""
+        return sum(m.nbytes for m in (self._G_dev, self._Fc_dev, self._F_dev) if m is not None)
+
+    @property
+    def host_memory_bytes(self) -> int:
+        """Host bytes of G, F_c, R, the labels and B_far."""
+        mats = (self.G, self.F_c, self.R)
+        held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats)
+        far = 0 if self.B_far is None else self.B_far.nbytes
+        return held + self.clusters.labels.nbytes + far
+
+    def light(self, L: np.ndarray) -> np.ndarray:
+        """B_far (N, 3) float64 for light vector L (N, 3); cached while L is unchanged."""
+        if self._L is not None and np.array_equal(L, self._L):
+            return self.B_far
+        t0 = time.perf_counter()
+        grey = self.scene.is_grey and bool(np.all(L[:, :1] == L))
+        k = 1 if grey else 3
+        L_c = self.R @ L[:, :k]
+        x0 = L_c if self._B_c is None or self._B_c.shape[1] != k else self._B_c
+        B_c, self.sweeps, _ = self._Fc_dev.jacobi(L_c, self.rho_c[:, :k], x0, self.tol, self.max_sweeps)
+        self._B_c = B_c
+        if self.first_bounce:
+            B = self._gather_with_first_bounce(L[:, :k], B_c - L_c)
+        else:
+            B = self._G_dev.bounce(L[:, :k], self.rho[:, :k], B_c)
+        self.B_far = np.repeat(B, 3, axis=1) if k == 1 else B
+        self._L = np.array(L, dtype=np.float64)
+        self.seconds_light = time.perf_counter() - t0
+        return self.B_far
+
+    def _gather_with_first_bounce(self, L: np.ndarray, D_c: np.ndarray) -> np.ndarray:
+        """L + P F (L + D): the indirect light D of every patch prolongated from the clusters'
+        D_c = B_c - L_c in proportion to its own first bounce D1 = P F L (the cluster's
+        area-weighted mean of D1 maps to D_c; the indicator where that mean is 0), then one
+        gather with F's rows. A patch no direct light reaches by one bounce gets no share of
+        its cluster's indirect light, so light does not leak to shadowed members."""
+        lab = self.clusters.labels
+        rho = self.rho[:, : L.shape[1]]
+        D1 = self._F_dev.bounce(np.zeros_like(L), rho, L)
+        mean = (self.R @ D1)[lab]
+        share = np.where(mean > 0, D1 / np.where(mean > 0, mean, 1.0), 1.0)
+        return self._F_dev.bounce(L, rho, L + share * D_c[lab])
+
+    def injection(self, local_rows: sp.csr_matrix, members: np.ndarray) -> np.ndarray:
+        """L'_S - L_S = P_S F[S, X] B_far[X] (M, 3) for the local set ``members`` (slot order)
+        whose F rows are ``local_rows`` (M, N)."""
+        if self.B_far is None:
+            raise PydynradError("light() the far field before injecting it")
+        far = self.B_far.copy()
+        far[members] = 0.0  # X: only the patches outside S
+        return self.rho[members] * (local_rows @ far)
+
+
+#: Rows per block when G is summed from a row source (bounded memory: one block of F's rows).
+G_BLOCK_ROWS = 4096
+
+
+def cluster_form_factors_from_rows(source, clusters: Clusters, progress: bool | None = None) -> sp.csr_matrix:
+    """G = F Pr (N, C) for the indicator prolongation, from any row source in blocks of
+    :data:`G_BLOCK_ROWS` rows, so F is never held whole."""
+    import sys
+
+    from tqdm import tqdm
+
+    n = len(clusters.labels)
+    Pr = clusters.indicator()
+    starts = range(0, n, G_BLOCK_ROWS)
+    show = sys.stderr.isatty() and n > 8 * G_BLOCK_ROWS if progress is None else progress
+    blocks = [sp.csr_matrix(source.rows(np.arange(s, min(n, s + G_BLOCK_ROWS))) @ Pr)
+              for s in tqdm(starts, desc="far field G", unit="block", disable=not show)]
+    return sp.vstack(blocks, format="csr")
+
+
+def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarField:
+    """The FarField a :class:`~pydynrad.DynamicRadiosity` uses for its form factors
+    (:class:`pydynrad.dynamic.localrows.LocalRows`): from F when it is in memory, else from G
+    (given, or summed from the row source's rows)."""
+    if local_rows.csr is not None:
+        return FarField(scene, local_rows.csr, clusters, G, device=device)
+    if G is None:
+        if not isinstance(clusters, Clusters):
+            clusters = cluster_patches(scene, clusters)
+        G = cluster_form_factors_from_rows(local_rows.source, clusters)
+    return FarField(scene, None, clusters, G, device=device)

@@ -1,0 +1,208 @@
+"""The far field (pydynrad.farfield) against full solves of the same scene and F."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.linalg import lu_factor, lu_solve
+
+import pydynrad
+from pydynrad import DirectionalLight, DynamicRadiosity, PointLight, Scene
+from pydynrad.compare import radiosity_error
+from pydynrad.farfield import FarField, cluster_patches
+from pydynrad.farfield.clusters import NORMAL_BINS
+from pydynrad.farfield.level import cluster_form_factors_from_rows
+from pydynrad.rows.sources import CSRRows
+from radiosity_inputs import box_scene, reciprocal_F
+
+
+def dense_B(scene, F, L):
+    Fd = F.toarray()
+    rho = scene.albedo.astype(np.float64)
+    return np.stack([np.linalg.solve(np.eye(len(scene)) - rho[:, c][:, None] * Fd, L[:, c]) for c in range(3)], axis=1)
+
+
+@pytest.fixture(scope="module")
+def cornell(device):
+    scene = pydynrad.scenes.cornell_box()
+    F = pydynrad.form_factors(scene, resolution=32, device=device, progress=False)
+    lights = [PointLight(position=[278, 450, 280], intensity=[2e5] * 3)]
+    L = pydynrad.light_vector(scene, lights, device=device)
+    Fd, rho = F.toarray(), scene.albedo.astype(np.float64)
+    lu = [lu_factor(np.eye(len(scene)) - rho[:, c][:, None] * Fd) for c in range(3)]
+
+    def full(L):  # the dense float64 solve of (I - P F) B = L, factorised once
+        return np.stack([lu_solve(lu[c], L[:, c]) for c in range(3)], axis=1)
+
+    return scene, F, L, full(L), full
+
+
+def rect(o, u, v, nu, nv, normal):
+    """Points and triangles of the quad o + [0,1]u + [0,1]v as nu x nv cells, facing ``normal``."""
+    o, u, v = (np.asarray(a, dtype=np.float64) for a in (o, u, v))
+    g = np.array([[o + u * i / nu + v * j / nv for j in range(nv + 1)] for i in range(nu + 1)]).reshape(-1, 3)
+    tris = []
+    for i in range(nu):
+        for j in range(nv):
+            a, b, c, d = i * (nv + 1) + j, (i + 1) * (nv + 1) + j, (i + 1) * (nv + 1) + j + 1, i * (nv + 1) + j + 1
+            tris += [[a, b, c], [a, c, d]]
+    tris = np.array(tris)
+    n = np.cross(u, v)
+    if np.dot(n, normal) < 0:
+        tris = tris[:, ::-1]
+    return g, tris
+
+
+def box_faces(lo, hi, cells, inward):
+    """The six faces of the box [lo, hi], facing out (or in)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    out = []
+    for axis in range(3):
+        for side, sign in ((lo, -1.0), (hi, 1.0)):
+            u_ax, v_ax = [a for a in range(3) if a != axis]
+            o = lo.copy()
+            o[axis] = side[axis]
+            u, v = np.zeros(3), np.zeros(3)
+            u[u_ax], v[v_ax] = hi[u_ax] - lo[u_ax], hi[v_ax] - lo[v_ax]
+            normal = np.zeros(3)
+            normal[axis] = -sign if inward else sign
+            out.append(rect(o, u, v, cells, cells, normal))
+    return out
+
+
+def yard_and_room() -> Scene:
+    """An open yard (ground and a free-standing wall casting a hard shadow) beside a closed room
+    raised above the ground (its shadow lit only indirectly): a hollow box whose inner faces no
+    light reaches."""
+    parts = [rect([0, 0, 0], [4, 0, 0], [0, 0, 2], 16, 8, [0, 1, 0])]
+    parts += box_faces([1.0, 0.0, 0.8], [1.1, 1.0, 1.6], 3, inward=False)  # the wall
+    parts += box_faces([2.5, 0.3, 0.5], [3.5, 1.3, 1.5], 4, inward=False)  # the room on stilts, outside
+    parts += box_faces([2.6, 0.4, 0.6], [3.4, 1.2, 1.4], 4, inward=True)  # and inside
+    pts, tris, base = [], [], 0
+    for p, t in parts:
+        pts.append(p)
+        tris.append(t + base)
+        base += len(p)
+    return Scene(np.concatenate(pts), np.concatenate(tris), albedo=0.7, name="yard and room")
+
+
+# -- clusters ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("per", [1, 3, 8, 40])
+def test_clusters_are_pure_and_cover_every_patch_once(cornell, per):
+    scene = cornell[0]
+    cl = cluster_patches(scene, patches_per_cluster=per)
+    assert cl.labels.shape == (len(scene),) and np.array_equal(np.unique(cl.labels), np.arange(cl.count))
+    assert cl.count == max(cl.groups, -(-len(scene) // per))
+    bins = np.argmax(scene.normals @ NORMAL_BINS.T, axis=1)
+    for what in (scene.albedo, scene.emission, bins[:, None]):
+        key = np.unique(np.column_stack([cl.labels, what]), axis=0)
+        assert len(key) == cl.count  # one value per cluster
+    assert np.array_equal(cluster_patches(scene, patches_per_cluster=per).labels, cl.labels)  # deterministic
+    # Compact: every cluster's patches lie within a small part of the box.
+    if per == 8:
+        spread = [np.ptp(scene.centers[cl.labels == c], axis=0).max() for c in range(cl.count)]
+        assert np.median(spread) < 0.15 * scene.scale
+
+
+def test_every_patch_its_own_cluster_is_the_full_solve(device):
+    scene = box_scene(3).with_materials(albedo=np.random.default_rng(1).uniform(0.1, 0.9, (108, 3)),
+                                        emission=np.where(np.arange(108) < 3, 4.0, 0.0))
+    F = reciprocal_F(scene.areas, row_sum=1.0, density=0.2, seed=2)
+    L = np.random.default_rng(3).random((len(scene), 3))
+    want = dense_B(scene, F, L)
+    for M, obs in ((1, [0.5, 0.5, 0.02]), (7, [0.1, 0.9, 0.5]), (30, [0.9, 0.1, 0.9])):
+        far = FarField(scene, F, clusters=len(scene), tol=1e-14, max_sweeps=5000, dtype=np.float64, device=device)
+        dyn = DynamicRadiosity(scene, F, local_size=M, storage="fp64", observer=obs, far_field=far, device=device)
+        dyn.update([0.5, 0.5, 0.5])
+        np.testing.assert_allclose(dyn.radiosity(L), want, rtol=1e-10)
+        levels = dyn.patch_levels
+        assert (levels == "local").sum() == M and (levels == "far").sum() == len(scene) - M
+
+
+@pytest.mark.parametrize("inside", [True, False])
+@pytest.mark.parametrize("fraction", [8, 4])
+def test_cornell_box_within_one_percent(device, cornell, inside, fraction):
+    scene, F, L, ref, _ = cornell
+    obs = [278, 273, 280] if inside else [278, 273, -800]
+    n = len(scene)
+    dyn = DynamicRadiosity(scene, F, local_size=n // fraction, observer=obs, clusters=n // fraction, device=device)
+    B = dyn.radiosity(L)
+    err = radiosity_error(B, ref, scene.areas)
+    off = DynamicRadiosity(scene, F, local_size=n // fraction, observer=obs, far_field=False, device=device)
+    assert err < 0.01 < radiosity_error(off.radiosity(L), ref, scene.areas)
+
+
+def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
+    scene = yard_and_room()
+    F = pydynrad.form_factors(scene, resolution=32, device=device, progress=False)
+    sun = [DirectionalLight((-0.5, -1.0, -0.2), (3.0,) * 3)]
+    L = pydynrad.light_vector(scene, sun, device=device)
+    ref = dense_B(scene, F, L)
+    mean = ref.mean()
+    dark = ref.max(axis=1) < 1e-3 * mean
+    assert 0.1 < dark.mean() < 0.5  # the room's inside: a real test of leaks
+    for first_bounce in (True, False):
+        far = FarField(scene, F, clusters=len(scene) // 8, first_bounce=first_bounce, device=device)
+        dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=[0.5, 0.5, 1.0], far_field=far,
+                               device=device)
+        B = dyn.radiosity(L)
+        assert np.all(B[~dark].max(axis=1) > 0)  # nothing the full solution lights is black
+        assert B[dark].max() < 1e-2 * mean  # no leaks into the closed room
+        assert radiosity_error(B, ref, scene.areas) < 0.03
+
+
+def test_light_changes_follow_the_full_solve(device, cornell):
+    scene, F, _, _, full = cornell
+    dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=[278, 273, 280], device=device)
+    sweeps = []
+    for x in (150.0, 200.0, 400.0):
+        lights = [PointLight(position=[x, 450, 280], intensity=[2e5] * 3)]
+        dyn.update([x, 273, 280])
+        L = pydynrad.light_vector(scene, lights, device=device)
+        B = dyn.radiosity(lights)
+        assert radiosity_error(B, full(L), scene.areas) < 0.01
+        sweeps.append(dyn.far.sweeps)
+    assert sweeps[1] < sweeps[0]  # the coarse solve starts from the previous lights' solution
+
+
+def test_G_from_rows_equals_F_times_prolongation(device, cornell):
+    scene, F = cornell[:2]
+    cl = cluster_patches(scene)
+    G = cluster_form_factors_from_rows(CSRRows(F), cl, progress=False)
+    assert abs(G - F @ cl.indicator()).max() < 1e-15
+    # A DynamicRadiosity on a row source builds its far field from those rows.
+    dyn = DynamicRadiosity(scene, CSRRows(F), local_size=100, observer=[278, 273, 280], device=device)
+    assert dyn.far.G.shape == (len(scene), cl.count) and not dyn.far.first_bounce
+    far_bytes = dyn.far.G.data.nbytes + dyn.far.F_c.data.nbytes
+    bare = DynamicRadiosity(scene, CSRRows(F), local_size=100, observer=[278, 273, 280], far_field=False, device=device)
+    assert dyn.host_memory_bytes - bare.host_memory_bytes > far_bytes
+    assert dyn.memory_bytes - bare.memory_bytes >= dyn.far.device_memory_bytes > far_bytes // 2
+
+
+def test_bad_input(device, cornell):
+    scene, F = cornell[:2]
+    n = len(scene)
+    groups = cluster_patches(scene).groups
+    for bad in (0, -1, n + 1, groups - 1, 2.5):
+        with pytest.raises(pydynrad.InvalidInputError, match="clusters"):
+            cluster_patches(scene, bad)
+    with pytest.raises(pydynrad.InvalidInputError, match="patches_per_cluster"):
+        cluster_patches(scene, patches_per_cluster=0.5)
+    with pytest.raises(pydynrad.InvalidInputError, match="not both"):
+        cluster_patches(scene, 10, 10)
+    cl = cluster_patches(scene)
+    with pytest.raises(pydynrad.InvalidInputError, match=r"G must have shape"):
+        FarField(scene, None, cl, G=sp.csr_matrix((n, cl.count + 1)), device=device)
+    other = scene.with_materials(albedo=0.3)
+    with pytest.raises(pydynrad.InvalidInputError, match="another scene"):
+        FarField(other, None, cl, G=F @ cl.indicator(), device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="needs F in memory or"):
+        FarField(scene, None, cl, device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="need F in memory"):
+        FarField(scene, None, cl, G=F @ cl.indicator(), first_bounce=True, device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="prolongation"):
+        FarField(scene, F, cl, prolongation="smooth", device=device)
+    far = FarField(scene, F, cl, device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="another scene"):
+        DynamicRadiosity(other, F, local_size=10, far_field=far, device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="far_field must be"):
+        DynamicRadiosity(scene, F, local_size=10, far_field="yes", device=device)
