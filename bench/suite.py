@@ -19,6 +19,8 @@ gather         the far field's patch-to-cluster form factors G: error vs hemicub
                per row against F's, precompute share (bench/gather.py)
 bake           vertex-colour export and lightmap bake of the village: time, texel coverage, seam
                error against render along chart borders (bench/bake.py)
+farfield       the far field: error and frame time off and on, over C and M, Cornell box and village
+               at night and under a sun (bench/farfield.py)
 =============  ===========================================================================
 
 Each section is a function ``section(ctx) -> dict`` (title, description, tables, plots; see
@@ -57,6 +59,7 @@ SIZES: dict[str, dict] = {
         "bandwidth": {},
         "gather": {},
         "bake": {},
+        "farfield": {},
     },
     "quick": {
         "pathtracer": {"furnace_subdivisions": 3, "spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
@@ -68,6 +71,7 @@ SIZES: dict[str, dict] = {
         "bandwidth": {},
         "gather": {},
         "bake": {},
+        "farfield": {},
     },
     "full": {
         "pathtracer": {"furnace_subdivisions": 4, "spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
@@ -79,6 +83,7 @@ SIZES: dict[str, dict] = {
         "bandwidth": {},
         "gather": {},
         "bake": {},
+        "farfield": {},
     },
 }
 
@@ -92,6 +97,7 @@ SECTIONS: dict[str, str] = {
     "bandwidth": "bench.radiosity:suite_section",
     "gather": "bench.gather:suite_section",
     "bake": "bench.bake:bake_section",
+    "farfield": "bench.farfield:farfield_section",
 }
 
 

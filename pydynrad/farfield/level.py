@@ -161,7 +161,7 @@ class FarField:
         self.B_far = None
         self.sweeps = 0
         self.seconds_build = time.perf_counter() - t0
-        self.seconds_light = 0.0
+        self.seconds_light = self.seconds_coarse = 0.0  # the last light change, and its coarse solve
 
     @property
     def C(self) -> int:
@@ -190,6 +190,7 @@ class FarField:
         L_c = self.R @ L[:, :k]
         x0 = L_c if self._B_c is None or self._B_c.shape[1] != k else self._B_c
         B_c, self.sweeps, _ = self._Fc_dev.jacobi(L_c, self.rho_c[:, :k], x0, self.tol, self.max_sweeps)
+        self.seconds_coarse = time.perf_counter() - t0
         self._B_c = B_c
         if self.first_bounce:
             B = self._gather_with_first_bounce(L[:, :k], B_c - L_c)
