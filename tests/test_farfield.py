@@ -206,3 +206,16 @@ def test_bad_input(device, cornell):
         DynamicRadiosity(other, F, local_size=10, far_field=far, device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="far_field must be"):
         DynamicRadiosity(scene, F, local_size=10, far_field="yes", device=device)
+
+
+@pytest.mark.slow
+def test_village_at_night_within_one_percent(device):
+    scene = pydynrad.scenes.village()
+    F = pydynrad.form_factors(scene, resolution=16, device=device, progress=False)
+    L = pydynrad.light_vector(scene, device=device)  # the lamps
+    ref = pydynrad.solve(scene, F, light=L, device=device).radiosity
+    dyn = DynamicRadiosity(scene, F, local_size=1024, observer=[10.0, 1.7, 2.5], device=device)
+    B = dyn.radiosity(L)
+    assert radiosity_error(B, ref, scene.areas) < 0.01
+    S = dyn.local_patches
+    assert radiosity_error(B[S], ref[S], scene.areas[S]) < 0.01
