@@ -108,18 +108,18 @@ def farfield_section(ctx) -> dict:
                                                 observer=path[0], device=ctx.device)
                 for pos in path[1:3]:  # warm-up: kernel builds, the first light
                     dyn.update(pos)
-                    dyn.radiosity(L)
+                    dyn.radiosity(light=L)
                 frame = []
                 for pos in path[3:]:
                     t = time.perf_counter()
                     dyn.update(pos)
-                    B = dyn.radiosity(L)
+                    B = dyn.radiosity(light=L)
                     frame.append(time.perf_counter() - t)
                 S = dyn.local_patches
                 img = renderer.shade(vis, B)
-                t_light = time_call(lambda: dyn.radiosity(L), repeats=3)["median_s"]  # static: cached B_far
+                t_light = time_call(lambda: dyn.radiosity(light=L), repeats=3)["median_s"]  # static: cached B_far
                 t = time.perf_counter()
-                B2 = dyn.radiosity(L2)
+                B2 = dyn.radiosity(light=L2)
                 t_change = time.perf_counter() - t
                 t_coarse = far.seconds_coarse if far else 0.0
                 sweeps = far.sweeps if far else 0

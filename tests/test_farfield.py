@@ -113,7 +113,7 @@ def test_every_patch_its_own_cluster_is_the_full_solve(device):
         far = FarField(scene, F, clusters=len(scene), tol=1e-14, max_sweeps=5000, dtype=np.float64, device=device)
         dyn = DynamicRadiosity(scene, F, local_size=M, storage="fp64", observer=obs, far_field=far, device=device)
         dyn.update([0.5, 0.5, 0.5])
-        np.testing.assert_allclose(dyn.radiosity(L), want, rtol=1e-10)
+        np.testing.assert_allclose(dyn.radiosity(light=L), want, rtol=1e-10)
         levels = dyn.patch_levels
         assert (levels == "local").sum() == M and (levels == "far").sum() == len(scene) - M
 
@@ -125,10 +125,10 @@ def test_cornell_box_within_one_percent(device, cornell, inside, fraction):
     obs = [278, 273, 280] if inside else [278, 273, -800]
     n = len(scene)
     dyn = DynamicRadiosity(scene, F, local_size=n // fraction, observer=obs, clusters=n // fraction, device=device)
-    B = dyn.radiosity(L)
+    B = dyn.radiosity(light=L)
     err = radiosity_error(B, ref, scene.areas)
     off = DynamicRadiosity(scene, F, local_size=n // fraction, observer=obs, far_field=False, device=device)
-    assert err < 0.01 < radiosity_error(off.radiosity(L), ref, scene.areas)
+    assert err < 0.01 < radiosity_error(off.radiosity(light=L), ref, scene.areas)
 
 
 def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
@@ -144,7 +144,7 @@ def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
         far = FarField(scene, F, clusters=len(scene) // 8, first_bounce=first_bounce, device=device)
         dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=[0.5, 0.5, 1.0], far_field=far,
                                device=device)
-        B = dyn.radiosity(L)
+        B = dyn.radiosity(light=L)
         assert np.all(B[~dark].max(axis=1) > 0)  # nothing the full solution lights is black
         assert B[dark].max() < 1e-2 * mean  # no leaks into the closed room
         assert radiosity_error(B, ref, scene.areas) < 0.03
@@ -215,7 +215,7 @@ def test_village_at_night_within_one_percent(device):
     L = pydynrad.light_vector(scene, device=device)  # the lamps
     ref = pydynrad.solve(scene, F, light=L, device=device).radiosity
     dyn = DynamicRadiosity(scene, F, local_size=1024, observer=[10.0, 1.7, 2.5], device=device)
-    B = dyn.radiosity(L)
+    B = dyn.radiosity(light=L)
     assert radiosity_error(B, ref, scene.areas) < 0.01
     S = dyn.local_patches
     assert radiosity_error(B[S], ref[S], scene.areas[S]) < 0.01
