@@ -143,22 +143,28 @@ class ReferenceFrame:
     """One frame compared with the full solution (:func:`reference_frame`).
 
     full : (N, 3) float64 full radiosity; error : patch error (:func:`radiosity_error`);
-    image : the comparison image (:func:`comparison_image`); pixel_error : its stats.
+    image : the comparison image (:func:`comparison_image`); pixel_error : its stats;
+    local_only_error, local_only_pixel_error : the same for the paper's local-only answer when
+    one was given (its comparison is then the image's top row).
     """
 
     full: np.ndarray
     error: float
     image: np.ndarray
     pixel_error: dict
+    local_only_error: float | None = None
+    local_only_pixel_error: dict | None = None
 
 
 def reference_frame(scene, form_factors, radiosity, camera, *, lights=(), renderer=None, image=None,
-                    shading: str = "smooth", exposure: float = 0.0, device=None) -> ReferenceFrame:
+                    shading: str = "smooth", exposure: float = 0.0, local_only=None, device=None) -> ReferenceFrame:
     """Solve the full radiosity for ``lights`` and compare ``radiosity`` (N, 3) with it.
 
     ``form_factors``: all of F (a matrix, or any row source, read whole); ``camera`` the view
     of the comparison image; ``image``: ``radiosity`` already rendered from it (rendered
     here when None); ``renderer``: a :class:`~pydynrad.render.Renderer` of ``scene`` to reuse.
+    ``local_only``: the paper's local-only answer (N, 3) beside a far-field ``radiosity``: it is
+    compared too, its row (local only | full | error) above the far field's, on one error scale.
     """
     from .render import Renderer
     from .rows.files import whole_matrix
@@ -168,5 +174,13 @@ def reference_frame(scene, form_factors, radiosity, camera, *, lights=(), render
     full = solve(scene, whole_matrix(form_factors), lights, device=device).radiosity
     if image is None:
         image = renderer.render(radiosity, camera, shading)
-    composite, stats = comparison_image(image, renderer.render(full, camera, shading), exposure)
-    return ReferenceFrame(full, radiosity_error(radiosity, full, scene.areas), composite, stats)
+    full_image = renderer.render(full, camera, shading)
+    if local_only is None:
+        composite, stats = comparison_image(image, full_image, exposure)
+        return ReferenceFrame(full, radiosity_error(radiosity, full, scene.areas), composite, stats)
+    local_image = renderer.render(local_only, camera, shading)
+    top, local_stats = comparison_image(local_image, full_image, exposure)
+    bottom, stats = comparison_image(image, full_image, exposure, vmax=local_stats["vmax"])
+    gap = np.ones((max(2, top.shape[0] // 64), top.shape[1], 3), dtype=top.dtype)
+    return ReferenceFrame(full, radiosity_error(radiosity, full, scene.areas), np.concatenate([top, gap, bottom]),
+                          stats, radiosity_error(local_only, full, scene.areas), local_stats)

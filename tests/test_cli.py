@@ -1,3 +1,4 @@
+import re
 import subprocess
 import sys
 
@@ -91,10 +92,16 @@ def test_demo_runs_reduced_and_writes_readable_images(tmp_path, capsys):
         assert img.shape == (30, 40, 3) and np.all(np.isfinite(img)) and img.std() > 0.01
     for k in (0, 2):  # first and last frames carry the full solve and a comparison image
         cmp_img = read_image(out / f"compare_{k:04d}.png")
-        assert cmp_img.shape[0] == 30 and cmp_img.shape[1] > 3 * 40 and cmp_img.std() > 0.01
+        # Two rows (local only above the far field) of dynamic | full | error, 2 px apart.
+        assert cmp_img.shape[0] == 2 * 30 + 2 and cmp_img.shape[1] > 3 * 40 and cmp_img.std() > 0.01
     summary = (out / "summary.txt").read_text()
-    for stage in ("update", "lighting", "render", "write", "median ms", "local vs full radiosity at frame 2"):
+    for stage in ("update", "lighting", "render", "write", "median ms", "dynamic vs full radiosity at frame 2",
+                  "local only (the paper's method)"):
         assert stage in summary and stage in stdout
+    # The far field's error beside the paper's, both read from the summary: the far field is the smaller.
+    far, local = (float(x) for x in re.search(r"frame 2: relative RMS error ([\d.e+-]+)% with the far field, "
+                                               r"([\d.e+-]+)% local only", summary).groups())
+    assert far < local / 3
 
 
 def test_formfactors_render_walk_compare_chain(tmp_path, capsys):
@@ -122,7 +129,7 @@ def test_formfactors_render_walk_compare_chain(tmp_path, capsys):
                               capsys)
     assert code == 0, err
     assert read_image(tmp_path / "w" / "frame_0001.png").shape == (16, 24, 3)
-    assert "local vs full radiosity at frame 1" in out
+    assert "dynamic vs full radiosity at frame 1" in out
     code, out, err = run_main(["compare", "cornell_box", *small, "--form-factors", str(ff), "--local-size", "20",
                                "--width", "24", "--height", "16", "-o", str(tmp_path / "c.png")], capsys)
     assert code == 0, err
@@ -196,10 +203,10 @@ def test_commands_read_a_store_like_the_file(tmp_path, capsys, device):
         out = tmp_path / f"walk-{name}"
         code, stdout, err = run_main(["walk", *scene_args, "--form-factors", str(tmp_path / ff), "--cache-mb", "0.05",
                                       "--path", str(path), "--local-size", "30", "--storage", "fp64", "--format", "exr",
-                                      "--out", str(out), "--reference-frames", "-1", "--quiet"], capsys)
+                                      "--out", str(out), "--reference-frames", "-1", "--no-far-field", "--quiet"], capsys)
         assert code == 0, err
         assert ("row cache" in stdout) == (name == "store")
-        assert "local vs full radiosity at frame 2" in stdout
+        assert "dynamic vs full radiosity at frame 2" in stdout
         images[name] = [read_image(out / f"frame_{k:04d}.exr") for k in range(3)]
     for a, b in zip(images["file"], images["store"]):
         assert a.max() > 0

@@ -182,8 +182,16 @@ def test_walk_with_dynamic_radiosity_matches_full_solve_when_local_set_is_everyt
     assert max(everything.errors().values()) < 1e-4  # B = L + P K L with K over all patches is the full solution
     assert (tmp_path / "compare_0002.png").is_file() and (tmp_path / "frame_0001.png").is_file()
     part = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene) // 3, reference_frames=[-1],
-                progress=False, device=device)
+                solver_options={"far_field": False}, progress=False, device=device)
     assert part.errors()[2] > 10 * everything.errors()[2]  # patches outside the local set lack indirect light
+    far = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene) // 3, reference_frames=[-1],
+               output=tmp_path / "far", progress=False, device=device)
+    # The same K gives the paper's answer beside the far field's: recorded and compared side by side.
+    assert far.frames[2].local_only_error == pytest.approx(part.errors()[2], rel=1e-6)
+    assert far.errors()[2] < part.errors()[2] / 5
+    assert "local only (the paper's method)" in far.summary()
+    both = read_image(tmp_path / "far" / "compare_0002.png")
+    assert both.shape[0] > 2 * 16  # two rows of panels
 
 
 def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):

@@ -353,7 +353,7 @@ class DynamicRadiosity:
         return t_ff
 
     # -- lighting ----------------------------------------------------------------------------------------
-    def radiosity(self, lights=(), *, light=None) -> np.ndarray:
+    def radiosity(self, lights=(), *, light=None, far_field: bool = True) -> np.ndarray:
         """B (N, 3) float64 for every patch (see :attr:`patch_levels` for how each was solved).
 
         With the far field: B_far (the coarse level, recomputed when the light vector changes)
@@ -362,6 +362,8 @@ class DynamicRadiosity:
 
         ``lights``: analytic lights (see :func:`pydynrad.light_vector`; emission alone when
         empty); or ``light``: a precomputed light vector L of shape (N, 3). K is only read.
+        ``far_field=False`` gives the paper's answer from the same K (the local-only
+        comparison), also when this solution has a far field.
         """
         from ..lights import resolve_light
 
@@ -369,14 +371,14 @@ class DynamicRadiosity:
         L = resolve_light(self.scene, lights, light, self.device)
         S = self._local_patches
         LS = L[S]
-        if self.far is not None:
-            far = self.far.light(L)
+        far = self.far.light(L) if far_field and self.far is not None else None
+        if far is not None:
             LS = LS + self.far.injection(self._ff.local, S)
         if self.C == 3:
             KL = self._matrix.matvec(LS.T)
         else:  # one K serves the three colour channels of L
             KL = self._matrix.matmat(LS.T[None])[0]  # all three in one pass over K
-        B = far.copy() if self.far is not None else L.copy()
+        B = far.copy() if far is not None else L.copy()
         B[S] = LS + self.scene.albedo[S].astype(np.float64) * KL.T
         return B
 
