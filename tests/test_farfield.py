@@ -113,7 +113,7 @@ def test_every_patch_its_own_cluster_is_the_full_solve(device):
         far = FarField(scene, F, clusters=len(scene), tol=1e-14, max_sweeps=5000, dtype=np.float64, device=device)
         dyn = DynamicRadiosity(scene, F, local_size=M, storage="fp64", observer=obs, far_field=far, device=device)
         dyn.update([0.5, 0.5, 0.5])
-        np.testing.assert_allclose(dyn.radiosity(light=L), want, rtol=1e-10)
+        np.testing.assert_allclose(dyn.radiosity(light=L), want, rtol=1e-13)  # observed 1.5e-15 (PoCL, 2026-12-01)
         levels = dyn.patch_levels
         assert (levels == "local").sum() == M and (levels == "far").sum() == len(scene) - M
 
@@ -140,14 +140,15 @@ def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
     mean = ref.mean()
     dark = ref.max(axis=1) < 1e-3 * mean
     assert 0.1 < dark.mean() < 0.5  # the room's inside: a real test of leaks
-    for first_bounce in (True, False):
+    # Observed (PoCL, 2026-12-01): no leak at all (0.0); all-patch error 0.39% and 2.6%.
+    for first_bounce, tol in ((True, 0.01), (False, 0.05)):
         far = FarField(scene, F, clusters=len(scene) // 8, first_bounce=first_bounce, device=device)
         dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=[0.5, 0.5, 1.0], far_field=far,
                                device=device)
         B = dyn.radiosity(light=L)
         assert np.all(B[~dark].max(axis=1) > 0)  # nothing the full solution lights is black
         assert B[dark].max() < 1e-2 * mean  # no leaks into the closed room
-        assert radiosity_error(B, ref, scene.areas) < 0.03
+        assert radiosity_error(B, ref, scene.areas) < tol
 
 
 def test_light_changes_follow_the_full_solve(device, cornell):
