@@ -28,8 +28,8 @@ import scipy.sparse as sp
 
 from .checks import check_form_factors
 from .device import real_dtype
+from .devicecsr import DeviceCSR
 from .errors import ConvergenceError, InvalidInputError, OutOfMemoryError
-from .launch import spmv_layout
 from .lights import checked_light_vector
 from .memory import available_host_bytes
 
@@ -58,7 +58,7 @@ class Solution:
     channels : int
         Colour channels actually computed (1 when albedos and L are grey).
     seconds : float
-        Wall time of the solve itself (uploads and kernel builds excluded).
+        Wall time of the solve itself (F's upload and kernel builds excluded).
     """
 
     radiosity: np.ndarray
@@ -97,59 +97,22 @@ class RadiositySolver:
         self.scene, self.device = scene, device or default_device()
         self.dtype = real_dtype(dtype, self.device)
         F = check_form_factors(scene, F)
-        if F.nnz >= 2**31:
-            raise OutOfMemoryError(f"F has {F.nnz} non-zeros; the CSR kernel indexes with 32-bit integers (< 2^31)")
-        d = self.device
         self._n = len(scene)
-        self._layout = spmv_layout(d, self._n, layout)
-        self._blk = d.to_device(_row_blocks(F.indptr, self._layout.blocks))
-        self._rowptr = d.to_device(F.indptr.astype(np.int32))
-        self._cols = d.to_device(F.indices.astype(np.int32))
-        self._vals = d.to_device(F.data.astype(self.dtype))
+        self._F = DeviceCSR(self.device, F, self.dtype, layout)
         self.nnz = F.nnz
-        self.nbytes = F.nnz * (4 + self.dtype.itemsize) + 4 * (self._n + 1)
+        self.nbytes = self._F.nbytes
 
     def solve(self, L: np.ndarray, tol: float = 1e-6, max_iterations: int = 10000, bounces: int | None = None,
               raise_on_failure: bool = True) -> Solution:
         """B for light vector L (N, 3). See :func:`solve` for the parameters."""
-        import pyopencl as cl
-
         L = checked_light_vector(L, self._n)
         tol, max_iterations = _checked_stopping(tol, max_iterations, bounces)
         nch = _channels(self.scene, L)
-        width = 1 if nch == 1 else 4
-        d, n, real = self.device, self._n, self.dtype
-        defines = {"STORAGE_FP64" if real == np.float64 else "STORAGE_FP32": 1, "NCH": width, **self._layout.defines}
-        kernel = d.kernel("spmv.cl", "bounce", defines)
-
-        def packed(a: np.ndarray) -> np.ndarray:
-            out = np.zeros((n, width), dtype=real)
-            out[:, :nch] = a[:, :nch]
-            return out
-
-        L_dev, rho_dev = d.to_device(packed(L)), d.to_device(packed(self.scene.albedo.astype(np.float64)))
-        mf = cl.mem_flags
-        x = cl.Buffer(d.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=packed(L))
-        y = cl.Buffer(d.context, mf.READ_WRITE, n * width * real.itemsize)
-        nb = self._layout.blocks
-        partial_dev = cl.Buffer(d.context, mf.READ_WRITE, 2 * nb * real.itemsize)
-        partial = np.empty((nb, 2), dtype=real)
-
+        rho = self.scene.albedo.astype(np.float64)[:, :nch]
         t0 = time.perf_counter()
-        history, residual, it = [], np.inf, 0
-        while it < max_iterations:
-            kernel(d.queue, *self._layout.grid, self._blk, self._rowptr, self._cols, self._vals,
-                   L_dev, rho_dev, x, y, partial_dev)
-            x, y = y, x
-            it += 1
-            cl.enqueue_copy(d.queue, partial, partial_dev, is_blocking=True)
-            scale = float(partial[:, 1].max())
-            residual = float(partial[:, 0].max()) / scale if scale > 0 else 0.0
-            history.append(residual)
-            if bounces is None and residual <= tol:
-                break
-        B = np.empty((n, width), dtype=real)
-        cl.enqueue_copy(d.queue, B, x, is_blocking=True)
+        # A fixed number of bounces never stops early (tol < 0).
+        B, it, residual, history = self._F.jacobi(L[:, :nch], rho, L[:, :nch], tol if bounces is None else -1.0,
+                                                  max_iterations)
         seconds = time.perf_counter() - t0
         converged = residual <= tol
         if bounces is None and not converged and raise_on_failure:
@@ -158,21 +121,11 @@ class RadiositySolver:
                 f"{residual:.3g}); albedos near 1 need about ln(tol)/ln(max albedo) bounces: raise max_iterations, "
                 "use method='dense' for small scenes, or pass raise_on_failure=False to get the partial result"
             )
-        radiosity = np.repeat(B[:, :1], 3, axis=1) if nch == 1 else B[:, :3]
+        radiosity = np.repeat(B, 3, axis=1) if nch == 1 else B
         return Solution(
-            radiosity=radiosity.astype(np.float64), light=L, iterations=it, residual=residual, converged=converged,
-            method="iterative", dtype=real.name, channels=nch, seconds=seconds, history=history,
+            radiosity=radiosity, light=L, iterations=it, residual=residual, converged=converged,
+            method="iterative", dtype=self.dtype.name, channels=nch, seconds=seconds, history=history,
         )
-
-
-def _row_blocks(indptr: np.ndarray, blocks: int) -> np.ndarray:
-    """Row boundaries (blocks + 1,) int32 splitting a CSR matrix into ``blocks`` runs of
-    consecutive rows with about equal non-zeros (runs may be empty; together they cover all rows)."""
-    n, nnz = len(indptr) - 1, int(indptr[-1])
-    targets = np.arange(blocks + 1, dtype=np.float64) * (nnz / blocks)
-    blk = np.searchsorted(indptr, targets, side="left").clip(0, n)
-    blk[0], blk[-1] = 0, n
-    return np.maximum.accumulate(blk).astype(np.int32)
 
 
 def _checked_stopping(tol, max_iterations, bounces):

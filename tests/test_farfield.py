@@ -12,13 +12,7 @@ from pydynrad.farfield import FarField, cluster_patches
 from pydynrad.farfield.clusters import NORMAL_BINS
 from pydynrad.farfield.level import cluster_form_factors_from_rows
 from pydynrad.rows.sources import CSRRows
-from radiosity_inputs import box_scene, reciprocal_F
-
-
-def dense_B(scene, F, L):
-    Fd = F.toarray()
-    rho = scene.albedo.astype(np.float64)
-    return np.stack([np.linalg.solve(np.eye(len(scene)) - rho[:, c][:, None] * Fd, L[:, c]) for c in range(3)], axis=1)
+from helpers import box_scene, dense_radiosity, reciprocal_F
 
 
 @pytest.fixture(scope="module")
@@ -108,7 +102,7 @@ def test_every_patch_its_own_cluster_is_the_full_solve(device):
                                         emission=np.where(np.arange(108) < 3, 4.0, 0.0))
     F = reciprocal_F(scene.areas, row_sum=1.0, density=0.2, seed=2)
     L = np.random.default_rng(3).random((len(scene), 3))
-    want = dense_B(scene, F, L)
+    want = dense_radiosity(scene, F, L)
     for M, obs in ((1, [0.5, 0.5, 0.02]), (7, [0.1, 0.9, 0.5]), (30, [0.9, 0.1, 0.9])):
         far = FarField(scene, F, clusters=len(scene), tol=1e-14, max_sweeps=5000, dtype=np.float64, device=device)
         dyn = DynamicRadiosity(scene, F, local_size=M, storage="fp64", observer=obs, far_field=far, device=device)
@@ -136,7 +130,7 @@ def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
     F = pydynrad.form_factors(scene, resolution=32, device=device, progress=False)
     sun = [DirectionalLight((-0.5, -1.0, -0.2), (3.0,) * 3)]
     L = pydynrad.light_vector(scene, sun, device=device)
-    ref = dense_B(scene, F, L)
+    ref = dense_radiosity(scene, F, L)
     mean = ref.mean()
     dark = ref.max(axis=1) < 1e-3 * mean
     assert 0.1 < dark.mean() < 0.5  # the room's inside: a real test of leaks

@@ -279,7 +279,7 @@ def test_kernel_layouts_give_the_series(device, layout, grey):
 
 
 def test_row_blocks_cover_every_row_with_balanced_entries():
-    from pydynrad.solve import _row_blocks
+    from pydynrad.devicecsr import row_blocks
 
     rng = np.random.default_rng(16)
     lengths = rng.integers(0, 300, 1000)
@@ -287,7 +287,7 @@ def test_row_blocks_cover_every_row_with_balanced_entries():
     lengths[-25:] = 0  # trailing empty rows still belong to the last block
     indptr = np.concatenate([[0], np.cumsum(lengths)])
     for blocks in (1, 3, 32, 1000):
-        blk = _row_blocks(indptr, blocks)
+        blk = row_blocks(indptr, blocks)
         assert blk.dtype == np.int32 and len(blk) == blocks + 1
         assert blk[0] == 0 and blk[-1] == 1000 and np.all(np.diff(blk) >= 0)
         per_block = np.diff(indptr[blk])

@@ -61,12 +61,12 @@ def sky_directions(n: int = SKY_DIRECTIONS) -> np.ndarray:
 def exposure_weights(scene, F: sp.csr_matrix, device, tol: float = 1e-4) -> np.ndarray:
     """(N,) radiosity (grey, channel mean) under a uniform sky of :data:`SKY_DIRECTIONS` lights."""
     from ..lights import DirectionalLight, light_vector
-    from .devicecsr import DeviceCSR
+    from ..devicecsr import DeviceCSR
 
     sky = [DirectionalLight(tuple(d), (1.0 / SKY_DIRECTIONS,) * 3) for d in sky_directions()]
     L = light_vector(scene.with_materials(emission=0.0), sky, device=device).mean(axis=1, keepdims=True)
     rho = scene.albedo.astype(np.float64).mean(axis=1, keepdims=True)
-    w, _, _ = DeviceCSR(device, F).jacobi(L, rho, L, tol, 200)
+    w = DeviceCSR(device, F).jacobi(L, rho, L, tol, 200)[0]
     return np.maximum(w[:, 0], 0.0)
 
 
@@ -113,7 +113,7 @@ class FarField:
                  first_bounce: bool | None = None, fine_sweeps: int = 1, tol: float = 1e-5, max_sweeps: int = 1000, dtype=np.float32,
                  device=None) -> None:
         from ..device import default_device
-        from .devicecsr import DeviceCSR
+        from ..devicecsr import DeviceCSR
 
         t0 = time.perf_counter()
         self.scene = checked_scene(scene)
@@ -195,7 +195,7 @@ class FarField:
         k = 1 if grey else 3
         L_c = self.R @ L[:, :k]
         x0 = L_c if self._B_c is None or self._B_c.shape[1] != k else self._B_c
-        B_c, self.sweeps, _ = self._Fc_dev.jacobi(L_c, self.rho_c[:, :k], x0, self.tol, self.max_sweeps)
+        B_c, self.sweeps, _, _ = self._Fc_dev.jacobi(L_c, self.rho_c[:, :k], x0, self.tol, self.max_sweeps)
         self.seconds_coarse = time.perf_counter() - t0
         self._B_c = B_c
         if self.first_bounce:

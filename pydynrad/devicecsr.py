@@ -1,9 +1,9 @@
 """A sparse matrix resident on the device and the bounce product ``y = L + P (A x)`` on it.
 
-The far field's heavy per-light-change work is three such products: the coarse Jacobi sweeps
-(A = F_c, C x C), the prolongation to every patch (A = G, N x C) and nothing else; each is one
-pass over A's values with ``kernels/spmv.cl``'s ``bounce`` kernel (the full solve's kernel:
-rows and columns need not match, x has A's columns, L, P and y its rows).
+One pass over A's values with ``kernels/spmv.cl``'s ``bounce`` kernel per product; rows and
+columns need not match (x has A's columns, L, P and y its rows). The full solve iterates it
+with A = F (:class:`pydynrad.solve.RadiositySolver`); the far field with A = F_c (the coarse
+sweeps), G (every patch from the clusters) and F (the first bounce and the fine sweeps).
 """
 
 from __future__ import annotations
@@ -11,28 +11,40 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..device import real_dtype
-from ..errors import OutOfMemoryError
+from .device import real_dtype
+from .errors import OutOfMemoryError
+from .launch import spmv_layout
 
-__all__ = ["DeviceCSR"]
+__all__ = ["DeviceCSR", "row_blocks"]
+
+
+def row_blocks(indptr: np.ndarray, blocks: int) -> np.ndarray:
+    """Row boundaries (blocks + 1,) int32 splitting a CSR matrix into ``blocks`` runs of
+    consecutive rows with about equal non-zeros (runs may be empty; together they cover all rows)."""
+    n, nnz = len(indptr) - 1, int(indptr[-1])
+    targets = np.arange(blocks + 1, dtype=np.float64) * (nnz / blocks)
+    blk = np.searchsorted(indptr, targets, side="left").clip(0, n)
+    blk[0], blk[-1] = 0, n
+    return np.maximum.accumulate(blk).astype(np.int32)
 
 
 class DeviceCSR:
     """A (rows, cols) CSR matrix on the device, in float32 or float64.
 
-    Vectors travel as (n, 4) RGB(A) or (n, 1) grey arrays (``channels`` 3 or 1).
+    Vectors travel as (n, 4) RGB(A) or (n, 1) grey arrays (``channels`` 3 or 1); ``layout``
+    overrides the kernel's (LX, blocks) (:func:`pydynrad.launch.spmv_layout`).
     """
 
-    def __init__(self, device, A: sp.csr_matrix, dtype=np.float32) -> None:
-        from ..solve import _row_blocks, _spmv_layout
-
+    def __init__(self, device, A: sp.csr_matrix, dtype=np.float32, layout: tuple[int, int] | None = None) -> None:
         A = sp.csr_matrix(A)
         if A.nnz >= 2**31:
-            raise OutOfMemoryError(f"a {A.shape} matrix with {A.nnz} non-zeros: the CSR kernel indexes with 32-bit integers")
+            raise OutOfMemoryError(f"a {A.shape} matrix has {A.nnz} non-zeros; the CSR kernel indexes with 32-bit "
+                                   "integers (< 2^31)")
         self.device, self.shape, self.nnz = device, A.shape, A.nnz
         self.dtype = real_dtype(dtype, device)
-        self._lx, self._n_blocks = _spmv_layout(device, max(A.shape[0], 1), None)
-        self._blk = device.to_device(_row_blocks(A.indptr, self._n_blocks))
+        self._layout = spmv_layout(device, max(A.shape[0], 1), layout)
+        self._n_blocks = self._layout.blocks
+        self._blk = device.to_device(row_blocks(A.indptr, self._n_blocks))
         self._rowptr = device.to_device(A.indptr.astype(np.int32))
         self._cols = device.to_device(A.indices.astype(np.int32))
         self._vals = device.to_device(A.data.astype(self.dtype))
@@ -49,11 +61,12 @@ class DeviceCSR:
         import pyopencl as cl
 
         d = self.device
-        defines = {"STORAGE_FP64" if self.dtype == np.float64 else "STORAGE_FP32": 1, "NCH": width, "LX": self._lx}
+        defines = {"STORAGE_FP64" if self.dtype == np.float64 else "STORAGE_FP32": 1, "NCH": width,
+                   **self._layout.defines}
         kernel = d.kernel("spmv.cl", "bounce", defines)
         if partial_buf is None:
             partial_buf = cl.Buffer(d.context, cl.mem_flags.READ_WRITE, 2 * self._n_blocks * self.dtype.itemsize)
-        kernel(d.queue, (self._n_blocks * self._lx,), (self._lx,), self._blk, self._rowptr, self._cols, self._vals,
+        kernel(d.queue, *self._layout.grid, self._blk, self._rowptr, self._cols, self._vals,
                L_buf, rho_buf, x_buf, y_buf, partial_buf)
 
     def bounce(self, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -71,9 +84,14 @@ class DeviceCSR:
             cl.enqueue_copy(d.queue, out, y, is_blocking=True)
         return out[:, :k].astype(np.float64)
 
-    def jacobi(self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float, max_sweeps: int) -> tuple[np.ndarray, int, float]:
+    def jacobi(self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float,
+               max_sweeps: int) -> tuple[np.ndarray, int, float, list[float]]:
         """Iterate x <- L + rho * (A x) from x0 (A square) until the relative max-norm change
-        is <= tol or ``max_sweeps`` ran. Returns (x, sweeps, last relative change)."""
+        max |x_new - x| / max |x_new| is <= tol (never, for tol < 0) or ``max_sweeps`` ran.
+
+        Returns (x, sweeps, the last relative change, every sweep's relative change); x is
+        float64 of x0's shape, computed in this matrix's type.
+        """
         import pyopencl as cl
 
         k = x0.shape[1]
@@ -85,16 +103,16 @@ class DeviceCSR:
         y = cl.Buffer(d.context, mf.READ_WRITE, n * width * self.dtype.itemsize)
         partial_buf = cl.Buffer(d.context, mf.READ_WRITE, 2 * nb * self.dtype.itemsize)
         partial = np.empty((nb, 2), dtype=self.dtype)
-        change, sweeps = np.inf, 0
-        while sweeps < max_sweeps:
+        change, history = np.inf, []
+        while len(history) < max_sweeps:
             self.bounce_buffers(L_buf, rho_buf, x, y, width, partial_buf)
             x, y = y, x
-            sweeps += 1
             cl.enqueue_copy(d.queue, partial, partial_buf, is_blocking=True)
             scale = float(partial[:, 1].max())
             change = float(partial[:, 0].max()) / scale if scale > 0 else 0.0
+            history.append(change)
             if change <= tol:
                 break
         out = np.empty((n, width), dtype=self.dtype)
         cl.enqueue_copy(d.queue, out, x, is_blocking=True)
-        return out[:, :k].astype(np.float64), sweeps, change
+        return out[:, :k].astype(np.float64), len(history), change, history
