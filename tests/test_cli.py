@@ -213,6 +213,10 @@ def test_commands_read_a_store_like_the_file(tmp_path, capsys, device):
         np.testing.assert_array_equal(b, a)  # the same rows, the same arithmetic
     code, stdout, err = run_main(["compare", *scene_args, "--form-factors", str(tmp_path / "ff"), "--local-size", "30",
                                   "--width", "24", "--height", "16", "-o", str(tmp_path / "c.png")], capsys)
+    assert code == 2 and "holds no far-field G" in err and "--no-far-field" in err
+    code, stdout, err = run_main(["compare", *scene_args, "--form-factors", str(tmp_path / "ff"), "--local-size", "30",
+                                  "--width", "24", "--height", "16", "-o", str(tmp_path / "c.png"), "--no-far-field"],
+                                 capsys)
     assert code == 0, err
     assert "relative RMS error" in stdout
     for name, ff in (("file", "f.npz"), ("store", "ff")):

@@ -56,6 +56,30 @@ class Clusters:
     def __len__(self) -> int:
         return self.count
 
+    @classmethod
+    def from_labels(cls, scene, labels) -> "Clusters":
+        """Clusters from (N,) labels made elsewhere (e.g. the ones a form-factor store's G was
+        computed for): every patch in one of 0..C-1, each cluster of one albedo (the coarse
+        albedo must be exact)."""
+        n = len(checked_scene(scene))
+        lab = np.asarray(labels)
+        if lab.shape != (n,) or not np.issubdtype(lab.dtype, np.integer) or lab.min(initial=0) < 0:
+            raise InvalidInputError(f"cluster labels must be {n} integers >= 0, one cluster per patch; got "
+                                    f"{lab.dtype} shape {lab.shape}")
+        lab = lab.astype(np.int64)
+        C = int(lab.max()) + 1
+        if len(np.unique(lab)) != C:
+            raise InvalidInputError(f"cluster labels must use every value 0..{C - 1}")
+        albedo = scene.albedo.astype(np.float64)
+        first = np.zeros(C, dtype=np.int64)
+        first[lab[::-1]] = np.arange(n)[::-1]
+        mixed = np.flatnonzero(np.any(albedo != albedo[first[lab]], axis=1))
+        if len(mixed):
+            raise InvalidInputError(f"cluster {lab[mixed[0]]} mixes albedos (patches {first[lab[mixed[0]]]} and "
+                                    f"{mixed[0]}); the far field needs clusters pure in albedo")
+        groups = int(_groups(scene, np.zeros(n, dtype=np.int64))[0].max()) + 1
+        return cls(labels=lab, count=C, groups=groups, scene_hash=scene.content_hash())
+
     @property
     def sizes(self) -> np.ndarray:
         """(C,) patches per cluster."""

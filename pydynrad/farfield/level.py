@@ -107,11 +107,14 @@ class FarField:
     dtype : np.float32 | np.float64
         Precision of the device products.
     device : pydynrad.Device, optional
+    checked : bool
+        ``form_factors`` already passed :func:`pydynrad.checks.check_form_factors` (a
+        DynamicRadiosity's own copy): skip validating it again.
     """
 
     def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str = "indicator",
-                 first_bounce: bool | None = None, fine_sweeps: int = 1, tol: float = 1e-5, max_sweeps: int = 1000, dtype=np.float32,
-                 device=None) -> None:
+                 first_bounce: bool | None = None, fine_sweeps: int = 1, tol: float = 1e-5, max_sweeps: int = 1000,
+                 dtype=np.float32, device=None, *, checked: bool = False) -> None:
         from ..device import default_device
         from ..devicecsr import DeviceCSR
 
@@ -121,7 +124,7 @@ class FarField:
         self.device = device or default_device()
         if prolongation not in PROLONGATIONS:
             raise InvalidInputError(f"prolongation must be one of {PROLONGATIONS}; got {prolongation!r}")
-        F = None if form_factors is None else check_form_factors(scene, form_factors)
+        F = form_factors if form_factors is None or checked else check_form_factors(scene, form_factors)
         first_bounce = F is not None if first_bounce is None else bool(first_bounce)
         if F is None and G is None:
             raise InvalidInputError("the far field needs F in memory or its patch-to-cluster form factors G "
@@ -238,34 +241,35 @@ class FarField:
         return out
 
 
-#: Rows per block when G is summed from a row source (bounded memory: one block of F's rows).
-G_BLOCK_ROWS = 4096
-
-
-def cluster_form_factors_from_rows(source, clusters: Clusters, progress: bool | None = None) -> sp.csr_matrix:
-    """G = F Pr (N, C) for the indicator prolongation, from any row source in blocks of
-    :data:`G_BLOCK_ROWS` rows, so F is never held whole."""
-    import sys
-
-    from tqdm import tqdm
-
-    n = len(clusters.labels)
-    Pr = clusters.indicator()
-    starts = range(0, n, G_BLOCK_ROWS)
-    show = sys.stderr.isatty() and n > 8 * G_BLOCK_ROWS if progress is None else progress
-    blocks = [sp.csr_matrix(source.rows(np.arange(s, min(n, s + G_BLOCK_ROWS))) @ Pr)
-              for s in tqdm(starts, desc="far field G", unit="block", disable=not show)]
-    return sp.vstack(blocks, format="csr")
-
-
 def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarField:
     """The FarField a :class:`~pydynrad.DynamicRadiosity` uses for its form factors
-    (:class:`pydynrad.dynamic.localrows.LocalRows`): from F when it is in memory, else from G
-    (given, or summed from the row source's rows)."""
+    (:class:`pydynrad.dynamic.localrows.LocalRows`).
+
+    F in memory (a matrix, or :class:`~pydynrad.CSRRows`): everything from F. A form-factor
+    store (also behind a row cache): its own clusters and G (refused when it holds none). Rows
+    computed on demand: G from cluster-id hemicubes
+    (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
+    """
+    from ..rows.sources import CSRRows
+    from ..rows.store import FormFactorStore
+    from .gather import cluster_form_factors_for
+
     if local_rows.csr is not None:
-        return FarField(scene, local_rows.csr, clusters, G, device=device)
+        return FarField(scene, local_rows.csr, clusters, G, device=device, checked=True)
+    inner = local_rows.source
+    while not isinstance(inner, (FormFactorStore, CSRRows)) and hasattr(inner, "source"):
+        inner = inner.source  # through row caches
+    if isinstance(inner, CSRRows):
+        return FarField(scene, inner.matrix, clusters, G, device=device)
+    if isinstance(inner, FormFactorStore) and G is None:
+        if not inner.has_clusters:
+            raise InvalidInputError(
+                f"form-factor store {inner.path} holds no far-field G: compute it (compute_store(..., clusters=...) or "
+                "`pydynrad formfactors SCENE -o STORE --clusters C`), or pass far_field=False (--no-far-field)")
+        if clusters is None:
+            clusters = Clusters.from_labels(scene, inner.cluster_labels())
+    if not isinstance(clusters, Clusters):
+        clusters = cluster_patches(scene, clusters)
     if G is None:
-        if not isinstance(clusters, Clusters):
-            clusters = cluster_patches(scene, clusters)
-        G = cluster_form_factors_from_rows(local_rows.source, clusters)
+        G = cluster_form_factors_for(scene, local_rows.source, clusters, device=device)
     return FarField(scene, None, clusters, G, device=device)
