@@ -226,11 +226,17 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
 
 
 def _cluster_labels(args: argparse.Namespace, scene) -> tuple[np.ndarray | None, dict]:
-    """--clusters LABELS.npy as (N,) labels and the record of where they came from, or (None, {})."""
+    """--clusters (a count C, "auto", or LABELS.npy) as (N,) labels and the record of where they
+    came from, or (None, {})."""
     if args.clusters is None:
         if args.cluster_resolution is not None or args.no_f:
             raise InvalidInputError("--cluster-resolution and --no-f need --clusters (the clusters G is made for)")
         return None, {}
+    if args.clusters == "auto" or args.clusters.isdigit():
+        from .farfield import cluster_patches
+
+        clusters = cluster_patches(scene, None if args.clusters == "auto" else int(args.clusters))
+        return clusters.labels, {"made_by": "pydynrad.farfield.cluster_patches", "clusters": clusters.count}
     path = Path(args.clusters)
     try:
         labels = np.load(path, allow_pickle=False)
@@ -581,10 +587,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--block-rows", type=_positive_int, default=None, metavar="ROWS",
                    help="store only: form-factor rows per block file, the unit of reading and of resuming "
                         "(default 256, or the existing store's)")
-    p.add_argument("--clusters", default=None, metavar="LABELS.npy",
+    p.add_argument("--clusters", default=None, metavar="C|auto|LABELS.npy",
                    help="store only: also store the far field's patch-to-cluster form factors G = F Pr for these "
-                        "clusters (a .npy file of one integer cluster label per patch), from hemicubes that record "
-                        "cluster ids; a store resumed later finishes its G too")
+                        "clusters (C of them made by pydynrad.farfield.cluster_patches, 'auto' for its default "
+                        "count, or a .npy file of one integer cluster label per patch), from hemicubes that record "
+                        "cluster ids; a store resumed later finishes its G too; walks then use its far field")
     p.add_argument("--cluster-resolution", type=_positive_int, default=None, metavar="R",
                    help=f"store only: hemicube resolution of G (default {DEFAULT_CLUSTER_RESOLUTION})")
     p.add_argument("--no-f", action="store_true",

@@ -349,3 +349,24 @@ def test_formfactors_store_with_clusters(tmp_path, capsys):
         assert_one_line_error(code, err, msg)
     code, _, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "f.npz"), *clusters[:2]], capsys)
     assert_one_line_error(code, err, "--clusters apply to a store folder")
+
+
+def test_a_store_with_auto_clusters_gives_walks_their_far_field(tmp_path, capsys):
+    """formfactors --clusters auto: the store holds G for the library's clusters, and a walk reading
+    the store lights every patch (the far field's error well below the local-only one's)."""
+    import json
+
+    code, out, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "ff"), "--clusters", "auto",
+                               "--workers", "0"], capsys)
+    assert code == 0, err
+    assert "G for 29 clusters" in out  # cluster_patches' default for 226 patches: ceil(226 / 8)
+    path = tmp_path / "path.json"
+    path.write_text(json.dumps({"frames": 2, "width": 24, "height": 16, "fov_y": 40, "keyframes": [
+        {"position": [278, 273, -800], "look_at": [278, 273, 0]}, {"position": [278, 273, -400], "look_at": [278, 273, 0]}]}))
+    code, out, err = run_main(["walk", *SMALL[:3], "--form-factors", str(tmp_path / "ff"), "--path", str(path),
+                               "--local-size", "30", "--reference-frames", "-1", "--light", "278,400,280:5e4",
+                               "--quiet"], capsys)
+    assert code == 0, err
+    far, local = (float(x) for x in re.search(r"relative RMS error ([\d.e+-]+)% with the far field, "
+                                               r"([\d.e+-]+)% local only", out).groups())
+    assert far < local / 3
