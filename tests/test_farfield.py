@@ -8,7 +8,7 @@ from scipy.linalg import lu_factor, lu_solve
 import pydynrad
 from pydynrad import DirectionalLight, DynamicRadiosity, PointLight, Scene
 from pydynrad.compare import radiosity_error
-from pydynrad.farfield import FarField, cluster_patches
+from pydynrad.farfield import Clusters, FarField, cluster_patches
 from pydynrad.farfield.clusters import NORMAL_BINS
 from helpers import box_scene, dense_radiosity, reciprocal_F
 
@@ -207,6 +207,14 @@ def test_bad_input(device, cornell):
         FarField(scene, None, cl, G=F @ cl.indicator(), first_bounce=True, device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="prolongation"):
         FarField(scene, F, cl, prolongation="smooth", device=device)
+    for bad, match in (({"tol": -1.0}, "tol"), ({"tol": float("nan")}, "tol"), ({"max_sweeps": 0}, "max_sweeps"),
+                       ({"fine_sweeps": -1}, "fine_sweeps")):
+        with pytest.raises(pydynrad.InvalidInputError, match=match):
+            FarField(scene, F, cl, device=device, **bad)
+    with pytest.raises(pydynrad.InvalidInputError, match="mixes albedos"):
+        Clusters.from_labels(scene, np.zeros(n, dtype=int))
+    with pytest.raises(pydynrad.InvalidInputError, match="every value"):
+        Clusters.from_labels(scene, cl.labels * 2)
     far = FarField(scene, F, cl, device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="another scene"):
         DynamicRadiosity(other, F, local_size=10, far_field=far, device=device)

@@ -16,13 +16,13 @@ and per frame, for the local set S and X the patches outside it,
 With C = N (every patch its own cluster) G = F and B_far is the full solution.
 
 The coarse system is solved by Jacobi sweeps of the sparse F_c on the device, warm-started from
-the previous B_c when the lights change (bench/farfield.py measures sweeps and time against a
-dense K_c). Two refinements, both measured there:
+the previous B_c when the lights change (bench/farfield.py measures sweeps and time; docs/design.md,
+'Far field', 'As built', says why there is no dense K_c). Two refinements, both measured there:
 
 * ``prolongation="exposure"``: Pr_w[i, c] = w_i / mean_c(w) (area-weighted mean; the indicator
   where the mean is 0) with w the radiosity under a uniform sky of directional lights, so a
   cluster's light goes to its exposed members and not to shadowed or enclosed ones (the leaks
-  of plain cluster averages). Needs F (or a G built with the same Pr_w).
+  of plain cluster averages). Needs F. It lost at night (the sky is not where lamps shine).
 * ``first_bounce=True`` (the default with F): B_far = L + P F (L + D), where every patch's
   indirect light D is its cluster's B_c - L_c shared in proportion to the patch's own first
   bounce P F L, then ``fine_sweeps`` bounces of the full F (default 1): three passes over F per
@@ -41,7 +41,7 @@ from ..checks import check_form_factors, integer, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
 from .clusters import Clusters, cluster_patches, light_components
 
-__all__ = ["FarField", "sky_directions", "PROLONGATIONS"]
+__all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS"]
 
 PROLONGATIONS = ("indicator", "exposure")
 
@@ -60,8 +60,8 @@ def sky_directions(n: int = SKY_DIRECTIONS) -> np.ndarray:
 
 def exposure_weights(scene, F: sp.csr_matrix, device, tol: float = 1e-4) -> np.ndarray:
     """(N,) radiosity (grey, channel mean) under a uniform sky of :data:`SKY_DIRECTIONS` lights."""
-    from ..lights import DirectionalLight, light_vector
     from ..devicecsr import DeviceCSR
+    from ..lights import DirectionalLight, light_vector
 
     sky = [DirectionalLight(tuple(d), (1.0 / SKY_DIRECTIONS,) * 3) for d in sky_directions()]
     L = light_vector(scene.with_materials(emission=0.0), sky, device=device).mean(axis=1, keepdims=True)
@@ -110,6 +110,18 @@ class FarField:
     checked : bool
         ``form_factors`` already passed :func:`pydynrad.checks.check_form_factors` (a
         DynamicRadiosity's own copy): skip validating it again.
+
+    Attributes
+    ----------
+    clusters : Clusters
+    R, G, F_c : scipy.sparse.csr_matrix
+        (C, N) restriction, (N, C) patch-to-cluster and (C, C) coarse form factors, float64.
+    B_far : (N, 3) float64 or None
+        Every patch's far radiosity for the last light vector (:meth:`light`).
+    sweeps : int
+        Coarse sweeps the last light change took.
+    seconds_build, seconds_light, seconds_coarse : float
+        Wall time of the construction, of the last light change and of its coarse solve.
     """
 
     def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str = "indicator",
@@ -124,6 +136,9 @@ class FarField:
         self.device = device or default_device()
         if prolongation not in PROLONGATIONS:
             raise InvalidInputError(f"prolongation must be one of {PROLONGATIONS}; got {prolongation!r}")
+        if not (np.isfinite(tol) and tol >= 0):
+            raise InvalidInputError(f"tol must be a finite number >= 0; got {tol!r}")
+        max_sweeps = integer(max_sweeps, "max_sweeps", 1)
         F = form_factors if form_factors is None or checked else check_form_factors(scene, form_factors)
         first_bounce = F is not None if first_bounce is None else bool(first_bounce)
         if F is None and G is None:
@@ -161,7 +176,8 @@ class FarField:
         first = np.zeros(C, dtype=np.int64)
         first[clusters.labels[::-1]] = np.arange(n)[::-1]
         self.rho_c = self.rho[first]
-        self._G_dev = DeviceCSR(self.device, G, dtype)
+        # The first-bounce gather goes through F's rows: G then only makes F_c.
+        self._G_dev = None if first_bounce else DeviceCSR(self.device, G, dtype)
         self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype)
         self._F_dev = DeviceCSR(self.device, F, dtype) if first_bounce else None
         self._B_c = None
@@ -178,7 +194,7 @@ class FarField:
 
     @property
     def device_memory_bytes(self) -> int:
-        """Device bytes of G, F_c (and F for the first bounce)."""
+        """Device bytes of F_c and G (or F, for the first-bounce gather)."""
         return sum(m.nbytes for m in (self._G_dev, self._Fc_dev, self._F_dev) if m is not None)
 
     @property
