@@ -198,6 +198,8 @@ def test_bad_input(device, cornell):
     cl = cluster_patches(scene)
     with pytest.raises(pydynrad.InvalidInputError, match=r"G must have shape"):
         FarField(scene, None, cl, G=sp.csr_matrix((n, cl.count + 1)), device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match=r"row \d+ of G sums to"):
+        FarField(scene, None, cl, G=3 * (F @ cl.indicator()), device=device)
     other = scene.with_materials(albedo=0.3)
     with pytest.raises(pydynrad.InvalidInputError, match="another scene"):
         FarField(other, None, cl, G=F @ cl.indicator(), device=device)

@@ -37,7 +37,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factors, integer, scene as checked_scene
+from ..checks import ROW_SUM_SLACK, check_form_factors, integer, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
 from .clusters import Clusters, cluster_patches, light_components
 
@@ -167,6 +167,11 @@ class FarField:
             raise InvalidInputError(f"G must have shape ({n}, {C}) (patches x clusters); got {G.shape}")
         if G.nnz and (not np.all(np.isfinite(G.data)) or G.data.min() < 0):
             raise InvalidInputError("G must hold finite, non-negative form factors")
+        rows = np.asarray(G.sum(axis=1)).ravel()
+        if rows.max(initial=0.0) > 1.0 + ROW_SUM_SLACK:  # a row of G is a row of F summed by cluster
+            i = int(rows.argmax())
+            raise InvalidInputError(f"row {i} of G sums to {rows[i]:.6g} > 1: not this scene's form factors summed by "
+                                    "cluster")
         self.prolongation, self.first_bounce, self.tol, self.max_sweeps = prolongation, bool(first_bounce), tol, max_sweeps
         self.fine_sweeps = integer(fine_sweeps, "fine_sweeps", 0)
         self.G = G
