@@ -204,7 +204,9 @@ class DynamicRadiosity:
 
     @staticmethod
     def estimate_memory_bytes(M: int, channels: int, storage: str, max_swaps_per_frame: int = 8, device=None) -> int:
-        """What :attr:`memory_bytes` will be for these sizes, without building anything."""
+        """What :attr:`memory_bytes` will be for these sizes without a far field (K and the
+        update's scratch), without building anything; a far field adds its
+        :attr:`~pydynrad.farfield.FarField.device_memory_bytes`."""
         from ..device import default_device
         from .kupdate import scratch_nbytes
 
