@@ -9,9 +9,10 @@ a frame costs O(M^2) device work instead of O(N^2):
   the paper does (``update="paper"``, :mod:`pydynrad.dynamic.paper`) or exactly
   (``update="exact"``, :mod:`pydynrad.dynamic.exact`: after any sequence of swaps K equals a fresh
   build over the same set, to rounding);
-* ``radiosity(lights)`` (or ``radiosity(light=L)``) returns B (N, 3) for every patch. With the far field (the default,
-  :mod:`pydynrad.farfield`) patches outside the local set get a coarse cluster-level solution
-  B_far, and the light they reflect is injected into the local set before B = L' + P K L';
+* ``radiosity(lights)`` (or ``radiosity(light=L)``) returns B (N, 3) for every patch. With the
+  far field (the default, :mod:`pydynrad.farfield`) patches outside the local set get a coarse
+  cluster-level solution B_far, and the light they reflect is injected into the local set before
+  B = L' + P K L';
   with ``far_field=False`` (the paper's method) the local set gets B = L + P K L and every other
   patch only L (emitted plus direct light). :attr:`DynamicRadiosity.patch_levels` says which.
 
@@ -104,7 +105,8 @@ class DynamicRadiosity:
     clusters : int or pydynrad.farfield.Clusters, optional
         The far field's clusters, or their count C (default: from N).
     cluster_form_factors : (N, C) sparse, optional
-        G for those clusters; by default F Pr from F, or from the row source's rows.
+        G for those clusters; by default F Pr from F, a form-factor store's own G, or G by
+        cluster-id hemicubes for rows computed on demand (:func:`pydynrad.farfield.far_field_for`).
     device : pydynrad.Device, optional
     """
 
@@ -169,8 +171,9 @@ class DynamicRadiosity:
 
     @property
     def patch_levels(self) -> np.ndarray:
-        """(N,) str: how the last :meth:`radiosity` call solved each patch: ``"local"`` (the local
-        matrix K), ``"far"`` (the far field's coarse level) or ``"light"`` (L only: far_field=False)."""
+        """(N,) str: how :meth:`radiosity` solves each patch now: ``"local"`` (the local matrix K),
+        ``"far"`` (the far field's coarse level) or ``"light"`` (L only: no far field, or a call
+        with ``far_field=False`` for every patch outside the local set)."""
         self._require_built()
         levels = np.full(len(self.scene), "far" if self.far is not None else "light", dtype="<U5")
         levels[self._local_patches] = "local"
@@ -197,7 +200,8 @@ class DynamicRadiosity:
 
     @property
     def memory_bytes(self) -> int:
-        """Device bytes of K (all channels), the update's scratch buffers and the far field's G and F_c."""
+        """Device bytes of K (all channels), the update's scratch buffers and the far field's
+        F_c and G (or F)."""
         self._require_built()
         far = self.far.device_memory_bytes if self.far is not None else 0
         return self._matrix.nbytes + self._kernels.nbytes + far
