@@ -109,8 +109,11 @@ class _Source:
 ])
 def test_row_source_blocks_are_checked_with_the_patch_named(box, box_F, device, kind, message):
     source = _Source(box_F, kind, bad_patch=30)
+    # The far field sums G from every row at construction: the bad block is refused there.
+    with pytest.raises(InvalidInputError, match=message):
+        pydynrad.DynamicRadiosity(box, source, local_size=48, device=device)
     # Row 30's patch is near the observer below, so it enters the local set on the first update.
-    dyn = pydynrad.DynamicRadiosity(box, source, local_size=48, device=device)
+    dyn = pydynrad.DynamicRadiosity(box, source, local_size=48, far_field=False, device=device)
     with pytest.raises(InvalidInputError, match=message):
         dyn.update(box.centers[30])
     with pydynrad.RowCache(source, 1 << 20) as cache, pytest.raises(InvalidInputError, match=message):

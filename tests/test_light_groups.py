@@ -57,10 +57,17 @@ def test_combined_multibounce_and_dynamic_equal_weighted_lights(box, device):
     K = pydynrad.multibounce(scene, F, dtype=np.float64, device=device)
     truth = pydynrad.multibounce_radiosity(scene, K, light=L)
     np.testing.assert_allclose(groups.multibounce(K).combine(WEIGHTS), truth, rtol=1e-6, atol=1e-9 * truth.max())
-    dyn = pydynrad.DynamicRadiosity(scene, F, local_size=120, storage="fp64", device=device)
+    dyn = pydynrad.DynamicRadiosity(scene, F, local_size=120, storage="fp64", far_field=False, device=device)
     dyn.update((278, 273, -200))
     truth = dyn.radiosity(light=L)
     np.testing.assert_allclose(groups.dynamic(dyn).combine(WEIGHTS), truth, rtol=1e-6, atol=1e-9 * truth.max())
+    # The far field shares each cluster's indirect light by the patches' first bounce, which is
+    # not linear in L: groups combine to its answer for the weighted lights within 1e-3 of the
+    # maximum (observed 2.4e-4, PoCL 2026-12-02; its error against the full solve is 1.1%).
+    dyn = pydynrad.DynamicRadiosity(scene, F, local_size=120, storage="fp64", device=device)
+    dyn.update((278, 273, -200))
+    truth = dyn.radiosity(light=L)
+    np.testing.assert_allclose(groups.dynamic(dyn).combine(WEIGHTS), truth, rtol=0, atol=1e-3 * truth.max())
 
 
 def test_groups_refuse_bad_input(box, device):

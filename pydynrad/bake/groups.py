@@ -164,7 +164,9 @@ class LightGroups:
 
     def dynamic(self, dynamic) -> GroupRadiosity:
         """Radiosity per group from a :class:`~pydynrad.DynamicRadiosity` at its current local set
-        (call again after each ``update``: the local matrix changed)."""
+        (call again after each ``update``: the local matrix changed). With its far field built
+        from F, the combination matches the weighted lights' answer to about 1e-4 of the maximum,
+        not to rounding: the far field shares indirect light by each light's own first bounce."""
         from ..dynamic import DynamicRadiosity
 
         if not isinstance(dynamic, DynamicRadiosity):

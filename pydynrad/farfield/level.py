@@ -27,7 +27,8 @@ the previous B_c when the lights change (bench/farfield.py measures sweeps and t
   indirect light D is its cluster's B_c - L_c shared in proportion to the patch's own first
   bounce P F L, then ``fine_sweeps`` bounces of the full F (default 1): three passes over F per
   light change, and no leaks into patches that one bounce of the direct light does not reach.
-  Needs F.
+  Needs F. Unlike the plain gather it is not linear in L (the shares depend on L): answers for
+  separate lights sum to the answer for their sum within about 1e-4 of the maximum.
 """
 
 from __future__ import annotations
@@ -268,10 +269,10 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
 
     F in memory (a matrix, or :class:`~pydynrad.CSRRows`): everything from F. A form-factor
     store (also behind a row cache): its own clusters and G (refused when it holds none). Rows
-    computed on demand: G from cluster-id hemicubes
-    (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
+    computed on demand: G from cluster-id hemicubes; any other row source: G summed from its
+    rows, each block validated (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
     """
-    from ..rows.sources import CSRRows
+    from ..rows.sources import CSRRows, HemicubeRows
     from ..rows.store import FormFactorStore
     from .gather import cluster_form_factors_for
 
@@ -292,5 +293,14 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     if not isinstance(clusters, Clusters):
         clusters = cluster_patches(scene, clusters)
     if G is None:
-        G = cluster_form_factors_for(scene, local_rows.source, clusters, device=device)
+        source = local_rows.source if isinstance(inner, (FormFactorStore, HemicubeRows)) else _CheckedRows(local_rows)
+        G = cluster_form_factors_for(scene, source, clusters, device=device)
     return FarField(scene, None, clusters, G, device=device)
+
+
+class _CheckedRows:
+    """Another row source's rows as the dynamic solution reads them: every block validated, the
+    bad patch named (:meth:`LocalRows.rows`), also when G is summed from them."""
+
+    def __init__(self, local_rows) -> None:
+        self.n_patches, self.rows = local_rows.n_patches, local_rows.rows
