@@ -15,6 +15,7 @@ import scipy.sparse as sp
 
 from pydynrad import InvalidInputError
 from pydynrad import formfactors as ff_module
+from pydynrad.farfield import cluster_patches
 from pydynrad.farfield.gather import cluster_form_factors
 from pydynrad.formfactors import form_factors
 from pydynrad.scenes.analytic import closed_box
@@ -22,7 +23,7 @@ from pydynrad.scenes.cornell import cornell_box
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package lives in the repo root
 
-from bench.gather import grid_clusters, indicator, weighted  # noqa: E402  (compact clusters, the two prolongations)
+from bench.gather import indicator, weighted  # noqa: E402  (the two prolongations)
 
 R = 16
 
@@ -30,7 +31,7 @@ R = 16
 @pytest.fixture(scope="module")
 def cornell(device):
     scene = cornell_box()
-    labels = grid_clusters(scene, 8)
+    labels = cluster_patches(scene).labels
     w = np.random.default_rng(1).uniform(0.1, 2.0, len(scene))
     F = form_factors(scene, resolution=R, device=device).astype(np.float64)
     return scene, labels, w, F
