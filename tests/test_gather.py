@@ -15,6 +15,7 @@ import scipy.sparse as sp
 
 from pydynrad import InvalidInputError
 from pydynrad import formfactors as ff_module
+from pydynrad.farfield import cluster_patches
 from pydynrad.farfield.gather import cluster_form_factors
 from pydynrad.formfactors import form_factors
 from pydynrad.scenes.analytic import closed_box
@@ -22,7 +23,7 @@ from pydynrad.scenes.cornell import cornell_box
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package lives in the repo root
 
-from bench.gather import grid_clusters, indicator, weighted  # noqa: E402  (compact clusters, the two prolongations)
+from bench.gather import indicator, weighted  # noqa: E402  (the two prolongations)
 
 R = 16
 
@@ -30,7 +31,7 @@ R = 16
 @pytest.fixture(scope="module")
 def cornell(device):
     scene = cornell_box()
-    labels = grid_clusters(scene, 8)
+    labels = cluster_patches(scene).labels
     w = np.random.default_rng(1).uniform(0.1, 2.0, len(scene))
     F = form_factors(scene, resolution=R, device=device).astype(np.float64)
     return scene, labels, w, F
@@ -273,3 +274,24 @@ def test_store_of_g_alone_lights_a_walk_with_rows_on_demand(tmp_path, device):
     # Observed 3.5% (29 clusters, no first bounce without F; G = F Pr at R = 32 gives 3.45%, so G's
     # resolution adds 0.04 points), local only 18.8% (M = 30 of 226).
     assert error(B) < 0.05 and error(B) < error(from_store.radiosity(lights, far_field=False)) / 4
+
+
+def test_g_from_a_broken_row_source_is_refused_not_crashed(box, device):
+    """A custom source's rows are checked before they are summed: an out-of-range column index
+    (which scipy's product would follow past memory) is named with its patch."""
+    from pydynrad.farfield.gather import cluster_form_factors_for
+
+    scene, labels, _ = box
+    F = form_factors(scene, resolution=8, device=device)
+
+    class Broken:
+        n_patches = len(scene)
+
+        def rows(self, idx):
+            block = sp.csr_matrix(F[idx], copy=True)
+            k = int(np.flatnonzero(np.asarray(idx) == 30)[0])
+            block.indices[block.indptr[k]] = len(scene) + 7
+            return block
+
+    with pytest.raises(InvalidInputError, match=r"row 30 has column index 199 outside 0\.\.191"):
+        cluster_form_factors_for(scene, Broken(), labels)

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import scene as checked_scene
+from ..checks import check_form_factor_rows, scene as checked_scene
 from ..errors import InvalidInputError
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
 
@@ -176,6 +176,8 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int = CLUSTER_
         blocks = []
         for first in starts:
             rows = np.arange(first, min(n, first + SUM_BLOCK_ROWS))
-            blocks.append(sp.csr_matrix(inner.rows(rows), dtype=np.float64) @ pr)
+            # A source's rows are checked before scipy's kernels touch them (bad indices crash them).
+            block = check_form_factor_rows(inner.rows(rows), "form-factor rows", rows, (len(rows), n))
+            blocks.append(block @ pr)
             bar.update(len(rows))
     return stack_blocks(blocks, pr.shape[1])
