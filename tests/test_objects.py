@@ -62,8 +62,12 @@ def test_with_objects_numbering(box, block):
     np.testing.assert_array_equal(both.albedo[n:n + m], block.albedo)
 
 
-def test_hemicube_rows_match_static_copy(box, block, device):
-    obj = pd.RigidObject(block, pose(30))
+@pytest.mark.parametrize("offset", [0.0, 3e6])
+def test_hemicube_rows_match_static_copy(box, block, device, offset):
+    """Also far from the origin: object trees share the static scene's device frame."""
+    if offset:
+        box = pd.Scene(box.points + offset, box.triangles, box.albedo, box.emission, name="far box")
+    obj = pd.RigidObject(block, pose(30, (150.0 + offset, 300.0 + offset, 400.0 + offset)))
     ref = pd.form_factors(box.with_objects([obj]), R, device=device)
     inst = pd.form_factors(instanced(box, [obj]), R, device=device)
     assert ref.shape == inst.shape == (len(box) + len(block),) * 2
