@@ -218,11 +218,11 @@ class WorldRows:
     def world(self):
         return self.hemicubes.scene
 
-    def move(self, world, object_rows: sp.csr_matrix | None = None) -> None:
-        """The objects moved: later rows are of ``world``, whose objects' rows are ``object_rows``
-        (None: hemicubes when first needed)."""
+    def move(self, world) -> None:
+        """The objects moved: later rows are of ``world`` (the objects' own rows are hemicubes
+        when first needed, unless set in :attr:`object_rows`)."""
         self.hemicubes.scene = world
-        self.object_rows = None if object_rows is None else sp.csr_matrix(object_rows)
+        self.object_rows = None
 
     def objects(self) -> sp.csr_matrix:
         """The objects' rows at the current poses (computed once per pose)."""
