@@ -23,6 +23,8 @@ farfield       the far field: error and frame time off and on, over C and M, Cor
                at night and under a sun (bench/farfield.py)
 cie171         the CIE 171:2006 analytic test cases: reference, ours and error per point (bench/cie171.py)
 photometry     sensor throughput, the sky term's cost, the hemicube's error near an area emitter (bench/photometry.py)
+objects        moving a block through the Cornell box: move cost and error vs the occlusion budget
+               (bench/objects.py)
 =============  ===========================================================================
 
 Each section is a function ``section(ctx) -> dict`` (title, description, tables, plots; see
@@ -65,6 +67,7 @@ SIZES: dict[str, dict] = {
         "cie171": {"resolution": 64, "room_resolution": 32, "room_cell": 0.5},
         "photometry": {"cell": 1.0, "sensors": 16, "resolutions": (16,), "sky_resolutions": (8,),
                        "distances": (0.1, 1.0)},
+        "objects": {},
     },
     "quick": {
         "pathtracer": {"furnace_subdivisions": 3, "spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
@@ -80,6 +83,7 @@ SIZES: dict[str, dict] = {
         "cie171": {"resolution": 128, "room_resolution": 64, "room_cell": 0.25},
         "photometry": {"cell": 0.25, "sensors": 1024, "resolutions": (32, 64, 128), "sky_resolutions": (32, 64),
                        "distances": (0.01, 0.03, 0.1, 0.3, 1.0)},
+        "objects": {},
     },
     "full": {
         "pathtracer": {"furnace_subdivisions": 4, "spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
@@ -96,6 +100,7 @@ SIZES: dict[str, dict] = {
         "photometry": {"cell": 0.25, "sensors": 4096, "resolutions": (32, 64, 128, 256),
                        "sky_resolutions": (32, 64, 128),
                        "distances": (0.003, 0.01, 0.03, 0.1, 0.3, 1.0)},
+        "objects": {},
     },
 }
 
@@ -112,6 +117,7 @@ SECTIONS: dict[str, str] = {
     "farfield": "bench.farfield:farfield_section",
     "cie171": "bench.cie171:cie171_section",
     "photometry": "bench.photometry:photometry_section",
+    "objects": "bench.objects:suite_section",
 }
 
 

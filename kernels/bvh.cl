@@ -1,5 +1,6 @@
 // BVH traversal shared by every kernel that casts rays (hemicubes, shadows, rendering,
-// path tracing). Include it; pass the three buffers of pydynrad.bvh.BVH.buffers().
+// path tracing). Include it; pass the three buffers of pydynrad.bvh.BVH.buffers() (or of
+// pydynrad.bvh.InstancedBVH.buffers(): the static tree plus moving objects, see below).
 //
 // nodes: 4-wide nodes of 8 float4 each (csrc/bvh.c): the four children's boxes as
 //        minx, maxx, miny, maxy, minz, maxz (one float4 per plane, a lane per child), then
@@ -138,30 +139,45 @@ inline bool bvh_pop(const int *refs, const float *entries, int *sp, float reach,
     return true;
 }
 
-// The walk shared by bvh_closest and bvh_occluded (any_hit: stop at the first hit). Returns the
-// hit with its triangle in BVH order. One wide node: the four children's slabs as float4 lanes,
-// near and far planes picked once per ray by the direction's signs (an inverted empty slot then
-// has entry > exit on every axis, so it needs no check).
-inline Hit bvh_walk(__global const float4 *nodes, __global const float4 *tris, float3 org, float3 dir,
-                    float tmin, float tmax, bool any_hit)
+// Instances: moving rigid objects (pydynrad.bvh.InstancedBVH), each a tree of its own built once
+// in object space and stored after the static tree in the same three buffers. Node 0's padding
+// float4 holds, as int bits, (count, table, 0, 0); the table at nodes[table] has BVH_INSTANCE
+// float4 per object: the rows of its world-to-object transform (xyz: rotation, w: translation),
+// then int bits (root node, 0, 0, 0). A rigid map keeps lengths and handedness, so t, the
+// barycentrics and the front flag of an object-space hit are those of the world-space ray.
+// A plain BVH has zero padding: no instances.
+#define BVH_INSTANCE 4
+
+inline int4 bvh_instances(__global const float4 *nodes) { return as_int4(nodes[7]); }
+
+inline float3 bvh_to_object(__global const float4 *m, float3 p, float w)
 {
-    Hit hit = {tmax, 0.0f, 0.0f, -1, 0};
+    return (float3)(BVH_DOT(m[0], p) + w * m[0].w, BVH_DOT(m[1], p) + w * m[1].w, BVH_DOT(m[2], p) + w * m[2].w);
+}
+
+// One tree from node `root`: shrinks hit to the nearest triangle (BVH order) closer than hit->t;
+// true when any_hit and something was hit. The four children's slabs as float4 lanes, near and
+// far planes picked once per ray by the direction's signs (an inverted empty slot then has
+// entry > exit on every axis, so it needs no check).
+inline bool bvh_walk_tree(__global const float4 *nodes, __global const float4 *tris, int root, float3 org,
+                          float3 dir, float tmin, bool any_hit, Hit *hit)
+{
     RayFrame frame = bvh_ray_frame(dir);
     float3 inv = bvh_inv_dir(dir), oi = org * inv;
     int nx = inv.x < 0.0f, ny = 2 + (inv.y < 0.0f), nz = 4 + (inv.z < 0.0f);
     int fx = nx ^ 1, fy = ny ^ 1, fz = nz ^ 1;
     BVH_STACK_DECL;
-    int ref = 0;
+    int ref = root;
     for (;;) {
         if (ref < 0) {
             for (int k = BVH_LEAF_FIRST(ref), end = k + BVH_LEAF_SIZE(ref); k < end; ++k)
-                if (bvh_tri_hit(tris, k, org, &frame, tmin, &hit) && any_hit) return hit;
+                if (bvh_tri_hit(tris, k, org, &frame, tmin, hit) && any_hit) return true;
         } else {
             __global const float4 *n = nodes + BVH_NODE * ref;
             float4 enter = BVH_MAX(BVH_MAX(n[nx] * inv.x - oi.x, n[ny] * inv.y - oi.y),
                                    BVH_MAX(n[nz] * inv.z - oi.z, (float4)tmin));
             float4 leave = BVH_MIN(BVH_MIN(n[fx] * inv.x - oi.x, n[fy] * inv.y - oi.y),
-                                   BVH_MIN(n[fz] * inv.z - oi.z, (float4)hit.t));
+                                   BVH_MIN(n[fz] * inv.z - oi.z, (float4)hit->t));
             enter = enter <= leave ? enter : (float4)INFINITY;
             int4 child = as_int4(n[6]);
             int base = sp;
@@ -170,8 +186,26 @@ inline Hit bvh_walk(__global const float4 *nodes, __global const float4 *tris, f
             if (enter.z != INFINITY) BVH_PUSH(base, child.z, enter.z);
             if (enter.w != INFINITY) BVH_PUSH(base, child.w, enter.w);
         }
-        if (!bvh_pop(refs, entries, &sp, hit.t, &ref)) return hit;
+        if (!bvh_pop(refs, entries, &sp, hit->t, &ref)) return false;
     }
+}
+
+// The walk shared by bvh_closest and bvh_occluded (any_hit: stop at the first hit): the static
+// tree, then each instance's tree with the ray in its object space. Returns the hit with its
+// triangle in BVH order.
+inline Hit bvh_walk(__global const float4 *nodes, __global const float4 *tris, float3 org, float3 dir,
+                    float tmin, float tmax, bool any_hit)
+{
+    Hit hit = {tmax, 0.0f, 0.0f, -1, 0};
+    if (bvh_walk_tree(nodes, tris, 0, org, dir, tmin, any_hit, &hit)) return hit;
+    int4 inst = bvh_instances(nodes);
+    for (int i = 0; i < inst.x; ++i) {
+        __global const float4 *m = nodes + inst.y + BVH_INSTANCE * i;
+        if (bvh_walk_tree(nodes, tris, as_int4(m[3]).x, bvh_to_object(m, org, 1.0f), bvh_to_object(m, dir, 0.0f),
+                          tmin, any_hit, &hit))
+            return hit;
+    }
+    return hit;
 }
 
 // Nearest hit along org + t dir for t in (tmin, tmax). Returns hit.patch = -1 on a miss.
@@ -307,13 +341,12 @@ inline void bvh_tri_hit_p(__global const float4 *tris, int k, const RayPacket *r
     h->front = ok ? (bvh_intP)1 & (det > 0.0f) : h->front;
 }
 
-// Nearest hit of every lane along org + t dir for t in (tmin, tmax): bvh_closest per lane,
-// one shared walk. A subtree waits on the stack with its least entry distance over the lanes
-// and is skipped when that lies beyond every lane's nearest hit so far.
-inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const float4 *tris,
-                                    __global const int *order, const RayPacket *r, float tmin, bvh_floatP tmax)
+// One tree from node `root` for every lane (bvh_walk_tree's packet twin): a subtree waits on
+// the stack with its least entry distance over the lanes and is skipped when that lies beyond
+// every lane's nearest hit so far.
+inline void bvh_walk_tree_p(__global const float4 *nodes, __global const float4 *tris, int root, const RayPacket *r,
+                            float tmin, HitPacket *h)
 {
-    HitPacket h = {tmax, (bvh_floatP)0.0f, (bvh_floatP)0.0f, (bvh_intP)(-1), (bvh_intP)0};
     RayFrameP frame = bvh_ray_frame_p(r);
     BvhSlabs s;
     s.ix = bvh_inv_p(r->dx);
@@ -323,11 +356,11 @@ inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const
     s.oiy = r->oy * s.iy;
     s.oiz = r->oz * s.iz;
     BVH_STACK_DECL;
-    int ref = 0;
+    int ref = root;
     for (;;) {
         if (ref < 0) {
             for (int k = BVH_LEAF_FIRST(ref), end = k + BVH_LEAF_SIZE(ref); k < end; ++k)
-                bvh_tri_hit_p(tris, k, r, &frame, tmin, &h);
+                bvh_tri_hit_p(tris, k, r, &frame, tmin, h);
         } else {
             __global const float4 *n = nodes + BVH_NODE * ref;
             int4 child = as_int4(n[6]);
@@ -335,11 +368,32 @@ inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const
             for (int c = 0; c < 4; ++c) {
                 int ref_c = c == 0 ? child.x : (c == 1 ? child.y : (c == 2 ? child.z : child.w));
                 if (ref_c == 0) break;  // empty slots come last
-                float entry = bvh_child_entry_p(n, c, &s, tmin, h.t);
+                float entry = bvh_child_entry_p(n, c, &s, tmin, h->t);
                 if (entry != INFINITY) BVH_PUSH(base, ref_c, entry);
             }
         }
-        if (!bvh_pop(refs, entries, &sp, bvh_hmaxP(h.t), &ref)) break;
+        if (!bvh_pop(refs, entries, &sp, bvh_hmaxP(h->t), &ref)) return;
+    }
+}
+
+// Nearest hit of every lane along org + t dir for t in (tmin, tmax): bvh_closest per lane,
+// one shared walk per tree (the static one, then each instance's in its object space).
+inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const float4 *tris,
+                                    __global const int *order, const RayPacket *r, float tmin, bvh_floatP tmax)
+{
+    HitPacket h = {tmax, (bvh_floatP)0.0f, (bvh_floatP)0.0f, (bvh_intP)(-1), (bvh_intP)0};
+    bvh_walk_tree_p(nodes, tris, 0, r, tmin, &h);
+    int4 inst = bvh_instances(nodes);
+    for (int i = 0; i < inst.x; ++i) {
+        __global const float4 *m = nodes + inst.y + BVH_INSTANCE * i;
+        RayPacket q;
+        q.ox = m[0].x * r->ox + m[0].y * r->oy + m[0].z * r->oz + m[0].w;
+        q.oy = m[1].x * r->ox + m[1].y * r->oy + m[1].z * r->oz + m[1].w;
+        q.oz = m[2].x * r->ox + m[2].y * r->oy + m[2].z * r->oz + m[2].w;
+        q.dx = m[0].x * r->dx + m[0].y * r->dy + m[0].z * r->dz;
+        q.dy = m[1].x * r->dx + m[1].y * r->dy + m[1].z * r->dz;
+        q.dz = m[2].x * r->dx + m[2].y * r->dy + m[2].z * r->dz;
+        bvh_walk_tree_p(nodes, tris, as_int4(m[3]).x, &q, tmin, &h);
     }
     // Map BVH order to patch indices lane by lane (OpenCL has no vector gather).
     int ids[BVH_PACKET];

@@ -16,6 +16,7 @@ from .errors import (
     SceneFileError,
 )
 from .scene import DegenerateTriangleWarning, Scene
+from .objects import ObjectIntersectionWarning, RigidObject
 from .formfactors import form_factors
 from .patching import subdivide
 from .loading import load
@@ -23,9 +24,10 @@ from . import scenes
 from .camera import Camera
 from .render import render
 from .image_io import read_image, write_image
-from .walk import CameraPath, LightTrack, WalkResult, fly_through, load_path, orbit, walk
+from .walk import CameraPath, LightTrack, ObjectTrack, WalkResult, fly_through, load_path, orbit, walk
 from .matvec import DeviceMatrix
 from .dynamic import DynamicRadiosity, FrameStats
+from .dynamic.moves import PoseRows, precompute_poses
 from .lights import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector, pack_lights
 from .solve import Solution, solve
 from .multibounce import multibounce, multibounce_radiosity
@@ -78,6 +80,8 @@ __all__ = [
     "load_path",
     "multibounce",
     "multibounce_radiosity",
+    "ObjectTrack",
+    "ObjectIntersectionWarning",
     "open_form_factors",
     "orbit",
     "OutOfMemoryError",
@@ -87,12 +91,15 @@ __all__ = [
     "PhotometricDistribution",
     "photometry",
     "PointLight",
+    "PoseRows",
+    "precompute_poses",
     "precompute_distributed",
     "PydynradError",
     "read_ies",
     "read_image",
     "read_ldt",
     "render",
+    "RigidObject",
     "RowCache",
     "RowSource",
     "save_form_factors",

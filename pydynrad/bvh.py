@@ -20,7 +20,7 @@ from .checks import finite
 from .errors import InvalidInputError
 from .launch import BVH_PACKET, global_size
 
-__all__ = ["BVH", "cast_rays", "occluded"]
+__all__ = ["BVH", "InstancedBVH", "cast_rays", "occluded"]
 
 #: Deepest tree (in wide levels) that the traversal stack of kernels/bvh.cl (BVH_STACK = 96)
 #: holds: a node pushes at most four children and the walk pops one, so D levels need 3 D + 1.
@@ -146,6 +146,106 @@ class BVH:
         return uploads[name]
 
 
+#: float4 per instance in the table of kernels/bvh.cl (BVH_INSTANCE): the world-to-object rows, the root.
+INSTANCE_FLOAT4 = 4
+
+
+def _relocated(nodes: np.ndarray, node_offset: int, tri_offset: int) -> np.ndarray:
+    """A tree's nodes with child references moved to where the tree lies in a joint buffer."""
+    out = nodes.copy()
+    child = _children(out).copy()
+    first, count = leaf_ranges(child)
+    child = np.where(child > 0, child + node_offset, child)
+    child = np.where(child < 0, ~(((first + tri_offset) << 3) | (count - 1)), child)
+    out.view(np.int32)[:, 24:28] = child  # bit patterns, never through float arithmetic
+    return out
+
+
+class InstancedBVH:
+    """A two-level BVH: the static tree plus one tree per rigid object, each in object space.
+
+    The trees share the three device buffers of :meth:`buffers` (the static tree first, so
+    node 0 stays the static root) and a table of the objects' world-to-object transforms after
+    the nodes; kernels/bvh.cl walks the static tree, then each object's tree with the ray
+    moved into object space. A move rewrites only the table (:meth:`set_transforms`), so
+    nothing is rebuilt. Patch indices: the static tree's, then each object's offset by the
+    patches before it.
+
+    Parameters
+    ----------
+    static : BVH
+        The static scene's tree (patch indices 0..N-1).
+    objects : sequence of BVH
+        One tree per object over its object-space triangles, each as ``(v - origin) / frame.unit``.
+    transforms : sequence of (4, 4) float
+        Each object's object-to-world transform (rigid; see :func:`pydynrad.objects.rigid_transform`).
+    frame : DeviceFrame, optional
+        The frame of the static tree (:attr:`pydynrad.Scene.frame`; default: identity). Rays come
+        in it; sharing its unit, the objects' trees keep the map from it to theirs rigid.
+    origins : (n_objects, 3) float, optional
+        The object-space point each object's tree is centred on (default: zeros).
+
+    See docs/design.md, 'BVH' and 'Moving objects'.
+    """
+
+    def __init__(self, static: BVH, objects, transforms, frame=None, origins=None) -> None:
+        objects = list(objects)
+        self.frame_origin = np.zeros(3) if frame is None else np.asarray(frame.origin, np.float64)
+        self.frame_unit = 1.0 if frame is None else float(frame.unit)
+        self.origins = np.zeros((len(objects), 3)) if origins is None else np.asarray(origins, np.float64).reshape(-1, 3)
+        node_at = np.cumsum([static.n_nodes] + [b.n_nodes for b in objects])
+        tri_at = np.cumsum([len(static.order)] + [len(b.order) for b in objects])
+        self.roots = node_at[:-1].astype(np.int32)  # each object tree's root node
+        parts = [static.nodes] + [_relocated(b.nodes, int(n0), int(t0)) for b, n0, t0 in zip(objects, node_at, tri_at)]
+        # The table fills whole node rows so that it starts at a float4 index node 0 can name.
+        table_rows = -(-len(objects) * INSTANCE_FLOAT4 * 4 // NODE_FLOATS)
+        self.nodes = np.concatenate(parts + [np.zeros((table_rows, NODE_FLOATS), np.float32)])
+        self._table_float4 = int(node_at[-1]) * (NODE_FLOATS // 4)
+        self.nodes.view(np.int32)[0, 28:30] = (len(objects), self._table_float4)
+        self.order = np.concatenate([static.order] + [b.order + int(t0) for b, t0 in zip(objects, tri_at)])
+        self.tris = np.concatenate([static.tris] + [b.tris for b in objects])
+        self.n_objects = len(objects)
+        self._device_buffers: dict = {}
+        self.set_transforms(transforms)
+
+    def _table(self) -> np.ndarray:
+        """The (n_objects, 4, 4) float32 view of the instance table inside :attr:`nodes`."""
+        flat = self.nodes.reshape(-1)[4 * self._table_float4 : 4 * self._table_float4 + 16 * self.n_objects]
+        return flat.reshape(self.n_objects, INSTANCE_FLOAT4, 4)
+
+    def set_transforms(self, transforms) -> None:
+        """Put the objects at new (4, 4) object-to-world transforms, on the host and every device."""
+        import pyopencl as cl
+
+        T = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4)
+        if len(T) != self.n_objects:
+            raise InvalidInputError(f"expected {self.n_objects} transforms; got {len(T)}")
+        table = np.zeros((self.n_objects, INSTANCE_FLOAT4, 4), np.float32)
+        Rt = T[:, :3, :3].transpose(0, 2, 1)  # the inverse of a rotation is its transpose
+        # Device ray p_d = (p - c) / u into the object tree's (R^T (p - t) - o) / u: rotation R^T,
+        # translation (R^T (c - t) - o) / u; lengths, so t, unchanged.
+        table[:, :3, :3] = Rt
+        table[:, :3, 3] = (np.einsum("kij,kj->ki", Rt, self.frame_origin - T[:, :3, 3]) - self.origins) / self.frame_unit
+        table.view(np.int32)[:, 3, 0] = self.roots
+        self._table()[:] = table
+        self.transforms = T.copy()
+        for device, uploads in self._device_buffers.values():
+            # Other uploads kept with the BVH (a scene's patch centres and normals) were of the
+            # old poses: only the BVH's own buffers stay, with the table rewritten in place.
+            bvh = uploads.get("bvh")
+            uploads.clear()
+            if bvh is not None:
+                uploads["bvh"] = bvh
+                cl.enqueue_copy(device.queue, bvh[0], table, dst_offset=16 * self._table_float4)
+
+    @property
+    def nbytes(self) -> int:
+        return self.nodes.nbytes + self.order.nbytes + self.tris.nbytes
+
+    buffers = BVH.buffers
+    upload_once = BVH.upload_once
+
+
 def _rays(origins, directions, tmax, frame=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Checked float32 rays, moved into ``frame`` (a scene's DeviceFrame; t is unchanged) if given."""
     o = np.ascontiguousarray(origins if frame is None else frame.points(origins), dtype=np.float32)
@@ -169,8 +269,9 @@ def _resolve(scene_or_bvh, device):
     """(bvh, device, frame): a Scene's BVH lives in the scene's DeviceFrame, a bare BVH in the rays' own."""
     from .device import default_device
 
-    bvh = scene_or_bvh if isinstance(scene_or_bvh, BVH) else getattr(scene_or_bvh, "bvh", None)
-    if not isinstance(bvh, BVH):
+    traced = (BVH, InstancedBVH)
+    bvh = scene_or_bvh if isinstance(scene_or_bvh, traced) else getattr(scene_or_bvh, "bvh", None)
+    if not isinstance(bvh, traced):
         raise InvalidInputError(f"expected a Scene or a BVH; got {type(scene_or_bvh).__name__}")
     return bvh, device or default_device(), None if bvh is scene_or_bvh else scene_or_bvh.frame
 

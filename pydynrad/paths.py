@@ -42,7 +42,7 @@ import numpy as np
 from .camera import Camera
 from .errors import InvalidInputError
 
-__all__ = ["CameraPath", "LightTrack", "orbit", "fly_through", "load_path", "INTERPOLATIONS"]
+__all__ = ["CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path", "INTERPOLATIONS"]
 
 INTERPOLATIONS = ("catmull-rom", "linear")
 
@@ -205,6 +205,48 @@ class LightTrack:
         """The light at frame ``frame`` of ``frames``."""
         s = _param(frame, frames, len(self.positions))
         return dataclasses.replace(self.light, position=sample_curve(self.positions, s, self.interpolation))
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectTrack:
+    """A :class:`~pydynrad.RigidObject` whose pose follows keyframes over a walk.
+
+    ``transforms`` (K, 4, 4) are rigid object-to-world poses; frame i of an n-frame walk puts
+    the object at parameter ``i (K - 1) / (n - 1)``: its translation on the curve through the
+    keyframes' translations (``interpolation``), its rotation spherically interpolated between
+    the two nearest keyframes. A frame that lands on a keyframe gets that keyframe exactly.
+    """
+
+    object: object
+    transforms: np.ndarray
+    interpolation: str = "catmull-rom"
+
+    def __post_init__(self) -> None:
+        from .objects import RigidObject, rigid_transform
+
+        if not isinstance(self.object, RigidObject):
+            raise InvalidInputError(f"an ObjectTrack needs a RigidObject; got {type(self.object).__name__}")
+        T = np.asarray(self.transforms, dtype=np.float64)
+        T = T[None] if T.ndim == 2 else T
+        if T.ndim != 3 or len(T) == 0:
+            raise InvalidInputError(f"object keyframes must be (K, 4, 4) transforms; got shape {np.shape(self.transforms)}")
+        object.__setattr__(self, "transforms", np.stack([rigid_transform(t, f"object keyframe {k}") for k, t in enumerate(T)]))
+        if self.interpolation not in INTERPOLATIONS:
+            raise InvalidInputError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}; got {self.interpolation!r}")
+
+    def at(self, frame: int, frames: int) -> np.ndarray:
+        """The (4, 4) pose at frame ``frame`` of ``frames``."""
+        from scipy.spatial.transform import Rotation, Slerp
+
+        T = self.transforms
+        s = _param(frame, frames, len(T))
+        k = int(np.floor(s))
+        if s == k:
+            return T[k].copy()
+        out = np.eye(4)
+        out[:3, 3] = sample_curve(T[:, :3, 3], s, self.interpolation)
+        out[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix(T[k : k + 2, :3, :3]))(s - k).as_matrix()
+        return out
 
 
 def lights_at(lights, frame: int, frames: int) -> list:

@@ -283,5 +283,12 @@ class Scene:
             out.emission = _checked_emission(emission, len(self))
         return out
 
+    def with_objects(self, objects) -> "Scene":
+        """A plain static Scene: these N patches, then each :class:`~pydynrad.RigidObject`'s at its
+        current pose (see :func:`pydynrad.objects.with_objects`)."""
+        from .objects import with_objects
+
+        return with_objects(self, objects)
+
     def __repr__(self) -> str:
         return f"Scene({self.name!r}, {len(self)} patches, {len(self.emitters)} emitting, grey={self.is_grey})"

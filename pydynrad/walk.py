@@ -25,9 +25,9 @@ import numpy as np
 
 from .camera import Camera
 from .errors import InvalidInputError
-from .paths import CameraPath, LightTrack, fly_through, lights_at, load_path, orbit
+from .paths import CameraPath, LightTrack, ObjectTrack, fly_through, lights_at, load_path, orbit
 
-__all__ = ["walk", "WalkResult", "FrameRecord", "CameraPath", "LightTrack", "orbit", "fly_through", "load_path", "STAGES"]
+__all__ = ["walk", "WalkResult", "FrameRecord", "CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path", "STAGES"]
 
 STAGES = ("update", "lighting", "render", "write")
 
@@ -110,6 +110,7 @@ def walk(
     dynamic=None,
     *,
     lights=(),
+    objects=(),
     form_factors=None,
     local_size: int | None = None,
     solver_options: dict | None = None,
@@ -134,8 +135,14 @@ def walk(
         Built from ``form_factors`` when omitted.
     lights : sequence of lights and LightTrack
         Analytic lights of every frame; a :class:`LightTrack` moves along its keyframes.
+    objects : sequence of ObjectTrack
+        Moving objects: each frame moves every track's object to its pose before the update
+        (``dynamic`` must hold those objects; built with them when omitted). Renders and
+        reference solves then see the world at that frame's poses: reference frames solve it
+        from fresh hemicubes at ``dynamic``'s resolution, whatever ``form_factors`` is.
     form_factors : (N, N) scipy.sparse or RowSource, optional
-        F for building ``dynamic`` and for the reference solves; required for either. A row
+        F (of the static scene) for building ``dynamic`` and for the reference solves; required
+        for either (except reference solves with ``objects``). A row
         source (a form-factor store, a RowCache: see :func:`pydynrad.open_form_factors`)
         streams rows to ``dynamic``; reference frames then read all of F into memory once.
     local_size : int, optional
@@ -172,9 +179,13 @@ def walk(
         raise InvalidInputError(f"path must be a CameraPath (orbit, fly_through, load_path); got {type(path).__name__}")
     device = device or default_device()
     lights = [lights] if not isinstance(lights, (list, tuple)) else list(lights)
+    tracks = list(objects)
+    for t in tracks:
+        if not isinstance(t, ObjectTrack):
+            raise InvalidInputError(f"objects must be ObjectTrack entries (a RigidObject with keyframes); got {type(t).__name__}")
     n = len(path)
     refs = _frame_set(reference_frames, n)
-    if refs and form_factors is None:
+    if refs and form_factors is None and not tracks:
         raise InvalidInputError("reference frames need the form factors (form_factors=F) for the full solve")
     if dynamic is None:
         if form_factors is None:
@@ -182,7 +193,10 @@ def walk(
         from .dynamic import DynamicRadiosity
 
         m = min(len(scene), 1024) if local_size is None else local_size
-        dynamic = DynamicRadiosity(scene, form_factors, local_size=m, device=device, **(solver_options or {}))
+        options = dict(solver_options or {})
+        if tracks:
+            options["objects"] = [t.object for t in tracks]
+        dynamic = DynamicRadiosity(scene, form_factors, local_size=m, device=device, **options)
     out_dir = None
     if output is not None:
         out_dir = Path(output)
@@ -197,17 +211,27 @@ def walk(
         cam = path.camera(k)
         frame_lights = lights_at(lights, k, n)
         t0 = time.perf_counter()
+        for t in tracks:
+            dynamic.move(t.object, t.at(k, n))
         stats = dynamic.update(cam.position)
         t1 = time.perf_counter()
         b = np.asarray(dynamic.radiosity(frame_lights))
         t2 = time.perf_counter()
+        if tracks:
+            renderer = Renderer(dynamic.scene, device)  # the world at this frame's poses
         img = renderer.render(b, cam, shading)
         t3 = time.perf_counter()
         rec = FrameRecord(k, cam, {"update": t1 - t0, "lighting": t2 - t1, "render": t3 - t2, "write": 0.0}, stats)
         if out_dir is not None:
             rec.image_path = write_image(out_dir / f"frame_{k:04d}.{image_format}", img, exposure)
             rec.seconds["write"] = time.perf_counter() - t3
-        if k in refs:
+        if k in refs and tracks:
+            from .formfactors import form_factors as hemicubes
+
+            world = dynamic.scene
+            _reference(rec, dynamic, world, hemicubes(world, dynamic.resolution, device=device), frame_lights, b, img,
+                       renderer, shading, out_dir, exposure, device)
+        elif k in refs:
             if full_F is None:
                 from .rows.files import whole_matrix
 

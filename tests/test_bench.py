@@ -117,3 +117,12 @@ def test_bake_section_tiny(tmp_path, device):
     bake = results["sections"]["bake"]["tables"][1]["rows"][0]
     # Coverage is a fraction, and the seam error inside charts is below the one at their borders.
     assert 0 < bake[3] < 1 and bake[7] < bake[10]
+def test_objects_section_tiny(tmp_path, device):
+    results, written = suite.run_suite("tiny", ["objects"], tmp_path, device=device, progress=False, strict=True)
+    _check_report(results, written, ["objects"])
+    table = results["sections"]["objects"]["tables"][0]
+    col = {c: k for k, c in enumerate(table["columns"])}
+    err = {(r[col["budget"]], r[col["rows"]]): r[col["max rel. error vs fresh"]] for r in table["rows"]}
+    # Every row that may see the block refreshed: the local set built afresh at the final pose.
+    assert err[("all", "hemicubes")] < 1e-6 and err[("all", "static F")] < 1e-6  # observed 3e-10
+    assert err[(0, "hemicubes")] > err[(32, "hemicubes")] > err[("all", "hemicubes")]

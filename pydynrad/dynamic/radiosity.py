@@ -15,6 +15,10 @@ a frame costs O(M^2) device work instead of O(N^2):
   B = L' + P K L';
   with ``far_field=False`` (the paper's method) the local set gets B = L + P K L and every other
   patch only L (emitted plus direct light). :attr:`DynamicRadiosity.patch_levels` says which.
+* with ``objects=[...]`` (:class:`pydynrad.RigidObject`), ``move(obj, transform)`` queues a new
+  pose that the next ``update`` applies as one batched swap of the objects' patches (always
+  local) and of the rows the move changed most (``occlusion``, a row budget per frame):
+  :mod:`pydynrad.dynamic.moves`.
 
 Form factors come from a precomputed sparse F, any row source (:mod:`pydynrad.rows`:
 a form-factor store on disk, a row cache) or, with ``form_factors=None``, from one hemicube
@@ -32,6 +36,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..checks import integer, resolution as checked_resolution, scene as checked_scene, vec3
 from ..errors import InvalidInputError, PydynradError
@@ -44,6 +49,8 @@ __all__ = ["DynamicRadiosity", "FrameStats"]
 UPDATE_MODES = ("exact", "paper")
 #: The most swaps one frame may batch (the gather keeps this many vectors in private memory).
 MAX_SWAPS_LIMIT = 32
+#: Rows refreshed per move for the occlusion of moving objects (``occlusion=``), by default.
+DEFAULT_OCCLUSION = 32
 
 
 @dataclass
@@ -60,10 +67,14 @@ class FrameStats:
     t_prefetch: float = 0.0  # asking a prefetching row source for the next frame's likely rows
     refreshed: bool = False  # K was (re)built from scratch this frame
     residual: float | None = None  # probe estimate of K's relative error, when checked
+    moved: int = 0  # objects moved this frame
+    hemicubes: int = 0  # rows the moves computed by hemicube (not taken from poses=)
+    rows_refreshed: int = 0  # rows of other local patches refreshed for the objects' occlusion
+    t_move: float = 0.0  # applying the moves: the objects' and refreshed rows' hemicubes and the swap, waited for
 
     @property
     def t_total(self) -> float:
-        return self.t_select + self.t_form_factors + self.t_update + self.t_prefetch
+        return self.t_select + self.t_form_factors + self.t_update + self.t_prefetch + self.t_move
 
 
 class DynamicRadiosity:
@@ -97,7 +108,7 @@ class DynamicRadiosity:
         update; we do the same in exact mode, since an emitter outside the set lights
         nothing). If every slot holds an emitter, no more swaps happen.
     resolution : int
-        Hemicube resolution when ``form_factors`` is None.
+        Hemicube resolution when ``form_factors`` is None, and of every moving object's rows.
     far_field : bool or pydynrad.farfield.FarField
         Light the patches outside the local set with the coarse level and inject their light
         into it (default), or leave them at L as the paper does (False). A ready FarField
@@ -107,16 +118,41 @@ class DynamicRadiosity:
     cluster_form_factors : (N, C) sparse, optional
         G for those clusters; by default F Pr from F, a form-factor store's own G, or G by
         cluster-id hemicubes for rows computed on demand (:func:`pydynrad.farfield.far_field_for`).
+    objects : sequence of pydynrad.RigidObject, optional
+        Moving objects (exact mode only). Their patches follow the scene's N, in order, and are
+        always local (their count must not exceed M); :attr:`scene` is then the combined scene
+        at the current poses, traced through a two-level BVH. ``form_factors`` stays the
+        static scene's (object columns then come by reciprocity and the objects' occlusion of
+        static paths only from refreshed rows), or None: every row a hemicube of the world as
+        it is, so K equals a fresh build over the same set when ``occlusion`` is None.
+    occlusion : int or None
+        Per move, refresh the rows of at most this many other local patches, those that see the
+        most of the moved objects' old and new bounding spheres (0: none, the cheapest; None:
+        every one that may see them). See docs/design.md, 'Moving objects'.
+    poses : PoseRows, optional
+        Rows precomputed for configurations of the objects known in advance
+        (:func:`pydynrad.precompute_poses`, same ``resolution``): a move to one of them takes its
+        rows from there instead of hemicubes.
     device : pydynrad.Device, optional
     """
 
     def __init__(self, scene, form_factors, local_size: int = 1024, update: str = "exact", storage: str = "fp32",
                  max_swaps_per_frame: int = 8, refresh_tolerance: float | None = None, refresh_interval: int = 32,
                  observer=None, keep_emitters: bool = True, resolution: int = 128, far_field=True, clusters=None,
-                 cluster_form_factors=None, device=None) -> None:
+                 cluster_form_factors=None, objects=None, occlusion: int | None = DEFAULT_OCCLUSION, poses=None,
+                 device=None) -> None:
         from ..device import default_device
 
         checked_scene(scene)
+        self.device = device or default_device()
+        self.objects, self._pending = [], {}
+        self._uncapped: dict[int, sp.csr_matrix] = {}  # slot -> its row before capped() (moves.py)
+        self.occlusion = None if occlusion is None else integer(occlusion, "occlusion", 0)
+        if objects is not None:
+            scene, form_factors = self._with_objects(scene, form_factors, objects, update, local_size,
+                                                     checked_resolution(resolution), poses)
+        elif poses is not None:
+            raise InvalidInputError("poses= holds rows of moving objects: pass objects= too")
         n = len(scene)
         self.scene = scene
         self.M = integer(local_size, "local_size (M)", 1, n)
@@ -130,10 +166,11 @@ class DynamicRadiosity:
             raise InvalidInputError(f"refresh_tolerance must be a positive number or None; got {refresh_tolerance!r}")
         self.refresh_tolerance = refresh_tolerance
         self.refresh_interval = integer(refresh_interval, "refresh_interval", 1, 2**31 - 1)
-        self.device = device or default_device()
-        self._ff = LocalRows(scene, form_factors, checked_resolution(resolution), self.device)
+        self.resolution = checked_resolution(resolution)  # of hemicube rows (entering patches, objects)
+        self._ff = LocalRows(scene, form_factors, self.resolution, self.device)
         self.C = 1 if scene.is_grey else 3
-        pinned = scene.emission.max(axis=1) > 0 if keep_emitters else None
+        pinned = scene.emission.max(axis=1) > 0 if keep_emitters else np.zeros(n, bool)
+        pinned[self._object_patches] = True
         self._select = NearestSet(scene.centers, pinned)
         self._local_patches: np.ndarray | None = None
         self._local_mask = np.zeros(n, dtype=bool)
@@ -146,7 +183,41 @@ class DynamicRadiosity:
         self._rng = np.random.default_rng(0x5EEAC106)
         self.far = self._far_field(far_field, clusters, cluster_form_factors)
         if observer is not None:
-            self._build(self._select.nearest(vec3(observer, "observer"), self.M)[0])
+            self._build(self._initial_set(vec3(observer, "observer")))
+
+    def _with_objects(self, scene, form_factors, objects, update: str, local_size, resolution: int, poses):
+        """The world scene and its row source for a static scene with moving objects."""
+        from ..objects import _objects, instanced
+        from .moves import WorldRows
+
+        if update != "exact":
+            raise InvalidInputError(f"moving objects need update='exact' (a move is an exact batched swap); got {update!r}")
+        self.objects = _objects(objects)
+        self.static_scene = scene
+        world = instanced(scene, self.objects)
+        n_static, n_obj = len(scene), len(world) - len(scene)
+        if isinstance(local_size, (int, np.integer)) and n_obj > local_size:
+            raise InvalidInputError(f"the objects have {n_obj} patches, more than local_size M = {local_size}: "
+                                    "every object patch must be local")
+        self._ranges = {}
+        start = n_static
+        for o in self.objects:
+            self._ranges[id(o)] = np.arange(start, start + len(o))
+            start += len(o)
+        rows = WorldRows(world, n_static, np.arange(n_static, len(world)), form_factors, scene, resolution, self.device,
+                         poses)
+        return world, rows
+
+    @property
+    def _object_patches(self) -> np.ndarray:
+        n = len(self.scene)
+        return np.arange(len(self.static_scene), n) if self.objects else np.empty(0, np.int64)
+
+    def _initial_set(self, obs: np.ndarray) -> np.ndarray:
+        """The M patches nearest ``obs``, every object patch among them."""
+        objs = self._object_patches
+        idx = self._select.nearest(obs, self.M + len(objs))[0]
+        return np.concatenate([objs, idx[~np.isin(idx, objs)][: self.M - len(objs)]])
 
     # -- state -------------------------------------------------------------------------------------
     @property
@@ -234,19 +305,20 @@ class DynamicRadiosity:
         return self.scene.albedo[patches, : self.C].T.astype(np.float64)
 
     # -- building ----------------------------------------------------------------------------------
-    def _fresh_K(self, local_patches: np.ndarray) -> np.ndarray:
+    def _fresh_K(self, local_patches: np.ndarray, fetch: bool = True) -> np.ndarray:
         from ..multibounce import multibounce_block
 
-        self._ff.fetch_local(local_patches)
+        if fetch:
+            self._ff.fetch_local(local_patches)
         return multibounce_block(self._ff.square(local_patches), self._rho(local_patches).T,
                                  dtype=compute_dtype(self.storage), device=self.device)
 
-    def _build(self, local_patches: np.ndarray) -> None:
+    def _build(self, local_patches: np.ndarray, fetch: bool = True) -> None:
         from .kupdate import UpdateKernels
         from .paper import UsedPatches
 
         local_patches = np.asarray(local_patches, dtype=np.int64)
-        K = self._fresh_K(local_patches)
+        K = self._fresh_K(local_patches, fetch)
         if self._matrix is None:
             self._matrix = DeviceMatrix(self.device, K, self.storage)
             self._kernels = UpdateKernels(self._matrix, self.max_swaps)
@@ -260,9 +332,10 @@ class DynamicRadiosity:
             self._used.reset_all(self._local_mask)
 
     def refresh(self) -> None:
-        """Rebuild K from scratch over the current local set (slots keep their patches)."""
+        """Rebuild K from scratch over the current local set and its kept rows (slots keep their
+        patches; rows refreshed for moving objects stay)."""
         self._require_built()
-        self._build(self._local_patches)
+        self._build(self._local_patches, fetch=False)
         self.refreshes += 1
 
     # -- the frame -----------------------------------------------------------------------------------
@@ -277,11 +350,22 @@ class DynamicRadiosity:
         empty = np.empty(0, np.int64)
         if not self.built:
             t0 = time.perf_counter()
-            self._build(self._select.nearest(obs, self.M)[0])
+            for obj, T in self._pending.values():
+                obj.transform = T
+            if self._pending:
+                self._pending.clear()
+                self._moved_world()
+            self._build(self._initial_set(obs))
             t1 = time.perf_counter()
             self._prefetch_next(obs)
             return FrameStats(self.frame, 0, empty, empty, t_update=t1 - t0, t_prefetch=time.perf_counter() - t1,
                               refreshed=True)
+        moved, rows_refreshed, hemicubes, t_move = len(self._pending), 0, 0, 0.0
+        if self._pending:
+            t_move = time.perf_counter()
+            rows_refreshed, hemicubes = self._apply_moves()
+            self.device.queue.finish()
+            t_move = time.perf_counter() - t_move
         t0 = time.perf_counter()
         slots, J = self._select.propose(obs, self._local_patches, self._local_mask, self.max_swaps)
         t1 = time.perf_counter()
@@ -296,13 +380,71 @@ class DynamicRadiosity:
         self.device.queue.finish()
         t2 = time.perf_counter()
         stats = FrameStats(self.frame, len(slots), removed, J, t_select=t1 - t0, t_form_factors=t_ff,
-                           t_update=t2 - t1 - t_ff - t_pre, t_prefetch=t_pre)
+                           t_update=t2 - t1 - t_ff - t_pre, t_prefetch=t_pre, moved=moved, rows_refreshed=rows_refreshed,
+                           hemicubes=hemicubes, t_move=t_move)
         if self.refresh_tolerance is not None and self.frame % self.refresh_interval == 0:
             stats.residual = self.residual()
             if stats.residual > self.refresh_tolerance:
                 self.refresh()
                 stats.refreshed = True
         return stats
+
+    # -- moving objects -------------------------------------------------------------------------------
+    def move(self, obj, transform) -> None:
+        """Queue a new (4, 4) rigid pose for ``obj``; the next :meth:`update` applies every queued move."""
+        from ..objects import rigid_transform
+
+        if not any(o is obj for o in self.objects):
+            raise InvalidInputError(f"{obj!r} was never added to this DynamicRadiosity (pass it in objects=)")
+        self._pending[id(obj)] = (obj, rigid_transform(transform))
+
+    def _moved_world(self) -> None:
+        """Put :attr:`scene` (and the BVH every kernel traces) at the objects' current poses."""
+        from ..objects import instanced
+
+        self.scene = instanced(self.static_scene, self.objects, bvh=self.scene.bvh)
+        self._ff.source.move(self.scene)
+
+    def _apply_moves(self) -> tuple[int, int]:
+        """Swap the moved objects' patches and the most changed rows with their new rows; the
+        count refreshed and the hemicubes computed."""
+        from .exact import exact_swap
+        from .localrows import _replace_rows
+        from .moves import refresh_order, stale_rows, swap_chunks
+
+        moves = list(self._pending.values())
+        self._pending.clear()
+        spheres = []
+        for obj, T in moves:
+            spheres.append(obj.bounding_sphere())
+            obj.transform = T
+            spheres.append(obj.bounding_sphere())
+        self._moved_world()
+        source, S, M = self._ff.source, self._local_patches, self.M
+        moved = np.concatenate([self._ranges[id(o)] for o, _ in moves])
+        slot_of = np.full(len(self.scene), -1)
+        slot_of[S] = np.arange(M)
+        others = np.flatnonzero(~np.isin(S, moved))
+        order, _ = refresh_order(self.scene.centers[S[others]], self.scene.normals[S[others]], spheres)
+        if self.occlusion is not None:
+            order = order[: self.occlusion]
+        slots = np.concatenate([slot_of[moved], others[order]])
+        new_rows, hemicubes = source.fresh(S[slots])
+        local = _replace_rows(self._ff.local, slots, new_rows)
+        local, changed, self._uncapped = stale_rows(local, slots, S, slot_of[moved], moved, self.scene.areas,
+                                                    self._object_patches, self._uncapped)
+        slots = np.concatenate([slots, changed])  # rows changed beyond the objects' columns
+        rho = self._rho(S)
+        for c in swap_chunks(slots, self.max_swaps):
+            F_SJ = local[:, S[c]].toarray()
+            F_SJ[c, :] = 0.0
+            rows_c = local[c]
+            F_JS = rows_c[:, S].toarray()
+            F_JS[:, c] = 0.0
+            exact_swap(self._kernels, c, F_SJ, F_JS, rows_c[:, S[c]].toarray(), rho, rho[:, c])
+        self._ff.local = local
+        source.object_rows = local[slot_of[self._object_patches]]
+        return len(order), hemicubes
 
     def _prefetch_next(self, obs: np.ndarray) -> None:
         """Ask a row source with ``prefetch`` (a RowCache) for the rows the next frame will likely need.
@@ -320,6 +462,8 @@ class DynamicRadiosity:
         prefetch(idx[~self._local_mask[idx]][: self.max_swaps])
 
     def _swap_local(self, slots: np.ndarray, J: np.ndarray) -> None:
+        for s in slots.tolist():
+            self._uncapped.pop(s, None)  # a new patch's row is as fetched
         self._local_mask[self._local_patches[slots]] = False
         self._local_patches[slots] = J
         self._local_mask[J] = True

@@ -16,7 +16,7 @@ from ..errors import InvalidInputError
 from ..patching import subdivide
 from ..scene import Scene
 
-__all__ = ["parallel_plates", "perpendicular_plates", "closed_box"]
+__all__ = ["parallel_plates", "perpendicular_plates", "closed_box", "block"]
 
 
 def _positive(name: str, value) -> float:
@@ -70,15 +70,8 @@ def perpendicular_plates(a: float = 1.0, b: float = 1.0, c: float = 1.0, subdivi
     return _rectangles([floor, wall], subdivisions, max_patch_area, albedo, emission, "perpendicular_plates")
 
 
-def closed_box(size=(1.0, 1.0, 1.0), subdivisions: int = 2, max_patch_area: float | None = None,
-               albedo=0.5, emission=1.0) -> Scene:
-    """A closed axis-aligned box ``[0, sx] x [0, sy] x [0, sz]`` with inward-facing walls.
-
-    The furnace test: with uniform emission E and albedo rho every patch's radiosity is
-    E / (1 - rho), since every row of F sums to 1. Walls, by ``source_face // 2``:
-    0: x = 0, 1: x = sx, 2: y = 0, 3: y = sy, 4: z = 0, 5: z = sz.
-    ``size`` is one length (a cube) or three.
-    """
+def _box_walls(size) -> list[np.ndarray]:
+    """The six walls (4, 3) of ``[0, sx] x [0, sy] x [0, sz]``, counter-clockwise seen from inside."""
     s = np.broadcast_to(np.asarray(size, dtype=np.float64), (3,))
     sx, sy, sz = (_positive(n, v) for n, v in zip(("size[0]", "size[1]", "size[2]"), s))
     walls = []
@@ -93,4 +86,31 @@ def closed_box(size=(1.0, 1.0, 1.0), subdivisions: int = 2, max_patch_area: floa
         far = quad[::-1].copy()
         far[:, axis] = length
         walls.append(far)
+    return walls
+
+
+def closed_box(size=(1.0, 1.0, 1.0), subdivisions: int = 2, max_patch_area: float | None = None,
+               albedo=0.5, emission=1.0) -> Scene:
+    """A closed axis-aligned box ``[0, sx] x [0, sy] x [0, sz]`` with inward-facing walls.
+
+    The furnace test: with uniform emission E and albedo rho every patch's radiosity is
+    E / (1 - rho), since every row of F sums to 1. Walls, by ``source_face // 2``:
+    0: x = 0, 1: x = sx, 2: y = 0, 3: y = sy, 4: z = 0, 5: z = sz.
+    ``size`` is one length (a cube) or three.
+    """
+    walls = _box_walls(size)
     return _rectangles(walls, subdivisions, max_patch_area, albedo, emission, "closed_box")
+
+
+def block(size=(1.0, 1.0, 1.0), subdivisions: int = 1, max_patch_area: float | None = None,
+          albedo=0.5, emission=0.0) -> Scene:
+    """A solid box centred on the origin with outward-facing sides: a movable object.
+
+    ``size`` is one length (a cube) or three; each side is cut into ``2 * 4**subdivisions``
+    triangles (``subdivisions=1``: 48 patches). Sides by ``source_face // 2`` as in
+    :func:`closed_box`.
+    """
+    walls = _box_walls(size)
+    half = 0.5 * np.broadcast_to(np.asarray(size, dtype=np.float64), (3,))
+    walls = [w[::-1] - half for w in walls]
+    return _rectangles(walls, subdivisions, max_patch_area, albedo, emission, "block")

@@ -1,0 +1,270 @@
+"""Moving rigid objects in a dynamic solution: their rows, the rows they change, and the swap.
+
+A move of objects O is a batched swap with I = J = the slots of O's patches plus the slots of
+the local patches whose rows are refreshed (the occlusion budget): remove them with their old
+rows and add them back with new ones (docs/design.md, 'Moving objects', 'Batched swap'):
+
+* O's rows: one hemicube per patch at the new pose;
+* the columns F[s, O] of the other local patches: by reciprocity, A_s F[s, o] = A_o F[o, s];
+* refreshed rows: hemicubes of the local patches that see the most of O's old and new
+  bounding spheres (their view of the static scene changed: O now hides or uncovers parts);
+* rows left stale whose sum the new object columns would push above 1: scaled back to 1
+  (:func:`capped`), so they are in the swap too (no hemicube); each move caps from the row
+  as it would be uncapped, so a pose that comes back gives back the same rows.
+
+The swap size bounds one batch; larger sets go in chunks, each one exact on its own: after
+chunk c the device K is that of the form factors whose entries in a row or column of the
+chunks done so far are new and the rest old, which is what the next chunk removes from.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import InvalidInputError
+from ..rows.sources import HemicubeRows
+from .localrows import LocalRows
+
+__all__ = ["PoseRows", "precompute_poses", "WorldRows", "sphere_solid_angle", "refresh_order", "with_reciprocal_columns", "capped", "stale_rows", "swap_chunks"]
+
+
+def sphere_solid_angle(points: np.ndarray, normals: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
+    """(n,) solid angle (sr) that a sphere subtends from each point, 0 when wholly behind its plane.
+
+    A point inside the sphere sees it over its whole hemisphere (2 pi). Conservative for the
+    ranking's purpose: a patch scores 0 only when no ray of its hemicube can reach the sphere.
+    """
+    v = np.asarray(center, np.float64) - np.asarray(points, np.float64)
+    d = np.linalg.norm(v, axis=1)
+    height = np.einsum("ij,ij->i", v, np.asarray(normals, np.float64))
+    inside = d <= radius
+    omega = 2.0 * np.pi * (1.0 - np.sqrt(np.clip(1.0 - (radius / np.maximum(d, 1e-300)) ** 2, 0.0, 1.0)))
+    omega = np.where(inside, 2.0 * np.pi, omega)
+    return np.where(height > -radius, omega, 0.0)
+
+
+def refresh_order(points, normals, spheres) -> tuple[np.ndarray, np.ndarray]:
+    """Patches that may see any of ``spheres`` [(centre, radius), ...], most solid angle first.
+
+    Returns (order, score): indices into ``points`` with a positive score, and their scores.
+    """
+    score = sum(sphere_solid_angle(points, normals, c, r) for c, r in spheres)
+    order = np.flatnonzero(score > 0)
+    order = order[np.argsort(-score[order], kind="stable")]
+    return order, score[order]
+
+
+def with_reciprocal_columns(rows: sp.csr_matrix, row_patches: np.ndarray, object_rows: sp.csr_matrix,
+                            object_patches: np.ndarray, areas: np.ndarray) -> sp.csr_matrix:
+    """``rows`` (of ``row_patches``) with their columns ``object_patches`` set by reciprocity:
+    F[s, o] = A_o F[o, s] / A_s from the objects' rows ``object_rows`` (len(object_patches), N)."""
+    A = np.asarray(areas, np.float64)
+    recip = sp.csr_matrix(object_rows[:, row_patches].T.multiply(A[object_patches][None, :]))
+    recip = sp.csr_matrix(recip.multiply(1.0 / A[row_patches][:, None]))
+    keep = np.ones(rows.shape[1])
+    keep[object_patches] = 0.0
+    placed = sp.csr_matrix((recip.data, object_patches[recip.indices], recip.indptr), shape=rows.shape)
+    out = sp.csr_matrix(rows.multiply(keep[None, :]) + placed)
+    out.eliminate_zeros()
+    return out
+
+
+def capped(rows: sp.csr_matrix, object_patches: np.ndarray, target: np.ndarray | None = None):
+    """Rows whose entries outside ``object_patches`` are scaled (clipped at zero) so that each
+    row sums to at most 1, or to ``target`` (n,) when given. Returns the rows and an (n,) bool
+    mask of those scaled.
+
+    A row left stale by a move may see an object where it also still sees what the object now
+    hides; ``target`` (a row's sum without the objects) spreads the hiding evenly instead.
+    """
+    keep = np.ones(rows.shape[1])
+    keep[object_patches] = 0.0
+    kept = sp.csr_matrix(rows.multiply(keep[None, :]))
+    kept_sum = np.asarray(kept.sum(axis=1)).ravel()
+    obj_sum = np.asarray(rows.sum(axis=1)).ravel() - kept_sum
+    goal = np.minimum(kept_sum + obj_sum, 1.0) if target is None else np.asarray(target, np.float64)
+    scaled = (kept_sum > 0) & (kept_sum + obj_sum != goal)
+    scale = np.ones(len(kept_sum))
+    scale[scaled] = np.maximum(goal[scaled] - obj_sum[scaled], 0.0) / kept_sum[scaled]
+    out = sp.csr_matrix(sp.diags(scale) @ kept + (rows - kept))
+    out.eliminate_zeros()
+    return out, scaled
+
+
+def stale_rows(local: sp.csr_matrix, fresh_slots: np.ndarray, S: np.ndarray, moved_slots: np.ndarray,
+               moved: np.ndarray, areas: np.ndarray, object_patches: np.ndarray, uncapped: dict):
+    """The kept rows (M, N) after a move, for the slots not given fresh rows.
+
+    ``local`` already holds the fresh rows of ``fresh_slots`` (the moved objects' patches, in
+    ``moved_slots``, among them). The other rows that see a moved object, before or after,
+    get its columns by reciprocity and are :func:`capped`, each from its uncapped form
+    (``uncapped``: slot -> row, for the rows capped so far). Returns (rows, the slots whose
+    entries outside the objects' columns changed, the new ``uncapped``).
+    """
+    from .localrows import _replace_rows
+
+    M = len(S)
+    fresh = np.zeros(M, bool)
+    fresh[fresh_slots] = True
+    sees = np.zeros(local.shape[1], bool)
+    sees[moved] = True
+    touched = np.zeros(M, bool)
+    touched[np.repeat(np.arange(M), np.diff(local.indptr))[sees[local.indices]]] = True  # saw the objects before
+    slot_of = np.full(local.shape[1], -1)
+    slot_of[S] = np.arange(M)
+    seen = slot_of[local[moved_slots].indices]
+    touched[seen[seen >= 0]] = True  # is seen by them now: reciprocity puts columns there
+    was = np.zeros(M, bool)
+    was[[s for s in uncapped if not fresh[s]]] = True
+    rest = np.flatnonzero((touched | was) & ~fresh)
+    if len(rest) == 0:
+        return local, rest, {}
+    base = local[rest]
+    had = was[rest]
+    if had.any():
+        base = _replace_rows(base, np.flatnonzero(had), sp.vstack([uncapped[s] for s in rest[had].tolist()]))
+    full = with_reciprocal_columns(base, S[rest], local[moved_slots], moved, areas)
+    rows, now = capped(full, object_patches)
+    kept = {s: full[k] for k, s in zip(np.flatnonzero(now).tolist(), rest[now].tolist())}
+    return _replace_rows(local, rest, rows), rest[now | had], kept
+
+
+class PoseRows:
+    """Rows precomputed for poses of the objects known in advance (the paper's section 3.2).
+
+    Keyed by the objects' transforms together (a row of a static patch depends on every
+    object): for each configuration, the rows of the object patches and of the static patches
+    that may see an object there (:func:`refresh_order`). A move to a stored configuration
+    takes those rows from here instead of hemicubes. Made by :func:`precompute_poses`.
+    """
+
+    def __init__(self, n_patches: int, resolution: int) -> None:
+        self.n_patches, self.resolution = int(n_patches), int(resolution)
+        self._rows: dict[bytes, tuple[np.ndarray, sp.csr_matrix]] = {}
+
+    @staticmethod
+    def key(transforms) -> bytes:
+        return np.ascontiguousarray(np.asarray(transforms, np.float64)).tobytes()
+
+    def add(self, transforms, patches: np.ndarray, rows: sp.csr_matrix) -> None:
+        order = np.argsort(patches)
+        self._rows[self.key(transforms)] = (np.asarray(patches, np.int64)[order], sp.csr_matrix(rows)[order])
+
+    def get(self, transforms):
+        """(sorted patch indices, their rows) stored for these transforms, or None."""
+        return self._rows.get(self.key(transforms))
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(p.nbytes + r.data.nbytes + r.indices.nbytes + r.indptr.nbytes for p, r in self._rows.values())
+
+
+def precompute_poses(scene, objects, poses, resolution: int = 128, device=None) -> PoseRows:
+    """The rows of each configuration in ``poses`` for :class:`pydynrad.DynamicRadiosity`'s ``poses=``.
+
+    ``poses``: a sequence of configurations, each a (4, 4) transform per object (a single
+    (4, 4) per entry for one object): a keyframed path. Costs one hemicube per object patch
+    and per static patch that may see an object, per configuration.
+    """
+    from ..checks import resolution as checked_resolution
+    from ..formfactors import form_factors
+    from ..objects import _objects, instanced, rigid_transform
+
+    objs = _objects(objects)
+    R = checked_resolution(resolution)
+    n_static = len(scene)
+    out = PoseRows(n_static + sum(len(o) for o in objs), R)
+    for config in poses:
+        config = np.asarray(config, np.float64)
+        transforms = [rigid_transform(t) for t in (config[None] if config.ndim == 2 else config)]
+        if len(transforms) != len(objs):
+            raise InvalidInputError(f"a configuration needs one transform per object ({len(objs)}); got {len(transforms)}")
+        world = instanced(scene, objs, transforms)
+        spheres = [o.bounding_sphere(T) for o, T in zip(objs, transforms)]
+        seeing, _ = refresh_order(world.centers[:n_static], world.normals[:n_static], spheres)
+        patches = np.concatenate([seeing, np.arange(n_static, len(world))])
+        out.add(world.bvh.transforms, patches, form_factors(world, R, rows=patches, device=device))
+    return out
+
+
+class WorldRows:
+    """Rows of F for a static scene with objects (a :class:`~pydynrad.rows.sources.RowSource`).
+
+    Object patches' rows are hemicubes of the current world scene. Static rows come from
+    ``static_ff`` (the static scene's (N, N) F or row source) with their object columns by
+    reciprocity from the objects' current rows (the objects' occlusion of the static scene is
+    then missing until a refresh); with ``static_ff=None`` they are hemicubes of the world
+    too, and exact at the current poses.
+    """
+
+    def __init__(self, world, n_static: int, object_patches: np.ndarray, static_ff, static_scene, resolution: int,
+                 device, poses: PoseRows | None = None) -> None:
+        if poses is not None and (poses.n_patches != len(world) or poses.resolution != resolution):
+            raise InvalidInputError(f"poses= holds rows of {poses.n_patches} patches at R = {poses.resolution}; this "
+                                    f"scene with its objects has {len(world)} patches at R = {resolution}")
+        self.poses = poses
+        self.hemicubes = HemicubeRows(world, resolution, device)
+        self.n_patches = len(world)
+        self.n_static = int(n_static)
+        self.object_patches = np.asarray(object_patches, np.int64)
+        self.static = None if static_ff is None else LocalRows(static_scene, static_ff, resolution, device)
+        self.object_rows: sp.csr_matrix | None = None  # rows of object_patches at the current poses
+
+    @property
+    def world(self):
+        return self.hemicubes.scene
+
+    def move(self, world) -> None:
+        """The objects moved: later rows are of ``world`` (the objects' own rows are hemicubes
+        when first needed, unless set in :attr:`object_rows`)."""
+        self.hemicubes.scene = world
+        self.object_rows = None
+
+    def objects(self) -> sp.csr_matrix:
+        """The objects' rows at the current poses (computed once per pose)."""
+        if self.object_rows is None:
+            self.object_rows = self.fresh(self.object_patches)[0]
+        return self.object_rows
+
+    def fresh(self, idx) -> tuple[sp.csr_matrix, int]:
+        """Rows ``idx`` of the world as it is: from ``poses`` where it holds them for the current
+        transforms, else hemicubes; and how many hemicubes that took."""
+        idx = np.asarray(idx, np.int64)
+        stored = None if self.poses is None else self.poses.get(self.world.bvh.transforms)
+        if stored is None:
+            return sp.csr_matrix(self.hemicubes.rows(idx), dtype=np.float64), len(idx)
+        patches, rows = stored
+        at = np.minimum(np.searchsorted(patches, idx), len(patches) - 1)
+        have = patches[at] == idx
+        miss = np.flatnonzero(~have)
+        parts = [rows[at[have]], sp.csr_matrix(self.hemicubes.rows(idx[miss]), dtype=np.float64)]
+        order = np.argsort(np.concatenate([np.flatnonzero(have), miss]), kind="stable")
+        return sp.csr_matrix(sp.vstack(parts, format="csr")[order], dtype=np.float64), len(miss)
+
+    def rows(self, idx) -> sp.csr_matrix:
+        idx = np.asarray(idx, np.int64)
+        if self.static is None:
+            return self.fresh(idx)[0]
+        out = sp.lil_matrix((len(idx), self.n_patches))
+        obj = idx >= self.n_static
+        if obj.any():
+            where = np.searchsorted(self.object_patches, idx[obj])
+            out[np.flatnonzero(obj)] = self.objects()[where]
+        if (~obj).any():
+            s = idx[~obj]
+            static = self.static.rows(s)
+            padded = sp.csr_matrix((static.data, static.indices, static.indptr), shape=(len(s), self.n_patches))
+            with_objects = with_reciprocal_columns(padded, s, self.objects(), self.object_patches, self.world.areas)
+            out[np.flatnonzero(~obj)] = capped(with_objects, self.object_patches, np.asarray(static.sum(axis=1)).ravel())[0]
+        return sp.csr_matrix(out)
+
+
+def swap_chunks(slots: np.ndarray, size: int) -> list[np.ndarray]:
+    """``slots`` cut into batches of at most ``size`` (the swap size of the device kernels)."""
+    if size < 1:
+        raise InvalidInputError(f"swap size must be >= 1; got {size}")
+    return [slots[i:i + size] for i in range(0, len(slots), size)]

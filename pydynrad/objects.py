@@ -1,0 +1,217 @@
+"""Moving rigid objects: a scene of patches carried by a 4x4 transform.
+
+A :class:`RigidObject` holds its geometry and materials in object space (a :class:`Scene`)
+and a rigid object-to-world transform. Next to a static scene of N patches, the objects'
+patches are numbered N.. in the order the objects are given. Two views of the same world:
+
+* :func:`with_objects` (``Scene.with_objects``): a plain static Scene of the combined geometry
+  at the current poses, with a BVH built over all of it (full solves, references, tests);
+* :func:`instanced`: the same patches, traced through a two-level :class:`~pydynrad.bvh.InstancedBVH`
+  (the static tree plus each object's tree, built once), so a move rewrites one small table
+  instead of rebuilding anything.
+
+See docs/design.md, 'Moving objects'.
+"""
+
+from __future__ import annotations
+
+import warnings
+from functools import cached_property
+
+import numpy as np
+
+from .errors import InvalidInputError
+
+__all__ = ["RigidObject", "ObjectIntersectionWarning", "rigid_transform", "with_objects", "instanced"]
+
+#: Tolerance of the rigidity test: |R^T R - I| and |det R - 1| (float32 rounding of a composed
+#: rotation stays far below it; a 0.1% scale does not).
+RIGID_TOL = 1e-5
+
+
+class ObjectIntersectionWarning(UserWarning):
+    """An object's triangles cut through the static scene's (allowed: light then leaks there)."""
+
+
+def rigid_transform(value, what: str = "transform") -> np.ndarray:
+    """A validated (4, 4) float64 rigid transform: a proper rotation and a translation.
+
+    Raises :class:`~pydynrad.errors.InvalidInputError` for a wrong shape, NaN or infinite
+    entries, a last row other than (0, 0, 0, 1), or a linear part that scales, shears or
+    mirrors (radiosity would need new form factors for a deformed object, and a mirror turns
+    its patches inside out).
+    """
+    T = np.asarray(value, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise InvalidInputError(f"{what} must be a (4, 4) matrix; got shape {T.shape}")
+    if not np.all(np.isfinite(T)):
+        raise InvalidInputError(f"{what} contains NaN or infinite values")
+    if not np.allclose(T[3], (0.0, 0.0, 0.0, 1.0), rtol=0.0, atol=RIGID_TOL):
+        raise InvalidInputError(f"{what} must have last row (0, 0, 0, 1) (no projection); got {T[3]}")
+    R = T[:3, :3]
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    if err > RIGID_TOL:
+        raise InvalidInputError(f"{what} is not rigid: its 3x3 part scales or shears (|R^T R - I| = {err:.3g})")
+    if np.linalg.det(R) < 0:
+        raise InvalidInputError(f"{what} mirrors (det = -1): a rigid object's transform must be a proper rotation")
+    out = T.copy()
+    out[3] = (0.0, 0.0, 0.0, 1.0)
+    return out
+
+
+class RigidObject:
+    """Patches that move rigidly: geometry and materials in object space, and a pose.
+
+    Parameters
+    ----------
+    mesh_or_scene : Scene, or anything :func:`pydynrad.load` accepts
+        The object's patches in object space (albedo and emission as in any scene: an emitting
+        object is a lamp carried around).
+    transform : (4, 4) float, optional
+        Object-to-world pose (identity by default): a rotation and a translation only.
+    name : str, optional
+    **load_kw
+        Passed to :func:`pydynrad.load` when ``mesh_or_scene`` is not a Scene.
+    """
+
+    def __init__(self, mesh_or_scene, transform=None, name: str | None = None, **load_kw) -> None:
+        from .scene import Scene
+
+        if isinstance(mesh_or_scene, Scene):
+            if load_kw:
+                raise InvalidInputError(f"load options {sorted(load_kw)} apply to a mesh or path, not to a Scene")
+            scene = mesh_or_scene
+        else:
+            from .loading import load
+
+            scene = load(mesh_or_scene, **load_kw)
+        self.scene = scene
+        self.name = str(name if name is not None else scene.name)
+        self.transform = np.eye(4) if transform is None else transform
+
+    @property
+    def transform(self) -> np.ndarray:
+        """(4, 4) float64 object-to-world pose."""
+        return self._transform.copy()
+
+    @transform.setter
+    def transform(self, value) -> None:
+        self._transform = rigid_transform(value)
+
+    def __len__(self) -> int:
+        return len(self.scene)
+
+    def device_bvh(self, unit: float):
+        """(BVH, origin): the object-space tree over ``(v - origin) / unit`` (origin: the centre
+        of the object's bounds), built once per ``unit`` (a world's device frame): moving never
+        rebuilds it."""
+        from .bvh import BVH
+
+        cache = self.__dict__.setdefault("_device_bvhs", {})
+        if unit not in cache:
+            origin = self._bound_object[0]
+            cache[unit] = (BVH.build((self.scene.vertices.astype(np.float64) - origin) / unit), origin)
+        return cache[unit]
+
+    @cached_property
+    def _bound_object(self) -> tuple[np.ndarray, float]:
+        lo, hi = self.scene.bbox.astype(np.float64)
+        return 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+
+    def bounding_sphere(self, transform=None) -> tuple[np.ndarray, float]:
+        """(centre (3,), radius) of a sphere holding the object at ``transform`` (default: its pose)."""
+        T = self._transform if transform is None else rigid_transform(transform)
+        c, r = self._bound_object
+        return T[:3, :3] @ c + T[:3, 3], r
+
+    def world_points(self, transform=None) -> np.ndarray:
+        """(V, 3) float64 points of the object at ``transform`` (default: its pose)."""
+        T = self._transform if transform is None else rigid_transform(transform)
+        return self.scene.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+
+    def __repr__(self) -> str:
+        return f"RigidObject({self.name!r}, {len(self)} patches)"
+
+
+def _objects(objects) -> list[RigidObject]:
+    objs = [objects] if isinstance(objects, RigidObject) else list(objects)
+    for o in objs:
+        if not isinstance(o, RigidObject):
+            raise InvalidInputError(f"objects must be RigidObject instances; got {type(o).__name__}")
+    if len({id(o) for o in objs}) != len(objs):
+        raise InvalidInputError("the same RigidObject is given twice")
+    return objs
+
+
+def _combined(scene, objs: list[RigidObject], transforms=None):
+    """The static scene and the objects at ``transforms`` (default: their poses) as one Scene."""
+    from .scene import Scene
+
+    transforms = [o.transform for o in objs] if transforms is None else transforms
+    points, tris = [scene.points.astype(np.float64)], [scene.triangles]
+    base = len(scene.points)
+    for o, T in zip(objs, transforms):
+        points.append(o.world_points(T))
+        tris.append(o.scene.triangles + base)
+        base += len(o.scene.points)
+    parts = [scene] + [o.scene for o in objs]
+    name = "+".join([scene.name] + [o.name for o in objs])
+    out = Scene(np.concatenate(points), np.concatenate(tris), np.concatenate([p.albedo for p in parts]),
+                np.concatenate([p.emission for p in parts]), name=name)
+    n = len(scene)
+    # The static patches keep their own arrays bit for bit (they were derived from float64
+    # corners), so their rows match those of the static scene wherever no object is in view.
+    for name in ("centers", "normals", "areas"):
+        getattr(out, name)[:n] = getattr(scene, name)
+    return out
+
+
+def _warn_intersections(scene, objs: list[RigidObject], transforms) -> None:
+    """Warn when an object's edges cross static triangles (checked by rays, once per pose)."""
+    from .bvh import occluded
+
+    for o, T in zip(objs, transforms):
+        v = o.scene.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        edges = v[o.scene.triangles][:, [0, 1, 2]], v[o.scene.triangles][:, [1, 2, 0]]
+        start, end = edges[0].reshape(-1, 3), edges[1].reshape(-1, 3)
+        d = end - start
+        hit = occluded(scene, start, d, np.float32(1.0))
+        if hit.any():
+            warnings.warn(
+                f"object {o.name!r} intersects the static scene ({int(hit.sum())} of its edges cross static "
+                "triangles): light leaks through the cut", ObjectIntersectionWarning, stacklevel=3)
+
+
+def with_objects(scene, objects):
+    """A plain static Scene: ``scene``'s N patches, then each object's at its current pose.
+
+    Its BVH is built over the combined geometry on first use; form factors, solves and renders
+    of it are the references a moving object is compared against.
+    """
+    return _combined(scene, _objects(objects))
+
+
+def instanced(scene, objects, transforms=None, bvh=None):
+    """The combined Scene of :func:`with_objects`, traced through a two-level BVH.
+
+    Patch arrays (centres, normals, points) are those at ``transforms`` (default: the objects'
+    poses); the returned scene's ``bvh`` is an :class:`~pydynrad.bvh.InstancedBVH` holding
+    those poses: ``bvh`` when given (one made by an earlier call with the same objects, moved
+    in place, so an earlier view's BVH moves with it), else a new one. Warns
+    :class:`ObjectIntersectionWarning` when an object cuts through the static scene.
+    """
+    from .bvh import InstancedBVH
+
+    objs = _objects(objects)
+    transforms = [o.transform for o in objs] if transforms is None else [rigid_transform(t) for t in transforms]
+    _warn_intersections(scene, objs, transforms)
+    out = _combined(scene, objs, transforms)
+    if bvh is None:
+        trees = [o.device_bvh(scene.frame.unit) for o in objs]
+        bvh = InstancedBVH(scene.bvh, [t for t, _ in trees], transforms, scene.frame, [c for _, c in trees])
+    else:
+        bvh.set_transforms(transforms)
+    # The static scene's device frame, the one its tree and every upload of positions are in.
+    out.__dict__["frame"] = scene.frame
+    out.__dict__["bvh"] = bvh
+    return out

@@ -1,0 +1,258 @@
+"""Moving objects in DynamicRadiosity: a move is an exact batched swap of the objects' patches
+and of the rows it changes most; with every changed row refreshed, K is a fresh build's.
+
+Truths: a full solve of the world at the final pose from scratch (fresh hemicubes, float64),
+and the same F with the rows a limited budget leaves stale, solved densely in numpy.
+"""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import pydynrad as pd
+from pydynrad.dynamic.moves import capped, sphere_solid_angle, with_reciprocal_columns
+from pydynrad.objects import instanced
+
+from helpers import dense_K, dense_radiosity, rel
+
+R = 16
+OBSERVER = (278.0, 273.0, 0.0)
+LIGHTS = [pd.PointLight((278.0, 500.0, 280.0), (3e5, 3e5, 3e5))]
+
+
+def pose(angle_deg, at):
+    c, s = np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))
+    T = np.eye(4)
+    T[:3, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
+    T[:3, 3] = at
+    return T
+
+
+START, MIDDLE, END = pose(0, (150.0, 300.0, 400.0)), pose(30, (250.0, 420.0, 300.0)), pose(70, (380.0, 420.0, 150.0))
+
+
+@pytest.fixture(scope="module")
+def box():
+    return pd.scenes.cornell_box(max_edge=200.0)
+
+
+@pytest.fixture(scope="module")
+def block():
+    return pd.scenes.block(100.0, 1, albedo=(0.1, 0.7, 0.1))  # green: it bleeds onto the floor
+
+
+@pytest.fixture(scope="module")
+def lamp():
+    return pd.scenes.block(40.0, 0, albedo=0.5, emission=(30.0, 30.0, 20.0))
+
+
+def full_solve(box, objects, device):
+    """B of the world from scratch: fresh hemicubes of every patch, solved in float64."""
+    world = instanced(box, objects)
+    F = pd.form_factors(world, R, device=device)
+    return world, F, dense_radiosity(world, F, pd.light_vector(world, LIGHTS, device=device))
+
+
+def test_unlimited_budget_equals_full_solve(box, block, lamp, device):
+    """Two objects (one emitting), moved twice, in chunks of 8 swaps: B is the full solve's."""
+    obj, carried = pd.RigidObject(block, START), pd.RigidObject(lamp, pose(0, (400.0, 300.0, 120.0)))
+    n = len(box) + len(block) + len(lamp)
+    dyn = pd.DynamicRadiosity(box, None, local_size=n, resolution=R, objects=[obj, carried], occlusion=None,
+                              max_swaps_per_frame=8, observer=OBSERVER, device=device)
+    assert len(dyn.scene) == n and dyn.scene.n_patches == n
+    for T, U in ((MIDDLE, pose(10, (300.0, 200.0, 100.0))), (END, pose(45, (150.0, 250.0, 150.0)))):
+        dyn.move(obj, T)
+        dyn.move(carried, U)
+        st = dyn.update(OBSERVER)
+        assert st.moved == 2 and st.rows_refreshed > 0 and st.t_move > 0
+    world, F, B_ref = full_solve(box, [obj, carried], device)
+    B = dyn.radiosity(LIGHTS)
+    assert rel(B, B_ref) < 2e-6  # fp32 K; observed 3e-8 (PoCL, Xeon, 2026-12-02)
+    np.testing.assert_allclose(dyn.matrix.to_host(), dense_K(world, F, dyn.local_patches), atol=1e-6, rtol=0)
+    # Against the static copy (one BVH over everything): a grazing hemicube pixel may see the
+    # neighbouring patch, so the two F differ in a few pixels' worth.
+    ref = box.with_objects([obj, carried])
+    F_flat = pd.form_factors(ref, R, device=device)
+    assert rel(B, dense_radiosity(ref, F_flat, pd.light_vector(ref, LIGHTS, device=device))) < 3e-3
+    # The objects receive light and reflect it: green bleeds onto the floor next to the block.
+    n_box = len(box)
+    assert B[n_box:n_box + len(block)].max() > 0
+    floor = np.flatnonzero((box.normals[:, 1] > 0.99) & (box.centers[:, 1] < 1.0))
+    without = dense_radiosity(box, pd.form_factors(box, R, device=device), pd.light_vector(box, LIGHTS, device=device))
+    near = floor[np.argsort(np.linalg.norm(box.centers[floor] - END[:3, 3], axis=1))[:4]]
+    green = lambda b: b[near, 1] / b[near].sum(axis=1)
+    assert np.all(green(B) > green(without))
+
+
+def test_budget_trades_error(box, block, device):
+    """One move with a row budget: B is exactly the dense solve of the F that budget leaves
+    (stale rows for the patches not refreshed, object columns by reciprocity), and the error
+    against the full solve falls as the budget rises."""
+    n_box = len(box)
+    n = n_box + len(block)
+    start = pd.RigidObject(block, START)
+    F0 = pd.form_factors(instanced(box, [start]), R, device=device).toarray().astype(np.float64)
+    end = pd.RigidObject(block, END)
+    world, F1, B_ref = full_solve(box, [end], device)
+    F1 = F1.toarray().astype(np.float64)
+    L = pd.light_vector(world, LIGHTS, device=device)
+    score = sum(sphere_solid_angle(box.centers, box.normals, *o.bounding_sphere()) for o in (start, end))
+    ranked = np.argsort(-score, kind="stable")
+    A = world.areas.astype(np.float64)
+    recip = (F1[n_box:, :n_box] * A[n_box:, None]).T / A[:n_box, None]
+    stale = F1.copy()
+    stale[:n_box, :n_box] = F0[:n_box, :n_box]
+    stale[:n_box, n_box:] = recip
+    over = np.flatnonzero(stale[:n_box].sum(axis=1) > 1.0)  # rows summing above 1: the static part scaled to 1
+    stale[over, :n_box] *= ((1.0 - recip[over].sum(axis=1)) / F0[over, :n_box].sum(axis=1))[:, None]
+    errors = []
+    for budget in (0, 64, 160, None):
+        obj = pd.RigidObject(block, START)
+        dyn = pd.DynamicRadiosity(box, None, local_size=n, resolution=R, objects=[obj], occlusion=budget,
+                                  observer=OBSERVER, device=device)
+        dyn.move(obj, END)
+        st = dyn.update(OBSERVER)
+        B = dyn.radiosity(LIGHTS)
+        k = int((score > 0).sum()) if budget is None else budget
+        assert st.rows_refreshed == k
+        model = stale.copy()
+        model[ranked[:k]] = F1[ranked[:k]]
+        assert rel(B, dense_radiosity(world, model, L)) < 2e-6  # observed <= 7e-8
+        errors.append(rel(B[:n_box], B_ref[:n_box]))
+    assert errors[0] > errors[1] > errors[2] > errors[3]
+    assert errors[0] < 0.03 and errors[3] < 2e-6  # observed 0.0086, 0.0085, 0.0080, 3e-8 (PoCL, Xeon, 2026-12-02)
+
+
+def test_reciprocal_columns():
+    rows = sp.csr_matrix(np.array([[0.0, 0.2, 0.3, 0.1, 0.1], [0.4, 0.0, 0.4, 0.0, 0.0], [0.1, 0.1, 0.0, 0.2, 0.0]]))
+    objects = sp.csr_matrix(np.array([[0.2, 0.1, 0.0, 0.0, 0.0], [0.1, 0.3, 0.0, 0.0, 0.0]]))  # patches 3, 4
+    areas = np.array([1.0, 2.0, 1.0, 2.0, 2.0])
+    obj = np.array([3, 4])
+    # F[s, o] = A_o F[o, s] / A_s: (0.4, 0.2), (0.1, 0.3), (0, 0).
+    recip = with_reciprocal_columns(rows, np.array([0, 1, 2]), objects, obj, areas)
+    np.testing.assert_allclose(recip.toarray(), [[0.0, 0.2, 0.3, 0.4, 0.2], [0.4, 0.0, 0.4, 0.1, 0.3],
+                                                 [0.1, 0.1, 0.0, 0.0, 0.0]], rtol=1e-12)
+    # Rows 0 and 1 sum to 1.1 and 1.2: their other entries are scaled by 0.4 / 0.5 and 0.6 / 0.8.
+    out, scaled = capped(recip, obj)
+    expect = [[0.0, 0.16, 0.24, 0.4, 0.2], [0.3, 0.0, 0.3, 0.1, 0.3], [0.1, 0.1, 0.0, 0.0, 0.0]]
+    np.testing.assert_allclose(out.toarray(), expect, rtol=1e-12)
+    np.testing.assert_array_equal(scaled, [True, True, False])
+    # A target: each row keeps its sum before the objects' columns (0.7, 0.8, 0.4).
+    out, scaled = capped(recip, obj, target=[0.7, 0.8, 0.4])
+    expect = [[0.0, 0.04, 0.06, 0.4, 0.2], [0.2, 0.0, 0.2, 0.1, 0.3], [0.2, 0.2, 0.0, 0.0, 0.0]]
+    np.testing.assert_allclose(out.toarray(), expect, rtol=1e-12)
+    np.testing.assert_array_equal(scaled, [True, True, True])
+
+
+@pytest.mark.parametrize("budget", [0, None])
+def test_away_and_back_restores_K(box, block, device, budget):
+    obj = pd.RigidObject(block, START)
+    dyn = pd.DynamicRadiosity(box, None, local_size=len(box) + len(block), resolution=R, objects=[obj],
+                              occlusion=budget, observer=OBSERVER, device=device)
+    # From the first move on, the rows a budget leaves stale are the same at every pose (the
+    # built ones) and the objects' own rows and columns are those of the pose.
+    dyn.move(obj, END)
+    dyn.update(OBSERVER)
+    K_end = dyn.matrix.to_host()
+    for T in (MIDDLE, START, END):
+        dyn.move(obj, T)
+        dyn.update(OBSERVER)
+    np.testing.assert_allclose(dyn.matrix.to_host(), K_end, atol=2e-6, rtol=0)  # observed 1e-7
+
+
+def test_static_form_factors_with_objects(box, block, device):
+    """A precomputed static F: object rows by hemicube, their columns by reciprocity; M < N
+    keeps every object patch local while the observer moves."""
+    F_static = pd.form_factors(box, R, device=device)
+    obj = pd.RigidObject(block, START)
+    M = len(block) + 100
+    dyn = pd.DynamicRadiosity(box, F_static, local_size=M, resolution=R, objects=[obj], occlusion=16,
+                              observer=OBSERVER, device=device)
+    objects = np.arange(len(box), len(box) + len(block))
+    assert np.isin(objects, dyn.local_patches).all()
+    dyn.move(obj, END)
+    dyn.update((278.0, 100.0, 500.0))
+    dyn.update((100.0, 400.0, 500.0))
+    assert np.isin(objects, dyn.local_patches).all()
+    # K is a fresh build over the kept rows: the update is exact whatever the rows are.
+    S = dyn.local_patches
+    Fs = dyn._ff.square(S).toarray()
+    K = np.stack([np.linalg.solve(np.eye(M) - Fs * dyn.scene.albedo[S, c][None, :], Fs) for c in range(3)])
+    assert rel(dyn.matrix.to_host(), K) < 2e-6
+    B = dyn.radiosity(LIGHTS)
+    assert np.all(np.isfinite(B)) and B[objects].max() > 0
+
+
+def test_bad_input(box, block, device):
+    obj = pd.RigidObject(block, START)
+    dyn = pd.DynamicRadiosity(box, None, local_size=len(box), resolution=R, objects=[obj], observer=OBSERVER,
+                              device=device)
+    with pytest.raises(pd.InvalidInputError, match="not rigid"):
+        dyn.move(obj, np.diag([1.0, 2.0, 1.0, 1.0]))
+    with pytest.raises(pd.InvalidInputError, match="NaN"):
+        dyn.move(obj, np.full((4, 4), np.nan))
+    with pytest.raises(pd.InvalidInputError, match="never added"):
+        dyn.move(pd.RigidObject(block), END)
+    with pytest.raises(pd.InvalidInputError, match="more than local_size"):
+        pd.DynamicRadiosity(box, None, local_size=len(block) - 1, objects=[obj], device=device)
+    with pytest.raises(pd.InvalidInputError, match="update='exact'"):
+        pd.DynamicRadiosity(box, None, local_size=len(box), objects=[obj], update="paper", device=device)
+    with pytest.raises(pd.InvalidInputError, match="occlusion"):
+        pd.DynamicRadiosity(box, None, local_size=len(box), objects=[obj], occlusion=-1, device=device)
+    dyn.move(obj, pose(0, (350.0, 200.0, 330.0)))  # through the tall block: allowed, warned
+    with pytest.warns(pd.ObjectIntersectionWarning):
+        dyn.update(OBSERVER)
+
+
+def test_precomputed_poses(box, block, device):
+    """The paper's variant: rows of each pose precomputed; a move there takes them (no hemicube
+    for a row the store holds) and gives what hemicubes at the move would."""
+    n = len(box) + len(block)
+    poses = pd.precompute_poses(box, [pd.RigidObject(block)], [START, END], resolution=R, device=device)
+    assert len(poses) == 2 and poses.nbytes > 0
+    runs = []
+    for stored in (poses, None):
+        obj = pd.RigidObject(block, START)
+        dyn = pd.DynamicRadiosity(box, None, local_size=n, resolution=R, objects=[obj], occlusion=None, poses=stored,
+                                  observer=OBSERVER, device=device)
+        stats = []
+        for T in (END, MIDDLE, START):
+            dyn.move(obj, T)
+            stats.append(dyn.update(OBSERVER))
+        runs.append((dyn.radiosity(LIGHTS), stats))
+    (B, st), (B_hc, st_hc) = runs
+    np.testing.assert_array_equal(B, B_hc)  # the same rows, the same swaps
+    assert st_hc[0].hemicubes == len(block) + st_hc[0].rows_refreshed
+    # Stored poses: hemicubes only for the rows that saw the old pose and not this one.
+    assert st[0].hemicubes < st_hc[0].hemicubes // 2 and st[2].hemicubes < st_hc[2].hemicubes // 2
+    assert st[1].hemicubes == st_hc[1].hemicubes  # MIDDLE was not precomputed
+    with pytest.raises(pd.InvalidInputError, match="R = 32"):
+        pd.DynamicRadiosity(box, None, local_size=n, resolution=32, objects=[pd.RigidObject(block, START)],
+                            poses=poses, device=device)
+    with pytest.raises(pd.InvalidInputError, match="objects= too"):
+        pd.DynamicRadiosity(box, None, local_size=n, resolution=R, poses=poses, device=device)
+
+
+def test_object_track_and_walk(box, block, device):
+    """walk with a keyframed block: each frame moves it, renders the world as it is, and the
+    reference frames' full solves (fresh hemicubes of that world) agree with dynamic radiosity."""
+    obj = pd.RigidObject(block, START)
+    straight = pd.ObjectTrack(obj, [START, END], interpolation="linear")
+    np.testing.assert_array_equal(straight.at(0, 3), START)
+    np.testing.assert_array_equal(straight.at(2, 3), END)
+    half = straight.at(1, 3)
+    np.testing.assert_allclose(half[:3, 3], 0.5 * (START[:3, 3] + END[:3, 3]), atol=1e-9)
+    np.testing.assert_allclose(half[:3, :3], pose(35, (0, 0, 0))[:3, :3], atol=1e-12)  # halfway between 0 and 70 deg
+    track = pd.ObjectTrack(obj, [START, MIDDLE, END])  # three frames: one on each keyframe
+    path = pd.fly_through([(278.0, 273.0, -300.0), (278.0, 273.0, -250.0)], frames=3, fov_y=40, width=24, height=18)
+    n = len(box) + len(block)
+    dyn = pd.DynamicRadiosity(box, None, local_size=n, resolution=R, objects=[obj], occlusion=None,
+                              observer=path.camera(0).position, device=device)
+    result = pd.walk(box, path, dyn, lights=LIGHTS, objects=[track], reference_frames=[0, 2], device=device)
+    np.testing.assert_array_equal(obj.transform, END)
+    errors = [f.error for f in result.frames if f.error is not None]
+    assert len(errors) == 2 and max(errors) < 2e-5  # fp32 K vs the walk's float32 full solve; observed 3.6e-6
+    with pytest.raises(pd.InvalidInputError, match="ObjectTrack"):
+        pd.walk(box, path, dyn, objects=[obj], device=device)
+    with pytest.raises(pd.InvalidInputError, match="not rigid"):
+        pd.ObjectTrack(obj, [START, np.diag([1.0, 1.0, 3.0, 1.0])])

@@ -1,0 +1,172 @@
+"""Rigid objects and the two-level BVH: an instanced object is seen exactly where a static copy is.
+
+Every ray user (hemicubes, shadow rays, primary visibility, the path tracer) is compared with
+the same geometry built as one static scene (``Scene.with_objects``).
+"""
+
+import numpy as np
+import pytest
+
+import pydynrad as pd
+from pydynrad.bvh import cast_rays
+from pydynrad.formfactors import pixel_form_factors
+from pydynrad.objects import instanced
+
+R = 32
+
+
+def pose(angle_deg=0.0, at=(150.0, 300.0, 400.0)):
+    c, s = np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))
+    T = np.eye(4)
+    T[:3, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]  # about y
+    T[:3, 3] = at
+    return T
+
+
+@pytest.fixture(scope="module")
+def box():
+    return pd.scenes.cornell_box(max_edge=200.0)
+
+
+@pytest.fixture(scope="module")
+def block():
+    return pd.scenes.block((120.0, 80.0, 100.0), 1, albedo=(0.2, 0.6, 0.3))
+
+
+def test_rigid_transform_refused(block):
+    for bad, msg in [(np.diag([2.0, 1, 1, 1]), "not rigid"), (np.diag([-1.0, 1, 1, 1]), "mirrors"),
+                     (np.full((4, 4), np.nan), "NaN"), (np.eye(3), r"\(4, 4\)")]:
+        with pytest.raises(pd.InvalidInputError, match=msg):
+            pd.RigidObject(block, transform=bad)
+    shear = np.eye(4)
+    shear[0, 1] = 0.01
+    with pytest.raises(pd.InvalidInputError, match="not rigid"):
+        pd.RigidObject(block, transform=shear)
+    projective = np.eye(4)
+    projective[3, 0] = 0.5
+    with pytest.raises(pd.InvalidInputError, match="last row"):
+        pd.RigidObject(block, transform=projective)
+    with pytest.raises(pd.InvalidInputError, match="RigidObject"):
+        pd.scenes.cornell_box(max_edge=None).with_objects([block])
+
+
+def test_with_objects_numbering(box, block):
+    a, b = pd.RigidObject(block, pose(30)), pd.RigidObject(block, pose(0, (400.0, 450.0, 150.0)))
+    both = box.with_objects([a, b])
+    n, m = len(box), len(block)
+    assert len(both) == n + 2 * m
+    np.testing.assert_array_equal(both.centers[:n], box.centers)
+    T = pose(0, (400.0, 450.0, 150.0))
+    np.testing.assert_allclose(both.centers[n + m:], block.centers @ T[:3, :3].T + T[:3, 3], atol=1e-3)
+    np.testing.assert_allclose(both.areas[n:n + m], block.areas, rtol=1e-5)
+    np.testing.assert_array_equal(both.albedo[n:n + m], block.albedo)
+
+
+@pytest.mark.parametrize("offset", [0.0, 3e6])
+def test_hemicube_rows_match_static_copy(box, block, device, offset):
+    """Also far from the origin: object trees share the static scene's device frame."""
+    if offset:
+        box = pd.Scene(box.points + offset, box.triangles, box.albedo, box.emission, name="far box")
+    obj = pd.RigidObject(block, pose(30, (150.0 + offset, 300.0 + offset, 400.0 + offset)))
+    ref = pd.form_factors(box.with_objects([obj]), R, device=device)
+    inst = pd.form_factors(instanced(box, [obj]), R, device=device)
+    assert ref.shape == inst.shape == (len(box) + len(block),) * 2
+    diff = abs(ref - inst)
+    # Rays are moved into object space in float32, so a pixel whose ray grazes an edge may see
+    # the neighbouring patch: at most a couple of pixels in all, each one pixel's weight.
+    assert diff.max() <= 1.01 * pixel_form_factors(R).max()
+    assert (diff > 1e-6).nnz <= 4
+    assert ref[len(box):].sum() > 0.9 * len(block)  # the object's rows are there and see the box
+
+
+def test_shadow_follows_object(box, block, device):
+    """A point light's shadow of the object on the floor moves with it, exactly."""
+    light = [pd.PointLight((278.0, 540.0, 280.0), (1e6, 1e6, 1e6))]
+    floor = np.flatnonzero(box.normals[:, 1] > 0.99)
+    floor = floor[box.centers[floor, 1] < 1.0]
+    shadows = []
+    for T in (pose(0, (200.0, 300.0, 300.0)), pose(45, (380.0, 250.0, 150.0))):
+        obj = pd.RigidObject(block, T)
+        ref, inst = box.with_objects([obj]), instanced(box, [obj])
+        E_ref = pd.direct_irradiance(ref, light, device=device)
+        E_inst = pd.direct_irradiance(inst, light, device=device)
+        np.testing.assert_array_equal(E_inst, E_ref)
+        # Independent truth: a floor centre is shadowed where the segment to the light crosses
+        # the object's triangles, tested in numpy (Moller-Trumbore in float64).
+        v = obj.world_points()[block.triangles]
+        p = box.centers[floor].astype(np.float64)
+        d = np.asarray(light[0].position) - p
+        e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+        pv = np.cross(d[:, None], e2[None])
+        det = np.einsum("tk,ntk->nt", e1, pv)
+        s = p[:, None] - v[None, :, 0]
+        u = np.einsum("ntk,ntk->nt", s, pv) / det
+        q = np.cross(s, e1[None])
+        w = np.einsum("nk,ntk->nt", d, q) / det
+        t = np.einsum("tk,ntk->nt", e2, q) / det
+        blocked = np.any((u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0) & (t < 1), axis=1)
+        lit = E_inst[floor].max(axis=1) > 0
+        assert blocked.any() and (~blocked).any()
+        # The static box shadows nothing on the floor at these centres except its own blocks.
+        static_lit = pd.direct_irradiance(box, light, device=device)[floor].max(axis=1) > 0
+        np.testing.assert_array_equal(lit, static_lit & ~blocked)
+        shadows.append(lit)
+    assert (shadows[0] != shadows[1]).any()
+
+
+def test_rays_and_render_match_static_copy(box, block, device):
+    obj = pd.RigidObject(block, pose(60, (280.0, 420.0, 300.0)))
+    ref, inst = box.with_objects([obj]), instanced(box, [obj])
+    cam = pd.Camera(position=(278.0, 273.0, -800.0), look_at=(278.0, 273.0, 280.0), fov_y=40, width=48, height=40)
+    B = np.random.default_rng(1).random((len(ref), 3))
+    img_ref = pd.render(ref, B, cam, device=device)
+    img_inst = pd.render(inst, B, cam, device=device)
+    bad = np.any(np.abs(img_ref - img_inst) > 1e-5, axis=2)
+    assert bad.sum() <= 2  # a ray along a shared edge may pick the other triangle
+    hit_obj = pd.render(inst, np.r_[np.zeros((len(box), 3)), np.ones((len(block), 3))], cam, shading="flat",
+                        device=device)
+    assert hit_obj.max() == 1.0  # the object is in view
+
+    rng = np.random.default_rng(2)
+    o = np.tile([278.0, 273.0, 100.0], (500, 1)) + rng.normal(0, 20, (500, 3))
+    d = rng.normal(size=(500, 3))
+    p_ref, t_ref, f_ref = cast_rays(ref, o, d, device=device)
+    p_inst, t_inst, f_inst = cast_rays(inst, o, d, device=device)
+    same = p_ref == p_inst
+    assert same.mean() > 0.99 and np.isin(p_inst, np.arange(len(box), len(ref))).any()
+    np.testing.assert_allclose(t_inst[same], t_ref[same], rtol=1e-4)
+    np.testing.assert_array_equal(f_inst[same], f_ref[same])
+    np.testing.assert_array_equal(pd.bvh.occluded(inst, o, d, 300.0, device=device),
+                                  pd.bvh.occluded(ref, o, d, 300.0, device=device))
+
+
+def test_path_tracer_sees_object(box, block, device):
+    """Same seed, same paths: the path tracer's image of the instanced scene is the static copy's."""
+    obj = pd.RigidObject(block, pose(20, (280.0, 420.0, 300.0)))
+    ref, inst = box.with_objects([obj]), instanced(box, [obj])
+    cam = pd.Camera(position=(278.0, 273.0, -800.0), look_at=(278.0, 273.0, 280.0), fov_y=40, width=16, height=12)
+    a = pd.path_trace(ref, cam, spp=2, seed=3, device=device)
+    b = pd.path_trace(inst, cam, spp=2, seed=3, device=device)
+    close = np.all(np.abs(a - b) <= 1e-3 * (1 + np.abs(a)), axis=2)
+    assert close.mean() > 0.97  # a path that grazes an edge diverges from there on
+
+
+def test_move_rewrites_table_only(box, block, device):
+    obj = pd.RigidObject(block, pose(0))
+    first = instanced(box, [obj])
+    bvh = first.bvh
+    nodes_before = bvh.nodes.copy()
+    pd.form_factors(first, 8, rows=[0], device=device)  # uploads the buffers
+    obj.transform = pose(45, (380.0, 250.0, 150.0))
+    moved = instanced(box, [obj], bvh=bvh)
+    assert moved.bvh is bvh
+    changed = np.flatnonzero(np.any(nodes_before.view(np.int32) != bvh.nodes.view(np.int32), axis=1))
+    assert len(changed) and changed.min() * 8 >= bvh._table_float4  # only the instance table
+    ref = pd.form_factors(box.with_objects([obj]), R, rows=np.arange(len(box), len(moved)), device=device)
+    got = pd.form_factors(moved, R, rows=np.arange(len(box), len(moved)), device=device)
+    assert (abs(ref - got) > 1e-6).nnz <= 4
+
+
+def test_intersection_warned(box, block):
+    with pytest.warns(pd.ObjectIntersectionWarning, match="intersects"):
+        instanced(box, [pd.RigidObject(block, pose(0, (350.0, 200.0, 330.0)))])  # through the tall block
