@@ -161,15 +161,16 @@ class FarField:
         else:
             self.weights = None
             Pr = clusters.indicator()
-        if G is None:
+        given = G is not None
+        if not given:
             G = F @ Pr
         G = sp.csr_matrix(G, dtype=np.float64)
         if G.shape != (n, C):
             raise InvalidInputError(f"G must have shape ({n}, {C}) (patches x clusters); got {G.shape}")
         if G.nnz and (not np.all(np.isfinite(G.data)) or G.data.min() < 0):
             raise InvalidInputError("G must hold finite, non-negative form factors")
-        rows = np.asarray(G.sum(axis=1)).ravel()
-        if rows.max(initial=0.0) > 1.0 + ROW_SUM_SLACK:  # a row of G is a row of F summed by cluster
+        rows = np.asarray(G.sum(axis=1)).ravel() if given else np.zeros(0)
+        if rows.max(initial=0.0) > 1.0 + ROW_SUM_SLACK:  # a given row of G is a row of F summed by cluster
             i = int(rows.argmax())
             raise InvalidInputError(f"row {i} of G sums to {rows[i]:.6g} > 1: not this scene's form factors summed by "
                                     "cluster")
