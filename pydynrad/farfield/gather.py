@@ -10,9 +10,9 @@ block of rows ever exists, whatever N.
 Prolongations. ``Pr`` (N, C) maps cluster values to patches: the indicator one (Pr[i, c] = 1
 for i in c) or a weighted one (Pr_w[i, c] = w_i / mean_c(w)). With one entry per row, as both
 have, the device records cluster ids and weighs each pixel by its patch's entry. A row of G
-then costs about what a row of F does at the same resolution (the rays dominate: 0.75-1.05x at
+then costs about what a row of F does at the same resolution (the rays dominate: 0.55-1.1x at
 R >= 24 on the PoCL CPU), and 5-45% less than F's patch runs weighted on the host
-(bench/gather.py, 2026-12-01). A prolongation with several entries in a row (a patch shared by
+(bench/gather.py, 2026-12-01/02). A prolongation with several entries in a row (a patch shared by
 clusters) takes that host path: F's block, then a sparse product.
 """
 
