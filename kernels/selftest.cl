@@ -8,6 +8,10 @@
 this line is not OpenCL C;
 #endif
 
+#ifdef SELFTEST_WARN
+#warning "selftest: a build that succeeds with a non-empty log"
+#endif
+
 __kernel void scale(__global float *x)
 {
     const size_t i = get_global_id(0);

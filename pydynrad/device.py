@@ -8,13 +8,23 @@ One place decides which device runs the kernels and builds each program once per
 
 Programs are read from the ``.cl`` files shipped as package data (``pydynrad.kernels``),
 built with ``-I <kernel dir>`` so sources can ``#include`` shared helpers, and cached per
-(context, file, defines). pyopencl's binary cache is used where it helps; PoCL keeps its own.
+(context, file, defines). pyopencl's binary cache is used where it helps; PoCL keeps its own,
+in ``POCL_CACHE_DIR`` (set here to a writable per-user folder when the user has not chosen one,
+so a second run reuses the compiled work-group functions instead of compiling them again
+inside the first frames).
+
+Compiler output (build logs, pyopencl's ``CompilerWarning``) stays silent unless the user asks
+for it with ``PYOPENCL_COMPILER_OUTPUT=1`` or ``PYDYNRAD_DEBUG=1``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
+import tempfile
 import threading
+import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 from importlib import resources
@@ -29,6 +39,63 @@ if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays
     import pyopencl as cl
 
 __all__ = ["Device", "default_device", "kernel_dir", "list_devices", "real_dtype"]
+
+
+def _writable(folder: Path) -> bool:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        return os.access(folder, os.W_OK)
+    except OSError:
+        return False
+
+
+def _use_pocl_cache() -> None:
+    """Point PoCL's kernel cache at a writable folder unless ``POCL_CACHE_DIR`` is set.
+
+    PoCL compiles each kernel's work-group function at its first launch (per local size) and
+    caches it on disk; without a writable cache every run compiles again. Must run before
+    PoCL is loaded (the first pyopencl platform query)."""
+    if os.environ.get("POCL_CACHE_DIR"):
+        return
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    for folder in (base / "pocl", Path(tempfile.gettempdir()) / f"pocl-cache-{getattr(os, 'getuid', lambda: 0)()}"):
+        if _writable(folder):
+            os.environ["POCL_CACHE_DIR"] = str(folder)
+            return
+
+
+def compiler_output_wanted() -> bool:
+    """Whether build logs are shown: ``PYOPENCL_COMPILER_OUTPUT=1`` or ``PYDYNRAD_DEBUG=1``."""
+    return any(os.environ.get(v, "0") not in ("", "0") for v in ("PYOPENCL_COMPILER_OUTPUT", "PYDYNRAD_DEBUG"))
+
+
+class _Printed:
+    text = ""
+
+
+@contextlib.contextmanager
+def _captured_stderr():
+    """Collect what is written to file descriptor 2 meanwhile (PoCL's clang prints its
+    diagnostics, "N warnings generated", there directly, past Python's sys.stderr).
+
+    Only around a build, under the program lock: the build blocks the thread that would
+    otherwise print, so little else can land here."""
+    out = _Printed()
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no real fd 2 (an embedding host): nothing to capture
+        yield out
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield out
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            out.text = tmp.read().decode(errors="replace")
 
 
 def kernel_dir() -> Path:
@@ -112,10 +179,18 @@ class Device:
                 raise KernelBuildError(f"cannot read kernel source {path}: {exc}") from exc
             options = ["-I", str(kernel_dir()), *opts]
             try:
-                prg = cl.Program(self.context, src).build(options=options)
+                with warnings.catch_warnings(), _captured_stderr() as printed:
+                    warnings.simplefilter("ignore", cl.CompilerWarning)
+                    prg = cl.Program(self.context, src).build(options=options)
             except cl.RuntimeError as exc:
                 # pyopencl puts each device's build log into the message.
                 raise KernelBuildError(f"OpenCL build of {filename} failed on {self.name}", str(exc)) from exc
+            if compiler_output_wanted():
+                log = str(prg.get_build_info(self.cl_device, cl.program_build_info.LOG) or "").strip()
+                text = "\n".join(t for t in (log, printed.text.strip()) if t)
+                if text:
+                    warnings.warn(f"build log of {filename} {' '.join(opts)} on {self.name}:\n{text}", cl.CompilerWarning,
+                                  stacklevel=2)
             self._programs[key] = prg
             return prg
 
@@ -155,6 +230,7 @@ _default_lock = threading.Lock()
 
 
 def _pick_cl_device():
+    _use_pocl_cache()
     import pyopencl as cl
 
     if os.environ.get("PYOPENCL_CTX"):

@@ -31,7 +31,7 @@ import numpy as np
 
 from .checks import floats, number, scene as checked_scene, unit_vector, vec3
 from .errors import InvalidInputError
-from .launch import global_size
+from .launch import WG, global_size
 
 __all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "point_irradiance", "light_vector",
            "pack_lights", "pack_light_tables", "checked_lights", "checked_light_vector", "resolve_light"]
@@ -227,7 +227,7 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
     # Directional shadow rays need only reach past the scene: twice its diagonal (plus the
     # farthest sensor's distance outside it).
     kernel(
-        device.queue, (global_size(n),), None, np.int32(n), centers, normals, np.int32(len(packed)),
+        device.queue, (global_size(n),), (WG,), np.int32(n), centers, normals, np.int32(len(packed)),
         device.to_device(packed), device.to_device(pack_light_tables(lights)), nodes, tris,
         np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
         np.float32(scene.frame.length(2.0 * scene.scale + outside)), out_dev,

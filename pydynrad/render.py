@@ -27,7 +27,7 @@ import numpy as np
 from .camera import Camera
 from .checks import number, scene as checked_scene
 from .errors import InvalidInputError
-from .launch import global_size
+from .launch import WG, global_size
 from .smoothing import checked_radiosity as _as_radiosity, smooth_vertices, smoothing_groups
 
 __all__ = ["Renderer", "Visibility", "render", "smoothing_groups", "SHADINGS"]
@@ -103,7 +103,7 @@ class Renderer:
         d_uvf = cl.Buffer(dev.context, mf.WRITE_ONLY, 16 * n_pix)
         d_depth = cl.Buffer(dev.context, mf.WRITE_ONLY, 4 * n_pix)
         knl = dev.kernel("render.cl", "primary_visibility")
-        knl(dev.queue, (global_size(n_pix),), None, nodes, tris, order, origin, d_dirs, np.int32(n_pix), d_patch, d_uvf,
+        knl(dev.queue, (global_size(n_pix),), (WG,), nodes, tris, order, origin, d_dirs, np.int32(n_pix), d_patch, d_uvf,
             d_depth)
         patch = np.empty(n_pix, dtype=np.int32)
         uvf = np.empty((n_pix, 4), dtype=np.float32)
@@ -121,6 +121,15 @@ class Renderer:
             front=(uvf[:, 2] > 0.5).reshape(h, w) & hit.reshape(h, w),
             depth=(depth * np.float32(self.scene.frame.unit)).reshape(h, w),
         )
+
+    def warm_up(self) -> None:
+        """Trace an 8 x 8 image once, so that the first :meth:`render` of a frame loop does not
+        wait for PoCL to compile the visibility kernel (compiled at its first launch, per
+        local size: every launch uses the same one)."""
+        corners = self.scene.vertices.reshape(-1, 3)
+        lo, hi = corners.min(axis=0), corners.max(axis=0)
+        centre = 0.5 * (lo + hi)
+        self.visibility(Camera(centre + (hi - lo), centre, width=8, height=8))
 
     def corner_radiosity(self, radiosity) -> np.ndarray:
         """(N, 3, 3) smoothed radiosity at each patch corner (patch, corner, channel)."""

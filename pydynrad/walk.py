@@ -203,6 +203,7 @@ def walk(
         _format_for(out_dir / f"frame.{image_format}")  # reject a bad format before any work
         out_dir.mkdir(parents=True, exist_ok=True)
     renderer = Renderer(scene, device)
+    renderer.warm_up()
     full_F = None  # all of F in memory, read at the first reference frame
     records, images = [], []
     b = img = None

@@ -39,3 +39,38 @@ def test_build_error_carries_log(device):
         device.program("selftest.cl", {"SELFTEST_BREAK": 1})
     assert "selftest.cl" in str(info.value)
     assert info.value.build_log
+
+
+@pytest.mark.parametrize("asked", [None, "PYOPENCL_COMPILER_OUTPUT", "PYDYNRAD_DEBUG"])
+def test_compiler_output_only_when_asked(device, monkeypatch, asked):
+    import warnings
+
+    import pyopencl as cl
+
+    for var in ("PYOPENCL_COMPILER_OUTPUT", "PYDYNRAD_DEBUG"):
+        monkeypatch.delenv(var, raising=False)
+    if asked:
+        monkeypatch.setenv(asked, "1")
+    device._programs.pop(("selftest.cl", ("-DSELFTEST_WARN=1",)), None)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        device.program("selftest.cl", {"SELFTEST_WARN": 1})
+    shown = [w for w in caught if issubclass(w.category, cl.CompilerWarning)]
+    assert bool(shown) == bool(asked)
+    if asked:
+        assert "selftest: a build that succeeds" in str(shown[0].message)
+
+
+def test_pocl_cache_folder(monkeypatch, tmp_path):
+    import os
+
+    from pydynrad.device import _use_pocl_cache
+
+    monkeypatch.setenv("POCL_CACHE_DIR", str(tmp_path / "mine"))
+    _use_pocl_cache()
+    assert os.environ["POCL_CACHE_DIR"] == str(tmp_path / "mine")  # the user's choice stands
+    monkeypatch.delenv("POCL_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    _use_pocl_cache()
+    assert os.environ["POCL_CACHE_DIR"] == str(tmp_path / "cache" / "pocl")
+    assert (tmp_path / "cache" / "pocl").is_dir()

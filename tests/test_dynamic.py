@@ -392,3 +392,33 @@ def test_prefetch_time_is_its_own_field(device, setup):
         assert s.t_prefetch >= 0.2
         assert s.t_select < 0.2 and s.t_update < 0.2
         assert s.t_total == s.t_select + s.t_form_factors + s.t_update + s.t_prefetch
+
+
+@pytest.mark.parametrize("mode,storage", [("exact", "fp16"), ("paper", "fp32")])
+def test_warm_up_leaves_K_unchanged(device, setup, mode, storage):
+    """The constructor's warm-up launches every update kernel; a second one must leave K
+    bit for bit as it was, and the frames after it give what a solver never warmed gives."""
+    scene, F = setup
+    dyn = DynamicRadiosity(scene, F, local_size=48, update=mode, storage=storage, observer=[0.5, 0.5, 0.5],
+                           device=device)
+    before = dyn.matrix.to_host()
+    dyn.warm_up()
+    assert np.array_equal(dyn.matrix.to_host(), before)
+    assert np.array_equal(before, DeviceMatrix(device, dyn._fresh_K(dyn.local_patches), storage).to_host())
+
+
+def test_frames_build_no_program(device, setup):
+    """Every program the frames use is built with the solver: updates (swaps in both modes)
+    and lighting after construction add none to the device's cache."""
+    scene, F = setup
+    rng = np.random.default_rng(11)
+    for mode in ("exact", "paper"):
+        dyn = DynamicRadiosity(scene, F, local_size=48, update=mode, storage="fp16", observer=[0.5, 0.5, 0.5],
+                               device=device)
+        built = set(device._programs)
+        swaps = 0
+        for p in observer_walk(rng, 6):
+            swaps += dyn.update(p).swaps
+            dyn.radiosity([pydynrad.PointLight(p, 1.0)])
+        dyn.residual()
+        assert swaps > 0 and set(device._programs) == built

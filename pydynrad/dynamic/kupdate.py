@@ -124,6 +124,21 @@ class UpdateKernels:
         if not 1 <= n <= self.nv_max:
             raise InvalidInputError(f"between 1 and {self.nv_max} vectors per call; got {n}")
 
+    def warm_up(self) -> None:
+        """Launch every kernel once on channel 0, leaving K as it was.
+
+        PoCL compiles a kernel's work-group function at its first launch (~100 ms each on a
+        2-core CPU), which would otherwise land inside the first frame that swaps. Costs one
+        read pass and one read-write pass over one channel of K; the write-back of slot 0's
+        column and row restores the values read (a round trip through REAL is exact)."""
+        zero = np.zeros((1, self.M))
+        cols, rows = self.read_slots(0, [0])
+        self.gather(0, zero, zero)
+        self.rank_update(0, zero, zero)
+        self.write_slots(0, [0], cols, rows)
+        self.double_reflection(zero[0], zero[0], zero[0])
+        self.device.queue.finish()
+
     # -- operations -------------------------------------------------------------------------------
     def _enqueue_gather(self, channel: int, X: np.ndarray, Y: np.ndarray) -> int:
         X, Y = np.atleast_2d(X), np.atleast_2d(Y)

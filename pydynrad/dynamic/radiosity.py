@@ -319,7 +319,8 @@ class DynamicRadiosity:
 
         local_patches = np.asarray(local_patches, dtype=np.int64)
         K = self._fresh_K(local_patches, fetch)
-        if self._matrix is None:
+        first = self._matrix is None
+        if first:
             self._matrix = DeviceMatrix(self.device, K, self.storage)
             self._kernels = UpdateKernels(self._matrix, self.max_swaps)
         else:
@@ -330,6 +331,25 @@ class DynamicRadiosity:
         if self.mode == "paper":
             self._used = self._used or UsedPatches(self.M, len(self.scene))
             self._used.reset_all(self._local_mask)
+        if first:
+            self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Launch, once, every kernel that frames will use (the update's, the lighting
+        product's, the light pass's), so no frame after the first waits for PoCL to compile
+        one: K and every result are left as they were."""
+        from ..lights import PointLight
+
+        self._kernels.warm_up()
+        self.radiosity([PointLight(self.scene.centers[0], 0.0)])  # the light pass and B = L + P K L
+        self._matrix.matvec(np.zeros(self.M))  # residual()'s product (radiosity's too when C == 3)
+
+    def warm_up(self) -> None:
+        """Launch every kernel the frames will use once, leaving K as it is. Building K does this
+        (the constructor with ``observer``, else the first :meth:`update`); a second call costs
+        a read pass and a read-write pass over one channel of K and changes nothing."""
+        self._require_built()
+        self._warm_up()
 
     def refresh(self) -> None:
         """Rebuild K from scratch over the current local set and its kept rows (slots keep their
