@@ -56,19 +56,30 @@ typedef float REAL;
 typedef REALV(16) real16;
 
 // K16(p) / K16_STORE(v, p): 16 elements of K at p (64-byte aligned for fp32) as real16;
-// R16(p) / R16_STORE(v, p): the same for REAL arrays.
+// R16(p) / R16_STORE(v, p): the same for REAL arrays; K1(p, i): one element of K as REAL
+// (a plain load, without the vload_half call, where the compiler allows; p 4-byte aligned).
 #ifdef PDR_CLANG_VECTORS
 #define R16(p) (*(__global const real16 *)(p))
 #define R16_STORE(v, p) (*(__global real16 *)(p) = (v))
 #if defined(STORAGE_FP16)
 typedef __fp16 pdr_half16 __attribute__((ext_vector_type(16)));
 #define K16(p) __builtin_convertvector(*(__global const pdr_half16 *)(p), real16)
+typedef __fp16 pdr_half2 __attribute__((ext_vector_type(2)));
+// Scalar half loads need cl_khr_fp16; an aligned pair of halves does not (p 4-byte aligned).
+inline REAL pdr_half_at(__global const STORE_T *p, int i)
+{
+    const float2 f = __builtin_convertvector(*(__global const pdr_half2 *)(p + (i & ~1)), float2);
+    return (i & 1) ? f.y : f.x;
+}
+#define K1(p, i) pdr_half_at((p), (i))
 #define K16_STORE(v, p) (*(__global pdr_half16 *)(p) = __builtin_convertvector((v), pdr_half16))
 #else
 #define K16(p) R16(p)
 #define K16_STORE(v, p) R16_STORE(v, p)
+#define K1(p, i) LOAD(p, i)
 #endif
 #else
+#define K1(p, i) LOAD(p, i)
 #define R16(p) vload16(0, (p))
 #define R16_STORE(v, p) vstore16((v), 0, (p))
 #define K16(p) LOADV(16, (p), 0)

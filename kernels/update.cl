@@ -6,6 +6,8 @@
 //   gather (gather_rows on CPUs, gather_partial on GPUs) + gather_reduce :
 //       one read pass giving K X and Y K for NV vectors at once
 //   rank_update_rows (CPUs) / rank_update (GPUs) : one read-write pass, K += A B (rank NA)
+//   gather_sparse_cols + gather_sparse_rows : the same products for vectors with few non-zeros
+//       (O(M R) for R non-zero slots; the host picks them when they touch less of K)
 // and the O(M) kernels: read_slots / write_slots (columns and rows of a few slots) and
 // double_reflection (Eq. 1 of the paper).
 //
@@ -132,6 +134,70 @@ __kernel void gather_reduce(__global const REAL *rowpart, __global const REAL *c
     for (int b = 0; b < n_blocks; ++b) c += colpart[((size_t)b * NV + m) * ld + i];
     KX[(size_t)m * M + i] = r;
     YK[(size_t)m * M + i] = c;
+}
+
+// Sparse gathers. A swap batch's vectors are the entering patches' form factors, zero on all
+// but R of the M slots (the union over the batch's vectors, idx sorted ascending, padded by
+// the host with slot 0 and zero values to Rp entries). Cost O(M R NV) instead of the dense
+// gather's O(M^2 NV); K traffic: R whole rows, and per row of K at most the cache lines
+// holding idx's columns (never more than a dense pass).
+//
+// gather_sparse_cols, item i (a row of K), Rp % 16 == 0, vals (NV, Rp) row-major:
+//   KX[m*M + i] = sum_t K[i, idx[t]] vals[m*Rp + t]
+// 16 scattered entries of the row at a time form one vector, so each vector of vals feeds 16
+// products and the NV accumulators are touched once per 16 entries.
+__kernel void gather_sparse_cols(__global const STORE_T *K, const int M, const int ld, const int Rp,
+                                 __global const int *idx, __global const REAL *vals, const int NV,
+                                 __global REAL *KX)
+{
+    const int i = get_global_id(0);
+    if (i >= M) return;
+    __global const STORE_T *row = K + (size_t)i * ld;
+    real16 acc[NVMAX];
+    for (int m = 0; m < NV; ++m) acc[m] = (real16)(0);
+    for (int t0 = 0; t0 < Rp; t0 += 16) {
+        REAL kv[16];
+#pragma unroll
+        for (int r = 0; r < 16; ++r) kv[r] = K1(row, idx[t0 + r]);
+        const real16 k = vload16(0, kv);
+        for (int m = 0; m < NV; ++m) acc[m] += k * R16(vals + (size_t)m * Rp + t0);
+    }
+    for (int m = 0; m < NV; ++m) KX[(size_t)m * M + i] = HSUM(16, acc[m]);
+}
+
+// gather_sparse_rows, item g (columns j = 16g..16g+15 of K), Rp % RR == 0, vals (Rp, NV):
+//   YK[m*M + j] = sum_t vals[t*NV + m] K[idx[t], j]
+// RR rows' 16-wide vectors are held at once, so each accumulator is loaded and stored once per
+// RR rows. Columns past M (padding, zero) are not written.
+__kernel void gather_sparse_rows(__global const STORE_T *K, const int M, const int ld, const int Rp,
+                                 __global const int *idx, __global const REAL *vals, const int NV,
+                                 __global REAL *YK)
+{
+    const int j = get_global_id(0) * 16;
+    if (j >= M) return;
+    real16 acc[NVMAX];
+    for (int m = 0; m < NV; ++m) acc[m] = (real16)(0);
+    for (int t0 = 0; t0 < Rp; t0 += RR) {
+        real16 tile[RR];
+#pragma unroll
+        for (int r = 0; r < RR; ++r) tile[r] = K16(K + (size_t)idx[t0 + r] * ld + j);
+        __global const REAL *v = vals + (size_t)t0 * NV;
+        for (int m = 0; m < NV; ++m) {
+            real16 a = acc[m];
+#pragma unroll
+            for (int r = 0; r < RR; ++r) a += v[r * NV + m] * tile[r];
+            acc[m] = a;
+        }
+    }
+    if (j + 16 <= M) {
+        for (int m = 0; m < NV; ++m) vstore16(acc[m], 0, YK + (size_t)m * M + j);
+    } else {
+        for (int m = 0; m < NV; ++m) {
+            REAL out[16];
+            vstore16(acc[m], 0, out);
+            for (int c = 0; c < M - j; ++c) YK[(size_t)m * M + j + c] = out[c];
+        }
+    }
 }
 
 // GPU rank update: K[i, j] += sum_{n < NA} A[n*M + i] B[n*ld + j]. Item (g, i) handles the

@@ -422,3 +422,24 @@ def test_frames_build_no_program(device, setup):
             dyn.radiosity([pydynrad.PointLight(p, 1.0)])
         dyn.residual()
         assert swaps > 0 and set(device._programs) == built
+
+
+@pytest.mark.parametrize("mode", ["exact", "paper"])
+def test_sparse_and_dense_gathers_give_one_K(device, setup, monkeypatch, mode):
+    """The same walk with the sparse gathers forced on and off: K within rounding of each other
+    (exact mode also of a fresh build over the final set)."""
+    import pydynrad.dynamic.kupdate as kupdate
+
+    scene, F = setup
+    out = {}
+    for share in (0.0, 1.0):  # 0: never sparse (every batch has non-zeros), 1: always
+        monkeypatch.setattr(kupdate, "SPARSE_DENSITY", share)
+        dyn = DynamicRadiosity(scene, F, local_size=48, update=mode, storage="fp64", max_swaps_per_frame=6,
+                               observer=[0.5, 0.5, 0.5], device=device)
+        for p in observer_walk(np.random.default_rng(7), 30):
+            dyn.update(p)
+        out[share] = (dyn.local_patches, dyn.matrix.to_host())
+    assert np.array_equal(out[0.0][0], out[1.0][0])
+    assert rel(out[1.0][1], out[0.0][1]) < 1e-14  # observed 6e-17, 1.3e-16 (fp64)
+    if mode == "exact":
+        assert rel(out[1.0][1], dense_K(scene, F, out[1.0][0], 3)) < WALK_TOL["fp64"]

@@ -89,3 +89,31 @@ def test_portable_cpu_kernels_equal_clang_vector_kernels(device, portable_kernel
         portable = run(DeviceMatrix(device, K, storage))
     for a, b in zip(portable, clang):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("storage", ["fp16", "fp32", "fp64"])
+@pytest.mark.parametrize("M", [13, 600])
+def test_sparse_gathers_equal_the_dense_pass(device, storage, M):
+    """gather_all's sparse kernels (K's part on the vectors' non-zero slots) against the dense
+    pass and numpy, for vectors as sparse as a swap batch's form factors and for dense ones,
+    on an RGB K whose channels differ; a zero side (no non-zero slot) gives zeros."""
+    rng = np.random.default_rng(M + 1)
+    C = 3
+    m = DeviceMatrix(device, rng.uniform(-1, 1, (C, M, M)), storage)
+    uk = UpdateKernels(m, 8)
+    K = m.to_host()
+    tol = {"fp64": 1e-13, "fp32": 1e-5, "fp16": 1e-5}[storage]  # K as stored: the products are in REAL
+    for n, density in ((1, 0.1), (8, 0.05), (8, 1.0)):
+        mask_x, mask_y = rng.random((n, M)) < density, rng.random((n, M)) < density
+        mask_x[:, rng.integers(M)] = mask_y[:, rng.integers(M)] = True  # no all-zero vector
+        X = rng.uniform(0, 1, (C, n, M)) * mask_x
+        Y = rng.uniform(0, 1, (C, n, M)) * mask_y
+        sparse = uk.gather_all(X, Y, sparse=True)
+        dense = uk.gather_all(X, Y, sparse=False)
+        for c in range(C):
+            want_x, want_y = X[c] @ K[c].T, Y[c] @ K[c]
+            assert rel(sparse[0][c], want_x) < tol and rel(sparse[1][c], want_y) < tol
+            assert rel(sparse[0][c], dense[0][c]) < tol and rel(sparse[1][c], dense[1][c]) < tol
+    Y = rng.uniform(0, 1, (C, 2, M))
+    KX, YK = uk.gather_all(np.zeros((C, 2, M)), Y, sparse=True)
+    assert not KX.any() and rel(YK[1], Y[1] @ K[1]) < tol

@@ -4,6 +4,8 @@ Thin wrappers around ``kernels/update.cl`` with numpy in and out (float64 on the
 matrix's compute type on the device). Each method works on one channel's buffer in place:
 
 * :meth:`UpdateKernels.gather`: K X and Y K for up to ``max_vectors`` vectors in one read pass;
+  :meth:`UpdateKernels.gather_all` takes the sparse kernels instead when the vectors are
+  mostly zero (a swap batch's form factors), touching only their non-zero slots' part of K;
 * :meth:`UpdateKernels.rank_update`: K += A^T B (A, B given as (n, M) rows), one read-write pass;
 * :meth:`UpdateKernels.read_slots` / :meth:`UpdateKernels.write_slots`: columns and rows of a
   few slots (O(k M));
@@ -17,9 +19,15 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..launch import UpdateLayout
+from ..launch import CPU_ROWS, WG, UpdateLayout, global_size, round_up
 
-__all__ = ["UpdateKernels", "scratch_nbytes"]
+__all__ = ["UpdateKernels", "scratch_nbytes", "SPARSE_DENSITY"]
+
+#: The sparse gathers run when the vectors' non-zero slots, on both sides together, are at
+#: most this share of 2 M. Measured (PoCL CPU, Xeon 2 cores, 2026-12-02, 8 vectors): 0.4-0.7x
+#: the dense pass's time at 2-10% non-zero slots, about even at 15-20%, slower above; a swap
+#: batch along a walk through a 6k-patch village had a median of 3% (M = 1024), 7% (M = 256).
+SPARSE_DENSITY = 0.15
 
 
 def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, max_vectors: int,
@@ -32,7 +40,7 @@ def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int,
         + M + 3 * M
     # K X, Y K, slot columns, slot rows (read back together for all channels)
     per_channel = 4 * nv * M
-    return real_itemsize * (shared + channels * per_channel) + 4 * nv
+    return real_itemsize * (shared + channels * per_channel) + 4 * nv + 4 * ld  # slots, sparse gathers' indices
 
 
 class UpdateKernels:
@@ -50,8 +58,8 @@ class UpdateKernels:
         self.real = matrix.real_dtype
         self.layout = UpdateLayout.make(dev, self.M, self.ld, matrix.dtype.itemsize, self.real.itemsize, cpu_kernels)
         prg = dev.program("update.cl", {**matrix.defines, **self.layout.defines(self.nv_max)})
-        names = ("gather_rows", "gather_partial", "gather_reduce", "rank_update_rows", "rank_update", "read_slots",
-                 "write_slots", "double_reflection")
+        names = ("gather_rows", "gather_partial", "gather_reduce", "gather_sparse_cols", "gather_sparse_rows",
+                 "rank_update_rows", "rank_update", "read_slots", "write_slots", "double_reflection")
         self._k = {n: cl.Kernel(prg, n) for n in names}
         mf, ctx, r = cl.mem_flags, dev.context, self.real.itemsize
         nv, M, ld = self.nv_max, self.M, self.ld
@@ -65,6 +73,7 @@ class UpdateKernels:
         self._A = cl.Buffer(ctx, mf.READ_ONLY, 2 * nv * M * r)
         self._B = cl.Buffer(ctx, mf.READ_ONLY, 2 * nv * ld * r)
         self._slots = cl.Buffer(ctx, mf.READ_ONLY, nv * 4)
+        self._idx = cl.Buffer(ctx, mf.READ_ONLY, ld * 4)  # at most M slots padded to whole steps
         self._out = cl.Buffer(ctx, mf.READ_WRITE, 3 * M * r)
         self._zeros = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.zeros(M, dtype=self.real))
         if dev.queue.properties & cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE:
@@ -134,6 +143,7 @@ class UpdateKernels:
         zero = np.zeros((1, self.M))
         cols, rows = self.read_slots(0, [0])
         self.gather(0, zero, zero)
+        self.gather_all(np.zeros((self.matrix.C, 1, self.M)), np.zeros((self.matrix.C, 1, self.M)), sparse=True)
         self.rank_update(0, zero, zero)
         self.write_slots(0, [0], cols, rows)
         self.double_reflection(zero[0], zero[0], zero[0])
@@ -162,6 +172,29 @@ class UpdateKernels:
                                  np.int32(blocks), res["KX"], res["YK"])
         return n
 
+    def _enqueue_sparse_gather(self, channel: int, X: np.ndarray, Y: np.ndarray, cols: np.ndarray,
+                               rows: np.ndarray) -> int:
+        """K X and Y K from the slots ``cols`` (X's non-zeros) and ``rows`` (Y's) alone."""
+        n = X.shape[0]
+        q, K, res = self.device.queue, self.matrix.buffers[channel], self._res[channel]
+        M, ld, nv = np.int32(self.M), np.int32(self.ld), np.int32(n)
+        # Padded with slot 0 and zero values to whole steps (16 entries per step of the column
+        # kernel, RR rows per step of the row kernel). vals: (n, Rp) for columns, (Rp, n) for rows.
+        # The index and value buffers are reused: in order, each upload lands after the kernel before it.
+        for name, nz, vectors, step, transpose, out, items in (
+            ("gather_sparse_cols", cols, X, 16, False, res["KX"], self.M),
+            ("gather_sparse_rows", rows, Y, CPU_ROWS, True, res["YK"], -(-self.M // 16)),
+        ):
+            rp = round_up(max(1, len(nz)), step)
+            vals = np.zeros((n, rp))
+            vals[:, : len(nz)] = vectors[:, nz]
+            idx = np.zeros(rp, dtype=np.int32)
+            idx[: len(nz)] = nz
+            self._put(self._idx, idx[None], rp, np.int32)
+            self._put(self._X, (vals.T if transpose else vals).reshape(1, -1), rp * n)
+            self._k[name](q, (global_size(items),), (WG,), K, M, ld, np.int32(rp), self._idx, self._X, nv, out)
+        return n
+
     def _enqueue_read_slots(self, channel: int, slots: np.ndarray) -> int:
         k = self._put_slots(slots)
         res = self._res[channel]
@@ -175,20 +208,36 @@ class UpdateKernels:
         KX, YK = self._get((self._res[channel]["KX"], n), (self._res[channel]["YK"], n))
         return KX, YK
 
-    def gather_all(self, X: np.ndarray, Y: np.ndarray, slots: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+    def gather_all(self, X: np.ndarray, Y: np.ndarray, slots: np.ndarray | None = None,
+                   sparse: bool | None = None) -> tuple[np.ndarray, ...]:
         """:meth:`gather` for every channel c with X[c], Y[c] (C, n, M), and with ``slots`` also
         :meth:`read_slots` (taken before the gathers): all passes enqueued, one wait.
 
+        ``sparse``: use the sparse gathers (``gather_sparse_cols``/``_rows``: K's part on the
+        slots where some X[c] or Y[c] is non-zero) or the dense pass; None picks the sparse ones
+        when those slots are at most :data:`SPARSE_DENSITY` of 2 M.
+
         Returns KX, YK (C, n, M) and, with ``slots``, cols, rows (C, k, M), float64."""
         C = self.matrix.C
+        X, Y = np.asarray(X, dtype=np.float64), np.asarray(Y, dtype=np.float64)
         if len(X) != C or len(Y) != C:
             raise InvalidInputError(f"gather_all needs one X and Y per channel ({C}); got {len(X)}, {len(Y)}")
+        if X.ndim != 3 or X.shape != Y.shape or X.shape[2] != self.M:
+            raise InvalidInputError(f"gather_all needs X, Y of equal shape ({C}, n, {self.M}); got {X.shape}, {Y.shape}")
+        self._check(X.shape[1])
+        cols = np.flatnonzero(np.any(X != 0, axis=(0, 1))).astype(np.int32)
+        rows = np.flatnonzero(np.any(Y != 0, axis=(0, 1))).astype(np.int32)
+        if sparse is None:
+            sparse = len(cols) + len(rows) <= SPARSE_DENSITY * 2 * self.M
         reads = []
         for c in range(C):
             if slots is not None:
                 k = self._enqueue_read_slots(c, slots)
                 reads += [(self._res[c]["cols"], k), (self._res[c]["rows"], k)]
-            n = self._enqueue_gather(c, X[c], Y[c])
+            if sparse:
+                n = self._enqueue_sparse_gather(c, X[c], Y[c], cols, rows)
+            else:
+                n = self._enqueue_gather(c, X[c], Y[c])
             reads += [(self._res[c]["KX"], n), (self._res[c]["YK"], n)]
         out = self._get(*reads)
         step = 4 if slots is not None else 2
