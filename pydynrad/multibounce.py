@@ -18,6 +18,11 @@ needed: every row of A has off-diagonal sum sum_j F_ij rho_j <= max rho < 1 = it
 factor <= 2). Accuracy: relative error about cond(A) * eps, cond(A) <= (1 + rho)/(1 - rho);
 float32 gives ~1e-5 at rho = 0.9 and ~1e-3 at rho = 0.999; use dtype=np.float64 there.
 
+On a CPU device the same system is solved by the host's LAPACK through ``numpy.linalg.solve``
+(LU with partial pivoting, the same flops), and the series by numpy's matrix products:
+an OpenCL CPU runtime's GEMM does not reach the BLAS numpy links against (bench/radiosity.py
+measured it 1.9-2.2x slower). GPUs run the kernels; ``backend="device"`` forces them anywhere.
+
 ``bounces=n`` instead gives the truncated series sum_{k=0}^{n} (F_SS P_S)^k F_SS (paths of at
 most n + 1 hops; what a fixed-bounce renderer computes), one M^3 GEMM per bounce.
 
@@ -37,6 +42,7 @@ from .memory import available_host_bytes
 __all__ = ["multibounce", "multibounce_block", "multibounce_radiosity", "multibounce_memory"]
 
 OUTPUT_DTYPES = (np.dtype(np.float16), np.dtype(np.float32), np.dtype(np.float64))
+BACKENDS = ("auto", "device", "host")
 
 
 def _padded(M: int) -> tuple[int, int]:
@@ -177,7 +183,7 @@ class _Builder:
 
 
 def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.float32, device=None,
-                progress: bool | None = None) -> np.ndarray:
+                progress: bool | None = None, backend: str = "auto") -> np.ndarray:
     """K_S = (I - F_SS P_S)^{-1} F_SS per colour channel.
 
     Parameters
@@ -197,6 +203,9 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
     device : Device, optional
     progress : bool, optional
         Show a tqdm bar; None: on a terminal, for M >= 2048 (:mod:`pydynrad.progress`).
+    backend : "auto" | "device" | "host"
+        Who does the O(M^3) work: "device" the OpenCL kernels, "host" numpy (LAPACK/BLAS),
+        "auto" the host when ``device`` is a CPU, else the device.
 
     Returns
     -------
@@ -210,17 +219,18 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
     """
     from .device import default_device
 
-    out, bounces = _checked_options(dtype, bounces)
+    out, bounces = _checked_options(dtype, bounces, backend)
     device = device or default_device()
     idx = _checked_patches(patches, len(checked_scene(scene)))
     M, C = len(idx), 1 if scene.is_grey else 3
     _check_memory(M, C, out, bounces, device)
     F = check_form_factors(scene, F)
-    return _build(F[idx][:, idx].toarray(), scene.albedo[idx, :C].astype(np.float64), bounces, out, device, progress)
+    return _build(F[idx][:, idx].toarray(), scene.albedo[idx, :C].astype(np.float64), bounces, out, device, progress,
+                  backend)
 
 
 def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32, device=None,
-                      progress: bool | None = None) -> np.ndarray:
+                      progress: bool | None = None, backend: str = "auto") -> np.ndarray:
     """K = (I - F_SS P)^{-1} F_SS from the block of F over the set, for callers that hold it.
 
     :func:`multibounce` with ``patches`` validates all of F and cuts this block out of it; a
@@ -234,7 +244,7 @@ def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32
         to <= 1; they are parts of F's rows, whose sums the caller checked when it got them).
     albedo : (M, C) float
         The set's albedo per channel of K (C = 1 for a grey scene, else 3), each in [0, 1).
-    bounces, dtype, device, progress
+    bounces, dtype, device, progress, backend
         As in :func:`multibounce`.
 
     Returns
@@ -243,7 +253,7 @@ def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32
     """
     from .device import default_device
 
-    out, bounces = _checked_options(dtype, bounces)
+    out, bounces = _checked_options(dtype, bounces, backend)
     device = device or default_device()
     shape = np.shape(F_SS)
     if len(shape) != 2 or shape[0] != shape[1] or shape[0] == 0:
@@ -256,10 +266,12 @@ def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32
         raise InvalidInputError("albedo must be finite and in [0, 1)")
     _check_memory(M, rho.shape[1], out, bounces, device)
     block = check_form_factor_rows(F_SS, "F_SS")  # a copy: the caller's matrix is never touched
-    return _build(block.toarray(), rho, bounces, out, device, progress)
+    return _build(block.toarray(), rho, bounces, out, device, progress, backend)
 
 
-def _checked_options(dtype, bounces) -> tuple[np.dtype, int | None]:
+def _checked_options(dtype, bounces, backend) -> tuple[np.dtype, int | None]:
+    if backend not in BACKENDS:
+        raise InvalidInputError(f"backend must be one of {BACKENDS}; got {backend!r}")
     out = np.dtype(dtype)
     if out not in OUTPUT_DTYPES:
         raise InvalidInputError(f"dtype must be float16, float32 or float64; got {out}")
@@ -268,18 +280,44 @@ def _checked_options(dtype, bounces) -> tuple[np.dtype, int | None]:
     return out, None if bounces is None else int(bounces)
 
 
-def _build(F_SS: np.ndarray, rho: np.ndarray, bounces: int | None, out: np.dtype, device, progress) -> np.ndarray:
+def _host_build(FP: np.ndarray, F: np.ndarray, bounces: int | None, bar) -> np.ndarray:
+    """K from FP = F_SS P_S and F_SS (M, M) of the working dtype by numpy: the LU solve of
+    (I - FP) K = F, or the series K <- F + FP K. FP is overwritten."""
+    if bounces is None:
+        A = np.negative(FP, out=FP)
+        A[np.diag_indices_from(A)] += 1
+        K = np.linalg.solve(A, F)
+        bar.update(1)
+        return K
+    K = F.copy()
+    for _ in range(bounces):
+        K = F + FP @ K
+        bar.update(1)
+    return K
+
+
+def _build(F_SS: np.ndarray, rho: np.ndarray, bounces: int | None, out: np.dtype, device, progress,
+           backend: str = "auto") -> np.ndarray:
     """K per channel from a validated dense F_SS (M, M) and albedos rho (M, C), float64."""
     from .device import real_dtype
     from .progress import progress_bar
 
     work = real_dtype(np.float64 if out == np.float64 else np.float32, device)
     M, C = rho.shape
-    builder = _Builder(device, M, work)
-    steps = (builder.Mp // builder.nb) if bounces is None else bounces
+    host = backend == "host" or (backend == "auto" and device.is_cpu)
+    builder = None if host else _Builder(device, M, work)
+    if bounces is not None:
+        steps = bounces
+    else:
+        steps = 1 if host else builder.Mp // builder.nb
     result = np.empty((C, M, M), dtype=out)
+    F_work = F_SS.astype(work) if host else None
     with progress_bar(progress, long=M >= 2048, total=C * steps, desc=f"multibounce M={M}", unit="step") as bar:
         for c in range(C):
+            if host:  # in the working dtype from the start: no float64 pass over M^2 before the solve
+                K = _host_build(F_work * rho[:, c].astype(work)[None, :], F_work, bounces, bar)
+                result[c] = K
+                continue
             FP = F_SS * rho[:, c][None, :]  # F_SS P_S: column j scaled by rho_j
             if bounces is None:
                 K = builder.gauss_jordan(np.eye(M) - FP, F_SS, bar)

@@ -18,13 +18,14 @@ from pydynrad.multibounce import multibounce_memory
 from helpers import box_scene, dense_K, dense_radiosity, reciprocal_F, rel
 
 
+@pytest.mark.parametrize("backend", ["device", "host"])  # the OpenCL kernels and numpy, on any device
 @pytest.mark.parametrize("dtype,tol", [(np.float64, 1e-13), (np.float32, 1e-5)])
-def test_full_K_matches_dense_inverse_coloured(device, dtype, tol):
+def test_full_K_matches_dense_inverse_coloured(device, dtype, tol, backend):
     rng = np.random.default_rng(0)
     s = box_scene(4)  # 192 patches: two panels of 128 after padding
     s = s.with_materials(albedo=rng.uniform(0, 0.9, (len(s), 3)))
     F = reciprocal_F(s.areas, row_sum=0.95, density=0.2, seed=1)
-    K = multibounce(s, F, dtype=dtype, device=device)
+    K = multibounce(s, F, dtype=dtype, device=device, backend=backend)
     assert K.shape == (3, len(s), len(s)) and K.dtype == dtype
     truth = dense_K(s, F)
     for c in range(3):
@@ -40,24 +41,27 @@ def test_subset_in_given_order_grey(device):
     assert rel(K[0], dense_K(s, F, idx)[0]) < 1e-13
 
 
-def test_albedo_0999_exact_in_float64(device):
+@pytest.mark.parametrize("backend", ["device", "host"])  # the OpenCL kernels and numpy, on any device
+def test_albedo_0999_exact_in_float64(device, backend):
     s = box_scene(3, albedo=0.999)
     F = reciprocal_F(s.areas, seed=4)
     truth = dense_K(s, F)[0]
-    assert rel(multibounce(s, F, dtype=np.float64, device=device)[0], truth) < 1e-12  # observed 1e-14
-    assert rel(multibounce(s, F, dtype=np.float32, device=device)[0], truth) < 1e-5
+    assert rel(multibounce(s, F, dtype=np.float64, device=device, backend=backend)[0], truth) < 1e-12  # observed 1e-14
+    assert rel(multibounce(s, F, dtype=np.float32, device=device, backend=backend)[0], truth) < 1e-5
 
 
-def test_fp16_is_storage_rounding_of_fp32(device):
+@pytest.mark.parametrize("backend", ["device", "host"])  # the OpenCL kernels and numpy, on any device
+def test_fp16_is_storage_rounding_of_fp32(device, backend):
     s = box_scene(3, albedo=0.6)
     F = reciprocal_F(s.areas, seed=5)
-    K32 = multibounce(s, F, dtype=np.float32, device=device)
-    K16 = multibounce(s, F, dtype=np.float16, device=device)
+    K32 = multibounce(s, F, dtype=np.float32, device=device, backend=backend)
+    K16 = multibounce(s, F, dtype=np.float16, device=device, backend=backend)
     assert K16.dtype == np.float16
     np.testing.assert_array_equal(K16, K32.astype(np.float16))
 
 
-def test_truncated_series(device):
+@pytest.mark.parametrize("backend", ["device", "host"])  # the OpenCL kernels and numpy, on any device
+def test_truncated_series(device, backend):
     s = box_scene(3, albedo=0.8)
     F = reciprocal_F(s.areas, seed=6)
     Fd = F.toarray()
@@ -66,9 +70,9 @@ def test_truncated_series(device):
     for _ in range(4):
         term = FP @ term
         series += term
-    K = multibounce(s, F, bounces=4, dtype=np.float64, device=device)
+    K = multibounce(s, F, bounces=4, dtype=np.float64, device=device, backend=backend)
     assert rel(K[0], series) < 1e-14  # observed 3e-16
-    np.testing.assert_array_equal(multibounce(s, F, bounces=0, dtype=np.float64, device=device)[0], Fd)
+    np.testing.assert_array_equal(multibounce(s, F, bounces=0, dtype=np.float64, device=device, backend=backend)[0], Fd)
 
 
 def test_B_from_K_matches_iterative_and_dense(device):
@@ -142,5 +146,7 @@ def test_bad_arguments(device):
         multibounce(s, F, dtype=np.int8, device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="bounces"):
         multibounce(s, F, bounces=-1, device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="backend"):
+        multibounce(s, F, device=device, backend="gpu")
     with pytest.raises(pydynrad.InvalidInputError, match="sums to"):
         multibounce(s, F * 2, device=device)
