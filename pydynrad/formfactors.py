@@ -30,8 +30,12 @@ __all__ = ["form_factors", "hemicube_blocks", "pixel_form_factors", "stack_block
 #: far above float32 rounding of coordinates (about 6e-8 of them), far below any patch size.
 SURFACE_OFFSET = 1e-5
 
-#: Bytes of run buffers per block (8 bytes per pixel slot); bounds memory for any N.
+#: Bytes of run buffers of the two blocks in flight (8 bytes per pixel slot); bounds memory for any N.
 BLOCK_BYTES = 128 * 2**20
+#: Blocks a run is cut into at least (when each keeps MIN_BLOCK_ROWS patches): the host's CSR
+#: work on one block overlaps the device's tracing of the next.
+OVERLAP_BLOCKS = 8
+MIN_BLOCK_ROWS = 64
 
 #: The default hemicube resolution of the far field's patch-to-cluster form factors G. In
 #: bench/gather.py (2026-12-01) G at R = 24 moved the far field's all-patch error by 0.24-0.52%
@@ -130,7 +134,9 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
         return
     S = 3 * R
     per_row = S * R * 8
-    block = int(max(1, min(len(rows), BLOCK_BYTES // per_row)))
+    # Two blocks in flight (see below), each at most half of BLOCK_BYTES, and about
+    # OVERLAP_BLOCKS blocks in all so that even a small scene overlaps host and device work.
+    block = int(max(1, min(len(rows), BLOCK_BYTES // (2 * per_row), max(MIN_BLOCK_ROWS, -(-len(rows) // OVERLAP_BLOCKS)))))
     defines, extra = {"HC_RES": R, "BVH_PACKET": BVH_PACKET}, []
     if clusters is None:
         n_cols, end_dtype = n, np.int32
@@ -146,26 +152,38 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     nodes, tris, order = scene.bvh.buffers(dev)
     centers, normals = scene.patch_buffers(dev)
     mf = cl.mem_flags
-    patch_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
-    end_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * R * 4)
-    count_buf = cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * 4)
+    # Two sets of output buffers: block b + 1 traces on the device while the host turns block
+    # b's runs into CSR (numpy, one core), instead of each side waiting for the other. Row
+    # indices go through preallocated buffers too (a buffer made from host memory waited for
+    # the queue to drain on PoCL), and the read-back of block b + 1 is enqueued only after
+    # block b's host work: PoCL's reads wait for the kernel before them even when not blocking.
+    buffers = [tuple(cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * w) for w in (R * 4, R * 4, 4)) for _ in range(2)]
+    idx_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, block * 4) for _ in range(2)]
     eps = np.float32(scene.frame.length(SURFACE_OFFSET * scene.scale))
+
+    def launch(first: int, k: int) -> int:
+        idx = np.ascontiguousarray(rows[first : first + block])
+        cl.enqueue_copy(dev.queue, idx_bufs[k], idx, is_blocking=False)  # rows outlives the copy
+        knl(dev.queue, (global_size(len(idx) * S),), None, nodes, tris, order, centers, normals, idx_bufs[k],
+            np.int32(len(idx)), eps, *buffers[k], *extra)
+        return len(idx)
+
+    def read(b: int, k: int):
+        host = (np.empty((b, S, R), np.int32), np.empty((b, S, R), end_dtype), np.empty((b, S), np.int32))
+        for h, d in zip(host, buffers[k]):
+            cl.enqueue_copy(dev.queue, h, d)
+        return host
 
     long = len(rows) > block and len(rows) * S * R > LONG_RUN_RAYS
     with progress_bar(progress, long=long, total=len(rows), unit="patch", desc=f"{desc} R={R}") as bar:
-        for first in range(0, len(rows), block):
-            idx = rows[first : first + block]
-            b = len(idx)
-            knl(dev.queue, (global_size(b * S),), None, nodes, tris, order, centers, normals, dev.to_device(idx),
-                np.int32(b), eps, patch_buf, end_buf, count_buf, *extra)
-            patch = np.empty((b, S, R), np.int32)
-            end = np.empty((b, S, R), end_dtype)
-            count = np.empty((b, S), np.int32)
-            cl.enqueue_copy(dev.queue, patch, patch_buf)
-            cl.enqueue_copy(dev.queue, end, end_buf)
-            cl.enqueue_copy(dev.queue, count, count_buf)
-            yield _runs_to_csr(patch, end, count, weights_cum, n_cols)
+        b = launch(0, 0)
+        runs = read(b, 0)
+        for k, first in enumerate(range(0, len(rows), block)):
+            following = launch(first + block, (k + 1) % 2) if first + block < len(rows) else 0
+            yield _runs_to_csr(*runs, weights_cum, n_cols)
             bar.update(b)
+            if following:
+                b, runs = following, read(following, (k + 1) % 2)
 
 
 def stack_blocks(blocks, n_cols: int) -> sp.csr_matrix:

@@ -228,8 +228,9 @@ def test_row_blocks_give_the_single_block_rows(device, monkeypatch, block_rows):
     whole, part = form_factors(scene, resolution=16, device=device), form_factors(scene, resolution=16, rows=idx,
                                                                                  device=device)
     per_row = 3 * 16 * 16 * 8  # run buffers per row: 3R x R slots of 8 bytes
-    assert ff.BLOCK_BYTES >= len(scene) * per_row  # the default holds all 64 rows in one block
-    monkeypatch.setattr(ff, "BLOCK_BYTES", block_rows * per_row)
+    assert ff.BLOCK_BYTES >= 2 * len(scene) * per_row  # the default holds all 64 rows in one block
+    assert ff.MIN_BLOCK_ROWS >= len(scene)  # and a run this short is not cut for overlap
+    monkeypatch.setattr(ff, "BLOCK_BYTES", 2 * block_rows * per_row)  # two blocks in flight
     blocks = []
     to_csr = ff._runs_to_csr
     monkeypatch.setattr(ff, "_runs_to_csr", lambda patch, *a: blocks.append(len(patch)) or to_csr(patch, *a))
