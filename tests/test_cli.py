@@ -164,16 +164,16 @@ def test_formfactors_render_walk_compare_chain(tmp_path, capsys):
     assert read_image(tmp_path / "c.png").shape[1] > 3 * 24 and "relative RMS error" in out
 
 
-SMALL = ["cornell_box", "--max-edge", "250", "--resolution", "8", "--quiet"]  # 226 patches, 4 blocks of 64 rows
+SMALL = ["cornell_box", "--max-edge", "250", "--resolution", "8", "--quiet"]  # 336 patches, 4 blocks of 96 rows
 
 
 def make_file_and_store(tmp_path, capsys, *store_options):
     """The same form factors as a .npz file and as a store computed with ``store_options``."""
     assert run_main(["formfactors", *SMALL, "-o", str(tmp_path / "f.npz")], capsys)[0] == 0
-    code, out, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "ff"), "--block-rows", "64",
+    code, out, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "ff"), "--block-rows", "96",
                                *store_options], capsys)
     assert code == 0, err
-    assert "226 patches in 4 blocks of 64 rows" in out
+    assert "336 patches in 4 blocks of 96 rows" in out
     scene = cornell_box(max_edge=250)
     return scene, load_form_factors(scene, tmp_path / "f.npz")[0], open_form_factors(scene, tmp_path / "ff")
 
@@ -196,7 +196,7 @@ def test_formfactors_store_equals_file_and_resumes(tmp_path, capsys):
 
 def test_formfactors_store_refuses_other_scene_or_parameters(tmp_path, capsys):
     ff = str(tmp_path / "ff")
-    assert run_main(["formfactors", *SMALL, "-o", ff, "--workers", "0", "--block-rows", "64"], capsys)[0] == 0
+    assert run_main(["formfactors", *SMALL, "-o", ff, "--workers", "0", "--block-rows", "96"], capsys)[0] == 0
     for changed, needle in ((["--max-edge", "200"], "geometry_hash"), (["--resolution", "16"], "resolution"),
                             (["--block-rows", "32"], "block_rows")):
         code, _, err = run_main(["formfactors", *SMALL, *changed, "-o", ff, "--workers", "0"], capsys)
@@ -264,11 +264,11 @@ def test_form_factor_path_errors_give_one_line(tmp_path, capsys):
     assert_one_line_error(code, err, "no such file or store folder")
     ff = str(tmp_path / "ff")
     assert run_main(["formfactors", "cornell_box", "--max-edge", "300", "--resolution", "8", "--quiet", "-o", ff,
-                     "--workers", "0", "--block-rows", "64"], capsys)[0] == 0
+                     "--workers", "0", "--block-rows", "96"], capsys)[0] == 0
     code, _, err = run_main([*walk, ff], capsys)  # made for another patching of the box
     assert_one_line_error(code, err, "does not match", "geometry_hash")
     # The right scene, but the run stopped after some blocks.
-    assert run_main(["formfactors", *SMALL, "-o", str(tmp_path / "half"), "--workers", "0", "--block-rows", "64"],
+    assert run_main(["formfactors", *SMALL, "-o", str(tmp_path / "half"), "--workers", "0", "--block-rows", "96"],
                     capsys)[0] == 0
     (tmp_path / "half" / "blocks" / "b000002.npz").unlink()
     code, _, err = run_main([*walk, str(tmp_path / "half")], capsys)
@@ -290,7 +290,7 @@ def _longest_edge(scene):
 
 
 @pytest.mark.parametrize("name, max_edge, patches", [
-    ("cornell_box", 200.0, 274), ("village", 1.6, 66514), ("closed_box", 0.3, 768),
+    ("cornell_box", 200.0, 384), ("village", 1.6, 66514), ("closed_box", 0.3, 768),
     ("parallel_plates", 0.1, 1024), ("perpendicular_plates", 0.1, 1024),
 ])
 def test_max_edge_works_on_every_builtin(tmp_path, capsys, name, max_edge, patches):
