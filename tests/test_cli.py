@@ -387,7 +387,7 @@ def test_a_store_with_auto_clusters_gives_walks_their_far_field(tmp_path, capsys
     code, out, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "ff"), "--clusters", "auto",
                                "--workers", "0"], capsys)
     assert code == 0, err
-    assert "G for 29 clusters" in out  # cluster_patches' default for 226 patches: ceil(226 / 8)
+    assert "G for 42 clusters" in out  # cluster_patches' default for 336 patches: ceil(336 / 8)
     path = tmp_path / "path.json"
     path.write_text(json.dumps({"frames": 2, "width": 24, "height": 16, "fov_y": 40, "keyframes": [
         {"position": [278, 273, -800], "look_at": [278, 273, 0]}, {"position": [278, 273, -400], "look_at": [278, 273, 0]}]}))
