@@ -230,3 +230,49 @@ def test_residual_sees_the_max_entry_error(device, storage):
     fresh = np.linalg.solve(np.eye(len(S)) - FS * rho[None, :], FS)
     true = np.abs(dyn.matrix.to_host()[0] - fresh).max() / np.abs(fresh).max()
     assert true / 3 < dyn.residual() < 3 * true
+
+
+# State and concurrency (issue 14, item 7), outputs that cannot overflow silently (item 6).
+def test_update_is_not_re_entrant_and_a_huge_observer_is_refused_before_the_frame_advances(box, box_F, device):
+    import threading
+
+    dyn = pydynrad.DynamicRadiosity(box, box_F, local_size=8, observer=[0.5, 0.5, 0.5], far_field=False,
+                                    device=device)
+    with pytest.raises(InvalidInputError, match="too far from the scene"):
+        dyn.update([1e155, 0.0, 0.0])  # main: an IndexError from the selection, frame counter advanced
+    assert dyn.frame == 0
+    errors = []
+    entered, release = threading.Event(), threading.Event()
+    real = dyn._update
+
+    def slow(obs):  # hold the first call inside update() while a second thread calls it
+        entered.set()
+        release.wait(10)
+        return real(obs)
+
+    dyn._update = slow
+    worker = threading.Thread(target=lambda: dyn.update([0.2, 0.5, 0.5]))
+    worker.start()
+    entered.wait(10)
+    try:
+        dyn.update([0.8, 0.5, 0.5])
+    except pydynrad.errors.PydynradError as exc:
+        errors.append(str(exc))
+    release.set()
+    worker.join(10)
+    assert errors and "already running" in errors[0]
+    assert dyn.frame == 1 and len(np.unique(dyn.local_patches)) == 8
+
+
+def test_scene_arrays_are_read_only_and_overflowing_values_are_refused(box, device):
+    with pytest.raises(ValueError, match="read-only"):
+        box.albedo[:] = 1.0  # main: solve then iterated 10,000 times before failing
+    with pytest.raises(ValueError, match="read-only"):
+        box.points[0, 0] = 5.0
+    points = np.array(box.points)
+    pydynrad.Scene(points, box.triangles)
+    points[0, 0] = 0.25  # the caller's own array stays writable: the scene copied it
+    with pytest.raises(InvalidInputError, match=r"emission exceeds float32's range"):
+        pydynrad.Scene(box.points, box.triangles, emission=1e39)  # main: stored as inf
+    with pytest.raises(InvalidInputError, match="direct irradiance overflows float32"):
+        pydynrad.light_vector(box, [pydynrad.PointLight([0.5, 0.5, 0.5], 3e38)], device=device)  # main: inf

@@ -32,6 +32,7 @@ See docs/design.md, 'Conventions', 'Local set' and 'Drift and refresh'.
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -178,6 +179,7 @@ class DynamicRadiosity:
         self._matrix: DeviceMatrix | None = None
         self._kernels = None
         self._used = None
+        self._update_lock = threading.Lock()
         self.frame = 0
         self.refreshes = 0
         self._rng = np.random.default_rng(0x5EEAC106)
@@ -343,9 +345,27 @@ class DynamicRadiosity:
         """Move the observer: swap patches in and out of the local set and update K.
 
         Returns a :class:`FrameStats`. The first call builds the set if the constructor had no
-        ``observer`` (that frame reports ``refreshed=True`` and no swaps).
+        ``observer`` (that frame reports ``refreshed=True`` and no swaps). Not re-entrant: the
+        local set and K change in place, so a call while another is running (another thread)
+        raises :class:`~pydynrad.errors.PydynradError` instead of corrupting them.
         """
         obs = vec3(observer_position, "observer_position")
+        # Squared distances to the patches must be finite for the selection (beyond ~1e154 they are not).
+        with np.errstate(over="ignore"):
+            far = not np.isfinite(np.sum((obs - self.scene.frame.origin) ** 2))
+        if far:
+            raise InvalidInputError(f"observer_position {obs.tolist()} is too far from the scene for its distances "
+                                    "to the patches to be computed in float64")
+        if not self._update_lock.acquire(blocking=False):
+            raise PydynradError("DynamicRadiosity.update() is already running (another thread): its local set and K "
+                                "change in place, so calls must not overlap; use one DynamicRadiosity per thread "
+                                "or hold a lock around update()")
+        try:
+            return self._update(obs)
+        finally:
+            self._update_lock.release()
+
+    def _update(self, obs: np.ndarray) -> FrameStats:
         self.frame += 1
         empty = np.empty(0, np.int64)
         if not self.built:
