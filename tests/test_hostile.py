@@ -276,3 +276,12 @@ def test_scene_arrays_are_read_only_and_overflowing_values_are_refused(box, devi
         pydynrad.Scene(box.points, box.triangles, emission=1e39)  # main: stored as inf
     with pytest.raises(InvalidInputError, match="direct irradiance overflows float32"):
         pydynrad.light_vector(box, [pydynrad.PointLight([0.5, 0.5, 0.5], 3e38)], device=device)  # main: inf
+
+
+def test_an_exposure_that_overflows_is_refused_not_written_as_inf(tmp_path):
+    image = np.full((4, 4, 3), 2.0, dtype=np.float32)
+    with pytest.raises(InvalidInputError, match="exposure 200 stops overflows float32"):
+        pydynrad.write_image(tmp_path / "x.exr", image, exposure=200.0)  # main: an all-inf EXR, rc 0
+    assert not (tmp_path / "x.exr").exists()
+    with pytest.raises(InvalidInputError, match="overflows float32"):
+        pydynrad.write_image(tmp_path / "y.exr", np.full((2, 2, 3), 3e38, np.float32), exposure=1.0)
