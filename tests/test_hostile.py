@@ -285,3 +285,17 @@ def test_an_exposure_that_overflows_is_refused_not_written_as_inf(tmp_path):
     assert not (tmp_path / "x.exr").exists()
     with pytest.raises(InvalidInputError, match="overflows float32"):
         pydynrad.write_image(tmp_path / "y.exr", np.full((2, 2, 3), 3e38, np.float32), exposure=1.0)
+
+
+def test_obj_and_mtl_lines_trimesh_drops_are_named(tmp_path):
+    from pydynrad.loading import MalformedLineWarning
+
+    (tmp_path / "m.mtl").write_text("newmtl wall\nKd x y z\n")
+    (tmp_path / "s.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl wall\n"
+                                    "f 1 2 3\nf 2 4\n")
+    with pytest.warns(MalformedLineWarning) as record:
+        scene = pydynrad.load(tmp_path / "s.obj")
+    messages = " | ".join(str(w.message) for w in record)
+    assert "line 8 'f 2 4' (a face needs 3 corners)" in messages  # main: dropped without a word
+    assert "line 2 'Kd x y z' (not numbers)" in messages
+    assert len(scene) == 1
