@@ -572,7 +572,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=_positive_int, default=24, metavar="N", help="number of frames (default 24)")
     _add_image_size(p)
     p.add_argument("--max-edge", type=_positive_float, default=100.0, metavar="MM",
-                   help="longest patch edge in mm (default 100: 1,096 patches)")
+                   help="longest patch edge in mm (default 100: 1,128 patches)")
     p.add_argument("--moving-block", action="store_true",
                    help="add a green cube that glides and turns through the box (a moving rigid object: its shadow "
                         "and colour bleeding follow it; reference frames solve the box with it from fresh hemicubes)")

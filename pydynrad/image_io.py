@@ -81,7 +81,11 @@ def write_image(path, image, exposure: float = 0.0) -> Path:
     if not np.isfinite(exposure):
         raise InvalidInputError(f"exposure must be a finite number of stops; got {exposure!r}")
     check_parent_folder(path)
-    a = _checked_image(image) * np.float32(2.0**exposure)
+    with np.errstate(over="ignore"):
+        a = _checked_image(image) * np.float32(2.0**exposure)
+    if not np.all(np.isfinite(a)):  # 2**exposure or the product overflowed float32
+        raise InvalidInputError(f"exposure {exposure:g} stops overflows float32 for this image (largest value "
+                                f"{float(np.abs(_checked_image(image)).max()):g}): use a smaller exposure")
     if linear:
         spec = oiio.ImageSpec(a.shape[1], a.shape[0], a.shape[2], oiio.FLOAT)
         pixels = a

@@ -261,7 +261,12 @@ def direct_irradiance(scene, lights, device=None) -> np.ndarray:
         ids = np.arange(len(scene))
         E = E + gather_irradiance(scene, None, None, sky=pack_sky(lights), resolution=skies[0].resolution,
                                   keys=ids, own=ids, device=device)
-    return E.astype(np.float32)
+    with np.errstate(over="ignore"):
+        E = np.asarray(E, dtype=np.float32)
+    if not np.all(np.isfinite(E)):
+        raise InvalidInputError("the direct irradiance overflows float32 (above 3.4e38 at some patch): the lights "
+                                "are too strong for float32; scale the light intensities (and emission) down")
+    return E
 
 
 def light_vector(scene, lights=(), device=None) -> np.ndarray:

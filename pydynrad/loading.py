@@ -38,7 +38,7 @@ from .errors import InvalidInputError, SceneFileError
 from .patching import subdivide_scene
 from .scene import Scene
 
-__all__ = ["load", "from_mesh", "patched_scene", "soup_scene", "AlbedoClampedWarning", "MissingMaterialWarning", "MAX_ALBEDO", "SUPPORTED_FORMATS"]
+__all__ = ["load", "from_mesh", "patched_scene", "soup_scene", "AlbedoClampedWarning", "MissingMaterialWarning", "MalformedLineWarning", "MAX_ALBEDO", "SUPPORTED_FORMATS"]
 
 MAX_ALBEDO = 0.999
 SUPPORTED_FORMATS = ("obj", "ply", "glb", "gltf", "stl", "off")
@@ -51,6 +51,31 @@ class AlbedoClampedWarning(UserWarning):
 
 class MissingMaterialWarning(UserWarning):
     """An OBJ file names materials that could not be loaded; defaults were used."""
+
+
+class MalformedLineWarning(UserWarning):
+    """A line of an OBJ or MTL file cannot be used (a face of fewer than 3 corners, a non-numeric colour)."""
+
+
+def _warn_malformed_lines(name: str, text: str, kind: str) -> None:
+    """Warn, naming each line (up to 5), about what trimesh drops without a word: OBJ faces of
+    fewer than three corners, MTL colours (Kd, Ka, Ks, Ke) that are not numbers."""
+    bad = []
+    for number, line in enumerate(text.splitlines(), 1):
+        tokens = line.split()
+        if not tokens:
+            continue
+        key = tokens[0].lower()
+        if kind == "obj" and key == "f" and len(tokens) < 4:
+            bad.append(f"line {number} {line.strip()!r} (a face needs 3 corners)")
+        elif kind == "mtl" and key in ("kd", "ka", "ks", "ke"):
+            try:
+                [float(t) for t in tokens[1:4]]
+            except ValueError:
+                bad.append(f"line {number} {line.strip()!r} (not numbers)")
+    if bad:
+        more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
+        warnings.warn(f"{name}: cannot use {'; '.join(bad[:5])}{more}", MalformedLineWarning, stacklevel=4)
 
 
 def load(path, max_patch_area: float | None = None, max_edge: float | None = None, default_albedo=0.5) -> Scene:
@@ -86,8 +111,10 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
         loaded = trimesh.load(str(path), file_type=fmt, process=False, resolver=_MtlResolver(str(path)))
     except Exception as exc:  # trimesh raises anything from ValueError to UnicodeDecodeError
         raise SceneFileError(f"{path}: cannot read as {fmt.upper()}: {type(exc).__name__}: {exc}") from exc
-    if fmt == "obj" and b"usemtl" in path.read_bytes():
-        _warn_lost_materials(path, loaded)
+    if fmt == "obj":
+        _warn_malformed_lines(str(path), path.read_bytes().decode("utf-8", errors="replace"), "obj")
+        if b"usemtl" in path.read_bytes():
+            _warn_lost_materials(path, loaded)
     try:
         return from_mesh(loaded, max_patch_area=max_patch_area, max_edge=max_edge, default_albedo=default_albedo, name=path.stem)
     except InvalidInputError as exc:
@@ -164,6 +191,7 @@ class _MtlResolver(trimesh.resolvers.FilePathResolver):
         data = super().get(name)
         if str(name).lower().endswith(".mtl"):
             text = data.decode("utf-8", errors="replace") if isinstance(data, bytes) else str(data)
+            _warn_malformed_lines(str(name), text, "mtl")
             data = re.sub(r"(?im)^(\s*k[ads]\s+)(\S+)\s*$", r"\1\2 \2 \2", text).encode()
         return data
 

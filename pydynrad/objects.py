@@ -162,7 +162,10 @@ def _combined(scene, objs: list[RigidObject], transforms=None):
     # The static patches keep their own arrays bit for bit (they were derived from float64
     # corners), so their rows match those of the static scene wherever no object is in view.
     for name in ("centers", "normals", "areas"):
-        getattr(out, name)[:n] = getattr(scene, name)
+        a = getattr(out, name).copy()  # scene arrays are read-only once validated
+        a[:n] = getattr(scene, name)
+        a.flags.writeable = False
+        setattr(out, name, a)
     return out
 
 

@@ -82,7 +82,18 @@ def _as_rgb(value, n: int, what: str) -> np.ndarray:
         raise InvalidInputError(f"{what} must be a scalar, an RGB triple, (N,) or (N, 3) with N={n}; got shape {np.shape(value)}")
     if not np.all(np.isfinite(a)):
         raise InvalidInputError(f"{what} contains NaN or infinite values")
-    return np.ascontiguousarray(a, dtype=np.float32)
+    if np.abs(a).max(initial=0.0) > np.finfo(np.float32).max:
+        raise InvalidInputError(f"{what} exceeds float32's range (3.4e38), in which it is stored; got "
+                                f"{np.abs(a).max():g}: scale it down (radiosity is linear in emission)")
+    return _frozen(np.array(a, dtype=np.float32))  # a copy: never the caller's array
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """``a`` made read-only: a Scene's arrays are validated once, so they must not change after
+    (as trimesh protects its cached arrays); writing albedo = 1 in place, or moving points
+    under a built BVH, would bypass every check."""
+    a.flags.writeable = False
+    return a
 
 
 def _checked_albedo(value, n: int) -> np.ndarray:
@@ -164,11 +175,11 @@ class Scene:
             cross, dbl_area = cross[keep], dbl_area[keep]
 
         # float64: a scene far from the origin keeps its shape; DeviceFrame makes it float32.
-        self.points = np.ascontiguousarray(pts, dtype=np.float64)
-        self.triangles = np.ascontiguousarray(tri, dtype=np.int32)
+        self.points = np.array(pts, dtype=np.float64)  # copies: frozen below, never the caller's arrays
+        self.triangles = np.array(tri, dtype=np.int32)
         self.albedo = albedo
         self.emission = emission
-        self.source_face = source_face
+        self.source_face = np.array(source_face)
         self.name = str(name)
         v = pts[tri]
         self.centers = np.ascontiguousarray(v.mean(axis=1), dtype=np.float64)
@@ -177,6 +188,8 @@ class Scene:
         if not (np.all(np.isfinite(self.areas)) and self.areas.min() > 0):
             raise InvalidInputError("patch areas overflow or underflow float32 (coordinates beyond ~1e18 or "
                                     "patches below ~1e-22 units): rescale the scene")
+        for a in (self.points, self.triangles, self.source_face, self.centers, self.normals, self.areas):
+            _frozen(a)
         size, diag = np.sqrt(edge2[keep]), self.scale
         if size.min() < MIN_RELATIVE_SIZE * diag:
             warnings.warn(f"{int(np.count_nonzero(size < MIN_RELATIVE_SIZE * diag))} patch(es) are smaller than "

@@ -13,7 +13,7 @@ from pydynrad.render import Renderer
 
 @pytest.fixture(scope="module")
 def solved(device):
-    """The Cornell box at 274 patches with its full float64 radiosity."""
+    """The Cornell box at 384 patches with its full float64 radiosity."""
     scene = pydynrad.scenes.cornell_box(max_edge=200.0)
     F = pydynrad.form_factors(scene, resolution=16, device=device)
     return scene, pydynrad.solve(scene, F, method="dense").radiosity
@@ -81,7 +81,7 @@ def test_ply_carries_linear_floats_and_exposed_srgb_8bit(solved, tmp_path):
 
 def test_export_refuses_bad_input(solved, tmp_path):
     scene, B = solved
-    with pytest.raises(InvalidInputError, match=r"shape \(274,\)"):
+    with pytest.raises(InvalidInputError, match=r"shape \(384,\)"):
         export_mesh(scene, B[:-1], tmp_path / "a.glb")
     bad = B.copy()
     bad[3, 1] = np.nan

@@ -100,7 +100,7 @@ def test_bake_with_a_lightmap_writes_the_image_and_its_uv_mesh(reference, tmp_pa
     scene, corners = reference
     out, exr = tmp_path / "box.glb", tmp_path / "box.exr"
     code, stdout, err = run_main(["bake", "cornell_box", "--max-edge", "250", "--resolution", "8", "-o", str(out),
-                                  "--lightmap", str(exr), "--texels-per-unit", "0.05", "--light", SPOT, "--light",
+                                  "--lightmap", str(exr), "--texels-per-unit", "0.2", "--light", SPOT, "--light",
                                   SUN, "--quiet"], capsys)
     assert code == 0, err
     doc, attributes, faces = read_glb(out.read_bytes())

@@ -211,3 +211,91 @@ def test_patches_too_small_for_float32_warn():
     triangles = np.concatenate([base.triangles, [[len(base.points), len(base.points) + 1, len(base.points) + 2]]])
     with pytest.warns(pydynrad.scene.PrecisionWarning, match="1 patch"):
         pydynrad.Scene(points, triangles)
+
+
+@pytest.mark.parametrize("storage", ["fp32", "fp16"])
+def test_residual_sees_the_max_entry_error(device, storage):
+    # Against a dense float64 K over the same local set: the probe of 8 columns reads within
+    # 1.3x of max entry error / max entry (observed fp32 3.6e-8 vs 4.2e-8, fp16 4.2e-4 vs 3.4e-4,
+    # closed box, 192 patches); the former probe read 1-2e-7 for fp32 where entries were off 5e-6.
+    scene = pydynrad.scenes.closed_box(subdivisions=2, albedo=0.8)
+    F = pydynrad.form_factors(scene, resolution=16, device=device)
+    dyn = pydynrad.DynamicRadiosity(scene, F, local_size=96, storage=storage, observer=[0.5, 0.5, 0.5],
+                                    far_field=False, device=device)
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        dyn.update(rng.random(3))
+    S = dyn.local_patches
+    FS, rho = F[S][:, S].toarray().astype(np.float64), scene.albedo[S, 0].astype(np.float64)
+    fresh = np.linalg.solve(np.eye(len(S)) - FS * rho[None, :], FS)
+    true = np.abs(dyn.matrix.to_host()[0] - fresh).max() / np.abs(fresh).max()
+    assert true / 3 < dyn.residual() < 3 * true
+
+
+# State and concurrency (issue 14, item 7), outputs that cannot overflow silently (item 6).
+def test_update_is_not_re_entrant_and_a_huge_observer_is_refused_before_the_frame_advances(box, box_F, device):
+    import threading
+
+    dyn = pydynrad.DynamicRadiosity(box, box_F, local_size=8, observer=[0.5, 0.5, 0.5], far_field=False,
+                                    device=device)
+    with pytest.raises(InvalidInputError, match="too far from the scene"):
+        dyn.update([1e155, 0.0, 0.0])  # main: an IndexError from the selection, frame counter advanced
+    assert dyn.frame == 0
+    errors = []
+    entered, release = threading.Event(), threading.Event()
+    real = dyn._update
+
+    def slow(obs):  # hold the first call inside update() while a second thread calls it
+        entered.set()
+        release.wait(10)
+        return real(obs)
+
+    dyn._update = slow
+    worker = threading.Thread(target=lambda: dyn.update([0.2, 0.5, 0.5]))
+    worker.start()
+    entered.wait(10)
+    try:
+        dyn.update([0.8, 0.5, 0.5])
+    except pydynrad.errors.PydynradError as exc:
+        errors.append(str(exc))
+    release.set()
+    worker.join(10)
+    assert errors and "already running" in errors[0]
+    assert dyn.frame == 1 and len(np.unique(dyn.local_patches)) == 8
+
+
+def test_scene_arrays_are_read_only_and_overflowing_values_are_refused(box, device):
+    with pytest.raises(ValueError, match="read-only"):
+        box.albedo[:] = 1.0  # main: solve then iterated 10,000 times before failing
+    with pytest.raises(ValueError, match="read-only"):
+        box.points[0, 0] = 5.0
+    points = np.array(box.points)
+    pydynrad.Scene(points, box.triangles)
+    points[0, 0] = 0.25  # the caller's own array stays writable: the scene copied it
+    with pytest.raises(InvalidInputError, match=r"emission exceeds float32's range"):
+        pydynrad.Scene(box.points, box.triangles, emission=1e39)  # main: stored as inf
+    with pytest.raises(InvalidInputError, match="direct irradiance overflows float32"):
+        pydynrad.light_vector(box, [pydynrad.PointLight([0.5, 0.5, 0.5], 3e38)], device=device)  # main: inf
+
+
+def test_an_exposure_that_overflows_is_refused_not_written_as_inf(tmp_path):
+    image = np.full((4, 4, 3), 2.0, dtype=np.float32)
+    with pytest.raises(InvalidInputError, match="exposure 200 stops overflows float32"):
+        pydynrad.write_image(tmp_path / "x.exr", image, exposure=200.0)  # main: an all-inf EXR, rc 0
+    assert not (tmp_path / "x.exr").exists()
+    with pytest.raises(InvalidInputError, match="overflows float32"):
+        pydynrad.write_image(tmp_path / "y.exr", np.full((2, 2, 3), 3e38, np.float32), exposure=1.0)
+
+
+def test_obj_and_mtl_lines_trimesh_drops_are_named(tmp_path):
+    from pydynrad.loading import MalformedLineWarning
+
+    (tmp_path / "m.mtl").write_text("newmtl wall\nKd x y z\n")
+    (tmp_path / "s.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl wall\n"
+                                    "f 1 2 3\nf 2 4\n")
+    with pytest.warns(MalformedLineWarning) as record:
+        scene = pydynrad.load(tmp_path / "s.obj")
+    messages = " | ".join(str(w.message) for w in record)
+    assert "line 8 'f 2 4' (a face needs 3 corners)" in messages  # main: dropped without a word
+    assert "line 2 'Kd x y z' (not numbers)" in messages
+    assert len(scene) == 1

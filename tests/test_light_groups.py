@@ -81,7 +81,7 @@ def test_groups_refuse_bad_input(box, device):
         per_group.combine({"lamp": np.nan})
     with pytest.raises(InvalidInputError, match="given twice"):
         LightGroups(scene, {"emission": [lights[0]]})
-    with pytest.raises(InvalidInputError, match=r"shape \(274, 3\)"):
+    with pytest.raises(InvalidInputError, match=r"shape \(384, 3\)"):
         LightGroups(scene, {"baked": np.ones((10, 3))})
     with pytest.raises(InvalidInputError, match="not a light"):
         LightGroups(scene, {"lamp": ["bright"]})

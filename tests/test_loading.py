@@ -117,7 +117,7 @@ def test_mtl_values_clamped_expanded_or_rejected(tmp_path):
     np.testing.assert_allclose(grey.emission[grey.emitters], [[2.0, 2.0, 2.0]])
     with pytest.raises(SceneFileError, match=r"emission"):
         pydynrad.load(write_obj(tmp_path, mtl=MTL.replace("Ke 5 4 3", "Ke -1 0 0"), name="negative"))
-    with pytest.raises(SceneFileError, match=r"Ke"):
+    with pytest.raises(SceneFileError, match=r"Ke"), pytest.warns(UserWarning, match="line 5 'Ke five 4 3'"):
         pydynrad.load(write_obj(tmp_path, mtl=MTL.replace("Ke 5 4 3", "Ke five 4 3"), name="words"))
 
 

@@ -5,7 +5,10 @@ open side at z = 0 facing the camera (published at (278, 273, -800) looking alon
 box is about 556 x 548.8 x 559.2 mm with slightly skewed floor and left wall, exactly as
 published. The 130 x 105 mm light (x 213..343, z 227..332) is cut into the ceiling plane
 y = 548.8 rather than floating below it: the ceiling is the eight rectangles around the light,
-so no two patches overlap and the box has no gaps except its open front.
+so no two patches overlap and the box has no gaps except its open front. The floor likewise
+stops at the blocks' footprints (the published blocks stand on it): it is triangulated around
+them, so no patch lies hidden under a block (such patches see only the blocks' backs, receive
+nothing, and broke the scene's reciprocity and energy balance).
 
 Materials are the RGB reflectances most renderers use for this scene (Mitsuba's and pbrt's
 ``cbox``): white (0.725, 0.71, 0.68), red (0.63, 0.065, 0.05) on the left wall (x ~ 556),
@@ -20,6 +23,7 @@ Normals face the lit side: the box's walls face its interior, the blocks' faces 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import Delaunay
 
 from ..loading import soup_scene
 from ..scene import Scene
@@ -58,6 +62,67 @@ def _ceiling_quads() -> tuple[np.ndarray, np.ndarray]:
     return np.array(cells[:4] + cells[5:]), np.array(cells[4:5])
 
 
+
+def _inside_convex(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """(n,) bool: 2-D ``points`` strictly inside the convex ``polygon`` (either winding)."""
+    edge = np.roll(polygon, -1, axis=0) - polygon
+    rel = points[:, None, :] - polygon[None]
+    side = edge[None, :, 0] * rel[..., 1] - edge[None, :, 1] * rel[..., 0]
+    return np.all(side > 1e-9, axis=1) | np.all(side < -1e-9, axis=1)
+
+
+#: Largest gap (mm) between the points the floor is triangulated on, whatever the patching:
+#: triangles of about this size around the footprints, split further by max_edge.
+FLOOR_SPACING = 70.0
+
+
+def _floor_triangles(spacing: float = FLOOR_SPACING) -> np.ndarray:
+    """(T, 3, 3) triangles of the floor minus the blocks' footprints.
+
+    ``spacing`` (mm) is the largest gap between the points it is triangulated on. A conforming Delaunay triangulation in the floor plane (x, z): every footprint edge is split
+    at its midpoint until it is an edge of the triangulation, then the triangles inside the
+    footprints are dropped. The floor's outline is convex, so its edges are hull edges. Smallest
+    triangle quality 0.54 (4 sqrt(3) area / sum of squared edges; 1 for equilateral).
+    """
+    holes = [np.asarray(top)[:, [0, 2]] for top in (_SHORT_TOP, _TALL_TOP)]
+    outline = np.asarray(_FLOOR)[:, [0, 2]]
+    # Points every <= ``spacing`` mm along the outline and the footprints, and on a grid inside,
+    # kept half a spacing clear of both: the Delaunay triangles come out well shaped (long
+    # slivers make poor hemicube patches and unreadable lightmap texels).
+    points, segments = [], []
+    for ring, closed_ring in ((outline, False), *((h, True) for h in holes)):
+        start = len(points)
+        for k in range(4):
+            a, b = ring[k], ring[(k + 1) % 4]
+            n = max(1, int(np.ceil(np.linalg.norm(b - a) / spacing)))
+            points += [a + (b - a) * i / n for i in range(n)]
+        count = len(points) - start
+        if closed_ring:
+            segments += [(start + i, start + (i + 1) % count) for i in range(count)]
+    g = np.stack(np.meshgrid(np.arange(0.5, 556.0 / spacing) * spacing,
+                             np.arange(0.5, 559.2 / spacing) * spacing), -1).reshape(-1, 2)
+    boundary = np.asarray(points)
+    clear = np.min(np.linalg.norm(g[:, None] - boundary[None], axis=2), axis=1) > 0.5 * spacing
+    clear &= _inside_convex(g, outline) & ~_inside_convex(g, holes[0]) & ~_inside_convex(g, holes[1])
+    points += list(g[clear])
+    while True:
+        tri = Delaunay(np.asarray(points)).simplices
+        edges = {tuple(sorted(e)) for t in tri for e in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))}
+        missing = [s for s in segments if tuple(sorted(s)) not in edges]
+        if not missing:
+            break
+        for a, b in missing:
+            points.append(0.5 * (points[a] + points[b]))
+            m = len(points) - 1
+            segments.remove((a, b))
+            segments += [(a, m), (m, b)]
+    points = np.asarray(points)
+    centroids = points[tri].mean(axis=1)
+    keep = ~(_inside_convex(centroids, holes[0]) | _inside_convex(centroids, holes[1]))
+    flat = points[tri[keep]]
+    return np.stack([flat[..., 0], np.zeros(flat.shape[:2]), flat[..., 1]], axis=-1)
+
+
 def _block_sides(top) -> np.ndarray:
     """The four vertical sides of a block standing on the floor under its top quad."""
     top = np.asarray(top)
@@ -72,7 +137,12 @@ def _oriented_triangles(quads: np.ndarray, facing: np.ndarray, inward: bool) -> 
     Quads are split along their 0-2 diagonal; the published walls are not all planar (the
     left wall is skewed), so each triangle is oriented on its own.
     """
-    tri = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    return _oriented(np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]), facing, inward)
+
+
+def _oriented(tri: np.ndarray, facing: np.ndarray, inward: bool) -> np.ndarray:
+    """Triangles (T, 3, 3) rewound so each faces (``inward``) or faces away from ``facing``."""
+    tri = tri.copy()
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     side = np.einsum("ij,ij->i", normal, facing - tri[:, 0])
     flip = side < 0 if inward else side > 0
@@ -89,17 +159,19 @@ def cornell_box(max_patch_area: float | None = None, max_edge: float | None = 10
     max_patch_area : float, optional
         Largest patch area in mm^2.
     max_edge : float, optional
-        Longest patch edge in mm. The default (100 mm) gives 1,096 patches, coarse enough for
-        quick form factors; pass ``max_edge=None`` (and no area) for the 46 unsplit triangles.
+        Longest patch edge in mm. The default (100 mm) gives 1,128 patches, coarse enough for
+        quick form factors; pass ``max_edge=None`` (and no area) for the 186 triangles it is
+        built from (the floor triangulated around the blocks' footprints).
     light_radiance : (3,) float
         Radiance of the ceiling light; its emission is ``pi * light_radiance``.
     """
     frame, light = _ceiling_quads()
-    box_parts = [(np.array([_FLOOR]), WHITE), (frame, WHITE), (np.array([_BACK]), WHITE),
+    box_parts = [(_floor_triangles(), WHITE), (frame, WHITE), (np.array([_BACK]), WHITE),
                  (np.array([_RIGHT]), GREEN), (np.array([_LEFT]), RED), (light, LIGHT_ALBEDO)]
     tris, albedo = [], []
-    for quads, rgb in box_parts:
-        t = _oriented_triangles(quads, _INTERIOR, inward=True)
+    for part, rgb in box_parts:
+        t = (_oriented(part, _INTERIOR, inward=True) if part.shape[1] == 3
+             else _oriented_triangles(part, _INTERIOR, inward=True))
         tris.append(t)
         albedo.append(np.tile(rgb, (len(t), 1)))
     for top in (_SHORT_TOP, _TALL_TOP):
