@@ -197,7 +197,7 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
              "columns": e_cols, "rows": err_rows,
              "note": f"{p['sample']} sampled rows per scene; clusters of about {p['per_cluster']} patches; "
                      "G x: a random cluster radiosity x in [0, 1) through G"},
-            {"title": f"Far-field error: B_far = L + P G B_c with G at R, relative RMS over all patches",
+            {"title": "Far-field error: B_far = L + P G B_c with G at R, relative RMS over all patches",
              "columns": ["scene", "N", "C", "R", "indicator vs full solve", "indicator vs G at ref",
                          "FarField (device) vs full solve", "weighted vs full solve", "weighted vs G at ref"],
              "rows": far_rows,

@@ -65,7 +65,6 @@ def _visible_error(scene, B, B_ref, camera, device) -> float:
 
 def measure(size: str, device, progress: bool = True) -> dict:
     import pydynrad as pd
-    from pydynrad.objects import instanced
 
     p = SIZES[size]
     box = pd.scenes.cornell_box(max_edge=p["max_edge"])
@@ -131,6 +130,8 @@ def measure(size: str, device, progress: bool = True) -> dict:
     return {"title": "Moving objects", "description": __doc__.split("\n\n")[1], "tables": [table]}
 
 
+# The two entry points every bench module has (as bench/dynamic.py): the suite's section and
+# `python -m bench.objects`; run_standalone holds what they share.
 def suite_section(ctx) -> dict:
     """The suite's "objects" section at the suite's size."""
     return measure(ctx.size if ctx.size in SIZES else "quick", ctx.device, progress=ctx.progress)

@@ -103,6 +103,7 @@ class BVH:
             )
         return cls(nodes, order, tris)
 
+    # Sizes and views computed from the packed arrays (as Scene's are from its own): read-only accessors.
     @property
     def n_nodes(self) -> int:
         return len(self.nodes)

@@ -558,6 +558,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=_Parser)
 
+    # One block per subcommand, built from the shared option groups (_add_scene, _add_look, _add_lights,
+    # ...): what still looks alike between blocks is argparse's declaration shape, not repeated logic.
     p = sub.add_parser("info", help="list OpenCL devices and the one pydynrad uses",
                        description="List every OpenCL device and show the one pydynrad selects "
                                    "(PYOPENCL_CTX overrides the default, the first PoCL CPU device).")

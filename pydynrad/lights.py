@@ -58,6 +58,8 @@ def _unit(value, what: str) -> tuple[float, float, float]:
     return tuple(float(v) for v in unit_vector(value, what))
 
 
+# Each light is a frozen dataclass whose __post_init__ runs one validator per field and whose _packed
+# gives the kernel's 16-float record (kernels/lights.h): the classes share that shape, not code.
 @dataclass(frozen=True)
 class PointLight:
     """An isotropic point light: position (3,), intensity RGB in W/sr or cd (scalar = grey)."""

@@ -32,7 +32,6 @@ See docs/design.md, 'Multibounce build'.
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 from .checks import check_form_factors, check_form_factor_rows, patch_indices, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
