@@ -70,7 +70,7 @@ def test_all_channels_in_one_read_back(device):
 @pytest.mark.parametrize("storage", ["fp16", "fp32", "fp64"])
 def test_portable_cpu_kernels_equal_clang_vector_kernels(device, portable_kernels, storage):
     """The CPU kernels built with vload/vstore (any OpenCL CPU) give, bit for bit, what the
-    build with PoCL's 16-wide dereference gives: gathers, a rank update, slot reads."""
+    build with PoCL's 16-wide dereference gives: gathers (dense and sparse), a rank update, slot reads."""
     rng = np.random.default_rng(7)
     M = 600
     K = rng.uniform(-1, 1, (1, M, M))
@@ -78,11 +78,14 @@ def test_portable_cpu_kernels_equal_clang_vector_kernels(device, portable_kernel
     A, B = rng.uniform(-1, 1, (2, 5, M)) / 5
     slots = np.array([0, 599, 13])
 
+    sparse = X[None] * (rng.random((1, 7, M)) < 0.05)
+
     def run(m):
         uk = UpdateKernels(m, 8, cpu_kernels=True)
         KX, YK = uk.gather(0, X, Y)
+        sparse_KX, sparse_YK = uk.gather_all(sparse, sparse, sparse=True)
         uk.rank_update(0, A, B)
-        return (KX, YK, *uk.read_slots(0, slots), m.to_host())
+        return (KX, YK, sparse_KX, sparse_YK, *uk.read_slots(0, slots), m.to_host())
 
     clang = run(DeviceMatrix(device, K, storage))
     with portable_kernels():
