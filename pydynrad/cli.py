@@ -265,8 +265,16 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     if (out / HEADER).exists():
         store = FormFactorStore.open(scene, out, resolution=args.resolution, patching=spec.recipe())
         block_rows = block_rows or store.block_rows
-        done = store.n_blocks - len(store.missing_blocks())
-        print(f"resuming {out}: {done} of {store.n_blocks} blocks already done")
+        # Finished blocks are read and their checksums (bound to this store) checked on resume:
+        # a corrupt or foreign block is deleted and recomputed, never reported as done.
+        absent = set(store.missing_blocks())
+        corrupt = sorted(set(store.missing_blocks(verify=True)) - absent)
+        for k in corrupt:
+            store.block_path(k).unlink()
+        done = store.n_blocks - len(absent) - len(corrupt)
+        print(f"resuming {out}: {done} of {store.n_blocks} blocks already done"
+              + (f"; {len(corrupt)} fail their checksum and are recomputed (block {', '.join(map(str, corrupt[:8]))}"
+                 f"{', ...' if len(corrupt) > 8 else ''})" if corrupt else ""))
     block_rows = block_rows or DEFAULT_BLOCK_ROWS
     common = dict(resolution=args.resolution, block_rows=block_rows, progress=_progress(args), clusters=labels,
                   cluster_resolution=args.cluster_resolution or DEFAULT_CLUSTER_RESOLUTION,

@@ -299,3 +299,44 @@ def test_obj_and_mtl_lines_trimesh_drops_are_named(tmp_path):
     assert "line 8 'f 2 4' (a face needs 3 corners)" in messages  # main: dropped without a word
     assert "line 2 'Kd x y z' (not numbers)" in messages
     assert len(scene) == 1
+
+
+# Stores that know their own blocks (issue 14, item 2).
+def test_a_block_from_another_store_is_refused_and_recomputed_on_resume(tmp_path, capsys, device):
+    import json
+    import shutil
+
+    from pydynrad.cli import main
+    from pydynrad.rows.store import StoreCorruptError
+
+    def formfactors(name, R):
+        code = main(["formfactors", "closed_box", "-o", str(tmp_path / name), "--resolution", str(R),
+                     "--block-rows", "64", "--workers", "0", "--quiet"])
+        out = capsys.readouterr().out
+        assert code == 0, out
+        return out
+
+    formfactors("a", 8)
+    formfactors("b", 16)
+    scene = pydynrad.scenes.closed_box()
+    a, b = (pydynrad.open_form_factors(scene, tmp_path / n) for n in "ab")
+    shutil.copy(a.block_path(1), b.block_path(1))  # same scene, other resolution: its own checksum is intact
+    with pytest.raises(StoreCorruptError, match="belongs to another store or block"):
+        b.read_block(1)  # main: served silently
+    shutil.copy(b.block_path(0), b.block_path(2))  # moved within the store
+    with pytest.raises(StoreCorruptError, match="belongs to another store or block"):
+        b.read_block(2)
+    # Re-running the command reads every finished block: the two are recomputed, not reported as done.
+    out = formfactors("b", 16)
+    assert "1 of 3 blocks already done; 2 fail their checksum and are recomputed (block 1, 2)" in out
+    fresh = pydynrad.form_factors(scene, resolution=16, device=device)
+    assert abs(pydynrad.open_form_factors(scene, tmp_path / "b").to_csr() - fresh).max() == 0
+    # Headers every reader relies on: one-line errors.
+    header = json.loads((tmp_path / "a" / "header.json").read_text())
+    for field, value, needle in (("block_rows", 0, "block_rows must be a positive integer; got 0"),
+                                 ("block_rows", "64", "block_rows must be a positive integer; got '64'"),
+                                 ("params", None, "params must be an object")):
+        broken = dict(header, **{field: value})
+        (tmp_path / "a" / "header.json").write_text(json.dumps(broken))
+        with pytest.raises(StoreCorruptError, match=needle):
+            pydynrad.FormFactorStore.read_header(tmp_path / "a")

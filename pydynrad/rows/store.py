@@ -60,7 +60,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..atomic import TMP_MARK, write_atomic
-from ..checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene
+from ..checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene, sparse_structure
 from ..errors import InvalidInputError, PydynradError
 from ..formfactors import CLUSTER_RESOLUTION
 
@@ -112,14 +112,17 @@ def _library_version() -> str:
     return __version__
 
 
-def _digest(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> str:
-    h = hashlib.sha256()
+def _digest(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, binding: str = "") -> str:
+    """SHA-256 of a block's arrays, after ``binding`` (what the block belongs to, see
+    :meth:`FormFactorStore._binding`): a block copied from another store, or moved within one,
+    then fails its checksum even though its own bytes are intact."""
+    h = hashlib.sha256(binding.encode())
     for a in (indptr, indices, data):
         h.update(np.ascontiguousarray(a).tobytes())
     return h.hexdigest()
 
 
-def _write_csr(path: Path, k: int, rows: range, block, n_cols: int) -> int:
+def _write_csr(path: Path, k: int, rows: range, block, n_cols: int, binding: str = "") -> int:
     """Write a (len(rows), n_cols) sparse block as one compressed, checksummed .npz, atomically; returns bytes."""
     csr = sp.csr_matrix(block, copy=True)  # canonicalised below: never touch the caller's arrays
     if csr.shape != (len(rows), n_cols):
@@ -132,7 +135,7 @@ def _write_csr(path: Path, k: int, rows: range, block, n_cols: int) -> int:
     indptr = csr.indptr.astype(np.int64)
     indices = csr.indices.astype(np.int32)
     meta = {"block": int(k), "row_start": rows.start, "row_stop": rows.stop, "nnz": int(indices.size),
-            "sha256": _digest(indptr, indices, data)}
+            "sha256": _digest(indptr, indices, data, binding), "bound": bool(binding)}
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=COMPRESS_LEVEL) as zf:
         for name, a in (("indptr", indptr), ("indices", indices), ("data", data)):
@@ -144,7 +147,7 @@ def _write_csr(path: Path, k: int, rows: range, block, n_cols: int) -> int:
     return len(payload)
 
 
-def _read_csr(path: Path, k: int, rows: range, n_cols: int, what: str, store: Path) -> sp.csr_matrix:
+def _read_csr(path: Path, k: int, rows: range, n_cols: int, what: str, store: Path, binding: str = "") -> sp.csr_matrix:
     """Read and verify a block written by :func:`_write_csr`; ``what`` names it in errors."""
     try:
         with zipfile.ZipFile(path) as zf:
@@ -158,10 +161,16 @@ def _read_csr(path: Path, k: int, rows: range, n_cols: int, what: str, store: Pa
         raise StoreCorruptError(f"file {path} is corrupt ({type(exc).__name__}: {exc}); delete it and "
                                 "re-run compute_store to recompute it") from exc
     indptr, indices, data = arrays["indptr"], arrays["indices"], arrays["data"]
+    # Blocks written before checksums were bound to their store carry no "bound" flag.
+    bound = binding if meta.get("bound") else ""
     if (meta.get("block") != k or meta.get("row_start") != rows.start or meta.get("row_stop") != rows.stop
-            or meta.get("sha256") != _digest(indptr, indices, data)):
-        raise StoreCorruptError(f"file {path} fails its checksum or belongs elsewhere; delete it and "
-                                "re-run compute_store to recompute it")
+            or meta.get("sha256") != _digest(indptr, indices, data, bound)):
+        raise StoreCorruptError(f"file {path} fails its checksum or belongs to another store or block; delete it "
+                                "and re-run compute_store to recompute it")
+    try:  # a consistent checksum over hand-made arrays still must not send scipy past memory
+        sparse_structure(indptr, indices, (len(rows), n_cols), f"file {path}", nnz=len(data))
+    except InvalidInputError as exc:
+        raise StoreCorruptError(f"{exc}; delete it and re-run compute_store to recompute it") from None
     return sp.csr_matrix((data, indices, indptr), shape=(len(rows), n_cols))
 
 
@@ -173,6 +182,25 @@ def _canonical_params(resolution: int, patching: dict | None) -> dict:
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"patching parameters must be JSON-serialisable (numbers, strings, lists): {exc}") from exc
     return {"resolution": int(resolution), "patching": patch, "pydynrad_version": _library_version(), "dtype": "float32"}
+
+
+def _check_header_fields(path: Path, header: dict) -> None:
+    """StoreCorruptError naming the first field of a store header that every reader relies on
+    and that is missing or of the wrong kind (block_rows 0, a string, no params, ...)."""
+    def positive_int(v) -> bool:
+        return isinstance(v, int) and not isinstance(v, bool) and v >= 1
+
+    params = header.get("params")
+    sub = params if isinstance(params, dict) else {}
+    fields = (("n_patches", header.get("n_patches"), positive_int, "a positive integer"),
+              ("block_rows", header.get("block_rows"), positive_int, "a positive integer"),
+              ("geometry_hash", header.get("geometry_hash"), lambda v: isinstance(v, str), "a string"),
+              ("params", params, lambda v: isinstance(v, dict), "an object"),
+              ("params.resolution", sub.get("resolution"), positive_int, "a positive integer"),
+              ("params.patching", sub.get("patching"), lambda v: isinstance(v, dict), "an object"))
+    for name, value, ok, kind in fields:
+        if not ok(value):
+            raise StoreCorruptError(f"store header {path / HEADER}: {name} must be {kind}; got {value!r}")
 
 
 class FormFactorStore:
@@ -243,6 +271,7 @@ class FormFactorStore:
             raise InvalidInputError(f"{path} is not a pydynrad form-factor store")
         if header.get("format_version") != FORMAT_VERSION:
             raise StoreMismatchError(f"store {path} has format version {header.get('format_version')}; this pydynrad reads {FORMAT_VERSION}")
+        _check_header_fields(path, header)
         return header
 
     @classmethod
@@ -286,7 +315,17 @@ class FormFactorStore:
         form factors (finite, >= 0). The file appears whole or not at all.
         """
         rows = self.block_range(k)
-        return _write_csr(self.block_path(k, part), k, rows, block, self._columns(part))
+        return _write_csr(self.block_path(k, part), k, rows, block, self._columns(part), self._binding(k, part))
+
+    def _binding(self, k: int, part: str) -> str:
+        """What block ``k`` of ``part`` belongs to, hashed into its checksum: this store's scene
+        geometry and parameters (resolution, patching; for G its clusters), the part and the block."""
+        h = self.header
+        key = {"geometry_hash": h["geometry_hash"], "n_patches": h["n_patches"], "block_rows": h["block_rows"],
+               "params": h["params"], "part": part, "block": int(k)}
+        if part == "G":
+            key["prolongation_sha256"] = self._require_clusters().get("prolongation_sha256")
+        return json.dumps(key, sort_keys=True)
 
     def remove_stale_temporaries(self) -> int:
         """Delete temporary files left by interrupted writers; returns how many. Not while a writer runs."""
@@ -302,7 +341,8 @@ class FormFactorStore:
         """Block ``k`` of F (or of G) as a (rows in block, N or C) float32 CSR matrix, checksum verified."""
         rows = self.block_range(k)
         what = f"block {k} (rows {rows.start}..{rows.stop - 1})" + (" of G" if part == "G" else "")
-        return _read_csr(self.block_path(k, part), k, rows, self._columns(part), what, self.path)
+        return _read_csr(self.block_path(k, part), k, rows, self._columns(part), what, self.path,
+                         self._binding(k, part))
 
     def rows(self, idx, part: str = "F") -> sp.csr_matrix:
         """Rows ``idx`` of F (or of G) as a (len(idx), N or C) float32 CSR matrix, in the order given."""
