@@ -27,6 +27,7 @@ reverses the winding so normals keep pointing to the same (lit) side.
 
 from __future__ import annotations
 
+import os
 import re
 import warnings
 from pathlib import Path
@@ -98,6 +99,8 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
         triangles, or holds invalid values (NaN vertices, albedo above 1, negative emission);
         the message names the file and the problem.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise SceneFileError(f"path must be a file name (str or os.PathLike); got {type(path).__name__}")
     path = Path(path)
     fmt = path.suffix.lower().lstrip(".")
     if not path.is_file():

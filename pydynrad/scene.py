@@ -136,7 +136,7 @@ class Scene:
     """
 
     def __init__(self, points, triangles, albedo=0.5, emission=0.0, source_face=None, name: str = "scene") -> None:
-        pts = np.asarray(points, dtype=np.float64)
+        pts = floats(points, "points")
         tri = np.asarray(triangles)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise InvalidInputError(f"points must have shape (V, 3); got {pts.shape}")

@@ -340,3 +340,13 @@ def test_a_block_from_another_store_is_refused_and_recomputed_on_resume(tmp_path
         (tmp_path / "a" / "header.json").write_text(json.dumps(broken))
         with pytest.raises(StoreCorruptError, match=needle):
             pydynrad.FormFactorStore.read_header(tmp_path / "a")
+
+
+def test_one_line_errors_for_wrong_types(box, box_F, device):
+    # Each was a raw TypeError or ValueError from numpy on main (issue 14, item 8).
+    with pytest.raises(InvalidInputError, match="refresh_tolerance must be a positive number or None; got '1e-4'"):
+        pydynrad.DynamicRadiosity(box, box_F, local_size=8, refresh_tolerance="1e-4", device=device)
+    with pytest.raises(pydynrad.SceneFileError, match="path must be a file name .* got NoneType"):
+        pydynrad.load(None)
+    with pytest.raises(InvalidInputError, match="points must be numbers"):
+        pydynrad.Scene([["a", "b", "c"]] * 3, [[0, 1, 2]])

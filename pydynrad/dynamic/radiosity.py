@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import integer, resolution as checked_resolution, scene as checked_scene, vec3
+from ..checks import integer, number, resolution as checked_resolution, scene as checked_scene, vec3
 from ..errors import InvalidInputError, PydynradError
 from ..matvec import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
 from .localrows import LocalRows
@@ -163,8 +163,11 @@ class DynamicRadiosity:
         storage_dtype(storage)
         self.storage = storage
         self.max_swaps = integer(max_swaps_per_frame, "max_swaps_per_frame", 1, MAX_SWAPS_LIMIT)
-        if refresh_tolerance is not None and not (np.isfinite(refresh_tolerance) and refresh_tolerance > 0):
-            raise InvalidInputError(f"refresh_tolerance must be a positive number or None; got {refresh_tolerance!r}")
+        if refresh_tolerance is not None:
+            if isinstance(refresh_tolerance, (str, bytes, bool)) or not (
+                    np.isfinite(number(refresh_tolerance, "refresh_tolerance")) and refresh_tolerance > 0):
+                raise InvalidInputError(f"refresh_tolerance must be a positive number or None; got {refresh_tolerance!r}")
+            refresh_tolerance = float(refresh_tolerance)
         self.refresh_tolerance = refresh_tolerance
         self.refresh_interval = integer(refresh_interval, "refresh_interval", 1, 2**31 - 1)
         self.resolution = checked_resolution(resolution)  # of hemicube rows (entering patches, objects)
