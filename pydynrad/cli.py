@@ -206,6 +206,19 @@ def _cmd_formfactors(args: argparse.Namespace) -> int:
     return _formfactors_store(args, out)
 
 
+def _is_form_factor_file(path: Path) -> bool:
+    """True when ``path`` is a .npz that save_form_factors wrote (whatever its scene)."""
+    import json
+
+    from .rows.files import FF_FORMAT
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return json.loads(str(z["header"])).get("format") == FF_FORMAT
+    except Exception:  # not a zip, no header, not JSON: all mean "not ours"
+        return False
+
+
 def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
     from .rows.files import save_form_factors
 
@@ -217,6 +230,9 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
     if given:
         raise InvalidInputError(f"{', '.join(given)} apply to a store folder; {str(out)!r} is a single .npz file")
     out = _checked_target(out, (".npz",))  # fail before the work, not after
+    if out.exists() and not args.force and not _is_form_factor_file(out):
+        raise InvalidInputError(f"{str(out)!r} exists and is not a pydynrad form-factor file: not overwriting it "
+                                "(pass --force to replace it)")
     scene = load_scene(args.scene, args.max_edge)
     print(f"scene: {scene!r}")
     F = _form_factors(args, scene)
@@ -611,6 +627,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="FILE.npz for a single file, or a folder (new, empty, or a store to resume) for a store; "
                         "its parent folder must exist")
     _add_resolution(p, 64)
+    p.add_argument("--force", action="store_true",
+                   help="file only: replace an existing OUT.npz that is not a pydynrad form-factor file")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=_count, default=None, metavar="N",
                        help="store only: worker processes of a local Dask cluster (LocalCluster, one thread and one "

@@ -350,3 +350,17 @@ def test_one_line_errors_for_wrong_types(box, box_F, device):
         pydynrad.load(None)
     with pytest.raises(InvalidInputError, match="points must be numbers"):
         pydynrad.Scene([["a", "b", "c"]] * 3, [[0, 1, 2]])
+
+
+def test_formfactors_will_not_overwrite_an_unrelated_npz(tmp_path, capsys):
+    from pydynrad.cli import main
+
+    other = tmp_path / "weights.npz"
+    np.savez(other, w=np.arange(3))
+    args = ["formfactors", "closed_box", "--resolution", "8", "--quiet", "-o", str(other)]
+    assert main(args) == 2  # main: overwrote it without a word
+    err = capsys.readouterr().err
+    assert "is not a pydynrad form-factor file: not overwriting it (pass --force" in err and len(err.splitlines()) == 1
+    assert np.load(other)["w"].tolist() == [0, 1, 2]
+    assert main(args + ["--force"]) == 0
+    assert main(args) == 0  # now a form-factor file: recomputing it in place is fine
