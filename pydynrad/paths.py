@@ -58,9 +58,17 @@ def _keyframes(value, what: str) -> np.ndarray:
     return a
 
 
+#: Most frames a path may have: a walk renders and solves every one (10^9 frames at the
+#: demo's ~0.4 s each would run for 13 years), so a typo is refused before anything starts.
+MAX_FRAMES = 1_000_000
+
+
 def _frame_count(frames) -> int:
-    if isinstance(frames, bool) or not float(frames).is_integer() or int(frames) < 1:
+    if isinstance(frames, (bool, str, bytes)) or not isinstance(frames, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(frames) or not float(frames).is_integer() or int(frames) < 1:
         raise InvalidInputError(f"frames must be a whole number >= 1; got {frames!r}")
+    if int(frames) > MAX_FRAMES:
+        raise InvalidInputError(f"frames must be at most {MAX_FRAMES:,} (a walk renders every frame); got {int(frames):,}")
     return int(frames)
 
 

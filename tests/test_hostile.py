@@ -364,3 +364,15 @@ def test_formfactors_will_not_overwrite_an_unrelated_npz(tmp_path, capsys):
     assert np.load(other)["w"].tolist() == [0, 1, 2]
     assert main(args + ["--force"]) == 0
     assert main(args) == 0  # now a form-factor file: recomputing it in place is fine
+
+
+@pytest.mark.parametrize("frames, message", [("ten", "frames must be a whole number >= 1; got 'ten'"),
+                                             (10**9, "frames must be at most 1,000,000")])
+def test_path_file_frames_are_named(tmp_path, frames, message):
+    import json
+
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps({"frames": frames, "width": 8, "height": 8, "fov_y": 40, "keyframes": [
+        {"position": [0.1, 0.5, 0.5], "look_at": [0.9, 0.5, 0.5]}, {"position": [0.2, 0.5, 0.5], "look_at": [0.9, 0.5, 0.5]}]}))
+    with pytest.raises(InvalidInputError, match=message):  # main: "could not convert string to float"; 10^9 accepted
+        pydynrad.paths.load_path(path)
