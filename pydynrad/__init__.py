@@ -24,7 +24,7 @@ from . import scenes
 from .camera import Camera
 from .render import render
 from .image_io import read_image, write_image
-from .walk import CameraPath, LightTrack, ObjectTrack, WalkResult, fly_through, load_path, orbit, walk
+from .walk import CameraPath, LightTrack, ObjectTrack, WalkFile, WalkResult, fly_through, load_path, load_walk, orbit, walk
 from .matvec import DeviceMatrix
 from .dynamic import DynamicRadiosity, FrameStats
 from .dynamic.moves import PoseRows, precompute_poses
@@ -78,6 +78,8 @@ __all__ = [
     "load",
     "load_form_factors",
     "load_path",
+    "load_walk",
+    "WalkFile",
     "multibounce",
     "multibounce_radiosity",
     "ObjectTrack",

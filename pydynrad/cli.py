@@ -388,12 +388,13 @@ def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames, ob
 
 
 def _cmd_walk(args: argparse.Namespace) -> int:
-    from .paths import load_path
+    from .paths import load_walk
 
-    path, lights = load_path(args.path)
+    loaded = load_walk(args.path)
     scene = load_scene(args.scene, args.max_edge)
     F = _form_factors(args, scene)
-    _walk_and_report(args, scene, path, lights + list(args.light), F, args.out, args.reference_frames)
+    _walk_and_report(args, scene, loaded.path, loaded.lights + list(args.light), F, args.out, args.reference_frames,
+                     loaded.objects)
     return 0
 
 
@@ -697,7 +698,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    '[{"position": [x,y,z], "look_at": [x,y,z]}, ...]} (or "orbit": {"center": '
                                    '[x,y,z], "radius": r, "elevation": h} instead of keyframes), optionally "lights": '
                                    '[{"type": "point", "intensity": [r,g,b], "keyframes": [[x,y,z], ...]}] (also '
-                                   '"spot" and "directional"; every field: pydynrad.paths).')
+                                   '"spot" and "directional") and "objects": [{"block": {"size": 100}} or {"mesh": '
+                                   '"cube.obj"}, "keyframes": [{"position": [x,y,z], "rotation_deg": [rx,ry,rz]} or '
+                                   '4x4 matrices, ...]}] (moving rigid bodies; every field: pydynrad.paths).')
     _add_scene(p)
     p.add_argument("--path", required=True, metavar="FILE", help="camera path file (JSON, format above)")
     _add_look(p)

@@ -21,13 +21,26 @@ Path file (JSON); its fields are named as the Python API names them (:class:`Cam
       "lights": [{"type": "point", "intensity": [r, g, b], "keyframes": [[x, y, z], ...]},
                  {"type": "spot", "direction": [x, y, z], "intensity": [r, g, b],
                   "inner_angle": 0.3, "outer_angle": 0.5, "keyframes": [[x, y, z], ...]},
-                 {"type": "directional", "direction": [x, y, z], "irradiance": [r, g, b]}]
+                 {"type": "directional", "direction": [x, y, z], "irradiance": [r, g, b]}],
+      "objects": [{"mesh": "cube.obj",              # relative to the path file; or instead
+                   # "block": {"size": 100, "subdivisions": 1},   (see pydynrad.scenes.block)
+                   "albedo": [r, g, b], "emission": [r, g, b],    # optional: replace the mesh's
+                   "name": "crate",                               # optional
+                   "keyframes": [[[1, 0, 0, x], [0, 1, 0, y], [0, 0, 1, z], [0, 0, 0, 1]],
+                                 {"position": [x, y, z], "rotation_deg": [rx, ry, rz]}, ...],
+                   "interpolation": "catmull-rom"}]
     }
 
 ``"lights"`` is optional. Point and spot lights (intensity in W/sr, spot angles in radians
 as :class:`~pydynrad.lights.SpotLight` takes them) move through their position keyframes
 (one keyframe: a fixed light; ``"interpolation"`` per light, default catmull-rom); a spot
 light keeps its direction. A directional light has a direction and an irradiance.
+
+``"objects"`` is optional too, and only :func:`load_walk` reads it: moving rigid objects
+(:class:`~pydynrad.RigidObject`) following their pose keyframes as an :class:`ObjectTrack`.
+A keyframe is a rigid 4x4 object-to-world matrix or a position with rotations in degrees about
+the world x, then y, then z axis (default none). ``"albedo"`` and ``"emission"`` (one value or
+RGB, for every patch of the object) replace the mesh's own.
 """
 
 from __future__ import annotations
@@ -42,7 +55,8 @@ import numpy as np
 from .camera import Camera
 from .errors import InvalidInputError
 
-__all__ = ["CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path", "INTERPOLATIONS"]
+__all__ = ["CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path", "load_walk", "WalkFile",
+           "INTERPOLATIONS"]
 
 INTERPOLATIONS = ("catmull-rom", "linear")
 
@@ -283,8 +297,10 @@ def _known_fields(doc: dict, allowed: tuple[str, ...], where: str) -> None:
 #: Fields of earlier path files and what replaced them (named in the error for the old one).
 RENAMED = {"fov": "'fov_y'", "size": "'width' and 'height'"}
 
-_TOP_FIELDS = ("frames", "fov_y", "width", "height", "up", "interpolation", "keyframes", "orbit", "lights")
+_TOP_FIELDS = ("frames", "fov_y", "width", "height", "up", "interpolation", "keyframes", "orbit", "lights", "objects")
 _ORBIT_FIELDS = ("center", "radius", "elevation", "start_angle", "turns")
+_OBJECT_FIELDS = ("mesh", "block", "albedo", "emission", "name", "keyframes", "interpolation")
+_BLOCK_FIELDS = ("size", "subdivisions")
 #: Per light type: the light's own fields (its dataclass's, position aside) and whether it moves.
 _LIGHT_FIELDS = {"point": (("intensity",), True),
                  "spot": (("direction", "intensity", "inner_angle", "outer_angle"), True),
@@ -309,11 +325,90 @@ def _parse_light(item, where: str):
     return LightTrack(light, keys, item.get("interpolation", "catmull-rom")) if len(keys) > 1 else light
 
 
-def load_path(path) -> tuple[CameraPath, list]:
-    """Read a JSON path file (format in the module docstring).
+def _pose(key, where: str) -> np.ndarray:
+    """A keyframe of an object: a 4x4 matrix, or {"position", "rotation_deg"}."""
+    from scipy.spatial.transform import Rotation
 
-    Returns ``(camera_path, lights)``: lights are fixed lights and :class:`LightTrack` s,
-    ready for :func:`pydynrad.walk`. Every problem raises
+    from .objects import rigid_transform
+
+    if not isinstance(key, dict):
+        return rigid_transform(key, where)
+    _known_fields(key, ("position", "rotation_deg"), where)
+    pos = np.asarray(_field(key, "position", where, required=True), dtype=np.float64)
+    angles = np.asarray(_field(key, "rotation_deg", where, (0.0, 0.0, 0.0)), dtype=np.float64)
+    for name, v in (("position", pos), ("rotation_deg", angles)):
+        if v.shape != (3,) or not np.all(np.isfinite(v)):
+            raise InvalidInputError(f"{where}: {name!r} must be 3 finite numbers; got {v.tolist()!r}")
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", angles, degrees=True).as_matrix()
+    T[:3, 3] = pos
+    return T
+
+
+def _object_scene(item: dict, base: Path, where: str):
+    """The object-space Scene of an object entry: its mesh file or a built-in block."""
+    from .scenes import block
+
+    if ("mesh" in item) == ("block" in item):
+        raise InvalidInputError(f"{where}: give exactly one of 'mesh' (a file) or 'block'")
+    if "mesh" in item:
+        from .loading import load
+
+        mesh = item["mesh"]
+        if not isinstance(mesh, str):
+            raise InvalidInputError(f"{where}: 'mesh' must be a file name; got {mesh!r}")
+        try:
+            return load(base / mesh)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"{where}: 'mesh': {exc}") from None
+    b = item["block"]
+    if not isinstance(b, dict):
+        raise InvalidInputError(f"{where}: 'block' must be an object like {{\"size\": 100, \"subdivisions\": 1}}")
+    _known_fields(b, _BLOCK_FIELDS, f"{where}: block")
+    size = np.asarray(_field(b, "size", f"{where}: block", required=True), dtype=np.float64)
+    if size.shape not in ((), (3,)) or not np.all(np.isfinite(size)) or not np.all(size > 0):
+        raise InvalidInputError(f"{where}: block 'size' must be one length or three, each > 0; got {size.tolist()!r}")
+    sub = _field(b, "subdivisions", where, 1)
+    # 5 is already 12,288 patches, all pinned in the local set: a larger count is a typo.
+    if isinstance(sub, bool) or not isinstance(sub, int) or not 0 <= sub <= 5:
+        raise InvalidInputError(f"{where}: block 'subdivisions' must be a whole number 0..5; got {sub!r}")
+    return block(size.tolist(), sub)
+
+
+def _parse_object(item, base: Path, where: str) -> ObjectTrack:
+    from .objects import RigidObject
+
+    if not isinstance(item, dict):
+        raise InvalidInputError(f"{where}: an object must be a JSON object with 'mesh' or 'block' and 'keyframes'")
+    _known_fields(item, _OBJECT_FIELDS, where)
+    scene = _object_scene(item, base, where)
+    try:
+        scene = scene.with_materials(item.get("albedo"), item.get("emission"))
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{where}: {exc}") from None
+    keys = _field(item, "keyframes", where, required=True)
+    if not isinstance(keys, list) or not keys:
+        raise InvalidInputError(f"{where}: 'keyframes' must be a non-empty list of 4x4 matrices or "
+                                "{\"position\": [x, y, z], \"rotation_deg\": [rx, ry, rz]} objects")
+    poses = [_pose(k, f"{where}: keyframe {i}") for i, k in enumerate(keys)]
+    obj = RigidObject(scene, poses[0], name=item.get("name"))
+    return ObjectTrack(obj, poses, item.get("interpolation", "catmull-rom"))
+
+
+@dataclass(frozen=True, eq=False)
+class WalkFile:
+    """What a path file holds, ready for :func:`pydynrad.walk`: the camera path, the lights
+    (fixed lights and :class:`LightTrack` s) and the moving objects (:class:`ObjectTrack` s)."""
+
+    path: CameraPath
+    lights: list
+    objects: list
+
+
+def load_walk(path) -> WalkFile:
+    """Read a JSON path file (format in the module docstring), moving objects included.
+
+    Mesh files of objects are read relative to the path file's folder. Every problem raises
     :class:`~pydynrad.errors.InvalidInputError` naming the file and the field.
     """
     path = Path(path)
@@ -357,9 +452,27 @@ def load_path(path) -> tuple[CameraPath, list]:
         if not isinstance(items, list):
             raise InvalidInputError(f"{where}: 'lights' must be a list")
         lights = [_parse_light(item, f"{where}: light {i}") for i, item in enumerate(items)]
+        items = _field(doc, "objects", where, [])
+        if not isinstance(items, list):
+            raise InvalidInputError(f"{where}: 'objects' must be a list")
+        objects = [_parse_object(item, path.parent, f"{where}: object {i}") for i, item in enumerate(items)]
     except InvalidInputError as exc:
         msg = str(exc)
         raise InvalidInputError(msg if msg.startswith(where) else f"{where}: {msg}") from None
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"{where}: {exc}") from None
-    return cam, lights
+    return WalkFile(cam, lights, objects)
+
+
+def load_path(path) -> tuple[CameraPath, list]:
+    """Read a JSON path file without moving objects (format in the module docstring).
+
+    Returns ``(camera_path, lights)``: lights are fixed lights and :class:`LightTrack` s,
+    ready for :func:`pydynrad.walk`. A file with ``"objects"`` is refused (they would be
+    dropped); :func:`load_walk` reads it. Every problem raises
+    :class:`~pydynrad.errors.InvalidInputError` naming the file and the field.
+    """
+    loaded = load_walk(path)
+    if loaded.objects:
+        raise InvalidInputError(f"path file {str(path)!r} has moving 'objects': read it with load_walk")
+    return loaded.path, loaded.lights

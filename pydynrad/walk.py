@@ -25,9 +25,10 @@ import numpy as np
 
 from .camera import Camera
 from .errors import InvalidInputError
-from .paths import CameraPath, LightTrack, ObjectTrack, fly_through, lights_at, load_path, orbit
+from .paths import CameraPath, LightTrack, ObjectTrack, WalkFile, fly_through, lights_at, load_path, load_walk, orbit
 
-__all__ = ["walk", "WalkResult", "FrameRecord", "CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path", "STAGES"]
+__all__ = ["walk", "WalkResult", "FrameRecord", "CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path",
+           "load_walk", "WalkFile", "STAGES"]
 
 STAGES = ("update", "lighting", "render", "write")
 

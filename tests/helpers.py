@@ -14,6 +14,15 @@ import pydynrad
 
 
 # -- meshes ----------------------------------------------------------------------------------------
+def pose(angle_deg, at) -> np.ndarray:
+    """(4, 4) rigid pose: a rotation about +y by ``angle_deg`` degrees, then a translation to ``at``."""
+    c, s = np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))
+    T = np.eye(4)
+    T[:3, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
+    T[:3, 3] = at
+    return T
+
+
 def box_mesh(n: int = 2, size: float = 1.0, inward: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """A closed cube [0, size]^3, each face an n x n grid of quads split into 2 triangles
     (12 n^2 triangles), normals pointing into the cube (or out of it): (points, triangles)."""

@@ -13,19 +13,11 @@ import pydynrad as pd
 from pydynrad.dynamic.moves import capped, sphere_solid_angle, with_reciprocal_columns
 from pydynrad.objects import instanced
 
-from helpers import dense_K, dense_radiosity, rel
+from helpers import dense_K, dense_radiosity, pose, rel
 
 R = 16
 OBSERVER = (278.0, 273.0, 0.0)
 LIGHTS = [pd.PointLight((278.0, 500.0, 280.0), (3e5, 3e5, 3e5))]
-
-
-def pose(angle_deg, at):
-    c, s = np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))
-    T = np.eye(4)
-    T[:3, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
-    T[:3, 3] = at
-    return T
 
 
 START, MIDDLE, END = pose(0, (150.0, 300.0, 400.0)), pose(30, (250.0, 420.0, 300.0)), pose(70, (380.0, 420.0, 150.0))
