@@ -234,8 +234,11 @@ def _pick_cl_device():
     import pyopencl as cl
 
     if os.environ.get("PYOPENCL_CTX"):
-        ctx = cl.create_some_context(interactive=False)
-        return ctx
+        try:
+            return cl.create_some_context(interactive=False)
+        except cl.Error as exc:
+            raise DeviceError(f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} selects no OpenCL device ({exc}); "
+                              "`pydynrad info` lists the valid values") from exc
     try:
         platforms = cl.get_platforms()
     except cl.Error as exc:

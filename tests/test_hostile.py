@@ -376,3 +376,35 @@ def test_path_file_frames_are_named(tmp_path, frames, message):
         {"position": [0.1, 0.5, 0.5], "look_at": [0.9, 0.5, 0.5]}, {"position": [0.2, 0.5, 0.5], "look_at": [0.9, 0.5, 0.5]}]}))
     with pytest.raises(InvalidInputError, match=message):  # main: "could not convert string to float"; 10^9 accepted
         pydynrad.paths.load_path(path)
+
+
+def test_bad_pyopencl_ctx_is_one_line(monkeypatch, capsys):
+    from helpers import assert_one_line_error, run_main
+
+    monkeypatch.setattr(pydynrad.device, "_default", None)  # the session's device is built already
+    monkeypatch.setenv("PYOPENCL_CTX", "9:0")
+    code, _, err = run_main(["info"], capsys)  # main: pyopencl's RuntimeError with a traceback
+    assert_one_line_error(code, err, "PYOPENCL_CTX='9:0' selects no OpenCL device", "pydynrad info")
+
+
+@pytest.mark.parametrize("address, why", [("tcp://host:port", "invalid literal"), ("host", "missing port"),
+                                          ("http://host:8786", "unknown address scheme")])
+def test_malformed_scheduler_is_one_line(tmp_path, capsys, address, why):
+    from helpers import assert_one_line_error, run_main
+
+    code, _, err = run_main(["formfactors", "closed_box", "--resolution", "8", "--quiet", "-o", str(tmp_path / "ff"),
+                             "--scheduler", address], capsys)  # main: distributed's ValueError, with a traceback
+    assert_one_line_error(code, err, f"malformed scheduler address {address!r}", why, "tcp://host:8786")
+
+
+def test_worker_dying_at_start_up_is_one_line(tmp_path, capsys):
+    import dask
+    from helpers import assert_one_line_error, run_main
+
+    die = tmp_path / "die.py"
+    die.write_text("import os\nos._exit(3)\n")  # a worker's preload: the process ends before it serves
+    with dask.config.set({"distributed.worker.preload": [str(die)]}):
+        code, _, err = run_main(["formfactors", "closed_box", "--resolution", "8", "--quiet", "-o", str(tmp_path / "ff"),
+                                 "--workers", "1"], capsys)  # main: RuntimeError('Nanny failed to start.'), a traceback
+    assert_one_line_error(code, err, "the local Dask cluster of 1 workers failed to start (Nanny failed to start.)")
+

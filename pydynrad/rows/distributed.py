@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
-from ..errors import InvalidInputError
+from ..errors import InvalidInputError, PydynradError
 from ..scene import Scene
 from ..scenes.byname import BUILTIN_SCENES, is_builtin, scene_by_name
 from .store import (
@@ -172,13 +172,21 @@ def _start_client(workers: int | None, scheduler: str | None):
     if scheduler is not None:
         if workers is not None:
             raise InvalidInputError("give either workers (for a LocalCluster) or scheduler (an existing cluster), not both")
-        return Client(scheduler), None
+        try:
+            return Client(scheduler), None
+        except ValueError as exc:  # distributed's address parser: no port, unknown scheme, ...
+            raise InvalidInputError(f"malformed scheduler address {scheduler!r} ({exc}); "
+                                    "expected one like tcp://host:8786") from exc
     n = workers if workers is not None else (os.cpu_count() or 1)
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise InvalidInputError(f"workers must be a positive integer; got {workers!r}")
     with dask.config.set({"distributed.worker.multiprocessing-method": "spawn"}):
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+        try:
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   silence_logs=logging.ERROR)
+        except (RuntimeError, OSError) as exc:  # a worker died while starting ("Nanny failed to start.")
+            raise PydynradError(f"the local Dask cluster of {n} workers failed to start ({exc}): "
+                                "a worker process exited or could not be spawned") from exc
     return Client(cluster), cluster
 
 
