@@ -18,11 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .checks import number, vec3
-from .errors import InvalidInputError
+from .errors import InvalidInputError, OutOfMemoryError
+from .memory import available_host_bytes
 
-__all__ = ["Camera", "MAX_IMAGE_SIDE"]
+__all__ = ["Camera", "MAX_IMAGE_SIDE", "check_image_memory"]
 
-#: Largest accepted image width or height in pixels (a 16k image already needs 3 GiB of rays).
+#: Largest accepted image width or height in pixels (a 16k image already needs 3 GiB of rays;
+#: whether a large image fits is decided by :func:`check_image_memory`).
 MAX_IMAGE_SIDE = 16384
 
 
@@ -33,6 +35,15 @@ def _side(value, what: str) -> int:
     if not 1 <= v <= MAX_IMAGE_SIDE:
         raise InvalidInputError(f"{what} must be between 1 and {MAX_IMAGE_SIDE} pixels; got {v}")
     return v
+
+
+def check_image_memory(camera: "Camera", bytes_per_pixel: int, what: str) -> None:
+    """Refuse, before anything is allocated, an image whose ``what`` needs more host memory
+    (``bytes_per_pixel`` at its peak) than this process can have."""
+    need, have = camera.width * camera.height * bytes_per_pixel, available_host_bytes()
+    if need > have:
+        raise OutOfMemoryError(f"{what} a {camera.width} x {camera.height} image needs about {need / 2**30:.1f} GiB "
+                               f"of host memory; {have / 2**30:.1f} GiB is available. Render a smaller image")
 
 
 @dataclass(frozen=True, eq=False)

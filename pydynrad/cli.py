@@ -175,14 +175,17 @@ def _default_camera(scene, args):
     """A camera from --position/--look-at/--up/--fov-y/--width/--height; unset parts frame the scene:
     looking at the bounding-box centre along +z from 1.1 diagonals away (the Cornell box's
     published view)."""
-    from .camera import Camera
+    from .camera import Camera, check_image_memory
+    from .render import RENDER_BYTES_PER_PIXEL
 
     lo, hi = scene.bbox.astype(np.float64)
     centre = (lo + hi) / 2
     look_at = np.asarray(args.look_at if args.look_at else centre)
     position = args.position if args.position else look_at - np.array([0.0, 0.0, 1.1 * scene.scale])
     width, height = _image_size(args)
-    return Camera(position, look_at, args.up, _fov_y(args), width, height)
+    camera = Camera(position, look_at, args.up, _fov_y(args), width, height)
+    check_image_memory(camera, RENDER_BYTES_PER_PIXEL, "rendering")  # before the solve, not after it
+    return camera
 
 
 # -- subcommands -----------------------------------------------------------------------------

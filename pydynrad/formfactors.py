@@ -21,8 +21,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from .checks import patch_indices, resolution as checked_resolution, scene as checked_scene
-from .errors import InvalidInputError
+from .errors import InvalidInputError, OutOfMemoryError
 from .launch import BVH_PACKET, global_size
+from .memory import available_host_bytes
 
 __all__ = ["form_factors", "hemicube_blocks", "pixel_form_factors", "stack_blocks", "CLUSTER_RESOLUTION", "SURFACE_OFFSET"]
 
@@ -42,6 +43,10 @@ MIN_BLOCK_ROWS = 64
 #: against G from F at R = 128 (R = 16: 0.45-1.04%, too close to the 1% target) for 14% of the
 #: rays of F at R = 64 and 3.5% of those at R = 128.
 CLUSTER_RESOLUTION = 24
+
+#: Peak host memory of :func:`pixel_form_factors` per R^2, rounded up: 708 bytes measured at
+#: R = 1024 and 2048 (the pixels' corner polygons in float64), so R = 4096 needs 11 GiB.
+PIXEL_WEIGHT_BYTES_PER_R2 = 720
 
 #: Show a progress bar on a terminal when a call casts more rays than this.
 LONG_RUN_RAYS = 50_000_000
@@ -69,6 +74,10 @@ def pixel_form_factors(resolution: int) -> np.ndarray:
     kernels/hemicube.h). Normalised to sum to 1 (analytically they already do, to rounding).
     """
     R, H = resolution, resolution // 2
+    need, have = PIXEL_WEIGHT_BYTES_PER_R2 * R * R, available_host_bytes()
+    if need > have:
+        raise OutOfMemoryError(f"hemicube resolution {R} needs about {need / 2**30:.1f} GiB of host memory for its "
+                               f"pixel weights; {have / 2**30:.1f} GiB is available. Use a lower resolution")
     edges = -1.0 + 2.0 * np.arange(R + 1) / R  # pixel boundaries across a face
     heights = 2.0 * np.arange(H + 1) / R  # pixel boundaries up a side face
     u0, u1 = edges[:-1], edges[1:]

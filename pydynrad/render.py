@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Camera
+from .camera import Camera, check_image_memory
 from .checks import number, scene as checked_scene
 from .errors import InvalidInputError
 from .launch import WG, global_size
@@ -33,6 +33,10 @@ from .smoothing import checked_radiosity as _as_radiosity, smooth_vertices, smoo
 __all__ = ["Renderer", "Visibility", "render", "smoothing_groups", "SHADINGS"]
 
 SHADINGS = ("smooth", "flat")
+
+#: Peak host memory of :meth:`Renderer.render` per pixel, rounded up: 109 bytes measured
+#: (a 3000 x 3000 smooth render, PoCL CPU, whose device buffers are host memory too).
+RENDER_BYTES_PER_PIXEL = 128
 
 @dataclass
 class Visibility:
@@ -89,6 +93,7 @@ class Renderer:
 
         if not isinstance(camera, Camera):
             raise InvalidInputError(f"camera must be a pydynrad.Camera; got {type(camera).__name__}")
+        check_image_memory(camera, RENDER_BYTES_PER_PIXEL, "rendering")
         dev = self.device
         h, w = camera.shape
         n_pix = h * w

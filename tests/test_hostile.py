@@ -408,3 +408,54 @@ def test_worker_dying_at_start_up_is_one_line(tmp_path, capsys):
                                  "--workers", "1"], capsys)  # main: RuntimeError('Nanny failed to start.'), a traceback
     assert_one_line_error(code, err, "the local Dask cluster of 1 workers failed to start (Nanny failed to start.)")
 
+
+def test_oversize_image_is_refused_before_the_solve(monkeypatch, capsys, box, device):
+    from helpers import assert_one_line_error, run_main
+
+    monkeypatch.setattr(pydynrad.camera, "available_host_bytes", lambda: 8 * 2**30)  # a 24 GiB machine, in use
+    code, _, err = run_main(["render", "cornell_box", "-o", "x.png", "--width", "16384", "--height", "16384"], capsys)
+    assert_one_line_error(code, err, "rendering a 16384 x 16384 image needs about 32.0 GiB of host memory; 8.0 GiB")
+    camera = pydynrad.Camera((0.5, 0.5, 0.5), (0.5, 0.5, 0.0), width=16384, height=8192)
+    with pytest.raises(pydynrad.OutOfMemoryError, match="16384 x 8192 image needs about 16.0 GiB"):
+        Renderer(box, device).render(np.ones((len(box), 3)), camera)
+    with pytest.raises(pydynrad.OutOfMemoryError, match="path tracing a 16384 x 8192 image needs about 10.0 GiB"):
+        pydynrad.path_trace(box, camera, spp=1, device=device)
+
+
+def test_resolution_needing_more_than_memory_is_refused(monkeypatch, box, device):
+    with pytest.raises(InvalidInputError, match=r"resolution must lie in 2\.\.4096; got 8192"):
+        pydynrad.form_factors(box, resolution=8192, rows=[0], device=device)
+    monkeypatch.setattr(pydynrad.formfactors, "available_host_bytes", lambda: 8 * 2**30)
+    with pytest.raises(pydynrad.OutOfMemoryError, match="resolution 4096 needs about 11.2 GiB .* 8.0 GiB is available"):
+        pydynrad.form_factors(box, resolution=4096, rows=[0], device=device)  # main: 11 GiB in numpy first
+
+
+def test_available_memory_obeys_rlimit_as():
+    code = textwrap.dedent("""
+        import resource
+        from pydynrad.memory import available_host_bytes
+        size = next(int(l.split()[1]) * 1024 for l in open("/proc/self/status") if l.startswith("VmSize:"))
+        resource.setrlimit(resource.RLIMIT_AS, (size + 2**30, resource.getrlimit(resource.RLIMIT_AS)[1]))
+        print(available_host_bytes())
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert 0.9 * 2**30 < int(out.stdout) <= 2**30  # main: MemAvailable, whatever ulimit -v said
+
+
+@pytest.mark.parametrize("layout", ["v2", "v1"])
+def test_available_memory_obeys_the_cgroup_limit(monkeypatch, tmp_path, layout):
+    from pydynrad import memory
+
+    folder = tmp_path if layout == "v2" else tmp_path / "memory"
+    folder.mkdir(exist_ok=True)
+    limit, usage, stat = (("memory.max", "memory.current", "inactive_file") if layout == "v2" else
+                          ("memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file"))
+    (folder / limit).write_text(f"{2 * 2**30}\n")
+    (folder / usage).write_text(f"{3 * 2**29}\n")
+    (folder / "memory.stat").write_text(f"anon 123\n{stat} {2**28}\n")
+    monkeypatch.setattr(memory, "CGROUP_ROOT", tmp_path)
+    assert memory._cgroup_bytes() == 2 * 2**30 - 3 * 2**29 + 2**28  # the limit, less usage, plus reclaimable cache
+    assert memory.available_host_bytes() <= 3 * 2**28  # main: MemAvailable of the whole machine
+    (folder / limit).write_text("max\n")
+    assert memory._cgroup_bytes() is None
