@@ -21,10 +21,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from .errors import InvalidInputError
 
 __all__ = [
-    "WG", "RED_WG", "BVH_PACKET", "PANEL", "GEMM_GRAIN", "round_up", "global_size",
+    "WG", "RED_WG", "BVH_PACKET", "PANEL", "GEMM_GRAIN", "round_up", "global_size", "float4",
     "SpmvLayout", "spmv_layout", "GemmLayout", "gemm_layout", "MatvecLayout", "matvec_layout", "UpdateLayout",
 ]
 
@@ -34,6 +36,14 @@ WG = 64
 RED_WG = 64
 #: Rays per work-item of the packet traversal in ``kernels/bvh.cl``: one per 16-wide vector lane.
 BVH_PACKET = 16
+
+
+def float4(a) -> np.ndarray:
+    """(n, k <= 4) values as the (n, 4) float32 rows a kernel's ``float4`` buffer reads (zero padded)."""
+    a = np.asarray(a, dtype=np.float32).reshape(len(a), -1)
+    out = np.zeros((len(a), 4), dtype=np.float32)
+    out[:, : a.shape[1]] = a
+    return out
 
 
 def round_up(n: int, multiple: int) -> int:

@@ -31,7 +31,7 @@ import numpy as np
 
 from .checks import floats, number, scene as checked_scene, unit_vector, vec3
 from .errors import InvalidInputError
-from .launch import WG, global_size
+from .launch import WG, float4, global_size
 
 __all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "point_irradiance", "light_vector",
            "pack_lights", "pack_light_tables", "checked_lights", "checked_light_vector", "resolve_light"]
@@ -223,7 +223,7 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
         lo, hi = scene.bbox.astype(np.float64)
         # Sensors may lie outside the scene's box: directional shadow rays must reach past it from there.
         outside = float(np.max(np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)))
-        centers, normals = device.to_device(_float4(scene.frame.points(p))), device.to_device(_float4(normals))
+        centers, normals = device.to_device(float4(scene.frame.points(p))), device.to_device(float4(normals))
     out_dev = cl.Buffer(device.context, cl.mem_flags.WRITE_ONLY, n * 16)
     kernel = device.kernel("lights.cl", "direct_irradiance")
     # Directional shadow rays need only reach past the scene: twice its diagonal (plus the
@@ -237,12 +237,6 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
     out = np.empty((n, 4), dtype=np.float32)
     cl.enqueue_copy(device.queue, out, out_dev, is_blocking=True)
     return np.ascontiguousarray(out[:, :3])
-
-
-def _float4(a) -> np.ndarray:
-    out = np.zeros((len(a), 4), dtype=np.float32)
-    out[:, :3] = a
-    return out
 
 
 def direct_irradiance(scene, lights, device=None) -> np.ndarray:

@@ -107,7 +107,8 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
         raise SceneFileError(f"{path}: no such file" if not path.exists() else f"{path}: not a regular file")
     if fmt not in SUPPORTED_FORMATS:
         raise SceneFileError(f"{path}: unsupported format {path.suffix!r}; supported: {', '.join(SUPPORTED_FORMATS)}")
-    if fmt in _TEXT_FORMATS and b"\0" in path.read_bytes()[:1 << 16]:
+    data = path.read_bytes() if fmt in _TEXT_FORMATS else b""  # read once for the checks below
+    if b"\0" in data[:1 << 16]:
         raise SceneFileError(f"{path}: malformed {fmt.upper()} file: binary data (NUL bytes) in a text format")
     try:
         # process=False keeps face order (source_face) and lets bad vertices reach validation.
@@ -115,8 +116,8 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
     except Exception as exc:  # trimesh raises anything from ValueError to UnicodeDecodeError
         raise SceneFileError(f"{path}: cannot read as {fmt.upper()}: {type(exc).__name__}: {exc}") from exc
     if fmt == "obj":
-        _warn_malformed_lines(str(path), path.read_bytes().decode("utf-8", errors="replace"), "obj")
-        if b"usemtl" in path.read_bytes():
+        _warn_malformed_lines(str(path), data.decode("utf-8", errors="replace"), "obj")
+        if b"usemtl" in data:
             _warn_lost_materials(path, loaded)
     try:
         return from_mesh(loaded, max_patch_area=max_patch_area, max_edge=max_edge, default_albedo=default_albedo, name=path.stem)

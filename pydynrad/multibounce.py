@@ -288,7 +288,7 @@ def _host_build(FP: np.ndarray, F: np.ndarray, bounces: int | None, bar) -> np.n
         K = np.linalg.solve(A, F)
         bar.update(1)
         return K
-    K = F.copy()
+    K = F
     for _ in range(bounces):
         K = F + FP @ K
         bar.update(1)
@@ -345,7 +345,7 @@ def multibounce_radiosity(scene, K, lights=(), *, light=None, patches=None, devi
         raise InvalidInputError(f"K must be (1 or 3, {len(idx)}, {len(idx)}) for these patches; got {np.shape(K)}")
     LS = L[idx].T  # (3, M)
     if isinstance(K, DeviceMatrix):
-        KL = np.concatenate([K.matvec(LS[c : c + 1]) for c in range(3)]) if C == 1 else K.matvec(LS)
+        KL = K.matmat(LS[None])[0] if C == 1 else K.matvec(LS)  # one K, three colours in one pass
     else:
         Kd = np.asarray(K, dtype=np.float64)
         KL = np.einsum("cij,cj->ci", Kd if C == 3 else np.repeat(Kd, 3, axis=0), LS)

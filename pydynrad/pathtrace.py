@@ -30,7 +30,7 @@ import numpy as np
 from .camera import Camera, check_image_memory
 from .checks import integer, patch_indices, scene as checked_scene
 from .errors import InvalidInputError
-from .launch import global_size
+from .launch import float4, global_size
 from .lights import SHADOW_EPSILON, checked_lights, pack_light_tables, pack_lights
 from .photometry.sky import pack_sky
 from .scene import Scene
@@ -43,13 +43,6 @@ PATH_TRACE_BYTES_PER_PIXEL = 80
 
 #: Largest number of samples per item in one kernel launch (keeps launches short on GPUs).
 _MAX_PASS = 16
-
-
-def _float4(a: np.ndarray) -> np.ndarray:
-    a = np.asarray(a, dtype=np.float32).reshape(len(a), -1)
-    out = np.zeros((len(a), 4), dtype=np.float32)
-    out[:, : a.shape[1]] = a
-    return out
 
 
 class _Tracer:
@@ -71,7 +64,7 @@ class _Tracer:
             cdf[-1] = 1.0 + 1e-6  # every u in [0, 1) finds an emitter despite rounding
             v = scene.frame.points(scene.vertices[em]).astype(np.float64)
             tri = np.stack([v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], np.zeros_like(v[:, 0])], axis=1)
-            tri = _float4(tri.reshape(-1, 3))
+            tri = float4(tri.reshape(-1, 3))
             tri.reshape(len(em), 4, 4)[:, 3, :3] = scene.normals[em]
         else:
             inv_power, cdf = 0.0, np.zeros(1)
@@ -88,8 +81,8 @@ class _Tracer:
         # buffers) may differ in albedo and emission.
         self.args = (
             nodes, tris, order,
-            normals, up(_float4(scene.albedo)), up(_float4(scene.emission)),
-            np.int32(len(em)), up(tri), up(_float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
+            normals, up(float4(scene.albedo)), up(float4(scene.emission)),
+            np.int32(len(em)), up(tri), up(float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
             up(cdf.astype(np.float32)), np.float32(inv_power),
             np.int32(n_lights), up(packed), up(pack_light_tables(lights)), up(pack_sky(lights)),
             np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
@@ -175,7 +168,7 @@ def path_trace(scene: Scene, camera, spp: int = 64, lights=(), seed: int = 0, ma
     h, w = camera.shape
     origin = np.zeros(4, dtype=np.float32)
     origin[:3] = scene.frame.points(camera.position)
-    directions = tracer.device.to_device(_float4(camera.ray_directions().reshape(-1, 3)))
+    directions = tracer.device.to_device(float4(camera.ray_directions().reshape(-1, 3)))
     total, done = tracer.accumulate("trace_pixels", (origin, directions), h * w, int(spp), int(seed),
                                     progress, time_limit)
     # The kernel returns radiance; pi * radiance is the radiosity of a diffuse surface.

@@ -22,6 +22,7 @@ import numpy as np
 
 from .checks import floats
 from .errors import InvalidInputError
+from .launch import float4
 
 __all__ = ["Scene", "DegenerateTriangleWarning", "DeviceFrame", "PrecisionWarning"]
 
@@ -260,12 +261,7 @@ class Scene:
         (:meth:`with_materials`), so a different scene never sees these buffers."""
 
         def upload():
-            out = []
-            for a in (self.frame.points(self.centers), self.normals):
-                a4 = np.zeros((len(self), 4), dtype=np.float32)
-                a4[:, :3] = a
-                out.append(device.to_device(a4))
-            return tuple(out)
+            return tuple(device.to_device(float4(a)) for a in (self.frame.points(self.centers), self.normals))
 
         return self.bvh.upload_once(device, "patch_frames", upload)
 

@@ -204,14 +204,11 @@ def solve(scene, F, lights=(), method: str = "iterative", tol: float = 1e-6, max
     -------
     Solution
     """
-    from .lights import resolve_light
     from .photometry.areas import analytic_emitter_light
 
     if method not in ("iterative", "dense"):
         raise InvalidInputError(f"unknown method {method!r}; allowed: 'iterative', 'dense'")
     L, E = analytic_emitter_light(scene, lights, light, emitters, device)
-    if E is None:
-        L = resolve_light(scene, lights, light, device)
     if method == "dense":
         sol = _dense_solve(scene, check_form_factors(scene, F), L)
     else:

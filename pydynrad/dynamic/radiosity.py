@@ -561,13 +561,10 @@ class DynamicRadiosity:
         form factor, not through K (as in :func:`pydynrad.solve`): the same solution for B - E
         with the reflected light vector L_r, plus E.
         """
-        from ..lights import resolve_light
         from ..photometry.areas import analytic_emitter_light
 
         self._require_built()
         L, E = analytic_emitter_light(self.scene, lights, light, emitters, self.device)
-        if E is None:
-            L = resolve_light(self.scene, lights, light, self.device)
         S = self._local_patches
         LS = L[S]
         far = self.far.light(L) if far_field and self.far is not None else None

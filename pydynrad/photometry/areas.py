@@ -20,21 +20,14 @@ import numpy as np
 
 from ..checks import integer
 from ..errors import InvalidInputError
-from ..launch import global_size
-from ..lights import SHADOW_EPSILON
+from ..launch import float4, global_size
+from ..lights import SHADOW_EPSILON, resolve_light
 
 __all__ = ["emitter_irradiance", "reflected_light_vector", "analytic_emitter_light", "EMITTER_MODES"]
 
 #: How the direct light of emitting patches reaches a receiver: through the hemicube (F or the
 #: sensor's own), or by the contour integral here.
 EMITTER_MODES = ("hemicube", "analytic")
-
-
-def _float4(a) -> np.ndarray:
-    a = np.asarray(a, dtype=np.float32).reshape(len(a), -1)
-    out = np.zeros((len(a), 4), dtype=np.float32)
-    out[:, : a.shape[1]] = a
-    return out
 
 
 def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np.ndarray:
@@ -59,8 +52,8 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np
     out_dev = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, n * 16)
     kernel = dev.kernel("areas.cl", "emitter_irradiance")
     up = dev.to_device
-    kernel(dev.queue, (global_size(n),), None, up(_float4(scene.frame.points(points))), up(_float4(normals)),
-           np.int32(n), up(_float4(packed)), up(_float4(scene.emission[em])), np.int32(len(em)), nodes, tris,
+    kernel(dev.queue, (global_size(n),), None, up(float4(scene.frame.points(points))), up(float4(normals)),
+           np.int32(n), up(float4(packed)), up(float4(scene.emission[em])), np.int32(len(em)), nodes, tris,
            np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)), np.int32(grid), out_dev)
     out = np.empty((n, 4), np.float32)
     cl.enqueue_copy(dev.queue, out, out_dev)
@@ -85,11 +78,11 @@ def reflected_light_vector(scene, lights=(), grid: int = 4, device=None) -> np.n
 
 def analytic_emitter_light(scene, lights, light, emitters: str, device=None):
     """For a solver's ``emitters=`` option: ``(L_r, E)`` to solve for ``B - E`` with and add E to
-    afterwards, or ``(None, None)`` for ``"hemicube"`` (the usual light vector)."""
+    afterwards, or ``(L, None)`` for ``"hemicube"`` (the usual light vector)."""
     if emitters not in EMITTER_MODES:
         raise InvalidInputError(f"emitters must be one of {EMITTER_MODES}; got {emitters!r}")
     if emitters == "hemicube":
-        return None, None
+        return resolve_light(scene, lights, light, device), None
     if light is not None:
         raise InvalidInputError("emitters='analytic' builds its own light vector from lights=; "
                                 "a precomputed light= cannot be split into emission and reflected light")

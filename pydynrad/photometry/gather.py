@@ -14,7 +14,7 @@ import numpy as np
 
 from ..checks import resolution as checked_resolution
 from ..formfactors import SURFACE_OFFSET, pixel_form_factors
-from ..launch import BVH_PACKET, global_size
+from ..launch import BVH_PACKET, float4, global_size
 
 __all__ = ["gather_irradiance"]
 
@@ -23,13 +23,6 @@ _SENSOR_KEY_OFFSET = 0x9E3779B9
 
 #: Points per kernel launch: bounds the partial-sum buffer (3R float4 per point) and a launch's length.
 BLOCK_POINTS = 4096
-
-
-def _float4(a) -> np.ndarray:
-    a = np.asarray(a, dtype=np.float32)
-    out = np.zeros((len(a), 4), dtype=np.float32)
-    out[:, : a.shape[1]] = a
-    return out
 
 
 def gather_irradiance(scene, points, normals, radiosity=None, sky=None, resolution: int = 64, keys=None,
@@ -69,8 +62,8 @@ def gather_irradiance(scene, points, normals, radiosity=None, sky=None, resoluti
     if points is None:
         points_dev, normals_dev = scene.patch_buffers(dev)
     else:
-        points_dev, normals_dev = up(_float4(scene.frame.points(points))), up(_float4(normals))
-    B = np.zeros((len(scene), 4), np.float32) if radiosity is None else _float4(radiosity)
+        points_dev, normals_dev = up(float4(scene.frame.points(points))), up(float4(normals))
+    B = np.zeros((len(scene), 4), np.float32) if radiosity is None else float4(radiosity)
     sky = np.zeros((4, 4), np.float32) if sky is None else np.ascontiguousarray(sky, np.float32)
     if keys is None:  # offset by the golden ratio's bits: key 0 would hash to angle 0, aligned with the axes
         keys = ((np.arange(n, dtype=np.uint64) + _SENSOR_KEY_OFFSET) % 2**32).astype(np.uint32).view(np.int32)
