@@ -174,9 +174,8 @@ def _warn_intersections(scene, objs: list[RigidObject], transforms) -> None:
     from .bvh import occluded
 
     for o, T in zip(objs, transforms):
-        v = o.scene.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-        edges = v[o.scene.triangles][:, [0, 1, 2]], v[o.scene.triangles][:, [1, 2, 0]]
-        start, end = edges[0].reshape(-1, 3), edges[1].reshape(-1, 3)
+        corners = o.world_points(T)[o.scene.triangles]  # (T, 3, 3)
+        start, end = corners.reshape(-1, 3), corners[:, [1, 2, 0]].reshape(-1, 3)
         d = end - start
         hit = occluded(scene, start, d, np.float32(1.0))
         if hit.any():

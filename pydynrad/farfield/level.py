@@ -38,7 +38,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import ROW_SUM_SLACK, check_form_factors, integer, scene as checked_scene
+from ..checks import check_form_factor_rows, check_form_factors, integer, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
 from .clusters import Clusters, cluster_patches, light_components
 
@@ -161,19 +161,9 @@ class FarField:
         else:
             self.weights = None
             Pr = clusters.indicator()
-        given = G is not None
-        if not given:
-            G = F @ Pr
-        G = sp.csr_matrix(G, dtype=np.float64)
-        if G.shape != (n, C):
-            raise InvalidInputError(f"G must have shape ({n}, {C}) (patches x clusters); got {G.shape}")
-        if G.nnz and (not np.all(np.isfinite(G.data)) or G.data.min() < 0):
-            raise InvalidInputError("G must hold finite, non-negative form factors")
-        rows = np.asarray(G.sum(axis=1)).ravel() if given else np.zeros(0)
-        if rows.max(initial=0.0) > 1.0 + ROW_SUM_SLACK:  # a given row of G is a row of F summed by cluster
-            i = int(rows.argmax())
-            raise InvalidInputError(f"row {i} of G sums to {rows[i]:.6g} > 1: not this scene's form factors summed by "
-                                    "cluster")
+        # A given G is checked like rows of F (a row of G is a row of F summed by cluster); F Pr is
+        # a product of the checked F and a prolongation built here, so it needs no second check.
+        G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else check_form_factor_rows(G, "G", shape=(n, C))
         self.prolongation, self.first_bounce, self.tol, self.max_sweeps = prolongation, bool(first_bounce), tol, max_sweeps
         self.fine_sweeps = integer(fine_sweeps, "fine_sweeps", 0)
         self.G = G
