@@ -16,6 +16,8 @@ and ``DynamicRadiosity.radiosity`` with ``emitters="analytic"`` solve for ``B - 
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from ..checks import integer
@@ -28,6 +30,11 @@ __all__ = ["emitter_irradiance", "reflected_light_vector", "analytic_emitter_lig
 #: How the direct light of emitting patches reaches a receiver: through the hemicube (F or the
 #: sensor's own), or by the contour integral here.
 EMITTER_MODES = ("hemicube", "analytic")
+
+# The emitters' irradiance at the patch centres depends on the scene alone (its arrays are
+# read-only), not on the lights: kept while the scene lives, so a relit solve or every frame of
+# DynamicRadiosity.radiosity(emitters="analytic") traces its shadow rays once.
+_at_patches: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np.ndarray:
@@ -71,8 +78,14 @@ def reflected_light_vector(scene, lights=(), grid: int = 4, device=None) -> np.n
     """
     from ..lights import direct_irradiance
 
-    H = direct_irradiance(scene, lights, device).astype(np.float64)
-    H += emitter_irradiance(scene, scene.centers, scene.normals, grid, device)
+    from ..device import default_device
+
+    dev = device or default_device()
+    per_scene = _at_patches.setdefault(scene, {})
+    key = (integer(grid, "grid (visibility samples per side)", 1, 64), id(dev))
+    if key not in per_scene:  # the device is kept beside its value, so its id is not reused
+        per_scene[key] = (dev, emitter_irradiance(scene, scene.centers, scene.normals, key[0], dev))
+    H = direct_irradiance(scene, lights, dev).astype(np.float64) + per_scene[key][1]
     return scene.albedo.astype(np.float64) * H
 
 
