@@ -228,8 +228,7 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
     given = [o for o, v in (("--workers", args.workers), ("--scheduler", args.scheduler),
                             ("--block-rows", args.block_rows), ("--clusters", args.clusters),
                             ("--cluster-resolution", args.cluster_resolution)) if v is not None]
-    if args.no_f:
-        given.append("--no-f")
+    given += [o for o, v in (("--no-f", args.no_f), ("--verify", args.verify)) if v]
     if given:
         raise InvalidInputError(f"{', '.join(given)} apply to a store folder; {str(out)!r} is a single .npz file")
     out = _checked_target(out, (".npz",))  # fail before the work, not after
@@ -284,16 +283,19 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     if (out / HEADER).exists():
         store = FormFactorStore.open(scene, out, resolution=args.resolution, patching=spec.recipe())
         block_rows = block_rows or store.block_rows
-        # Finished blocks are read and their checksums (bound to this store) checked on resume:
-        # a corrupt or foreign block is deleted and recomputed, never reported as done.
-        absent = set(store.missing_blocks())
-        corrupt = sorted(set(store.missing_blocks(verify=True)) - absent)
-        for k in corrupt:
-            store.block_path(k).unlink()
-        done = store.n_blocks - len(absent) - len(corrupt)
-        print(f"resuming {out}: {done} of {store.n_blocks} blocks already done"
-              + (f"; {len(corrupt)} fail their checksum and are recomputed (block {', '.join(map(str, corrupt[:8]))}"
-                 f"{', ...' if len(corrupt) > 8 else ''})" if corrupt else ""))
+        # Finished blocks of F are read and their checksums (bound to this store) checked on
+        # every resume, G's too with --verify: a corrupt or foreign block is deleted and
+        # recomputed, never reported as done.
+        for part in ("F", "G") if args.verify and store.has_clusters else ("F",):
+            found = store.verify(part, remove=True)
+            corrupt = found["corrupt"]
+            print(f"{'verified' if args.verify else 'resuming'} {out}{', G' if part == 'G' else ''}: "
+                  f"{len(found['verified'])} of {store.n_blocks} blocks already done"
+                  + (f"; {len(corrupt)} fail their checksum and are recomputed (block {', '.join(map(str, corrupt[:8]))}"
+                     f"{', ...' if len(corrupt) > 8 else ''})" if corrupt else "")
+                  + (f"; {len(found['missing'])} missing" if args.verify and found["missing"] else ""))
+    elif args.verify:
+        raise InvalidInputError(f"--verify checks an existing store; there is none at {str(out)!r}")
     block_rows = block_rows or DEFAULT_BLOCK_ROWS
     common = dict(resolution=args.resolution, block_rows=block_rows, progress=_progress(args), clusters=labels,
                   cluster_resolution=args.cluster_resolution or DEFAULT_CLUSTER_RESOLUTION,
@@ -652,6 +654,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"store only: hemicube resolution of G (default {DEFAULT_CLUSTER_RESOLUTION})")
     p.add_argument("--no-f", action="store_true",
                    help="store only: store G alone, not F's rows (walks then compute F's rows on demand)")
+    p.add_argument("--verify", action="store_true",
+                   help="store only: read every finished block of an existing store, F's and G's, check each "
+                        "against its checksum (bound to this store), report the counts and recompute what fails "
+                        "(a resume checks F's blocks anyway)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_formfactors)
 

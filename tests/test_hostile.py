@@ -342,6 +342,37 @@ def test_a_block_from_another_store_is_refused_and_recomputed_on_resume(tmp_path
             pydynrad.FormFactorStore.read_header(tmp_path / "a")
 
 
+def test_formfactors_verify_checks_every_block_and_recomputes_what_fails(tmp_path, capsys, device):
+    from pydynrad.cli import main
+
+    out = tmp_path / "s"
+    args = ["formfactors", "closed_box", "-o", str(out), "--resolution", "8", "--block-rows", "64", "--workers", "0",
+            "--clusters", "6", "--quiet"]
+    assert main(args) == 0
+    capsys.readouterr()
+    scene = pydynrad.scenes.closed_box()
+    store = pydynrad.open_form_factors(scene, out)
+    assert {k: len(v) for k, v in store.verify("G").items()} == {"verified": 3, "missing": 0, "corrupt": 0}
+    good_f, good_g = store.read_block(1), store.read_block(2, "G")
+    store.block_path(1).write_bytes(store.block_path(1).read_bytes()[:-40])  # truncated
+    store.block_path(0, "G").write_bytes(store.block_path(1, "G").read_bytes())  # another block's
+    store.block_path(2, "G").unlink()
+    assert store.verify("F") == {"verified": [0, 2], "missing": [], "corrupt": [1]}
+    assert store.verify("G") == {"verified": [1], "missing": [2], "corrupt": [0]}
+    assert main(args + ["--verify"]) == 0
+    printed = capsys.readouterr().out
+    assert f"verified {out}: 2 of 3 blocks already done; 1 fail their checksum and are recomputed (block 1)" in printed
+    assert f"verified {out}, G: 1 of 3 blocks already done; 1 fail their checksum and are recomputed (block 0); 1 missing" in printed
+    assert all(not v for k, v in store.verify("F").items() if k != "verified")
+    assert all(not v for k, v in store.verify("G").items() if k != "verified")
+    assert abs(store.read_block(1) - good_f).max() == 0 and abs(store.read_block(2, "G") - good_g).max() == 0
+    # Only for a store that exists, and not for a single file.
+    for target, needle in ((tmp_path / "none", "--verify checks an existing store"),
+                           (tmp_path / "f.npz", "--verify apply to a store folder")):
+        assert main(["formfactors", "closed_box", "-o", str(target), "--resolution", "8", "--verify", "--quiet"]) == 2
+        assert needle in capsys.readouterr().err
+
+
 def test_one_line_errors_for_wrong_types(box, box_F, device):
     # Each was a raw TypeError or ValueError from numpy on main (issue 14, item 8).
     with pytest.raises(InvalidInputError, match="refresh_tolerance must be a positive number or None; got '1e-4'"):

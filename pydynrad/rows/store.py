@@ -473,17 +473,34 @@ class FormFactorStore:
     # -- state -----------------------------------------------------------------------------
     def missing_blocks(self, verify: bool = False, part: str = "F") -> list[int]:
         """Blocks of F (or of G) not yet on disk; with ``verify``, also blocks whose checksum fails."""
+        if not verify:
+            self._columns(part)
+            return [k for k in range(self.n_blocks) if not self.block_path(k, part).exists()]
+        found = self.verify(part)
+        return sorted(found["missing"] + found["corrupt"])
+
+    def verify(self, part: str = "F", remove: bool = False) -> dict[str, list[int]]:
+        """Read every finished block of F (or of G) and check it against its checksum, bound to this store.
+
+        Returns ``{"verified": [...], "missing": [...], "corrupt": [...]}``: block indices that
+        pass, that are not on disk, and that fail (unreadable, another store's or block's, or
+        altered). With ``remove`` the corrupt files are deleted, so :func:`compute_store`
+        (or ``pydynrad formfactors`` run again) recomputes them with the missing ones.
+        """
         self._columns(part)
-        out = []
+        found: dict[str, list[int]] = {"verified": [], "missing": [], "corrupt": []}
         for k in range(self.n_blocks):
-            if not self.block_path(k, part).exists():
-                out.append(k)
-            elif verify:
-                try:
-                    self.read_block(k, part)
-                except StoreCorruptError:
-                    out.append(k)
-        return out
+            try:
+                self.read_block(k, part)
+                found["verified"].append(k)
+            except StoreIncompleteError:
+                found["missing"].append(k)
+            except StoreCorruptError:
+                found["corrupt"].append(k)
+        if remove:
+            for k in found["corrupt"]:
+                self.block_path(k, part).unlink(missing_ok=True)
+        return found
 
     @property
     def complete(self) -> bool:
