@@ -155,11 +155,6 @@ def checked_lights(lights) -> list:
     return lights
 
 
-def _shadow_ray_lights(lights) -> list:
-    luminaire = _photometric_types()[0]
-    return [light for light in checked_lights(lights) if isinstance(light, (*LIGHT_TYPES, luminaire))]
-
-
 def pack_lights(lights, frame=None) -> np.ndarray:
     """(n_lights, 12) float32: the point, spot, directional and luminaire lights among ``lights``.
 
@@ -171,13 +166,26 @@ def pack_lights(lights, frame=None) -> np.ndarray:
     squared, so that the kernels' I / r^2 over device distances gives the irradiance of the
     user's frame.
     """
-    packed, offset = [], 0
-    for light in _shadow_ray_lights(lights):
+    return _packed(checked_lights(lights), frame)[0]
+
+
+def pack_light_tables(lights) -> np.ndarray:
+    """(n,) float32: the luminaires' intensity tables, one after another in ``lights``' order
+    (the offsets :func:`pack_lights` records); one zero when there is no luminaire."""
+    return _packed(checked_lights(lights))[1]
+
+
+def _packed(lights: list, frame=None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pack_lights` and :func:`pack_light_tables` of checked ``lights``, in one pass."""
+    luminaire = _photometric_types()[0]
+    packed, tables, offset = [], [], 0
+    for light in lights:
         if isinstance(light, LIGHT_TYPES):
             packed.append(light._packed())
-        else:
+        elif isinstance(light, luminaire):
             packed.append(light._packed(offset))
-            offset += len(light._table())
+            tables.append(light._table())
+            offset += len(tables[-1])
     packed = np.asarray(packed, dtype=np.float64).reshape(len(packed), 12)
     if frame is not None:
         positional = packed[:, 3] != 2.0  # every light but the directional (type 2) has a position
@@ -188,14 +196,7 @@ def pack_lights(lights, frame=None) -> np.ndarray:
     if not np.all(np.isfinite(out)):
         raise InvalidInputError("a light's position or intensity overflows float32 on the device "
                                 "(beyond ~3e38 once the scene is scaled to its own size)")
-    return out
-
-
-def pack_light_tables(lights) -> np.ndarray:
-    """(n,) float32: the luminaires' intensity tables, one after another in ``lights``' order
-    (the offsets :func:`pack_lights` records); one zero when there is no luminaire."""
-    tables = [light._table() for light in _shadow_ray_lights(lights) if not isinstance(light, LIGHT_TYPES)]
-    return np.concatenate(tables).astype(np.float32) if tables else np.zeros(1, np.float32)
+    return out, (np.concatenate(tables).astype(np.float32) if tables else np.zeros(1, np.float32))
 
 
 def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
@@ -205,12 +206,16 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
     ``scene.bvh`` on the device from the point offset along its normal; a sky is not included.
     ``points = normals = None``: the patch centres (``Scene.patch_buffers``, uploaded once).
     """
+    return _point_irradiance(scene, points, normals, checked_lights(lights), device)
+
+
+def _point_irradiance(scene, points, normals, lights: list, device) -> np.ndarray:
+    """:func:`point_irradiance` of checked ``lights``."""
     import pyopencl as cl
 
     from .device import default_device
 
-    lights = checked_lights(lights)
-    packed = pack_lights(lights, scene.frame)
+    packed, tables = _packed(lights, scene.frame)
     n = len(scene) if points is None else len(points)
     if not len(packed) or not n:
         return np.zeros((n, 3), dtype=np.float32)
@@ -230,7 +235,7 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
     # farthest sensor's distance outside it).
     kernel(
         device.queue, (global_size(n),), (WG,), np.int32(n), centers, normals, np.int32(len(packed)),
-        device.to_device(packed), device.to_device(pack_light_tables(lights)), nodes, tris,
+        device.to_device(packed), device.to_device(tables), nodes, tris,
         np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
         np.float32(scene.frame.length(2.0 * scene.scale + outside)), out_dev,
     )
@@ -245,11 +250,15 @@ def direct_irradiance(scene, lights, device=None) -> np.ndarray:
     Point, spot and directional lights: one shadow ray per patch and light. A sky: a hemicube
     at each patch centre whose escaping rays see it (sky visibility, the sky's resolution).
     """
+    return _direct_irradiance(scene, checked_lights(lights), device)
+
+
+def _direct_irradiance(scene, lights: list, device) -> np.ndarray:
+    """:func:`direct_irradiance` of checked ``lights``."""
     from .photometry.sky import SkyLight, pack_sky
 
-    lights = checked_lights(lights)
     checked_scene(scene)
-    E = point_irradiance(scene, None, None, lights, device)
+    E = _point_irradiance(scene, None, None, lights, device)
     skies = [light for light in lights if isinstance(light, SkyLight)]
     if skies:
         from .photometry.gather import gather_irradiance
@@ -270,7 +279,7 @@ def light_vector(scene, lights=(), device=None) -> np.ndarray:
     L = checked_scene(scene).emission.astype(np.float64)
     lights = checked_lights(lights)
     if lights:
-        L = L + scene.albedo.astype(np.float64) * direct_irradiance(scene, lights, device)
+        L = L + scene.albedo.astype(np.float64) * _direct_irradiance(scene, lights, device)
     return L
 
 
