@@ -490,3 +490,24 @@ def test_available_memory_obeys_the_cgroup_limit(monkeypatch, tmp_path, layout):
     assert memory.available_host_bytes() <= 3 * 2**28  # main: MemAvailable of the whole machine
     (folder / limit).write_text("max\n")
     assert memory._cgroup_bytes() is None
+
+
+def test_rows_are_checked_once_on_their_way_to_the_local_set(monkeypatch, box, box_F, device):
+    import pydynrad.rows.sources as sources
+    from pydynrad.dynamic.localrows import LocalRows
+    from pydynrad.rows.cache import RowCache
+
+    in_memory = sources.CSRRows(box_F)  # checks its matrix once, here
+    calls = []
+    real = sources.check_form_factor_rows
+    monkeypatch.setattr(sources, "check_form_factor_rows", lambda *a, **k: calls.append(1) or real(*a, **k))
+    idx = np.array([3, 1, 4])
+    want = sp.csr_matrix(box_F, dtype=np.float64)[idx].toarray()
+    with RowCache(in_memory, 2**20) as cache:
+        for source in (cache, cache.source):
+            got = LocalRows(box, source, 8, device).rows(idx)
+            assert got.dtype == np.float64 and np.array_equal(got.toarray(), want)
+    assert calls == []  # main: checked again by the cache and again by LocalRows
+    bare = type("Bare", (), {"n_patches": len(box), "rows": lambda self, i: sp.csr_matrix(box_F)[i]})()
+    assert np.array_equal(LocalRows(box, bare, 8, device).rows(idx).toarray(), want)
+    assert len(calls) == 1  # a source without the contract is checked by its reader

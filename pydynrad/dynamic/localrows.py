@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factor_rows, check_form_factors
+from ..checks import check_form_factors
 from ..errors import InvalidInputError
-from ..rows.sources import HemicubeRows, RowSource
+from ..rows.sources import HemicubeRows, RowSource, read_rows
 
 __all__ = ["LocalRows"]
 
@@ -76,8 +76,7 @@ class LocalRows:
         idx = np.asarray(idx, dtype=np.int64)
         if self.csr is not None:
             return self.csr[idx]
-        # Every block a source serves is checked (structure first: scipy indexes with it unchecked).
-        return check_form_factor_rows(self.source.rows(idx), "form-factor rows", idx, (len(idx), self.n_patches))
+        return read_rows(self.source, idx)  # checked, once: not again for a RowCache or CSRRows
 
     def fetch_local(self, local_patches: np.ndarray) -> None:
         """Fetch the rows of a whole new local set (a build or refresh), validated by :meth:`rows`."""

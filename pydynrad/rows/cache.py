@@ -16,9 +16,9 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factor_rows, patch_indices
+from ..checks import patch_indices
 from ..errors import InvalidInputError
-from .sources import RowSource
+from .sources import RowSource, read_rows
 
 __all__ = ["RowCache"]
 
@@ -53,6 +53,8 @@ class RowCache:
     ``prefetch_hits`` (the hits a prefetch brought in), ``prefetched`` (rows read in the
     background), ``evictions``.
     """
+
+    rows_checked = True
 
     def __init__(self, source: RowSource, max_bytes: int) -> None:
         if not isinstance(source, RowSource):
@@ -91,9 +93,9 @@ class RowCache:
         self.peak_nbytes = max(self.peak_nbytes, self.nbytes)
 
     def _read(self, idx: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        # Checked before caching: a broken block is refused with its row named, never served later.
-        return _split_rows(check_form_factor_rows(self.source.rows(idx), "form-factor rows", idx,
-                                                 (len(idx), self.n_patches)), idx)
+        # Checked before caching (so this cache keeps the checked-rows contract): a broken
+        # block is refused with its row named, never served later.
+        return _split_rows(read_rows(self.source, idx), idx)
 
     # -- RowSource ---------------------------------------------------------------------------
     def rows(self, idx) -> sp.csr_matrix:

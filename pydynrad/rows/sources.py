@@ -20,12 +20,19 @@ import scipy.sparse as sp
 from ..checks import check_form_factor_rows, patch_indices, resolution as checked_resolution
 from ..errors import InvalidInputError
 
-__all__ = ["RowSource", "CSRRows", "HemicubeRows", "as_row_source"]
+__all__ = ["RowSource", "CSRRows", "HemicubeRows", "as_row_source", "read_rows"]
 
 
 @runtime_checkable
 class RowSource(Protocol):
-    """Supplies rows of the (N, N) gathering form-factor matrix F."""
+    """Supplies rows of the (N, N) gathering form-factor matrix F.
+
+    The checked-rows contract: a source whose every ``rows`` block has already passed
+    :func:`pydynrad.checks.check_form_factor_rows` (structure, shape (len(idx), N), finite,
+    >= 0, row sums) says so with a class attribute ``rows_checked = True``, and
+    :func:`read_rows` then does not check its blocks again. It is not a protocol member: a
+    source without it is checked by every reader.
+    """
 
     n_patches: int
 
@@ -34,8 +41,22 @@ class RowSource(Protocol):
         ...
 
 
+def read_rows(source: RowSource, idx) -> sp.csr_matrix:
+    """Rows ``idx`` of ``source`` as a validated float64 CSR matrix (len(idx), N).
+
+    Checked here (structure first: scipy indexes with it unchecked), unless the source keeps
+    the checked-rows contract (see :class:`RowSource`). ``idx`` names rows in errors.
+    """
+    rows = source.rows(idx)
+    if getattr(source, "rows_checked", False) is True:
+        return sp.csr_matrix(rows, dtype=np.float64)
+    return check_form_factor_rows(rows, "form-factor rows", idx, (len(idx), int(source.n_patches)))
+
+
 class CSRRows:
-    """An in-memory (N, N) sparse F as a :class:`RowSource`."""
+    """An in-memory (N, N) sparse F as a :class:`RowSource`, checked once when made."""
+
+    rows_checked = True
 
     def __init__(self, matrix) -> None:
         shape = getattr(matrix, "shape", ())
