@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -124,10 +125,14 @@ class SmoothVertices:
         n = len(self.corner_vertex)
         b = checked_radiosity(radiosity, n).astype(np.float64)
         flat = self.corner_vertex.reshape(-1)
-        total = np.bincount(flat, weights=self.weight, minlength=self.n_vertices)
         values = np.stack([np.bincount(flat, weights=self.weight * np.repeat(b[:, c], 3), minlength=self.n_vertices)
                            for c in range(3)], axis=1)
-        return values / total[:, None]
+        return values / self._total[:, None]
+
+    @cached_property
+    def _total(self) -> np.ndarray:
+        """(V,) float64 sum of the weights at each smooth vertex: the same for every radiosity."""
+        return np.bincount(self.corner_vertex.reshape(-1), weights=self.weight, minlength=self.n_vertices)
 
 
 def smooth_vertices(scene, crease_angle: float = 30.0) -> SmoothVertices:
