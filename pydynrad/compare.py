@@ -64,15 +64,17 @@ def false_colour(values, vmax: float) -> np.ndarray:
     return np.asarray(out.get_pixels(oiio.FLOAT), dtype=np.float32).reshape(*t.shape, 3)
 
 
-def _label(out: np.ndarray, text: str, x: int, y: int, size: int) -> None:
-    """Draw ``text`` in white into ``out`` (H, W, 3), C-contiguous, with its baseline at row ``y`` from column ``x``."""
+def _label(out: np.ndarray, texts, size: int) -> None:
+    """Draw ``texts`` ((text, x, y) each: baseline at row ``y`` from column ``x``) in white into
+    ``out`` (H, W, 3), C-contiguous, in one round trip through an OpenImageIO buffer."""
     import OpenImageIO as oiio
 
     buf = oiio.ImageBuf(oiio.ImageSpec(out.shape[1], out.shape[0], 3, oiio.FLOAT))
     buf.set_pixels(oiio.ROI(), out)
-    if not oiio.ImageBufAlgo.render_text(buf, x, y, text, size, "", (1.0, 1.0, 1.0)):
-        raise PydynradError(f"OpenImageIO could not draw the colour bar's label {text!r} (no font?): "
-                            f"{buf.geterror() or oiio.geterror()}")
+    for text, x, y in texts:
+        if not oiio.ImageBufAlgo.render_text(buf, x, y, text, size, "", (1.0, 1.0, 1.0)):
+            raise PydynradError(f"OpenImageIO could not draw the colour bar's label {text!r} (no font?): "
+                                f"{buf.geterror() or oiio.geterror()}")
     out[:] = buf.get_pixels(oiio.FLOAT).reshape(out.shape)
 
 
@@ -132,8 +134,7 @@ def comparison_image(dynamic, reference, exposure: float = 0.0, vmax: float | No
     out[:, x0:x0 + bar_w] = false_colour(ramp, vmax)[:, None, :]
     if h >= 2 * (t_up + b_down):  # labels that would overlap are left out (tiny images)
         labels = out[:, x0 + bar_w + gap:].copy()
-        _label(labels, top_text, 0, t_up, size)
-        _label(labels, bottom_text, 0, h - 1 - b_down, size)
+        _label(labels, [(top_text, 0, t_up), (bottom_text, 0, h - 1 - b_down)], size)
         out[:, x0 + bar_w + gap:] = labels
     return out, stats
 
