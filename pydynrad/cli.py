@@ -209,21 +209,8 @@ def _cmd_formfactors(args: argparse.Namespace) -> int:
     return _formfactors_store(args, out)
 
 
-def _is_form_factor_file(path: Path) -> bool:
-    """True when ``path`` is a .npz that save_form_factors wrote (whatever its scene)."""
-    import json
-
-    from .rows.files import FF_FORMAT
-
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            return json.loads(str(z["header"])).get("format") == FF_FORMAT
-    except Exception:  # not a zip, no header, not JSON: all mean "not ours"
-        return False
-
-
 def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
-    from .rows.files import save_form_factors
+    from .rows.files import is_form_factor_file, save_form_factors
 
     given = [o for o, v in (("--workers", args.workers), ("--scheduler", args.scheduler),
                             ("--block-rows", args.block_rows), ("--clusters", args.clusters),
@@ -232,7 +219,7 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
     if given:
         raise InvalidInputError(f"{', '.join(given)} apply to a store folder; {str(out)!r} is a single .npz file")
     out = _checked_target(out, (".npz",))  # fail before the work, not after
-    if out.exists() and not args.force and not _is_form_factor_file(out):
+    if out.exists() and not args.force and not is_form_factor_file(out):
         raise InvalidInputError(f"{str(out)!r} exists and is not a pydynrad form-factor file: not overwriting it "
                                 "(pass --force to replace it)")
     scene = load_scene(args.scene, args.max_edge)

@@ -25,7 +25,7 @@ from ..atomic import check_parent_folder, write_atomic
 from ..checks import resolution as checked_resolution, scene as checked_scene, sparse_structure
 from ..errors import InvalidInputError
 
-__all__ = ["FF_FORMAT", "load_form_factors", "open_form_factors", "save_form_factors",
+__all__ = ["FF_FORMAT", "is_form_factor_file", "load_form_factors", "open_form_factors", "save_form_factors",
            "whole_matrix"]
 
 FF_FORMAT = "pydynrad-form-factors"
@@ -65,15 +65,8 @@ def load_form_factors(scene, path) -> tuple[sp.csr_matrix, dict]:
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"form-factor file {str(path)!r}: no such file")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            header = json.loads(str(z["header"]))
-            n = int(header["n_patches"])
-            data, indices, indptr = z["data"], z["indices"], z["indptr"]
-    except Exception as exc:  # zipfile, KeyError, ValueError, JSON: all mean "not our file"
-        raise InvalidInputError(f"form-factor file {str(path)!r} is not a pydynrad form-factor file ({exc})") from None
-    if header.get("format") != FF_FORMAT:
-        raise InvalidInputError(f"form-factor file {str(path)!r} is not a pydynrad form-factor file")
+    header, (data, indices, indptr) = _read(path, arrays=True)
+    n = int(header["n_patches"])
     if header.get("geometry_hash") != scene.geometry_hash():
         raise InvalidInputError(f"form-factor file {str(path)!r} was computed for another scene geometry "
                                 f"({header.get('scene')!r}, {n} patches; this scene has {len(scene)} patches): "
@@ -84,6 +77,30 @@ def load_form_factors(scene, path) -> tuple[sp.csr_matrix, dict]:
     # Before scipy sees them: its kernels index memory with these arrays unchecked.
     sparse_structure(indptr, indices, (n, n), f"form-factor file {str(path)!r}", nnz=len(data))
     return sp.csr_matrix((data, indices, indptr), shape=(n, n)), header
+
+
+def _read(path: Path, arrays: bool) -> tuple[dict, tuple]:
+    """(header, (data, indices, indptr) or ()) of a file written by :func:`save_form_factors`;
+    InvalidInputError for anything else."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            header = json.loads(str(z["header"]))
+            int(header["n_patches"])  # a header without a patch count is not ours either
+            found = tuple(z[k] for k in ("data", "indices", "indptr")) if arrays else ()
+    except Exception as exc:  # zipfile, KeyError, ValueError, JSON: all mean "not our file"
+        raise InvalidInputError(f"form-factor file {str(path)!r} is not a pydynrad form-factor file ({exc})") from None
+    if header.get("format") != FF_FORMAT:
+        raise InvalidInputError(f"form-factor file {str(path)!r} is not a pydynrad form-factor file")
+    return header, found
+
+
+def is_form_factor_file(path) -> bool:
+    """True when ``path`` is a file :func:`save_form_factors` wrote (for whatever scene); reads its header only."""
+    try:
+        _read(Path(path), arrays=False)
+    except InvalidInputError:
+        return False
+    return True
 
 
 def _open_store(scene, path: Path):
