@@ -86,6 +86,12 @@ def _frame_count(frames) -> int:
     return int(frames)
 
 
+def _check_interpolation(value) -> None:
+    """The one rule for a path's ``interpolation`` (camera, light and object tracks)."""
+    if value not in INTERPOLATIONS:
+        raise InvalidInputError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}; got {value!r}")
+
+
 def sample_curve(keys: np.ndarray, s: float, interpolation: str) -> np.ndarray:
     """Point at parameter ``s`` in [0, K-1] on the curve through ``keys`` (K, 3)."""
     k = len(keys)
@@ -148,8 +154,7 @@ class CameraPath:
         elif len(pos) < 2:
             raise InvalidInputError("a path without look_at points needs at least 2 positions to look along")
         object.__setattr__(self, "frames", _frame_count(self.frames))
-        if self.interpolation not in INTERPOLATIONS:
-            raise InvalidInputError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}; got {self.interpolation!r}")
+        _check_interpolation(self.interpolation)
         self.camera(0)  # validates the lens and the first view now rather than mid-walk
 
     def __len__(self) -> int:
@@ -220,8 +225,7 @@ class LightTrack:
         if not (dataclasses.is_dataclass(self.light) and hasattr(self.light, "position")):
             raise InvalidInputError(f"a LightTrack needs a light with a position; got {self.light!r}")
         object.__setattr__(self, "positions", _keyframes(self.positions, "light keyframes"))
-        if self.interpolation not in INTERPOLATIONS:
-            raise InvalidInputError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}; got {self.interpolation!r}")
+        _check_interpolation(self.interpolation)
 
     def at(self, frame: int, frames: int):
         """The light at frame ``frame`` of ``frames``."""
@@ -253,8 +257,7 @@ class ObjectTrack:
         if T.ndim != 3 or len(T) == 0:
             raise InvalidInputError(f"object keyframes must be (K, 4, 4) transforms; got shape {np.shape(self.transforms)}")
         object.__setattr__(self, "transforms", np.stack([rigid_transform(t, f"object keyframe {k}") for k, t in enumerate(T)]))
-        if self.interpolation not in INTERPOLATIONS:
-            raise InvalidInputError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}; got {self.interpolation!r}")
+        _check_interpolation(self.interpolation)
 
     def at(self, frame: int, frames: int) -> np.ndarray:
         """The (4, 4) pose at frame ``frame`` of ``frames``."""
