@@ -176,8 +176,8 @@ def _howell_perpendicular(l, w, h):
     return (W * np.arctan(1 / W) + H * np.arctan(1 / H) - np.sqrt(s) * np.arctan(1 / np.sqrt(s)) + log / 4) / (np.pi * W)
 
 
-def accuracy(resolutions, subdivisions, device) -> list[dict]:
-    """Plate-to-plate error and time per configuration, R and subdivision."""
+def accuracy(resolutions, subdivisions, device, samples: int = 1) -> list[dict]:
+    """Plate-to-plate error and time per configuration, R and subdivision (``samples`` hemicubes per row)."""
     from pydynrad.formfactors import form_factors
     from pydynrad.scenes.analytic import parallel_plates, perpendicular_plates
 
@@ -189,12 +189,12 @@ def accuracy(resolutions, subdivisions, device) -> list[dict]:
             a = scene.areas.astype(np.float64)
             src, dst = scene.source_face // 2 == 0, scene.source_face // 2 == 1
             for R in resolutions:
-                form_factors(scene, resolution=R, rows=[0], device=device)  # kernel build outside the timing
+                form_factors(scene, resolution=R, rows=[0], samples=samples, device=device)  # kernel build outside the timing
                 t = time.perf_counter()
-                F = form_factors(scene, resolution=R, device=device, progress=False)
+                F = form_factors(scene, resolution=R, samples=samples, device=device, progress=False)
                 dt = time.perf_counter() - t
                 got = float(a[src] @ np.asarray(F[src][:, dst].sum(axis=1)).ravel() / a[src].sum())
-                out.append({"case": name, "subdivisions": sub, "patches": len(scene), "R": R, "F": got,
+                out.append({"case": name, "subdivisions": sub, "patches": len(scene), "R": R, "samples": samples, "F": got,
                             "truth": float(truth), "rel_error": got / truth - 1, "seconds": dt,
                             "rays_per_s": len(scene) * 3 * R * R / dt})
     return out

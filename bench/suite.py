@@ -25,6 +25,8 @@ cie171         the CIE 171:2006 analytic test cases: reference, ours and error p
 photometry     sensor throughput, the sky term's cost, the hemicube's error near an area emitter (bench/photometry.py)
 objects        moving a block through the Cornell box: move cost and error vs the occlusion budget
                (bench/objects.py)
+sampling       area-sampled form-factor rows: the built-ins' energy balance (bias and noise) and the
+               plates' error vs samples per row and R (bench/sampling.py)
 =============  ===========================================================================
 
 Each section is a function ``section(ctx) -> dict`` (title, description, tables, plots; see
@@ -68,6 +70,7 @@ SIZES: dict[str, dict] = {
         "photometry": {"cell": 1.0, "sensors": 16, "resolutions": (16,), "sky_resolutions": (8,),
                        "distances": (0.1, 1.0)},
         "objects": {},
+        "sampling": {},
     },
     "quick": {
         "pathtracer": {"furnace_subdivisions": 3, "spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
@@ -84,6 +87,7 @@ SIZES: dict[str, dict] = {
         "photometry": {"cell": 0.25, "sensors": 1024, "resolutions": (32, 64, 128), "sky_resolutions": (32, 64),
                        "distances": (0.01, 0.03, 0.1, 0.3, 1.0)},
         "objects": {},
+        "sampling": {},
     },
     "full": {
         "pathtracer": {"furnace_subdivisions": 4, "spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
@@ -101,6 +105,7 @@ SIZES: dict[str, dict] = {
                        "sky_resolutions": (32, 64, 128),
                        "distances": (0.003, 0.01, 0.03, 0.1, 0.3, 1.0)},
         "objects": {},
+        "sampling": {},
     },
 }
 
@@ -118,6 +123,7 @@ SECTIONS: dict[str, str] = {
     "cie171": "bench.cie171:cie171_section",
     "photometry": "bench.photometry:photometry_section",
     "objects": "bench.objects:suite_section",
+    "sampling": "bench.sampling:suite_section",
 }
 
 

@@ -1,5 +1,7 @@
 // Hemicube form factors by ray casting: one work-item per hemicube scanline (the layout and
-// the ray directions are hemicube.h's; the key of patch i's rotation is i).
+// the ray directions are hemicube.h's). Each row averages HC_SAMPLES hemicubes (1 unless the
+// host defines it), one per stratum of its patch, at origins the host places; sample m of
+// patch i is rotated by key i * HC_SAMPLES + m (i alone for one sample).
 //
 // Each scanline's pixels are run-length encoded: consecutive pixels that see the same patch
 // form one run (id, end pixel). The host turns runs into weights with a prefix sum of the
@@ -23,25 +25,30 @@
 #define HC_END_TYPE int
 #endif
 
-// centers, normals: float4 per patch. rows: the patches whose hemicubes this block renders.
-// Outputs per (row k, scanline s): run_patch / run_end at [(k * 3R + s) * R + j] for the j-th
-// run (patch -1: nothing front-facing visible), run_count at [k * 3R + s].
+#ifndef HC_SAMPLES
+#define HC_SAMPLES 1
+#endif
+
+// origins: float4 per (row k, sample m) of this block, at [k * HC_SAMPLES + m]; normals: float4
+// per patch. rows: the patches whose hemicubes this block renders. Outputs per hemicube
+// q = k * HC_SAMPLES + m and scanline s: run_patch / run_end at [(q * 3R + s) * R + j] for the
+// j-th run (patch -1: nothing front-facing visible), run_count at [q * 3R + s].
 __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 *tris, __global const int *order,
-                            __global const float4 *centers, __global const float4 *normals,
+                            __global const float4 *origins, __global const float4 *normals,
                             __global const int *rows, int n_rows, float eps,
                             __global int *run_patch, __global HC_END_TYPE *run_end, __global int *run_count
                             HC_EXTRA_ARGS)
 {
     const int R = HC_RES;
     int g = get_global_id(0);
-    if (g >= n_rows * 3 * R) return;
-    int k = g / (3 * R), s = g % (3 * R);
-    int i = rows[k];
+    if (g >= n_rows * HC_SAMPLES * 3 * R) return;
+    int q = g / (3 * R), s = g % (3 * R);
+    int i = rows[q / HC_SAMPLES];
     float3 n = normals[i].xyz;
-    float3 org = centers[i].xyz + eps * n;
+    float3 org = origins[q].xyz + eps * n;
 
     float3 base, step_dir;
-    hc_scanline(n, (uint)i, s, &base, &step_dir);
+    hc_scanline(n, (uint)i * HC_SAMPLES + (uint)(q % HC_SAMPLES), s, &base, &step_dir);
 
     size_t slot = (size_t)g * R;
     int runs = 0, current = -2;

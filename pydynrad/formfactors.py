@@ -1,10 +1,16 @@
 """Hemicube form factors by ray casting through the patch BVH (kernels/hemicube.cl).
 
-Patch i's row of F comes from one hemicube at its centre: every pixel casts one ray, and the
-pixel's delta form factor (its exact cosine-weighted solid angle, computed once per
-resolution on the host) goes to the nearest patch the ray meets from the front. A back face
-occludes and receives nothing; a ray that leaves the scene takes its share with it, so rows
-sum to 1 in closed scenes and to less in open ones.
+Patch i's row of F comes from hemicubes on it: every pixel casts one ray, and the pixel's
+delta form factor (its exact cosine-weighted solid angle, computed once per resolution on the
+host) goes to the nearest patch the ray meets from the front. A back face occludes and
+receives nothing; a ray that leaves the scene takes its share with it, so rows sum to 1 in
+closed scenes and to less in open ones.
+
+F[i, j] is the area average over patch i of the point-to-patch factor; one hemicube at the
+centre is a one-point rule for that average, biased where the factor is peaked (under a small
+source, the centre sees more of it than the patch does on average). ``samples`` > 1 averages
+that many hemicubes, one at the centroid of each stratum of the patch's midpoint subdivision
+(equal areas), each at resolution R / sqrt(samples): the same rays per row.
 
 Rows are computed in blocks: the device writes each scanline's pixels run-length encoded
 (patch, end pixel), the host turns runs into weights with a prefix sum and sums duplicates
@@ -20,12 +26,13 @@ from functools import lru_cache
 import numpy as np
 import scipy.sparse as sp
 
-from .checks import patch_indices, resolution as checked_resolution, scene as checked_scene
+from .checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
-from .launch import BVH_PACKET, global_size
+from .launch import BVH_PACKET, float4, global_size
 from .memory import available_host_bytes
 
-__all__ = ["form_factors", "hemicube_blocks", "pixel_form_factors", "stack_blocks", "CLUSTER_RESOLUTION", "SURFACE_OFFSET"]
+__all__ = ["form_factors", "hemicube_blocks", "pixel_form_factors", "sample_points", "stack_blocks", "CLUSTER_RESOLUTION",
+           "SURFACE_OFFSET"]
 
 #: Hemicube centres sit this far off their patch, times the scene's bounding-box diagonal:
 #: far above float32 rounding of coordinates (about 6e-8 of them), far below any patch size.
@@ -96,6 +103,43 @@ def pixel_form_factors(resolution: int) -> np.ndarray:
     return w / w.sum()
 
 
+@lru_cache(maxsize=8)
+def _stratum_centroids(levels: int) -> np.ndarray:
+    """(4**levels, 3) barycentric centroids of a triangle's midpoint subdivision, ``levels`` deep."""
+    tris = np.eye(3)[None]  # (T, corner, barycentric)
+    for _ in range(levels):
+        a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+        ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
+        tris = np.concatenate([np.stack(t, 1) for t in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
+    return tris.mean(axis=1)
+
+
+def _checked_samples(samples, resolution: int) -> int:
+    """Hemicubes per row: 4**L, with R / 2**L an even resolution (each sample's hemicube)."""
+    k = integer(samples, "samples", 1, 4**6)
+    levels = int(round(np.log(k) / np.log(4)))
+    if 4**levels != k:
+        raise InvalidInputError(f"samples must be a power of 4 (1, 4, 16, ...: the strata of a triangle's midpoint "
+                                f"subdivision); got {k}")
+    if resolution % (2 << levels):
+        raise InvalidInputError(f"samples={k} splits resolution {resolution} into {k} hemicubes of resolution "
+                                f"{resolution} / {2**levels}, which must be an even integer")
+    return k
+
+
+def sample_points(scene, rows, samples: int = 1) -> np.ndarray:
+    """(len(rows), samples, 3) float64 hemicube origins of patches ``rows``, in the scene's frame.
+
+    The patch centre for one sample; else the centroids of the 4**L triangles of the patch's
+    midpoint subdivision L levels deep (equal areas), in :func:`_stratum_centroids`' order.
+    """
+    rows = np.asarray(rows)
+    if samples == 1:
+        return scene.centers[rows][:, None]
+    bary = _stratum_centroids(int(round(np.log(samples) / np.log(4))))
+    return np.einsum("mc,rcx->rmx", bary, scene.vertices[rows])
+
+
 def _runs_to_csr(patch, end, count, weights_cum, n_cols: int) -> sp.csr_matrix:
     """Sum each row's runs into a CSR block: patch/end (B, 3R, R), count (B, 3R).
 
@@ -118,7 +162,8 @@ def _runs_to_csr(patch, end, count, weights_cum, n_cols: int) -> sp.csr_matrix:
 
 
 def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | None = None, *,
-                    desc: str = "form factors", clusters: tuple[np.ndarray, np.ndarray, int] | None = None):
+                    desc: str = "form factors", clusters: tuple[np.ndarray, np.ndarray, int] | None = None,
+                    samples: int = 1):
     """Rows of hemicube form factors in bounded blocks: yields one float64 CSR block at a time.
 
     The one block loop behind :func:`form_factors` and
@@ -126,7 +171,9 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     (b, N): F's rows. With ``clusters = (labels, scale, C)`` (per patch: its column in [0, C)
     or -1, and its weight) the device records ``labels[patch]`` instead of the patch and weighs
     each pixel by ``scale[patch]``, so a block is (b, C): rows of F Pr for the prolongation
-    Pr[i, labels[i]] = scale[i]. ``rows`` and ``resolution`` are checked here.
+    Pr[i, labels[i]] = scale[i]. Each row averages ``samples`` hemicubes of resolution
+    R / sqrt(samples) (see the module's docstring). ``rows``, ``resolution`` and ``samples``
+    are checked here.
     """
     import pyopencl as cl
 
@@ -134,51 +181,61 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     from .progress import progress_bar
 
     dev = device or default_device()
-    R = checked_resolution(resolution)
-    if 3 * R * R * 4 > dev.max_alloc_bytes:
-        raise InvalidInputError(f"resolution {R} needs more memory per hemicube than {dev.name} allows in one buffer")
+    R_total = checked_resolution(resolution)
+    K = _checked_samples(samples, R_total)
+    R = R_total // int(round(np.sqrt(K)))  # each sample's hemicube
+    if 3 * R_total * R_total * 4 > dev.max_alloc_bytes:
+        raise InvalidInputError(f"resolution {R_total} needs more memory per hemicube than {dev.name} allows in one buffer")
     n = len(checked_scene(scene))
     rows = np.arange(n, dtype=np.int32) if rows is None else patch_indices(rows, n, "rows").astype(np.int32)
     if len(rows) == 0:
         return
     S = 3 * R
-    per_row = S * R * 8
+    per_row = K * S * R * 8
     # Two blocks in flight (see below), each at most half of BLOCK_BYTES, and about
     # OVERLAP_BLOCKS blocks in all so that even a small scene overlaps host and device work.
     block = int(max(1, min(len(rows), BLOCK_BYTES // (2 * per_row), max(MIN_BLOCK_ROWS, -(-len(rows) // OVERLAP_BLOCKS)))))
     defines, extra = {"HC_RES": R, "BVH_PACKET": BVH_PACKET}, []
+    if K > 1:
+        defines["HC_SAMPLES"] = K
+    # A row's K hemicubes are K * S scanlines of one block row; each weighs 1 / K.
+    weights = pixel_form_factors(R) / K
     if clusters is None:
         n_cols, end_dtype = n, np.int32
-        weights_cum = np.zeros((S, R + 1))
-        np.cumsum(pixel_form_factors(R), axis=1, out=weights_cum[:, 1:])
+        weights_cum = np.zeros((K * S, R + 1))
+        np.cumsum(np.tile(weights, (K, 1)), axis=1, out=weights_cum[:, 1:])
     else:
         labels, scale, n_cols = clusters
         end_dtype, weights_cum = np.float32, None
         defines["HC_CLUSTERS"] = 1
         extra = [dev.to_device(np.ascontiguousarray(a, dtype=t)) for a, t in
-                 ((labels, np.int32), (scale, np.float32), (pixel_form_factors(R), np.float32))]
+                 ((labels, np.int32), (scale, np.float32), (weights, np.float32))]
     knl = dev.kernel("hemicube.cl", "hemicube_runs", defines)
     nodes, tris, order = scene.bvh.buffers(dev)
-    centers, normals = scene.patch_buffers(dev)
+    normals = scene.patch_buffers(dev)[1]
     mf = cl.mem_flags
     # Two sets of output buffers: block b + 1 traces on the device while the host turns block
     # b's runs into CSR (numpy, one core), instead of each side waiting for the other. Row
     # indices go through preallocated buffers too (a buffer made from host memory waited for
     # the queue to drain on PoCL), and the read-back of block b + 1 is enqueued only after
     # block b's host work: PoCL's reads wait for the kernel before them even when not blocking.
-    buffers = [tuple(cl.Buffer(dev.context, mf.WRITE_ONLY, block * S * w) for w in (R * 4, R * 4, 4)) for _ in range(2)]
+    buffers = [tuple(cl.Buffer(dev.context, mf.WRITE_ONLY, block * K * S * w) for w in (R * 4, R * 4, 4)) for _ in range(2)]
     idx_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, block * 4) for _ in range(2)]
+    org_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, block * K * 16) for _ in range(2)]
+    org_host = [None, None]  # each block's origins live until the next copy into the same buffer
     eps = np.float32(scene.frame.length(SURFACE_OFFSET * scene.scale))
 
     def launch(first: int, k: int) -> int:
         idx = np.ascontiguousarray(rows[first : first + block])
+        org_host[k] = float4(scene.frame.points(sample_points(scene, idx, K).reshape(-1, 3)))
         cl.enqueue_copy(dev.queue, idx_bufs[k], idx, is_blocking=False)  # rows outlives the copy
-        knl(dev.queue, (global_size(len(idx) * S),), None, nodes, tris, order, centers, normals, idx_bufs[k],
+        cl.enqueue_copy(dev.queue, org_bufs[k], org_host[k], is_blocking=False)
+        knl(dev.queue, (global_size(len(idx) * K * S),), None, nodes, tris, order, org_bufs[k], normals, idx_bufs[k],
             np.int32(len(idx)), eps, *buffers[k], *extra)
         return len(idx)
 
     def read(b: int, k: int):
-        host = (np.empty((b, S, R), np.int32), np.empty((b, S, R), end_dtype), np.empty((b, S), np.int32))
+        host = (np.empty((b, K * S, R), np.int32), np.empty((b, K * S, R), end_dtype), np.empty((b, K * S), np.int32))
         for h, d in zip(host, buffers[k]):
             cl.enqueue_copy(dev.queue, h, d)
         return host
@@ -205,7 +262,8 @@ def stack_blocks(blocks, n_cols: int) -> sp.csr_matrix:
     return m
 
 
-def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: bool | None = None) -> sp.csr_matrix:
+def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: bool | None = None,
+                 samples: int = 1) -> sp.csr_matrix:
     """Gathering form factors F[i, j] of a scene by hemicubes.
 
     Parameters
@@ -219,6 +277,11 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
         The OpenCL device (default: :func:`pydynrad.default_device`).
     progress : bool, optional
         Show a tqdm bar; None: on a terminal, for runs over LONG_RUN_RAYS rays (:mod:`pydynrad.progress`).
+    samples : int
+        Hemicubes per row (1, 4, 16, ...): each row averages hemicubes at the centroids of
+        ``samples`` equal strata of its patch, each of resolution R / sqrt(samples), so the rays
+        per row stay 3 R^2. Removes the centre point's bias where a patch is large against its
+        distance to what it sees (see the module's docstring).
 
     Returns
     -------
@@ -227,4 +290,4 @@ def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: 
         leaving it that arrives at each). ``F[i, i] = 0``.
     """
     n = len(checked_scene(scene))
-    return stack_blocks(hemicube_blocks(scene, resolution, rows, device, progress), n)
+    return stack_blocks(hemicube_blocks(scene, resolution, rows, device, progress, samples=samples), n)

@@ -187,7 +187,8 @@ def test_cornell_energy_balance(cornell):
     break reciprocity by a few percent per entry, which leaves 1.7% here: nearly all of it the
     light's two patches, whose columns (the others' centre-point hemicubes) take 3% more than
     their rows send. The floor's share fell from 0.66% to 0.13% when it stopped running on under
-    the blocks (the total was 1.3% then because the two partly cancelled)."""
+    the blocks (the total was 1.3% then because the two partly cancelled). Area-sampled rows
+    (``form_factors(samples=)``) remove the centre points' part: test_scenes.py."""
     s, F, sol = cornell
     A, rho, E, B = (s.areas.astype(np.float64), s.albedo.astype(np.float64), s.emission.astype(np.float64), sol.radiosity)
     H = F @ B
