@@ -315,3 +315,17 @@ def test_area_sampled_rows_keep_the_furnace(device):
 def test_bad_samples(device, samples, resolution, needle):
     with pytest.raises(InvalidInputError, match=needle):
         form_factors(parallel_plates(subdivisions=0), resolution=resolution, samples=samples, device=device)
+
+
+def test_area_sampled_cluster_rows_are_the_rows_times_the_prolongation(device):
+    """The far field's kernel path (runs of cluster ids, weights summed on the device) with
+    samples: G = F Pr for the same strata, to float32 summation (observed 3.3e-8)."""
+    from pydynrad.formfactors import hemicube_blocks, stack_blocks
+
+    scene = closed_box(1.0, subdivisions=2)
+    labels = (np.arange(len(scene)) // 7 % 5).astype(np.int32)
+    scale = np.linspace(0.5, 1.5, len(scene))
+    pr = sp.csr_matrix((scale, (np.arange(len(scene)), labels)), shape=(len(scene), 5))
+    G = stack_blocks(hemicube_blocks(scene, 32, None, device, False, clusters=(labels, scale, 5), samples=4), 5)
+    F = form_factors(scene, resolution=32, samples=4, device=device).astype(np.float64)
+    np.testing.assert_allclose(G.toarray(), (F @ pr).toarray(), rtol=0, atol=1e-6)
