@@ -2,7 +2,9 @@
 // Storage type from storage.h (STORAGE_FP16/FP32/FP64); vectors x, y are REAL.
 //
 // Both products are memory-bound: they stream K exactly once.
-//   VW: vector width of the loads (16 suits CPUs' wide SIMD, 4 suits GPUs).
+//   VW: vector width of the loads (4, 8 or 16: two SIMD registers on a CPU, 4 on GPUs); rows and
+//       the x vectors start on multiples of ld elements (ld % 64 == 0), so the LX == 1 loads
+//       take storage.h's aligned access.
 //   LX: work-items per row in `matvec`. LX == 1 gives one row per work-item (a CPU core then
 //       streams whole rows with vector loads); LX > 1 gives one work-group per row whose
 //       items read adjacent vectors (coalesced on a GPU) and reduce in local memory.
@@ -18,16 +20,6 @@
 #error "matvec.cl needs VW, LX and NRHS from the host (pydynrad/launch.py)"
 #endif
 
-// 16-wide rows use storage.h's aligned access (rows start on multiples of ld elements,
-// ld % 64 == 0); other widths use vload semantics.
-#if VW == 16
-#define MV_LOADK(p, j) K16((p) + (j))
-#define MV_LOADX(p, j) R16((p) + (j))
-#else
-#define MV_LOADK(p, j) LOADV(VW, p, j)
-#define MV_LOADX(p, j) VLOADR(VW, p, j)
-#endif
-
 // Y[q, i] = sum_j K[i, j] X[q, j] for i < M and the NRHS right-hand sides q: X holds NRHS
 // vectors of ld entries each (stride ld), Y NRHS vectors of M entries (stride M). Each element
 // of K is loaded once for all NRHS products, so r products cost one pass over K, not r.
@@ -41,8 +33,8 @@ __kernel void matvec(__global const STORE_T *K, const int M, const int ld,
     if (row >= M) return;
     __global const STORE_T *r = K + (size_t)row * ld;
     for (int j = 0; j < ld; j += VW) {
-        const REALV(VW) k = MV_LOADK(r, j);
-        for (int q = 0; q < NRHS; ++q) acc[q] += k * MV_LOADX(x + q * ld, j);
+        const REALV(VW) k = KV(r + j);
+        for (int q = 0; q < NRHS; ++q) acc[q] += k * RV(x + q * ld + j);
     }
     for (int q = 0; q < NRHS; ++q) y[q * M + row] = HSUM(VW, acc[q]);
 #else

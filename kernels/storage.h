@@ -48,22 +48,37 @@ typedef float REAL;
 #define REALV(n) PDR_XCAT(REAL_BASE, n)
 #define VLOADR(n, p, i) PDR_XCAT(vload, n)(0, (p) + (i))
 
-// 16-wide access for the CPU kernels' inner loops. With PDR_CLANG_VECTORS (set by the host on
+// VW-wide access for the kernels' inner loops (VW, the vector width in elements, 4, 8 or 16,
+// comes from the host where a kernel needs it). With PDR_CLANG_VECTORS (set by the host on
 // clang-based CPU compilers such as PoCL, whose buffers are aligned to >= 128 bytes) loads and
 // stores are aligned vector dereferences and fp16 converts with __builtin_convertvector (F16C
 // instructions): PoCL does not inline its vload*/vstore* builtins, and a call inside an inner
 // loop spills every vector register. The pointer must be aligned to the vector's size.
-typedef REALV(16) real16;
-
-// K16(p) / K16_STORE(v, p): 16 elements of K at p (64-byte aligned for fp32) as real16;
-// R16(p) / R16_STORE(v, p): the same for REAL arrays; K1(p, i): one element of K as REAL
-// (a plain load, without the vload_half call, where the compiler allows; p 4-byte aligned).
+//   KV(p) / KV_STORE(v, p): VW elements of K at p as realv; RV(p) / RV_STORE(v, p): the same
+//   for REAL arrays; K1(p, i): one element of K as REAL (a plain load, without the vload_half
+//   call, where the compiler allows; p 4-byte aligned).
+#ifdef VW
+typedef REALV(VW) realv;
 #ifdef PDR_CLANG_VECTORS
-#define R16(p) (*(__global const real16 *)(p))
-#define R16_STORE(v, p) (*(__global real16 *)(p) = (v))
+#define RV(p) (*(__global const realv *)(p))
+#define RV_STORE(v, p) (*(__global realv *)(p) = (v))
 #if defined(STORAGE_FP16)
-typedef __fp16 pdr_half16 __attribute__((ext_vector_type(16)));
-#define K16(p) __builtin_convertvector(*(__global const pdr_half16 *)(p), real16)
+typedef __fp16 pdr_halfv __attribute__((ext_vector_type(VW)));
+#define KV(p) __builtin_convertvector(*(__global const pdr_halfv *)(p), realv)
+#define KV_STORE(v, p) (*(__global pdr_halfv *)(p) = __builtin_convertvector((v), pdr_halfv))
+#else
+#define KV(p) RV(p)
+#define KV_STORE(v, p) RV_STORE(v, p)
+#endif
+#else
+#define RV(p) PDR_XCAT(vload, VW)(0, (p))
+#define RV_STORE(v, p) PDR_XCAT(vstore, VW)((v), 0, (p))
+#define KV(p) LOADV(VW, (p), 0)
+#define KV_STORE(v, p) STOREV(VW, (v), (p), 0)
+#endif
+#endif
+
+#if defined(PDR_CLANG_VECTORS) && defined(STORAGE_FP16)
 typedef __fp16 pdr_half2 __attribute__((ext_vector_type(2)));
 // Scalar half loads need cl_khr_fp16; an aligned pair of halves does not (p 4-byte aligned).
 inline REAL pdr_half_at(__global const STORE_T *p, int i)
@@ -72,18 +87,8 @@ inline REAL pdr_half_at(__global const STORE_T *p, int i)
     return (i & 1) ? f.y : f.x;
 }
 #define K1(p, i) pdr_half_at((p), (i))
-#define K16_STORE(v, p) (*(__global pdr_half16 *)(p) = __builtin_convertvector((v), pdr_half16))
-#else
-#define K16(p) R16(p)
-#define K16_STORE(v, p) R16_STORE(v, p)
-#define K1(p, i) LOAD(p, i)
-#endif
 #else
 #define K1(p, i) LOAD(p, i)
-#define R16(p) vload16(0, (p))
-#define R16_STORE(v, p) vstore16((v), 0, (p))
-#define K16(p) LOADV(16, (p), 0)
-#define K16_STORE(v, p) STOREV(16, (v), (p), 0)
 #endif
 
 // Horizontal sums, pairwise so rounding grows like log(n).

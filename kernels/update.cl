@@ -11,17 +11,17 @@
 // and the O(M) kernels: read_slots / write_slots (columns and rows of a few slots) and
 // double_reflection (Eq. 1 of the paper).
 //
-// CPU kernels give each work-item (one per work-group) RR rows at a time: every 16-wide
+// CPU kernels give each work-item (one per work-group) RR rows at a time: every VW-wide
 // vector of B or X read from cache serves RR rows of K, which is what makes a rank-2k pass
 // stream K instead of re-reading the small factors for every row.
 //
 // Layout defines, all required (pydynrad/launch.py, UpdateLayout.defines, picks them per device):
-//   VW   vector width of K loads in the GPU kernels
+//   VW   vector width of K loads (4, 8 or 16: a CPU's SIMD register of REALs, 4 on GPUs)
 //   WG   work-items per row block in gather_partial (a GPU's coalesced group)
 //   RR   rows per step of the CPU kernels; CWMAX the widest column strip of gather_rows
 //   NVMAX, NAMAX  the most vectors per gather / terms per rank update (private array sizes)
 //   RED_WG  items of double_reflection's one work-group (a power of two)
-//   PDR_CLANG_VECTORS  aligned 16-wide access instead of vload/vstore (see storage.h).
+//   PDR_CLANG_VECTORS  aligned vector access instead of vload/vstore (see storage.h).
 // Host guarantees: ld % 64 == 0, K's padding columns M..ld are zero, X and B hold ld entries
 // per vector with zeros past M (so padding stays zero after a rank update); the per-(i, m)
 // kernels run on a global size rounded up past M and return for i >= M.
@@ -46,8 +46,8 @@ __kernel void gather_rows(__global const STORE_T *K, const int M, const int ld, 
     const int i0 = b * RB, i1 = IMIN(M, i0 + RB);
     __global REAL *cp = colpart + (size_t)b * NV * ld + j0;
     for (int m = 0; m < NV; ++m)
-        for (int c = 0; c < nc; c += 16) R16_STORE((real16)(0), cp + (size_t)m * ld + c);
-    real16 tile[RR][CWMAX / 16];
+        for (int c = 0; c < nc; c += VW) RV_STORE((realv)(0), cp + (size_t)m * ld + c);
+    realv tile[RR][CWMAX / VW];
     for (int i = i0; i < i1; i += RR) {
         const int nr = IMIN(RR, i1 - i);
         // The RR rows are read side by side (RR streams at once keep more loads in flight than
@@ -55,34 +55,34 @@ __kernel void gather_rows(__global const STORE_T *K, const int M, const int ld, 
         __global const STORE_T *rows[RR];
 #pragma unroll
         for (int r = 0; r < RR; ++r) rows[r] = K + (size_t)IMIN(i + r, M - 1) * ld + j0;
-        for (int c = 0; c < nc; c += 16) {
+        for (int c = 0; c < nc; c += VW) {
 #pragma unroll
-            for (int r = 0; r < RR; ++r) tile[r][c / 16] = r < nr ? K16(rows[r] + c) : (real16)(0);
+            for (int r = 0; r < RR; ++r) tile[r][c / VW] = r < nr ? KV(rows[r] + c) : (realv)(0);
         }
         for (int m = 0; m < NV; ++m) {
             REAL y[RR];
-            real16 racc[RR];
+            realv racc[RR];
 #pragma unroll
             for (int r = 0; r < RR; ++r) {
                 y[r] = r < nr ? Y[(size_t)m * M + i + r] : 0;
-                racc[r] = (real16)(0);
+                racc[r] = (realv)(0);
             }
             __global const REAL *x = X + (size_t)m * ld + j0;
             __global REAL *col = cp + (size_t)m * ld;
-            for (int c = 0; c < nc; c += 16) {
-                const real16 xv = R16(x + c);
+            for (int c = 0; c < nc; c += VW) {
+                const realv xv = RV(x + c);
                 // Four partial column sums: one chain of RR dependent FMAs would stall on latency.
-                real16 cv[4] = {R16(col + c), (real16)(0), (real16)(0), (real16)(0)};
+                realv cv[4] = {RV(col + c), (realv)(0), (realv)(0), (realv)(0)};
 #pragma unroll
                 for (int r = 0; r < RR; ++r) {
-                    racc[r] += tile[r][c / 16] * xv;
-                    cv[r % 4] += y[r] * tile[r][c / 16];
+                    racc[r] += tile[r][c / VW] * xv;
+                    cv[r % 4] += y[r] * tile[r][c / VW];
                 }
-                R16_STORE((cv[0] + cv[1]) + (cv[2] + cv[3]), col + c);
+                RV_STORE((cv[0] + cv[1]) + (cv[2] + cv[3]), col + c);
             }
 #pragma unroll
             for (int r = 0; r < RR; ++r)
-                if (r < nr) rowpart[((size_t)s * NV + m) * M + i + r] = HSUM(16, racc[r]);
+                if (r < nr) rowpart[((size_t)s * NV + m) * M + i + r] = HSUM(VW, racc[r]);
         }
     }
 }
@@ -142,10 +142,10 @@ __kernel void gather_reduce(__global const REAL *rowpart, __global const REAL *c
 // gather's O(M^2 NV); K traffic: R whole rows, and per row of K at most the cache lines
 // holding idx's columns (never more than a dense pass).
 //
-// gather_sparse_cols, item i (a row of K), Rp % 16 == 0, vals (NV, Rp) row-major:
+// gather_sparse_cols, item i (a row of K), Rp % VW == 0, vals (NV, Rp) row-major:
 //   KX[m*M + i] = sum_t K[i, idx[t]] vals[m*Rp + t]
-// 16 scattered entries of the row at a time form one vector, so each vector of vals feeds 16
-// products and the NV accumulators are touched once per 16 entries.
+// VW scattered entries of the row at a time form one vector, so each vector of vals feeds VW
+// products and the NV accumulators are touched once per VW entries.
 __kernel void gather_sparse_cols(__global const STORE_T *K, const int M, const int ld, const int Rp,
                                  __global const int *idx, __global const REAL *vals, const int NV,
                                  __global REAL *KX)
@@ -153,48 +153,48 @@ __kernel void gather_sparse_cols(__global const STORE_T *K, const int M, const i
     const int i = get_global_id(0);
     if (i >= M) return;
     __global const STORE_T *row = K + (size_t)i * ld;
-    real16 acc[NVMAX];
-    for (int m = 0; m < NV; ++m) acc[m] = (real16)(0);
-    for (int t0 = 0; t0 < Rp; t0 += 16) {
-        REAL kv[16];
+    realv acc[NVMAX];
+    for (int m = 0; m < NV; ++m) acc[m] = (realv)(0);
+    for (int t0 = 0; t0 < Rp; t0 += VW) {
+        REAL kv[VW];
 #pragma unroll
-        for (int r = 0; r < 16; ++r) kv[r] = K1(row, idx[t0 + r]);
-        const real16 k = vload16(0, kv);
-        for (int m = 0; m < NV; ++m) acc[m] += k * R16(vals + (size_t)m * Rp + t0);
+        for (int r = 0; r < VW; ++r) kv[r] = K1(row, idx[t0 + r]);
+        const realv k = PDR_XCAT(vload, VW)(0, kv);
+        for (int m = 0; m < NV; ++m) acc[m] += k * RV(vals + (size_t)m * Rp + t0);
     }
-    for (int m = 0; m < NV; ++m) KX[(size_t)m * M + i] = HSUM(16, acc[m]);
+    for (int m = 0; m < NV; ++m) KX[(size_t)m * M + i] = HSUM(VW, acc[m]);
 }
 
-// gather_sparse_rows, item g (columns j = 16g..16g+15 of K), Rp % RR == 0, vals (Rp, NV):
+// gather_sparse_rows, item g (columns j = VW g .. VW g + VW - 1 of K), Rp % RR == 0, vals (Rp, NV):
 //   YK[m*M + j] = sum_t vals[t*NV + m] K[idx[t], j]
-// RR rows' 16-wide vectors are held at once, so each accumulator is loaded and stored once per
+// RR rows' VW-wide vectors are held at once, so each accumulator is loaded and stored once per
 // RR rows. Columns past M (padding, zero) are not written.
 __kernel void gather_sparse_rows(__global const STORE_T *K, const int M, const int ld, const int Rp,
                                  __global const int *idx, __global const REAL *vals, const int NV,
                                  __global REAL *YK)
 {
-    const int j = get_global_id(0) * 16;
+    const int j = get_global_id(0) * VW;
     if (j >= M) return;
-    real16 acc[NVMAX];
-    for (int m = 0; m < NV; ++m) acc[m] = (real16)(0);
+    realv acc[NVMAX];
+    for (int m = 0; m < NV; ++m) acc[m] = (realv)(0);
     for (int t0 = 0; t0 < Rp; t0 += RR) {
-        real16 tile[RR];
+        realv tile[RR];
 #pragma unroll
-        for (int r = 0; r < RR; ++r) tile[r] = K16(K + (size_t)idx[t0 + r] * ld + j);
+        for (int r = 0; r < RR; ++r) tile[r] = KV(K + (size_t)idx[t0 + r] * ld + j);
         __global const REAL *v = vals + (size_t)t0 * NV;
         for (int m = 0; m < NV; ++m) {
-            real16 a = acc[m];
+            realv a = acc[m];
 #pragma unroll
             for (int r = 0; r < RR; ++r) a += v[r * NV + m] * tile[r];
             acc[m] = a;
         }
     }
-    if (j + 16 <= M) {
-        for (int m = 0; m < NV; ++m) vstore16(acc[m], 0, YK + (size_t)m * M + j);
+    if (j + VW <= M) {
+        for (int m = 0; m < NV; ++m) PDR_XCAT(vstore, VW)(acc[m], 0, YK + (size_t)m * M + j);
     } else {
         for (int m = 0; m < NV; ++m) {
-            REAL out[16];
-            vstore16(acc[m], 0, out);
+            REAL out[VW];
+            PDR_XCAT(vstore, VW)(acc[m], 0, out);
             for (int c = 0; c < M - j; ++c) YK[(size_t)m * M + j + c] = out[c];
         }
     }
@@ -219,8 +219,8 @@ __kernel void rank_update(__global STORE_T *K, const int M, const int ld, const 
 }
 
 // CPU rank update, same result. Item b owns rows [b*RB, b*RB + RB) and walks them RR at a
-// time along whole rows: the RR x 16 accumulators stay in registers while n runs over the NA
-// terms, each 16-wide vector of B (NA*ld REALs, cache-resident) feeding RR rows.
+// time along whole rows: the RR x VW accumulators stay in registers while n runs over the NA
+// terms, each VW-wide vector of B (NA*ld REALs, cache-resident) feeding RR rows.
 __kernel void rank_update_rows(__global STORE_T *K, const int M, const int ld, const int NA, const int RB,
                                __global const REAL *A, __global const REAL *B)
 {
@@ -236,18 +236,18 @@ __kernel void rank_update_rows(__global STORE_T *K, const int M, const int ld, c
             row[r] = K + (size_t)ii * ld;
             for (int n = 0; n < NA; ++n) a[n][r] = A[(size_t)n * M + ii];
         }
-        for (int j = 0; j < ld; j += 16) {
-            real16 acc[RR];
+        for (int j = 0; j < ld; j += VW) {
+            realv acc[RR];
 #pragma unroll
-            for (int r = 0; r < RR; ++r) acc[r] = K16(row[r] + j);
+            for (int r = 0; r < RR; ++r) acc[r] = KV(row[r] + j);
             for (int n = 0; n < NA; ++n) {
-                const real16 bv = R16(B + (size_t)n * ld + j);
+                const realv bv = RV(B + (size_t)n * ld + j);
 #pragma unroll
                 for (int r = 0; r < RR; ++r) acc[r] += a[n][r] * bv;
             }
 #pragma unroll
             for (int r = 0; r < RR; ++r)
-                if (r < nr) K16_STORE(acc[r], row[r] + j);
+                if (r < nr) KV_STORE(acc[r], row[r] + j);
         }
     }
 }

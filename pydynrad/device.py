@@ -25,7 +25,7 @@ import sys
 import tempfile
 import threading
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
@@ -38,7 +38,7 @@ from .errors import DeviceError, InvalidInputError, KernelBuildError
 if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays cheap
     import pyopencl as cl
 
-__all__ = ["Device", "default_device", "kernel_dir", "list_devices", "real_dtype"]
+__all__ = ["Device", "DeviceTraits", "default_device", "kernel_dir", "list_devices", "real_dtype"]
 
 
 def _writable(folder: Path) -> bool:
@@ -103,6 +103,36 @@ def kernel_dir() -> Path:
     return Path(str(resources.files("pydynrad.kernels")))
 
 
+@dataclass(frozen=True)
+class DeviceTraits:
+    """What the kernel layouts (:mod:`pydynrad.launch`) know of a device: they read nothing else,
+    so a layout can be chosen for, and tested against, a device that is not here.
+
+    cpu : bool
+        A CPU device (a few fat work-items with long contiguous runs) or not (many coalesced ones).
+    compute_units : int
+        ``max_compute_units``: cores on a CPU, multiprocessors on a GPU.
+    float_width, double_width : int
+        ``preferred_vector_width_float`` / ``_double``: elements per native SIMD register on a
+        CPU (16/8 with AVX-512, 8/4 with AVX2, 4/2 with SSE or NEON); GPUs often report 1.
+    max_work_group : int
+        ``max_work_group_size``.
+    local_mem_bytes : int
+        ``local_mem_size``.
+    aligned_vectors : bool
+        Kernels may use aligned vector dereference and clang's vector conversions
+        (``PDR_CLANG_VECTORS`` in ``kernels/storage.h``): see :attr:`Device.aligned_vector_access`.
+    """
+
+    cpu: bool
+    compute_units: int
+    float_width: int
+    double_width: int
+    max_work_group: int
+    local_mem_bytes: int
+    aligned_vectors: bool = False
+
+
 @dataclass(eq=False)
 class Device:
     """An OpenCL context and in-order queue on one device, with a program cache.
@@ -114,6 +144,7 @@ class Device:
     queue: cl.CommandQueue = None  # type: ignore[assignment]
     _programs: dict = field(default_factory=dict, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _traits: DeviceTraits | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         import pyopencl as cl
@@ -149,6 +180,25 @@ class Device:
         are not inlined, which costs about 2x in streaming loops."""
         d = self.cl_device
         return self.is_cpu and "portable computing language" in d.platform.name.lower() and int(d.mem_base_addr_align) >= 1024
+
+    @property
+    def traits(self) -> DeviceTraits:
+        """What the kernel layouts read of this device (as reported, unless :meth:`with_traits` set them)."""
+        if self._traits is None:
+            d = self.cl_device
+            self._traits = DeviceTraits(
+                cpu=self.is_cpu, compute_units=max(1, int(d.max_compute_units)),
+                float_width=max(1, int(d.preferred_vector_width_float)),
+                double_width=max(1, int(d.preferred_vector_width_double)),
+                max_work_group=int(d.max_work_group_size), local_mem_bytes=int(d.local_mem_size),
+                aligned_vectors=self.aligned_vector_access)
+        return self._traits
+
+    def with_traits(self, **changes) -> "Device":
+        """The same context, queue and program cache with some :class:`DeviceTraits` changed, so
+        every layout is chosen as for that device: e.g. ``with_traits(float_width=8,
+        aligned_vectors=False)`` runs the kernels an AVX2 CPU without PoCL would get."""
+        return Device(self.context, self.queue, self._programs, self._lock, replace(self.traits, **changes))
 
     @property
     def global_mem_bytes(self) -> int:

@@ -1,19 +1,23 @@
 """How every kernel splits its work on a device: one place for the CPU and GPU choices.
 
-* Layouts per kernel family, chosen from what the :class:`~pydynrad.device.Device` reports (a
-  CPU or not, compute units): :func:`spmv_layout` (the full solve, ``kernels/spmv.cl``),
-  :func:`gemm_layout` (the multibounce build, ``kernels/gemm.cl``), :func:`matvec_layout`
-  (products with K, ``kernels/matvec.cl``) and :class:`UpdateLayout` (the local update of K,
-  ``kernels/update.cl``).
+* Layouts per kernel family, chosen from what the device reports (its
+  :class:`~pydynrad.device.DeviceTraits`: a CPU or not, compute units, preferred vector widths,
+  work-group and local-memory limits): :func:`spmv_layout` (the full solve,
+  ``kernels/spmv.cl``), :func:`gemm_layout` (the multibounce build, ``kernels/gemm.cl``),
+  :func:`matvec_layout` (products with K, ``kernels/matvec.cl``) and :class:`UpdateLayout`
+  (the local update of K, ``kernels/update.cl``). Each takes a Device or bare DeviceTraits,
+  so a layout can be chosen for (and tested on) a device that is not here.
 * The constants the kernels are built with: each layout's ``defines`` become ``-D`` options.
   The ``.cl`` files have no defaults for them (a build without one fails), so no number that
   host and kernel must agree on is written twice.
 * :func:`global_size`: a global size rounded up to whole work-groups; every kernel launched
   so guards ``if (gid >= n) return;``.
 
-CPU layouts give a few fat work-items long contiguous runs and wide vectors (PoCL runs one
-work-group per core at a time); GPU layouts give many items that read adjacent addresses
-(coalesced loads).
+CPU layouts give a few fat work-items long contiguous runs and vectors as wide as the SIMD
+registers the device reports (16 floats with AVX-512, 8 with AVX2, 4 with SSE or NEON: a
+wider OpenCL vector than the registers splits every value in two and spills the kernels'
+accumulators); PoCL runs one work-group per core at a time. GPU layouts give many items
+that read adjacent addresses (coalesced loads), in work-groups the device allows.
 """
 
 from __future__ import annotations
@@ -26,8 +30,9 @@ import numpy as np
 from .errors import InvalidInputError
 
 __all__ = [
-    "WG", "RED_WG", "BVH_PACKET", "PANEL", "GEMM_GRAIN", "round_up", "global_size", "float4",
-    "SpmvLayout", "spmv_layout", "GemmLayout", "gemm_layout", "MatvecLayout", "matvec_layout", "UpdateLayout",
+    "WG", "RED_WG", "BVH_PACKET", "PANEL", "GEMM_GRAIN", "WIDTHS", "round_up", "global_size", "float4",
+    "cpu_vector_width", "SpmvLayout", "spmv_layout", "GemmLayout", "gemm_layout", "MatvecLayout", "matvec_layout",
+    "UpdateLayout",
 ]
 
 #: Work-group size of the element-wise kernels (one item per patch, pixel, row or column).
@@ -36,6 +41,8 @@ WG = 64
 RED_WG = 64
 #: Rays per work-item of the packet traversal in ``kernels/bvh.cl``: one per 16-wide vector lane.
 BVH_PACKET = 16
+#: Vector widths (elements) the kernels are written for: OpenCL's 4-, 8- and 16-element types.
+WIDTHS = (4, 8, 16)
 
 
 def float4(a) -> np.ndarray:
@@ -57,6 +64,25 @@ def global_size(n: int, local: int = WG) -> int:
     A fixed multiple also spares PoCL a kernel compile per new local size: with an awkward n
     (a prime) it would otherwise pick a local size that divides n."""
     return max(int(local), round_up(n, local))
+
+
+def _traits(device):
+    """A Device's traits, or the DeviceTraits given."""
+    return getattr(device, "traits", device)
+
+
+def _pow2_at_most(n: int, cap: int) -> int:
+    return 1 << (max(1, min(int(n), int(cap))).bit_length() - 1)
+
+
+def cpu_vector_width(device, real_itemsize: int, registers: int = 1) -> int:
+    """Elements per vector of the CPU kernels computing in REALs of ``real_itemsize`` bytes:
+    ``registers`` times the device's preferred width (its SIMD register), as the nearest of
+    :data:`WIDTHS` at or below it (4 at least)."""
+    t = _traits(device)
+    native = t.double_width if real_itemsize == 8 else t.float_width
+    want = max(WIDTHS[0], int(native) * int(registers))
+    return max(w for w in WIDTHS if w <= want)
 
 
 # -- the full solve: CSR bounce kernel (kernels/spmv.cl) -------------------------------------------
@@ -87,10 +113,12 @@ def spmv_layout(device, n: int, override: tuple[int, int] | None = None) -> Spmv
         lx, blocks = override
         if lx < 1 or lx & (lx - 1) or blocks < 1:
             raise InvalidInputError(f"layout must be (LX a power of two, blocks >= 1); got {override}")
-    elif device.is_cpu:
-        lx, blocks = 1, 16 * device.cl_device.max_compute_units
     else:
-        lx, blocks = 64, 256 * device.cl_device.max_compute_units
+        t = _traits(device)
+        if t.cpu:
+            lx, blocks = 1, 16 * t.compute_units
+        else:
+            lx, blocks = _pow2_at_most(64, t.max_work_group), 256 * t.compute_units
     return SpmvLayout(int(lx), max(1, min(int(blocks), n)))
 
 
@@ -115,27 +143,38 @@ class GemmLayout:
         return (n // self.vw, round_up(rows, ly)), (1, ly)
 
 
-#: CPU: 16-wide vectors, 8 rows per item; GPU: narrower vectors, more work-items.
-_GEMM = {True: GemmLayout(vw=16, tm=8, ly=8), False: GemmLayout(vw=4, tm=4, ly=16)}
+#: Rows per item (TM) and items per work-group (LY) of the GEMM on a CPU and on a GPU.
+_GEMM_CPU_TM, _GEMM_CPU_LY = 8, 8
+#: GPU: narrow vectors, more work-items.
+_GEMM_GPU = GemmLayout(vw=4, tm=4, ly=16)
 
 #: Panel width of the elimination (columns per host step).
 PANEL = 128
-#: Panels and padded sizes are multiples of this: of every layout's VW and TM.
-GEMM_GRAIN = math.lcm(*(x for lay in _GEMM.values() for x in (lay.vw, lay.tm)))
+#: Panels and padded sizes are multiples of this: of every VW and TM a layout can take.
+GEMM_GRAIN = math.lcm(*WIDTHS, _GEMM_CPU_TM, _GEMM_GPU.tm)
 assert PANEL % GEMM_GRAIN == 0
 
 
-def gemm_layout(device) -> GemmLayout:
-    return _GEMM[bool(device.is_cpu)]
+def gemm_layout(device, real_itemsize: int = 4) -> GemmLayout:
+    """CPU: TM = 8 rows of one SIMD register's width per item (8 accumulators and the strip of V
+    stay in registers); GPU: 4 x 4 blocks, work-groups of 16 items (fewer if the device allows fewer)."""
+    t = _traits(device)
+    if t.cpu:
+        return GemmLayout(vw=cpu_vector_width(t, real_itemsize), tm=_GEMM_CPU_TM, ly=_GEMM_CPU_LY)
+    return GemmLayout(vw=_GEMM_GPU.vw, tm=_GEMM_GPU.tm, ly=_pow2_at_most(_GEMM_GPU.ly, t.max_work_group))
 
 
 # -- products with K (kernels/matvec.cl) ------------------------------------------------------------
+#: Right-hand sides one pass of ``matvec`` multiplies (``kernels/matvec.cl``'s NRHS, 1 to this).
+MAX_RHS = 4
+
+
 @dataclass(frozen=True)
 class MatvecLayout:
     """How ``matvec`` and the transposed product split an M x M matrix of row pitch ld.
 
     vw : vector width of K loads; lx : work-items per row of ``matvec`` (1: one row per item);
-    rb : rows per block of the transposed product's first pass; aligned : 16-wide aligned
+    rb : rows per block of the transposed product's first pass; aligned : aligned vector
     dereference instead of vload (``PDR_CLANG_VECTORS``, see ``kernels/storage.h``).
     """
 
@@ -156,25 +195,39 @@ class MatvecLayout:
         return (M * self.lx,), (self.lx,)
 
 
-def matvec_layout(device, M: int, ld: int, override: tuple[int, int] | None = None) -> MatvecLayout:
-    """CPU: one row per work-item, 16-wide loads. GPU: a work-group per row, coalesced loads.
+#: Work-items per row of the GPU ``matvec`` (the most: fewer where the device allows fewer).
+_MATVEC_GPU_LX = 64
+
+
+def matvec_layout(device, M: int, ld: int, override: tuple[int, int] | None = None,
+                  real_itemsize: int = 4) -> MatvecLayout:
+    """CPU: one row per work-item, loads two SIMD registers wide (two FMA chains in flight per
+    right-hand side). GPU: a work-group per row, coalesced float4 loads, as many items as the
+    device's work-group size and local memory (one REAL per item and right-hand side) allow.
     ``override`` = (VW, LX) for tuning and for testing the GPU path on a CPU."""
-    cpu = device.is_cpu
-    vw, lx = override or ((16, 1) if cpu else (4, 64))
-    if vw not in (4, 8, 16) or lx < 1 or lx & (lx - 1):
+    t = _traits(device)
+    if override is not None:
+        vw, lx = override
+    elif t.cpu:
+        vw, lx = cpu_vector_width(t, real_itemsize, registers=2), 1
+    else:
+        fit = t.local_mem_bytes // (MAX_RHS * real_itemsize)
+        vw, lx = 4, _pow2_at_most(_MATVEC_GPU_LX, min(t.max_work_group, fit))
+    if vw not in WIDTHS or lx < 1 or lx & (lx - 1):
         raise InvalidInputError(f"layout must be (VW in 4/8/16, LX a power of two); got {override}")
     # Row block of the transposed product's first pass: long enough to amortise the partial
     # sums (1/RB of K's traffic), short enough to give a GPU enough work-items.
-    rb = 64 if cpu else max(16, min(256, (M * (ld // vw)) // 65536 or 16))
-    return MatvecLayout(int(vw), int(lx), rb, bool(device.aligned_vector_access))
+    rb = 64 if t.cpu else max(16, min(256, (M * (ld // vw)) // 65536 or 16))
+    return MatvecLayout(int(vw), int(lx), rb, bool(t.aligned_vectors))
 
 
 # -- the local update of K (kernels/update.cl) ------------------------------------------------------
-#: Work-items per row block of the GPU gather.
+#: Work-items per row block of the GPU gather (the most: fewer where the device allows fewer).
 GPU_WG = 64
 #: GPU vector width of K loads.
 GPU_VW = 4
-#: Rows per step of the CPU kernels (RR accumulators of 16 lanes stay in vector registers).
+#: Rows per step of the CPU kernels: RR accumulators of one SIMD register each stay in registers
+#: (the gather holds RR + 5 vectors live: 13 of AVX2's 16 registers, of AVX-512's 32).
 CPU_ROWS = 8
 #: Widest column strip of the CPU gather: an RR x CWMAX tile of K is kept in private memory.
 CPU_STRIP = 512
@@ -193,14 +246,18 @@ class UpdateLayout:
         CPU kernels (a few fat work-items, RR rows at a time) or GPU kernels (coalesced).
     M, ld, k_itemsize, real_itemsize : int
         The matrix: size, row pitch, bytes per stored element and per compute REAL.
+    vw : int
+        Vector width (elements) of K loads: one SIMD register of REALs on a CPU, GPU_VW on a GPU.
+    wg : int
+        GPU: work-items per row block of the gather.
     rank_rb : int
         CPU rank update: rows per work-item.
     gather_cw : int
         CPU gather: columns per strip.
     parts : int
-        Row partial sums per row the gather leaves for gather_reduce (strips on a CPU, WG on a GPU).
+        Row partial sums per row the gather leaves for gather_reduce (strips on a CPU, wg on a GPU).
     aligned : bool
-        CPU kernels use 16-wide aligned dereference (``PDR_CLANG_VECTORS``).
+        CPU kernels use aligned vector dereference (``PDR_CLANG_VECTORS``).
     """
 
     cpu: bool
@@ -208,6 +265,8 @@ class UpdateLayout:
     ld: int
     k_itemsize: int
     real_itemsize: int
+    vw: int
+    wg: int
     rank_rb: int
     gather_cw: int
     parts: int
@@ -217,20 +276,21 @@ class UpdateLayout:
     def make(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, cpu: bool | None = None) -> "UpdateLayout":
         """The layout for an M x M matrix with row pitch ld; ``cpu`` overrides the device type
         (to test the GPU kernels on a CPU)."""
-        cpu = device.is_cpu if cpu is None else cpu
+        t = _traits(device)
+        cpu = t.cpu if cpu is None else cpu
         if not cpu:
-            return UpdateLayout(False, M, ld, k_itemsize, real_itemsize, 0, ld, GPU_WG)
-        units = max(1, int(device.cl_device.max_compute_units))
+            wg = _pow2_at_most(GPU_WG, t.max_work_group)
+            return UpdateLayout(False, M, ld, k_itemsize, real_itemsize, GPU_VW, wg, 0, ld, wg)
         rows = -(-M // CPU_ROWS)  # row groups of RR
         # Rank update: about 8 work-items per compute unit, each a whole number of row groups.
-        rank_rb = CPU_ROWS * -(-rows // min(rows, 8 * units))
+        rank_rb = CPU_ROWS * -(-rows // min(rows, 8 * t.compute_units))
         cw = min(ld, CPU_STRIP)
-        return UpdateLayout(True, M, ld, k_itemsize, real_itemsize, rank_rb, cw, -(-ld // cw),
-                            bool(device.aligned_vector_access))
+        return UpdateLayout(True, M, ld, k_itemsize, real_itemsize, cpu_vector_width(t, real_itemsize), 1, rank_rb, cw,
+                            -(-ld // cw), bool(t.aligned_vectors))
 
     def defines(self, nv_max: int) -> dict[str, int]:
         """Build defines for at most ``nv_max`` vectors per gather (2 nv_max terms per rank update)."""
-        out = {"VW": GPU_VW, "WG": GPU_WG, "RR": CPU_ROWS, "CWMAX": CPU_STRIP, "NVMAX": nv_max, "NAMAX": 2 * nv_max,
+        out = {"VW": self.vw, "WG": self.wg, "RR": CPU_ROWS, "CWMAX": CPU_STRIP, "NVMAX": nv_max, "NAMAX": 2 * nv_max,
                "RED_WG": RED_WG}
         if self.cpu and self.aligned:
             out["PDR_CLANG_VECTORS"] = 1
@@ -264,10 +324,10 @@ class UpdateLayout:
 
     def gather_grid(self, blocks: int) -> tuple[tuple[int, int], tuple[int, int]]:
         """(global, local) of the gather over ``blocks`` row blocks: an item per (strip, block)
-        on a CPU, a work-group of GPU_WG items per block on a GPU."""
+        on a CPU, a work-group of wg items per block on a GPU."""
         if self.cpu:
             return (self.parts, blocks), (1, 1)
-        return (GPU_WG, blocks), (GPU_WG, 1)
+        return (self.wg, blocks), (self.wg, 1)
 
     @property
     def rank_grid(self) -> tuple[tuple[int, ...], tuple[int, ...] | None]:
@@ -275,7 +335,7 @@ class UpdateLayout:
         item per (VW-vector column, row), local size left to the runtime."""
         if self.cpu:
             return (-(-self.M // self.rank_rb),), (1,)
-        return (self.ld // GPU_VW, self.M), None
+        return (self.ld // self.vw, self.M), None
 
     @staticmethod
     def reduction_grid() -> tuple[tuple[int], tuple[int]]:

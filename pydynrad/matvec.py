@@ -20,16 +20,12 @@ import numpy as np
 
 from .checks import finite
 from .errors import DeviceError, InvalidInputError, OutOfMemoryError
-from .launch import global_size, matvec_layout, round_up
+from .launch import MAX_RHS, global_size, matvec_layout, round_up
 
 __all__ = ["DeviceMatrix", "STORAGE_DTYPES", "storage_dtype", "MAX_RHS"]
 
 #: Element type in device memory per storage name.
 STORAGE_DTYPES = {"fp16": np.dtype(np.float16), "fp32": np.dtype(np.float32), "fp64": np.dtype(np.float64)}
-
-#: Right-hand sides one pass of the ``matvec`` kernel multiplies (``kernels/matvec.cl``'s NRHS):
-#: :meth:`DeviceMatrix.matmat` splits more into passes of at most this many.
-MAX_RHS = 4
 
 #: Rows are padded to a multiple of this many elements (128 bytes of fp16, 256 of fp32), so
 #: every vector load is aligned and rows start on cache-line boundaries.
@@ -71,8 +67,9 @@ class DeviceMatrix:
         round-to-nearest-even).
     storage : "fp16" | "fp32" | "fp64"
     layout : (VW, LX), optional
-        Kernel layout override (vector width, work-items per row); by default (16, 1) on a
-        CPU and (4, 64) on a GPU. For tuning and for testing the GPU path on a CPU.
+        Kernel layout override (vector width, work-items per row); by default the device's
+        (:func:`pydynrad.launch.matvec_layout`: one row per item and two SIMD registers per
+        load on a CPU, (4, 64) on a GPU). For tuning and for testing the GPU path on a CPU.
 
     Attributes
     ----------
@@ -135,7 +132,7 @@ class DeviceMatrix:
             self.buffers = [cl.Buffer(device.context, cl.mem_flags.READ_WRITE, per) for _ in range(C)]
         except cl.Error as exc:
             raise OutOfMemoryError(f"allocating {C} x {per / 2**20:.1f} MiB on {device.name} failed: {exc}") from exc
-        self._layout = matvec_layout(device, M, self.ld, layout)
+        self._layout = matvec_layout(device, M, self.ld, layout, self.real_dtype.itemsize)
         self._n_blocks = -(-M // self._layout.rb)
         self._x = self._y = self._partial = None
         prg = self._program(1)

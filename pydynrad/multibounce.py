@@ -93,7 +93,7 @@ class _Builder:
 
         self.device, self.M, self.work = device, M, work
         self.nb, self.Mp = _padded(M)
-        self.lay = gemm_layout(device)
+        self.lay = gemm_layout(device, work.itemsize)
         defines = {"STORAGE_FP64" if work == np.float64 else "STORAGE_FP32": 1, **self.lay.defines}
         self.kernel = device.kernel("gemm.cl", "gemm_acc", defines)
         self.square_bytes = self.Mp * self.Mp * work.itemsize

@@ -1,4 +1,5 @@
 import contextlib
+import dataclasses
 import os
 
 import pytest
@@ -18,10 +19,10 @@ def device():
 @pytest.fixture
 def portable_kernels(device, monkeypatch):
     """A context manager under which kernels are built as on any OpenCL CPU: vload/vstore
-    instead of the 16-wide aligned dereference PoCL's clang allows (``PDR_CLANG_VECTORS``).
+    instead of the aligned vector dereference PoCL's clang allows (``PDR_CLANG_VECTORS``).
     On leaving it checks that programs were built and none with that define. Skips where the
     device never takes the clang path (every kernel there is the portable one)."""
-    if not device.aligned_vector_access:
+    if not device.traits.aligned_vectors:
         pytest.skip(f"{device.name} builds only the portable kernels")
 
     @contextlib.contextmanager
@@ -33,7 +34,7 @@ def portable_kernels(device, monkeypatch):
             return program(filename, defines)
 
         with monkeypatch.context() as m:
-            m.setattr(type(device), "aligned_vector_access", property(lambda self: False))
+            m.setattr(device, "_traits", dataclasses.replace(device.traits, aligned_vectors=False))
             m.setattr(device, "program", recording)
             yield
         assert built and not any("PDR_CLANG_VECTORS" in d for d in built)

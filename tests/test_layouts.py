@@ -1,0 +1,117 @@
+"""Kernel layouts chosen from what a device reports (pydynrad.launch), for devices that are not
+here: described by hand as DeviceTraits (an AVX-512, an AVX2 and an SSE/NEON CPU, GPUs), and
+the kernels built at those widths run on the test device against numpy.
+
+Truth for the choices: the widths of the SIMD registers each CPU has (16, 8, 4 floats; half
+as many doubles) and the limits a GPU states (work-group size, local memory).
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from helpers import coloured_box, dense_K, reciprocal_F, rel
+
+from pydynrad import multibounce
+from pydynrad.device import DeviceTraits
+from pydynrad.dynamic.kupdate import UpdateKernels
+from pydynrad.launch import GEMM_GRAIN, UpdateLayout, cpu_vector_width, gemm_layout, matvec_layout, spmv_layout
+from pydynrad.matvec import DeviceMatrix, padded_ld
+
+AVX512 = DeviceTraits(cpu=True, compute_units=2, float_width=16, double_width=8, max_work_group=4096,
+                      local_mem_bytes=2**21, aligned_vectors=True)
+AVX2 = dataclasses.replace(AVX512, compute_units=32, float_width=8, double_width=4)
+SSE = dataclasses.replace(AVX512, compute_units=4, float_width=4, double_width=2, aligned_vectors=False)
+GPU = DeviceTraits(cpu=False, compute_units=132, float_width=1, double_width=1, max_work_group=1024,
+                   local_mem_bytes=48 * 1024)
+SMALL_GPU = dataclasses.replace(GPU, compute_units=4, max_work_group=32, local_mem_bytes=256)
+
+
+# Per CPU: update/GEMM width in floats and in doubles, matvec width in floats and in doubles.
+@pytest.mark.parametrize("traits,widths", [(AVX512, (16, 8, 16, 16)), (AVX2, (8, 4, 16, 8)), (SSE, (4, 4, 8, 4))],
+                         ids=["avx512", "avx2", "sse"])
+def test_cpu_kernels_take_the_devices_register_width(traits, widths):
+    """Update and GEMM kernels: one register of REALs per vector (4 at least: the narrowest
+    kernel vector); matvec: two registers, at most 16; fp16 storage computes in float."""
+    M, ld = 1000, padded_ld(1000)
+    f32, f64, mv32, mv64 = widths
+    for k_size, real, want, mv_want in ((2, 4, f32, mv32), (4, 4, f32, mv32), (8, 8, f64, mv64)):
+        lay = UpdateLayout.make(traits, M, ld, k_size, real)
+        assert lay.cpu and lay.vw == want and lay.defines(8)["VW"] == want
+        assert ("PDR_CLANG_VECTORS" in lay.defines(8)) == traits.aligned_vectors
+        assert gemm_layout(traits, real).vw == want and GEMM_GRAIN % want == 0
+        mv = matvec_layout(traits, M, ld, real_itemsize=real)
+        assert (mv.vw, mv.lx) == (mv_want, 1)
+    # Every core gets work: ~8 rank-update items and 16 solve blocks per compute unit.
+    lay = UpdateLayout.make(traits, 4096, 4096, 4, 4)
+    assert lay.rank_grid[0][0] == min(4096 // 8, 8 * traits.compute_units)
+    assert spmv_layout(traits, 10**6).blocks == 16 * traits.compute_units
+
+
+def test_reported_widths_off_the_kernel_widths_round_down():
+    odd = dataclasses.replace(AVX512, float_width=1, double_width=0)
+    assert cpu_vector_width(odd, 4) == cpu_vector_width(odd, 8) == 4
+    wide = dataclasses.replace(AVX512, float_width=32, double_width=12)
+    assert cpu_vector_width(wide, 4) == 16 and cpu_vector_width(wide, 8) == 8
+
+
+@pytest.mark.parametrize("traits", [GPU, SMALL_GPU], ids=["gpu", "small-gpu"])
+def test_gpu_layouts_stay_within_the_devices_limits(traits):
+    """GPU kernels: coalesced float4 loads, work-groups no larger than the device allows, the
+    matvec's reduction (one REAL per item and right-hand side) inside its local memory."""
+    M, ld = 3000, padded_ld(3000)
+    for real in (4, 8):
+        mv = matvec_layout(traits, M, ld, real_itemsize=real)
+        assert mv.vw == 4 and 1 < mv.lx <= min(64, traits.max_work_group) and mv.lx & (mv.lx - 1) == 0
+        assert 4 * mv.lx * real <= traits.local_mem_bytes
+        grid, local = mv.matvec_grid(M)
+        assert grid == (M * mv.lx,) and local == (mv.lx,)
+        up = UpdateLayout.make(traits, M, ld, real, real)
+        assert not up.cpu and up.vw == 4 and "PDR_CLANG_VECTORS" not in up.defines(8)
+        assert up.gather_grid(7)[1][0] == up.wg <= min(64, traits.max_work_group)
+        g = gemm_layout(traits, real)
+        assert (g.vw, g.tm) == (4, 4) and g.grid(256, 256)[1][1] <= traits.max_work_group
+    lx = spmv_layout(traits, 10**6)
+    assert lx.lx == min(64, traits.max_work_group) and lx.blocks == 256 * traits.compute_units
+    assert matvec_layout(GPU, M, ld).lx == 64 and matvec_layout(SMALL_GPU, M, ld).lx == 16  # 256 B / (4 RHS x 4 B)
+
+
+@pytest.mark.parametrize("width,aligned,storage", [(8, True, "fp16"), (8, True, "fp64"), (4, False, "fp32")],
+                         ids=["avx2-clang-fp16", "avx2-clang-fp64", "portable-4-fp32"])
+def test_kernels_at_other_widths_against_numpy(device, width, aligned, storage):
+    """The kernels an AVX2 CPU (8 floats) or a 4-wide CPU without PoCL's clang would get, built
+    and run here: gathers (dense and sparse), rank update, products with K and the device
+    GEMM build of K against float64 numpy on the matrix as stored."""
+    if aligned and not device.traits.aligned_vectors:
+        pytest.skip(f"{device.name} has no clang vector path")
+    dev = device.with_traits(cpu=True, float_width=width, double_width=width // 2, aligned_vectors=aligned)
+    built, program = [], dev.program
+    dev.program = lambda filename, defines=None: built.append((filename, dict(defines or {}))) or program(filename, defines)
+    rng = np.random.default_rng(width)
+    M = 203  # ld = 256: rows past the last group of 8, sparse steps and column strips that end early
+    m = DeviceMatrix(dev, rng.uniform(-1, 1, (1, M, M)), storage)
+    uk = UpdateKernels(m, 8)
+    assert uk.layout.vw == (width // 2 if storage == "fp64" else width) and m._layout.vw == 2 * uk.layout.vw
+    K = m.to_host()[0]
+    tol = 1e-13 if storage == "fp64" else 1e-5  # products in REAL; observed 2e-16 / 3e-7
+    X, Y = rng.uniform(-1, 1, (2, 7, M))
+    KX, YK = uk.gather(0, X, Y)
+    assert rel(KX, X @ K.T) < tol and rel(YK, Y @ K) < tol
+    sparse = X * (rng.random((7, M)) < 0.05)
+    sKX, sYK = uk.gather_all(sparse[None], sparse[None], sparse=True)
+    assert rel(sKX[0], sparse @ K.T) < tol and rel(sYK[0], sparse @ K) < tol
+    x = rng.random(M)
+    assert rel(m.matvec(x)[0], K @ x) < tol and rel(m.rmatvec(x)[0], x @ K) < tol
+    assert rel(m.matmat(X[:3])[0], X[:3] @ K.T) < tol
+    A, B = rng.uniform(-1, 1, (2, 5, M)) / 5
+    uk.rank_update(0, A, B)
+    # fp16: the update in fp32, rounded once to fp16 per element (observed 3.9e-4 at 16 wide).
+    assert rel(m.to_host()[0], K + A.T @ B) < {"fp16": 2e-3, "fp32": 1e-5, "fp64": 1e-13}[storage]
+    s = coloured_box(2, seed=width)
+    F = reciprocal_F(s.areas, row_sum=0.9, seed=width)
+    dtype = np.float64 if storage == "fp64" else np.float32
+    got = multibounce(s, F, dtype=dtype, device=dev, backend="device")
+    assert rel(got, dense_K(s, F)) < (1e-12 if storage == "fp64" else 1e-5)
+    vws = {(f, d["VW"], "PDR_CLANG_VECTORS" in d) for f, d in built}
+    real = width // 2 if storage == "fp64" else width
+    assert {("update.cl", real, aligned), ("matvec.cl", 2 * real, aligned), ("gemm.cl", real, False)} <= vws
