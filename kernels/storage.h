@@ -48,34 +48,41 @@ typedef float REAL;
 #define REALV(n) PDR_XCAT(REAL_BASE, n)
 #define VLOADR(n, p, i) PDR_XCAT(vload, n)(0, (p) + (i))
 
-// VW-wide access for the kernels' inner loops (VW, the vector width in elements, 4, 8 or 16,
-// comes from the host where a kernel needs it). With PDR_CLANG_VECTORS (set by the host on
-// clang-based CPU compilers such as PoCL, whose buffers are aligned to >= 128 bytes) loads and
-// stores are aligned vector dereferences and fp16 converts with __builtin_convertvector (F16C
-// instructions): PoCL does not inline its vload*/vstore* builtins, and a call inside an inner
-// loop spills every vector register. The pointer must be aligned to the vector's size.
-//   KV(p) / KV_STORE(v, p): VW elements of K at p as realv; RV(p) / RV_STORE(v, p): the same
-//   for REAL arrays; K1(p, i): one element of K as REAL (a plain load, without the vload_half
-//   call, where the compiler allows; p 4-byte aligned).
+// n-wide access for the kernels' inner loops (n = 4, 8 or 16). With PDR_CLANG_VECTORS (set by
+// the host on clang-based CPU compilers such as PoCL, whose buffers are aligned to >= 128 bytes)
+// loads and stores are aligned vector dereferences and fp16 converts with
+// __builtin_convertvector (F16C instructions): PoCL does not inline its vload*/vstore*
+// builtins, and a call inside an inner loop spills every vector register. The pointer must be
+// aligned to the vector's size.
+//   KVN(n, p) / KVN_STORE(n, v, p): n elements of K at p as REALV(n); RVN(n, p) / RVN_STORE:
+//   the same for REAL arrays; KV, RV, ...: the same at the kernel's width VW (from the host);
+//   K1(p, i): one element of K as REAL (a plain load, without the vload_half call, where the
+//   compiler allows; p 4-byte aligned).
+#ifdef PDR_CLANG_VECTORS
+#define RVN(n, p) (*(__global const REALV(n) *)(p))
+#define RVN_STORE(n, v, p) (*(__global REALV(n) *)(p) = (v))
+#if defined(STORAGE_FP16)
+typedef __fp16 pdr_half4 __attribute__((ext_vector_type(4)));
+typedef __fp16 pdr_half8 __attribute__((ext_vector_type(8)));
+typedef __fp16 pdr_half16 __attribute__((ext_vector_type(16)));
+#define KVN(n, p) __builtin_convertvector(*(__global const PDR_XCAT(pdr_half, n) *)(p), REALV(n))
+#define KVN_STORE(n, v, p) (*(__global PDR_XCAT(pdr_half, n) *)(p) = __builtin_convertvector((v), PDR_XCAT(pdr_half, n)))
+#else
+#define KVN(n, p) RVN(n, p)
+#define KVN_STORE(n, v, p) RVN_STORE(n, v, p)
+#endif
+#else
+#define RVN(n, p) PDR_XCAT(vload, n)(0, (p))
+#define RVN_STORE(n, v, p) PDR_XCAT(vstore, n)((v), 0, (p))
+#define KVN(n, p) LOADV(n, (p), 0)
+#define KVN_STORE(n, v, p) STOREV(n, (v), (p), 0)
+#endif
 #ifdef VW
 typedef REALV(VW) realv;
-#ifdef PDR_CLANG_VECTORS
-#define RV(p) (*(__global const realv *)(p))
-#define RV_STORE(v, p) (*(__global realv *)(p) = (v))
-#if defined(STORAGE_FP16)
-typedef __fp16 pdr_halfv __attribute__((ext_vector_type(VW)));
-#define KV(p) __builtin_convertvector(*(__global const pdr_halfv *)(p), realv)
-#define KV_STORE(v, p) (*(__global pdr_halfv *)(p) = __builtin_convertvector((v), pdr_halfv))
-#else
-#define KV(p) RV(p)
-#define KV_STORE(v, p) RV_STORE(v, p)
-#endif
-#else
-#define RV(p) PDR_XCAT(vload, VW)(0, (p))
-#define RV_STORE(v, p) PDR_XCAT(vstore, VW)((v), 0, (p))
-#define KV(p) LOADV(VW, (p), 0)
-#define KV_STORE(v, p) STOREV(VW, (v), (p), 0)
-#endif
+#define RV(p) RVN(VW, p)
+#define RV_STORE(v, p) RVN_STORE(VW, v, p)
+#define KV(p) KVN(VW, p)
+#define KV_STORE(v, p) KVN_STORE(VW, v, p)
 #endif
 
 #if defined(PDR_CLANG_VECTORS) && defined(STORAGE_FP16)

@@ -17,6 +17,7 @@
 //
 // Layout defines, all required (pydynrad/launch.py, UpdateLayout.defines, picks them per device):
 //   VW   vector width of K loads (4, 8 or 16: a CPU's SIMD register of REALs, 4 on GPUs)
+//   SW   vector width of the sparse gathers (a step of gathered entries, not register-blocked)
 //   WG   work-items per row block in gather_partial (a GPU's coalesced group)
 //   RR   rows per step of the CPU kernels; CWMAX the widest column strip of gather_rows
 //   NVMAX, NAMAX  the most vectors per gather / terms per rank update (private array sizes)
@@ -27,8 +28,8 @@
 // kernels run on a global size rounded up past M and return for i >= M.
 #include "storage.h"
 
-#if !defined(VW) || !defined(WG) || !defined(RR) || !defined(CWMAX) || !defined(NVMAX) || !defined(NAMAX) || !defined(RED_WG)
-#error "update.cl needs VW, WG, RR, CWMAX, NVMAX, NAMAX and RED_WG from the host (pydynrad/launch.py)"
+#if !defined(VW) || !defined(SW) || !defined(WG) || !defined(RR) || !defined(CWMAX) || !defined(NVMAX) || !defined(NAMAX) || !defined(RED_WG)
+#error "update.cl needs VW, SW, WG, RR, CWMAX, NVMAX, NAMAX and RED_WG from the host (pydynrad/launch.py)"
 #endif
 
 #define IMIN(a, b) ((a) < (b) ? (a) : (b))
@@ -136,16 +137,16 @@ __kernel void gather_reduce(__global const REAL *rowpart, __global const REAL *c
     YK[(size_t)m * M + i] = c;
 }
 
-// Sparse gathers. A swap batch's vectors are the entering patches' form factors, zero on all
-// but R of the M slots (the union over the batch's vectors, idx sorted ascending, padded by
+// Sparse gathers, in vectors of SW elements. A swap batch's vectors are the entering
+// patches' form factors, zero on all but R of the M slots (the union over the batch's vectors, idx sorted ascending, padded by
 // the host with slot 0 and zero values to Rp entries). Cost O(M R NV) instead of the dense
 // gather's O(M^2 NV); K traffic: R whole rows, and per row of K at most the cache lines
 // holding idx's columns (never more than a dense pass).
 //
-// gather_sparse_cols, item i (a row of K), Rp % VW == 0, vals (NV, Rp) row-major:
+// gather_sparse_cols, item i (a row of K), Rp % SW == 0, vals (NV, Rp) row-major:
 //   KX[m*M + i] = sum_t K[i, idx[t]] vals[m*Rp + t]
-// VW scattered entries of the row at a time form one vector, so each vector of vals feeds VW
-// products and the NV accumulators are touched once per VW entries.
+// SW scattered entries of the row at a time form one vector, so each vector of vals feeds SW
+// products and the NV accumulators are touched once per SW entries.
 __kernel void gather_sparse_cols(__global const STORE_T *K, const int M, const int ld, const int Rp,
                                  __global const int *idx, __global const REAL *vals, const int NV,
                                  __global REAL *KX)
@@ -153,48 +154,48 @@ __kernel void gather_sparse_cols(__global const STORE_T *K, const int M, const i
     const int i = get_global_id(0);
     if (i >= M) return;
     __global const STORE_T *row = K + (size_t)i * ld;
-    realv acc[NVMAX];
-    for (int m = 0; m < NV; ++m) acc[m] = (realv)(0);
-    for (int t0 = 0; t0 < Rp; t0 += VW) {
-        REAL kv[VW];
+    REALV(SW) acc[NVMAX];
+    for (int m = 0; m < NV; ++m) acc[m] = (REALV(SW))(0);
+    for (int t0 = 0; t0 < Rp; t0 += SW) {
+        REAL kv[SW];
 #pragma unroll
-        for (int r = 0; r < VW; ++r) kv[r] = K1(row, idx[t0 + r]);
-        const realv k = PDR_XCAT(vload, VW)(0, kv);
-        for (int m = 0; m < NV; ++m) acc[m] += k * RV(vals + (size_t)m * Rp + t0);
+        for (int r = 0; r < SW; ++r) kv[r] = K1(row, idx[t0 + r]);
+        const REALV(SW) k = PDR_XCAT(vload, SW)(0, kv);
+        for (int m = 0; m < NV; ++m) acc[m] += k * RVN(SW, vals + (size_t)m * Rp + t0);
     }
-    for (int m = 0; m < NV; ++m) KX[(size_t)m * M + i] = HSUM(VW, acc[m]);
+    for (int m = 0; m < NV; ++m) KX[(size_t)m * M + i] = HSUM(SW, acc[m]);
 }
 
-// gather_sparse_rows, item g (columns j = VW g .. VW g + VW - 1 of K), Rp % RR == 0, vals (Rp, NV):
+// gather_sparse_rows, item g (columns j = SW g .. SW g + SW - 1 of K), Rp % RR == 0, vals (Rp, NV):
 //   YK[m*M + j] = sum_t vals[t*NV + m] K[idx[t], j]
-// RR rows' VW-wide vectors are held at once, so each accumulator is loaded and stored once per
+// RR rows' SW-wide vectors are held at once, so each accumulator is loaded and stored once per
 // RR rows. Columns past M (padding, zero) are not written.
 __kernel void gather_sparse_rows(__global const STORE_T *K, const int M, const int ld, const int Rp,
                                  __global const int *idx, __global const REAL *vals, const int NV,
                                  __global REAL *YK)
 {
-    const int j = get_global_id(0) * VW;
+    const int j = get_global_id(0) * SW;
     if (j >= M) return;
-    realv acc[NVMAX];
-    for (int m = 0; m < NV; ++m) acc[m] = (realv)(0);
+    REALV(SW) acc[NVMAX];
+    for (int m = 0; m < NV; ++m) acc[m] = (REALV(SW))(0);
     for (int t0 = 0; t0 < Rp; t0 += RR) {
-        realv tile[RR];
+        REALV(SW) tile[RR];
 #pragma unroll
-        for (int r = 0; r < RR; ++r) tile[r] = KV(K + (size_t)idx[t0 + r] * ld + j);
+        for (int r = 0; r < RR; ++r) tile[r] = KVN(SW, K + (size_t)idx[t0 + r] * ld + j);
         __global const REAL *v = vals + (size_t)t0 * NV;
         for (int m = 0; m < NV; ++m) {
-            realv a = acc[m];
+            REALV(SW) a = acc[m];
 #pragma unroll
             for (int r = 0; r < RR; ++r) a += v[r * NV + m] * tile[r];
             acc[m] = a;
         }
     }
-    if (j + VW <= M) {
-        for (int m = 0; m < NV; ++m) PDR_XCAT(vstore, VW)(acc[m], 0, YK + (size_t)m * M + j);
+    if (j + SW <= M) {
+        for (int m = 0; m < NV; ++m) PDR_XCAT(vstore, SW)(acc[m], 0, YK + (size_t)m * M + j);
     } else {
         for (int m = 0; m < NV; ++m) {
-            REAL out[VW];
-            PDR_XCAT(vstore, VW)(acc[m], 0, out);
+            REAL out[SW];
+            PDR_XCAT(vstore, SW)(acc[m], 0, out);
             for (int c = 0; c < M - j; ++c) YK[(size_t)m * M + j + c] = out[c];
         }
     }

@@ -32,12 +32,13 @@ SMALL_GPU = dataclasses.replace(GPU, compute_units=4, max_work_group=32, local_m
                          ids=["avx512", "avx2", "sse"])
 def test_cpu_kernels_take_the_devices_register_width(traits, widths):
     """Update and GEMM kernels: one register of REALs per vector (4 at least: the narrowest
-    kernel vector); matvec: two registers, at most 16; fp16 storage computes in float."""
+    kernel vector); matvec and the sparse gathers: two registers, at most 16; fp16 storage
+    computes in float."""
     M, ld = 1000, padded_ld(1000)
     f32, f64, mv32, mv64 = widths
     for k_size, real, want, mv_want in ((2, 4, f32, mv32), (4, 4, f32, mv32), (8, 8, f64, mv64)):
         lay = UpdateLayout.make(traits, M, ld, k_size, real)
-        assert lay.cpu and lay.vw == want and lay.defines(8)["VW"] == want
+        assert lay.cpu and lay.vw == want and lay.defines(8)["VW"] == want and lay.sw == mv_want
         assert ("PDR_CLANG_VECTORS" in lay.defines(8)) == traits.aligned_vectors
         assert gemm_layout(traits, real).vw == want and GEMM_GRAIN % want == 0
         mv = matvec_layout(traits, M, ld, real_itemsize=real)
@@ -67,7 +68,7 @@ def test_gpu_layouts_stay_within_the_devices_limits(traits):
         grid, local = mv.matvec_grid(M)
         assert grid == (M * mv.lx,) and local == (mv.lx,)
         up = UpdateLayout.make(traits, M, ld, real, real)
-        assert not up.cpu and up.vw == 4 and "PDR_CLANG_VECTORS" not in up.defines(8)
+        assert not up.cpu and up.vw == up.sw == 4 and "PDR_CLANG_VECTORS" not in up.defines(8)
         assert up.gather_grid(7)[1][0] == up.wg <= min(64, traits.max_work_group)
         g = gemm_layout(traits, real)
         assert (g.vw, g.tm) == (4, 4) and g.grid(256, 256)[1][1] <= traits.max_work_group

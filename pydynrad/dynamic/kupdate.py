@@ -178,13 +178,13 @@ class UpdateKernels:
         n = X.shape[0]
         q, K, res = self.device.queue, self.matrix.buffers[channel], self._res[channel]
         M, ld, nv = np.int32(self.M), np.int32(self.ld), np.int32(n)
-        # Padded with slot 0 and zero values to whole steps (VW entries per step of the column
+        # Padded with slot 0 and zero values to whole steps (SW entries per step of the column
         # kernel, RR rows per step of the row kernel). vals: (n, Rp) for columns, (Rp, n) for rows.
         # The index and value buffers are reused: in order, each upload lands after the kernel before it.
-        vw = self.layout.vw
+        sw = self.layout.sw
         for name, nz, vectors, step, transpose, out, items in (
-            ("gather_sparse_cols", cols, X, vw, False, res["KX"], self.M),
-            ("gather_sparse_rows", rows, Y, CPU_ROWS, True, res["YK"], -(-self.M // vw)),
+            ("gather_sparse_cols", cols, X, sw, False, res["KX"], self.M),
+            ("gather_sparse_rows", rows, Y, CPU_ROWS, True, res["YK"], -(-self.M // sw)),
         ):
             rp = round_up(max(1, len(nz)), step)
             vals = np.zeros((n, rp))
