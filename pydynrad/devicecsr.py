@@ -8,6 +8,8 @@ sweeps), G (every patch from the clusters) and F (the first bounce and the fine 
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -49,6 +51,9 @@ class DeviceCSR:
         self._cols = device.to_device(A.indices.astype(np.int32))
         self._vals = device.to_device(A.data.astype(self.dtype))
         self.nbytes = A.nnz * (4 + self.dtype.itemsize) + 4 * (A.shape[0] + 1) + 4 * (self._n_blocks + 1)
+        # Kernel objects per channel width, one set per thread (a kernel object holds its
+        # arguments): a fresh one per bounce cost ~0.5 ms of host time, a Jacobi sweep's share.
+        self._kernels = threading.local()
 
     def packed(self, a: np.ndarray, width: int) -> np.ndarray:
         """(n, width) array of this matrix's type holding a's first channels (zeros elsewhere)."""
@@ -61,9 +66,12 @@ class DeviceCSR:
         import pyopencl as cl
 
         d = self.device
-        defines = {"STORAGE_FP64" if self.dtype == np.float64 else "STORAGE_FP32": 1, "NCH": width,
-                   **self._layout.defines}
-        kernel = d.kernel("spmv.cl", "bounce", defines)
+        kernels = self._kernels.__dict__
+        kernel = kernels.get(width)
+        if kernel is None:
+            defines = {"STORAGE_FP64" if self.dtype == np.float64 else "STORAGE_FP32": 1, "NCH": width,
+                       **self._layout.defines}
+            kernel = kernels[width] = d.kernel("spmv.cl", "bounce", defines)
         if partial_buf is None:
             partial_buf = cl.Buffer(d.context, cl.mem_flags.READ_WRITE, 2 * self._n_blocks * self.dtype.itemsize)
         kernel(d.queue, *self._layout.grid, self._blk, self._rowptr, self._cols, self._vals,

@@ -32,6 +32,28 @@ def test_full_K_matches_dense_inverse_coloured(device, dtype, tol, backend):
         assert rel(K[c], truth[c]) < tol
 
 
+@pytest.mark.parametrize("cores", [1, 2, 64])
+def test_host_build_side_by_side_or_in_turn(device, monkeypatch, cores):
+    """The host build solves the colour channels side by side, one BLAS thread each, when the
+    process has no more cores than channels, and in turn otherwise: the same K either way."""
+    import importlib
+
+    import threadpoolctl
+
+    mb = importlib.import_module("pydynrad.multibounce")  # the module, not the function pydynrad exports
+    monkeypatch.setattr(mb, "_cores", lambda: cores)
+    rng = np.random.default_rng(5)
+    s = box_scene(3).with_materials(albedo=rng.uniform(0, 0.9, (108, 3)))
+    F = reciprocal_F(s.areas, row_sum=0.95, density=0.3, seed=5)
+    limits = []
+    real = threadpoolctl.threadpool_limits
+    monkeypatch.setattr(threadpoolctl, "threadpool_limits", lambda *a, **k: limits.append(a) or real(*a, **k))
+    K = multibounce(s, F, dtype=np.float64, device=device, backend="host")
+    assert limits == ([(1,)] if cores <= 3 else [])
+    truth = dense_K(s, F)
+    assert all(rel(K[c], truth[c]) < 1e-13 for c in range(3))  # observed 3e-16
+
+
 def test_subset_in_given_order_grey(device):
     s = box_scene(4, albedo=0.7)
     F = reciprocal_F(s.areas, density=0.2, seed=2)

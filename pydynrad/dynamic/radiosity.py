@@ -187,6 +187,7 @@ class DynamicRadiosity:
         self.refreshes = 0
         self._rng = np.random.default_rng(0x5EEAC106)
         self.far = self._far_field(far_field, clusters, cluster_form_factors)
+        self._allocate()
         if observer is not None:
             self._build(self._initial_set(vec3(observer, "observer")))
 
@@ -318,42 +319,47 @@ class DynamicRadiosity:
         return multibounce_block(self._ff.square(local_patches), self._rho(local_patches).T,
                                  dtype=compute_dtype(self.storage), device=self.device)
 
-    def _build(self, local_patches: np.ndarray, fetch: bool = True) -> None:
+    def _allocate(self) -> None:
+        """K's device buffers and the update's kernels, built and launched once (on zeros) here
+        rather than inside the first frame."""
         from .kupdate import UpdateKernels
+
+        self._matrix = DeviceMatrix.zeros(self.device, self.C, self.M, self.storage)
+        self._kernels = UpdateKernels(self._matrix, self.max_swaps)
+        self._warm_up()
+
+    def _build(self, local_patches: np.ndarray, fetch: bool = True) -> None:
         from .paper import UsedPatches
 
         local_patches = np.asarray(local_patches, dtype=np.int64)
-        K = self._fresh_K(local_patches, fetch)
-        first = self._matrix is None
-        if first:
-            self._matrix = DeviceMatrix(self.device, K, self.storage)
-            self._kernels = UpdateKernels(self._matrix, self.max_swaps)
-        else:
-            self._matrix.upload(K)
+        self._matrix.upload(self._fresh_K(local_patches, fetch))
         self._local_patches = local_patches.copy()
         self._local_mask[:] = False
         self._local_mask[local_patches] = True
         if self.mode == "paper":
             self._used = self._used or UsedPatches(self.M, len(self.scene))
             self._used.reset_all(self._local_mask)
-        if first:
-            self._warm_up()
 
     def _warm_up(self) -> None:
-        """Launch, once, every kernel that frames will use (the update's, the lighting
-        product's, the light pass's), so no frame after the first waits for PoCL to compile
-        one: K and every result are left as they were."""
+        """Launch, once, every kernel that frames will use, so no frame waits for PoCL to
+        compile one: the update's, the products with K (one right-hand side per channel, three
+        under one grey K, residual()'s one), and radiosity()'s light pass and far field (lit by
+        a light of zero power). K is left as it was."""
         from ..lights import PointLight
+        from ..photometry.areas import analytic_emitter_light
 
         self._kernels.warm_up()
-        self.radiosity([PointLight(self.scene.centers[0], 0.0)])  # the light pass and B = L + P K L
-        self._matrix.matvec(np.zeros(self.M))  # residual()'s product (radiosity's too when C == 3)
+        self._matrix.matvec(np.zeros(self.M))
+        if self.C == 1:
+            self._matrix.matmat(np.zeros((3, self.M)))
+        L, _ = analytic_emitter_light(self.scene, [PointLight(self.scene.centers[0], 0.0)], None, "hemicube", self.device)
+        if self.far is not None:
+            self.far.light(L)
 
     def warm_up(self) -> None:
-        """Launch every kernel the frames will use once, leaving K as it is. Building K does this
-        (the constructor with ``observer``, else the first :meth:`update`); a second call costs
-        a read pass and a read-write pass over one channel of K and changes nothing."""
-        self._require_built()
+        """Launch every kernel the frames will use once, leaving K as it is. Construction does
+        this; a second call costs a read pass and a read-write pass over one channel of K and
+        changes nothing."""
         self._warm_up()
 
     def refresh(self) -> None:
