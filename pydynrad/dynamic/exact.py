@@ -76,11 +76,14 @@ def batched_swap(
     PJ = np.diag(rho_J)
     T = np.linalg.inv(eye - Lam @ PJ)
     TLam = T @ Lam
-    cols = np.linalg.solve((eye - PJ @ Lam).T, C.T)  # (C (I - P_J Lam)^{-1})^T
+    CPT = C @ (PJ @ T)
+    # (C (I - P_J Lam)^{-1})^T with (I - P_J Lam)^{-1} = I + P_J T Lam: k x k products, where a
+    # solve with M right-hand sides took a third of this function's time at M = 4096.
+    cols = (C + CPT @ Lam).T
     rows = T @ R
     cols[:, slots] = TLam.T  # cols[m][slots[a]] = K[J_a, J_m]
     rows[:, slots] = TLam  # rows[m][slots[a]] = K[J_m, J_a]
-    A = np.concatenate([U, C @ (PJ @ T)], axis=1)
+    A = np.concatenate([U, CPT], axis=1)
     B = np.concatenate([-(W @ V), R], axis=0)
     return SwapUpdate(A=A, B=B, cols=cols, rows=rows)
 
