@@ -94,13 +94,13 @@ def exact_swap(kernels, slots: np.ndarray, F_SJ: np.ndarray, F_JS: np.ndarray, F
 
     rho_S (C, M) and rho_J (C, k): the albedo per channel. Device work per channel: the
     slots' columns and rows (O(k M)) and one read pass (gather), all channels enqueued
-    before one read-back; then per channel the host algebra, one read-write pass (rank 2k)
-    and J's columns and rows written into the slots, not waited for.
+    before one read-back; then per channel the host algebra (beside the previous channel's
+    passes on the device), one read-write pass (rank 2k) and J's columns and rows written
+    into the slots, queued together and not waited for.
     """
     X = rho_S[:, None, :] * F_SJ.T[None]  # (P_S F_SJ)^T per channel
     Y = F_JS[None] * rho_S[:, None, :]  # F_JS P_S per channel
     KPF, FPK, cols_I, rows_I = kernels.gather_all(X, Y, slots)
     for c in range(len(rho_S)):
         upd = batched_swap(cols_I[c].T, rows_I[c], KPF[c].T, FPK[c], F_SJ, F_JS, F_JJ, rho_S[c], rho_J[c], slots)
-        kernels.rank_update(c, upd.A.T, upd.B)
-        kernels.write_slots(c, slots, upd.cols, upd.rows)
+        kernels.update_slots(c, upd.A.T, upd.B, slots, upd.cols, upd.rows)

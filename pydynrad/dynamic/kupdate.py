@@ -8,7 +8,8 @@ matrix's compute type on the device). Each method works on one channel's buffer 
   mostly zero (a swap batch's form factors), touching only their non-zero slots' part of K;
 * :meth:`UpdateKernels.rank_update`: K += A^T B (A, B given as (n, M) rows), one read-write pass;
 * :meth:`UpdateKernels.read_slots` / :meth:`UpdateKernels.write_slots`: columns and rows of a
-  few slots (O(k M));
+  few slots (O(k M)); :meth:`UpdateKernels.update_slots`: a rank update and a slot write
+  queued together;
 * :meth:`UpdateKernels.double_reflection`: the paper's Eq. 1 reduction.
 
 See docs/design.md, 'Cost model', and kernels/README.md for the kernels' defines and guarantees.
@@ -245,20 +246,37 @@ class UpdateKernels:
         per = [np.stack(out[i::step]) for i in range(step)]
         return (per[2], per[3], per[0], per[1]) if slots is not None else (per[0], per[1])
 
-    def rank_update(self, channel: int, A: np.ndarray, B: np.ndarray) -> None:
-        """K += sum_n outer(A[n], B[n]) for A, B of shape (n, M), n <= 2 * max_vectors."""
+    def _put_rank(self, A: np.ndarray, B: np.ndarray) -> int:
         A, B = np.atleast_2d(A), np.atleast_2d(B)
         n = A.shape[0]
         if not 1 <= n <= 2 * self.nv_max or B.shape != A.shape:
             raise InvalidInputError(f"rank update needs A, B of equal shape (n <= {2 * self.nv_max}, M); got {A.shape}, {B.shape}")
         self._put(self._A, A, self.M)
         self._put(self._B, B, self.ld)
+        return n
+
+    def _launch_rank(self, channel: int, n: int) -> None:
         q, K, lay = self.device.queue, self.matrix.buffers[channel], self.layout
         M, ld, na = np.int32(self.M), np.int32(self.ld), np.int32(n)
         if lay.cpu:
             self._k["rank_update_rows"](q, *lay.rank_grid, K, M, ld, na, np.int32(lay.rank_rb), self._A, self._B)
         else:
             self._k["rank_update"](q, *lay.rank_grid, K, M, ld, na, self._A, self._B)
+
+    def _put_write(self, slots: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> int:
+        """Slots and their values into X and Y: the gathers' inputs, which no rank update reads."""
+        k = self._put_slots(slots)
+        self._put(self._X, cols, self.M)
+        self._put(self._Y, rows, self.M)
+        return k
+
+    def _launch_write(self, channel: int, k: int, cols_buf, rows_buf) -> None:
+        self._k["write_slots"](self.device.queue, *self.layout.element_grid(k), self.matrix.buffers[channel],
+                               np.int32(self.M), np.int32(self.ld), self._slots, np.int32(k), cols_buf, rows_buf)
+
+    def rank_update(self, channel: int, A: np.ndarray, B: np.ndarray) -> None:
+        """K += sum_n outer(A[n], B[n]) for A, B of shape (n, M), n <= 2 * max_vectors."""
+        self._launch_rank(channel, self._put_rank(A, B))
 
     def read_slots(self, channel: int, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Columns K[:, slots] and rows K[slots, :], both as (k, M) float64."""
@@ -268,17 +286,24 @@ class UpdateKernels:
 
     def write_slots(self, channel: int, slots: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> None:
         """K[:, slots[m]] = cols[m], K[slots[m], :] = rows[m]; cols/rows must agree where they cross."""
-        k = self._put_slots(slots)
-        self._put(self._A, cols, self.M)
-        self._put(self._Y, rows, self.M)
-        self._k["write_slots"](self.device.queue, *self.layout.element_grid(k), self.matrix.buffers[channel],
-                               np.int32(self.M), np.int32(self.ld), self._slots, np.int32(k), self._A, self._Y)
+        self._launch_write(channel, self._put_write(slots, cols, rows), self._X, self._Y)
+
+    def update_slots(self, channel: int, A: np.ndarray, B: np.ndarray, slots: np.ndarray, cols: np.ndarray,
+                     rows: np.ndarray) -> None:
+        """:meth:`rank_update` then :meth:`write_slots`, every upload before the first launch.
+
+        An upload waits for the commands queued before it on PoCL (its non-blocking writes
+        return only when the queue has reached them), so uploading the slots' values after
+        launching the rank update held the host for the whole pass; this way the caller gets
+        control back as soon as both are queued."""
+        n = self._put_rank(A, B)
+        k = self._put_write(slots, cols, rows)
+        self._launch_rank(channel, n)
+        self._launch_write(channel, k, self._X, self._Y)
 
     def clear_slot(self, channel: int, slot: int) -> None:
         """K[:, slot] = 0 and K[slot, :] = 0, from a device buffer of M zeros (no upload)."""
-        self._put_slots([slot])
-        self._k["write_slots"](self.device.queue, *self.layout.element_grid(1), self.matrix.buffers[channel],
-                               np.int32(self.M), np.int32(self.ld), self._slots, np.int32(1), self._zeros, self._zeros)
+        self._launch_write(channel, self._put_slots([slot]), self._zeros, self._zeros)
 
     def double_reflection(self, f_c: np.ndarray, f_r: np.ndarray, rho: np.ndarray) -> float | np.ndarray:
         """Eq. 1: sum_a f_c[a] f_r[a] rho[a] over the M slots, reduced on the device.
