@@ -414,13 +414,14 @@ def test_warm_up_leaves_K_unchanged(device, setup, mode, storage):
 
 
 def test_frames_build_no_program(device, setup):
-    """Every program the frames use is built with the solver: updates (swaps in both modes)
-    and lighting after construction add none to the device's cache."""
+    """Every program the frames use is built with the solver: updates (swaps in both modes,
+    and the first update() of a solver built without an observer) and lighting after
+    construction add none to the device's cache."""
     scene, F = setup
     rng = np.random.default_rng(11)
-    for mode in ("exact", "paper"):
-        dyn = DynamicRadiosity(scene, F, local_size=48, update=mode, storage="fp16", observer=[0.5, 0.5, 0.5],
-                               device=device)
+    for mode, observer in (("exact", [0.5, 0.5, 0.5]), ("paper", [0.5, 0.5, 0.5]), ("exact", None)):
+        # Without an observer the first update() builds the set and K: still no program.
+        dyn = DynamicRadiosity(scene, F, local_size=48, update=mode, storage="fp16", observer=observer, device=device)
         built = set(device._programs)
         swaps = 0
         for p in observer_walk(rng, 6):

@@ -116,3 +116,28 @@ def test_kernels_at_other_widths_against_numpy(device, width, aligned, storage):
     vws = {(f, d["VW"], "PDR_CLANG_VECTORS" in d) for f, d in built}
     real = width // 2 if storage == "fp64" else width
     assert {("update.cl", real, aligned), ("matvec.cl", 2 * real, aligned), ("gemm.cl", real, False)} <= vws
+
+
+def test_a_walk_with_gpu_layouts_equals_one_with_cpu_layouts(device):
+    """DynamicRadiosity on a GPU-like description of the test device (every GPU layout: the
+    coalesced gather and rank update, a work-group per row of K and of F, 128-item groups)
+    walks to the same K as a fresh float64 build and lights the scene as the CPU layouts do."""
+    import pydynrad
+    from helpers import observer_walk
+
+    gpu = device.with_traits(cpu=False, compute_units=16, float_width=1, double_width=1, max_work_group=128,
+                             local_mem_bytes=32768, aligned_vectors=False)
+    scene = coloured_box(4, seed=3, emitters=4)
+    F = reciprocal_F(scene.areas, row_sum=0.95, density=0.08, seed=3)
+    walks = []
+    for dev in (gpu, device):
+        dyn = pydynrad.DynamicRadiosity(scene, F, local_size=48, storage="fp32", max_swaps_per_frame=6,
+                                        observer=[0.5, 0.5, 0.5], device=dev)
+        swaps = sum(dyn.update(p).swaps for p in observer_walk(np.random.default_rng(8), 30))
+        walks.append((swaps, dyn))
+    (swaps, dyn), (_, ref) = walks
+    assert swaps > 20 and not dyn._kernels.layout.cpu and dyn.matrix._layout.lx == 64
+    assert np.array_equal(dyn.local_patches, ref.local_patches)
+    assert rel(dyn.matrix.to_host(), dense_K(scene, F, dyn.local_patches, 3)) < 2e-5  # as exact fp32 walks
+    light = [pydynrad.PointLight([0.5, 0.9, 0.5], 3.0)]
+    assert rel(dyn.radiosity(light), ref.radiosity(light)) < 1e-5  # float32 products in another order
