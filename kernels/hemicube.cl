@@ -1,7 +1,8 @@
-// Hemicube form factors by ray casting: one work-item per hemicube scanline (the layout and
-// the ray directions are hemicube.h's). Each row averages HC_SAMPLES hemicubes (1 unless the
-// host defines it), one per stratum of its patch, at origins the host places; sample m of
-// patch i is rotated by key i * HC_SAMPLES + m (i alone for one sample).
+// Hemicube form factors by ray casting: one work-item per band of HC_TILE_Y scanlines of a
+// hemicube, traced tile by tile (the layout, the ray directions and the tiles are hemicube.h's).
+// Each row averages HC_SAMPLES hemicubes (1 unless the host defines it), one per stratum of its
+// patch, at origins the host places; sample m of patch i is rotated by key i * HC_SAMPLES + m
+// (i alone for one sample).
 //
 // Each scanline's pixels are run-length encoded: consecutive pixels that see the same patch
 // form one run (id, end pixel). The host turns runs into weights with a prefix sum of the
@@ -14,8 +15,10 @@
 // different patches of one cluster form one run, and sums each run's weight on the device:
 // run_end holds that float weight instead of an end pixel. (Summing here measured faster than
 // the host's prefix sums, bench/gather.py.)
-#include "bvh.cl"
-#include "hemicube.h"
+#if !defined(HC_TILE_Y) || HC_TILE_Y < 1 || BVH_PACKET % HC_TILE_Y != 0
+#error "hemicube.cl needs HC_TILE_Y (scanlines per tile, dividing BVH_PACKET) from the host (pydynrad.launch.hemicube_tiles)"
+#endif
+#include "hemicube.h"  // and bvh.cl
 
 #ifdef HC_CLUSTERS
 #define HC_EXTRA_ARGS , __global const int *labels, __global const float *scale, __global const float *pixel_weights
@@ -41,57 +44,70 @@ __kernel void hemicube_runs(__global const float4 *nodes, __global const float4 
 {
     const int R = HC_RES;
     int g = get_global_id(0);
-    if (g >= n_rows * HC_SAMPLES * 3 * R) return;
-    int q = g / (3 * R), s = g % (3 * R);
+    if (g >= n_rows * HC_SAMPLES * HC_BANDS) return;
+    int q = g / HC_BANDS, n_lines;
+    int s0 = hc_band(g % HC_BANDS, &n_lines);
     int i = rows[q / HC_SAMPLES];
     float3 n = normals[i].xyz;
     float3 org = origins[q].xyz + eps * n;
 
-    float3 base, step_dir;
-    hc_scanline(n, (uint)i * HC_SAMPLES + (uint)(q % HC_SAMPLES), s, &base, &step_dir);
+    float3 T, B, base, step_dir, row;
+    hc_frame(n, (uint)i * HC_SAMPLES + (uint)(q % HC_SAMPLES), &T, &B);
+    hc_face_scanline(T, B, n, s0, &base, &step_dir, &row);
 
-    size_t slot = (size_t)g * R;
-    int runs = 0, current = -2;
+    // Each of the band's scanlines keeps its own runs: the current id (-2: none yet) and count.
+    int runs[HC_TILE_Y], current[HC_TILE_Y];
 #ifdef HC_CLUSTERS
-    float acc = 0.0f;
-    __global const float *pw = pixel_weights + (size_t)s * R;
+    float acc[HC_TILE_Y];
 #endif
-    // BVH_PACKET pixels of the scanline per traversal, one per vector lane (a short last
-    // packet repeats its last pixel in the spare lanes).
-    for (int x0 = 0; x0 < R; x0 += BVH_PACKET) {
+    for (int y = 0; y < HC_TILE_Y; ++y) {
+        runs[y] = 0;
+        current[y] = -2;
+#ifdef HC_CLUSTERS
+        acc[y] = 0.0f;
+#endif
+    }
+    for (int x0 = 0; x0 < R; x0 += HC_TILE_X) {
         int ids[BVH_PACKET], fronts[BVH_PACKET];
-        hc_trace_packet(nodes, tris, order, org, base, step_dir, x0, ids, fronts);
-        for (int l = 0; l < BVH_PACKET && x0 + l < R; ++l) {
-            // A back face occludes and receives nothing; a planar patch cannot see itself.
-            int hit = (ids[l] >= 0 && fronts[l] && ids[l] != i) ? ids[l] : -1;
+        hc_trace_tile(nodes, tris, order, org, base, step_dir, row, x0, n_lines, ids, fronts);
+        for (int y = 0; y < n_lines; ++y) {
+            int s = s0 + y;
+            size_t slot = ((size_t)q * 3 * R + s) * R;
+            for (int l = y * HC_TILE_X, x = x0; l < (y + 1) * HC_TILE_X && x < R; ++l, ++x) {
+                // A back face occludes and receives nothing; a planar patch cannot see itself.
+                int hit = (ids[l] >= 0 && fronts[l] && ids[l] != i) ? ids[l] : -1;
 #ifdef HC_CLUSTERS
-            int id = hit >= 0 ? labels[hit] : -1;
+                int id = hit >= 0 ? labels[hit] : -1;
 #else
-            int id = hit;
+                int id = hit;
 #endif
-            if (id != current) {
-                if (current != -2) {
-                    run_patch[slot + runs] = current;
+                if (id != current[y]) {
+                    if (current[y] != -2) {
+                        run_patch[slot + runs[y]] = current[y];
 #ifdef HC_CLUSTERS
-                    run_end[slot + runs] = acc;
-                    acc = 0.0f;
+                        run_end[slot + runs[y]] = acc[y];
+                        acc[y] = 0.0f;
 #else
-                    run_end[slot + runs] = x0 + l;
+                        run_end[slot + runs[y]] = x;
 #endif
-                    ++runs;
+                        ++runs[y];
+                    }
+                    current[y] = id;
                 }
-                current = id;
-            }
 #ifdef HC_CLUSTERS
-            if (id >= 0) acc += pw[x0 + l] * scale[hit];
+                if (id >= 0) acc[y] += pixel_weights[(size_t)s * R + x] * scale[hit];
 #endif
+            }
         }
     }
-    run_patch[slot + runs] = current;
+    for (int y = 0; y < n_lines; ++y) {
+        size_t line = (size_t)q * 3 * R + s0 + y, slot = line * R;
+        run_patch[slot + runs[y]] = current[y];
 #ifdef HC_CLUSTERS
-    run_end[slot + runs] = acc;
+        run_end[slot + runs[y]] = acc[y];
 #else
-    run_end[slot + runs] = R;
+        run_end[slot + runs[y]] = R;
 #endif
-    run_count[g] = runs + 1;
+        run_count[line] = runs[y] + 1;
+    }
 }

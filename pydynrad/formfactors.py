@@ -28,7 +28,7 @@ import scipy.sparse as sp
 
 from .checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
-from .launch import BVH_PACKET, float4, global_size
+from .launch import float4, global_size, hemicube_tiles, ray_work_group
 from .memory import available_host_bytes
 
 __all__ = ["form_factors", "hemicube_blocks", "pixel_form_factors", "sample_points", "stack_blocks", "CLUSTER_RESOLUTION",
@@ -145,18 +145,23 @@ def _runs_to_csr(patch, end, count, weights_cum, n_cols: int) -> sp.csr_matrix:
 
     ``end`` holds each run's end pixel, weighed by the prefix sums ``weights_cum`` (3R, R + 1)
     of the pixel form factors; with ``weights_cum=None`` it holds each run's weight itself.
+    Only the runs are read (gathered by their counts), not the whole (B, 3R, R) buffers: a
+    scanline holds ~15 runs of 64 pixels in the village (4x less host time per block).
     """
     B, S, R = patch.shape
-    used = np.arange(R)[None, None, :] < count[..., None]
-    b, s, j = np.nonzero(used & (patch >= 0))
-    cols = patch[b, s, j]
+    count = count.reshape(-1)
+    line = np.repeat(np.arange(B * S, dtype=np.int64), count)  # each run's scanline
+    j = np.arange(len(line)) - np.repeat(np.cumsum(count) - count, count)  # its place in it
+    flat = line * R + j
+    cols, ends = patch.reshape(-1)[flat], end.reshape(-1)[flat]
+    keep = cols >= 0
     if weights_cum is None:
-        w = end[b, s, j].astype(np.float64)
+        w = ends[keep].astype(np.float64)
     else:
-        start = np.zeros_like(end)
-        start[..., 1:] = end[..., :-1]
-        w = weights_cum[s, end[b, s, j]] - weights_cum[s, start[b, s, j]]
-    m = sp.csr_matrix((w, (b, cols)), shape=(B, n_cols))  # duplicates summed, in float64
+        starts = np.where(j > 0, end.reshape(-1)[flat - 1], 0)  # a run starts where the one before ended
+        s = line[keep] % S
+        w = weights_cum[s, ends[keep]] - weights_cum[s, starts[keep]]
+    m = sp.csr_matrix((w, (line[keep] // S, cols[keep])), shape=(B, n_cols))  # duplicates summed, in float64
     m.sum_duplicates()
     return m
 
@@ -195,7 +200,8 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     # Two blocks in flight (see below), each at most half of BLOCK_BYTES, and about
     # OVERLAP_BLOCKS blocks in all so that even a small scene overlaps host and device work.
     block = int(max(1, min(len(rows), BLOCK_BYTES // (2 * per_row), max(MIN_BLOCK_ROWS, -(-len(rows) // OVERLAP_BLOCKS)))))
-    defines, extra = {"HC_RES": R, "BVH_PACKET": BVH_PACKET}, []
+    tiles, wg = hemicube_tiles(dev), ray_work_group(dev)
+    defines, extra = tiles.defines(R), []
     if K > 1:
         defines["HC_SAMPLES"] = K
     # A row's K hemicubes are K * S scanlines of one block row; each weighs 1 / K.
@@ -230,7 +236,8 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
         org_host[k] = float4(scene.frame.points(sample_points(scene, idx, K).reshape(-1, 3)))
         cl.enqueue_copy(dev.queue, idx_bufs[k], idx, is_blocking=False)  # rows outlives the copy
         cl.enqueue_copy(dev.queue, org_bufs[k], org_host[k], is_blocking=False)
-        knl(dev.queue, (global_size(len(idx) * K * S),), None, nodes, tris, order, org_bufs[k], normals, idx_bufs[k],
+        knl(dev.queue, (global_size(len(idx) * K * tiles.bands(R), wg),), (wg,), nodes, tris, order, org_bufs[k], normals,
+            idx_bufs[k],
             np.int32(len(idx)), eps, *buffers[k], *extra)
         return len(idx)
 
