@@ -1,8 +1,8 @@
 """Hemicube form factors: ray throughput against Embree, and accuracy against analytic plates.
 
-``python -m bench.formfactors [--size quick|full|tiny] [--scenes cornell_box,village,stanford_bunny]``
-writes ``bench/results/formfactors.{json,md}``; the suite runs the same measurement as its
-"formfactors" section. ``--scenes`` also takes mesh files (any format :func:`pydynrad.load` reads).
+``python -m bench.formfactors [--size quick|full|tiny] [--scenes cornell_box,village,stanford_bunny]
+[--resolution R] [--rows N]`` writes ``bench/results/formfactors.{json,md}``; the suite runs the
+same measurement as its "formfactors" section. ``--scenes`` also takes mesh files (any format :func:`pydynrad.load` reads).
 
 Throughput: for a sample of patches of each scene, the hemicube rays that
 ``kernels/hemicube.cl`` casts (same origins, per-patch rotations and pixel directions,
@@ -304,18 +304,25 @@ def main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m bench.formfactors", description=__doc__.split("\n\n")[0])
     ap.add_argument("--size", choices=list(SIZES), default="quick")
-    ap.add_argument("--scenes", help="comma-separated pydynrad.scenes names (default: the size's)")
+    ap.add_argument("--scenes", help="comma-separated scene names or mesh files (default: the size's)")
+    ap.add_argument("--resolution", type=int, help="hemicube resolution of the throughput rays (default: the size's)")
+    ap.add_argument("--rows", type=int, help="patches whose hemicube rays are cast, per scene (default: the size's)")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
     args = ap.parse_args(argv)
     params = dict(SIZES[args.size])
     if args.scenes:
         params["scenes"] = tuple(args.scenes.split(","))
+    if args.resolution:
+        params["ray_resolution"] = args.resolution
+    if args.rows:
+        params["ray_rows"] = args.rows
     device = pydynrad.default_device()
     t0 = time.perf_counter()
     section = measure(params, device)
     results = {"device": device.info(),
                "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-               "size": args.size, "sections": {"formfactors": section}, "seconds": time.perf_counter() - t0}
+               "size": args.size, "params": {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()},
+               "sections": {"formfactors": section}, "seconds": time.perf_counter() - t0}
     written = write_report(results, args.out, "formfactors")
     print("\n".join(str(p) for p in written.values()), file=sys.stderr)
     return 0
