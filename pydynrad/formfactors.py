@@ -13,8 +13,8 @@ that many hemicubes, one at the centroid of each stratum of the patch's midpoint
 (equal areas), each at resolution R / sqrt(samples): the same rays per row.
 
 Rows are computed in blocks: the device writes each scanline's pixels run-length encoded
-(patch, end pixel), the host turns runs into weights with a prefix sum and sums duplicates
-into CSR. Memory stays bounded by the block, whatever N.
+(patch, weight: the difference of the pixel weights' prefix sums at the run's ends), the host
+sums duplicates into CSR. Memory stays bounded by the block, whatever N.
 
 See docs/design.md, 'Hemicube form factors'.
 """
@@ -140,30 +140,24 @@ def sample_points(scene, rows, samples: int = 1) -> np.ndarray:
     return np.einsum("mc,rcx->rmx", bary, scene.vertices[rows])
 
 
-def _runs_to_csr(patch, end, count, weights_cum, n_cols: int) -> sp.csr_matrix:
-    """Sum each row's runs into a CSR block: patch/end (B, 3R, R), count (B, 3R).
+def _runs_to_csr(patch, weight, count, n_cols: int) -> sp.csr_matrix:
+    """Sum each row's runs into a CSR block: patch/weight (B, K 3R, R), count (B, K 3R) for K
+    hemicubes per row.
 
-    ``end`` holds each run's end pixel, weighed by the prefix sums ``weights_cum`` (3R, R + 1)
-    of the pixel form factors; with ``weights_cum=None`` it holds each run's weight itself.
-    Only the runs are read (gathered by their counts), not the whole (B, 3R, R) buffers: a
-    scanline holds ~15 runs of 64 pixels in the village (4x less host time per block).
+    Only the runs are read (gathered by their counts), not the whole (B, K 3R, R) buffers: a
+    scanline holds ~15 runs of 64 pixels in the village. Duplicates (a patch seen on several
+    scanlines) are summed in float64 by one sort of the (row, column) keys.
     """
     B, S, R = patch.shape
     count = count.reshape(-1)
     line = np.repeat(np.arange(B * S, dtype=np.int64), count)  # each run's scanline
-    j = np.arange(len(line)) - np.repeat(np.cumsum(count) - count, count)  # its place in it
-    flat = line * R + j
-    cols, ends = patch.reshape(-1)[flat], end.reshape(-1)[flat]
+    flat = line * R + np.arange(len(line)) - np.repeat(np.cumsum(count) - count, count)
+    cols = patch.reshape(-1)[flat]
     keep = cols >= 0
-    if weights_cum is None:
-        w = ends[keep].astype(np.float64)
-    else:
-        starts = np.where(j > 0, end.reshape(-1)[flat - 1], 0)  # a run starts where the one before ended
-        s = line[keep] % S
-        w = weights_cum[s, ends[keep]] - weights_cum[s, starts[keep]]
-    m = sp.csr_matrix((w, (line[keep] // S, cols[keep])), shape=(B, n_cols))  # duplicates summed, in float64
-    m.sum_duplicates()
-    return m
+    keys, at = np.unique(line[keep] // S * n_cols + cols[keep], return_inverse=True)  # sorted by row, column
+    data = np.bincount(at.reshape(-1), weights=weight.reshape(-1)[flat[keep]], minlength=len(keys))
+    indptr = np.searchsorted(keys, np.arange(B + 1) * n_cols)
+    return sp.csr_matrix((data, (keys % n_cols).astype(np.int32), indptr), shape=(B, n_cols))
 
 
 def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | None = None, *,
@@ -207,12 +201,14 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     # A row's K hemicubes are K * S scanlines of one block row; each weighs 1 / K.
     weights = pixel_form_factors(R) / K
     if clusters is None:
-        n_cols, end_dtype = n, np.int32
-        weights_cum = np.zeros((K * S, R + 1))
-        np.cumsum(np.tile(weights, (K, 1)), axis=1, out=weights_cum[:, 1:])
+        n_cols = n
+        # Prefix sums along each of a hemicube's 3R scanlines, in float64, then float32 for the
+        # device, which differences them at each run's ends.
+        weights_cum = np.zeros((S, R + 1))
+        np.cumsum(weights, axis=1, out=weights_cum[:, 1:])
+        extra = [dev.to_device(weights_cum.astype(np.float32))]
     else:
         labels, scale, n_cols = clusters
-        end_dtype, weights_cum = np.float32, None
         defines["HC_CLUSTERS"] = 1
         extra = [dev.to_device(np.ascontiguousarray(a, dtype=t)) for a, t in
                  ((labels, np.int32), (scale, np.float32), (weights, np.float32))]
@@ -242,7 +238,7 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
         return len(idx)
 
     def read(b: int, k: int):
-        host = (np.empty((b, K * S, R), np.int32), np.empty((b, K * S, R), end_dtype), np.empty((b, K * S), np.int32))
+        host = (np.empty((b, K * S, R), np.int32), np.empty((b, K * S, R), np.float32), np.empty((b, K * S), np.int32))
         for h, d in zip(host, buffers[k]):
             cl.enqueue_copy(dev.queue, h, d)
         return host
@@ -253,7 +249,7 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
         runs = read(b, 0)
         for k, first in enumerate(range(0, len(rows), block)):
             following = launch(first + block, (k + 1) % 2) if first + block < len(rows) else 0
-            yield _runs_to_csr(*runs, weights_cum, n_cols)
+            yield _runs_to_csr(*runs, n_cols)
             bar.update(b)
             if following:
                 b, runs = following, read(following, (k + 1) % 2)
