@@ -6,12 +6,14 @@ same measurement as its "formfactors" section. ``--scenes`` also takes mesh file
 
 Throughput: for a sample of patches of each scene, the hemicube rays that
 ``kernels/hemicube.cl`` casts (same origins, per-patch rotations and pixel directions,
-rebuilt here in numpy) are cast three ways, the three calls taking turns in one loop so that
+rebuilt here in numpy) are cast four ways, the four calls taking turns in one loop so that
 each sees the same load on the machine:
 
 * ``form_factors(rows=sample)``: the whole pipeline (rays generated on the device and traced in
   tiles of BVH_PACKET rays, run-length scanlines, the host's CSR): the hemicube rays as a user
   gets them;
+* ``pydynrad.formfactors.hemicube_runs``: the same without the host's CSR (tracing, run-length
+  scanlines and their read-back): the ray tracing alone;
 * ``pydynrad.bvh.cast_rays``: our BVH kernel alone on the explicit rays (validation and upload
   included), BVH_PACKET consecutive rays per work-item as one packet (kernels/bvh.cl
   bvh_closest_packet, one origin per lane);
@@ -161,7 +163,7 @@ def _taking_turns(calls: dict, repeats: int) -> dict:
 def throughput(scene, n_rows: int, resolution: int, device, repeats: int = 3) -> dict:
     """Rays per second of the three ray casters on one scene's hemicube rays."""
     from pydynrad.bvh import cast_rays
-    from pydynrad.formfactors import form_factors
+    from pydynrad.formfactors import form_factors, hemicube_runs
     from pydynrad.launch import bvh_packet
 
     rows = np.linspace(0, len(scene) - 1, min(n_rows, len(scene))).astype(np.int32)
@@ -176,17 +178,22 @@ def throughput(scene, n_rows: int, resolution: int, device, repeats: int = 3) ->
     load = os.getloadavg()[0]
     t = _taking_turns({
         "form_factors": lambda: form_factors(scene, resolution=resolution, rows=rows, device=device, progress=False),
+        "hemicube_runs": lambda: sum(len(c) for *_, c in hemicube_runs(scene, resolution, rows, device, progress=False)),
         "cast_rays": lambda: cast_rays(scene, o, d, device=device)[0],
         "embree": lambda: np.asarray(es.run(o, d)),
     }, repeats)
-    (ff, ff_cpu, _), (ours, ours_cpu, patch_ours), (emb, emb_cpu, patch_emb) = t["form_factors"], t["cast_rays"], t["embree"]
+    (ff, ff_cpu, _), (hc, hc_cpu, _) = t["form_factors"], t["hemicube_runs"]
+    (ours, ours_cpu, patch_ours), (emb, emb_cpu, patch_emb) = t["cast_rays"], t["embree"]
     return {
         "scene": scene.name, "patches": len(scene), "rows": len(rows), "R": resolution, "rays": n_rays,
         "packet": bvh_packet(device), "load_average": load,
-        "form_factors_rays_per_s": n_rays / ff, "cast_rays_per_s": n_rays / ours, "embree_rays_per_s": n_rays / emb,
-        "form_factors_over_embree": emb / ff, "cast_rays_over_embree": emb / ours,
-        "form_factors_over_embree_per_cpu_s": emb_cpu / ff_cpu, "cast_rays_over_embree_per_cpu_s": emb_cpu / ours_cpu,
-        "form_factors_cpu_use": ff_cpu / ff, "cast_rays_cpu_use": ours_cpu / ours, "embree_cpu_use": emb_cpu / emb,
+        "form_factors_rays_per_s": n_rays / ff, "hemicube_runs_rays_per_s": n_rays / hc,
+        "cast_rays_per_s": n_rays / ours, "embree_rays_per_s": n_rays / emb,
+        "form_factors_over_embree": emb / ff, "hemicube_runs_over_embree": emb / hc, "cast_rays_over_embree": emb / ours,
+        "form_factors_over_embree_per_cpu_s": emb_cpu / ff_cpu, "hemicube_runs_over_embree_per_cpu_s": emb_cpu / hc_cpu,
+        "cast_rays_over_embree_per_cpu_s": emb_cpu / ours_cpu,
+        "form_factors_cpu_use": ff_cpu / ff, "hemicube_runs_cpu_use": hc_cpu / hc, "cast_rays_cpu_use": ours_cpu / ours,
+        "embree_cpu_use": emb_cpu / emb,
         "same_hit_fraction": float(np.mean(patch_ours == patch_emb)),
         "bvh_upload_s": t_bvh, "embree_build_s": t_embree_build,
     }
@@ -250,9 +257,10 @@ def measure(params: dict, device) -> dict:
     build = bvh_build(int(params.get("bvh_triangles", 1_000_000)))
     build_cols = ["triangles", "median_s", "min_s", "nodes", "triangles_per_s"]
     tp_cols = ["scene", "patches", "rows", "R", "rays", "packet", "load_average", "form_factors_rays_per_s",
-               "cast_rays_per_s", "embree_rays_per_s", "form_factors_over_embree", "cast_rays_over_embree",
-               "form_factors_over_embree_per_cpu_s", "cast_rays_over_embree_per_cpu_s", "form_factors_cpu_use",
-               "cast_rays_cpu_use", "embree_cpu_use", "same_hit_fraction"]
+               "hemicube_runs_rays_per_s", "cast_rays_per_s", "embree_rays_per_s", "form_factors_over_embree",
+               "hemicube_runs_over_embree", "cast_rays_over_embree", "form_factors_over_embree_per_cpu_s",
+               "hemicube_runs_over_embree_per_cpu_s", "cast_rays_over_embree_per_cpu_s", "form_factors_cpu_use",
+               "hemicube_runs_cpu_use", "cast_rays_cpu_use", "embree_cpu_use", "same_hit_fraction"]
     acc_cols = ["case", "subdivisions", "patches", "R", "F", "truth", "rel_error", "seconds", "rays_per_s"]
     plots = [{
         "name": f"error-{case}", "title": f"{case} unit plates: |relative error| vs R", "xlabel": "R",
@@ -266,7 +274,8 @@ def measure(params: dict, device) -> dict:
         "description": (
             "Ray throughput on each scene's hemicube rays (a sample of patches, resolution R), the three "
             "callers taking turns in one loop: the full form_factors pipeline (rays made on the device, traced in "
-            "tiles of `packet` rays, CSR on the host), our BVH kernel alone on the explicit rays (cast_rays: "
+            "tiles of `packet` rays, CSR on the host), the same without the CSR (hemicube_runs: the tracing and "
+            "its read-back), our BVH kernel alone on the explicit rays (cast_rays: "
             "`packet`-ray packets, upload included) and Embree (embreex, closest hit from Python, one thread) on "
             "the same rays; ours use every compute unit. Per wall-clock second and per CPU-second of the process; "
             "*_cpu_use is CPU seconds per wall second (2 on two idle cores), load_average the machine's "

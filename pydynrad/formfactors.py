@@ -31,8 +31,8 @@ from .errors import InvalidInputError, OutOfMemoryError
 from .launch import float4, global_size, hemicube_tiles, ray_work_group
 from .memory import available_host_bytes
 
-__all__ = ["form_factors", "hemicube_blocks", "pixel_form_factors", "sample_points", "stack_blocks", "CLUSTER_RESOLUTION",
-           "SURFACE_OFFSET"]
+__all__ = ["form_factors", "hemicube_blocks", "hemicube_runs", "pixel_form_factors", "sample_points", "stack_blocks",
+           "CLUSTER_RESOLUTION", "SURFACE_OFFSET"]
 
 #: Hemicube centres sit this far off their patch, times the scene's bounding-box diagonal:
 #: far above float32 rounding of coordinates (about 6e-8 of them), far below any patch size.
@@ -174,6 +174,18 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     R / sqrt(samples) (see the module's docstring). ``rows``, ``resolution`` and ``samples``
     are checked here.
     """
+    n_cols = len(checked_scene(scene)) if clusters is None else clusters[2]
+    for runs in hemicube_runs(scene, resolution, rows, device, progress, desc=desc, clusters=clusters, samples=samples):
+        yield _runs_to_csr(*runs, n_cols)
+
+
+def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | None = None, *,
+                  desc: str = "form factors", clusters: tuple[np.ndarray, np.ndarray, int] | None = None,
+                  samples: int = 1):
+    """The device's side of :func:`hemicube_blocks`: yields each block's run-length scanlines
+    ``(patch, weight, count)`` as read back, (b, K 3R, R) int32 and float32 and (b, K 3R) int32
+    for K = ``samples`` hemicubes per row (see kernels/hemicube.cl), before any host work.
+    Block b + 1 is traced while the caller works on block b."""
     import pyopencl as cl
 
     from .device import default_device
@@ -201,14 +213,13 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     # A row's K hemicubes are K * S scanlines of one block row; each weighs 1 / K.
     weights = pixel_form_factors(R) / K
     if clusters is None:
-        n_cols = n
         # Prefix sums along each of a hemicube's 3R scanlines, in float64, then float32 for the
         # device, which differences them at each run's ends.
         weights_cum = np.zeros((S, R + 1))
         np.cumsum(weights, axis=1, out=weights_cum[:, 1:])
         extra = [dev.to_device(weights_cum.astype(np.float32))]
     else:
-        labels, scale, n_cols = clusters
+        labels, scale, _ = clusters
         defines["HC_CLUSTERS"] = 1
         extra = [dev.to_device(np.ascontiguousarray(a, dtype=t)) for a, t in
                  ((labels, np.int32), (scale, np.float32), (weights, np.float32))]
@@ -233,8 +244,7 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
         cl.enqueue_copy(dev.queue, idx_bufs[k], idx, is_blocking=False)  # rows outlives the copy
         cl.enqueue_copy(dev.queue, org_bufs[k], org_host[k], is_blocking=False)
         knl(dev.queue, (global_size(len(idx) * K * tiles.bands(R), wg),), (wg,), nodes, tris, order, org_bufs[k], normals,
-            idx_bufs[k],
-            np.int32(len(idx)), eps, *buffers[k], *extra)
+            idx_bufs[k], np.int32(len(idx)), eps, *buffers[k], *extra)
         return len(idx)
 
     def read(b: int, k: int):
@@ -249,7 +259,7 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
         runs = read(b, 0)
         for k, first in enumerate(range(0, len(rows), block)):
             following = launch(first + block, (k + 1) % 2) if first + block < len(rows) else 0
-            yield _runs_to_csr(*runs, n_cols)
+            yield runs
             bar.update(b)
             if following:
                 b, runs = following, read(following, (k + 1) % 2)
