@@ -4,7 +4,9 @@
   CPU or not, compute units): :func:`spmv_layout` (the full solve, ``kernels/spmv.cl``),
   :func:`gemm_layout` (the multibounce build, ``kernels/gemm.cl``), :func:`matvec_layout`
   (products with K, ``kernels/matvec.cl``) and :class:`UpdateLayout` (the local update of K,
-  ``kernels/update.cl``).
+  ``kernels/update.cl``); for the ray kernels the packet width (:func:`bvh_packet`, from the
+  device's preferred vector width), the hemicube tiles (:func:`hemicube_tiles`) and their
+  work-groups (:func:`ray_work_group`).
 * The constants the kernels are built with: each layout's ``defines`` become ``-D`` options.
   The ``.cl`` files have no defaults for them (a build without one fails), so no number that
   host and kernel must agree on is written twice.
@@ -26,7 +28,8 @@ import numpy as np
 from .errors import InvalidInputError
 
 __all__ = [
-    "WG", "RED_WG", "BVH_PACKETS", "bvh_packet", "RAY_WG_CPU", "ray_work_group", "HemicubeTiles", "hemicube_tiles", "PANEL", "GEMM_GRAIN", "round_up", "global_size", "float4",
+    "WG", "RED_WG", "PANEL", "GEMM_GRAIN", "round_up", "global_size", "float4",
+    "BVH_PACKETS", "bvh_packet", "RAY_WG_CPU", "ray_work_group", "HemicubeTiles", "hemicube_tiles",
     "SpmvLayout", "spmv_layout", "GemmLayout", "gemm_layout", "MatvecLayout", "matvec_layout", "UpdateLayout",
 ]
 
