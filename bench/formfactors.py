@@ -1,21 +1,40 @@
 """Hemicube form factors: ray throughput against Embree, and accuracy against analytic plates.
 
-``python -m bench.formfactors [--size quick|full|tiny] [--scenes cornell_box,village]`` writes
-``bench/results/formfactors.{json,md}``; the suite runs the same measurement as its
-"formfactors" section.
+``python -m bench.formfactors [--size quick|full|tiny] [--scenes cornell_box,village,stanford_bunny]
+[--resolution R] [--rows N]`` writes ``bench/results/formfactors.{json,md}``; the suite runs the
+same measurement as its "formfactors" section. ``--scenes`` also takes mesh files (any format :func:`pydynrad.load` reads).
 
 Throughput: for a sample of patches of each scene, the hemicube rays that
 ``kernels/hemicube.cl`` casts (same origins, per-patch rotations and pixel directions,
-rebuilt here in numpy) are cast three ways in one run:
+rebuilt here in numpy) are cast four ways, the four calls taking turns in one loop so that
+each sees the same load on the machine:
 
-* ``form_factors(rows=sample)``: the whole pipeline (rays, run-length scanlines, CSR);
-* ``pydynrad.bvh.cast_rays``: our BVH kernel alone on the explicit rays (upload included),
-  16 consecutive rays per work-item as one packet (kernels/bvh.cl bvh_closest_packet);
-* Embree (``embreex``, closest hit, driven from Python): the peer to beat per ray.
+* ``form_factors(rows=sample)``: the whole pipeline (rays generated on the device and traced in
+  tiles of BVH_PACKET rays, run-length scanlines, the host's CSR): the hemicube rays as a user
+  gets them;
+* ``pydynrad.formfactors.hemicube_runs``: the same without the host's CSR (tracing, run-length
+  scanlines and their read-back): the ray tracing alone;
+* ``pydynrad.bvh.cast_rays``: our BVH kernel alone on the explicit rays (validation and upload
+  included), BVH_PACKET consecutive rays per work-item as one packet (kernels/bvh.cl
+  bvh_closest_packet, one origin per lane);
+* Embree (``embreex``, closest hit, driven from Python): the peer to beat.
 
-``form_factors`` traces each ray alone (kernels/hemicube.cl calls the single-ray bvh_closest).
-Embree through embreex runs on one thread while PoCL uses every core, so besides rays per
-wall-clock second the table gives rays per CPU-second (process user + system time): work per core.
+Each gets the same rays and the same triangles (same_hit_fraction: how often Embree and
+cast_rays return the same patch). PoCL runs ours on every compute unit of the device while
+embreex casts on one thread, as the comparison is meant; besides rays per wall-clock second the
+table gives rays per CPU-second (process user + system time, PoCL's threads included): work per
+core, the measure that a loaded machine disturbs least. ``*_cpu_use`` is CPU seconds per wall
+second of each call (2 on two idle cores), and ``load_average`` the machine's one-minute load
+when the scene's measurement began: other processes take cores from both sides.
+
+The real third-party mesh: ``stanford_bunny`` is the Stanford Bunny (Turk and Levoy 1994, from the
+Stanford 3D Scanning Repository, graphics.stanford.edu/data/3Dscanrep: the "bun_zipper"
+reconstruction, 35,947 vertices and 69,451 triangles), shipped gzipped as
+``bench/data/stanford-bunny.obj.gz``, the copy in the alecjacobson/common-3d-test-models
+repository (data/stanford-bunny.obj, exported by Meshlab). The Stanford repository lets the
+models be used and redistributed for research with acknowledgement of the source (above); it
+asks that they not be used commercially without permission. One open scanned surface: most
+of its hemicube rays leave the scene after a short walk, unlike the village's.
 
 BVH build: the native binned-SAH builder on random triangles (the issue's yardstick: 1,000,000
 triangles in under 2 s), through ``BVH.build`` as a user calls it.
@@ -27,8 +46,11 @@ against Howell's closed forms, per resolution R and subdivision, with the time e
 from __future__ import annotations
 
 import argparse
+import gzip
+import os
 import resource
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -38,14 +60,20 @@ from pydynrad.scenes.byname import scene_by_name
 
 from .common import time_call
 
-__all__ = ["SIZES", "hemicube_rays", "throughput", "bvh_build", "accuracy", "measure", "suite_section", "main"]
+__all__ = ["SIZES", "BUNNY", "bench_scene", "hemicube_rays", "throughput", "bvh_build", "accuracy", "measure",
+           "suite_section", "main"]
+
+#: The Stanford Bunny (see the module docstring for its origin and licence).
+BUNNY = Path(__file__).resolve().parent / "data" / "stanford-bunny.obj.gz"
 
 SIZES = {
     "tiny": {"bvh_triangles": 100_000, "scenes": ("cornell_box",), "ray_rows": 16, "ray_resolution": 16,
              "resolutions": (16, 32), "subdivisions": (2,)},
-    "quick": {"bvh_triangles": 1_000_000, "scenes": ("cornell_box", "village"), "ray_rows": 200, "ray_resolution": 32,
+    "quick": {"bvh_triangles": 1_000_000, "scenes": ("cornell_box", "village", "stanford_bunny"), "ray_rows": 200,
+              "ray_resolution": 32,
               "resolutions": (16, 32, 64, 128), "subdivisions": (1, 2, 3, 4)},
-    "full": {"bvh_triangles": 1_000_000, "scenes": ("cornell_box", "village"), "ray_rows": 1000, "ray_resolution": 64,
+    "full": {"bvh_triangles": 1_000_000, "scenes": ("cornell_box", "village", "stanford_bunny"), "ray_rows": 1000,
+             "ray_resolution": 64,
              "resolutions": (16, 32, 64, 128, 256, 512), "subdivisions": (1, 2, 3, 4, 5)},
 }
 
@@ -99,29 +127,44 @@ def _embree(scene):
     return es
 
 
+def bench_scene(name: str):
+    """A scene by name: ``stanford_bunny`` (:data:`BUNNY`, read from the package's gzipped copy),
+    else :func:`pydynrad.scenes.byname.scene_by_name` (built-ins and mesh files)."""
+    if name != "stanford_bunny":
+        return scene_by_name(name)
+    from pydynrad import load
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "stanford-bunny.obj"
+        path.write_bytes(gzip.decompress(BUNNY.read_bytes()))
+        return load(path)
+
+
 def _cpu_seconds() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)  # every thread of this process, PoCL's included
     return r.ru_utime + r.ru_stime
 
 
-def _timed(fn, repeats: int) -> tuple[dict, float]:
-    """time_call(fn) plus the median CPU seconds of one call."""
-    cpu = []
-
-    def counted():
-        c = _cpu_seconds()
-        result = fn()
-        cpu.append(_cpu_seconds() - c)
-        return result
-
-    t = time_call(counted, repeats=repeats)
-    return t, float(np.median(cpu[1:]))  # cpu[0]: the warm-up call
+def _taking_turns(calls: dict, repeats: int) -> dict:
+    """{name: (median wall s, median CPU s, last result)}: one untimed call each, then
+    ``repeats`` rounds in which every call runs once in turn."""
+    results = {name: fn() for name, fn in calls.items()}
+    wall = {name: [] for name in calls}
+    cpu = {name: [] for name in calls}
+    for _ in range(repeats):
+        for name, fn in calls.items():
+            c, t = _cpu_seconds(), time.perf_counter()
+            results[name] = fn()
+            wall[name].append(time.perf_counter() - t)
+            cpu[name].append(_cpu_seconds() - c)
+    return {name: (float(np.median(wall[name])), float(np.median(cpu[name])), results[name]) for name in calls}
 
 
 def throughput(scene, n_rows: int, resolution: int, device, repeats: int = 3) -> dict:
     """Rays per second of the three ray casters on one scene's hemicube rays."""
     from pydynrad.bvh import cast_rays
-    from pydynrad.formfactors import form_factors
+    from pydynrad.formfactors import form_factors, hemicube_runs
+    from pydynrad.launch import bvh_packet
 
     rows = np.linspace(0, len(scene) - 1, min(n_rows, len(scene))).astype(np.int32)
     o, d = hemicube_rays(scene, rows, resolution)
@@ -129,24 +172,30 @@ def throughput(scene, n_rows: int, resolution: int, device, repeats: int = 3) ->
     t_bvh = time.perf_counter()
     scene.bvh.buffers(device)
     t_bvh = time.perf_counter() - t_bvh
-    ff = time_call(lambda: form_factors(scene, resolution=resolution, rows=rows, device=device, progress=False),
-                   repeats=repeats)
-    ours, ours_cpu = _timed(lambda: cast_rays(scene, o, d, device=device), repeats)
     t_embree_build = time.perf_counter()
     es = _embree(scene)
     t_embree_build = time.perf_counter() - t_embree_build
-    emb, emb_cpu = _timed(lambda: es.run(o, d), repeats)
-    patch_ours, patch_emb = ours["result"][0], np.asarray(emb["result"])
+    load = os.getloadavg()[0]
+    t = _taking_turns({
+        "form_factors": lambda: form_factors(scene, resolution=resolution, rows=rows, device=device, progress=False),
+        "hemicube_runs": lambda: sum(len(c) for *_, c in hemicube_runs(scene, resolution, rows, device, progress=False)),
+        "cast_rays": lambda: cast_rays(scene, o, d, device=device)[0],
+        "embree": lambda: np.asarray(es.run(o, d)),
+    }, repeats)
+    (ff, ff_cpu, _), (hc, hc_cpu, _) = t["form_factors"], t["hemicube_runs"]
+    (ours, ours_cpu, patch_ours), (emb, emb_cpu, patch_emb) = t["cast_rays"], t["embree"]
     return {
         "scene": scene.name, "patches": len(scene), "rows": len(rows), "R": resolution, "rays": n_rays,
-        "form_factors_rays_per_s": n_rays / ff["median_s"],
-        "cast_rays_per_s": n_rays / ours["median_s"],
-        "embree_rays_per_s": n_rays / emb["median_s"],
-        "ours_over_embree": emb["median_s"] / ours["median_s"],
-        "cast_rays_per_cpu_s": n_rays / ours_cpu, "embree_rays_per_cpu_s": n_rays / emb_cpu,
-        "ours_over_embree_per_cpu_s": emb_cpu / ours_cpu,
+        "packet": bvh_packet(device), "load_average": load,
+        "form_factors_rays_per_s": n_rays / ff, "hemicube_runs_rays_per_s": n_rays / hc,
+        "cast_rays_per_s": n_rays / ours, "embree_rays_per_s": n_rays / emb,
+        "form_factors_over_embree": emb / ff, "hemicube_runs_over_embree": emb / hc, "cast_rays_over_embree": emb / ours,
+        "form_factors_over_embree_per_cpu_s": emb_cpu / ff_cpu, "hemicube_runs_over_embree_per_cpu_s": emb_cpu / hc_cpu,
+        "cast_rays_over_embree_per_cpu_s": emb_cpu / ours_cpu,
+        "form_factors_cpu_use": ff_cpu / ff, "hemicube_runs_cpu_use": hc_cpu / hc, "cast_rays_cpu_use": ours_cpu / ours,
+        "embree_cpu_use": emb_cpu / emb,
         "same_hit_fraction": float(np.mean(patch_ours == patch_emb)),
-        "warmup_s": ff["warmup_s"], "bvh_upload_s": t_bvh, "embree_build_s": t_embree_build,
+        "bvh_upload_s": t_bvh, "embree_build_s": t_embree_build,
     }
 
 
@@ -202,14 +251,16 @@ def accuracy(resolutions, subdivisions, device, samples: int = 1) -> list[dict]:
 
 def measure(params: dict, device) -> dict:
     """The section dict (see bench.report) for one parameter set."""
-    tp = [throughput(scene_by_name(name), params["ray_rows"], params["ray_resolution"], device)
+    tp = [throughput(bench_scene(name), params["ray_rows"], params["ray_resolution"], device)
           for name in params["scenes"]]
     acc = accuracy(params["resolutions"], params["subdivisions"], device)
     build = bvh_build(int(params.get("bvh_triangles", 1_000_000)))
     build_cols = ["triangles", "median_s", "min_s", "nodes", "triangles_per_s"]
-    tp_cols = ["scene", "patches", "rows", "R", "rays", "form_factors_rays_per_s", "cast_rays_per_s",
-               "embree_rays_per_s", "ours_over_embree", "cast_rays_per_cpu_s", "embree_rays_per_cpu_s",
-               "ours_over_embree_per_cpu_s", "same_hit_fraction", "warmup_s"]
+    tp_cols = ["scene", "patches", "rows", "R", "rays", "packet", "load_average", "form_factors_rays_per_s",
+               "hemicube_runs_rays_per_s", "cast_rays_per_s", "embree_rays_per_s", "form_factors_over_embree",
+               "hemicube_runs_over_embree", "cast_rays_over_embree", "form_factors_over_embree_per_cpu_s",
+               "hemicube_runs_over_embree_per_cpu_s", "cast_rays_over_embree_per_cpu_s", "form_factors_cpu_use",
+               "hemicube_runs_cpu_use", "cast_rays_cpu_use", "embree_cpu_use", "same_hit_fraction"]
     acc_cols = ["case", "subdivisions", "patches", "R", "F", "truth", "rel_error", "seconds", "rays_per_s"]
     plots = [{
         "name": f"error-{case}", "title": f"{case} unit plates: |relative error| vs R", "xlabel": "R",
@@ -221,12 +272,16 @@ def measure(params: dict, device) -> dict:
     return {
         "title": "Hemicube form factors",
         "description": (
-            "Ray throughput on each scene's hemicube rays (a sample of patches, resolution R): the full "
-            "form_factors pipeline (one ray per traversal), our BVH kernel alone (cast_rays: 16-ray packets, "
-            "upload included) and Embree (embreex, closest hit from Python, one thread) on the same rays in "
-            "the same run, per wall-clock second and per CPU-second of the process (PoCL uses every core); "
-            "same_hit_fraction is how often both return the same patch. Then the unit plates' form factor "
-            "against Howell's closed forms."
+            "Ray throughput on each scene's hemicube rays (a sample of patches, resolution R), the three "
+            "callers taking turns in one loop: the full form_factors pipeline (rays made on the device, traced in "
+            "tiles of `packet` rays, CSR on the host), the same without the CSR (hemicube_runs: the tracing and "
+            "its read-back), our BVH kernel alone on the explicit rays (cast_rays: "
+            "`packet`-ray packets, upload included) and Embree (embreex, closest hit from Python, one thread) on "
+            "the same rays; ours use every compute unit. Per wall-clock second and per CPU-second of the process; "
+            "*_cpu_use is CPU seconds per wall second (2 on two idle cores), load_average the machine's "
+            "one-minute load at the start; same_hit_fraction is how often cast_rays and Embree return the same "
+            "patch. stanford_bunny is the Stanford Bunny (Stanford 3D Scanning Repository). Then the unit "
+            "plates' form factor against Howell's closed forms."
         ),
         "tables": [
             {"title": "Ray throughput (rays/s)", "columns": tp_cols, "rows": [[r[c] for c in tp_cols] for r in tp]},
@@ -258,18 +313,25 @@ def main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m bench.formfactors", description=__doc__.split("\n\n")[0])
     ap.add_argument("--size", choices=list(SIZES), default="quick")
-    ap.add_argument("--scenes", help="comma-separated pydynrad.scenes names (default: the size's)")
+    ap.add_argument("--scenes", help="comma-separated scene names or mesh files (default: the size's)")
+    ap.add_argument("--resolution", type=int, help="hemicube resolution of the throughput rays (default: the size's)")
+    ap.add_argument("--rows", type=int, help="patches whose hemicube rays are cast, per scene (default: the size's)")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
     args = ap.parse_args(argv)
     params = dict(SIZES[args.size])
     if args.scenes:
         params["scenes"] = tuple(args.scenes.split(","))
+    if args.resolution:
+        params["ray_resolution"] = args.resolution
+    if args.rows:
+        params["ray_rows"] = args.rows
     device = pydynrad.default_device()
     t0 = time.perf_counter()
     section = measure(params, device)
     results = {"device": device.info(),
                "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-               "size": args.size, "sections": {"formfactors": section}, "seconds": time.perf_counter() - t0}
+               "size": args.size, "params": {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()},
+               "sections": {"formfactors": section}, "seconds": time.perf_counter() - t0}
     written = write_report(results, args.out, "formfactors")
     print("\n".join(str(p) for p in written.values()), file=sys.stderr)
     return 0

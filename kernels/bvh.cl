@@ -232,8 +232,10 @@ inline bool bvh_occluded(__global const float4 *nodes, __global const float4 *tr
 // one walk tests a box or triangle against all lanes in a few vector instructions. Lanes need
 // no activity mask: a ray that misses a box cannot hit the triangles inside it, so testing it
 // anyway changes nothing; the lanes' entry distances only steer which subtrees the packet enters.
-// BVH_PACKET (the host's pydynrad.launch.BVH_PACKET) selects this part: programs that trace
-// one ray per work-item leave it undefined.
+// BVH_PACKET (the host's pydynrad.launch.bvh_packet) selects this part: programs that trace
+// one ray per work-item leave it undefined. BVH_SHARED_ORIGIN (defined by hemicube.h) builds
+// it for packets whose rays all leave one point: the origin is then a scalar, and each
+// triangle's corners are moved to it once per packet instead of once per lane.
 #ifdef BVH_PACKET
 #define BVH_CAT_(a, b) a##b
 #define BVH_CAT(a, b) BVH_CAT_(a, b)
@@ -251,9 +253,15 @@ inline float bvh_hmax4(float4 v) { float2 m = BVH_MAX(v.lo, v.hi); return BVH_MA
 inline float bvh_hmax8(float8 v) { return bvh_hmax4(BVH_MAX(v.lo, v.hi)); }
 inline float bvh_hmax16(float16 v) { return bvh_hmax8(BVH_MAX(v.lo, v.hi)); }
 
+#ifdef BVH_SHARED_ORIGIN
+typedef float bvh_originP;
+#else
+typedef bvh_floatP bvh_originP;
+#endif
+
 typedef struct {
-    bvh_floatP ox, oy, oz;  // origins
-    bvh_floatP dx, dy, dz;  // directions (any length; t is in units of |dir|)
+    bvh_originP ox, oy, oz;  // origins (one for every lane with BVH_SHARED_ORIGIN)
+    bvh_floatP dx, dy, dz;   // directions (any length; t is in units of |dir|)
 } RayPacket;
 
 typedef struct {
@@ -321,9 +329,9 @@ inline void bvh_tri_hit_p(__global const float4 *tris, int k, const RayPacket *r
                           HitPacket *h)
 {
     float4 v0 = tris[3 * k], v1 = tris[3 * k + 1], v2 = tris[3 * k + 2];
-    bvh_floatP ax = v0.x - r->ox, ay = v0.y - r->oy, az = v0.z - r->oz;
-    bvh_floatP bx = v1.x - r->ox, by = v1.y - r->oy, bz = v1.z - r->oz;
-    bvh_floatP cx = v2.x - r->ox, cy = v2.y - r->oy, cz = v2.z - r->oz;
+    bvh_originP ax = v0.x - r->ox, ay = v0.y - r->oy, az = v0.z - r->oz;
+    bvh_originP bx = v1.x - r->ox, by = v1.y - r->oy, bz = v1.z - r->oz;
+    bvh_originP cx = v2.x - r->ox, cy = v2.y - r->oy, cz = v2.z - r->oz;
     bvh_floatP aX = ax * f->px + ay * f->py + az * f->pz, aY = ax * f->qx + ay * f->qy + az * f->qz;
     bvh_floatP bX = bx * f->px + by * f->py + bz * f->pz, bY = bx * f->qx + by * f->qy + bz * f->qz;
     bvh_floatP cX = cx * f->px + cy * f->py + cz * f->pz, cY = cx * f->qx + cy * f->qy + cz * f->qz;

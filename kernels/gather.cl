@@ -5,8 +5,7 @@
 // pydynrad.formfactors.pixel_form_factors) times what it meets: the radiosity of a patch seen
 // from the front (not the point's own patch), nothing for a back face, and pi times the sky's
 // luminance (sky.h) for a ray that leaves the scene. Sum over a hemicube: irradiance.
-#include "bvh.cl"
-#include "hemicube.h"
+#include "hemicube.h"  // and bvh.cl
 #include "sky.h"
 
 // points, normals: float4 per point; keys: each point's rotation key; own: the patch a point

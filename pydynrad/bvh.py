@@ -18,7 +18,7 @@ import numpy as np
 from . import _bvh
 from .checks import finite
 from .errors import InvalidInputError
-from .launch import BVH_PACKET, global_size
+from .launch import bvh_packet, global_size, ray_work_group
 
 __all__ = ["BVH", "InstancedBVH", "cast_rays", "occluded"]
 
@@ -304,8 +304,9 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
     mf = cl.mem_flags
     bufs = [cl.Buffer(dev.context, mf.WRITE_ONLY, a.nbytes) for a in (patch, t, front)]
     # One packet of BVH_PACKET consecutive rays per work-item (see kernels/raycast.cl).
-    knl = dev.kernel("raycast.cl", "cast_closest", {"BVH_PACKET": BVH_PACKET})
-    knl(dev.queue, (global_size(-(-n // BVH_PACKET)),), None, *bvh.buffers(dev), dev.to_device(o), dev.to_device(d),
+    packet, wg = bvh_packet(dev), ray_work_group(dev)
+    knl = dev.kernel("raycast.cl", "cast_closest", {"BVH_PACKET": packet})
+    knl(dev.queue, (global_size(-(-n // packet), wg),), (wg,), *bvh.buffers(dev), dev.to_device(o), dev.to_device(d),
         dev.to_device(tm), np.int32(n), *bufs)
     for host, buf in zip((patch, t, front), bufs):
         cl.enqueue_copy(dev.queue, host, buf)
@@ -325,7 +326,7 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
         return out.astype(bool)
     buf = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
     nodes, tris, _ = bvh.buffers(dev)
-    dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": BVH_PACKET})(  # one program with cast_closest
+    dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": bvh_packet(dev)})(  # one program with cast_closest
         dev.queue, (global_size(n),), None, nodes, tris, dev.to_device(o), dev.to_device(d), dev.to_device(tm),
         np.int32(n), buf,
     )

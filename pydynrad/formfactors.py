@@ -13,8 +13,8 @@ that many hemicubes, one at the centroid of each stratum of the patch's midpoint
 (equal areas), each at resolution R / sqrt(samples): the same rays per row.
 
 Rows are computed in blocks: the device writes each scanline's pixels run-length encoded
-(patch, end pixel), the host turns runs into weights with a prefix sum and sums duplicates
-into CSR. Memory stays bounded by the block, whatever N.
+(patch, weight: the difference of the pixel weights' prefix sums at the run's ends), the host
+sums duplicates into CSR. Memory stays bounded by the block, whatever N.
 
 See docs/design.md, 'Hemicube form factors'.
 """
@@ -28,11 +28,11 @@ import scipy.sparse as sp
 
 from .checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
-from .launch import BVH_PACKET, float4, global_size
+from .launch import float4, global_size, hemicube_tiles, ray_work_group
 from .memory import available_host_bytes
 
-__all__ = ["form_factors", "hemicube_blocks", "pixel_form_factors", "sample_points", "stack_blocks", "CLUSTER_RESOLUTION",
-           "SURFACE_OFFSET"]
+__all__ = ["form_factors", "hemicube_blocks", "hemicube_runs", "pixel_form_factors", "sample_points", "stack_blocks",
+           "CLUSTER_RESOLUTION", "SURFACE_OFFSET"]
 
 #: Hemicube centres sit this far off their patch, times the scene's bounding-box diagonal:
 #: far above float32 rounding of coordinates (about 6e-8 of them), far below any patch size.
@@ -140,25 +140,24 @@ def sample_points(scene, rows, samples: int = 1) -> np.ndarray:
     return np.einsum("mc,rcx->rmx", bary, scene.vertices[rows])
 
 
-def _runs_to_csr(patch, end, count, weights_cum, n_cols: int) -> sp.csr_matrix:
-    """Sum each row's runs into a CSR block: patch/end (B, 3R, R), count (B, 3R).
+def _runs_to_csr(patch, weight, count, n_cols: int) -> sp.csr_matrix:
+    """Sum each row's runs into a CSR block: patch/weight (B, K 3R, R), count (B, K 3R) for K
+    hemicubes per row.
 
-    ``end`` holds each run's end pixel, weighed by the prefix sums ``weights_cum`` (3R, R + 1)
-    of the pixel form factors; with ``weights_cum=None`` it holds each run's weight itself.
+    Only the runs are read (gathered by their counts), not the whole (B, K 3R, R) buffers: a
+    scanline holds ~15 runs of 64 pixels in the village. Duplicates (a patch seen on several
+    scanlines) are summed in float64 by one sort of the (row, column) keys.
     """
     B, S, R = patch.shape
-    used = np.arange(R)[None, None, :] < count[..., None]
-    b, s, j = np.nonzero(used & (patch >= 0))
-    cols = patch[b, s, j]
-    if weights_cum is None:
-        w = end[b, s, j].astype(np.float64)
-    else:
-        start = np.zeros_like(end)
-        start[..., 1:] = end[..., :-1]
-        w = weights_cum[s, end[b, s, j]] - weights_cum[s, start[b, s, j]]
-    m = sp.csr_matrix((w, (b, cols)), shape=(B, n_cols))  # duplicates summed, in float64
-    m.sum_duplicates()
-    return m
+    count = count.reshape(-1)
+    line = np.repeat(np.arange(B * S, dtype=np.int64), count)  # each run's scanline
+    flat = line * R + np.arange(len(line)) - np.repeat(np.cumsum(count) - count, count)
+    cols = patch.reshape(-1)[flat]
+    keep = cols >= 0
+    keys, at = np.unique(line[keep] // S * n_cols + cols[keep], return_inverse=True)  # sorted by row, column
+    data = np.bincount(at.reshape(-1), weights=weight.reshape(-1)[flat[keep]], minlength=len(keys))
+    indptr = np.searchsorted(keys, np.arange(B + 1) * n_cols)
+    return sp.csr_matrix((data, (keys % n_cols).astype(np.int32), indptr), shape=(B, n_cols))
 
 
 def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | None = None, *,
@@ -175,6 +174,18 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     R / sqrt(samples) (see the module's docstring). ``rows``, ``resolution`` and ``samples``
     are checked here.
     """
+    n_cols = len(checked_scene(scene)) if clusters is None else clusters[2]
+    for runs in hemicube_runs(scene, resolution, rows, device, progress, desc=desc, clusters=clusters, samples=samples):
+        yield _runs_to_csr(*runs, n_cols)
+
+
+def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | None = None, *,
+                  desc: str = "form factors", clusters: tuple[np.ndarray, np.ndarray, int] | None = None,
+                  samples: int = 1):
+    """The device's side of :func:`hemicube_blocks`: yields each block's run-length scanlines
+    ``(patch, weight, count)`` as read back, (b, K 3R, R) int32 and float32 and (b, K 3R) int32
+    for K = ``samples`` hemicubes per row (see kernels/hemicube.cl), before any host work.
+    Block b + 1 is traced while the caller works on block b."""
     import pyopencl as cl
 
     from .device import default_device
@@ -195,18 +206,20 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     # Two blocks in flight (see below), each at most half of BLOCK_BYTES, and about
     # OVERLAP_BLOCKS blocks in all so that even a small scene overlaps host and device work.
     block = int(max(1, min(len(rows), BLOCK_BYTES // (2 * per_row), max(MIN_BLOCK_ROWS, -(-len(rows) // OVERLAP_BLOCKS)))))
-    defines, extra = {"HC_RES": R, "BVH_PACKET": BVH_PACKET}, []
+    tiles, wg = hemicube_tiles(dev), ray_work_group(dev)
+    defines, extra = tiles.defines(R), []
     if K > 1:
         defines["HC_SAMPLES"] = K
     # A row's K hemicubes are K * S scanlines of one block row; each weighs 1 / K.
     weights = pixel_form_factors(R) / K
     if clusters is None:
-        n_cols, end_dtype = n, np.int32
-        weights_cum = np.zeros((K * S, R + 1))
-        np.cumsum(np.tile(weights, (K, 1)), axis=1, out=weights_cum[:, 1:])
+        # Prefix sums along each of a hemicube's 3R scanlines, in float64, then float32 for the
+        # device, which differences them at each run's ends.
+        weights_cum = np.zeros((S, R + 1))
+        np.cumsum(weights, axis=1, out=weights_cum[:, 1:])
+        extra = [dev.to_device(weights_cum.astype(np.float32))]
     else:
-        labels, scale, n_cols = clusters
-        end_dtype, weights_cum = np.float32, None
+        labels, scale, _ = clusters
         defines["HC_CLUSTERS"] = 1
         extra = [dev.to_device(np.ascontiguousarray(a, dtype=t)) for a, t in
                  ((labels, np.int32), (scale, np.float32), (weights, np.float32))]
@@ -230,12 +243,12 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
         org_host[k] = float4(scene.frame.points(sample_points(scene, idx, K).reshape(-1, 3)))
         cl.enqueue_copy(dev.queue, idx_bufs[k], idx, is_blocking=False)  # rows outlives the copy
         cl.enqueue_copy(dev.queue, org_bufs[k], org_host[k], is_blocking=False)
-        knl(dev.queue, (global_size(len(idx) * K * S),), None, nodes, tris, order, org_bufs[k], normals, idx_bufs[k],
-            np.int32(len(idx)), eps, *buffers[k], *extra)
+        knl(dev.queue, (global_size(len(idx) * K * tiles.bands(R), wg),), (wg,), nodes, tris, order, org_bufs[k], normals,
+            idx_bufs[k], np.int32(len(idx)), eps, *buffers[k], *extra)
         return len(idx)
 
     def read(b: int, k: int):
-        host = (np.empty((b, K * S, R), np.int32), np.empty((b, K * S, R), end_dtype), np.empty((b, K * S), np.int32))
+        host = (np.empty((b, K * S, R), np.int32), np.empty((b, K * S, R), np.float32), np.empty((b, K * S), np.int32))
         for h, d in zip(host, buffers[k]):
             cl.enqueue_copy(dev.queue, h, d)
         return host
@@ -246,7 +259,7 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
         runs = read(b, 0)
         for k, first in enumerate(range(0, len(rows), block)):
             following = launch(first + block, (k + 1) % 2) if first + block < len(rows) else 0
-            yield _runs_to_csr(*runs, weights_cum, n_cols)
+            yield runs
             bar.update(b)
             if following:
                 b, runs = following, read(following, (k + 1) % 2)

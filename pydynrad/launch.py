@@ -7,6 +7,8 @@
   :func:`matvec_layout` (products with K, ``kernels/matvec.cl``) and :class:`UpdateLayout`
   (the local update of K, ``kernels/update.cl``). Each takes a Device or bare DeviceTraits,
   so a layout can be chosen for (and tested on) a device that is not here.
+  For the ray kernels: the packet width (:func:`bvh_packet`, from the preferred float width),
+  the hemicube tiles (:func:`hemicube_tiles`) and their work-groups (:func:`ray_work_group`).
 * The constants the kernels are built with: each layout's ``defines`` become ``-D`` options.
   The ``.cl`` files have no defaults for them (a build without one fails), so no number that
   host and kernel must agree on is written twice.
@@ -30,7 +32,8 @@ import numpy as np
 from .errors import InvalidInputError
 
 __all__ = [
-    "WG", "RED_WG", "BVH_PACKET", "PANEL", "GEMM_GRAIN", "WIDTHS", "round_up", "global_size", "float4",
+    "WG", "RED_WG", "PANEL", "GEMM_GRAIN", "WIDTHS", "round_up", "global_size", "float4",
+    "BVH_PACKETS", "bvh_packet", "RAY_WG_CPU", "ray_work_group", "HemicubeTiles", "hemicube_tiles",
     "cpu_vector_width", "SpmvLayout", "spmv_layout", "GemmLayout", "gemm_layout", "MatvecLayout", "matvec_layout",
     "UpdateLayout",
 ]
@@ -39,10 +42,60 @@ __all__ = [
 WG = 64
 #: Items of the one-group tree reduction ``double_reflection`` (a power of two).
 RED_WG = 64
-#: Rays per work-item of the packet traversal in ``kernels/bvh.cl``: one per 16-wide vector lane.
-BVH_PACKET = 16
 #: Vector widths (elements) the kernels are written for: OpenCL's 4-, 8- and 16-element types.
 WIDTHS = (4, 8, 16)
+#: Widths the packet traversal (``kernels/bvh.cl``, ``kernels/hemicube.h``) is written for.
+BVH_PACKETS = (4, 8, 16)
+#: Scanlines per hemicube tile (``HC_TILE_Y``) for each packet width: square tiles where the
+#: width allows (4 x 4, 2 x 2), else 4 x 2.
+_TILE_ROWS = {4: 2, 8: 2, 16: 4}
+
+
+def bvh_packet(device) -> int:
+    """Rays per work-item of the packet traversal (``BVH_PACKET``), one per vector lane.
+
+    The device's preferred float vector width (PoCL: 16 with AVX-512, 8 with AVX2), within
+    :data:`BVH_PACKETS`: a packet's box test costs one vector operation per lane group, so
+    lanes beyond the hardware's width cost as much as a second packet while visiting at least
+    as many nodes as it would. GPUs report 1 and get the narrowest packets."""
+    width = int(_traits(device).float_width)
+    return max(p for p in BVH_PACKETS if p <= max(width, BVH_PACKETS[0]))
+
+
+#: Work-items per work-group of the packet ray kernels on a CPU (hemicube_runs, cast_closest).
+#: Left to itself PoCL cuts a launch into a few equal groups (12,288 items: 3 groups of 4,096
+#: for 2 threads, so one thread idled for a third of the launch; 3,072: 2 groups, as unequal as
+#: the rows in them); small groups let its threads share the work as they free up. A group of
+#: 8 hemicube bands is ~0.1 ms of tracing, far above the cost of starting it.
+RAY_WG_CPU = 8
+
+
+def ray_work_group(device) -> int:
+    """Work-items per work-group of the ray kernels: :data:`RAY_WG_CPU` on a CPU, :data:`WG` otherwise."""
+    return RAY_WG_CPU if _traits(device).cpu else WG
+
+
+@dataclass(frozen=True)
+class HemicubeTiles:
+    """How ``hemicube_runs`` (``kernels/hemicube.cl``) splits a hemicube: one work-item per
+    band of ``rows`` scanlines of a face, traced in tiles of ``packet // rows`` pixels by
+    ``rows`` scanlines, one packet each (see ``kernels/hemicube.h``)."""
+
+    packet: int
+    rows: int
+
+    def defines(self, resolution: int) -> dict[str, int]:
+        return {"HC_RES": int(resolution), "BVH_PACKET": self.packet, "HC_TILE_Y": self.rows}
+
+    def bands(self, resolution: int) -> int:
+        """Work-items per hemicube: each face cut into bands of ``rows`` scanlines (HC_BANDS)."""
+        R = int(resolution)
+        return -(-R // self.rows) + 4 * -(-(R // 2) // self.rows)
+
+
+def hemicube_tiles(device) -> HemicubeTiles:
+    packet = bvh_packet(device)
+    return HemicubeTiles(packet, _TILE_ROWS[packet])
 
 
 def float4(a) -> np.ndarray:

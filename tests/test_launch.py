@@ -32,11 +32,26 @@ def test_path_tracer_needs_the_bounce_limit(device):
     assert "MAX_DEPTH (the bounce limit) must come from the host" in info.value.build_log
 
 
-def test_hemicube_needs_the_hosts_packet_width(device):
-    for defines in ({"HC_RES": 8}, {"HC_RES": 8, "BVH_PACKET": 8}):
+def test_hemicube_needs_the_hosts_packet_width_and_tiles(device):
+    for defines, missing in (({"HC_RES": 8, "HC_TILE_Y": 2}, "needs BVH_PACKET of 4, 8 or 16"),
+                             ({"HC_RES": 8, "BVH_PACKET": 12, "HC_TILE_Y": 2}, "needs BVH_PACKET of 4, 8 or 16"),
+                             ({"HC_RES": 8, "BVH_PACKET": 8}, "needs HC_TILE_Y"),
+                             ({"HC_RES": 8, "BVH_PACKET": 8, "HC_TILE_Y": 3}, "needs HC_TILE_Y")):
         with pytest.raises(pydynrad.KernelBuildError) as info:
             device.program("hemicube.cl", defines)
-        assert "needs BVH_PACKET == 16" in info.value.build_log
+        assert missing in info.value.build_log
+
+
+def test_packet_width_follows_the_device(device):
+    from pydynrad.launch import BVH_PACKETS, bvh_packet, hemicube_tiles
+
+    width = device.cl_device.preferred_vector_width_float
+    packet = bvh_packet(device)
+    assert packet in BVH_PACKETS and (packet <= width or packet == min(BVH_PACKETS))
+    assert all(p > width for p in BVH_PACKETS if p > packet)
+    tiles = hemicube_tiles(device)
+    assert tiles.packet == packet and packet % tiles.rows == 0  # that the bands cover every
+    # scanline once is tests/test_formfactors.py's test_rows_are_the_hemicube_rays_cast_one_by_one
 
 
 def test_patch_buffers_once_per_device_and_per_geometry(device):

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..checks import resolution as checked_resolution
 from ..formfactors import SURFACE_OFFSET, pixel_form_factors
-from ..launch import BVH_PACKET, float4, global_size
+from ..launch import bvh_packet, float4, global_size
 
 __all__ = ["gather_irradiance"]
 
@@ -70,7 +70,7 @@ def gather_irradiance(scene, points, normals, radiosity=None, sky=None, resoluti
     own = np.full(n, -1, np.int32) if own is None else own
     keys_dev, own_dev = up(np.asarray(keys, np.int32)), up(np.asarray(own, np.int32))
     weights, B_dev, sky_dev = up(pixel_form_factors(R).astype(np.float32)), up(B), up(sky)
-    kernel = dev.kernel("gather.cl", "hemicube_gather", {"HC_RES": R, "BVH_PACKET": BVH_PACKET})
+    kernel = dev.kernel("gather.cl", "hemicube_gather", {"HC_RES": R, "BVH_PACKET": bvh_packet(dev)})
     block = min(n, BLOCK_POINTS)
     partial_dev = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, block * S * 16)
     eps = np.float32(scene.frame.length(SURFACE_OFFSET * scene.scale))
