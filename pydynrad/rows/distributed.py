@@ -182,7 +182,10 @@ def _start_client(workers: int | None, scheduler: str | None):
         raise InvalidInputError(f"workers must be a positive integer; got {workers!r}")
     with dask.config.set({"distributed.worker.multiprocessing-method": "spawn"}):
         try:
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+            # The scheduler's HTTP server listens even without a dashboard, on 8787 unless told
+            # otherwise; any free port spares a second precompute (or a user's own cluster) the
+            # multi-line "Port 8787 is already in use" warning.
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                                    silence_logs=logging.ERROR)
         except (RuntimeError, OSError) as exc:  # a worker died while starting ("Nanny failed to start.")
             raise PydynradError(f"the local Dask cluster of {n} workers failed to start ({exc}): "
