@@ -26,7 +26,8 @@ from ..errors import InvalidInputError
 from ..rows.sources import HemicubeRows
 from .localrows import LocalRows
 
-__all__ = ["PoseRows", "precompute_poses", "WorldRows", "sphere_solid_angle", "refresh_order", "with_reciprocal_columns", "capped", "stale_rows", "swap_chunks"]
+__all__ = ["PoseRows", "precompute_poses", "WorldRows", "sphere_solid_angle", "refresh_order", "with_reciprocal_columns",
+           "capped", "stale_rows", "hidden_by", "without_hidden", "swap_chunks"]
 
 
 def sphere_solid_angle(points: np.ndarray, normals: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
@@ -53,6 +54,39 @@ def refresh_order(points, normals, spheres) -> tuple[np.ndarray, np.ndarray]:
     order = np.flatnonzero(score > 0)
     order = order[np.argsort(-score[order], kind="stable")]
     return order, score[order]
+
+
+def hidden_by(objects, transforms, starts: np.ndarray, ends: np.ndarray, device=None) -> np.ndarray:
+    """(n,) bool: the segments ``starts[i] -> ends[i]`` (world points) that cross an object's
+    triangles at ``transforms``. Only segments passing within an object's bounding sphere are
+    traced, each in the object's own space against its own tree (the static scene is not looked at)."""
+    from ..bvh import occluded
+
+    p0, p1 = np.asarray(starts, np.float64), np.asarray(ends, np.float64)
+    d = p1 - p0
+    dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
+    out = np.zeros(len(p0), bool)
+    for o, T in zip(objects, transforms):
+        c, r = o.bounding_sphere(T)
+        t = np.clip(np.einsum("ij,ij->i", c - p0, d) / dd, 0.0, 1.0)
+        gap = p0 + t[:, None] * d - c
+        near = np.flatnonzero(~out & (np.einsum("ij,ij->i", gap, gap) <= r * r))
+        if len(near):
+            Rt = T[:3, :3].T  # world to object space: x -> R^T (x - t)
+            out[near] = occluded(o.scene, (p0[near] - T[:3, 3]) @ Rt.T, d[near] @ Rt.T, np.float32(1.0), device=device)
+    return out
+
+
+def without_hidden(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.ndarray, objects, transforms,
+                   device=None) -> sp.csr_matrix:
+    """Static rows with the entries the objects hide set to zero: F[s, x] is dropped where the
+    segment between the centres of s and x crosses an object (:func:`hidden_by`). A patch-centre
+    estimate of the occlusion a hemicube at the pose would see, for no hemicube."""
+    rows = sp.csr_matrix(rows, dtype=np.float64, copy=True)
+    owner = np.repeat(np.asarray(row_patches), np.diff(rows.indptr))
+    rows.data[hidden_by(objects, transforms, centers[owner], centers[rows.indices], device)] = 0.0
+    rows.eliminate_zeros()
+    return rows
 
 
 def with_reciprocal_columns(rows: sp.csr_matrix, row_patches: np.ndarray, object_rows: sp.csr_matrix,
@@ -194,25 +228,28 @@ def precompute_poses(scene, objects, poses, resolution: int = 128, device=None) 
 class WorldRows:
     """Rows of F for a static scene with objects (a :class:`~pydynrad.rows.sources.RowSource`).
 
-    Object patches' rows are hemicubes of the current world scene. Static rows come from
-    ``static_ff`` (the static scene's (N, N) F or row source) with their object columns by
-    reciprocity from the objects' current rows (the objects' occlusion of the static scene is
-    then missing until a refresh); with ``static_ff=None`` they are hemicubes of the world
-    too, and exact at the current poses.
+    Object patches' rows are hemicubes of the current world scene (or stored in ``poses``).
+    Static rows come from ``static_ff`` (the static scene's (N, N) F or row source) with the
+    entries the objects hide dropped (:func:`without_hidden`), their object columns by
+    reciprocity from the objects' current rows, and capped to a sum of 1; with
+    ``static_ff=None`` they are hemicubes of the world too, and exact at the current poses.
     """
 
-    def __init__(self, world, n_static: int, object_patches: np.ndarray, static_ff, static_scene, resolution: int,
+    def __init__(self, world, n_static: int, objects, static_ff, static_scene, resolution: int,
                  device, poses: PoseRows | None = None) -> None:
         if poses is not None and (poses.n_patches != len(world) or poses.resolution != resolution):
             raise InvalidInputError(f"poses= holds rows of {poses.n_patches} patches at R = {poses.resolution}; this "
                                     f"scene with its objects has {len(world)} patches at R = {resolution}")
         self.poses = poses
         self.hemicubes = HemicubeRows(world, resolution, device)
+        self.device = device
         self.n_patches = len(world)
         self.n_static = int(n_static)
-        self.object_patches = np.asarray(object_patches, np.int64)
+        self.objects_moving = list(objects)
+        self.object_patches = np.arange(self.n_static, self.n_patches)
         self.static = None if static_ff is None else LocalRows(static_scene, static_ff, resolution, device)
         self.object_rows: sp.csr_matrix | None = None  # rows of object_patches at the current poses
+        self._outside: dict[int, sp.csr_matrix] = {}  # rows of patches outside the local set, this pose
 
     @property
     def world(self):
@@ -223,6 +260,20 @@ class WorldRows:
         when first needed, unless set in :attr:`object_rows`)."""
         self.hemicubes.scene = world
         self.object_rows = None
+        self._outside = {}
+
+    def gather_outside(self, outside: np.ndarray, L: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """(len(outside), 3) ``L + P F B`` for the patches ``outside`` the local set: one gather
+        with their rows at the current poses (:meth:`rows`, kept until the next move), so the
+        far field's patches see the objects where they are, their light and their shadows."""
+        outside = np.asarray(outside, np.int64)
+        missing = [p for p in outside.tolist() if p not in self._outside]
+        if missing:
+            self._outside.update(zip(missing, self.rows(np.array(missing))))
+        rows = sp.vstack([self._outside[p] for p in outside.tolist()], format="csr") if len(outside) else None
+        if rows is None:
+            return np.zeros((0, 3))
+        return L[outside] + self.world.albedo[outside].astype(np.float64) * (rows @ B)
 
     def objects(self) -> sp.csr_matrix:
         """The objects' rows at the current poses (computed once per pose)."""
@@ -245,6 +296,14 @@ class WorldRows:
         order = np.argsort(np.concatenate([np.flatnonzero(have), miss]), kind="stable")
         return sp.csr_matrix(sp.vstack(parts, format="csr")[order], dtype=np.float64), len(miss)
 
+    def _static_rows(self, s: np.ndarray) -> sp.csr_matrix:
+        """Rows of static patches ``s`` at the current poses, from the static F (class docstring)."""
+        static = self.static.rows(s)
+        padded = sp.csr_matrix((static.data, static.indices, static.indptr), shape=(len(s), self.n_patches))
+        seen = without_hidden(padded, s, self.world.centers, self.objects_moving, self.world.bvh.transforms, self.device)
+        with_objects = with_reciprocal_columns(seen, s, self.objects(), self.object_patches, self.world.areas)
+        return capped(with_objects, self.object_patches)[0]
+
     def rows(self, idx) -> sp.csr_matrix:
         idx = np.asarray(idx, np.int64)
         if self.static is None:
@@ -252,15 +311,50 @@ class WorldRows:
         out = sp.lil_matrix((len(idx), self.n_patches))
         obj = idx >= self.n_static
         if obj.any():
-            where = np.searchsorted(self.object_patches, idx[obj])
-            out[np.flatnonzero(obj)] = self.objects()[where]
+            out[np.flatnonzero(obj)] = self.objects()[idx[obj] - self.n_static]
         if (~obj).any():
-            s = idx[~obj]
-            static = self.static.rows(s)
-            padded = sp.csr_matrix((static.data, static.indices, static.indptr), shape=(len(s), self.n_patches))
-            with_objects = with_reciprocal_columns(padded, s, self.objects(), self.object_patches, self.world.areas)
-            out[np.flatnonzero(~obj)] = capped(with_objects, self.object_patches, np.asarray(static.sum(axis=1)).ravel())[0]
+            out[np.flatnonzero(~obj)] = self._static_rows(idx[~obj])
         return sp.csr_matrix(out)
+
+    def refresh(self, moved: np.ndarray, candidates: np.ndarray, current: sp.csr_matrix, spheres, budget: int | None,
+                weight: np.ndarray | None) -> tuple[np.ndarray, sp.csr_matrix, int]:
+        """Which of the static ``candidates`` (patch indices, their kept rows ``current``) to
+        refresh after a move, and the new rows of ``moved`` (object patches) and of those.
+
+        Hemicube rows (no static F): the ``budget`` candidates that see the most of the objects'
+        old and new bounding ``spheres`` (:func:`refresh_order`), by hemicube. With a static F:
+        every candidate that may see a sphere gets its row at the new poses from the static F
+        (:meth:`rows`, no hemicube), and the ``budget`` whose gathered light that changes most
+        relative to their own are kept: ``A_s rho_s |(new_s - current_s) w| / w_s`` with
+        ``w`` (N,) the last radiosity summed over channels (ones before any), the row's share of
+        the mean relative error over the surface. Returns (indices into ``candidates``, rows of
+        ``moved`` then of those, hemicubes computed)."""
+        world = self.world
+        order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
+        if self.static is None:
+            order = order[:budget]
+            rows, hemicubes = self.fresh(np.concatenate([moved, candidates[order]]))
+            return order, rows, hemicubes
+        hemicubes = 0
+        if self.object_rows is None:
+            self.object_rows, hemicubes = self.fresh(self.object_patches)
+        # Objects that did not move are seen by those that did: their rows, new anyway, go in too.
+        still = np.flatnonzero(candidates >= self.n_static)
+        order = order[candidates[order] < self.n_static]
+        new = self._static_rows(candidates[order])
+        if budget is not None and len(order) > budget:
+            w = np.ones(self.n_patches) if weight is None else np.asarray(weight, np.float64)
+            keep = np.ones(self.n_patches)
+            keep[self.object_patches] = 0.0
+            change = np.abs((new - current[order]) @ (keep * w))
+            p = candidates[order]
+            rho = world.albedo[p].astype(np.float64).mean(axis=1)
+            score = world.areas[p] * rho * change / np.maximum(w[p], 1e-3 * max(float(w.mean()), 1e-300))
+            best = np.argsort(-score, kind="stable")[:budget]
+            best = best[score[best] > 0]
+            order, new = order[best], new[best]
+        rows = self.object_rows[np.concatenate([moved, candidates[still]]) - self.n_static]
+        return np.concatenate([still, order]), sp.vstack([rows, new], format="csr"), hemicubes
 
 
 def swap_chunks(slots: np.ndarray, size: int) -> list[np.ndarray]:

@@ -148,6 +148,7 @@ class DynamicRadiosity:
         self.device = device or default_device()
         self.objects, self._pending = [], {}
         self._uncapped: dict[int, sp.csr_matrix] = {}  # slot -> its row before capped() (moves.py)
+        self._last_B: np.ndarray | None = None  # (N,) the last radiosity() summed over channels: ranks a move's rows
         self.occlusion = None if occlusion is None else integer(occlusion, "occlusion", 0)
         if objects is not None:
             scene, form_factors = self._with_objects(scene, form_factors, objects, update, local_size,
@@ -210,8 +211,7 @@ class DynamicRadiosity:
         for o in self.objects:
             self._ranges[id(o)] = np.arange(start, start + len(o))
             start += len(o)
-        rows = WorldRows(world, n_static, np.arange(n_static, len(world)), form_factors, scene, resolution, self.device,
-                         poses)
+        rows = WorldRows(world, n_static, self.objects, form_factors, scene, resolution, self.device, poses)
         return world, rows
 
     @property
@@ -459,7 +459,7 @@ class DynamicRadiosity:
         count refreshed and the hemicubes computed."""
         from .exact import exact_swap
         from .localrows import _replace_rows
-        from .moves import refresh_order, stale_rows, swap_chunks
+        from .moves import stale_rows, swap_chunks
 
         moves = list(self._pending.values())
         self._pending.clear()
@@ -474,11 +474,9 @@ class DynamicRadiosity:
         slot_of = np.full(len(self.scene), -1)
         slot_of[S] = np.arange(M)
         others = np.flatnonzero(~np.isin(S, moved))
-        order, _ = refresh_order(self.scene.centers[S[others]], self.scene.normals[S[others]], spheres)
-        if self.occlusion is not None:
-            order = order[: self.occlusion]
+        order, new_rows, hemicubes = source.refresh(moved, S[others], self._ff.local[others], spheres, self.occlusion,
+                                                    self._last_B)
         slots = np.concatenate([slot_of[moved], others[order]])
-        new_rows, hemicubes = source.fresh(S[slots])
         local = _replace_rows(self._ff.local, slots, new_rows)
         local, changed, self._uncapped = stale_rows(local, slots, S, slot_of[moved], moved, self.scene.areas,
                                                     self._object_patches, self._uncapped)
@@ -582,6 +580,11 @@ class DynamicRadiosity:
             KL = self._matrix.matmat(LS.T[None])[0]  # all three in one pass over K
         B = far.copy() if far is not None else L.copy()
         B[S] = LS + self.scene.albedo[S].astype(np.float64) * KL.T
+        if self.objects:
+            if far is not None:  # the coarse level is of the first poses: gather the outside at these
+                outside = np.flatnonzero(~self._local_mask)
+                B[outside] = self._ff.source.gather_outside(outside, L, B)
+            self._last_B = B.sum(axis=1)
         return B if E is None else B + E
 
     # -- drift -------------------------------------------------------------------------------------------
