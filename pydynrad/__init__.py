@@ -27,7 +27,7 @@ from .image_io import read_image, write_image
 from .walk import CameraPath, LightTrack, ObjectTrack, WalkFile, WalkResult, fly_through, load_path, load_walk, orbit, walk
 from .matvec import DeviceMatrix
 from .dynamic import DynamicRadiosity, FrameStats
-from .dynamic.moves import PoseRows, precompute_poses
+from .dynamic.moves import PoseRows, precompute_poses, stored_poses
 from .lights import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector, pack_lights
 from .solve import Solution, solve
 from .multibounce import multibounce, multibounce_radiosity
@@ -113,6 +113,7 @@ __all__ = [
     "Solution",
     "solve",
     "SpotLight",
+    "stored_poses",
     "StoreCorruptError",
     "StoreIncompleteError",
     "StoreMismatchError",

@@ -296,3 +296,37 @@ def test_static_form_factors_budget_trades_error(box, block, device):
     # observed 0.0118, 0.0104, 0.0026 (PoCL, Xeon, 2026-12-02); the rest is the patch-centre
     # occlusion estimate and the far field's coarse level of the first pose
     assert errors[2] < 0.01
+
+
+def test_poses_in_store(box, block, device, tmp_path):
+    """Per-pose rows in a form-factor store: a pose from the store gives the same K as from
+    hemicubes; a store of another scene, or of poses of other objects, is refused; a file
+    tampered with fails its checksum."""
+    store = pd.FormFactorStore.create(box, tmp_path / "ff", resolution=R)
+    poses = pd.precompute_poses(box, [pd.RigidObject(block)], [START, END], resolution=R, device=device, store=store)
+    assert len(poses) == 2 and poses.nbytes == 0  # on disk, not in memory
+    reopened = pd.stored_poses(box, [pd.RigidObject(block)], pd.FormFactorStore.open(box, tmp_path / "ff", resolution=R), R)
+    n = len(box) + len(block)
+    K, hemicubes = [], []
+    for stored in (reopened, None):
+        obj = pd.RigidObject(block, START)
+        dyn = pd.DynamicRadiosity(box, None, local_size=n, resolution=R, objects=[obj], occlusion=None, poses=stored,
+                                  observer=OBSERVER, device=device)
+        dyn.move(obj, END)
+        hemicubes.append(dyn.update(OBSERVER).hemicubes)
+        K.append(dyn.matrix.to_host())
+    np.testing.assert_array_equal(K[0], K[1])  # the same float32 rows, the same swap
+    assert hemicubes[0] < hemicubes[1] // 2
+    # Resuming writes nothing new; other objects, another resolution, another scene: refused.
+    assert len(pd.precompute_poses(box, [pd.RigidObject(block)], [END], resolution=R, device=device, store=store)) == 2
+    other = pd.scenes.block(50.0, 1)
+    with pytest.raises(pd.StoreMismatchError, match="other objects"):
+        pd.stored_poses(box, [pd.RigidObject(other)], store, R)
+    with pytest.raises(pd.StoreMismatchError, match="other objects"):
+        pd.stored_poses(box, [pd.RigidObject(block)], store, 2 * R)
+    with pytest.raises(pd.StoreMismatchError, match="another scene"):
+        pd.stored_poses(pd.scenes.cornell_box(max_edge=250.0), [pd.RigidObject(block)], store, R)
+    files = sorted((tmp_path / "ff" / "poses").glob("p*.npz"))
+    files[1].write_bytes(files[0].read_bytes())  # one configuration's file under another's name
+    with pytest.raises(pd.StoreCorruptError, match="checksum"):
+        [reopened.get(T) for T in (pd.RigidObject(block, START).transform[None], END[None])]

@@ -26,7 +26,7 @@ from ..errors import InvalidInputError
 from ..rows.sources import HemicubeRows
 from .localrows import LocalRows
 
-__all__ = ["PoseRows", "precompute_poses", "WorldRows", "sphere_solid_angle", "refresh_order", "with_reciprocal_columns",
+__all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "refresh_order", "with_reciprocal_columns",
            "capped", "stale_rows", "hidden_by", "without_hidden", "swap_chunks"]
 
 
@@ -170,12 +170,16 @@ class PoseRows:
     Keyed by the objects' transforms together (a row of a static patch depends on every
     object): for each configuration, the rows of the object patches and of the static patches
     that may see an object there (:func:`refresh_order`). A move to a stored configuration
-    takes those rows from here instead of hemicubes. Made by :func:`precompute_poses`.
+    takes those rows from here instead of hemicubes. Made by :func:`precompute_poses`; held in
+    memory, or read from a form-factor store's per-pose part (``store``, each file verified on
+    read) with the last configuration read kept.
     """
 
-    def __init__(self, n_patches: int, resolution: int) -> None:
+    def __init__(self, n_patches: int, resolution: int, store=None) -> None:
         self.n_patches, self.resolution = int(n_patches), int(resolution)
+        self.store = store
         self._rows: dict[bytes, tuple[np.ndarray, sp.csr_matrix]] = {}
+        self._last: tuple[bytes, tuple | None] | None = None  # (key, entry) last read from the store
 
     @staticmethod
     def key(transforms) -> bytes:
@@ -183,41 +187,88 @@ class PoseRows:
 
     def add(self, transforms, patches: np.ndarray, rows: sp.csr_matrix) -> None:
         order = np.argsort(patches)
-        self._rows[self.key(transforms)] = (np.asarray(patches, np.int64)[order], sp.csr_matrix(rows)[order])
+        patches, rows = np.asarray(patches, np.int64)[order], sp.csr_matrix(rows)[order]
+        if self.store is None:
+            self._rows[self.key(transforms)] = (patches, rows)
+        else:
+            self.store.write_pose(transforms, patches, rows)
 
     def get(self, transforms):
         """(sorted patch indices, their rows) stored for these transforms, or None."""
-        return self._rows.get(self.key(transforms))
+        key = self.key(transforms)
+        if self.store is None:
+            return self._rows.get(key)
+        if self._last is None or self._last[0] != key:
+            self._last = (key, self.store.read_pose(transforms))
+        return self._last[1]
+
+    def __contains__(self, transforms) -> bool:
+        return self.key(transforms) in self._rows if self.store is None else self.store.has_pose(transforms)
 
     def __len__(self) -> int:
-        return len(self._rows)
+        return len(self._rows) if self.store is None else len(list((self.store.path / "poses").glob("p*.npz")))
 
     @property
     def nbytes(self) -> int:
+        """Host bytes of the rows held in memory (0 for a store's: read per configuration)."""
         return sum(p.nbytes + r.data.nbytes + r.indices.nbytes + r.indptr.nbytes for p, r in self._rows.values())
 
 
-def precompute_poses(scene, objects, poses, resolution: int = 128, device=None) -> PoseRows:
-    """The rows of each configuration in ``poses`` for :class:`pydynrad.DynamicRadiosity`'s ``poses=``.
+def _configurations(objs, poses):
+    """Each configuration of ``poses`` as a list of validated transforms, one per object."""
+    from ..objects import rigid_transform
 
-    ``poses``: a sequence of configurations, each a (4, 4) transform per object (a single
-    (4, 4) per entry for one object): a keyframed path. Costs one hemicube per object patch
-    and per static patch that may see an object, per configuration.
-    """
-    from ..checks import resolution as checked_resolution
-    from ..formfactors import form_factors
-    from ..objects import _objects, instanced, rigid_transform
-
-    objs = _objects(objects)
-    R = checked_resolution(resolution)
-    n_static = len(scene)
-    out = PoseRows(n_static + sum(len(o) for o in objs), R)
     for config in poses:
         config = np.asarray(config, np.float64)
         transforms = [rigid_transform(t) for t in (config[None] if config.ndim == 2 else config)]
         if len(transforms) != len(objs):
             raise InvalidInputError(f"a configuration needs one transform per object ({len(objs)}); got {len(transforms)}")
+        yield transforms
+
+
+def stored_poses(scene, objects, store, resolution: int = 128) -> PoseRows:
+    """The per-pose rows in form-factor ``store`` (a :class:`~pydynrad.FormFactorStore` of the
+    static ``scene``) as :class:`PoseRows` for ``DynamicRadiosity(poses=...)``. Raises
+    :class:`~pydynrad.rows.store.StoreMismatchError` for a store of another scene, or whose
+    poses are of other objects or another resolution."""
+    from ..checks import resolution as checked_resolution
+    from ..objects import _objects
+    from ..rows.store import StoreMismatchError
+
+    objs = _objects(objects)
+    if store.header["geometry_hash"] != scene.geometry_hash() or store.n_patches != len(scene):
+        raise StoreMismatchError(f"form-factor store {store.path} is of another scene than {scene.name!r}")
+    R = checked_resolution(resolution)
+    store.check_pose_objects(objs, resolution=R)
+    return PoseRows(len(scene) + sum(len(o) for o in objs), R, store=store)
+
+
+def precompute_poses(scene, objects, poses, resolution: int = 128, device=None, store=None) -> PoseRows:
+    """The rows of each configuration in ``poses`` for :class:`pydynrad.DynamicRadiosity`'s ``poses=``.
+
+    ``poses``: a sequence of configurations, each a (4, 4) transform per object (a single
+    (4, 4) per entry for one object): a keyframed path. Costs one hemicube per object patch
+    and per static patch that may see an object, per configuration. With ``store`` (a
+    :class:`~pydynrad.FormFactorStore` of ``scene``) the rows go into the store's per-pose part
+    (a file per configuration; configurations already there are kept, so an interrupted run
+    resumes) and the result reads them from there.
+    """
+    from ..checks import resolution as checked_resolution
+    from ..formfactors import form_factors
+    from ..objects import _objects, instanced
+
+    objs = _objects(objects)
+    R = checked_resolution(resolution)
+    n_static = len(scene)
+    if store is None:
+        out = PoseRows(n_static + sum(len(o) for o in objs), R)
+    else:
+        store.set_pose_objects(objs, resolution=R)
+        out = stored_poses(scene, objs, store, R)
+    for transforms in _configurations(objs, poses):
         world = instanced(scene, objs, transforms)
+        if world.bvh.transforms in out:
+            continue
         spheres = [o.bounding_sphere(T) for o, T in zip(objs, transforms)]
         seeing, _ = refresh_order(world.centers[:n_static], world.normals[:n_static], spheres)
         patches = np.concatenate([seeing, np.arange(n_static, len(world))])

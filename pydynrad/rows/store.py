@@ -13,6 +13,11 @@ and, when the far field's patch-to-cluster form factors G = F Pr are stored besi
     STORE/prolongation.npz     Pr (N, C), float32, as one CSR block (the clusters G was made with)
     STORE/gblocks/g000000.npz  rows [0, block_rows) of G, ...
 
+and, for moving objects whose poses are known in advance (:func:`pydynrad.precompute_poses`)::
+
+    STORE/poses.json           the objects (geometry hashes, in order) and the rows' resolution
+    STORE/poses/p<sha256>.npz  one configuration's rows, named by the SHA-256 of its transforms
+
 A store may hold G without F's rows (``compute_f=False``): a dynamic solution then computes
 F's rows on demand and takes G from the store,
 ``DynamicRadiosity(scene, None, clusters=Clusters.from_labels(scene, store.cluster_labels()),
@@ -82,6 +87,8 @@ HEADER = "header.json"
 BLOCK_DIR = "blocks"
 CLUSTER_HEADER = "clusters.json"
 PROLONGATION = "prolongation.npz"
+#: The per-pose rows of moving objects: which objects, and one file per configuration.
+POSE_HEADER, POSE_DIR = "poses.json", "poses"
 #: The two matrices a store holds: F (N columns) and G (C columns), each in its own block folder.
 PARTS = {"F": (BLOCK_DIR, "b"), "G": ("gblocks", "g")}
 DEFAULT_BLOCK_ROWS = 256
@@ -330,7 +337,7 @@ class FormFactorStore:
     def remove_stale_temporaries(self) -> int:
         """Delete temporary files left by interrupted writers; returns how many. Not while a writer runs."""
         n = 0
-        for p in (*(self.path / folder for folder, _ in PARTS.values()), self.path):
+        for p in (*(self.path / folder for folder, _ in PARTS.values()), self.path / POSE_DIR, self.path):
             for t in p.glob(f"*{TMP_MARK}*"):
                 t.unlink(missing_ok=True)
                 n += 1
@@ -470,6 +477,95 @@ class FormFactorStore:
                                        "been computed; run compute_store with the same clusters to finish them")
         return sp.vstack([self.read_block(k, "G") for k in range(self.n_blocks)], format="csr")
 
+    # -- per-pose rows of moving objects ---------------------------------------------------
+    # The paper's precomputed variant (docs/design.md, 'Moving objects'): for each configuration
+    # of the objects' transforms, the rows of the object patches and of the static patches that
+    # may see them, over the world's patches (the static scene's N, then each object's). A
+    # separate part of the store: POSE_HEADER names the objects (their geometry hashes, in
+    # order) and the rows' resolution; each configuration is one (world N, world N) CSR file
+    # in POSE_DIR holding only its rows, bound to the objects and to its transforms.
+    def _pose_binding(self, key: str) -> str:
+        h = self.header
+        return json.dumps({"geometry_hash": h["geometry_hash"], "n_patches": h["n_patches"], "part": "pose",
+                           "objects": self._require_pose_header(), "transforms_sha256": key}, sort_keys=True)
+
+    def _require_pose_header(self) -> dict:
+        try:
+            return json.loads((self.path / POSE_HEADER).read_text())
+        except FileNotFoundError:
+            raise StoreIncompleteError(f"store {self.path} holds no per-pose rows of moving objects; precompute them "
+                                       "with pydynrad.precompute_poses(..., store=...)") from None
+        except (OSError, ValueError) as exc:
+            raise StoreCorruptError(f"unreadable {self.path / POSE_HEADER}: {exc}") from exc
+
+    @staticmethod
+    def _pose_objects(objects, resolution: int) -> dict:
+        objs = [{"name": o.name, "geometry_hash": o.scene.geometry_hash(), "n_patches": len(o)} for o in objects]
+        return {"objects": objs, "resolution": int(checked_resolution(resolution))}
+
+    def set_pose_objects(self, objects, *, resolution: int) -> None:
+        """Record which moving objects (RigidObjects, in order) the per-pose rows are of, at
+        hemicube ``resolution``. The same objects again is a no-op; others raise
+        :class:`StoreMismatchError` (a store holds the poses of one set of objects)."""
+        want = self._pose_objects(objects, resolution)
+        if (self.path / POSE_HEADER).exists():
+            self.check_pose_objects(objects, resolution=resolution)
+            return
+        (self.path / POSE_DIR).mkdir(exist_ok=True)
+        write_atomic(self.path / POSE_HEADER, json.dumps(want, indent=2, sort_keys=True).encode())
+
+    def check_pose_objects(self, objects, *, resolution: int) -> None:
+        """Raise :class:`StoreMismatchError` unless the per-pose rows are of ``objects`` at ``resolution``."""
+        want, have = self._pose_objects(objects, resolution), self._require_pose_header()
+        strip = lambda h: (h.get("resolution"), [(o.get("geometry_hash"), o.get("n_patches")) for o in h.get("objects", [])])
+        if strip(want) != strip(have):
+            raise StoreMismatchError(
+                f"store {self.path} holds per-pose rows of other objects or another resolution (store: "
+                f"{[o.get('name') for o in have.get('objects', [])]} at R = {have.get('resolution')}; requested: "
+                f"{[o['name'] for o in want['objects']]} at R = {want['resolution']})")
+
+    @staticmethod
+    def pose_key(transforms) -> str:
+        """SHA-256 of a configuration: the (n_objects, 4, 4) float64 transforms' bytes."""
+        return hashlib.sha256(np.ascontiguousarray(np.asarray(transforms, np.float64)).tobytes()).hexdigest()
+
+    def _pose_path(self, key: str) -> Path:
+        return self.path / POSE_DIR / f"p{key[:32]}.npz"
+
+    def _pose_columns(self) -> int:
+        return self.n_patches + sum(int(o["n_patches"]) for o in self._require_pose_header()["objects"])
+
+    def has_pose(self, transforms) -> bool:
+        return self._pose_path(self.pose_key(transforms)).exists()
+
+    def write_pose(self, transforms, patches: np.ndarray, rows) -> int:
+        """Write the rows ``rows`` (len(patches), world N) of ``patches`` at ``transforms``, one
+        checksummed file, atomically; returns its size in bytes."""
+        n = self._pose_columns()
+        patches = patch_indices(patches, n, "pose patches")
+        rows = sp.csr_matrix(rows)
+        if rows.shape != (len(patches), n):
+            raise InvalidInputError(f"pose rows must have shape ({len(patches)}, {n}); got {rows.shape}")
+        if len(np.unique(patches)) != len(patches):
+            raise InvalidInputError("pose patches must be distinct")
+        place = sp.csr_matrix((np.ones(len(patches)), (patches, np.arange(len(patches)))), shape=(n, len(patches)))
+        full = sp.csr_matrix(place @ rows)
+        key = self.pose_key(transforms)
+        return _write_csr(self._pose_path(key), 0, range(n), full, n, self._pose_binding(key))
+
+    def read_pose(self, transforms) -> tuple[np.ndarray, sp.csr_matrix] | None:
+        """(patch indices, their rows, float32) stored for ``transforms``, checksum verified, or
+        None when this configuration was not precomputed. A row written empty is not told apart
+        from one not written: a reader computes it again (and gets it empty)."""
+        key = self.pose_key(transforms)
+        path = self._pose_path(key)
+        if not path.exists():
+            return None
+        n = self._pose_columns()
+        full = _read_csr(path, 0, range(n), n, "per-pose rows", self.path, self._pose_binding(key))
+        patches = np.flatnonzero(np.diff(full.indptr))
+        return patches, full[patches]
+
     # -- state -----------------------------------------------------------------------------
     def missing_blocks(self, verify: bool = False, part: str = "F") -> list[int]:
         """Blocks of F (or of G) not yet on disk; with ``verify``, also blocks whose checksum fails."""
@@ -515,8 +611,9 @@ class FormFactorStore:
     @property
     def nbytes_on_disk(self) -> int:
         """Bytes of the headers, the prolongation and every finished block file of F and G."""
-        files = [self.path / HEADER, self.path / CLUSTER_HEADER, self.path / PROLONGATION,
-                 *(f for folder, prefix in PARTS.values() for f in (self.path / folder).glob(f"{prefix}*.npz"))]
+        files = [self.path / HEADER, self.path / CLUSTER_HEADER, self.path / PROLONGATION, self.path / POSE_HEADER,
+                 *(f for folder, prefix in PARTS.values() for f in (self.path / folder).glob(f"{prefix}*.npz")),
+                 *(self.path / POSE_DIR).glob("p*.npz")]
         return sum(p.stat().st_size for p in files if p.exists())
 
     def to_csr(self) -> sp.csr_matrix:
