@@ -123,6 +123,9 @@ def test_objects_section_tiny(tmp_path, device):
     table = results["sections"]["objects"]["tables"][0]
     col = {c: k for k, c in enumerate(table["columns"])}
     err = {(r[col["budget"]], r[col["rows"]]): r[col["max rel. error vs fresh"]] for r in table["rows"]}
-    # Every row that may see the block refreshed: the local set built afresh at the final pose.
-    assert err[("all", "hemicubes")] < 1e-6 and err[("all", "static F")] < 1e-6  # observed 3e-10
-    assert err[(0, "hemicubes")] > err[(32, "hemicubes")] > err[("all", "hemicubes")]
+    full = {(r[col["budget"]], r[col["rows"]]): r[col["max rel. error vs full"]] for r in table["rows"]}
+    # Hemicube rows, every row that may see the block refreshed: the local set built afresh at the final pose.
+    assert err[("all", "hemicubes")] < 1e-6 < err[(0, "hemicubes")]  # observed 3e-10
+    # Rows from the static F: refreshing rows lowers the error against the full solve (observed
+    # 0.0049 -> 0.0024 for 32 rows and for all 50; the far field's own error stays).
+    assert full[(0, "static F")] > 1.5 * max(full[(32, "static F")], full[("all", "static F")])
