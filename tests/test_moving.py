@@ -95,8 +95,9 @@ def test_budget_trades_error(box, block, device):
     stale = F1.copy()
     stale[:n_box, :n_box] = F0[:n_box, :n_box]
     stale[:n_box, n_box:] = recip
-    over = np.flatnonzero(stale[:n_box].sum(axis=1) > 1.0)  # rows summing above 1: the static part scaled to 1
-    stale[over, :n_box] *= ((1.0 - recip[over].sum(axis=1)) / F0[over, :n_box].sum(axis=1))[:, None]
+    # Rows summing above 1 with the block's columns: those columns fill them to 1.
+    over = np.flatnonzero((stale[:n_box].sum(axis=1) > 1.0) & (recip.sum(axis=1) > 0))
+    stale[over, n_box:] *= (np.maximum(1.0 - F0[over, :n_box].sum(axis=1), 0.0) / recip[over].sum(axis=1))[:, None]
     errors = []
     for budget in (0, 64, 160, None):
         obj = pd.RigidObject(block, START)

@@ -8,9 +8,9 @@ rows and add them back with new ones (docs/design.md, 'Moving objects', 'Batched
 * the columns F[s, O] of the other local patches: by reciprocity, A_s F[s, o] = A_o F[o, s];
 * refreshed rows: hemicubes of the local patches that see the most of O's old and new
   bounding spheres (their view of the static scene changed: O now hides or uncovers parts);
-* rows left stale whose sum the new object columns would push above 1: scaled back to 1
-  (:func:`capped`), so they are in the swap too (no hemicube); each move caps from the row
-  as it would be uncapped, so a pose that comes back gives back the same rows.
+* rows left stale whose sum the new object columns would push above 1: those columns are
+  scaled down to fill the row to 1 (:func:`stale_rows`); being in the objects' columns, they
+  need no slot of their own in the swap.
 
 The swap size bounds one batch; larger sets go in chunks, each one exact on its own: after
 chunk c the device K is that of the form factors whose entries in a row or column of the
@@ -127,41 +127,52 @@ def capped(rows: sp.csr_matrix, object_patches: np.ndarray, target: np.ndarray |
 
 
 def stale_rows(local: sp.csr_matrix, fresh_slots: np.ndarray, S: np.ndarray, moved_slots: np.ndarray,
-               moved: np.ndarray, areas: np.ndarray, object_patches: np.ndarray, uncapped: dict):
+               moved: np.ndarray, areas: np.ndarray) -> sp.csr_matrix:
     """The kept rows (M, N) after a move, for the slots not given fresh rows.
 
     ``local`` already holds the fresh rows of ``fresh_slots`` (the moved objects' patches, in
     ``moved_slots``, among them). The other rows that see a moved object, before or after,
-    get its columns by reciprocity and are :func:`capped`, each from its uncapped form
-    (``uncapped``: slot -> row, for the rows capped so far). Returns (rows, the slots whose
-    entries outside the objects' columns changed, the new ``uncapped``).
+    get its columns by reciprocity; where those would push a row's sum above 1 (it still sees
+    what the object now hides), the object columns alone are scaled down to fill the row to 1.
+    Only entries in the moved objects' columns change, so these rows need no slot of their
+    own in the swap, and a pose that comes back gives back the same rows.
     """
-    from .localrows import _replace_rows
-
-    M = len(S)
+    M, N = local.shape
     fresh = np.zeros(M, bool)
     fresh[fresh_slots] = True
-    sees = np.zeros(local.shape[1], bool)
-    sees[moved] = True
-    touched = np.zeros(M, bool)
-    touched[np.repeat(np.arange(M), np.diff(local.indptr))[sees[local.indices]]] = True  # saw the objects before
-    slot_of = np.full(local.shape[1], -1)
+    is_moved = np.zeros(N, bool)
+    is_moved[moved] = True
+    slot_of = np.full(N, -1)
     slot_of[S] = np.arange(M)
-    seen = slot_of[local[moved_slots].indices]
-    touched[seen[seen >= 0]] = True  # is seen by them now: reciprocity puts columns there
-    was = np.zeros(M, bool)
-    was[[s for s in uncapped if not fresh[s]]] = True
-    rest = np.flatnonzero((touched | was) & ~fresh)
-    if len(rest) == 0:
-        return local, rest, {}
-    base = local[rest]
-    had = was[rest]
-    if had.any():
-        base = _replace_rows(base, np.flatnonzero(had), sp.vstack([uncapped[s] for s in rest[had].tolist()]))
-    full = with_reciprocal_columns(base, S[rest], local[moved_slots], moved, areas)
-    rows, now = capped(full, object_patches)
-    kept = {s: full[k] for k, s in zip(np.flatnonzero(now).tolist(), rest[now].tolist())}
-    return _replace_rows(local, rest, rows), rest[now | had], kept
+    A = np.asarray(areas, np.float64)
+    # The moved objects' fresh rows give, by reciprocity, F[s, o] = A_o F[o, s] / A_s for every
+    # other local s they see.
+    obj = sp.csr_matrix(local[moved_slots])
+    o_row = np.repeat(np.arange(len(moved_slots)), np.diff(obj.indptr))
+    at = slot_of[obj.indices]
+    use = (at >= 0) & ~fresh[np.maximum(at, 0)]
+    r_row, r_col = at[use], moved[o_row[use]]
+    r_val = A[r_col] * obj.data[use] / A[S[r_row]]
+    row = np.repeat(np.arange(M), np.diff(local.indptr))
+    stale = ~fresh[row]
+    touched = np.zeros(M, bool)
+    touched[row[stale & is_moved[local.indices]]] = True  # saw the objects before
+    touched[r_row] = True
+    if not touched.any():
+        return local
+    drop = stale & is_moved[local.indices]  # the old object columns of the stale rows
+    keep = ~drop
+    others = np.bincount(row[keep], weights=local.data[keep], minlength=M)
+    objects = np.bincount(r_row, weights=r_val, minlength=M)
+    scale = np.ones(M)
+    over = (others + objects > 1.0) & (objects > 0)
+    scale[over] = np.maximum(1.0 - others[over], 0.0) / objects[over]
+    rows = np.concatenate([row[keep], r_row])
+    cols = np.concatenate([local.indices[keep], r_col])
+    vals = np.concatenate([local.data[keep], r_val * scale[r_row]])
+    out = sp.csr_matrix((vals, (rows, cols)), shape=(M, N))
+    out.eliminate_zeros()
+    return out
 
 
 class PoseRows:
@@ -301,6 +312,7 @@ class WorldRows:
         self.static = None if static_ff is None else LocalRows(static_scene, static_ff, resolution, device)
         self.object_rows: sp.csr_matrix | None = None  # rows of object_patches at the current poses
         self._outside: dict[int, sp.csr_matrix] = {}  # rows of patches outside the local set, this pose
+        self._outside_stack: tuple[np.ndarray, sp.csr_matrix] | None = None  # (outside, their rows) last gathered
 
     @property
     def world(self):
@@ -311,20 +323,21 @@ class WorldRows:
         when first needed, unless set in :attr:`object_rows`)."""
         self.hemicubes.scene = world
         self.object_rows = None
-        self._outside = {}
+        self._outside, self._outside_stack = {}, None
 
     def gather_outside(self, outside: np.ndarray, L: np.ndarray, B: np.ndarray) -> np.ndarray:
         """(len(outside), 3) ``L + P F B`` for the patches ``outside`` the local set: one gather
         with their rows at the current poses (:meth:`rows`, kept until the next move), so the
         far field's patches see the objects where they are, their light and their shadows."""
         outside = np.asarray(outside, np.int64)
-        missing = [p for p in outside.tolist() if p not in self._outside]
-        if missing:
-            self._outside.update(zip(missing, self.rows(np.array(missing))))
-        rows = sp.vstack([self._outside[p] for p in outside.tolist()], format="csr") if len(outside) else None
-        if rows is None:
-            return np.zeros((0, 3))
-        return L[outside] + self.world.albedo[outside].astype(np.float64) * (rows @ B)
+        if self._outside_stack is None or not np.array_equal(self._outside_stack[0], outside):
+            missing = [p for p in outside.tolist() if p not in self._outside]
+            if missing:
+                self._outside.update(zip(missing, self.rows(np.array(missing))))
+            rows = [self._outside[p] for p in outside.tolist()]
+            stack = sp.vstack(rows, format="csr") if rows else sp.csr_matrix((0, self.n_patches))
+            self._outside_stack = (outside.copy(), stack)
+        return L[outside] + self.world.albedo[outside].astype(np.float64) * (self._outside_stack[1] @ B)
 
     def objects(self) -> sp.csr_matrix:
         """The objects' rows at the current poses (computed once per pose)."""
@@ -359,13 +372,12 @@ class WorldRows:
         idx = np.asarray(idx, np.int64)
         if self.static is None:
             return self.fresh(idx)[0]
-        out = sp.lil_matrix((len(idx), self.n_patches))
         obj = idx >= self.n_static
+        parts = [self._static_rows(idx[~obj]) if (~obj).any() else sp.csr_matrix((0, self.n_patches))]
         if obj.any():
-            out[np.flatnonzero(obj)] = self.objects()[idx[obj] - self.n_static]
-        if (~obj).any():
-            out[np.flatnonzero(~obj)] = self._static_rows(idx[~obj])
-        return sp.csr_matrix(out)
+            parts.append(self.objects()[idx[obj] - self.n_static])
+        order = np.argsort(np.concatenate([np.flatnonzero(~obj), np.flatnonzero(obj)]), kind="stable")
+        return sp.csr_matrix(sp.vstack(parts, format="csr")[order])
 
     def refresh(self, moved: np.ndarray, candidates: np.ndarray, current: sp.csr_matrix, spheres, budget: int | None,
                 weight: np.ndarray | None) -> tuple[np.ndarray, sp.csr_matrix, int]:
@@ -391,7 +403,7 @@ class WorldRows:
             self.object_rows, hemicubes = self.fresh(self.object_patches)
         # Objects that did not move are seen by those that did: their rows, new anyway, go in too.
         still = np.flatnonzero(candidates >= self.n_static)
-        order = order[candidates[order] < self.n_static]
+        order = order[candidates[order] < self.n_static] if budget != 0 else order[:0]
         new = self._static_rows(candidates[order])
         if budget is not None and len(order) > budget:
             w = np.ones(self.n_patches) if weight is None else np.asarray(weight, np.float64)

@@ -147,7 +147,6 @@ class DynamicRadiosity:
         checked_scene(scene)
         self.device = device or default_device()
         self.objects, self._pending = [], {}
-        self._uncapped: dict[int, sp.csr_matrix] = {}  # slot -> its row before capped() (moves.py)
         self._last_B: np.ndarray | None = None  # (N,) the last radiosity() summed over channels: ranks a move's rows
         self.occlusion = None if occlusion is None else integer(occlusion, "occlusion", 0)
         if objects is not None:
@@ -478,9 +477,7 @@ class DynamicRadiosity:
                                                     self._last_B)
         slots = np.concatenate([slot_of[moved], others[order]])
         local = _replace_rows(self._ff.local, slots, new_rows)
-        local, changed, self._uncapped = stale_rows(local, slots, S, slot_of[moved], moved, self.scene.areas,
-                                                    self._object_patches, self._uncapped)
-        slots = np.concatenate([slots, changed])  # rows changed beyond the objects' columns
+        local = stale_rows(local, slots, S, slot_of[moved], moved, self.scene.areas)
         rho = self._rho(S)
         for c in swap_chunks(slots, self.max_swaps):
             F_SJ = local[:, S[c]].toarray()
@@ -509,8 +506,6 @@ class DynamicRadiosity:
         prefetch(idx[~self._local_mask[idx]][: self.max_swaps])
 
     def _swap_local(self, slots: np.ndarray, J: np.ndarray) -> None:
-        for s in slots.tolist():
-            self._uncapped.pop(s, None)  # a new patch's row is as fetched
         self._local_mask[self._local_patches[slots]] = False
         self._local_patches[slots] = J
         self._local_mask[J] = True
