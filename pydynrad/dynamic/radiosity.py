@@ -37,7 +37,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..checks import integer, number, resolution as checked_resolution, scene as checked_scene, vec3
 from ..errors import InvalidInputError, PydynradError
