@@ -135,7 +135,19 @@ def measure(size: str, device, progress: bool = True) -> dict:
                      "come from it at the new pose (entries the block hides dropped, its columns by reciprocity), "
                      "ranked by the change in the light they gather; 'hemicubes': every row a hemicube of the world "
                      "as it is, ranked by the solid angle of the block's bounds (budget 'all' is then exact)."}
-    return {"title": "Moving objects", "description": __doc__.split("\n\n")[1], "tables": [table]}
+    col = {c: k for k, c in enumerate(table["columns"])}
+    series = {}
+    for r in rows:
+        v = series.setdefault(r[col["rows"]], {"x": [], "y": [], "labels": []})
+        v["x"].append(r[col["moving frame ms"]])
+        v["y"].append(100.0 * r[col["pixel error vs full"]])
+        v["labels"].append(str(r[col["budget"]]))
+    plot = {"name": "trade", "title": "A move's frame time vs its error, per occlusion budget (labels)",
+            "xlabel": "moving frame ms (update with the move + radiosity)",
+            "ylabel": "mean pixel error vs full solve, %", "xscale": "log", "yscale": "log",
+            "series": [{"label": k, "x": v["x"], "y": v["y"], "labels": v["labels"], "style": "o-"}
+                       for k, v in series.items()]}
+    return {"title": "Moving objects", "description": __doc__.split("\n\n")[1], "tables": [table], "plots": [plot]}
 
 
 # The two entry points every bench module has (as bench/dynamic.py): the suite's section and
