@@ -77,14 +77,23 @@ def hidden_by(objects, transforms, starts: np.ndarray, ends: np.ndarray, device=
     return out
 
 
-def without_hidden(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.ndarray, objects, transforms,
-                   device=None) -> sp.csr_matrix:
+def without_hidden(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.ndarray, normals: np.ndarray, objects,
+                   transforms, device=None) -> sp.csr_matrix:
     """Static rows with the entries the objects hide set to zero: F[s, x] is dropped where the
     segment between the centres of s and x crosses an object (:func:`hidden_by`). A patch-centre
-    estimate of the occlusion a hemicube at the pose would see, for no hemicube."""
+    estimate of the occlusion a hemicube at the pose would see, for no hemicube. Rows of
+    patches whose front sees no object's bounding sphere are left as they are (nothing in
+    front of them can be hidden)."""
     rows = sp.csr_matrix(rows, dtype=np.float64, copy=True)
-    owner = np.repeat(np.asarray(row_patches), np.diff(rows.indptr))
-    rows.data[hidden_by(objects, transforms, centers[owner], centers[rows.indices], device)] = 0.0
+    row_patches = np.asarray(row_patches)
+    spheres = [o.bounding_sphere(T) for o, T in zip(objects, transforms)]
+    sees = refresh_order(centers[row_patches], normals[row_patches], spheres)[0]
+    mask = np.zeros(len(row_patches), bool)
+    mask[sees] = True
+    entry_row = np.repeat(np.arange(len(row_patches)), np.diff(rows.indptr))
+    test = np.flatnonzero(mask[entry_row])
+    owner = row_patches[entry_row[test]]
+    rows.data[test[hidden_by(objects, transforms, centers[owner], centers[rows.indices[test]], device)]] = 0.0
     rows.eliminate_zeros()
     return rows
 
@@ -371,8 +380,10 @@ class WorldRows:
         """Rows of static patches ``s`` at the current poses, from the static F (class docstring)."""
         static = self.static.rows(s)
         padded = sp.csr_matrix((static.data, static.indices, static.indptr), shape=(len(s), self.n_patches))
-        seen = without_hidden(padded, s, self.world.centers, self.objects_moving, self.world.bvh.transforms, self.device)
-        with_objects = with_reciprocal_columns(seen, s, self.objects(), self.object_patches, self.world.areas)
+        world = self.world
+        seen = without_hidden(padded, s, world.centers, world.normals, self.objects_moving, world.bvh.transforms,
+                              self.device)
+        with_objects = with_reciprocal_columns(seen, s, self.objects(), self.object_patches, world.areas)
         return capped(with_objects, self.object_patches)[0]
 
     def rows(self, idx) -> sp.csr_matrix:
