@@ -122,13 +122,16 @@ class DynamicRadiosity:
         Moving objects (exact mode only). Their patches follow the scene's N, in order, and are
         always local (their count must not exceed M); :attr:`scene` is then the combined scene
         at the current poses, traced through a two-level BVH. ``form_factors`` stays the
-        static scene's (object columns then come by reciprocity and the objects' occlusion of
-        static paths only from refreshed rows), or None: every row a hemicube of the world as
-        it is, so K equals a fresh build over the same set when ``occlusion`` is None.
+        static scene's (rows fetched or refreshed then come from it at the current poses: the
+        entries an object hides dropped, object columns by reciprocity), or None: every row a
+        hemicube of the world as it is, so K equals a fresh build over the same set when
+        ``occlusion`` is None. With the far field, the patches outside the local set are
+        gathered at the current poses in :meth:`radiosity`.
     occlusion : int or None
-        Per move, refresh the rows of at most this many other local patches, those that see the
-        most of the moved objects' old and new bounding spheres (0: none, the cheapest; None:
-        every one that may see them). See docs/design.md, 'Moving objects'.
+        Per move, refresh the rows of at most this many other local patches (0: none, the
+        cheapest; None: every one that may see the moved objects' old or new bounding spheres):
+        with a static F those whose gathered light the move changes most, else those that see
+        the most of the spheres. See docs/design.md, 'Moving objects'.
     poses : PoseRows, optional
         Rows precomputed for configurations of the objects known in advance
         (:func:`pydynrad.precompute_poses`, same ``resolution``): a move to one of them takes its
