@@ -319,9 +319,9 @@ def _host_channels(F_work: np.ndarray, rho: np.ndarray, bounces: int | None, res
         for c in range(C):
             channel(c)
         return
-    from threadpoolctl import threadpool_limits
+    from .hostblas import one_blas_thread
 
-    with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(min(C, _cores())) as pool:
+    with one_blas_thread(), ThreadPoolExecutor(min(C, _cores())) as pool:
         list(pool.map(channel, range(C)))
 
 

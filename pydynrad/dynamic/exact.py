@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..hostblas import blas_beside
+
 __all__ = ["SwapUpdate", "batched_swap", "exact_swap"]
 
 
@@ -101,6 +103,7 @@ def exact_swap(kernels, slots: np.ndarray, F_SJ: np.ndarray, F_JS: np.ndarray, F
     X = rho_S[:, None, :] * F_SJ.T[None]  # (P_S F_SJ)^T per channel
     Y = F_JS[None] * rho_S[:, None, :]  # F_JS P_S per channel
     KPF, FPK, cols_I, rows_I = kernels.gather_all(X, Y, slots)
-    for c in range(len(rho_S)):
-        upd = batched_swap(cols_I[c].T, rows_I[c], KPF[c].T, FPK[c], F_SJ, F_JS, F_JJ, rho_S[c], rho_J[c], slots)
-        kernels.update_slots(c, upd.A.T, upd.B, slots, upd.cols, upd.rows)
+    with blas_beside(kernels.device):  # the previous channel's passes hold the device's cores
+        for c in range(len(rho_S)):
+            upd = batched_swap(cols_I[c].T, rows_I[c], KPF[c].T, FPK[c], F_SJ, F_JS, F_JJ, rho_S[c], rho_J[c], slots)
+            kernels.update_slots(c, upd.A.T, upd.B, slots, upd.cols, upd.rows)
