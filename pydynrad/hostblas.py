@@ -12,7 +12,8 @@ already run side by side (:mod:`pydynrad.multibounce`).
 
 from __future__ import annotations
 
-from contextlib import AbstractContextManager, nullcontext
+import threading
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from functools import lru_cache
 
 __all__ = ["one_blas_thread", "blas_beside"]
@@ -26,9 +27,37 @@ def _controller():
     return ThreadpoolController()
 
 
-def one_blas_thread() -> AbstractContextManager:
-    """A context in which numpy's BLAS runs on one thread (restored on exit)."""
-    return _controller().limit(limits=1, user_api="blas")
+# threadpoolctl's limit is process-wide and puts back what it found on entry, and numpy's
+# OpenBLAS (numpy 2.4, 2026-12-02) does not honour a count set or restored from another thread
+# as it does one from the main thread: a limit taken in one worker thread and restored in a
+# second left the whole process on one thread. So only the main thread lowers the limit
+# (counted, for nesting: the outermost holder restores it); the threads it starts inherit it,
+# and work called from other threads runs with the count as it finds it.
+_lock = threading.Lock()
+_holders = 0
+_limiter = None
+
+
+@contextmanager
+def one_blas_thread():
+    """A context in which numpy's BLAS runs on one thread, where entered from the main thread
+    (and in the threads it starts meanwhile); the process's count is back on exit."""
+    global _holders, _limiter
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    with _lock:
+        if _holders == 0:
+            _limiter = _controller().limit(limits=1, user_api="blas")
+        _holders += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _holders -= 1
+            if _holders == 0:
+                _limiter.restore_original_limits()
+                _limiter = None
 
 
 def blas_beside(device) -> AbstractContextManager:
