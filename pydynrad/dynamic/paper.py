@@ -63,7 +63,9 @@ def paper_swap(kernels, slot: int, f_c: np.ndarray, f_r: np.ndarray, rho_S: np.n
     f_c, f_r (M,): F[S, j] and F[j, S] with zeros at ``slot``; rho_S (C, M) the slots' albedo
     per channel; rho_j (C,) the entering patch's; row_mask (M,) bool, False on the rows the
     used-patches table excludes from the rank-one update. The channels' steps are enqueued
-    together: two waits per swap (for dr and for the gathers), whatever C is.
+    together: two waits per swap (for dr and for the gathers), whatever C is. Each channel's
+    rank-one pass and slot write are queued by ``update_slots``, its uploads first (an upload
+    waits for the commands queued before it on PoCL: see docs/design.md, 'What we learned').
     """
     C = rho_S.shape[0]
     for c in range(C):
@@ -75,7 +77,6 @@ def paper_swap(kernels, slot: int, f_c: np.ndarray, f_r: np.ndarray, rho_S: np.n
     for c in range(C):
         gp_c = g_c[c] + KPg[c, 0]
         gp_r = g_r[c] + gPK[c, 0]
-        kernels.rank_update(c, rho_j[c] * gp_c * row_mask, gp_r)  # 6. masked rank one
-        gp_c[slot] = dr[c]  # 7. the new column, row and diagonal
-        gp_r[slot] = dr[c]
-        kernels.write_slots(c, [slot], gp_c[None], gp_r[None])
+        col, row = gp_c.copy(), gp_r.copy()  # 7. the new column, row and diagonal
+        col[slot] = row[slot] = dr[c]
+        kernels.update_slots(c, rho_j[c] * gp_c * row_mask, gp_r, [slot], col[None], row[None])  # 6. masked rank one, 7.
