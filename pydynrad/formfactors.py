@@ -114,13 +114,20 @@ def _stratum_centroids(levels: int) -> np.ndarray:
     return tris.mean(axis=1)
 
 
-def _checked_samples(samples, resolution: int) -> int:
-    """Hemicubes per row: 4**L, with R / 2**L an even resolution (each sample's hemicube)."""
+def _sample_levels(samples) -> int:
+    """L for ``samples`` = 4**L hemicubes per row (the strata of L levels of midpoint subdivision)."""
     k = integer(samples, "samples", 1, 4**6)
     levels = int(round(np.log(k) / np.log(4)))
     if 4**levels != k:
         raise InvalidInputError(f"samples must be a power of 4 (1, 4, 16, ...: the strata of a triangle's midpoint "
                                 f"subdivision); got {k}")
+    return levels
+
+
+def _checked_samples(samples, resolution: int) -> int:
+    """Hemicubes per row: 4**L, with R / 2**L an even resolution (each sample's hemicube)."""
+    levels = _sample_levels(samples)
+    k = 4**levels
     if resolution % (2 << levels):
         raise InvalidInputError(f"samples={k} splits resolution {resolution} into {k} hemicubes of resolution "
                                 f"{resolution} / {2**levels}, which must be an even integer")
@@ -132,12 +139,13 @@ def sample_points(scene, rows, samples: int = 1) -> np.ndarray:
 
     The patch centre for one sample; else the centroids of the 4**L triangles of the patch's
     midpoint subdivision L levels deep (equal areas), in :func:`_stratum_centroids`' order.
+    ``samples`` must be a power of 4 and ``rows`` patch indices (InvalidInputError otherwise).
     """
-    rows = np.asarray(rows)
-    if samples == 1:
+    levels = _sample_levels(samples)
+    rows = patch_indices(rows, len(checked_scene(scene)), "rows")
+    if levels == 0:
         return scene.centers[rows][:, None]
-    bary = _stratum_centroids(int(round(np.log(samples) / np.log(4))))
-    return np.einsum("mc,rcx->rmx", bary, scene.vertices[rows])
+    return np.einsum("mc,rcx->rmx", _stratum_centroids(levels), scene.vertices[rows])
 
 
 def _runs_to_csr(patch, weight, count, n_cols: int) -> sp.csr_matrix:

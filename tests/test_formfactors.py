@@ -312,6 +312,22 @@ def test_sample_points_are_the_centroids_of_the_midpoint_subdivision(levels):
     np.testing.assert_array_equal(sample_points(scene, [2, 0], 1)[:, 0], scene.centers[[2, 0]])
 
 
+def test_sample_points_refuse_what_is_not_a_stratum_count():
+    """samples=2 returned one point per row and samples=5 four (the nearest power of 4), with
+    no error; rows out of range indexed from the end."""
+    from pydynrad import InvalidInputError
+    from pydynrad.formfactors import sample_points
+
+    scene = perpendicular_plates(subdivisions=0)
+    for bad in (0, 2, 5, 8, True, 4.0):
+        with pytest.raises(InvalidInputError, match="samples must"):
+            sample_points(scene, [0], bad)
+    with pytest.raises(InvalidInputError, match="rows"):
+        sample_points(scene, [len(scene)], 4)
+    with pytest.raises(InvalidInputError, match="rows"):
+        sample_points(scene, [-1], 1)
+
+
 def test_area_sampled_rows_remove_the_centre_points_bias(device):
     """16 unit-plate patches: the centre-point rows overestimate the parallel plates' F by 2.7% at
     any R (R = 128: +2.66%); 16 strata per row at the same rays (R = 128, 32 per sample) leave
