@@ -413,6 +413,21 @@ def test_warm_up_leaves_K_unchanged(device, setup, mode, storage):
     assert np.array_equal(before, DeviceMatrix(device, dyn._fresh_K(dyn.local_patches), storage).to_host())
 
 
+def test_warm_up_keeps_the_far_fields_light(device, setup):
+    """A warm-up after lighting leaves the far field's B_far for the same light in place: it
+    relit the far field with its zero-power light, so the next radiosity() solved the far field
+    again (and a FarField shared with a new solver lost its light the same way)."""
+    scene, F = setup
+    dyn = DynamicRadiosity(scene, F, local_size=48, observer=[0.5, 0.5, 0.5], device=device)
+    light = [pydynrad.PointLight([0.5, 0.9, 0.5], 2.0)]
+    B = dyn.radiosity(light)
+    kept = dyn.far.B_far
+    dyn.warm_up()
+    DynamicRadiosity(scene, F, local_size=48, observer=[0.5, 0.5, 0.5], far_field=dyn.far, device=device)
+    assert dyn.far.B_far is kept
+    assert np.array_equal(dyn.radiosity(light), B) and dyn.far.B_far is kept  # served from the cache
+
+
 def test_frames_build_no_program(device, setup):
     """Every program the frames use is built with the solver: updates (swaps in both modes,
     and the first update() of a solver built without an observer) and lighting after

@@ -345,7 +345,8 @@ class DynamicRadiosity:
         """Launch, once, every kernel that frames will use, so no frame waits for PoCL to
         compile one: the update's, the products with K (one right-hand side per channel, three
         under one grey K, residual()'s one), and radiosity()'s light pass and far field (lit by
-        a light of zero power). K is left as it was."""
+        a light of zero power while it holds no light yet: lit, it has run its kernels, and
+        relighting it would discard the B_far it keeps for an unchanged light). K is left as it was."""
         from ..lights import PointLight
         from ..photometry.areas import analytic_emitter_light
 
@@ -354,13 +355,13 @@ class DynamicRadiosity:
         if self.C == 1:
             self._matrix.matmat(np.zeros((3, self.M)))
         L, _ = analytic_emitter_light(self.scene, [PointLight(self.scene.centers[0], 0.0)], None, "hemicube", self.device)
-        if self.far is not None:
+        if self.far is not None and self.far.B_far is None:
             self.far.light(L)
 
     def warm_up(self) -> None:
-        """Launch every kernel the frames will use once, leaving K as it is. Construction does
-        this; a second call costs a read pass and a read-write pass over one channel of K and
-        changes nothing."""
+        """Launch every kernel the frames will use once, leaving K and the far field's light as
+        they are. Construction does this; a second call costs a read pass and a read-write pass
+        over one channel of K and changes nothing."""
         self._warm_up()
 
     def refresh(self) -> None:
