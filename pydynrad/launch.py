@@ -94,6 +94,8 @@ class HemicubeTiles:
 
 
 def hemicube_tiles(device) -> HemicubeTiles:
+    """The hemicube tiles for ``device``: its packet width (:func:`bvh_packet`) in tiles of
+    4 x 4 (16 lanes), 4 x 2 (8) or 2 x 2 (4) pixels by scanlines."""
     packet = bvh_packet(device)
     return HemicubeTiles(packet, _TILE_ROWS[packet])
 
