@@ -210,7 +210,7 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
         Show a tqdm bar; None: on a terminal, for M >= 2048 (:mod:`pydynrad.progress`).
     backend : "auto" | "device" | "host"
         Who does the O(M^3) work: "device" the OpenCL kernels, "host" numpy (LAPACK/BLAS),
-        "auto" the host when ``device`` is a CPU, else the device.
+        "auto" the host when ``device`` is a CPU (its traits say so: ``Device.with_traits(cpu=False)`` takes the device path), else the device.
 
     Returns
     -------
@@ -333,7 +333,7 @@ def _build(F_SS: np.ndarray, rho: np.ndarray, bounces: int | None, out: np.dtype
 
     work = real_dtype(np.float64 if out == np.float64 else np.float32, device)
     M, C = rho.shape
-    host = backend == "host" or (backend == "auto" and device.is_cpu)
+    host = backend == "host" or (backend == "auto" and device.traits.cpu)
     builder = None if host else _Builder(device, M, work)
     if bounces is not None:
         steps = bounces
