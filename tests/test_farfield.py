@@ -198,15 +198,19 @@ def test_bad_input(device, cornell):
     cl = cluster_patches(scene)
     with pytest.raises(pydynrad.InvalidInputError, match=r"G must have shape"):
         FarField(scene, None, cl, G=sp.csr_matrix((n, cl.count + 1)), device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match=r"G must have shape \(\d+, %d\)" % (3 * cl.count)):
+        FarField(scene, None, cl, G=F @ cl.indicator(), device=device)  # without F the basis is linear: 3C columns
     with pytest.raises(pydynrad.InvalidInputError, match=r"row \d+ of G sums to"):
-        FarField(scene, None, cl, G=3 * (F @ cl.indicator()), device=device)
+        FarField(scene, None, cl, G=3 * (F @ cl.indicator()), prolongation="indicator", device=device)
     other = scene.with_materials(albedo=0.3)
     with pytest.raises(pydynrad.InvalidInputError, match="another scene"):
-        FarField(other, None, cl, G=F @ cl.indicator(), device=device)
+        FarField(other, None, cl, G=F @ cl.indicator(), prolongation="indicator", device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="needs F in memory or"):
         FarField(scene, None, cl, device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="need F in memory"):
-        FarField(scene, None, cl, G=F @ cl.indicator(), first_bounce=True, device=device)
+        FarField(scene, None, cl, G=F @ cl.indicator(), prolongation="indicator", first_bounce=True, device=device)
+    with pytest.raises(pydynrad.InvalidInputError, match="not 'linear'"):
+        FarField(scene, F, cl, prolongation="linear", first_bounce=True, device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="prolongation"):
         FarField(scene, F, cl, prolongation="smooth", device=device)
     for bad, match in (({"tol": -1.0}, "tol"), ({"tol": float("nan")}, "tol"), ({"max_sweeps": 0}, "max_sweeps"),

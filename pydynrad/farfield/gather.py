@@ -25,7 +25,11 @@ from ..checks import check_form_factor_rows, scene as checked_scene
 from ..errors import InvalidInputError
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
 
-__all__ = ["cluster_form_factors", "cluster_form_factors_for", "as_prolongation", "check_prolongation", "split_prolongation"]
+__all__ = ["cluster_form_factors", "cluster_form_factors_for", "as_prolongation", "basis_prolongation", "check_prolongation",
+           "split_prolongation", "BASES"]
+
+#: The coarse bases a prolongation can be made for from cluster labels.
+BASES = ("indicator", "linear")
 
 
 def check_prolongation(prolongation, n: int) -> sp.csr_matrix:
@@ -67,6 +71,22 @@ def as_prolongation(clusters, n: int) -> sp.csr_matrix:
                                 f"dtype {labels.dtype}")
     C = int(getattr(clusters, "count", labels.max() + 1 if n else 1))
     return check_prolongation(sp.csr_matrix((np.ones(n), (np.arange(n), labels)), shape=(n, C)), n)
+
+
+def basis_prolongation(scene, clusters, basis: str = "linear") -> sp.csr_matrix:
+    """The checked (N, C) or (N, 3C) prolongation of ``basis`` for ``clusters`` ((N,) labels or a
+    :class:`pydynrad.farfield.Clusters`): the indicator, or the piecewise-linear
+    :func:`pydynrad.farfield.clusters.linear_basis`. An (N, K) matrix is itself the prolongation."""
+    from .clusters import Clusters, linear_basis
+
+    if basis not in BASES:
+        raise InvalidInputError(f"the coarse basis must be one of {BASES}; got {basis!r}")
+    n = len(checked_scene(scene))
+    if sp.issparse(clusters) or np.ndim(clusters) == 2 or basis == "indicator":
+        return as_prolongation(clusters, n)
+    if not isinstance(clusters, Clusters):
+        clusters = Clusters.from_labels(scene, as_prolongation(clusters, n).indices)  # labels, checked
+    return check_prolongation(linear_basis(clusters, scene)[0], n)
 
 
 def split_prolongation(prolongation) -> tuple[np.ndarray, np.ndarray] | None:

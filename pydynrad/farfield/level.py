@@ -23,6 +23,9 @@ the previous B_c when the lights change (bench/farfield.py measures sweeps and t
   where the mean is 0) with w the radiosity under a uniform sky of directional lights, so a
   cluster's light goes to its exposed members and not to shadowed or enclosed ones (the leaks
   of plain cluster averages). Needs F. It lost at night (the sky is not where lamps shine).
+* ``prolongation="linear"`` (the default without F): three functions per cluster, so B_c holds
+  a linear variation over each cluster (:func:`pydynrad.farfield.clusters.linear_basis`; G, F_c
+  and B_c get 3C columns). Needs no F: the far field of stores and of rows on demand.
 * ``first_bounce=True`` (the default with F): B_far = L + P F (L + D), where every patch's
   indirect light D is its cluster's B_c - L_c shared in proportion to the patch's own first
   bounce P F L, then ``fine_sweeps`` bounces of the full F (default 1): three passes over F per
@@ -40,11 +43,11 @@ import scipy.sparse as sp
 
 from ..checks import check_form_factor_rows, check_form_factors, integer, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
-from .clusters import Clusters, cluster_patches, light_components
+from .clusters import Clusters, cluster_patches, light_components, linear_basis
 
 __all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS"]
 
-PROLONGATIONS = ("indicator", "exposure")
+PROLONGATIONS = ("indicator", "exposure", "linear")
 
 #: Directional lights of the uniform sky that the exposure weights are solved under.
 SKY_DIRECTIONS = 128
@@ -94,7 +97,8 @@ class FarField:
         A partition (:func:`cluster_patches`), or C for one; default C from N.
     G : (N, C) sparse, optional
         The patch-to-cluster form factors F Pr for these clusters (computed from F if omitted).
-    prolongation : "indicator" | "exposure"
+    prolongation : "indicator" | "exposure" | "linear"
+        Default: "indicator" with F, "linear" without.
     first_bounce : bool, optional
         Gather the final bounce with F's rows, sharing each cluster's indirect light by the
         patches' first bounce (default: when F is given).
@@ -125,7 +129,7 @@ class FarField:
         Wall time of the construction, of the last light change and of its coarse solve.
     """
 
-    def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str = "indicator",
+    def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str | None = None,
                  first_bounce: bool | None = None, fine_sweeps: int = 1, tol: float = 1e-5, max_sweeps: int = 1000,
                  dtype=np.float32, device=None, *, checked: bool = False) -> None:
         from ..device import default_device
@@ -135,16 +139,21 @@ class FarField:
         self.scene = checked_scene(scene)
         n = len(scene)
         self.device = device or default_device()
+        if prolongation is None:
+            prolongation = "indicator" if form_factors is not None else "linear"
         if prolongation not in PROLONGATIONS:
             raise InvalidInputError(f"prolongation must be one of {PROLONGATIONS}; got {prolongation!r}")
         if not (np.isfinite(tol) and tol >= 0):
             raise InvalidInputError(f"tol must be a finite number >= 0; got {tol!r}")
         max_sweeps = integer(max_sweeps, "max_sweeps", 1)
         F = form_factors if form_factors is None or checked else check_form_factors(scene, form_factors)
-        first_bounce = F is not None if first_bounce is None else bool(first_bounce)
+        first_bounce = F is not None and prolongation != "linear" if first_bounce is None else bool(first_bounce)
         if F is None and G is None:
             raise InvalidInputError("the far field needs F in memory or its patch-to-cluster form factors G "
                                     "(pydynrad.farfield.gather.cluster_form_factors, or a store holding G)")
+        if first_bounce and prolongation == "linear":
+            raise InvalidInputError("first_bounce shares each cluster's one value by patch; it takes "
+                                    "prolongation='indicator' or 'exposure', not 'linear'")
         if F is None and (first_bounce or prolongation == "exposure"):
             raise InvalidInputError(f"first_bounce and prolongation='exposure' need F in memory; got "
                                     f"first_bounce={first_bounce}, prolongation={prolongation!r} without F")
@@ -155,7 +164,10 @@ class FarField:
         self.clusters = clusters
         C = clusters.count
         self.R = clusters.restriction(scene.areas)
-        if prolongation == "exposure":
+        if prolongation == "linear":
+            self.weights = None
+            Pr, self.R = linear_basis(clusters, scene)
+        elif prolongation == "exposure":
             self.weights = exposure_weights(scene, F, self.device)
             Pr = weighted_prolongation(clusters, scene.areas, self.weights)
         else:
@@ -163,7 +175,7 @@ class FarField:
             Pr = clusters.indicator()
         # A given G is checked like rows of F (a row of G is a row of F summed by cluster); F Pr is
         # a product of the checked F and a prolongation built here, so it needs no second check.
-        G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else check_form_factor_rows(G, "G", shape=(n, C))
+        G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else check_form_factor_rows(G, "G", shape=Pr.shape)
         self.prolongation, self.first_bounce, self.tol, self.max_sweeps = prolongation, bool(first_bounce), tol, max_sweeps
         self.fine_sweeps = integer(fine_sweeps, "fine_sweeps", 0)
         self.G = G
@@ -172,7 +184,7 @@ class FarField:
         # Pure clusters: every member has the cluster's albedo.
         first = np.zeros(C, dtype=np.int64)
         first[clusters.labels[::-1]] = np.arange(n)[::-1]
-        self.rho_c = self.rho[first]
+        self.rho_c = np.tile(self.rho[first], (Pr.shape[1] // C, 1))  # per coarse function
         # The first-bounce gather goes through F's rows: G then only makes F_c.
         self._G_dev = None if first_bounce else DeviceCSR(self.device, G, dtype)
         self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype)
@@ -258,14 +270,16 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     """The FarField a :class:`~pydynrad.DynamicRadiosity` uses for its form factors
     (:class:`pydynrad.dynamic.localrows.LocalRows`).
 
-    F in memory (a matrix, or :class:`~pydynrad.CSRRows`): everything from F. A form-factor
-    store (also behind a row cache): its own clusters and G (refused when it holds none). Rows
-    computed on demand: G from cluster-id hemicubes; any other row source: G summed from its
-    rows, each block validated (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
+    F in memory (a matrix, or :class:`~pydynrad.CSRRows`): everything from F. Without F the
+    coarse level is piecewise linear (``prolongation="linear"``, the indicator where a store's
+    G was made with it): a form-factor store (also behind a row cache) gives its own clusters
+    and G (refused when it holds none); rows computed on demand: G from cluster-id hemicubes;
+    any other row source: G summed from its rows, each block validated
+    (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
     """
     from ..rows.sources import CSRRows, HemicubeRows
     from ..rows.store import FormFactorStore
-    from .gather import cluster_form_factors_for
+    from .gather import basis_prolongation, cluster_form_factors_for
 
     if local_rows.csr is not None:
         return FarField(scene, local_rows.csr, clusters, G, device=device, checked=True)
@@ -274,19 +288,21 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
         inner = inner.source  # through row caches
     if isinstance(inner, CSRRows):
         return FarField(scene, inner.matrix, clusters, G, device=device)
+    basis = "linear"
     if isinstance(inner, FormFactorStore) and G is None:
         if not inner.has_clusters:
             raise InvalidInputError(
                 f"form-factor store {inner.path} holds no far-field G: compute it (compute_store(..., clusters=...) or "
                 "`pydynrad formfactors SCENE -o STORE --clusters C`), or pass far_field=False (--no-far-field)")
+        basis = inner.cluster_basis
         if clusters is None:
             clusters = Clusters.from_labels(scene, inner.cluster_labels())
     if not isinstance(clusters, Clusters):
         clusters = cluster_patches(scene, clusters)
     if G is None:
         source = local_rows.source if isinstance(inner, (FormFactorStore, HemicubeRows)) else _CheckedRows(local_rows)
-        G = cluster_form_factors_for(scene, source, clusters, device=device)
-    return FarField(scene, None, clusters, G, device=device)
+        G = cluster_form_factors_for(scene, source, basis_prolongation(scene, clusters, basis), device=device)
+    return FarField(scene, None, clusters, G, prolongation=basis, device=device)
 
 
 class _CheckedRows:

@@ -198,7 +198,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
                            verify: bool = False, row_function: RowFunction = form_factor_rows,
                            blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS, clusters=None,
                            cluster_resolution: int = DEFAULT_CLUSTER_RESOLUTION, cluster_params: dict | None = None,
-                           compute_f: bool = True) -> FormFactorStore:
+                           compute_f: bool = True, cluster_basis: str = "linear") -> FormFactorStore:
     """Compute every missing block of the store at ``path`` on a Dask cluster; returns the store.
 
     Parameters
@@ -220,7 +220,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     blocks : compute only these block indices (to split one store over several runs).
     task_rows : rows per task: consecutive missing blocks are computed by one row-function
         call of at most this many rows (at least one block), amortising per-call set-up.
-    clusters, cluster_resolution, cluster_params, compute_f : the far field's G beside F, as
+    clusters, cluster_resolution, cluster_params, compute_f, cluster_basis : the far field's G beside F, as
         for :func:`pydynrad.rows.store.compute_store`; workers read the prolongation from the store.
 
     The patching parameters recorded in the header are the spec's recipe (empty for a Scene).
@@ -235,7 +235,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     path = Path(path).resolve()
     store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
                                 verify=verify, blocks=blocks, clusters=clusters, cluster_resolution=cluster_resolution,
-                                cluster_params=cluster_params, compute_f=compute_f)
+                                cluster_params=cluster_params, compute_f=compute_f, cluster_basis=cluster_basis)
     if not todo["F"] and not todo["G"]:
         return store
     client, cluster = _start_client(workers, scheduler)

@@ -455,13 +455,24 @@ class FormFactorStore:
         return pr
 
     def cluster_labels(self) -> np.ndarray:
-        """(N,) int: each patch's cluster (-1 for none), for a prolongation with one entry per row."""
+        """(N,) int: each patch's cluster (-1 for none), for a prolongation with one entry per row
+        or a piecewise-linear one (:func:`pydynrad.farfield.clusters.linear_basis`)."""
+        from ..farfield.clusters import labels_of_linear
         from ..farfield.gather import split_prolongation
 
-        single = split_prolongation(self.prolongation())
-        if single is None:
+        pr = self.prolongation()
+        single = split_prolongation(pr)
+        labels = single[0] if single is not None else labels_of_linear(pr)
+        if labels is None:
             raise InvalidInputError(f"the prolongation of store {self.path} puts some patches in several clusters")
-        return single[0]
+        return labels
+
+    @property
+    def cluster_basis(self) -> str:
+        """The coarse basis G was made for: "indicator" (one entry per row of Pr) or "linear"."""
+        from ..farfield.gather import split_prolongation
+
+        return "indicator" if split_prolongation(self.prolongation()) is not None else "linear"
 
     def cluster_rows(self, idx) -> sp.csr_matrix:
         """Rows ``idx`` of G as a (len(idx), C) float32 CSR matrix, in the order given."""
@@ -639,9 +650,10 @@ def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None) -> s
 
 def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: dict | None, verify: bool,
                   blocks: Iterable[int] | None, clusters=None, cluster_resolution: int = DEFAULT_CLUSTER_RESOLUTION,
-                  cluster_params: dict | None = None,
-                  compute_f: bool = True) -> tuple[FormFactorStore, dict[str, list[int]]]:
-    """Create or reopen a store for writing: stale temporaries removed, ``clusters`` recorded.
+                  cluster_params: dict | None = None, compute_f: bool = True,
+                  cluster_basis: str = "linear") -> tuple[FormFactorStore, dict[str, list[int]]]:
+    """Create or reopen a store for writing: stale temporaries removed, ``clusters`` recorded
+    (as the prolongation of ``cluster_basis``, :func:`pydynrad.farfield.gather.basis_prolongation`).
 
     Returns the store and the blocks to compute per part: {"F": [...], "G": [...]} (G's when
     the store has clusters, recorded now or before; F's unless ``compute_f`` is False).
@@ -650,7 +662,10 @@ def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: di
                                    patching=patching, exist_ok=True)
     store.remove_stale_temporaries()
     if clusters is not None:
-        store.set_clusters(clusters, resolution=cluster_resolution, params=cluster_params)
+        from ..farfield.gather import basis_prolongation
+
+        store.set_clusters(basis_prolongation(scene, clusters, cluster_basis), resolution=cluster_resolution,
+                           params={"basis": cluster_basis, **(cluster_params or {})})
     todo = {}
     for part in ("F", "G"):
         wanted = part == "G" and store.has_clusters or part == "F" and compute_f
@@ -705,7 +720,7 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
                   row_function: RowFunction = form_factor_rows, device=None,
                   blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS, clusters=None,
                   cluster_resolution: int = DEFAULT_CLUSTER_RESOLUTION, cluster_params: dict | None = None,
-                  compute_f: bool = True) -> FormFactorStore:
+                  compute_f: bool = True, cluster_basis: str = "linear") -> FormFactorStore:
     """Create (or resume) the store at ``path`` and compute every missing block in this process.
 
     ``row_function(scene, rows, resolution, device=...)`` returns the (len(rows), N) CSR
@@ -718,14 +733,17 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
     The far field's G = F Pr: ``clusters`` (Pr (N, C), (N,) labels or a
     :class:`pydynrad.farfield.Clusters`) records the clusters and computes G beside F, from
     hemicubes of ``cluster_resolution`` (:func:`pydynrad.farfield.gather.cluster_form_factors`);
-    a store with clusters already recorded resumes its G too. ``compute_f=False`` leaves F's
+    a store with clusters already recorded resumes its G too. ``cluster_basis``: "linear" (the
+    default: 3C columns, the far field's piecewise-linear coarse level, what a walk without F
+    needs for its accuracy; bench/farstore.py) or "indicator" (C columns) for labels or
+    clusters; a given Pr matrix is used as it is. ``compute_f=False`` leaves F's
     rows out (a store of G alone, for walks that compute F's rows on demand).
     """
     from ..progress import progress_bar
 
     store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
                                 verify=verify, blocks=blocks, clusters=clusters, cluster_resolution=cluster_resolution,
-                                cluster_params=cluster_params, compute_f=compute_f)
+                                cluster_params=cluster_params, compute_f=compute_f, cluster_basis=cluster_basis)
     pr = store.prolongation() if todo["G"] else None
     for part, desc in (("F", "form factors"), ("G", "cluster form factors")):
         with progress_bar(progress if todo[part] else False, total=sum(len(store.block_range(k)) for k in todo[part]),
