@@ -21,12 +21,12 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factor_rows, scene as checked_scene
+from ..checks import check_form_factor_rows, scene as checked_scene, sparse_structure
 from ..errors import InvalidInputError
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
 
 __all__ = ["cluster_form_factors", "cluster_form_factors_for", "as_prolongation", "basis_prolongation", "check_prolongation",
-           "split_prolongation", "BASES"]
+           "split_prolongation", "checked_cluster_form_factors", "BASES"]
 
 #: The coarse bases a prolongation can be made for from cluster labels.
 BASES = ("indicator", "linear")
@@ -147,6 +147,23 @@ def cluster_form_factors(scene, prolongation, resolution: int = CLUSTER_RESOLUTI
 
 #: Rows per block when G is summed from a row source's rows of F (bounded memory).
 SUM_BLOCK_ROWS = 4096
+
+
+def checked_cluster_form_factors(G, shape: tuple[int, int]) -> sp.csr_matrix:
+    """A given G checked as rows of F are (:func:`pydynrad.checks.check_form_factor_rows`: the
+    structure, ``shape``, finite entries >= 0, rows summing to at most 1), without a float64 copy
+    of the whole: a float32 or float64 CSR G is checked :data:`SUM_BLOCK_ROWS` rows at a time and
+    returned as it is, not copied (a million-patch store's G is most of the far field's memory);
+    any other matrix is returned as the checked float64 CSR copy."""
+    if not (sp.issparse(G) and G.format == "csr" and G.dtype in (np.float32, np.float64)):
+        return check_form_factor_rows(G, "G", shape=shape)
+    if G.shape != tuple(shape):
+        raise InvalidInputError(f"G must have shape {tuple(shape)}; got {G.shape}")
+    sparse_structure(G.indptr, G.indices, G.shape, "G", nnz=len(G.data))
+    for first in range(0, G.shape[0], SUM_BLOCK_ROWS):
+        rows = np.arange(first, min(G.shape[0], first + SUM_BLOCK_ROWS))
+        check_form_factor_rows(G[first:rows[-1] + 1], "G", rows)
+    return G
 
 
 def cluster_form_factors_for(scene, source, clusters, resolution: int = CLUSTER_RESOLUTION, device=None,

@@ -41,9 +41,10 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factor_rows, check_form_factors, integer, scene as checked_scene
+from ..checks import check_form_factors, integer, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
 from .clusters import Clusters, cluster_patches, light_components, linear_basis
+from .gather import checked_cluster_form_factors
 
 __all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS"]
 
@@ -120,7 +121,8 @@ class FarField:
     ----------
     clusters : Clusters
     R, G, F_c : scipy.sparse.csr_matrix
-        (C, N) restriction, (N, C) patch-to-cluster and (C, C) coarse form factors, float64.
+        (C, N) restriction, (N, C) patch-to-cluster and (C, C) coarse form factors, float64
+        (3C for the linear basis; a given G is kept as given, float32 from a store).
     B_far : (N, 3) float64 or None
         Every patch's far radiosity for the last light vector (:meth:`light`).
     sweeps : int
@@ -175,7 +177,7 @@ class FarField:
             Pr = clusters.indicator()
         # A given G is checked like rows of F (a row of G is a row of F summed by cluster); F Pr is
         # a product of the checked F and a prolongation built here, so it needs no second check.
-        G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else check_form_factor_rows(G, "G", shape=Pr.shape)
+        G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else checked_cluster_form_factors(G, Pr.shape)
         self.prolongation, self.first_bounce, self.tol, self.max_sweeps = prolongation, bool(first_bounce), tol, max_sweeps
         self.fine_sweeps = integer(fine_sweeps, "fine_sweeps", 0)
         self.G = G
