@@ -20,7 +20,8 @@ Stages (each reported with wall-clock times on this machine):
    target: the far field on within 1.5x of it off).
 
 With ``--far-field`` (the default) the store also holds the far field's G = F Pr for
-``cluster_patches(scene)`` (N/8 clusters, the linear basis: 3C columns), from cluster-id
+``clusters_without_f(scene)`` (N/8 clusters inside light components found by R = 8 hemicubes;
+the linear basis: 3C columns), from cluster-id
 hemicubes at ``--cluster-resolution`` (default: F's resolution), computed with F by the same
 workers; the precompute stage reports G's time against F's.
 
@@ -154,10 +155,10 @@ def precompute(args, scene, path: Path, workers: int, blocks=None, clusters=None
 
 def far_field_precompute(args, scene, store, f_numbers: dict) -> dict:
     """Clusters and G into the store (the workers of the F stage), timed against F's rows."""
-    from pydynrad.farfield import cluster_patches
+    from pydynrad.farfield.gather import clusters_without_f
 
     t0 = time.perf_counter()
-    clusters = cluster_patches(scene)
+    clusters = clusters_without_f(scene, progress=True)
     t_clusters = time.perf_counter() - t0
     missing = store.missing_blocks(part="G") if store.has_clusters else range(store.n_blocks)
     secs = precompute(args, scene, args.store, args.workers, clusters=clusters.labels, compute_f=False)

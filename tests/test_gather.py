@@ -157,17 +157,21 @@ def same_csr(a, b) -> bool:
 
 def test_store_holds_g_beside_f(box, tmp_path, device):
     scene, labels, G = box
-    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=10, clusters=labels, cluster_resolution=8, cluster_basis="indicator",
+    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=10, clusters=labels, cluster_basis="indicator",
                           cluster_params={"method": "diagonals"}, progress=False, device=device)
     assert store.complete and store.complete_clusters and store.n_clusters == labels.max() + 1
-    assert same_csr(store.to_csr(), form_factors(scene, resolution=8, device=device))
-    assert same_csr(store.cluster_form_factors(labels), G)  # rows in blocks of 10 and whole: bit for bit
+    assert store.cluster_resolution == 8  # F's: G summed from the stored rows of F, no hemicubes of its own
+    F = store.to_csr()
+    assert same_csr(F, form_factors(scene, resolution=8, device=device))
+    G = store.cluster_form_factors(labels)
+    assert same_csr(G, sp.csr_matrix(F @ indicator(labels).astype(np.float32)))  # F Pr of the stored F, exactly
+    assert_float32_equal(G, box[2])  # and the cluster-id hemicubes' G to float32 rounding
     idx = np.array([95, 3, 3, 40, 0])
     assert same_csr(store.cluster_rows(idx), G[idx])
     np.testing.assert_array_equal(store.cluster_labels(), labels)
     assert same_csr(store.prolongation(), indicator(labels).astype(np.float32))
     again = FormFactorStore.open(scene, tmp_path / "s", resolution=8)
-    assert again.cluster_resolution == 8 and again.cluster_params == {"basis": "indicator", "method": "diagonals"} and "G: C=" in repr(again)
+    assert again.cluster_resolution == 8 and again.cluster_params == {"method": "diagonals"} and "G: C=" in repr(again)
     assert same_csr(again.cluster_form_factors(), G)
 
 

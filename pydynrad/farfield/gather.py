@@ -26,7 +26,8 @@ from ..errors import InvalidInputError
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
 
 __all__ = ["cluster_form_factors", "cluster_form_factors_for", "as_prolongation", "basis_prolongation", "check_prolongation",
-           "split_prolongation", "checked_cluster_form_factors", "BASES"]
+           "split_prolongation", "checked_cluster_form_factors", "light_components_by_hemicube", "clusters_without_f", "BASES",
+           "COMPONENT_RESOLUTION"]
 
 #: The coarse bases a prolongation can be made for from cluster labels.
 BASES = ("indicator", "linear")
@@ -71,6 +72,50 @@ def as_prolongation(clusters, n: int) -> sp.csr_matrix:
                                 f"dtype {labels.dtype}")
     C = int(getattr(clusters, "count", labels.max() + 1 if n else 1))
     return check_prolongation(sp.csr_matrix((np.ones(n), (np.arange(n), labels)), shape=(n, C)), n)
+
+
+#: Hemicube resolution of the pass that finds which patches exchange light when F is never formed:
+#: rays only ever join patches that see each other, so a low resolution can split a set of patches
+#: that do exchange light (costing accuracy, never leaking light), not join two that do not.
+COMPONENT_RESOLUTION = 8
+
+
+def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, device=None,
+                                 progress: bool | None = None) -> np.ndarray:
+    """:func:`pydynrad.farfield.clusters.light_components` of a scene whose F is never formed.
+
+    F's rows at ``resolution`` are traced in the bounded blocks of
+    :func:`pydynrad.formfactors.hemicube_blocks` and each is merged into the components found so
+    far (a connected-components pass over the current component ids), so memory stays O(N plus
+    one block). Clusters made with these labels keep a closed room's inside apart from the world
+    around it, as with F in memory; at the default resolution the pass costs about
+    (8 / R_G)^2 of G's rays.
+    """
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(checked_scene(scene))
+    comp = np.arange(n)
+    first = 0
+    for block in hemicube_blocks(scene, resolution, None, device, progress, desc="light components"):
+        coo = block.tocoo()
+        a, b = comp[first + coo.row], comp[coo.col]
+        graph = sp.csr_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n, n))
+        comp = connected_components(graph, directed=True, connection="weak")[1][comp]
+        first += block.shape[0]
+    # As light_components: a patch exchanging light with nothing may join any cluster.
+    comp = comp.astype(np.int64)
+    comp[np.bincount(comp, minlength=n)[comp] == 1] = -1
+    return comp
+
+
+def clusters_without_f(scene, clusters=None, device=None, progress: bool | None = None):
+    """:func:`pydynrad.farfield.cluster_patches` (C = ``clusters``, default from N) for a scene
+    whose F is never formed: kept inside the light components of
+    :func:`light_components_by_hemicube`, so no cluster spans a closed room's inside and outside."""
+    from .clusters import cluster_patches
+
+    return cluster_patches(scene, clusters, components=light_components_by_hemicube(scene, device=device,
+                                                                                     progress=progress))
 
 
 def basis_prolongation(scene, clusters, basis: str = "linear") -> sp.csr_matrix:

@@ -281,7 +281,7 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     """
     from ..rows.sources import CSRRows, HemicubeRows
     from ..rows.store import FormFactorStore
-    from .gather import basis_prolongation, cluster_form_factors_for
+    from .gather import basis_prolongation, cluster_form_factors_for, clusters_without_f
 
     if local_rows.csr is not None:
         return FarField(scene, local_rows.csr, clusters, G, device=device, checked=True)
@@ -296,11 +296,12 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
             raise InvalidInputError(
                 f"form-factor store {inner.path} holds no far-field G: compute it (compute_store(..., clusters=...) or "
                 "`pydynrad formfactors SCENE -o STORE --clusters C`), or pass far_field=False (--no-far-field)")
-        basis = inner.cluster_basis
+        # A store's own prolongation matrix ("given") must be the indicator of its labels: checked with G below.
+        basis = "linear" if inner.cluster_basis == "linear" else "indicator"
         if clusters is None:
             clusters = Clusters.from_labels(scene, inner.cluster_labels())
     if not isinstance(clusters, Clusters):
-        clusters = cluster_patches(scene, clusters)
+        clusters = clusters_without_f(scene, clusters, device=device)
     if G is None:
         source = local_rows.source if isinstance(inner, (FormFactorStore, HemicubeRows)) else _CheckedRows(local_rows)
         G = cluster_form_factors_for(scene, source, basis_prolongation(scene, clusters, basis), device=device)

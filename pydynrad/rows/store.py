@@ -391,7 +391,15 @@ class FormFactorStore:
 
     @property
     def n_clusters(self) -> int:
+        """G's columns: C, or 3C for the linear basis (:attr:`cluster_count` is C)."""
         return int(self._require_clusters()["n_clusters"])
+
+    @property
+    def cluster_count(self) -> int:
+        """C, the clusters G was made for."""
+        from ..farfield.clusters import LINEAR_FUNCTIONS
+
+        return self.n_clusters // (LINEAR_FUNCTIONS if self.cluster_basis == "linear" else 1)
 
     @property
     def cluster_params(self) -> dict:
@@ -403,7 +411,7 @@ class FormFactorStore:
         """The hemicube resolution G is computed with."""
         return int(self._require_clusters()["resolution"])
 
-    def set_clusters(self, clusters, *, resolution: int, params: dict | None = None) -> None:
+    def set_clusters(self, clusters, *, resolution: int, params: dict | None = None, basis: str = "indicator") -> None:
         """Record the prolongation Pr (N, C) that G = F Pr is made with, and G's resolution.
 
         ``clusters``: Pr itself, (N,) cluster labels or a :class:`pydynrad.farfield.Clusters`
@@ -417,7 +425,8 @@ class FormFactorStore:
             extra = json.loads(json.dumps(dict(params or {}), sort_keys=True))
         except (TypeError, ValueError) as exc:
             raise InvalidInputError(f"cluster parameters must be JSON-serialisable: {exc}") from exc
-        header = {"n_clusters": int(pr.shape[1]), "resolution": int(resolution), "prolongation_sha256": digest}
+        header = {"n_clusters": int(pr.shape[1]), "resolution": int(resolution), "prolongation_sha256": digest,
+                  "basis": basis}
         if self._cluster_header is not None:
             self._match_clusters(header)  # params are a record of how, not part of what G is
             return
@@ -428,7 +437,7 @@ class FormFactorStore:
         self._cluster_header = header
 
     def _match_clusters(self, want: dict) -> None:
-        have = self._require_clusters()
+        have = {"basis": "indicator", **self._require_clusters()}  # stores from before the linear basis
         diff = [f"{k}: store has {have.get(k)!r}, requested {v!r}" for k, v in want.items() if have.get(k) != v]
         if diff:
             raise StoreMismatchError(
@@ -461,7 +470,7 @@ class FormFactorStore:
         from ..farfield.gather import split_prolongation
 
         pr = self.prolongation()
-        single = split_prolongation(pr)
+        single = split_prolongation(pr) if self.cluster_basis != "linear" else None
         labels = single[0] if single is not None else labels_of_linear(pr)
         if labels is None:
             raise InvalidInputError(f"the prolongation of store {self.path} puts some patches in several clusters")
@@ -469,10 +478,9 @@ class FormFactorStore:
 
     @property
     def cluster_basis(self) -> str:
-        """The coarse basis G was made for: "indicator" (one entry per row of Pr) or "linear"."""
-        from ..farfield.gather import split_prolongation
-
-        return "indicator" if split_prolongation(self.prolongation()) is not None else "linear"
+        """The coarse basis G was made for: "indicator", "linear"
+        (:func:`pydynrad.farfield.clusters.linear_basis`) or "given" (a prolongation matrix)."""
+        return self._require_clusters().get("basis", "indicator")
 
     def cluster_rows(self, idx) -> sp.csr_matrix:
         """Rows ``idx`` of G as a (len(idx), C) float32 CSR matrix, in the order given."""
@@ -649,7 +657,7 @@ def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None) -> s
 
 
 def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: dict | None, verify: bool,
-                  blocks: Iterable[int] | None, clusters=None, cluster_resolution: int = DEFAULT_CLUSTER_RESOLUTION,
+                  blocks: Iterable[int] | None, clusters=None, cluster_resolution: int | None = None,
                   cluster_params: dict | None = None, compute_f: bool = True,
                   cluster_basis: str = "linear") -> tuple[FormFactorStore, dict[str, list[int]]]:
     """Create or reopen a store for writing: stale temporaries removed, ``clusters`` recorded
@@ -664,8 +672,11 @@ def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: di
     if clusters is not None:
         from ..farfield.gather import basis_prolongation
 
+        given = sp.issparse(clusters) or np.ndim(clusters) == 2  # a matrix is its own prolongation
+        if cluster_resolution is None:  # F's own where F is stored: G is then F Pr of the stored rows
+            cluster_resolution = resolution if compute_f else DEFAULT_CLUSTER_RESOLUTION
         store.set_clusters(basis_prolongation(scene, clusters, cluster_basis), resolution=cluster_resolution,
-                           params={"basis": cluster_basis, **(cluster_params or {})})
+                           params=cluster_params, basis="given" if given else cluster_basis)
     todo = {}
     for part in ("F", "G"):
         wanted = part == "G" and store.has_clusters or part == "F" and compute_f
@@ -696,9 +707,11 @@ def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function
                    part: str = "F", prolongation=None) -> int:
     """Compute the consecutive blocks ``group`` of F (or of G) in one call and write each; returns rows done.
 
-    F's rows come from ``row_function``; G's from
-    :func:`pydynrad.farfield.gather.cluster_form_factors` with the store's prolongation
-    (pass it as ``prolongation`` to save reading it per group).
+    F's rows come from ``row_function``; G's = F Pr with the store's prolongation (pass it as
+    ``prolongation`` to save reading it per group): from the store's own blocks of F where they
+    are on disk and G's resolution is F's (no second pass of hemicubes: G then costs a sparse
+    product per block, and agrees with the stored F exactly), else from
+    :func:`pydynrad.farfield.gather.cluster_form_factors` at G's resolution.
     """
     first, last = store.block_range(group[0]), store.block_range(group[-1])
     rows = np.arange(first.start, last.stop)
@@ -706,7 +719,11 @@ def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function
         from ..farfield.gather import cluster_form_factors
 
         pr = store.prolongation() if prolongation is None else prolongation
-        csr = cluster_form_factors(scene, pr, store.cluster_resolution, rows=rows, device=device)
+        if store.cluster_resolution == store.header["params"]["resolution"] and all(
+                store.block_path(k).exists() for k in group):
+            csr = sp.csr_matrix(sp.vstack([store.read_block(k) for k in group], format="csr") @ pr, dtype=np.float32)
+        else:
+            csr = cluster_form_factors(scene, pr, store.cluster_resolution, rows=rows, device=device)
     else:
         csr = sp.csr_matrix(row_function(scene, rows, store.header["params"]["resolution"], device=device))
     for k in group:
@@ -719,7 +736,7 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
                   patching: dict | None = None, progress: bool | None = None, verify: bool = False,
                   row_function: RowFunction = form_factor_rows, device=None,
                   blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS, clusters=None,
-                  cluster_resolution: int = DEFAULT_CLUSTER_RESOLUTION, cluster_params: dict | None = None,
+                  cluster_resolution: int | None = None, cluster_params: dict | None = None,
                   compute_f: bool = True, cluster_basis: str = "linear") -> FormFactorStore:
     """Create (or resume) the store at ``path`` and compute every missing block in this process.
 
@@ -732,7 +749,9 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
 
     The far field's G = F Pr: ``clusters`` (Pr (N, C), (N,) labels or a
     :class:`pydynrad.farfield.Clusters`) records the clusters and computes G beside F, from
-    hemicubes of ``cluster_resolution`` (:func:`pydynrad.farfield.gather.cluster_form_factors`);
+    hemicubes of ``cluster_resolution`` (:func:`pydynrad.farfield.gather.cluster_form_factors`;
+    default: F's ``resolution``, so G is summed from F's stored rows with no hemicubes of its own, or
+    :data:`DEFAULT_CLUSTER_RESOLUTION` for a store without F);
     a store with clusters already recorded resumes its G too. ``cluster_basis``: "linear" (the
     default: 3C columns, the far field's piecewise-linear coarse level, what a walk without F
     needs for its accuracy; bench/farstore.py) or "indicator" (C columns) for labels or
