@@ -8,7 +8,8 @@ with hard shadows (the cases of bench/farfield.py), the observer walks and the d
 field FarField(scene, None, clusters, G=..., prolongation=basis). Against the full solve with F:
 
 * basis: "indicator" (one value per cluster, C columns of G) and "linear" (three hat functions
-  per cluster, :func:`pydynrad.farfield.clusters.linear_basis`, 3C columns);
+  per cluster, :func:`pydynrad.farfield.clusters.linear_basis`, 3C columns; after the coarse
+  solve 2 sweeps of the linear level by default, 0 and 4 as well with G = F Pr);
 * R_G over a range, and G = F Pr from F itself (R_G = F's resolution, no extra error);
 * errors: all patches (area-weighted relative RMS) and mean per-pixel relative error;
 * precompute: clusters + G (+ F_c) against F's own rows at G's resolution (the issue's target
@@ -27,7 +28,7 @@ __all__ = ["farstore_section", "SIZES"]
 SIZES = {
     "tiny": {"village": {"houses": 1, "detail": 0.25}, "resolution": 16, "cornell_max_edge": 250.0, "M": 64,
              "R_G": (8,), "frames": 3, "image": (24, 18), "per": 8},
-    "quick": {"village": {}, "resolution": 32, "cornell_max_edge": 100.0, "M": 1024, "R_G": (16, 24, 32),
+    "quick": {"village": {}, "resolution": 32, "cornell_max_edge": 100.0, "M": 1024, "R_G": (24, 48),
               "frames": 5, "image": (96, 64), "per": 8},
     "full": {"village": {}, "resolution": 32, "cornell_max_edge": 100.0, "M": 1024, "R_G": (8, 16, 24, 32, 48),
              "frames": 12, "image": (320, 240), "per": 8},
@@ -63,13 +64,16 @@ def farstore_section(ctx) -> dict:
                 t0 = time.perf_counter()
                 pydynrad.form_factors(scene, resolution=R_G, device=ctx.device, progress=False)
                 t_rows[R_G] = time.perf_counter() - t0
-            for basis in ("indicator", "linear"):
+            variants = [("indicator", None), ("linear", None)]
+            if R_G == "F":  # the linear level's sweeps after the coarse solve (default 2)
+                variants += [("linear", 0), ("linear", 4)]
+            for basis, sweeps in variants:
                 pr = basis_prolongation(scene, clusters, basis)
                 t0 = time.perf_counter()
                 G = F @ pr if R_G == "F" else cluster_form_factors(scene, pr, R_G, device=ctx.device, progress=False)
                 t_G = time.perf_counter() - t0
                 t0 = time.perf_counter()
-                far = FarField(scene, None, clusters, G=G, prolongation=basis, device=ctx.device)
+                far = FarField(scene, None, clusters, G=G, prolongation=basis, fine_sweeps=sweeps, device=ctx.device)
                 t_level = time.perf_counter() - t0
                 dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, storage="fp32", far_field=far,
                                                 observer=path[0], device=ctx.device)
@@ -78,9 +82,10 @@ def farstore_section(ctx) -> dict:
                 B = dyn.radiosity(light=L)
                 img = renderer.shade(vis, B)
                 pre = t_clusters + t_G + t_level
-                rows.append([name, n, M, clusters.count, basis, "F Pr" if R_G == "F" else R_G,
+                rows.append([name, n, M, clusters.count, basis, far.fine_sweeps if basis == "linear" else "—",
+                             "F Pr" if R_G == "F" else R_G,
                              100 * radiosity_error(B, ref, scene.areas), 100 * float(pixel_error(img, ref_img).mean()),
-                             G.nnz / n, far.F_c.nnz, 1e3 * far.seconds_coarse, far.sweeps, pre,
+                             G.nnz / n, far.F_c.nnz, 1e3 * far.seconds_coarse, 1e3 * far.seconds_light, far.sweeps, pre,
                              None if R_G == "F" else 100 * pre / t_rows[R_G], 100 * pre / t_F if R_G != "F" else None,
                              R_F])
     return {
@@ -88,8 +93,8 @@ def farstore_section(ctx) -> dict:
         "description": __doc__.split("\n\n", 1)[1].strip(),
         "tables": [{
             "title": "F-less far field: error against the full solve, G's size and precompute",
-            "columns": ["scene", "N", "M", "C", "basis", "R_G", "all %", "pixels %", "nnz(G) per row", "nnz(F_c)",
-                        "coarse solve ms", "sweeps", "precompute s (clusters + G + F_c)",
+            "columns": ["scene", "N", "M", "C", "basis", "linear sweeps", "R_G", "all %", "pixels %", "nnz(G) per row",
+                        "nnz(F_c)", "coarse solve ms", "light change ms", "coarse sweeps", "precompute s (clusters + G + F_c)",
                         "% of F's rows at R_G", "% of F at R_F", "R_F"],
             "rows": rows,
             "note": "Rows of the local set come from F in memory (as a store serves them); only the far field "

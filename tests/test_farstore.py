@@ -65,8 +65,9 @@ def test_sun_without_f_lights_every_lit_patch_and_leaks_nothing(device):
         assert np.all(B[~dark].max(axis=1) > 0)
         assert B[dark].max() < 1e-2 * ref.mean()
         errors[basis] = radiosity_error(B, ref, scene.areas)
-    # Observed (PoCL, 2026-12-02): no leak (0.0); all-patch error indicator 2.6%, linear 0.46%.
-    assert errors["linear"] < 0.01 and errors["linear"] < 0.5 * errors["indicator"]
+    # Observed (PoCL, 2026-12-02): no leak (0.0); all-patch error indicator 2.6%, linear 0.77% (its
+    # two default sweeps; 0.46% converged).
+    assert errors["linear"] < 0.012 and errors["linear"] < 0.5 * errors["indicator"]
 
 
 def test_bad_basis(device):

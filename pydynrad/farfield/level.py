@@ -23,9 +23,14 @@ the previous B_c when the lights change (bench/farfield.py measures sweeps and t
   where the mean is 0) with w the radiosity under a uniform sky of directional lights, so a
   cluster's light goes to its exposed members and not to shadowed or enclosed ones (the leaks
   of plain cluster averages). Needs F. It lost at night (the sky is not where lamps shine).
-* ``prolongation="linear"`` (the default without F): three functions per cluster, so B_c holds
-  a linear variation over each cluster (:func:`pydynrad.farfield.clusters.linear_basis`; G, F_c
-  and B_c get 3C columns). Needs no F: the far field of stores and of rows on demand.
+* ``prolongation="linear"`` (the default without F): G = F Pr for three functions per cluster
+  (:func:`pydynrad.farfield.clusters.linear_basis`; 3C columns), so the gather sees a linear
+  variation over each cluster instead of one value. The coarse solve stays the indicator's
+  (F_c = R G_1 with G_1 the sum of each cluster's three columns, exactly F times the indicator),
+  then ``fine_sweeps`` sweeps B <- L + P G (R_lin B) of the linear level, R_lin its least-squares
+  fit, start from B = L + P G_1 B_c: each is one pass over G, and they converge to the linear
+  Galerkin solution without its 3C x 3C coarse matrix (9x the indicator's F_c). Needs no F: the
+  far field of stores and of rows on demand (bench/farstore.py).
 * ``first_bounce=True`` (the default with F): B_far = L + P F (L + D), where every patch's
   indirect light D is its cluster's B_c - L_c shared in proportion to the patch's own first
   bounce P F L, then ``fine_sweeps`` bounces of the full F (default 1): three passes over F per
@@ -43,7 +48,7 @@ import scipy.sparse as sp
 
 from ..checks import check_form_factors, integer, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
-from .clusters import Clusters, cluster_patches, light_components, linear_basis
+from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
 from .gather import checked_cluster_form_factors
 
 __all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS"]
@@ -103,9 +108,11 @@ class FarField:
     first_bounce : bool, optional
         Gather the final bounce with F's rows, sharing each cluster's indirect light by the
         patches' first bounce (default: when F is given).
-    fine_sweeps : int
+    fine_sweeps : int, optional
         With the first bounce: bounces B <- L + P F B of the full F after the gather, each
-        about halving the far field's error (bench/farfield.py); 0 for none.
+        about halving the far field's error (bench/farfield.py); with the linear basis: sweeps
+        of the linear level after the coarse solve. 0 for none; default 1 (first bounce) or 2
+        (linear).
     tol : float
         Relative max-norm change of B_c at which the coarse sweeps stop.
     max_sweeps : int
@@ -132,7 +139,7 @@ class FarField:
     """
 
     def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str | None = None,
-                 first_bounce: bool | None = None, fine_sweeps: int = 1, tol: float = 1e-5, max_sweeps: int = 1000,
+                 first_bounce: bool | None = None, fine_sweeps: int | None = None, tol: float = 1e-5, max_sweeps: int = 1000,
                  dtype=np.float32, device=None, *, checked: bool = False) -> None:
         from ..device import default_device
         from ..devicecsr import DeviceCSR
@@ -166,9 +173,10 @@ class FarField:
         self.clusters = clusters
         C = clusters.count
         self.R = clusters.restriction(scene.areas)
+        self._fit = None  # the linear level's least-squares fit R_lin (3C, N)
         if prolongation == "linear":
             self.weights = None
-            Pr, self.R = linear_basis(clusters, scene)
+            Pr, self._fit = linear_basis(clusters, scene)
         elif prolongation == "exposure":
             self.weights = exposure_weights(scene, F, self.device)
             Pr = weighted_prolongation(clusters, scene.areas, self.weights)
@@ -179,14 +187,18 @@ class FarField:
         # a product of the checked F and a prolongation built here, so it needs no second check.
         G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else checked_cluster_form_factors(G, Pr.shape)
         self.prolongation, self.first_bounce, self.tol, self.max_sweeps = prolongation, bool(first_bounce), tol, max_sweeps
-        self.fine_sweeps = integer(fine_sweeps, "fine_sweeps", 0)
+        self.fine_sweeps = integer((2 if self._fit is not None else 1) if fine_sweeps is None else fine_sweeps,
+                                   "fine_sweeps", 0)
         self.G = G
-        self.F_c = sp.csr_matrix(self.R @ G)
+        # The linear basis sums to 1 on every patch: its three column blocks add up to F times the indicator.
+        G_1 = G if self._fit is None else G[:, :C] + G[:, C:2 * C] + G[:, 2 * C:]
+        self.F_c = sp.csr_matrix(self.R @ G_1)
+        del G_1
         self.rho = scene.albedo.astype(np.float64)
         # Pure clusters: every member has the cluster's albedo.
         first = np.zeros(C, dtype=np.int64)
         first[clusters.labels[::-1]] = np.arange(n)[::-1]
-        self.rho_c = np.tile(self.rho[first], (Pr.shape[1] // C, 1))  # per coarse function
+        self.rho_c = self.rho[first]
         # The first-bounce gather goes through F's rows: G then only makes F_c.
         self._G_dev = None if first_bounce else DeviceCSR(self.device, G, dtype)
         self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype)
@@ -211,7 +223,7 @@ class FarField:
     @property
     def host_memory_bytes(self) -> int:
         """Host bytes of G, F_c, R, the labels and B_far."""
-        mats = (self.G, self.F_c, self.R)
+        mats = (self.G, self.F_c, self.R) + (() if self._fit is None else (self._fit,))
         held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats)
         far = 0 if self.B_far is None else self.B_far.nbytes
         return held + self.clusters.labels.nbytes + far
@@ -232,6 +244,11 @@ class FarField:
             B = self._gather_with_first_bounce(L[:, :k], B_c - L_c)
             if self.fine_sweeps:
                 B = self._F_dev.jacobi(L[:, :k], self.rho[:, :k], B, 0.0, self.fine_sweeps)[0]
+        elif self._fit is not None:
+            # B_c on every function of its cluster is the constant B_c (they sum to 1).
+            B = self._G_dev.bounce(L[:, :k], self.rho[:, :k], np.tile(B_c, (LINEAR_FUNCTIONS, 1)))
+            for _ in range(self.fine_sweeps):
+                B = self._G_dev.bounce(L[:, :k], self.rho[:, :k], self._fit @ B)
         else:
             B = self._G_dev.bounce(L[:, :k], self.rho[:, :k], B_c)
         self.B_far = np.repeat(B, 3, axis=1) if k == 1 else B
