@@ -42,7 +42,7 @@ def test_every_patch_its_own_cluster_is_the_full_solve_without_f(device):
     cl = cluster_patches(scene, len(scene))
     G = F @ basis_prolongation(scene, cl, "linear")
     far = FarField(scene, None, cl, G=G, tol=1e-14, max_sweeps=5000, dtype=np.float64, device=device)
-    assert far.prolongation == "linear" and far.G.shape == (len(scene), 3 * len(scene))
+    assert far.prolongation == "linear" and G.shape == (len(scene), 3 * len(scene)) and far.G_nnz == G.nnz
     dyn = DynamicRadiosity(scene, F, local_size=7, storage="fp64", observer=[0.1, 0.9, 0.5], far_field=far,
                            device=device)
     np.testing.assert_allclose(dyn.radiosity(light=L), dense_radiosity(scene, F, L), rtol=1e-12)
