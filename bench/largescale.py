@@ -20,7 +20,7 @@ Stages (each reported with wall-clock times on this machine):
    target: the far field on within 1.5x of it off).
 
 With ``--far-field`` (the default) the store also holds the far field's G = F Pr for
-``clusters_without_f(scene)`` (N/8 clusters inside light components found by R = 8 hemicubes;
+``clusters_without_f(scene)`` (N/8 clusters inside the light components of the store's F;
 the linear basis: 3C columns), from cluster-id
 hemicubes at ``--cluster-resolution`` (default: F's resolution), computed with F by the same
 workers; the precompute stage reports G's time against F's.
@@ -158,7 +158,7 @@ def far_field_precompute(args, scene, store, f_numbers: dict) -> dict:
     from pydynrad.farfield.gather import clusters_without_f
 
     t0 = time.perf_counter()
-    clusters = clusters_without_f(scene, progress=True)
+    clusters = clusters_without_f(scene, store=store if store.complete else None, progress=True)
     t_clusters = time.perf_counter() - t0
     missing = store.missing_blocks(part="G") if store.has_clusters else range(store.n_blocks)
     secs = precompute(args, scene, args.store, args.workers, clusters=clusters.labels, compute_f=False)

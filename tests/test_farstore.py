@@ -77,9 +77,15 @@ def test_bad_basis(device):
         basis_prolongation(scene, cl, "quadratic")
 
 
-def test_light_components_without_f_are_those_of_f(device):
+def test_light_components_without_f_are_those_of_f(device, tmp_path):
+    from pydynrad.rows.store import compute_store
+
     scene = yard_and_room()  # the closed room's inside exchanges no light with the yard
     F = pydynrad.form_factors(scene, resolution=32, device=device, progress=False)
     want, got = light_components(F), light_components_by_hemicube(scene, device=device)
     pairs = np.unique(np.column_stack([want, got]), axis=0)
     assert len(pairs) == len(np.unique(want)) == len(np.unique(got)) == 3  # the same partition (observed at R = 8)
+    store = compute_store(scene, tmp_path / "ff", resolution=32, block_rows=100, progress=False,
+                          row_function=lambda scene, rows, resolution, device=None: F[rows])
+    streamed = light_components_by_hemicube(scene, store=store)  # F's own blocks, no rays
+    assert len(np.unique(np.column_stack([want, streamed]), axis=0)) == len(np.unique(streamed)) == 3

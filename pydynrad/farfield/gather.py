@@ -81,22 +81,27 @@ COMPONENT_RESOLUTION = 8
 
 
 def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, device=None,
-                                 progress: bool | None = None) -> np.ndarray:
+                                 progress: bool | None = None, store=None) -> np.ndarray:
     """:func:`pydynrad.farfield.clusters.light_components` of a scene whose F is never formed.
 
     F's rows at ``resolution`` are traced in the bounded blocks of
-    :func:`pydynrad.formfactors.hemicube_blocks` and each is merged into the components found so
-    far (a connected-components pass over the current component ids), so memory stays O(N plus
-    one block). Clusters made with these labels keep a closed room's inside apart from the world
+    :func:`pydynrad.formfactors.hemicube_blocks` (or, given a form-factor ``store`` holding all
+    of F, read from its blocks: no rays) and each is merged into the components found so far (a
+    connected-components pass over the current component ids), so memory stays O(N plus one
+    block). Clusters made with these labels keep a closed room's inside apart from the world
     around it, as with F in memory; at the default resolution the pass costs about
     (8 / R_G)^2 of G's rays.
     """
     from scipy.sparse.csgraph import connected_components
 
     n = len(checked_scene(scene))
+    if store is not None:
+        blocks = (store.read_block(k) for k in range(store.n_blocks))
+    else:
+        blocks = hemicube_blocks(scene, resolution, None, device, progress, desc="light components")
     comp = np.arange(n)
     first = 0
-    for block in hemicube_blocks(scene, resolution, None, device, progress, desc="light components"):
+    for block in blocks:
         coo = block.tocoo()
         a, b = comp[first + coo.row], comp[coo.col]
         graph = sp.csr_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n, n))
@@ -108,14 +113,15 @@ def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, 
     return comp
 
 
-def clusters_without_f(scene, clusters=None, device=None, progress: bool | None = None):
+def clusters_without_f(scene, clusters=None, device=None, progress: bool | None = None, store=None):
     """:func:`pydynrad.farfield.cluster_patches` (C = ``clusters``, default from N) for a scene
-    whose F is never formed: kept inside the light components of
-    :func:`light_components_by_hemicube`, so no cluster spans a closed room's inside and outside."""
+    whose F is not in memory: kept inside the light components of
+    :func:`light_components_by_hemicube` (from ``store``'s F where given), so no cluster spans a
+    closed room's inside and outside."""
     from .clusters import cluster_patches
 
-    return cluster_patches(scene, clusters, components=light_components_by_hemicube(scene, device=device,
-                                                                                     progress=progress))
+    components = light_components_by_hemicube(scene, device=device, progress=progress, store=store)
+    return cluster_patches(scene, clusters, components=components)
 
 
 def basis_prolongation(scene, clusters, basis: str = "linear") -> sp.csr_matrix:
