@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 
 __all__ = ["farstore_section", "SIZES"]
 
@@ -94,7 +93,8 @@ def farstore_section(ctx) -> dict:
         "tables": [{
             "title": "F-less far field: error against the full solve, G's size and precompute",
             "columns": ["scene", "N", "M", "C", "basis", "linear sweeps", "R_G", "all %", "pixels %", "nnz(G) per row",
-                        "nnz(F_c)", "coarse solve ms", "light change ms", "coarse sweeps", "precompute s (clusters + G + F_c)",
+                        "nnz(F_c)", "coarse solve ms", "light change ms", "coarse sweeps",
+                        "precompute s (clusters + G + F_c)",
                         "% of F's rows at R_G", "% of F at R_F", "R_F"],
             "rows": rows,
             "note": "Rows of the local set come from F in memory (as a store serves them); only the far field "

@@ -114,7 +114,8 @@ def run_walk(args) -> dict:
         ff_times.append(st.t_form_factors)
         swaps.append(st.swaps)
     out = {
-        "source": args.source, "far_field": args.walk_far_field, "N": len(scene), "M": args.local_size, "frames": len(times),
+        "source": args.source, "far_field": args.walk_far_field, "N": len(scene), "M": args.local_size,
+        "frames": len(times),
         "solution_s": t_solution, "rss_after_solution_mib": rss_solution,
         "build_s": t_build, "build_refreshed": bool(first.refreshed),
         "frame_ms_median": 1e3 * float(np.median(times)), "frame_ms_p95": 1e3 * float(np.percentile(times, 95)),
@@ -132,7 +133,8 @@ def run_walk(args) -> dict:
 
 
 def walk_in_subprocess(args, source: str, cache_mib: float, far_field: str = "off") -> dict:
-    cmd = [sys.executable, __file__, "_walk", "--source", source, "--walk-far-field", far_field, "--store", str(args.store),
+    cmd = [sys.executable, __file__, "_walk", "--source", source, "--walk-far-field", far_field,
+           "--store", str(args.store),
            "--detail", str(args.detail), "--resolution", str(args.resolution), "--local-size", str(args.local_size),
            "--frames", str(args.frames), "--step", str(args.step), "--swaps", str(args.swaps),
            "--cache-mib", str(cache_mib)]

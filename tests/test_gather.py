@@ -157,8 +157,9 @@ def same_csr(a, b) -> bool:
 
 def test_store_holds_g_beside_f(box, tmp_path, device):
     scene, labels, G = box
-    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=10, clusters=labels, cluster_basis="indicator",
-                          cluster_params={"method": "diagonals"}, progress=False, device=device)
+    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=10, clusters=labels,
+                          cluster_basis="indicator", cluster_params={"method": "diagonals"}, progress=False,
+                          device=device)
     assert store.complete and store.complete_clusters and store.n_clusters == labels.max() + 1
     assert store.cluster_resolution == 8  # F's: G summed from the stored rows of F, no hemicubes of its own
     F = store.to_csr()
@@ -197,8 +198,8 @@ def test_store_of_g_alone_and_resume(box, tmp_path, device):
 
 def test_store_refuses_other_clusters(box, tmp_path, device):
     scene, labels, _ = box
-    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8, cluster_basis="indicator",
-                          compute_f=False, progress=False, device=device)
+    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8,
+                          cluster_basis="indicator", compute_f=False, progress=False, device=device)
     other = labels.copy()
     other[[0, 1]] = other[[1, 0]] if other[0] != other[1] else (other[0] + 1) % (labels.max() + 1)
     for bad in (other, scene.source_face // 2, weighted(labels, scene.areas, np.linspace(1, 2, len(scene)))):
@@ -227,8 +228,8 @@ def test_g_for_each_kind_of_row_source(box, tmp_path, device, monkeypatch):
     from pydynrad.farfield import gather
 
     scene, labels, G = box
-    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8, cluster_basis="indicator",
-                          compute_f=False, progress=False, device=device)
+    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8,
+                          cluster_basis="indicator", compute_f=False, progress=False, device=device)
     assert same_csr(gather.cluster_form_factors_for(scene, store, labels), G)
     assert same_csr(gather.cluster_form_factors_for(scene, RowCache(store, 2**20), labels), G)
     on_demand = HemicubeRows(scene, 64, device)

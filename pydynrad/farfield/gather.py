@@ -25,9 +25,9 @@ from ..checks import check_form_factor_rows, scene as checked_scene, sparse_stru
 from ..errors import InvalidInputError
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
 
-__all__ = ["cluster_form_factors", "cluster_form_factors_for", "as_prolongation", "basis_prolongation", "check_prolongation",
-           "split_prolongation", "checked_cluster_form_factors", "light_components_by_hemicube", "clusters_without_f", "BASES",
-           "COMPONENT_RESOLUTION"]
+__all__ = ["cluster_form_factors", "cluster_form_factors_for", "as_prolongation", "basis_prolongation",
+           "check_prolongation", "split_prolongation", "checked_cluster_form_factors", "light_components_by_hemicube",
+           "clusters_without_f", "BASES", "COMPONENT_RESOLUTION"]
 
 #: The coarse bases a prolongation can be made for from cluster labels.
 BASES = ("indicator", "linear")

@@ -142,7 +142,8 @@ class FarField:
     """
 
     def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str | None = None,
-                 first_bounce: bool | None = None, fine_sweeps: int | None = None, tol: float = 1e-5, max_sweeps: int = 1000,
+                 first_bounce: bool | None = None, fine_sweeps: int | None = None, tol: float = 1e-5,
+                 max_sweeps: int = 1000,
                  dtype=np.float32, device=None, *, checked: bool = False) -> None:
         from ..device import default_device
         from ..devicecsr import DeviceCSR
