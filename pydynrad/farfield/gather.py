@@ -100,13 +100,22 @@ def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, 
     else:
         blocks = hemicube_blocks(scene, resolution, None, device, progress, desc="light components")
     comp = np.arange(n)
-    first = 0
+    first, edges, held = 0, [], 0
+
+    def merge(comp, edges):
+        a, b = np.concatenate([e[0] for e in edges]), np.concatenate([e[1] for e in edges])
+        graph = sp.csr_matrix((np.ones(len(a), dtype=np.int8), (comp[a], comp[b])), shape=(n, n))
+        return connected_components(graph, directed=True, connection="weak")[1][comp]
+
     for block in blocks:
         coo = block.tocoo()
-        a, b = comp[first + coo.row], comp[coo.col]
-        graph = sp.csr_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n, n))
-        comp = connected_components(graph, directed=True, connection="weak")[1][comp]
+        edges.append((first + coo.row, coo.col))
+        held += coo.nnz
         first += block.shape[0]
+        if held >= 4 * n:  # each merge costs O(N): merge once about 4 N edges are held, not per block
+            comp, edges, held = merge(comp, edges), [], 0
+    if edges:
+        comp = merge(comp, edges)
     # As light_components: a patch exchanging light with nothing may join any cluster.
     comp = comp.astype(np.int64)
     comp[np.bincount(comp, minlength=n)[comp] == 1] = -1
