@@ -84,7 +84,7 @@ def farstore_section(ctx) -> dict:
                 rows.append([name, n, M, clusters.count, basis, far.fine_sweeps if basis == "linear" else "—",
                              "F Pr" if R_G == "F" else R_G,
                              100 * radiosity_error(B, ref, scene.areas), 100 * float(pixel_error(img, ref_img).mean()),
-                             G.nnz / n, far.F_c.nnz, 1e3 * far.seconds_coarse, 1e3 * far.seconds_light, far.sweeps, pre,
+                             G.nnz / n, far.F_c_nnz, 1e3 * far.seconds_coarse, 1e3 * far.seconds_light, far.sweeps, pre,
                              None if R_G == "F" else 100 * pre / t_rows[R_G], 100 * pre / t_F if R_G != "F" else None,
                              R_F])
     return {

@@ -129,10 +129,10 @@ class FarField:
     clusters : Clusters
     R, G, F_c : scipy.sparse.csr_matrix
         (C, N) restriction, (N, C) patch-to-cluster and (C, C) coarse form factors, float64
-        (G: 3C columns for the linear basis). Without F, G is None after construction: it is
-        kept on the device only.
-    G_nnz : int
-        G's non-zeros.
+        (G: 3C columns for the linear basis). Without F, G and F_c are None after construction:
+        they are kept on the device only.
+    G_nnz, F_c_nnz : int
+        Their non-zeros.
     B_far : (N, 3) float64 or None
         Every patch's far radiosity for the last light vector (:meth:`light`).
     sweeps : int
@@ -207,11 +207,11 @@ class FarField:
         self._G_dev = None if first_bounce else DeviceCSR(self.device, G, dtype)
         self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype)
         self._F_dev = DeviceCSR(self.device, F, dtype) if first_bounce else None
-        # Without F, G is the far field's largest part: kept on the device only (on a CPU device a
-        # host copy holds it twice; bench/largescale.py measures the walk's peak RSS).
-        self.G_nnz = int(G.nnz)
+        # Without F, G and F_c are the far field's largest parts: kept on the device only (on a CPU
+        # device a host copy holds them twice; bench/largescale.py measures the walk's peak RSS).
+        self.G_nnz, self.F_c_nnz = int(G.nnz), int(self.F_c.nnz)
         if F is None:
-            self.G = None
+            self.G = self.F_c = None
         self._B_c = None
         self._L = None
         self.B_far = None
@@ -231,7 +231,7 @@ class FarField:
 
     @property
     def host_memory_bytes(self) -> int:
-        """Host bytes of G, F_c, R, the labels and B_far."""
+        """Host bytes of G and F_c (with F in memory only), R, the labels and B_far."""
         mats = (self.G, self.F_c, self.R, self._fit)
         held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats if m is not None)
         far = 0 if self.B_far is None else self.B_far.nbytes
