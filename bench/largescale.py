@@ -124,7 +124,8 @@ def run_walk(args) -> dict:
         "K_mib": dyn.memory_bytes / 2**20 if hasattr(dyn, "memory_bytes") else None,
     }
     if dyn.far is not None:
-        out.update(C=dyn.far.C, G_nnz=dyn.far.G_nnz, F_c_nnz=dyn.far.F_c_nnz, far_device_mib=dyn.far.device_memory_bytes / 2**20,
+        out.update(C=dyn.far.C, G_nnz=dyn.far.G_nnz, F_c_nnz=dyn.far.F_c_nnz,
+                   far_device_mib=dyn.far.device_memory_bytes / 2**20,
                    far_host_mib=dyn.far.host_memory_bytes / 2**20, far_light_s=dyn.far.seconds_light)
     if cache is not None:
         out.update(cache_mib=cache.max_bytes / 2**20, cache_peak_mib=cache.peak_nbytes / 2**20, **cache.stats)
