@@ -14,8 +14,16 @@ Stages (each reported with wall-clock times on this machine):
    ``--max-minutes`` caps this stage (the store stays resumable: run again to finish it).
 4. walk: a DynamicRadiosity walk (M = ``--local-size``, exact update, fp32 K) along a
    street, fed from the store through a :class:`~pydynrad.rows.cache.RowCache` smaller than
-   the store, prefetching the next candidates; and the same walk fed from F in memory when F
-   fits in a quarter of RAM. Each walk runs in its own process, so its peak RSS is its own.
+   the store, prefetching the next candidates, with the far field off (the paper's method) and
+   on (the store's clusters and G); and the same walk fed from F in memory when F fits in a
+   quarter of RAM. Each walk runs in its own process, so its peak RSS is its own (issue 16's
+   target: the far field on within 1.5x of it off).
+
+With ``--far-field`` (the default) the store also holds the far field's G = F Pr for
+``clusters_without_f(scene)`` (N/8 clusters inside the light components of the store's F;
+the linear basis: 3C columns), from cluster-id
+hemicubes at ``--cluster-resolution`` (default: F's resolution), computed with F by the same
+workers; the precompute stage reports G's time against F's.
 
 Writes ``bench/results/largescale-<size>.{json,md}`` (whole files: temp + rename).
 """
@@ -83,8 +91,12 @@ def run_walk(args) -> dict:
     else:
         source = cache = RowCache(store, max_bytes=int(args.cache_mib * 2**20))
     loaded = rss_mib()
+    t0 = time.perf_counter()
     dyn = pydynrad.DynamicRadiosity(scene, source, local_size=args.local_size, update="exact", storage="fp32",
-                                    max_swaps_per_frame=args.swaps, far_field=False)
+                                    max_swaps_per_frame=args.swaps, far_field=args.walk_far_field == "on",
+                                    observer=walk_path(scene, 1, args.step)[0])
+    t_solution = time.perf_counter() - t0
+    rss_solution = rss_mib()
     eyes = walk_path(scene, args.frames, args.step)
     times, ff_times, swaps = [], [], []
     t0 = time.perf_counter()
@@ -102,37 +114,67 @@ def run_walk(args) -> dict:
         ff_times.append(st.t_form_factors)
         swaps.append(st.swaps)
     out = {
-        "source": args.source, "N": len(scene), "M": args.local_size, "frames": len(times),
+        "source": args.source, "far_field": args.walk_far_field, "N": len(scene), "M": args.local_size,
+        "frames": len(times),
+        "solution_s": t_solution, "rss_after_solution_mib": rss_solution,
         "build_s": t_build, "build_refreshed": bool(first.refreshed),
         "frame_ms_median": 1e3 * float(np.median(times)), "frame_ms_p95": 1e3 * float(np.percentile(times, 95)),
         "rows_ms_median": 1e3 * float(np.median(ff_times)), "swaps_per_frame": float(np.mean(swaps)),
         "rss_scene_mib": base, "rss_after_source_mib": loaded, "peak_rss_mib": peak_rss_mib(),
         "K_mib": dyn.memory_bytes / 2**20 if hasattr(dyn, "memory_bytes") else None,
     }
+    if dyn.far is not None:
+        out.update(C=dyn.far.C, G_nnz=dyn.far.G_nnz, F_c_nnz=dyn.far.F_c_nnz,
+                   far_device_mib=dyn.far.device_memory_bytes / 2**20,
+                   far_host_mib=dyn.far.host_memory_bytes / 2**20, far_light_s=dyn.far.seconds_light)
     if cache is not None:
         out.update(cache_mib=cache.max_bytes / 2**20, cache_peak_mib=cache.peak_nbytes / 2**20, **cache.stats)
         cache.close()
     return out
 
 
-def walk_in_subprocess(args, source: str, cache_mib: float) -> dict:
-    cmd = [sys.executable, __file__, "_walk", "--source", source, "--store", str(args.store),
+def walk_in_subprocess(args, source: str, cache_mib: float, far_field: str = "off") -> dict:
+    cmd = [sys.executable, __file__, "_walk", "--source", source, "--walk-far-field", far_field,
+           "--store", str(args.store),
            "--detail", str(args.detail), "--resolution", str(args.resolution), "--local-size", str(args.local_size),
            "--frames", str(args.frames), "--step", str(args.step), "--swaps", str(args.swaps),
            "--cache-mib", str(cache_mib)]
     done = subprocess.run(cmd, capture_output=True, text=True)
     if done.returncode != 0:
-        return {"source": source, "error": done.stderr.strip().splitlines()[-1] if done.stderr.strip() else "failed"}
+        return {"source": source, "far_field": far_field,
+                "error": done.stderr.strip().splitlines()[-1] if done.stderr.strip() else "failed"}
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def precompute(args, scene, path: Path, workers: int, blocks=None) -> float:
+def precompute(args, scene, path: Path, workers: int, blocks=None, clusters=None, compute_f: bool = True) -> float:
     from pydynrad.rows.distributed import precompute_distributed
 
     t0 = time.perf_counter()
     precompute_distributed(village_spec(args.detail), path, resolution=args.resolution, block_rows=args.block_rows,
-                           workers=workers, blocks=blocks, progress=True)
+                           workers=workers, blocks=blocks, progress=True, clusters=clusters,
+                           cluster_resolution=args.cluster_resolution or args.resolution, compute_f=compute_f)
     return time.perf_counter() - t0
+
+
+def far_field_precompute(args, scene, store, f_numbers: dict) -> dict:
+    """Clusters and G into the store (the workers of the F stage), timed against F's rows."""
+    from pydynrad.farfield.gather import clusters_without_f
+
+    t0 = time.perf_counter()
+    clusters = clusters_without_f(scene, store=store if store.complete else None, progress=True)
+    t_clusters = time.perf_counter() - t0
+    missing = store.missing_blocks(part="G") if store.has_clusters else range(store.n_blocks)
+    secs = precompute(args, scene, args.store, args.workers, clusters=clusters.labels, compute_f=False)
+    rows = sum(len(store.block_range(k)) for k in missing)
+    f_rate = f_numbers.get("rows_per_s_this_run")
+    out = {"C": clusters.count, "cluster_resolution": args.cluster_resolution or args.resolution,
+           "clusters_s": t_clusters, "G_rows_this_run": rows, "G_s_this_run": secs,
+           "G_rows_per_s": rows / secs if rows else None,
+           "G_bytes_on_disk": sum(p.stat().st_size for p in (args.store / "gblocks").glob("g*.npz"))}
+    if rows and f_rate:
+        # The issue's target: clusters + G within 20% of F's rows (at G's resolution when they are equal).
+        out["clusters_plus_G_over_F"] = (t_clusters + secs) / (rows / f_rate)
+    return out
 
 
 def store_numbers(store) -> dict:
@@ -162,9 +204,16 @@ def main(argv=None) -> int:
     ap.add_argument("--swaps", type=int, default=32, help="max_swaps_per_frame")
     ap.add_argument("--cache-mib", type=float, default=None, help="row cache size (default: a quarter of F's RAM size)")
     ap.add_argument("--source", choices=["store", "memory"], default="store")
+    ap.add_argument("--far-field", action=argparse.BooleanOptionalAction, default=True,
+                    help="store G beside F and walk with the far field on as well as off")
+    ap.add_argument("--cluster-resolution", type=int, default=None, help="G's hemicube resolution (default: F's)")
+    ap.add_argument("--walk-far-field", choices=["on", "off"], default="off", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     size = "quick" if args.quick else "full"
     args.detail = args.detail or SIZES[size]["detail"]
+    if args.detail != SIZES[size]["detail"]:
+        size = f"detail{args.detail:g}"  # its own report: never over the default size's
+        SIZES.setdefault(size, {"detail": args.detail, "frames": SIZES["full"]["frames"]})
     args.frames = args.frames or SIZES[size]["frames"]
     if args.stage == "_walk":
         print(json.dumps(run_walk(args)))
@@ -193,8 +242,8 @@ def main(argv=None) -> int:
         print(f"throughput, {w} worker(s): {rows / secs:.1f} rows/s", flush=True)
     report["throughput"] = list(tp.values())
 
-    todo = FormFactorStore.open(scene, args.store, resolution=args.resolution,
-                                patching=village_spec(args.detail).recipe()).missing_blocks()
+    todo = FormFactorStore.create(scene, args.store, resolution=args.resolution, block_rows=args.block_rows,
+                                  patching=village_spec(args.detail).recipe(), exist_ok=True).missing_blocks()
     if args.max_minutes is not None:
         per_block = tp[2]["seconds"] / len(sample)
         todo = todo[: max(0, int(args.max_minutes * 60 / per_block))]
@@ -205,11 +254,16 @@ def main(argv=None) -> int:
                        "seconds_this_run": secs, "rows_per_s_this_run": rows_todo / secs if secs else None,
                        "complete": store.complete, **store_numbers(store)}
     print(json.dumps(report["store"], indent=1), flush=True)
+    if args.far_field:
+        report["far_field_precompute"] = far_field_precompute(args, scene, store, report["store"])
+        print(json.dumps(report["far_field_precompute"], indent=1), flush=True)
 
     if store.complete:
         f_bytes = report["store"]["in_memory_bytes_est"]
         cache_mib = args.cache_mib or f_bytes / 4 / 2**20
         walks = [walk_in_subprocess(args, "store", cache_mib)]
+        if args.far_field:
+            walks.append(walk_in_subprocess(args, "store", cache_mib, far_field="on"))
         import psutil
 
         if f_bytes < psutil.virtual_memory().total / 4:

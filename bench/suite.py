@@ -21,6 +21,8 @@ bake           vertex-colour export and lightmap bake of the village: time, texe
                error against render along chart borders (bench/bake.py)
 farfield       the far field: error and frame time off and on, over C and M, Cornell box and village
                at night and under a sun (bench/farfield.py)
+farstore       the far field without F (stores, rows on demand): indicator vs linear coarse basis over G's
+               hemicube resolution, precompute against F's rows (bench/farstore.py)
 cie171         the CIE 171:2006 analytic test cases: reference, ours and error per point (bench/cie171.py)
 photometry     sensor throughput, the sky term's cost, the hemicube's error near an area emitter (bench/photometry.py)
 objects        moving a block through the Cornell box: move cost and error vs the occlusion budget
@@ -66,6 +68,7 @@ SIZES: dict[str, dict] = {
         "gather": {},
         "bake": {},
         "farfield": {},
+        "farstore": {},
         "cie171": {"resolution": 64, "room_resolution": 32, "room_cell": 0.5},
         "photometry": {"cell": 1.0, "sensors": 16, "resolutions": (16,), "sky_resolutions": (8,),
                        "distances": (0.1, 1.0)},
@@ -83,6 +86,7 @@ SIZES: dict[str, dict] = {
         "gather": {},
         "bake": {},
         "farfield": {},
+        "farstore": {},
         "cie171": {"resolution": 128, "room_resolution": 64, "room_cell": 0.25},
         "photometry": {"cell": 0.25, "sensors": 1024, "resolutions": (32, 64, 128), "sky_resolutions": (32, 64),
                        "distances": (0.01, 0.03, 0.1, 0.3, 1.0)},
@@ -100,6 +104,7 @@ SIZES: dict[str, dict] = {
         "gather": {},
         "bake": {},
         "farfield": {},
+        "farstore": {},
         "cie171": {"resolution": 256, "room_resolution": 128, "room_cell": 0.25},
         "photometry": {"cell": 0.25, "sensors": 4096, "resolutions": (32, 64, 128, 256),
                        "sky_resolutions": (32, 64, 128),
@@ -120,6 +125,7 @@ SECTIONS: dict[str, str] = {
     "gather": "bench.gather:suite_section",
     "bake": "bench.bake:bake_section",
     "farfield": "bench.farfield:farfield_section",
+    "farstore": "bench.farstore:farstore_section",
     "cie171": "bench.cie171:cie171_section",
     "photometry": "bench.photometry:photometry_section",
     "objects": "bench.objects:suite_section",

@@ -238,10 +238,12 @@ def _cluster_labels(args: argparse.Namespace, scene) -> tuple[np.ndarray | None,
             raise InvalidInputError("--cluster-resolution and --no-f need --clusters (the clusters G is made for)")
         return None, {}
     if args.clusters == "auto" or args.clusters.isdigit():
-        from .farfield import cluster_patches
+        from .farfield.gather import clusters_without_f
 
-        clusters = cluster_patches(scene, None if args.clusters == "auto" else int(args.clusters))
-        return clusters.labels, {"made_by": "pydynrad.farfield.cluster_patches", "clusters": clusters.count}
+        # A store's walks have no F in memory: its clusters keep light components apart from hemicubes.
+        clusters = clusters_without_f(scene, None if args.clusters == "auto" else int(args.clusters),
+                                      progress=_progress(args))
+        return clusters.labels, {"made_by": "pydynrad.farfield.gather.clusters_without_f", "clusters": clusters.count}
     path = Path(args.clusters)
     try:
         labels = np.load(path, allow_pickle=False)
@@ -257,7 +259,7 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     """Create or resume the store at ``out``: in this process (--workers 0) or on a Dask cluster."""
     from .rows.distributed import SceneSpec, precompute_distributed
     from .atomic import check_parent_folder
-    from .rows.store import DEFAULT_BLOCK_ROWS, DEFAULT_CLUSTER_RESOLUTION, HEADER, FormFactorStore, compute_store
+    from .rows.store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore, compute_store
 
     check_parent_folder(out)
     scene = load_scene(args.scene, args.max_edge)
@@ -285,7 +287,7 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
         raise InvalidInputError(f"--verify checks an existing store; there is none at {str(out)!r}")
     block_rows = block_rows or DEFAULT_BLOCK_ROWS
     common = dict(resolution=args.resolution, block_rows=block_rows, progress=_progress(args), clusters=labels,
-                  cluster_resolution=args.cluster_resolution or DEFAULT_CLUSTER_RESOLUTION,
+                  cluster_resolution=args.cluster_resolution,
                   cluster_params=cluster_params, compute_f=not args.no_f)
     t0 = time.perf_counter()
     if args.workers == 0:
@@ -298,7 +300,8 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     seconds = time.perf_counter() - t0
     g = ""
     if store.has_clusters:
-        g = f", G for {store.n_clusters} clusters at resolution {store.cluster_resolution}"
+        g = (f", G for {store.cluster_count} clusters at resolution {store.cluster_resolution} "
+             f"({store.cluster_basis} basis)")
     f_done = "" if store.complete else " (F's rows not computed)"
     print(f"wrote store {out}: {store.n_patches} patches in {store.n_blocks} blocks of {store.block_rows} rows{f_done}{g}, "
           f"{store.nbytes_on_disk / 2**20:.1f} MiB, {seconds:.1f} s in {where}")
@@ -638,7 +641,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "count, or a .npy file of one integer cluster label per patch), from hemicubes that record "
                         "cluster ids; a store resumed later finishes its G too; walks then use its far field")
     p.add_argument("--cluster-resolution", type=_positive_int, default=None, metavar="R",
-                   help=f"store only: hemicube resolution of G (default {DEFAULT_CLUSTER_RESOLUTION})")
+                   help=f"store only: hemicube resolution of G (default: --resolution, G then summed from F's "
+                        f"stored rows; {DEFAULT_CLUSTER_RESOLUTION} with --no-f)")
     p.add_argument("--no-f", action="store_true",
                    help="store only: store G alone, not F's rows (walks then compute F's rows on demand)")
     p.add_argument("--verify", action="store_true",

@@ -95,4 +95,7 @@ def test_cluster_form_factors_distributed_equal_single_process(tmp_path):
     assert store.complete_clusters and store.missing_blocks() == list(range(store.n_blocks))
     for k in range(store.n_blocks):
         assert same_csr(store.read_block(k, "G"), single.read_block(k, "G"))
-    np.testing.assert_allclose(np.asarray(store.cluster_form_factors(walls).sum(axis=1)).ravel(), 1.0, atol=1e-5)
+    # The default basis is linear (3 functions per wall, summing to 1 on every patch): rows of G sum as F's do.
+    assert store.cluster_basis == "linear" and store.n_clusters == 3 * (walls.max() + 1)
+    np.testing.assert_array_equal(store.cluster_labels(), walls)
+    np.testing.assert_allclose(np.asarray(store.cluster_form_factors().sum(axis=1)).ravel(), 1.0, atol=1e-5)

@@ -16,7 +16,7 @@ import scipy.sparse as sp
 from pydynrad import InvalidInputError
 from pydynrad import formfactors as ff_module
 from pydynrad.farfield import cluster_patches
-from pydynrad.farfield.gather import cluster_form_factors
+from pydynrad.farfield.gather import basis_prolongation, cluster_form_factors
 from pydynrad.formfactors import form_factors
 from pydynrad.scenes.analytic import closed_box
 from pydynrad.scenes.cornell import cornell_box
@@ -157,11 +157,16 @@ def same_csr(a, b) -> bool:
 
 def test_store_holds_g_beside_f(box, tmp_path, device):
     scene, labels, G = box
-    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=10, clusters=labels, cluster_resolution=8,
-                          cluster_params={"method": "diagonals"}, progress=False, device=device)
+    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=10, clusters=labels,
+                          cluster_basis="indicator", cluster_params={"method": "diagonals"}, progress=False,
+                          device=device)
     assert store.complete and store.complete_clusters and store.n_clusters == labels.max() + 1
-    assert same_csr(store.to_csr(), form_factors(scene, resolution=8, device=device))
-    assert same_csr(store.cluster_form_factors(labels), G)  # rows in blocks of 10 and whole: bit for bit
+    assert store.cluster_resolution == 8  # F's: G summed from the stored rows of F, no hemicubes of its own
+    F = store.to_csr()
+    assert same_csr(F, form_factors(scene, resolution=8, device=device))
+    G = store.cluster_form_factors(labels)
+    assert same_csr(G, sp.csr_matrix(F @ indicator(labels).astype(np.float32)))  # F Pr of the stored F, exactly
+    assert_float32_equal(G, box[2])  # and the cluster-id hemicubes' G to float32 rounding
     idx = np.array([95, 3, 3, 40, 0])
     assert same_csr(store.cluster_rows(idx), G[idx])
     np.testing.assert_array_equal(store.cluster_labels(), labels)
@@ -194,7 +199,7 @@ def test_store_of_g_alone_and_resume(box, tmp_path, device):
 def test_store_refuses_other_clusters(box, tmp_path, device):
     scene, labels, _ = box
     store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8,
-                          compute_f=False, progress=False, device=device)
+                          cluster_basis="indicator", compute_f=False, progress=False, device=device)
     other = labels.copy()
     other[[0, 1]] = other[[1, 0]] if other[0] != other[1] else (other[0] + 1) % (labels.max() + 1)
     for bad in (other, scene.source_face // 2, weighted(labels, scene.areas, np.linspace(1, 2, len(scene)))):
@@ -224,7 +229,7 @@ def test_g_for_each_kind_of_row_source(box, tmp_path, device, monkeypatch):
 
     scene, labels, G = box
     store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8,
-                          compute_f=False, progress=False, device=device)
+                          cluster_basis="indicator", compute_f=False, progress=False, device=device)
     assert same_csr(gather.cluster_form_factors_for(scene, store, labels), G)
     assert same_csr(gather.cluster_form_factors_for(scene, RowCache(store, 2**20), labels), G)
     on_demand = HemicubeRows(scene, 64, device)
@@ -260,7 +265,7 @@ def test_store_of_g_alone_lights_a_walk_with_rows_on_demand(tmp_path, device):
     assert not store.complete and store.complete_clusters
     kw = dict(local_size=30, observer=[278, 273, 280], resolution=32, device=device)
     from_store = DynamicRadiosity(scene, None, clusters=Clusters.from_labels(scene, store.cluster_labels()),
-                                  cluster_form_factors=store.cluster_form_factors(cl), **kw)
+                                  cluster_form_factors=store.cluster_form_factors(basis_prolongation(scene, cl)), **kw)
     on_the_spot = DynamicRadiosity(scene, None, clusters=cl, **kw)
     lights = [PointLight(position=[278, 450, 280], intensity=[2e5] * 3)]
     B = from_store.radiosity(lights)

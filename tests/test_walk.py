@@ -201,6 +201,7 @@ def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     from pydynrad.formfactors import form_factors
     from pydynrad.rows.sources import CSRRows
     from pydynrad.farfield import FarField, cluster_patches
+    from pydynrad.farfield.gather import basis_prolongation
     from pydynrad.rows.store import compute_store
 
     pts, tris = box_mesh(n=4, inward=True)
@@ -212,10 +213,10 @@ def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
                   row_function=lambda scene, rows, resolution, device=None: F[rows])
     path = fly_through([[0.1, 0.5, 0.1], [0.5, 0.5, 0.5], [0.9, 0.5, 0.9]], frames=10, width=20, height=16, fov_y=90)
     lights = [LightTrack(PointLight((0.3, 0.5, 0.5), 0.2), [[0.3, 0.5, 0.5], [0.7, 0.5, 0.5]])]
-    # Equal far fields for both (from G, as a store has it; fresh, since the coarse solve starts
+    # Equal far fields for both (from G, as a store has it: the linear basis; fresh, since the coarse solve starts
     # from the previous one), so only the rows' origin differs.
     clusters = cluster_patches(scene)
-    G = F @ clusters.indicator()
+    G = F @ basis_prolongation(scene, clusters)
     options = {"storage": "fp64", "max_swaps_per_frame": 4}
     cache = open_form_factors(scene, tmp_path / "ff", cache_bytes=CSRRows(F).nbytes // 3)
     walks = {name: walk(scene, path, lights=lights, form_factors=src, local_size=48,

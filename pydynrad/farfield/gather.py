@@ -21,11 +21,16 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factor_rows, scene as checked_scene
+from ..checks import check_form_factor_rows, scene as checked_scene, sparse_structure
 from ..errors import InvalidInputError
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
 
-__all__ = ["cluster_form_factors", "cluster_form_factors_for", "as_prolongation", "check_prolongation", "split_prolongation"]
+__all__ = ["cluster_form_factors", "cluster_form_factors_for", "as_prolongation", "basis_prolongation",
+           "check_prolongation", "split_prolongation", "checked_cluster_form_factors", "light_components_by_hemicube",
+           "clusters_without_f", "BASES", "COMPONENT_RESOLUTION"]
+
+#: The coarse bases a prolongation can be made for from cluster labels.
+BASES = ("indicator", "linear")
 
 
 def check_prolongation(prolongation, n: int) -> sp.csr_matrix:
@@ -67,6 +72,81 @@ def as_prolongation(clusters, n: int) -> sp.csr_matrix:
                                 f"dtype {labels.dtype}")
     C = int(getattr(clusters, "count", labels.max() + 1 if n else 1))
     return check_prolongation(sp.csr_matrix((np.ones(n), (np.arange(n), labels)), shape=(n, C)), n)
+
+
+#: Hemicube resolution of the pass that finds which patches exchange light when F is never formed:
+#: rays only ever join patches that see each other, so a low resolution can split a set of patches
+#: that do exchange light (costing accuracy, never leaking light), not join two that do not.
+COMPONENT_RESOLUTION = 8
+
+
+def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, device=None,
+                                 progress: bool | None = None, store=None) -> np.ndarray:
+    """:func:`pydynrad.farfield.clusters.light_components` of a scene whose F is never formed.
+
+    F's rows at ``resolution`` are traced in the bounded blocks of
+    :func:`pydynrad.formfactors.hemicube_blocks` (or, given a form-factor ``store`` holding all
+    of F, read from its blocks: no rays) and each is merged into the components found so far (a
+    connected-components pass over the current component ids), so memory stays O(N plus one
+    block). Clusters made with these labels keep a closed room's inside apart from the world
+    around it, as with F in memory; at the default resolution the pass costs about
+    (8 / R_G)^2 of G's rays.
+    """
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(checked_scene(scene))
+    if store is not None:
+        blocks = (store.read_block(k) for k in range(store.n_blocks))
+    else:
+        blocks = hemicube_blocks(scene, resolution, None, device, progress, desc="light components")
+    comp = np.arange(n)
+    first, edges, held = 0, [], 0
+
+    def merge(comp, edges):
+        a, b = np.concatenate([e[0] for e in edges]), np.concatenate([e[1] for e in edges])
+        graph = sp.csr_matrix((np.ones(len(a), dtype=np.int8), (comp[a], comp[b])), shape=(n, n))
+        return connected_components(graph, directed=True, connection="weak")[1][comp]
+
+    for block in blocks:
+        coo = block.tocoo()
+        edges.append((first + coo.row, coo.col))
+        held += coo.nnz
+        first += block.shape[0]
+        if held >= 4 * n:  # each merge costs O(N): merge once about 4 N edges are held, not per block
+            comp, edges, held = merge(comp, edges), [], 0
+    if edges:
+        comp = merge(comp, edges)
+    # As light_components: a patch exchanging light with nothing may join any cluster.
+    comp = comp.astype(np.int64)
+    comp[np.bincount(comp, minlength=n)[comp] == 1] = -1
+    return comp
+
+
+def clusters_without_f(scene, clusters=None, device=None, progress: bool | None = None, store=None):
+    """:func:`pydynrad.farfield.cluster_patches` (C = ``clusters``, default from N) for a scene
+    whose F is not in memory: kept inside the light components of
+    :func:`light_components_by_hemicube` (from ``store``'s F where given), so no cluster spans a
+    closed room's inside and outside."""
+    from .clusters import cluster_patches
+
+    components = light_components_by_hemicube(scene, device=device, progress=progress, store=store)
+    return cluster_patches(scene, clusters, components=components)
+
+
+def basis_prolongation(scene, clusters, basis: str = "linear") -> sp.csr_matrix:
+    """The checked (N, C) or (N, 3C) prolongation of ``basis`` for ``clusters`` ((N,) labels or a
+    :class:`pydynrad.farfield.Clusters`): the indicator, or the piecewise-linear
+    :func:`pydynrad.farfield.clusters.linear_basis`. An (N, K) matrix is itself the prolongation."""
+    from .clusters import Clusters, linear_basis
+
+    if basis not in BASES:
+        raise InvalidInputError(f"the coarse basis must be one of {BASES}; got {basis!r}")
+    n = len(checked_scene(scene))
+    if sp.issparse(clusters) or np.ndim(clusters) == 2 or basis == "indicator":
+        return as_prolongation(clusters, n)
+    if not isinstance(clusters, Clusters):
+        clusters = Clusters.from_labels(scene, as_prolongation(clusters, n).indices)  # labels, checked
+    return check_prolongation(linear_basis(clusters, scene)[0], n)
 
 
 def split_prolongation(prolongation) -> tuple[np.ndarray, np.ndarray] | None:
@@ -127,6 +207,23 @@ def cluster_form_factors(scene, prolongation, resolution: int = CLUSTER_RESOLUTI
 
 #: Rows per block when G is summed from a row source's rows of F (bounded memory).
 SUM_BLOCK_ROWS = 4096
+
+
+def checked_cluster_form_factors(G, shape: tuple[int, int]) -> sp.csr_matrix:
+    """A given G checked as rows of F are (:func:`pydynrad.checks.check_form_factor_rows`: the
+    structure, ``shape``, finite entries >= 0, rows summing to at most 1), without a float64 copy
+    of the whole: a float32 or float64 CSR G is checked :data:`SUM_BLOCK_ROWS` rows at a time and
+    returned as it is, not copied (a million-patch store's G is most of the far field's memory);
+    any other matrix is returned as the checked float64 CSR copy."""
+    if not (sp.issparse(G) and G.format == "csr" and G.dtype in (np.float32, np.float64)):
+        return check_form_factor_rows(G, "G", shape=shape)
+    if G.shape != tuple(shape):
+        raise InvalidInputError(f"G must have shape {tuple(shape)}; got {G.shape}")
+    sparse_structure(G.indptr, G.indices, G.shape, "G", nnz=len(G.data))
+    for first in range(0, G.shape[0], SUM_BLOCK_ROWS):
+        rows = np.arange(first, min(G.shape[0], first + SUM_BLOCK_ROWS))
+        check_form_factor_rows(G[first:rows[-1] + 1], "G", rows)
+    return G
 
 
 def cluster_form_factors_for(scene, source, clusters, resolution: int = CLUSTER_RESOLUTION, device=None,

@@ -23,6 +23,14 @@ the previous B_c when the lights change (bench/farfield.py measures sweeps and t
   where the mean is 0) with w the radiosity under a uniform sky of directional lights, so a
   cluster's light goes to its exposed members and not to shadowed or enclosed ones (the leaks
   of plain cluster averages). Needs F. It lost at night (the sky is not where lamps shine).
+* ``prolongation="linear"`` (the default without F): G = F Pr for three functions per cluster
+  (:func:`pydynrad.farfield.clusters.linear_basis`; 3C columns), so the gather sees a linear
+  variation over each cluster instead of one value. The coarse solve stays the indicator's
+  (F_c = R G_1 with G_1 the sum of each cluster's three columns, exactly F times the indicator),
+  then ``fine_sweeps`` sweeps B <- L + P G (R_lin B) of the linear level, R_lin its least-squares
+  fit, start from B = L + P G_1 B_c: each is one pass over G, and they converge to the linear
+  Galerkin solution without its 3C x 3C coarse matrix (9x the indicator's F_c). Needs no F: the
+  far field of stores and of rows on demand (bench/farstore.py).
 * ``first_bounce=True`` (the default with F): B_far = L + P F (L + D), where every patch's
   indirect light D is its cluster's B_c - L_c shared in proportion to the patch's own first
   bounce P F L, then ``fine_sweeps`` bounces of the full F (default 1): three passes over F per
@@ -38,13 +46,14 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factor_rows, check_form_factors, integer, scene as checked_scene
+from ..checks import check_form_factors, integer, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
-from .clusters import Clusters, cluster_patches, light_components
+from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
+from .gather import checked_cluster_form_factors
 
 __all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS"]
 
-PROLONGATIONS = ("indicator", "exposure")
+PROLONGATIONS = ("indicator", "exposure", "linear")
 
 #: Directional lights of the uniform sky that the exposure weights are solved under.
 SKY_DIRECTIONS = 128
@@ -94,13 +103,16 @@ class FarField:
         A partition (:func:`cluster_patches`), or C for one; default C from N.
     G : (N, C) sparse, optional
         The patch-to-cluster form factors F Pr for these clusters (computed from F if omitted).
-    prolongation : "indicator" | "exposure"
+    prolongation : "indicator" | "exposure" | "linear"
+        Default: "indicator" with F, "linear" without.
     first_bounce : bool, optional
         Gather the final bounce with F's rows, sharing each cluster's indirect light by the
         patches' first bounce (default: when F is given).
-    fine_sweeps : int
+    fine_sweeps : int, optional
         With the first bounce: bounces B <- L + P F B of the full F after the gather, each
-        about halving the far field's error (bench/farfield.py); 0 for none.
+        about halving the far field's error (bench/farfield.py); with the linear basis: sweeps
+        of the linear level after the coarse solve. 0 for none; default 1 (first bounce) or 2
+        (linear).
     tol : float
         Relative max-norm change of B_c at which the coarse sweeps stop.
     max_sweeps : int
@@ -116,7 +128,11 @@ class FarField:
     ----------
     clusters : Clusters
     R, G, F_c : scipy.sparse.csr_matrix
-        (C, N) restriction, (N, C) patch-to-cluster and (C, C) coarse form factors, float64.
+        (C, N) restriction, (N, C) patch-to-cluster and (C, C) coarse form factors, float64
+        (G: 3C columns for the linear basis). Without F, G and F_c are None after construction:
+        they are kept on the device only.
+    G_nnz, F_c_nnz : int
+        Their non-zeros.
     B_far : (N, 3) float64 or None
         Every patch's far radiosity for the last light vector (:meth:`light`).
     sweeps : int
@@ -125,8 +141,9 @@ class FarField:
         Wall time of the construction, of the last light change and of its coarse solve.
     """
 
-    def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str = "indicator",
-                 first_bounce: bool | None = None, fine_sweeps: int = 1, tol: float = 1e-5, max_sweeps: int = 1000,
+    def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str | None = None,
+                 first_bounce: bool | None = None, fine_sweeps: int | None = None, tol: float = 1e-5,
+                 max_sweeps: int = 1000,
                  dtype=np.float32, device=None, *, checked: bool = False) -> None:
         from ..device import default_device
         from ..devicecsr import DeviceCSR
@@ -135,16 +152,21 @@ class FarField:
         self.scene = checked_scene(scene)
         n = len(scene)
         self.device = device or default_device()
+        if prolongation is None:
+            prolongation = "indicator" if form_factors is not None else "linear"
         if prolongation not in PROLONGATIONS:
             raise InvalidInputError(f"prolongation must be one of {PROLONGATIONS}; got {prolongation!r}")
         if not (np.isfinite(tol) and tol >= 0):
             raise InvalidInputError(f"tol must be a finite number >= 0; got {tol!r}")
         max_sweeps = integer(max_sweeps, "max_sweeps", 1)
         F = form_factors if form_factors is None or checked else check_form_factors(scene, form_factors)
-        first_bounce = F is not None if first_bounce is None else bool(first_bounce)
+        first_bounce = F is not None and prolongation != "linear" if first_bounce is None else bool(first_bounce)
         if F is None and G is None:
             raise InvalidInputError("the far field needs F in memory or its patch-to-cluster form factors G "
                                     "(pydynrad.farfield.gather.cluster_form_factors, or a store holding G)")
+        if first_bounce and prolongation == "linear":
+            raise InvalidInputError("first_bounce shares each cluster's one value by patch; it takes "
+                                    "prolongation='indicator' or 'exposure', not 'linear'")
         if F is None and (first_bounce or prolongation == "exposure"):
             raise InvalidInputError(f"first_bounce and prolongation='exposure' need F in memory; got "
                                     f"first_bounce={first_bounce}, prolongation={prolongation!r} without F")
@@ -155,7 +177,11 @@ class FarField:
         self.clusters = clusters
         C = clusters.count
         self.R = clusters.restriction(scene.areas)
-        if prolongation == "exposure":
+        self._fit = None  # the linear level's least-squares fit R_lin (3C, N)
+        if prolongation == "linear":
+            self.weights = None
+            Pr, self._fit = linear_basis(clusters, scene)
+        elif prolongation == "exposure":
             self.weights = exposure_weights(scene, F, self.device)
             Pr = weighted_prolongation(clusters, scene.areas, self.weights)
         else:
@@ -163,11 +189,15 @@ class FarField:
             Pr = clusters.indicator()
         # A given G is checked like rows of F (a row of G is a row of F summed by cluster); F Pr is
         # a product of the checked F and a prolongation built here, so it needs no second check.
-        G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else check_form_factor_rows(G, "G", shape=(n, C))
+        G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else checked_cluster_form_factors(G, Pr.shape)
         self.prolongation, self.first_bounce, self.tol, self.max_sweeps = prolongation, bool(first_bounce), tol, max_sweeps
-        self.fine_sweeps = integer(fine_sweeps, "fine_sweeps", 0)
+        self.fine_sweeps = integer((2 if self._fit is not None else 1) if fine_sweeps is None else fine_sweeps,
+                                   "fine_sweeps", 0)
         self.G = G
-        self.F_c = sp.csr_matrix(self.R @ G)
+        # The linear basis sums to 1 on every patch: its three column blocks add up to F times the indicator.
+        G_1 = G if self._fit is None else G[:, :C] + G[:, C:2 * C] + G[:, 2 * C:]
+        self.F_c = sp.csr_matrix(self.R @ G_1)
+        del G_1
         self.rho = scene.albedo.astype(np.float64)
         # Pure clusters: every member has the cluster's albedo.
         first = np.zeros(C, dtype=np.int64)
@@ -177,6 +207,11 @@ class FarField:
         self._G_dev = None if first_bounce else DeviceCSR(self.device, G, dtype)
         self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype)
         self._F_dev = DeviceCSR(self.device, F, dtype) if first_bounce else None
+        # Without F, G and F_c are the far field's largest parts: kept on the device only (on a CPU
+        # device a host copy holds them twice; bench/largescale.py measures the walk's peak RSS).
+        self.G_nnz, self.F_c_nnz = int(G.nnz), int(self.F_c.nnz)
+        if F is None:
+            self.G = self.F_c = None
         self._B_c = None
         self._L = None
         self.B_far = None
@@ -196,9 +231,9 @@ class FarField:
 
     @property
     def host_memory_bytes(self) -> int:
-        """Host bytes of G, F_c, R, the labels and B_far."""
-        mats = (self.G, self.F_c, self.R)
-        held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats)
+        """Host bytes of G and F_c (with F in memory only), R, the labels and B_far."""
+        mats = (self.G, self.F_c, self.R, self._fit)
+        held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats if m is not None)
         far = 0 if self.B_far is None else self.B_far.nbytes
         return held + self.clusters.labels.nbytes + far
 
@@ -218,6 +253,11 @@ class FarField:
             B = self._gather_with_first_bounce(L[:, :k], B_c - L_c)
             if self.fine_sweeps:
                 B = self._F_dev.jacobi(L[:, :k], self.rho[:, :k], B, 0.0, self.fine_sweeps)[0]
+        elif self._fit is not None:
+            # B_c on every function of its cluster is the constant B_c (they sum to 1).
+            B = self._G_dev.bounce(L[:, :k], self.rho[:, :k], np.tile(B_c, (LINEAR_FUNCTIONS, 1)))
+            for _ in range(self.fine_sweeps):
+                B = self._G_dev.bounce(L[:, :k], self.rho[:, :k], self._fit @ B)
         else:
             B = self._G_dev.bounce(L[:, :k], self.rho[:, :k], B_c)
         self.B_far = np.repeat(B, 3, axis=1) if k == 1 else B
@@ -258,14 +298,16 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     """The FarField a :class:`~pydynrad.DynamicRadiosity` uses for its form factors
     (:class:`pydynrad.dynamic.localrows.LocalRows`).
 
-    F in memory (a matrix, or :class:`~pydynrad.CSRRows`): everything from F. A form-factor
-    store (also behind a row cache): its own clusters and G (refused when it holds none). Rows
-    computed on demand: G from cluster-id hemicubes; any other row source: G summed from its
-    rows, each block validated (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
+    F in memory (a matrix, or :class:`~pydynrad.CSRRows`): everything from F. Without F the
+    coarse level is piecewise linear (``prolongation="linear"``, the indicator where a store's
+    G was made with it): a form-factor store (also behind a row cache) gives its own clusters
+    and G (refused when it holds none); rows computed on demand: G from cluster-id hemicubes;
+    any other row source: G summed from its rows, each block validated
+    (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
     """
     from ..rows.sources import CSRRows, HemicubeRows
     from ..rows.store import FormFactorStore
-    from .gather import cluster_form_factors_for
+    from .gather import basis_prolongation, cluster_form_factors_for, clusters_without_f
 
     if local_rows.csr is not None:
         return FarField(scene, local_rows.csr, clusters, G, device=device, checked=True)
@@ -274,19 +316,22 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
         inner = inner.source  # through row caches
     if isinstance(inner, CSRRows):
         return FarField(scene, inner.matrix, clusters, G, device=device)
+    basis = "linear"
     if isinstance(inner, FormFactorStore) and G is None:
         if not inner.has_clusters:
             raise InvalidInputError(
                 f"form-factor store {inner.path} holds no far-field G: compute it (compute_store(..., clusters=...) or "
                 "`pydynrad formfactors SCENE -o STORE --clusters C`), or pass far_field=False (--no-far-field)")
+        # A store's own prolongation matrix ("given") must be the indicator of its labels: checked with G below.
+        basis = "linear" if inner.cluster_basis == "linear" else "indicator"
         if clusters is None:
             clusters = Clusters.from_labels(scene, inner.cluster_labels())
     if not isinstance(clusters, Clusters):
-        clusters = cluster_patches(scene, clusters)
+        clusters = clusters_without_f(scene, clusters, device=device)
     if G is None:
         source = local_rows.source if isinstance(inner, (FormFactorStore, HemicubeRows)) else _CheckedRows(local_rows)
-        G = cluster_form_factors_for(scene, source, clusters, device=device)
-    return FarField(scene, None, clusters, G, device=device)
+        G = cluster_form_factors_for(scene, source, basis_prolongation(scene, clusters, basis), device=device)
+    return FarField(scene, None, clusters, G, prolongation=basis, device=device)
 
 
 class _CheckedRows:

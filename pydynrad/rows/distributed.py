@@ -32,7 +32,6 @@ from ..scene import Scene
 from ..scenes.byname import BUILTIN_SCENES, is_builtin, scene_by_name
 from .store import (
     DEFAULT_BLOCK_ROWS,
-    DEFAULT_CLUSTER_RESOLUTION,
     DEFAULT_TASK_ROWS,
     FormFactorStore,
     RowFunction,
@@ -197,8 +196,8 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
                            workers: int | None = None, scheduler: str | None = None, progress: bool | None = None,
                            verify: bool = False, row_function: RowFunction = form_factor_rows,
                            blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS, clusters=None,
-                           cluster_resolution: int = DEFAULT_CLUSTER_RESOLUTION, cluster_params: dict | None = None,
-                           compute_f: bool = True) -> FormFactorStore:
+                           cluster_resolution: int | None = None, cluster_params: dict | None = None,
+                           compute_f: bool = True, cluster_basis: str = "linear") -> FormFactorStore:
     """Compute every missing block of the store at ``path`` on a Dask cluster; returns the store.
 
     Parameters
@@ -220,7 +219,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     blocks : compute only these block indices (to split one store over several runs).
     task_rows : rows per task: consecutive missing blocks are computed by one row-function
         call of at most this many rows (at least one block), amortising per-call set-up.
-    clusters, cluster_resolution, cluster_params, compute_f : the far field's G beside F, as
+    clusters, cluster_resolution, cluster_params, compute_f, cluster_basis : the far field's G beside F, as
         for :func:`pydynrad.rows.store.compute_store`; workers read the prolongation from the store.
 
     The patching parameters recorded in the header are the spec's recipe (empty for a Scene).
@@ -235,7 +234,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     path = Path(path).resolve()
     store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
                                 verify=verify, blocks=blocks, clusters=clusters, cluster_resolution=cluster_resolution,
-                                cluster_params=cluster_params, compute_f=compute_f)
+                                cluster_params=cluster_params, compute_f=compute_f, cluster_basis=cluster_basis)
     if not todo["F"] and not todo["G"]:
         return store
     client, cluster = _start_client(workers, scheduler)
@@ -243,14 +242,17 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
         client.register_plugin(opencl_worker_plugin_class()())
         payload = spec if isinstance(spec, SceneSpec) else client.scatter((scene.points, scene.triangles), broadcast=True)
         ghash = scene.geometry_hash()
-        futures = [client.submit(_blocks_task, str(path), group, payload, ghash, resolution, patching, row_function,
-                                 part, key=f"pydynrad-{part}blocks-{ghash[:16]}-{group[0]}-{group[-1]}", pure=False)
-                   for part in ("F", "G") for group in task_groups(store, todo[part], task_rows)]
         rows = sum(len(store.block_range(k)) for part in ("F", "G") for k in todo[part])
         with progress_bar(progress, total=rows, unit="row", desc="form factors" + (" and G" if todo["G"] else "")) as bar:
-            for fut in as_completed(futures):
-                _, nrows, _ = fut.result()  # re-raises a worker's error here, with its traceback
-                bar.update(nrows)
+            # F first, then G: G's tasks then find F's blocks on disk and sum them (compute_blocks), no hemicubes.
+            for part in ("F", "G"):
+                futures = [client.submit(_blocks_task, str(path), group, payload, ghash, resolution, patching,
+                                         row_function, part, pure=False,
+                                         key=f"pydynrad-{part}blocks-{ghash[:16]}-{group[0]}-{group[-1]}")
+                           for group in task_groups(store, todo[part], task_rows)]
+                for fut in as_completed(futures):
+                    _, nrows, _ = fut.result()  # re-raises a worker's error here, with its traceback
+                    bar.update(nrows)
     finally:
         client.close()
         if cluster is not None:

@@ -391,7 +391,15 @@ class FormFactorStore:
 
     @property
     def n_clusters(self) -> int:
+        """G's columns: C, or 3C for the linear basis (:attr:`cluster_count` is C)."""
         return int(self._require_clusters()["n_clusters"])
+
+    @property
+    def cluster_count(self) -> int:
+        """C, the clusters G was made for."""
+        from ..farfield.clusters import LINEAR_FUNCTIONS
+
+        return self.n_clusters // (LINEAR_FUNCTIONS if self.cluster_basis == "linear" else 1)
 
     @property
     def cluster_params(self) -> dict:
@@ -403,7 +411,7 @@ class FormFactorStore:
         """The hemicube resolution G is computed with."""
         return int(self._require_clusters()["resolution"])
 
-    def set_clusters(self, clusters, *, resolution: int, params: dict | None = None) -> None:
+    def set_clusters(self, clusters, *, resolution: int, params: dict | None = None, basis: str = "indicator") -> None:
         """Record the prolongation Pr (N, C) that G = F Pr is made with, and G's resolution.
 
         ``clusters``: Pr itself, (N,) cluster labels or a :class:`pydynrad.farfield.Clusters`
@@ -417,7 +425,8 @@ class FormFactorStore:
             extra = json.loads(json.dumps(dict(params or {}), sort_keys=True))
         except (TypeError, ValueError) as exc:
             raise InvalidInputError(f"cluster parameters must be JSON-serialisable: {exc}") from exc
-        header = {"n_clusters": int(pr.shape[1]), "resolution": int(resolution), "prolongation_sha256": digest}
+        header = {"n_clusters": int(pr.shape[1]), "resolution": int(resolution), "prolongation_sha256": digest,
+                  "basis": basis}
         if self._cluster_header is not None:
             self._match_clusters(header)  # params are a record of how, not part of what G is
             return
@@ -428,7 +437,7 @@ class FormFactorStore:
         self._cluster_header = header
 
     def _match_clusters(self, want: dict) -> None:
-        have = self._require_clusters()
+        have = {"basis": "indicator", **self._require_clusters()}  # stores from before the linear basis
         diff = [f"{k}: store has {have.get(k)!r}, requested {v!r}" for k, v in want.items() if have.get(k) != v]
         if diff:
             raise StoreMismatchError(
@@ -455,13 +464,23 @@ class FormFactorStore:
         return pr
 
     def cluster_labels(self) -> np.ndarray:
-        """(N,) int: each patch's cluster (-1 for none), for a prolongation with one entry per row."""
+        """(N,) int: each patch's cluster (-1 for none), for a prolongation with one entry per row
+        or a piecewise-linear one (:func:`pydynrad.farfield.clusters.linear_basis`)."""
+        from ..farfield.clusters import labels_of_linear
         from ..farfield.gather import split_prolongation
 
-        single = split_prolongation(self.prolongation())
-        if single is None:
+        pr = self.prolongation()
+        single = split_prolongation(pr) if self.cluster_basis != "linear" else None
+        labels = single[0] if single is not None else labels_of_linear(pr)
+        if labels is None:
             raise InvalidInputError(f"the prolongation of store {self.path} puts some patches in several clusters")
-        return single[0]
+        return labels
+
+    @property
+    def cluster_basis(self) -> str:
+        """The coarse basis G was made for: "indicator", "linear"
+        (:func:`pydynrad.farfield.clusters.linear_basis`) or "given" (a prolongation matrix)."""
+        return self._require_clusters().get("basis", "indicator")
 
     def cluster_rows(self, idx) -> sp.csr_matrix:
         """Rows ``idx`` of G as a (len(idx), C) float32 CSR matrix, in the order given."""
@@ -638,10 +657,11 @@ def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None) -> s
 
 
 def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: dict | None, verify: bool,
-                  blocks: Iterable[int] | None, clusters=None, cluster_resolution: int = DEFAULT_CLUSTER_RESOLUTION,
-                  cluster_params: dict | None = None,
-                  compute_f: bool = True) -> tuple[FormFactorStore, dict[str, list[int]]]:
-    """Create or reopen a store for writing: stale temporaries removed, ``clusters`` recorded.
+                  blocks: Iterable[int] | None, clusters=None, cluster_resolution: int | None = None,
+                  cluster_params: dict | None = None, compute_f: bool = True,
+                  cluster_basis: str = "linear") -> tuple[FormFactorStore, dict[str, list[int]]]:
+    """Create or reopen a store for writing: stale temporaries removed, ``clusters`` recorded
+    (as the prolongation of ``cluster_basis``, :func:`pydynrad.farfield.gather.basis_prolongation`).
 
     Returns the store and the blocks to compute per part: {"F": [...], "G": [...]} (G's when
     the store has clusters, recorded now or before; F's unless ``compute_f`` is False).
@@ -650,7 +670,13 @@ def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: di
                                    patching=patching, exist_ok=True)
     store.remove_stale_temporaries()
     if clusters is not None:
-        store.set_clusters(clusters, resolution=cluster_resolution, params=cluster_params)
+        from ..farfield.gather import basis_prolongation
+
+        given = sp.issparse(clusters) or np.ndim(clusters) == 2  # a matrix is its own prolongation
+        if cluster_resolution is None:  # F's own where F is stored: G is then F Pr of the stored rows
+            cluster_resolution = resolution if compute_f else DEFAULT_CLUSTER_RESOLUTION
+        store.set_clusters(basis_prolongation(scene, clusters, cluster_basis), resolution=cluster_resolution,
+                           params=cluster_params, basis="given" if given else cluster_basis)
     todo = {}
     for part in ("F", "G"):
         wanted = part == "G" and store.has_clusters or part == "F" and compute_f
@@ -681,9 +707,11 @@ def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function
                    part: str = "F", prolongation=None) -> int:
     """Compute the consecutive blocks ``group`` of F (or of G) in one call and write each; returns rows done.
 
-    F's rows come from ``row_function``; G's from
-    :func:`pydynrad.farfield.gather.cluster_form_factors` with the store's prolongation
-    (pass it as ``prolongation`` to save reading it per group).
+    F's rows come from ``row_function``; G's = F Pr with the store's prolongation (pass it as
+    ``prolongation`` to save reading it per group): from the store's own blocks of F where they
+    are on disk and G's resolution is F's (no second pass of hemicubes: G then costs a sparse
+    product per block, and agrees with the stored F exactly), else from
+    :func:`pydynrad.farfield.gather.cluster_form_factors` at G's resolution.
     """
     first, last = store.block_range(group[0]), store.block_range(group[-1])
     rows = np.arange(first.start, last.stop)
@@ -691,7 +719,11 @@ def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function
         from ..farfield.gather import cluster_form_factors
 
         pr = store.prolongation() if prolongation is None else prolongation
-        csr = cluster_form_factors(scene, pr, store.cluster_resolution, rows=rows, device=device)
+        if store.cluster_resolution == store.header["params"]["resolution"] and all(
+                store.block_path(k).exists() for k in group):
+            csr = sp.csr_matrix(sp.vstack([store.read_block(k) for k in group], format="csr") @ pr, dtype=np.float32)
+        else:
+            csr = cluster_form_factors(scene, pr, store.cluster_resolution, rows=rows, device=device)
     else:
         csr = sp.csr_matrix(row_function(scene, rows, store.header["params"]["resolution"], device=device))
     for k in group:
@@ -704,8 +736,8 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
                   patching: dict | None = None, progress: bool | None = None, verify: bool = False,
                   row_function: RowFunction = form_factor_rows, device=None,
                   blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS, clusters=None,
-                  cluster_resolution: int = DEFAULT_CLUSTER_RESOLUTION, cluster_params: dict | None = None,
-                  compute_f: bool = True) -> FormFactorStore:
+                  cluster_resolution: int | None = None, cluster_params: dict | None = None,
+                  compute_f: bool = True, cluster_basis: str = "linear") -> FormFactorStore:
     """Create (or resume) the store at ``path`` and compute every missing block in this process.
 
     ``row_function(scene, rows, resolution, device=...)`` returns the (len(rows), N) CSR
@@ -717,15 +749,20 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
 
     The far field's G = F Pr: ``clusters`` (Pr (N, C), (N,) labels or a
     :class:`pydynrad.farfield.Clusters`) records the clusters and computes G beside F, from
-    hemicubes of ``cluster_resolution`` (:func:`pydynrad.farfield.gather.cluster_form_factors`);
-    a store with clusters already recorded resumes its G too. ``compute_f=False`` leaves F's
+    hemicubes of ``cluster_resolution`` (:func:`pydynrad.farfield.gather.cluster_form_factors`;
+    default: F's ``resolution``, so G is summed from F's stored rows with no hemicubes of its own, or
+    :data:`DEFAULT_CLUSTER_RESOLUTION` for a store without F);
+    a store with clusters already recorded resumes its G too. ``cluster_basis``: "linear" (the
+    default: 3C columns, the far field's piecewise-linear coarse level, what a walk without F
+    needs for its accuracy; bench/farstore.py) or "indicator" (C columns) for labels or
+    clusters; a given Pr matrix is used as it is. ``compute_f=False`` leaves F's
     rows out (a store of G alone, for walks that compute F's rows on demand).
     """
     from ..progress import progress_bar
 
     store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
                                 verify=verify, blocks=blocks, clusters=clusters, cluster_resolution=cluster_resolution,
-                                cluster_params=cluster_params, compute_f=compute_f)
+                                cluster_params=cluster_params, compute_f=compute_f, cluster_basis=cluster_basis)
     pr = store.prolongation() if todo["G"] else None
     for part, desc in (("F", "form factors"), ("G", "cluster form factors")):
         with progress_bar(progress if todo[part] else False, total=sum(len(store.block_range(k)) for k in todo[part]),
