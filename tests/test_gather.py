@@ -234,6 +234,9 @@ def test_g_for_each_kind_of_row_source(box, tmp_path, device, monkeypatch):
     assert same_csr(gather.cluster_form_factors_for(scene, RowCache(store, 2**20), labels), G)
     on_demand = HemicubeRows(scene, 64, device)
     assert same_csr(gather.cluster_form_factors_for(scene, on_demand, labels, resolution=8, device=device), G)
+    # By default at the rows' own resolution: G is then F Pr of the rows the local set reads.
+    assert_float32_equal(gather.cluster_form_factors_for(scene, HemicubeRows(scene, 8, device), labels, device=device),
+                         form_factors(scene, resolution=8, device=device).astype(np.float64) @ indicator(labels))
     F = form_factors(scene, resolution=8, device=device)
     Pr = indicator(labels)
     assert_float32_equal(gather.cluster_form_factors_for(scene, CSRRows(F), labels), F.astype(np.float64) @ Pr)

@@ -226,7 +226,7 @@ def checked_cluster_form_factors(G, shape: tuple[int, int]) -> sp.csr_matrix:
     return G
 
 
-def cluster_form_factors_for(scene, source, clusters, resolution: int = CLUSTER_RESOLUTION, device=None,
+def cluster_form_factors_for(scene, source, clusters, resolution: int | None = None, device=None,
                              progress: bool | None = None) -> sp.csr_matrix:
     """The whole (N, C) G for a dynamic solution's source of F's rows, F never held whole.
 
@@ -236,7 +236,11 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int = CLUSTER_
       one) holding G gives its G, checked to be for these clusters
       (:class:`~pydynrad.StoreMismatchError` otherwise);
     * the on-demand :class:`~pydynrad.HemicubeRows` gets G from cluster-id hemicubes of
-      ``resolution`` (:func:`cluster_form_factors`);
+      ``resolution`` (:func:`cluster_form_factors`), by default the rows' own: then G is F Pr
+      of the very rows the local set reads (to float32 rounding). A lower one is cheaper but
+      disagrees with them: at night (village, one lamp, M = 1024) R_G = 24 against rows of
+      R = 32 left 11.3% mean pixel error and R_G = 48 7.7%, against 0.11% for G = F Pr
+      (bench/results/farstore-quick.md, PoCL CPU, 2026-12-02);
     * any other source (F in memory, a store of F without G) gets F Pr from its own rows,
       :data:`SUM_BLOCK_ROWS` at a time, so G agrees with that F; a store with neither G nor all
       of F raises :class:`~pydynrad.StoreIncompleteError`.
@@ -256,7 +260,8 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int = CLUSTER_
     if getattr(inner, "n_patches", None) != n:
         raise InvalidInputError(f"the form factors have {getattr(inner, 'n_patches', None)} rows; the scene has {n} patches")
     if isinstance(inner, HemicubeRows):
-        return cluster_form_factors(scene, pr, resolution, device=device, progress=progress)
+        R = inner.resolution if resolution is None else resolution
+        return cluster_form_factors(scene, pr, R, device=device, progress=progress)
     if isinstance(inner, FormFactorStore):
         if inner.header["geometry_hash"] != scene.geometry_hash():
             raise InvalidInputError(f"form-factor store {inner.path} was made for another scene geometry")
