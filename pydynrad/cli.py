@@ -569,8 +569,6 @@ def _add_walk_output(p: argparse.ArgumentParser, out: str | None) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .rows.store import DEFAULT_CLUSTER_RESOLUTION
-
     parser = _Parser(
         prog="pydynrad",
         description="Dynamic Radiosity on OpenCL: form factors, local multibounce matrices, frame loops. "
@@ -641,8 +639,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "count, or a .npy file of one integer cluster label per patch), from hemicubes that record "
                         "cluster ids; a store resumed later finishes its G too; walks then use its far field")
     p.add_argument("--cluster-resolution", type=_positive_int, default=None, metavar="R",
-                   help=f"store only: hemicube resolution of G (default: --resolution, G then summed from F's "
-                        f"stored rows; {DEFAULT_CLUSTER_RESOLUTION} with --no-f)")
+                   help="store only: hemicube resolution of G (default: --resolution, G then summed from F's "
+                        "stored rows, or with --no-f equal to F Pr of the rows walks compute on demand)")
     p.add_argument("--no-f", action="store_true",
                    help="store only: store G alone, not F's rows (walks then compute F's rows on demand)")
     p.add_argument("--verify", action="store_true",

@@ -67,14 +67,12 @@ import scipy.sparse as sp
 from ..atomic import TMP_MARK, write_atomic
 from ..checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene, sparse_structure
 from ..errors import InvalidInputError, PydynradError
-from ..formfactors import CLUSTER_RESOLUTION
 
 __all__ = [
     "FormFactorStore",
     "StoreCorruptError",
     "StoreIncompleteError",
     "StoreMismatchError",
-    "DEFAULT_CLUSTER_RESOLUTION",
     "compute_blocks",
     "compute_store",
     "form_factor_rows",
@@ -96,7 +94,6 @@ DEFAULT_TASK_ROWS = 4096
 # DEFLATE level 1: F's float32 mantissas are nearly incompressible, so higher levels cost
 # several times the CPU time for a few percent of size.
 COMPRESS_LEVEL = 1
-DEFAULT_CLUSTER_RESOLUTION = CLUSTER_RESOLUTION
 
 RowFunction = Callable[..., sp.csr_matrix]
 
@@ -673,8 +670,11 @@ def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: di
         from ..farfield.gather import basis_prolongation
 
         given = sp.issparse(clusters) or np.ndim(clusters) == 2  # a matrix is its own prolongation
-        if cluster_resolution is None:  # F's own where F is stored: G is then F Pr of the stored rows
-            cluster_resolution = resolution if compute_f else DEFAULT_CLUSTER_RESOLUTION
+        if cluster_resolution is None:
+            # F's own: G is then F Pr of the stored rows, or (--no-f) of the rows a walk computes
+            # on demand at that resolution; at another one the two disagree (11.3% mean pixel
+            # error at night with G at 24 and rows at 32: bench/results/farstore-quick.md).
+            cluster_resolution = resolution
         store.set_clusters(basis_prolongation(scene, clusters, cluster_basis), resolution=cluster_resolution,
                            params=cluster_params, basis="given" if given else cluster_basis)
     todo = {}
@@ -750,8 +750,8 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
     The far field's G = F Pr: ``clusters`` (Pr (N, C), (N,) labels or a
     :class:`pydynrad.farfield.Clusters`) records the clusters and computes G beside F, from
     hemicubes of ``cluster_resolution`` (:func:`pydynrad.farfield.gather.cluster_form_factors`;
-    default: F's ``resolution``, so G is summed from F's stored rows with no hemicubes of its own, or
-    :data:`DEFAULT_CLUSTER_RESOLUTION` for a store without F);
+    default: F's ``resolution``, so G is summed from F's stored rows with no hemicubes of its own,
+    and without F it is F Pr of the rows a walk computes on demand at that resolution);
     a store with clusters already recorded resumes its G too. ``cluster_basis``: "linear" (the
     default: 3C columns, the far field's piecewise-linear coarse level, what a walk without F
     needs for its accuracy; bench/farstore.py) or "indicator" (C columns) for labels or
