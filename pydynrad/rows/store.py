@@ -363,8 +363,6 @@ class FormFactorStore:
         # stacked holds the rows in block order; put them back in the caller's order.
         return stacked[np.argsort(order, kind="stable")].astype(np.float32)
 
-    read_rows = rows
-
     # -- the far field's G -----------------------------------------------------------------
     def _read_cluster_header(self) -> dict | None:
         try:
