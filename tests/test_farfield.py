@@ -101,8 +101,9 @@ def test_every_patch_its_own_cluster_is_the_full_solve(device):
     F = reciprocal_F(scene.areas, row_sum=1.0, density=0.2, seed=2)
     L = np.random.default_rng(3).random((len(scene), 3))
     want = dense_radiosity(scene, F, L)
-    for M, obs in ((1, [0.5, 0.5, 0.02]), (7, [0.1, 0.9, 0.5]), (30, [0.9, 0.1, 0.9])):
-        far = FarField(scene, F, clusters=len(scene), tol=1e-14, max_sweeps=5000, dtype=np.float64, device=device)
+    for M, obs, coarse in ((1, [0.5, 0.5, 0.02], "dense"), (7, [0.1, 0.9, 0.5], "sweeps"), (30, [0.9, 0.1, 0.9], "dense")):
+        far = FarField(scene, F, clusters=len(scene), coarse=coarse, tol=1e-14, max_sweeps=5000, dtype=np.float64,
+                       device=device)
         dyn = DynamicRadiosity(scene, F, local_size=M, storage="fp64", observer=obs, far_field=far, device=device)
         dyn.update([0.5, 0.5, 0.5])
         np.testing.assert_allclose(dyn.radiosity(light=L), want, rtol=1e-13)  # observed 1.5e-15 (PoCL, 2026-12-01)
@@ -132,9 +133,10 @@ def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
     mean = ref.mean()
     dark = ref.max(axis=1) < 1e-3 * mean
     assert 0.1 < dark.mean() < 0.5  # the room's inside: a real test of leaks
-    # Observed (PoCL, 2026-12-01): no leak at all (0.0); all-patch error 0.39% and 2.6%.
-    for first_bounce, tol in ((True, 0.01), (False, 0.05)):
-        far = FarField(scene, F, clusters=len(scene) // 8, first_bounce=first_bounce, device=device)
+    # Observed (PoCL, 2026-12-02): no leak at all (0.0); all-patch error 0.53% (first bounce), 0.40% (shared
+    # with a fine sweep) and 2.6% (cluster).
+    for gather, fine_sweeps, tol in (("first_bounce", 0, 0.01), ("shared", 1, 0.01), ("cluster", 0, 0.05)):
+        far = FarField(scene, F, clusters=len(scene) // 8, gather=gather, fine_sweeps=fine_sweeps, device=device)
         dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=[0.5, 0.5, 1.0], far_field=far,
                                device=device)
         B = dyn.radiosity(light=L)
@@ -143,18 +145,41 @@ def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
         assert radiosity_error(B, ref, scene.areas) < tol
 
 
+@pytest.mark.parametrize("storage, rtol", [("fp64", 1e-13), ("fp32", 5e-6), ("fp16", 2e-3)])
+def test_dense_coarse_level_and_first_bounce_gather(device, cornell, storage, rtol):
+    """B_far = L + D1 + P G D_c, D1 = P F L, with D_c = R D1 + P_c F_c D_c solved densely in float64."""
+    scene, F, L, _, _ = cornell
+    far = FarField(scene, F, clusters=len(scene) // 8, coarse="dense", coarse_storage=storage, dtype=np.float64,
+                   device=device)
+    assert far.coarse == "dense" and far.device_memory_bytes > far.K_c.nbytes >= 3 * far.C**2 * int(storage[2:]) // 8
+    rho = scene.albedo.astype(np.float64)
+    D1 = rho * (F @ L)
+    s = far.R @ D1
+    D_c = np.stack([np.linalg.solve(np.eye(far.C) - far.rho_c[:, [c]] * far.F_c.toarray(), s[:, c]) for c in range(3)], 1)
+    want = L + D1 + rho * (far.G @ D_c)
+    # Observed max relative error (PoCL, 2026-12-02): 6e-16 (fp64), 5e-8 (fp32), 2e-5 (fp16 K_c); 4e-15 swept.
+    np.testing.assert_allclose(far.light(L), want, rtol=rtol, atol=rtol * want.max())
+    sweeps = FarField(scene, F, clusters=far.clusters, coarse="sweeps", tol=1e-13, dtype=np.float64, device=device)
+    np.testing.assert_allclose(sweeps.light(L), want, rtol=5e-13, atol=5e-13 * want.max())
+    assert sweeps.K_c is None and sweeps.sweeps > 10
+
+
 def test_light_changes_follow_the_full_solve(device, cornell):
     scene, F, _, _, full = cornell
-    dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=[278, 273, 280], device=device)
-    sweeps = []
-    for x in (150.0, 200.0, 400.0):
-        lights = [PointLight(position=[x, 450, 280], intensity=[2e5] * 3)]
-        dyn.update([x, 273, 280])
-        L = pydynrad.light_vector(scene, lights, device=device)
-        B = dyn.radiosity(lights)
-        assert radiosity_error(B, full(L), scene.areas) < 0.01
-        sweeps.append(dyn.far.sweeps)
-    assert sweeps[1] < sweeps[0]  # the coarse solve starts from the previous lights' solution
+    for coarse in ("dense", "sweeps"):
+        far = FarField(scene, F, clusters=len(scene) // 8, coarse=coarse, device=device)
+        dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=[278, 273, 280], far_field=far,
+                               device=device)
+        sweeps = []
+        for x in (150.0, 200.0, 400.0):
+            lights = [PointLight(position=[x, 450, 280], intensity=[2e5] * 3)]
+            dyn.update([x, 273, 280])
+            L = pydynrad.light_vector(scene, lights, device=device)
+            B = dyn.radiosity(lights)
+            assert radiosity_error(B, full(L), scene.areas) < 0.01
+            sweeps.append(dyn.far.sweeps)
+        if coarse == "sweeps":
+            assert sweeps[1] < sweeps[0]  # the coarse solve starts from the previous lights' solution
 
 
 def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_path):
@@ -168,7 +193,7 @@ def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_pat
     obs = [278, 273, 280]
     store = open_form_factors(scene, tmp_path / "ff")
     dyn = DynamicRadiosity(scene, store, local_size=137, observer=obs, device=device)
-    assert np.array_equal(dyn.far.clusters.labels, cl.labels) and not dyn.far.first_bounce  # the store's own G
+    assert np.array_equal(dyn.far.clusters.labels, cl.labels) and dyn.far.gather == "cluster"  # the store's own G
     err = radiosity_error(dyn.radiosity(light=L), ref, scene.areas)
     on_demand = DynamicRadiosity(scene, None, local_size=137, observer=obs, resolution=32, clusters=cl.count,
                                  device=device)
@@ -209,14 +234,17 @@ def test_bad_input(device, cornell):
         FarField(other, None, cl, G=F @ cl.indicator(), prolongation="indicator", device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="needs F in memory or"):
         FarField(scene, None, cl, device=device)
-    with pytest.raises(pydynrad.InvalidInputError, match="need F in memory"):
-        FarField(scene, None, cl, G=F @ cl.indicator(), prolongation="indicator", first_bounce=True, device=device)
+    for needs_F in ({"gather": "first_bounce"}, {"gather": "shared"}, {"fine_sweeps": 1}):
+        with pytest.raises(pydynrad.InvalidInputError, match="need F in memory"):
+            FarField(scene, None, cl, G=F @ cl.indicator(), prolongation="indicator", device=device, **needs_F)
     with pytest.raises(pydynrad.InvalidInputError, match="not 'linear'"):
-        FarField(scene, F, cl, prolongation="linear", first_bounce=True, device=device)
+        FarField(scene, F, cl, prolongation="linear", gather="first_bounce", device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="prolongation"):
         FarField(scene, F, cl, prolongation="smooth", device=device)
     for bad, match in (({"tol": -1.0}, "tol"), ({"tol": float("nan")}, "tol"), ({"max_sweeps": 0}, "max_sweeps"),
-                       ({"fine_sweeps": -1}, "fine_sweeps")):
+                       ({"fine_sweeps": -1}, "fine_sweeps"), ({"gather": "pairs"}, "gather"),
+                       ({"coarse": "lu"}, "coarse"), ({"coarse_storage": "fp8"}, "storage"),
+                       ({"dtype": np.float16}, "dtype")):
         with pytest.raises(pydynrad.InvalidInputError, match=match):
             FarField(scene, F, cl, device=device, **bad)
     with pytest.raises(pydynrad.InvalidInputError, match="mixes albedos"):

@@ -15,28 +15,41 @@ and per frame, for the local set S and X the patches outside it,
 
 With C = N (every patch its own cluster) G = F and B_far is the full solution.
 
-The coarse system is solved by Jacobi sweeps of the sparse F_c on the device, warm-started from
-the previous B_c when the lights change (bench/farfield.py measures sweeps and time; docs/design.md,
-'Far field', 'As built', says why there is no dense K_c). Two refinements, both measured there:
+The coarse system x = s + P_c F_c x (s = L_c, or R D1 below) is solved per light change either
+with a dense coarse multibounce matrix K_c = (I - F_c P_c)^-1 F_c per channel (x = s + P_c K_c s:
+one product, K_c built once by :mod:`pydynrad.multibounce`'s builder, stored fp16/fp32/fp64 on
+the device), or by Jacobi sweeps of the sparse F_c on the device, warm-started from the previous
+solution (``coarse="auto"``: dense up to :data:`DENSE_CLUSTERS` clusters; bench/farfield.py
+measured the switch-over). Every patch's B_far then comes from one of three gathers (``gather=``, measured in
+bench/farfield.py; docs/design.md, 'Far field', 'As built'):
 
-* ``prolongation="exposure"``: Pr_w[i, c] = w_i / mean_c(w) (area-weighted mean; the indicator
-  where the mean is 0) with w the radiosity under a uniform sky of directional lights, so a
-  cluster's light goes to its exposed members and not to shadowed or enclosed ones (the leaks
-  of plain cluster averages). Needs F. It lost at night (the sky is not where lamps shine).
-* ``prolongation="linear"`` (the default without F): G = F Pr for three functions per cluster
-  (:func:`pydynrad.farfield.clusters.linear_basis`; 3C columns), so the gather sees a linear
-  variation over each cluster instead of one value. The coarse solve stays the indicator's
-  (F_c = R G_1 with G_1 the sum of each cluster's three columns, exactly F times the indicator),
-  then ``fine_sweeps`` sweeps B <- L + P G (R_lin B) of the linear level, R_lin its least-squares
-  fit, start from B = L + P G_1 B_c: each is one pass over G, and they converge to the linear
-  Galerkin solution without its 3C x 3C coarse matrix (9x the indicator's F_c). Needs no F: the
-  far field of stores and of rows on demand (bench/farstore.py).
-* ``first_bounce=True`` (the default with F): B_far = L + P F (L + D), where every patch's
-  indirect light D is its cluster's B_c - L_c shared in proportion to the patch's own first
-  bounce P F L, then ``fine_sweeps`` bounces of the full F (default 1): three passes over F per
-  light change, and no leaks into patches that one bounce of the direct light does not reach.
-  Needs F. Unlike the plain gather it is not linear in L (the shares depend on L): answers for
-  separate lights sum to the answer for their sum within about 1e-4 of the maximum.
+* ``"first_bounce"`` (the default with F): B_far = L + D1 + P G D_c with the exact first bounce
+  D1 = P F L and the clusters' indirect light D_c = R D1 + P_c F_c D_c (the coarse system with
+  the restricted first bounce as its source). The direct light's first bounce is exact per
+  patch; only light that has bounced at least once is gathered from the clusters. F L needs
+  only F's columns where L is non-zero (2% of the village's patches at night, 37% under a sun):
+  on a CPU device it is the host's product over those columns of F held by column; on a GPU one
+  pass of F's rows on the device. Linear in L.
+* ``"shared"``: B_far = L + P F (L + D), where every patch's indirect light D is its cluster's
+  D_c shared in proportion to the patch's own first bounce P F L; a second pass over all of F.
+  The most accurate per pass over F (with ``fine_sweeps=1``, the default before the first-bounce
+  gather). Not linear in L (the shares depend on L): answers for separate lights sum to the
+  answer for their sum within about 1e-4 of the maximum.
+* ``"cluster"``: B_far = L + P G B_c, the plain gather; the only one without F (stores, rows on
+  demand). With ``prolongation="linear"`` (the default without F): G = F Pr for three functions
+  per cluster (:func:`pydynrad.farfield.clusters.linear_basis`; 3C columns), so the gather sees a
+  linear variation over each cluster instead of one value. The coarse solve stays the
+  indicator's (F_c = R G_1 with G_1 the sum of each cluster's three columns, exactly F times the
+  indicator), then ``fine_sweeps`` sweeps B <- L + P G (R_lin B) of the linear level, R_lin its
+  least-squares fit, start from B = L + P G_1 B_c: each is one pass over G, and they converge to
+  the linear Galerkin solution without its 3C x 3C coarse matrix (9x the indicator's F_c). Needs
+  no F: the far field of stores and of rows on demand (bench/farstore.py).
+
+With F, ``fine_sweeps`` bounces B <- L + P F B of the full F follow the gather (each about halves the
+error; one pass over F each). ``prolongation="exposure"``: Pr_w[i, c] = w_i / mean_c(w)
+(area-weighted mean; the indicator where the mean is 0) with w the radiosity under a uniform sky
+of directional lights, so a cluster's light goes to its exposed members and not to shadowed or
+enclosed ones. Needs F. It lost at night (the sky is not where lamps shine).
 """
 
 from __future__ import annotations
@@ -51,9 +64,17 @@ from ..errors import InvalidInputError, PydynradError
 from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
 from .gather import checked_cluster_form_factors
 
-__all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS"]
+__all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS",
+           "GATHERS", "COARSE_SOLVES", "DENSE_CLUSTERS"]
 
 PROLONGATIONS = ("indicator", "exposure", "linear")
+GATHERS = ("first_bounce", "shared", "cluster")
+COARSE_SOLVES = ("auto", "dense", "sweeps")
+
+#: The most clusters for which ``coarse="auto"`` builds a dense K_c (bench/farfield.py: above it
+#: the build's 3 C^3 flops per channel outgrow the far field's precompute budget and the sweeps
+#: of the sparse F_c cost no more than one dense product).
+DENSE_CLUSTERS = 2048
 
 #: Directional lights of the uniform sky that the exposure weights are solved under.
 SKY_DIRECTIONS = 128
@@ -105,20 +126,28 @@ class FarField:
         The patch-to-cluster form factors F Pr for these clusters (computed from F if omitted).
     prolongation : "indicator" | "exposure" | "linear"
         Default: "indicator" with F, "linear" without.
-    first_bounce : bool, optional
-        Gather the final bounce with F's rows, sharing each cluster's indirect light by the
-        patches' first bounce (default: when F is given).
+    gather : "first_bounce" | "shared" | "cluster", optional
+        How every patch's B_far is gathered (module docstring); default "first_bounce" with F
+        and "cluster" without it or with the linear basis (the others need F and one value per
+        cluster).
     fine_sweeps : int, optional
-        With the first bounce: bounces B <- L + P F B of the full F after the gather, each
-        about halving the far field's error (bench/farfield.py); with the linear basis: sweeps
-        of the linear level after the coarse solve. 0 for none; default 1 (first bounce) or 2
-        (linear).
+        With F's gathers: bounces B <- L + P F B of the full F after the gather; with the
+        linear basis: sweeps of the linear level after the coarse solve. 0 for none; default 0,
+        or 2 with the linear basis.
+    coarse : "auto" | "dense" | "sweeps"
+        The coarse solve: the dense K_c product, or Jacobi sweeps of F_c; "auto": dense for
+        C <= :data:`DENSE_CLUSTERS`.
+    coarse_storage : "fp16" | "fp32" | "fp64", optional
+        Element type of the dense K_c on the device (:class:`pydynrad.matvec.DeviceMatrix`);
+        default "fp64" for ``dtype=np.float64``, else "fp32".
     tol : float
-        Relative max-norm change of B_c at which the coarse sweeps stop.
+        Relative max-norm change of the coarse solution at which the sweeps stop (1e-4: 17 and 14
+        sweeps of the village's N/8 F_c instead of 22 and 20 at 1e-5, errors unchanged to three
+        digits; bench/farfield.py).
     max_sweeps : int
         The most coarse sweeps per light change.
     dtype : np.float32 | np.float64
-        Precision of the device products.
+        Precision of the sparse device products (and of K_c's build).
     device : pydynrad.Device, optional
     checked : bool
         ``form_factors`` already passed :func:`pydynrad.checks.check_form_factors` (a
@@ -133,43 +162,55 @@ class FarField:
         they are kept on the device only.
     G_nnz, F_c_nnz : int
         Their non-zeros.
+    K_c : pydynrad.matvec.DeviceMatrix or None
+        The dense coarse multibounce matrix (``coarse`` resolved to "dense"), else None.
     B_far : (N, 3) float64 or None
         Every patch's far radiosity for the last light vector (:meth:`light`).
     sweeps : int
-        Coarse sweeps the last light change took.
+        Coarse sweeps the last light change took (0 with the dense K_c).
     seconds_build, seconds_light, seconds_coarse : float
-        Wall time of the construction, of the last light change and of its coarse solve.
+        Wall time of the construction, of the last light change and of its coarse solve (B_c).
     """
 
     def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str | None = None,
-                 first_bounce: bool | None = None, fine_sweeps: int | None = None, tol: float = 1e-5,
-                 max_sweeps: int = 1000,
-                 dtype=np.float32, device=None, *, checked: bool = False) -> None:
-        from ..device import default_device
+                 gather: str | None = None, fine_sweeps: int | None = None, coarse: str = "auto", coarse_storage: str | None = None,
+                 tol: float = 1e-4, max_sweeps: int = 1000, dtype=np.float32, device=None, *, checked: bool = False) -> None:
+        from ..device import default_device, real_dtype
         from ..devicecsr import DeviceCSR
+        from ..matvec import storage_dtype
 
         t0 = time.perf_counter()
         self.scene = checked_scene(scene)
         n = len(scene)
         self.device = device or default_device()
+        dtype = real_dtype(dtype, self.device)
         if prolongation is None:
             prolongation = "indicator" if form_factors is not None else "linear"
         if prolongation not in PROLONGATIONS:
             raise InvalidInputError(f"prolongation must be one of {PROLONGATIONS}; got {prolongation!r}")
+        F = form_factors if form_factors is None or checked else check_form_factors(scene, form_factors)
+        if gather is None:
+            gather = "first_bounce" if F is not None and prolongation != "linear" else "cluster"
+        if gather not in GATHERS:
+            raise InvalidInputError(f"gather must be one of {GATHERS}; got {gather!r}")
+        if coarse not in COARSE_SOLVES:
+            raise InvalidInputError(f"coarse must be one of {COARSE_SOLVES}; got {coarse!r}")
+        coarse_storage = ("fp64" if dtype == np.float64 else "fp32") if coarse_storage is None else coarse_storage
+        storage_dtype(coarse_storage)
         if not (np.isfinite(tol) and tol >= 0):
             raise InvalidInputError(f"tol must be a finite number >= 0; got {tol!r}")
         max_sweeps = integer(max_sweeps, "max_sweeps", 1)
-        F = form_factors if form_factors is None or checked else check_form_factors(scene, form_factors)
-        first_bounce = F is not None and prolongation != "linear" if first_bounce is None else bool(first_bounce)
+        fine_sweeps = integer((2 if prolongation == "linear" else 0) if fine_sweeps is None else fine_sweeps,
+                              "fine_sweeps", 0)
         if F is None and G is None:
             raise InvalidInputError("the far field needs F in memory or its patch-to-cluster form factors G "
                                     "(pydynrad.farfield.gather.cluster_form_factors, or a store holding G)")
-        if first_bounce and prolongation == "linear":
-            raise InvalidInputError("first_bounce shares each cluster's one value by patch; it takes "
+        if gather != "cluster" and prolongation == "linear":
+            raise InvalidInputError(f"gather={gather!r} shares or gathers each cluster's one value by patch; it takes "
                                     "prolongation='indicator' or 'exposure', not 'linear'")
-        if F is None and (first_bounce or prolongation == "exposure"):
-            raise InvalidInputError(f"first_bounce and prolongation='exposure' need F in memory; got "
-                                    f"first_bounce={first_bounce}, prolongation={prolongation!r} without F")
+        if F is None and (gather != "cluster" or (fine_sweeps and prolongation != "linear") or prolongation == "exposure"):
+            raise InvalidInputError(f"gather={gather!r}, fine_sweeps and prolongation='exposure' need F in memory; got "
+                                    f"gather={gather!r}, fine_sweeps={fine_sweeps}, prolongation={prolongation!r} without F")
         if clusters is None or not isinstance(clusters, Clusters):
             clusters = cluster_patches(scene, clusters, components=None if F is None else light_components(F))
         elif clusters.scene_hash != scene.content_hash() or len(clusters.labels) != n:
@@ -190,9 +231,8 @@ class FarField:
         # A given G is checked like rows of F (a row of G is a row of F summed by cluster); F Pr is
         # a product of the checked F and a prolongation built here, so it needs no second check.
         G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else checked_cluster_form_factors(G, Pr.shape)
-        self.prolongation, self.first_bounce, self.tol, self.max_sweeps = prolongation, bool(first_bounce), tol, max_sweeps
-        self.fine_sweeps = integer((2 if self._fit is not None else 1) if fine_sweeps is None else fine_sweeps,
-                                   "fine_sweeps", 0)
+        self.prolongation, self.gather, self.tol, self.max_sweeps = prolongation, gather, tol, max_sweeps
+        self.fine_sweeps = fine_sweeps
         self.G = G
         # The linear basis sums to 1 on every patch: its three column blocks add up to F times the indicator.
         G_1 = G if self._fit is None else G[:, :C] + G[:, C:2 * C] + G[:, 2 * C:]
@@ -203,16 +243,22 @@ class FarField:
         first = np.zeros(C, dtype=np.int64)
         first[clusters.labels[::-1]] = np.arange(n)[::-1]
         self.rho_c = self.rho[first]
-        # The first-bounce gather goes through F's rows: G then only makes F_c.
-        self._G_dev = None if first_bounce else DeviceCSR(self.device, G, dtype)
-        self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype)
-        self._F_dev = DeviceCSR(self.device, F, dtype) if first_bounce else None
+        with_F = gather != "cluster"
+        # F L over the lit columns only: by column on the host where the host is the device (a
+        # CPU), a pass of F's rows on a GPU. The shared gather and the fine sweeps need F's rows.
+        self._F_cols = sp.csc_matrix(F, dtype=dtype) if with_F and self.device.is_cpu else None
+        rows_on_device = gather == "shared" or (fine_sweeps > 0 and self._fit is None) or (with_F and self._F_cols is None)
+        self._F_dev = DeviceCSR(self.device, F, dtype) if rows_on_device else None
+        self._G_dev = None if gather == "shared" else DeviceCSR(self.device, G, dtype)  # shared: G only makes F_c
+        self.coarse = ("dense" if C <= DENSE_CLUSTERS else "sweeps") if coarse == "auto" else coarse
+        self.K_c = self._dense_coarse(coarse_storage, dtype) if self.coarse == "dense" else None
+        self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype) if self.coarse == "sweeps" else None
         # Without F, G and F_c are the far field's largest parts: kept on the device only (on a CPU
         # device a host copy holds them twice; bench/largescale.py measures the walk's peak RSS).
         self.G_nnz, self.F_c_nnz = int(G.nnz), int(self.F_c.nnz)
         if F is None:
             self.G = self.F_c = None
-        self._B_c = None
+        self._x_c = None  # the last coarse solution, where the sweeps start
         self._L = None
         self.B_far = None
         self._injected = None  # (B_far, local rows, members, injection) of the last injection
@@ -220,20 +266,36 @@ class FarField:
         self.seconds_build = time.perf_counter() - t0
         self.seconds_light = self.seconds_coarse = 0.0  # the last light change, and its coarse solve
 
+    def _dense_coarse(self, storage: str, dtype):
+        """K_c (one channel for a grey scene, else three) on the device in ``storage``."""
+        from ..matvec import DeviceMatrix
+        from ..multibounce import _build, _check_memory, _checked_options
+
+        channels = 1 if self.scene.is_grey else 3
+        out, _ = _checked_options(np.float64 if storage == "fp64" else dtype, None, "auto")
+        _check_memory(self.C, channels, out, None, self.device)
+        # multibounce's own builder, without multibounce_block's row-sum check: F_c is made here from
+        # checked parts, and with the exposure prolongation its rows may sum above 1 (R Pr_w = I, not
+        # Pr_w's rows) while rho_c times them stays below 1.
+        K = _build(self.F_c.toarray(), self.rho_c[:, :channels], None, out, self.device, False)
+        return DeviceMatrix(self.device, K, storage)
+
     @property
     def C(self) -> int:
         return self.clusters.count
 
     @property
     def device_memory_bytes(self) -> int:
-        """Device bytes of F_c and G (or F, for the first-bounce gather)."""
-        return sum(m.nbytes for m in (self._G_dev, self._Fc_dev, self._F_dev) if m is not None)
+        """Device bytes of the coarse solve (K_c or F_c) and of the gather (G and/or F)."""
+        held = (self._G_dev, self._Fc_dev, self._F_dev, self.K_c)
+        return sum(m.nbytes for m in held if m is not None)
 
     @property
     def host_memory_bytes(self) -> int:
-        """Host bytes of G and F_c (with F in memory only), R, the labels and B_far."""
-        mats = (self.G, self.F_c, self.R, self._fit)
-        held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats if m is not None)
+        """Host bytes of G and F_c (with F in memory only), R, the linear fit, F by column (F's
+        gathers on a CPU), the labels and B_far."""
+        mats = [m for m in (self.G, self.F_c, self.R, self._fit, self._F_cols) if m is not None]
+        held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats)
         far = 0 if self.B_far is None else self.B_far.nbytes
         return held + self.clusters.labels.nbytes + far
 
@@ -244,39 +306,72 @@ class FarField:
         t0 = time.perf_counter()
         grey = self.scene.is_grey and bool(np.all(L[:, :1] == L))
         k = 1 if grey else 3
-        L_c = self.R @ L[:, :k]
-        x0 = L_c if self._B_c is None or self._B_c.shape[1] != k else self._B_c
-        B_c, self.sweeps, _, _ = self._Fc_dev.jacobi(L_c, self.rho_c[:, :k], x0, self.tol, self.max_sweeps)
-        self.seconds_coarse = time.perf_counter() - t0
-        self._B_c = B_c
-        if self.first_bounce:
-            B = self._gather_with_first_bounce(L[:, :k], B_c - L_c)
-            if self.fine_sweeps:
-                B = self._F_dev.jacobi(L[:, :k], self.rho[:, :k], B, 0.0, self.fine_sweeps)[0]
-        elif self._fit is not None:
-            # B_c on every function of its cluster is the constant B_c (they sum to 1).
-            B = self._G_dev.bounce(L[:, :k], self.rho[:, :k], np.tile(B_c, (LINEAR_FUNCTIONS, 1)))
-            for _ in range(self.fine_sweeps):
-                B = self._G_dev.bounce(L[:, :k], self.rho[:, :k], self._fit @ B)
+        L_all = np.array(L, dtype=np.float64)
+        L, rho = L_all[:, :k], self.rho[:, :k]
+        if self.gather == "first_bounce":
+            # The coarse level solves for the indirect light D_c = R D1 + P_c F_c D_c from the exact
+            # first bounce D1, not from the cluster-averaged direct light (2.8% -> 2.4% after a lamp is
+            # added in the village at N/8, 0.27% -> 0.20% under a sun; bench/farfield.py).
+            D1 = self._first_bounce(L)
+            t1 = time.perf_counter()
+            D_c = self._coarse_solve(self.R @ D1)
+            self.seconds_coarse = time.perf_counter() - t1
+            B = self._G_dev.bounce(L + D1, rho, D_c)
         else:
-            B = self._G_dev.bounce(L[:, :k], self.rho[:, :k], B_c)
+            L_c = self.R @ L
+            B_c = self._coarse_solve(L_c)
+            self.seconds_coarse = time.perf_counter() - t0
+            if self.gather == "shared":
+                B = self._gather_shared(L, B_c - L_c)
+            elif self._fit is not None:
+                # B_c on every function of its cluster is the constant B_c (they sum to 1).
+                B = self._G_dev.bounce(L, rho, np.tile(B_c, (LINEAR_FUNCTIONS, 1)))
+                for _ in range(self.fine_sweeps):
+                    B = self._G_dev.bounce(L, rho, self._fit @ B)
+            else:
+                B = self._G_dev.bounce(L, rho, B_c)
+        if self.fine_sweeps and self._fit is None:
+            B = self._F_dev.jacobi(L, rho, B, 0.0, self.fine_sweeps)[0]
         self.B_far = np.repeat(B, 3, axis=1) if k == 1 else B
-        self._L = np.array(L, dtype=np.float64)
+        self._L = L_all
         self.seconds_light = time.perf_counter() - t0
         return self.B_far
 
-    def _gather_with_first_bounce(self, L: np.ndarray, D_c: np.ndarray) -> np.ndarray:
+    def _coarse_solve(self, s: np.ndarray) -> np.ndarray:
+        """x (C, k) = s + P_c F_c x for the source s (C, k): s + P_c K_c s, or sweeps of F_c
+        from the last solution."""
+        k = s.shape[1]
+        rho_c = self.rho_c[:, :k]
+        if self.K_c is None:
+            x0 = s if self._x_c is None or self._x_c.shape[1] != k else self._x_c
+            self._x_c, self.sweeps, _, _ = self._Fc_dev.jacobi(s, rho_c, x0, self.tol, self.max_sweeps)
+            return self._x_c
+        self.sweeps = 0
+        # One grey K_c serves every column in one pass; three K_c one channel each.
+        KL = self.K_c.matmat(s.T[None])[0] if self.K_c.C == 1 else self.K_c.matvec(s.T)
+        return s + rho_c * KL.T
+
+    def _first_bounce(self, L: np.ndarray) -> np.ndarray:
+        """D1 = P F L (N, k): over the lit columns of F by column, or a pass of F's rows."""
+        rho = self.rho[:, : L.shape[1]]
+        if self._F_cols is None:
+            return self._F_dev.bounce(np.zeros_like(L), rho, L)
+        lit = np.flatnonzero(np.any(L != 0, axis=1))
+        # In F's own type, as the device products: float64 light would upcast a copy of the columns
+        # (village under a sun: 76 -> 53 ms in float32).
+        return rho * (self._F_cols[:, lit] @ L[lit].astype(self._F_cols.dtype))
+
+    def _gather_shared(self, L: np.ndarray, D_c: np.ndarray) -> np.ndarray:
         """L + P F (L + D): the indirect light D of every patch prolongated from the clusters'
         D_c = B_c - L_c in proportion to its own first bounce D1 = P F L (the cluster's
         area-weighted mean of D1 maps to D_c; the indicator where that mean is 0), then one
         gather with F's rows. A patch no direct light reaches by one bounce gets no share of
         its cluster's indirect light, so light does not leak to shadowed members."""
         lab = self.clusters.labels
-        rho = self.rho[:, : L.shape[1]]
-        D1 = self._F_dev.bounce(np.zeros_like(L), rho, L)
+        D1 = self._first_bounce(L)
         mean = (self.R @ D1)[lab]
         share = np.where(mean > 0, D1 / np.where(mean > 0, mean, 1.0), 1.0)
-        return self._F_dev.bounce(L, rho, L + share * D_c[lab])
+        return self._F_dev.bounce(L, self.rho[:, : L.shape[1]], L + share * D_c[lab])
 
     def injection(self, local_rows: sp.csr_matrix, members: np.ndarray) -> np.ndarray:
         """L'_S - L_S = P_S F[S, X] B_far[X] (M, 3) for the local set ``members`` (slot order)
