@@ -38,6 +38,7 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import scipy.sparse as sp
 
 from .checks import check_form_factors, check_form_factor_rows, patch_indices, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
@@ -235,7 +236,7 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
 
 
 def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32, device=None,
-                      progress: bool | None = None, backend: str = "auto") -> np.ndarray:
+                      progress: bool | None = None, backend: str = "auto", *, checked: bool = False) -> np.ndarray:
     """K = (I - F_SS P)^{-1} F_SS from the block of F over the set, for callers that hold it.
 
     :func:`multibounce` with ``patches`` validates all of F and cuts this block out of it; a
@@ -251,6 +252,10 @@ def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32
         The set's albedo per channel of K (C = 1 for a grey scene, else 3), each in [0, 1).
     bounces, dtype, device, progress, backend
         As in :func:`multibounce`.
+    checked : bool
+        The caller made ``F_SS`` from validated parts (the far field's coarse F_c = R F Pr):
+        take it as it is. A weighted prolongation lets such rows sum above 1 (R Pr = I, not
+        Pr 1 = 1) while the system stays well posed, which the check would refuse.
 
     Returns
     -------
@@ -270,8 +275,11 @@ def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32
     if not np.all(np.isfinite(rho)) or rho.min() < 0 or rho.max() >= 1:
         raise InvalidInputError("albedo must be finite and in [0, 1)")
     _check_memory(M, rho.shape[1], out, bounces, device)
-    block = check_form_factor_rows(F_SS, "F_SS")  # a copy: the caller's matrix is never touched
-    return _build(block.toarray(), rho, bounces, out, device, progress, backend)
+    if checked:
+        block = F_SS.toarray() if sp.issparse(F_SS) else np.array(F_SS, dtype=np.float64)
+    else:  # a copy: the caller's matrix is never touched
+        block = check_form_factor_rows(F_SS, "F_SS").toarray()
+    return _build(block, rho, bounces, out, device, progress, backend)
 
 
 def _checked_options(dtype, bounces, backend) -> tuple[np.dtype, int | None]:

@@ -58,3 +58,19 @@ def test_dynamic_refuses_source_rows_summing_above_one(device):
     source = Source()
     with pytest.raises(pydynrad.InvalidInputError, match="row 0 of form-factor rows sums to"):
         pydynrad.DynamicRadiosity(s, source, local_size=len(s), observer=s.centers[0], device=device)
+
+
+def test_checked_block_takes_rows_summing_above_one(device):
+    """The far field's coarse F_c with a weighted prolongation may have rows summing above 1
+    while P F_c's stay below 1: ``checked=True`` builds K = (I - F P)^{-1} F for it (against
+    numpy's dense inverse in float64), the default refuses it by name."""
+    rng = np.random.default_rng(11)
+    M = 40
+    F = rng.uniform(0, 1, (M, M))
+    F *= (1.3 / F.sum(axis=1))[:, None]  # every row sums to 1.3
+    rho = np.full((M, 1), 0.5)  # P F's rows sum to 0.65
+    K = multibounce_block(sp.csr_matrix(F), rho, dtype=np.float64, device=device, checked=True)
+    truth = np.linalg.solve(np.eye(M) - F * rho[:, 0][None, :], F)
+    assert rel(K[0], truth) < 1e-12  # observed 3e-16
+    with pytest.raises(pydynrad.InvalidInputError, match="sums to"):
+        multibounce_block(sp.csr_matrix(F), rho, dtype=np.float64, device=device)

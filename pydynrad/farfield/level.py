@@ -269,15 +269,13 @@ class FarField:
     def _dense_coarse(self, storage: str, dtype):
         """K_c (one channel for a grey scene, else three) on the device in ``storage``."""
         from ..matvec import DeviceMatrix
-        from ..multibounce import _build, _check_memory, _checked_options
+        from ..multibounce import multibounce_block
 
         channels = 1 if self.scene.is_grey else 3
-        out, _ = _checked_options(np.float64 if storage == "fp64" else dtype, None, "auto")
-        _check_memory(self.C, channels, out, None, self.device)
-        # multibounce's own builder, without multibounce_block's row-sum check: F_c is made here from
-        # checked parts, and with the exposure prolongation its rows may sum above 1 (R Pr_w = I, not
-        # Pr_w's rows) while rho_c times them stays below 1.
-        K = _build(self.F_c.toarray(), self.rho_c[:, :channels], None, out, self.device, False)
+        # checked: F_c is made here from checked parts, and with the exposure prolongation its
+        # rows may sum above 1 (R Pr_w = I, not Pr_w's rows) while rho_c times them stays below 1.
+        K = multibounce_block(self.F_c, self.rho_c[:, :channels], dtype=np.float64 if storage == "fp64" else dtype,
+                              device=self.device, progress=False, checked=True)
         return DeviceMatrix(self.device, K, storage)
 
     @property
