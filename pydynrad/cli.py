@@ -127,13 +127,21 @@ def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
     return check_parent_folder(path)
 
 
+def _samples(args) -> int:
+    """--samples (1 when not given) checked against --resolution, before any work."""
+    from .formfactors import checked_samples
+
+    return checked_samples(1 if args.samples is None else args.samples, args.resolution)
+
+
 def _form_factors(args, scene):
     """F from --form-factors PATH when given (a matrix for a .npz file, a RowCache of
-    --cache-mb over a store folder, closed when the command ends), else computed now."""
+    --cache-mb over a store folder, closed when the command ends; made with --samples where
+    given), else computed now."""
     if getattr(args, "form_factors", None):
         from .rows.files import open_form_factors
 
-        F = open_form_factors(scene, args.form_factors, cache_bytes=int(args.cache_mb * 2**20))
+        F = open_form_factors(scene, args.form_factors, cache_bytes=int(args.cache_mb * 2**20), samples=args.samples)
         if hasattr(F, "close"):
             args.cleanup.callback(F.close)
             print(f"form factors: {F.source!r} through a {args.cache_mb:g} MiB row cache")
@@ -143,8 +151,10 @@ def _form_factors(args, scene):
     from .formfactors import form_factors
 
     t0 = time.perf_counter()
-    F = form_factors(scene, resolution=args.resolution, progress=_progress(args))
-    print(f"form factors: {len(scene)} patches, resolution {args.resolution}, {F.nnz} non-zeros, "
+    samples = _samples(args)
+    F = form_factors(scene, resolution=args.resolution, progress=_progress(args), samples=samples)
+    print(f"form factors: {len(scene)} patches, resolution {args.resolution}"
+          f"{f', {samples} hemicubes per row' if samples > 1 else ''}, {F.nnz} non-zeros, "
           f"{time.perf_counter() - t0:.1f} s")
     return F
 
@@ -203,6 +213,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _cmd_formfactors(args: argparse.Namespace) -> int:
+    _samples(args)  # a bad K fails before the scene is built
     out = Path(args.output)
     if out.suffix.lower() == ".npz":
         return _formfactors_file(args, out)
@@ -225,7 +236,7 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
     scene = load_scene(args.scene, args.max_edge)
     print(f"scene: {scene!r}")
     F = _form_factors(args, scene)
-    save_form_factors(scene, out, F, args.resolution)
+    save_form_factors(scene, out, F, args.resolution, _samples(args))
     print(f"wrote {out} ({out.stat().st_size / 2**20:.1f} MiB)")
     return 0
 
@@ -270,7 +281,8 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     spec = SceneSpec(args.scene, _patching(args.max_edge)).resolved()
     block_rows = args.block_rows
     if (out / HEADER).exists():
-        store = FormFactorStore.open(scene, out, resolution=args.resolution, patching=spec.recipe())
+        store = FormFactorStore.open(scene, out, resolution=args.resolution, patching=spec.recipe(),
+                                     samples=_samples(args))
         block_rows = block_rows or store.block_rows
         # Finished blocks of F are read and their checksums (bound to this store) checked on
         # every resume, G's too with --verify: a corrupt or foreign block is deleted and
@@ -286,7 +298,8 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     elif args.verify:
         raise InvalidInputError(f"--verify checks an existing store; there is none at {str(out)!r}")
     block_rows = block_rows or DEFAULT_BLOCK_ROWS
-    common = dict(resolution=args.resolution, block_rows=block_rows, progress=_progress(args), clusters=labels,
+    common = dict(resolution=args.resolution, samples=_samples(args), block_rows=block_rows, progress=_progress(args),
+                  clusters=labels,
                   cluster_resolution=args.cluster_resolution,
                   cluster_params=cluster_params, compute_f=not args.no_f)
     t0 = time.perf_counter()
@@ -490,11 +503,20 @@ def _add_form_factors(p: argparse.ArgumentParser, resolution: int = 64) -> None:
                    help="size of the row cache in MiB when --form-factors is a store folder: the form-factor rows "
                         "held in memory (default 256; not used for a .npz file)")
     _add_resolution(p, resolution, " when computing form factors")
+    _add_samples(p, None, "when computing form factors (default 1); with --form-factors, the hemicubes per row "
+                          "those must have been computed with")
 
 
 def _add_resolution(p: argparse.ArgumentParser, default: int, when: str = "") -> None:
     p.add_argument("--resolution", type=_resolution, default=default, metavar="R",
                    help=f"hemicube resolution (R x R pixels on the top face; even, 2 to 4096){when} (default {default})")
+
+
+def _add_samples(p: argparse.ArgumentParser, default: int | None, when: str) -> None:
+    p.add_argument("--samples", type=_positive_int, default=default, metavar="K",
+                   help="hemicubes per row (1, 4, 16, ...), each of resolution R / sqrt(K) at the centroid of one of "
+                        "K equal strata of the patch: the same rays, without the centre point's bias under nearby "
+                        f"sources (pydynrad.form_factors(samples=K)), {when}")
 
 
 def _add_camera(p: argparse.ArgumentParser) -> None:
@@ -621,6 +643,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="FILE.npz for a single file, or a folder (new, empty, or a store to resume) for a store; "
                         "its parent folder must exist")
     _add_resolution(p, 64)
+    _add_samples(p, 1, "recorded in the file or store; a store resumed with other K is refused (default 1)")
     p.add_argument("--force", action="store_true",
                    help="file only: replace an existing OUT.npz that is not a pydynrad form-factor file")
     where = p.add_mutually_exclusive_group()

@@ -31,7 +31,7 @@ from .errors import InvalidInputError, OutOfMemoryError
 from .launch import float4, global_size, hemicube_tiles, ray_work_group
 from .memory import available_host_bytes
 
-__all__ = ["form_factors", "hemicube_blocks", "hemicube_runs", "pixel_form_factors", "sample_points", "stack_blocks",
+__all__ = ["checked_samples", "form_factors", "hemicube_blocks", "hemicube_runs", "pixel_form_factors", "sample_points", "stack_blocks",
            "CLUSTER_RESOLUTION", "SURFACE_OFFSET"]
 
 #: Hemicube centres sit this far off their patch, times the scene's bounding-box diagonal:
@@ -124,8 +124,12 @@ def _sample_levels(samples) -> int:
     return levels
 
 
-def _checked_samples(samples, resolution: int) -> int:
-    """Hemicubes per row: 4**L, with R / 2**L an even resolution (each sample's hemicube)."""
+def checked_samples(samples, resolution: int) -> int:
+    """Hemicubes per row: 4**L, with R / 2**L an even resolution (each sample's hemicube).
+
+    The one rule for ``samples`` wherever it is given (form factors, files, stores, rows on
+    demand, the CLI): InvalidInputError naming the problem otherwise.
+    """
     levels = _sample_levels(samples)
     k = 4**levels
     if resolution % (2 << levels):
@@ -201,7 +205,7 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
 
     dev = device or default_device()
     R_total = checked_resolution(resolution)
-    K = _checked_samples(samples, R_total)
+    K = checked_samples(samples, R_total)
     R = R_total // int(round(np.sqrt(K)))  # each sample's hemicube
     if 3 * R_total * R_total * 4 > dev.max_alloc_bytes:
         raise InvalidInputError(f"resolution {R_total} needs more memory per hemicube than {dev.name} allows in one buffer")

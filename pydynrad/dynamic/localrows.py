@@ -54,13 +54,13 @@ class LocalRows:
     never need rows other than those already fetched.
     """
 
-    def __init__(self, scene, form_factors, resolution: int, device) -> None:
+    def __init__(self, scene, form_factors, resolution: int, device, samples: int = 1) -> None:
         n = len(scene)
         self.n_patches = n
         self.csr = None
         self.local: sp.csr_matrix | None = None
         if form_factors is None:
-            self.source = HemicubeRows(scene, resolution, device)
+            self.source = HemicubeRows(scene, resolution, device, samples=samples)
         elif isinstance(form_factors, RowSource):
             if int(form_factors.n_patches) != n:
                 raise InvalidInputError(f"form_factors serves {form_factors.n_patches} patches; the scene has {n}")

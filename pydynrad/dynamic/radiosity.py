@@ -109,6 +109,10 @@ class DynamicRadiosity:
         nothing). If every slot holds an emitter, no more swaps happen.
     resolution : int
         Hemicube resolution when ``form_factors`` is None, and of every moving object's rows.
+    samples : int
+        Hemicubes per row when ``form_factors`` is None (1, 4, 16, ...:
+        :func:`pydynrad.form_factors`); given form factors carry their own, and moving objects'
+        rows are single hemicubes, so either with ``samples`` > 1 is refused.
     far_field : bool or pydynrad.farfield.FarField
         Light the patches outside the local set with the coarse level and inject their light
         into it (default), or leave them at L as the paper does (False). A ready FarField
@@ -143,7 +147,7 @@ class DynamicRadiosity:
                  max_swaps_per_frame: int = 8, refresh_tolerance: float | None = None, refresh_interval: int = 32,
                  observer=None, keep_emitters: bool = True, resolution: int = 128, far_field=True, clusters=None,
                  cluster_form_factors=None, objects=None, occlusion: int | None = DEFAULT_OCCLUSION, poses=None,
-                 device=None) -> None:
+                 device=None, samples: int = 1) -> None:
         from ..device import default_device
 
         checked_scene(scene)
@@ -151,6 +155,10 @@ class DynamicRadiosity:
         self.objects, self._pending = [], {}
         self._last_B: np.ndarray | None = None  # (N,) the last radiosity() summed over channels: ranks a move's rows
         self.occlusion = None if occlusion is None else integer(occlusion, "occlusion", 0)
+        if samples != 1 and (form_factors is not None or objects is not None):
+            raise InvalidInputError(f"samples={samples!r} applies to rows computed on demand (form_factors=None) without "
+                                    "moving objects; pass HemicubeRows(scene, R, samples=K) or form factors computed "
+                                    "with samples=K instead")
         if objects is not None:
             scene, form_factors = self._with_objects(scene, form_factors, objects, update, local_size,
                                                      checked_resolution(resolution), poses)
@@ -173,7 +181,7 @@ class DynamicRadiosity:
         self.refresh_tolerance = refresh_tolerance
         self.refresh_interval = integer(refresh_interval, "refresh_interval", 1, 2**31 - 1)
         self.resolution = checked_resolution(resolution)  # of hemicube rows (entering patches, objects)
-        self._ff = LocalRows(scene, form_factors, self.resolution, self.device)
+        self._ff = LocalRows(scene, form_factors, self.resolution, self.device, samples)
         self.C = 1 if scene.is_grey else 3
         pinned = scene.emission.max(axis=1) > 0 if keep_emitters else np.zeros(n, bool)
         pinned[self._object_patches] = True

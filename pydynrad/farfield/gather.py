@@ -167,7 +167,7 @@ def split_prolongation(prolongation) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def cluster_form_factors(scene, prolongation, resolution: int = CLUSTER_RESOLUTION, rows=None, device=None,
-                         progress: bool | None = None) -> sp.csr_matrix:
+                         progress: bool | None = None, samples: int = 1) -> sp.csr_matrix:
     """Rows of the patch-to-cluster form factors G = F Pr by hemicube, F never formed.
 
     Parameters
@@ -184,12 +184,14 @@ def cluster_form_factors(scene, prolongation, resolution: int = CLUSTER_RESOLUTI
     device : Device, optional
     progress : bool, optional
         tqdm bar; by default only on a terminal for long runs.
+    samples : int
+        Hemicubes per row (1, 4, 16, ...), as for :func:`pydynrad.form_factors`.
 
     Returns
     -------
     scipy.sparse.csr_matrix, float32, shape (len(rows), C)
         Row k: the fraction of the energy leaving patch ``rows[k]`` that arrives at each
-        cluster, weighted by Pr; equal to ``form_factors(scene, resolution, rows) @ Pr`` up to
+        cluster, weighted by Pr; equal to ``form_factors(scene, resolution, rows, samples=samples) @ Pr`` up to
         float32 rounding.
     """
     n = len(checked_scene(scene))
@@ -198,10 +200,10 @@ def cluster_form_factors(scene, prolongation, resolution: int = CLUSTER_RESOLUTI
     single = split_prolongation(pr)
     if single is not None:
         blocks = hemicube_blocks(scene, resolution, rows, device, progress, desc="cluster form factors",
-                                 clusters=(*single, C))
+                                 clusters=(*single, C), samples=samples)
     else:
         blocks = (b @ pr for b in hemicube_blocks(scene, resolution, rows, device, progress,
-                                                   desc="cluster form factors"))
+                                                   desc="cluster form factors", samples=samples))
     return stack_blocks(blocks, C)
 
 
@@ -236,8 +238,8 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
       one) holding G gives its G, checked to be for these clusters
       (:class:`~pydynrad.StoreMismatchError` otherwise);
     * the on-demand :class:`~pydynrad.HemicubeRows` gets G from cluster-id hemicubes of
-      ``resolution`` (:func:`cluster_form_factors`), by default the rows' own: then G is F Pr
-      of the very rows the local set reads (to float32 rounding). A lower one is cheaper but
+      ``resolution`` (:func:`cluster_form_factors`), by default the rows' own (with their
+      ``samples``): then G is F Pr of the very rows the local set reads (to float32 rounding). A lower one is cheaper but
       disagrees with them: at night (village, one lamp, M = 1024) R_G = 24 against rows of
       R = 32 left 11.3% mean pixel error and R_G = 48 7.7%, against 0.11% for G = F Pr
       (bench/results/farstore-quick.md, PoCL CPU, 2026-12-02);
@@ -261,7 +263,8 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
         raise InvalidInputError(f"the form factors have {getattr(inner, 'n_patches', None)} rows; the scene has {n} patches")
     if isinstance(inner, HemicubeRows):
         R = inner.resolution if resolution is None else resolution
-        return cluster_form_factors(scene, pr, R, device=device, progress=progress)
+        return cluster_form_factors(scene, pr, R, device=device, progress=progress,
+                                    samples=inner.samples if R == inner.resolution else 1)
     if isinstance(inner, FormFactorStore):
         if inner.header["geometry_hash"] != scene.geometry_hash():
             raise InvalidInputError(f"form-factor store {inner.path} was made for another scene geometry")

@@ -152,13 +152,13 @@ def _worker_prolongation(store: FormFactorStore):
 
 
 def _blocks_task(path: str, group: list[int], payload, geometry_hash: str, resolution: int, patching: dict,
-                 row_function: RowFunction, part: str = "F") -> tuple[list[int], int, float]:
+                 row_function: RowFunction, part: str = "F", samples: int = 1) -> tuple[list[int], int, float]:
     """Compute and write the consecutive blocks ``group`` of F or G on a worker; returns (group, rows, seconds)."""
     from ..device import default_device
 
     t0 = time.perf_counter()
     scene = _worker_scene(payload, geometry_hash)
-    store = FormFactorStore.open(scene, path, resolution=resolution, patching=patching)
+    store = FormFactorStore.open(scene, path, resolution=resolution, patching=patching, samples=samples)
     pr = _worker_prolongation(store) if part == "G" else None
     rows = compute_blocks(store, scene, group, row_function, default_device(), part, pr)
     return group, rows, time.perf_counter() - t0
@@ -197,7 +197,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
                            verify: bool = False, row_function: RowFunction = form_factor_rows,
                            blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS, clusters=None,
                            cluster_resolution: int | None = None, cluster_params: dict | None = None,
-                           compute_f: bool = True, cluster_basis: str = "linear") -> FormFactorStore:
+                           compute_f: bool = True, cluster_basis: str = "linear", samples: int = 1) -> FormFactorStore:
     """Compute every missing block of the store at ``path`` on a Dask cluster; returns the store.
 
     Parameters
@@ -208,6 +208,8 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
         arrays, broadcast once to every worker.
     path : folder of the store (created, or resumed if its header matches).
     resolution : hemicube resolution (pixels on the top face's side).
+    samples : hemicubes per row (1, 4, 16, ...: :func:`pydynrad.form_factors`), recorded in the
+        header; a resume with other samples raises :class:`~pydynrad.store.StoreMismatchError`.
     block_rows : rows per block file (the unit of reads and of resuming).
     workers : worker processes of the LocalCluster started by default (one thread each;
         default: one per CPU core).
@@ -234,7 +236,8 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     path = Path(path).resolve()
     store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
                                 verify=verify, blocks=blocks, clusters=clusters, cluster_resolution=cluster_resolution,
-                                cluster_params=cluster_params, compute_f=compute_f, cluster_basis=cluster_basis)
+                                cluster_params=cluster_params, compute_f=compute_f, cluster_basis=cluster_basis,
+                                samples=samples)
     if not todo["F"] and not todo["G"]:
         return store
     client, cluster = _start_client(workers, scheduler)
@@ -247,7 +250,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
             # F first, then G: G's tasks then find F's blocks on disk and sum them (compute_blocks), no hemicubes.
             for part in ("F", "G"):
                 futures = [client.submit(_blocks_task, str(path), group, payload, ghash, resolution, patching,
-                                         row_function, part, pure=False,
+                                         row_function, part, samples, pure=False,
                                          key=f"pydynrad-{part}blocks-{ghash[:16]}-{group[0]}-{group[-1]}")
                            for group in task_groups(store, todo[part], task_rows)]
                 for fut in as_completed(futures):

@@ -1,7 +1,7 @@
 """Form factors on disk, one entry point for both layouts.
 
 * a single ``.npz`` file (:func:`save_form_factors` / :func:`load_form_factors`): the CSR
-  arrays of F plus a JSON header (format, scene geometry hash, N, resolution); read whole
+  arrays of F plus a JSON header (format, scene geometry hash, N, resolution, samples); read whole
   into memory, for scenes whose F fits in RAM;
 * a form-factor store folder (:class:`pydynrad.store.FormFactorStore`): F in compressed row
   blocks, read on demand, for scenes whose F does not fit.
@@ -24,6 +24,7 @@ import scipy.sparse as sp
 from ..atomic import check_parent_folder, write_atomic
 from ..checks import resolution as checked_resolution, scene as checked_scene, sparse_structure
 from ..errors import InvalidInputError
+from ..formfactors import checked_samples
 
 __all__ = ["FF_FORMAT", "is_form_factor_file", "load_form_factors", "open_form_factors", "save_form_factors",
            "whole_matrix"]
@@ -32,13 +33,16 @@ FF_FORMAT = "pydynrad-form-factors"
 FF_VERSION = 1
 
 
-def save_form_factors(scene, path, F, resolution: int) -> Path:
+def save_form_factors(scene, path, F, resolution: int, samples: int = 1) -> Path:
     """Save sparse F (N, N) of ``scene`` at ``path`` as ``.npz`` with a JSON header; returns the path.
 
     The header records the format, the scene's name and geometry hash, N, the hemicube
-    ``resolution`` and nnz. Written whole (temporary file in the same folder, then rename).
+    ``resolution``, the hemicubes per row ``samples`` (:func:`pydynrad.form_factors`) and nnz.
+    Written whole (temporary file in the same folder, then rename).
     """
     checked_scene(scene)
+    resolution = checked_resolution(resolution)
+    samples = checked_samples(samples, resolution)
     path = check_parent_folder(path)
     if path.suffix.lower() != ".npz":
         raise InvalidInputError(f"form-factor file {str(path)!r} must end in .npz")
@@ -47,7 +51,7 @@ def save_form_factors(scene, path, F, resolution: int) -> Path:
     if F.shape != (n, n):
         raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {F.shape}")
     header = {"format": FF_FORMAT, "version": FF_VERSION, "scene": scene.name, "geometry_hash": scene.geometry_hash(),
-              "n_patches": n, "resolution": checked_resolution(resolution), "nnz": int(F.nnz)}
+              "n_patches": n, "resolution": resolution, "samples": samples, "nnz": int(F.nnz)}
     buf = io.BytesIO()
     np.savez(buf, header=np.array(json.dumps(header)), data=F.data.astype(np.float32),
              indices=F.indices.astype(np.int32), indptr=F.indptr.astype(np.int64))
@@ -55,11 +59,14 @@ def save_form_factors(scene, path, F, resolution: int) -> Path:
     return path
 
 
-def load_form_factors(scene, path) -> tuple[sp.csr_matrix, dict]:
+def load_form_factors(scene, path, *, resolution: int | None = None,
+                      samples: int | None = None) -> tuple[sp.csr_matrix, dict]:
     """Read a file written by :func:`save_form_factors` for ``scene``; returns (F (N, N) float32 CSR, header).
 
-    Raises :class:`InvalidInputError` when the file is missing, malformed or made for another
-    scene geometry.
+    The header's ``samples`` is 1 for files written before it was recorded (they were all
+    single hemicubes). Raises :class:`InvalidInputError` when the file is missing, malformed,
+    made for another scene geometry, or, where ``resolution`` or ``samples`` is given, made
+    with another one.
     """
     checked_scene(scene)
     path = Path(path)
@@ -74,9 +81,27 @@ def load_form_factors(scene, path) -> tuple[sp.csr_matrix, dict]:
     if n != len(scene) or data.ndim != 1:
         raise InvalidInputError(f"form-factor file {str(path)!r} is damaged: header says {n} patches, "
                                 f"data has shape {data.shape}; this scene has {len(scene)} patches")
+    _check_parameters(path, header, resolution, samples)
     # Before scipy sees them: its kernels index memory with these arrays unchecked.
     sparse_structure(indptr, indices, (n, n), f"form-factor file {str(path)!r}", nnz=len(data))
     return sp.csr_matrix((data, indices, indptr), shape=(n, n)), header
+
+
+def _check_parameters(path: Path, header: dict, resolution: int | None, samples: int | None) -> None:
+    """The header's resolution and samples (1 when absent) valid, and equal to those requested."""
+    header.setdefault("samples", 1)
+    try:
+        have = {"resolution": checked_resolution(header.get("resolution"))}
+        have["samples"] = checked_samples(header["samples"], have["resolution"])
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"form-factor file {str(path)!r} is damaged: {exc}") from None
+    want = {"resolution": None if resolution is None else checked_resolution(resolution), "samples": samples}
+    if want["samples"] is not None:
+        want["samples"] = checked_samples(samples, want["resolution"] or have["resolution"])
+    diff = [f"{k} {have[k]}, requested {v}" for k, v in want.items() if v is not None and have[k] != v]
+    if diff:
+        raise InvalidInputError(f"form-factor file {str(path)!r} was computed with other parameters "
+                                f"({'; '.join(diff)}): recompute it with `pydynrad formfactors`")
 
 
 def _read(path: Path, arrays: bool) -> tuple[dict, tuple]:
@@ -103,12 +128,14 @@ def is_form_factor_file(path) -> bool:
     return True
 
 
-def _open_store(scene, path: Path):
-    """The complete store at ``path``, checked against ``scene`` with the parameters it records."""
+def _open_store(scene, path: Path, samples: int | None = None):
+    """The complete store at ``path``, checked against ``scene`` with the parameters it records
+    (and with ``samples`` where given)."""
     from .store import FormFactorStore, StoreIncompleteError
 
     params = FormFactorStore.read_header(path)["params"]
-    store = FormFactorStore.open(scene, path, resolution=params["resolution"], patching=params["patching"])
+    store = FormFactorStore.open(scene, path, resolution=params["resolution"], patching=params["patching"],
+                                 samples=params.get("samples", 1) if samples is None else samples)
     missing = store.missing_blocks()
     if missing:
         raise StoreIncompleteError(f"form-factor store {str(path)!r} is unfinished ({len(missing)} of {store.n_blocks} "
@@ -116,18 +143,21 @@ def _open_store(scene, path: Path):
     return store
 
 
-def open_form_factors(scene, path, cache_bytes: int | None = None):
+def open_form_factors(scene, path, cache_bytes: int | None = None, *, samples: int | None = None):
     """F of ``scene`` from a ``.npz`` file or a form-factor store folder.
 
     Returns a float32 CSR matrix (N, N) for a file. For a store, the
     :class:`~pydynrad.store.FormFactorStore` itself (every row read goes to disk) or, with
     ``cache_bytes``, a :class:`~pydynrad.rows.cache.RowCache` of that many bytes over it (LRU,
     with background prefetch; close it when done). ``cache_bytes`` does not apply to a file,
-    which is in memory whole.
+    which is in memory whole. With ``samples``, F must have been computed with that many
+    hemicubes per row (:func:`pydynrad.form_factors`; files and stores from before it was
+    recorded hold 1).
 
     Raises :class:`InvalidInputError` for a missing path or a file that is not a pydynrad
     form-factor file, :class:`~pydynrad.store.StoreMismatchError` for a store made for
-    another scene geometry (or other parameters), :class:`~pydynrad.store.StoreIncompleteError`
+    another scene geometry (or other parameters, ``samples`` among them; a file with other
+    ``samples`` raises InvalidInputError), :class:`~pydynrad.store.StoreIncompleteError`
     for a store not finished yet.
     """
     from .cache import RowCache
@@ -135,11 +165,11 @@ def open_form_factors(scene, path, cache_bytes: int | None = None):
     checked_scene(scene)
     path = Path(path)
     if path.is_dir():
-        store = _open_store(scene, path)
+        store = _open_store(scene, path, samples)
         return store if cache_bytes is None else RowCache(store, cache_bytes)
     if not path.exists():
         raise InvalidInputError(f"form factors {str(path)!r}: no such file or store folder")
-    return load_form_factors(scene, path)[0]
+    return load_form_factors(scene, path, samples=samples)[0]
 
 
 def whole_matrix(form_factors) -> sp.csr_matrix:

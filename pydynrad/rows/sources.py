@@ -5,7 +5,7 @@ F[S, J], it reads from the local set's own rows, which it keeps; see :mod:`pydyn
 Anything with ``n_patches`` and ``rows(idx) -> csr (len(idx), N)`` can supply them:
 
 * :class:`CSRRows`: an in-memory sparse matrix (what :func:`pydynrad.form_factors` returns);
-* :class:`HemicubeRows`: one hemicube per requested row, computed on the device, nothing stored;
+* :class:`HemicubeRows`: hemicubes per requested row, computed on the device, nothing stored;
 * :class:`pydynrad.rows.store.FormFactorStore`: rows read from disk block by block;
 * :class:`pydynrad.rows.cache.RowCache`: any source behind a bounded, prefetching LRU cache.
 """
@@ -88,17 +88,21 @@ def as_row_source(form_factors) -> RowSource:
 
 
 class HemicubeRows:
-    """Rows of F computed on demand, one hemicube per patch (:func:`pydynrad.form_factors`).
+    """Rows of F computed on demand (:func:`pydynrad.form_factors`).
 
     The row source behind ``DynamicRadiosity(scene, None, ...)``: no form factors are stored,
-    each entering patch costs one hemicube of ``resolution``.
+    each entering patch costs ``samples`` hemicubes of ``resolution / sqrt(samples)`` (3 R^2
+    rays), the rows of ``form_factors(scene, resolution, rows, samples=samples)``.
     """
 
-    def __init__(self, scene, resolution: int, device=None) -> None:
+    def __init__(self, scene, resolution: int, device=None, *, samples: int = 1) -> None:
+        from ..formfactors import checked_samples
+
         self.scene, self.resolution, self.device = scene, checked_resolution(resolution), device
+        self.samples = checked_samples(samples, self.resolution)
         self.n_patches = len(scene)
 
     def rows(self, idx) -> sp.csr_matrix:
         from ..formfactors import form_factors
 
-        return form_factors(self.scene, resolution=self.resolution, rows=idx, device=self.device)
+        return form_factors(self.scene, resolution=self.resolution, rows=idx, device=self.device, samples=self.samples)

@@ -178,14 +178,18 @@ def _read_csr(path: Path, k: int, rows: range, n_cols: int, what: str, store: Pa
     return sp.csr_matrix((data, indices, indptr), shape=(len(rows), n_cols))
 
 
-def _canonical_params(resolution: int, patching: dict | None) -> dict:
+def _canonical_params(resolution: int, patching: dict | None, samples: int = 1) -> dict:
+    from ..formfactors import checked_samples
+
     resolution = checked_resolution(resolution)
+    samples = checked_samples(samples, resolution)
     try:
         # A JSON round trip makes tuples lists, so the recorded and the requested values compare equal.
         patch = json.loads(json.dumps(dict(patching or {}), sort_keys=True))
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"patching parameters must be JSON-serialisable (numbers, strings, lists): {exc}") from exc
-    return {"resolution": int(resolution), "patching": patch, "pydynrad_version": _library_version(), "dtype": "float32"}
+    return {"resolution": int(resolution), "samples": samples, "patching": patch, "pydynrad_version": _library_version(),
+            "dtype": "float32"}
 
 
 def _check_header_fields(path: Path, header: dict) -> None:
@@ -201,6 +205,7 @@ def _check_header_fields(path: Path, header: dict) -> None:
               ("geometry_hash", header.get("geometry_hash"), lambda v: isinstance(v, str), "a string"),
               ("params", params, lambda v: isinstance(v, dict), "an object"),
               ("params.resolution", sub.get("resolution"), positive_int, "a positive integer"),
+              ("params.samples", sub.get("samples", 1), positive_int, "a positive integer"),
               ("params.patching", sub.get("patching"), lambda v: isinstance(v, dict), "an object"))
     for name, value, ok, kind in fields:
         if not ok(value):
@@ -226,10 +231,11 @@ class FormFactorStore:
     # -- creation and opening --------------------------------------------------------------
     @classmethod
     def create(cls, scene, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
-               patching: dict | None = None, exist_ok: bool = False) -> "FormFactorStore":
+               patching: dict | None = None, exist_ok: bool = False, samples: int = 1) -> "FormFactorStore":
         """Make a new, empty store for ``scene`` at ``path`` (a folder).
 
-        ``resolution`` is the hemicube resolution the rows will be computed with;
+        ``resolution`` and ``samples`` are the hemicube resolution and the hemicubes per row
+        the rows will be computed with (:func:`pydynrad.form_factors`);
         ``patching`` records how the scene was patched (e.g. ``{"max_area": 0.01}``), so a
         store is never reused for another patching of the same input. With ``exist_ok`` an
         existing store with a matching header is opened (to resume it); a mismatching one
@@ -238,11 +244,11 @@ class FormFactorStore:
         checked_scene(scene)
         path = Path(path)
         integer(block_rows, "block_rows")
-        params = _canonical_params(resolution, patching)
+        params = _canonical_params(resolution, patching, samples)
         if (path / HEADER).exists():
             if not exist_ok:
                 raise InvalidInputError(f"a form-factor store already exists at {path}; open it, or pass exist_ok=True to resume it")
-            store = cls.open(scene, path, resolution=resolution, patching=patching)
+            store = cls.open(scene, path, resolution=resolution, patching=patching, samples=samples)
             if store.block_rows != block_rows:
                 raise StoreMismatchError(f"store {path} has block_rows={store.block_rows}, not {block_rows}")
             return store
@@ -279,18 +285,30 @@ class FormFactorStore:
         return header
 
     @classmethod
-    def open(cls, scene, path, *, resolution: int, patching: dict | None = None) -> "FormFactorStore":
-        """Open the store of ``scene`` at ``path``, refusing it unless it was made for this scene and parameters."""
+    def open(cls, scene, path, *, resolution: int, patching: dict | None = None, samples: int = 1) -> "FormFactorStore":
+        """Open the store of ``scene`` at ``path``, refusing it unless it was made for this scene and
+        parameters (a store from before ``samples`` was recorded holds 1)."""
         checked_scene(scene)
         path = Path(path)
         header = cls.read_header(path)
         want = {"geometry_hash": scene.geometry_hash(), "n_patches": int(len(scene)),
-                **_canonical_params(resolution, patching)}
-        have = {"geometry_hash": header["geometry_hash"], "n_patches": header["n_patches"], **header["params"]}
+                **_canonical_params(resolution, patching, samples)}
+        have = {"geometry_hash": header["geometry_hash"], "n_patches": header["n_patches"], "samples": 1,
+                **header["params"]}
         diff = [f"{k}: store has {have.get(k)!r}, requested {v!r}" for k, v in want.items() if have.get(k) != v]
         if diff:
             raise StoreMismatchError(f"form-factor store {path} does not match the request ({'; '.join(diff)})")
         return cls(path, header)
+
+    @property
+    def samples(self) -> int:
+        """Hemicubes per row of F's rows (:func:`pydynrad.form_factors`)."""
+        return int(self.header["params"].get("samples", 1))
+
+    @property
+    def cluster_samples(self) -> int:
+        """Hemicubes per row of G: F's at F's resolution (G is then F Pr of the stored rows), else 1."""
+        return self.samples if self.cluster_resolution == self.header["params"]["resolution"] else 1
 
     # -- layout ----------------------------------------------------------------------------
     def block_path(self, k: int, part: str = "F") -> Path:
@@ -323,7 +341,7 @@ class FormFactorStore:
 
     def _binding(self, k: int, part: str) -> str:
         """What block ``k`` of ``part`` belongs to, hashed into its checksum: this store's scene
-        geometry and parameters (resolution, patching; for G its clusters), the part and the block."""
+        geometry and parameters (resolution, samples, patching; for G its clusters), the part and the block."""
         h = self.header
         key = {"geometry_hash": h["geometry_hash"], "n_patches": h["n_patches"], "block_rows": h["block_rows"],
                "params": h["params"], "part": part, "block": int(k)}
@@ -644,17 +662,17 @@ class FormFactorStore:
                 f"{self.block_rows} rows, resolution={self.header['params']['resolution']}{g})")
 
 
-def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None) -> sp.csr_matrix:
+def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None, samples: int = 1) -> sp.csr_matrix:
     """The default row function: hemicube rows from :func:`pydynrad.form_factors`."""
     from ..formfactors import form_factors
 
-    return form_factors(scene, resolution=resolution, rows=rows, device=device)
+    return form_factors(scene, resolution=resolution, rows=rows, device=device, samples=samples)
 
 
 def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: dict | None, verify: bool,
                   blocks: Iterable[int] | None, clusters=None, cluster_resolution: int | None = None,
                   cluster_params: dict | None = None, compute_f: bool = True,
-                  cluster_basis: str = "linear") -> tuple[FormFactorStore, dict[str, list[int]]]:
+                  cluster_basis: str = "linear", samples: int = 1) -> tuple[FormFactorStore, dict[str, list[int]]]:
     """Create or reopen a store for writing: stale temporaries removed, ``clusters`` recorded
     (as the prolongation of ``cluster_basis``, :func:`pydynrad.farfield.gather.basis_prolongation`).
 
@@ -662,7 +680,7 @@ def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: di
     the store has clusters, recorded now or before; F's unless ``compute_f`` is False).
     """
     store = FormFactorStore.create(scene, path, resolution=resolution, block_rows=block_rows,
-                                   patching=patching, exist_ok=True)
+                                   patching=patching, exist_ok=True, samples=samples)
     store.remove_stale_temporaries()
     if clusters is not None:
         from ..farfield.gather import basis_prolongation
@@ -709,7 +727,9 @@ def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function
     ``prolongation`` to save reading it per group): from the store's own blocks of F where they
     are on disk and G's resolution is F's (no second pass of hemicubes: G then costs a sparse
     product per block, and agrees with the stored F exactly), else from
-    :func:`pydynrad.farfield.gather.cluster_form_factors` at G's resolution.
+    :func:`pydynrad.farfield.gather.cluster_form_factors` at G's resolution (with
+    :attr:`FormFactorStore.cluster_samples`). ``row_function`` gets ``samples=`` when the
+    store's samples are more than 1.
     """
     first, last = store.block_range(group[0]), store.block_range(group[-1])
     rows = np.arange(first.start, last.stop)
@@ -721,9 +741,12 @@ def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function
                 store.block_path(k).exists() for k in group):
             csr = sp.csr_matrix(sp.vstack([store.read_block(k) for k in group], format="csr") @ pr, dtype=np.float32)
         else:
-            csr = cluster_form_factors(scene, pr, store.cluster_resolution, rows=rows, device=device)
+            csr = cluster_form_factors(scene, pr, store.cluster_resolution, rows=rows, device=device,
+                                       samples=store.cluster_samples)
     else:
-        csr = sp.csr_matrix(row_function(scene, rows, store.header["params"]["resolution"], device=device))
+        # Row functions written before samples existed keep working for single-hemicube stores.
+        sampled = {"samples": store.samples} if store.samples > 1 else {}
+        csr = sp.csr_matrix(row_function(scene, rows, store.header["params"]["resolution"], device=device, **sampled))
     for k in group:
         r = store.block_range(k)
         store.write_block(k, csr[r.start - first.start:r.stop - first.start], part)
@@ -735,10 +758,13 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
                   row_function: RowFunction = form_factor_rows, device=None,
                   blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS, clusters=None,
                   cluster_resolution: int | None = None, cluster_params: dict | None = None,
-                  compute_f: bool = True, cluster_basis: str = "linear") -> FormFactorStore:
+                  compute_f: bool = True, cluster_basis: str = "linear", samples: int = 1) -> FormFactorStore:
     """Create (or resume) the store at ``path`` and compute every missing block in this process.
 
-    ``row_function(scene, rows, resolution, device=...)`` returns the (len(rows), N) CSR
+    ``samples``: hemicubes per row (1, 4, 16, ...: :func:`pydynrad.form_factors`), recorded
+    in the header; a resume with other samples (or another resolution) raises
+    :class:`StoreMismatchError`. ``row_function(scene, rows, resolution, device=...)`` (and
+    ``samples=`` when ``samples`` > 1) returns the (len(rows), N) CSR
     rows; the default is :func:`form_factor_rows`; it is called on runs of up to
     ``task_rows`` rows. ``verify`` re-checks finished blocks and recomputes corrupt ones.
     ``blocks`` restricts the work to some block indices; ``progress``: a tqdm bar (None: on a
@@ -749,7 +775,8 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
     :class:`pydynrad.farfield.Clusters`) records the clusters and computes G beside F, from
     hemicubes of ``cluster_resolution`` (:func:`pydynrad.farfield.gather.cluster_form_factors`;
     default: F's ``resolution``, so G is summed from F's stored rows with no hemicubes of its own,
-    and without F it is F Pr of the rows a walk computes on demand at that resolution);
+    and without F it is F Pr of the rows a walk computes on demand at that resolution, with F's
+    ``samples``; at another resolution G is of single hemicubes);
     a store with clusters already recorded resumes its G too. ``cluster_basis``: "linear" (the
     default: 3C columns, the far field's piecewise-linear coarse level, what a walk without F
     needs for its accuracy; bench/farstore.py) or "indicator" (C columns) for labels or
@@ -760,7 +787,8 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
 
     store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
                                 verify=verify, blocks=blocks, clusters=clusters, cluster_resolution=cluster_resolution,
-                                cluster_params=cluster_params, compute_f=compute_f, cluster_basis=cluster_basis)
+                                cluster_params=cluster_params, compute_f=compute_f, cluster_basis=cluster_basis,
+                                samples=samples)
     pr = store.prolongation() if todo["G"] else None
     for part, desc in (("F", "form factors"), ("G", "cluster form factors")):
         with progress_bar(progress if todo[part] else False, total=sum(len(store.block_range(k)) for k in todo[part]),
