@@ -49,6 +49,10 @@ __all__ = ["DynamicRadiosity", "FrameStats"]
 UPDATE_MODES = ("exact", "paper")
 #: The most swaps one frame may batch (the gather keeps this many vectors in private memory).
 MAX_SWAPS_LIMIT = 32
+#: The most patches one batch of a move swaps (objects' patches and refreshed rows): a move
+#: batches up to this many of its slots, more than a frame's swaps, since chunks of a move
+#: each pay a gather and a rank pass of their own (private arrays of twice this many terms).
+MOVE_SWAPS_LIMIT = 64
 #: Rows refreshed per move for the occlusion of moving objects (``occlusion=``), by default.
 DEFAULT_OCCLUSION = 32
 
@@ -224,6 +228,12 @@ class DynamicRadiosity:
         return world, rows
 
     @property
+    def _swap_size(self) -> int:
+        """The most vectors per batch of the update kernels: a frame's swaps, or a move's batch
+        of the objects' patches when larger (a 48-patch block in one batch, not 32 + 16)."""
+        return max(self.max_swaps, min(len(self._object_patches), MOVE_SWAPS_LIMIT))
+
+    @property
     def _object_patches(self) -> np.ndarray:
         n = len(self.scene)
         return np.arange(len(self.static_scene), n) if self.objects else np.empty(0, np.int64)
@@ -293,10 +303,12 @@ class DynamicRadiosity:
         return self._matrix.nbytes + self._kernels.nbytes + far
 
     @staticmethod
-    def estimate_memory_bytes(M: int, channels: int, storage: str, max_swaps_per_frame: int = 8, device=None) -> int:
+    def estimate_memory_bytes(M: int, channels: int, storage: str, max_swaps_per_frame: int = 8, device=None,
+                              object_patches: int = 0) -> int:
         """What :attr:`memory_bytes` will be for these sizes without a far field (K and the
         update's scratch), without building anything; a far field adds its
-        :attr:`~pydynrad.farfield.FarField.device_memory_bytes`."""
+        :attr:`~pydynrad.farfield.FarField.device_memory_bytes`. ``object_patches``: the moving
+        objects' patches together (a move batches up to ``MOVE_SWAPS_LIMIT`` of them)."""
         from ..device import default_device
         from .kupdate import scratch_nbytes
 
@@ -304,7 +316,8 @@ class DynamicRadiosity:
         ld = padded_ld(M)
         real = compute_dtype(storage).itemsize
         item = storage_dtype(storage).itemsize
-        return channels * M * ld * item + scratch_nbytes(device, M, ld, item, real, max_swaps_per_frame, channels)
+        swaps = max(max_swaps_per_frame, min(object_patches, MOVE_SWAPS_LIMIT))
+        return channels * M * ld * item + scratch_nbytes(device, M, ld, item, real, swaps, channels)
 
     @property
     def host_memory_bytes(self) -> int:
@@ -334,7 +347,7 @@ class DynamicRadiosity:
         from .kupdate import UpdateKernels
 
         self._matrix = DeviceMatrix.zeros(self.device, self.C, self.M, self.storage)
-        self._kernels = UpdateKernels(self._matrix, self.max_swaps)
+        self._kernels = UpdateKernels(self._matrix, self._swap_size)
         self._warm_up()
 
     def _build(self, local_patches: np.ndarray, fetch: bool = True) -> None:
@@ -490,7 +503,7 @@ class DynamicRadiosity:
         local = _replace_rows(self._ff.local, slots, new_rows)
         local = stale_rows(local, slots, S, slot_of[moved], moved, self.scene.areas)
         rho = self._rho(S)
-        for c in swap_chunks(slots, self.max_swaps):
+        for c in swap_chunks(slots, self._swap_size):
             F_SJ = local[:, S[c]].toarray()
             F_SJ[c, :] = 0.0
             rows_c = local[c]
