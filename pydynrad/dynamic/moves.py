@@ -400,10 +400,12 @@ class WorldRows:
         order = np.argsort(np.concatenate([np.flatnonzero(~obj), np.flatnonzero(obj)]), kind="stable")
         return sp.csr_matrix(sp.vstack(parts, format="csr")[order])
 
-    def refresh(self, moved: np.ndarray, candidates: np.ndarray, current: sp.csr_matrix, spheres, budget: int | None,
-                weight: np.ndarray | None) -> tuple[np.ndarray, sp.csr_matrix, int]:
-        """Which of the static ``candidates`` (patch indices, their kept rows ``current``) to
-        refresh after a move, and the new rows of ``moved`` (object patches) and of those.
+    def refresh(self, moved: np.ndarray, candidates: np.ndarray, slots: np.ndarray, kept: sp.csr_matrix, spheres,
+                budget: int | None, weight: np.ndarray | None) -> tuple[np.ndarray, sp.csr_matrix, int]:
+        """Which of the static ``candidates`` (patch indices in ``slots``; ``kept`` the local
+        set's rows (M, N) in slot order, so theirs are ``current = kept[slots]``, sliced only
+        when the budget ranks them) to refresh after a move, and the new rows of ``moved``
+        (object patches) and of those.
 
         Hemicube rows (no static F): the ``budget`` candidates that see the most of the objects'
         old and new bounding ``spheres`` (:func:`refresh_order`), by hemicube. With a static F:
@@ -431,7 +433,7 @@ class WorldRows:
             w = np.ones(self.n_patches) if weight is None else np.asarray(weight, np.float64)
             keep = np.ones(self.n_patches)
             keep[self.object_patches] = 0.0
-            change = np.abs((new - current[order]) @ (keep * w))
+            change = np.abs((new - kept[slots[order]]) @ (keep * w))
             p = candidates[order]
             rho = world.albedo[p].astype(np.float64).mean(axis=1)
             score = world.areas[p] * rho * change / np.maximum(w[p], 1e-3 * max(float(w.mean()), 1e-300))

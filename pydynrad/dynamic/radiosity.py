@@ -497,19 +497,24 @@ class DynamicRadiosity:
         slot_of = np.full(len(self.scene), -1)
         slot_of[S] = np.arange(M)
         others = np.flatnonzero(~np.isin(S, moved))
-        order, new_rows, hemicubes = source.refresh(moved, S[others], self._ff.local[others], spheres, self.occlusion,
+        order, new_rows, hemicubes = source.refresh(moved, S[others], others, self._ff.local, spheres, self.occlusion,
                                                     self._last_B)
         slots = np.concatenate([slot_of[moved], others[order]])
         local = _replace_rows(self._ff.local, slots, new_rows)
         local = stale_rows(local, slots, S, slot_of[moved], moved, self.scene.areas)
         rho = self._rho(S)
-        for c in swap_chunks(slots, self._swap_size):
-            F_SJ = local[:, S[c]].toarray()
+        # The swapped slots' columns and rows of F_SS, sliced out of the (M, N) rows once for
+        # every chunk (a column slice passes over all of local's entries).
+        cols = local[:, S[slots]].tocsc()
+        rows = local[slots][:, S]
+        for p in swap_chunks(np.arange(len(slots)), self._swap_size):
+            c = slots[p]
+            F_SJ = cols[:, p].toarray()
             F_SJ[c, :] = 0.0
-            rows_c = local[c]
-            F_JS = rows_c[:, S].toarray()
+            F_JS = rows[p].toarray()
+            F_JJ = F_JS[:, c]
             F_JS[:, c] = 0.0
-            exact_swap(self._kernels, c, F_SJ, F_JS, rows_c[:, S[c]].toarray(), rho, rho[:, c])
+            exact_swap(self._kernels, c, F_SJ, F_JS, F_JJ, rho, rho[:, c])
         self._ff.local = local
         source.object_rows = local[slot_of[self._object_patches]]
         return len(order), hemicubes
