@@ -67,6 +67,7 @@ def _visible_error(scene, B, B_ref, camera, device) -> float:
 
 def measure(size: str, device, progress: bool = True) -> dict:
     import pydynrad as pd
+    from pydynrad.dynamic.radiosity import MOVE_SWAPS_LIMIT
 
     p = SIZES[size]
     box = pd.scenes.cornell_box(max_edge=p["max_edge"])
@@ -131,7 +132,7 @@ def measure(size: str, device, progress: bool = True) -> dict:
                      f"{len(WALK)} walk frames and of the {p['moves']} moves (the machine is shared). "
                      f"Walk frame: update with the observer stepping 40 mm (up to {SWAPS} swaps) and radiosity "
                      f"with the light, no move; moving frame: the same with the observer still and one move "
-                     f"(swapped in chunks of {SWAPS}). 'static F': the static scene's precomputed F; refreshed rows "
+                     f"(its slots swapped in batches of up to MOVE_SWAPS_LIMIT = {MOVE_SWAPS_LIMIT}: the block's in one). 'static F': the static scene's precomputed F; refreshed rows "
                      "come from it at the new pose (entries the block hides dropped, its columns by reciprocity), "
                      "ranked by the change in the light they gather; 'hemicubes': every row a hemicube of the world "
                      "as it is, ranked by the solid angle of the block's bounds (budget 'all' is then exact)."}
