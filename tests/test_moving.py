@@ -326,3 +326,14 @@ def test_poses_in_store(box, block, device, tmp_path):
     files[1].write_bytes(files[0].read_bytes())  # one configuration's file under another's name
     with pytest.raises(pd.StoreCorruptError, match="checksum"):
         [reopened.get(T) for T in (pd.RigidObject(block, START).transform[None], END[None])]
+
+
+def test_memory_estimate_counts_the_move_batch(box, block, device):
+    # A move swaps the block's 48 patches in one batch: the update's scratch is sized for it,
+    # not for the frame's 8 swaps, and the estimate says so.
+    obj = pd.RigidObject(block, START)
+    dyn = pd.DynamicRadiosity(box, None, local_size=len(box), resolution=R, objects=[obj], max_swaps_per_frame=8,
+                              far_field=False, observer=OBSERVER, device=device)
+    M = len(box)
+    assert dyn.memory_bytes == pd.DynamicRadiosity.estimate_memory_bytes(M, 3, "fp32", 8, device, object_patches=len(block))
+    assert dyn.memory_bytes > pd.DynamicRadiosity.estimate_memory_bytes(M, 3, "fp32", 8, device)
