@@ -9,7 +9,6 @@ import shutil
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 from helpers import assert_one_line_error, box_mesh, run_main, same_csr
 
 from pydynrad import DynamicRadiosity, InvalidInputError, Scene, form_factors
