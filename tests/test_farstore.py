@@ -89,3 +89,21 @@ def test_light_components_without_f_are_those_of_f(device, tmp_path):
                           row_function=lambda scene, rows, resolution, device=None: F[rows])
     streamed = light_components_by_hemicube(scene, store=store)  # F's own blocks, no rays
     assert len(np.unique(np.column_stack([want, streamed]), axis=0)) == len(np.unique(streamed)) == 3
+
+
+def test_light_components_refuse_a_store_of_another_scene(device, tmp_path):
+    from pydynrad.rows.store import StoreIncompleteError, compute_store
+
+    scene = box_scene(2)
+    F = pydynrad.form_factors(scene, resolution=8, device=device, progress=False)
+    store = compute_store(scene, tmp_path / "ff", resolution=8, block_rows=8, progress=False,
+                          row_function=lambda scene, rows, resolution, device=None: F[rows])
+    # The same patch count, another geometry: its F would give this scene wrong components.
+    moved = pydynrad.Scene(box_scene(2).points * [1.0, 2.0, 1.0], scene.triangles, name="stretched box")
+    with pytest.raises(pydynrad.InvalidInputError, match="another scene geometry"):
+        light_components_by_hemicube(moved, store=store)
+    with pytest.raises(pydynrad.InvalidInputError, match="rows; the scene has"):
+        light_components_by_hemicube(box_scene(3), store=store)
+    store.block_path(1).unlink()
+    with pytest.raises(StoreIncompleteError, match="1 of 6 blocks missing"):
+        light_components_by_hemicube(scene, store=store)

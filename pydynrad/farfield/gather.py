@@ -80,6 +80,15 @@ def as_prolongation(clusters, n: int) -> sp.csr_matrix:
 COMPONENT_RESOLUTION = 8
 
 
+def _check_store(scene, store, n: int) -> None:
+    """InvalidInputError unless the form-factor ``store`` was made for ``scene`` (N = ``n``): its
+    rows index this scene's patches."""
+    if store.n_patches != n:
+        raise InvalidInputError(f"the form factors have {store.n_patches} rows; the scene has {n} patches")
+    if store.header["geometry_hash"] != scene.geometry_hash():
+        raise InvalidInputError(f"form-factor store {store.path} was made for another scene geometry")
+
+
 def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, device=None,
                                  progress: bool | None = None, store=None) -> np.ndarray:
     """:func:`pydynrad.farfield.clusters.light_components` of a scene whose F is never formed.
@@ -96,6 +105,13 @@ def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, 
 
     n = len(checked_scene(scene))
     if store is not None:
+        _check_store(scene, store, n)
+        missing = store.missing_blocks()
+        if missing:
+            from ..rows.store import StoreIncompleteError
+
+            raise StoreIncompleteError(f"form-factor store {store.path} holds only part of F ({len(missing)} of "
+                                       f"{store.n_blocks} blocks missing): its light components need all of it")
         blocks = (store.read_block(k) for k in range(store.n_blocks))
     else:
         blocks = hemicube_blocks(scene, resolution, None, device, progress, desc="light components")
@@ -259,15 +275,15 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
     inner = source
     while not isinstance(inner, (FormFactorStore, HemicubeRows)) and hasattr(inner, "source"):
         inner = inner.source  # through row caches: a whole pass over F would only evict them
-    if getattr(inner, "n_patches", None) != n:
+    if isinstance(inner, FormFactorStore):
+        _check_store(scene, inner, n)
+    elif getattr(inner, "n_patches", None) != n:
         raise InvalidInputError(f"the form factors have {getattr(inner, 'n_patches', None)} rows; the scene has {n} patches")
     if isinstance(inner, HemicubeRows):
         R = inner.resolution if resolution is None else resolution
         return cluster_form_factors(scene, pr, R, device=device, progress=progress,
                                     samples=inner.samples if R == inner.resolution else 1)
     if isinstance(inner, FormFactorStore):
-        if inner.header["geometry_hash"] != scene.geometry_hash():
-            raise InvalidInputError(f"form-factor store {inner.path} was made for another scene geometry")
         if inner.has_clusters:
             return inner.cluster_form_factors(pr)
         missing = inner.missing_blocks()
