@@ -145,7 +145,7 @@ def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
         assert radiosity_error(B, ref, scene.areas) < tol
 
 
-@pytest.mark.parametrize("storage, rtol", [("fp64", 1e-13), ("fp32", 5e-6), ("fp16", 2e-3)])
+@pytest.mark.parametrize("storage, rtol", [("fp64", 5e-14), ("fp32", 5e-6), ("fp16", 2e-3)])
 def test_dense_coarse_level_and_first_bounce_gather(device, cornell, storage, rtol):
     """B_far = L + D1 + P G D_c, D1 = P F L, with D_c = R D1 + P_c F_c D_c solved densely in float64."""
     scene, F, L, _, _ = cornell
@@ -160,7 +160,7 @@ def test_dense_coarse_level_and_first_bounce_gather(device, cornell, storage, rt
     # Observed max relative error (PoCL, 2026-12-02): 6e-16 (fp64), 5e-8 (fp32), 2e-5 (fp16 K_c); 4e-15 swept.
     np.testing.assert_allclose(far.light(L), want, rtol=rtol, atol=rtol * want.max())
     sweeps = FarField(scene, F, clusters=far.clusters, coarse="sweeps", tol=1e-13, dtype=np.float64, device=device)
-    np.testing.assert_allclose(sweeps.light(L), want, rtol=5e-13, atol=5e-13 * want.max())
+    np.testing.assert_allclose(sweeps.light(L), want, rtol=2e-13, atol=2e-13 * want.max())
     assert sweeps.K_c is None and sweeps.sweeps > 10
 
 

@@ -45,7 +45,8 @@ def test_every_patch_its_own_cluster_is_the_full_solve_without_f(device):
     assert far.prolongation == "linear" and G.shape == (len(scene), 3 * len(scene)) and far.G_nnz == G.nnz
     dyn = DynamicRadiosity(scene, F, local_size=7, storage="fp64", observer=[0.1, 0.9, 0.5], far_field=far,
                            device=device)
-    np.testing.assert_allclose(dyn.radiosity(light=L), dense_radiosity(scene, F, L), rtol=1e-12)
+    # Observed max relative error 8.7e-16 (PoCL CPU, 2026-12-02).
+    np.testing.assert_allclose(dyn.radiosity(light=L), dense_radiosity(scene, F, L), rtol=5e-14)
 
 
 def test_sun_without_f_lights_every_lit_patch_and_leaks_nothing(device):
