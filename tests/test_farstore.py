@@ -108,3 +108,18 @@ def test_light_components_refuse_a_store_of_another_scene(device, tmp_path):
     store.block_path(1).unlink()
     with pytest.raises(StoreIncompleteError, match="1 of 6 blocks missing"):
         light_components_by_hemicube(scene, store=store)
+
+
+def test_store_records_only_the_basis_its_prolongation_has(tmp_path):
+    from pydynrad.rows.store import FormFactorStore
+
+    scene = box_scene(2)
+    cl = cluster_patches(scene, 12)
+    store = FormFactorStore.create(scene, tmp_path / "ff", resolution=8, block_rows=8)
+    for pr, basis in ((cl.labels, "quadratic"), (cl.labels, "linear"), (basis_prolongation(scene, cl), "indicator")):
+        # The indicator of 12 clusters read as linear would give 4 clusters of merged labels.
+        with pytest.raises(pydynrad.InvalidInputError, match="basis"):
+            store.set_clusters(pr, resolution=8, basis=basis)
+    assert not store.has_clusters
+    store.set_clusters(basis_prolongation(scene, cl), resolution=8, basis="linear")
+    assert store.cluster_count == cl.count and np.array_equal(store.cluster_labels(), cl.labels)

@@ -434,6 +434,7 @@ class FormFactorStore:
         """
         integer(resolution, "cluster resolution (G's hemicube pixels per side)")
         pr, digest = self._canonical_prolongation(clusters)
+        _check_basis(pr, basis)
         try:
             extra = json.loads(json.dumps(dict(params or {}), sort_keys=True))
         except (TypeError, ValueError) as exc:
@@ -660,6 +661,33 @@ class FormFactorStore:
                  f"blocks, resolution={self.cluster_resolution}")
         return (f"FormFactorStore({str(self.path)!r}, N={self.n_patches}, {done}/{self.n_blocks} blocks of "
                 f"{self.block_rows} rows, resolution={self.header['params']['resolution']}{g})")
+
+
+#: The coarse bases a store records G for: those of :data:`pydynrad.farfield.gather.BASES`, or a
+#: prolongation matrix given as it is.
+CLUSTER_BASES = ("indicator", "linear", "given")
+
+
+def _check_basis(pr: sp.csr_matrix, basis: str) -> None:
+    """InvalidInputError unless ``pr`` has the layout of ``basis``: what the store records is what
+    :attr:`FormFactorStore.cluster_labels` and :attr:`FormFactorStore.cluster_count` read back."""
+    from ..farfield.clusters import LINEAR_FUNCTIONS, labels_of_linear
+
+    if basis not in CLUSTER_BASES:
+        raise InvalidInputError(f"the cluster basis must be one of {CLUSTER_BASES}; got {basis!r}")
+    if basis == "indicator":
+        ok = np.all(np.diff(pr.indptr) == 1) and np.all(pr.data == 1)
+    elif basis == "linear":
+        # Three functions per cluster summing to 1 on each patch; those in columns >= C are u/2 and v/2.
+        C = pr.shape[1] // LINEAR_FUNCTIONS
+        sums = np.asarray(pr.sum(axis=1)).ravel()
+        ok = (labels_of_linear(pr) is not None and np.allclose(sums, 1.0, rtol=0, atol=1e-6)
+              and np.all(pr.data[pr.indices >= C] <= 0.5 + 1e-6))
+    else:
+        ok = True
+    if not ok:
+        raise InvalidInputError(f"the prolongation is not one of the {basis!r} basis "
+                                "(pydynrad.farfield.gather.basis_prolongation); record it with basis='given'")
 
 
 def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None, samples: int = 1) -> sp.csr_matrix:
