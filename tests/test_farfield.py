@@ -159,6 +159,11 @@ def test_dense_coarse_level_and_first_bounce_gather(device, cornell, storage, rt
     want = L + D1 + rho * (far.G @ D_c)
     # Observed max relative error (PoCL, 2026-12-02): 6e-16 (fp64), 5e-8 (fp32), 2e-5 (fp16 K_c); 4e-15 swept.
     np.testing.assert_allclose(far.light(L), want, rtol=rtol, atol=rtol * want.max())
+    # As on a GPU: D1 from a device pass of F's rows, not the host's lit columns of F.
+    gpu = FarField(scene, F, clusters=far.clusters, coarse="dense", coarse_storage=storage, dtype=np.float64,
+                   device=device.with_traits(cpu=False))
+    assert gpu._F_cols is None and gpu._F_dev is not None
+    np.testing.assert_allclose(gpu.light(L), want, rtol=rtol, atol=rtol * want.max())
     sweeps = FarField(scene, F, clusters=far.clusters, coarse="sweeps", tol=1e-13, dtype=np.float64, device=device)
     np.testing.assert_allclose(sweeps.light(L), want, rtol=2e-13, atol=2e-13 * want.max())
     assert sweeps.K_c is None and sweeps.sweeps > 10

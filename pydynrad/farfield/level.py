@@ -246,7 +246,7 @@ class FarField:
         with_F = gather != "cluster"
         # F L over the lit columns only: by column on the host where the host is the device (a
         # CPU), a pass of F's rows on a GPU. The shared gather and the fine sweeps need F's rows.
-        self._F_cols = sp.csc_matrix(F, dtype=dtype) if with_F and self.device.is_cpu else None
+        self._F_cols = sp.csc_matrix(F, dtype=dtype) if with_F and self.device.traits.cpu else None
         rows_on_device = gather == "shared" or (fine_sweeps > 0 and self._fit is None) or (with_F and self._F_cols is None)
         self._F_dev = DeviceCSR(self.device, F, dtype) if rows_on_device else None
         self._G_dev = None if gather == "shared" else DeviceCSR(self.device, G, dtype)  # shared: G only makes F_c
