@@ -123,3 +123,9 @@ def test_store_records_only_the_basis_its_prolongation_has(tmp_path):
     assert not store.has_clusters
     store.set_clusters(basis_prolongation(scene, cl), resolution=8, basis="linear")
     assert store.cluster_count == cl.count and np.array_equal(store.cluster_labels(), cl.labels)
+
+
+def test_linear_basis_refuses_clusters_of_another_patch_count():
+    scene = box_scene(2)
+    with pytest.raises(pydynrad.InvalidInputError, match="cluster labels must be 48 integers"):
+        basis_prolongation(scene, cluster_patches(box_scene(3)), "linear")

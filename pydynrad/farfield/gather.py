@@ -158,10 +158,11 @@ def basis_prolongation(scene, clusters, basis: str = "linear") -> sp.csr_matrix:
     if basis not in BASES:
         raise InvalidInputError(f"the coarse basis must be one of {BASES}; got {basis!r}")
     n = len(checked_scene(scene))
+    pr = as_prolongation(clusters, n)  # the labels checked (one per patch) before the linear basis indexes with them
     if sp.issparse(clusters) or np.ndim(clusters) == 2 or basis == "indicator":
-        return as_prolongation(clusters, n)
+        return pr
     if not isinstance(clusters, Clusters):
-        clusters = Clusters.from_labels(scene, as_prolongation(clusters, n).indices)  # labels, checked
+        clusters = Clusters.from_labels(scene, pr.indices)
     return check_prolongation(linear_basis(clusters, scene)[0], n)
 
 
