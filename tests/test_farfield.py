@@ -216,6 +216,19 @@ def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_pat
         DynamicRadiosity(scene, open_form_factors(scene, tmp_path / "no-G"), local_size=10, device=device)
 
 
+def test_light_refuses_bad_light_vectors(device, cornell):
+    scene, F, L, _, _ = cornell
+    far = FarField(scene, F, clusters=len(scene) // 8, coarse="sweeps", device=device)
+    nan = L.copy()
+    nan[3, 1] = np.nan
+    # Each went through before: NaN to an all-NaN B_far, (N, 2) to a grey answer, others to numpy's errors.
+    for bad, match in ((nan, "L contains NaN"), (L[:, :2], r"shape \(\d+, 3\)"), (L[:-1], "shape"), (L[:, 0], "shape"),
+                       ("light", "array of numbers")):
+        with pytest.raises(pydynrad.InvalidInputError, match=match):
+            far.light(bad)
+    assert far.B_far is None
+
+
 def test_bad_input(device, cornell):
     scene, F = cornell[:2]
     n = len(scene)

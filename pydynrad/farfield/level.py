@@ -59,7 +59,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factors, integer, scene as checked_scene
+from ..checks import check_form_factors, finite, integer, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
 from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
 from .gather import checked_cluster_form_factors
@@ -302,9 +302,16 @@ class FarField:
         if self._L is not None and np.array_equal(L, self._L):
             return self.B_far
         t0 = time.perf_counter()
-        grey = self.scene.is_grey and bool(np.all(L[:, :1] == L))
+        try:
+            L_all = np.array(L, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"L must be an (N, 3) array of numbers; got {type(L).__name__}") from None
+        n = len(self.scene)
+        if L_all.shape != (n, 3):
+            raise InvalidInputError(f"L must have shape ({n}, 3); got {L_all.shape}")
+        finite(L_all, "L")  # checked on a light change only: an unchanged L is the cached answer
+        grey = self.scene.is_grey and bool(np.all(L_all[:, :1] == L_all))
         k = 1 if grey else 3
-        L_all = np.array(L, dtype=np.float64)
         L, rho = L_all[:, :k], self.rho[:, :k]
         if self.gather == "first_bounce":
             # The coarse level solves for the indirect light D_c = R D1 + P_c F_c D_c from the exact
