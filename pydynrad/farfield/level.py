@@ -45,7 +45,8 @@ bench/farfield.py; docs/design.md, 'Far field', 'As built'):
   the linear Galerkin solution without its 3C x 3C coarse matrix (9x the indicator's F_c). Needs
   no F: the far field of stores and of rows on demand (bench/farstore.py).
 
-With F, ``fine_sweeps`` bounces B <- L + P F B of the full F follow the gather (each about halves the
+With F and one value per cluster (the indicator or exposure basis; the linear basis sweeps its own level,
+as above), ``fine_sweeps`` bounces B <- L + P F B of the full F follow the gather (each about halves the
 error; one pass over F each). ``prolongation="exposure"``: Pr_w[i, c] = w_i / mean_c(w)
 (area-weighted mean; the indicator where the mean is 0) with w the radiosity under a uniform sky
 of directional lights, so a cluster's light goes to its exposed members and not to shadowed or
