@@ -665,7 +665,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="store only: hemicube resolution of G (default: --resolution, G then summed from F's "
                         "stored rows, or with --no-f equal to F Pr of the rows walks compute on demand)")
     p.add_argument("--no-f", action="store_true",
-                   help="store only: store G alone, not F's rows (walks then compute F's rows on demand)")
+                   help="store only: store G alone, not F's rows, for a DynamicRadiosity with rows on demand "
+                        "from Python (form_factors=None, cluster_form_factors=store.cluster_form_factors(...)); "
+                        "the CLI's walk, render and compare need F's rows")
     p.add_argument("--verify", action="store_true",
                    help="store only: read every finished block of an existing store, F's and G's, check each "
                         "against its checksum (bound to this store), report the counts and recompute what fails "
