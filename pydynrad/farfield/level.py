@@ -235,10 +235,12 @@ class FarField:
         self.prolongation, self.gather, self.tol, self.max_sweeps = prolongation, gather, tol, max_sweeps
         self.fine_sweeps = fine_sweeps
         self.G = G
-        # The linear basis sums to 1 on every patch: its three column blocks add up to F times the indicator.
-        G_1 = G if self._fit is None else G[:, :C] + G[:, C:2 * C] + G[:, 2 * C:]
-        self.F_c = sp.csr_matrix(self.R @ G_1)
-        del G_1
+        # The linear basis sums to 1 on every patch: its three column blocks add up to F times the
+        # indicator. Summed after the restriction, on C x 3C, not on G (N x 3C: most of the far
+        # field's memory at a million patches).
+        RG = self.R @ G
+        self.F_c = sp.csr_matrix(RG if self._fit is None else RG[:, :C] + RG[:, C:2 * C] + RG[:, 2 * C:])
+        del RG
         self.rho = scene.albedo.astype(np.float64)
         # Pure clusters: every member has the cluster's albedo.
         first = np.zeros(C, dtype=np.int64)
