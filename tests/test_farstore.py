@@ -129,3 +129,24 @@ def test_linear_basis_refuses_clusters_of_another_patch_count():
     scene = box_scene(2)
     with pytest.raises(pydynrad.InvalidInputError, match="cluster labels must be 48 integers"):
         basis_prolongation(scene, cluster_patches(box_scene(3)), "linear")
+
+
+def test_linear_basis_drops_a_direction_that_is_only_rounding():
+    """A cluster whose centres lie on a line across one of its tangents, far from the origin:
+    their projections on that tangent agree to rounding (1e-10 at 1e6), which normalised to
+    [0, 1] became a coordinate of noise (0, 0.25, 0.5 on main); it is dropped: that hat is 0."""
+    from pydynrad.farfield.clusters import NORMAL_BINS, Clusters, _tangents
+
+    bin_normal = NORMAL_BINS[np.argmax(NORMAL_BINS @ np.ones(3))]  # a diagonal bin: tangents off the axes
+    t1, t2 = (t[0] for t in _tangents(bin_normal[None]))
+    offset = np.array([1e6, -2e6, 3e6]) + 0.1
+    points, triangles = [], []
+    for i in range(8):
+        c = offset + 0.7 * i * t2
+        points += [c + 0.1 * t1, c - 0.05 * t1 + 0.0866 * t2, c - 0.05 * t1 - 0.0866 * t2]
+        triangles.append([3 * i, 3 * i + 1, 3 * i + 2])
+    scene = pydynrad.Scene(np.array(points), np.array(triangles))
+    Pr, _ = linear_basis(Clusters.from_labels(scene, np.zeros(8, dtype=int)), scene)
+    P = Pr.toarray()
+    assert np.all(P[:, 1] == 0.0)  # across the line: nothing
+    np.testing.assert_allclose(P[:, 2], np.arange(8) / 7 / 2, atol=1e-6)  # along it: the hat, to float32

@@ -243,6 +243,11 @@ def _tangents(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t1, np.cross(normals, t1)
 
 
+#: Spans of a cluster's projections below this times its largest centre norm are rounding
+#: (float64 dot products err by a few 1e-16 of it): the direction is dropped.
+SPAN_ROUNDING = 1e-12
+
+
 def linear_basis(clusters: Clusters, scene) -> tuple[sp.csr_matrix, sp.csr_matrix]:
     """A piecewise-linear coarse basis: (N, 3C) prolongation Pr and (3C, N) restriction R.
 
@@ -261,6 +266,11 @@ def linear_basis(clusters: Clusters, scene) -> tuple[sp.csr_matrix, sp.csr_matri
     lab = clusters.labels
     bins = np.argmax(scene.normals.astype(np.float64) @ NORMAL_BINS.T, axis=1)
     centres = scene.centers.astype(np.float64)
+    # A span within the rounding of the projections (centres on a line, far from the origin)
+    # is no direction: normalised, its noise would become a coordinate in [0, 1].
+    reach = np.zeros(C)
+    np.maximum.at(reach, lab, np.linalg.norm(centres, axis=1))
+    flat = SPAN_ROUNDING * reach
     hats = []
     for t in _tangents(NORMAL_BINS[bins]):
         u = np.sum(centres * t, axis=1)
@@ -268,7 +278,7 @@ def linear_basis(clusters: Clusters, scene) -> tuple[sp.csr_matrix, sp.csr_matri
         hi = np.full(C, -np.inf)
         np.minimum.at(lo, lab, u)
         np.maximum.at(hi, lab, u)
-        span = hi - lo
+        span = np.where(hi - lo > flat, hi - lo, 0.0)
         hats.append(np.where(span[lab] > 0, (u - lo[lab]) / np.where(span > 0, span, 1.0)[lab], 0.0) / 2)
     # Rounded to float32, the precision a store records Pr in: G on the spot and from a store agree bit for bit.
     psi = np.column_stack([1.0 - hats[0] - hats[1], *hats]).astype(np.float32).astype(np.float64)  # (N, 3)
