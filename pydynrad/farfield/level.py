@@ -159,7 +159,8 @@ class FarField:
     clusters : Clusters
     R, G, F_c : scipy.sparse.csr_matrix
         (C, N) restriction, (N, C) patch-to-cluster and (C, C) coarse form factors, float64
-        (G: 3C columns for the linear basis). Without F, G and F_c are None after construction:
+        (G: 3C columns for the linear basis; a G passed in keeps its own dtype, float32 from a
+        store). Without F, G and F_c are None after construction:
         they are kept on the device only.
     G_nnz, F_c_nnz : int
         Their non-zeros.
