@@ -2,7 +2,8 @@
 
 ``python -m bench.move_stages`` prints a markdown table: the Cornell box of bench/objects.py
 (``quick``: M = 1024, R = 32) with the 48-patch block moved at occlusion budget 0 from the
-static F. Each stage is timed with the device queue drained before and after it (so device
+static F, then the frame's ``radiosity`` (whose gather of the outside patches at the new
+pose is a move's cost too). Each stage is timed with the device queue drained before and after it (so device
 work is charged to the stage that queued it); medians and minima over the moves. The floor:
 one rank-2k pass and one gather of k vectors per channel at the same M (the swap's two passes
 over K), timed alone with the same kernels.
@@ -34,7 +35,7 @@ def _timed(owner, name: str, label: str, queue, into: dict) -> None:
 
 
 def stages(moves: int = 8, device=None) -> list[tuple[str, float, float]]:
-    """(stage, median ms, min ms) of ``moves`` moves at budget 0."""
+    """(stage, median ms, min ms) of ``moves`` moves at budget 0 and the radiosity after each."""
     import pydynrad as pd
     from pydynrad.device import default_device
     from pydynrad.dynamic import exact, localrows, moves as moves_mod
@@ -48,7 +49,8 @@ def stages(moves: int = 8, device=None) -> list[tuple[str, float, float]]:
     obj = pd.RigidObject(block, poses[0])
     dyn = pd.DynamicRadiosity(box, F, local_size=p["M"], resolution=p["R"], objects=[obj], occlusion=0,
                               max_swaps_per_frame=SWAPS, observer=OBSERVER, device=device)
-    dyn.radiosity([pd.PointLight((278.0, 520.0, 280.0), (3e5, 3e5, 3e5))])
+    light = [pd.PointLight((278.0, 520.0, 280.0), (3e5, 3e5, 3e5))]
+    dyn.radiosity(light)
     dyn.update(OBSERVER)
     q, times = device.queue, {}
     for owner, name, label in ((dyn, "_moved_world", "world at the new pose (instanced scene)"),
@@ -60,11 +62,19 @@ def stages(moves: int = 8, device=None) -> list[tuple[str, float, float]]:
                                (dyn._kernels, "update_slots", "rank-2k passes + slot writes"),
                                (exact, "exact_swap", "swap total (gathers, algebra, passes)")):
         _timed(owner, name, label, q, times)
+    for owner, name, label in ((moves_mod, "without_hidden", "radiosity: outside rows' hidden entries dropped"),
+                               (moves_mod, "capped", "radiosity: outside rows capped"),
+                               (dyn._ff.source, "gather_outside", "radiosity: outside gathered at the pose (rows and product)")):
+        _timed(owner, name, label, q, times)
     runs = []
     for T in poses[1:]:
         times.clear()
         dyn.move(obj, T)
         times["move (t_move)"] = dyn.update(OBSERVER).t_move
+        q.finish()
+        t = time.perf_counter()
+        dyn.radiosity(light)
+        times["radiosity after the move"] = time.perf_counter() - t
         runs.append(dict(times))
     out = [(k, 1e3 * float(np.median([r.get(k, 0.0) for r in runs])), 1e3 * min(r.get(k, 0.0) for r in runs))
            for k in runs[0]]
