@@ -123,17 +123,26 @@ def without_hidden(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.nda
     return rows
 
 
+def _in_columns(rows: sp.csr_matrix, columns: np.ndarray) -> np.ndarray:
+    """(nnz,) bool: which stored entries of ``rows`` lie in ``columns``."""
+    mask = np.zeros(rows.shape[1], bool)
+    mask[columns] = True
+    return mask[rows.indices]
+
+
 def with_reciprocal_columns(rows: sp.csr_matrix, row_patches: np.ndarray, object_rows: sp.csr_matrix,
                             object_patches: np.ndarray, areas: np.ndarray) -> sp.csr_matrix:
     """``rows`` (of ``row_patches``) with their columns ``object_patches`` set by reciprocity:
     F[s, o] = A_o F[o, s] / A_s from the objects' rows ``object_rows`` (len(object_patches), N)."""
     A = np.asarray(areas, np.float64)
-    recip = sp.csr_matrix(object_rows[:, row_patches].T.multiply(A[object_patches][None, :]))
-    recip = sp.csr_matrix(recip.multiply(1.0 / A[row_patches][:, None]))
-    keep = np.ones(rows.shape[1])
-    keep[object_patches] = 0.0
+    # Scaled and masked on the entries: broadcast sparse products copy the matrix per factor.
+    recip = sp.csr_matrix(object_rows[:, row_patches].T)
+    recip.data = recip.data * A[object_patches][recip.indices] * np.repeat(1.0 / A[row_patches], np.diff(recip.indptr))
+    rows = sp.csr_matrix(rows)
+    kept = sp.csr_matrix((np.where(_in_columns(rows, object_patches), 0.0, rows.data), rows.indices, rows.indptr),
+                         shape=rows.shape)
     placed = sp.csr_matrix((recip.data, object_patches[recip.indices], recip.indptr), shape=rows.shape)
-    out = sp.csr_matrix(rows.multiply(keep[None, :]) + placed)
+    out = sp.csr_matrix(kept + placed)
     out.eliminate_zeros()
     return out
 
@@ -146,9 +155,7 @@ def capped(rows: sp.csr_matrix, object_patches: np.ndarray):
     columns by reciprocity) may still sum above 1 where the two estimates disagree.
     """
     rows = sp.csr_matrix(rows)
-    is_object = np.zeros(rows.shape[1], bool)
-    is_object[object_patches] = True
-    in_object = is_object[rows.indices]
+    in_object = _in_columns(rows, object_patches)
     # On the entries, not by sparse products (a fifth of the cost): B after a move equal to the
     # products' to 2e-17 of max B (bench/objects.py's scene).
     kept = sp.csr_matrix((np.where(in_object, 0.0, rows.data), rows.indices, rows.indptr), shape=rows.shape)
