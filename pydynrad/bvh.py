@@ -326,8 +326,11 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
         return out.astype(bool)
     buf = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
     nodes, tris, _ = bvh.buffers(dev)
+    # A fixed work-group: left to choose, PoCL compiles the kernel anew for each new global
+    # size (90-140 ms the first time each, on the Xeon), and a move's shadow rays vary in number.
+    wg = ray_work_group(dev)
     dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": bvh_packet(dev)})(  # one program with cast_closest
-        dev.queue, (global_size(n),), None, nodes, tris, dev.to_device(o), dev.to_device(d), dev.to_device(tm),
+        dev.queue, (global_size(n, wg),), (wg,), nodes, tris, dev.to_device(o), dev.to_device(d), dev.to_device(tm),
         np.int32(n), buf,
     )
     cl.enqueue_copy(dev.queue, out, buf)
