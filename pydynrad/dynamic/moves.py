@@ -84,16 +84,24 @@ def hidden_between(objects, transforms, points: np.ndarray, a: np.ndarray, b: np
     out = np.zeros(len(a), bool)
     for o, T in zip(objects, transforms):
         c, r = o.bounding_sphere(T)
-        u = P - c
-        n2 = np.einsum("ij,ij->i", u, u)
-        ua, ub = u[a], u[b]
-        g = np.einsum("ij,ij->i", ua, ub)
-        na, nb = n2[a], n2[b]
+        # By coordinate (gathers of 1-d arrays) and in place: a third of the time of (n, 3) gathers.
+        x, y, z = (P - c).T.copy()
+        n2 = x * x + y * y + z * z
+        g = x[a] * x[b]
+        g += y[a] * y[b]
+        g += z[a] * z[b]  # u_a . u_b
+        na = n2[a]
         uv = g - na  # u_a . (p_b - p_a)
-        vv = np.maximum(na + nb - 2.0 * g, 1e-300)  # |p_b - p_a|^2
+        vv = na + n2[b]
+        vv -= 2.0 * g
+        np.maximum(vv, 1e-300, out=vv)  # |p_b - p_a|^2
         t = np.clip(-uv / vv, 0.0, 1.0)
+        q = t * vv
+        q += 2.0 * uv
+        q *= t
+        q += na  # |u_a + t (u_b - u_a)|^2
         reach = r * (1.0 + SPHERE_MARGIN)
-        near = np.flatnonzero(~out & (na + t * (2.0 * uv + t * vv) <= reach * reach))
+        near = np.flatnonzero(~out & (q <= reach * reach))
         if len(near):
             Rt = T[:3, :3].T  # world to object space: x -> R^T (x - t)
             p0 = P[a[near]]
