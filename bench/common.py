@@ -84,3 +84,19 @@ def run_standalone(name: str, doc: str, sizes, measure, argv=None) -> int:
     written = write_report(results, args.out, name)
     print("\n".join(str(p) for p in written.values()), file=sys.stderr)
     return 0
+
+
+def entry_points(name: str, doc: str, sizes, measure):
+    """The two entry points of a bench module whose ``measure(size, device, progress=)`` takes
+    no suite parameters: the suite's section (at the suite's size, "quick" where the module has
+    no such size) and ``python -m bench.<name>`` (:func:`run_standalone`)."""
+
+    def suite_section(ctx) -> dict:
+        return measure(ctx.size if ctx.size in sizes else "quick", ctx.device, progress=ctx.progress)
+
+    def main(argv=None) -> int:
+        return run_standalone(name, doc, sizes, measure, argv)
+
+    suite_section.__doc__ = f'The suite\'s "{name}" section at the suite\'s size.'
+    return suite_section, main
+

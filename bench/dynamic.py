@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .common import copy_bandwidth_device, time_call
+from .common import copy_bandwidth_device, entry_points, time_call
 
 __all__ = ["suite_section", "main", "SIZES"]
 
@@ -248,15 +248,7 @@ def measure(size: str, device, progress: bool = True) -> dict:
     return {"title": "Dynamic radiosity", "description": __doc__.split("\n\n")[1], "tables": tables}
 
 
-def suite_section(ctx) -> dict:
-    """The suite's "dynamic" section at the suite's size."""
-    return measure(ctx.size if ctx.size in SIZES else "quick", ctx.device, progress=ctx.progress)
-
-
-def main(argv=None) -> int:
-    from .common import run_standalone
-
-    return run_standalone("dynamic", __doc__, SIZES, measure, argv)
+suite_section, main = entry_points("dynamic", __doc__, SIZES, measure)
 
 
 if __name__ == "__main__":

@@ -28,6 +28,8 @@ import time
 
 import numpy as np
 
+from .common import entry_points
+
 __all__ = ["suite_section", "main", "SIZES"]
 
 SIZES = {
@@ -151,17 +153,7 @@ def measure(size: str, device, progress: bool = True) -> dict:
     return {"title": "Moving objects", "description": __doc__.split("\n\n")[1], "tables": [table], "plots": [plot]}
 
 
-# The two entry points every bench module has (as bench/dynamic.py): the suite's section and
-# `python -m bench.objects`; run_standalone holds what they share.
-def suite_section(ctx) -> dict:
-    """The suite's "objects" section at the suite's size."""
-    return measure(ctx.size if ctx.size in SIZES else "quick", ctx.device, progress=ctx.progress)
-
-
-def main(argv=None) -> int:
-    from .common import run_standalone
-
-    return run_standalone("objects", __doc__, SIZES, measure, argv)
+suite_section, main = entry_points("objects", __doc__, SIZES, measure)
 
 
 if __name__ == "__main__":

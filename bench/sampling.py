@@ -22,6 +22,8 @@ import time
 
 import numpy as np
 
+from .common import entry_points
+
 __all__ = ["SIZES", "energy_balance", "plates", "measure", "suite_section", "main"]
 
 SIZES = {
@@ -99,15 +101,7 @@ def measure(size: str, device, progress: bool = False) -> dict:
             "tables": [balance, plate]}
 
 
-def suite_section(ctx) -> dict:
-    """The suite's "sampling" section at the suite's size."""
-    return measure(ctx.size if ctx.size in SIZES else "quick", ctx.device, progress=ctx.progress)
-
-
-def main(argv=None) -> int:
-    from .common import run_standalone
-
-    return run_standalone("sampling", __doc__, SIZES, measure, argv)
+suite_section, main = entry_points("sampling", __doc__, SIZES, measure)
 
 
 if __name__ == "__main__":
