@@ -57,6 +57,13 @@ MOVE_SWAPS_LIMIT = 64
 DEFAULT_OCCLUSION = 32
 
 
+def swap_size(max_swaps: int, object_patches: int) -> int:
+    """The most vectors per batch of the update kernels: a frame's swaps, or a move's batch
+    of the objects' patches when larger (a 48-patch block in one batch, not 32 + 16)."""
+    return max(max_swaps, min(object_patches, MOVE_SWAPS_LIMIT))
+
+
+
 @dataclass
 class FrameStats:
     """What one :meth:`DynamicRadiosity.update` call did. Times in seconds (wall clock)."""
@@ -229,9 +236,7 @@ class DynamicRadiosity:
 
     @property
     def _swap_size(self) -> int:
-        """The most vectors per batch of the update kernels: a frame's swaps, or a move's batch
-        of the objects' patches when larger (a 48-patch block in one batch, not 32 + 16)."""
-        return max(self.max_swaps, min(len(self._object_patches), MOVE_SWAPS_LIMIT))
+        return swap_size(self.max_swaps, len(self._object_patches))
 
     @property
     def _object_patches(self) -> np.ndarray:
@@ -316,7 +321,7 @@ class DynamicRadiosity:
         ld = padded_ld(M)
         real = compute_dtype(storage).itemsize
         item = storage_dtype(storage).itemsize
-        swaps = max(max_swaps_per_frame, min(object_patches, MOVE_SWAPS_LIMIT))
+        swaps = swap_size(max_swaps_per_frame, object_patches)
         return channels * M * ld * item + scratch_nbytes(device, M, ld, item, real, swaps, channels)
 
     @property
