@@ -131,11 +131,13 @@ def without_hidden(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.nda
     return rows
 
 
-def _in_columns(rows: sp.csr_matrix, columns: np.ndarray) -> np.ndarray:
-    """(nnz,) bool: which stored entries of ``rows`` lie in ``columns``."""
+def _without_columns(rows: sp.csr_matrix, columns: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+    """``rows`` (CSR) with their entries in ``columns`` set to zero (kept stored), and the
+    (nnz,) bool mask of those entries."""
     mask = np.zeros(rows.shape[1], bool)
     mask[columns] = True
-    return mask[rows.indices]
+    in_columns = mask[rows.indices]
+    return sp.csr_matrix((np.where(in_columns, 0.0, rows.data), rows.indices, rows.indptr), shape=rows.shape), in_columns
 
 
 def with_reciprocal_columns(rows: sp.csr_matrix, row_patches: np.ndarray, object_rows: sp.csr_matrix,
@@ -146,9 +148,7 @@ def with_reciprocal_columns(rows: sp.csr_matrix, row_patches: np.ndarray, object
     # Scaled and masked on the entries: broadcast sparse products copy the matrix per factor.
     recip = sp.csr_matrix(object_rows[:, row_patches].T)
     recip.data = recip.data * A[object_patches][recip.indices] * np.repeat(1.0 / A[row_patches], np.diff(recip.indptr))
-    rows = sp.csr_matrix(rows)
-    kept = sp.csr_matrix((np.where(_in_columns(rows, object_patches), 0.0, rows.data), rows.indices, rows.indptr),
-                         shape=rows.shape)
+    kept, _ = _without_columns(sp.csr_matrix(rows), object_patches)
     placed = sp.csr_matrix((recip.data, object_patches[recip.indices], recip.indptr), shape=rows.shape)
     out = sp.csr_matrix(kept + placed)
     out.eliminate_zeros()
@@ -163,10 +163,9 @@ def capped(rows: sp.csr_matrix, object_patches: np.ndarray):
     columns by reciprocity) may still sum above 1 where the two estimates disagree.
     """
     rows = sp.csr_matrix(rows)
-    in_object = _in_columns(rows, object_patches)
     # On the entries, not by sparse products (a fifth of the cost): B after a move equal to the
     # products' to 2e-17 of max B (bench/objects.py's scene).
-    kept = sp.csr_matrix((np.where(in_object, 0.0, rows.data), rows.indices, rows.indptr), shape=rows.shape)
+    kept, in_object = _without_columns(rows, object_patches)
     kept_sum = np.asarray(kept.sum(axis=1)).ravel()
     obj_sum = np.asarray(rows.sum(axis=1)).ravel() - kept_sum
     goal = np.minimum(kept_sum + obj_sum, 1.0)
