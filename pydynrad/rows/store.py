@@ -575,12 +575,10 @@ class FormFactorStore:
         """Write the rows ``rows`` (len(patches), world N) of ``patches`` at ``transforms``, one
         checksummed file, atomically; returns its size in bytes."""
         n = self._pose_columns()
-        patches = patch_indices(patches, n, "pose patches")
+        patches = patch_indices(patches, n, "pose patches", unique=True)
         rows = sp.csr_matrix(rows)
         if rows.shape != (len(patches), n):
             raise InvalidInputError(f"pose rows must have shape ({len(patches)}, {n}); got {rows.shape}")
-        if len(np.unique(patches)) != len(patches):
-            raise InvalidInputError("pose patches must be distinct")
         place = sp.csr_matrix((np.ones(len(patches)), (patches, np.arange(len(patches)))), shape=(n, len(patches)))
         full = sp.csr_matrix(place @ rows)
         key = self.pose_key(transforms)
