@@ -171,10 +171,15 @@ def light_components(F) -> np.ndarray:
     Patches alone in their component get label -1 (no constraint)."""
     from scipy.sparse.csgraph import connected_components
 
-    labels = connected_components(sp.csr_matrix(F), directed=True, connection="weak")[1].astype(np.int64)
-    # A patch exchanging no light with anything (e.g. a face lying on the floor) may join any cluster.
-    alone = np.bincount(labels)[labels] == 1
-    labels[alone] = -1
+    return free_singletons(connected_components(sp.csr_matrix(F), directed=True, connection="weak")[1])
+
+
+def free_singletons(components: np.ndarray) -> np.ndarray:
+    """(N,) int64 copy of the component labels ``components`` with -1 for every patch alone in
+    its component: a patch exchanging no light with anything (e.g. a face lying on the floor)
+    may join any cluster."""
+    labels = np.asarray(components).astype(np.int64)
+    labels[np.bincount(labels)[labels] == 1] = -1
     return labels
 
 

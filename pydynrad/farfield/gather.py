@@ -103,6 +103,8 @@ def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, 
     """
     from scipy.sparse.csgraph import connected_components
 
+    from .clusters import free_singletons
+
     n = len(checked_scene(scene))
     if store is not None:
         _check_store(scene, store, n)
@@ -132,10 +134,7 @@ def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, 
             comp, edges, held = merge(comp, edges), [], 0
     if edges:
         comp = merge(comp, edges)
-    # As light_components: a patch exchanging light with nothing may join any cluster.
-    comp = comp.astype(np.int64)
-    comp[np.bincount(comp, minlength=n)[comp] == 1] = -1
-    return comp
+    return free_singletons(comp)
 
 
 def clusters_without_f(scene, clusters=None, device=None, progress: bool | None = None, store=None):

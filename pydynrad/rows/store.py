@@ -517,10 +517,12 @@ class FormFactorStore:
     # separate part of the store: POSE_HEADER names the objects (their geometry hashes, in
     # order) and the rows' resolution; each configuration is one (world N, world N) CSR file
     # in POSE_DIR holding only its rows, bound to the objects and to its transforms.
-    def _pose_binding(self, key: str) -> str:
-        h = self.header
-        return json.dumps({"geometry_hash": h["geometry_hash"], "n_patches": h["n_patches"], "part": "pose",
-                           "objects": self._require_pose_header(), "transforms_sha256": key}, sort_keys=True)
+    def _pose_layout(self, key: str) -> tuple[int, str]:
+        """(world N, checksum binding) of configuration ``key``, from one read of POSE_HEADER."""
+        h, objects = self.header, self._require_pose_header()
+        n = self.n_patches + sum(int(o["n_patches"]) for o in objects["objects"])
+        return n, json.dumps({"geometry_hash": h["geometry_hash"], "n_patches": h["n_patches"], "part": "pose",
+                              "objects": objects, "transforms_sha256": key}, sort_keys=True)
 
     def _require_pose_header(self) -> dict:
         try:
@@ -565,26 +567,21 @@ class FormFactorStore:
     def _pose_path(self, key: str) -> Path:
         return self.path / POSE_DIR / f"p{key[:32]}.npz"
 
-    def _pose_columns(self) -> int:
-        return self.n_patches + sum(int(o["n_patches"]) for o in self._require_pose_header()["objects"])
-
     def has_pose(self, transforms) -> bool:
         return self._pose_path(self.pose_key(transforms)).exists()
 
     def write_pose(self, transforms, patches: np.ndarray, rows) -> int:
         """Write the rows ``rows`` (len(patches), world N) of ``patches`` at ``transforms``, one
         checksummed file, atomically; returns its size in bytes."""
-        n = self._pose_columns()
-        patches = patch_indices(patches, n, "pose patches")
+        key = self.pose_key(transforms)
+        n, binding = self._pose_layout(key)
+        patches = patch_indices(patches, n, "pose patches", unique=True)
         rows = sp.csr_matrix(rows)
         if rows.shape != (len(patches), n):
             raise InvalidInputError(f"pose rows must have shape ({len(patches)}, {n}); got {rows.shape}")
-        if len(np.unique(patches)) != len(patches):
-            raise InvalidInputError("pose patches must be distinct")
         place = sp.csr_matrix((np.ones(len(patches)), (patches, np.arange(len(patches)))), shape=(n, len(patches)))
         full = sp.csr_matrix(place @ rows)
-        key = self.pose_key(transforms)
-        return _write_csr(self._pose_path(key), 0, range(n), full, n, self._pose_binding(key))
+        return _write_csr(self._pose_path(key), 0, range(n), full, n, binding)
 
     def read_pose(self, transforms) -> tuple[np.ndarray, sp.csr_matrix] | None:
         """(patch indices, their rows, float32) stored for ``transforms``, checksum verified, or
@@ -594,8 +591,8 @@ class FormFactorStore:
         path = self._pose_path(key)
         if not path.exists():
             return None
-        n = self._pose_columns()
-        full = _read_csr(path, 0, range(n), n, "per-pose rows", self.path, self._pose_binding(key))
+        n, binding = self._pose_layout(key)
+        full = _read_csr(path, 0, range(n), n, "per-pose rows", self.path, binding)
         patches = np.flatnonzero(np.diff(full.indptr))
         return patches, full[patches]
 
