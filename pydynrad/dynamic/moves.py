@@ -272,7 +272,7 @@ class PoseRows:
         return self.key(transforms) in self._rows if self.store is None else self.store.has_pose(transforms)
 
     def __len__(self) -> int:
-        return len(self._rows) if self.store is None else len(list((self.store.path / "poses").glob("p*.npz")))
+        return len(self._rows) if self.store is None else len(self.store.pose_files())
 
     @property
     def nbytes(self) -> int:

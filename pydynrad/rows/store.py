@@ -570,6 +570,10 @@ class FormFactorStore:
     def has_pose(self, transforms) -> bool:
         return self._pose_path(self.pose_key(transforms)).exists()
 
+    def pose_files(self) -> list[Path]:
+        """The files of the pose configurations written so far (one per configuration)."""
+        return sorted((self.path / POSE_DIR).glob("p*.npz"))
+
     def write_pose(self, transforms, patches: np.ndarray, rows) -> int:
         """Write the rows ``rows`` (len(patches), world N) of ``patches`` at ``transforms``, one
         checksummed file, atomically; returns its size in bytes."""
@@ -643,7 +647,7 @@ class FormFactorStore:
         """Bytes of the headers, the prolongation and every finished block file of F and G."""
         files = [self.path / HEADER, self.path / CLUSTER_HEADER, self.path / PROLONGATION, self.path / POSE_HEADER,
                  *(f for folder, prefix in PARTS.values() for f in (self.path / folder).glob(f"{prefix}*.npz")),
-                 *(self.path / POSE_DIR).glob("p*.npz")]
+                 *self.pose_files()]
         return sum(p.stat().st_size for p in files if p.exists())
 
     def to_csr(self) -> sp.csr_matrix:
