@@ -25,7 +25,7 @@ from ..checks import check_form_factor_rows, scene as checked_scene, sparse_stru
 from ..errors import InvalidInputError
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
 
-__all__ = ["cluster_form_factors", "cluster_form_factors_for", "as_prolongation", "basis_prolongation",
+__all__ = ["cluster_form_factors", "g_samples", "cluster_form_factors_for", "as_prolongation", "basis_prolongation",
            "check_prolongation", "split_prolongation", "checked_cluster_form_factors", "light_components_by_hemicube",
            "clusters_without_f", "BASES", "COMPONENT_RESOLUTION"]
 
@@ -244,6 +244,12 @@ def checked_cluster_form_factors(G, shape: tuple[int, int]) -> sp.csr_matrix:
     return G
 
 
+def g_samples(f_resolution: int, f_samples: int, g_resolution: int) -> int:
+    """Hemicubes per row of G: F's at F's resolution (G is then F Pr of F's very rows), else 1
+    (F's count need not divide another resolution)."""
+    return int(f_samples) if int(g_resolution) == int(f_resolution) else 1
+
+
 def cluster_form_factors_for(scene, source, clusters, resolution: int | None = None, device=None,
                              progress: bool | None = None) -> sp.csr_matrix:
     """The whole (N, C) G for a dynamic solution's source of F's rows, F never held whole.
@@ -282,7 +288,7 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
     if isinstance(inner, HemicubeRows):
         R = inner.resolution if resolution is None else resolution
         return cluster_form_factors(scene, pr, R, device=device, progress=progress,
-                                    samples=inner.samples if R == inner.resolution else 1)
+                                    samples=g_samples(inner.resolution, inner.samples, R))
     if isinstance(inner, FormFactorStore):
         if inner.has_clusters:
             return inner.cluster_form_factors(pr)

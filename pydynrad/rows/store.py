@@ -308,7 +308,9 @@ class FormFactorStore:
     @property
     def cluster_samples(self) -> int:
         """Hemicubes per row of G: F's at F's resolution (G is then F Pr of the stored rows), else 1."""
-        return self.samples if self.cluster_resolution == self.header["params"]["resolution"] else 1
+        from ..farfield.gather import g_samples
+
+        return g_samples(self.header["params"]["resolution"], self.samples, self.cluster_resolution)
 
     # -- layout ----------------------------------------------------------------------------
     def block_path(self, k: int, part: str = "F") -> Path:
