@@ -323,13 +323,14 @@ def _host_channels(F_work: np.ndarray, rho: np.ndarray, bounces: int | None, res
         # In the working dtype from the start: no float64 pass over M^2 before the solve.
         result[c] = _host_build(F_work * rho[:, c].astype(F_work.dtype)[None, :], F_work, bounces, bar)
 
-    if C == 1 or _cores() > C:
+    cores = _cores()
+    if C == 1 or cores > C:
         for c in range(C):
             channel(c)
         return
     from .hostblas import one_blas_thread
 
-    with one_blas_thread(), ThreadPoolExecutor(min(C, _cores())) as pool:
+    with one_blas_thread(), ThreadPoolExecutor(cores) as pool:
         list(pool.map(channel, range(C)))
 
 
