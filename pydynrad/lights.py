@@ -34,7 +34,7 @@ from .errors import InvalidInputError
 from .launch import WG, float4, global_size
 
 __all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "point_irradiance", "light_vector",
-           "pack_lights", "pack_light_tables", "checked_lights", "checked_light_vector", "resolve_light"]
+           "pack_lights", "pack_light_tables", "pack_lights_and_tables", "checked_lights", "checked_light_vector", "resolve_light"]
 
 #: Shadow-ray origins sit this fraction of the scene's bounding-box diagonal off the surface.
 SHADOW_EPSILON = 1e-4
@@ -166,13 +166,18 @@ def pack_lights(lights, frame=None) -> np.ndarray:
     squared, so that the kernels' I / r^2 over device distances gives the irradiance of the
     user's frame.
     """
-    return _packed(checked_lights(lights), frame)[0]
+    return pack_lights_and_tables(lights, frame)[0]
 
 
 def pack_light_tables(lights) -> np.ndarray:
     """(n,) float32: the luminaires' intensity tables, one after another in ``lights``' order
     (the offsets :func:`pack_lights` records); one zero when there is no luminaire."""
-    return _packed(checked_lights(lights))[1]
+    return pack_lights_and_tables(lights)[1]
+
+
+def pack_lights_and_tables(lights, frame=None) -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`pack_lights`, :func:`pack_light_tables`) in one pass, for a kernel that takes both."""
+    return _packed(checked_lights(lights), frame)
 
 
 def _packed(lights: list, frame=None) -> tuple[np.ndarray, np.ndarray]:

@@ -31,7 +31,7 @@ from .camera import Camera, check_image_memory
 from .checks import integer, patch_indices, scene as checked_scene
 from .errors import InvalidInputError
 from .launch import float4, global_size
-from .lights import SHADOW_EPSILON, checked_lights, pack_light_tables, pack_lights
+from .lights import SHADOW_EPSILON, checked_lights, pack_lights_and_tables
 from .photometry.sky import pack_sky
 from .scene import Scene
 
@@ -70,7 +70,7 @@ class _Tracer:
             inv_power, cdf = 0.0, np.zeros(1)
             tri = np.zeros((4, 4), np.float32)
         lights = checked_lights(lights)
-        packed = pack_lights(lights, scene.frame)
+        packed, tables = pack_lights_and_tables(lights, scene.frame)
         n_lights = len(packed)
         if not n_lights:
             packed = np.zeros((1, 12), np.float32)  # a buffer cannot be empty; the kernel reads none
@@ -84,7 +84,7 @@ class _Tracer:
             normals, up(float4(scene.albedo)), up(float4(scene.emission)),
             np.int32(len(em)), up(tri), up(float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
             up(cdf.astype(np.float32)), np.float32(inv_power),
-            np.int32(n_lights), up(packed), up(pack_light_tables(lights)), up(pack_sky(lights)),
+            np.int32(n_lights), up(packed), up(tables), up(pack_sky(lights)),
             np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
             np.float32(scene.frame.length(2.0 * scene.scale)),  # directional shadow rays need only leave the scene
         )
