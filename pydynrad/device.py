@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .errors import DeviceError, InvalidInputError, KernelBuildError
+from .pocl_target import fix_generic_cpu, replaced_cpu
 
 if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays cheap
     import pyopencl as cl
@@ -149,6 +150,8 @@ class Device:
     def __post_init__(self) -> None:
         import pyopencl as cl
 
+        for d in self.context.devices:
+            fix_generic_cpu(d)
         if self.queue is None:
             self.queue = cl.CommandQueue(self.context)
 
@@ -234,7 +237,11 @@ class Device:
                     prg = cl.Program(self.context, src).build(options=options)
             except cl.RuntimeError as exc:
                 # pyopencl puts each device's build log into the message.
-                raise KernelBuildError(f"OpenCL build of {filename} failed on {self.name}", str(exc)) from exc
+                log = str(exc)
+                if "unknown target CPU" in log:
+                    log += ("\n(this OpenCL compiler does not know this CPU, and pydynrad could not give it one: "
+                            "see pydynrad/pocl_target.py)")
+                raise KernelBuildError(f"OpenCL build of {filename} failed on {self.name}", log) from exc
             if compiler_output_wanted():
                 log = str(prg.get_build_info(self.cl_device, cl.program_build_info.LOG) or "").strip()
                 text = "\n".join(t for t in (log, printed.text.strip()) if t)
@@ -263,6 +270,7 @@ class Device:
             "max_alloc_MiB": self.max_alloc_bytes // 2**20,
             "fp64": self.supports_fp64,
             "fp16_arithmetic": "cl_khr_fp16" in d.extensions,
+            **({"compiler_cpu": f"{replaced_cpu(d)} (PoCL's LLVM does not know this CPU)"} if replaced_cpu(d) else {}),
         }
 
     def to_device(self, array: np.ndarray):

@@ -1,0 +1,132 @@
+"""A CPU name PoCL 3.0's compiler knows, for CPUs newer than its LLVM.
+
+The PoCL of the pip wheel (``pocl-binary-distribution`` 3.0: PoCL 3.0-rc2 on LLVM 14.0.6) asks LLVM
+for the host's CPU name and hands it to clang as ``-target-cpu``. LLVM 14 predates, among others,
+AMD Zen 5 (family 1Ah): it answers ``generic``, clang 14 refuses that name ("unknown target CPU
+'generic'"), and every program build on such a machine fails. PoCL 3.0 has no setting for the name
+(``POCL_LLVM_CPU_NAME`` came in a later release) and refuses ``-target-cpu`` among build options.
+
+So, on a PoCL CPU device whose compiler CPU is ``generic`` (PoCL prints it at the end of the
+device's version string, ``HSTR: pthread-<triple>-<cpu>``), :func:`fix_generic_cpu` replaces the
+name in PoCL's device record with the x86-64 psABI level the host supports (``x86-64-v4`` with
+AVX-512, ``-v3`` with AVX2 and FMA, ...). LLVM 14 knows those names, and they enable exactly the
+instruction sets by which PoCL already picked its kernel library variant, so the code is what a
+known CPU of the same features gets, less CPU-specific scheduling. The record is found by content,
+not by a compiled-in offset: the pointer that follows the pointer to the target triple and points
+at ``"generic"``. Reads go only to mapped readable memory; if the record is not found nothing is
+written and builds fail as before, with :class:`~pydynrad.errors.KernelBuildError` naming the cause.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import platform
+import threading
+from pathlib import Path
+
+__all__ = ["psabi_level", "fix_generic_cpu", "replaced_cpu"]
+
+# The x86-64 psABI micro-architecture levels by the /proc/cpuinfo flags each adds to the one before
+# (x86-64 psABI 1.0, section 3.1.1); "abm" is how Linux names LZCNT.
+_LEVELS = (
+    ("x86-64-v2", {"cx16", "lahf_lm", "popcnt", "sse4_1", "sse4_2", "ssse3"}),
+    ("x86-64-v3", {"avx", "avx2", "bmi1", "bmi2", "f16c", "fma", "abm", "movbe", "xsave"}),
+    ("x86-64-v4", {"avx512f", "avx512bw", "avx512cd", "avx512dq", "avx512vl"}),
+)
+
+_lock = threading.Lock()
+_replaced: dict[int, str] = {}  # cl_device_id address -> the name written there
+
+
+def psabi_level(flags: set[str]) -> str:
+    """The highest x86-64 psABI level (an LLVM CPU name) whose features are all in ``flags``."""
+    name = "x86-64"
+    have: set[str] = set()
+    for level, needs in _LEVELS:
+        have |= needs
+        if not have <= flags:
+            break
+        name = level
+    return name
+
+
+def _cpu_flags() -> set[str]:
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return set()
+    for line in text.splitlines():
+        if line.startswith("flags"):
+            return set(line.partition(":")[2].split())
+    return set()
+
+
+def _readable_ranges() -> list[tuple[int, int]]:
+    ranges = []
+    with open("/proc/self/maps") as maps:
+        for line in maps:
+            span, perms = line.split()[:2]
+            if perms.startswith("r"):
+                lo, hi = (int(x, 16) for x in span.split("-"))
+                ranges.append((lo, hi))
+    return ranges
+
+
+def _reader(ranges: list[tuple[int, int]]):
+    def readable(address: int, size: int) -> bool:
+        return any(lo <= address and address + size <= hi for lo, hi in ranges)
+
+    def pointer_at(address: int) -> int | None:
+        return ctypes.c_uint64.from_address(address).value if readable(address, 8) else None
+
+    def string_is(pointer: int, expected: bytes) -> bool:
+        return bool(pointer) and readable(pointer, len(expected) + 1) and \
+            ctypes.string_at(pointer, len(expected) + 1) == expected + b"\0"
+
+    return pointer_at, string_is
+
+
+def _generic_triple(device) -> str | None:
+    """The target triple if ``device`` is a PoCL CPU device compiling for ``generic``, else None."""
+    import pyopencl as cl
+
+    if "portable computing language" not in device.platform.name.lower() or not device.type & cl.device_type.CPU:
+        return None
+    hstr = device.version.partition("HSTR:")[2].strip()  # e.g. "pthread-x86_64-unknown-linux-gnu-generic"
+    _, _, rest = hstr.partition("-")
+    triple, sep, cpu = rest.rpartition("-")
+    return triple if sep and cpu == "generic" and triple.startswith("x86_64") else None
+
+
+def fix_generic_cpu(device) -> str | None:
+    """Give a PoCL CPU ``device`` (a ``pyopencl.Device``) whose compiler CPU is ``generic`` the
+    host's psABI level instead, once per process; return the name written (or written before),
+    None where nothing needed or could be done. Call before the first program build."""
+    address = int(device.int_ptr)
+    with _lock:
+        if address in _replaced:
+            return _replaced[address]
+        triple = _generic_triple(device)
+        if triple is None or platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
+            return None
+        pointer_at, string_is = _reader(_readable_ranges())
+        for offset in range(0, 4096, 8):
+            here = pointer_at(address + offset)
+            after = pointer_at(address + offset + 8)
+            if here is None or after is None:
+                break
+            if string_is(here, triple.encode()) and string_is(after, b"generic"):
+                name = psabi_level(_cpu_flags())
+                libc = ctypes.CDLL(None)
+                libc.strdup.restype = ctypes.c_void_p
+                libc.strdup.argtypes = [ctypes.c_char_p]
+                # strdup: PoCL owns the field and may free() it at exit.
+                ctypes.c_uint64.from_address(address + offset + 8).value = libc.strdup(name.encode())
+                _replaced[address] = name
+                return name
+        return None
+
+
+def replaced_cpu(device) -> str | None:
+    """The CPU name :func:`fix_generic_cpu` gave ``device``, or None."""
+    return _replaced.get(int(device.int_ptr))
