@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .errors import DeviceError, InvalidInputError, KernelBuildError
-from .pocl_target import fix_generic_cpu, replaced_cpu
+from .pocl_target import cache_tag, fix_generic_cpu, replaced_cpu
 
 if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays cheap
     import pyopencl as cl
@@ -59,7 +59,8 @@ def _use_pocl_cache() -> None:
     if os.environ.get("POCL_CACHE_DIR"):
         return
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    for folder in (base / "pocl", Path(tempfile.gettempdir()) / f"pocl-cache-{getattr(os, 'getuid', lambda: 0)()}"):
+    tag = cache_tag()  # see pocl_target: PoCL's own key cannot tell the CPU names written apart
+    for folder in (base / "pocl" / tag, Path(tempfile.gettempdir()) / f"pocl-cache-{getattr(os, 'getuid', lambda: 0)()}" / tag):
         if _writable(folder):
             os.environ["POCL_CACHE_DIR"] = str(folder)
             return

@@ -7,24 +7,51 @@ AMD Zen 5 (family 1Ah): it answers ``generic``, clang 14 refuses that name ("unk
 (``POCL_LLVM_CPU_NAME`` came in a later release) and refuses ``-target-cpu`` among build options.
 
 So, on a PoCL CPU device whose compiler CPU is ``generic`` (PoCL prints it at the end of the
-device's version string, ``HSTR: pthread-<triple>-<cpu>``), :func:`fix_generic_cpu` replaces the
-name in PoCL's device record with the x86-64 psABI level the host supports (``x86-64-v4`` with
-AVX-512, ``-v3`` with AVX2 and FMA, ...). LLVM 14 knows those names, and they enable exactly the
-instruction sets by which PoCL already picked its kernel library variant, so the code is what a
-known CPU of the same features gets, less CPU-specific scheduling. The record is found by content,
-not by a compiled-in offset: the pointer that follows the pointer to the target triple and points
-at ``"generic"``. Reads go only to mapped readable memory; if the record is not found nothing is
-written and builds fail as before, with :class:`~pydynrad.errors.KernelBuildError` naming the cause.
+device's version string, ``HSTR: pthread-<triple>-<cpu>``), :func:`fix_generic_cpu` writes another
+name into PoCL's device record: the CPU that PoCL's kernel library variant for this host was
+compiled for (PoCL picks the variant by CPU features: ``skylake-avx512`` where AVX-512F is present,
+``haswell`` with AVX2, ...), provided the host has the x86-64 psABI level that CPU implies; else
+that level itself (``x86-64-v4``, ``-v3``, ...). LLVM 14 knows both kinds of name. The variant's
+own CPU is preferred because LLVM inlines a builtin of the kernel library (``floor``, ``fmin``,
+``vload16``, ...) only into code compiled for at least the features the builtin was compiled for:
+with ``x86-64-v4`` each is an out-of-line call (see docs/design.md, 'Practical notes'). The record
+is found by content, not by a compiled-in offset: the pointer that follows the pointer to the
+target triple and points at ``"generic"``. Reads go only to mapped readable memory; if the record is
+not found nothing is written and builds fail as before, with
+:class:`~pydynrad.errors.KernelBuildError` naming the cause. ``PYDYNRAD_POCL_CPU=<an LLVM 14 CPU
+name>`` chooses the name instead; it must have the instruction sets of the kernel library variant
+(``znver3`` on an AVX-512 host fails: the library's AVX-512 code cannot be compiled for it).
+
+PoCL's kernel cache keys its entries by the CPU name LLVM reports (``generic`` for every CPU it does
+not know), not by the name written here, so :func:`cache_tag` names a cache folder per written name:
+two such machines sharing a home folder, or a changed ``PYDYNRAD_POCL_CPU``, never reuse each
+other's binaries.
 """
 
 from __future__ import annotations
 
 import ctypes
+import os
 import platform
 import threading
 from pathlib import Path
 
-__all__ = ["psabi_level", "fix_generic_cpu", "replaced_cpu"]
+__all__ = ["psabi_level", "library_cpu", "target_name", "cache_tag", "fix_generic_cpu", "replaced_cpu"]
+
+# PoCL 3.0's x86-64 kernel library variants (lib/CL/pocl_llvm_utils.cc, kernellib_feature_map), in
+# its order (the last that matches wins): the CPU each was compiled for, the /proc/cpuinfo flags
+# PoCL picks it by (LLVM's names translated: sse4.1 -> sse4_1, lzcnt -> abm, bmi -> bmi1), and the
+# psABI level that CPU implies.
+_KERNEL_LIBRARIES = (
+    ("athlon64", {"sse2"}, "x86-64"),
+    ("core2", {"sse2", "ssse3", "cx16"}, "x86-64"),
+    ("penryn", {"sse2", "sse4_1", "cx16"}, "x86-64"),
+    ("sandybridge", {"sse2", "avx", "cx16", "popcnt"}, "x86-64-v2"),
+    ("ivybridge", {"sse2", "avx", "cx16", "popcnt", "f16c"}, "x86-64-v2"),
+    ("bdver1", {"sse2", "avx", "cx16", "popcnt", "xop", "fma4"}, "x86-64-v2"),
+    ("haswell", {"sse2", "avx", "avx2", "cx16", "popcnt", "abm", "f16c", "fma", "bmi1", "bmi2"}, "x86-64-v3"),
+    ("skylake-avx512", {"sse2", "avx512f"}, "x86-64-v4"),
+)
 
 # The x86-64 psABI micro-architecture levels by the /proc/cpuinfo flags each adds to the one before
 # (x86-64 psABI 1.0, section 3.1.1); "abm" is how Linux names LZCNT.
@@ -59,6 +86,27 @@ def _cpu_flags() -> set[str]:
         if line.startswith("flags"):
             return set(line.partition(":")[2].split())
     return set()
+
+
+def library_cpu(flags: set[str]) -> str:
+    """The CPU name to compile for on a host with ``flags``: that of the kernel library variant PoCL
+    picks there if the host has the psABI level it implies, else the host's psABI level."""
+    level = psabi_level(flags)
+    order = ["x86-64"] + [name for name, _ in _LEVELS]
+    chosen = [(cpu, implies) for cpu, needs, implies in _KERNEL_LIBRARIES if needs <= flags]
+    if chosen and order.index(level) >= order.index(chosen[-1][1]):
+        return chosen[-1][0]
+    return level
+
+
+def target_name() -> str:
+    """The CPU name :func:`fix_generic_cpu` writes: ``PYDYNRAD_POCL_CPU`` or :func:`library_cpu`."""
+    return os.environ.get("PYDYNRAD_POCL_CPU") or library_cpu(_cpu_flags())
+
+
+def cache_tag() -> str:
+    """A folder name for PoCL's kernel cache that separates the names written (see the module)."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in target_name())
 
 
 def _readable_ranges() -> list[tuple[int, int]]:
@@ -116,7 +164,7 @@ def fix_generic_cpu(device) -> str | None:
             if here is None or after is None:
                 break
             if string_is(here, triple.encode()) and string_is(after, b"generic"):
-                name = psabi_level(_cpu_flags())
+                name = target_name()
                 libc = ctypes.CDLL(None)
                 libc.strdup.restype = ctypes.c_void_p
                 libc.strdup.argtypes = [ctypes.c_char_p]

@@ -65,6 +65,7 @@ def test_pocl_cache_folder(monkeypatch, tmp_path):
     import os
 
     from pydynrad.device import _use_pocl_cache
+    from pydynrad.pocl_target import cache_tag
 
     monkeypatch.setenv("POCL_CACHE_DIR", str(tmp_path / "mine"))
     _use_pocl_cache()
@@ -72,5 +73,9 @@ def test_pocl_cache_folder(monkeypatch, tmp_path):
     monkeypatch.delenv("POCL_CACHE_DIR")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     _use_pocl_cache()
-    assert os.environ["POCL_CACHE_DIR"] == str(tmp_path / "cache" / "pocl")
-    assert (tmp_path / "cache" / "pocl").is_dir()
+    assert os.environ["POCL_CACHE_DIR"] == str(tmp_path / "cache" / "pocl" / cache_tag())
+    assert (tmp_path / "cache" / "pocl" / cache_tag()).is_dir()
+    monkeypatch.delenv("POCL_CACHE_DIR")
+    monkeypatch.setenv("PYDYNRAD_POCL_CPU", "znver3")  # a chosen name gets a cache of its own
+    _use_pocl_cache()
+    assert os.environ["POCL_CACHE_DIR"] == str(tmp_path / "cache" / "pocl" / "znver3")
