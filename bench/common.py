@@ -63,25 +63,27 @@ def copy_bandwidth_device(device, nbytes: int = 256 * 2**20, repeats: int = 5) -
 
 def run_standalone(name: str, doc: str, sizes, measure, argv=None) -> int:
     """``python -m bench.<name> [--size S] [--out DIR]``: run ``measure(size, device)`` (one
-    report section) and write ``<out>/<name>.json`` and ``.md`` (default out: bench/results)."""
+    report section) and write ``<out>/<name>.json`` and ``.md`` (default out:
+    bench/results/<device-slug>, and the index of bench/results is rewritten)."""
     import argparse
     import sys
-    from pathlib import Path
 
     import pydynrad
 
-    from .report import write_report
+    from .report import device_dir, write_index, write_report
 
     ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     ap.add_argument("--size", choices=list(sizes), default="quick")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
+    ap.add_argument("--out", default=None, help="report folder (default: bench/results/<device-slug>)")
     args = ap.parse_args(argv)
     device = pydynrad.default_device()
     t0 = time.perf_counter()
     section = measure(args.size, device)
     results = {"device": device.info(), "date": time.strftime("%Y-%m-%dT%H:%M:%S"), "size": args.size,
                "sections": {name: section}, "seconds": time.perf_counter() - t0}
-    written = write_report(results, args.out, name)
+    written = write_report(results, args.out or device_dir(results["device"]), name)
+    if args.out is None:
+        write_index()
     print("\n".join(str(p) for p in written.values()), file=sys.stderr)
     return 0
 

@@ -1,6 +1,6 @@
 """Dynamic radiosity: per-frame cost, kernel bandwidth, accuracy and drift.
 
-``python -m bench.dynamic [--size tiny|quick|full]`` writes ``bench/results/dynamic.json`` and
+``python -m bench.dynamic [--size tiny|quick|full]`` writes ``bench/results/<device-slug>/dynamic.json`` and
 ``.md``.
 
 Measured in one run:

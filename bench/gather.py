@@ -1,6 +1,6 @@
 """Patch-to-cluster form factors G = F Pr (the far field's G): the resolution G needs, its cost.
 
-``python -m bench.gather [--size quick|full|tiny]`` writes ``bench/results/gather.{json,md}``;
+``python -m bench.gather [--size quick|full|tiny]`` writes ``bench/results/<device-slug>/gather.{json,md}``;
 the suite runs the same measurement as its "gather" section.
 
 * Error vs resolution: G from cluster-id hemicubes (``pydynrad.farfield.cluster_form_factors``)

@@ -25,7 +25,7 @@ the linear basis: 3C columns), from cluster-id
 hemicubes at ``--cluster-resolution`` (default: F's resolution), computed with F by the same
 workers; the precompute stage reports G's time against F's.
 
-Writes ``bench/results/largescale-<size>.{json,md}`` (whole files: temp + rename).
+Writes ``bench/results/<device-slug>/largescale-<size>.{json,md}`` (whole files: temp + rename).
 """
 
 from __future__ import annotations
@@ -43,7 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
-RESULTS = Path(__file__).resolve().parent / "results"
+if not __package__:  # run as a script (python bench/largescale.py): the repo root holds the bench package
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.report import device_dir, write_index  # noqa: E402
+
 SIZES = {"quick": {"detail": 2.0, "frames": 40}, "full": {"detail": 20.0, "frames": 30}}
 
 
@@ -283,17 +286,22 @@ def _table(title: str, rows: list[dict]) -> list[str]:
 
 
 def write_report(report: dict, size: str) -> None:
+    import pydynrad
     from pydynrad.atomic import write_atomic
 
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    md = [f"# Large scenes ({size}, {report['date']})", "",
+    # The walks ran in sub-processes on the default device: the report goes into its folder.
+    report["device"] = pydynrad.default_device().info()
+    out = device_dir(report["device"])
+    out.mkdir(parents=True, exist_ok=True)
+    md = [f"# Large scenes ({size}, {report['date']}, {report['device']['device']})", "",
           f"village(detail={report['detail']}): N = {report['scene']['N']} patches; hemicube resolution "
           f"{report['resolution']}; blocks of {report['block_rows']} rows; {report['cpu_count']} CPU cores.", "",
           *_table("Precompute throughput (cluster start-up included)", report["throughput"]),
           *_table("Store", [report["store"]]),
           *_table("Walks (each in its own process)", report.get("walks", []))]
     for name, text in ((f"largescale-{size}.json", json.dumps(report, indent=1)), (f"largescale-{size}.md", "\n".join(md))):
-        write_atomic(RESULTS / name, text.encode())
+        write_atomic(out / name, text.encode())
+    write_index()
 
 
 if __name__ == "__main__":

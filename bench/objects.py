@@ -1,6 +1,6 @@
 """Moving objects: the cost of a move against the occlusion budget, and its error.
 
-``python -m bench.objects [--size tiny|quick|full]`` writes ``bench/results/objects.json`` and
+``python -m bench.objects [--size tiny|quick|full]`` writes ``bench/results/<device-slug>/objects.json`` and
 ``.md``. The Cornell box with a block moved across it (:class:`pydynrad.RigidObject`), in a
 :class:`pydynrad.DynamicRadiosity` with the static scene's hemicube F precomputed:
 

@@ -1,6 +1,6 @@
 """Reference radiosity against numpy/SciPy doing the same algebra, and kernel bandwidths.
 
-``python -m bench.radiosity [--size tiny|quick|full]`` writes ``bench/results/radiosity.json`` and
+``python -m bench.radiosity [--size tiny|quick|full]`` writes ``bench/results/<device-slug>/radiosity.json`` and
 ``.md``; the suite (``python -m bench``) runs :func:`suite_section` as its "bandwidth" part.
 
 Measured in one run:

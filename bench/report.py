@@ -1,5 +1,9 @@
 """The benchmark report: one JSON file with every number and a markdown page with tables and
-PNG plots, written next to each other as ``bench/results/<device-slug>.{json,md}``.
+PNG plots, written next to each other as ``bench/results/<device-slug>/<name>.{json,md}``.
+
+Each device has its own folder (:func:`device_dir`, named by :func:`device_slug` from the OpenCL
+device name), so runs on different machines never overwrite or mix with each other;
+``bench/results/README.md`` (:func:`write_index`) lists the folders and the dates in each.
 
 A result is plain data, so the JSON is the record and the markdown is a view of it::
 
@@ -24,13 +28,28 @@ from pathlib import Path
 
 from pydynrad.atomic import write_atomic
 
-__all__ = ["slugify", "write_report", "markdown", "plot_files", "format_value"]
+__all__ = ["RESULTS_ROOT", "slugify", "device_slug", "device_dir", "write_report", "write_index", "markdown",
+           "plot_files", "format_value"]
+
+#: The folder holding one sub-folder of reports per device: bench/results next to this file.
+RESULTS_ROOT = Path(__file__).resolve().parent / "results"
 
 
 def slugify(text: str) -> str:
     """A file-name-safe lower-case slug: ``"pthread / cpu-haswell"`` -> ``"pthread-cpu-haswell"``."""
     slug = re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")
     return slug[:80] or "device"
+
+
+def device_slug(info: dict) -> str:
+    """The name of a device's results folder, from its OpenCL device name (``Device.info()["device"]``):
+    ``"pthread-Intel(R) Xeon(R) Processor"`` -> ``"pthread-intel-r-xeon-r-processor"``."""
+    return slugify(info.get("device") or "")
+
+
+def device_dir(info: dict, root=RESULTS_ROOT) -> Path:
+    """``root/<device-slug>``: where the reports of the device ``info`` describes go."""
+    return Path(root) / device_slug(info)
 
 
 def format_value(v) -> str:
@@ -161,3 +180,36 @@ def write_report(results: dict, out_dir, slug: str) -> dict[str, Path]:
     write_atomic(md_path, markdown(results, slug).encode())
     written["json"], written["md"] = json_path, md_path
     return written
+
+
+def _report_dates(folder: Path) -> list[str]:
+    """The days (YYYY-MM-DD) of the JSON reports anywhere under ``folder``."""
+    days = set()
+    for path in folder.rglob("*.json"):
+        try:
+            date = json.loads(path.read_text()).get("date")
+        except (OSError, ValueError, AttributeError):  # not a report (or not readable): no date to list
+            continue
+        if isinstance(date, str) and re.match(r"\d{4}-\d{2}-\d{2}", date):
+            days.add(date[:10])
+    return sorted(days)
+
+
+def write_index(root=RESULTS_ROOT) -> Path:
+    """Write ``root/README.md``: one line per device folder with the days of its reports and its
+    sub-folders (dated or labelled runs). Returns its path."""
+    root = Path(root)
+    lines = ["# Benchmark results, one folder per device", "",
+             "Written by `python -m bench` (bench/report.py, `write_index`) after each run: the folder is "
+             "the OpenCL device name as a slug (`Device.info()[\"device\"]`), the dates are those of the "
+             "JSON reports in it (UTC).", ""]
+    for folder in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".") and p.name != "tmp"):
+        dates = _report_dates(folder)
+        subs = sorted(p.name for p in folder.iterdir() if p.is_dir())
+        line = f"- [`{folder.name}/`]({folder.name}/): {', '.join(dates) or 'no dated report'}"
+        if subs:
+            line += "; sub-folders " + ", ".join(f"`{s}/`" for s in subs)
+        lines.append(line)
+    path = root / "README.md"
+    write_atomic(path, ("\n".join(lines) + "\n").encode())
+    return path

@@ -1,6 +1,6 @@
 """Area-sampled form-factor rows: energy balance of the built-in scenes and the plates' error vs samples.
 
-``python -m bench.sampling [--size tiny|quick|full]`` writes ``bench/results/sampling.json`` and
+``python -m bench.sampling [--size tiny|quick|full]`` writes ``bench/results/<device-slug>/sampling.json`` and
 ``.md``; the suite runs the same measurement as its "sampling" section.
 
 A hemicube row is a one-point rule for F[i, j], the area average over patch i of the

@@ -1,8 +1,10 @@
 """The benchmark suite: every section on the current OpenCL device, one report.
 
 ``python -m bench [--quick | --full] [--sections a,b] [--out DIR]`` runs the sections below
-at one size and writes ``<out>/<device-slug>.json`` and ``.md`` with PNG plots
-(:mod:`bench.report`). Sections:
+at one size and writes ``<out>/<size>.json`` and ``.md`` with PNG plots (:mod:`bench.report`),
+``<out>/<size>-<section>-<section>....{json,md}`` when ``--sections`` picks a subset. ``<out>`` is
+``bench/results/<device-slug>/`` unless given, and the index ``bench/results/README.md`` is then
+rewritten (:func:`bench.report.write_index`). Sections:
 
 =============  ===========================================================================
 pathtracer     the reference path tracer: furnace error vs samples, throughput
@@ -46,12 +48,9 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .report import slugify, write_report
+from .report import device_dir, write_index, write_report
 
-__all__ = ["SIZES", "SECTIONS", "Context", "run_suite", "main"]
-
-#: Where reports go by default: bench/results next to this file.
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
+__all__ = ["SIZES", "SECTIONS", "Context", "run_suite", "report_name", "main"]
 
 #: Parameters per size; each section reads its own entry ("tiny" is for the tests only). The
 #: sections of bench/formfactors.py, bench/dynamic.py, bench/radiosity.py and bench/gather.py keep their own
@@ -170,7 +169,8 @@ def run_suite(size: str = "quick", sections=None, out_dir=None, device=None, pro
     sections : iterable of str, optional
         Subset of :data:`SECTIONS` (default: all, in order).
     out_dir : path, optional
-        Report folder (default ``bench/results``).
+        Report folder (default ``bench/results/<device-slug>``, and the index of bench/results is
+        rewritten).
     device : pydynrad.Device, optional
     progress : bool
         tqdm bars and one status line per section on stderr.
@@ -218,9 +218,17 @@ def run_suite(size: str = "quick", sections=None, out_dir=None, device=None, pro
         body["seconds"] = time.perf_counter() - t0
         results["sections"][name] = body
     results["seconds"] = time.perf_counter() - start
-    slug = slugify(f"{info['platform']}-{info['device']}")
-    written = write_report(results, out_dir or RESULTS_DIR, slug)
+    written = write_report(results, out_dir or device_dir(info), report_name(size, names))
+    if out_dir is None:
+        write_index()
     return results, written
+
+
+def report_name(size: str, sections) -> str:
+    """The report's file stem: the size, then the sections when they are a subset
+    (``"quick"``, ``"quick-dynamic-bandwidth"``), so a partial run never overwrites a whole one."""
+    sections = list(sections)
+    return size if sections == list(SECTIONS) else "-".join([size, *sections])
 
 
 def main(argv=None) -> int:
@@ -235,7 +243,8 @@ def main(argv=None) -> int:
                        help="the paper's sizes (village >= 60k patches, M up to 4096, 10,000 drift frames)")
     group.add_argument("--size", choices=list(SIZES), help=argparse.SUPPRESS)
     parser.add_argument("--sections", help=f"comma-separated subset of: {', '.join(SECTIONS)}")
-    parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="report folder (default: bench/results)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="report folder (default: bench/results/<device-slug>)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     sections = args.sections.split(",") if args.sections else None

@@ -77,6 +77,24 @@ def test_slug_and_format():
     assert report.format_value(None) == "—"
 
 
+def test_results_per_device_and_index(tmp_path):
+    xeon, epyc = {"device": "pthread-Intel(R) Xeon(R) Processor"}, {"device": "pthread-AMD EPYC"}
+    assert report.device_dir(xeon, tmp_path) == tmp_path / "pthread-intel-r-xeon-r-processor"
+    assert report.device_dir(epyc).parent == report.RESULTS_ROOT
+    assert suite.report_name("quick", list(suite.SECTIONS)) == "quick"
+    assert suite.report_name("quick", ["dynamic", "paper"]) == "quick-dynamic-paper"
+    for info, date, sub in ((xeon, "2026-11-23T04:04:19+00:00", "full"), (xeon, "2026-12-02 02:10", None),
+                            (epyc, "2026-12-02T06:00:00", None)):
+        folder = report.device_dir(info, tmp_path) / (sub or "")
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / f"r{len(list(folder.iterdir()))}.json").write_text(json.dumps({"device": info, "date": date}))
+    (tmp_path / "pthread-amd-epyc" / "notes.json").write_text("not a report")  # skipped, not a crash
+    lines = report.write_index(tmp_path).read_text().splitlines()
+    assert "- [`pthread-amd-epyc/`](pthread-amd-epyc/): 2026-12-02" in lines
+    assert ("- [`pthread-intel-r-xeon-r-processor/`](pthread-intel-r-xeon-r-processor/): 2026-11-23, 2026-12-02; "
+            "sub-folders `full/`") in lines
+
+
 def test_pathtracer_section_tiny(tmp_path, device):
     results, written = suite.run_suite("tiny", ["pathtracer"], tmp_path, device=device, progress=False, strict=True)
     _check_report(results, written, ["pathtracer"])
