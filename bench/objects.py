@@ -8,6 +8,8 @@ The far field is on (the default): its coarse level is of the first pose, and th
 outside the local set are gathered once per frame at the current poses (docs/design.md,
 'Moving objects').
 
+* with the static F, the rows a budget leaves stale corrected in ``radiosity`` (the default)
+  or not (``occlusion_correction=False``);
 * a frame without a move (``update`` with the observer walking, so patches swap, then
   ``radiosity`` with a point light) against frames that move the block, per occlusion budget
   (rows refreshed per move): the move's time (the block's and the refreshed rows' hemicubes,
@@ -92,11 +94,18 @@ def measure(size: str, device, progress: bool = True) -> dict:
     local_err = float(np.abs(fresh - B_ref).max() / B_ref.max())  # local only: the paper's answer
     rows = []
     for budget in p["budgets"]:
-        # Hemicube rows (every refresh a hemicube) at the two ends of the trade only: slow in between.
-        for form_factors, label in ((F_static, "static F"), (None, "hemicubes"))[: 2 if budget in (0, None) else 1]:
+        # Hemicube rows (every refresh a hemicube) at the two ends of the trade only: slow in
+        # between; the static F's rows uncorrected where the correction changes anything.
+        variants = [(F_static, True, "static F")]
+        if budget is not None:
+            variants.append((F_static, False, "static F, uncorrected"))
+        if budget in (0, None):
+            variants.append((None, True, "hemicubes"))
+        for form_factors, correct, label in variants:
             obj = pd.RigidObject(block, poses[0])
             dyn = pd.DynamicRadiosity(box, form_factors, local_size=M, resolution=R, objects=[obj], occlusion=budget,
-                                      max_swaps_per_frame=SWAPS, observer=OBSERVER, device=device)
+                                      max_swaps_per_frame=SWAPS, observer=OBSERVER, device=device,
+                                      occlusion_correction=correct)
             dyn.radiosity(lights)  # compile and warm up
             walk, swaps = [], []
             for step in WALK:  # frames without a move: the observer walks, patches swap in and out
@@ -136,7 +145,9 @@ def measure(size: str, device, progress: bool = True) -> dict:
                      f"with the light, no move; moving frame: the same with the observer still and one move "
                      f"(its slots swapped in batches of up to MOVE_SWAPS_LIMIT = {MOVE_SWAPS_LIMIT}: the block's in one). 'static F': the static scene's precomputed F; refreshed rows "
                      "come from it at the new pose (entries the block hides dropped, its columns by reciprocity), "
-                     "ranked by the change in the light they gather; 'hemicubes': every row a hemicube of the world "
+                     "ranked by the change in the light they gather; the rows of every other patch that may see the "
+                     "block are made too and B corrected for them in radiosity (occlusion_correction, the default; "
+                     "'uncorrected': without, those rows stay stale); 'hemicubes': every row a hemicube of the world "
                      "as it is, ranked by the solid angle of the block's bounds (budget 'all' is then exact)."}
     col = {c: k for k, c in enumerate(table["columns"])}
     series = {}
