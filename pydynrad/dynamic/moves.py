@@ -10,7 +10,8 @@ rows and add them back with new ones (docs/design.md, 'Moving objects', 'Batched
   bounding spheres (their view of the static scene changed: O now hides or uncovers parts);
 * rows left stale whose sum the new object columns would push above 1: those columns are
   scaled down to fill the row to 1 (:func:`stale_rows`); being in the objects' columns, they
-  need no slot of their own in the swap.
+  need no slot of their own in the swap. With a static F their rows at the new poses are made
+  too (:meth:`WorldRows.refresh`) and B is corrected for them (:mod:`pydynrad.dynamic.stale`).
 
 The swap size bounds one batch; larger sets go in chunks, each one exact on its own: after
 chunk c the device K is that of the form factors whose entries in a row or column of the

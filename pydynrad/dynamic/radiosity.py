@@ -18,7 +18,8 @@ a frame costs O(M^2) device work instead of O(N^2):
 * with ``objects=[...]`` (:class:`pydynrad.RigidObject`), ``move(obj, transform)`` queues a new
   pose that the next ``update`` applies as one batched swap of the objects' patches (always
   local) and of the rows the move changed most (``occlusion``, a row budget per frame):
-  :mod:`pydynrad.dynamic.moves`.
+  :mod:`pydynrad.dynamic.moves`; with a static F the other rows it changed are corrected in
+  ``radiosity`` (``occlusion_correction``, :mod:`pydynrad.dynamic.stale`).
 
 Form factors come from a precomputed sparse F, any row source (:mod:`pydynrad.rows`:
 a form-factor store on disk, a row cache) or, with ``form_factors=None``, from one hemicube
@@ -339,11 +340,13 @@ class DynamicRadiosity:
     @property
     def host_memory_bytes(self) -> int:
         """Host bytes of the bookkeeping: slot map, local mask, the local set's form-factor
-        rows, (paper mode) the bitsets and the far field (G, F_c, R, labels, B_far)."""
+        rows, the rows moves left stale, (paper mode) the bitsets and the far field (G, F_c, R,
+        labels, B_far)."""
         self._require_built()
         used = self._used.nbytes if self._used is not None else 0
         far = self.far.host_memory_bytes if self.far is not None else 0
-        return self._local_patches.nbytes + self._local_mask.nbytes + self._ff.nbytes + used + far
+        return (self._local_patches.nbytes + self._local_mask.nbytes + self._ff.nbytes + self._stale.nbytes + used
+                + far)
 
     def _rho(self, patches: np.ndarray) -> np.ndarray:
         """(C, len(patches)) albedo per K channel."""

@@ -55,6 +55,12 @@ class StaleRows:
     def __len__(self) -> int:
         return len(self.slots)
 
+    @property
+    def nbytes(self) -> int:
+        """Host bytes of the rows and D held."""
+        return self.slots.nbytes + sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes
+                                       for m in (self.current, self.delta))
+
     def put(self, slots: np.ndarray, rows: sp.csr_matrix) -> None:
         """Slots ``slots`` now have current rows ``rows`` (replacing any held for them); call
         :meth:`update` before the next :meth:`correct`."""
