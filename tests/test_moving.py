@@ -160,8 +160,17 @@ def test_static_form_factors_with_objects(box, block, device):
     assert np.isin(objects, dyn.local_patches).all()
     dyn.move(obj, END)
     dyn.update((278.0, 100.0, 500.0))
-    dyn.update((100.0, 400.0, 500.0))
+    stale = dict(zip(dyn._stale.slots.tolist(), dyn.local_patches[dyn._stale.slots].tolist()))
+    assert stale  # rows the move left stale, corrected in radiosity()
+    before = dyn.local_patches
+    st = dyn.update((100.0, 400.0, 500.0))
     assert np.isin(objects, dyn.local_patches).all()
+    # A slot the walk refilled holds its entering patch's current row: it is no longer stale;
+    # the others still are, for the same patches.
+    refilled = np.flatnonzero(before != dyn.local_patches)
+    assert st.swaps == len(refilled) > 0 and not np.isin(refilled, dyn._stale.slots).any()
+    assert set(dyn._stale.slots.tolist()) == set(stale) - set(refilled.tolist())
+    assert all(dyn.local_patches[s] == stale[s] for s in dyn._stale.slots.tolist())
     # K is a fresh build over the kept rows: the update is exact whatever the rows are.
     S = dyn.local_patches
     Fs = dyn._ff.square(S).toarray()
