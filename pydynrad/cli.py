@@ -273,6 +273,7 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     from .rows.store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore, compute_store
 
     check_parent_folder(out)
+    walk_poses = _walk_poses(args.poses) if args.poses else None  # a bad path file fails before the work
     scene = load_scene(args.scene, args.max_edge)
     print(f"scene: {scene!r}")
     labels, cluster_params = _cluster_labels(args, scene)
@@ -318,29 +319,33 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     f_done = "" if store.complete else " (F's rows not computed)"
     print(f"wrote store {out}: {store.n_patches} patches in {store.n_blocks} blocks of {store.block_rows} rows{f_done}{g}, "
           f"{store.nbytes_on_disk / 2**20:.1f} MiB, {seconds:.1f} s in {where}")
-    if args.poses:
-        _store_poses(args, scene, store)
+    if walk_poses is not None:
+        _store_poses(args, scene, store, *walk_poses)
     return 0
 
 
-def _store_poses(args: argparse.Namespace, scene, store) -> None:
-    """--poses FILE: the rows of the moving objects of path file FILE at each frame of its walk
-    (the poses ``pydynrad walk --path FILE`` moves them to) into the store's per-pose part."""
-    from .dynamic.moves import precompute_poses
+def _walk_poses(path) -> tuple[list, list]:
+    """The moving objects of path file ``path`` and their configuration at each frame of its
+    walk (the poses ``pydynrad walk --path`` moves them to)."""
     from .paths import load_walk
+
+    loaded = load_walk(path)
+    if not loaded.objects:
+        raise InvalidInputError(f"--poses {str(path)!r}: the path file moves no objects")
+    frames = len(loaded.path)
+    return [t.object for t in loaded.objects], [[t.at(k, frames) for t in loaded.objects] for k in range(frames)]
+
+
+def _store_poses(args: argparse.Namespace, scene, store, objects, configs) -> None:
+    """--poses: the rows of ``objects`` at each configuration into the store's per-pose part."""
+    from .dynamic.moves import precompute_poses
     from .rows.store import POSE_HEADER
 
-    loaded = load_walk(args.poses)
-    if not loaded.objects:
-        raise InvalidInputError(f"--poses {args.poses!r}: the path file moves no objects")
-    frames = len(loaded.path)
-    configs = [[t.at(k, frames) for t in loaded.objects] for k in range(frames)]
     before = len(store.pose_files()) if (store.path / POSE_HEADER).exists() else 0
     t0 = time.perf_counter()
-    poses = precompute_poses(scene, [t.object for t in loaded.objects], configs, resolution=args.resolution,
-                             store=store)
+    poses = precompute_poses(scene, objects, configs, resolution=args.resolution, store=store)
     print(f"wrote the poses of {args.poses}: {len(poses) - before} new configurations ({len(poses)} in the store, "
-          f"{frames} frames), {time.perf_counter() - t0:.1f} s")
+          f"{len(configs)} frames), {time.perf_counter() - t0:.1f} s")
 
 
 def _stored_poses(F, scene, tracks, resolution: int):

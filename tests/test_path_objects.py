@@ -162,3 +162,7 @@ def test_cli_stores_the_poses_of_a_path_file_and_walk_takes_them(tmp_path, capsy
     code, out, err = run_main(["formfactors", "cornell_box", "--max-edge", "250", "-o", str(tmp_path / "f.npz"),
                                "--poses", str(path)], capsys)
     assert code != 0 and "--poses apply to a store folder" in err
+    still = write(tmp_path, CAMERA, "still.json")
+    code, out, err = run_main(["formfactors", "cornell_box", "--max-edge", "250", "--workers", "0", "-o",
+                               str(tmp_path / "other"), "--poses", str(still)], capsys)
+    assert code != 0 and "the path file moves no objects" in err and not (tmp_path / "other").exists()

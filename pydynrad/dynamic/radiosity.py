@@ -189,7 +189,7 @@ class DynamicRadiosity:
             raise InvalidInputError("poses= holds rows of moving objects: pass objects= too")
         n = len(scene)
         self.scene = scene
-        self._stale = StaleRows(n)  # rows a move left stale in K (static F and a budget only)
+        self._stale = StaleRows(n)  # rows a move left stale in K (a static F with occlusion_correction)
         self.M = integer(local_size, "local_size (M)", 1, n)
         if update not in UPDATE_MODES:
             raise InvalidInputError(f"update must be one of {UPDATE_MODES}; got {update!r}")
@@ -371,9 +371,8 @@ class DynamicRadiosity:
         self._warm_up()
 
     def _build(self, local_patches: np.ndarray, fetch: bool = True) -> None:
-        from .paper import UsedPatches
-
         from .localrows import _replace_rows
+        from .paper import UsedPatches
 
         local_patches = np.asarray(local_patches, dtype=np.int64)
         if not fetch and len(self._stale):  # a rebuild takes the stale rows at the current poses
