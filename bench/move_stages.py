@@ -2,7 +2,7 @@
 
 ``python -m bench.move_stages`` prints a markdown table: the Cornell box of bench/objects.py
 (``quick``: M = 1024, R = 32) with the 48-patch block moved at occlusion budget 0 from the
-static F, then the frame's ``radiosity`` (whose gather of the outside patches at the new
+static F (``--correction``: with the rows it leaves stale made and corrected), then the frame's ``radiosity`` (whose gather of the outside patches at the new
 pose is a move's cost too). Each stage is timed with the device queue drained before and after it (so device
 work is charged to the stage that queued it); medians and minima over the moves. The floor:
 one rank-2k pass and one gather of k vectors per channel at the same M (the swap's two passes
@@ -34,8 +34,10 @@ def _timed(owner, name: str, label: str, queue, into: dict) -> None:
     setattr(owner, name, wrapper)
 
 
-def stages(moves: int = 8, device=None) -> list[tuple[str, float, float]]:
-    """(stage, median ms, min ms) of ``moves`` moves at budget 0 and the radiosity after each."""
+def stages(moves: int = 8, device=None, correction: bool = False) -> list[tuple[str, float, float]]:
+    """(stage, median ms, min ms) of ``moves`` moves at budget 0 and the radiosity after each;
+    ``correction``: with the stale rows made and corrected (``occlusion_correction``), else
+    without (the cheapest move)."""
     import pydynrad as pd
     from pydynrad.device import default_device
     from pydynrad.dynamic import exact, localrows, moves as moves_mod
@@ -48,23 +50,27 @@ def stages(moves: int = 8, device=None) -> list[tuple[str, float, float]]:
     poses = _poses(moves)
     obj = pd.RigidObject(block, poses[0])
     dyn = pd.DynamicRadiosity(box, F, local_size=p["M"], resolution=p["R"], objects=[obj], occlusion=0,
-                              max_swaps_per_frame=SWAPS, observer=OBSERVER, device=device)
+                              max_swaps_per_frame=SWAPS, observer=OBSERVER, device=device,
+                              occlusion_correction=correction)
     light = [pd.PointLight((278.0, 520.0, 280.0), (3e5, 3e5, 3e5))]
     dyn.radiosity(light)
     dyn.update(OBSERVER)
     q, times = device.queue, {}
     for owner, name, label in ((dyn, "_moved_world", "world at the new pose (instanced scene)"),
-                               (dyn._ff.source, "refresh", "object rows (hemicubes)"),
+                               (dyn._ff.source, "refresh", "refresh: object rows (hemicubes), candidates' rows"),
                                (localrows, "_replace_rows", "kept rows replaced"),
                                (moves_mod, "stale_rows", "stale rows (reciprocal object columns)"),
                                (dyn._kernels, "gather_all", "gathers + slot reads, all channels, one read-back"),
                                (exact, "batched_swap", "host algebra (batched_swap, all channels)"),
                                (dyn._kernels, "update_slots", "rank-2k passes + slot writes"),
-                               (exact, "exact_swap", "swap total (gathers, algebra, passes)")):
+                               (exact, "exact_swap", "swap total (gathers, algebra, passes)"),
+                               (dyn._ff.source, "_static_rows", "static rows at the pose from F (move and radiosity)"),
+                               (dyn._stale, "update", "stale rows: D = current - kept")):
         _timed(owner, name, label, q, times)
-    for owner, name, label in ((moves_mod, "without_hidden", "radiosity: outside rows' hidden entries dropped"),
-                               (moves_mod, "capped", "radiosity: outside rows capped"),
-                               (dyn._ff.source, "gather_outside", "radiosity: outside gathered at the pose (rows and product)")):
+    for owner, name, label in ((moves_mod, "without_hidden", "hidden entries dropped (candidates' and outside rows)"),
+                               (moves_mod, "capped", "rows capped (candidates' and outside rows)"),
+                               (dyn._ff.source, "gather_outside", "radiosity: outside gathered at the pose (rows and product)"),
+                               (dyn._stale, "correct", "radiosity: stale rows corrected")):
         _timed(owner, name, label, q, times)
     runs = []
     for T in poses[1:]:
@@ -109,12 +115,13 @@ def main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--moves", type=int, default=8)
+    ap.add_argument("--correction", action="store_true", help="make the stale rows and correct B for them")
     args = ap.parse_args(argv)
     device = default_device()
     load = os.getloadavg()
-    rows = stages(args.moves, device)
+    rows = stages(args.moves, device, args.correction)
     print(f"Device: {device.name}. Date: {datetime.now(timezone.utc):%Y-%m-%dT%H:%M}Z. "
-          f"Load average before: {load[0]:.2f}.\n")
+          f"Load average before: {load[0]:.2f}. Stale rows {'made and corrected' if args.correction else 'left'}.\n")
     print("| stage | median ms | min ms |\n|---|---|---|")
     for name, med, lo in rows:
         print(f"| {name} | {med:.2f} | {lo:.2f} |")

@@ -226,7 +226,7 @@ def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
     given = [o for o, v in (("--workers", args.workers), ("--scheduler", args.scheduler),
                             ("--block-rows", args.block_rows), ("--clusters", args.clusters),
                             ("--cluster-resolution", args.cluster_resolution)) if v is not None]
-    given += [o for o, v in (("--no-f", args.no_f), ("--verify", args.verify)) if v]
+    given += [o for o, v in (("--no-f", args.no_f), ("--verify", args.verify), ("--poses", args.poses)) if v]
     if given:
         raise InvalidInputError(f"{', '.join(given)} apply to a store folder; {str(out)!r} is a single .npz file")
     out = _checked_target(out, (".npz",))  # fail before the work, not after
@@ -273,6 +273,7 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     from .rows.store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore, compute_store
 
     check_parent_folder(out)
+    walk_poses = _walk_poses(args.poses) if args.poses else None  # a bad path file fails before the work
     scene = load_scene(args.scene, args.max_edge)
     print(f"scene: {scene!r}")
     labels, cluster_params = _cluster_labels(args, scene)
@@ -318,7 +319,47 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     f_done = "" if store.complete else " (F's rows not computed)"
     print(f"wrote store {out}: {store.n_patches} patches in {store.n_blocks} blocks of {store.block_rows} rows{f_done}{g}, "
           f"{store.nbytes_on_disk / 2**20:.1f} MiB, {seconds:.1f} s in {where}")
+    if walk_poses is not None:
+        _store_poses(args, scene, store, *walk_poses)
     return 0
+
+
+def _walk_poses(path) -> tuple[list, list]:
+    """The moving objects of path file ``path`` and their configuration at each frame of its
+    walk (the poses ``pydynrad walk --path`` moves them to)."""
+    from .paths import load_walk
+
+    loaded = load_walk(path)
+    if not loaded.objects:
+        raise InvalidInputError(f"--poses {str(path)!r}: the path file moves no objects")
+    frames = len(loaded.path)
+    return [t.object for t in loaded.objects], [[t.at(k, frames) for t in loaded.objects] for k in range(frames)]
+
+
+def _store_poses(args: argparse.Namespace, scene, store, objects, configs) -> None:
+    """--poses: the rows of ``objects`` at each configuration into the store's per-pose part."""
+    from .dynamic.moves import precompute_poses
+    from .rows.store import POSE_HEADER
+
+    before = len(store.pose_files()) if (store.path / POSE_HEADER).exists() else 0
+    t0 = time.perf_counter()
+    poses = precompute_poses(scene, objects, configs, resolution=args.resolution, store=store)
+    print(f"wrote the poses of {args.poses}: {len(poses) - before} new configurations ({len(poses)} in the store, "
+          f"{len(configs)} frames), {time.perf_counter() - t0:.1f} s")
+
+
+def _stored_poses(F, scene, tracks, resolution: int):
+    """The per-pose rows of ``tracks``' objects in the store behind ``F``, or None where F is
+    no store or its store holds no poses (then the moves compute their rows)."""
+    from .dynamic.moves import stored_poses
+    from .rows.store import POSE_HEADER, FormFactorStore
+
+    store = getattr(F, "source", F)
+    if not tracks or not isinstance(store, FormFactorStore) or not (store.path / POSE_HEADER).exists():
+        return None
+    poses = stored_poses(scene, [t.object for t in tracks], store, resolution)
+    print(f"poses: {len(poses)} configurations of the objects stored in {store.path}")
+    return poses
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
@@ -383,6 +424,7 @@ def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames, ob
     opts = _dynamic_options(args)
     if objects:  # their rows by hemicube at F's resolution, so reference frames match F
         opts["resolution"] = args.resolution
+        opts["poses"] = _stored_poses(F, scene, objects, args.resolution)
     result = walk(scene, path, lights=lights, objects=objects, form_factors=F,
                   local_size=min(args.local_size, len(scene) + sum(len(t.object) for t in objects)),
                   solver_options=opts, shading=args.shading, output=out_dir, image_format=args.format,
@@ -672,6 +714,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="store only: read every finished block of an existing store, F's and G's, check each "
                         "against its checksum (bound to this store), report the counts and recompute what fails "
                         "(a resume checks F's blocks anyway)")
+    p.add_argument("--poses", default=None, metavar="PATH.json",
+                   help="store only: also store the rows of the moving objects of this path file at every frame "
+                        "of its walk (the paper's precomputed poses; a walk with --form-factors OUT then takes "
+                        "its moves' object rows from there); configurations already stored are skipped")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_formfactors)
 

@@ -145,5 +145,7 @@ def test_objects_section_tiny(tmp_path, device):
     # Hemicube rows, every row that may see the block refreshed: the local set built afresh at the final pose.
     assert err[("all", "hemicubes")] < 1e-6 < err[(0, "hemicubes")]  # observed 3e-10
     # Rows from the static F: refreshing rows lowers the error against the full solve (observed
-    # 0.0049 -> 0.0024 for 32 rows and for all 50; the far field's own error stays).
-    assert full[(0, "static F")] > 1.5 * max(full[(32, "static F")], full[("all", "static F")])
+    # 0.0049 -> 0.0024 for 32 rows and for all 50; the far field's own error stays); with the
+    # stale rows corrected, every budget gives about what all the rows do (observed 0.0025).
+    assert full[(0, "static F, uncorrected")] > 1.5 * max(full[(32, "static F, uncorrected")], full[("all", "static F")])
+    assert full[(0, "static F")] < 1.05 * full[("all", "static F")]

@@ -160,8 +160,17 @@ def test_static_form_factors_with_objects(box, block, device):
     assert np.isin(objects, dyn.local_patches).all()
     dyn.move(obj, END)
     dyn.update((278.0, 100.0, 500.0))
-    dyn.update((100.0, 400.0, 500.0))
+    stale = dict(zip(dyn._stale.slots.tolist(), dyn.local_patches[dyn._stale.slots].tolist()))
+    assert stale  # rows the move left stale, corrected in radiosity()
+    before = dyn.local_patches
+    st = dyn.update((100.0, 400.0, 500.0))
     assert np.isin(objects, dyn.local_patches).all()
+    # A slot the walk refilled holds its entering patch's current row: it is no longer stale;
+    # the others still are, for the same patches.
+    refilled = np.flatnonzero(before != dyn.local_patches)
+    assert st.swaps == len(refilled) > 0 and not np.isin(refilled, dyn._stale.slots).any()
+    assert set(dyn._stale.slots.tolist()) == set(stale) - set(refilled.tolist())
+    assert all(dyn.local_patches[s] == stale[s] for s in dyn._stale.slots.tolist())
     # K is a fresh build over the kept rows: the update is exact whatever the rows are.
     S = dyn.local_patches
     Fs = dyn._ff.square(S).toarray()
@@ -187,6 +196,8 @@ def test_bad_input(box, block, device):
         pd.DynamicRadiosity(box, None, local_size=len(box), objects=[obj], update="paper", device=device)
     with pytest.raises(pd.InvalidInputError, match="occlusion"):
         pd.DynamicRadiosity(box, None, local_size=len(box), objects=[obj], occlusion=-1, device=device)
+    with pytest.raises(pd.InvalidInputError, match="occlusion_correction"):
+        pd.DynamicRadiosity(box, None, local_size=len(box), objects=[obj], occlusion_correction="yes", device=device)
     dyn.move(obj, pose(0, (350.0, 200.0, 330.0)))  # through the tall block: allowed, warned
     with pytest.warns(pd.ObjectIntersectionWarning):
         dyn.update(OBSERVER)
@@ -274,24 +285,67 @@ def test_hidden_entries_match_numpy(box, block, device):
 def test_static_form_factors_budget_trades_error(box, block, device):
     """A precomputed static F with the far field: rows at the new pose from it (hidden entries
     dropped, object columns by reciprocity) for the budget's rows, the outside gathered at the
-    pose; the error against the full solve falls with the budget."""
+    pose; uncorrected, the error against the full solve falls with the budget; corrected (the
+    default), every budget is about as close as refreshing every row."""
     F_static = pd.form_factors(box, R, device=device)
     world, _, B_ref = full_solve(box, [pd.RigidObject(block, END)], device)
-    errors = []
-    for budget in (0, 32, None):
+    errors = {}
+    for budget, correct in ((0, False), (32, False), (None, False), (0, True), (32, True)):
         obj = pd.RigidObject(block, START)
         dyn = pd.DynamicRadiosity(box, F_static, local_size=len(world) - 40, resolution=R, objects=[obj],
-                                  occlusion=budget, observer=OBSERVER, device=device)
+                                  occlusion=budget, observer=OBSERVER, device=device, occlusion_correction=correct)
         for T in (MIDDLE, END):
             dyn.move(obj, T)
             st = dyn.update(OBSERVER)
             dyn.radiosity(LIGHTS)
             assert st.hemicubes == len(block)  # the rows refreshed come from F
-        errors.append(rel(dyn.radiosity(LIGHTS), B_ref))
-    assert errors[0] > errors[1] > errors[2]
+        errors[budget, correct] = rel(dyn.radiosity(LIGHTS), B_ref)
+    assert errors[0, False] > errors[32, False] > errors[None, False]
     # observed 0.0118, 0.0104, 0.0026 (PoCL, Xeon, 2026-12-02); the rest is the patch-centre
     # occlusion estimate and the far field's coarse level of the first pose
-    assert errors[2] < 0.01
+    assert errors[None, False] < 0.01
+    for budget in (0, 32):  # observed within 2e-8 of the refresh of every row (PoCL, EPYC, 2026-12-02)
+        assert abs(errors[budget, True] - errors[None, False]) < 1e-4
+
+
+def test_stale_rows_corrected(box, block, device):
+    """With a static F the rows a budget leaves stale are corrected in radiosity(): B is the
+    dense numpy solve of the F that refreshing every row gives (the same rows at the current
+    poses), while K stays that of the rows swapped in; refresh() swaps them all in."""
+    F_static = pd.form_factors(box, R, device=device)
+    n = len(box) + len(block)
+
+    def moved(budget, correct):
+        obj = pd.RigidObject(block, START)
+        dyn = pd.DynamicRadiosity(box, F_static, local_size=n, resolution=R, objects=[obj], occlusion=budget,
+                                  observer=OBSERVER, device=device, occlusion_correction=correct)
+        dyn.radiosity(LIGHTS)
+        for T in (MIDDLE, END):
+            dyn.move(obj, T)
+            dyn.update(OBSERVER)
+            dyn.radiosity(LIGHTS)
+        return dyn
+
+    every = moved(None, False)
+    world, S = every.scene, every.local_patches
+    F_all = sp.csr_matrix(every._ff.local[np.argsort(S)])  # patch order
+    L = pd.light_vector(world, LIGHTS, device=device)
+    truth = dense_radiosity(world, F_all, L)
+    stale = moved(0, False)
+    uncorrected = rel(stale.radiosity(LIGHTS, far_field=False), truth)
+    for budget in (0, 16):
+        dyn = moved(budget, True)
+        assert len(dyn._stale) > 100  # rows left stale in K: observed 365 (budget 0), 349 (16)
+        B = dyn.radiosity(LIGHTS, far_field=False)
+        assert dyn._stale.iterations == 1  # the last frame's correction, confirmed
+        assert rel(B, truth) < 1e-4  # the iteration's tolerance; observed 3e-7 (PoCL, EPYC, 2026-12-02)
+        assert rel(B, truth) < uncorrected / 100  # uncorrected observed 0.012
+        if budget == 0:  # K is the uncorrected one's
+            np.testing.assert_allclose(dyn.matrix.to_host(), stale.matrix.to_host(), atol=1e-7, rtol=0)
+    dyn.refresh()
+    assert len(dyn._stale) == 0
+    np.testing.assert_allclose(dyn.matrix.to_host(), dense_K(world, F_all, dyn.local_patches), atol=1e-6, rtol=0)
+    assert rel(dyn.radiosity(LIGHTS, far_field=False), truth) < 2e-6  # fp32 K; observed 8e-9
 
 
 def test_poses_in_store(box, block, device, tmp_path):

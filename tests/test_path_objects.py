@@ -120,3 +120,49 @@ def test_cli_walk_moves_the_objects_of_the_path_file(tmp_path, capsys):
     # columns by reciprocity cost ~1% (observed 1.06% and 1.17%; the demo's is 1.4%).
     errors = [float(e) for e in re.findall(r"relative RMS error ([\d.e+-]+)%", out)]
     assert len(errors) == 2 and max(errors) < 3.0
+
+
+def test_cli_stores_the_poses_of_a_path_file_and_walk_takes_them(tmp_path, capsys):
+    """formfactors --poses: the rows of the path file's objects at each frame of its walk go
+    into the store (the same rows as precompute_poses in memory, bit for bit); a second run
+    adds none; a walk over the store reads them."""
+    from pydynrad.cli import load_scene
+    from pydynrad.rows.store import FormFactorStore
+
+    doc = dict(CAMERA, frames=2, objects=[{"block": {"size": 100, "subdivisions": 0},
+                                           "keyframes": [POSE, {"position": [380, 400, 150]}]}])
+    path, store = write(tmp_path, doc), tmp_path / "store"
+    args = ["formfactors", "cornell_box", "--max-edge", "250", "--resolution", "8", "--workers", "0", "--quiet",
+            "-o", str(store), "--poses", str(path)]
+    code, out, err = run_main(args, capsys)
+    assert code == 0, err
+    assert "2 new configurations (2 in the store, 2 frames)" in out
+    code, out, err = run_main(args, capsys)
+    assert code == 0 and "0 new configurations (2 in the store" in out, err
+    scene, loaded = load_scene("cornell_box", 250.0), load_walk(path)
+    objs = [t.object for t in loaded.objects]
+    configs = [[t.at(k, 2) for t in loaded.objects] for k in range(2)]
+    memory = pd.precompute_poses(scene, objs, configs, resolution=R)
+    opened = FormFactorStore.open(scene, store, resolution=R, patching={"max_edge": 250.0, "scene": "cornell_box"})
+    stored = pd.stored_poses(scene, objs, opened, R)
+    for config in configs:
+        (p_mem, rows_mem), (p_st, rows_st) = memory.get(config), stored.get(config)
+        np.testing.assert_array_equal(p_mem, p_st)
+        assert (rows_mem != rows_st).nnz == 0
+    # The walk's poses are the stored ones: a move to frame 1's takes no hemicube.
+    dyn = pd.DynamicRadiosity(scene, opened, local_size=300, resolution=R, objects=objs, poses=stored,
+                              observer=(278.0, 273.0, -300.0))
+    for t in loaded.objects:
+        dyn.move(t.object, t.at(1, 2))
+    assert dyn.update((278.0, 273.0, -300.0)).hemicubes == 0
+    code, out, err = run_main(["walk", "cornell_box", "--max-edge", "250", "--resolution", "8", "--quiet",
+                               "--path", str(path), "--local-size", "400", "--form-factors", str(store)], capsys)
+    assert code == 0, err
+    assert "poses: 2 configurations of the objects stored in" in out
+    code, out, err = run_main(["formfactors", "cornell_box", "--max-edge", "250", "-o", str(tmp_path / "f.npz"),
+                               "--poses", str(path)], capsys)
+    assert code != 0 and "--poses apply to a store folder" in err
+    still = write(tmp_path, CAMERA, "still.json")
+    code, out, err = run_main(["formfactors", "cornell_box", "--max-edge", "250", "--workers", "0", "-o",
+                               str(tmp_path / "other"), "--poses", str(still)], capsys)
+    assert code != 0 and "the path file moves no objects" in err and not (tmp_path / "other").exists()

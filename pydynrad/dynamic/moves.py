@@ -10,7 +10,8 @@ rows and add them back with new ones (docs/design.md, 'Moving objects', 'Batched
   bounding spheres (their view of the static scene changed: O now hides or uncovers parts);
 * rows left stale whose sum the new object columns would push above 1: those columns are
   scaled down to fill the row to 1 (:func:`stale_rows`); being in the objects' columns, they
-  need no slot of their own in the swap.
+  need no slot of their own in the swap. With a static F their rows at the new poses are made
+  too (:meth:`WorldRows.refresh`) and B is corrected for them (:mod:`pydynrad.dynamic.stale`).
 
 The swap size bounds one batch; larger sets go in chunks, each one exact on its own: after
 chunk c the device K is that of the form factors whose entries in a row or column of the
@@ -445,7 +446,8 @@ class WorldRows:
         return sp.csr_matrix(sp.vstack(parts, format="csr")[order])
 
     def refresh(self, moved: np.ndarray, candidates: np.ndarray, slots: np.ndarray, kept: sp.csr_matrix, spheres,
-                budget: int | None, weight: np.ndarray | None) -> tuple[np.ndarray, sp.csr_matrix, int]:
+                budget: int | None, weight: np.ndarray | None,
+                correct: bool = False) -> tuple[np.ndarray, sp.csr_matrix, int, tuple | None]:
         """Which of the static ``candidates`` (patch indices in ``slots``; ``kept`` the local
         set's rows (M, N) in slot order, so theirs are ``current = kept[slots]``, sliced only
         when the budget ranks them) to refresh after a move, and the new rows of ``moved``
@@ -454,26 +456,33 @@ class WorldRows:
         Hemicube rows (no static F): the ``budget`` candidates that see the most of the objects'
         old and new bounding ``spheres`` (:func:`refresh_order`), by hemicube. With a static F:
         every candidate that may see a sphere gets its row at the new poses from the static F
-        (:meth:`rows`, no hemicube; kept for the pose), and the ``budget`` whose gathered light
+        (:meth:`rows`, no hemicube; kept for the pose; at budget 0 only when ``correct``, for
+        the correction of the rows left stale), and the ``budget`` whose gathered light
         that changes most relative to their own are kept (a shortlist by solid angle first
         loses: 6.6% mean pixel error at 32 rows against 4.5%, bench/objects.py's scene): ``A_s rho_s |(new_s - current_s) w| / w_s`` with
         ``w`` (N,) the last radiosity summed over channels (ones before any), the row's share of
         the mean relative error over the surface. Returns (indices into ``candidates``, rows of
-        ``moved`` then of those, hemicubes computed)."""
+        ``moved`` then of those, hemicubes computed, left): ``left`` is (indices into
+        ``candidates``, their rows at the new poses) for the candidates made but not kept (with
+        a static F and a budget that leaves some), for :class:`~pydynrad.dynamic.stale.StaleRows`;
+        else None."""
         world = self.world
         order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
         if self.static is None:
             order = order[:budget]
             rows, hemicubes = self.fresh(np.concatenate([moved, candidates[order]]))
-            return order, rows, hemicubes
+            return order, rows, hemicubes, None
         hemicubes = 0
         if self.object_rows is None:
             self.object_rows, hemicubes = self.fresh(self.object_patches)
         # Objects that did not move are seen by those that did: their rows, new anyway, go in too.
         still = np.flatnonzero(candidates >= self.n_static)
-        order = order[candidates[order] < self.n_static] if budget != 0 else order[:0]
+        order = order[candidates[order] < self.n_static] if budget != 0 or correct else order[:0]
         new = self._at(candidates[order], self._static_rows)
-        if budget is not None and len(order) > budget:
+        left = None
+        if budget == 0:
+            left, order, new = (order, new), order[:0], new[:0]
+        elif budget is not None and len(order) > budget:
             w = np.ones(self.n_patches) if weight is None else np.asarray(weight, np.float64)
             keep = np.ones(self.n_patches)
             keep[self.object_patches] = 0.0
@@ -483,9 +492,11 @@ class WorldRows:
             score = world.areas[p] * rho * change / np.maximum(w[p], 1e-3 * max(float(w.mean()), 1e-300))
             best = np.argsort(-score, kind="stable")[:budget]
             best = best[score[best] > 0]
+            rest = np.setdiff1d(np.arange(len(order)), best)
+            left = (order[rest], new[rest])
             order, new = order[best], new[best]
         rows = self.object_rows[np.concatenate([moved, candidates[still]]) - self.n_static]
-        return np.concatenate([still, order]), sp.vstack([rows, new], format="csr"), hemicubes
+        return np.concatenate([still, order]), sp.vstack([rows, new], format="csr"), hemicubes, left if correct else None
 
 
 def swap_chunks(slots: np.ndarray, size: int) -> list[np.ndarray]:

@@ -18,7 +18,8 @@ a frame costs O(M^2) device work instead of O(N^2):
 * with ``objects=[...]`` (:class:`pydynrad.RigidObject`), ``move(obj, transform)`` queues a new
   pose that the next ``update`` applies as one batched swap of the objects' patches (always
   local) and of the rows the move changed most (``occlusion``, a row budget per frame):
-  :mod:`pydynrad.dynamic.moves`.
+  :mod:`pydynrad.dynamic.moves`; with a static F the other rows it changed are corrected in
+  ``radiosity`` (``occlusion_correction``, :mod:`pydynrad.dynamic.stale`).
 
 Form factors come from a precomputed sparse F, any row source (:mod:`pydynrad.rows`:
 a form-factor store on disk, a row cache) or, with ``form_factors=None``, from one hemicube
@@ -43,6 +44,7 @@ from ..errors import InvalidInputError, PydynradError
 from ..matvec import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
 from .localrows import LocalRows
 from .selection import NearestSet
+from .stale import StaleRows
 
 __all__ = ["DynamicRadiosity", "FrameStats"]
 
@@ -147,6 +149,13 @@ class DynamicRadiosity:
         cheapest; None: every one that may see the moved objects' old or new bounding spheres):
         with a static F those whose gathered light the move changes most, else those that see
         the most of the spheres. See docs/design.md, 'Moving objects'.
+    occlusion_correction : bool
+        With a static ``form_factors``: make the row at the new poses of every local patch that
+        may see a moved object (from the static F, no hemicube), swap the ``occlusion`` budget of
+        them into K and correct :meth:`radiosity` for the rest by a few iterations with K
+        (:mod:`pydynrad.dynamic.stale`; about as accurate as refreshing every row, for no swap
+        slots). False: the rows left stale are used as they are (at ``occlusion=0`` the
+        cheapest move). No effect with hemicube rows (``form_factors=None``).
     poses : PoseRows, optional
         Rows precomputed for configurations of the objects known in advance
         (:func:`pydynrad.precompute_poses`, same ``resolution``): a move to one of them takes its
@@ -158,7 +167,7 @@ class DynamicRadiosity:
                  max_swaps_per_frame: int = 8, refresh_tolerance: float | None = None, refresh_interval: int = 32,
                  observer=None, keep_emitters: bool = True, resolution: int = 128, far_field=True, clusters=None,
                  cluster_form_factors=None, objects=None, occlusion: int | None = DEFAULT_OCCLUSION, poses=None,
-                 device=None, samples: int = 1) -> None:
+                 device=None, samples: int = 1, occlusion_correction: bool = True) -> None:
         from ..device import default_device
 
         checked_scene(scene)
@@ -166,6 +175,9 @@ class DynamicRadiosity:
         self.objects, self._pending = [], {}
         self._last_B: np.ndarray | None = None  # (N,) the last radiosity() summed over channels: ranks a move's rows
         self.occlusion = None if occlusion is None else integer(occlusion, "occlusion", 0)
+        if not isinstance(occlusion_correction, (bool, np.bool_)):
+            raise InvalidInputError(f"occlusion_correction must be True or False; got {occlusion_correction!r}")
+        self.occlusion_correction = bool(occlusion_correction)
         if samples != 1 and (form_factors is not None or objects is not None):
             raise InvalidInputError(f"samples={samples!r} applies to rows computed on demand (form_factors=None) without "
                                     "moving objects; pass HemicubeRows(scene, R, samples=K) or form factors computed "
@@ -177,6 +189,7 @@ class DynamicRadiosity:
             raise InvalidInputError("poses= holds rows of moving objects: pass objects= too")
         n = len(scene)
         self.scene = scene
+        self._stale = StaleRows(n)  # rows a move left stale in K (a static F with occlusion_correction)
         self.M = integer(local_size, "local_size (M)", 1, n)
         if update not in UPDATE_MODES:
             raise InvalidInputError(f"update must be one of {UPDATE_MODES}; got {update!r}")
@@ -327,11 +340,13 @@ class DynamicRadiosity:
     @property
     def host_memory_bytes(self) -> int:
         """Host bytes of the bookkeeping: slot map, local mask, the local set's form-factor
-        rows, (paper mode) the bitsets and the far field (G, F_c, R, labels, B_far)."""
+        rows, the rows moves left stale, (paper mode) the bitsets and the far field (G, F_c, R,
+        labels, B_far)."""
         self._require_built()
         used = self._used.nbytes if self._used is not None else 0
         far = self.far.host_memory_bytes if self.far is not None else 0
-        return self._local_patches.nbytes + self._local_mask.nbytes + self._ff.nbytes + used + far
+        return (self._local_patches.nbytes + self._local_mask.nbytes + self._ff.nbytes + self._stale.nbytes + used
+                + far)
 
     def _rho(self, patches: np.ndarray) -> np.ndarray:
         """(C, len(patches)) albedo per K channel."""
@@ -356,9 +371,13 @@ class DynamicRadiosity:
         self._warm_up()
 
     def _build(self, local_patches: np.ndarray, fetch: bool = True) -> None:
+        from .localrows import _replace_rows
         from .paper import UsedPatches
 
         local_patches = np.asarray(local_patches, dtype=np.int64)
+        if not fetch and len(self._stale):  # a rebuild takes the stale rows at the current poses
+            self._ff.local = _replace_rows(self._ff.local, self._stale.slots, self._stale.current)
+        self._stale.clear()
         self._matrix.upload(self._fresh_K(local_patches, fetch))
         self._local_patches = local_patches.copy()
         self._local_mask[:] = False
@@ -502,8 +521,8 @@ class DynamicRadiosity:
         slot_of = np.full(len(self.scene), -1)
         slot_of[S] = np.arange(M)
         others = np.flatnonzero(~np.isin(S, moved))
-        order, new_rows, hemicubes = source.refresh(moved, S[others], others, self._ff.local, spheres, self.occlusion,
-                                                    self._last_B)
+        order, new_rows, hemicubes, left = source.refresh(moved, S[others], others, self._ff.local, spheres,
+                                                          self.occlusion, self._last_B, self.occlusion_correction)
         slots = np.concatenate([slot_of[moved], others[order]])
         local = _replace_rows(self._ff.local, slots, new_rows)
         local = stale_rows(local, slots, S, slot_of[moved], moved, self.scene.areas)
@@ -522,6 +541,11 @@ class DynamicRadiosity:
             exact_swap(self._kernels, c, F_SJ, F_JS, F_JJ, rho, rho[:, c])
         self._ff.local = local
         source.object_rows = local[slot_of[self._object_patches]]
+        self._stale.drop(slots)
+        if left is not None:
+            self._stale.put(others[left[0]], left[1])
+        if len(self._stale):
+            self._stale.update(local)
         return len(order), hemicubes
 
     def _prefetch_next(self, obs: np.ndarray) -> None:
@@ -540,6 +564,7 @@ class DynamicRadiosity:
         prefetch(idx[~self._local_mask[idx]][: self.max_swaps])
 
     def _swap_local(self, slots: np.ndarray, J: np.ndarray) -> None:
+        self._stale.drop(slots)  # J enter with their rows at the current poses
         self._local_mask[self._local_patches[slots]] = False
         self._local_patches[slots] = J
         self._local_mask[J] = True
@@ -603,18 +628,24 @@ class DynamicRadiosity:
         far = self.far.light(L) if far_field and self.far is not None else None
         if far is not None:
             LS = LS + self.far.injection(self._ff.local, S)
-        if self.C == 3:
-            KL = self._matrix.matvec(LS.T)
-        else:  # one K serves the three colour channels of L
-            KL = self._matrix.matmat(LS.T[None])[0]  # all three in one pass over K
         B = far.copy() if far is not None else L.copy()
-        B[S] = LS + self.scene.albedo[S].astype(np.float64) * KL.T
+        B[S] = self._solve_kept(LS)
+        if len(self._stale):
+            B[S] = self._stale.correct(self._solve_kept, B, S, self.scene.albedo, far is not None)
         if self.objects:
             if far is not None:  # the coarse level is of the first poses: gather the outside at these
                 outside = np.flatnonzero(~self._local_mask)
                 B[outside] = self._ff.source.gather_outside(outside, L, B)
             self._last_B = B.sum(axis=1)
         return B if E is None else B + E
+
+    def _solve_kept(self, X: np.ndarray) -> np.ndarray:
+        """(M, 3) X + P_S K X for X (M, 3) on the local set: (I - P_S F_SS)^{-1} X."""
+        if self.C == 3:
+            KX = self._matrix.matvec(X.T)
+        else:  # one K serves the three colour channels
+            KX = self._matrix.matmat(X.T[None])[0]  # all three in one pass over K
+        return X + self.scene.albedo[self._local_patches].astype(np.float64) * KX.T
 
     # -- drift -------------------------------------------------------------------------------------------
     def residual(self, probes: int = 8) -> float:

@@ -1,0 +1,117 @@
+"""Rows a move left stale in K, and the correction of B for them (docs/design.md, 'Moving objects').
+
+With a static F, a move makes the row at the new poses of every local patch that may see a
+moved object (:meth:`pydynrad.dynamic.moves.WorldRows.refresh`); only the occlusion budget of
+them is swapped into K, since each costs a slot of the swap. The others are kept here, and
+:meth:`StaleRows.correct` solves for B with them by iterating on the difference
+D = F_current - F_kept (rows of the stale slots only):
+
+    B_S = (I + P_S K) (L'_S + P_S D B),
+
+where (I + P_S K) = (I - P_S F_kept)^{-1} applies K once per iteration (one pass over K per
+channel) and D B reads the stale rows against B of every patch (the local set's from the last
+iterate, the outside's as the frame has it: the far field's, or 0 without it). From
+B^(0) = (I + P_S K) L'_S (the uncorrected answer) each iteration is
+B^(n+1) = B^(0) + (I + P_S K) P_S D B^(n); D is small (what the objects now hide from the
+stale rows and their object columns' share), so a few iterations reach the fixed point, which
+is the solution with every stale row at the current poses: what refreshing every row would
+give, without its swap slots. Each call starts from the last one's correction, so a frame
+without a move usually takes one iteration. K itself is never changed, so a pose that comes back still
+gives back the same K.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["StaleRows", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS"]
+
+#: Stop when an iteration changes B on the local set by at most this much of its max.
+CORRECTION_TOLERANCE = 1e-4
+#: The most iterations per :meth:`StaleRows.correct` (each one pass over K per channel).
+CORRECTION_ITERATIONS = 8
+
+
+class StaleRows:
+    """The rows at the current poses of the local slots whose rows in K are stale.
+
+    ``slots`` (n,) sorted slot indices; ``current`` (n, N) sparse: their rows at the current
+    poses; ``delta`` (n, N): those minus the rows K was built from (:meth:`update`, after every
+    change of either).
+    """
+
+    def __init__(self, n_patches: int) -> None:
+        self.n_patches = int(n_patches)
+        self.clear()
+
+    def clear(self) -> None:
+        self.slots = np.empty(0, np.int64)
+        self.current = sp.csr_matrix((0, self.n_patches))
+        self.delta = sp.csr_matrix((0, self.n_patches))
+        self.iterations = 0  # of the last correct()
+        self._increment: np.ndarray | None = None  # (N, 3) the last correct()'s B - B^(0), per patch
+
+    def __len__(self) -> int:
+        return len(self.slots)
+
+    @property
+    def nbytes(self) -> int:
+        """Host bytes of the rows and D held."""
+        return self.slots.nbytes + sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes
+                                       for m in (self.current, self.delta))
+
+    def put(self, slots: np.ndarray, rows: sp.csr_matrix) -> None:
+        """Slots ``slots`` now have current rows ``rows`` (replacing any held for them); call
+        :meth:`update` before the next :meth:`correct`."""
+        slots = np.asarray(slots, np.int64)
+        keep = ~np.isin(self.slots, slots)
+        both = np.concatenate([self.slots[keep], slots])
+        order = np.argsort(both, kind="stable")
+        self.slots = both[order]
+        self.current = sp.csr_matrix(sp.vstack([self.current[np.flatnonzero(keep)], sp.csr_matrix(rows)],
+                                             format="csr")[order])
+
+    def drop(self, slots: np.ndarray) -> None:
+        """Slots whose rows in K are current again (refreshed by a swap, or holding another
+        patch): nothing to correct there."""
+        keep = np.flatnonzero(~np.isin(self.slots, slots))
+        if len(keep) < len(self.slots):
+            self.slots, self.current, self.delta = self.slots[keep], self.current[keep], self.delta[keep]
+
+    def update(self, kept: sp.csr_matrix) -> None:
+        """D = current rows - ``kept[slots]`` (``kept`` (M, N): the rows K was built from);
+        slots where they agree are dropped."""
+        delta = sp.csr_matrix(self.current - kept[self.slots])
+        delta.eliminate_zeros()
+        self.delta = delta
+        self.drop(self.slots[np.diff(delta.indptr) == 0])
+
+    def correct(self, solve_kept, B: np.ndarray, S: np.ndarray, albedo: np.ndarray, outside: bool) -> np.ndarray:
+        """(M, 3) B on the local set with the stale rows at the current poses (module docstring).
+
+        ``solve_kept(X)``: X + P_S K X for X (M, 3); ``B`` (N, 3): the frame's B with the
+        uncorrected local set at ``S``; ``albedo`` (N, 3); ``outside``: whether B outside the
+        local set is part of the solution (the far field's), else it is not gathered."""
+        B0 = B[S]
+        if not len(self.slots):
+            self.iterations = 0
+            return B0
+        x = B.copy() if outside else np.zeros_like(B)
+        # From the last frame's correction (the same rows, mostly the same light): one iteration
+        # confirms it where nothing changed. Any start converges (a contraction).
+        x[S] = B0 if self._increment is None else B0 + self._increment[S]
+        rho = albedo[S[self.slots]].astype(np.float64)
+        g = np.zeros_like(B0)
+        for it in range(1, CORRECTION_ITERATIONS + 1):
+            g[self.slots] = rho * (self.delta @ x)
+            new = B0 + solve_kept(g)
+            step = float(np.abs(new - x[S]).max())
+            x[S] = new
+            if step <= CORRECTION_TOLERANCE * max(float(np.abs(new).max()), 1e-300):
+                break
+        self.iterations = it
+        if self._increment is None:
+            self._increment = np.zeros_like(B)
+        self._increment[S] = x[S] - B0
+        return x[S]
