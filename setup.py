@@ -1,6 +1,6 @@
 """Build script: the package metadata lives in pyproject.toml; this file only wires the
 layout of the design card (top-level ``kernels/`` shipped as ``pydynrad.kernels``) and the
-native BVH builder in ``csrc/``."""
+native helpers in ``csrc/`` (the BVH builder, the hemicube runs' CSR assembly)."""
 
 from setuptools import Extension, find_packages, setup
 
@@ -13,6 +13,11 @@ setup(
             "pydynrad._bvh",
             sources=["csrc/bvh.c"],
             extra_compile_args=["-O3", "-std=c99"],
-        )
+        ),
+        Extension(
+            "pydynrad._runs",
+            sources=["csrc/runs.c"],
+            extra_compile_args=["-O3", "-std=c99"],
+        ),
     ],
 )

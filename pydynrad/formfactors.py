@@ -26,6 +26,7 @@ from functools import lru_cache
 import numpy as np
 import scipy.sparse as sp
 
+from . import _runs
 from .checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
 from .launch import float4, global_size, hemicube_tiles, ray_work_group
@@ -156,20 +157,18 @@ def _runs_to_csr(patch, weight, count, n_cols: int) -> sp.csr_matrix:
     """Sum each row's runs into a CSR block: patch/weight (B, K 3R, R), count (B, K 3R) for K
     hemicubes per row.
 
-    Only the runs are read (gathered by their counts), not the whole (B, K 3R, R) buffers: a
-    scanline holds ~15 runs of 64 pixels in the village. Duplicates (a patch seen on several
-    scanlines) are summed in float64 by one sort of the (row, column) keys.
+    Native (``csrc/runs.c``): only the runs are read, not the whole (B, K 3R, R) buffers (a
+    scanline holds ~15 runs of 64 pixels in the village), and duplicates (a patch seen on
+    several scanlines) are summed in float64 in the order the runs come, through a hash table
+    per row; then each row's distinct columns are sorted.
     """
     B, S, R = patch.shape
-    count = count.reshape(-1)
-    line = np.repeat(np.arange(B * S, dtype=np.int64), count)  # each run's scanline
-    flat = line * R + np.arange(len(line)) - np.repeat(np.cumsum(count) - count, count)
-    cols = patch.reshape(-1)[flat]
-    keep = cols >= 0
-    keys, at = np.unique(line[keep] // S * n_cols + cols[keep], return_inverse=True)  # sorted by row, column
-    data = np.bincount(at.reshape(-1), weights=weight.reshape(-1)[flat[keep]], minlength=len(keys))
-    indptr = np.searchsorted(keys, np.arange(B + 1) * n_cols)
-    return sp.csr_matrix((data, (keys % n_cols).astype(np.int32), indptr), shape=(B, n_cols))
+    count = np.ascontiguousarray(count, np.int32)
+    most = int(count.sum())  # entries at most: one per run
+    indptr, indices, data = np.empty(B + 1, np.int64), np.empty(most, np.int32), np.empty(most)
+    nnz = _runs.to_csr(np.ascontiguousarray(patch, np.int32), np.ascontiguousarray(weight, np.float32), count, R,
+                       int(n_cols), indptr, indices, data)
+    return sp.csr_matrix((data[:nnz].copy(), indices[:nnz].copy(), indptr), shape=(B, n_cols))
 
 
 def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | None = None, *,
