@@ -180,6 +180,26 @@ def test_packet_lanes_are_independent(device):
     np.testing.assert_array_equal(np.concatenate([s[0] for s in single[::-1]]), whole[0])
 
 
+@pytest.mark.parametrize("chunk", [7, 32, 69])
+def test_chunks_give_the_whole_batch(device, monkeypatch, chunk):
+    """cast_rays in launches of `chunk` rays (pydynrad.bvh.CAST_CHUNK: chunks ending inside a
+    packet, on one, and a one-ray tail) returns what one launch does, bit for bit; a bad tmax
+    in a later chunk is reported by its index in the whole batch."""
+    import pydynrad.bvh as bvh_module
+
+    rng = np.random.default_rng(8)
+    bvh = BVH.build(random_triangles(rng, 300))
+    o, d = random_rays(rng, 70)
+    tmax = rng.uniform(1.0, 30.0, len(o))
+    whole = cast_rays(bvh, o, d, tmax=tmax, device=device)
+    monkeypatch.setattr(bvh_module, "CAST_CHUNK", chunk)
+    for a, b in zip(cast_rays(bvh, o, d, tmax=tmax, device=device), whole):
+        np.testing.assert_array_equal(a, b)
+    tmax[66] = -1.0
+    with pytest.raises(InvalidInputError, match="for ray 66"):
+        cast_rays(bvh, o, d, tmax=tmax, device=device)
+
+
 def _depth_recursive(children, node=0):
     inner = [c for c in children[node] if c > 0]
     return 1 + max((_depth_recursive(children, c) for c in inner), default=0)
