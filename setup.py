@@ -1,6 +1,6 @@
 """Build script: the package metadata lives in pyproject.toml; this file only wires the
 layout of the design card (top-level ``kernels/`` shipped as ``pydynrad.kernels``) and the
-native helpers in ``csrc/`` (the BVH builder, the hemicube runs' CSR assembly)."""
+native helpers in ``csrc/`` (the BVH builder, ray batches' checks, the hemicube runs' CSR)."""
 
 from setuptools import Extension, find_packages, setup
 
@@ -12,6 +12,11 @@ setup(
         Extension(
             "pydynrad._bvh",
             sources=["csrc/bvh.c"],
+            extra_compile_args=["-O3", "-std=c99"],
+        ),
+        Extension(
+            "pydynrad._raybatch",
+            sources=["csrc/rays.c"],
             extra_compile_args=["-O3", "-std=c99"],
         ),
         Extension(

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import _bvh
+from . import _bvh, _raybatch
 from .checks import finite
 from .errors import InvalidInputError
 from .launch import bvh_packet, global_size, ray_work_group
@@ -263,21 +263,24 @@ def _ray_arrays(origins, directions) -> tuple[np.ndarray, np.ndarray]:
 
 def _rays(origins, directions, tmax, frame=None, first: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Checked float32 rays, moved into ``frame`` (a scene's DeviceFrame; t is unchanged) if
-    given; ``first``: the index of the first of them in the caller's batch (for messages)."""
+    given; ``first``: the index of the first of them in the caller's batch (for messages).
+
+    One native pass per ray (``csrc/rays.c``), with :meth:`DeviceFrame.points` and
+    :meth:`~DeviceFrame.directions`' arithmetic."""
     origins, directions = _ray_arrays(origins, directions)
-    o = np.ascontiguousarray(origins if frame is None else frame.points(origins), dtype=np.float32)
-    d = np.ascontiguousarray(directions if frame is None else frame.directions(directions), dtype=np.float32)
-    # min/max propagate NaN and expose inf without a temporary the size of the batch.
-    if len(o) and not all(np.isfinite(x) for a in (o, d) for x in (a.min(), a.max())):
+    real = origins.dtype if origins.dtype == directions.dtype and origins.dtype in (np.float32, np.float64) else np.float64
+    o, d = (np.ascontiguousarray(a, dtype=real) for a in (origins, directions))
+    tm = np.asarray(tmax, dtype=np.float32)
+    tm = tm.reshape(1) if tm.size == 1 else np.ascontiguousarray(np.broadcast_to(tm, (len(o),)))
+    out = np.empty_like(o, np.float32), np.empty_like(d, np.float32), np.empty(len(o), np.float32)
+    code, bad = _raybatch.prepare(o, d, tm, None if frame is None else (*map(float, frame.origin), float(frame.unit)), *out)
+    if code == 1:
         raise InvalidInputError("ray origins or directions contain NaN or infinite values")
-    zero = d == 0  # a contiguous pass; the per-ray test below reads strided columns, so only when needed
-    if zero.any() and np.any(zero[:, 0] & zero[:, 1] & zero[:, 2]):
+    if code == 2:
         raise InvalidInputError("ray directions must be non-zero")
-    tm = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=np.float32), (len(o),)))
-    if not np.all(tm > 0):  # NaN fails the comparison too
-        bad = int(np.argmin(tm > 0))
-        raise InvalidInputError(f"tmax must be > 0 (inf for unbounded rays); got {tm[bad]} for ray {first + bad}")
-    return o, d, tm
+    if code == 3:
+        raise InvalidInputError(f"tmax must be > 0 (inf for unbounded rays); got {out[2][bad]} for ray {first + bad}")
+    return out
 
 
 def _resolve(scene_or_bvh, device):
@@ -312,7 +315,8 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
     bvh, dev, frame = _resolve(scene_or_bvh, device)
     origins, directions = _ray_arrays(origins, directions)
     n = len(origins)
-    tmax = np.broadcast_to(np.asarray(tmax, dtype=np.float32), (n,))
+    tmax = np.asarray(tmax, dtype=np.float32)
+    tmax = tmax.reshape(1) if tmax.size == 1 else np.broadcast_to(tmax, (n,))
     patch, t, front = np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.int8)
     if n == 0:
         return patch, t, front.astype(bool)
@@ -325,7 +329,8 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
     knl = dev.kernel("raycast.cl", "cast_closest", {"BVH_PACKET": packet})
 
     def prepare(a: int):
-        return a, _rays(origins[a : a + chunk], directions[a : a + chunk], tmax[a : a + chunk], frame, first=a)
+        tm = tmax if len(tmax) == 1 else tmax[a : a + chunk]
+        return a, _rays(origins[a : a + chunk], directions[a : a + chunk], tm, frame, first=a)
 
     def launch(a: int, rays) -> None:
         for buf, host in zip(ins, rays):

@@ -163,6 +163,24 @@ def test_bad_rays(device):
         cast_rays("scene", o, np.ones((2, 3)), device=device)
 
 
+@pytest.mark.parametrize("real", [np.float32, np.float64])
+def test_rays_move_into_the_device_frame_as_numpy_moves_them(real):
+    """The native ray pass (csrc/rays.c) gives DeviceFrame.points / directions' float32 bit for
+    bit, magnitudes from 1e-40 to 1e30 (float32's subnormals included), and the rays' own
+    rounding without a frame."""
+    from pydynrad.bvh import _rays
+    from pydynrad.scene import DeviceFrame
+
+    rng = np.random.default_rng(9)
+    size = 10.0 ** rng.integers(-40, 31, (5000, 1))
+    o, d = (rng.normal(size=(5000, 3)) * size).astype(real), (rng.normal(size=(5000, 3)) * size).astype(real)
+    for frame in (DeviceFrame(np.array([-3.0, 1e3, 7.0]), np.array([40.0, 1e3 + 2.0, 9.5])), None):
+        got = _rays(o, d, 2.5, frame)
+        want = (o.astype(np.float32), d.astype(np.float32)) if frame is None else (frame.points(o), frame.directions(d))
+        for g, w in zip(got, want + (np.full(len(o), 2.5, np.float32),)):
+            assert g.dtype == np.float32 and np.array_equal(g.view(np.uint32), w.view(np.uint32))
+
+
 def test_packet_lanes_are_independent(device):
     """cast_rays packs consecutive rays into one traversal; a ray's answer must not depend on its
     neighbours, on where the batch ends (spare lanes of a tail packet) or on the batch size."""
