@@ -1,7 +1,7 @@
 """Hemicube form factors: ray throughput against Embree, and accuracy against analytic plates.
 
 ``python -m bench.formfactors [--size quick|full|tiny] [--scenes cornell_box,village,stanford_bunny]
-[--resolution R] [--rows N]`` writes ``bench/results/formfactors.{json,md}``; the suite runs the
+[--resolution R] [--rows N] [--out DIR]`` writes ``bench/results/<device-slug>/formfactors.{json,md}``; the suite runs the
 same measurement as its "formfactors" section. ``--scenes`` also takes mesh files (any format :func:`pydynrad.load` reads).
 
 Throughput: for a sample of patches of each scene, the hemicube rays that
@@ -309,14 +309,14 @@ def main(argv=None) -> int:
 
     import pydynrad
 
-    from .report import write_report
+    from .report import device_dir, write_index, write_report
 
     ap = argparse.ArgumentParser(prog="python -m bench.formfactors", description=__doc__.split("\n\n")[0])
     ap.add_argument("--size", choices=list(SIZES), default="quick")
     ap.add_argument("--scenes", help="comma-separated scene names or mesh files (default: the size's)")
     ap.add_argument("--resolution", type=int, help="hemicube resolution of the throughput rays (default: the size's)")
     ap.add_argument("--rows", type=int, help="patches whose hemicube rays are cast, per scene (default: the size's)")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
+    ap.add_argument("--out", default=None, help="report folder (default: bench/results/<device-slug>)")
     args = ap.parse_args(argv)
     params = dict(SIZES[args.size])
     if args.scenes:
@@ -332,7 +332,9 @@ def main(argv=None) -> int:
                "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                "size": args.size, "params": {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()},
                "sections": {"formfactors": section}, "seconds": time.perf_counter() - t0}
-    written = write_report(results, args.out, "formfactors")
+    written = write_report(results, args.out or device_dir(results["device"]), "formfactors")
+    if args.out is None:
+        write_index()
     print("\n".join(str(p) for p in written.values()), file=sys.stderr)
     return 0
 
