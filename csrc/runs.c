@@ -4,10 +4,10 @@
  * Host-side by design: each row's runs (patch, weight) come back from the device scanline by
  * scanline, a patch seen on several scanlines once per run; the row's entry for it is the sum
  * of those weights. numpy did this with one sort of every run's (row, column) key per block
- * (np.unique + bincount, ~30 ns a run, a third of the tracing's time on the village and all of
- * it on one core beside PoCL's threads); here each row's runs are sorted by column alone, by a
- * stable radix sort of 11-bit digits (two passes below 2^22 columns), and runs of one column
- * summed where they meet.
+ * (np.unique + bincount: 45 ms of CPU for the 1.17 M runs of 400 village rows at R = 64, a fifth
+ * of tracing them, on the one core PoCL's two threads also need); here each row's runs are
+ * sorted by column alone, by a stable radix sort of 11-bit digits (two passes below 2^22
+ * columns), and runs of one column summed where they meet (12-16 ms for the same runs).
  *
  * The sums are those of np.bincount bit for bit: float64, each column's weights added in the
  * order the runs appear (scanline by scanline, run by run: the sort is stable), from 0.0.
