@@ -207,6 +207,8 @@ def main(argv=None) -> int:
     ap.add_argument("--far-field", action=argparse.BooleanOptionalAction, default=True,
                     help="store G beside F and walk with the far field on as well as off")
     ap.add_argument("--cluster-resolution", type=int, default=None, help="G's hemicube resolution (default: F's)")
+    ap.add_argument("--walks", action=argparse.BooleanOptionalAction, default=True,
+                    help="walk the store once it is complete (--no-walks: precompute only)")
     ap.add_argument("--walk-far-field", choices=["on", "off"], default="off", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     size = "quick" if args.quick else "full"
@@ -258,7 +260,7 @@ def main(argv=None) -> int:
         report["far_field_precompute"] = far_field_precompute(args, scene, store, report["store"])
         print(json.dumps(report["far_field_precompute"], indent=1), flush=True)
 
-    if store.complete:
+    if store.complete and args.walks:
         f_bytes = report["store"]["in_memory_bytes_est"]
         cache_mib = args.cache_mib or f_bytes / 4 / 2**20
         walks = [walk_in_subprocess(args, "store", cache_mib)]

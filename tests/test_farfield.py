@@ -207,9 +207,12 @@ def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_pat
     assert dyn.far.prolongation == on_demand.far.prolongation == "linear"
     assert radiosity_error(on_demand.radiosity(light=L), ref, scene.areas) < 0.008 and err < 0.008
     bare = DynamicRadiosity(scene, store, local_size=137, observer=obs, far_field=False, device=device)
-    # Without F, G and F_c live on the device only (a float32 value and an int32 column per non-zero).
+    # Without F, F_c lives on the device only (as K_c here) and a store's G stays in the store.
     assert dyn.far.G is None is dyn.far.F_c and dyn.host_memory_bytes - bare.host_memory_bytes > dyn.far.R.data.nbytes
-    assert dyn.memory_bytes - bare.memory_bytes == dyn.far.device_memory_bytes > 8 * (dyn.far.G_nnz + dyn.far.F_c_nnz)
+    assert dyn.far._G_stream is not None and dyn.far.device_memory_bytes < 8 * dyn.far.G_nnz
+    assert dyn.memory_bytes - bare.memory_bytes == dyn.far.device_memory_bytes
+    held = FarField(scene, None, dyn.far.clusters, G=store.cluster_form_factors(), device=device)
+    assert held.device_memory_bytes - dyn.far.device_memory_bytes > 8 * held.G_nnz  # G held whole on the device
     compute_store(scene, tmp_path / "no-G", resolution=32, progress=False,
                   row_function=lambda scene, rows, resolution, device=None: F[rows])
     with pytest.raises(pydynrad.InvalidInputError, match="holds no far-field G"):

@@ -64,6 +64,7 @@ from ..checks import check_form_factors, finite, integer, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
 from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
 from .gather import checked_cluster_form_factors
+from .streamed import StoredG
 
 __all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS",
            "GATHERS", "COARSE_SOLVES", "DENSE_CLUSTERS"]
@@ -112,6 +113,25 @@ def weighted_prolongation(clusters: Clusters, areas: np.ndarray, w: np.ndarray) 
     return sp.csr_matrix((scale, (np.arange(n), lab)), shape=(n, clusters.count))
 
 
+def _checked_clusters(clusters: Clusters, scene) -> Clusters:
+    if clusters.scene_hash != scene.content_hash() or len(clusters.labels) != len(scene):
+        raise InvalidInputError("these clusters were made for another scene (content hash differs)")
+    return clusters
+
+
+def _checked_linear(linear, n: int, C: int) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+    """A given (Pr, R_lin) of the linear basis, InvalidInputError unless (N, 3C) and (3C, N) sparse."""
+    try:
+        Pr, fit = linear
+    except (TypeError, ValueError):
+        raise InvalidInputError("linear must be the (Pr, R_lin) pair of pydynrad.farfield.clusters.linear_basis") from None
+    K = LINEAR_FUNCTIONS * C
+    if not (sp.issparse(Pr) and sp.issparse(fit) and Pr.shape == (n, K) and fit.shape == (K, n)):
+        raise InvalidInputError(f"linear must be sparse (Pr, R_lin) of shapes ({n}, {K}) and ({K}, {n}) for these clusters; "
+                                f"got {getattr(Pr, 'shape', None)} and {getattr(fit, 'shape', None)}")
+    return sp.csr_matrix(Pr), sp.csr_matrix(fit)
+
+
 class FarField:
     """The coarse level of a scene: clusters, F_c, G, and the far radiosity B_far per light vector.
 
@@ -123,8 +143,10 @@ class FarField:
         :func:`pydynrad.farfield.gather.cluster_form_factors` or a form-factor store).
     clusters : Clusters or int, optional
         A partition (:func:`cluster_patches`), or C for one; default C from N.
-    G : (N, C) sparse, optional
-        The patch-to-cluster form factors F Pr for these clusters (computed from F if omitted).
+    G : (N, C) sparse or StoredG, optional
+        The patch-to-cluster form factors F Pr for these clusters (computed from F if omitted);
+        a :class:`pydynrad.farfield.streamed.StoredG` (without F) stays in its store and is read
+        chunk by chunk on every pass over it.
     prolongation : "indicator" | "exposure" | "linear"
         Default: "indicator" with F, "linear" without.
     gather : "first_bounce" | "shared" | "cluster", optional
@@ -153,6 +175,9 @@ class FarField:
     checked : bool
         ``form_factors`` already passed :func:`pydynrad.checks.check_form_factors` (a
         DynamicRadiosity's own copy): skip validating it again.
+    linear : (Pr, R_lin), optional
+        :func:`pydynrad.farfield.clusters.linear_basis` of these clusters, where the caller has
+        built it already (``prolongation="linear"``); shapes checked, not rebuilt.
 
     Attributes
     ----------
@@ -176,7 +201,8 @@ class FarField:
 
     def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str | None = None,
                  gather: str | None = None, fine_sweeps: int | None = None, coarse: str = "auto", coarse_storage: str | None = None,
-                 tol: float = 1e-4, max_sweeps: int = 1000, dtype=np.float32, device=None, *, checked: bool = False) -> None:
+                 tol: float = 1e-4, max_sweeps: int = 1000, dtype=np.float32, device=None, *, checked: bool = False,
+                 linear=None) -> None:
         from ..device import default_device, real_dtype
         from ..devicecsr import DeviceCSR
         from ..matvec import storage_dtype
@@ -215,15 +241,13 @@ class FarField:
                                     f"gather={gather!r}, fine_sweeps={fine_sweeps}, prolongation={prolongation!r} without F")
         if clusters is None or not isinstance(clusters, Clusters):
             clusters = cluster_patches(scene, clusters, components=None if F is None else light_components(F))
-        elif clusters.scene_hash != scene.content_hash() or len(clusters.labels) != n:
-            raise InvalidInputError("these clusters were made for another scene (content hash differs)")
-        self.clusters = clusters
+        self.clusters = _checked_clusters(clusters, scene)
         C = clusters.count
         self.R = clusters.restriction(scene.areas)
         self._fit = None  # the linear level's least-squares fit R_lin (3C, N)
         if prolongation == "linear":
             self.weights = None
-            Pr, self._fit = linear_basis(clusters, scene)
+            Pr, self._fit = linear_basis(clusters, scene) if linear is None else _checked_linear(linear, n, C)
         elif prolongation == "exposure":
             self.weights = exposure_weights(scene, F, self.device)
             Pr = weighted_prolongation(clusters, scene.areas, self.weights)
@@ -232,16 +256,24 @@ class FarField:
             Pr = clusters.indicator()
         # A given G is checked like rows of F (a row of G is a row of F summed by cluster); F Pr is
         # a product of the checked F and a prolongation built here, so it needs no second check.
-        G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else checked_cluster_form_factors(G, Pr.shape)
+        self._G_stream = G if isinstance(G, StoredG) else None
+        if self._G_stream is not None:
+            if F is not None or tuple(G.shape) != Pr.shape:
+                raise InvalidInputError(f"a stored G is the far field without F, of shape {Pr.shape}; got shape "
+                                        f"{tuple(G.shape)}" + (" with F" if F is not None else ""))
+            # Checked chunk by chunk while F_c is summed from it; never held whole.
+            self.F_c = G.coarse_form_factors(self.R, C)
+        else:
+            G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else checked_cluster_form_factors(G, Pr.shape)
+            # The linear basis sums to 1 on every patch: its three column blocks add up to F times the
+            # indicator. Summed after the restriction, on C x 3C, not on G (N x 3C: most of the far
+            # field's memory at a million patches).
+            RG = self.R @ G
+            self.F_c = sp.csr_matrix(RG if self._fit is None else RG[:, :C] + RG[:, C:2 * C] + RG[:, 2 * C:])
+            del RG
         self.prolongation, self.gather, self.tol, self.max_sweeps = prolongation, gather, tol, max_sweeps
         self.fine_sweeps = fine_sweeps
         self.G = G
-        # The linear basis sums to 1 on every patch: its three column blocks add up to F times the
-        # indicator. Summed after the restriction, on C x 3C, not on G (N x 3C: most of the far
-        # field's memory at a million patches).
-        RG = self.R @ G
-        self.F_c = sp.csr_matrix(RG if self._fit is None else RG[:, :C] + RG[:, C:2 * C] + RG[:, 2 * C:])
-        del RG
         self.rho = scene.albedo.astype(np.float64)
         # Pure clusters: every member has the cluster's albedo.
         first = np.zeros(C, dtype=np.int64)
@@ -253,7 +285,9 @@ class FarField:
         self._F_cols = sp.csc_matrix(F, dtype=dtype) if with_F and self.device.traits.cpu else None
         rows_on_device = gather == "shared" or (fine_sweeps > 0 and self._fit is None) or (with_F and self._F_cols is None)
         self._F_dev = DeviceCSR(self.device, F, dtype) if rows_on_device else None
-        self._G_dev = None if gather == "shared" else DeviceCSR(self.device, G, dtype)  # shared: G only makes F_c
+        # shared: G only makes F_c; a stored G is read per pass (:meth:`_gather`).
+        self._G_dev = None if gather == "shared" or self._G_stream is not None else DeviceCSR(self.device, G, dtype)
+        self._dtype = dtype
         self.coarse = ("dense" if C <= DENSE_CLUSTERS else "sweeps") if coarse == "auto" else coarse
         self.K_c = self._dense_coarse(coarse_storage, dtype) if self.coarse == "dense" else None
         self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype) if self.coarse == "sweeps" else None
@@ -325,7 +359,7 @@ class FarField:
             t1 = time.perf_counter()
             D_c = self._coarse_solve(self.R @ D1)
             self.seconds_coarse = time.perf_counter() - t1
-            B = self._G_dev.bounce(L + D1, rho, D_c)
+            B = self._gather(L + D1, rho, D_c)
         else:
             L_c = self.R @ L
             B_c = self._coarse_solve(L_c)
@@ -334,17 +368,23 @@ class FarField:
                 B = self._gather_shared(L, B_c - L_c)
             elif self._fit is not None:
                 # B_c on every function of its cluster is the constant B_c (they sum to 1).
-                B = self._G_dev.bounce(L, rho, np.tile(B_c, (LINEAR_FUNCTIONS, 1)))
+                B = self._gather(L, rho, np.tile(B_c, (LINEAR_FUNCTIONS, 1)))
                 for _ in range(self.fine_sweeps):
-                    B = self._G_dev.bounce(L, rho, self._fit @ B)
+                    B = self._gather(L, rho, self._fit @ B)
             else:
-                B = self._G_dev.bounce(L, rho, B_c)
+                B = self._gather(L, rho, B_c)
         if self.fine_sweeps and self._fit is None:
             B = self._F_dev.jacobi(L, rho, B, 0.0, self.fine_sweeps)[0]
         self.B_far = np.repeat(B, 3, axis=1) if k == 1 else B
         self._L = L_all
         self.seconds_light = time.perf_counter() - t0
         return self.B_far
+
+    def _gather(self, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """L + rho (G x) (N, k) on the device: G resident there, or read from its store per chunk."""
+        if self._G_stream is not None:
+            return self._G_stream.bounce(self.device, self._dtype, L, rho, x)
+        return self._G_dev.bounce(L, rho, x)
 
     def _coarse_solve(self, s: np.ndarray) -> np.ndarray:
         """x (C, k) = s + P_c F_c x for the source s (C, k): s + P_c K_c s, or sweeps of F_c
@@ -405,13 +445,16 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     F in memory (a matrix, or :class:`~pydynrad.CSRRows`): everything from F. Without F the
     coarse level is piecewise linear (``prolongation="linear"``, the indicator where a store's
     G was made with it): a form-factor store (also behind a row cache) gives its own clusters
-    and G (refused when it holds none); rows computed on demand: G from cluster-id hemicubes;
+    and G (refused when it holds none), G left in the store and read per light change
+    (:class:`~pydynrad.farfield.streamed.StoredG`: a million-patch G is 1.7-2 GB; pass
+    ``G=store.cluster_form_factors()`` to hold it on the device instead); rows computed on
+    demand: G from cluster-id hemicubes;
     any other row source: G summed from its rows, each block validated
     (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
     """
     from ..rows.sources import CSRRows, HemicubeRows
     from ..rows.store import FormFactorStore
-    from .gather import basis_prolongation, cluster_form_factors_for, clusters_without_f
+    from .gather import basis_prolongation, check_prolongation, check_store, cluster_form_factors_for, clusters_without_f
 
     if local_rows.csr is not None:
         return FarField(scene, local_rows.csr, clusters, G, device=device, checked=True)
@@ -432,10 +475,17 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
             clusters = Clusters.from_labels(scene, inner.cluster_labels())
     if not isinstance(clusters, Clusters):
         clusters = clusters_without_f(scene, clusters, device=device)
+    # Built once, for G (or the store's check of it) and the far field's own fit.
+    linear = linear_basis(_checked_clusters(clusters, scene), scene) if basis == "linear" else None
     if G is None:
-        source = local_rows.source if isinstance(inner, (FormFactorStore, HemicubeRows)) else _CheckedRows(local_rows)
-        G = cluster_form_factors_for(scene, source, basis_prolongation(scene, clusters, basis), device=device)
-    return FarField(scene, None, clusters, G, prolongation=basis, device=device)
+        pr = basis_prolongation(scene, clusters, basis) if linear is None else check_prolongation(linear[0], len(scene))
+        if isinstance(inner, FormFactorStore):
+            check_store(scene, inner, len(scene))
+            G = StoredG(inner, pr)
+        else:
+            source = local_rows.source if isinstance(inner, HemicubeRows) else _CheckedRows(local_rows)
+            G = cluster_form_factors_for(scene, source, pr, device=device)
+    return FarField(scene, None, clusters, G, prolongation=basis, device=device, linear=linear)
 
 
 class _CheckedRows:
