@@ -33,12 +33,18 @@ def test_stored_g_gives_the_far_field_of_g_held_whole(stored, device):
     scene, _, cl, store, L = stored
     pr = basis_prolongation(scene, cl)
     whole = FarField(scene, None, cl, G=store.cluster_form_factors(pr), device=device)
-    streamed = FarField(scene, None, cl, G=StoredG(store, pr, chunk_nnz=300), device=device)  # several chunks
-    assert whole.G_nnz == streamed.G_nnz and whole.F_c_nnz == streamed.F_c_nnz
-    assert streamed.device_memory_bytes < whole.device_memory_bytes  # G is not held
-    # The same kernel per chunk, each row summed as in one pass: observed identical (difference 0).
-    np.testing.assert_allclose(streamed.light(L), whole.light(L), rtol=1e-6)
-    np.testing.assert_allclose(streamed.light(0.5 * L), whole.light(0.5 * L), rtol=1e-6)  # a light change
+    for spill in (True, False):
+        G = StoredG(store, pr, chunk_nnz=300, spill=spill)  # several chunks
+        streamed = FarField(scene, None, cl, G=G, device=device)
+        assert whole.G_nnz == streamed.G_nnz == G.nnz and whole.F_c_nnz == streamed.F_c_nnz
+        assert streamed.device_memory_bytes < whole.device_memory_bytes  # G is not held
+        # The first pass (F_c) wrote the chunks unzipped: 8 bytes a non-zero and the row pointers.
+        assert G.spilled_bytes == (8 * G.nnz + 8 * (len(scene) + len(G._index)) if spill else 0)
+        # The same kernel per chunk, each row summed as in one pass: observed identical (difference 0).
+        np.testing.assert_allclose(streamed.light(L), whole.light(L), rtol=1e-6)
+        np.testing.assert_allclose(streamed.light(0.5 * L), whole.light(0.5 * L), rtol=1e-6)  # a light change
+        G.close()  # back to the store's blocks
+        np.testing.assert_allclose(streamed.light(2 * L), whole.light(2 * L), rtol=1e-6)
 
 
 def test_stored_g_with_every_patch_its_own_cluster_is_the_full_solve(tmp_path, device):

@@ -1,15 +1,21 @@
 """G left in its form-factor store: read in bounded chunks of row blocks, once per pass over it.
 
-A million-patch store's G (linear basis, about 200 non-zeros per row, twice F's) takes 1.7-2 GB
+A million-patch store's G (linear basis, about 250 non-zeros per row, twice F's) takes 2.2 GB
 held whole, more than the rest of a store-fed walk; docs/design.md, 'Far field', 'As built'.
 G is needed only when the lights change (B_far, then fixed until the next change), so a
-:class:`StoredG` keeps none of it: each pass reads the store's blocks of G in chunks of about
-:data:`CHUNK_NNZ` non-zeros, the next chunk read (unzipped and checksummed, which releases the
-GIL) by a thread while the device multiplies the current one.
+:class:`StoredG` keeps none of it in memory: each pass goes through G in chunks of about
+:data:`CHUNK_NNZ` non-zeros. The store's blocks are zipped and checksummed, and unzipping them
+is most of a pass (village at a million patches, PoCL CPU, 2026-12-02: 22 s a pass against 2 s
+of products), so the first pass, which checks every block as rows of F and sums F_c, also
+writes the chunks unzipped to a temporary file (8 bytes a non-zero; removed when the StoredG
+goes) that every later pass reads instead. Reads run ahead of the products on threads (unzipping
+and file reads release the GIL).
 """
 
 from __future__ import annotations
 
+import tempfile
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -18,11 +24,26 @@ import scipy.sparse as sp
 from ..checks import check_form_factor_rows
 from ..errors import InvalidInputError
 
-__all__ = ["StoredG", "CHUNK_NNZ"]
+__all__ = ["StoredG", "CHUNK_NNZ", "READERS"]
 
-#: Non-zeros of G per chunk a pass holds (two at once, with the one being read): 4 M is 32 MB
-#: of float32 values and int32 indices, a few of the store's blocks.
+#: Non-zeros of G per chunk a pass holds (a few at once, with those being read): 4 M is 32 MB of
+#: float32 values and int32 indices, about 60 of a million-patch store's blocks.
 CHUNK_NNZ = 4_000_000
+
+#: Threads unzipping the store's blocks ahead of the products.
+READERS = 2
+
+
+def _read_ahead(tasks, workers: int, depth: int):
+    """The results of the zero-argument callables ``tasks``, in order, at most ``depth`` running ahead."""
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending = deque()
+        for task in tasks:
+            pending.append(pool.submit(task))
+            if len(pending) > depth:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
 
 
 class StoredG:
@@ -37,9 +58,19 @@ class StoredG:
         (:class:`~pydynrad.StoreMismatchError` otherwise).
     chunk_nnz : int
         About how many non-zeros of G one chunk holds.
+    spill : bool
+        Write the chunks unzipped to a temporary file on the first whole pass and read later
+        passes from it (module docstring); False: unzip the store's blocks on every pass.
+
+    Attributes
+    ----------
+    nnz : int or None
+        G's non-zeros, known after the first whole pass.
+    spilled_bytes : int
+        Bytes of the temporary file (0 until the first whole pass).
     """
 
-    def __init__(self, store, prolongation=None, chunk_nnz: int = CHUNK_NNZ) -> None:
+    def __init__(self, store, prolongation=None, chunk_nnz: int = CHUNK_NNZ, spill: bool = True) -> None:
         from ..rows.store import StoreIncompleteError
 
         if prolongation is not None:
@@ -49,37 +80,62 @@ class StoredG:
             raise StoreIncompleteError(f"{len(missing)} of {store.n_blocks} blocks of G in store {store.path} have not "
                                        "been computed; run compute_store with the same clusters to finish them")
         self.store, self.shape = store, (store.n_patches, store.n_clusters)
-        self.chunk_nnz = int(chunk_nnz)
-        self.nnz = None  # known after the first pass
+        self.chunk_nnz, self.spill = int(chunk_nnz), bool(spill)
+        self.nnz = None
+        self._file = None  # the unzipped chunks, once a whole pass wrote them
+        self._index = []  # (first row, rows, nnz, byte offset) per chunk in it
+        self.spilled_bytes = 0
 
-    def _chunks_in_order(self):
-        chunk, held = [], 0
-        for k in range(self.store.n_blocks):
-            block = self.store.read_block(k, "G")
+    def _store_chunks(self):
+        """(first row, chunk) from the store's blocks, unzipped ahead by :data:`READERS` threads."""
+        tasks = (lambda k=k: self.store.read_block(k, "G") for k in range(self.store.n_blocks))
+        chunk, held, first = [], 0, 0
+        for block in _read_ahead(tasks, READERS, 4 * READERS):
             chunk.append(block)
             held += block.nnz
-            if held >= self.chunk_nnz:
-                yield chunk
+            if held >= self.chunk_nnz or first + sum(b.shape[0] for b in chunk) == self.shape[0]:
+                out = chunk[0] if len(chunk) == 1 else sp.vstack(chunk, format="csr")
+                yield first, out
+                first += out.shape[0]
                 chunk, held = [], 0
-        if chunk:
-            yield chunk
+
+    def _read_spilled(self, rows: int, nnz: int, offset: int) -> sp.csr_matrix:
+        f = self._file
+        f.seek(offset)
+        indptr = np.fromfile(f, np.int64, rows + 1)
+        indices = np.fromfile(f, np.int32, nnz)
+        data = np.fromfile(f, np.float32, nnz)
+        return sp.csr_matrix((data, indices, indptr), shape=(rows, self.shape[1]))
 
     def chunks(self):
-        """(first row, (rows, K) float32 CSR) for consecutive chunks covering all N rows; the next
-        chunk is read ahead by a thread."""
-        first = 0
-        parts = self._chunks_in_order()
-        with ThreadPoolExecutor(max_workers=1) as pool:
-            ahead = pool.submit(next, parts, None)
-            while True:
-                chunk = ahead.result()
-                if chunk is None:
-                    return
-                ahead = pool.submit(next, parts, None)
-                block = chunk[0] if len(chunk) == 1 else sp.vstack(chunk, format="csr")
-                del chunk
+        """(first row, (rows, K) float32 CSR) for consecutive chunks covering all N rows, in order."""
+        if self._file is not None:
+            tasks = (lambda e=e: (e[0], self._read_spilled(*e[1:])) for e in self._index)
+            yield from _read_ahead(tasks, 1, 1)
+            return
+        spill = tempfile.TemporaryFile(prefix="pydynrad-G-") if self.spill else None
+        index, offset = [], 0
+        try:
+            for first, block in self._store_chunks():
+                if spill is not None:
+                    index.append((first, block.shape[0], block.nnz, offset))
+                    for a in (block.indptr.astype(np.int64), block.indices.astype(np.int32, copy=False),
+                              block.data.astype(np.float32, copy=False)):
+                        a.tofile(spill)
+                        offset += a.nbytes
                 yield first, block
-                first += block.shape[0]
+        except BaseException:
+            if spill is not None:
+                spill.close()
+            raise
+        if spill is not None:  # a whole pass: later ones read the file
+            self._file, self._index, self.spilled_bytes = spill, index, offset
+
+    def close(self) -> None:
+        """Remove the temporary file (later passes unzip the store's blocks again)."""
+        if self._file is not None:
+            self._file.close()
+        self._file, self._index, self.spilled_bytes = None, [], 0
 
     def coarse_form_factors(self, restriction: sp.csr_matrix, clusters: int) -> sp.csr_matrix:
         """F_c = R G_1 (C, C) float64, G_1 G summed over each cluster's K / C functions, in one pass
