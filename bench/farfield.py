@@ -19,6 +19,12 @@ default until 2026-12-02: shared with one fine sweep), the first-bounce gather w
 sweep, the plain cluster gather, the exposure-weighted prolongation, and four plain Jacobi
 sweeps of the full F (C = N).
 
+A third table separates two kinds of light change for the default far field at C = N/8: back
+and forth between the two light sets (each coarse source then a repeat, which the sweeps' warm
+start combines exactly from earlier solutions: one sweep) and lights that move every change (a
+lamp stepped by 1% of the scene's extent, the sun turned by 2 degrees: new sources), with the
+time of each part of the far field's light change.
+
 A second table times the coarse solve alone over C: Jacobi sweeps of the sparse F_c
 (warm-started) against the dense K_c product in fp16, fp32 and fp64 storage, with K_c's build
 time and bytes (dense only up to :data:`DENSE_BENCH_CLUSTERS`: the build is 3 C^3 flops per
@@ -97,6 +103,58 @@ def _variants(n: int, per) -> list[tuple[str, int, dict | None]]:
     return out
 
 
+def _moved(lights, step: int, extent: float) -> list:
+    """``lights`` moved ``step`` times: point lights along x by 1% of ``extent``, suns turned 2 degrees about y."""
+    import dataclasses
+
+    from pydynrad import DirectionalLight
+
+    out = []
+    for light in lights:
+        if isinstance(light, DirectionalLight):
+            a = np.radians(2.0 * step)
+            x, y, z = light.direction
+            out.append(dataclasses.replace(light, direction=(np.cos(a) * x - np.sin(a) * z, y, np.sin(a) * x + np.cos(a) * z)))
+        else:
+            out.append(dataclasses.replace(light, position=tuple(np.add(light.position, (0.01 * extent * step, 0, 0)))))
+    return out
+
+
+def _change_rows(ctx, name, scene, F, lights, lights2, path, M) -> list[list]:
+    """The default far field's light changes, back and forth and with moving lights, part by part."""
+    import pydynrad
+    from pydynrad.compare import radiosity_error
+    from pydynrad.farfield import FarField
+
+    n = len(scene)
+    L, L2 = (pydynrad.light_vector(scene, x, device=ctx.device) for x in (lights, lights2))
+    extent = float(np.linalg.norm(np.subtract(*scene.bbox.astype(np.float64))))
+    moving = [pydynrad.light_vector(scene, _moved(lights2, i, extent), device=ctx.device) for i in range(1, 2 * CHANGES + 2)]
+    base = pydynrad.DynamicRadiosity(scene, F, local_size=M, storage="fp32", far_field=False, observer=path[0],
+                                     device=ctx.device)
+    far = FarField(scene, F, clusters=max(1, n // 8), device=ctx.device, checked=True)
+    dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, storage="fp32", far_field=far, observer=path[0],
+                                    device=ctx.device)
+    for d in (base, dyn):
+        d.update(path[1])
+        d.radiosity(light=L)
+    lighting = time_call(lambda: base.radiosity(light=L), repeats=5)["min_s"]
+    rows = []
+    for kind, seq in (("back and forth", [L2, L] * CHANGES), ("moving lights", moving)):
+        parts = []
+        for x in seq:
+            t = time.perf_counter()
+            dyn.radiosity(light=x)
+            parts.append((time.perf_counter() - t, far.seconds_coarse, far.seconds_light, far.sweeps))
+        parts = np.array(parts[1:])  # the first change of each kind comes from the other kind's lights
+        ref = pydynrad.solve(scene, F, light=seq[-1], device=ctx.device).radiosity
+        change, coarse, light, sweeps = np.median(parts, axis=0)
+        rows.append([name, n, M, far.C, kind, 1e3 * change, 1e3 * coarse, sweeps, 1e3 * (light - coarse),
+                     1e3 * (change - light), 1e3 * lighting, (change - coarse) / lighting,
+                     100 * radiosity_error(dyn.radiosity(light=seq[-1]), ref, scene.areas)])
+    return rows
+
+
 def _coarse_rows(ctx, name, scene, F, L, L2, ref2, per) -> list[list]:
     """The coarse solve alone over C: sweeps of F_c against the dense K_c per storage."""
     from pydynrad.compare import radiosity_error
@@ -135,7 +193,7 @@ def farfield_section(ctx) -> dict:
     from pydynrad.render import Renderer
 
     p = {**SIZES[ctx.size], **(ctx.params or {})}
-    rows, coarse_rows, series = [], [], {}
+    rows, coarse_rows, change_rows, series = [], [], [], {}
     for name, scene, F, t_ff, lights, lights2, path, cam in _cases(ctx, p):
         n = len(scene)
         L, L2 = (pydynrad.light_vector(scene, x, device=ctx.device) for x in (lights, lights2))
@@ -145,6 +203,7 @@ def farfield_section(ctx) -> dict:
         vis = renderer.visibility(view)
         ref_img = renderer.shade(vis, ref)
         coarse_rows += _coarse_rows(ctx, name, scene, F, L, L2, ref2, p["per"])
+        change_rows += _change_rows(ctx, name, scene, F, lights, lights2, path, min(p["M"][0], n // 2))
         for M in p["M"]:
             M = min(M, n // 2)
             for label, C, opts in _variants(n, p["per"]):
@@ -227,6 +286,17 @@ def farfield_section(ctx) -> dict:
                     "warm-started from the other lights' B_c, FarField's default tol); build = the whole FarField (clusters, "
                     "G, F_c and K_c: LU of I - F_c P_c per channel, by the host's LAPACK on a CPU device); "
                     "F_c MiB counts 8 bytes a non-zero (fp32 value and index). Default gather (first bounce).",
+        }, {
+            "title": "Light changes of the default far field (C = N/8): back and forth, and moving lights",
+            "columns": ["scene", "N", "M", "C", "changes", "light change ms", "coarse solve ms", "sweeps",
+                        "first bounce + gather ms", "injection + local ms", "local-only lighting ms",
+                        "(change - coarse) / local lighting", "all % after the last change"],
+            "rows": change_rows,
+            "note": f"medians over {2 * CHANGES - 1} changes after the first of each kind; back and forth: "
+                    "between the case's two light sets (the coarse sources repeat; the warm start combines earlier "
+                    "solutions); moving: a lamp stepped 1% of the scene's extent along x, the sun turned 2 degrees "
+                    "about the vertical, per change (new sources). first bounce + gather = the far field's light() "
+                    "less the coarse solve (P F L over the lit columns, R D1, the pass over G).",
         }],
         "plots": [{
             "name": "trade", "title": "All-patch error vs frame time (far field off and on)",

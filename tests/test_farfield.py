@@ -169,6 +169,28 @@ def test_dense_coarse_level_and_first_bounce_gather(device, cornell, storage, rt
     assert sweeps.K_c is None and sweeps.sweeps > 10
 
 
+def test_coarse_sweeps_start_from_earlier_solutions_combined(device, cornell):
+    """The coarse solution is linear in its source: lights that are a combination of earlier ones
+    start the sweeps at their answer (one sweep to confirm it); new lights still converge to the
+    answer a far field that never saw other lights gives."""
+    scene, F, _, _, _ = cornell
+    lamp = lambda x: pydynrad.light_vector(scene, [PointLight(position=[x, 450, 280], intensity=[2e5] * 3)],  # noqa: E731
+                                           device=device)
+    far = FarField(scene, F, clusters=len(scene) // 8, coarse="sweeps", dtype=np.float64, device=device)
+    a, b = lamp(150.0), lamp(400.0)
+    far.light(a)
+    cold = far.sweeps
+    far.light(b)
+    both = far.light(a + 0.5 * b).copy()
+    assert far.sweeps == 1 < cold
+    fresh = FarField(scene, F, clusters=far.clusters, coarse="sweeps", dtype=np.float64, device=device)
+    # Both stop at a relative change of tol = 1e-4 from different starts: observed 1.4e-6 and 3.4e-6 apart.
+    np.testing.assert_allclose(both, fresh.light(a + 0.5 * b), rtol=1e-4, atol=1e-4 * both.max())
+    new = far.light(lamp(270.0))  # not a combination: sweeps as usual, the same answer
+    assert far.sweeps > 1
+    np.testing.assert_allclose(new, fresh.light(lamp(270.0)), rtol=1e-4, atol=1e-4 * new.max())
+
+
 def test_light_changes_follow_the_full_solve(device, cornell):
     scene, F, _, _, full = cornell
     for coarse in ("dense", "sweeps"):

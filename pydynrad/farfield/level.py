@@ -78,6 +78,9 @@ COARSE_SOLVES = ("auto", "dense", "sweeps")
 #: of the sparse F_c cost no more than one dense product).
 DENSE_CLUSTERS = 2048
 
+#: Earlier coarse solutions the sweeps' warm start combines (:meth:`FarField._warm_start`).
+WARM_STARTS = 4
+
 #: Directional lights of the uniform sky that the exposure weights are solved under.
 SKY_DIRECTIONS = 128
 
@@ -296,7 +299,7 @@ class FarField:
         self.G_nnz, self.F_c_nnz = int(G.nnz), int(self.F_c.nnz)
         if F is None:
             self.G = self.F_c = None
-        self._x_c = None  # the last coarse solution, where the sweeps start
+        self._solved = []  # the last WARM_STARTS (source, solution) pairs of the coarse sweeps
         self._L = None
         self.B_far = None
         self._injected = None  # (B_far, local rows, members, injection) of the last injection
@@ -392,13 +395,27 @@ class FarField:
         k = s.shape[1]
         rho_c = self.rho_c[:, :k]
         if self.K_c is None:
-            x0 = s if self._x_c is None or self._x_c.shape[1] != k else self._x_c
-            self._x_c, self.sweeps, _, _ = self._Fc_dev.jacobi(s, rho_c, x0, self.tol, self.max_sweeps)
-            return self._x_c
+            x, self.sweeps, _, _ = self._Fc_dev.jacobi(s, rho_c, self._warm_start(s), self.tol, self.max_sweeps)
+            self._solved = [p for p in self._solved if p[0].shape == s.shape][1 - WARM_STARTS:] + [(s, x)]
+            return x
         self.sweeps = 0
         # One grey K_c serves every column in one pass; three K_c one channel each.
         KL = self.K_c.matmat(s.T[None])[0] if self.K_c.C == 1 else self.K_c.matvec(s.T)
         return s + rho_c * KL.T
+
+    def _warm_start(self, s: np.ndarray) -> np.ndarray:
+        """Where the coarse sweeps start for source s (C, k): the solution is linear in s, so the
+        combination X a of the last solutions whose sources S a fit s best (least squares, per
+        channel), plus the rest r = s - S a as its own first guess; s itself when none was
+        solved yet. Exact when s is a combination of earlier sources (a lamp switched back on,
+        lights summed), close to it when the lights move a little."""
+        x0 = s.copy()
+        held = [p for p in self._solved if p[0].shape == s.shape]
+        for ch in range(s.shape[1] if held else 0):
+            S = np.column_stack([p[0][:, ch] for p in held])
+            a = np.linalg.lstsq(S, s[:, ch], rcond=None)[0]
+            x0[:, ch] += np.column_stack([p[1][:, ch] for p in held]) @ a - S @ a
+        return x0
 
     def _first_bounce(self, L: np.ndarray) -> np.ndarray:
         """D1 = P F L (N, k): over the lit columns of F by column, or a pass of F's rows."""

@@ -147,10 +147,10 @@ class StoredG:
             names = np.arange(first, first + block.shape[0])
             G = check_form_factor_rows(block, "G", names, (block.shape[0], self.shape[1]))
             nnz += G.nnz
-            G1 = G[:, :clusters]
-            for f in range(1, funcs):
-                G1 = G1 + G[:, f * clusters:(f + 1) * clusters]
-            part = (R[:, first:first + block.shape[0]] @ G1).tocoo()
+            if funcs > 1:  # column c + f C is function f of cluster c: fold the functions onto c
+                G = sp.csr_matrix((G.data, G.indices % clusters, G.indptr), shape=(G.shape[0], clusters))
+                G.sum_duplicates()
+            part = (R[:, first:first + block.shape[0]] @ G).tocoo()
             rows.append(part.row.astype(np.int32))
             cols.append(part.col.astype(np.int32))
             vals.append(part.data)
