@@ -87,6 +87,9 @@ def test_stored_g_refuses_what_it_cannot_serve(stored, tmp_path, device):
         FarField(scene, F, cl, G=StoredG(store, pr), prolongation="linear", gather="cluster", device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="linear must be"):
         FarField(scene, None, cl, G=StoredG(store, pr), linear=(pr, pr), device=device)
+    other = cluster_patches(box_scene(2), 12)  # clusters of another scene: refused before any basis is built on them
+    with pytest.raises(pydynrad.InvalidInputError, match="another scene"):
+        DynamicRadiosity(scene, store, local_size=12, observer=[0.1, 0.9, 0.5], clusters=other, device=device)
     part = compute_store(scene, tmp_path / "part", resolution=8, block_rows=10, clusters=cl, progress=False,
                          row_function=lambda scene, rows, resolution, device=None: F[rows])
     part.block_path(3, "G").unlink()

@@ -43,7 +43,8 @@ bench/farfield.py; docs/design.md, 'Far field', 'As built'):
   indicator), then ``fine_sweeps`` sweeps B <- L + P G (R_lin B) of the linear level, R_lin its
   least-squares fit, start from B = L + P G_1 B_c: each is one pass over G, and they converge to
   the linear Galerkin solution without its 3C x 3C coarse matrix (9x the indicator's F_c). Needs
-  no F: the far field of stores and of rows on demand (bench/farstore.py).
+  no F: the far field of stores (G left in the store and read per pass,
+  :mod:`pydynrad.farfield.streamed`) and of rows on demand (bench/farstore.py).
 
 With F and one value per cluster (the indicator or exposure basis; the linear basis sweeps its own level,
 as above), ``fine_sweeps`` bounces B <- L + P F B of the full F follow the gather (each about halves the
@@ -325,7 +326,8 @@ class FarField:
 
     @property
     def device_memory_bytes(self) -> int:
-        """Device bytes of the coarse solve (K_c or F_c) and of the gather (G and/or F)."""
+        """Device bytes of the coarse solve (K_c or F_c) and of the gather (G and/or F; a
+        :class:`~pydynrad.farfield.streamed.StoredG` holds only the chunk of a pass)."""
         held = (self._G_dev, self._Fc_dev, self._F_dev, self.K_c)
         return sum(m.nbytes for m in held if m is not None)
 
