@@ -71,14 +71,7 @@ class StoredG:
     """
 
     def __init__(self, store, prolongation=None, chunk_nnz: int = CHUNK_NNZ, spill: bool = True) -> None:
-        from ..rows.store import StoreIncompleteError
-
-        if prolongation is not None:
-            store.check_clusters(prolongation)
-        missing = store.missing_blocks(part="G")
-        if missing:
-            raise StoreIncompleteError(f"{len(missing)} of {store.n_blocks} blocks of G in store {store.path} have not "
-                                       "been computed; run compute_store with the same clusters to finish them")
+        store.check_whole_g(prolongation)
         self.store, self.shape = store, (store.n_patches, store.n_clusters)
         self.chunk_nnz, self.spill = int(chunk_nnz), bool(spill)
         self.nnz = None
