@@ -18,8 +18,9 @@ With C = N (every patch its own cluster) G = F and B_far is the full solution.
 The coarse system x = s + P_c F_c x (s = L_c, or R D1 below) is solved per light change either
 with a dense coarse multibounce matrix K_c = (I - F_c P_c)^-1 F_c per channel (x = s + P_c K_c s:
 one product, K_c built once by :mod:`pydynrad.multibounce`'s builder, stored fp16/fp32/fp64 on
-the device), or by Jacobi sweeps of the sparse F_c on the device, warm-started from the previous
-solution (``coarse="auto"``: dense up to :data:`DENSE_CLUSTERS` clusters; bench/farfield.py
+the device), or by Jacobi sweeps of the sparse F_c on the device, warm-started from the best
+combination of earlier solutions (x is linear in s: lights switched back, or summed, start at
+their answer) (``coarse="auto"``: dense up to :data:`DENSE_CLUSTERS` clusters; bench/farfield.py
 measured the switch-over). Every patch's B_far then comes from one of three gathers (``gather=``, measured in
 bench/farfield.py; docs/design.md, 'Far field', 'As built'):
 
@@ -403,12 +404,12 @@ class FarField:
 
     def _coarse_solve(self, s: np.ndarray) -> np.ndarray:
         """x (C, k) = s + P_c F_c x for the source s (C, k): s + P_c K_c s, or sweeps of F_c
-        from the last solution."""
+        from earlier solutions (:meth:`_warm_start`)."""
         k = s.shape[1]
         rho_c = self.rho_c[:, :k]
         if self.K_c is None:
             x, self.sweeps, _, _ = self._Fc_dev.jacobi(s, rho_c, self._warm_start(s), self.tol, self.max_sweeps)
-            self._solved = [p for p in self._solved if p[0].shape == s.shape][1 - WARM_STARTS:] + [(s, x)]
+            self._solved = ([p for p in self._solved if p[0].shape == s.shape] + [(s, x)])[-WARM_STARTS:]
             return x
         self.sweeps = 0
         # One grey K_c serves every column in one pass; three K_c one channel each.
