@@ -76,6 +76,11 @@ def test_a_store_walk_streams_g_and_builds_the_linear_basis_once(stored, device,
     monkeypatch.undo()
     whole = FarField(scene, None, dyn.far.clusters, G=store.cluster_form_factors(), device=device)
     np.testing.assert_allclose(dyn.far.light(L), whole.light(L), rtol=1e-6)  # observed identical
+    # The store's G passed in is held on the device, with the store's clusters (not new ones).
+    held = DynamicRadiosity(scene, store, local_size=12, observer=[0.1, 0.9, 0.5], device=device,
+                            cluster_form_factors=store.cluster_form_factors())
+    assert held.far._G_stream is None and np.array_equal(held.far.clusters.labels, dyn.far.clusters.labels)
+    np.testing.assert_allclose(held.far.light(L), whole.light(L), rtol=1e-6)
 
 
 def test_stored_g_refuses_what_it_cannot_serve(stored, tmp_path, device):

@@ -504,7 +504,8 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     if isinstance(inner, CSRRows):
         return FarField(scene, inner.matrix, clusters, G, device=device)
     basis = "linear"
-    if isinstance(inner, FormFactorStore) and G is None:
+    if isinstance(inner, FormFactorStore) and (G is None or inner.has_clusters):
+        # A G passed in with a store that holds one is read as the store's: its clusters and basis.
         if not inner.has_clusters:
             raise InvalidInputError(
                 f"form-factor store {inner.path} holds no far-field G: compute it (compute_store(..., clusters=...) or "
