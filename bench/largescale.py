@@ -15,7 +15,8 @@ Stages (each reported with wall-clock times on this machine):
 4. walk: a DynamicRadiosity walk (M = ``--local-size``, exact update, fp32 K) along a
    street, fed from the store through a :class:`~pydynrad.rows.cache.RowCache` smaller than
    the store, prefetching the next candidates, with the far field off (the paper's method) and
-   on (the store's clusters and G); and the same walk fed from F in memory when F fits in a
+   on (the store's clusters and G: left in the store and read per light change, and held on the
+   device as before 2026-12-02, ``--far-g``); and the same walk fed from F in memory when F fits in a
    quarter of RAM. Each walk runs in its own process, so its peak RSS is its own (issue 16's
    target: the far field on within 1.5x of it off).
 
