@@ -1,6 +1,8 @@
 """G left in its store (:class:`pydynrad.farfield.streamed.StoredG`): the far field it gives is
 the one of G held whole, and with every patch its own cluster the full solve."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -45,6 +47,22 @@ def test_stored_g_gives_the_far_field_of_g_held_whole(stored, device):
         np.testing.assert_allclose(streamed.light(0.5 * L), whole.light(0.5 * L), rtol=1e-6)  # a light change
         G.close()  # back to the store's blocks
         np.testing.assert_allclose(streamed.light(2 * L), whole.light(2 * L), rtol=1e-6)
+
+
+def test_stored_g_without_room_for_its_temporary_file_still_serves(stored, device, monkeypatch):
+    from pydynrad.farfield import streamed
+
+    scene, _, cl, store, L = stored
+
+    if not os.path.exists("/dev/full"):
+        pytest.skip("needs /dev/full (a file that is always out of space)")
+    monkeypatch.setattr(streamed.tempfile, "TemporaryFile", lambda **_: open("/dev/full", "r+b"))
+    pr = basis_prolongation(scene, cl)
+    G = StoredG(store, pr, chunk_nnz=300)
+    far = FarField(scene, None, cl, G=G, device=device)
+    assert G.spilled_bytes == 0 and G._file is None
+    whole = FarField(scene, None, cl, G=store.cluster_form_factors(pr), device=device)
+    np.testing.assert_allclose(far.light(L), whole.light(L), rtol=1e-6)
 
 
 def test_stored_g_with_every_patch_its_own_cluster_is_the_full_solve(tmp_path, device):

@@ -14,6 +14,7 @@ and file reads release the GIL).
 
 from __future__ import annotations
 
+import os
 import tempfile
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -92,6 +93,19 @@ class StoredG:
                 first += out.shape[0]
                 chunk, held = [], 0
 
+    @staticmethod
+    def _spilled_whole(spill, size: int) -> bool:
+        """Whether all ``size`` bytes reached the file (writes are buffered: a full disk may only
+        show as a short file); if not, it is closed and later passes unzip the store again."""
+        try:
+            spill.flush()
+            if os.fstat(spill.fileno()).st_size == size:
+                return True
+        except OSError:
+            pass
+        spill.close()
+        return False
+
     def _read_spilled(self, rows: int, nnz: int, offset: int) -> sp.csr_matrix:
         f = self._file
         f.seek(offset)
@@ -112,16 +126,20 @@ class StoredG:
             for first, block in self._store_chunks():
                 if spill is not None:
                     index.append((first, block.shape[0], block.nnz, offset))
-                    for a in (block.indptr.astype(np.int64), block.indices.astype(np.int32, copy=False),
-                              block.data.astype(np.float32, copy=False)):
-                        a.tofile(spill)
-                        offset += a.nbytes
+                    try:
+                        for a in (block.indptr.astype(np.int64), block.indices.astype(np.int32, copy=False),
+                                  block.data.astype(np.float32, copy=False)):
+                            a.tofile(spill)
+                            offset += a.nbytes
+                    except OSError:  # a full disk costs the speed-up, not the pass
+                        spill.close()
+                        spill = None
                 yield first, block
         except BaseException:
             if spill is not None:
                 spill.close()
             raise
-        if spill is not None:  # a whole pass: later ones read the file
+        if spill is not None and self._spilled_whole(spill, offset):  # a whole pass: later ones read the file
             self._file, self._index, self.spilled_bytes = spill, index, offset
 
     def close(self) -> None:
