@@ -15,7 +15,8 @@ Stages (each reported with wall-clock times on this machine):
 4. walk: a DynamicRadiosity walk (M = ``--local-size``, exact update, fp32 K) along a
    street, fed from the store through a :class:`~pydynrad.rows.cache.RowCache` smaller than
    the store, prefetching the next candidates, with the far field off (the paper's method) and
-   on (the store's clusters and G); and the same walk fed from F in memory when F fits in a
+   on (the store's clusters and G: left in the store and read per light change, and held on the
+   device as before 2026-12-02, ``--far-g``); and the same walk fed from F in memory when F fits in a
    quarter of RAM. Each walk runs in its own process, so its peak RSS is its own (issue 16's
    target: the far field on within 1.5x of it off).
 
@@ -95,9 +96,12 @@ def run_walk(args) -> dict:
         source = cache = RowCache(store, max_bytes=int(args.cache_mib * 2**20))
     loaded = rss_mib()
     t0 = time.perf_counter()
+    # --far-g held: the store's G read whole onto the device (before 2026-12-02, G stayed in the store).
+    G = store.cluster_form_factors() if args.walk_far_field == "on" and args.far_g == "held" else None
     dyn = pydynrad.DynamicRadiosity(scene, source, local_size=args.local_size, update="exact", storage="fp32",
                                     max_swaps_per_frame=args.swaps, far_field=args.walk_far_field == "on",
-                                    observer=walk_path(scene, 1, args.step)[0])
+                                    observer=walk_path(scene, 1, args.step)[0], cluster_form_factors=G)
+    del G
     t_solution = time.perf_counter() - t0
     rss_solution = rss_mib()
     eyes = walk_path(scene, args.frames, args.step)
@@ -117,7 +121,8 @@ def run_walk(args) -> dict:
         ff_times.append(st.t_form_factors)
         swaps.append(st.swaps)
     out = {
-        "source": args.source, "far_field": args.walk_far_field, "N": len(scene), "M": args.local_size,
+        "source": args.source, "far_field": args.walk_far_field + (f" ({args.far_g} G)" if dyn.far is not None else ""),
+        "N": len(scene), "M": args.local_size,
         "frames": len(times),
         "solution_s": t_solution, "rss_after_solution_mib": rss_solution,
         "build_s": t_build, "build_refreshed": bool(first.refreshed),
@@ -129,15 +134,16 @@ def run_walk(args) -> dict:
     if dyn.far is not None:
         out.update(C=dyn.far.C, G_nnz=dyn.far.G_nnz, F_c_nnz=dyn.far.F_c_nnz,
                    far_device_mib=dyn.far.device_memory_bytes / 2**20,
-                   far_host_mib=dyn.far.host_memory_bytes / 2**20, far_light_s=dyn.far.seconds_light)
+                   far_host_mib=dyn.far.host_memory_bytes / 2**20, far_build_s=dyn.far.seconds_build,
+                   far_light_s=dyn.far.seconds_light, far_coarse_s=dyn.far.seconds_coarse)
     if cache is not None:
         out.update(cache_mib=cache.max_bytes / 2**20, cache_peak_mib=cache.peak_nbytes / 2**20, **cache.stats)
         cache.close()
     return out
 
 
-def walk_in_subprocess(args, source: str, cache_mib: float, far_field: str = "off") -> dict:
-    cmd = [sys.executable, __file__, "_walk", "--source", source, "--walk-far-field", far_field,
+def walk_in_subprocess(args, source: str, cache_mib: float, far_field: str = "off", far_g: str = "stored") -> dict:
+    cmd = [sys.executable, __file__, "_walk", "--source", source, "--walk-far-field", far_field, "--far-g", far_g,
            "--store", str(args.store),
            "--detail", str(args.detail), "--resolution", str(args.resolution), "--local-size", str(args.local_size),
            "--frames", str(args.frames), "--step", str(args.step), "--swaps", str(args.swaps),
@@ -210,6 +216,10 @@ def main(argv=None) -> int:
     ap.add_argument("--far-field", action=argparse.BooleanOptionalAction, default=True,
                     help="store G beside F and walk with the far field on as well as off")
     ap.add_argument("--cluster-resolution", type=int, default=None, help="G's hemicube resolution (default: F's)")
+    ap.add_argument("--walks", action=argparse.BooleanOptionalAction, default=True,
+                    help="walk the store once it is complete (--no-walks: precompute only)")
+    ap.add_argument("--far-g", choices=["stored", "held"], default="stored",
+                    help="the far field's G in its store, read per light change (default), or held on the device")
     ap.add_argument("--walk-far-field", choices=["on", "off"], default="off", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     size = "quick" if args.quick else "full"
@@ -261,12 +271,12 @@ def main(argv=None) -> int:
         report["far_field_precompute"] = far_field_precompute(args, scene, store, report["store"])
         print(json.dumps(report["far_field_precompute"], indent=1), flush=True)
 
-    if store.complete:
+    if store.complete and args.walks:
         f_bytes = report["store"]["in_memory_bytes_est"]
         cache_mib = args.cache_mib or f_bytes / 4 / 2**20
         walks = [walk_in_subprocess(args, "store", cache_mib)]
         if args.far_field:
-            walks.append(walk_in_subprocess(args, "store", cache_mib, far_field="on"))
+            walks += [walk_in_subprocess(args, "store", cache_mib, far_field="on", far_g=g) for g in ("stored", "held")]
         import psutil
 
         if f_bytes < psutil.virtual_memory().total / 4:

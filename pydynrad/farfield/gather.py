@@ -27,7 +27,7 @@ from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
 
 __all__ = ["cluster_form_factors", "g_samples", "cluster_form_factors_for", "as_prolongation", "basis_prolongation",
            "check_prolongation", "split_prolongation", "checked_cluster_form_factors", "light_components_by_hemicube",
-           "clusters_without_f", "BASES", "COMPONENT_RESOLUTION"]
+           "clusters_without_f", "check_store", "BASES", "COMPONENT_RESOLUTION"]
 
 #: The coarse bases a prolongation can be made for from cluster labels.
 BASES = ("indicator", "linear")
@@ -80,7 +80,7 @@ def as_prolongation(clusters, n: int) -> sp.csr_matrix:
 COMPONENT_RESOLUTION = 8
 
 
-def _check_store(scene, store, n: int) -> None:
+def check_store(scene, store, n: int) -> None:
     """InvalidInputError unless the form-factor ``store`` was made for ``scene`` (N = ``n``): its
     rows index this scene's patches."""
     if store.n_patches != n:
@@ -107,7 +107,7 @@ def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, 
 
     n = len(checked_scene(scene))
     if store is not None:
-        _check_store(scene, store, n)
+        check_store(scene, store, n)
         missing = store.missing_blocks()
         if missing:
             from ..rows.store import StoreIncompleteError
@@ -282,7 +282,7 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
     while not isinstance(inner, (FormFactorStore, HemicubeRows)) and hasattr(inner, "source"):
         inner = inner.source  # through row caches: a whole pass over F would only evict them
     if isinstance(inner, FormFactorStore):
-        _check_store(scene, inner, n)
+        check_store(scene, inner, n)
     elif getattr(inner, "n_patches", None) != n:
         raise InvalidInputError(f"the form factors have {getattr(inner, 'n_patches', None)} rows; the scene has {n} patches")
     if isinstance(inner, HemicubeRows):

@@ -18,8 +18,9 @@ With C = N (every patch its own cluster) G = F and B_far is the full solution.
 The coarse system x = s + P_c F_c x (s = L_c, or R D1 below) is solved per light change either
 with a dense coarse multibounce matrix K_c = (I - F_c P_c)^-1 F_c per channel (x = s + P_c K_c s:
 one product, K_c built once by :mod:`pydynrad.multibounce`'s builder, stored fp16/fp32/fp64 on
-the device), or by Jacobi sweeps of the sparse F_c on the device, warm-started from the previous
-solution (``coarse="auto"``: dense up to :data:`DENSE_CLUSTERS` clusters; bench/farfield.py
+the device), or by Jacobi sweeps of the sparse F_c on the device, warm-started from the best
+combination of earlier solutions (x is linear in s: lights switched back, or summed, start at
+their answer) (``coarse="auto"``: dense up to :data:`DENSE_CLUSTERS` clusters; bench/farfield.py
 measured the switch-over). Every patch's B_far then comes from one of three gathers (``gather=``, measured in
 bench/farfield.py; docs/design.md, 'Far field', 'As built'):
 
@@ -43,7 +44,8 @@ bench/farfield.py; docs/design.md, 'Far field', 'As built'):
   indicator), then ``fine_sweeps`` sweeps B <- L + P G (R_lin B) of the linear level, R_lin its
   least-squares fit, start from B = L + P G_1 B_c: each is one pass over G, and they converge to
   the linear Galerkin solution without its 3C x 3C coarse matrix (9x the indicator's F_c). Needs
-  no F: the far field of stores and of rows on demand (bench/farstore.py).
+  no F: the far field of stores (G left in the store and read per pass,
+  :mod:`pydynrad.farfield.streamed`) and of rows on demand (bench/farstore.py).
 
 With F and one value per cluster (the indicator or exposure basis; the linear basis sweeps its own level,
 as above), ``fine_sweeps`` bounces B <- L + P F B of the full F follow the gather (each about halves the
@@ -64,6 +66,7 @@ from ..checks import check_form_factors, finite, integer, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
 from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
 from .gather import checked_cluster_form_factors
+from .streamed import StoredG
 
 __all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS",
            "GATHERS", "COARSE_SOLVES", "DENSE_CLUSTERS"]
@@ -76,6 +79,14 @@ COARSE_SOLVES = ("auto", "dense", "sweeps")
 #: the build's 3 C^3 flops per channel outgrow the far field's precompute budget and the sweeps
 #: of the sparse F_c cost no more than one dense product).
 DENSE_CLUSTERS = 2048
+
+#: Earlier coarse solutions the sweeps' warm start combines (:meth:`FarField._warm_start`).
+WARM_STARTS = 4
+
+#: Light changes whose first bounce on the host is the last one's plus that of the change (over
+#: the columns whose light changed, where they are fewer than the lit ones) before a whole product
+#: again, so float32 rounding cannot build up.
+DELTA_BOUNCES = 16
 
 #: Directional lights of the uniform sky that the exposure weights are solved under.
 SKY_DIRECTIONS = 128
@@ -112,6 +123,25 @@ def weighted_prolongation(clusters: Clusters, areas: np.ndarray, w: np.ndarray) 
     return sp.csr_matrix((scale, (np.arange(n), lab)), shape=(n, clusters.count))
 
 
+def _checked_clusters(clusters: Clusters, scene) -> Clusters:
+    if clusters.scene_hash != scene.content_hash() or len(clusters.labels) != len(scene):
+        raise InvalidInputError("these clusters were made for another scene (content hash differs)")
+    return clusters
+
+
+def _checked_linear(linear, n: int, C: int) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+    """A given (Pr, R_lin) of the linear basis, InvalidInputError unless (N, 3C) and (3C, N) sparse."""
+    try:
+        Pr, fit = linear
+    except (TypeError, ValueError):
+        raise InvalidInputError("linear must be the (Pr, R_lin) pair of pydynrad.farfield.clusters.linear_basis") from None
+    K = LINEAR_FUNCTIONS * C
+    if not (sp.issparse(Pr) and sp.issparse(fit) and Pr.shape == (n, K) and fit.shape == (K, n)):
+        raise InvalidInputError(f"linear must be sparse (Pr, R_lin) of shapes ({n}, {K}) and ({K}, {n}) for these clusters; "
+                                f"got {getattr(Pr, 'shape', None)} and {getattr(fit, 'shape', None)}")
+    return sp.csr_matrix(Pr), sp.csr_matrix(fit)
+
+
 class FarField:
     """The coarse level of a scene: clusters, F_c, G, and the far radiosity B_far per light vector.
 
@@ -123,8 +153,10 @@ class FarField:
         :func:`pydynrad.farfield.gather.cluster_form_factors` or a form-factor store).
     clusters : Clusters or int, optional
         A partition (:func:`cluster_patches`), or C for one; default C from N.
-    G : (N, C) sparse, optional
-        The patch-to-cluster form factors F Pr for these clusters (computed from F if omitted).
+    G : (N, C) sparse or StoredG, optional
+        The patch-to-cluster form factors F Pr for these clusters (computed from F if omitted);
+        a :class:`pydynrad.farfield.streamed.StoredG` (without F) stays in its store and is read
+        chunk by chunk on every pass over it.
     prolongation : "indicator" | "exposure" | "linear"
         Default: "indicator" with F, "linear" without.
     gather : "first_bounce" | "shared" | "cluster", optional
@@ -153,6 +185,9 @@ class FarField:
     checked : bool
         ``form_factors`` already passed :func:`pydynrad.checks.check_form_factors` (a
         DynamicRadiosity's own copy): skip validating it again.
+    linear : (Pr, R_lin), optional
+        :func:`pydynrad.farfield.clusters.linear_basis` of these clusters, where the caller has
+        built it already (``prolongation="linear"``); shapes checked, not rebuilt.
 
     Attributes
     ----------
@@ -170,13 +205,17 @@ class FarField:
         Every patch's far radiosity for the last light vector (:meth:`light`).
     sweeps : int
         Coarse sweeps the last light change took (0 with the dense K_c).
+    first_bounce_columns : int
+        Columns of F the last first bounce on the host multiplied: the lit ones, or those whose
+        light changed where fewer (a lamp switched under a sun; :data:`DELTA_BOUNCES`).
     seconds_build, seconds_light, seconds_coarse : float
         Wall time of the construction, of the last light change and of its coarse solve (B_c).
     """
 
     def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str | None = None,
                  gather: str | None = None, fine_sweeps: int | None = None, coarse: str = "auto", coarse_storage: str | None = None,
-                 tol: float = 1e-4, max_sweeps: int = 1000, dtype=np.float32, device=None, *, checked: bool = False) -> None:
+                 tol: float = 1e-4, max_sweeps: int = 1000, dtype=np.float32, device=None, *, checked: bool = False,
+                 linear=None) -> None:
         from ..device import default_device, real_dtype
         from ..devicecsr import DeviceCSR
         from ..matvec import storage_dtype
@@ -215,15 +254,13 @@ class FarField:
                                     f"gather={gather!r}, fine_sweeps={fine_sweeps}, prolongation={prolongation!r} without F")
         if clusters is None or not isinstance(clusters, Clusters):
             clusters = cluster_patches(scene, clusters, components=None if F is None else light_components(F))
-        elif clusters.scene_hash != scene.content_hash() or len(clusters.labels) != n:
-            raise InvalidInputError("these clusters were made for another scene (content hash differs)")
-        self.clusters = clusters
+        self.clusters = _checked_clusters(clusters, scene)
         C = clusters.count
         self.R = clusters.restriction(scene.areas)
         self._fit = None  # the linear level's least-squares fit R_lin (3C, N)
         if prolongation == "linear":
             self.weights = None
-            Pr, self._fit = linear_basis(clusters, scene)
+            Pr, self._fit = linear_basis(clusters, scene) if linear is None else _checked_linear(linear, n, C)
         elif prolongation == "exposure":
             self.weights = exposure_weights(scene, F, self.device)
             Pr = weighted_prolongation(clusters, scene.areas, self.weights)
@@ -232,16 +269,24 @@ class FarField:
             Pr = clusters.indicator()
         # A given G is checked like rows of F (a row of G is a row of F summed by cluster); F Pr is
         # a product of the checked F and a prolongation built here, so it needs no second check.
-        G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else checked_cluster_form_factors(G, Pr.shape)
+        self._G_stream = G if isinstance(G, StoredG) else None
+        if self._G_stream is not None:
+            if F is not None or tuple(G.shape) != Pr.shape:
+                raise InvalidInputError(f"a stored G is the far field without F, of shape {Pr.shape}; got shape "
+                                        f"{tuple(G.shape)}" + (" with F" if F is not None else ""))
+            # Checked chunk by chunk while F_c is summed from it; never held whole.
+            self.F_c = G.coarse_form_factors(self.R, C)
+        else:
+            G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else checked_cluster_form_factors(G, Pr.shape)
+            # The linear basis sums to 1 on every patch: its three column blocks add up to F times the
+            # indicator. Summed after the restriction, on C x 3C, not on G (N x 3C: most of the far
+            # field's memory at a million patches).
+            RG = self.R @ G
+            self.F_c = sp.csr_matrix(RG if self._fit is None else RG[:, :C] + RG[:, C:2 * C] + RG[:, 2 * C:])
+            del RG
         self.prolongation, self.gather, self.tol, self.max_sweeps = prolongation, gather, tol, max_sweeps
         self.fine_sweeps = fine_sweeps
         self.G = G
-        # The linear basis sums to 1 on every patch: its three column blocks add up to F times the
-        # indicator. Summed after the restriction, on C x 3C, not on G (N x 3C: most of the far
-        # field's memory at a million patches).
-        RG = self.R @ G
-        self.F_c = sp.csr_matrix(RG if self._fit is None else RG[:, :C] + RG[:, C:2 * C] + RG[:, 2 * C:])
-        del RG
         self.rho = scene.albedo.astype(np.float64)
         # Pure clusters: every member has the cluster's albedo.
         first = np.zeros(C, dtype=np.int64)
@@ -253,7 +298,9 @@ class FarField:
         self._F_cols = sp.csc_matrix(F, dtype=dtype) if with_F and self.device.traits.cpu else None
         rows_on_device = gather == "shared" or (fine_sweeps > 0 and self._fit is None) or (with_F and self._F_cols is None)
         self._F_dev = DeviceCSR(self.device, F, dtype) if rows_on_device else None
-        self._G_dev = None if gather == "shared" else DeviceCSR(self.device, G, dtype)  # shared: G only makes F_c
+        # shared: G only makes F_c; a stored G is read per pass (:meth:`_gather`).
+        self._G_dev = None if gather == "shared" or self._G_stream is not None else DeviceCSR(self.device, G, dtype)
+        self._dtype = dtype
         self.coarse = ("dense" if C <= DENSE_CLUSTERS else "sweeps") if coarse == "auto" else coarse
         self.K_c = self._dense_coarse(coarse_storage, dtype) if self.coarse == "dense" else None
         self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype) if self.coarse == "sweeps" else None
@@ -262,7 +309,9 @@ class FarField:
         self.G_nnz, self.F_c_nnz = int(G.nnz), int(self.F_c.nnz)
         if F is None:
             self.G = self.F_c = None
-        self._x_c = None  # the last coarse solution, where the sweeps start
+        self._solved = []  # the last WARM_STARTS (source, solution) pairs of the coarse sweeps
+        self._bounced = None  # the last first bounce on the host (:meth:`_first_bounce`)
+        self.first_bounce_columns = 0
         self._L = None
         self.B_far = None
         self._injected = None  # (B_far, local rows, members, injection) of the last injection
@@ -288,7 +337,8 @@ class FarField:
 
     @property
     def device_memory_bytes(self) -> int:
-        """Device bytes of the coarse solve (K_c or F_c) and of the gather (G and/or F)."""
+        """Device bytes of the coarse solve (K_c or F_c) and of the gather (G and/or F; a
+        :class:`~pydynrad.farfield.streamed.StoredG` holds only the chunk of a pass)."""
         held = (self._G_dev, self._Fc_dev, self._F_dev, self.K_c)
         return sum(m.nbytes for m in held if m is not None)
 
@@ -325,7 +375,7 @@ class FarField:
             t1 = time.perf_counter()
             D_c = self._coarse_solve(self.R @ D1)
             self.seconds_coarse = time.perf_counter() - t1
-            B = self._G_dev.bounce(L + D1, rho, D_c)
+            B = self._gather(L + D1, rho, D_c)
         else:
             L_c = self.R @ L
             B_c = self._coarse_solve(L_c)
@@ -334,11 +384,11 @@ class FarField:
                 B = self._gather_shared(L, B_c - L_c)
             elif self._fit is not None:
                 # B_c on every function of its cluster is the constant B_c (they sum to 1).
-                B = self._G_dev.bounce(L, rho, np.tile(B_c, (LINEAR_FUNCTIONS, 1)))
+                B = self._gather(L, rho, np.tile(B_c, (LINEAR_FUNCTIONS, 1)))
                 for _ in range(self.fine_sweeps):
-                    B = self._G_dev.bounce(L, rho, self._fit @ B)
+                    B = self._gather(L, rho, self._fit @ B)
             else:
-                B = self._G_dev.bounce(L, rho, B_c)
+                B = self._gather(L, rho, B_c)
         if self.fine_sweeps and self._fit is None:
             B = self._F_dev.jacobi(L, rho, B, 0.0, self.fine_sweeps)[0]
         self.B_far = np.repeat(B, 3, axis=1) if k == 1 else B
@@ -346,29 +396,59 @@ class FarField:
         self.seconds_light = time.perf_counter() - t0
         return self.B_far
 
+    def _gather(self, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """L + rho (G x) (N, k) on the device: G resident there, or read from its store per chunk."""
+        if self._G_stream is not None:
+            return self._G_stream.bounce(self.device, self._dtype, L, rho, x)
+        return self._G_dev.bounce(L, rho, x)
+
     def _coarse_solve(self, s: np.ndarray) -> np.ndarray:
         """x (C, k) = s + P_c F_c x for the source s (C, k): s + P_c K_c s, or sweeps of F_c
-        from the last solution."""
+        from earlier solutions (:meth:`_warm_start`)."""
         k = s.shape[1]
         rho_c = self.rho_c[:, :k]
         if self.K_c is None:
-            x0 = s if self._x_c is None or self._x_c.shape[1] != k else self._x_c
-            self._x_c, self.sweeps, _, _ = self._Fc_dev.jacobi(s, rho_c, x0, self.tol, self.max_sweeps)
-            return self._x_c
+            x, self.sweeps, _, _ = self._Fc_dev.jacobi(s, rho_c, self._warm_start(s), self.tol, self.max_sweeps)
+            self._solved = ([p for p in self._solved if p[0].shape == s.shape] + [(s, x)])[-WARM_STARTS:]
+            return x
         self.sweeps = 0
         # One grey K_c serves every column in one pass; three K_c one channel each.
         KL = self.K_c.matmat(s.T[None])[0] if self.K_c.C == 1 else self.K_c.matvec(s.T)
         return s + rho_c * KL.T
 
+    def _warm_start(self, s: np.ndarray) -> np.ndarray:
+        """Where the coarse sweeps start for source s (C, k): the solution is linear in s, so the
+        combination X a of the last solutions whose sources S a fit s best (least squares, per
+        channel), plus the rest r = s - S a as its own first guess; s itself when none was
+        solved yet. Exact when s is a combination of earlier sources (a lamp switched back on,
+        lights summed), close to it when the lights move a little."""
+        x0 = s.copy()
+        held = [p for p in self._solved if p[0].shape == s.shape]
+        for ch in range(s.shape[1] if held else 0):
+            S = np.column_stack([p[0][:, ch] for p in held])
+            a = np.linalg.lstsq(S, s[:, ch], rcond=None)[0]
+            x0[:, ch] += np.column_stack([p[1][:, ch] for p in held]) @ a - S @ a
+        return x0
+
     def _first_bounce(self, L: np.ndarray) -> np.ndarray:
-        """D1 = P F L (N, k): over the lit columns of F by column, or a pass of F's rows."""
+        """D1 = P F L (N, k): over the lit columns of F by column (or, where fewer, the last D1 plus
+        the first bounce of the columns whose light changed), or a pass of F's rows."""
         rho = self.rho[:, : L.shape[1]]
         if self._F_cols is None:
             return self._F_dev.bounce(np.zeros_like(L), rho, L)
-        lit = np.flatnonzero(np.any(L != 0, axis=1))
+        cols = np.flatnonzero(np.any(L != 0, axis=1))
+        x, D1 = L, 0.0
+        last = self._bounced  # (L, D1, changes since a whole product) of the last light change
+        if last is not None and last[0].shape == L.shape and last[2] < DELTA_BOUNCES:
+            changed = np.flatnonzero(np.any(L != last[0], axis=1))
+            if len(changed) < len(cols):  # D1 is linear in L: add the change's first bounce
+                cols, x, D1 = changed, L - last[0], last[1]
         # In F's own type, as the device products: float64 light would upcast a copy of the columns
         # (village under a sun: 76 -> 53 ms in float32).
-        return rho * (self._F_cols[:, lit] @ L[lit].astype(self._F_cols.dtype))
+        D1 = D1 + rho * (self._F_cols[:, cols] @ x[cols].astype(self._F_cols.dtype))
+        self._bounced = (L.copy(), D1, 0 if last is None or x is L else last[2] + 1)
+        self.first_bounce_columns = len(cols)
+        return D1
 
     def _gather_shared(self, L: np.ndarray, D_c: np.ndarray) -> np.ndarray:
         """L + P F (L + D): the indirect light D of every patch prolongated from the clusters'
@@ -405,13 +485,16 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     F in memory (a matrix, or :class:`~pydynrad.CSRRows`): everything from F. Without F the
     coarse level is piecewise linear (``prolongation="linear"``, the indicator where a store's
     G was made with it): a form-factor store (also behind a row cache) gives its own clusters
-    and G (refused when it holds none); rows computed on demand: G from cluster-id hemicubes;
+    and G (refused when it holds none), G left in the store and read per light change
+    (:class:`~pydynrad.farfield.streamed.StoredG`: a million-patch G is 1.7-2 GB; pass
+    ``G=store.cluster_form_factors()`` to hold it on the device instead); rows computed on
+    demand: G from cluster-id hemicubes;
     any other row source: G summed from its rows, each block validated
     (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
     """
     from ..rows.sources import CSRRows, HemicubeRows
     from ..rows.store import FormFactorStore
-    from .gather import basis_prolongation, cluster_form_factors_for, clusters_without_f
+    from .gather import basis_prolongation, check_prolongation, check_store, cluster_form_factors_for, clusters_without_f
 
     if local_rows.csr is not None:
         return FarField(scene, local_rows.csr, clusters, G, device=device, checked=True)
@@ -421,7 +504,8 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     if isinstance(inner, CSRRows):
         return FarField(scene, inner.matrix, clusters, G, device=device)
     basis = "linear"
-    if isinstance(inner, FormFactorStore) and G is None:
+    if isinstance(inner, FormFactorStore) and (G is None or inner.has_clusters):
+        # A G passed in with a store that holds one is read as the store's: its clusters and basis.
         if not inner.has_clusters:
             raise InvalidInputError(
                 f"form-factor store {inner.path} holds no far-field G: compute it (compute_store(..., clusters=...) or "
@@ -432,10 +516,17 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
             clusters = Clusters.from_labels(scene, inner.cluster_labels())
     if not isinstance(clusters, Clusters):
         clusters = clusters_without_f(scene, clusters, device=device)
+    # Built once, for G (or the store's check of it) and the far field's own fit.
+    linear = linear_basis(_checked_clusters(clusters, scene), scene) if basis == "linear" else None
     if G is None:
-        source = local_rows.source if isinstance(inner, (FormFactorStore, HemicubeRows)) else _CheckedRows(local_rows)
-        G = cluster_form_factors_for(scene, source, basis_prolongation(scene, clusters, basis), device=device)
-    return FarField(scene, None, clusters, G, prolongation=basis, device=device)
+        pr = basis_prolongation(scene, clusters, basis) if linear is None else check_prolongation(linear[0], len(scene))
+        if isinstance(inner, FormFactorStore):
+            check_store(scene, inner, len(scene))
+            G = StoredG(inner, pr)
+        else:
+            source = local_rows.source if isinstance(inner, HemicubeRows) else _CheckedRows(local_rows)
+            G = cluster_form_factors_for(scene, source, pr, device=device)
+    return FarField(scene, None, clusters, G, prolongation=basis, device=device, linear=linear)
 
 
 class _CheckedRows:

@@ -502,14 +502,19 @@ class FormFactorStore:
         """Rows ``idx`` of G as a (len(idx), C) float32 CSR matrix, in the order given."""
         return self.rows(idx, part="G")
 
-    def cluster_form_factors(self, clusters=None) -> sp.csr_matrix:
-        """The whole (N, C) float32 G; with ``clusters``, first checked to be the ones G was made with."""
+    def check_whole_g(self, clusters=None) -> None:
+        """Raise unless every block of G is here (:class:`StoreIncompleteError`) and, given
+        ``clusters``, G was made with them (:class:`StoreMismatchError`)."""
         if clusters is not None:
             self.check_clusters(clusters)
         missing = self.missing_blocks(part="G")
         if missing:
             raise StoreIncompleteError(f"{len(missing)} of {self.n_blocks} blocks of G in store {self.path} have not "
                                        "been computed; run compute_store with the same clusters to finish them")
+
+    def cluster_form_factors(self, clusters=None) -> sp.csr_matrix:
+        """The whole (N, C) float32 G; with ``clusters``, first checked to be the ones G was made with."""
+        self.check_whole_g(clusters)
         return sp.vstack([self.read_block(k, "G") for k in range(self.n_blocks)], format="csr")
 
     # -- per-pose rows of moving objects ---------------------------------------------------
