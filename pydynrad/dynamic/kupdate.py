@@ -283,13 +283,19 @@ class UpdateKernels:
         self._put(self._res[channel]["Y"], B, self.ld)
         return n
 
-    def _launch_rank(self, channel: int, n: int) -> None:
+    def _launch_rank(self, channel: int, n: int, k: int = 0) -> None:
+        """K += A B from the channel's X and Y; then, with ``k`` > 0, the k uploaded slots'
+        columns and rows from its cols and rows buffers: in the same pass on a CPU
+        (``rank_update_rows``), by ``write_slots`` after it on a GPU."""
         q, K, lay, res = self.device.queue, self.matrix.buffers[channel], self.layout, self._res[channel]
         M, ld, na = np.int32(self.M), np.int32(self.ld), np.int32(n)
         if lay.cpu:
-            self._k["rank_update_rows"](q, *lay.rank_grid, K, M, ld, na, np.int32(lay.rank_rb), res["X"], res["Y"])
-        else:
-            self._k["rank_update"](q, *lay.rank_grid, K, M, ld, na, res["X"], res["Y"])
+            self._k["rank_update_rows"](q, *lay.rank_grid, K, M, ld, na, np.int32(lay.rank_rb), res["X"], res["Y"],
+                                        np.int32(k), self._slots, res["cols"], res["rows"])
+            return
+        self._k["rank_update"](q, *lay.rank_grid, K, M, ld, na, res["X"], res["Y"])
+        if k:
+            self._launch_write(channel, k, res["cols"], res["rows"])
 
     def _put_write(self, channel: int, slots: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> int:
         """Slots and their values into the channel's cols and rows buffers (not the rank update's inputs)."""
@@ -334,8 +340,7 @@ class UpdateKernels:
         ns = [self._put_rank(c, a, b) for c, a, b in zip(channels, A, B)]
         ks = [self._put_write(c, slots, co, ro) for c, co, ro in zip(channels, cols, rows)]
         for c, n, k in zip(channels, ns, ks):
-            self._launch_rank(c, n)
-            self._launch_write(c, k, self._res[c]["cols"], self._res[c]["rows"])
+            self._launch_rank(c, n, k)
 
     def clear_slot(self, channel: int, slot: int) -> None:
         """K[:, slot] = 0 and K[slot, :] = 0, from a device buffer of M zeros (no upload)."""
