@@ -96,18 +96,14 @@ def exact_swap(kernels, slots: np.ndarray, F_SJ: np.ndarray, F_JS: np.ndarray, F
 
     rho_S (C, M) and rho_J (C, k): the albedo per channel. Device work per channel: the
     slots' columns and rows (O(k M)) and one read pass (gather), all channels enqueued
-    before one read-back; then the host algebra of every channel, and per channel one
-    read-write pass (rank 2k) and J's columns and rows written into the slots, all uploads
-    queued before the first pass and not waited for: the host waits for the device once
-    per frame (uploads queued behind a pass wait for it on PoCL, see
-    :meth:`~pydynrad.dynamic.kupdate.UpdateKernels.update_channels`).
+    before one read-back; then per channel the host algebra (beside the previous channel's
+    passes on the device), one read-write pass (rank 2k) and J's columns and rows written
+    into the slots, queued together and not waited for.
     """
     X = rho_S[:, None, :] * F_SJ.T[None]  # (P_S F_SJ)^T per channel
     Y = F_JS[None] * rho_S[:, None, :]  # F_JS P_S per channel
     KPF, FPK, cols_I, rows_I = kernels.gather_all(X, Y, slots)
-    # k x M products: OpenBLAS's extra threads only spin against whatever else holds the cores.
-    with blas_beside(kernels.device):
-        upd = [batched_swap(cols_I[c].T, rows_I[c], KPF[c].T, FPK[c], F_SJ, F_JS, F_JJ, rho_S[c], rho_J[c], slots)
-               for c in range(len(rho_S))]
-    kernels.update_channels(range(len(upd)), [u.A.T for u in upd], [u.B for u in upd], slots, [u.cols for u in upd],
-                            [u.rows for u in upd])
+    with blas_beside(kernels.device):  # the previous channel's passes hold the device's cores
+        for c in range(len(rho_S)):
+            upd = batched_swap(cols_I[c].T, rows_I[c], KPF[c].T, FPK[c], F_SJ, F_JS, F_JJ, rho_S[c], rho_J[c], slots)
+            kernels.update_slots(c, upd.A.T, upd.B, slots, upd.cols, upd.rows)
