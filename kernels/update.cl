@@ -5,7 +5,8 @@
 // Everything that touches all of K is memory-bound, so each kernel streams K once:
 //   gather (gather_rows on CPUs, gather_partial on GPUs) + gather_reduce :
 //       one read pass giving K X and Y K for NV vectors at once
-//   rank_update_rows (CPUs) / rank_update (GPUs) : one read-write pass, K += A B (rank NA)
+//   rank_update_rows (CPUs) / rank_update (GPUs) : one read-write pass, K += A B (rank NA);
+//       the CPU kernel also writes a few slots' columns and rows (write_slots' job) in that pass
 //   gather_sparse_cols + gather_sparse_rows : the same products for vectors with few non-zeros
 //       (O(M R) for R non-zero slots; the host picks them when they touch less of K)
 // and the O(M) kernels: read_slots / write_slots (columns and rows of a few slots) and
@@ -238,8 +239,12 @@ __kernel void rank_update(__global STORE_T *K, const int M, const int ld, const 
 // CPU rank update, same result. Item b owns rows [b*RB, b*RB + RB) and walks them RR at a
 // time along whole rows: the RR x VW accumulators stay in registers while n runs over the NA
 // terms, each VW-wide vector of B (NA*ld REALs, cache-resident) feeding RR rows.
+// With NS > 0 it then does write_slots' work on the rows it just stored (same values, same
+// rule at crossings: the column value wins), while they are in cache and without a second
+// launch: row slots[t] becomes rows[t*M ..], and K[i, slots[t]] = cols[t*M + i].
 __kernel void rank_update_rows(__global STORE_T *K, const int M, const int ld, const int NA, const int RB,
-                               __global const REAL *A, __global const REAL *B)
+                               __global const REAL *A, __global const REAL *B, const int NS,
+                               __global const int *slots, __global const REAL *cols, __global const REAL *rows)
 {
     const int i0 = get_global_id(0) * RB, i1 = IMIN(M, i0 + RB);
     for (int i = i0; i < i1; i += RR) {
@@ -265,6 +270,12 @@ __kernel void rank_update_rows(__global STORE_T *K, const int M, const int ld, c
 #pragma unroll
             for (int r = 0; r < RR; ++r)
                 if (r < nr) KV_STORE(acc[r], row[r] + j);
+        }
+        for (int r = 0; r < (NS > 0 ? nr : 0); ++r) {
+            for (int t = 0; t < NS; ++t)
+                if (slots[t] == i + r)
+                    for (int j = 0; j < M; ++j) STORE(rows[(size_t)t * M + j], row[r], j);
+            for (int t = 0; t < NS; ++t) STORE(cols[(size_t)t * M + i + r], row[r], slots[t]);
         }
     }
 }

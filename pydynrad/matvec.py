@@ -211,14 +211,17 @@ class DeviceMatrix:
         finite(x, "x")
         return x
 
-    def _buffers(self):
+    def _buffers(self, channel: int = 0):
+        """The (x, y) buffers of one channel's products: one pair per channel, so every
+        channel's upload is queued before the first product (on PoCL an upload queued behind a
+        kernel holds the host until the kernel is done) and all results come back with one wait."""
         import pyopencl as cl
 
         if self._x is None:
             mf, w = cl.mem_flags, self.real_dtype.itemsize
-            self._x = cl.Buffer(self.device.context, mf.READ_ONLY, MAX_RHS * self.ld * w)
-            self._y = cl.Buffer(self.device.context, mf.WRITE_ONLY, MAX_RHS * self.M * w)
-        return self._x, self._y
+            self._x = [cl.Buffer(self.device.context, mf.READ_ONLY, MAX_RHS * self.ld * w) for _ in range(self.C)]
+            self._y = [cl.Buffer(self.device.context, mf.WRITE_ONLY, MAX_RHS * self.M * w) for _ in range(self.C)]
+        return self._x[channel], self._y[channel]
 
     def matmat(self, X: np.ndarray) -> np.ndarray:
         """Y[c, q] = K[c] X[c, q] for r right-hand sides per channel, each pass over K serving
@@ -235,20 +238,21 @@ class DeviceMatrix:
         if X.ndim != 3 or X.shape[0] != self.C or X.shape[2] != self.M or X.shape[1] < 1:
             raise InvalidInputError(f"X must have shape ({self.C}, r, {self.M}) or (r, {self.M}) with r >= 1; got {X.shape}")
         finite(X, "X")
-        x_buf, y_buf = self._buffers()
         r = X.shape[1]
-        xh = np.zeros((MAX_RHS, self.ld), dtype=self.real_dtype)
-        yh = np.empty((MAX_RHS, self.M), dtype=self.real_dtype)
+        xh = np.zeros((self.C, MAX_RHS, self.ld), dtype=self.real_dtype)
+        yh = np.empty((self.C, MAX_RHS, self.M), dtype=self.real_dtype)
         out = np.empty((self.C, r, self.M))
         q = self.device.queue
-        for c in range(self.C):
-            for q0 in range(0, r, MAX_RHS):
-                n = min(MAX_RHS, r - q0)
-                xh[:n, : self.M] = X[c, q0 : q0 + n]
-                cl.enqueue_copy(q, x_buf, xh[:n])
-                self.enqueue_matvec(c, x_buf, y_buf, n)
-                cl.enqueue_copy(q, yh[:n], y_buf, is_blocking=True)
-                out[c, q0 : q0 + n] = yh[:n]
+        for q0 in range(0, r, MAX_RHS):
+            n = min(MAX_RHS, r - q0)
+            xh[:, :n, : self.M] = X[:, q0 : q0 + n]
+            for c in range(self.C):  # every upload, then every product, then one wait
+                cl.enqueue_copy(q, self._buffers(c)[0], xh[c, :n], is_blocking=False)
+            for c in range(self.C):
+                self.enqueue_matvec(c, *self._buffers(c), n)
+            done = [cl.enqueue_copy(q, yh[c, :n], self._buffers(c)[1], is_blocking=False) for c in range(self.C)]
+            done[-1].wait()  # in order: the uploads and every earlier read-back are done too
+            out[:, q0 : q0 + n] = yh[:, :n]
         return out
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
