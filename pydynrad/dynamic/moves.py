@@ -72,62 +72,57 @@ SPHERE_MARGIN = 1e-6
 
 def hidden_between(objects, transforms, points: np.ndarray, a: np.ndarray, b: np.ndarray, device=None) -> np.ndarray:
     """(n,) bool: the segments ``points[a[i]] -> points[b[i]]`` that cross an object's triangles
-    at ``transforms``. Only segments passing within an object's bounding sphere are traced, each
+    at ``transforms`` (:func:`_hidden_entries` with one segment per row)."""
+    a = np.asarray(a, np.int64)
+    return _hidden_entries(objects, transforms, points, np.arange(len(a) + 1), b, a, device)
+
+
+def _hidden_entries(objects, transforms, points: np.ndarray, indptr: np.ndarray, indices: np.ndarray,
+                    owners: np.ndarray, device=None) -> np.ndarray:
+    """(m,) bool over the entries of a CSR structure (``indptr`` (r + 1,), ``indices`` (m,)):
+    entry j of row k is the segment ``points[owners[k]] -> points[indices[j]]`` (rows with
+    ``owners[k] < 0`` are skipped: False), True where it crosses an object's triangles at
+    ``transforms``. Only segments passing within an object's bounding sphere are traced, each
     in the object's own space against its own tree (the static scene is not looked at).
 
-    The sphere pre-test needs one dot product per segment: with u = p - c for the sphere's
-    centre c, |u_a + t (u_b - u_a)|^2 is a quadratic in t whose coefficients are |u_a|^2,
-    |u_b|^2 (per point, not per segment) and u_a . u_b."""
+    The sphere pre-test is one pass over the entries (``csrc/segments.c``): with u = p - c for
+    the sphere's centre c, |u_a + t (u_b - u_a)|^2 is a quadratic in t whose coefficients are
+    |u_a|^2, |u_b|^2 (per point, not per segment) and u_a . u_b."""
+    from .. import _segments
     from ..bvh import occluded
 
-    P = np.asarray(points, np.float64)
-    a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
-    out = np.zeros(len(a), bool)
+    P = np.ascontiguousarray(points, np.float64)
+    indptr, indices = np.ascontiguousarray(indptr, np.int64), np.ascontiguousarray(indices, np.int64)
+    owners = np.ascontiguousarray(owners, np.int64)
+    out = np.zeros(len(indices), bool)
+    near, near_owner = np.empty(len(indices), np.int64), np.empty(len(indices), np.int64)
     for o, T in zip(objects, transforms):
         c, r = o.bounding_sphere(T)
-        # By coordinate (gathers of 1-d arrays) and in place: a third of the time of (n, 3) gathers.
-        x, y, z = (P - c).T.copy()
-        n2 = x * x + y * y + z * z
-        g = x[a] * x[b]
-        g += y[a] * y[b]
-        g += z[a] * z[b]  # u_a . u_b
-        na = n2[a]
-        uv = g - na  # u_a . (p_b - p_a)
-        vv = na + n2[b]
-        vv -= 2.0 * g
-        np.maximum(vv, 1e-300, out=vv)  # |p_b - p_a|^2
-        t = np.clip(-uv / vv, 0.0, 1.0)
-        q = t * vv
-        q += 2.0 * uv
-        q *= t
-        q += na  # |u_a + t (u_b - u_a)|^2
-        reach = r * (1.0 + SPHERE_MARGIN)
-        near = np.flatnonzero(~out & (q <= reach * reach))
-        if len(near):
+        count = _segments.near_sphere(P, indptr, indices, owners, tuple(float(v) for v in c),
+                                      r * (1.0 + SPHERE_MARGIN), near, near_owner)
+        keep = ~out[near[:count]]
+        j, p0 = near[:count][keep], P[near_owner[:count][keep]]
+        if len(j):
             Rt = T[:3, :3].T  # world to object space: x -> R^T (x - t)
-            p0 = P[a[near]]
-            out[near] = occluded(o.scene, (p0 - T[:3, 3]) @ Rt.T, (P[b[near]] - p0) @ Rt.T, np.float32(1.0),
-                                 device=device)
+            out[j] = occluded(o.scene, (p0 - T[:3, 3]) @ Rt.T, (P[indices[j]] - p0) @ Rt.T, np.float32(1.0),
+                              device=device)
     return out
 
 
 def without_hidden(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.ndarray, normals: np.ndarray, objects,
                    transforms, device=None) -> sp.csr_matrix:
     """Static rows with the entries the objects hide set to zero: F[s, x] is dropped where the
-    segment between the centres of s and x crosses an object (:func:`hidden_between`). A
+    segment between the centres of s and x crosses an object (:func:`_hidden_entries`). A
     patch-centre estimate of the occlusion a hemicube at the pose would see, for no hemicube.
     Rows of patches whose front sees no object's bounding sphere are left as they are (nothing
     in front of them can be hidden)."""
     rows = sp.csr_matrix(rows, dtype=np.float64, copy=True)
-    row_patches = np.asarray(row_patches)
+    row_patches = np.asarray(row_patches, np.int64)
     spheres = [o.bounding_sphere(T) for o, T in zip(objects, transforms)]
     sees = refresh_order(centers[row_patches], normals[row_patches], spheres)[0]
-    mask = np.zeros(len(row_patches), bool)
-    mask[sees] = True
-    entry_row = np.repeat(np.arange(len(row_patches)), np.diff(rows.indptr))
-    test = np.flatnonzero(mask[entry_row])
-    owner = row_patches[entry_row[test]]
-    rows.data[test[hidden_between(objects, transforms, centers, owner, rows.indices[test], device)]] = 0.0
+    owners = np.full(len(row_patches), -1, np.int64)
+    owners[sees] = row_patches[sees]
+    rows.data[_hidden_entries(objects, transforms, centers, rows.indptr, rows.indices, owners, device)] = 0.0
     rows.eliminate_zeros()
     return rows
 
