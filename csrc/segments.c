@@ -12,12 +12,19 @@
  *   t = clip(-uv / vv, 0, 1); q = (t vv + 2 uv) t + |u_a|^2 (the squared distance of the
  *   segment's closest point to c), near when q <= reach^2.
  *
- * Python signature:  _segments.near_sphere(points, indptr, indices, owners, center, reach, out, out_owner) -> count
+ * With a box (the object's bounds in its own space and the world-to-object map), a segment
+ * near the sphere must also cross the box, by the slab test on the segment moved into object
+ * space: the sphere of a box holds 2.7 times its volume (a cube's), so about half of the
+ * segments near the sphere miss the box, and each of them would be a ray traced for nothing.
+ *
+ * Python signature:  _segments.near_sphere(points, indptr, indices, owners, center, reach, box, out, out_owner) -> count
  *   points  : C-contiguous float64 buffer of n*3 values
  *   indptr, indices : int64 CSR structure of r rows (r + 1 and m values): segment j of row k
  *             (indptr[k] <= j < indptr[k+1]) goes from point owners[k] to point indices[j]
  *   owners  : int64 buffer of r values, a point index per row, or -1 to skip the row
  *   center  : (cx, cy, cz) floats; reach : float, the sphere's radius with any margin
+ *   box     : None, or 18 floats: the world-to-object map x -> A x + t (A row-major, then t),
+ *             then the box's low and high corners in object space (any margin included)
  *   out, out_owner : writable int64 buffers of at least m values; receive, in increasing
  *             order, the segments j with q <= reach^2 and their rows' owners; returns how many
  *   Indices are checked (0 <= i < n, indptr non-decreasing within 0..m): ValueError if not.
@@ -29,35 +36,61 @@
 #include <stdint.h>
 #include <stdlib.h>
 
+/* Whether the segment a -> b (object space) meets the box [lo, hi]: the slab test over t in [0, 1]. */
+static int crosses_box(const double *a, const double *b, const double *lo, const double *hi)
+{
+    double t0 = 0.0, t1 = 1.0;
+    for (int k = 0; k < 3; ++k) {
+        double d = b[k] - a[k];
+        if (d == 0.0) {
+            if (a[k] < lo[k] || a[k] > hi[k]) return 0;
+            continue;
+        }
+        double ta = (lo[k] - a[k]) / d, tb = (hi[k] - a[k]) / d;
+        if (ta > tb) { double s = ta; ta = tb; tb = s; }
+        if (ta > t0) t0 = ta;
+        if (tb < t1) t1 = tb;
+        if (t0 > t1) return 0;
+    }
+    return 1;
+}
+
+#define STRIDE 7 /* per point: u = p - c, |u|^2, and the point in object space */
+
 static Py_ssize_t near_sphere(const double *P, Py_ssize_t n, const int64_t *indptr, const int64_t *indices,
                               const int64_t *owners, Py_ssize_t rows, Py_ssize_t m, const double c[3], double reach2,
-                              int64_t *out, int64_t *out_owner)
+                              const double *box, int64_t *out, int64_t *out_owner)
 {
-    /* u = p - c and |u|^2 once per point, not per segment. */
-    double *u = malloc((size_t)(n > 0 ? n : 1) * 4 * sizeof(double));
+    /* Once per point, not per segment. */
+    double *u = malloc((size_t)(n > 0 ? n : 1) * STRIDE * sizeof(double));
     if (!u) return -2;
     for (Py_ssize_t i = 0; i < n; ++i) {
-        double x = P[3 * i] - c[0], y = P[3 * i + 1] - c[1], z = P[3 * i + 2] - c[2];
-        u[4 * i] = x, u[4 * i + 1] = y, u[4 * i + 2] = z, u[4 * i + 3] = x * x + y * y + z * z;
+        const double *p = P + 3 * i;
+        double *w = u + STRIDE * i;
+        double x = p[0] - c[0], y = p[1] - c[1], z = p[2] - c[2];
+        w[0] = x, w[1] = y, w[2] = z, w[3] = x * x + y * y + z * z;
+        for (int k = 0; k < 3 && box; ++k)
+            w[4 + k] = box[3 * k] * p[0] + box[3 * k + 1] * p[1] + box[3 * k + 2] * p[2] + box[9 + k];
     }
     Py_ssize_t count = 0;
     for (Py_ssize_t k = 0; k < rows; ++k) {
         int64_t ia = owners[k], lo = indptr[k], hi = indptr[k + 1];
         if (lo < 0 || hi < lo || hi > m || ia >= n) { count = -1; break; }
         if (ia < 0) continue;
-        const double *ua = u + 4 * ia;
+        const double *ua = u + STRIDE * ia;
         double na = ua[3];
         for (int64_t j = lo; j < hi; ++j) {
             int64_t ib = indices[j];
             if (ib < 0 || ib >= n) { count = -1; goto done; }
-            const double *ub = u + 4 * ib;
+            const double *ub = u + STRIDE * ib;
             double g = ua[0] * ub[0] + ua[1] * ub[1] + ua[2] * ub[2];
             double uv = g - na, vv = na + ub[3] - 2.0 * g;
             if (vv < 1e-300) vv = 1e-300;
             double t = -uv / vv;
             t = t < 0.0 ? 0.0 : (t > 1.0 ? 1.0 : t);
             double q = (t * vv + 2.0 * uv) * t + na;
-            if (q <= reach2) out[count] = j, out_owner[count++] = ia;
+            if (q <= reach2 && (!box || crosses_box(ua + 4, ub + 4, box + 12, box + 15)))
+                out[count] = j, out_owner[count++] = ia;
         }
     }
 done:
@@ -69,10 +102,27 @@ static PyObject *py_near_sphere(PyObject *self, PyObject *args)
 {
     (void)self;
     Py_buffer P, ip, ix, ow, out, oo;
-    double c[3], reach;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*(ddd)dw*w*", &P, &ip, &ix, &ow, &c[0], &c[1], &c[2], &reach, &out, &oo))
+    double c[3], reach, box[18];
+    PyObject *box_obj;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*(ddd)dOw*w*", &P, &ip, &ix, &ow, &c[0], &c[1], &c[2], &reach, &box_obj, &out,
+                          &oo))
         return NULL;
     PyObject *result = NULL;
+    int have_box = box_obj != Py_None;
+    if (have_box) {
+        PyObject *seq = PySequence_Fast(box_obj, "near_sphere: box must be None or 18 floats");
+        if (!seq) goto done;
+        int bad = PySequence_Fast_GET_SIZE(seq) != 18;
+        for (int k = 0; k < 18 && !bad; ++k) {
+            box[k] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(seq, k));
+            bad = box[k] == -1.0 && PyErr_Occurred();
+        }
+        Py_DECREF(seq);
+        if (bad) {
+            if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "near_sphere: box must be None or 18 floats");
+            goto done;
+        }
+    }
     Py_ssize_t n = P.len / (Py_ssize_t)(3 * sizeof(double)), m = ix.len / (Py_ssize_t)sizeof(int64_t);
     Py_ssize_t rows = ow.len / (Py_ssize_t)sizeof(int64_t);
     if (P.len != n * 3 * (Py_ssize_t)sizeof(double) || ix.len != m * (Py_ssize_t)sizeof(int64_t) ||
@@ -85,7 +135,7 @@ static PyObject *py_near_sphere(PyObject *self, PyObject *args)
     Py_ssize_t count;
     Py_BEGIN_ALLOW_THREADS
     count = near_sphere((const double *)P.buf, n, (const int64_t *)ip.buf, (const int64_t *)ix.buf,
-                        (const int64_t *)ow.buf, rows, m, c, reach * reach, (int64_t *)out.buf, (int64_t *)oo.buf);
+                        (const int64_t *)ow.buf, rows, m, c, reach * reach, have_box ? box : NULL, (int64_t *)out.buf, (int64_t *)oo.buf);
     Py_END_ALLOW_THREADS
     if (count == -2)
         PyErr_NoMemory();
@@ -105,7 +155,7 @@ done:
 
 static PyMethodDef methods[] = {
     {"near_sphere", py_near_sphere, METH_VARARGS,
-     "near_sphere(points, indptr, indices, owners, center, reach, out, out_owner) -> count: CSR segments passing within reach of center"},
+     "near_sphere(points, indptr, indices, owners, center, reach, box, out, out_owner) -> count: CSR segments passing within reach of center (and crossing box)"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -406,7 +406,7 @@ def test_segments_near_sphere_match_numpy():
     owners[::7] = -1
     c, r = np.array([0.1, -0.2, 0.3]), 0.35
     out, out_owner = np.empty(len(indices), np.int64), np.empty(len(indices), np.int64)
-    count = _segments.near_sphere(P, indptr, indices, owners, tuple(c), r, out, out_owner)
+    count = _segments.near_sphere(P, indptr, indices, owners, tuple(c), r, None, out, out_owner)
     row = np.repeat(np.arange(50), np.diff(indptr))
     a, b = P[owners[row]], P[indices]
     d = b - a
@@ -418,4 +418,4 @@ def test_segments_near_sphere_match_numpy():
     np.testing.assert_array_equal(out_owner[:count], owners[row[truth]])
     indices[3] = len(P)
     with pytest.raises(ValueError, match="out of range"):
-        _segments.near_sphere(P, indptr, indices, np.zeros(50, np.int64), tuple(c), r, out, out_owner)
+        _segments.near_sphere(P, indptr, indices, np.zeros(50, np.int64), tuple(c), r, None, out, out_owner)

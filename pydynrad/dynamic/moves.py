@@ -65,9 +65,12 @@ def hidden_by(objects, transforms, starts: np.ndarray, ends: np.ndarray, device=
     return hidden_between(objects, transforms, np.concatenate([p0, p1]), np.arange(n), np.arange(n, 2 * n), device)
 
 
-#: Relative widening of the bounding spheres in :func:`hidden_between`'s pre-test, so that its
+#: Relative widening of the bounding spheres in :func:`_hidden_entries`'s pre-test, so that its
 #: rounding never drops a segment that the tree (in float32) would report hidden.
 SPHERE_MARGIN = 1e-6
+#: Widening of each side of an object's box in the same pre-test, relative to its bounding
+#: radius: float32 rays and triangles in the device frame may hit ~1e-7 of it outside the box.
+BOX_MARGIN = 1e-4
 
 
 def hidden_between(objects, transforms, points: np.ndarray, a: np.ndarray, b: np.ndarray, device=None) -> np.ndarray:
@@ -85,9 +88,10 @@ def _hidden_entries(objects, transforms, points: np.ndarray, indptr: np.ndarray,
     ``transforms``. Only segments passing within an object's bounding sphere are traced, each
     in the object's own space against its own tree (the static scene is not looked at).
 
-    The sphere pre-test is one pass over the entries (``csrc/segments.c``): with u = p - c for
-    the sphere's centre c, |u_a + t (u_b - u_a)|^2 is a quadratic in t whose coefficients are
-    |u_a|^2, |u_b|^2 (per point, not per segment) and u_a . u_b."""
+    The pre-test is one pass over the entries (``csrc/segments.c``): with u = p - c for the
+    sphere's centre c, |u_a + t (u_b - u_a)|^2 is a quadratic in t whose coefficients are
+    |u_a|^2, |u_b|^2 (per point, not per segment) and u_a . u_b; a segment near the sphere is
+    then moved into object space and kept only if it crosses the object's box (slab test)."""
     from .. import _segments
     from ..bvh import occluded
 
@@ -98,12 +102,14 @@ def _hidden_entries(objects, transforms, points: np.ndarray, indptr: np.ndarray,
     near, near_owner = np.empty(len(indices), np.int64), np.empty(len(indices), np.int64)
     for o, T in zip(objects, transforms):
         c, r = o.bounding_sphere(T)
+        Rt = T[:3, :3].T  # world to object space: x -> R^T (x - t)
+        lo, hi = o.scene.bbox.astype(np.float64)
+        box = np.concatenate([Rt.ravel(), -Rt @ T[:3, 3], lo - BOX_MARGIN * r, hi + BOX_MARGIN * r])
         count = _segments.near_sphere(P, indptr, indices, owners, tuple(float(v) for v in c),
-                                      r * (1.0 + SPHERE_MARGIN), near, near_owner)
+                                      r * (1.0 + SPHERE_MARGIN), box.tolist(), near, near_owner)
         keep = ~out[near[:count]]
         j, p0 = near[:count][keep], P[near_owner[:count][keep]]
         if len(j):
-            Rt = T[:3, :3].T  # world to object space: x -> R^T (x - t)
             out[j] = occluded(o.scene, (p0 - T[:3, 3]) @ Rt.T, (P[indices[j]] - p0) @ Rt.T, np.float32(1.0),
                               device=device)
     return out
