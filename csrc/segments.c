@@ -6,11 +6,12 @@
  * (~400k segments between patch centres on the bench's Cornell box) and traces only the few
  * that pass within the object's bounding sphere. numpy did the test in ~15 passes over
  * float64 temporaries and gathers (~8 ms on the loaded 2-core EPYC, the largest single cost of
- * a corrected move); here it is one pass with the same arithmetic:
+ * a corrected move); here it is one pass:
  *
- *   u = p - c per point; g = u_a . u_b; uv = g - |u_a|^2; vv = max(|u_a|^2 + |u_b|^2 - 2 g, 1e-300);
- *   t = clip(-uv / vv, 0, 1); q = (t vv + 2 uv) t + |u_a|^2 (the squared distance of the
- *   segment's closest point to c), near when q <= reach^2.
+ *   u = p - c per point; g = u_a . u_b; uv = g - |u_a|^2; vv = |u_a|^2 + |u_b|^2 - 2 g;
+ *   the segment's closest point to c is at t = -uv / vv clipped to [0, 1], near when its
+ *   squared distance q (|u_a|^2 at t = 0, |u_b|^2 at t = 1, else |u_a|^2 - uv^2 / vv) is at
+ *   most reach^2.
  *
  * With a box (the object's bounds in its own space and the world-to-object map), a segment
  * near the sphere must also cross the box, by the slab test on the segment moved into object
@@ -85,11 +86,10 @@ static Py_ssize_t near_sphere(const double *P, Py_ssize_t n, const int64_t *indp
             const double *ub = u + STRIDE * ib;
             double g = ua[0] * ub[0] + ua[1] * ub[1] + ua[2] * ub[2];
             double uv = g - na, vv = na + ub[3] - 2.0 * g;
-            if (vv < 1e-300) vv = 1e-300;
-            double t = -uv / vv;
-            t = t < 0.0 ? 0.0 : (t > 1.0 ? 1.0 : t);
-            double q = (t * vv + 2.0 * uv) * t + na;
-            if (q <= reach2 && (!box || crosses_box(ua + 4, ub + 4, box + 12, box + 15)))
+            /* Closest point at t = -uv / vv clipped to [0, 1]; inside, q = |u_a|^2 - uv^2 / vv,
+               compared as (|u_a|^2 - reach^2) vv <= uv^2 (no division, ~2x faster). */
+            int near = -uv <= 0.0 ? na <= reach2 : (-uv >= vv ? ub[3] <= reach2 : (na - reach2) * vv <= uv * uv);
+            if (near && (!box || crosses_box(ua + 4, ub + 4, box + 12, box + 15)))
                 out[count] = j, out_owner[count++] = ia;
         }
     }
