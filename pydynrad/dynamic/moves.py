@@ -133,15 +133,6 @@ def without_hidden(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.nda
     return rows
 
 
-def _without_columns(rows: sp.csr_matrix, columns: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
-    """``rows`` (CSR) with their entries in ``columns`` set to zero (kept stored), and the
-    (nnz,) bool mask of those entries."""
-    mask = np.zeros(rows.shape[1], bool)
-    mask[columns] = True
-    in_columns = mask[rows.indices]
-    return sp.csr_matrix((np.where(in_columns, 0.0, rows.data), rows.indices, rows.indptr), shape=rows.shape), in_columns
-
-
 def with_reciprocal_columns(rows: sp.csr_matrix, row_patches: np.ndarray, object_rows: sp.csr_matrix,
                             object_patches: np.ndarray, areas: np.ndarray) -> sp.csr_matrix:
     """``rows`` (of ``row_patches``) with their columns ``object_patches`` set by reciprocity:
@@ -150,7 +141,12 @@ def with_reciprocal_columns(rows: sp.csr_matrix, row_patches: np.ndarray, object
     # Scaled and masked on the entries: broadcast sparse products copy the matrix per factor.
     recip = sp.csr_matrix(object_rows[:, row_patches].T)
     recip.data = recip.data * A[object_patches][recip.indices] * np.repeat(1.0 / A[row_patches], np.diff(recip.indptr))
-    kept, _ = _without_columns(sp.csr_matrix(rows), object_patches)
+    kept = sp.csr_matrix(rows)
+    mask = np.zeros(kept.shape[1], bool)
+    mask[object_patches] = True
+    in_columns = mask[kept.indices]
+    if in_columns.any():  # rows from the static F have none: no copy then
+        kept = sp.csr_matrix((np.where(in_columns, 0.0, kept.data), kept.indices, kept.indptr), shape=kept.shape)
     placed = sp.csr_matrix((recip.data, object_patches[recip.indices], recip.indptr), shape=rows.shape)
     out = sp.csr_matrix(kept + placed)
     out.eliminate_zeros()
@@ -165,17 +161,27 @@ def capped(rows: sp.csr_matrix, object_patches: np.ndarray):
     columns by reciprocity) may still sum above 1 where the two estimates disagree.
     """
     rows = sp.csr_matrix(rows)
-    # On the entries, not by sparse products (a fifth of the cost): B after a move equal to the
-    # products' to 2e-17 of max B (bench/objects.py's scene).
-    kept, in_object = _without_columns(rows, object_patches)
-    kept_sum = np.asarray(kept.sum(axis=1)).ravel()
-    obj_sum = np.asarray(rows.sum(axis=1)).ravel() - kept_sum
-    goal = np.minimum(kept_sum + obj_sum, 1.0)
-    scaled = (kept_sum > 0) & (kept_sum + obj_sum != goal)
-    scale = np.ones(len(kept_sum))
-    scale[scaled] = np.maximum(goal[scaled] - obj_sum[scaled], 0.0) / kept_sum[scaled]
-    entry_scale = np.where(in_object, 1.0, np.repeat(scale, np.diff(rows.indptr)))
-    out = sp.csr_matrix((rows.data * entry_scale, rows.indices.copy(), rows.indptr.copy()), shape=rows.shape)
+    # Only the rows over 1 are touched (~3% of a move's ~1,000 on the bench's scene): the other
+    # entries are neither masked nor copied, and the object entries (a few per row) are found by
+    # their columns alone: a third of the time of masking every entry.
+    mask = np.zeros(rows.shape[1], bool)
+    mask[object_patches] = True
+    at_object = np.flatnonzero(mask[rows.indices])
+    obj_row = np.searchsorted(rows.indptr, at_object, side="right") - 1
+    obj_sum = np.bincount(obj_row, weights=rows.data[at_object], minlength=rows.shape[0])
+    total = rows @ np.ones(rows.shape[1])
+    kept_sum = total - obj_sum
+    scaled = (kept_sum > 0) & (total > 1.0)
+    out = sp.csr_matrix((rows.data.copy(), rows.indices.copy(), rows.indptr.copy()), shape=rows.shape)
+    if not scaled.any():
+        out.eliminate_zeros()
+        return out, scaled
+    r = np.flatnonzero(scaled)
+    lens = out.indptr[r + 1] - out.indptr[r]
+    entries = np.repeat(out.indptr[r] - (np.cumsum(lens) - lens), lens) + np.arange(lens.sum())
+    entry_scale = np.repeat(np.maximum(1.0 - obj_sum[r], 0.0) / kept_sum[r], lens)
+    static = ~mask[out.indices[entries]]
+    out.data[entries[static]] *= entry_scale[static]
     out.eliminate_zeros()
     return out, scaled
 
