@@ -391,3 +391,31 @@ def test_memory_estimate_counts_the_move_batch(box, block, device):
     M = len(box)
     assert dyn.memory_bytes == pd.DynamicRadiosity.estimate_memory_bytes(M, 3, "fp32", 8, device, object_patches=len(block))
     assert dyn.memory_bytes > pd.DynamicRadiosity.estimate_memory_bytes(M, 3, "fp32", 8, device)
+
+
+def test_segments_near_sphere_match_numpy():
+    """csrc/segments.c's pre-test against the closest point of each segment in plain numpy;
+    rows whose owner is -1 are skipped, a bad index is a ValueError."""
+    from pydynrad import _segments
+
+    rng = np.random.default_rng(7)
+    P = rng.uniform(-1.0, 1.0, (300, 3))
+    indptr = np.concatenate([[0], np.cumsum(rng.integers(0, 40, 50))]).astype(np.int64)
+    indices = rng.integers(0, len(P), indptr[-1]).astype(np.int64)
+    owners = rng.integers(0, len(P), 50).astype(np.int64)
+    owners[::7] = -1
+    c, r = np.array([0.1, -0.2, 0.3]), 0.35
+    out, out_owner = np.empty(len(indices), np.int64), np.empty(len(indices), np.int64)
+    count = _segments.near_sphere(P, indptr, indices, owners, tuple(c), r, None, out, out_owner)
+    row = np.repeat(np.arange(50), np.diff(indptr))
+    a, b = P[owners[row]], P[indices]
+    d = b - a
+    t = np.clip(np.einsum("ij,ij->i", c - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
+    dist = np.linalg.norm(a + t[:, None] * d - c, axis=1)
+    truth = np.flatnonzero((owners[row] >= 0) & (dist <= r))
+    assert 50 < len(truth) < len(indices) // 2
+    np.testing.assert_array_equal(out[:count], truth)
+    np.testing.assert_array_equal(out_owner[:count], owners[row[truth]])
+    indices[3] = len(P)
+    with pytest.raises(ValueError, match="out of range"):
+        _segments.near_sphere(P, indptr, indices, np.zeros(50, np.int64), tuple(c), r, None, out, out_owner)
