@@ -232,7 +232,7 @@ class MatvecLayout:
     rb : rows per block of the transposed product's first pass; aligned : aligned vector
     dereference instead of vload (``PDR_CLANG_VECTORS``, see ``kernels/storage.h``); regs :
     SIMD registers one vector of REALs fills on this device (CPU; 1 on a GPU);
-    compute_units : work-groups are sized from them; chains : independent accumulator chains
+    chains : independent accumulator chains
     wanted per item (:data:`MATVEC_CHAINS`, or 1: see :func:`matvec_layout`).
     """
 
@@ -241,7 +241,6 @@ class MatvecLayout:
     rb: int
     aligned: bool
     regs: int = 1
-    compute_units: int = 1
     chains: int = 1
 
     def rows_per_item(self, nrhs: int) -> int:
@@ -262,11 +261,7 @@ class MatvecLayout:
 
     def matvec_grid(self, M: int, nrhs: int = 1) -> tuple[tuple[int], tuple[int] | None]:
         if self.lx == 1:
-            # About MATVEC_GROUPS work-groups per compute unit, not PoCL's one per thread: on a
-            # shared machine a thread slowed by another process hands groups to the others.
-            items = -(-M // self.rows_per_item(nrhs))
-            local = _pow2_at_most(items // (MATVEC_GROUPS * self.compute_units), WG)
-            return (round_up(items, local),), (local,)
+            return (global_size(-(-M // self.rows_per_item(nrhs))),), None
         return (M * self.lx,), (self.lx,)
 
 
@@ -276,8 +271,6 @@ _MATVEC_GPU_LX = 64
 #: and Skylake) over the loop's step. With one chain (one row, one vector, VW = one zmm: what an
 #: AVX-512 device got) fp16 K x ran at half the memory bandwidth (AMD EPYC Zen 5, 2026-12-02).
 MATVEC_CHAINS = 4
-#: Work-groups per compute unit of the CPU ``matvec`` (see MatvecLayout.matvec_grid).
-MATVEC_GROUPS = 8
 #: Most accumulator registers per CPU ``matvec`` item (AVX2 has 16 registers: the accumulators,
 #: the NRHS x vectors and the K vectors of a step must fit).
 MATVEC_ACC_REGS = 8
@@ -314,7 +307,7 @@ def matvec_layout(device, M: int, ld: int, override: tuple[int, int] | None = No
     k_itemsize = real_itemsize if k_itemsize is None else int(k_itemsize)
     cached = 2 * M * ld * k_itemsize <= t.cache_bytes
     chains = MATVEC_CHAINS if t.cpu and (cached or k_itemsize >= real_itemsize) else 1
-    return MatvecLayout(int(vw), int(lx), rb, bool(t.aligned_vectors), regs, max(1, int(t.compute_units)), chains)
+    return MatvecLayout(int(vw), int(lx), rb, bool(t.aligned_vectors), regs, chains)
 
 
 # -- the local update of K (kernels/update.cl) ------------------------------------------------------
