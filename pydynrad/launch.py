@@ -231,9 +231,9 @@ class MatvecLayout:
     vw : vector width of K loads; lx : work-items per row of ``matvec`` (1: one row per item);
     rb : rows per block of the transposed product's first pass; aligned : aligned vector
     dereference instead of vload (``PDR_CLANG_VECTORS``, see ``kernels/storage.h``); regs :
-    SIMD registers one vector of REALs fills on this device (CPU; 1 on a GPU);
-    chains : independent accumulator chains
-    wanted per item (:data:`MATVEC_CHAINS`, or 1: see :func:`matvec_layout`).
+    SIMD registers one vector of REALs fills on this device (CPU; 1 on a GPU); chains :
+    independent accumulator chains wanted per item (:data:`MATVEC_CHAINS`, or 1: see
+    :func:`matvec_layout`).
     """
 
     vw: int
@@ -269,7 +269,8 @@ class MatvecLayout:
 _MATVEC_GPU_LX = 64
 #: Independent accumulator chains per CPU ``matvec`` item: an FMA's latency (4 cycles on Zen 5
 #: and Skylake) over the loop's step. With one chain (one row, one vector, VW = one zmm: what an
-#: AVX-512 device got) fp16 K x ran at half the memory bandwidth (AMD EPYC Zen 5, 2026-12-02).
+#: AVX-512 device got) an fp16 K in cache ran 1.45x slower than with four (AMD EPYC Zen 5,
+#: M = 1,024-2,048, 2026-12-02).
 MATVEC_CHAINS = 4
 #: Most accumulator registers per CPU ``matvec`` item (AVX2 has 16 registers: the accumulators,
 #: the NRHS x vectors and the K vectors of a step must fit).
@@ -279,8 +280,9 @@ MATVEC_ACC_REGS = 8
 def matvec_layout(device, M: int, ld: int, override: tuple[int, int] | None = None,
                   real_itemsize: int = 4, k_itemsize: int | None = None) -> MatvecLayout:
     """CPU: rows streamed side by side per work-item (:meth:`MatvecLayout.rows_per_item`), loads
-    two SIMD registers wide where the widest kernel vector (16) allows. GPU: a work-group per row, coalesced float4 loads, as many items as the
-    device's work-group size and local memory (one REAL per item and right-hand side) allow.
+    two SIMD registers wide where the widest kernel vector (16) allows. GPU: a work-group per
+    row, coalesced float4 loads, as many items as the device's work-group size and local memory
+    (one REAL per item and right-hand side) allow.
     ``override`` = (VW, LX) for tuning and for testing the GPU path on a CPU. ``k_itemsize``:
     bytes per stored element (default ``real_itemsize``).
 
