@@ -10,14 +10,16 @@
 //       items read adjacent vectors (coalesced on a GPU) and reduce in local memory.
 //   NRHS: right-hand sides of `matvec` per pass over K (1 to 4: the colour channels of a
 //       light vector sharing one grey K).
-// All three are required; pydynrad/launch.py (MatvecLayout.defines) picks them per device.
+//   RI: rows per work-item of the LX == 1 `matvec` (1 to 4), streamed side by side so that
+//       RI * NRHS accumulator chains hide the FMA latency (1 where LX > 1).
+// All four are required; pydynrad/launch.py (MatvecLayout.defines) picks them per device.
 // Requirements (the host guarantees them): ld % VW == 0, K's padding columns M..ld hold 0,
-// x holds ld entries (zeros past M); with LX == 1 the global size is rounded up past M (items
-// i >= M return), with LX > 1 it is exactly M work-groups.
+// x holds ld entries (zeros past M); with LX == 1 the global size is rounded up past M / RI (items
+// past M return), with LX > 1 it is exactly M work-groups.
 #include "storage.h"
 
-#if !defined(VW) || !defined(LX) || !defined(NRHS)
-#error "matvec.cl needs VW, LX and NRHS from the host (pydynrad/launch.py)"
+#if !defined(VW) || !defined(LX) || !defined(NRHS) || !defined(RI)
+#error "matvec.cl needs VW, LX, NRHS and RI from the host (pydynrad/launch.py)"
 #endif
 
 // Y[q, i] = sum_j K[i, j] X[q, j] for i < M and the NRHS right-hand sides q: X holds NRHS
@@ -26,18 +28,42 @@
 __kernel void matvec(__global const STORE_T *K, const int M, const int ld,
                      __global const REAL *x, __global REAL *y)
 {
+#if LX == 1
+    // RI rows at a time, each with its own accumulators: RI * NRHS independent FMA chains per
+    // step (one chain waits on the FMA's latency: an fp16 K in cache, one zmm chain per row, ran
+    // 1.45x slower on a Zen 5), and each x vector is loaded once for RI rows. Every row's
+    // sum is the same sequence of operations as with RI = 1. Rows past M repeat row M - 1
+    // (in bounds, never written). The loops over rows and vectors are unrolled so that the
+    // accumulators stay in registers (PoCL's LLVM 14 kept RI = 4 arrays in memory otherwise).
+    REALV(VW) acc[RI][NRHS];
+    __global const STORE_T *r[RI];
+    const int row0 = get_global_id(0) * RI;
+    if (row0 >= M) return;
+    PDR_UNROLL
+    for (int i = 0; i < RI; ++i) {
+        r[i] = K + (size_t)min(row0 + i, M - 1) * ld;
+        PDR_UNROLL
+        for (int q = 0; q < NRHS; ++q) acc[i][q] = (REALV(VW))(0);
+    }
+    for (int j = 0; j < ld; j += VW) {
+        REALV(VW) k[RI];
+        PDR_UNROLL
+        for (int i = 0; i < RI; ++i) k[i] = KV(r[i] + j);
+        PDR_UNROLL
+        for (int q = 0; q < NRHS; ++q) {
+            const REALV(VW) xv = RV(x + q * ld + j);
+            PDR_UNROLL
+            for (int i = 0; i < RI; ++i) acc[i][q] += k[i] * xv;
+        }
+    }
+    PDR_UNROLL
+    for (int i = 0; i < RI; ++i)
+        if (row0 + i < M)
+            PDR_UNROLL
+            for (int q = 0; q < NRHS; ++q) y[q * M + row0 + i] = HSUM(VW, acc[i][q]);
+#else
     REALV(VW) acc[NRHS];
     for (int q = 0; q < NRHS; ++q) acc[q] = (REALV(VW))(0);
-#if LX == 1
-    const int row = get_global_id(0);
-    if (row >= M) return;
-    __global const STORE_T *r = K + (size_t)row * ld;
-    for (int j = 0; j < ld; j += VW) {
-        const REALV(VW) k = KV(r + j);
-        for (int q = 0; q < NRHS; ++q) acc[q] += k * RV(x + q * ld + j);
-    }
-    for (int q = 0; q < NRHS; ++q) y[q * M + row] = HSUM(VW, acc[q]);
-#else
     __local REAL part[NRHS][LX];
     const int row = get_group_id(0), lid = get_local_id(0);
     __global const STORE_T *r = K + (size_t)row * ld;

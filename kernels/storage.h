@@ -98,6 +98,14 @@ inline REAL pdr_half_at(__global const STORE_T *p, int i)
 #define K1(p, i) LOAD(p, i)
 #endif
 
+// Full unrolling of a short constant-count loop whose arrays must stay in registers (clang's
+// pragma; other compilers decide for themselves).
+#ifdef __clang__
+#define PDR_UNROLL _Pragma("unroll")
+#else
+#define PDR_UNROLL
+#endif
+
 // Horizontal sums, pairwise so rounding grows like log(n).
 inline REAL pdr_hsum4(REALV(4) a) { return (a.x + a.y) + (a.z + a.w); }
 #define PDR_HSUM_4(a) pdr_hsum4(a)

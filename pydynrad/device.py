@@ -124,6 +124,8 @@ class DeviceTraits:
     aligned_vectors : bool
         Kernels may use aligned vector dereference and clang's vector conversions
         (``PDR_CLANG_VECTORS`` in ``kernels/storage.h``): see :attr:`Device.aligned_vector_access`.
+    cache_bytes : int
+        ``global_mem_cache_size`` (PoCL: the CPU's last-level cache; 0 where not reported).
     """
 
     cpu: bool
@@ -133,6 +135,7 @@ class DeviceTraits:
     max_work_group: int
     local_mem_bytes: int
     aligned_vectors: bool = False
+    cache_bytes: int = 0
 
 
 @dataclass(eq=False)
@@ -195,7 +198,7 @@ class Device:
                 float_width=max(1, int(d.preferred_vector_width_float)),
                 double_width=max(1, int(d.preferred_vector_width_double)),
                 max_work_group=int(d.max_work_group_size), local_mem_bytes=int(d.local_mem_size),
-                aligned_vectors=self.aligned_vector_access)
+                aligned_vectors=self.aligned_vector_access, cache_bytes=int(d.global_mem_cache_size))
         return self._traits
 
     def with_traits(self, **changes) -> "Device":

@@ -230,36 +230,67 @@ class MatvecLayout:
 
     vw : vector width of K loads; lx : work-items per row of ``matvec`` (1: one row per item);
     rb : rows per block of the transposed product's first pass; aligned : aligned vector
-    dereference instead of vload (``PDR_CLANG_VECTORS``, see ``kernels/storage.h``).
+    dereference instead of vload (``PDR_CLANG_VECTORS``, see ``kernels/storage.h``); regs :
+    SIMD registers one vector of REALs fills on this device (CPU; 1 on a GPU); chains :
+    independent accumulator chains wanted per item (:data:`MATVEC_CHAINS`, or 1: see
+    :func:`matvec_layout`).
     """
 
     vw: int
     lx: int
     rb: int
     aligned: bool
+    regs: int = 1
+    chains: int = 1
+
+    def rows_per_item(self, nrhs: int) -> int:
+        """Rows one LX == 1 item of ``matvec`` streams side by side (its RI) for nrhs vectors:
+        enough for ``chains`` independent FMA chains (one per SIMD register of an
+        accumulator, per row and right-hand side), no more than :data:`MATVEC_ACC_REGS`
+        accumulator registers; 1 on the GPU layout."""
+        if self.lx != 1:
+            return 1
+        per_row = self.regs * int(nrhs)
+        return max(1, min(-(-self.chains // per_row), MATVEC_ACC_REGS // per_row))
 
     def defines(self, nrhs: int) -> dict[str, int]:
-        out = {"VW": self.vw, "LX": self.lx, "NRHS": nrhs}
+        out = {"VW": self.vw, "LX": self.lx, "NRHS": nrhs, "RI": self.rows_per_item(nrhs)}
         if self.aligned:
             out["PDR_CLANG_VECTORS"] = 1
         return out
 
-    def matvec_grid(self, M: int) -> tuple[tuple[int], tuple[int] | None]:
+    def matvec_grid(self, M: int, nrhs: int = 1) -> tuple[tuple[int], tuple[int] | None]:
         if self.lx == 1:
-            return (global_size(M),), None
+            return (global_size(-(-M // self.rows_per_item(nrhs))),), None
         return (M * self.lx,), (self.lx,)
 
 
 #: Work-items per row of the GPU ``matvec`` (the most: fewer where the device allows fewer).
 _MATVEC_GPU_LX = 64
+#: Independent accumulator chains per CPU ``matvec`` item: an FMA's latency (4 cycles on Zen 5
+#: and Skylake) over the loop's step. With one chain (one row, one vector, VW = one zmm: what an
+#: AVX-512 device got) an fp16 K in cache ran 1.45x slower than with four (AMD EPYC Zen 5,
+#: M = 1,024-2,048, 2026-12-02).
+MATVEC_CHAINS = 4
+#: Most accumulator registers per CPU ``matvec`` item (AVX2 has 16 registers: the accumulators,
+#: the NRHS x vectors and the K vectors of a step must fit).
+MATVEC_ACC_REGS = 8
 
 
 def matvec_layout(device, M: int, ld: int, override: tuple[int, int] | None = None,
-                  real_itemsize: int = 4) -> MatvecLayout:
-    """CPU: one row per work-item, loads two SIMD registers wide (two FMA chains in flight per
-    right-hand side). GPU: a work-group per row, coalesced float4 loads, as many items as the
-    device's work-group size and local memory (one REAL per item and right-hand side) allow.
-    ``override`` = (VW, LX) for tuning and for testing the GPU path on a CPU."""
+                  real_itemsize: int = 4, k_itemsize: int | None = None) -> MatvecLayout:
+    """CPU: rows streamed side by side per work-item (:meth:`MatvecLayout.rows_per_item`), loads
+    two SIMD registers wide where the widest kernel vector (16) allows. GPU: a work-group per
+    row, coalesced float4 loads, as many items as the device's work-group size and local memory
+    (one REAL per item and right-hand side) allow.
+    ``override`` = (VW, LX) for tuning and for testing the GPU path on a CPU. ``k_itemsize``:
+    bytes per stored element (default ``real_itemsize``).
+
+    Rows side by side (:data:`MATVEC_CHAINS`) where K is served from cache (one channel in half
+    the device's cache) or stored as wide as it computes; an fp16 K streamed from memory keeps
+    one row per item: there the single-chain loop already ran at the memory's speed and four
+    interleaved rows ran 1.15-1.2x slower (AMD EPYC Zen 5, M = 4096, 2026-12-02), while from
+    cache they ran 1.4-1.5x faster (M = 1024 and 2048)."""
     t = _traits(device)
     if override is not None:
         vw, lx = override
@@ -273,7 +304,12 @@ def matvec_layout(device, M: int, ld: int, override: tuple[int, int] | None = No
     # Row block of the transposed product's first pass: long enough to amortise the partial
     # sums (1/RB of K's traffic), short enough to give a GPU enough work-items.
     rb = 64 if t.cpu else max(16, min(256, (M * (ld // vw)) // 65536 or 16))
-    return MatvecLayout(int(vw), int(lx), rb, bool(t.aligned_vectors))
+    native = t.double_width if real_itemsize == 8 else t.float_width
+    regs = max(1, int(vw) // max(1, int(native))) if t.cpu else 1
+    k_itemsize = real_itemsize if k_itemsize is None else int(k_itemsize)
+    cached = 2 * M * ld * k_itemsize <= t.cache_bytes
+    chains = MATVEC_CHAINS if t.cpu and (cached or k_itemsize >= real_itemsize) else 1
+    return MatvecLayout(int(vw), int(lx), rb, bool(t.aligned_vectors), regs, chains)
 
 
 # -- the local update of K (kernels/update.cl) ------------------------------------------------------

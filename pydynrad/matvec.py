@@ -68,8 +68,8 @@ class DeviceMatrix:
     storage : "fp16" | "fp32" | "fp64"
     layout : (VW, LX), optional
         Kernel layout override (vector width, work-items per row); by default the device's
-        (:func:`pydynrad.launch.matvec_layout`: one row per item and two SIMD registers per
-        load on a CPU, (4, 64) on a GPU). For tuning and for testing the GPU path on a CPU.
+        (:func:`pydynrad.launch.matvec_layout`: up to 4 rows side by side per item and two
+        SIMD registers per load on a CPU, (4, 64) on a GPU). For tuning and for testing the GPU path on a CPU.
 
     Attributes
     ----------
@@ -132,7 +132,7 @@ class DeviceMatrix:
             self.buffers = [cl.Buffer(device.context, cl.mem_flags.READ_WRITE, per) for _ in range(C)]
         except cl.Error as exc:
             raise OutOfMemoryError(f"allocating {C} x {per / 2**20:.1f} MiB on {device.name} failed: {exc}") from exc
-        self._layout = matvec_layout(device, M, self.ld, layout, self.real_dtype.itemsize)
+        self._layout = matvec_layout(device, M, self.ld, layout, self.real_dtype.itemsize, self.dtype.itemsize)
         self._n_blocks = -(-M // self._layout.rb)
         self._x = self._y = self._partial = None
         prg = self._program(1)
@@ -185,7 +185,7 @@ class DeviceMatrix:
         k = self._k_matvec.get(nrhs)
         if k is None:
             k = self._k_matvec[nrhs] = cl.Kernel(self._program(nrhs), "matvec")
-        k(self.device.queue, *self._layout.matvec_grid(self.M), self.buffers[channel], np.int32(self.M),
+        k(self.device.queue, *self._layout.matvec_grid(self.M, nrhs), self.buffers[channel], np.int32(self.M),
           np.int32(self.ld), x_buf, y_buf)
 
     def enqueue_rmatvec(self, channel: int, x_buf, y_buf) -> None:

@@ -16,7 +16,7 @@ def test_global_size_rounds_up_to_whole_work_groups():
 
 @pytest.mark.parametrize("filename,missing", [
     ("update.cl", "VW, SW, WG, RR, CWMAX, NVMAX, NAMAX and RED_WG"),
-    ("matvec.cl", "VW, LX and NRHS"),
+    ("matvec.cl", "VW, LX, NRHS and RI"),
     ("spmv.cl", "NCH and LX"),
     ("gemm.cl", "VW and TM"),
 ])

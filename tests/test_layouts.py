@@ -49,6 +49,30 @@ def test_cpu_kernels_take_the_devices_register_width(traits, widths):
     assert spmv_layout(traits, 10**6).blocks == 16 * traits.compute_units
 
 
+def test_matvec_rows_side_by_side_hide_the_fma_latency():
+    """RI rows per CPU item: MATVEC_CHAINS accumulator registers at least (one per row, vector
+    and register of REALs), at most MATVEC_ACC_REGS; narrow storage from memory keeps one row;
+    a GPU and the LX > 1 layout always one; the grid covers every row."""
+    from pydynrad.launch import MATVEC_ACC_REGS, MATVEC_CHAINS
+    M, ld = 1000, padded_ld(1000)
+    cached = dataclasses.replace(AVX512, cache_bytes=2**25)
+    for traits in (cached, dataclasses.replace(AVX2, cache_bytes=2**25)):
+        for real, k in ((4, 2), (4, 4), (8, 8)):
+            mv = matvec_layout(traits, M, ld, real_itemsize=real, k_itemsize=k)
+            for nrhs in range(1, 5):
+                ri, regs = mv.rows_per_item(nrhs), mv.regs * nrhs
+                assert ri * regs >= MATVEC_CHAINS or (ri + 1) * regs > MATVEC_ACC_REGS
+                assert ri * regs <= max(regs, MATVEC_ACC_REGS) and mv.defines(nrhs)["RI"] == ri
+                (g,), local = mv.matvec_grid(M, nrhs)
+                assert local is None and g * ri >= M and (g - 64) * ri < M
+    assert matvec_layout(cached, M, ld, real_itemsize=4, k_itemsize=2).rows_per_item(1) == 4
+    assert matvec_layout(AVX512, M, ld, real_itemsize=4, k_itemsize=2).rows_per_item(1) == 1  # no cache reported
+    assert matvec_layout(AVX512, M, ld, real_itemsize=4, k_itemsize=4).rows_per_item(1) == 4
+    assert matvec_layout(cached, 4096, 4096, real_itemsize=4, k_itemsize=2).rows_per_item(1) == 1  # 32 MiB: memory
+    assert matvec_layout(cached, M, ld, (8, 4), real_itemsize=4).rows_per_item(1) == 1
+    assert matvec_layout(GPU, M, ld).rows_per_item(1) == 1
+
+
 def test_reported_widths_off_the_kernel_widths_round_down():
     odd = dataclasses.replace(AVX512, float_width=1, double_width=0)
     assert cpu_vector_width(odd, 4) == cpu_vector_width(odd, 8) == 4

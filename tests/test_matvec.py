@@ -143,3 +143,18 @@ def test_portable_kernels_equal_clang_vector_kernels(device, portable_kernels, s
     for a, b in zip(got, (clang.matvec(x), clang.rmatvec(x), clang.matmat(X))):
         np.testing.assert_array_equal(a, b)
     assert rel(got[0], np.einsum("cij,cj->ci", K, x)) < TOL[storage]
+
+
+@pytest.mark.parametrize("nrhs", [1, 3])
+def test_rows_side_by_side_equal_one_row_per_item(device, nrhs):
+    """A CPU item streaming RI rows side by side (their own accumulators) computes each row's
+    sum in the order one row per item does: bit for bit. Without a cache an fp16 K takes RI = 1."""
+    one_row = device.with_traits(cache_bytes=0)
+    rng = np.random.default_rng(8)
+    K, X = rng.random((1, 203, 203)), rng.random((1, nrhs, 203))
+    side, single = DeviceMatrix(device, K, "fp16"), DeviceMatrix(one_row, K, "fp16")
+    if not device.traits.cpu or side._layout.rows_per_item(nrhs) == 1:
+        pytest.skip(f"{device.name} streams one row per item here")
+    assert single._layout.rows_per_item(nrhs) == 1
+    np.testing.assert_array_equal(side.matmat(X), single.matmat(X))
+    assert rel(side.matmat(X), np.einsum("cij,cqj->cqi", K, X)) < TOL["fp16"]
