@@ -3,8 +3,9 @@
 Two methods, both for every colour channel at once:
 
 * ``"iterative"``: bounce (Jacobi / Neumann series) iteration ``B <- L + P F B`` from
-  ``B = L``, one CSR sparse matrix-vector kernel per bounce (``kernels/spmv.cl``) in float32
-  or float64. F is uploaded once per :class:`RadiositySolver`, so re-lighting a scene costs
+  ``B = L``, one sparse matrix-vector kernel per bounce (``kernels/spmv.cl``) in float32
+  or float64: on CSR F, or for grey scenes on wide-SIMD CPUs on SELL-C F
+  (:mod:`pydynrad.devicesell`). F is uploaded once per :class:`RadiositySolver`, so re-lighting a scene costs
   a new light vector and the iterations, never a new upload.
 * ``"dense"``: numpy float64 LU solve of ``(I - P F) B = L``: the reference for small N.
 
@@ -29,7 +30,9 @@ import scipy.sparse as sp
 from .checks import check_form_factors
 from .device import real_dtype
 from .devicecsr import DeviceCSR
+from .devicesell import DeviceSELL
 from .errors import ConvergenceError, InvalidInputError, OutOfMemoryError
+from .launch import sell_layout
 from .lights import checked_light_vector
 from .memory import available_host_bytes
 
@@ -89,6 +92,11 @@ class RadiositySolver:
     dtype : np.float32 | np.float64
         Working precision of the kernels.
     device : Device, optional
+    layout : (LX, blocks), optional
+        The CSR kernel's layout (:func:`pydynrad.launch.spmv_layout`); forces CSR.
+
+    Attributes: ``format`` ("csr" or "sell-C", :func:`pydynrad.launch.sell_layout`), ``nnz``,
+    ``nbytes`` (device bytes of F in that format, padding included).
     """
 
     def __init__(self, scene, F, dtype=np.float32, device=None, *, layout: tuple[int, int] | None = None) -> None:
@@ -98,7 +106,11 @@ class RadiositySolver:
         self.dtype = real_dtype(dtype, self.device)
         F = check_form_factors(scene, F)
         self._n = len(scene)
-        self._F = DeviceCSR(self.device, F, self.dtype, layout)
+        # Grey scenes on wide-SIMD CPUs get SELL-C (one row per vector lane); everything else,
+        # and any explicit CSR layout, CSR (docs/design.md, 'Full solve').
+        sell = None if layout is not None or not scene.is_grey else sell_layout(self.device, self.dtype.itemsize, 1)
+        self._F = DeviceCSR(self.device, F, self.dtype, layout) if sell is None else DeviceSELL(self.device, F, self.dtype, sell)
+        self.format = "csr" if sell is None else f"sell-{sell.c}"
         self.nnz = F.nnz
         self.nbytes = self._F.nbytes
 
