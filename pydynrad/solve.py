@@ -95,8 +95,7 @@ class RadiositySolver:
     layout : (LX, blocks), optional
         The CSR kernel's layout (:func:`pydynrad.launch.spmv_layout`); forces CSR.
 
-    Attributes: ``format`` ("csr" or "sell-C", :func:`pydynrad.launch.sell_layout`), ``nnz``,
-    ``nbytes`` (device bytes of F in that format, padding included).
+    F is uploaded at once in the format of the scene's channels (:meth:`format`).
     """
 
     def __init__(self, scene, F, dtype=np.float32, device=None, *, layout: tuple[int, int] | None = None) -> None:
@@ -106,13 +105,32 @@ class RadiositySolver:
         self.dtype = real_dtype(dtype, self.device)
         F = check_form_factors(scene, F)
         self._n = len(scene)
-        # Grey scenes on wide-SIMD CPUs get SELL-C (one row per vector lane); everything else,
-        # and any explicit CSR layout, CSR (docs/design.md, 'Full solve').
-        sell = None if layout is not None or not scene.is_grey else sell_layout(self.device, self.dtype.itemsize, 1)
-        self._F = DeviceCSR(self.device, F, self.dtype, layout) if sell is None else DeviceSELL(self.device, F, self.dtype, sell)
-        self.format = "csr" if sell is None else f"sell-{sell.c}"
+        self._host_F, self._layout, self._formats = F, layout, {}
         self.nnz = F.nnz
-        self.nbytes = self._F.nbytes
+        # Uploaded now in the format of the scene's own channels; a grey scene lit in colour may
+        # later add the other (docs/design.md, 'Full solve').
+        self._matrix(1 if scene.is_grey else 3)
+
+    def format(self, channels: int) -> str:
+        """The format F takes for ``channels`` (1 or 3): "csr", or "sell-C" for grey solves on
+        wide-SIMD CPUs (:func:`pydynrad.launch.sell_layout`); an explicit ``layout`` forces CSR."""
+        sell = self._sell(channels)
+        return "csr" if sell is None else f"sell-{sell.c}"
+
+    @property
+    def nbytes(self) -> int:
+        """Device bytes of F in every format uploaded so far (padding included)."""
+        return sum(m.nbytes for m in self._formats.values())
+
+    def _sell(self, channels: int):
+        return None if self._layout is not None else sell_layout(self.device, self.dtype.itemsize, channels)
+
+    def _matrix(self, channels: int):
+        key, sell = self.format(channels), self._sell(channels)
+        if key not in self._formats:
+            self._formats[key] = (DeviceCSR(self.device, self._host_F, self.dtype, self._layout) if sell is None
+                                  else DeviceSELL(self.device, self._host_F, self.dtype, sell))
+        return self._formats[key]
 
     def solve(self, L: np.ndarray, tol: float = 1e-6, max_iterations: int = 10000, bounces: int | None = None,
               raise_on_failure: bool = True) -> Solution:
@@ -123,7 +141,7 @@ class RadiositySolver:
         rho = self.scene.albedo.astype(np.float64)[:, :nch]
         t0 = time.perf_counter()
         # A fixed number of bounces never stops early (tol < 0).
-        B, it, residual, history = self._F.jacobi(L[:, :nch], rho, L[:, :nch], tol if bounces is None else -1.0,
+        B, it, residual, history = self._matrix(nch).jacobi(L[:, :nch], rho, L[:, :nch], tol if bounces is None else -1.0,
                                                   max_iterations)
         seconds = time.perf_counter() - t0
         converged = residual <= tol
