@@ -2,7 +2,8 @@
 
 One pass over A's values with ``kernels/spmv.cl``'s ``bounce`` kernel per product; rows and
 columns need not match (x has A's columns, L, P and y its rows). The full solve iterates it
-with A = F (:class:`pydynrad.solve.RadiositySolver`); the far field with A = F_c (the coarse
+with A = F (:class:`pydynrad.solve.RadiositySolver`; grey solves on wide-SIMD CPUs use
+:mod:`pydynrad.devicesell` instead); the far field with A = F_c (the coarse
 sweeps), G (every patch from the clusters) and F (the first bounce and the fine sweeps).
 """
 
