@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .device import real_dtype
-from .devicecsr import row_blocks
+from .devicecsr import row_blocks, sweeps
 from .errors import OutOfMemoryError
 
 __all__ = ["SellMatrix", "sell_slices", "DeviceSELL"]
@@ -112,19 +112,13 @@ class DeviceSELL:
         x = cl.Buffer(d.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=self.packed(x0))
         y = cl.Buffer(d.context, mf.READ_WRITE, self.packed(x0).nbytes)
         partial_buf = cl.Buffer(d.context, mf.READ_WRITE, 2 * nb * self.dtype.itemsize)
-        partial = np.empty((nb, 2), dtype=self.dtype)
         kernel = self._kernel(k)
-        change, history = np.inf, []
-        while len(history) < max_sweeps:
+
+        def bounce(x, y):
             kernel(d.queue, (nb,), (1,), self._blk, self._sptr, self._cols, self._vals, L_buf, rho_buf, x, y,
                    partial_buf)
-            x, y = y, x
-            cl.enqueue_copy(d.queue, partial, partial_buf, is_blocking=True)
-            scale = float(partial[:, 1].max())
-            change = float(partial[:, 0].max()) / scale if scale > 0 else 0.0
-            history.append(change)
-            if change <= tol:
-                break
+
+        x, change, history = sweeps(d, bounce, x, y, partial_buf, nb, self.dtype, tol, max_sweeps)
         out = self.packed(x0)
         cl.enqueue_copy(d.queue, out, x, is_blocking=True)
         B = np.empty((self.shape[0], k))
