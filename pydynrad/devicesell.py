@@ -52,11 +52,12 @@ def sell_slices(A: sp.csr_matrix, c: int, sigma: int, dtype=np.float32) -> SellM
         raise OutOfMemoryError(f"SELL-{c} of a {A.shape} matrix holds {sptr[-1]} entries; the kernel indexes with "
                                "32-bit integers (< 2^31)")
     # Entry k of old row i (new position p = inv[i], its j-th entry) goes to slice p // c at
-    # column j, lane p % c.
-    rows = np.repeat(np.arange(n, dtype=np.int64), length)
-    p = inv[rows]
-    j = np.arange(A.nnz, dtype=np.int64) - indptr[rows]
-    dest = sptr[p // c] + j * c + p % c
+    # column j, lane p % c; int32 throughout (every offset is below sptr[-1] < 2^31), which
+    # halves the O(nnz) temporaries (0.56 GB for the village's 35 M entries).
+    rows = np.repeat(np.arange(n, dtype=np.int32), length)
+    p = inv.astype(np.int32)[rows]
+    j = np.arange(A.nnz, dtype=np.int32) - indptr.astype(np.int32)[rows]
+    dest = sptr.astype(np.int32)[p // c] + j * c + p % c
     cols = np.zeros(sptr[-1], dtype=np.int32)
     vals = np.zeros(sptr[-1], dtype=dtype)
     cols[dest] = inv[A.indices]
