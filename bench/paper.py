@@ -40,6 +40,37 @@ def street_walk(frames: int) -> np.ndarray:
     return np.stack([x, np.full_like(x, EYE_HEIGHT), np.full_like(x, 2.5)], axis=1)
 
 
+#: Bounces per timed try of each format of F.
+FORMAT_BOUNCES = 20
+
+
+def _spmv_formats(device, scene, F, L, copy_gbs) -> list:
+    """Rows (channels, format, MiB, ms per bounce, GB/s, copy / SpMV) for RGB and grey solves of
+    the village in the device's default format and in CSR, alternated, fastest of 3."""
+    from pydynrad.launch import spmv_layout
+    from pydynrad.solve import RadiositySolver
+
+    grey = scene.with_materials(albedo=np.repeat(scene.albedo.mean(axis=1, keepdims=True), 3, axis=1),
+                                emission=np.repeat(scene.emission.mean(axis=1, keepdims=True), 3, axis=1))
+    Lg = np.repeat(L.mean(axis=1, keepdims=True), 3, axis=1)
+    csr = spmv_layout(device, len(scene))
+    cases = []
+    for channels, sc, light in (("RGB", scene, L), ("grey", grey, Lg)):
+        for name, layout in (("default", None), ("csr", (csr.lx, csr.blocks))):
+            solver = RadiositySolver(sc, F, dtype=np.float32, device=device, layout=layout)
+            fmt = solver.format(3 if channels == "RGB" else 1)
+            solver.solve(light, bounces=1)  # kernel build
+            cases.append([channels, f"{name} ({fmt})", solver.nbytes / 2**20, solver, light])
+    best = [np.inf] * len(cases)
+    for _ in range(3):
+        for i, (_, _, _, solver, light) in enumerate(cases):
+            t = time_call(lambda: solver.solve(light, bounces=FORMAT_BOUNCES), repeats=1, warmup=0)["min_s"]
+            best[i] = min(best[i], t / FORMAT_BOUNCES)
+    nbytes = F.nnz * 8 + 4 * (len(scene) + 1)
+    return [[ch, fmt, mib, t * 1e3, nbytes / t / 1e9, copy_gbs / (nbytes / t / 1e9)]
+            for (ch, fmt, mib, _, _), t in zip(cases, best)]
+
+
 def paper_section(ctx) -> dict:
     import pydynrad
 
@@ -57,6 +88,7 @@ def paper_section(ctx) -> dict:
     # row pointers) streamed once per bounce, all colour channels together.
     copy_gbs = copy_bandwidth_device(ctx.device)
     spmv_gbs = (F.nnz * 8 + 4 * (n + 1)) * sol.iterations / t_naive / 1e9
+    formats = _spmv_formats(ctx.device, scene, F, L, copy_gbs)
     walk = street_walk(p["frames"] + 3)  # + the build and two warm-up frames (see timed_walk)
     rows = []
     for M in p["M"]:
@@ -101,6 +133,13 @@ def paper_section(ctx) -> dict:
             "rows": [[n, F.nnz, L.shape[1], sol.iterations, t_naive * 1e3, spmv_gbs, copy_gbs, copy_gbs / spmv_gbs]],
             "note": "float32 CSR bounce kernel (pydynrad.solve), values + int32 indices + row pointers once per bounce; "
                     "copy: one OpenCL buffer copy of 256 MiB, read + write counted (target: copy / SpMV <= 1.5).",
+        }, {
+            "title": "The bounce's formats of F, alternated in one run",
+            "columns": ["channels", "format", "device MiB of F", "ms / bounce (best of 3)", "GB/s of F's CSR bytes", "copy / SpMV"],
+            "rows": formats,
+            "note": f"{FORMAT_BOUNCES} bounces per try, float32; grey = the village with its albedos and light averaged "
+                    "over RGB. 'default' is the format RadiositySolver picks for this device (pydynrad.launch.sell_layout), "
+                    "'csr' forced by an explicit layout. GB/s counts F's CSR bytes (as above) for every format.",
         }],
         "plots": [{
             "name": "ratios", "title": "Speed-up over naive full radiosity (paper update mode)",

@@ -2,7 +2,8 @@
 
 One pass over A's values with ``kernels/spmv.cl``'s ``bounce`` kernel per product; rows and
 columns need not match (x has A's columns, L, P and y its rows). The full solve iterates it
-with A = F (:class:`pydynrad.solve.RadiositySolver`); the far field with A = F_c (the coarse
+with A = F (:class:`pydynrad.solve.RadiositySolver`; grey solves on wide-SIMD CPUs use
+:mod:`pydynrad.devicesell` instead); the far field with A = F_c (the coarse
 sweeps), G (every patch from the clusters) and F (the first bounce and the fine sweeps).
 """
 
@@ -17,7 +18,7 @@ from .device import real_dtype
 from .errors import OutOfMemoryError
 from .launch import spmv_layout
 
-__all__ = ["DeviceCSR", "row_blocks"]
+__all__ = ["DeviceCSR", "row_blocks", "sweeps"]
 
 
 def row_blocks(indptr: np.ndarray, blocks: int) -> np.ndarray:
@@ -28,6 +29,27 @@ def row_blocks(indptr: np.ndarray, blocks: int) -> np.ndarray:
     blk = np.searchsorted(indptr, targets, side="left").clip(0, n)
     blk[0], blk[-1] = 0, n
     return np.maximum.accumulate(blk).astype(np.int32)
+
+
+def sweeps(device, bounce, x, y, partial_buf, blocks: int, dtype, tol: float, max_sweeps: int):
+    """Run ``bounce(x, y)`` (enqueue y from x, each block's max |y - x| and max |y| into
+    ``partial_buf``), swapping x and y, until the relative change max|y - x| / max|y| is <= tol
+    or ``max_sweeps`` ran. Returns (the buffer holding the last iterate, the last change, every
+    sweep's change)."""
+    import pyopencl as cl
+
+    partial = np.empty((blocks, 2), dtype=dtype)
+    change, history = np.inf, []
+    while len(history) < max_sweeps:
+        bounce(x, y)
+        x, y = y, x
+        cl.enqueue_copy(device.queue, partial, partial_buf, is_blocking=True)
+        scale = float(partial[:, 1].max())
+        change = float(partial[:, 0].max()) / scale if scale > 0 else 0.0
+        history.append(change)
+        if change <= tol:
+            break
+    return x, change, history
 
 
 class DeviceCSR:
@@ -110,17 +132,8 @@ class DeviceCSR:
         x = cl.Buffer(d.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=self.packed(x0, width))
         y = cl.Buffer(d.context, mf.READ_WRITE, n * width * self.dtype.itemsize)
         partial_buf = cl.Buffer(d.context, mf.READ_WRITE, 2 * nb * self.dtype.itemsize)
-        partial = np.empty((nb, 2), dtype=self.dtype)
-        change, history = np.inf, []
-        while len(history) < max_sweeps:
-            self.bounce_buffers(L_buf, rho_buf, x, y, width, partial_buf)
-            x, y = y, x
-            cl.enqueue_copy(d.queue, partial, partial_buf, is_blocking=True)
-            scale = float(partial[:, 1].max())
-            change = float(partial[:, 0].max()) / scale if scale > 0 else 0.0
-            history.append(change)
-            if change <= tol:
-                break
+        x, change, history = sweeps(d, lambda x, y: self.bounce_buffers(L_buf, rho_buf, x, y, width, partial_buf),
+                                    x, y, partial_buf, nb, self.dtype, tol, max_sweeps)
         out = np.empty((n, width), dtype=self.dtype)
         cl.enqueue_copy(d.queue, out, x, is_blocking=True)
         return out[:, :k].astype(np.float64), len(history), change, history

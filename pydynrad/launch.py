@@ -34,7 +34,7 @@ from .errors import InvalidInputError
 __all__ = [
     "WG", "RED_WG", "PANEL", "GEMM_GRAIN", "WIDTHS", "round_up", "global_size", "float4",
     "BVH_PACKETS", "bvh_packet", "RAY_WG_CPU", "ray_work_group", "HemicubeTiles", "hemicube_tiles",
-    "cpu_vector_width", "SpmvLayout", "spmv_layout", "GemmLayout", "gemm_layout", "MatvecLayout", "matvec_layout",
+    "cpu_vector_width", "SpmvLayout", "spmv_layout", "SellLayout", "SELL_WINDOW_SLICES", "sell_layout", "GemmLayout", "gemm_layout", "MatvecLayout", "matvec_layout",
     "UpdateLayout",
 ]
 
@@ -175,6 +175,41 @@ def spmv_layout(device, n: int, override: tuple[int, int] | None = None) -> Spmv
         else:
             lx, blocks = _pow2_at_most(64, t.max_work_group), 256 * t.compute_units
     return SpmvLayout(int(lx), max(1, min(int(blocks), n)))
+
+
+@dataclass(frozen=True)
+class SellLayout:
+    """``bounce_sell`` on SELL-C-sigma F (:mod:`pydynrad.devicesell`): slices of ``c`` rows,
+    rows sorted by length within windows of ``sigma``, one work-item per block of slices."""
+
+    c: int
+    sigma: int
+    blocks: int
+
+    @property
+    def defines(self) -> dict[str, int]:
+        return {"SELL_C": self.c}
+
+
+#: Rows per sorting window of SELL-C-sigma, in slices: long enough that a slice's rows have
+#: about equal lengths (village: 1.8 % padding at C = 16), short enough to keep the patches'
+#: order (x's locality) nearly as it was.
+SELL_WINDOW_SLICES = 32
+
+
+def sell_layout(device, real_itemsize: int, channels: int) -> SellLayout | None:
+    """The SELL-C layout of a full solve in REALs of ``real_itemsize`` bytes, or None for CSR.
+
+    Only for grey solves (``channels`` 1) on a CPU with 16-float (8-double) SIMD registers
+    (AVX-512, where the gathers are one instruction): there one row per lane ran 1.2-1.35x
+    CSR's loop; with RGB, three gathers per entry ran 0.6-0.7x CSR's one float4 load per entry,
+    and GPUs read CSR coalesced (docs/design.md, 'Full solve')."""
+    t = _traits(device)
+    native = t.double_width if real_itemsize == 8 else t.float_width
+    if not t.cpu or channels != 1 or native * real_itemsize < 64:
+        return None
+    c = cpu_vector_width(device, real_itemsize)
+    return SellLayout(c, SELL_WINDOW_SLICES * c, 16 * t.compute_units)
 
 
 # -- the multibounce build: register-blocked GEMM (kernels/gemm.cl) ---------------------------------

@@ -3,8 +3,9 @@
 Two methods, both for every colour channel at once:
 
 * ``"iterative"``: bounce (Jacobi / Neumann series) iteration ``B <- L + P F B`` from
-  ``B = L``, one CSR sparse matrix-vector kernel per bounce (``kernels/spmv.cl``) in float32
-  or float64. F is uploaded once per :class:`RadiositySolver`, so re-lighting a scene costs
+  ``B = L``, one sparse matrix-vector kernel per bounce (``kernels/spmv.cl``) in float32
+  or float64: on CSR F, or for grey scenes on wide-SIMD CPUs on SELL-C F
+  (:mod:`pydynrad.devicesell`). F is uploaded once per :class:`RadiositySolver`, so re-lighting a scene costs
   a new light vector and the iterations, never a new upload.
 * ``"dense"``: numpy float64 LU solve of ``(I - P F) B = L``: the reference for small N.
 
@@ -29,7 +30,9 @@ import scipy.sparse as sp
 from .checks import check_form_factors
 from .device import real_dtype
 from .devicecsr import DeviceCSR
+from .devicesell import DeviceSELL
 from .errors import ConvergenceError, InvalidInputError, OutOfMemoryError
+from .launch import sell_layout
 from .lights import checked_light_vector
 from .memory import available_host_bytes
 
@@ -89,6 +92,10 @@ class RadiositySolver:
     dtype : np.float32 | np.float64
         Working precision of the kernels.
     device : Device, optional
+    layout : (LX, blocks), optional
+        The CSR kernel's layout (:func:`pydynrad.launch.spmv_layout`); forces CSR.
+
+    F is uploaded at once in the format of the scene's channels (:meth:`format`).
     """
 
     def __init__(self, scene, F, dtype=np.float32, device=None, *, layout: tuple[int, int] | None = None) -> None:
@@ -98,9 +105,32 @@ class RadiositySolver:
         self.dtype = real_dtype(dtype, self.device)
         F = check_form_factors(scene, F)
         self._n = len(scene)
-        self._F = DeviceCSR(self.device, F, self.dtype, layout)
+        self._host_F, self._layout, self._formats = F, layout, {}
         self.nnz = F.nnz
-        self.nbytes = self._F.nbytes
+        # Uploaded now in the format of the scene's own channels; a grey scene lit in colour may
+        # later add the other (docs/design.md, 'Full solve').
+        self._matrix(1 if scene.is_grey else 3)
+
+    def format(self, channels: int) -> str:
+        """The format F takes for ``channels`` (1 or 3): "csr", or "sell-C" for grey solves on
+        wide-SIMD CPUs (:func:`pydynrad.launch.sell_layout`); an explicit ``layout`` forces CSR."""
+        sell = self._sell(channels)
+        return "csr" if sell is None else f"sell-{sell.c}"
+
+    @property
+    def nbytes(self) -> int:
+        """Device bytes of F in every format uploaded so far (padding included)."""
+        return sum(m.nbytes for m in self._formats.values())
+
+    def _sell(self, channels: int):
+        return None if self._layout is not None else sell_layout(self.device, self.dtype.itemsize, channels)
+
+    def _matrix(self, channels: int):
+        key, sell = self.format(channels), self._sell(channels)
+        if key not in self._formats:
+            self._formats[key] = (DeviceCSR(self.device, self._host_F, self.dtype, self._layout) if sell is None
+                                  else DeviceSELL(self.device, self._host_F, self.dtype, sell))
+        return self._formats[key]
 
     def solve(self, L: np.ndarray, tol: float = 1e-6, max_iterations: int = 10000, bounces: int | None = None,
               raise_on_failure: bool = True) -> Solution:
@@ -111,7 +141,7 @@ class RadiositySolver:
         rho = self.scene.albedo.astype(np.float64)[:, :nch]
         t0 = time.perf_counter()
         # A fixed number of bounces never stops early (tol < 0).
-        B, it, residual, history = self._F.jacobi(L[:, :nch], rho, L[:, :nch], tol if bounces is None else -1.0,
+        B, it, residual, history = self._matrix(nch).jacobi(L[:, :nch], rho, L[:, :nch], tol if bounces is None else -1.0,
                                                   max_iterations)
         seconds = time.perf_counter() - t0
         converged = residual <= tol

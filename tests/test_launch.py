@@ -1,6 +1,8 @@
 """pydynrad.launch: global sizes, the kernels' required layout defines, and the per-device
 cache of scene arrays beside the BVH buffers."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -17,7 +19,7 @@ def test_global_size_rounds_up_to_whole_work_groups():
 @pytest.mark.parametrize("filename,missing", [
     ("update.cl", "VW, SW, WG, RR, CWMAX, NVMAX, NAMAX and RED_WG"),
     ("matvec.cl", "VW, LX, NRHS and RI"),
-    ("spmv.cl", "NCH and LX"),
+    ("spmv.cl", "NCH and LX or SELL_C"),
     ("gemm.cl", "VW and TM"),
 ])
 def test_kernels_take_layout_defines_from_the_host(device, filename, missing):
@@ -70,3 +72,17 @@ def test_patch_buffers_once_per_device_and_per_geometry(device):
     cl.enqueue_copy(device.queue, host, c2, is_blocking=True)
     # Centres go up in the scene's device frame (re-centred and scaled: docs/design.md, 'Device frame').
     assert np.array_equal(host[:, :3], other.frame.points(other.centers)) and not np.array_equal(other.centers, s.centers)
+
+
+def test_sell_layout_only_for_grey_solves_on_wide_simd_cpus():
+    from pydynrad.device import DeviceTraits
+    from pydynrad.launch import SELL_WINDOW_SLICES, sell_layout
+
+    avx512 = DeviceTraits(cpu=True, compute_units=2, float_width=16, double_width=8, max_work_group=4096,
+                          local_mem_bytes=1 << 20)
+    s = sell_layout(avx512, 4, 1)
+    assert (s.c, s.sigma, s.blocks, s.defines) == (16, 16 * SELL_WINDOW_SLICES, 32, {"SELL_C": 16})
+    assert sell_layout(avx512, 8, 1).c == 8
+    assert sell_layout(avx512, 4, 3) is None  # RGB: CSR's float4 loads beat three gathers
+    assert sell_layout(replace(avx512, float_width=8, double_width=4), 4, 1) is None  # AVX2
+    assert sell_layout(replace(avx512, cpu=False), 4, 1) is None
