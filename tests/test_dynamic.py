@@ -35,6 +35,28 @@ def setup():
     return scene, F
 
 
+def test_entering_blocks_equal_dense_indexing(setup):
+    """LocalRows.entering's F[S, J], F[J, S], F[J, J] and kept rows against plain numpy indexing
+    of the dense F, over frames of random swaps (the scatter map must be clean between calls)."""
+    from pydynrad.dynamic.localrows import LocalRows
+
+    scene, F = setup
+    D = F.toarray()
+    rng = np.random.default_rng(3)
+    ff = LocalRows(scene, F, 16, None)
+    S = rng.choice(len(scene), 40, replace=False)
+    ff.fetch_local(S)
+    for _ in range(5):
+        slots = rng.choice(40, 6, replace=False)
+        J = rng.choice(np.setdiff1d(np.arange(len(scene)), S), 6, replace=False)
+        F_SJ, F_JS, F_JJ = ff.entering(S, J, slots)
+        assert np.array_equal(F_SJ, D[np.ix_(S, J)]) and np.array_equal(F_JS, D[np.ix_(J, S)])
+        assert np.array_equal(F_JJ, D[np.ix_(J, J)])
+        S = S.copy()
+        S[slots] = J
+        assert np.array_equal(ff.local.toarray(), D[S])
+
+
 # -- exact mode ----------------------------------------------------------------------------------
 @pytest.mark.parametrize("storage", ["fp64", "fp32", "fp16"])
 def test_exact_walk_equals_fresh_build(device, setup, storage):

@@ -28,7 +28,9 @@ __all__ = ["UpdateKernels", "scratch_nbytes", "SPARSE_DENSITY"]
 #: most this share of 2 M. Measured (PoCL CPU, Xeon 2 cores, 2026-12-02, 8 vectors): 0.4-0.7x
 #: the dense pass's time at 2-10% non-zero slots, about even at 15-20%, slower above; a swap
 #: batch along a walk through a 6k-patch village had a median of 3% (M = 1024), 7% (M = 256).
-SPARSE_DENSITY = 0.15
+#: On the AMD EPYC (PoCL pthread, 2026-12-02, fp16, real swap batches of the 66k village,
+#: load ~5): 0.93x at 9%, 1.15-1.6x at 14-23% (M = 4,096), 1.25-1.4x at 35-44% (M = 1,024).
+SPARSE_DENSITY = 0.10
 
 
 def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, max_vectors: int,
