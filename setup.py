@@ -4,30 +4,13 @@ native helpers in ``csrc/`` (the BVH builder, ray batches' checks, the hemicube 
 
 from setuptools import Extension, find_packages, setup
 
+# pydynrad.<module>: csrc/<file>, each a small C extension with one job.
+NATIVE = {"_bvh": "bvh.c", "_raybatch": "rays.c", "_runs": "runs.c", "_segments": "segments.c"}
+
 setup(
     packages=[*find_packages(include=["pydynrad", "pydynrad.*"]), "pydynrad.kernels"],
     package_dir={"pydynrad": "pydynrad", "pydynrad.kernels": "kernels"},
     package_data={"pydynrad.kernels": ["*.cl", "*.h"]},
-    ext_modules=[
-        Extension(
-            "pydynrad._bvh",
-            sources=["csrc/bvh.c"],
-            extra_compile_args=["-O3", "-std=c99"],
-        ),
-        Extension(
-            "pydynrad._raybatch",
-            sources=["csrc/rays.c"],
-            extra_compile_args=["-O3", "-std=c99"],
-        ),
-        Extension(
-            "pydynrad._runs",
-            sources=["csrc/runs.c"],
-            extra_compile_args=["-O3", "-std=c99"],
-        ),
-        Extension(
-            "pydynrad._segments",
-            sources=["csrc/segments.c"],
-            extra_compile_args=["-O3", "-std=c99"],
-        ),
-    ],
+    ext_modules=[Extension(f"pydynrad.{name}", sources=[f"csrc/{source}"], extra_compile_args=["-O3", "-std=c99"])
+                 for name, source in NATIVE.items()],
 )
