@@ -133,6 +133,13 @@ def without_hidden(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.nda
     return rows
 
 
+def _column_mask(n_cols: int, columns: np.ndarray) -> np.ndarray:
+    """(n_cols,) bool: True at ``columns`` (index it by a CSR's indices to test its entries)."""
+    mask = np.zeros(n_cols, bool)
+    mask[columns] = True
+    return mask
+
+
 def with_reciprocal_columns(rows: sp.csr_matrix, row_patches: np.ndarray, object_rows: sp.csr_matrix,
                             object_patches: np.ndarray, areas: np.ndarray) -> sp.csr_matrix:
     """``rows`` (of ``row_patches``) with their columns ``object_patches`` set by reciprocity:
@@ -142,9 +149,7 @@ def with_reciprocal_columns(rows: sp.csr_matrix, row_patches: np.ndarray, object
     recip = sp.csr_matrix(object_rows[:, row_patches].T)
     recip.data = recip.data * A[object_patches][recip.indices] * np.repeat(1.0 / A[row_patches], np.diff(recip.indptr))
     kept = sp.csr_matrix(rows)
-    mask = np.zeros(kept.shape[1], bool)
-    mask[object_patches] = True
-    in_columns = mask[kept.indices]
+    in_columns = _column_mask(kept.shape[1], object_patches)[kept.indices]
     if in_columns.any():  # rows from the static F have none: no copy then
         kept = sp.csr_matrix((np.where(in_columns, 0.0, kept.data), kept.indices, kept.indptr), shape=kept.shape)
     placed = sp.csr_matrix((recip.data, object_patches[recip.indices], recip.indptr), shape=rows.shape)
@@ -164,8 +169,7 @@ def capped(rows: sp.csr_matrix, object_patches: np.ndarray):
     # Only the rows over 1 are touched (~3% of a move's ~1,000 on the bench's scene): the other
     # entries are neither masked nor copied, and the object entries (a few per row) are found by
     # their columns alone: a third of the time of masking every entry.
-    mask = np.zeros(rows.shape[1], bool)
-    mask[object_patches] = True
+    mask = _column_mask(rows.shape[1], object_patches)
     at_object = np.flatnonzero(mask[rows.indices])
     obj_row = np.searchsorted(rows.indptr, at_object, side="right") - 1
     obj_sum = np.bincount(obj_row, weights=rows.data[at_object], minlength=rows.shape[0])

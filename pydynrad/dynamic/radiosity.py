@@ -42,7 +42,7 @@ import numpy as np
 from ..checks import integer, number, resolution as checked_resolution, scene as checked_scene, vec3
 from ..errors import InvalidInputError, PydynradError
 from ..matvec import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
-from .localrows import LocalRows
+from .localrows import LocalRows, _replace_rows
 from .selection import NearestSet
 from .stale import StaleRows
 
@@ -63,7 +63,6 @@ def swap_size(max_swaps: int, object_patches: int) -> int:
     """The most vectors per batch of the update kernels: a frame's swaps, or a move's batch
     of the objects' patches when larger (a 48-patch block in one batch, not 32 + 16)."""
     return max(max_swaps, min(object_patches, MOVE_SWAPS_LIMIT))
-
 
 
 @dataclass
@@ -371,7 +370,6 @@ class DynamicRadiosity:
         self._warm_up()
 
     def _build(self, local_patches: np.ndarray, fetch: bool = True) -> None:
-        from .localrows import _replace_rows
         from .paper import UsedPatches
 
         local_patches = np.asarray(local_patches, dtype=np.int64)
@@ -505,7 +503,6 @@ class DynamicRadiosity:
         """Swap the moved objects' patches and the most changed rows with their new rows; the
         count refreshed and the hemicubes computed."""
         from .exact import exact_swap
-        from .localrows import _replace_rows
         from .moves import stale_rows, swap_chunks
 
         moves = list(self._pending.values())
