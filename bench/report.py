@@ -42,9 +42,21 @@ def slugify(text: str) -> str:
 
 
 def device_slug(info: dict) -> str:
-    """The name of a device's results folder, from its OpenCL device name (``Device.info()["device"]``):
-    ``"pthread-Intel(R) Xeon(R) Processor"`` -> ``"pthread-intel-r-xeon-r-processor"``."""
-    return slugify(info.get("device") or "")
+    """The name of a device's results folder (``Device.info()`` as ``info``): the OpenCL device
+    name, then for a PoCL CPU device the CPU its compiler targets (the end of the version's
+    ``HSTR: pthread-<triple>-<cpu>``), because cloud CPUs report bare model names that several
+    generations share (``"pthread-AMD EPYC"`` is a Zen 2, a Zen 3 and a Zen 5 here). Where LLVM
+    did not know the CPU (``generic``), the host's family from /proc/cpuinfo stands in:
+    ``"pthread-AMD EPYC"`` on ``...-znver2`` -> ``"pthread-amd-epyc-znver2"``; on ``...-generic``,
+    family 1Ah -> ``"pthread-amd-epyc-family-1ah"``."""
+    name = info.get("device") or ""
+    match = re.search(r"HSTR:\s*pthread-\S+-(\S+)$", info.get("version") or "")
+    if match:
+        cpu = match.group(1)
+        if cpu == "generic" and info.get("cpu_family"):
+            cpu = "family-" + str(info["cpu_family"]).split("/")[0]
+        name = f"{name} {cpu}"
+    return slugify(name)
 
 
 def device_dir(info: dict, root=RESULTS_ROOT) -> Path:
@@ -201,7 +213,7 @@ def write_index(root=RESULTS_ROOT) -> Path:
     root = Path(root)
     lines = ["# Benchmark results, one folder per device", "",
              "Written by `python -m bench` (bench/report.py, `write_index`) after each run: the folder is "
-             "the OpenCL device name as a slug (`Device.info()[\"device\"]`), the dates are those of the "
+             "the OpenCL device name and the CPU PoCL compiles for, as a slug (`device_slug`), the dates are those of the "
              "JSON reports in it (UTC).", ""]
     for folder in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".") and p.name != "tmp"):
         dates = _report_dates(folder)

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .errors import DeviceError, InvalidInputError, KernelBuildError
-from .pocl_target import cache_tag, fix_generic_cpu, replaced_cpu
+from .pocl_target import cache_tag, fix_generic_cpu, host_cpu_family, replaced_cpu
 
 if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays cheap
     import pyopencl as cl
@@ -275,6 +275,7 @@ class Device:
             "fp64": self.supports_fp64,
             "fp16_arithmetic": "cl_khr_fp16" in d.extensions,
             **({"compiler_cpu": f"{replaced_cpu(d)} (PoCL's LLVM does not know this CPU)"} if replaced_cpu(d) else {}),
+            **({"cpu_family": host_cpu_family()} if self.is_cpu and host_cpu_family() else {}),
         }
 
     def to_device(self, array: np.ndarray):

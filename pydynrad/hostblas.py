@@ -5,7 +5,7 @@ device is the host's own CPU (PoCL), the kernels queued on it hold those cores, 
 BLAS thread beyond the first competes with them and with the other BLAS threads: the exact
 swap's k x M products (M = 1024, k = 48) took a median of 7.8-11.7 ms with OpenBLAS's two
 threads and 3.4 ms with one on a loaded 2-core Xeon (PoCL, 2026-12-02), and a moving-object
-frame 324-399 ms against 145-195 ms (bench/results/pthread-intel-r-xeon-r-processor/objects-openblas-1-thread/).
+frame 324-399 ms against 145-195 ms (bench/results/pthread-intel-r-xeon-r-processor-rocketlake/objects-openblas-1-thread/).
 Big solves with the device idle (the K build) keep their threads, except where the channels
 already run side by side (:mod:`pydynrad.multibounce`).
 """

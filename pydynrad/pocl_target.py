@@ -31,12 +31,13 @@ other's binaries.
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 import platform
 import threading
 from pathlib import Path
 
-__all__ = ["psabi_level", "library_cpu", "target_name", "cache_tag", "fix_generic_cpu", "replaced_cpu"]
+__all__ = ["host_cpu_family", "psabi_level", "library_cpu", "target_name", "cache_tag", "fix_generic_cpu", "replaced_cpu"]
 
 # PoCL 3.0's x86-64 kernel library variants (lib/CL/pocl_llvm_utils.cc, kernellib_feature_map), in
 # its order (the last that matches wins): the CPU each was compiled for, the /proc/cpuinfo flags
@@ -77,15 +78,35 @@ def psabi_level(flags: set[str]) -> str:
     return name
 
 
-def _cpu_flags() -> set[str]:
+@functools.cache
+def _cpuinfo() -> dict[str, str]:
+    """The first processor's fields of /proc/cpuinfo (empty where there is none)."""
     try:
         text = Path("/proc/cpuinfo").read_text()
     except OSError:
-        return set()
+        return {}
+    fields: dict[str, str] = {}
     for line in text.splitlines():
-        if line.startswith("flags"):
-            return set(line.partition(":")[2].split())
-    return set()
+        if not line.strip():
+            break
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    return fields
+
+
+def _cpu_flags() -> set[str]:
+    return set(_cpuinfo().get("flags", "").split())
+
+
+def host_cpu_family() -> str | None:
+    """The host CPU's family and model as /proc/cpuinfo gives them, in hex as vendors write them
+    (``"17h/31h"`` for an AMD Zen 2 EPYC), or None where unknown. Cloud CPUs often report a bare
+    model name (``"AMD EPYC"``) shared by several generations; this tells them apart."""
+    info = _cpuinfo()
+    try:
+        return f"{int(info['cpu family']):x}h/{int(info['model']):x}h"
+    except (KeyError, ValueError):
+        return None
 
 
 def library_cpu(flags: set[str]) -> str:

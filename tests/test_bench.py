@@ -78,8 +78,13 @@ def test_slug_and_format():
 
 
 def test_results_per_device_and_index(tmp_path):
-    xeon, epyc = {"device": "pthread-Intel(R) Xeon(R) Processor"}, {"device": "pthread-AMD EPYC"}
-    assert report.device_dir(xeon, tmp_path) == tmp_path / "pthread-intel-r-xeon-r-processor"
+    hstr = "OpenCL 3.0 PoCL HSTR: pthread-x86_64-unknown-linux-gnu-"
+    xeon = {"device": "pthread-Intel(R) Xeon(R) Processor", "version": hstr + "rocketlake"}
+    epyc = {"device": "pthread-AMD EPYC", "version": hstr + "znver2", "cpu_family": "17h/31h"}
+    zen5 = {"device": "pthread-AMD EPYC", "version": hstr + "generic", "cpu_family": "1ah/2h"}
+    assert report.device_dir(xeon, tmp_path) == tmp_path / "pthread-intel-r-xeon-r-processor-rocketlake"
+    assert report.device_slug(zen5) == "pthread-amd-epyc-family-1ah"
+    assert report.device_slug({"device": "NVIDIA H200", "version": "OpenCL 3.0 CUDA"}) == "nvidia-h200"
     assert report.device_dir(epyc).parent == report.RESULTS_ROOT
     assert suite.report_name("quick", list(suite.SECTIONS)) == "quick"
     assert suite.report_name("quick", ["dynamic", "paper"]) == "quick-dynamic-paper"
@@ -88,10 +93,11 @@ def test_results_per_device_and_index(tmp_path):
         folder = report.device_dir(info, tmp_path) / (sub or "")
         folder.mkdir(parents=True, exist_ok=True)
         (folder / f"r{len(list(folder.iterdir()))}.json").write_text(json.dumps({"device": info, "date": date}))
-    (tmp_path / "pthread-amd-epyc" / "notes.json").write_text("not a report")  # skipped, not a crash
+    (tmp_path / "pthread-amd-epyc-znver2" / "notes.json").write_text("not a report")  # skipped, not a crash
     lines = report.write_index(tmp_path).read_text().splitlines()
-    assert "- [`pthread-amd-epyc/`](pthread-amd-epyc/): 2026-12-02" in lines
-    assert ("- [`pthread-intel-r-xeon-r-processor/`](pthread-intel-r-xeon-r-processor/): 2026-11-23, 2026-12-02; "
+    assert "- [`pthread-amd-epyc-znver2/`](pthread-amd-epyc-znver2/): 2026-12-02" in lines
+    assert ("- [`pthread-intel-r-xeon-r-processor-rocketlake/`](pthread-intel-r-xeon-r-processor-rocketlake/): "
+            "2026-11-23, 2026-12-02; "
             "sub-folders `full/`") in lines
 
 

@@ -264,7 +264,7 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
       ``samples``): then G is F Pr of the very rows the local set reads (to float32 rounding). A lower one is cheaper but
       disagrees with them: at night (village, one lamp, M = 1024) R_G = 24 against rows of
       R = 32 left 11.3% mean pixel error and R_G = 48 7.7%, against 0.11% for G = F Pr
-      (bench/results/pthread-intel-r-xeon-r-processor/farstore-quick.md, PoCL CPU, 2026-12-02);
+      (bench/results/pthread-intel-r-xeon-r-processor-rocketlake/farstore-quick.md, PoCL CPU, 2026-12-02);
     * any other source (F in memory, a store of F without G) gets F Pr from its own rows,
       :data:`SUM_BLOCK_ROWS` at a time, so G agrees with that F; a store with neither G nor all
       of F raises :class:`~pydynrad.StoreIncompleteError`.

@@ -725,7 +725,7 @@ def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: di
         if cluster_resolution is None:
             # F's own: G is then F Pr of the stored rows, or (--no-f) of the rows a walk computes
             # on demand at that resolution; at another one the two disagree (11.3% mean pixel
-            # error at night with G at 24 and rows at 32: bench/results/pthread-intel-r-xeon-r-processor/farstore-quick.md).
+            # error at night with G at 24 and rows at 32: bench/results/pthread-intel-r-xeon-r-processor-rocketlake/farstore-quick.md).
             cluster_resolution = resolution
         store.set_clusters(basis_prolongation(scene, clusters, cluster_basis), resolution=cluster_resolution,
                            params=cluster_params, basis="given" if given else cluster_basis)
