@@ -17,11 +17,12 @@
 //           indices per vector load, gathering x from cache. A tight loop of one thread.
 //   LX > 1  (GPUs, CSR-vector): the group's LX items share each row, reading adjacent
 //           entries (coalesced), and reduce in local memory.
-// NCH and LX (or SELL_C, below) are required: the host picks NCH, pydynrad/launch.py LX or SELL_C.
+// NCH and LX (or SELL_C, below) are required: the host picks NCH, pydynrad/launch.py LX or SELL_C,
+// and RGB_STEP (float32 RGB entries per vector step on CPUs: 4 with 16-float registers, else 2).
 #include "storage.h"
 
-#if !defined(NCH) || !(defined(LX) || defined(SELL_C))
-#error "spmv.cl needs NCH and LX or SELL_C from the host (pydynrad/devicecsr.py, pydynrad/launch.py)"
+#if !defined(NCH) || !(defined(LX) || defined(SELL_C)) || (defined(LX) && !defined(RGB_STEP))
+#error "spmv.cl needs NCH and LX (with RGB_STEP) or SELL_C from the host (pydynrad/devicecsr.py, pydynrad/launch.py)"
 #endif
 
 #if NCH == 1
@@ -32,6 +33,7 @@ typedef REALV(4) VEC;
 #define VABSMAX(v) fmax(fmax(fabs((v).x), fabs((v).y)), fabs((v).z))
 #endif
 
+#ifdef LX
 // sum_k vals[k] x[cols[k]] over k in [k, end) for one work-item, several entries per step.
 // Indices and values are read element by element, not by vload: PoCL does not inline its
 // vload builtins, and a call per step cost the RGB loop 1.6-1.7x (village, 35 M non-zeros,
@@ -51,8 +53,11 @@ inline VEC row_dot(__global const int *cols, __global const REAL *vals, __global
         accv = fma(v, xv, accv);
     }
     acc = HSUM(8, accv);
-#elif defined(STORAGE_FP64)
-    // Entries in pairs: one 8-wide vector holds two whole RGB(A) gathers of x.
+#elif defined(STORAGE_FP64) || RGB_STEP == 2
+    // Entries in pairs: one 8-wide vector holds two whole RGB(A) gathers of x. float32 takes
+    // this path on CPUs with 8-float registers (AVX2): there the 16-wide loop below ran 1.9x
+    // slower (62 -> 33 ms per RGB bounce, 35 M non-zeros, PoCL pthread AMD EPYC Zen 2,
+    // 2026-12-02), LLVM splitting its 512-bit vectors through shuffles.
     REALV(8) a8 = (REALV(8))(0), b8 = (REALV(8))(0);
     for (; k + 4 <= end; k += 4) {
         const int4 c = (int4)(cols[k], cols[k + 1], cols[k + 2], cols[k + 3]);
@@ -62,7 +67,7 @@ inline VEC row_dot(__global const int *cols, __global const REAL *vals, __global
     }
     a8 += b8;
     acc = a8.lo + a8.hi;
-#else
+#else  // RGB_STEP == 4
     // Entries in fours: one 16-wide vector holds four whole RGB(A) gathers of x (a 512-bit
     // register; four separate float4 accumulators ran 1.6x slower on PoCL/AVX-512).
     REALV(16) a16 = (REALV(16))(0);
@@ -78,7 +83,6 @@ inline VEC row_dot(__global const int *cols, __global const REAL *vals, __global
     return acc;
 }
 
-#ifdef LX
 __kernel __attribute__((reqd_work_group_size(LX, 1, 1)))
 void bounce(__global const int *blk, __global const int *rowptr, __global const int *cols, __global const REAL *vals,
             __global const VEC *L, __global const VEC *rho, __global const VEC *x, __global VEC *y,

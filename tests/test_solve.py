@@ -282,6 +282,23 @@ def test_kernel_layouts_give_the_series(device, layout, grey):
     assert sol.residual == pytest.approx(r, rel=1e-12)  # observed 1.1e-14
 
 
+@pytest.mark.parametrize("layout", [(1, 3, 2), (1, 3, 4)])
+def test_float32_rgb_steps_give_the_series(device, layout):
+    """Both vector steps of the float32 RGB loop (pairs of entries for 8-float registers, fours
+    for 16-float ones; each machine uses one) compute the same bounces, on rows of every length
+    mod 4."""
+    from pydynrad.solve import RadiositySolver
+
+    rng = np.random.default_rng(17)
+    s = box_scene(3)
+    s = s.with_materials(albedo=rng.uniform(0, 0.9, (len(s), 3)), emission=rng.uniform(0, 1, (len(s), 3)))
+    F = _leaky_F_with_empty_rows(s, seed=18)
+    L = s.emission.astype(np.float64)
+    sol = RadiositySolver(s, F, dtype=np.float32, device=device, layout=layout).solve(L, bounces=4)
+    truth = _series(s, F, L, 4)
+    assert np.abs(sol.radiosity - truth).max() < 2e-7 * np.abs(truth).max()  # observed 5.5e-8
+
+
 def test_row_blocks_cover_every_row_with_balanced_entries():
     from pydynrad.devicecsr import row_blocks
 
@@ -305,6 +322,8 @@ def test_bad_layout_refused(device):
     s = box_scene(2, emission=1.0)
     with pytest.raises(pydynrad.InvalidInputError, match="layout"):
         RadiositySolver(s, reciprocal_F(s.areas), device=device, layout=(3, 4))
+    with pytest.raises(pydynrad.InvalidInputError, match="RGB_STEP"):
+        RadiositySolver(s, reciprocal_F(s.areas), device=device, layout=(1, 4, 3))
 
 
 @pytest.mark.parametrize("traits", [{}, {"float_width": 8, "double_width": 4}, {"cpu": False}])
