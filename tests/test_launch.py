@@ -19,13 +19,19 @@ def test_global_size_rounds_up_to_whole_work_groups():
 @pytest.mark.parametrize("filename,missing", [
     ("update.cl", "VW, SW, WG, RR, CWMAX, NVMAX, NAMAX and RED_WG"),
     ("matvec.cl", "VW, LX, NRHS and RI"),
-    ("spmv.cl", "NCH and LX or SELL_C"),
+    ("spmv.cl", "NCH and LX (with RGB_STEP) or SELL_C"),
     ("gemm.cl", "VW and TM"),
 ])
 def test_kernels_take_layout_defines_from_the_host(device, filename, missing):
     with pytest.raises(pydynrad.KernelBuildError) as info:
         device.program(filename, {"STORAGE_FP32": 1})
     assert f"needs {missing} from the host" in info.value.build_log
+
+
+def test_spmv_needs_the_rgb_step_with_lx(device):
+    with pytest.raises(pydynrad.KernelBuildError) as info:
+        device.program("spmv.cl", {"STORAGE_FP32": 1, "NCH": 4, "LX": 1})
+    assert "needs NCH and LX (with RGB_STEP) or SELL_C from the host" in info.value.build_log
 
 
 def test_path_tracer_needs_the_bounce_limit(device):
