@@ -30,6 +30,9 @@ __all__ = ["UpdateKernels", "scratch_nbytes", "SPARSE_DENSITY"]
 #: batch along a walk through a 6k-patch village had a median of 3% (M = 1024), 7% (M = 256).
 #: On the AMD EPYC (PoCL pthread, 2026-12-02, fp16, real swap batches of the 66k village,
 #: load ~5): 0.93x at 9%, 1.15-1.6x at 14-23% (M = 4,096), 1.25-1.4x at 35-44% (M = 1,024).
+#: On an AVX2 AMD EPYC (Zen 2, quiet, 2026-12-02, fp32, 8 vectors) the dense pass is slower
+#: (compute-bound on 8-float FMAs): even at ~13% (M = 1,024), ~19% (M = 4,096), so this
+#: threshold gives away up to 15% there at 10-19%; a crossover per device is not yet measured.
 SPARSE_DENSITY = 0.10
 
 
