@@ -66,6 +66,7 @@ def _kernel_rows(device, sizes, copy_gbs):
         for storage in STORAGES:
             m = DeviceMatrix(device, rng.random((1, M, M)) * 1e-3, storage)  # written pages, realistic values
             uk = UpdateKernels(m, kmax)
+            uk.warm_up()  # as a DynamicRadiosity does: programs compiled, the sparse gathers' threshold measured
             kb = M * m.ld * m.dtype.itemsize
             a, b = rng.random((2 * kmax, M)) * 1e-9, rng.random((2 * kmax, M))
             x = rng.random((kmax, M))

@@ -472,12 +472,10 @@ def test_frames_build_no_program(device, setup):
 def test_sparse_and_dense_gathers_give_one_K(device, setup, monkeypatch, mode):
     """The same walk with the sparse gathers forced on and off: K within rounding of each other
     (exact mode also of a fresh build over the final set)."""
-    import pydynrad.dynamic.kupdate as kupdate
-
     scene, F = setup
     out = {}
     for share in (0.0, 1.0):  # 0: never sparse (every batch has non-zeros), 1: always
-        monkeypatch.setattr(kupdate, "SPARSE_DENSITY", share)
+        monkeypatch.setenv("PYDYNRAD_SPARSE_DENSITY", str(share))
         dyn = DynamicRadiosity(scene, F, local_size=48, update=mode, storage="fp64", max_swaps_per_frame=6,
                                observer=[0.5, 0.5, 0.5], device=device)
         for p in observer_walk(np.random.default_rng(7), 30):

@@ -147,3 +147,37 @@ def test_sparse_gathers_equal_the_dense_pass(device, storage, M):
     Y = rng.uniform(0, 1, (C, 2, M))
     KX, YK = uk.gather_all(np.zeros((C, 2, M)), Y, sparse=True)
     assert not KX.any() and rel(YK[1], Y[1] @ K[1]) < tol
+
+
+def test_crossover_of_the_sparse_gathers():
+    from pydynrad.dynamic.kupdate import crossover
+
+    # sparse 2 s at 4%, 6 s at 24%: 20 s per unit of density; it meets a 10 s dense pass at 44%
+    assert crossover(10.0, (2.0, 6.0), (0.04, 0.24)) == pytest.approx(0.44)
+    assert crossover(1.0, (2.0, 6.0), (0.04, 0.24)) == 0.02  # dense always faster: the floor
+    assert crossover(100.0, (2.0, 6.0), (0.04, 0.24)) == 0.5  # a probe tells no more than this
+    assert crossover(5.0, (3.0, 3.0), (0.04, 0.24)) == 0.24  # flat (noise): as far as measured
+    assert crossover(2.0, (3.0, 3.0), (0.04, 0.24)) == 0.04
+
+
+def test_warm_up_measures_the_crossover_once(device, monkeypatch):
+    import pydynrad
+    from pydynrad.dynamic import kupdate
+
+    monkeypatch.delenv("PYDYNRAD_SPARSE_DENSITY", raising=False)
+    monkeypatch.setattr(kupdate, "_CROSSOVERS", {})
+    M = 96
+    m = DeviceMatrix(device, np.random.default_rng(3).random((1, M, M)) * 1e-2, "fp32")
+    first = UpdateKernels(m, 4)
+    assert first.sparse_density == kupdate.SPARSE_DENSITY  # before warm_up
+    first.warm_up()
+    assert 0.02 <= first.sparse_density <= 0.5 and len(kupdate._CROSSOVERS) == 1
+    again = UpdateKernels(m, 4)
+    again.warm_up()
+    assert again.sparse_density == first.sparse_density and len(kupdate._CROSSOVERS) == 1
+    monkeypatch.setenv("PYDYNRAD_SPARSE_DENSITY", "0.3")
+    again.warm_up()
+    assert again.sparse_density == 0.3
+    monkeypatch.setenv("PYDYNRAD_SPARSE_DENSITY", "lots")
+    with pytest.raises(pydynrad.InvalidInputError, match="PYDYNRAD_SPARSE_DENSITY"):
+        again.warm_up()

@@ -17,12 +17,15 @@ See docs/design.md, 'Cost model', and kernels/README.md for the kernels' defines
 
 from __future__ import annotations
 
+import os
+import time
+
 import numpy as np
 
 from ..errors import InvalidInputError
 from ..launch import CPU_ROWS, WG, UpdateLayout, global_size, round_up
 
-__all__ = ["UpdateKernels", "scratch_nbytes", "SPARSE_DENSITY"]
+__all__ = ["UpdateKernels", "scratch_nbytes", "SPARSE_DENSITY", "PROBE_DENSITIES", "crossover"]
 
 #: The sparse gathers run when the vectors' non-zero slots, on both sides together, are at
 #: most this share of 2 M. Measured (PoCL CPU, Xeon 2 cores, 2026-12-02, 8 vectors): 0.4-0.7x
@@ -30,10 +33,42 @@ __all__ = ["UpdateKernels", "scratch_nbytes", "SPARSE_DENSITY"]
 #: batch along a walk through a 6k-patch village had a median of 3% (M = 1024), 7% (M = 256).
 #: On the AMD EPYC (PoCL pthread, 2026-12-02, fp16, real swap batches of the 66k village,
 #: load ~5): 0.93x at 9%, 1.15-1.6x at 14-23% (M = 4,096), 1.25-1.4x at 35-44% (M = 1,024).
-#: On an AVX2 AMD EPYC (Zen 2, quiet, 2026-12-02, fp32, 8 vectors) the dense pass is slower
-#: (compute-bound on 8-float FMAs): even at ~13% (M = 1,024), ~19% (M = 4,096), so this
-#: threshold gives away up to 15% there at 10-19%; a crossover per device is not yet measured.
+#: On an AVX2 AMD EPYC (Zen 2, quiet, 2026-12-02, fp32, 8 vectors, M = 4,096) the dense pass
+#: is compute-bound on 8-float FMAs (9.3-9.5 ms) and the sparse gathers beat it up to ~29%
+#: (3.4 / 5.4 / 7.6 / 9.9 ms at 3 / 10 / 20 / 30%). So this is only the threshold before
+#: :meth:`UpdateKernels.warm_up` measures the device's own (:data:`PROBE_DENSITIES`).
 SPARSE_DENSITY = 0.10
+
+#: The densities at which :meth:`UpdateKernels.warm_up` times the sparse gathers against the
+#: dense pass (best of 3 each, on channel 0 and the device's own K): the sparse gathers' time
+#: grows linearly with the density, the dense pass's does not, so two points give where they
+#: cross on this device for this M and storage. Kept per process (:data:`_CROSSOVERS`);
+#: ``PYDYNRAD_SPARSE_DENSITY`` fixes the threshold instead.
+PROBE_DENSITIES = (0.04, 0.24)
+_CROSSOVERS: dict[tuple, float] = {}
+
+
+def crossover(dense_s: float, sparse_s: tuple[float, float], densities=PROBE_DENSITIES) -> float:
+    """The density (share of 2 M slots) at which the sparse gathers, timed ``sparse_s`` at
+    ``densities``, take as long as the dense pass (``dense_s``), on the line through the two
+    points; clipped to [0.02, 0.5] (a probe cannot tell more on a noisy machine)."""
+    (d0, d1), (t0, t1) = densities, sparse_s
+    slope = (t1 - t0) / (d1 - d0)
+    d = d0 + (dense_s - t0) / slope if slope > 0 else (d1 if t1 <= dense_s else d0)
+    return float(np.clip(d, 0.02, 0.5))
+
+
+def _density_from_env() -> float | None:
+    text = os.environ.get("PYDYNRAD_SPARSE_DENSITY")
+    if not text:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 <= value <= 1.0:
+        raise InvalidInputError(f"PYDYNRAD_SPARSE_DENSITY must be a share of the slots in [0, 1]; got {text!r}")
+    return value
 
 
 def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, max_vectors: int,
@@ -85,6 +120,9 @@ class UpdateKernels:
         if dev.queue.properties & cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE:
             raise InvalidInputError("UpdateKernels needs an in-order command queue")
         self._inflight: list[np.ndarray] = []  # host arrays of uploads not yet known complete
+        #: gather_all's sparse gathers run at or below this share of 2 M non-zero slots:
+        #: SPARSE_DENSITY until warm_up measures this device's crossover.
+        self.sparse_density = SPARSE_DENSITY
         self._slots_held: np.ndarray | None = None  # what the last upload put into _slots
 
     @property
@@ -154,6 +192,39 @@ class UpdateKernels:
         self.write_slots(0, [0], cols, rows)
         self.double_reflection(zero[0], zero[0], zero[0])
         self.device.queue.finish()
+        self.sparse_density = self._measured_density()
+
+    def _measured_density(self) -> float:
+        """This device's crossover of the sparse gathers and the dense pass (:func:`crossover`),
+        measured once per process for each (device, M, storage, vectors); K is only read."""
+        fixed = _density_from_env()
+        if fixed is not None:
+            return fixed
+        key = (self.device.cl_device.int_ptr, self.M, self.matrix.dtype.itemsize, self.real.itemsize, self.nv_max)
+        if key not in _CROSSOVERS:
+            rng = np.random.default_rng(0)
+            X, Y = rng.standard_normal((2, self.nv_max, self.M))
+
+            def best_of_3(run) -> float:
+                times = []
+                for _ in range(3):
+                    t0 = time.perf_counter()
+                    run()
+                    self.device.queue.finish()
+                    times.append(time.perf_counter() - t0)
+                    self._inflight.clear()
+                return min(times)
+
+            sparse = []
+            for d in PROBE_DENSITIES:
+                k = max(1, round(d * self.M))  # k slots on each side: k / M of 2 M
+                cols, rows = (np.sort(rng.choice(self.M, k, replace=False)).astype(np.int32) for _ in range(2))
+                Xs, Ys = np.zeros_like(X), np.zeros_like(Y)
+                Xs[:, cols], Ys[:, rows] = X[:, cols], Y[:, rows]
+                sparse.append(best_of_3(lambda: self._enqueue_sparse_gather(0, Xs, Ys, cols, rows)))
+            dense = best_of_3(lambda: self._enqueue_gather(0, X, Y))
+            _CROSSOVERS[key] = crossover(dense, tuple(sparse))
+        return _CROSSOVERS[key]
 
     # -- operations -------------------------------------------------------------------------------
     def _enqueue_gather(self, channel: int, X: np.ndarray, Y: np.ndarray) -> int:
@@ -222,7 +293,7 @@ class UpdateKernels:
 
         ``sparse``: use the sparse gathers (``gather_sparse_cols``/``_rows``: K's part on the
         slots where some X[c] or Y[c] is non-zero) or the dense pass; None picks the sparse ones
-        when those slots are at most :data:`SPARSE_DENSITY` of 2 M.
+        when those slots are at most :attr:`sparse_density` of 2 M.
 
         Returns KX, YK (C, n, M) and, with ``slots``, cols, rows (C, k, M), float64."""
         C = self.matrix.C
@@ -235,7 +306,7 @@ class UpdateKernels:
         cols = np.flatnonzero(np.any(X != 0, axis=(0, 1))).astype(np.int32)
         rows = np.flatnonzero(np.any(Y != 0, axis=(0, 1))).astype(np.int32)
         if sparse is None:
-            sparse = len(cols) + len(rows) <= SPARSE_DENSITY * 2 * self.M
+            sparse = len(cols) + len(rows) <= self.sparse_density * 2 * self.M
         reads = []
         for c in range(C):
             if slots is not None:
