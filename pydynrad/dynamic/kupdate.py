@@ -196,11 +196,12 @@ class UpdateKernels:
 
     def _measured_density(self) -> float:
         """This device's crossover of the sparse gathers and the dense pass (:func:`crossover`),
-        measured once per process for each (device, M, storage, vectors); K is only read."""
+        measured once per process for each (device, kernel kind, M, storage, vectors); K is only read."""
         fixed = _density_from_env()
         if fixed is not None:
             return fixed
-        key = (self.device.cl_device.int_ptr, self.M, self.matrix.dtype.itemsize, self.real.itemsize, self.nv_max)
+        key = (self.device.cl_device.int_ptr, self.layout.cpu, self.M, self.matrix.dtype.itemsize, self.real.itemsize,
+               self.nv_max)
         if key not in _CROSSOVERS:
             rng = np.random.default_rng(0)
             X, Y = rng.standard_normal((2, self.nv_max, self.M))
