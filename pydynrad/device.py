@@ -264,6 +264,7 @@ class Device:
     def info(self) -> dict[str, object]:
         """What a user needs to know about this device, as plain values."""
         d = self.cl_device
+        family = host_cpu_family() if self.is_cpu else None
         return {
             "platform": d.platform.name.strip(),
             "device": d.name.strip(),
@@ -275,7 +276,7 @@ class Device:
             "fp64": self.supports_fp64,
             "fp16_arithmetic": "cl_khr_fp16" in d.extensions,
             **({"compiler_cpu": f"{replaced_cpu(d)} (PoCL's LLVM does not know this CPU)"} if replaced_cpu(d) else {}),
-            **({"cpu_family": host_cpu_family()} if self.is_cpu and host_cpu_family() else {}),
+            **({"cpu_family": family} if family else {}),
         }
 
     def to_device(self, array: np.ndarray):

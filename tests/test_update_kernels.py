@@ -178,6 +178,7 @@ def test_warm_up_measures_the_crossover_once(device, monkeypatch):
     monkeypatch.setenv("PYDYNRAD_SPARSE_DENSITY", "0.3")
     again.warm_up()
     assert again.sparse_density == 0.3
+    assert UpdateKernels(m, 4).sparse_density == 0.3  # fixed before any warm_up too
     monkeypatch.setenv("PYDYNRAD_SPARSE_DENSITY", "lots")
     with pytest.raises(pydynrad.InvalidInputError, match="PYDYNRAD_SPARSE_DENSITY"):
         again.warm_up()

@@ -121,8 +121,9 @@ class UpdateKernels:
             raise InvalidInputError("UpdateKernels needs an in-order command queue")
         self._inflight: list[np.ndarray] = []  # host arrays of uploads not yet known complete
         #: gather_all's sparse gathers run at or below this share of 2 M non-zero slots:
-        #: SPARSE_DENSITY until warm_up measures this device's crossover.
-        self.sparse_density = SPARSE_DENSITY
+        #: PYDYNRAD_SPARSE_DENSITY where set, else SPARSE_DENSITY until warm_up measures this
+        #: device's crossover.
+        self.sparse_density = self._threshold(measure=False)
         self._slots_held: np.ndarray | None = None  # what the last upload put into _slots
 
     @property
@@ -192,14 +193,17 @@ class UpdateKernels:
         self.write_slots(0, [0], cols, rows)
         self.double_reflection(zero[0], zero[0], zero[0])
         self.device.queue.finish()
-        self.sparse_density = self._measured_density()
+        self.sparse_density = self._threshold(measure=True)
 
-    def _measured_density(self) -> float:
-        """This device's crossover of the sparse gathers and the dense pass (:func:`crossover`),
-        measured once per process for each (device, kernel kind, M, storage, vectors); K is only read."""
+    def _threshold(self, measure: bool) -> float:
+        """PYDYNRAD_SPARSE_DENSITY where set; else, with ``measure``, this device's crossover of
+        the sparse gathers and the dense pass (:func:`crossover`), measured once per process for
+        each (device, kernel kind, M, storage, vectors), K only read; else SPARSE_DENSITY."""
         fixed = _density_from_env()
         if fixed is not None:
             return fixed
+        if not measure:
+            return SPARSE_DENSITY
         key = (self.device.cl_device.int_ptr, self.layout.cpu, self.M, self.matrix.dtype.itemsize, self.real.itemsize,
                self.nv_max)
         if key not in _CROSSOVERS:
