@@ -38,6 +38,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..checks import integer, number, resolution as checked_resolution, scene as checked_scene, vec3
 from ..errors import InvalidInputError, PydynradError
@@ -153,7 +154,8 @@ class DynamicRadiosity:
         may see a moved object (from the static F, no hemicube), swap the ``occlusion`` budget of
         them into K and correct :meth:`radiosity` for the rest by a few iterations with K
         (:mod:`pydynrad.dynamic.stale`; about as accurate as refreshing every row, for no swap
-        slots). False: the rows left stale are used as they are (at ``occlusion=0`` the
+        slots). At ``occlusion=0`` a move swaps nothing, not even the objects' own rows: they
+        are corrected for like the others, K stays as built, :meth:`refresh` takes them all in. False: the rows left stale are used as they are (at ``occlusion=0`` the
         cheapest move). No effect with hemicube rows (``form_factors=None``).
     poses : PoseRows, optional
         Rows precomputed for configurations of the objects known in advance
@@ -521,6 +523,13 @@ class DynamicRadiosity:
         order, new_rows, hemicubes, left = source.refresh(moved, S[others], others, self._ff.local, spheres,
                                                           self.occlusion, self._last_B, self.occlusion_correction)
         slots = np.concatenate([slot_of[moved], others[order]])
+        if self.occlusion == 0 and left is not None:
+            # Budget 0 with the correction: no swap. The objects' new rows join the rows left
+            # stale, K keeps the rows it was built from, and radiosity() solves with all of them
+            # (a rank-2k swap of every object slot cost more than the rest of the move).
+            self._stale.put(np.concatenate([slots, others[left[0]]]), sp.vstack([new_rows, left[1]], format="csr"))
+            self._stale.update(self._ff.local)
+            return 0, hemicubes
         local = _replace_rows(self._ff.local, slots, new_rows)
         local = stale_rows(local, slots, S, slot_of[moved], moved, self.scene.areas)
         rho = self._rho(S)
