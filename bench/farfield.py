@@ -19,11 +19,12 @@ default until 2026-12-02: shared with one fine sweep), the first-bounce gather w
 sweep, the plain cluster gather, the exposure-weighted prolongation, and four plain Jacobi
 sweeps of the full F (C = N).
 
-A third table separates two kinds of light change for the default far field at C = N/8: back
-and forth between the two light sets (each coarse source then a repeat, which the sweeps' warm
-start combines exactly from earlier solutions: one sweep) and lights that move every change (a
-lamp stepped by 1% of the scene's extent, the sun turned by 2 degrees: new sources), with the
-time of each part of the far field's light change.
+A third table separates three kinds of light change for the default far field at C = N/8: back
+and forth between the two light sets and the first set dimmed step by step (each light vector
+a combination of earlier ones, which the far field answers with the same combination of its
+earlier answers: no pass over F or G), and lights that move every change (a lamp stepped by 1%
+of the scene's extent, the sun turned by 2 degrees: new sources), with the time of each part of
+the far field's light change.
 
 A second table times the coarse solve alone over C, for moving lights: Jacobi sweeps of the sparse F_c
 (warm-started) against the dense K_c product in fp16, fp32 and fp64 storage, with K_c's build
@@ -129,7 +130,7 @@ def _moving_lights(ctx, scene, lights) -> list[np.ndarray]:
 
 
 def _change_rows(ctx, name, scene, F, L, L2, moving, path, M) -> list[list]:
-    """The default far field's light changes, back and forth and with moving lights, part by part."""
+    """The default far field's light changes, back and forth, dimmed and with moving lights, part by part."""
     import pydynrad
     from pydynrad.compare import radiosity_error
     from pydynrad.farfield import FarField
@@ -145,18 +146,19 @@ def _change_rows(ctx, name, scene, F, L, L2, moving, path, M) -> list[list]:
         d.radiosity(light=L)
     lighting = time_call(lambda: base.radiosity(light=L), repeats=5)["min_s"]
     rows = []
-    for kind, seq in (("back and forth", [L2, L] * CHANGES), ("moving lights", moving)):
+    dimmed = [L * (1.0 - 0.05 * i) for i in range(1, 2 * CHANGES + 1)]
+    for kind, seq in (("back and forth", [L2, L] * CHANGES), ("dimmed", dimmed), ("moving lights", moving)):
         parts = []
         for x in seq:
             t = time.perf_counter()
             dyn.radiosity(light=x)
-            parts.append((time.perf_counter() - t, far.seconds_coarse, far.seconds_light, far.sweeps))
-        parts = np.array(parts[1:])  # the first change of each kind comes from the other kind's lights
+            parts.append((time.perf_counter() - t, far.seconds_coarse, far.seconds_light, far.sweeps, far.combined))
+        parts = np.array(parts[1:], dtype=np.float64)  # the first change of each kind follows another kind's lights
         ref = pydynrad.solve(scene, F, light=seq[-1], device=ctx.device).radiosity
-        change, coarse, light, sweeps = np.median(parts, axis=0)
-        rows.append([name, n, M, far.C, kind, 1e3 * change, 1e3 * coarse, sweeps, 1e3 * (light - coarse),
-                     1e3 * (change - light), 1e3 * lighting, (change - coarse) / lighting,
-                     100 * radiosity_error(dyn.radiosity(light=seq[-1]), ref, scene.areas)])
+        change, coarse, light, sweeps, _ = np.median(parts, axis=0)
+        rows.append([name, n, M, far.C, kind, f"{int(parts[:, 4].sum())}/{len(parts)}", 1e3 * change, 1e3 * coarse,
+                     sweeps, 1e3 * (light - coarse), 1e3 * (change - light), 1e3 * lighting,
+                     (change - coarse) / lighting, 100 * radiosity_error(dyn.radiosity(light=seq[-1]), ref, scene.areas)])
     return rows
 
 
@@ -294,16 +296,19 @@ def farfield_section(ctx) -> dict:
                     "G, F_c and K_c: LU of I - F_c P_c per channel, by the host's LAPACK on a CPU device); "
                     "F_c MiB counts 8 bytes a non-zero (fp32 value and index). Default gather (first bounce).",
         }, {
-            "title": "Light changes of the default far field (C = N/8): back and forth, and moving lights",
-            "columns": ["scene", "N", "M", "C", "changes", "light change ms", "coarse solve ms", "sweeps",
+            "title": "Light changes of the default far field (C = N/8): back and forth, dimmed, and moving lights",
+            "columns": ["scene", "N", "M", "C", "changes", "combined", "light change ms", "coarse solve ms", "sweeps",
                         "first bounce + gather ms", "injection + local ms", "local-only lighting ms",
                         "(change - coarse) / local lighting", "all % after the last change"],
             "rows": change_rows,
             "note": f"medians over {2 * CHANGES - 1} changes after the first of each kind; back and forth: "
-                    "between the case's two light sets (the coarse sources repeat; the warm start combines earlier "
-                    "solutions); moving: a lamp stepped 1% of the scene's extent along x, the sun turned 2 degrees "
+                    "between the case's two light sets; dimmed: the first set at 95%, 90%, ... of its power; "
+                    "combined: the changes the far field answered as a combination of its last answers (the light "
+                    "vector a combination of the last ones: no pass over F or G, no coarse solve; FarField._combined); "
+                    "moving: a lamp stepped 1% of the scene's extent along x, the sun turned 2 degrees "
                     "about the vertical, per change (new sources). first bounce + gather = the far field's light() "
-                    "less the coarse solve (P F L over the lit columns, R D1, the pass over G).",
+                    "less the coarse solve (P F L over the lit columns, R D1, the pass over G; the combination when "
+                    "combined).",
         }],
         "plots": [{
             "name": "trade", "title": "All-patch error vs frame time (far field off and on)",

@@ -177,6 +177,7 @@ def test_coarse_sweeps_start_from_earlier_solutions_combined(device, cornell):
     lamp = lambda x: pydynrad.light_vector(scene, [PointLight(position=[x, 450, 280], intensity=[2e5] * 3)],  # noqa: E731
                                            device=device)
     far = FarField(scene, F, clusters=len(scene) // 8, coarse="sweeps", dtype=np.float64, device=device)
+    far._combined = lambda L: None  # the answer's own combination would skip the coarse solve
     a, b = lamp(150.0), lamp(400.0)
     far.light(a)
     cold = far.sweeps
@@ -191,6 +192,36 @@ def test_coarse_sweeps_start_from_earlier_solutions_combined(device, cornell):
     np.testing.assert_allclose(new, fresh.light(lamp(270.0)), rtol=1e-4, atol=1e-4 * new.max())
 
 
+def test_light_combinations_reuse_earlier_answers(device, cornell):
+    """B_far is linear in L: a light that is a combination of the last ones (switched back,
+    dimmed, recoloured, summed) is answered by the same combination of their B_far, with no pass
+    over F or G, and equals what a far field computing it gives; a new light, or one that only
+    an extrapolation of near-parallel lights makes, is computed."""
+    scene, F, _, _, full = cornell
+    lamp = lambda x: pydynrad.light_vector(scene, [PointLight(position=[x, 450, 280], intensity=[2e5, 1e5, 5e4])],  # noqa: E731
+                                           device=device)
+    far = FarField(scene, F, clusters=len(scene) // 8, device=device)
+    fresh = FarField(scene, F, clusters=far.clusters, device=device)
+    fresh._combined = lambda L: None
+    a, b = lamp(150.0), lamp(400.0)
+    for L in (a, b):
+        far.light(L)
+        assert not far.combined
+    for L in (a, 2.0 * b, a + 0.5 * b, a * [0.3, 1.0, 2.0]):
+        B = far.light(L).copy()
+        assert far.combined and far.sweeps == 0 and far.first_bounce_columns == 0
+        # The same dense coarse product and gathers (float32) on L or on a and b: observed 8e-8.
+        np.testing.assert_allclose(B, fresh.light(L), rtol=1e-5, atol=1e-6 * B.max())
+        assert radiosity_error(B, full(L), scene.areas) < 0.01
+    far.light(lamp(270.0))  # not a combination
+    assert not far.combined
+    c, d = lamp(200.0), lamp(200.01)
+    far.light(c)
+    far.light(d)
+    far.light(c + 1000.0 * (d - c))  # a combination only with coefficients -999 and 1000
+    assert not far.combined
+
+
 def test_first_bounce_of_a_lamp_switched_under_a_sun_multiplies_only_its_columns(device, monkeypatch):
     """D1 = P F L is linear in L: switching a lamp under a sun adds the lamp's first bounce (its
     few columns of F) to the last one; the answer is that of a whole product, to float32 rounding."""
@@ -203,6 +234,7 @@ def test_first_bounce_of_a_lamp_switched_under_a_sun_multiplies_only_its_columns
     lamp[np.abs(lamp) < 1e-3 * np.abs(lamp).max()] = 0.0  # a lamp of small reach: few patches lit by it alone
     monkeypatch.setattr(level, "DELTA_BOUNCES", 3)
     far = FarField(scene, F, clusters=len(scene) // 8, device=device)
+    far._combined = lambda L: None  # sun, sun + lamp, sun: the answers' combination would skip D1
     fresh = FarField(scene, F, clusters=far.clusters, device=device)
     lit = lambda L: int(np.count_nonzero(np.any(L != 0, axis=1)))  # noqa: E731
     columns = []
@@ -339,3 +371,27 @@ def test_village_at_night_within_one_percent(device):
     assert radiosity_error(B, ref, scene.areas) < 0.01
     S = dyn.local_patches
     assert radiosity_error(B[S], ref[S], scene.areas[S]) < 0.01
+
+
+def test_answers_fit_combinations_of_the_last_sources():
+    """The record behind the warm start and the combined light changes: the last `depth` pairs
+    (older ones dropped in turn), the fit per channel exact for a combination of them, the
+    answers combined alike; a source of another shape starts it afresh."""
+    from pydynrad.farfield.history import Answers
+
+    rng = np.random.default_rng(3)
+    record = Answers(3, np.float32)
+    assert record.fit(np.ones((50, 3))) is None
+    sources = [rng.standard_normal((50, 3)) for _ in range(5)]
+    for s in sources:
+        record.add(s, 2.0 * s)
+    assert record.count == 3
+    s = 0.5 * sources[2] - 3.0 * sources[4] + sources[3] * [1.0, 0.0, 2.0]
+    a, combined, rest = record.fit(s)
+    assert np.abs(rest).max() < 1e-13 * np.abs(s).max()
+    np.testing.assert_allclose(combined, 2.0 * s, rtol=0, atol=1e-6 * np.abs(s).max())  # float32 answers
+    np.testing.assert_allclose(np.sort(np.abs(a[1])), [0.0, 0.5, 3.0], atol=1e-12)  # channel 1: no sources[3]
+    a, _, rest = record.fit(sources[0])  # dropped: only its best fit by the three held
+    assert np.abs(rest).max() > 0.1
+    record.add(np.ones((50, 1)), np.ones((50, 1)))  # one channel: the record starts again
+    assert record.count == 1 and record.fit(s) is None

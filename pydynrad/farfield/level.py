@@ -47,6 +47,11 @@ bench/farfield.py; docs/design.md, 'Far field', 'As built'):
   no F: the far field of stores (G left in the store and read per pass,
   :mod:`pydynrad.farfield.streamed`) and of rows on demand (bench/farstore.py).
 
+Every gather but the shared one is linear in L, so a light vector that is a combination of the
+last ones the far field computed (switched back, dimmed, recoloured, summed) gets the same
+combination of their answers, with no pass over F or G (:meth:`FarField._combined`,
+:mod:`pydynrad.farfield.history`).
+
 With F and one value per cluster (the indicator or exposure basis; the linear basis sweeps its own level,
 as above), ``fine_sweeps`` bounces B <- L + P F B of the full F follow the gather (each about halves the
 error; one pass over F each). ``prolongation="exposure"``: Pr_w[i, c] = w_i / mean_c(w)
@@ -66,6 +71,7 @@ from ..checks import check_form_factors, finite, integer, scene as checked_scene
 from ..errors import InvalidInputError, PydynradError
 from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
 from .gather import checked_cluster_form_factors
+from .history import Answers
 from .streamed import StoredG
 
 __all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS",
@@ -82,6 +88,14 @@ DENSE_CLUSTERS = 2048
 
 #: Earlier coarse solutions the sweeps' warm start combines (:meth:`FarField._warm_start`).
 WARM_STARTS = 4
+
+#: A light vector within this much of its maximum (per channel) of a combination of the last
+#: WARM_STARTS ones is answered by the same combination of their B_far (:meth:`FarField._combined`):
+#: far below the coarse solve's own tolerance, above float32's rounding of the ones held.
+COMBINED_TOLERANCE = 1e-6
+#: ... and only where the combination's coefficients sum to at most this in magnitude, so that
+#: it cannot amplify the rounding of the B_far it combines (near-parallel light vectors).
+COMBINED_GAIN = 8.0
 
 #: Light changes whose first bounce on the host is the last one's plus that of the change (over
 #: the columns whose light changed, where they are fewer than the lit ones) before a whole product
@@ -309,7 +323,9 @@ class FarField:
         self.G_nnz, self.F_c_nnz = int(G.nnz), int(self.F_c.nnz)
         if F is None:
             self.G = self.F_c = None
-        self._solved = []  # the last WARM_STARTS (source, solution) pairs of the coarse sweeps
+        self._solved = Answers(WARM_STARTS)  # the coarse sweeps' last sources and solutions
+        self._lit = Answers(WARM_STARTS, np.float32)  # light()'s last L and B (k channels)
+        self.combined = False  # whether the last light change was a combination of earlier ones
         self._bounced = None  # the last first bounce on the host (:meth:`_first_bounce`)
         self.first_bounce_columns = 0
         self._L = None
@@ -345,14 +361,16 @@ class FarField:
     @property
     def host_memory_bytes(self) -> int:
         """Host bytes of G and F_c (with F in memory only), R, the linear fit, F by column (F's
-        gathers on a CPU), the labels and B_far."""
+        gathers on a CPU), the labels, B_far and the last lights' answers (:meth:`_combined`)."""
         mats = [m for m in (self.G, self.F_c, self.R, self._fit, self._F_cols) if m is not None]
         held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats)
-        far = 0 if self.B_far is None else self.B_far.nbytes
+        far = (0 if self.B_far is None else self.B_far.nbytes) + self._lit.nbytes
         return held + self.clusters.labels.nbytes + far
 
     def light(self, L: np.ndarray) -> np.ndarray:
-        """B_far (N, 3) float64 for light vector L (N, 3); cached while L is unchanged."""
+        """B_far (N, 3) float64 for light vector L (N, 3); cached while L is unchanged, and the
+        combination of earlier answers where L combines earlier lights (:meth:`_combined`;
+        :attr:`combined` says whether it was)."""
         if self._L is not None and np.array_equal(L, self._L):
             return self.B_far
         t0 = time.perf_counter()
@@ -367,7 +385,11 @@ class FarField:
         grey = self.scene.is_grey and bool(np.all(L_all[:, :1] == L_all))
         k = 1 if grey else 3
         L, rho = L_all[:, :k], self.rho[:, :k]
-        if self.gather == "first_bounce":
+        B = self._combined(L)
+        self.combined = B is not None
+        if self.combined:
+            self.sweeps, self.seconds_coarse, self.first_bounce_columns = 0, 0.0, 0
+        elif self.gather == "first_bounce":
             # The coarse level solves for the indirect light D_c = R D1 + P_c F_c D_c from the exact
             # first bounce D1, not from the cluster-averaged direct light (2.8% -> 2.4% after a lamp is
             # added in the village at N/8, 0.27% -> 0.20% under a sun; bench/farfield.py).
@@ -389,12 +411,30 @@ class FarField:
                     B = self._gather(L, rho, self._fit @ B)
             else:
                 B = self._gather(L, rho, B_c)
-        if self.fine_sweeps and self._fit is None:
+        if self.fine_sweeps and self._fit is None and not self.combined:
             B = self._F_dev.jacobi(L, rho, B, 0.0, self.fine_sweeps)[0]
+        if self.gather != "shared" and not self.combined:  # the shared gather is not linear in L
+            self._lit.add(L, B)
         self.B_far = np.repeat(B, 3, axis=1) if k == 1 else B
         self._L = L_all
         self.seconds_light = time.perf_counter() - t0
         return self.B_far
+
+    def _combined(self, L: np.ndarray) -> np.ndarray | None:
+        """B (N, k) for light L (N, k) without a pass over F or G, where L is (to
+        :data:`COMBINED_TOLERANCE` of its maximum, per channel) the combination S a of the last
+        lights S whose B_far X are held: B_far is linear in L (every gather but the shared
+        one), so it is X a. A light switched back, dimmed or recoloured, lights summed. The
+        coefficients come from the k x k normal equations (one pass over S); the residual
+        check decides, so their conditioning cannot pass a wrong answer. None where L is no
+        such combination (then light() computes it)."""
+        fit = self._lit.fit(L)
+        if fit is None:
+            return None
+        a, B, rest = fit
+        if np.any(np.abs(rest).max(axis=0) > COMBINED_TOLERANCE * np.abs(L).max(axis=0)):
+            return None
+        return B if np.abs(a).sum(axis=1).max() <= COMBINED_GAIN else None
 
     def _gather(self, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:
         """L + rho (G x) (N, k) on the device: G resident there, or read from its store per chunk."""
@@ -409,7 +449,7 @@ class FarField:
         rho_c = self.rho_c[:, :k]
         if self.K_c is None:
             x, self.sweeps, _, _ = self._Fc_dev.jacobi(s, rho_c, self._warm_start(s), self.tol, self.max_sweeps)
-            self._solved = ([p for p in self._solved if p[0].shape == s.shape] + [(s, x)])[-WARM_STARTS:]
+            self._solved.add(s, x)
             return x
         self.sweeps = 0
         # One grey K_c serves every column in one pass; three K_c one channel each.
@@ -422,13 +462,8 @@ class FarField:
         channel), plus the rest r = s - S a as its own first guess; s itself when none was
         solved yet. Exact when s is a combination of earlier sources (a lamp switched back on,
         lights summed), close to it when the lights move a little."""
-        x0 = s.copy()
-        held = [p for p in self._solved if p[0].shape == s.shape]
-        for ch in range(s.shape[1] if held else 0):
-            S = np.column_stack([p[0][:, ch] for p in held])
-            a = np.linalg.lstsq(S, s[:, ch], rcond=None)[0]
-            x0[:, ch] += np.column_stack([p[1][:, ch] for p in held]) @ a - S @ a
-        return x0
+        fit = self._solved.fit(s)
+        return s.copy() if fit is None else fit[1] + fit[2]
 
     def _first_bounce(self, L: np.ndarray) -> np.ndarray:
         """D1 = P F L (N, k): over the lit columns of F by column (or, where fewer, the last D1 plus
