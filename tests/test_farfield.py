@@ -387,11 +387,11 @@ def test_answers_fit_combinations_of_the_last_sources():
         record.add(s, 2.0 * s)
     assert record.count == 3
     s = 0.5 * sources[2] - 3.0 * sources[4] + sources[3] * [1.0, 0.0, 2.0]
-    a, combined, rest = record.fit(s)
-    assert np.abs(rest).max() < 1e-13 * np.abs(s).max()
+    a, combined, rest, off = record.fit(s)
+    assert np.abs(rest).max() < 1e-13 * np.abs(s).max() and off.max() < 1e-13
     np.testing.assert_allclose(combined, 2.0 * s, rtol=0, atol=1e-6 * np.abs(s).max())  # float32 answers
     np.testing.assert_allclose(np.sort(np.abs(a[1])), [0.0, 0.5, 3.0], atol=1e-12)  # channel 1: no sources[3]
-    a, _, rest = record.fit(sources[0])  # dropped: only its best fit by the three held
-    assert np.abs(rest).max() > 0.1
+    a, _, rest, off = record.fit(sources[0])  # dropped: only its best fit by the three held
+    assert np.abs(rest).max() > 0.1 and off.min() > 0.1
     record.add(np.ones((50, 1)), np.ones((50, 1)))  # one channel: the record starts again
     assert record.count == 1 and record.fit(s) is None

@@ -32,6 +32,7 @@ class Answers:
         self._S: np.ndarray | None = None  # (k, depth, n) sources
         self._X: np.ndarray | None = None  # (k, depth, n) answers
         self._gram: np.ndarray | None = None  # (k, depth, depth) the sources' dot products
+        self._rest: np.ndarray | None = None  # (k, n) scratch of fit()
         self.count = 0
         self._next = 0
 
@@ -55,10 +56,12 @@ class Answers:
         self._next = (self._next + 1) % self.depth
         self.count = min(self.count + 1, self.depth)
 
-    def fit(self, source: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    def fit(self, source: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """The best combination of the recorded sources for ``source`` (n, k), per channel:
         (a (k, count) coefficients, X a (n, k) the same combination of the answers, r (n, k) =
-        source - S a), or None when nothing of this shape is recorded.
+        source - S a, a view of scratch that the next fit overwrites, and (k,) max |r| over
+        max |source| per channel, inf where the source is 0 and r is not), or None when
+        nothing of this shape is recorded.
 
         Least squares through the count x count normal equations in float64, the sources' dot
         products kept from :meth:`add`, so a fit reads the sources twice (S s, then r) and the
@@ -68,11 +71,16 @@ class Answers:
             return None
         k, h = source.shape[1], self.count
         a = np.empty((k, h))
-        by_channel = np.ascontiguousarray(source.T, np.float64)
-        combined, rest = np.empty_like(by_channel), np.empty_like(by_channel)
+        if self._rest is None or self._rest.shape != self._S.shape[::2]:
+            self._rest = np.empty(self._S.shape[::2])  # reused: fresh pages cost more than the pass
+        combined, off = np.empty(source.shape), np.empty(k)
         for ch in range(k):
-            S = self._S[ch, :h]
-            a[ch] = np.linalg.lstsq(self._gram[ch, :h, :h], S @ by_channel[ch], rcond=None)[0]
-            np.subtract(by_channel[ch], a[ch] @ S, out=rest[ch])
-            combined[ch] = a[ch].astype(self.dtype) @ self._X[ch, :h]
-        return a, combined.T, rest.T
+            S, rest = self._S[ch, :h], self._rest[ch]
+            rest[:] = source[:, ch]
+            size = max(rest.max(), -rest.min())  # max |.| on the contiguous copy, no temporary
+            a[ch] = np.linalg.lstsq(self._gram[ch, :h, :h], S @ rest, rcond=None)[0]
+            rest -= a[ch] @ S
+            r = max(rest.max(), -rest.min())
+            off[ch] = r / size if size > 0 else (0.0 if r == 0 else np.inf)
+            combined[:, ch] = a[ch].astype(self.dtype) @ self._X[ch, :h]
+        return a, combined, self._rest.T, off

@@ -431,8 +431,8 @@ class FarField:
         fit = self._lit.fit(L)
         if fit is None:
             return None
-        a, B, rest = fit
-        if np.any(np.abs(rest).max(axis=0) > COMBINED_TOLERANCE * np.abs(L).max(axis=0)):
+        a, B, _, off = fit
+        if np.any(off > COMBINED_TOLERANCE):
             return None
         return B if np.abs(a).sum(axis=1).max() <= COMBINED_GAIN else None
 
