@@ -346,10 +346,10 @@ def test_stale_rows_corrected(box, block, device):
             np.testing.assert_array_equal(dyn.matrix.to_host(), unmoved)
             block_slots = np.flatnonzero(dyn.local_patches >= len(box))
             assert np.isin(block_slots, dyn._stale.slots).all()  # its rows enter through the correction
-    dyn.refresh()
-    assert len(dyn._stale) == 0
-    np.testing.assert_allclose(dyn.matrix.to_host(), dense_K(world, F_all, dyn.local_patches), atol=1e-6, rtol=0)
-    assert rel(dyn.radiosity(LIGHTS, far_field=False), truth) < 2e-6  # fp32 K; observed 8e-9
+        dyn.refresh()
+        assert len(dyn._stale) == 0
+        np.testing.assert_allclose(dyn.matrix.to_host(), dense_K(world, F_all, dyn.local_patches), atol=1e-6, rtol=0)
+        assert rel(dyn.radiosity(LIGHTS, far_field=False), truth) < 2e-6  # fp32 K; observed 8e-9
 
 
 def test_anderson_mixing_solves_a_low_rank_fixed_point():

@@ -38,7 +38,7 @@ class Answers:
 
     @property
     def nbytes(self) -> int:
-        return 0 if self._S is None else self._S.nbytes + self._X.nbytes
+        return sum(a.nbytes for a in (self._S, self._X, self._gram, self._rest) if a is not None)
 
     def add(self, source: np.ndarray, answer: np.ndarray) -> None:
         """Record (source, answer), both (n, k), dropping the oldest pair beyond ``depth``."""
