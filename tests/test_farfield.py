@@ -220,6 +220,29 @@ def test_light_combinations_reuse_earlier_answers(device, cornell):
     far.light(d)
     far.light(c + 1000.0 * (d - c))  # a combination only with coefficients -999 and 1000
     assert not far.combined
+    # A dim lamp as the difference of a bright scene with and without it: exact in L, but the
+    # answers' own errors would be multiplied by ~200 (1e-3 of max B with coarse sweeps).
+    bright, cancels = 100.0 * lamp(150.0), FarField(scene, F, clusters=far.clusters, device=device)
+    cancels.light(bright + c)
+    cancels.light(bright)
+    cancels.light(c)
+    assert not cancels.combined
+
+
+def test_light_combinations_in_float64(device, cornell):
+    """A float64 far field keeps its answers in float64: a combination is as exact as they are."""
+    scene, F, _, _, _ = cornell
+    lamp = lambda x: pydynrad.light_vector(scene, [PointLight(position=[x, 450, 280], intensity=[2e5, 1e5, 5e4])],  # noqa: E731
+                                           device=device)
+    far = FarField(scene, F, clusters=len(scene) // 8, coarse_storage="fp64", dtype=np.float64, device=device)
+    fresh = FarField(scene, F, clusters=far.clusters, coarse_storage="fp64", dtype=np.float64, device=device)
+    fresh._combined = lambda L: None
+    a, b = lamp(150.0), lamp(400.0)
+    far.light(a)
+    far.light(b)
+    B = far.light(a + 0.5 * b).copy()
+    assert far.combined
+    np.testing.assert_allclose(B, fresh.light(a + 0.5 * b), rtol=1e-12, atol=1e-14 * B.max())  # observed 7e-16 of max B
 
 
 def test_first_bounce_of_a_lamp_switched_under_a_sun_multiplies_only_its_columns(device, monkeypatch):
@@ -388,10 +411,13 @@ def test_answers_fit_combinations_of_the_last_sources():
     assert record.count == 3
     s = 0.5 * sources[2] - 3.0 * sources[4] + sources[3] * [1.0, 0.0, 2.0]
     a, combined, rest, off = record.fit(s)
-    assert np.abs(rest).max() < 1e-13 * np.abs(s).max() and off.max() < 1e-13
+    assert np.abs(rest).max() < 1e-13 * np.abs(s).max() and off[:, 0].max() < 1e-13
+    held = [sources[3], sources[4], sources[2]]  # slot order after two wrap-arounds
+    sizes = np.array([np.abs(h).max(axis=0) for h in held]).T  # (k, 3)
+    np.testing.assert_allclose(off[:, 1], np.einsum("ch,ch->c", np.abs(a), sizes) / np.abs(s).max(axis=0), rtol=1e-12)
     np.testing.assert_allclose(combined, 2.0 * s, rtol=0, atol=1e-6 * np.abs(s).max())  # float32 answers
     np.testing.assert_allclose(np.sort(np.abs(a[1])), [0.0, 0.5, 3.0], atol=1e-12)  # channel 1: no sources[3]
     a, _, rest, off = record.fit(sources[0])  # dropped: only its best fit by the three held
-    assert np.abs(rest).max() > 0.1 and off.min() > 0.1
+    assert np.abs(rest).max() > 0.1 and off[:, 0].min() > 0.1
     record.add(np.ones((50, 1)), np.ones((50, 1)))  # one channel: the record starts again
     assert record.count == 1 and record.fit(s) is None

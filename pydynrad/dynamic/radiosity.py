@@ -19,7 +19,8 @@ a frame costs O(M^2) device work instead of O(N^2):
   pose that the next ``update`` applies as one batched swap of the objects' patches (always
   local) and of the rows the move changed most (``occlusion``, a row budget per frame):
   :mod:`pydynrad.dynamic.moves`; with a static F the other rows it changed are corrected in
-  ``radiosity`` (``occlusion_correction``, :mod:`pydynrad.dynamic.stale`).
+  ``radiosity`` (``occlusion_correction``, :mod:`pydynrad.dynamic.stale`), and at budget 0 the
+  objects' rows too, with no swap.
 
 Form factors come from a precomputed sparse F, any row source (:mod:`pydynrad.rows`:
 a form-factor store on disk, a row cache) or, with ``form_factors=None``, from one hemicube
@@ -155,7 +156,8 @@ class DynamicRadiosity:
         them into K and correct :meth:`radiosity` for the rest by a few iterations with K
         (:mod:`pydynrad.dynamic.stale`; about as accurate as refreshing every row, for no swap
         slots). At ``occlusion=0`` a move swaps nothing, not even the objects' own rows: they
-        are corrected for like the others, K stays as built, :meth:`refresh` takes them all in. False: the rows left stale are used as they are (at ``occlusion=0`` the
+        are corrected for like the others, K stays as built, :meth:`refresh` takes them all
+        in. False: the rows left stale are used as they are (at ``occlusion=0`` the
         cheapest move). No effect with hemicube rows (``form_factors=None``).
     poses : PoseRows, optional
         Rows precomputed for configurations of the objects known in advance
@@ -342,7 +344,7 @@ class DynamicRadiosity:
     def host_memory_bytes(self) -> int:
         """Host bytes of the bookkeeping: slot map, local mask, the local set's form-factor
         rows, the rows moves left stale, (paper mode) the bitsets and the far field (G, F_c, R,
-        labels, B_far)."""
+        labels, B_far, the last lights and answers it combines)."""
         self._require_built()
         used = self._used.nbytes if self._used is not None else 0
         far = self.far.host_memory_bytes if self.far is not None else 0
@@ -502,8 +504,9 @@ class DynamicRadiosity:
         self._ff.source.move(self.scene)
 
     def _apply_moves(self) -> tuple[int, int]:
-        """Swap the moved objects' patches and the most changed rows with their new rows; the
-        count refreshed and the hemicubes computed."""
+        """Swap the moved objects' patches and the most changed rows with their new rows (at
+        budget 0 with the correction: put them all among the stale rows, no swap); the count
+        refreshed and the hemicubes computed."""
         from .exact import exact_swap
         from .moves import stale_rows, swap_chunks
 

@@ -2,7 +2,8 @@
 
 With a static F, a move makes the row at the new poses of every local patch that may see a
 moved object (:meth:`pydynrad.dynamic.moves.WorldRows.refresh`); only the occlusion budget of
-them is swapped into K, since each costs a slot of the swap. The others are kept here, and
+them is swapped into K, since each costs a slot of the swap, and at budget 0 not even the
+objects' own rows are. The others are kept here, and
 :meth:`StaleRows.correct` solves for B with them by iterating on the difference
 D = F_current - F_kept (rows of the stale slots only):
 
@@ -12,11 +13,15 @@ where (I + P_S K) = (I - P_S F_kept)^{-1} applies K once per iteration (one pass
 channel) and D B reads the stale rows against B of every patch (the local set's from the last
 iterate, the outside's as the frame has it: the far field's, or 0 without it). From
 B^(0) = (I + P_S K) L'_S (the uncorrected answer) each iteration is
-B^(n+1) = B^(0) + (I + P_S K) P_S D B^(n); D is small (what the objects now hide from the
-stale rows and their object columns' share), so a few iterations reach the fixed point, which
-is the solution with every stale row at the current poses: what refreshing every row would
-give, without its swap slots. Each call starts from the last one's correction, so a frame
-without a move usually takes one iteration. K itself is never changed, so a pose that comes back still
+B^(n+1) = B^(0) + (I + P_S K) P_S D B^(n), mixed (Anderson) with the last iterates. D holds
+what the objects now hide from the stale rows and their object columns' share, and at budget 0
+the objects' whole rows too; the coupling through it is weak (light that reaches an object and
+comes back), so a few iterations reach the fixed point, which is the solution with every stale
+row at the current poses: what refreshing every row would give, without its swap slots. It
+stops at :data:`CORRECTION_TOLERANCE` or after :data:`CORRECTION_ITERATIONS` (then
+:attr:`StaleRows.converged` is False and the answer is the last iterate's image, from which the
+next call goes on). Each call starts from the last one's correction, so a frame without a move
+usually takes one iteration. K itself is never changed, so a pose that comes back still
 gives back the same K.
 """
 
@@ -52,6 +57,7 @@ class StaleRows:
         self.current = sp.csr_matrix((0, self.n_patches))
         self.delta = sp.csr_matrix((0, self.n_patches))
         self.iterations = 0  # of the last correct()
+        self.converged = True  # whether the last correct() reached CORRECTION_TOLERANCE
         self._increment: np.ndarray | None = None  # (N, 3) the last correct()'s B - B^(0), per patch
 
     def __len__(self) -> int:
@@ -97,11 +103,11 @@ class StaleRows:
         local set is part of the solution (the far field's), else it is not gathered."""
         B0 = B[S]
         if not len(self.slots):
-            self.iterations = 0
+            self.iterations, self.converged = 0, True
             return B0
         x = B.copy() if outside else np.zeros_like(B)
         # From the last frame's correction (the same rows, mostly the same light): one iteration
-        # confirms it where nothing changed. Any start converges (a contraction).
+        # confirms it where nothing changed.
         x[S] = B0 if self._increment is None else B0 + self._increment[S]
         rho = albedo[S[self.slots]].astype(np.float64)
         g = np.zeros_like(B0)
@@ -110,8 +116,10 @@ class StaleRows:
             g[self.slots] = rho * (self.delta @ x)
             new = B0 + solve_kept(g)
             residual = new - x[S]
-            if float(np.abs(residual).max()) <= CORRECTION_TOLERANCE * max(float(np.abs(new).max()), 1e-300):
-                x[S] = new
+            scale = max(float(np.abs(new).max()), 1e-300)
+            self.converged = float(np.abs(residual).max()) <= CORRECTION_TOLERANCE * scale
+            if self.converged or it == CORRECTION_ITERATIONS:
+                x[S] = new  # an evaluated image, never an unchecked mixed point
                 break
             x[S] = mixing.next(new, residual)
         self.iterations = it

@@ -32,13 +32,14 @@ class Answers:
         self._S: np.ndarray | None = None  # (k, depth, n) sources
         self._X: np.ndarray | None = None  # (k, depth, n) answers
         self._gram: np.ndarray | None = None  # (k, depth, depth) the sources' dot products
+        self._size: np.ndarray | None = None  # (k, depth) max |source| per channel
         self._rest: np.ndarray | None = None  # (k, n) scratch of fit()
         self.count = 0
         self._next = 0
 
     @property
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in (self._S, self._X, self._gram, self._rest) if a is not None)
+        return sum(a.nbytes for a in (self._S, self._X, self._gram, self._size, self._rest) if a is not None)
 
     def add(self, source: np.ndarray, answer: np.ndarray) -> None:
         """Record (source, answer), both (n, k), dropping the oldest pair beyond ``depth``."""
@@ -46,10 +47,12 @@ class Answers:
             self._S = np.empty((source.shape[1], self.depth, source.shape[0]))
             self._X = np.empty(self._S.shape, self.dtype)
             self._gram = np.zeros((source.shape[1], self.depth, self.depth))
+            self._size = np.zeros((source.shape[1], self.depth))
             self.count = self._next = 0
         j = self._next
         self._S[:, j] = source.T
         self._X[:, j] = answer.T
+        self._size[:, j] = np.maximum(self._S[:, j].max(axis=1), -self._S[:, j].min(axis=1))
         used = max(self.count, j + 1)
         self._gram[:, j, :used] = np.einsum("cn,chn->ch", self._S[:, j], self._S[:, :used])
         self._gram[:, :used, j] = self._gram[:, j, :used]
@@ -59,9 +62,11 @@ class Answers:
     def fit(self, source: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """The best combination of the recorded sources for ``source`` (n, k), per channel:
         (a (k, count) coefficients, X a (n, k) the same combination of the answers, r (n, k) =
-        source - S a, a view of scratch that the next fit overwrites, and (k,) max |r| over
-        max |source| per channel, inf where the source is 0 and r is not), or None when
-        nothing of this shape is recorded.
+        source - S a, a view of scratch that the next fit overwrites, and (k, 2) per channel:
+        max |r| and sum_i |a_i| max |S_i|, both over max |source| (inf where the source is 0
+        and they are not): how far the fit is off, and how much the combination cancels, which
+        scales the recorded answers' own errors), or None when nothing of this shape is
+        recorded.
 
         Least squares through the count x count normal equations in float64, the sources' dot
         products kept from :meth:`add`, so a fit reads the sources twice (S s, then r) and the
@@ -73,14 +78,14 @@ class Answers:
         a = np.empty((k, h))
         if self._rest is None or self._rest.shape != self._S.shape[::2]:
             self._rest = np.empty(self._S.shape[::2])  # reused: fresh pages cost more than the pass
-        combined, off = np.empty(source.shape), np.empty(k)
+        combined, off = np.empty(source.shape), np.empty((k, 2))
         for ch in range(k):
             S, rest = self._S[ch, :h], self._rest[ch]
             rest[:] = source[:, ch]
             size = max(rest.max(), -rest.min())  # max |.| on the contiguous copy, no temporary
             a[ch] = np.linalg.lstsq(self._gram[ch, :h, :h], S @ rest, rcond=None)[0]
             rest -= a[ch] @ S
-            r = max(rest.max(), -rest.min())
-            off[ch] = r / size if size > 0 else (0.0 if r == 0 else np.inf)
+            for q, v in enumerate((max(rest.max(), -rest.min()), float(np.abs(a[ch]) @ self._size[ch, :h]))):
+                off[ch, q] = v / size if size > 0 else (0.0 if v == 0 else np.inf)
             combined[:, ch] = a[ch].astype(self.dtype) @ self._X[ch, :h]
         return a, combined, self._rest.T, off

@@ -93,9 +93,13 @@ WARM_STARTS = 4
 #: WARM_STARTS ones is answered by the same combination of their B_far (:meth:`FarField._combined`):
 #: far below the coarse solve's own tolerance, above float32's rounding of the ones held.
 COMBINED_TOLERANCE = 1e-6
-#: ... and only where the combination's coefficients sum to at most this in magnitude, so that
-#: it cannot amplify the rounding of the B_far it combines (near-parallel light vectors).
-COMBINED_GAIN = 8.0
+#: ... and only where sum_i |a_i| max|L_i| <= this times max|L| per channel: the combination's
+#: error is the recorded answers' own (float rounding; the coarse sweeps' tolerance) scaled by
+#: that ratio, which is 1 for a light switched back, dimmed or recoloured, at most 2 for two
+#: lights summed, and large where the combination cancels (a dim lamp as the difference of
+#: a sunlit scene with and without it: 1e-3 of max B off with coarse sweeps, measured) or
+#: extrapolates near-parallel lights; those are computed instead.
+COMBINED_GAIN = 2.0
 
 #: Light changes whose first bounce on the host is the last one's plus that of the change (over
 #: the columns whose light changed, where they are fewer than the lit ones) before a whole product
@@ -324,7 +328,7 @@ class FarField:
         if F is None:
             self.G = self.F_c = None
         self._solved = Answers(WARM_STARTS)  # the coarse sweeps' last sources and solutions
-        self._lit = Answers(WARM_STARTS, np.float32)  # light()'s last L and B (k channels)
+        self._lit = Answers(WARM_STARTS, dtype)  # light()'s last L and B (k channels), answers in the device's type
         self.combined = False  # whether the last light change was a combination of earlier ones
         self._bounced = None  # the last first bounce on the host (:meth:`_first_bounce`)
         self.first_bounce_columns = 0
@@ -425,16 +429,15 @@ class FarField:
         :data:`COMBINED_TOLERANCE` of its maximum, per channel) the combination S a of the last
         lights S whose B_far X are held: B_far is linear in L (every gather but the shared
         one), so it is X a. A light switched back, dimmed or recoloured, lights summed. The
-        coefficients come from the k x k normal equations (one pass over S); the residual
-        check decides, so their conditioning cannot pass a wrong answer. None where L is no
-        such combination (then light() computes it)."""
+        coefficients come from the normal equations of the recorded lights (their dot products
+        kept as they are recorded); the residual decides, and a combination that cancels
+        (:data:`COMBINED_GAIN`) is refused, so neither their conditioning nor cancellation can
+        pass a wrong answer. None where L is no such combination (then light() computes it)."""
         fit = self._lit.fit(L)
         if fit is None:
             return None
-        a, B, _, off = fit
-        if np.any(off > COMBINED_TOLERANCE):
-            return None
-        return B if np.abs(a).sum(axis=1).max() <= COMBINED_GAIN else None
+        _, B, _, off = fit
+        return B if np.all(off[:, 0] <= COMBINED_TOLERANCE) and np.all(off[:, 1] <= COMBINED_GAIN) else None
 
     def _gather(self, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:
         """L + rho (G x) (N, k) on the device: G resident there, or read from its store per chunk."""
