@@ -34,6 +34,31 @@ def test_kernel_runs(device):
     np.testing.assert_array_equal(out, 3 * x)
 
 
+def test_kernels_are_reused_per_thread_not_shared_across_threads(device):
+    """One kernel object per thread and program: the same one again in a thread, another for
+    other defines, and a thread of its own gets its own (a kernel holds its arguments)."""
+    import threading
+
+    import numpy as np
+    import pyopencl as cl
+
+    k = device.kernel("selftest.cl", "scale", {"SELFTEST_SCALE": 3})
+    assert device.kernel("selftest.cl", "scale", {"SELFTEST_SCALE": 3}) is k
+    assert device.kernel("selftest.cl", "scale", {"SELFTEST_SCALE": 5}) is not k
+    other = []
+    thread = threading.Thread(target=lambda: other.append(device.kernel("selftest.cl", "scale", {"SELFTEST_SCALE": 3})))
+    thread.start()
+    thread.join()
+    assert other[0] is not k
+    x = np.arange(16, dtype=np.float32)  # the reused object still runs with new arguments
+    for scale in (3, 3):
+        buf = cl.Buffer(device.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=x)
+        device.kernel("selftest.cl", "scale", {"SELFTEST_SCALE": scale})(device.queue, (16,), None, buf)
+        out = np.empty_like(x)
+        cl.enqueue_copy(device.queue, out, buf)
+        np.testing.assert_array_equal(out, scale * x)
+
+
 def test_build_error_carries_log(device):
     with pytest.raises(pydynrad.KernelBuildError) as info:
         device.program("selftest.cl", {"SELFTEST_BREAK": 1})
