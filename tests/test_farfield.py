@@ -204,9 +204,14 @@ def test_light_combinations_reuse_earlier_answers(device, cornell):
     fresh = FarField(scene, F, clusters=far.clusters, device=device)
     fresh._combined = lambda L: None
     a, b = lamp(150.0), lamp(400.0)
+    unlit = far.host_memory_bytes
     for L in (a, b):
         far.light(L)
         assert not far.combined
+    n = len(scene)  # what a light change keeps is counted: B_far, the record (L in float64, B in
+    # float32, 4 deep), and on a CPU device the last first bounce and its light (float64)
+    bounce = 0 if far._bounced is None else 2 * n * 3 * 8
+    assert far.host_memory_bytes - unlit >= n * 3 * 8 + 4 * n * 3 * (8 + 4) + bounce
     for L in (a, 2.0 * b, a + 0.5 * b, a * [0.3, 1.0, 2.0]):
         B = far.light(L).copy()
         assert far.combined and far.sweeps == 0 and far.first_bounce_columns == 0

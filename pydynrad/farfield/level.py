@@ -365,10 +365,13 @@ class FarField:
     @property
     def host_memory_bytes(self) -> int:
         """Host bytes of G and F_c (with F in memory only), R, the linear fit, F by column (F's
-        gathers on a CPU), the labels, B_far and the last lights' answers (:meth:`_combined`)."""
+        gathers on a CPU), the labels, B_far, the last lights' answers (:meth:`_combined`), the
+        coarse sweeps' last solutions and the last first bounce."""
         mats = [m for m in (self.G, self.F_c, self.R, self._fit, self._F_cols) if m is not None]
         held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats)
-        far = (0 if self.B_far is None else self.B_far.nbytes) + self._lit.nbytes
+        far = (0 if self.B_far is None else self.B_far.nbytes) + self._lit.nbytes + self._solved.nbytes
+        if self._bounced is not None:  # the last first bounce and its light (the delta bounce's start)
+            far += self._bounced[0].nbytes + self._bounced[1].nbytes
         return held + self.clusters.labels.nbytes + far
 
     def light(self, L: np.ndarray) -> np.ndarray:
