@@ -192,14 +192,18 @@ def test_coarse_sweeps_start_from_earlier_solutions_combined(device, cornell):
     np.testing.assert_allclose(new, fresh.light(lamp(270.0)), rtol=1e-4, atol=1e-4 * new.max())
 
 
+def coloured_lamp(scene, x: float, device):
+    """L of a warm point lamp over the Cornell box's floor at height 450, x along the box."""
+    return pydynrad.light_vector(scene, [PointLight(position=[x, 450, 280], intensity=[2e5, 1e5, 5e4])], device=device)
+
+
 def test_light_combinations_reuse_earlier_answers(device, cornell):
     """B_far is linear in L: a light that is a combination of the last ones (switched back,
     dimmed, recoloured, summed) is answered by the same combination of their B_far, with no pass
     over F or G, and equals what a far field computing it gives; a new light, or one that only
     an extrapolation of near-parallel lights makes, is computed."""
     scene, F, _, _, full = cornell
-    lamp = lambda x: pydynrad.light_vector(scene, [PointLight(position=[x, 450, 280], intensity=[2e5, 1e5, 5e4])],  # noqa: E731
-                                           device=device)
+    lamp = lambda x: coloured_lamp(scene, x, device)  # noqa: E731
     far = FarField(scene, F, clusters=len(scene) // 8, device=device)
     fresh = FarField(scene, F, clusters=far.clusters, device=device)
     fresh._combined = lambda L: None
@@ -237,8 +241,7 @@ def test_light_combinations_reuse_earlier_answers(device, cornell):
 def test_light_combinations_in_float64(device, cornell):
     """A float64 far field keeps its answers in float64: a combination is as exact as they are."""
     scene, F, _, _, _ = cornell
-    lamp = lambda x: pydynrad.light_vector(scene, [PointLight(position=[x, 450, 280], intensity=[2e5, 1e5, 5e4])],  # noqa: E731
-                                           device=device)
+    lamp = lambda x: coloured_lamp(scene, x, device)  # noqa: E731
     far = FarField(scene, F, clusters=len(scene) // 8, coarse_storage="fp64", dtype=np.float64, device=device)
     fresh = FarField(scene, F, clusters=far.clusters, coarse_storage="fp64", dtype=np.float64, device=device)
     fresh._combined = lambda L: None

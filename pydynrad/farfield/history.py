@@ -15,6 +15,11 @@ import numpy as np
 __all__ = ["Answers"]
 
 
+def _max_abs(x: np.ndarray, axis=None):
+    """max |x| (along ``axis``) as max and -min: no temporary array of |x|."""
+    return np.maximum(x.max(axis=axis), -x.min(axis=axis))
+
+
 class Answers:
     """The last ``depth`` (source, answer) pairs, each (n, k) with k channels: sources in float64
     (the fit needs them whole), answers in ``dtype`` (they are only combined).
@@ -26,9 +31,6 @@ class Answers:
 
     def __init__(self, depth: int, dtype=np.float64) -> None:
         self.depth, self.dtype = int(depth), np.dtype(dtype)
-        self.clear()
-
-    def clear(self) -> None:
         self._S: np.ndarray | None = None  # (k, depth, n) sources
         self._X: np.ndarray | None = None  # (k, depth, n) answers
         self._gram: np.ndarray | None = None  # (k, depth, depth) the sources' dot products
@@ -52,7 +54,7 @@ class Answers:
         j = self._next
         self._S[:, j] = source.T
         self._X[:, j] = answer.T
-        self._size[:, j] = np.maximum(self._S[:, j].max(axis=1), -self._S[:, j].min(axis=1))
+        self._size[:, j] = _max_abs(self._S[:, j], axis=1)
         used = max(self.count, j + 1)
         self._gram[:, j, :used] = np.einsum("cn,chn->ch", self._S[:, j], self._S[:, :used])
         self._gram[:, :used, j] = self._gram[:, j, :used]
@@ -82,10 +84,10 @@ class Answers:
         for ch in range(k):
             S, rest = self._S[ch, :h], self._rest[ch]
             rest[:] = source[:, ch]
-            size = max(rest.max(), -rest.min())  # max |.| on the contiguous copy, no temporary
+            size = _max_abs(rest)  # on the contiguous copy
             a[ch] = np.linalg.lstsq(self._gram[ch, :h, :h], S @ rest, rcond=None)[0]
             rest -= a[ch] @ S
-            for q, v in enumerate((max(rest.max(), -rest.min()), float(np.abs(a[ch]) @ self._size[ch, :h]))):
-                off[ch, q] = v / size if size > 0 else (0.0 if v == 0 else np.inf)
+            terms = np.array([_max_abs(rest), np.abs(a[ch]) @ self._size[ch, :h]])
+            off[ch] = terms / size if size > 0 else np.where(terms == 0, 0.0, np.inf)
             combined[:, ch] = a[ch].astype(self.dtype) @ self._X[ch, :h]
         return a, combined, self._rest.T, off
