@@ -18,16 +18,23 @@
  * space: the sphere of a box holds 2.7 times its volume (a cube's), so about half of the
  * segments near the sphere miss the box, and each of them would be a ray traced for nothing.
  *
- * Python signature:  _segments.near_sphere(points, indptr, indices, owners, center, reach, box, out, out_owner) -> count
+ * Each segment kept is written out as the ray that the object's tree traces (origin a and
+ * direction b - a in object space, t in (0, 1)): moving ~30k of them into object space took
+ * numpy ~3 ms of gathers and small matrix products, here they are a copy of what the slab
+ * test computed anyway.
+ *
+ * Python signature:  _segments.near_sphere(points, indptr, indices, owners, center, reach, box) -> (segments, rays)
  *   points  : C-contiguous float64 buffer of n*3 values
  *   indptr, indices : int64 CSR structure of r rows (r + 1 and m values): segment j of row k
  *             (indptr[k] <= j < indptr[k+1]) goes from point owners[k] to point indices[j]
  *   owners  : int64 buffer of r values, a point index per row, or -1 to skip the row
  *   center  : (cx, cy, cz) floats; reach : float, the sphere's radius with any margin
  *   box     : None, or 18 floats: the world-to-object map x -> A x + t (A row-major, then t),
- *             then the box's low and high corners in object space (any margin included)
- *   out, out_owner : writable int64 buffers of at least m values; receive, in increasing
- *             order, the segments j with q <= reach^2 and their rows' owners; returns how many
+ *             then the box's low and high corners in object space (any margin included);
+ *             None: no box test, and the rays are in world space
+ *   segments: bytes of int64, in increasing order: the segments j with q <= reach^2 (and
+ *             crossing the box)
+ *   rays    : bytes of float64, 6 per segment kept: its ray's origin and direction
  *   Indices are checked (0 <= i < n, indptr non-decreasing within 0..m): ValueError if not.
  * A list of segments a[i] -> b[i] is the CSR of one entry per row (indptr = 0..m, owners = a).
  */
@@ -58,56 +65,82 @@ static int crosses_box(const double *a, const double *b, const double *lo, const
 
 #define STRIDE 7 /* per point: u = p - c, |u|^2, and the point in object space */
 
-static Py_ssize_t near_sphere(const double *P, Py_ssize_t n, const int64_t *indptr, const int64_t *indices,
-                              const int64_t *owners, Py_ssize_t rows, Py_ssize_t m, const double c[3], double reach2,
-                              const double *box, int64_t *out, int64_t *out_owner)
+/* Output that grows as segments are kept: a move keeps ~30k of ~500k, so sizing it for every
+   segment would fault in ~27 MB per call for nothing. */
+typedef struct {
+    int64_t *seg;
+    double *ray;
+    Py_ssize_t count, cap;
+} kept_t;
+
+static int keep(kept_t *k, int64_t j, const double *a, const double *b)
+{
+    if (k->count == k->cap) {
+        Py_ssize_t cap = k->cap ? 2 * k->cap : 4096;
+        int64_t *seg = realloc(k->seg, (size_t)cap * sizeof(int64_t));
+        if (seg) k->seg = seg;
+        double *ray = seg ? realloc(k->ray, (size_t)cap * 6 * sizeof(double)) : NULL;
+        if (!ray) return -1;
+        k->ray = ray, k->cap = cap;
+    }
+    double *r = k->ray + 6 * k->count;
+    for (int q = 0; q < 3; ++q) r[q] = a[q], r[3 + q] = b[q] - a[q];
+    k->seg[k->count++] = j;
+    return 0;
+}
+
+/* 0, -1 for an index out of range, -2 out of memory. */
+static int near_sphere(const double *P, Py_ssize_t n, const int64_t *indptr, const int64_t *indices,
+                       const int64_t *owners, Py_ssize_t rows, Py_ssize_t m, const double c[3], double reach2,
+                       const double *box, kept_t *out)
 {
     /* Once per point, not per segment. */
     double *u = malloc((size_t)(n > 0 ? n : 1) * STRIDE * sizeof(double));
     if (!u) return -2;
+    int status = 0;
     for (Py_ssize_t i = 0; i < n; ++i) {
         const double *p = P + 3 * i;
         double *w = u + STRIDE * i;
         double x = p[0] - c[0], y = p[1] - c[1], z = p[2] - c[2];
         w[0] = x, w[1] = y, w[2] = z, w[3] = x * x + y * y + z * z;
-        for (int k = 0; k < 3 && box; ++k)
-            w[4 + k] = box[3 * k] * p[0] + box[3 * k + 1] * p[1] + box[3 * k + 2] * p[2] + box[9 + k];
+        for (int k = 0; k < 3; ++k)
+            w[4 + k] = box ? box[3 * k] * p[0] + box[3 * k + 1] * p[1] + box[3 * k + 2] * p[2] + box[9 + k] : p[k];
     }
-    Py_ssize_t count = 0;
-    for (Py_ssize_t k = 0; k < rows; ++k) {
+    for (Py_ssize_t k = 0; k < rows && !status; ++k) {
         int64_t ia = owners[k], lo = indptr[k], hi = indptr[k + 1];
-        if (lo < 0 || hi < lo || hi > m || ia >= n) { count = -1; break; }
+        if (lo < 0 || hi < lo || hi > m || ia >= n) { status = -1; break; }
         if (ia < 0) continue;
         const double *ua = u + STRIDE * ia;
         double na = ua[3];
         for (int64_t j = lo; j < hi; ++j) {
             int64_t ib = indices[j];
-            if (ib < 0 || ib >= n) { count = -1; goto done; }
+            if (ib < 0 || ib >= n) { status = -1; break; }
             const double *ub = u + STRIDE * ib;
             double g = ua[0] * ub[0] + ua[1] * ub[1] + ua[2] * ub[2];
             double uv = g - na, vv = na + ub[3] - 2.0 * g;
             /* Closest point at t = -uv / vv clipped to [0, 1]; inside, q = |u_a|^2 - uv^2 / vv,
                compared as (|u_a|^2 - reach^2) vv <= uv^2 (no division, ~2x faster). */
             int near = -uv <= 0.0 ? na <= reach2 : (-uv >= vv ? ub[3] <= reach2 : (na - reach2) * vv <= uv * uv);
-            if (near && (!box || crosses_box(ua + 4, ub + 4, box + 12, box + 15)))
-                out[count] = j, out_owner[count++] = ia;
+            if (near && (!box || crosses_box(ua + 4, ub + 4, box + 12, box + 15)) && keep(out, j, ua + 4, ub + 4)) {
+                status = -2;
+                break;
+            }
         }
     }
-done:
     free(u);
-    return count;
+    return status;
 }
 
 static PyObject *py_near_sphere(PyObject *self, PyObject *args)
 {
     (void)self;
-    Py_buffer P, ip, ix, ow, out, oo;
+    Py_buffer P, ip, ix, ow;
     double c[3], reach, box[18];
     PyObject *box_obj;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*(ddd)dOw*w*", &P, &ip, &ix, &ow, &c[0], &c[1], &c[2], &reach, &box_obj, &out,
-                          &oo))
+    if (!PyArg_ParseTuple(args, "y*y*y*y*(ddd)dO", &P, &ip, &ix, &ow, &c[0], &c[1], &c[2], &reach, &box_obj))
         return NULL;
     PyObject *result = NULL;
+    kept_t out = {NULL, NULL, 0, 0};
     int have_box = box_obj != Py_None;
     if (have_box) {
         PyObject *seq = PySequence_Fast(box_obj, "near_sphere: box must be None or 18 floats");
@@ -126,36 +159,36 @@ static PyObject *py_near_sphere(PyObject *self, PyObject *args)
     Py_ssize_t n = P.len / (Py_ssize_t)(3 * sizeof(double)), m = ix.len / (Py_ssize_t)sizeof(int64_t);
     Py_ssize_t rows = ow.len / (Py_ssize_t)sizeof(int64_t);
     if (P.len != n * 3 * (Py_ssize_t)sizeof(double) || ix.len != m * (Py_ssize_t)sizeof(int64_t) ||
-        ow.len != rows * (Py_ssize_t)sizeof(int64_t) || ip.len != (rows + 1) * (Py_ssize_t)sizeof(int64_t) ||
-        out.len < ix.len || oo.len < ix.len) {
+        ow.len != rows * (Py_ssize_t)sizeof(int64_t) || ip.len != (rows + 1) * (Py_ssize_t)sizeof(int64_t)) {
         PyErr_SetString(PyExc_ValueError, "near_sphere needs n*3 float64 points, int64 indptr (r + 1), indices (m) "
-                                          "and owners (r), and int64 outputs of m values");
+                                          "and owners (r)");
         goto done;
     }
-    Py_ssize_t count;
+    int status;
     Py_BEGIN_ALLOW_THREADS
-    count = near_sphere((const double *)P.buf, n, (const int64_t *)ip.buf, (const int64_t *)ix.buf,
-                        (const int64_t *)ow.buf, rows, m, c, reach * reach, have_box ? box : NULL, (int64_t *)out.buf, (int64_t *)oo.buf);
+    status = near_sphere((const double *)P.buf, n, (const int64_t *)ip.buf, (const int64_t *)ix.buf,
+                         (const int64_t *)ow.buf, rows, m, c, reach * reach, have_box ? box : NULL, &out);
     Py_END_ALLOW_THREADS
-    if (count == -2)
+    if (status == -2)
         PyErr_NoMemory();
-    else if (count < 0)
+    else if (status < 0)
         PyErr_SetString(PyExc_ValueError, "near_sphere: a point index or indptr is out of range");
     else
-        result = PyLong_FromSsize_t(count);
+        result = Py_BuildValue("(y#y#)", out.count ? (const char *)out.seg : "", out.count * (Py_ssize_t)sizeof(int64_t),
+                               out.count ? (const char *)out.ray : "", out.count * 6 * (Py_ssize_t)sizeof(double));
 done:
+    free(out.seg);
+    free(out.ray);
     PyBuffer_Release(&P);
     PyBuffer_Release(&ip);
     PyBuffer_Release(&ix);
     PyBuffer_Release(&ow);
-    PyBuffer_Release(&out);
-    PyBuffer_Release(&oo);
     return result;
 }
 
 static PyMethodDef methods[] = {
     {"near_sphere", py_near_sphere, METH_VARARGS,
-     "near_sphere(points, indptr, indices, owners, center, reach, box, out, out_owner) -> count: CSR segments passing within reach of center (and crossing box)"},
+     "near_sphere(points, indptr, indices, owners, center, reach, box) -> (segments, rays): CSR segments passing within reach of center (and crossing box), and their rays"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -10,7 +10,7 @@ import pytest
 import scipy.sparse as sp
 
 import pydynrad as pd
-from pydynrad.dynamic.moves import capped, sphere_solid_angle, with_reciprocal_columns
+from pydynrad.dynamic.moves import at_pose, reciprocal_columns, sphere_solid_angle
 from pydynrad.objects import instanced
 
 from helpers import dense_K, dense_radiosity, pose, rel
@@ -116,20 +116,55 @@ def test_budget_trades_error(box, block, device):
     assert errors[0] < 0.03 and errors[3] < 2e-6  # observed 0.0086, 0.0085, 0.0080, 3e-8 (PoCL, Xeon, 2026-12-02)
 
 
-def test_reciprocal_columns():
-    rows = sp.csr_matrix(np.array([[0.0, 0.2, 0.3, 0.1, 0.1], [0.4, 0.0, 0.4, 0.0, 0.0], [0.1, 0.1, 0.0, 0.2, 0.0]]))
+def test_rows_at_pose():
+    """Reciprocal object columns, hidden entries dropped and the cap, against hand numbers."""
+    rows = sp.csr_matrix(np.array([[0.0, 0.2, 0.3, 0.0, 0.0], [0.4, 0.0, 0.4, 0.0, 0.0], [0.1, 0.1, 0.0, 0.0, 0.0]]))
     objects = sp.csr_matrix(np.array([[0.2, 0.1, 0.0, 0.0, 0.0], [0.1, 0.3, 0.0, 0.0, 0.0]]))  # patches 3, 4
     areas = np.array([1.0, 2.0, 1.0, 2.0, 2.0])
     obj = np.array([3, 4])
     # F[s, o] = A_o F[o, s] / A_s: (0.4, 0.2), (0.1, 0.3), (0, 0).
-    recip = with_reciprocal_columns(rows, np.array([0, 1, 2]), objects, obj, areas)
-    np.testing.assert_allclose(recip.toarray(), [[0.0, 0.2, 0.3, 0.4, 0.2], [0.4, 0.0, 0.4, 0.1, 0.3],
-                                                 [0.1, 0.1, 0.0, 0.0, 0.0]], rtol=1e-12)
-    # Rows 0 and 1 sum to 1.1 and 1.2: their other entries are scaled by 0.4 / 0.5 and 0.6 / 0.8.
-    out, scaled = capped(recip, obj)
+    recip = reciprocal_columns(np.array([0, 1, 2]), objects, obj, areas, 5)
+    np.testing.assert_allclose(recip.toarray(), [[0, 0, 0, 0.4, 0.2], [0, 0, 0, 0.1, 0.3], [0, 0, 0, 0, 0]], rtol=1e-12)
+    # Rows 0 and 1 sum to 1.1 and 1.2: their static entries are scaled by 0.4 / 0.5 and 0.6 / 0.8.
+    out = at_pose(rows, np.zeros(rows.nnz, bool), recip)
     expect = [[0.0, 0.16, 0.24, 0.4, 0.2], [0.3, 0.0, 0.3, 0.1, 0.3], [0.1, 0.1, 0.0, 0.0, 0.0]]
     np.testing.assert_allclose(out.toarray(), expect, rtol=1e-12)
-    np.testing.assert_array_equal(scaled, [True, True, False])
+    assert out.has_sorted_indices and not np.any(out.data == 0)
+    # Patch 3's row doubled and F[1, 2] hidden: row 1 sums to 0.9, no cap; row 0's static
+    # entries all go, its object columns alone filling it (0.8 + 0.2).
+    hidden = np.zeros(rows.nnz, bool)
+    hidden[3] = True  # entries in order: (0, 1), (0, 2), (1, 0), (1, 2), ...
+    out = at_pose(rows, hidden, reciprocal_columns(np.array([0, 1, 2]), sp.diags([2.0, 1.0]) @ objects, obj, areas, 5))
+    expect = [[0.0, 0.0, 0.0, 0.8, 0.2], [0.4, 0.0, 0.0, 0.2, 0.3], [0.1, 0.1, 0.0, 0.0, 0.0]]
+    np.testing.assert_allclose(out.toarray(), expect, rtol=1e-12)
+    assert out.nnz == 7
+    with pytest.raises(pd.InvalidInputError, match="differ in shape"):
+        at_pose(rows, hidden, recip[:2])
+
+
+def test_rows_at_pose_match_numpy():
+    """The native pass against the same rule in dense numpy, on random rows with every case."""
+    rng = np.random.default_rng(5)
+    n_static, n_obj, r = 40, 6, 300
+    dense = rng.random((r, n_static)) * (rng.random((r, n_static)) < 0.3) * rng.choice([0.02, 0.05], (r, 1))
+    rows = sp.csr_matrix(np.hstack([dense, np.zeros((r, n_obj))]))
+    hidden = rng.random(rows.nnz) < 0.2
+    objects = sp.csr_matrix(rng.random((n_obj, n_static + n_obj)) * (rng.random((n_obj, n_static + n_obj)) < 0.5) * 0.3)
+    areas = rng.uniform(0.5, 2.0, n_static + n_obj)
+    patches = rng.permutation(n_static)[rng.integers(0, n_static, r)]
+    recip = reciprocal_columns(patches, objects, np.arange(n_static, n_static + n_obj), areas, n_static + n_obj)
+    kept = rows.copy()
+    kept.data[hidden] = 0.0
+    kept = kept.toarray()[:, :n_static]
+    obj = areas[n_static:] * objects[:, patches].toarray().T / areas[patches][:, None]
+    np.testing.assert_allclose(recip.toarray()[:, n_static:], obj, rtol=1e-14)
+    s_kept, s_obj = kept.sum(axis=1), obj.sum(axis=1)
+    over = (s_kept > 0) & (s_kept + s_obj > 1.0)
+    assert 0 < over.sum() < r and (s_obj >= 1.0).any()  # rows capped, and rows whose objects fill them
+    kept[over] *= (np.maximum(1.0 - s_obj[over], 0.0) / s_kept[over])[:, None]
+    got = at_pose(rows, hidden, recip)
+    np.testing.assert_allclose(got.toarray(), np.hstack([kept, obj]), rtol=1e-13, atol=1e-17)
+    assert got.nnz == np.count_nonzero(np.hstack([kept, obj]))
 
 
 @pytest.mark.parametrize("budget", [0, None])
@@ -476,8 +511,8 @@ def test_segments_near_sphere_match_numpy():
     owners = rng.integers(0, len(P), 50).astype(np.int64)
     owners[::7] = -1
     c, r = np.array([0.1, -0.2, 0.3]), 0.35
-    out, out_owner = np.empty(len(indices), np.int64), np.empty(len(indices), np.int64)
-    count = _segments.near_sphere(P, indptr, indices, owners, tuple(c), r, None, out, out_owner)
+    out, rays = _segments.near_sphere(P, indptr, indices, owners, tuple(c), r, None)
+    out, rays = np.frombuffer(out, np.int64), np.frombuffer(rays, np.float64).reshape(-1, 6)
     row = np.repeat(np.arange(50), np.diff(indptr))
     a, b = P[owners[row]], P[indices]
     d = b - a
@@ -485,8 +520,8 @@ def test_segments_near_sphere_match_numpy():
     dist = np.linalg.norm(a + t[:, None] * d - c, axis=1)
     truth = np.flatnonzero((owners[row] >= 0) & (dist <= r))
     assert 50 < len(truth) < len(indices) // 2
-    np.testing.assert_array_equal(out[:count], truth)
-    np.testing.assert_array_equal(out_owner[:count], owners[row[truth]])
+    np.testing.assert_array_equal(out, truth)
+    np.testing.assert_array_equal(rays, np.hstack([a[truth], d[truth]]))  # no box: the segments in world space
     indices[3] = len(P)
     with pytest.raises(ValueError, match="out of range"):
-        _segments.near_sphere(P, indptr, indices, np.zeros(50, np.int64), tuple(c), r, None, out, out_owner)
+        _segments.near_sphere(P, indptr, indices, np.zeros(50, np.int64), tuple(c), r, None)

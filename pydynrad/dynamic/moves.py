@@ -27,8 +27,8 @@ from ..errors import InvalidInputError
 from ..rows.sources import HemicubeRows
 from .localrows import LocalRows
 
-__all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "refresh_order", "with_reciprocal_columns",
-           "capped", "stale_rows", "hidden_by", "hidden_between", "without_hidden", "swap_chunks"]
+__all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "refresh_order",
+           "stale_rows", "hidden_by", "hidden_between", "hidden_entries", "reciprocal_columns", "at_pose", "swap_chunks"]
 
 
 def sphere_solid_angle(points: np.ndarray, normals: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
@@ -91,7 +91,8 @@ def _hidden_entries(objects, transforms, points: np.ndarray, indptr: np.ndarray,
     The pre-test is one pass over the entries (``csrc/segments.c``): with u = p - c for the
     sphere's centre c, |u_a + t (u_b - u_a)|^2 is a quadratic in t whose coefficients are
     |u_a|^2, |u_b|^2 (per point, not per segment) and u_a . u_b; a segment near the sphere is
-    then moved into object space and kept only if it crosses the object's box (slab test)."""
+    then moved into object space and kept only if it crosses the object's box (slab test), and
+    comes out as the ray the object's tree traces."""
     from .. import _segments
     from ..bvh import occluded
 
@@ -99,95 +100,69 @@ def _hidden_entries(objects, transforms, points: np.ndarray, indptr: np.ndarray,
     indptr, indices = np.ascontiguousarray(indptr, np.int64), np.ascontiguousarray(indices, np.int64)
     owners = np.ascontiguousarray(owners, np.int64)
     out = np.zeros(len(indices), bool)
-    near, near_owner = np.empty(len(indices), np.int64), np.empty(len(indices), np.int64)
     for o, T in zip(objects, transforms):
         c, r = o.bounding_sphere(T)
         Rt = T[:3, :3].T  # world to object space: x -> R^T (x - t)
         lo, hi = o.scene.bbox.astype(np.float64)
         box = np.concatenate([Rt.ravel(), -Rt @ T[:3, 3], lo - BOX_MARGIN * r, hi + BOX_MARGIN * r])
-        count = _segments.near_sphere(P, indptr, indices, owners, tuple(float(v) for v in c),
-                                      r * (1.0 + SPHERE_MARGIN), box.tolist(), near, near_owner)
-        keep = ~out[near[:count]]
-        j, p0 = near[:count][keep], P[near_owner[:count][keep]]
-        if len(j):
-            out[j] = occluded(o.scene, (p0 - T[:3, 3]) @ Rt.T, (P[indices[j]] - p0) @ Rt.T, np.float32(1.0),
-                              device=device)
+        near, rays = _segments.near_sphere(P, indptr, indices, owners, tuple(float(v) for v in c),
+                                           r * (1.0 + SPHERE_MARGIN), box.tolist())
+        near, rays = np.frombuffer(near, np.int64), np.frombuffer(rays, np.float64).reshape(-1, 6)
+        keep = ~out[near]
+        if keep.any():
+            rays = rays[keep]
+            out[near[keep]] = occluded(o.scene, rays[:, :3], rays[:, 3:], np.float32(1.0), device=device)
     return out
 
 
-def without_hidden(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.ndarray, normals: np.ndarray, objects,
-                   transforms, device=None) -> sp.csr_matrix:
-    """Static rows with the entries the objects hide set to zero: F[s, x] is dropped where the
-    segment between the centres of s and x crosses an object (:func:`_hidden_entries`). A
-    patch-centre estimate of the occlusion a hemicube at the pose would see, for no hemicube.
-    Rows of patches whose front sees no object's bounding sphere are left as they are (nothing
-    in front of them can be hidden)."""
-    rows = sp.csr_matrix(rows, dtype=np.float64, copy=True)
+def hidden_entries(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.ndarray, normals: np.ndarray, objects,
+                   transforms, device=None) -> np.ndarray:
+    """(nnz,) bool over the entries of static ``rows`` (of ``row_patches``): True where the
+    objects hide F[s, x], the segment between the centres of s and x crossing one
+    (:func:`_hidden_entries`): a patch-centre estimate of the occlusion a hemicube at the pose
+    would see, for no hemicube. Rows of patches whose front sees no object's bounding sphere
+    have none (nothing in front of them can be hidden)."""
     row_patches = np.asarray(row_patches, np.int64)
     spheres = [o.bounding_sphere(T) for o, T in zip(objects, transforms)]
     sees = refresh_order(centers[row_patches], normals[row_patches], spheres)[0]
     owners = np.full(len(row_patches), -1, np.int64)
     owners[sees] = row_patches[sees]
-    rows.data[_hidden_entries(objects, transforms, centers, rows.indptr, rows.indices, owners, device)] = 0.0
-    rows.eliminate_zeros()
-    return rows
+    return _hidden_entries(objects, transforms, centers, rows.indptr, rows.indices, owners, device)
 
 
-def _column_mask(n_cols: int, columns: np.ndarray) -> np.ndarray:
-    """(n_cols,) bool: True at ``columns`` (index it by a CSR's indices to test its entries)."""
-    mask = np.zeros(n_cols, bool)
-    mask[columns] = True
-    return mask
-
-
-def with_reciprocal_columns(rows: sp.csr_matrix, row_patches: np.ndarray, object_rows: sp.csr_matrix,
-                            object_patches: np.ndarray, areas: np.ndarray) -> sp.csr_matrix:
-    """``rows`` (of ``row_patches``) with their columns ``object_patches`` set by reciprocity:
-    F[s, o] = A_o F[o, s] / A_s from the objects' rows ``object_rows`` (len(object_patches), N)."""
+def reciprocal_columns(row_patches: np.ndarray, object_rows: sp.csr_matrix, object_patches: np.ndarray,
+                       areas: np.ndarray, n_cols: int) -> sp.csr_matrix:
+    """(len(row_patches), n_cols): the columns ``object_patches`` of the rows of ``row_patches``
+    by reciprocity, F[s, o] = A_o F[o, s] / A_s, from the objects' rows ``object_rows``
+    (len(object_patches), N); zero elsewhere."""
     A = np.asarray(areas, np.float64)
-    # Scaled and masked on the entries: broadcast sparse products copy the matrix per factor.
+    row_patches = np.asarray(row_patches, np.int64)
+    # Scaled on the entries: broadcast sparse products copy the matrix per factor.
     recip = sp.csr_matrix(object_rows[:, row_patches].T)
-    recip.data = recip.data * A[object_patches][recip.indices] * np.repeat(1.0 / A[row_patches], np.diff(recip.indptr))
-    kept = sp.csr_matrix(rows)
-    in_columns = _column_mask(kept.shape[1], object_patches)[kept.indices]
-    if in_columns.any():  # rows from the static F have none: no copy then
-        kept = sp.csr_matrix((np.where(in_columns, 0.0, kept.data), kept.indices, kept.indptr), shape=kept.shape)
-    placed = sp.csr_matrix((recip.data, object_patches[recip.indices], recip.indptr), shape=rows.shape)
-    out = sp.csr_matrix(kept + placed)
-    out.eliminate_zeros()
-    return out
+    recip.sort_indices()
+    data = recip.data * A[object_patches][recip.indices] * np.repeat(1.0 / A[row_patches], np.diff(recip.indptr))
+    return sp.csr_matrix((data, np.asarray(object_patches, np.int64)[recip.indices], recip.indptr),
+                         shape=(len(row_patches), n_cols))
 
 
-def capped(rows: sp.csr_matrix, object_patches: np.ndarray):
-    """Rows whose entries outside ``object_patches`` are scaled (clipped at zero) so that each
-    row sums to at most 1. Returns the rows and an (n,) bool mask of those scaled.
+def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix) -> sp.csr_matrix:
+    """Static ``rows`` (r, N; no entries in the object columns) at the objects' poses: without
+    their entries ``hidden`` ((nnz,) bool, :func:`hidden_entries`), with the object columns
+    ``recip`` (r, N, :func:`reciprocal_columns`), and capped: where a row then sums above 1
+    (the centre segments missed part of what an object hides), its static entries are scaled
+    so that it sums to 1, clipped at zero. One native pass (``csrc/poserows.c``); zeros dropped."""
+    from .. import _poserows
 
-    A row made from the static F at a pose (entries hidden by centre segments dropped, object
-    columns by reciprocity) may still sum above 1 where the two estimates disagree.
-    """
-    rows = sp.csr_matrix(rows)
-    # Only the rows over 1 are touched (~3% of a move's ~1,000 on the bench's scene): the other
-    # entries are neither masked nor copied, and the object entries (a few per row) are found by
-    # their columns alone: a third of the time of masking every entry.
-    mask = _column_mask(rows.shape[1], object_patches)
-    at_object = np.flatnonzero(mask[rows.indices])
-    obj_row = np.searchsorted(rows.indptr, at_object, side="right") - 1
-    obj_sum = np.bincount(obj_row, weights=rows.data[at_object], minlength=rows.shape[0])
-    total = rows @ np.ones(rows.shape[1])
-    kept_sum = total - obj_sum
-    scaled = (kept_sum > 0) & (total > 1.0)
-    out = sp.csr_matrix((rows.data.copy(), rows.indices.copy(), rows.indptr.copy()), shape=rows.shape)
-    if not scaled.any():
-        out.eliminate_zeros()
-        return out, scaled
-    r = np.flatnonzero(scaled)
-    lens = out.indptr[r + 1] - out.indptr[r]
-    entries = np.repeat(out.indptr[r] - (np.cumsum(lens) - lens), lens) + np.arange(lens.sum())
-    entry_scale = np.repeat(np.maximum(1.0 - obj_sum[r], 0.0) / kept_sum[r], lens)
-    static = ~mask[out.indices[entries]]
-    out.data[entries[static]] *= entry_scale[static]
-    out.eliminate_zeros()
-    return out, scaled
+    rows, recip = sp.csr_matrix(rows), sp.csr_matrix(recip)
+    if rows.shape != recip.shape:
+        raise InvalidInputError(f"rows {rows.shape} and their object columns {recip.shape} differ in shape")
+    n = rows.nnz + recip.nnz
+    indptr, indices, data = np.empty(rows.shape[0] + 1, np.int64), np.empty(n, np.int64), np.empty(n)
+    i64 = [np.ascontiguousarray(a, np.int64) for a in (rows.indptr, rows.indices, recip.indptr, recip.indices)]
+    nnz = _poserows.assemble(i64[0], i64[1], np.ascontiguousarray(rows.data, np.float64),
+                             np.ascontiguousarray(hidden, np.uint8), i64[2], i64[3],
+                             np.ascontiguousarray(recip.data, np.float64), indptr, indices, data)
+    return sp.csr_matrix((data[:nnz], indices[:nnz], indptr), shape=rows.shape)
 
 
 def stale_rows(local: sp.csr_matrix, fresh_slots: np.ndarray, S: np.ndarray, moved_slots: np.ndarray,
@@ -359,8 +334,8 @@ class WorldRows:
 
     Object patches' rows are hemicubes of the current world scene (or stored in ``poses``).
     Static rows come from ``static_ff`` (the static scene's (N, N) F or row source) with the
-    entries the objects hide dropped (:func:`without_hidden`), their object columns by
-    reciprocity from the objects' current rows, and capped to a sum of 1; with
+    entries the objects hide dropped (:func:`hidden_entries`), their object columns by
+    reciprocity from the objects' current rows, and capped to a sum of 1 (:func:`at_pose`); with
     ``static_ff=None`` they are hemicubes of the world too, and exact at the current poses.
     """
 
@@ -440,10 +415,10 @@ class WorldRows:
         static = self.static.rows(s)
         padded = sp.csr_matrix((static.data, static.indices, static.indptr), shape=(len(s), self.n_patches))
         world = self.world
-        seen = without_hidden(padded, s, world.centers, world.normals, self.objects_moving, world.bvh.transforms,
-                              self.device)
-        with_objects = with_reciprocal_columns(seen, s, self.objects(), self.object_patches, world.areas)
-        return capped(with_objects, self.object_patches)[0]
+        hidden = hidden_entries(padded, s, world.centers, world.normals, self.objects_moving, world.bvh.transforms,
+                                self.device)
+        return at_pose(padded, hidden, reciprocal_columns(s, self.objects(), self.object_patches, world.areas,
+                                                          self.n_patches))
 
     def rows(self, idx) -> sp.csr_matrix:
         idx = np.asarray(idx, np.int64)
