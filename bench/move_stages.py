@@ -67,8 +67,8 @@ def stages(moves: int = 8, device=None, correction: bool = False) -> list[tuple[
                                (dyn._ff.source, "_static_rows", "static rows at the pose from F (move and radiosity)"),
                                (dyn._stale, "update", "stale rows: D = current - kept")):
         _timed(owner, name, label, q, times)
-    for owner, name, label in ((moves_mod, "without_hidden", "hidden entries dropped (candidates' and outside rows)"),
-                               (moves_mod, "capped", "rows capped (candidates' and outside rows)"),
+    for owner, name, label in ((moves_mod, "hidden_entries", "hidden entries found (candidates' and outside rows)"),
+                               (moves_mod, "at_pose", "rows assembled at the pose (candidates' and outside rows)"),
                                (dyn._ff.source, "gather_outside", "radiosity: outside gathered at the pose (rows and product)"),
                                (dyn._stale, "correct", "radiosity: stale rows corrected")):
         _timed(owner, name, label, q, times)

@@ -34,14 +34,12 @@ See docs/design.md, 'Multibounce build'.
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 import scipy.sparse as sp
 
 from .checks import check_form_factors, check_form_factor_rows, patch_indices, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
+from .hostthreads import cores as host_cores, pool as host_pool
 from .launch import GEMM_GRAIN, PANEL, gemm_layout, round_up
 from .memory import available_host_bytes
 
@@ -309,11 +307,6 @@ def _host_build(FP: np.ndarray, F: np.ndarray, bounces: int | None, bar) -> np.n
     return K
 
 
-def _cores() -> int:
-    """CPU cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
 def _host_channels(F_work: np.ndarray, rho: np.ndarray, bounces: int | None, result: np.ndarray, bar) -> None:
     """result[c] = K of channel c by numpy; the channels side by side, one BLAS thread each,
     when there are no more cores than channels (see the module's docstring)."""
@@ -323,15 +316,15 @@ def _host_channels(F_work: np.ndarray, rho: np.ndarray, bounces: int | None, res
         # In the working dtype from the start: no float64 pass over M^2 before the solve.
         result[c] = _host_build(F_work * rho[:, c].astype(F_work.dtype)[None, :], F_work, bounces, bar)
 
-    cores = _cores()
+    cores = host_cores()
     if C == 1 or cores > C:
         for c in range(C):
             channel(c)
         return
     from .hostblas import one_blas_thread
 
-    with one_blas_thread(), ThreadPoolExecutor(cores) as pool:
-        list(pool.map(channel, range(C)))
+    with one_blas_thread():
+        list(host_pool().map(channel, range(C)))
 
 
 def _build(F_SS: np.ndarray, rho: np.ndarray, bounces: int | None, out: np.dtype, device, progress,

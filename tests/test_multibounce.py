@@ -41,7 +41,7 @@ def test_host_build_side_by_side_or_in_turn(device, monkeypatch, cores):
     import pydynrad.hostblas
 
     mb = importlib.import_module("pydynrad.multibounce")  # the module, not the function pydynrad exports
-    monkeypatch.setattr(mb, "_cores", lambda: cores)
+    monkeypatch.setattr(mb, "host_cores", lambda: cores)
     rng = np.random.default_rng(5)
     s = box_scene(3).with_materials(albedo=rng.uniform(0, 0.9, (108, 3)))
     F = reciprocal_F(s.areas, row_sum=0.95, density=0.3, seed=5)

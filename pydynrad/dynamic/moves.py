@@ -73,6 +73,11 @@ SPHERE_MARGIN = 1e-6
 BOX_MARGIN = 1e-4
 
 
+#: Segments from which :func:`_hidden_entries` splits its pre-test over the cores (below, a
+#: thread's start costs more than it saves).
+PARALLEL_SEGMENTS = 50_000
+
+
 def hidden_between(objects, transforms, points: np.ndarray, a: np.ndarray, b: np.ndarray, device=None) -> np.ndarray:
     """(n,) bool: the segments ``points[a[i]] -> points[b[i]]`` that cross an object's triangles
     at ``transforms`` (:func:`_hidden_entries` with one segment per row)."""
@@ -95,19 +100,24 @@ def _hidden_entries(objects, transforms, points: np.ndarray, indptr: np.ndarray,
     comes out as the ray the object's tree traces."""
     from .. import _segments
     from ..bvh import occluded
+    from ..hostthreads import cores, pool, row_parts
 
     P = np.ascontiguousarray(points, np.float64)
     indptr, indices = np.ascontiguousarray(indptr, np.int64), np.ascontiguousarray(indices, np.int64)
     owners = np.ascontiguousarray(owners, np.int64)
     out = np.zeros(len(indices), bool)
+    # The rows in a part per core, the native pass run on each at once (it releases the GIL).
+    parts = row_parts(indptr, cores() if len(indices) >= PARALLEL_SEGMENTS else 1)
     for o, T in zip(objects, transforms):
         c, r = o.bounding_sphere(T)
         Rt = T[:3, :3].T  # world to object space: x -> R^T (x - t)
         lo, hi = o.scene.bbox.astype(np.float64)
         box = np.concatenate([Rt.ravel(), -Rt @ T[:3, 3], lo - BOX_MARGIN * r, hi + BOX_MARGIN * r])
-        near, rays = _segments.near_sphere(P, indptr, indices, owners, tuple(float(v) for v in c),
-                                           r * (1.0 + SPHERE_MARGIN), box.tolist())
-        near, rays = np.frombuffer(near, np.int64), np.frombuffer(rays, np.float64).reshape(-1, 6)
+        args = (tuple(float(v) for v in c), r * (1.0 + SPHERE_MARGIN), box.tolist())
+        found = list(pool().map(lambda k: _segments.near_sphere(P, indptr[k[0]:k[1] + 1], indices, owners[k[0]:k[1]],
+                                                                *args), parts))
+        near = np.frombuffer(b"".join(f[0] for f in found), np.int64)
+        rays = np.frombuffer(b"".join(f[1] for f in found), np.float64).reshape(-1, 6)
         keep = ~out[near]
         if keep.any():
             rays = rays[keep]
@@ -398,12 +408,14 @@ class WorldRows:
         order = np.argsort(np.concatenate([np.flatnonzero(have), miss]), kind="stable")
         return sp.csr_matrix(sp.vstack(parts, format="csr")[order], dtype=np.float64), len(miss)
 
-    def _at(self, idx: np.ndarray, make) -> sp.csr_matrix:
-        """Rows ``idx``, each made once per pose by ``make(missing indices)`` and kept until the next move."""
+    def _at(self, idx: np.ndarray, make, also: np.ndarray | None = None) -> sp.csr_matrix:
+        """Rows ``idx``, each made once per pose by ``make(missing indices)`` and kept until the
+        next move; rows ``also`` missing are made in the same call, for later."""
         if self._at_pose is None:
             self._at_pose = (np.full(self.n_patches, -1), sp.csr_matrix((0, self.n_patches)))
         where, held = self._at_pose
-        miss = np.unique(idx[where[idx] < 0])
+        wanted = idx if also is None else np.concatenate([idx, also])
+        miss = np.unique(wanted[where[wanted] < 0])
         if len(miss):
             where[miss] = held.shape[0] + np.arange(len(miss))
             held = sp.vstack([held, make(miss)], format="csr")
@@ -432,8 +444,8 @@ class WorldRows:
         return sp.csr_matrix(sp.vstack(parts, format="csr")[order])
 
     def refresh(self, moved: np.ndarray, candidates: np.ndarray, slots: np.ndarray, kept: sp.csr_matrix, spheres,
-                budget: int | None, weight: np.ndarray | None,
-                correct: bool = False) -> tuple[np.ndarray, sp.csr_matrix, int, tuple | None]:
+                budget: int | None, weight: np.ndarray | None, correct: bool = False,
+                outside: np.ndarray | None = None) -> tuple[np.ndarray, sp.csr_matrix, int, tuple | None]:
         """Which of the static ``candidates`` (patch indices in ``slots``; ``kept`` the local
         set's rows (M, N) in slot order, so theirs are ``current = kept[slots]``, sliced only
         when the budget ranks them) to refresh after a move, and the new rows of ``moved``
@@ -451,7 +463,8 @@ class WorldRows:
         ``moved`` then of those, hemicubes computed, left): ``left`` is (indices into
         ``candidates``, their rows at the new poses) for the candidates made but not kept (with
         a static F and a budget that leaves some), for :class:`~pydynrad.dynamic.stale.StaleRows`;
-        else None."""
+        else None. ``outside``: patches whose rows the frame will gather at the new poses
+        (:meth:`gather_outside`): with a static F made in the same pass as the candidates'."""
         world = self.world
         order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
         if self.static is None:
@@ -464,7 +477,8 @@ class WorldRows:
         # Objects that did not move are seen by those that did: their rows, new anyway, go in too.
         still = np.flatnonzero(candidates >= self.n_static)
         order = order[candidates[order] < self.n_static] if budget != 0 or correct else order[:0]
-        new = self._at(candidates[order], self._static_rows)
+        also = None if outside is None else outside[outside < self.n_static]
+        new = self._at(candidates[order], self._static_rows, also)
         left = None
         if budget == 0:
             left, order, new = (order, new), order[:0], new[:0]

@@ -523,8 +523,11 @@ class DynamicRadiosity:
         slot_of = np.full(len(self.scene), -1)
         slot_of[S] = np.arange(M)
         others = np.flatnonzero(~np.isin(S, moved))
+        # With the far field, radiosity() gathers the patches outside S at the new poses.
+        outside = np.flatnonzero(~self._local_mask) if self.far is not None else None
         order, new_rows, hemicubes, left = source.refresh(moved, S[others], others, self._ff.local, spheres,
-                                                          self.occlusion, self._last_B, self.occlusion_correction)
+                                                          self.occlusion, self._last_B, self.occlusion_correction,
+                                                          outside)
         slots = np.concatenate([slot_of[moved], others[order]])
         if self.occlusion == 0 and left is not None:
             # Budget 0 with the correction: no swap. The objects' new rows join the rows left

@@ -1,0 +1,38 @@
+"""Host threads for native passes that release the GIL: the cores this process may run on, one
+shared pool, and rows cut into parts of equal work."""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+__all__ = ["cores", "pool", "row_parts"]
+
+_pool: ThreadPoolExecutor | None = None
+_lock = threading.Lock()
+
+
+def cores() -> int:
+    """CPU cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def pool() -> ThreadPoolExecutor:
+    """The process's pool of :func:`cores` threads (made on first use)."""
+    global _pool
+    with _lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=cores(), thread_name_prefix="pydynrad")
+        return _pool
+
+
+def row_parts(indptr: np.ndarray, parts: int) -> list[tuple[int, int]]:
+    """Rows [k0, k1) of a CSR structure (``indptr`` (r + 1,)) in at most ``parts`` runs of about
+    equal entries, none empty unless there are no rows."""
+    rows = len(indptr) - 1
+    cuts = np.searchsorted(indptr, np.linspace(0, indptr[-1], max(int(parts), 1) + 1)[1:-1], side="right") - 1
+    edges = np.unique(np.concatenate([[0], np.clip(cuts, 0, rows), [rows]]))
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])] or [(0, 0)]
