@@ -415,12 +415,21 @@ class WorldRows:
             self._at_pose = (np.full(self.n_patches, -1), sp.csr_matrix((0, self.n_patches)))
         where, held = self._at_pose
         wanted = idx if also is None else np.concatenate([idx, also])
-        miss = np.unique(wanted[where[wanted] < 0])
-        if len(miss):
+        missing = wanted[where[wanted] < 0]
+        if len(missing):
+            # In the order asked (first occurrences): the first call after a move then takes its
+            # rows as one run of what it made, not a copy through an index.
+            miss = missing[np.sort(np.unique(missing, return_index=True)[1])]
             where[miss] = held.shape[0] + np.arange(len(miss))
-            held = sp.vstack([held, make(miss)], format="csr")
+            made = sp.csr_matrix(make(miss))
+            held = made if not held.shape[0] else sp.vstack([held, made], format="csr")
             self._at_pose = (where, held)
-        return held[where[idx]]
+        at = where[idx]
+        if len(at) and at[0] == 0 and np.array_equal(at, np.arange(len(at))):  # a view (scipy's slice copies)
+            end = held.indptr[len(at)]
+            return sp.csr_matrix((held.data[:end], held.indices[:end], held.indptr[: len(at) + 1]),
+                                 shape=(len(at), held.shape[1]))
+        return held[at]
 
     def _static_rows(self, s: np.ndarray) -> sp.csr_matrix:
         """Rows of static patches ``s`` at the current poses, from the static F (class docstring)."""
