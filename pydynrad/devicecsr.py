@@ -114,10 +114,15 @@ class DeviceCSR:
             cl.enqueue_copy(d.queue, out, y, is_blocking=True)
         return out[:, :k].astype(np.float64)
 
-    def jacobi(self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float,
-               max_sweeps: int) -> tuple[np.ndarray, int, float, list[float]]:
+    def jacobi(self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float, max_sweeps: int,
+               mixing: int = 0) -> tuple[np.ndarray, int, float, list[float]]:
         """Iterate x <- L + rho * (A x) from x0 (A square) until the relative max-norm change
         max |x_new - x| / max |x_new| is <= tol (never, for tol < 0) or ``max_sweeps`` ran.
+
+        ``mixing`` > 0: each next x is the Anderson mixing (:class:`pydynrad.anderson.Anderson`,
+        that many earlier steps) of the sweeps' images, on the host in float64 (each sweep then
+        reads its image back and uploads the next x: (n, 4) REALs each way); the change is
+        that of the last sweep, from its x to its image, which the answer is.
 
         Returns (x, sweeps, the last relative change, every sweep's relative change); x is
         float64 of x0's shape, computed in this matrix's type.
@@ -132,8 +137,34 @@ class DeviceCSR:
         x = cl.Buffer(d.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=self.packed(x0, width))
         y = cl.Buffer(d.context, mf.READ_WRITE, n * width * self.dtype.itemsize)
         partial_buf = cl.Buffer(d.context, mf.READ_WRITE, 2 * nb * self.dtype.itemsize)
+        out = np.empty((n, width), dtype=self.dtype)
+        if mixing > 0:
+            return self._mixed(L_buf, rho_buf, np.asarray(x0, np.float64), x, y, partial_buf, out, tol, max_sweeps,
+                               mixing)
         x, change, history = sweeps(d, lambda x, y: self.bounce_buffers(L_buf, rho_buf, x, y, width, partial_buf),
                                     x, y, partial_buf, nb, self.dtype, tol, max_sweeps)
-        out = np.empty((n, width), dtype=self.dtype)
         cl.enqueue_copy(d.queue, out, x, is_blocking=True)
         return out[:, :k].astype(np.float64), len(history), change, history
+
+    def _mixed(self, L_buf, rho_buf, u: np.ndarray, x_buf, y_buf, partial_buf, out: np.ndarray, tol: float,
+               max_sweeps: int, depth: int) -> tuple[np.ndarray, int, float, list[float]]:
+        """:meth:`jacobi` with Anderson mixing from u (n, k) float64 (already in ``x_buf``)."""
+        import pyopencl as cl
+
+        from .anderson import Anderson
+
+        d, k, width = self.device, u.shape[1], out.shape[1]
+        mixer, history, staged = Anderson(depth), [], np.zeros_like(out)
+        while True:
+            self.bounce_buffers(L_buf, rho_buf, x_buf, y_buf, width, partial_buf)
+            cl.enqueue_copy(d.queue, out, y_buf, is_blocking=True)
+            fu = out[:, :k].astype(np.float64)
+            residual = fu - u
+            scale = float(np.abs(fu).max())
+            change = float(np.abs(residual).max()) / scale if scale > 0 else 0.0
+            history.append(change)
+            if change <= tol or len(history) >= max_sweeps:
+                return fu, len(history), change, history
+            u = mixer.next(fu, residual)
+            staged[:, :k] = u
+            cl.enqueue_copy(d.queue, x_buf, staged, is_blocking=True)

@@ -427,33 +427,6 @@ def test_budget_zero_moves_then_walk_swaps(box, block, device, monkeypatch):
     assert capped._stale.converged and rel(B, truth) < 1e-4  # observed: converged at the 6th call, 5.9e-6
 
 
-def test_anderson_mixing_solves_a_low_rank_fixed_point():
-    """The correction's mixing on u = b + A u with A of rank 3 (per channel, other A each):
-    the residuals span at most 3 directions, so depth-3 mixing reaches the fixed point (to
-    rounding) in a few steps, where plain iteration still carries rho(A)^n."""
-    from pydynrad.dynamic.stale import _Anderson
-
-    rng = np.random.default_rng(7)
-    M = 60
-    A = []
-    for _ in range(3):
-        Q = np.linalg.qr(rng.standard_normal((M, 3)))[0]
-        A.append(Q @ np.diag([0.7, -0.5, 0.3]) @ Q.T)  # spectral radius 0.7
-    b = rng.standard_normal((M, 3))
-    truth = np.stack([np.linalg.solve(np.eye(M) - A[c], b[:, c]) for c in range(3)], axis=1)
-
-    def f(u):
-        return b + np.stack([A[c] @ u[:, c] for c in range(3)], axis=1)
-
-    mixed, plain, mixing = np.zeros((M, 3)), np.zeros((M, 3)), _Anderson(3)
-    for _ in range(6):
-        fu = f(mixed)
-        mixed = mixing.next(fu, fu - mixed)
-        plain = f(plain)
-    assert np.abs(mixed - truth).max() < 1e-12 * np.abs(truth).max()  # observed 6e-16 (exact from step 5)
-    assert np.abs(plain - truth).max() > 1e-2 * np.abs(truth).max()  # observed 0.044
-
-
 def test_poses_in_store(box, block, device, tmp_path):
     """Per-pose rows in a form-factor store: a pose from the store gives the same K as from
     hemicubes; a store of another scene, or of poses of other objects, is refused; a file

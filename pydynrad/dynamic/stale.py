@@ -30,13 +30,18 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from ..anderson import Anderson
+
 __all__ = ["StaleRows", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS"]
 
 #: Stop when an iteration changes B on the local set by at most this much of its max.
 CORRECTION_TOLERANCE = 1e-4
 #: The most iterations per :meth:`StaleRows.correct` (each one pass over K per channel).
 CORRECTION_ITERATIONS = 8
-#: Earlier iterates that Anderson mixing combines (:class:`_Anderson`).
+#: Earlier iterates that Anderson mixing combines (:class:`~pydynrad.anderson.Anderson`). After the
+#: moves of bench/objects.py's block at budget 0 (its own rows among the stale ones) plain
+#: iteration took 4-7 passes over K (6.1 on average over 8 moves), mixing 4-5 (4.9) at depth 3,
+#: the same at 5, 5.4 at 1 (PoCL, AMD EPYC Zen 3, 2026-12-02).
 ANDERSON_DEPTH = 3
 
 
@@ -110,7 +115,7 @@ class StaleRows:
         x[S] = B0 if self._increment is None else B0 + self._increment[S]
         rho = albedo[S[self.slots]].astype(np.float64)
         g = np.zeros_like(B0)
-        mixing = _Anderson(ANDERSON_DEPTH)
+        mixing = Anderson(ANDERSON_DEPTH)
         for it in range(1, CORRECTION_ITERATIONS + 1):
             g[self.slots] = rho * (self.delta @ x)
             new = B0 + solve_kept(g)
@@ -126,35 +131,3 @@ class StaleRows:
             self._increment = np.zeros_like(B)
         self._increment[S] = x[S] - B0
         return x[S]
-
-
-class _Anderson:
-    """Anderson mixing (type II, window ``depth``) of the fixed-point iteration u <- f(u), per
-    colour channel: the next iterate is the combination of the last few f(u) whose residuals
-    f(u) - u cancel best in least squares. On this affine map it works as GMRES on the
-    last ``depth`` directions. After the moves of bench/objects.py's block at budget 0 (its
-    own rows among the stale ones) plain iteration took 4-7 passes over K (6.1 on average over
-    8 moves), mixing 4-5 (4.9) at depth 3, the same at 5, 5.4 at 1 (PoCL, AMD EPYC Zen 3,
-    2026-12-02)."""
-
-    def __init__(self, depth: int) -> None:
-        self.depth = depth
-        self._last: tuple[np.ndarray, np.ndarray] | None = None  # (f(u), residual) of the last step
-        self._dg: list[np.ndarray] = []
-        self._dr: list[np.ndarray] = []
-
-    def next(self, fu: np.ndarray, residual: np.ndarray) -> np.ndarray:
-        """The next iterate from f(u) (M, 3) and its residual f(u) - u (M, 3)."""
-        if self._last is not None:
-            self._dg.append(fu - self._last[0])
-            self._dr.append(residual - self._last[1])
-            del self._dg[: -self.depth], self._dr[: -self.depth]
-        self._last = (fu, residual)
-        if not self._dr:
-            return fu
-        dG, dR = np.stack(self._dg, axis=-1), np.stack(self._dr, axis=-1)  # (M, 3, m)
-        out = fu.copy()
-        for c in range(fu.shape[1]):
-            gamma = np.linalg.lstsq(dR[:, c], residual[:, c], rcond=None)[0]
-            out[:, c] -= dG[:, c] @ gamma
-        return out

@@ -89,6 +89,10 @@ DENSE_CLUSTERS = 2048
 #: Earlier coarse solutions the sweeps' warm start combines (:meth:`FarField._warm_start`).
 WARM_STARTS = 4
 
+#: Steps that the coarse sweeps' Anderson mixing combines (0: plain Jacobi sweeps;
+#: :meth:`pydynrad.devicecsr.DeviceCSR.jacobi`).
+COARSE_MIXING = 3
+
 #: A light vector within this much of its maximum (per channel) of a combination of the last
 #: WARM_STARTS ones is answered by the same combination of their B_far (:meth:`FarField._combined`):
 #: far below the coarse solve's own tolerance, above float32's rounding of the ones held.
@@ -454,7 +458,8 @@ class FarField:
         k = s.shape[1]
         rho_c = self.rho_c[:, :k]
         if self.K_c is None:
-            x, self.sweeps, _, _ = self._Fc_dev.jacobi(s, rho_c, self._warm_start(s), self.tol, self.max_sweeps)
+            x, self.sweeps, _, _ = self._Fc_dev.jacobi(s, rho_c, self._warm_start(s), self.tol, self.max_sweeps,
+                                                       COARSE_MIXING)
             self._solved.add(s, x)
             return x
         self.sweeps = 0
