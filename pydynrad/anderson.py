@@ -20,28 +20,37 @@ class Anderson:
 
     def __init__(self, depth: int) -> None:
         self.depth = depth
-        self._last: tuple[np.ndarray, np.ndarray] | None = None  # (f(u), residual) of the last step
-        self._dg: list[np.ndarray] = []  # differences of f(u), (k, n) each
-        self._dr: list[np.ndarray] = []  # differences of the residuals
+        self._steps = 0  # differences held (up to depth)
+        # Channel-major (k, n) and preallocated: the products below are then batched matrix
+        # products, and no step allocates its history (on a VM whose fresh pages fault one by
+        # one, the allocations cost as much as the arithmetic).
+        self._last: tuple[np.ndarray, np.ndarray] | None = None  # f(u) and residual of the last step
+        self._dg: np.ndarray | None = None  # (k, depth, n) differences of f(u), a ring
+        self._dr: np.ndarray | None = None  # the same of the residuals
 
     def next(self, fu: np.ndarray, residual: np.ndarray) -> np.ndarray:
         """The next iterate from f(u) (n, k) and its residual f(u) - u (n, k)."""
-        # Kept channel-major, (k, n): the products below are then batched matrix products.
-        fu_t, r_t = np.ascontiguousarray(fu.T), np.ascontiguousarray(residual.T)
-        if self._last is not None:
-            self._dg.append(fu_t - self._last[0])
-            self._dr.append(r_t - self._last[1])
-            del self._dg[: -self.depth], self._dr[: -self.depth]
-        self._last = (fu_t, r_t)
-        if not self._dr:
+        n, k = fu.shape
+        if self._last is None:
+            self._last = (np.array(fu.T), np.array(residual.T))
+            self._dg, self._dr = np.empty((k, self.depth, n)), np.empty((k, self.depth, n))
             return fu
-        # The least squares min |residual - dR gamma| per channel by its m x m normal equations:
-        # lstsq's SVD of each (n, m) column set cost ~0.3 ms a channel at n = 8,269 (the
-        # village's coarse level), as much as a third of the sweep it accelerates. The small
-        # systems go through lstsq too, so a singular one (a direction repeated) is no error;
-        # squaring their condition does not matter at a window of a few steps.
-        dR, dG = np.stack(self._dr, axis=1), np.stack(self._dg, axis=1)  # (k, m, n)
+        slot = self._steps % self.depth
+        np.subtract(fu.T, self._last[0], out=self._dg[:, slot])
+        np.subtract(residual.T, self._last[1], out=self._dr[:, slot])
+        np.copyto(self._last[0], fu.T)
+        np.copyto(self._last[1], residual.T)
+        self._steps += 1
+        m = min(self._steps, self.depth)
+        dR, dG = self._dr[:, :m], self._dg[:, :m]  # (k, m, n), in ring order (no matter to least squares)
+        # The least squares min |residual - dR gamma| per channel by its m x m normal equations,
+        # every channel in one batched solve: lstsq's SVD of each (n, m) column set cost ~0.3 ms
+        # a channel at n = 8,269 (the village's coarse level), and lstsq's overhead alone ~0.13 ms
+        # a small system, against a 4-6 ms sweep. A ridge of 1e-12 of the trace keeps a singular
+        # system (a direction repeated; no change at all) solvable; squaring the condition does
+        # not matter at a window of a few steps.
         gram = dR @ dR.transpose(0, 2, 1)
-        rhs = (dR @ r_t[:, :, None])[:, :, 0]
-        gamma = np.stack([np.linalg.lstsq(gram[c], rhs[c], rcond=None)[0] for c in range(len(gram))])  # (k, m)
-        return fu - (gamma[:, None, :] @ dG)[:, 0, :].T
+        rhs = dR @ self._last[1][:, :, None]
+        ridge = 1e-12 * np.trace(gram, axis1=1, axis2=2)[:, None, None] + 1e-300
+        gamma = np.linalg.solve(gram + ridge * np.eye(m), rhs)  # (k, m, 1)
+        return fu - (gamma.transpose(0, 2, 1) @ dG)[:, 0, :].T
