@@ -233,6 +233,8 @@ def test_bad_input(box, block, device):
         pd.DynamicRadiosity(box, None, local_size=len(box), objects=[obj], occlusion=-1, device=device)
     with pytest.raises(pd.InvalidInputError, match="occlusion_correction"):
         pd.DynamicRadiosity(box, None, local_size=len(box), objects=[obj], occlusion_correction="yes", device=device)
+    with pytest.raises(pd.InvalidInputError, match="'auto'"):
+        pd.DynamicRadiosity(box, None, local_size=len(box), objects=[obj], occlusion="some", device=device)
     dyn.move(obj, pose(0, (350.0, 200.0, 330.0)))  # through the tall block: allowed, warned
     with pytest.warns(pd.ObjectIntersectionWarning):
         dyn.update(OBSERVER)
@@ -341,6 +343,24 @@ def test_static_form_factors_budget_trades_error(box, block, device):
     assert errors[None, False] < 0.01
     for budget in (0, 32):  # observed within 2e-8 of the refresh of every row (PoCL, EPYC, 2026-12-02)
         assert abs(errors[budget, True] - errors[None, False]) < 1e-4
+
+
+def test_default_budget_follows_the_rows(box, block, device):
+    """occlusion="auto": 0 with a static F and the correction (every budget gives the same
+    error there, see test_stale_rows_corrected), DEFAULT_OCCLUSION where a refresh buys
+    accuracy (hemicube rows, or no correction)."""
+    from pydynrad.dynamic.radiosity import DEFAULT_OCCLUSION
+
+    F_static = pd.form_factors(box, R, device=device)
+
+    def budget(form_factors, **kw):
+        return pd.DynamicRadiosity(box, form_factors, local_size=64, resolution=R, objects=[pd.RigidObject(block, START)],
+                                   far_field=False, observer=OBSERVER, device=device, **kw).occlusion
+
+    assert budget(F_static) == 0
+    assert budget(F_static, occlusion_correction=False) == DEFAULT_OCCLUSION == 32
+    assert budget(None) == DEFAULT_OCCLUSION
+    assert budget(F_static, occlusion=5) == 5
 
 
 def test_stale_rows_corrected(box, block, device):
