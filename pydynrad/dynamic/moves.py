@@ -410,7 +410,8 @@ class WorldRows:
 
     def _at(self, idx: np.ndarray, make, also: np.ndarray | None = None) -> sp.csr_matrix:
         """Rows ``idx``, each made once per pose by ``make(missing indices)`` and kept until the
-        next move; rows ``also`` missing are made in the same call, for later."""
+        next move; rows ``also`` missing are made in the same call, for later. The rows returned
+        may share memory with those kept (every caller copies before it changes them)."""
         if self._at_pose is None:
             self._at_pose = (np.full(self.n_patches, -1), sp.csr_matrix((0, self.n_patches)))
         where, held = self._at_pose

@@ -18,7 +18,7 @@ With C = N (every patch its own cluster) G = F and B_far is the full solution.
 The coarse system x = s + P_c F_c x (s = L_c, or R D1 below) is solved per light change either
 with a dense coarse multibounce matrix K_c = (I - F_c P_c)^-1 F_c per channel (x = s + P_c K_c s:
 one product, K_c built once by :mod:`pydynrad.multibounce`'s builder, stored fp16/fp32/fp64 on
-the device), or by Jacobi sweeps of the sparse F_c on the device, warm-started from the best
+the device), or by Jacobi sweeps of the sparse F_c on the device (Anderson-mixed, :data:`COARSE_MIXING`), warm-started from the best
 combination of earlier solutions (x is linear in s: lights switched back, or summed, start at
 their answer) (``coarse="auto"``: dense up to :data:`DENSE_CLUSTERS` clusters; bench/farfield.py
 measured the switch-over). Every patch's B_far then comes from one of three gathers (``gather=``, measured in
