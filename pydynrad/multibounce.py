@@ -251,9 +251,10 @@ def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32
     bounces, dtype, device, progress, backend
         As in :func:`multibounce`.
     checked : bool
-        The caller made ``F_SS`` from validated parts (the far field's coarse F_c = R F Pr):
-        take it as it is. A weighted prolongation lets such rows sum above 1 (R Pr = I, not
-        Pr 1 = 1) while the system stays well posed, which the check would refuse.
+        The caller made ``F_SS`` from validated parts: take it as it is. The far field's coarse
+        F_c = R F Pr (a weighted prolongation lets its rows sum above 1, R Pr = I, not
+        Pr 1 = 1, while the system stays well posed, which the check would refuse), and
+        :class:`~pydynrad.DynamicRadiosity`'s local set, whose rows were validated when fetched.
 
     Returns
     -------
