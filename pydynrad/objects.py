@@ -144,29 +144,33 @@ def _objects(objects) -> list[RigidObject]:
 
 
 def _combined(scene, objs: list[RigidObject], transforms=None):
-    """The static scene and the objects at ``transforms`` (default: their poses) as one Scene."""
-    from .scene import Scene
+    """The static scene and the objects at ``transforms`` (default: their poses) as one Scene.
+
+    Assembled from the parts, not validated again (:meth:`Scene._assembled`): the static
+    patches keep their own arrays bit for bit (so their rows match those of the static scene
+    wherever no object is in view), and each object's centres, normals and areas come from its
+    points at the pose as a Scene would compute them (:func:`pydynrad.scene.patch_geometry`)."""
+    from .scene import Scene, patch_geometry
 
     transforms = [o.transform for o in objs] if transforms is None else transforms
-    points, tris = [scene.points.astype(np.float64)], [scene.triangles]
+    points, tris, geometry, corners = [scene.points], [scene.triangles], [], [scene.bbox]
     base = len(scene.points)
     for o, T in zip(objs, transforms):
-        points.append(o.world_points(T))
+        p = o.world_points(T)
+        points.append(p)
         tris.append(o.scene.triangles + base)
-        base += len(o.scene.points)
+        geometry.append(patch_geometry(p, o.scene.triangles))
+        used = p[np.unique(o.scene.triangles)]
+        corners.append(np.stack([used.min(axis=0), used.max(axis=0)]))
+        base += len(p)
     parts = [scene] + [o.scene for o in objs]
-    name = "+".join([scene.name] + [o.name for o in objs])
-    out = Scene(np.concatenate(points), np.concatenate(tris), np.concatenate([p.albedo for p in parts]),
-                np.concatenate([p.emission for p in parts]), name=name)
-    n = len(scene)
-    # The static patches keep their own arrays bit for bit (they were derived from float64
-    # corners), so their rows match those of the static scene wherever no object is in view.
-    for name in ("centers", "normals", "areas"):
-        a = getattr(out, name).copy()  # scene arrays are read-only once validated
-        a[:n] = getattr(scene, name)
-        a.flags.writeable = False
-        setattr(out, name, a)
-    return out
+    arrays = [np.concatenate([getattr(scene, name)] + [g[k] for g in geometry])
+              for k, name in enumerate(("centers", "normals", "areas"))]
+    corners = np.stack(corners)
+    return Scene._assembled(np.concatenate(points), np.concatenate(tris), np.concatenate([p.albedo for p in parts]),
+                            np.concatenate([p.emission for p in parts]), *arrays,
+                            name="+".join([scene.name] + [o.name for o in objs]),
+                            bbox=np.stack([corners[:, 0].min(axis=0), corners[:, 1].max(axis=0)]))
 
 
 def _warn_intersections(scene, objs: list[RigidObject], transforms) -> None:

@@ -97,6 +97,28 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     return a
 
 
+def _doubled_areas(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(cross products (n, 3), their lengths (n,)) of triangles ``v`` (n, 3, 3) float64: twice
+    each triangle's area, along its normal."""
+    cross = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    return cross, np.linalg.norm(cross, axis=1)
+
+
+def _patch_arrays(v: np.ndarray, cross: np.ndarray, dbl_area: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(centres float64, unit normals float32, areas float32) of triangles ``v`` (n, 3, 3) from
+    their :func:`_doubled_areas`."""
+    return (np.ascontiguousarray(v.mean(axis=1), dtype=np.float64),
+            np.ascontiguousarray(cross / dbl_area[:, None], dtype=np.float32),
+            np.ascontiguousarray(0.5 * dbl_area, dtype=np.float32))
+
+
+def patch_geometry(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(centres, normals, areas) of a Scene's patches ``triangles`` over ``points``, as
+    :class:`Scene` computes them (bit for bit), for triangles already known to be sound."""
+    v = np.asarray(points, np.float64)[triangles]
+    return _patch_arrays(v, *_doubled_areas(v))
+
+
 def _checked_albedo(value, n: int) -> np.ndarray:
     a = _as_rgb(value, n, "albedo")
     if a.min() < 0.0 or a.max() >= 1.0:
@@ -162,8 +184,7 @@ class Scene:
             raise InvalidInputError(f"source_face must have shape ({n_in},); got {source_face.shape}")
 
         v = pts[tri]
-        cross = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-        dbl_area = np.linalg.norm(cross, axis=1)
+        cross, dbl_area = _doubled_areas(v)
         # Relative to the triangle's own size, so tiny but well-shaped patches survive.
         edge2 = np.max(np.sum((v - np.roll(v, 1, axis=1)) ** 2, axis=2), axis=1)
         keep = dbl_area > 1e-7 * edge2
@@ -182,10 +203,7 @@ class Scene:
         self.emission = emission
         self.source_face = np.array(source_face)
         self.name = str(name)
-        v = pts[tri]
-        self.centers = np.ascontiguousarray(v.mean(axis=1), dtype=np.float64)
-        self.normals = np.ascontiguousarray(cross / dbl_area[:, None], dtype=np.float32)
-        self.areas = np.ascontiguousarray(0.5 * dbl_area, dtype=np.float32)
+        self.centers, self.normals, self.areas = _patch_arrays(pts[tri], cross, dbl_area)
         if not (np.all(np.isfinite(self.areas)) and self.areas.min() > 0):
             raise InvalidInputError("patch areas overflow or underflow float32 (coordinates beyond ~1e18 or "
                                     "patches below ~1e-22 units): rescale the scene")
@@ -196,6 +214,24 @@ class Scene:
             warnings.warn(f"{int(np.count_nonzero(size < MIN_RELATIVE_SIZE * diag))} patch(es) are smaller than "
                           f"{MIN_RELATIVE_SIZE:g} of the scene's diagonal ({diag:g}): float32 ray casting cannot "
                           "resolve them reliably", PrecisionWarning, stacklevel=2)
+
+    @classmethod
+    def _assembled(cls, points, triangles, albedo, emission, centers, normals, areas, name: str,
+                   bbox: np.ndarray) -> "Scene":
+        """A Scene of arrays already sound: parts of validated scenes, moved rigidly
+        (:func:`pydynrad.objects.instanced`, once per move). Not checked again: a 66k-patch
+        scene's checks and geometry took 75-87 ms, a move's own cost many times over."""
+        out = object.__new__(cls)
+        out.points, out.triangles = np.asarray(points, np.float64), np.asarray(triangles, np.int32)
+        out.albedo, out.emission = np.asarray(albedo, np.float32), np.asarray(emission, np.float32)
+        out.source_face = np.arange(len(out.triangles))
+        out.centers, out.normals, out.areas = centers, normals, areas
+        out.name = str(name)
+        for a in (out.points, out.triangles, out.albedo, out.emission, out.source_face, out.centers, out.normals,
+                  out.areas):
+            _frozen(a)
+        out.__dict__["bbox"] = _frozen(np.asarray(bbox, np.float64))
+        return out
 
     @classmethod
     def from_mesh(cls, mesh, **kw) -> "Scene":

@@ -62,6 +62,24 @@ def test_with_objects_numbering(box, block):
     np.testing.assert_array_equal(both.albedo[n:n + m], block.albedo)
 
 
+def test_with_objects_is_the_validated_scene(box, block):
+    """The combined scene is assembled from its parts without validation: every array equals,
+    bit for bit, a Scene validated from the same points and triangles (static patches: the
+    static scene's own arrays, as before), its bounds included; the arrays are read-only."""
+    a, b = pd.RigidObject(block, pose(30)), pd.RigidObject(block, pose(0, (400.0, 450.0, 150.0)))
+    both = box.with_objects([a, b])
+    parts = [box, block, block]
+    checked = pd.Scene(both.points, both.triangles, np.concatenate([p.albedo for p in parts]),
+                       np.concatenate([p.emission for p in parts]))
+    n = len(box)
+    for name in ("points", "triangles", "albedo", "emission", "source_face", "bbox"):
+        np.testing.assert_array_equal(getattr(both, name), getattr(checked, name), err_msg=name)
+    for name in ("centers", "normals", "areas"):
+        np.testing.assert_array_equal(getattr(both, name)[n:], getattr(checked, name)[n:], err_msg=name)
+        np.testing.assert_array_equal(getattr(both, name)[:n], getattr(box, name), err_msg=name)
+    assert both.geometry_hash() == checked.geometry_hash() and not both.centers.flags.writeable
+
+
 @pytest.mark.parametrize("offset", [0.0, 3e6])
 def test_hemicube_rows_match_static_copy(box, block, device, offset):
     """Also far from the origin: object trees share the static scene's device frame."""
