@@ -376,6 +376,7 @@ class WorldRows:
         # Where the objects were when the far field's coarse level was made (the first poses).
         self._first_spheres = [o.bounding_sphere() for o in self.objects_moving]
         self._in_view: np.ndarray | None = None  # (N,) bool, per pose: :meth:`in_view`
+        self._first_view: np.ndarray | None = None  # its part for the first poses
 
     @property
     def world(self):
@@ -392,20 +393,26 @@ class WorldRows:
         """(N,) bool: the static patches whose view an object changes, by a form factor of at
         least :data:`VIEW_FORM_FACTOR` to its bounding sphere at its current pose or at its
         first (where the far field's coarse level has it; computed once per pose)."""
+        if self._first_view is None:  # the first poses' part, once
+            self._first_view = self._seeing(self._first_spheres)
         if self._in_view is None:
-            world = self.world
-            spheres = self._first_spheres + [o.bounding_sphere(T) for o, T in
-                                             zip(self.objects_moving, world.bvh.transforms)]
-            P, n = world.centers[: self.n_static], world.normals[: self.n_static].astype(np.float64)
-            view = np.zeros(self.n_patches, bool)
-            for c, r in spheres:
-                v = np.asarray(c, np.float64) - P
-                cos = np.clip(np.einsum("ij,ij->i", v, n) / np.maximum(np.linalg.norm(v, axis=1), 1e-300), 0.0, 1.0)
-                # A patch inside the sphere (cos of its centre's direction ill-defined) is in view.
-                form_factor = sphere_solid_angle(P, n, c, r) * np.where(np.linalg.norm(v, axis=1) <= r, 1.0, cos) / np.pi
-                view[: self.n_static] |= form_factor >= VIEW_FORM_FACTOR
-            self._in_view = view
+            self._in_view = self._first_view | self._seeing([o.bounding_sphere(T) for o, T in
+                                                             zip(self.objects_moving, self.world.bvh.transforms)])
         return self._in_view
+
+    def _seeing(self, spheres) -> np.ndarray:
+        """(N,) bool: static patches with a form factor of at least :data:`VIEW_FORM_FACTOR` to
+        one of ``spheres`` [(centre, radius), ...] (its solid angle times the cosine to its
+        centre over pi; a patch inside a sphere sees it)."""
+        world = self.world
+        P, n = world.centers[: self.n_static], world.normals[: self.n_static].astype(np.float64)
+        view = np.zeros(self.n_patches, bool)
+        for c, r in spheres:
+            v = np.asarray(c, np.float64) - P
+            d = np.linalg.norm(v, axis=1)
+            cos = np.where(d <= r, 1.0, np.clip(np.einsum("ij,ij->i", v, n) / np.maximum(d, 1e-300), 0.0, 1.0))
+            view[: self.n_static] |= sphere_solid_angle(P, n, c, r) * cos / np.pi >= VIEW_FORM_FACTOR
+        return view
 
     def gather_outside(self, outside: np.ndarray, L: np.ndarray, B: np.ndarray) -> np.ndarray:
         """(len(outside), 3) B on the patches ``outside`` the local set: ``L + P F B`` with their
