@@ -2,8 +2,10 @@
 
 ``python -m bench.move_stages`` prints a markdown table: the Cornell box of bench/objects.py
 (``quick``: M = 1024, R = 32) with the 48-patch block moved at occlusion budget 0 from the
-static F (``--correction``: with the rows it leaves stale made and corrected), then the frame's ``radiosity`` (whose gather of the outside patches at the new
-pose is a move's cost too). Each stage is timed with the device queue drained before and after it (so device
+static F (``--correction``: with the rows it leaves stale made and corrected; ``--village``: the
+66k village at R = 32 with a 1 m block moved along its first street, under a sun), then the
+frame's ``radiosity`` (whose gather of the outside patches at the new pose is a move's cost
+too). Each stage is timed with the device queue drained before and after it (so device
 work is charged to the stage that queued it); medians and minima over the moves. The floor:
 one rank-2k pass and one gather of k vectors per channel at the same M (the swap's two passes
 over K), timed alone with the same kernels.
@@ -34,27 +36,45 @@ def _timed(owner, name: str, label: str, queue, into: dict) -> None:
     setattr(owner, name, wrapper)
 
 
-def stages(moves: int = 8, device=None, correction: bool = False) -> list[tuple[str, float, float]]:
+def _case(village: bool, moves: int, device):
+    """(scene, block, F, R, M, poses, observer, lights): bench/objects.py's Cornell box and block,
+    or the 66k village (bench/paper.py's full size) with a 1 m block moved 0.2 m a step along
+    its first street."""
+    import pydynrad as pd
+
+    if not village:
+        p = SIZES["quick"]
+        box = pd.scenes.cornell_box(max_edge=p["max_edge"])
+        return (box, pd.scenes.block(100.0, p["block"], albedo=(0.1, 0.6, 0.15)), pd.form_factors(box, p["R"], device=device),
+                p["R"], p["M"], _poses(moves), OBSERVER, [pd.PointLight((278.0, 520.0, 280.0), (3e5, 3e5, 3e5))])
+    from .paper import street_walk
+
+    scene = pd.scenes.village(houses=12, detail=1.0)
+    poses = []
+    for k in range(moves + 1):
+        T = np.eye(4)
+        T[:3, 3] = (3.0 + 0.2 * k, 0.6, 2.5)
+        poses.append(T)
+    return (scene, pd.scenes.block(1.0, 1, albedo=(0.1, 0.6, 0.15)), pd.form_factors(scene, 32, device=device), 32, 1024,
+            poses, street_walk(1)[0], [pd.DirectionalLight((-0.4, -1.0, -0.3), (100.0,) * 3)])
+
+
+def stages(moves: int = 8, device=None, correction: bool = False, village: bool = False) -> list[tuple[str, float, float]]:
     """(stage, median ms, min ms) of ``moves`` moves at budget 0 and the radiosity after each;
     ``correction``: with the stale rows made and corrected (``occlusion_correction``), else
-    without (the cheapest move)."""
+    without (the cheapest move); ``village``: on the 66k village (:func:`_case`)."""
     import pydynrad as pd
     from pydynrad.device import default_device
     from pydynrad.dynamic import exact, localrows, moves as moves_mod
 
     device = device or default_device()
-    p = SIZES["quick"]
-    box = pd.scenes.cornell_box(max_edge=p["max_edge"])
-    block = pd.scenes.block(100.0, p["block"], albedo=(0.1, 0.6, 0.15))
-    F = pd.form_factors(box, p["R"], device=device)
-    poses = _poses(moves)
+    box, block, F, R, M, poses, observer, light = _case(village, moves, device)
     obj = pd.RigidObject(block, poses[0])
-    dyn = pd.DynamicRadiosity(box, F, local_size=p["M"], resolution=p["R"], objects=[obj], occlusion=0,
-                              max_swaps_per_frame=SWAPS, observer=OBSERVER, device=device,
+    dyn = pd.DynamicRadiosity(box, F, local_size=M, resolution=R, objects=[obj], occlusion=0,
+                              max_swaps_per_frame=SWAPS, observer=observer, device=device,
                               occlusion_correction=correction)
-    light = [pd.PointLight((278.0, 520.0, 280.0), (3e5, 3e5, 3e5))]
     dyn.radiosity(light)
-    dyn.update(OBSERVER)
+    dyn.update(observer)
     q, times = device.queue, {}
     for owner, name, label in ((dyn, "_moved_world", "world at the new pose (instanced scene)"),
                                (dyn._ff.source, "refresh", "refresh: object rows (hemicubes), candidates' rows"),
@@ -76,7 +96,7 @@ def stages(moves: int = 8, device=None, correction: bool = False) -> list[tuple[
     for T in poses[1:]:
         times.clear()
         dyn.move(obj, T)
-        times["move (t_move)"] = dyn.update(OBSERVER).t_move
+        times["move (t_move)"] = dyn.update(observer).t_move
         q.finish()
         t = time.perf_counter()
         dyn.radiosity(light)
@@ -116,12 +136,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--moves", type=int, default=8)
     ap.add_argument("--correction", action="store_true", help="make the stale rows and correct B for them")
+    ap.add_argument("--village", action="store_true", help="the 66k village with a 1 m block, not the Cornell box")
     args = ap.parse_args(argv)
     device = default_device()
     load = os.getloadavg()
-    rows = stages(args.moves, device, args.correction)
+    rows = stages(args.moves, device, args.correction, args.village)
     print(f"Device: {device.name}. Date: {datetime.now(timezone.utc):%Y-%m-%dT%H:%M}Z. "
-          f"Load average before: {load[0]:.2f}. Stale rows {'made and corrected' if args.correction else 'left'}.\n")
+          f"Load average before: {load[0]:.2f}. {'Village' if args.village else 'Cornell box'}. "
+          f"Stale rows {'made and corrected' if args.correction else 'left'}.\n")
     print("| stage | median ms | min ms |\n|---|---|---|")
     for name, med, lo in rows:
         print(f"| {name} | {med:.2f} | {lo:.2f} |")
