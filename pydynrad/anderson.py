@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .checks import integer
+from .errors import InvalidInputError
+
 __all__ = ["Anderson"]
 
 
@@ -19,7 +22,7 @@ class Anderson:
     """Mixing over the last ``depth`` steps of iterates of shape (n, k), k channels mixed apart."""
 
     def __init__(self, depth: int) -> None:
-        self.depth = depth
+        self.depth = integer(depth, "depth", 1)
         self._steps = 0  # differences held (up to depth)
         # Channel-major (k, n) and preallocated: the products below are then batched matrix
         # products, and no step allocates its history (on a VM whose fresh pages fault one by
@@ -31,6 +34,10 @@ class Anderson:
     def next(self, fu: np.ndarray, residual: np.ndarray) -> np.ndarray:
         """The next iterate from f(u) (n, k) and its residual f(u) - u (n, k)."""
         n, k = fu.shape
+        if residual.shape != fu.shape or (self._last is not None and self._last[0].shape != (k, n)):
+            raise InvalidInputError(f"Anderson mixes iterates of one shape: got f(u) {fu.shape}, residual "
+                                    f"{residual.shape}" + ("" if self._last is None else
+                                                           f", after ({self._last[0].shape[1]}, {self._last[0].shape[0]})"))
         if self._last is None:
             self._last = (np.array(fu.T), np.array(residual.T))
             self._dg, self._dr = np.empty((k, self.depth, n)), np.empty((k, self.depth, n))

@@ -22,8 +22,11 @@ def columns_product(A: sp.csc_matrix, cols: np.ndarray, x: np.ndarray) -> np.nda
     and summed in float64. Equals ``A[:, cols] @ x`` without copying the columns out."""
     from . import _colproduct
 
-    if not sp.isspmatrix_csc(A) and not (sp.issparse(A) and A.format == "csc"):
+    if not (sp.issparse(A) and A.format == "csc"):
         raise InvalidInputError(f"columns_product needs a CSC matrix; got {type(A).__name__}")
+    if A.dtype not in (np.float32, np.float64) or A.indices.dtype not in (np.int32, np.int64):
+        raise InvalidInputError(f"columns_product needs float32/float64 values and int32/int64 indices; got "
+                                f"{A.dtype} and {A.indices.dtype}")
     cols = np.ascontiguousarray(cols, np.int64)
     x = np.ascontiguousarray(x, np.float64)
     if x.ndim != 2 or x.shape[0] != len(cols) or not 1 <= x.shape[1] <= 4:

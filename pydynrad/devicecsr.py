@@ -155,6 +155,8 @@ class DeviceCSR:
 
         d, k, width = self.device, u.shape[1], out.shape[1]
         mixer, history, staged = Anderson(depth), [], np.zeros_like(out)
+        if max_sweeps < 1:  # as the plain sweeps: x0, no change measured
+            return u, 0, np.inf, history
         while True:
             self.bounce_buffers(L_buf, rho_buf, x_buf, y_buf, width, partial_buf)
             cl.enqueue_copy(d.queue, out, y_buf, is_blocking=True)

@@ -54,3 +54,21 @@ def test_mixed_jacobi_reaches_the_dense_solution_in_fewer_sweeps(device, channel
         assert change <= 1e-8 and history[-1] == change and len(history) == sweeps
         assert np.abs(x - truth).max() < 5e-8 * np.abs(truth).max()  # observed 1.4e-8 and 1.5e-8 plain, 6e-9 mixed
     assert mixed[1] < plain[1] / 2  # observed 13 against 40 (grey) and 42 (RGB)
+
+
+def test_mixing_refuses_bad_input(device):
+    import pydynrad as pd
+
+    with pytest.raises(pd.InvalidInputError, match="depth"):
+        Anderson(0)
+    mixing = Anderson(2)
+    mixing.next(np.ones((5, 3)), np.ones((5, 3)))
+    with pytest.raises(pd.InvalidInputError, match="one shape"):
+        mixing.next(np.ones((6, 3)), np.ones((6, 3)))
+    # No sweep asked: x0 back, as the plain sweeps give it.
+    A = sp.csr_matrix(np.full((4, 4), 0.2))
+    x0 = np.arange(4.0)[:, None]
+    x, sweeps, change, history = DeviceCSR(device, A, np.float64).jacobi(np.ones((4, 1)), np.full((4, 1), 0.5), x0,
+                                                                          1e-6, 0, mixing=3)
+    np.testing.assert_array_equal(x, x0)
+    assert sweeps == 0 and history == [] and change == np.inf

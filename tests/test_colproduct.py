@@ -37,6 +37,31 @@ def test_columns_product_refuses_bad_input():
     with pytest.raises(pd.InvalidInputError, match="shape"):
         columns_product(A, [0, 1], np.ones((1, 1)))
     assert not columns_product(A, [], np.ones((0, 3))).any()
+    with pytest.raises(pd.InvalidInputError, match="float32/float64"):
+        columns_product(sp.csc_matrix(np.eye(3, dtype=np.int64)), [0], np.ones((1, 1)))
     A.indices[0] = 30  # a row index past the rows: refused by the native pass, not written
     with pytest.raises(ValueError, match="out of range"):
         columns_product(A, [0], np.ones((1, 1)))
+
+
+def test_columns_product_in_a_forked_child():
+    """The shared pool is made anew after a fork (the child has the pool object but none of its
+    threads, so its map would wait forever)."""
+    import os
+    import signal
+
+    A = sp.random(300, 500, density=0.05, random_state=2, format="csc")
+    cols, x = np.arange(0, 500, 3), np.ones((167, 1))
+    old = colproduct.PARALLEL_ENTRIES
+    colproduct.PARALLEL_ENTRIES = 1
+    try:
+        truth = columns_product(A, cols, x)  # the parent's pool, threads started
+        pid = os.fork()
+        if pid == 0:  # the child: exit 0 only if the product returns, and right
+            signal.alarm(20)
+            ok = np.allclose(columns_product(A, cols, x), truth)
+            os._exit(0 if ok else 1)
+        _, status = os.waitpid(pid, 0)
+    finally:
+        colproduct.PARALLEL_ENTRIES = old
+    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0

@@ -140,6 +140,16 @@ def test_rows_at_pose():
     assert out.nnz == 7
     with pytest.raises(pd.InvalidInputError, match="differ in shape"):
         at_pose(rows, hidden, recip[:2])
+    with pytest.raises(pd.InvalidInputError, match="one flag per entry"):
+        at_pose(rows, hidden[:-1], recip)
+    with pytest.raises(pd.InvalidInputError, match="CSR"):
+        at_pose(rows.tocoo(), hidden, recip)
+    # Object columns alone above 1 (patch 4's row x 4: 0.4 + 0.8 for row 0): scaled to 1, the
+    # static entries gone; no row at the pose sums above 1.
+    out = at_pose(rows, np.zeros(rows.nnz, bool),
+                  reciprocal_columns(np.array([0, 1, 2]), sp.diags([1.0, 4.0]) @ objects, obj, areas, 5))
+    np.testing.assert_allclose(out.toarray(), [[0, 0, 0, 0.4 / 1.2, 0.8 / 1.2], [0, 0, 0, 0.1 / 1.3, 1.2 / 1.3],
+                                               [0.1, 0.1, 0, 0, 0]], rtol=1e-12)
 
 
 def test_rows_at_pose_match_numpy():
@@ -160,10 +170,12 @@ def test_rows_at_pose_match_numpy():
     np.testing.assert_allclose(recip.toarray()[:, n_static:], obj, rtol=1e-14)
     s_kept, s_obj = kept.sum(axis=1), obj.sum(axis=1)
     over = (s_kept > 0) & (s_kept + s_obj > 1.0)
-    assert 0 < over.sum() < r and (s_obj >= 1.0).any()  # rows capped, and rows whose objects fill them
+    assert 0 < over.sum() < r and (s_obj > 1.0).any()  # rows capped, and rows whose objects overfill them
     kept[over] *= (np.maximum(1.0 - s_obj[over], 0.0) / s_kept[over])[:, None]
+    obj[s_obj > 1.0] /= s_obj[s_obj > 1.0][:, None]
     got = at_pose(rows, hidden, recip)
     np.testing.assert_allclose(got.toarray(), np.hstack([kept, obj]), rtol=1e-13, atol=1e-17)
+    assert got.sum(axis=1).max() <= 1.0 + 1e-12
     assert got.nnz == np.count_nonzero(np.hstack([kept, obj]))
 
 

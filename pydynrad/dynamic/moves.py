@@ -80,6 +80,12 @@ BOX_MARGIN = 1e-4
 #: the 66k village a 1 m block is seen so by 2,816 patches (1.4M entries of F) where 44,402 have
 #: it in front (35M entries of F to gather per frame: 0.5-2.3 s; AMD EPYC Zen 3, 2026-12-02).
 VIEW_FORM_FACTOR = 1e-3
+#: Up to this many outside patches per local patch the frame gathers every one of them at the
+#: poses (:meth:`WorldRows.gathered`): a final gather of the far field as well, which halves its
+#: max error on the bench's small Cornell box (348 patches, M = 64: 0.0049 -> 0.0025 of max B),
+#: for at most this many passes over rows as long as the local set's. The 66k village at
+#: M = 1,024 (64 per local patch) gathers only those in view.
+GATHER_ALL_OUTSIDE = 8
 
 #: Segments from which :func:`_hidden_entries` splits its pre-test over the cores (below, a
 #: thread's start costs more than it saves).
@@ -168,12 +174,18 @@ def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix) -> sp
     their entries ``hidden`` ((nnz,) bool, :func:`hidden_entries`), with the object columns
     ``recip`` (r, N, :func:`reciprocal_columns`), and capped: where a row then sums above 1
     (the centre segments missed part of what an object hides), its static entries are scaled
-    so that it sums to 1, clipped at zero. One native pass (``csrc/poserows.c``); zeros dropped."""
+    so that it sums to 1, clipped at zero; where the object columns alone sum above 1, they are
+    scaled to 1 and the static entries go. No row sums above 1. One native pass
+    (``csrc/poserows.c``); zeros dropped."""
     from .. import _poserows
 
-    rows, recip = sp.csr_matrix(rows), sp.csr_matrix(recip)
+    if not (sp.issparse(rows) and rows.format == "csr"):
+        raise InvalidInputError(f"at_pose needs the rows as CSR (hidden is over their entries); got {type(rows).__name__}")
+    recip = sp.csr_matrix(recip)
     if rows.shape != recip.shape:
         raise InvalidInputError(f"rows {rows.shape} and their object columns {recip.shape} differ in shape")
+    if np.shape(hidden) != (rows.nnz,):
+        raise InvalidInputError(f"hidden must have one flag per entry of the rows ({rows.nnz}); got {np.shape(hidden)}")
     n = rows.nnz + recip.nnz
     indptr, indices, data = np.empty(rows.shape[0] + 1, np.int64), np.empty(n, np.int64), np.empty(n)
     i64 = [np.ascontiguousarray(a, np.int64) for a in (rows.indptr, rows.indices, recip.indptr, recip.indices)]
@@ -422,13 +434,24 @@ class WorldRows:
         change by less than :data:`VIEW_FORM_FACTOR` of the light around them, as the coarse
         level's own error does."""
         outside = np.asarray(outside, np.int64)
-        near = outside[self.in_view()[outside]]
+        chosen = self.gathered(outside)
+        near = outside[chosen]
         if self._outside is None or not np.array_equal(self._outside[0], near):
             rows = self.rows(near) if len(near) else sp.csr_matrix((0, self.n_patches))
             self._outside = (near.copy(), rows)
         out = B[outside].copy()
-        out[self.in_view()[outside]] = L[near] + self.world.albedo[near].astype(np.float64) * (self._outside[1] @ B)
+        out[chosen] = L[near] + self.world.albedo[near].astype(np.float64) * (self._outside[1] @ B)
         return out
+
+    def gathered(self, outside: np.ndarray) -> np.ndarray:
+        """(len(outside),) bool: which of the patches ``outside`` the local set
+        :meth:`gather_outside` gathers at the poses. Every one while they are at most
+        :data:`GATHER_ALL_OUTSIDE` times the local set (the gather is then a final gather of
+        the far field too, cheap beside the frame), else those :meth:`in_view`."""
+        outside = np.asarray(outside, np.int64)
+        if len(outside) <= GATHER_ALL_OUTSIDE * (self.n_patches - len(outside)):
+            return np.ones(len(outside), bool)
+        return self.in_view()[outside]
 
     def objects(self) -> sp.csr_matrix:
         """The objects' rows at the current poses (computed once per pose)."""
@@ -464,8 +487,8 @@ class WorldRows:
             # In the order asked (first occurrences): the first call after a move then takes its
             # rows as one run of what it made, not a copy through an index.
             miss = missing[np.sort(np.unique(missing, return_index=True)[1])]
+            made = sp.csr_matrix(make(miss))  # before the index: a make() that raises leaves it as it was
             where[miss] = held.shape[0] + np.arange(len(miss))
-            made = sp.csr_matrix(make(miss))
             held = made if not held.shape[0] else sp.vstack([held, made], format="csr")
             self._at_pose = (where, held)
         at = where[idx]
@@ -530,7 +553,7 @@ class WorldRows:
         # Objects that did not move are seen by those that did: their rows, new anyway, go in too.
         still = np.flatnonzero(candidates >= self.n_static)
         order = order[candidates[order] < self.n_static] if budget != 0 or correct else order[:0]
-        also = None if outside is None else outside[self.in_view()[outside]]
+        also = None if outside is None else outside[self.gathered(outside)]
         new = self._at(candidates[order], self._static_rows, also)
         left = None
         if budget == 0:

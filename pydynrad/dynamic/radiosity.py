@@ -371,8 +371,9 @@ class DynamicRadiosity:
 
         if fetch:
             self._ff.fetch_local(local_patches)
-        # The rows were validated when fetched (LocalRows.rows) or made here at a pose (capped to
-        # a sum of 1): not checked again (~3 ms at M = 768, an eighth of the solve, on the Zen 3).
+        # The rows were validated when fetched (LocalRows.rows) or made here at a pose (moves.at_pose
+        # and stale_rows cap every row to a sum of 1; hemicube rows are so by construction): not
+        # checked again (~3 ms at M = 768, an eighth of the solve, on the Zen 3).
         return multibounce_block(self._ff.square(local_patches), self._rho(local_patches).T,
                                  dtype=compute_dtype(self.storage), device=self.device, checked=True)
 
