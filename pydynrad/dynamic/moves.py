@@ -27,8 +27,8 @@ from ..errors import InvalidInputError
 from ..rows.sources import HemicubeRows
 from .localrows import LocalRows
 
-__all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "refresh_order",
-           "stale_rows", "hidden_by", "hidden_between", "hidden_entries", "reciprocal_columns", "at_pose", "swap_chunks"]
+__all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "sphere_form_factor",
+           "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries", "reciprocal_columns", "at_pose", "swap_chunks"]
 
 
 def sphere_solid_angle(points: np.ndarray, normals: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
@@ -37,13 +37,27 @@ def sphere_solid_angle(points: np.ndarray, normals: np.ndarray, center: np.ndarr
     A point inside the sphere sees it over its whole hemisphere (2 pi). Conservative for the
     ranking's purpose: a patch scores 0 only when no ray of its hemicube can reach the sphere.
     """
+    return _sphere_view(points, normals, center, radius)[0]
+
+
+def sphere_form_factor(points: np.ndarray, normals: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
+    """(n,) the form factor from each point to a sphere, estimated as its solid angle
+    (:func:`sphere_solid_angle`) times the cosine to its centre over pi; a point inside the
+    sphere counts the cosine as 1."""
+    omega, cos = _sphere_view(points, normals, center, radius)
+    return omega * cos / np.pi
+
+
+def _sphere_view(points, normals, center, radius) -> tuple[np.ndarray, np.ndarray]:
+    """(solid angle, cosine to the centre clipped at 0, 1 inside) of a sphere from each point."""
     v = np.asarray(center, np.float64) - np.asarray(points, np.float64)
     d = np.linalg.norm(v, axis=1)
     height = np.einsum("ij,ij->i", v, np.asarray(normals, np.float64))
     inside = d <= radius
     omega = 2.0 * np.pi * (1.0 - np.sqrt(np.clip(1.0 - (radius / np.maximum(d, 1e-300)) ** 2, 0.0, 1.0)))
     omega = np.where(inside, 2.0 * np.pi, omega)
-    return np.where(height > -radius, omega, 0.0)
+    cos = np.where(inside, 1.0, np.clip(height / np.maximum(d, 1e-300), 0.0, 1.0))
+    return np.where(height > -radius, omega, 0.0), cos
 
 
 def refresh_order(points, normals, spheres) -> tuple[np.ndarray, np.ndarray]:
@@ -413,26 +427,22 @@ class WorldRows:
         return self._in_view
 
     def _seeing(self, spheres) -> np.ndarray:
-        """(N,) bool: static patches with a form factor of at least :data:`VIEW_FORM_FACTOR` to
-        one of ``spheres`` [(centre, radius), ...] (its solid angle times the cosine to its
-        centre over pi; a patch inside a sphere sees it)."""
+        """(N,) bool: static patches with a form factor (:func:`sphere_form_factor`) of at least
+        :data:`VIEW_FORM_FACTOR` to one of ``spheres`` [(centre, radius), ...]."""
         world = self.world
-        P, n = world.centers[: self.n_static], world.normals[: self.n_static].astype(np.float64)
+        P, n = world.centers[: self.n_static], world.normals[: self.n_static]
         view = np.zeros(self.n_patches, bool)
         for c, r in spheres:
-            v = np.asarray(c, np.float64) - P
-            d = np.linalg.norm(v, axis=1)
-            cos = np.where(d <= r, 1.0, np.clip(np.einsum("ij,ij->i", v, n) / np.maximum(d, 1e-300), 0.0, 1.0))
-            view[: self.n_static] |= sphere_solid_angle(P, n, c, r) * cos / np.pi >= VIEW_FORM_FACTOR
+            view[: self.n_static] |= sphere_form_factor(P, n, c, r) >= VIEW_FORM_FACTOR
         return view
 
     def gather_outside(self, outside: np.ndarray, L: np.ndarray, B: np.ndarray) -> np.ndarray:
         """(len(outside), 3) B on the patches ``outside`` the local set: ``L + P F B`` with their
-        rows at the current poses (:meth:`rows`) for those whose view an object changes
-        (:meth:`in_view`), so the far field's patches see the objects where they are, their light
-        and their shadows; ``B`` as given (the far field's) for the others, which the objects
-        change by less than :data:`VIEW_FORM_FACTOR` of the light around them, as the coarse
-        level's own error does."""
+        rows at the current poses (:meth:`rows`) for those :meth:`gathered` chooses (every one,
+        or in a large scene those whose view an object changes, :meth:`in_view`), so the far
+        field's patches see the objects where they are, their light and their shadows; ``B`` as
+        given (the far field's) for the others, which the objects change by less than
+        :data:`VIEW_FORM_FACTOR` of the light around them, as the coarse level's own error does."""
         outside = np.asarray(outside, np.int64)
         chosen = self.gathered(outside)
         near = outside[chosen]
