@@ -13,17 +13,35 @@
  * copy and a second eliminate_zeros: ~15 ms on the 2-core EPYC); here it is one read and one
  * write of each entry.
  *
- * Python signature:
+ * The second pass, difference(), is D = current - kept for the rows a move leaves stale in K
+ * (pydynrad/dynamic/stale.py): a merge of each current row with its kept row, read in place
+ * (scipy sliced the kept rows out first, then subtracted: 5.8-6.8 ms for the ~850k entries of a
+ * move's 958 stale rows on the bench's Cornell box, against 4.4-4.7 ms here; PoCL host, 2-core
+ * Xeon, 2026-12-02). The merge's branches bound it, not memory.
+ *
+ * Column indices are int32 (scipy's own for fewer than 2^31 columns), row pointers int64.
+ *
+ * Python signatures:
  *   _poserows.assemble(indptr, indices, data, hidden, r_indptr, r_indices, r_data,
  *                      out_indptr, out_indices, out_data) -> nnz
- *   indptr, indices, data : the static rows, CSR of r rows (int64, int64, float64); every
+ *   indptr, indices, data : the static rows, CSR of r rows (int64, int32, float64); every
  *             column below every object column, entries in increasing column order
  *   hidden  : uint8 of len(indices): non-zero where the entry is hidden
  *   r_indptr, r_indices, r_data : the object columns of the same r rows (CSR, final column
  *             numbers, increasing within a row)
- *   out_indptr : writable int64 of r + 1; out_indices, out_data : writable int64 and float64
+ *   out_indptr : writable int64 of r + 1; out_indices, out_data : writable int32 and float64
  *             of at least len(indices) + len(r_indices) values; receive the rows, zeros dropped
- *   Returns the entries written. Array lengths and indptr ranges are checked: ValueError.
+ *   Returns the entries written.
+ *
+ *   _poserows.difference(indptr, indices, data, k_indptr, k_indices, k_data, slots,
+ *                        out_indptr, out_indices, out_data) -> nnz
+ *   indptr, indices, data : r rows (CSR: int64, int32, float64), each with increasing columns
+ *   k_indptr, k_indices, k_data : M rows, likewise; slots : int64 of r, each in [0, M)
+ *   out_* : as for assemble, of at least len(indices) + the entries of the kept rows named
+ *   Row i of the output is row i minus kept row slots[i], exact zeros dropped. Returns the
+ *   entries written, or -1 - i where row i (of either input) has columns out of order.
+ *
+ * Array lengths, indptr ranges and slots are checked: ValueError.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -38,8 +56,8 @@ static int bad_indptr(const int64_t *p, Py_ssize_t rows, Py_ssize_t m)
     return 0;
 }
 
-static Py_ssize_t assemble(Py_ssize_t rows, const int64_t *ip, const int64_t *ix, const double *x, const uint8_t *hidden,
-                           const int64_t *rp, const int64_t *rx, const double *rv, int64_t *op, int64_t *ox, double *ov)
+static Py_ssize_t assemble(Py_ssize_t rows, const int64_t *ip, const int32_t *ix, const double *x, const uint8_t *hidden,
+                           const int64_t *rp, const int32_t *rx, const double *rv, int64_t *op, int32_t *ox, double *ov)
 {
     Py_ssize_t n = 0;
     op[0] = 0;
@@ -69,6 +87,38 @@ static Py_ssize_t assemble(Py_ssize_t rows, const int64_t *ip, const int64_t *ix
     return n;
 }
 
+static int increasing(const int32_t *x, int64_t start, int64_t end)
+{
+    for (int64_t t = start + 1; t < end; ++t)
+        if (x[t] <= x[t - 1]) return 0;
+    return 1;
+}
+
+static Py_ssize_t difference(Py_ssize_t rows, const int64_t *ap, const int32_t *ax, const double *av, const int64_t *bp,
+                             const int32_t *bx, const double *bv, const int64_t *slots, int64_t *op, int32_t *ox,
+                             double *ov)
+{
+    Py_ssize_t n = 0;
+    op[0] = 0;
+    for (Py_ssize_t k = 0; k < rows; ++k) {
+        int64_t i = ap[k], ie = ap[k + 1], j = bp[slots[k]], je = bp[slots[k] + 1];
+        if (!increasing(ax, i, ie) || !increasing(bx, j, je)) return -1 - k;
+        while (i < ie || j < je) {
+            int32_t c;
+            double v;
+            if (j >= je || (i < ie && ax[i] < bx[j]))
+                c = ax[i], v = av[i++];
+            else if (i >= ie || bx[j] < ax[i])
+                c = bx[j], v = -bv[j++];
+            else
+                c = ax[i], v = av[i++] - bv[j++];
+            if (v != 0.0) ox[n] = c, ov[n++] = v;
+        }
+        op[k + 1] = n;
+    }
+    return n;
+}
+
 static PyObject *py_assemble(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -77,12 +127,12 @@ static PyObject *py_assemble(PyObject *self, PyObject *args)
                           &b[9]))
         return NULL;
     PyObject *result = NULL;
-    const Py_ssize_t I = (Py_ssize_t)sizeof(int64_t), D = (Py_ssize_t)sizeof(double);
-    Py_ssize_t rows = b[0].len / I - 1, m = b[1].len / I, mr = b[5].len / I;
-    if (rows < 0 || b[0].len != (rows + 1) * I || b[1].len != m * I || b[2].len != m * D || b[3].len != m ||
-        b[4].len != (rows + 1) * I || b[5].len != mr * I || b[6].len != mr * D || b[7].len != (rows + 1) * I ||
+    const Py_ssize_t P = (Py_ssize_t)sizeof(int64_t), I = (Py_ssize_t)sizeof(int32_t), D = (Py_ssize_t)sizeof(double);
+    Py_ssize_t rows = b[0].len / P - 1, m = b[1].len / I, mr = b[5].len / I;
+    if (rows < 0 || b[0].len != (rows + 1) * P || b[1].len != m * I || b[2].len != m * D || b[3].len != m ||
+        b[4].len != (rows + 1) * P || b[5].len != mr * I || b[6].len != mr * D || b[7].len != (rows + 1) * P ||
         b[8].len < (m + mr) * I || b[9].len < (m + mr) * D) {
-        PyErr_SetString(PyExc_ValueError, "assemble needs CSR rows (int64 indptr of r + 1, int64 indices, float64 "
+        PyErr_SetString(PyExc_ValueError, "assemble needs CSR rows (int64 indptr of r + 1, int32 indices, float64 "
                                           "data), a uint8 mask per entry, CSR object columns of the same r rows, and "
                                           "outputs of r + 1 and of every entry");
         goto done;
@@ -102,14 +152,63 @@ done:
     return result;
 }
 
+static PyObject *py_difference(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer b[10];
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*w*w*w*", &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &b[8],
+                          &b[9]))
+        return NULL;
+    PyObject *result = NULL;
+    const Py_ssize_t P = (Py_ssize_t)sizeof(int64_t), I = (Py_ssize_t)sizeof(int32_t), D = (Py_ssize_t)sizeof(double);
+    Py_ssize_t rows = b[0].len / P - 1, m = b[1].len / I, kr = b[3].len / P - 1, km = b[4].len / I;
+    if (rows < 0 || kr < 0 || b[0].len != (rows + 1) * P || b[1].len != m * I || b[2].len != m * D ||
+        b[3].len != (kr + 1) * P || b[4].len != km * I || b[5].len != km * D || b[6].len != rows * P ||
+        b[7].len != (rows + 1) * P) {
+        PyErr_SetString(PyExc_ValueError, "difference needs two CSR matrices (int64 indptr, int32 indices, float64 "
+                                          "data), an int64 slot per row of the first and an output indptr of its rows + 1");
+        goto done;
+    }
+    const int64_t *slots = b[6].buf, *kp = b[3].buf;
+    if (bad_indptr(b[0].buf, rows, m) || bad_indptr(kp, kr, km)) {
+        PyErr_SetString(PyExc_ValueError, "difference: an indptr does not run from 0 to its entries without decreasing");
+        goto done;
+    }
+    Py_ssize_t most = m;
+    for (Py_ssize_t k = 0; k < rows; ++k) {
+        if (slots[k] < 0 || slots[k] >= kr) {
+            PyErr_Format(PyExc_ValueError, "difference: slot %lld of row %zd is outside the %zd kept rows",
+                         (long long)slots[k], k, kr);
+            goto done;
+        }
+        most += kp[slots[k] + 1] - kp[slots[k]];
+    }
+    if (b[8].len < most * I || b[9].len < most * D) {
+        PyErr_Format(PyExc_ValueError, "difference: the outputs hold fewer than the %zd entries the rows may have", most);
+        goto done;
+    }
+    Py_ssize_t n;
+    Py_BEGIN_ALLOW_THREADS
+    n = difference(rows, b[0].buf, b[1].buf, b[2].buf, kp, b[4].buf, b[5].buf, slots, b[7].buf, b[8].buf, b[9].buf);
+    Py_END_ALLOW_THREADS
+    result = PyLong_FromSsize_t(n);
+done:
+    for (int k = 0; k < 10; ++k) PyBuffer_Release(&b[k]);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"assemble", py_assemble, METH_VARARGS,
      "assemble(indptr, indices, data, hidden, r_indptr, r_indices, r_data, out_indptr, out_indices, out_data) -> nnz: "
      "static rows without their hidden entries, with their object columns, capped to a sum of 1"},
+    {"difference", py_difference, METH_VARARGS,
+     "difference(indptr, indices, data, k_indptr, k_indices, k_data, slots, out_indptr, out_indices, out_data) -> nnz: "
+     "each row minus kept row slots[i], zeros dropped (-1 - i: row i's columns out of order)"},
     {NULL, NULL, 0, NULL},
 };
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_poserows",
-                                    "A static patch's row of F at the objects' poses (native).", -1, methods};
+                                    "Rows of F at the objects' poses, and their change from the rows kept (native).",
+                                    -1, methods};
 
 PyMODINIT_FUNC PyInit__poserows(void) { return PyModule_Create(&module); }

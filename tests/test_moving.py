@@ -571,3 +571,30 @@ def test_segments_near_sphere_match_numpy():
     indices[3] = len(P)
     with pytest.raises(ValueError, match="out of range"):
         _segments.near_sphere(P, indptr, indices, np.zeros(50, np.int64), tuple(c), r, None)
+
+
+def test_rows_minus_matches_scipy():
+    """D = rows - kept[slots] by the native merge against scipy, sorted and unsorted rows,
+    exact zeros dropped; slots outside the kept rows refused."""
+    from pydynrad.dynamic.stale import rows_minus
+
+    rng = np.random.default_rng(7)
+    kept = sp.random(30, 50, density=0.3, random_state=rng, format="csr")
+    slots = rng.integers(0, 30, 40)
+    rows = sp.csr_matrix(kept[slots])
+    rows.data[rng.random(rows.nnz) < 0.5] *= 0.5  # some entries changed, the others equal: zeros in D
+    rows = sp.csr_matrix(rows + sp.random(40, 50, density=0.1, random_state=rng, format="csr"))
+    truth = (rows - kept[slots]).toarray()
+    got = rows_minus(rows, kept, slots)
+    np.testing.assert_array_equal(got.toarray(), truth)
+    assert got.nnz == np.count_nonzero(truth) and got.has_sorted_indices
+    shuffled = rows.copy()
+    for k in range(shuffled.shape[0]):  # each row's entries reversed: columns out of order
+        a, b = shuffled.indptr[k], shuffled.indptr[k + 1]
+        shuffled.indices[a:b], shuffled.data[a:b] = shuffled.indices[a:b][::-1].copy(), shuffled.data[a:b][::-1].copy()
+    shuffled.has_sorted_indices = False
+    np.testing.assert_array_equal(rows_minus(shuffled, kept, slots).toarray(), truth)
+    with pytest.raises(pd.InvalidInputError, match=r"\[0, 30\)"):
+        rows_minus(rows, kept, np.full(40, 30))
+    with pytest.raises(pd.InvalidInputError, match="one kept row per row"):
+        rows_minus(rows, kept, slots[:-1])

@@ -201,12 +201,19 @@ def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix) -> sp
     if np.shape(hidden) != (rows.nnz,):
         raise InvalidInputError(f"hidden must have one flag per entry of the rows ({rows.nnz}); got {np.shape(hidden)}")
     n = rows.nnz + recip.nnz
-    indptr, indices, data = np.empty(rows.shape[0] + 1, np.int64), np.empty(n, np.int64), np.empty(n)
-    i64 = [np.ascontiguousarray(a, np.int64) for a in (rows.indptr, rows.indices, recip.indptr, recip.indices)]
-    nnz = _poserows.assemble(i64[0], i64[1], np.ascontiguousarray(rows.data, np.float64),
-                             np.ascontiguousarray(hidden, np.uint8), i64[2], i64[3],
-                             np.ascontiguousarray(recip.data, np.float64), indptr, indices, data)
+    indptr, indices, data = np.empty(rows.shape[0] + 1, np.int64), np.empty(n, np.int32), np.empty(n)
+    nnz = _poserows.assemble(*native_csr(rows), np.ascontiguousarray(hidden, np.uint8), *native_csr(recip),
+                             indptr, indices, data)
     return sp.csr_matrix((data[:nnz], indices[:nnz], indptr), shape=rows.shape)
+
+
+def native_csr(m: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(indptr int64, indices int32, data float64) of CSR ``m``, contiguous, as ``csrc/poserows.c``
+    reads them (no copy where they already are: scipy's int32 indices for fewer than 2^31 columns)."""
+    if m.shape[1] >= 2**31:
+        raise InvalidInputError(f"rows of {m.shape[1]} columns need 64-bit column indices")
+    return (np.ascontiguousarray(m.indptr, np.int64), np.ascontiguousarray(m.indices, np.int32),
+            np.ascontiguousarray(m.data, np.float64))
 
 
 def stale_rows(local: sp.csr_matrix, fresh_slots: np.ndarray, S: np.ndarray, moved_slots: np.ndarray,

@@ -39,7 +39,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..checks import integer, number, resolution as checked_resolution, scene as checked_scene, vec3
 from ..errors import InvalidInputError, PydynradError
@@ -390,8 +389,8 @@ class DynamicRadiosity:
         from .paper import UsedPatches
 
         local_patches = np.asarray(local_patches, dtype=np.int64)
-        if not fetch and len(self._stale):  # a rebuild takes the stale rows at the current poses
-            self._ff.local = _replace_rows(self._ff.local, self._stale.slots, self._stale.current)
+        if not fetch and len(self._stale.held):  # a rebuild takes the stale rows at the current poses
+            self._ff.local = _replace_rows(self._ff.local, self._stale.held, self._stale.current)
         self._stale.clear()
         self._matrix.upload(self._fresh_K(local_patches, fetch))
         self._local_patches = local_patches.copy()
@@ -546,7 +545,7 @@ class DynamicRadiosity:
             # Budget 0 with the correction: no swap. The objects' new rows join the rows left
             # stale, K keeps the rows it was built from, and radiosity() solves with all of them
             # (a rank-2k swap of every object slot cost more than the rest of the move).
-            self._stale.put(np.concatenate([slots, others[left[0]]]), sp.vstack([new_rows, left[1]], format="csr"))
+            self._stale.put(np.concatenate([slots, others[left[0]]]), new_rows, left[1])
             self._stale.update(self._ff.local)
             return 0, hemicubes
         local = _replace_rows(self._ff.local, slots, new_rows)
@@ -569,7 +568,7 @@ class DynamicRadiosity:
         self._stale.drop(slots)
         if left is not None:
             self._stale.put(others[left[0]], left[1])
-        if len(self._stale):
+        if len(self._stale.held):
             self._stale.update(local)
         return len(order), hemicubes
 

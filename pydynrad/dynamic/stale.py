@@ -31,8 +31,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..anderson import Anderson
+from ..errors import InvalidInputError
 
-__all__ = ["StaleRows", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS"]
+__all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS"]
 
 #: Stop when an iteration changes B on the local set by at most this much of its max.
 CORRECTION_TOLERANCE = 1e-4
@@ -45,12 +46,39 @@ CORRECTION_ITERATIONS = 8
 ANDERSON_DEPTH = 3
 
 
+def rows_minus(rows: sp.csr_matrix, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
+    """(r, N) ``rows - kept[slots]``, exact zeros dropped: ``rows`` (r, N) and ``kept`` (M, N) CSR,
+    ``slots`` (r,) rows of ``kept``. One native merge of each row with its kept row, read in
+    place (``csrc/poserows.c``); rows with columns out of order are sorted first (a copy)."""
+    from .. import _poserows
+    from .moves import native_csr
+
+    rows, kept = sp.csr_matrix(rows), sp.csr_matrix(kept)
+    if rows.shape[1] != kept.shape[1]:
+        raise InvalidInputError(f"rows {rows.shape} and kept rows {kept.shape} differ in columns")
+    slots = np.ascontiguousarray(slots, np.int64)
+    if slots.shape != (rows.shape[0],):
+        raise InvalidInputError(f"slots must name one kept row per row ({rows.shape[0]}); got shape {slots.shape}")
+    if len(slots) and (slots.min() < 0 or slots.max() >= kept.shape[0]):
+        raise InvalidInputError(f"slots must lie in [0, {kept.shape[0]}) (the kept rows); got {slots.min()}..{slots.max()}")
+    most = rows.nnz + int(np.diff(kept.indptr)[slots].sum()) if len(slots) else 0
+    indptr, indices, data = np.empty(rows.shape[0] + 1, np.int64), np.empty(most, np.int32), np.empty(most)
+    # Only the entries D has are ever written: the rest of the bound is not touched (no page of it faulted in).
+    nnz = _poserows.difference(*native_csr(rows), *native_csr(kept), slots, indptr, indices, data)
+    if nnz < 0:  # a row out of column order (scipy leaves sums of CSR matrices unsorted)
+        rows, kept = rows.sorted_indices(), kept.sorted_indices()
+        nnz = _poserows.difference(*native_csr(rows), *native_csr(kept), slots, indptr, indices, data)
+    return sp.csr_matrix((data[:nnz], indices[:nnz], indptr), shape=rows.shape)
+
+
 class StaleRows:
     """The rows at the current poses of the local slots whose rows in K are stale.
 
-    ``slots`` (n,) slot indices (in the order put); ``current`` (n, N) sparse: their rows at the current
-    poses; ``delta`` (n, N): those minus the rows K was built from (:meth:`update`, after every
-    change of either).
+    ``held`` (h,) slot indices (in the order put) and ``current`` (h, N) sparse: their rows at
+    the current poses; ``slots`` (n,) those of them whose rows differ from K's, and ``delta``
+    (n, N) the difference, current rows minus the rows K was built from (:meth:`update`, after
+    every change of either). A held row equal to K's is not stale (not in ``slots``) but stays
+    held: dropping it would copy every other held row (~400k entries after a move at budget 0).
     """
 
     def __init__(self, n_patches: int) -> None:
@@ -58,8 +86,9 @@ class StaleRows:
         self.clear()
 
     def clear(self) -> None:
-        self.slots = np.empty(0, np.int64)
+        self.held = np.empty(0, np.int64)
         self.current = sp.csr_matrix((0, self.n_patches))
+        self.slots = np.empty(0, np.int64)
         self.delta = sp.csr_matrix((0, self.n_patches))
         self.iterations = 0  # of the last correct()
         self.converged = True  # whether the last correct() reached CORRECTION_TOLERANCE
@@ -71,33 +100,35 @@ class StaleRows:
     @property
     def nbytes(self) -> int:
         """Host bytes of the rows and D held."""
-        return self.slots.nbytes + sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes
-                                       for m in (self.current, self.delta))
+        return self.held.nbytes + self.slots.nbytes + sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes
+                                                          for m in (self.current, self.delta))
 
-    def put(self, slots: np.ndarray, rows: sp.csr_matrix) -> None:
-        """Slots ``slots`` now have current rows ``rows`` (replacing any held for them); call
-        :meth:`update` before the next :meth:`correct`."""
+    def put(self, slots: np.ndarray, *rows: sp.csr_matrix) -> None:
+        """Slots ``slots`` now have current rows ``rows`` (one or more blocks, stacked in order,
+        replacing any held for them); call :meth:`update` before the next :meth:`correct`."""
         slots = np.asarray(slots, np.int64)
-        keep = np.flatnonzero(~np.isin(self.slots, slots))
-        self.slots = np.concatenate([self.slots[keep], slots])
-        # Unsorted: a sort would copy every row again (~400k entries after a move at budget 0).
-        rows = sp.csr_matrix(rows)
-        self.current = rows if not len(keep) else sp.vstack([self.current[keep], rows], format="csr")
+        keep = np.flatnonzero(~np.isin(self.held, slots))
+        self.held = np.concatenate([self.held[keep], slots])
+        # Unsorted: a sort would copy every row again. One stack of every block, not one per caller.
+        blocks = ([self.current[keep]] if len(keep) else []) + [sp.csr_matrix(r) for r in rows]
+        self.current = blocks[0] if len(blocks) == 1 else sp.vstack(blocks, format="csr")
 
     def drop(self, slots: np.ndarray) -> None:
         """Slots whose rows in K are current again (refreshed by a swap, or holding another
         patch): nothing to correct there."""
+        keep = np.flatnonzero(~np.isin(self.held, slots))
+        if len(keep) < len(self.held):
+            self.held, self.current = self.held[keep], self.current[keep]
         keep = np.flatnonzero(~np.isin(self.slots, slots))
         if len(keep) < len(self.slots):
-            self.slots, self.current, self.delta = self.slots[keep], self.current[keep], self.delta[keep]
+            self.slots, self.delta = self.slots[keep], self.delta[keep]
 
     def update(self, kept: sp.csr_matrix) -> None:
-        """D = current rows - ``kept[slots]`` (``kept`` (M, N): the rows K was built from);
-        slots where they agree are dropped."""
-        delta = sp.csr_matrix(self.current - kept[self.slots])
-        delta.eliminate_zeros()
-        self.delta = delta
-        self.drop(self.slots[np.diff(delta.indptr) == 0])
+        """D = current rows - ``kept[held]`` (``kept`` (M, N): the rows K was built from), and
+        the slots where they differ."""
+        delta = rows_minus(self.current, kept, self.held)
+        stale = np.diff(delta.indptr) > 0
+        self.slots, self.delta = self.held[stale], (delta if stale.all() else delta[stale])
 
     def correct(self, solve_kept, B: np.ndarray, S: np.ndarray, albedo: np.ndarray, outside: bool) -> np.ndarray:
         """(M, 3) B on the local set with the stale rows at the current poses (module docstring).
