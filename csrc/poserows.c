@@ -119,15 +119,23 @@ static Py_ssize_t difference(Py_ssize_t rows, const int64_t *ap, const int32_t *
     return n;
 }
 
-static PyObject *py_assemble(PyObject *self, PyObject *args)
+/* Both passes take ten buffers: seven read, three written. */
+#define BUFFERS 10
+enum { P = sizeof(int64_t), I = sizeof(int32_t), D = sizeof(double) };
+
+static PyObject *with_buffers(PyObject *args, PyObject *(*pass)(Py_buffer *b))
 {
-    (void)self;
-    Py_buffer b[10];
+    Py_buffer b[BUFFERS];
     if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*w*w*w*", &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &b[8],
                           &b[9]))
         return NULL;
-    PyObject *result = NULL;
-    const Py_ssize_t P = (Py_ssize_t)sizeof(int64_t), I = (Py_ssize_t)sizeof(int32_t), D = (Py_ssize_t)sizeof(double);
+    PyObject *result = pass(b);
+    for (int k = 0; k < BUFFERS; ++k) PyBuffer_Release(&b[k]);
+    return result;
+}
+
+static PyObject *assemble_buffers(Py_buffer *b)
+{
     Py_ssize_t rows = b[0].len / P - 1, m = b[1].len / I, mr = b[5].len / I;
     if (rows < 0 || b[0].len != (rows + 1) * P || b[1].len != m * I || b[2].len != m * D || b[3].len != m ||
         b[4].len != (rows + 1) * P || b[5].len != mr * I || b[6].len != mr * D || b[7].len != (rows + 1) * P ||
@@ -135,66 +143,65 @@ static PyObject *py_assemble(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "assemble needs CSR rows (int64 indptr of r + 1, int32 indices, float64 "
                                           "data), a uint8 mask per entry, CSR object columns of the same r rows, and "
                                           "outputs of r + 1 and of every entry");
-        goto done;
+        return NULL;
     }
     if (bad_indptr(b[0].buf, rows, m) || bad_indptr(b[4].buf, rows, mr)) {
         PyErr_SetString(PyExc_ValueError, "assemble: an indptr does not run from 0 to its entries without decreasing");
-        goto done;
+        return NULL;
     }
     Py_ssize_t n;
     Py_BEGIN_ALLOW_THREADS
     n = assemble(rows, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, b[6].buf, b[7].buf, b[8].buf,
                  b[9].buf);
     Py_END_ALLOW_THREADS
-    result = PyLong_FromSsize_t(n);
-done:
-    for (int k = 0; k < 10; ++k) PyBuffer_Release(&b[k]);
-    return result;
+    return PyLong_FromSsize_t(n);
 }
 
-static PyObject *py_difference(PyObject *self, PyObject *args)
+static PyObject *difference_buffers(Py_buffer *b)
 {
-    (void)self;
-    Py_buffer b[10];
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*w*w*w*", &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &b[8],
-                          &b[9]))
-        return NULL;
-    PyObject *result = NULL;
-    const Py_ssize_t P = (Py_ssize_t)sizeof(int64_t), I = (Py_ssize_t)sizeof(int32_t), D = (Py_ssize_t)sizeof(double);
     Py_ssize_t rows = b[0].len / P - 1, m = b[1].len / I, kr = b[3].len / P - 1, km = b[4].len / I;
     if (rows < 0 || kr < 0 || b[0].len != (rows + 1) * P || b[1].len != m * I || b[2].len != m * D ||
         b[3].len != (kr + 1) * P || b[4].len != km * I || b[5].len != km * D || b[6].len != rows * P ||
         b[7].len != (rows + 1) * P) {
         PyErr_SetString(PyExc_ValueError, "difference needs two CSR matrices (int64 indptr, int32 indices, float64 "
                                           "data), an int64 slot per row of the first and an output indptr of its rows + 1");
-        goto done;
+        return NULL;
     }
     const int64_t *slots = b[6].buf, *kp = b[3].buf;
     if (bad_indptr(b[0].buf, rows, m) || bad_indptr(kp, kr, km)) {
         PyErr_SetString(PyExc_ValueError, "difference: an indptr does not run from 0 to its entries without decreasing");
-        goto done;
+        return NULL;
     }
     Py_ssize_t most = m;
     for (Py_ssize_t k = 0; k < rows; ++k) {
         if (slots[k] < 0 || slots[k] >= kr) {
             PyErr_Format(PyExc_ValueError, "difference: slot %lld of row %zd is outside the %zd kept rows",
                          (long long)slots[k], k, kr);
-            goto done;
+            return NULL;
         }
         most += kp[slots[k] + 1] - kp[slots[k]];
     }
     if (b[8].len < most * I || b[9].len < most * D) {
         PyErr_Format(PyExc_ValueError, "difference: the outputs hold fewer than the %zd entries the rows may have", most);
-        goto done;
+        return NULL;
     }
     Py_ssize_t n;
     Py_BEGIN_ALLOW_THREADS
     n = difference(rows, b[0].buf, b[1].buf, b[2].buf, kp, b[4].buf, b[5].buf, slots, b[7].buf, b[8].buf, b[9].buf);
     Py_END_ALLOW_THREADS
-    result = PyLong_FromSsize_t(n);
-done:
-    for (int k = 0; k < 10; ++k) PyBuffer_Release(&b[k]);
-    return result;
+    return PyLong_FromSsize_t(n);
+}
+
+static PyObject *py_assemble(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return with_buffers(args, assemble_buffers);
+}
+
+static PyObject *py_difference(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return with_buffers(args, difference_buffers);
 }
 
 static PyMethodDef methods[] = {

@@ -61,7 +61,7 @@ def rows_minus(rows: sp.csr_matrix, kept: sp.csr_matrix, slots: np.ndarray) -> s
         raise InvalidInputError(f"slots must name one kept row per row ({rows.shape[0]}); got shape {slots.shape}")
     if len(slots) and (slots.min() < 0 or slots.max() >= kept.shape[0]):
         raise InvalidInputError(f"slots must lie in [0, {kept.shape[0]}) (the kept rows); got {slots.min()}..{slots.max()}")
-    most = rows.nnz + int(np.diff(kept.indptr)[slots].sum()) if len(slots) else 0
+    most = rows.nnz + int(np.diff(kept.indptr)[slots].sum())
     indptr, indices, data = np.empty(rows.shape[0] + 1, np.int64), np.empty(most, np.int32), np.empty(most)
     # Only the entries D has are ever written: the rest of the bound is not touched (no page of it faulted in).
     nnz = _poserows.difference(*native_csr(rows), *native_csr(kept), slots, indptr, indices, data)
