@@ -45,16 +45,21 @@ def device_slug(info: dict) -> str:
     """The name of a device's results folder (``Device.info()`` as ``info``): the OpenCL device
     name, then for a PoCL CPU device the CPU its compiler targets (the end of the version's
     ``HSTR: pthread-<triple>-<cpu>``), because cloud CPUs report bare model names that several
-    generations share (``"pthread-AMD EPYC"`` is a Zen 2, a Zen 3 and a Zen 5 here). Where LLVM
-    did not know the CPU (``generic``), the host's family from /proc/cpuinfo stands in:
-    ``"pthread-AMD EPYC"`` on ``...-znver2`` -> ``"pthread-amd-epyc-znver2"``; on ``...-generic``,
-    family 1Ah -> ``"pthread-amd-epyc-family-1ah"``."""
+    generations share (``"pthread-AMD EPYC"`` is a Zen 2, a Zen 3, a Zen 4 and a Zen 5 here). Where
+    LLVM did not know the CPU (``generic``), the host's family from /proc/cpuinfo stands in; where it
+    named another generation's CPU and pydynrad replaced the name (``compiler_cpu``: a Zen 4 that
+    LLVM 14 calls ``znver3``), the family and model do: ``"pthread-AMD EPYC"`` on ``...-znver2`` ->
+    ``"pthread-amd-epyc-znver2"``; on ``...-generic``, family 1Ah -> ``"pthread-amd-epyc-family-1ah"``;
+    on ``...-znver3`` replaced, family 19h model 11h -> ``"pthread-amd-epyc-family-19h-11h"``."""
     name = info.get("device") or ""
     match = re.search(r"HSTR:\s*pthread-\S+-(\S+)$", info.get("version") or "")
     if match:
         cpu = match.group(1)
-        if cpu == "generic" and info.get("cpu_family"):
-            cpu = "family-" + str(info["cpu_family"]).split("/")[0]
+        family = str(info.get("cpu_family") or "")
+        if cpu == "generic" and family:
+            cpu = "family-" + family.split("/")[0]
+        elif info.get("compiler_cpu") and family:
+            cpu = "family-" + family.replace("/", "-")
         name = f"{name} {cpu}"
     return slugify(name)
 

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .errors import DeviceError, InvalidInputError, KernelBuildError
-from .pocl_target import cache_tag, fix_generic_cpu, host_cpu_family, replaced_cpu
+from .pocl_target import cache_tag, fix_cpu_name, host_cpu_family, replaced_cpu
 
 if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays cheap
     import pyopencl as cl
@@ -157,7 +157,7 @@ class Device:
         import pyopencl as cl
 
         for d in self.context.devices:
-            fix_generic_cpu(d)
+            fix_cpu_name(d)
         if self.queue is None:
             self.queue = cl.CommandQueue(self.context)
 
@@ -289,7 +289,8 @@ class Device:
             "max_alloc_MiB": self.max_alloc_bytes // 2**20,
             "fp64": self.supports_fp64,
             "fp16_arithmetic": "cl_khr_fp16" in d.extensions,
-            **({"compiler_cpu": f"{replaced_cpu(d)} (PoCL's LLVM does not know this CPU)"} if replaced_cpu(d) else {}),
+            **({"compiler_cpu": f"{replaced_cpu(d)} (in place of the {d.version.rpartition('-')[2]} PoCL's LLVM named this CPU)"}
+               if replaced_cpu(d) else {}),
             **({"cpu_family": family} if family else {}),
         }
 

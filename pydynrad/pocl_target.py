@@ -1,24 +1,32 @@
-"""A CPU name PoCL 3.0's compiler knows, for CPUs newer than its LLVM.
+"""A CPU name PoCL 3.0's compiler can compile its own kernel library for, on CPUs newer than its LLVM.
 
 The PoCL of the pip wheel (``pocl-binary-distribution`` 3.0: PoCL 3.0-rc2 on LLVM 14.0.6) asks LLVM
 for the host's CPU name and hands it to clang as ``-target-cpu``. LLVM 14 predates, among others,
-AMD Zen 5 (family 1Ah): it answers ``generic``, clang 14 refuses that name ("unknown target CPU
-'generic'"), and every program build on such a machine fails. PoCL 3.0 has no setting for the name
-(``POCL_LLVM_CPU_NAME`` came in a later release) and refuses ``-target-cpu`` among build options.
+AMD Zen 4 (family 19h, model 10h and up) and Zen 5 (family 1Ah), and answers wrongly for both:
 
-So, on a PoCL CPU device whose compiler CPU is ``generic`` (PoCL prints it at the end of the
-device's version string, ``HSTR: pthread-<triple>-<cpu>``), :func:`fix_generic_cpu` writes another
+- on Zen 5 it answers ``generic``; clang 14 refuses that name ("unknown target CPU 'generic'"), and
+  every program build fails;
+- on Zen 4 it answers ``znver3``, a CPU without AVX-512, while PoCL picks its kernel library variant
+  by the host's flags (AVX-512F: the ``skylake-avx512`` variant) and reports 16-wide preferred
+  vectors. Programs build, but the first launch of any kernel that calls a 16-wide builtin
+  (``floor``, ``rsqrt``, ``fabs`` on ``float16``) aborts the process inside LLVM's code generator
+  ("LLVM ERROR: Cannot select: ... vselect"): the library's AVX-512 code cannot be compiled for a
+  CPU without it (measured on a Zen 4 EPYC, 2026-12-03).
+
+PoCL 3.0 has no setting for the name (``POCL_LLVM_CPU_NAME`` came in a later release) and refuses
+``-target-cpu`` among build options. So, on a PoCL CPU device whose compiler CPU is ``generic``, or
+lacks AVX-512 where the kernel library variant needs it (PoCL prints the CPU at the end of the
+device's version string, ``HSTR: pthread-<triple>-<cpu>``), :func:`fix_cpu_name` writes another
 name into PoCL's device record: the CPU that PoCL's kernel library variant for this host was
-compiled for (PoCL picks the variant by CPU features: ``skylake-avx512`` where AVX-512F is present,
-``haswell`` with AVX2, ...), provided the host has the x86-64 psABI level that CPU implies; else
-that level itself (``x86-64-v4``, ``-v3``, ...). LLVM 14 knows both kinds of name. The variant's
-own CPU is preferred because LLVM inlines a builtin of the kernel library (``floor``, ``fmin``,
-``vload16``, ...) only into code compiled for at least the features the builtin was compiled for:
-with ``x86-64-v4`` each is an out-of-line call (see docs/design.md, 'Practical notes'). The record
-is found by content, not by a compiled-in offset: the pointer that follows the pointer to the
-target triple and points at ``"generic"``. Reads go only to mapped readable memory; if the record is
-not found nothing is written and builds fail as before, with
-:class:`~pydynrad.errors.KernelBuildError` naming the cause. ``PYDYNRAD_POCL_CPU=<an LLVM 14 CPU
+compiled for (``skylake-avx512`` where AVX-512F is present, ``haswell`` with AVX2, ...), provided
+the host has the x86-64 psABI level that CPU implies; else that level itself (``x86-64-v4``,
+``-v3``, ...). LLVM 14 knows both kinds of name. The variant's own CPU is preferred because LLVM
+inlines a builtin of the kernel library (``floor``, ``fmin``, ``vload16``, ...) only into code
+compiled for at least the features the builtin was compiled for: with ``x86-64-v4`` each is an
+out-of-line call (see docs/design.md, 'Practical notes'). The record is found by content, not by a
+compiled-in offset: the pointer that follows the pointer to the target triple and points at the
+CPU name the version string gives. Reads go only to mapped readable memory; if the record is not
+found nothing is written and builds fail (or abort) as before. ``PYDYNRAD_POCL_CPU=<an LLVM 14 CPU
 name>`` chooses the name instead; it must have the instruction sets of the kernel library variant
 (``znver3`` on an AVX-512 host fails: the library's AVX-512 code cannot be compiled for it).
 
@@ -37,7 +45,7 @@ import platform
 import threading
 from pathlib import Path
 
-__all__ = ["host_cpu_family", "psabi_level", "library_cpu", "target_name", "cache_tag", "fix_generic_cpu", "replaced_cpu"]
+__all__ = ["host_cpu_family", "psabi_level", "library_cpu", "target_name", "cache_tag", "fix_cpu_name", "replaced_cpu"]
 
 # PoCL 3.0's x86-64 kernel library variants (lib/CL/pocl_llvm_utils.cc, kernellib_feature_map), in
 # its order (the last that matches wins): the CPU each was compiled for, the /proc/cpuinfo flags
@@ -121,7 +129,7 @@ def library_cpu(flags: set[str]) -> str:
 
 
 def target_name() -> str:
-    """The CPU name :func:`fix_generic_cpu` writes: ``PYDYNRAD_POCL_CPU`` or :func:`library_cpu`."""
+    """The CPU name :func:`fix_cpu_name` writes: ``PYDYNRAD_POCL_CPU`` or :func:`library_cpu`."""
     return os.environ.get("PYDYNRAD_POCL_CPU") or library_cpu(_cpu_flags())
 
 
@@ -155,8 +163,20 @@ def _reader(ranges: list[tuple[int, int]]):
     return pointer_at, string_is
 
 
-def _generic_triple(device) -> str | None:
-    """The target triple if ``device`` is a PoCL CPU device compiling for ``generic``, else None."""
+# The CPU names LLVM 14 gives AVX-512 (llvm/lib/Support/X86TargetParser.cpp, FeatureAVX512F).
+_AVX512_CPUS = frozenset({"knl", "knm", "skylake-avx512", "skx", "cascadelake", "cooperlake", "cannonlake",
+                          "icelake-client", "icelake-server", "rocketlake", "tigerlake", "sapphirerapids",
+                          "x86-64-v4"})
+
+
+def needs_replacing(cpu: str, flags: set[str]) -> bool:
+    """Whether LLVM's CPU name ``cpu`` cannot compile PoCL's kernel library variant for a host with
+    ``flags``: ``generic`` (clang refuses it), or a CPU without AVX-512 where the variant has it."""
+    return cpu == "generic" or (library_cpu(flags) == "skylake-avx512" and cpu not in _AVX512_CPUS)
+
+
+def _compiler_target(device) -> tuple[str, str] | None:
+    """(target triple, CPU name) of a PoCL x86-64 CPU device's compiler, else None."""
     import pyopencl as cl
 
     if "portable computing language" not in device.platform.name.lower() or not device.type & cl.device_type.CPU:
@@ -164,19 +184,23 @@ def _generic_triple(device) -> str | None:
     hstr = device.version.partition("HSTR:")[2].strip()  # e.g. "pthread-x86_64-unknown-linux-gnu-generic"
     _, _, rest = hstr.partition("-")
     triple, sep, cpu = rest.rpartition("-")
-    return triple if sep and cpu == "generic" and triple.startswith("x86_64") else None
+    return (triple, cpu) if sep and triple.startswith("x86_64") else None
 
 
-def fix_generic_cpu(device) -> str | None:
-    """Give a PoCL CPU ``device`` (a ``pyopencl.Device``) whose compiler CPU is ``generic`` the
-    host's psABI level instead, once per process; return the name written (or written before),
-    None where nothing needed or could be done. Call before the first program build."""
+def fix_cpu_name(device) -> str | None:
+    """Give a PoCL CPU ``device`` (a ``pyopencl.Device``) whose compiler CPU cannot compile the kernel
+    library (:func:`needs_replacing`) the library's own CPU instead, once per process; return the
+    name written (or written before), None where nothing needed or could be done. Call before the
+    first program build."""
     address = int(device.int_ptr)
     with _lock:
         if address in _replaced:
             return _replaced[address]
-        triple = _generic_triple(device)
-        if triple is None or platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
+        target = _compiler_target(device)
+        if target is None or platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
+            return None
+        triple, cpu = target
+        if not needs_replacing(cpu, _cpu_flags()):
             return None
         pointer_at, string_is = _reader(_readable_ranges())
         for offset in range(0, 4096, 8):
@@ -184,7 +208,7 @@ def fix_generic_cpu(device) -> str | None:
             after = pointer_at(address + offset + 8)
             if here is None or after is None:
                 break
-            if string_is(here, triple.encode()) and string_is(after, b"generic"):
+            if string_is(here, triple.encode()) and string_is(after, cpu.encode()):
                 name = target_name()
                 libc = ctypes.CDLL(None)
                 libc.strdup.restype = ctypes.c_void_p
@@ -197,5 +221,5 @@ def fix_generic_cpu(device) -> str | None:
 
 
 def replaced_cpu(device) -> str | None:
-    """The CPU name :func:`fix_generic_cpu` gave ``device``, or None."""
+    """The CPU name :func:`fix_cpu_name` gave ``device``, or None."""
     return _replaced.get(int(device.int_ptr))

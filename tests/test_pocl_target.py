@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from pydynrad.pocl_target import _cpu_flags, _generic_triple, library_cpu, psabi_level, replaced_cpu
+from pydynrad.pocl_target import _compiler_target, _cpu_flags, library_cpu, needs_replacing, psabi_level, replaced_cpu
 
 # /proc/cpuinfo flags of the machines named (subsets: the flags the levels read, plus noise).
 V2 = {"fpu", "sse2", "cx16", "lahf_lm", "popcnt", "sse4_1", "sse4_2", "ssse3"}
@@ -35,18 +35,36 @@ def test_the_kernel_library_s_own_cpu_where_the_host_has_its_level():
     assert library_cpu(V3 | {"avx512f"}) == "x86-64-v3"
 
 
+def test_which_names_are_replaced():
+    """``generic`` always; a CPU without AVX-512 only where the kernel library variant has it (LLVM 14
+    calls a Zen 4 ``znver3``: measured on a Zen 4 EPYC, every 16-wide builtin then aborted inside
+    LLVM); a name LLVM knows for what the host is, never."""
+    assert needs_replacing("generic", V3) and needs_replacing("generic", ZEN5)
+    assert needs_replacing("znver3", ZEN5) and needs_replacing("haswell", ZEN5)
+    assert not needs_replacing("znver3", V3) and not needs_replacing("znver2", V3)
+    assert not needs_replacing("rocketlake", ZEN5) and not needs_replacing("skylake-avx512", ZEN5)
+
+
 def test_the_device_builds_and_says_what_it_was_given(device):
-    """Every test builds kernels; this one names the case: where PoCL's compiler reports
-    ``generic`` (LLVM 14 on a CPU it predates, e.g. AMD Zen 5) the device was given a level,
-    and a kernel built for it computes."""
+    """Every test builds kernels; this one names the case: where PoCL's compiler CPU cannot compile
+    its kernel library (``generic`` on Zen 5, ``znver3`` on Zen 4) the device was given the
+    library's CPU, and a kernel built for it computes, 16-wide builtins included."""
     import pyopencl as cl
 
     d = device.cl_device
-    if _generic_triple(d) is not None:
+    target = _compiler_target(d)
+    if target is not None and needs_replacing(target[1], _cpu_flags()):
         assert replaced_cpu(d) == library_cpu(_cpu_flags())
         assert "compiler_cpu" in device.info()
     else:
         assert replaced_cpu(d) is None and "compiler_cpu" not in device.info()
+    wide = cl.Program(device.context, "__kernel void roots(__global float16 *a) "
+                      "{ size_t i = get_global_id(0); a[i] = floor(rsqrt(fabs(a[i])) + 0.5f); }").build()
+    v = np.full(16 * 3, -0.01, np.float32)
+    vbuf = cl.Buffer(device.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=v)
+    wide.roots(device.queue, (3,), None, vbuf)
+    cl.enqueue_copy(device.queue, v, vbuf)
+    assert np.array_equal(v, np.full_like(v, 10.0))  # 1/sqrt(0.01) = 10, to within rsqrt's ulps
     prg = cl.Program(device.context, "__kernel void twice(__global float *a) { a[get_global_id(0)] *= 2.0f; }").build()
     a = np.arange(37, dtype=np.float32)
     buf = cl.Buffer(device.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=a)
