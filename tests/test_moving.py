@@ -446,9 +446,11 @@ def test_stale_rows_corrected(box, block, device):
     for budget in (0, 16):
         dyn = moved(budget, True)
         assert len(dyn._stale) > 100  # rows left stale in K: observed 414 (budget 0: the block's 48 among them), 349 (16)
+        dyn.radiosity(LIGHTS)
+        assert dyn._stale.iterations == 1  # the last frame's answer, confirmed by one pass over K
         B = dyn.radiosity(LIGHTS, far_field=False)
-        assert dyn._stale.iterations == 1  # the last frame's correction, confirmed
-        assert rel(B, truth) < 1e-4  # the iteration's tolerance; observed 3e-7 (PoCL, EPYC, 2026-12-02)
+        assert dyn._stale.converged
+        assert rel(B, truth) < 1e-5  # the iteration stops at 1e-4 of max B; observed 1e-6, 2e-6 (PoCL, Zen 4, 2026-12-03)
         assert rel(B, truth) < uncorrected / 100  # uncorrected observed 0.012
         if budget == 0:  # no swap at all: K is still the one built at the first pose
             np.testing.assert_array_equal(dyn.matrix.to_host(), unmoved)

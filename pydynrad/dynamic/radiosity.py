@@ -653,9 +653,10 @@ class DynamicRadiosity:
         if far is not None:
             LS = LS + self.far.injection(self._ff.local, S)
         B = far.copy() if far is not None else L.copy()
-        B[S] = self._solve_kept(LS)
         if len(self._stale):
-            B[S] = self._stale.correct(self._solve_kept, B, S, self.scene.albedo, far is not None)
+            B[S] = self._stale.correct(self._solve_kept, LS, B, S, self.scene.albedo, far is not None)
+        else:
+            B[S] = self._solve_kept(LS)
         if self.objects:
             if far is not None:  # the coarse level is of the first poses: gather the outside at these
                 outside = np.flatnonzero(~self._local_mask)

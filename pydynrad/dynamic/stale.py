@@ -20,8 +20,10 @@ comes back), so a few iterations reach the fixed point, which is the solution wi
 row at the current poses: what refreshing every row would give, without its swap slots. It
 stops at :data:`CORRECTION_TOLERANCE` or after :data:`CORRECTION_ITERATIONS` (then
 :attr:`StaleRows.converged` is False and the answer is the last iterate's image, from which the
-next call goes on). Each call starts from the last one's correction, so a frame without a move
-usually takes one iteration. K itself is never changed, so a pose that comes back still
+next call goes on). A call after the first starts from the last answer plus the change in
+L'_S and folds B^(0) into the first image, B^(1) = (I + P_S K) (L'_S + P_S D x), so a frame
+without a move usually takes one pass over K in all (two before: B^(0), then one iteration to
+confirm), a moving frame one fewer. K itself is never changed, so a pose that comes back still
 gives back the same K.
 """
 
@@ -35,7 +37,10 @@ from ..errors import InvalidInputError
 
 __all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS"]
 
-#: Stop when an iteration changes B on the local set by at most this much of its max.
+#: Stop when an iteration changes B on the local set by at most this much of its max. After the
+#: moves of bench/objects.py's block at budget 0: 5 passes over K per moving frame at 1e-4, 4 at
+#: 1e-3, whose answer is 2e-5 of max B from a dense solve with every row current in
+#: tests/test_moving.py (3e-7 at 1e-4; PoCL, Zen 4 EPYC, 2026-12-03): one pass is not worth it.
 CORRECTION_TOLERANCE = 1e-4
 #: The most iterations per :meth:`StaleRows.correct` (each one pass over K per channel).
 CORRECTION_ITERATIONS = 8
@@ -90,9 +95,13 @@ class StaleRows:
         self.current = sp.csr_matrix((0, self.n_patches))
         self.slots = np.empty(0, np.int64)
         self.delta = sp.csr_matrix((0, self.n_patches))
-        self.iterations = 0  # of the last correct()
+        self.iterations = 0  # passes over K of the last correct()
         self.converged = True  # whether the last correct() reached CORRECTION_TOLERANCE
-        self._increment: np.ndarray | None = None  # (N, 3) the last correct()'s B - B^(0), per patch
+        self._last: np.ndarray | None = None  # (N, 3) the last correct()'s B, per patch (where _known)
+        self._known = np.zeros(0, bool)
+        self._last_LS: np.ndarray | None = None  # (N, 3) the light it solved for, per patch (where _known)
+        self._last_outside = False  # and whether with the far field outside
+        self._increment: np.ndarray | None = None  # (N, 3) B - B^(0) of the last correct() that made B^(0)
 
     def __len__(self) -> int:
         return len(self.slots)
@@ -130,26 +139,36 @@ class StaleRows:
         stale = np.diff(delta.indptr) > 0
         self.slots, self.delta = self.held[stale], (delta if stale.all() else delta[stale])
 
-    def correct(self, solve_kept, B: np.ndarray, S: np.ndarray, albedo: np.ndarray, outside: bool) -> np.ndarray:
+    def correct(self, solve_kept, LS: np.ndarray, B: np.ndarray, S: np.ndarray, albedo: np.ndarray,
+                outside: bool) -> np.ndarray:
         """(M, 3) B on the local set with the stale rows at the current poses (module docstring).
 
-        ``solve_kept(X)``: X + P_S K X for X (M, 3); ``B`` (N, 3): the frame's B with the
-        uncorrected local set at ``S``; ``albedo`` (N, 3); ``outside``: whether B outside the
-        local set is part of the solution (the far field's), else it is not gathered."""
-        B0 = B[S]
-        if not len(self.slots):
-            self.iterations, self.converged = 0, True
-            return B0
+        ``solve_kept(X)``: X + P_S K X for X (M, 3); ``LS`` (M, 3): the light to solve for on the
+        local set ``S``; ``B`` (N, 3): the frame's B outside the local set; ``albedo`` (N, 3);
+        ``outside``: whether B outside the local set is part of the solution (the far field's),
+        else it is not gathered.
+
+        After a first call, each starts from the last answer plus the change in the light to solve
+        for, per patch (the patches it had in S; a move changes L'_S where the objects cast and
+        catch light), and its first image is solve_kept(LS + P_S D x): B^(0) takes no pass of its
+        own, and a frame where nothing moved takes one pass over K in all. The first call, and one
+        with the far field switched (``outside`` not the last call's), start from B^(0) plus the
+        last such call's correction instead."""
         x = B.copy() if outside else np.zeros_like(B)
-        # From the last frame's correction (the same rows, mostly the same light): one iteration
-        # confirms it where nothing changed.
-        x[S] = B0 if self._increment is None else B0 + self._increment[S]
+        resume = self._last is not None and self._last_outside == outside
+        if resume:
+            B0 = None
+            known = self._known[S]
+            x[S[known]] = self._last[S[known]] + (LS[known] - self._last_LS[S[known]])
+        else:
+            B0 = solve_kept(LS)
+            x[S] = B0 if self._increment is None else B0 + self._increment[S]
         rho = albedo[S[self.slots]].astype(np.float64)
-        g = np.zeros_like(B0)
+        g = np.zeros_like(LS, dtype=np.float64)
         mixing = Anderson(ANDERSON_DEPTH)
         for it in range(1, CORRECTION_ITERATIONS + 1):
             g[self.slots] = rho * (self.delta @ x)
-            new = B0 + solve_kept(g)
+            new = solve_kept(LS + g) if B0 is None else B0 + solve_kept(g)
             residual = new - x[S]
             scale = max(float(np.abs(new).max()), 1e-300)
             self.converged = float(np.abs(residual).max()) <= CORRECTION_TOLERANCE * scale
@@ -157,8 +176,13 @@ class StaleRows:
                 x[S] = new  # an evaluated image, never an unchecked mixed point
                 break
             x[S] = mixing.next(new, residual)
-        self.iterations = it
-        if self._increment is None:
-            self._increment = np.zeros_like(B)
-        self._increment[S] = x[S] - B0
+        self.iterations = it + (B0 is not None)
+        if self._last is None:
+            self._last, self._last_LS, self._known = np.zeros_like(x), np.zeros_like(x), np.zeros(len(x), bool)
+        self._last[S], self._known[S] = x[S], True
+        self._last_LS[S], self._last_outside = LS, outside
+        if B0 is not None:
+            if self._increment is None:
+                self._increment = np.zeros_like(x)
+            self._increment[S] = x[S] - B0
         return x[S]
