@@ -351,9 +351,11 @@ inline void bvh_tri_hit_p(__global const float4 *tris, int k, const RayPacket *r
 
 // One tree from node `root` for every lane (bvh_walk_tree's packet twin): a subtree waits on
 // the stack with its least entry distance over the lanes and is skipped when that lies beyond
-// every lane's nearest hit so far.
+// every lane's nearest hit so far. `any_hit` (a constant at every call): a lane that has hit
+// anything retires (its reach drops to -inf: no box passes for it), and the walk ends once every
+// lane has.
 inline void bvh_walk_tree_p(__global const float4 *nodes, __global const float4 *tris, int root, const RayPacket *r,
-                            float tmin, HitPacket *h)
+                            float tmin, HitPacket *h, int any_hit)
 {
     RayFrameP frame = bvh_ray_frame_p(r);
     BvhSlabs s;
@@ -369,6 +371,7 @@ inline void bvh_walk_tree_p(__global const float4 *nodes, __global const float4 
         if (ref < 0) {
             for (int k = BVH_LEAF_FIRST(ref), end = k + BVH_LEAF_SIZE(ref); k < end; ++k)
                 bvh_tri_hit_p(tris, k, r, &frame, tmin, h);
+            if (any_hit) h->t = h->patch >= 0 ? (bvh_floatP)(-INFINITY) : h->t;
         } else {
             __global const float4 *n = nodes + BVH_NODE * ref;
             int4 child = as_int4(n[6]);
@@ -384,15 +387,15 @@ inline void bvh_walk_tree_p(__global const float4 *nodes, __global const float4 
     }
 }
 
-// Nearest hit of every lane along org + t dir for t in (tmin, tmax): bvh_closest per lane,
-// one shared walk per tree (the static one, then each instance's in its object space).
-inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const float4 *tris,
-                                    __global const int *order, const RayPacket *r, float tmin, bvh_floatP tmax)
+// Every tree for every lane (the static one, then each instance's in its object space):
+// bvh_walk_tree_p of each, the same `any_hit`.
+inline void bvh_walk_p(__global const float4 *nodes, __global const float4 *tris, const RayPacket *r, float tmin,
+                       HitPacket *h, int any_hit)
 {
-    HitPacket h = {tmax, (bvh_floatP)0.0f, (bvh_floatP)0.0f, (bvh_intP)(-1), (bvh_intP)0};
-    bvh_walk_tree_p(nodes, tris, 0, r, tmin, &h);
+    bvh_walk_tree_p(nodes, tris, 0, r, tmin, h, any_hit);
     int4 inst = bvh_instances(nodes);
     for (int i = 0; i < inst.x; ++i) {
+        if (any_hit && bvh_hmaxP(h->t) == -INFINITY) return;  // every lane has hit
         __global const float4 *m = nodes + inst.y + BVH_INSTANCE * i;
         RayPacket q;
         q.ox = m[0].x * r->ox + m[0].y * r->oy + m[0].z * r->oz + m[0].w;
@@ -401,14 +404,33 @@ inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const
         q.dx = m[0].x * r->dx + m[0].y * r->dy + m[0].z * r->dz;
         q.dy = m[1].x * r->dx + m[1].y * r->dy + m[1].z * r->dz;
         q.dz = m[2].x * r->dx + m[2].y * r->dy + m[2].z * r->dz;
-        bvh_walk_tree_p(nodes, tris, as_int4(m[3]).x, &q, tmin, &h);
+        bvh_walk_tree_p(nodes, tris, as_int4(m[3]).x, &q, tmin, h, any_hit);
     }
+}
+
+// Nearest hit of every lane along org + t dir for t in (tmin, tmax): bvh_closest per lane,
+// one shared walk per tree.
+inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const float4 *tris,
+                                    __global const int *order, const RayPacket *r, float tmin, bvh_floatP tmax)
+{
+    HitPacket h = {tmax, (bvh_floatP)0.0f, (bvh_floatP)0.0f, (bvh_intP)(-1), (bvh_intP)0};
+    bvh_walk_p(nodes, tris, r, tmin, &h, 0);
     // Map BVH order to patch indices lane by lane (OpenCL has no vector gather).
     int ids[BVH_PACKET];
     bvh_vstoreP(h.patch, 0, ids);
     for (int i = 0; i < BVH_PACKET; ++i) ids[i] = ids[i] >= 0 ? order[ids[i]] : -1;
     h.patch = bvh_vloadP(0, ids);
     return h;
+}
+
+// Per lane, whether any triangle lies along org + t dir for t in (tmin, tmax) (bvh_occluded per
+// lane, one shared walk that ends when every lane has hit): nonzero where one does.
+inline bvh_intP bvh_occluded_packet(__global const float4 *nodes, __global const float4 *tris, const RayPacket *r,
+                                    float tmin, bvh_floatP tmax)
+{
+    HitPacket h = {tmax, (bvh_floatP)0.0f, (bvh_floatP)0.0f, (bvh_intP)(-1), (bvh_intP)0};
+    bvh_walk_p(nodes, tris, r, tmin, &h, 1);
+    return h.patch >= 0;
 }
 
 #endif  // BVH_PACKET

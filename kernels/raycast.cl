@@ -7,13 +7,11 @@
 // the ray met the patch's front side. Work-item g casts rays g * BVH_PACKET ... as one packet:
 // consecutive rays are usually coherent (a hemicube scanline, an image row); a tail packet
 // repeats the last ray in its spare lanes and writes only the real ones.
-__kernel void cast_closest(__global const float4 *nodes, __global const float4 *tris, __global const int *order,
-                           __global const float *origins, __global const float *directions,
-                           __global const float *tmax, int n_rays,
-                           __global int *patch, __global float *t, __global char *front)
+// The rays first .. first + BVH_PACKET - 1 as one packet (a tail packet repeats the last ray),
+// and their tmax.
+inline RayPacket load_packet(__global const float *origins, __global const float *directions,
+                             __global const float *tmax, int first, int n_rays, bvh_floatP *tm_out)
 {
-    int first = get_global_id(0) * BVH_PACKET;
-    if (first >= n_rays) return;
     float ox[BVH_PACKET], oy[BVH_PACKET], oz[BVH_PACKET], dx[BVH_PACKET], dy[BVH_PACKET], dz[BVH_PACKET];
     float tm[BVH_PACKET];
     for (int i = 0; i < BVH_PACKET; ++i) {
@@ -25,7 +23,20 @@ __kernel void cast_closest(__global const float4 *nodes, __global const float4 *
     }
     RayPacket r = {bvh_vloadP(0, ox), bvh_vloadP(0, oy), bvh_vloadP(0, oz),
                    bvh_vloadP(0, dx), bvh_vloadP(0, dy), bvh_vloadP(0, dz)};
-    HitPacket h = bvh_closest_packet(nodes, tris, order, &r, 0.0f, bvh_vloadP(0, tm));
+    *tm_out = bvh_vloadP(0, tm);
+    return r;
+}
+
+__kernel void cast_closest(__global const float4 *nodes, __global const float4 *tris, __global const int *order,
+                           __global const float *origins, __global const float *directions,
+                           __global const float *tmax, int n_rays,
+                           __global int *patch, __global float *t, __global char *front)
+{
+    int first = get_global_id(0) * BVH_PACKET;
+    if (first >= n_rays) return;
+    bvh_floatP tm;
+    RayPacket r = load_packet(origins, directions, tmax, first, n_rays, &tm);
+    HitPacket h = bvh_closest_packet(nodes, tris, order, &r, 0.0f, tm);
     int hp[BVH_PACKET], hf[BVH_PACKET];
     float ht[BVH_PACKET];
     bvh_vstoreP(h.patch, 0, hp);
@@ -38,12 +49,22 @@ __kernel void cast_closest(__global const float4 *nodes, __global const float4 *
     }
 }
 
-// Any-hit (shadow) query: 1 when some triangle lies at t in (0, tmax[k]).
+// Any-hit (shadow) query: 1 where some triangle lies at t in (0, tmax[k]); BVH_PACKET
+// consecutive rays per work-item as one packet, as in cast_closest. Against one work-item per
+// ray (bvh_occluded), measured on a Zen 4 EPYC (PoCL, 16 lanes, 2026-12-03): a move's ~35k
+// occlusion rays against a 48-patch block 2.7 ms for 4.2, 66k shadow rays of the village's
+// patches to a point 11.8 for 15.8, 66k random directions the same, but the shadow rays in a
+// random order 40 for 24 ms: callers keep coherent rays consecutive.
 __kernel void cast_occluded(__global const float4 *nodes, __global const float4 *tris,
                             __global const float *origins, __global const float *directions,
                             __global const float *tmax, int n_rays, __global char *occluded)
 {
-    int k = get_global_id(0);
-    if (k >= n_rays) return;
-    occluded[k] = bvh_occluded(nodes, tris, vload3(k, origins), vload3(k, directions), 0.0f, tmax[k]);
+    int first = get_global_id(0) * BVH_PACKET;
+    if (first >= n_rays) return;
+    bvh_floatP tm;
+    RayPacket r = load_packet(origins, directions, tmax, first, n_rays, &tm);
+    int hit[BVH_PACKET];
+    bvh_vstoreP(bvh_occluded_packet(nodes, tris, &r, 0.0f, tm), 0, hit);
+    for (int i = 0; i < BVH_PACKET && first + i < n_rays; ++i) occluded[first + i] = hit[i] != 0;
 }
+

@@ -356,7 +356,10 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
 
 
 def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.ndarray:
-    """(n,) bool: True where any triangle lies on ``origins + t * directions``, ``0 < t < tmax``."""
+    """(n,) bool: True where any triangle lies on ``origins + t * directions``, ``0 < t < tmax``.
+
+    Consecutive rays are traced as packets (``kernels/raycast.cl``, ``cast_occluded``): keep
+    coherent ones (a patch's rows, neighbouring patches to a light) next to each other."""
     import pyopencl as cl
 
     bvh, dev, frame = _resolve(scene_or_bvh, device)
@@ -370,9 +373,10 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
     # A fixed work-group: left to choose, PoCL compiles the kernel anew for each new global
     # size (90-140 ms the first time each, on the Xeon), and a move's shadow rays vary in number.
     wg = ray_work_group(dev)
-    dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": bvh_packet(dev)})(  # one program with cast_closest
-        dev.queue, (global_size(n, wg),), (wg,), nodes, tris, dev.to_device(o), dev.to_device(d), dev.to_device(tm),
-        np.int32(n), buf,
+    packet = bvh_packet(dev)
+    dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": packet})(  # one program with cast_closest
+        dev.queue, (global_size(-(-n // packet), wg),), (wg,), nodes, tris, dev.to_device(o), dev.to_device(d),
+        dev.to_device(tm), np.int32(n), buf,
     )
     cl.enqueue_copy(dev.queue, out, buf)
     dev.queue.finish()

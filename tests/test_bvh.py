@@ -45,11 +45,14 @@ def check_against_brute_force(device, vertices, o, d):
     return patch
 
 
-def test_random_rays_random_triangles(device):
+@pytest.mark.parametrize("width", [16, 8, 4])
+def test_random_rays_random_triangles(device, width):
+    """At every packet width (BVH_PACKET 16, 8, 4 as the device's float width picks it), 3,001
+    rays: a tail packet of one ray at every width."""
     rng = np.random.default_rng(0)
     v = random_triangles(rng, 400)
-    o, d = random_rays(rng, 3000)
-    check_against_brute_force(device, v, o, d)
+    o, d = random_rays(rng, 3001)
+    check_against_brute_force(device.with_traits(float_width=width), v, o, d)
 
 
 def test_rays_inside_a_closed_mesh_hit_its_inside(device):
