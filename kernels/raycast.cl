@@ -67,4 +67,3 @@ __kernel void cast_occluded(__global const float4 *nodes, __global const float4 
     bvh_vstoreP(bvh_occluded_packet(nodes, tris, &r, 0.0f, tm), 0, hit);
     for (int i = 0; i < BVH_PACKET && first + i < n_rays; ++i) occluded[first + i] = hit[i] != 0;
 }
-

@@ -289,7 +289,7 @@ class Device:
             "max_alloc_MiB": self.max_alloc_bytes // 2**20,
             "fp64": self.supports_fp64,
             "fp16_arithmetic": "cl_khr_fp16" in d.extensions,
-            **({"compiler_cpu": f"{replaced_cpu(d)} (in place of the {d.version.rpartition('-')[2]} PoCL's LLVM named this CPU)"}
+            **({"compiler_cpu": f"{replaced_cpu(d)} (PoCL's LLVM named it {d.version.rpartition('-')[2]})"}
                if replaced_cpu(d) else {}),
             **({"cpu_family": family} if family else {}),
         }

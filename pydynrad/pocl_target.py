@@ -163,16 +163,19 @@ def _reader(ranges: list[tuple[int, int]]):
     return pointer_at, string_is
 
 
-# The CPU names LLVM 14 gives AVX-512 (llvm/lib/Support/X86TargetParser.cpp, FeatureAVX512F).
+# The CPU names LLVM gives AVX-512 (FeatureAVX512F in llvm/lib/TargetParser/X86TargetParser.cpp):
+# LLVM 14's, and those of later releases, so that a newer PoCL naming its host right is left alone.
 _AVX512_CPUS = frozenset({"knl", "knm", "skylake-avx512", "skx", "cascadelake", "cooperlake", "cannonlake",
                           "icelake-client", "icelake-server", "rocketlake", "tigerlake", "sapphirerapids",
-                          "x86-64-v4"})
+                          "x86-64-v4", "znver4", "znver5", "emeraldrapids", "graniterapids", "graniterapids-d",
+                          "diamondrapids"})
 
 
 def needs_replacing(cpu: str, flags: set[str]) -> bool:
     """Whether LLVM's CPU name ``cpu`` cannot compile PoCL's kernel library variant for a host with
-    ``flags``: ``generic`` (clang refuses it), or a CPU without AVX-512 where the variant has it."""
-    return cpu == "generic" or (library_cpu(flags) == "skylake-avx512" and cpu not in _AVX512_CPUS)
+    ``flags``: ``generic`` (clang refuses it), or a CPU without AVX-512 where PoCL picks the
+    avx512 variant (by ``avx512f`` alone, :data:`_KERNEL_LIBRARIES`)."""
+    return cpu == "generic" or ("avx512f" in flags and cpu not in _AVX512_CPUS)
 
 
 def _compiler_target(device) -> tuple[str, str] | None:

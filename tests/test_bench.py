@@ -85,7 +85,7 @@ def test_results_per_device_and_index(tmp_path):
     assert report.device_dir(xeon, tmp_path) == tmp_path / "pthread-intel-r-xeon-r-processor-rocketlake"
     assert report.device_slug(zen5) == "pthread-amd-epyc-family-1ah"
     zen4 = {"device": "pthread-AMD EPYC", "version": hstr + "znver3", "cpu_family": "19h/11h",
-            "compiler_cpu": "skylake-avx512 (in place of the znver3 PoCL's LLVM named this CPU)"}
+            "compiler_cpu": "skylake-avx512 (PoCL's LLVM named it znver3)"}
     assert report.device_slug(zen4) == "pthread-amd-epyc-family-19h-11h"
     assert report.device_slug({**zen4, "cpu_family": "19h/1h", "compiler_cpu": None}) == "pthread-amd-epyc-znver3"
     assert report.device_slug({"device": "NVIDIA H200", "version": "OpenCL 3.0 CUDA"}) == "nvidia-h200"

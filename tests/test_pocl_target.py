@@ -43,6 +43,8 @@ def test_which_names_are_replaced():
     assert needs_replacing("znver3", ZEN5) and needs_replacing("haswell", ZEN5)
     assert not needs_replacing("znver3", V3) and not needs_replacing("znver2", V3)
     assert not needs_replacing("rocketlake", ZEN5) and not needs_replacing("skylake-avx512", ZEN5)
+    assert not needs_replacing("znver4", ZEN5)  # a later LLVM that knows the CPU
+    assert needs_replacing("znver3", V3 | {"avx512f"})  # PoCL's avx512 variant goes by avx512f alone
 
 
 def test_the_device_builds_and_says_what_it_was_given(device):

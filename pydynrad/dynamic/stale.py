@@ -22,8 +22,8 @@ stops at :data:`CORRECTION_TOLERANCE` or after :data:`CORRECTION_ITERATIONS` (th
 :attr:`StaleRows.converged` is False and the answer is the last iterate's image, from which the
 next call goes on). A call after the first starts from the last answer plus the change in
 L'_S and folds B^(0) into the first image, B^(1) = (I + P_S K) (L'_S + P_S D x), so a frame
-without a move usually takes one pass over K in all (two before: B^(0), then one iteration to
-confirm), a moving frame one fewer. K itself is never changed, so a pose that comes back still
+with no move, no swap and the same far-field mode takes one pass over K in all (two before:
+B^(0), then one iteration to confirm), a moving frame one fewer. K itself is never changed, so a pose that comes back still
 gives back the same K.
 """
 
@@ -39,10 +39,11 @@ __all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERAT
 
 #: Stop when an iteration changes B on the local set by at most this much of its max. After the
 #: moves of bench/objects.py's block at budget 0: 5 passes over K per moving frame at 1e-4, 4 at
-#: 1e-3, whose answer is 2e-5 of max B from a dense solve with every row current in
-#: tests/test_moving.py (3e-7 at 1e-4; PoCL, Zen 4 EPYC, 2026-12-03): one pass is not worth it.
+#: 1e-3, whose answer in tests/test_moving.py is 1.6e-6 of max B from a dense solve with every
+#: row current against 5e-8 at 1e-4 (PoCL, Zen 4 EPYC, 2026-12-03): one pass is not worth 30x.
 CORRECTION_TOLERANCE = 1e-4
-#: The most iterations per :meth:`StaleRows.correct` (each one pass over K per channel).
+#: The most iterations per :meth:`StaleRows.correct` (each one pass over K per channel; a call
+#: that starts from B^(0) takes one pass more for it).
 CORRECTION_ITERATIONS = 8
 #: Earlier iterates that Anderson mixing combines (:class:`~pydynrad.anderson.Anderson`). After the
 #: moves of bench/objects.py's block at budget 0 (its own rows among the stale ones) plain
@@ -95,13 +96,12 @@ class StaleRows:
         self.current = sp.csr_matrix((0, self.n_patches))
         self.slots = np.empty(0, np.int64)
         self.delta = sp.csr_matrix((0, self.n_patches))
-        self.iterations = 0  # passes over K of the last correct()
+        self.iterations = 0  # passes over K of the last correct() (its start's included)
         self.converged = True  # whether the last correct() reached CORRECTION_TOLERANCE
         self._last: np.ndarray | None = None  # (N, 3) the last correct()'s B, per patch (where _known)
         self._known = np.zeros(0, bool)
         self._last_LS: np.ndarray | None = None  # (N, 3) the light it solved for, per patch (where _known)
         self._last_outside = False  # and whether with the far field outside
-        self._increment: np.ndarray | None = None  # (N, 3) B - B^(0) of the last correct() that made B^(0)
 
     def __len__(self) -> int:
         return len(self.slots)
@@ -149,26 +149,30 @@ class StaleRows:
         else it is not gathered.
 
         After a first call, each starts from the last answer plus the change in the light to solve
-        for, per patch (the patches it had in S; a move changes L'_S where the objects cast and
-        catch light), and its first image is solve_kept(LS + P_S D x): B^(0) takes no pass of its
-        own, and a frame where nothing moved takes one pass over K in all. The first call, and one
-        with the far field switched (``outside`` not the last call's), start from B^(0) plus the
-        last such call's correction instead."""
+        for, per patch (a move changes L'_S where the objects cast and catch light; a patch new to
+        S starts from B as given, or from its L'_S without the far field), and its first image is
+        solve_kept(LS + P_S D x): B^(0) takes no pass of its own, and a frame with no move, no
+        swap and the same far-field mode takes one pass over K in all. The first call starts from
+        B^(0); one with the far field switched (``outside`` not the last call's) from B^(0) plus
+        the last call's correction, last + (I + P_S K)(LS - last LS), one pass either way."""
         x = B.copy() if outside else np.zeros_like(B)
-        resume = self._last is not None and self._last_outside == outside
-        if resume:
-            B0 = None
+        passes = 1
+        if self._last is None:
+            x[S] = solve_kept(LS)
+        elif self._last_outside != outside:
+            x[S] = self._last[S] + solve_kept(LS - self._last_LS[S])
+        else:
+            passes = 0
             known = self._known[S]
             x[S[known]] = self._last[S[known]] + (LS[known] - self._last_LS[S[known]])
-        else:
-            B0 = solve_kept(LS)
-            x[S] = B0 if self._increment is None else B0 + self._increment[S]
+            if not outside:
+                x[S[~known]] = LS[~known]
         rho = albedo[S[self.slots]].astype(np.float64)
         g = np.zeros_like(LS, dtype=np.float64)
         mixing = Anderson(ANDERSON_DEPTH)
         for it in range(1, CORRECTION_ITERATIONS + 1):
             g[self.slots] = rho * (self.delta @ x)
-            new = solve_kept(LS + g) if B0 is None else B0 + solve_kept(g)
+            new = solve_kept(LS + g)
             residual = new - x[S]
             scale = max(float(np.abs(new).max()), 1e-300)
             self.converged = float(np.abs(residual).max()) <= CORRECTION_TOLERANCE * scale
@@ -176,13 +180,9 @@ class StaleRows:
                 x[S] = new  # an evaluated image, never an unchecked mixed point
                 break
             x[S] = mixing.next(new, residual)
-        self.iterations = it + (B0 is not None)
+        self.iterations = passes + it
         if self._last is None:
             self._last, self._last_LS, self._known = np.zeros_like(x), np.zeros_like(x), np.zeros(len(x), bool)
         self._last[S], self._known[S] = x[S], True
         self._last_LS[S], self._last_outside = LS, outside
-        if B0 is not None:
-            if self._increment is None:
-                self._increment = np.zeros_like(x)
-            self._increment[S] = x[S] - B0
         return x[S]
