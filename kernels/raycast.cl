@@ -3,12 +3,11 @@
 #include "bvh.cl"
 
 // origins, directions: 3 floats per ray (unpadded). tmax: per ray upper bound of t.
-// Outputs per ray: the nearest patch (-1 on a miss), its t (INFINITY on a miss) and whether
-// the ray met the patch's front side. Work-item g casts rays g * BVH_PACKET ... as one packet:
-// consecutive rays are usually coherent (a hemicube scanline, an image row); a tail packet
-// repeats the last ray in its spare lanes and writes only the real ones.
-// The rays first .. first + BVH_PACKET - 1 as one packet (a tail packet repeats the last ray),
-// and their tmax.
+// Work-item g casts rays g * BVH_PACKET ... as one packet: consecutive rays are usually
+// coherent (a hemicube scanline, an image row, a patch's rows); a tail packet repeats the last
+// ray in its spare lanes and writes only the real ones.
+
+// The rays first .. first + BVH_PACKET - 1 as one packet, and their tmax.
 inline RayPacket load_packet(__global const float *origins, __global const float *directions,
                              __global const float *tmax, int first, int n_rays, bvh_floatP *tm_out)
 {
@@ -27,6 +26,8 @@ inline RayPacket load_packet(__global const float *origins, __global const float
     return r;
 }
 
+// Outputs per ray: the nearest patch (-1 on a miss), its t (INFINITY on a miss) and whether
+// the ray met the patch's front side.
 __kernel void cast_closest(__global const float4 *nodes, __global const float4 *tris, __global const int *order,
                            __global const float *origins, __global const float *directions,
                            __global const float *tmax, int n_rays,

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .errors import DeviceError, InvalidInputError, KernelBuildError
-from .pocl_target import cache_tag, fix_cpu_name, host_cpu_family, replaced_cpu
+from .pocl_target import cache_tag, compiler_target, fix_cpu_name, host_cpu_family, replaced_cpu
 
 if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays cheap
     import pyopencl as cl
@@ -289,7 +289,7 @@ class Device:
             "max_alloc_MiB": self.max_alloc_bytes // 2**20,
             "fp64": self.supports_fp64,
             "fp16_arithmetic": "cl_khr_fp16" in d.extensions,
-            **({"compiler_cpu": f"{replaced_cpu(d)} (PoCL's LLVM named it {d.version.rpartition('-')[2]})"}
+            **({"compiler_cpu": f"{replaced_cpu(d)} (PoCL's LLVM named it {compiler_target(d)[1]})"}
                if replaced_cpu(d) else {}),
             **({"cpu_family": family} if family else {}),
         }

@@ -45,7 +45,7 @@ import platform
 import threading
 from pathlib import Path
 
-__all__ = ["host_cpu_family", "psabi_level", "library_cpu", "target_name", "cache_tag", "fix_cpu_name", "replaced_cpu"]
+__all__ = ["host_cpu_family", "psabi_level", "library_cpu", "target_name", "cache_tag", "fix_cpu_name", "replaced_cpu", "compiler_target"]
 
 # PoCL 3.0's x86-64 kernel library variants (lib/CL/pocl_llvm_utils.cc, kernellib_feature_map), in
 # its order (the last that matches wins): the CPU each was compiled for, the /proc/cpuinfo flags
@@ -178,8 +178,9 @@ def needs_replacing(cpu: str, flags: set[str]) -> bool:
     return cpu == "generic" or ("avx512f" in flags and cpu not in _AVX512_CPUS)
 
 
-def _compiler_target(device) -> tuple[str, str] | None:
-    """(target triple, CPU name) of a PoCL x86-64 CPU device's compiler, else None."""
+def compiler_target(device) -> tuple[str, str] | None:
+    """(target triple, CPU name) of a PoCL x86-64 CPU device's compiler as PoCL reports it (the
+    name before any :func:`fix_cpu_name`), else None."""
     import pyopencl as cl
 
     if "portable computing language" not in device.platform.name.lower() or not device.type & cl.device_type.CPU:
@@ -199,7 +200,7 @@ def fix_cpu_name(device) -> str | None:
     with _lock:
         if address in _replaced:
             return _replaced[address]
-        target = _compiler_target(device)
+        target = compiler_target(device)
         if target is None or platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
             return None
         triple, cpu = target

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from pydynrad.pocl_target import _compiler_target, _cpu_flags, library_cpu, needs_replacing, psabi_level, replaced_cpu
+from pydynrad.pocl_target import _cpu_flags, compiler_target, library_cpu, needs_replacing, psabi_level, replaced_cpu
 
 # /proc/cpuinfo flags of the machines named (subsets: the flags the levels read, plus noise).
 V2 = {"fpu", "sse2", "cx16", "lahf_lm", "popcnt", "sse4_1", "sse4_2", "ssse3"}
@@ -54,7 +54,7 @@ def test_the_device_builds_and_says_what_it_was_given(device):
     import pyopencl as cl
 
     d = device.cl_device
-    target = _compiler_target(d)
+    target = compiler_target(d)
     if target is not None and needs_replacing(target[1], _cpu_flags()):
         assert replaced_cpu(d) == library_cpu(_cpu_flags())
         assert "compiler_cpu" in device.info()

@@ -23,8 +23,8 @@ stops at :data:`CORRECTION_TOLERANCE` or after :data:`CORRECTION_ITERATIONS` (th
 next call goes on). A call after the first starts from the last answer plus the change in
 L'_S and folds B^(0) into the first image, B^(1) = (I + P_S K) (L'_S + P_S D x), so a frame
 with no move, no swap and the same far-field mode takes one pass over K in all (two before:
-B^(0), then one iteration to confirm), a moving frame one fewer. K itself is never changed, so a pose that comes back still
-gives back the same K.
+B^(0), then one iteration to confirm), a moving frame one fewer. K itself is never changed, so
+a pose that comes back still gives back the same K.
 """
 
 from __future__ import annotations
