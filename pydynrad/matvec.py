@@ -21,6 +21,7 @@ import numpy as np
 from .checks import finite
 from .errors import DeviceError, InvalidInputError, OutOfMemoryError
 from .launch import MAX_RHS, global_size, matvec_layout, round_up
+from .transfers import ReadSlab, upload
 
 __all__ = ["DeviceMatrix", "STORAGE_DTYPES", "storage_dtype", "MAX_RHS"]
 
@@ -134,7 +135,7 @@ class DeviceMatrix:
             raise OutOfMemoryError(f"allocating {C} x {per / 2**20:.1f} MiB on {device.name} failed: {exc}") from exc
         self._layout = matvec_layout(device, M, self.ld, layout, self.real_dtype.itemsize, self.dtype.itemsize)
         self._n_blocks = -(-M // self._layout.rb)
-        self._x = self._y = self._partial = None
+        self._y = self._partial = None
         prg = self._program(1)
         # Kernel objects hold their arguments: one per matrix, reused by every call.
         self._k_matvec = {1: cl.Kernel(prg, "matvec")}
@@ -211,17 +212,12 @@ class DeviceMatrix:
         finite(x, "x")
         return x
 
-    def _buffers(self, channel: int = 0):
-        """The (x, y) buffers of one channel's products: one pair per channel, so every
-        channel's upload is queued before the first product (on PoCL an upload queued behind a
-        kernel holds the host until the kernel is done) and all results come back with one wait."""
-        import pyopencl as cl
-
-        if self._x is None:
-            mf, w = cl.mem_flags, self.real_dtype.itemsize
-            self._x = [cl.Buffer(self.device.context, mf.READ_ONLY, MAX_RHS * self.ld * w) for _ in range(self.C)]
-            self._y = [cl.Buffer(self.device.context, mf.WRITE_ONLY, MAX_RHS * self.M * w) for _ in range(self.C)]
-        return self._x[channel], self._y[channel]
+    def _results(self) -> ReadSlab:
+        """Every channel's product output, as parts of one slab: all channels' products are
+        queued, then read back with one command."""
+        if self._y is None:
+            self._y = ReadSlab(self.device, [MAX_RHS * self.M] * self.C, self.real_dtype)
+        return self._y
 
     def matmat(self, X: np.ndarray) -> np.ndarray:
         """Y[c, q] = K[c] X[c, q] for r right-hand sides per channel, each pass over K serving
@@ -230,8 +226,6 @@ class DeviceMatrix:
 
         X: (C, r, M), or (r, M) for every channel. Returns (C, r, M) float64.
         """
-        import pyopencl as cl
-
         X = np.asarray(X, dtype=np.float64)
         if X.ndim == 2:
             X = np.broadcast_to(X, (self.C, *X.shape))
@@ -239,20 +233,16 @@ class DeviceMatrix:
             raise InvalidInputError(f"X must have shape ({self.C}, r, {self.M}) or (r, {self.M}) with r >= 1; got {X.shape}")
         finite(X, "X")
         r = X.shape[1]
+        slab = self._results()
         xh = np.zeros((self.C, MAX_RHS, self.ld), dtype=self.real_dtype)
-        yh = np.empty((self.C, MAX_RHS, self.M), dtype=self.real_dtype)
         out = np.empty((self.C, r, self.M))
-        q = self.device.queue
         for q0 in range(0, r, MAX_RHS):
             n = min(MAX_RHS, r - q0)
             xh[:, :n, : self.M] = X[:, q0 : q0 + n]
-            for c in range(self.C):  # every upload, then every product, then one wait
-                cl.enqueue_copy(q, self._buffers(c)[0], xh[c, :n], is_blocking=False)
             for c in range(self.C):
-                self.enqueue_matvec(c, *self._buffers(c), n)
-            done = [cl.enqueue_copy(q, yh[c, :n], self._buffers(c)[1], is_blocking=False) for c in range(self.C)]
-            done[-1].wait()  # in order: the uploads and every earlier read-back are done too
-            out[:, q0 : q0 + n] = yh[:, :n]
+                self.enqueue_matvec(c, upload(self.device, xh[c, :n]), slab.parts[c], n)
+            ys = slab.read([(c, n * self.M) for c in range(self.C)])
+            out[:, q0 : q0 + n] = np.stack(ys).reshape(self.C, n, self.M)
         return out
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
@@ -261,18 +251,11 @@ class DeviceMatrix:
 
     def rmatvec(self, x: np.ndarray) -> np.ndarray:
         """y = x^T K per channel (light gathered by row vector x). Returns (C, M) float64."""
-        import pyopencl as cl
-
         x = self._vectors(x)
-        x_buf, y_buf = self._buffers()
-        yh = np.empty(self.M, dtype=self.real_dtype)
-        out = np.empty((self.C, self.M))
+        slab = self._results()
         for c in range(self.C):
-            cl.enqueue_copy(self.device.queue, x_buf, x[c].astype(self.real_dtype))
-            self.enqueue_rmatvec(c, x_buf, y_buf)
-            cl.enqueue_copy(self.device.queue, yh, y_buf, is_blocking=True)
-            out[c] = yh
-        return out
+            self.enqueue_rmatvec(c, upload(self.device, x[c].astype(self.real_dtype)), slab.parts[c])
+        return np.stack(slab.read([(c, self.M) for c in range(self.C)])).astype(np.float64)
 
     def to_host(self) -> np.ndarray:
         """The stored matrix as (C, M, M) float64 (values as stored: fp16 rounding included)."""

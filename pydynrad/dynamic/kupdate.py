@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..launch import CPU_ROWS, WG, UpdateLayout, global_size, round_up
+from ..transfers import ReadSlab, upload
 
 __all__ = ["UpdateKernels", "scratch_nbytes", "SPARSE_DENSITY", "PROBE_DENSITIES", "crossover"]
 
@@ -46,6 +47,9 @@ SPARSE_DENSITY = 0.10
 #: ``PYDYNRAD_SPARSE_DENSITY`` fixes the threshold instead.
 PROBE_DENSITIES = (0.04, 0.24)
 _CROSSOVERS: dict[tuple, float] = {}
+
+#: What each channel's part of the result slab holds, in slab order (n rows of M each).
+RESULTS = ("cols", "rows", "KX", "YK")
 
 
 def crossover(dense_s: float, sparse_s: tuple[float, float], densities=PROBE_DENSITIES) -> float:
@@ -73,15 +77,17 @@ def _density_from_env() -> float | None:
 
 def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, max_vectors: int,
                    channels: int = 1) -> int:
-    """Device bytes of :class:`UpdateKernels`' scratch buffers for these sizes."""
+    """Device bytes of :class:`UpdateKernels`' buffers for these sizes at their peak: the
+    partial sums and the result slab, which stay, and a frame's uploads, which live until its
+    kernels are done (every channel's are queued at once)."""
     lay = UpdateLayout.make(device, M, ld, k_itemsize, real_itemsize)
     nv = max_vectors
-    # X, Y, row and column partials, A, B, zeros (for clearing a slot), f_c, f_r and rho of Eq. 1
-    shared = nv * ld + nv * M + lay.parts * nv * M + lay.max_partial_blocks(nv) * ld + 2 * nv * M + 2 * nv * ld \
-        + M + 3 * M
-    # K X, Y K, slot columns, slot rows (read back together for all channels)
-    per_channel = 4 * nv * M
-    return real_itemsize * (shared + channels * per_channel) + 4 * nv + 4 * ld  # slots, sparse gathers' indices
+    shared = lay.parts * nv * M + lay.max_partial_blocks(nv) * ld + M  # row and column partials, zeros
+    # The result slab (slot columns and rows, K X, Y K), and the larger of a frame's two sets of
+    # uploads, which never coexist: the gathers' inputs (X and Y, or the sparse values) are
+    # released by the read-back before the rank factors A, B and the slot values go up.
+    per_channel = 4 * nv * M + max(nv * ld + nv * M, 2 * nv * M + 2 * nv * ld + 2 * nv * M)
+    return real_itemsize * (shared + channels * per_channel) + 4 * nv + 8 * ld  # slots, sparse gathers' indices
 
 
 class UpdateKernels:
@@ -104,27 +110,19 @@ class UpdateKernels:
         self._k = {n: cl.Kernel(prg, n) for n in names}
         mf, ctx, r = cl.mem_flags, dev.context, self.real.itemsize
         nv, M, ld = self.nv_max, self.M, self.ld
-        self._X = cl.Buffer(ctx, mf.READ_ONLY, nv * ld * r)
-        self._Y = cl.Buffer(ctx, mf.READ_ONLY, nv * M * r)
         self._rowpart = cl.Buffer(ctx, mf.READ_WRITE, self.layout.parts * nv * M * r)
         self._colpart = cl.Buffer(ctx, mf.READ_WRITE, self.layout.max_partial_blocks(nv) * ld * r)
-        # Results per channel, so all channels' passes are enqueued before one read-back.
-        self._res = [{name: cl.Buffer(ctx, mf.READ_WRITE, nv * M * r) for name in ("KX", "YK", "cols", "rows")}
-                     for _ in range(matrix.C)]
-        self._A = cl.Buffer(ctx, mf.READ_ONLY, 2 * nv * M * r)
-        self._B = cl.Buffer(ctx, mf.READ_ONLY, 2 * nv * ld * r)
-        self._slots = cl.Buffer(ctx, mf.READ_ONLY, nv * 4)
-        self._idx = cl.Buffer(ctx, mf.READ_ONLY, ld * 4)  # at most M slots padded to whole steps
-        self._out = cl.Buffer(ctx, mf.READ_WRITE, 3 * M * r)
+        # Results of every channel in one slab, so all channels' passes come back with one read:
+        # per channel the slots' columns and rows, then K X and Y K (gather_all's order).
+        self._slab = ReadSlab(dev, [nv * M] * (len(RESULTS) * matrix.C), self.real)
         self._zeros = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.zeros(M, dtype=self.real))
         if dev.queue.properties & cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE:
             raise InvalidInputError("UpdateKernels needs an in-order command queue")
-        self._inflight: list[np.ndarray] = []  # host arrays of uploads not yet known complete
         #: gather_all's sparse gathers run at or below this share of 2 M non-zero slots:
         #: PYDYNRAD_SPARSE_DENSITY where set, else SPARSE_DENSITY until warm_up measures this
         #: device's crossover.
         self.sparse_density = self._threshold(measure=False)
-        self._slots_held: np.ndarray | None = None  # what the last upload put into _slots
+        self._slots_held: tuple | None = None  # (slot indices, their buffer) of the last upload
 
     @property
     def nbytes(self) -> int:
@@ -133,46 +131,35 @@ class UpdateKernels:
                               self.matrix.C)
 
     # -- helpers ---------------------------------------------------------------------------------
-    def _put(self, buf, a: np.ndarray, width: int, dtype=None) -> None:
-        """Upload rows of a (n, M) array into buf with row pitch ``width`` (zero padded).
-
-        The copy is not waited for: the queue is in order, so the kernels after it see the
-        data, and the host array is kept alive until the next :meth:`_get` has waited."""
-        import pyopencl as cl
-
+    def _put(self, a: np.ndarray, width: int, dtype=None):
+        """A new device buffer of the rows of a (n, M) array with row pitch ``width`` (zero padded)."""
         a = np.atleast_2d(a)
-        if a.shape[1] == width:
-            host = np.array(a, dtype=dtype or self.real, order="C")  # always a copy the caller cannot touch
-        else:
-            host = np.zeros((a.shape[0], width), dtype=dtype or self.real)
-            host[:, : a.shape[1]] = a
-        cl.enqueue_copy(self.device.queue, buf, host, is_blocking=False)
-        self._inflight.append(host)
-        if len(self._inflight) > 64:  # callers that never read back: bound what is kept
-            self.device.queue.finish()
-            self._inflight.clear()
+        host = np.zeros((a.shape[0], width), dtype=dtype or self.real)
+        host[:, : a.shape[1]] = a
+        return upload(self.device, host)
 
-    def _put_slots(self, slots) -> int:
-        """Check and upload slot indices; returns their count. The copy is skipped when the
-        buffer already holds the same ones (a frame's read and write passes, and every
-        channel, use one set of slots)."""
+    def _put_slots(self, slots):
+        """Check slot indices; returns (their count, their buffer). The buffer is reused while
+        the slots stay the same (a frame's read and write passes, and every channel)."""
         slots = np.ascontiguousarray(slots, dtype=np.int32)
         self._check(len(slots))
-        if self._slots_held is None or not np.array_equal(self._slots_held, slots):
-            self._put(self._slots, slots, len(slots), np.int32)
-            self._slots_held = slots.copy()
-        return len(slots)
+        if self._slots_held is None or not np.array_equal(self._slots_held[0], slots):
+            self._slots_held = (slots.copy(), upload(self.device, slots))
+        return len(slots), self._slots_held[1]
 
-    def _get(self, *bufs: tuple) -> list[np.ndarray]:
-        """Read (buffer, n) or (buffer, n, width) items, n rows of ``width`` (default M) each,
-        with one wait; float64 copies."""
-        import pyopencl as cl
+    def _res(self, channel: int, name: str):
+        """The slab part a kernel writes ``name`` (one of :data:`RESULTS`) of ``channel`` into."""
+        return self._slab.parts[self._part(channel, name)]
 
-        hosts = [np.empty((b[1], b[2] if len(b) > 2 else self.M), dtype=self.real) for b in bufs]
-        events = [cl.enqueue_copy(self.device.queue, h, b[0], is_blocking=False) for h, b in zip(hosts, bufs)]
-        events[-1].wait()  # in-order queue: every earlier command is done too
-        self._inflight.clear()
-        return [h.astype(np.float64) for h in hosts]
+    @staticmethod
+    def _part(channel: int, name: str) -> int:
+        return len(RESULTS) * channel + RESULTS.index(name)
+
+    def _get(self, *items: tuple) -> list[np.ndarray]:
+        """(channel, name, n) or (channel, name, n, width) items: n rows of ``width`` (default
+        M) each, with one read and wait; float64 copies."""
+        parts = [(self._part(c, name), n * (w[0] if w else self.M)) for c, name, n, *w in items]
+        return [h.reshape(item[2], -1).astype(np.float64) for h, item in zip(self._slab.read(parts), items)]
 
     def _check(self, n: int) -> None:
         if not 1 <= n <= self.nv_max:
@@ -217,7 +204,6 @@ class UpdateKernels:
                     run()
                     self.device.queue.finish()
                     times.append(time.perf_counter() - t0)
-                    self._inflight.clear()
                 return min(times)
 
             sparse = []
@@ -238,63 +224,69 @@ class UpdateKernels:
         self._check(n)
         if Y.shape != X.shape:
             raise InvalidInputError(f"gather needs X, Y of equal shape; got {X.shape}, {Y.shape}")
-        self._put(self._X, X, self.ld)
-        self._put(self._Y, Y, self.M)
-        q, K, lay, res = self.device.queue, self.matrix.buffers[channel], self.layout, self._res[channel]
+        X_buf, Y_buf = self._put(X, self.ld), self._put(Y, self.M)
+        q, K, lay = self.device.queue, self.matrix.buffers[channel], self.layout
         rb, blocks = lay.gather_blocks(n)
         M, ld, nv = np.int32(self.M), np.int32(self.ld), np.int32(n)
         if lay.cpu:
             self._k["gather_rows"](q, *lay.gather_grid(blocks), K, M, ld, np.int32(rb), np.int32(lay.gather_cw), nv,
-                                   self._X, self._Y, self._rowpart, self._colpart)
+                                   X_buf, Y_buf, self._rowpart, self._colpart)
         else:
-            self._k["gather_partial"](q, *lay.gather_grid(blocks), K, M, ld, np.int32(rb), nv, self._X, self._Y,
+            self._k["gather_partial"](q, *lay.gather_grid(blocks), K, M, ld, np.int32(rb), nv, X_buf, Y_buf,
                                       self._rowpart, self._colpart)
         # In-order queue: the next channel's gather reuses the partial sums only after this reduce.
         self._k["gather_reduce"](q, *lay.element_grid(n), self._rowpart, self._colpart, M, ld, nv, np.int32(lay.parts),
-                                 np.int32(blocks), res["KX"], res["YK"])
+                                 np.int32(blocks), self._res(channel, "KX"), self._res(channel, "YK"))
         return n
 
+    def _sparse_indices(self, cols: np.ndarray, rows: np.ndarray) -> tuple:
+        """The sparse gathers' padded index lists and their buffers: (Rp, buffer) for the column
+        kernel (SW entries per step) and for the row kernel (RR rows per step), each padded with
+        slot 0 (and zero values) to whole steps."""
+        out = []
+        for nz, step in ((cols, self.layout.sw), (rows, CPU_ROWS)):
+            idx = np.zeros(round_up(max(1, len(nz)), step), dtype=np.int32)
+            idx[: len(nz)] = nz
+            out.append((len(idx), upload(self.device, idx)))
+        return tuple(out)
+
     def _enqueue_sparse_gather(self, channel: int, X: np.ndarray, Y: np.ndarray, cols: np.ndarray,
-                               rows: np.ndarray) -> int:
-        """K X and Y K from the slots ``cols`` (X's non-zeros) and ``rows`` (Y's) alone."""
+                               rows: np.ndarray, indices: tuple | None = None) -> int:
+        """K X and Y K from the slots ``cols`` (X's non-zeros) and ``rows`` (Y's) alone;
+        ``indices``: :meth:`_sparse_indices` of them, shared by every channel."""
         n = X.shape[0]
-        q, K, res = self.device.queue, self.matrix.buffers[channel], self._res[channel]
+        q, K = self.device.queue, self.matrix.buffers[channel]
         M, ld, nv = np.int32(self.M), np.int32(self.ld), np.int32(n)
-        # Padded with slot 0 and zero values to whole steps (SW entries per step of the column
-        # kernel, RR rows per step of the row kernel). vals: (n, Rp) for columns, (Rp, n) for rows.
-        # The index and value buffers are reused: in order, each upload lands after the kernel before it.
-        sw = self.layout.sw
-        for name, nz, vectors, step, transpose, out, items in (
-            ("gather_sparse_cols", cols, X, sw, False, res["KX"], self.M),
-            ("gather_sparse_rows", rows, Y, CPU_ROWS, True, res["YK"], -(-self.M // sw)),
+        (cols_rp, cols_idx), (rows_rp, rows_idx) = indices or self._sparse_indices(cols, rows)
+        # vals: (n, Rp) for columns, (Rp, n) for rows.
+        for name, rp, idx, nz, vectors, transpose, out, items in (
+            ("gather_sparse_cols", cols_rp, cols_idx, cols, X, False, "KX", self.M),
+            ("gather_sparse_rows", rows_rp, rows_idx, rows, Y, True, "YK", -(-self.M // self.layout.sw)),
         ):
-            rp = round_up(max(1, len(nz)), step)
             vals = np.zeros((n, rp))
             vals[:, : len(nz)] = vectors[:, nz]
-            idx = np.zeros(rp, dtype=np.int32)
-            idx[: len(nz)] = nz
-            self._put(self._idx, idx[None], rp, np.int32)
-            self._put(self._X, (vals.T if transpose else vals).reshape(1, -1), rp * n)
-            self._k[name](q, (global_size(items),), (WG,), K, M, ld, np.int32(rp), self._idx, self._X, nv, out)
+            vals_buf = upload(self.device, (vals.T if transpose else vals).astype(self.real))
+            self._k[name](q, (global_size(items),), (WG,), K, M, ld, np.int32(rp), idx, vals_buf, nv,
+                          self._res(channel, out))
         return n
 
     def _enqueue_read_slots(self, channel: int, slots: np.ndarray) -> int:
-        k = self._put_slots(slots)
-        res = self._res[channel]
+        k, slots_buf = self._put_slots(slots)
         self._k["read_slots"](self.device.queue, *self.layout.element_grid(k), self.matrix.buffers[channel],
-                              np.int32(self.M), np.int32(self.ld), self._slots, res["cols"], res["rows"])
+                              np.int32(self.M), np.int32(self.ld), slots_buf, self._res(channel, "cols"),
+                              self._res(channel, "rows"))
         return k
 
     def gather(self, channel: int, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(K X^T)^T and Y K for X, Y of shape (n, M): returns two (n, M) float64 arrays."""
         n = self._enqueue_gather(channel, X, Y)
-        KX, YK = self._get((self._res[channel]["KX"], n), (self._res[channel]["YK"], n))
+        KX, YK = self._get((channel, "KX", n), (channel, "YK", n))
         return KX, YK
 
     def gather_all(self, X: np.ndarray, Y: np.ndarray, slots: np.ndarray | None = None,
                    sparse: bool | None = None) -> tuple[np.ndarray, ...]:
         """:meth:`gather` for every channel c with X[c], Y[c] (C, n, M), and with ``slots`` also
-        :meth:`read_slots` (taken before the gathers): all passes enqueued, one wait.
+        :meth:`read_slots` (taken before the gathers): all passes enqueued, one read back.
 
         ``sparse``: use the sparse gathers (``gather_sparse_cols``/``_rows``: K's part on the
         slots where some X[c] or Y[c] is non-zero) or the dense pass; None picks the sparse ones
@@ -312,54 +304,52 @@ class UpdateKernels:
         rows = np.flatnonzero(np.any(Y != 0, axis=(0, 1))).astype(np.int32)
         if sparse is None:
             sparse = len(cols) + len(rows) <= self.sparse_density * 2 * self.M
+        indices = self._sparse_indices(cols, rows) if sparse else None
         reads = []
         for c in range(C):
             if slots is not None:
                 k = self._enqueue_read_slots(c, slots)
-                reads += [(self._res[c]["cols"], k), (self._res[c]["rows"], k)]
+                reads += [(c, "cols", k), (c, "rows", k)]
             if sparse:
-                n = self._enqueue_sparse_gather(c, X[c], Y[c], cols, rows)
+                n = self._enqueue_sparse_gather(c, X[c], Y[c], cols, rows, indices)
             else:
                 n = self._enqueue_gather(c, X[c], Y[c])
-            reads += [(self._res[c]["KX"], n), (self._res[c]["YK"], n)]
+            reads += [(c, "KX", n), (c, "YK", n)]
         out = self._get(*reads)
         step = 4 if slots is not None else 2
         per = [np.stack(out[i::step]) for i in range(step)]
         return (per[2], per[3], per[0], per[1]) if slots is not None else (per[0], per[1])
 
-    def _put_rank(self, A: np.ndarray, B: np.ndarray) -> int:
+    def _put_rank(self, A: np.ndarray, B: np.ndarray) -> tuple:
         A, B = np.atleast_2d(A), np.atleast_2d(B)
         n = A.shape[0]
         if not 1 <= n <= 2 * self.nv_max or B.shape != A.shape:
             raise InvalidInputError(f"rank update needs A, B of equal shape (n <= {2 * self.nv_max}, M); got {A.shape}, {B.shape}")
-        self._put(self._A, A, self.M)
-        self._put(self._B, B, self.ld)
-        return n
+        return n, self._put(A, self.M), self._put(B, self.ld)
 
-    def _launch_rank(self, channel: int, n: int, k: int = 0) -> None:
-        """K += A B; then, with ``k`` > 0, the k uploaded slots' columns and rows (in X and Y,
-        :meth:`_put_write`): in the same pass on a CPU (``rank_update_rows``), by
-        ``write_slots`` after it on a GPU."""
+    def _launch_rank(self, channel: int, rank: tuple, write: tuple | None = None) -> None:
+        """K += A B (``rank``: :meth:`_put_rank`'s count and buffers); then, with ``write``
+        (:meth:`_put_write`'s), the slots' columns and rows: in the same pass on a CPU
+        (``rank_update_rows``), by ``write_slots`` after it on a GPU."""
         q, K, lay = self.device.queue, self.matrix.buffers[channel], self.layout
-        M, ld, na = np.int32(self.M), np.int32(self.ld), np.int32(n)
+        (n, A_buf, B_buf), M, ld = rank, np.int32(self.M), np.int32(self.ld)
         if lay.cpu:
-            self._k["rank_update_rows"](q, *lay.rank_grid, K, M, ld, na, np.int32(lay.rank_rb), self._A, self._B,
-                                        np.int32(k), self._slots, self._X, self._Y)
+            k, slots_buf, cols_buf, rows_buf = write or (0, self._zeros, self._zeros, self._zeros)
+            self._k["rank_update_rows"](q, *lay.rank_grid, K, M, ld, np.int32(n), np.int32(lay.rank_rb), A_buf, B_buf,
+                                        np.int32(k), slots_buf, cols_buf, rows_buf)
             return
-        self._k["rank_update"](q, *lay.rank_grid, K, M, ld, na, self._A, self._B)
-        if k:
-            self._launch_write(channel, k, self._X, self._Y)
+        self._k["rank_update"](q, *lay.rank_grid, K, M, ld, np.int32(n), A_buf, B_buf)
+        if write:
+            self._launch_write(channel, *write)
 
-    def _put_write(self, slots: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> int:
-        """Slots and their values into X and Y: the gathers' inputs, which no rank update reads."""
-        k = self._put_slots(slots)
-        self._put(self._X, cols, self.M)
-        self._put(self._Y, rows, self.M)
-        return k
+    def _put_write(self, slots: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> tuple:
+        """(count, slots' buffer, columns' buffer, rows' buffer) of a slot write."""
+        k, slots_buf = self._put_slots(slots)
+        return k, slots_buf, self._put(cols, self.M), self._put(rows, self.M)
 
-    def _launch_write(self, channel: int, k: int, cols_buf, rows_buf) -> None:
+    def _launch_write(self, channel: int, k: int, slots_buf, cols_buf, rows_buf) -> None:
         self._k["write_slots"](self.device.queue, *self.layout.element_grid(k), self.matrix.buffers[channel],
-                               np.int32(self.M), np.int32(self.ld), self._slots, np.int32(k), cols_buf, rows_buf)
+                               np.int32(self.M), np.int32(self.ld), slots_buf, np.int32(k), cols_buf, rows_buf)
 
     def rank_update(self, channel: int, A: np.ndarray, B: np.ndarray) -> None:
         """K += sum_n outer(A[n], B[n]) for A, B of shape (n, M), n <= 2 * max_vectors."""
@@ -368,31 +358,25 @@ class UpdateKernels:
     def read_slots(self, channel: int, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Columns K[:, slots] and rows K[slots, :], both as (k, M) float64."""
         k = self._enqueue_read_slots(channel, slots)
-        cols, rows = self._get((self._res[channel]["cols"], k), (self._res[channel]["rows"], k))
+        cols, rows = self._get((channel, "cols", k), (channel, "rows", k))
         return cols, rows
 
     def write_slots(self, channel: int, slots: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> None:
         """K[:, slots[m]] = cols[m], K[slots[m], :] = rows[m]; cols/rows must agree where they cross."""
-        self._launch_write(channel, self._put_write(slots, cols, rows), self._X, self._Y)
+        self._launch_write(channel, *self._put_write(slots, cols, rows))
 
     def update_slots(self, channel: int, A: np.ndarray, B: np.ndarray, slots: np.ndarray, cols: np.ndarray,
                      rows: np.ndarray) -> None:
-        """:meth:`rank_update` then :meth:`write_slots`, every upload before the first launch.
+        """:meth:`rank_update` then :meth:`write_slots`, queued together and not waited for.
 
-        An upload waits for the commands queued before it on PoCL (its non-blocking writes
-        return only when the queue has reached them), so uploading the slots' values after
-        launching the rank update held the host for the whole pass; this way the caller gets
-        control back as soon as both are queued. On a CPU the slot writes happen inside the
-        rank pass (``rank_update_rows`` with NS > 0), on each row while it is in cache: 5-12%
-        less time than the two kernels (M = 1,024 and 4,096, fp16 and fp32, alternating in one
-        process, PoCL pthread AMD EPYC, 2026-12-02)."""
-        n = self._put_rank(A, B)
-        k = self._put_write(slots, cols, rows)
-        self._launch_rank(channel, n, k)
+        On a CPU the slot writes happen inside the rank pass (``rank_update_rows`` with NS > 0),
+        on each row while it is in cache: 5-12% less time than the two kernels (M = 1,024 and
+        4,096, fp16 and fp32, alternating in one process, PoCL pthread AMD EPYC, 2026-12-02)."""
+        self._launch_rank(channel, self._put_rank(A, B), self._put_write(slots, cols, rows))
 
     def clear_slot(self, channel: int, slot: int) -> None:
         """K[:, slot] = 0 and K[slot, :] = 0, from a device buffer of M zeros (no upload)."""
-        self._launch_write(channel, self._put_slots([slot]), self._zeros, self._zeros)
+        self._launch_write(channel, *self._put_slots([slot]), self._zeros, self._zeros)
 
     def double_reflection(self, f_c: np.ndarray, f_r: np.ndarray, rho: np.ndarray) -> float | np.ndarray:
         """Eq. 1: sum_a f_c[a] f_r[a] rho[a] over the M slots, reduced on the device.
@@ -403,9 +387,8 @@ class UpdateKernels:
         if rows.shape[0] > self.matrix.C:
             raise InvalidInputError(f"at most {self.matrix.C} albedo rows; got {rows.shape[0]}")
         for c, r in enumerate(rows):
-            # The input buffer is reused: in order, each upload lands after the previous kernel.
-            self._put(self._out, np.concatenate([f_c, f_r, r])[None], 3 * self.M)
-            self._k["double_reflection"](self.device.queue, *self.layout.reduction_grid(), self._out, np.int32(self.M),
-                                         self._res[c]["KX"])
-        dr = np.array([h[0, 0] for h in self._get(*[(self._res[c]["KX"], 1, 1) for c in range(len(rows))])])
+            v = upload(self.device, np.concatenate([f_c, f_r, r]).astype(self.real))
+            self._k["double_reflection"](self.device.queue, *self.layout.reduction_grid(), v, np.int32(self.M),
+                                         self._res(c, "KX"))
+        dr = np.array([h[0, 0] for h in self._get(*[(c, "KX", 1, 1) for c in range(len(rows))])])
         return float(dr[0]) if rho.ndim == 1 else dr

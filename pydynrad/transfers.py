@@ -1,0 +1,65 @@
+"""Host-device transfers in the fewest commands: small arrays up as new buffers, results down
+in one read.
+
+A frame of the local update moves a few kilobytes each way in dozens of small arrays, and on
+PoCL's CPU devices each transfer command costs far more than its bytes: a queued write or read
+of 4 KB took 40-60 us, creating a buffer from host memory under 1 us plus the copy, and a
+kernel launch queued 6 us (Intel Xeon, PoCL 3.0 pthread, 2026-12-03; `bench.dynamic`). So
+:func:`upload` makes a new read-only buffer per array (OpenCL keeps it alive while a command
+uses it: nothing to hold or wait for, and no buffer to share between calls), and
+:class:`ReadSlab` gives kernels their outputs as sub-buffers of one buffer, read back with one
+command.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["upload", "ReadSlab"]
+
+
+def upload(device, array: np.ndarray):
+    """A new read-only device buffer holding a copy of ``array`` (made C-contiguous; an empty
+    array gives a buffer of one zero element, since OpenCL has no empty buffers)."""
+    import pyopencl as cl
+
+    host = np.ascontiguousarray(array)
+    if host.size == 0:
+        host = np.zeros(1, dtype=host.dtype)
+    return cl.Buffer(device.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=host)
+
+
+class ReadSlab:
+    """One device buffer split into aligned parts of ``sizes[i]`` elements of ``dtype``.
+
+    ``parts[i]`` is a sub-buffer a kernel writes; :meth:`read` brings back any of them with one
+    read of the span that covers them. Parts start on the device's base address alignment, as
+    sub-buffers must.
+    """
+
+    def __init__(self, device, sizes, dtype) -> None:
+        import pyopencl as cl
+
+        self.device, self.dtype = device, np.dtype(dtype)
+        align = max(self.dtype.itemsize, int(device.cl_device.mem_base_addr_align) // 8)
+        self.offsets, end = [], 0  # in bytes
+        for n in sizes:
+            self.offsets.append(end)
+            end += -(-max(1, int(n)) * self.dtype.itemsize // align) * align
+        self.nbytes = end
+        self.buffer = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, end)
+        self.parts = [self.buffer.get_sub_region(o, max(1, int(n)) * self.dtype.itemsize)
+                      for o, n in zip(self.offsets, sizes)]
+
+    def read(self, items) -> list[np.ndarray]:
+        """(part index, count) pairs: the first ``count`` elements of each part, as new arrays,
+        after one read (which also waits for every command queued before it)."""
+        import pyopencl as cl
+
+        items = list(items)
+        lo = min(self.offsets[i] for i, _ in items)
+        hi = max(self.offsets[i] + n * self.dtype.itemsize for i, n in items)
+        host = np.empty(hi - lo, dtype=np.uint8)
+        cl.enqueue_copy(self.device.queue, host, self.buffer, src_offset=lo, is_blocking=True)
+        return [host[self.offsets[i] - lo : self.offsets[i] - lo + n * self.dtype.itemsize].view(self.dtype).copy()
+                for i, n in items]

@@ -1,0 +1,30 @@
+"""upload() copies at once; ReadSlab's parts are separate buffers read back in one command."""
+
+import numpy as np
+import pyopencl as cl
+
+from pydynrad.transfers import ReadSlab, upload
+
+
+def test_upload_holds_a_copy(device):
+    host = np.arange(10, dtype=np.float32)
+    buf = upload(device, host)
+    host[:] = -1.0  # after the upload: the buffer must keep the values it was made from
+    out = np.empty(10, dtype=np.float32)
+    cl.enqueue_copy(device.queue, out, buf, is_blocking=True)
+    np.testing.assert_array_equal(out, np.arange(10, dtype=np.float32))
+    assert upload(device, np.zeros((0, 4), dtype=np.int32)).size == 4  # one element: no empty buffers
+
+
+def test_read_slab_parts(device):
+    sizes = [3, 17, 1, 40]  # odd sizes: every part must still start aligned
+    slab = ReadSlab(device, sizes, np.float64)
+    align = int(device.cl_device.mem_base_addr_align) // 8
+    assert all(o % align == 0 for o in slab.offsets)
+    for i, (part, n) in enumerate(zip(slab.parts, sizes)):
+        cl.enqueue_copy(device.queue, part, np.full(n, i + 0.5))
+    got = slab.read([(3, 40), (1, 5), (0, 3)])
+    np.testing.assert_array_equal(got[0], np.full(40, 3.5))
+    np.testing.assert_array_equal(got[1], np.full(5, 1.5))
+    np.testing.assert_array_equal(got[2], np.full(3, 0.5))
+    assert slab.read([(2, 1)])[0].tolist() == [2.5]
