@@ -64,8 +64,7 @@ def paper_swap(kernels, slot: int, f_c: np.ndarray, f_r: np.ndarray, rho_S: np.n
     per channel; rho_j (C,) the entering patch's; row_mask (M,) bool, False on the rows the
     used-patches table excludes from the rank-one update. The channels' steps are enqueued
     together: two waits per swap (for dr and for the gathers), whatever C is. Each channel's
-    rank-one pass and slot write are queued by ``update_slots``, its uploads first (an upload
-    waits for the commands queued before it on PoCL: see docs/design.md, 'What we learned').
+    rank-one pass and slot write are queued by ``update_slots`` and not waited for.
     """
     C = rho_S.shape[0]
     for c in range(C):
