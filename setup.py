@@ -1,13 +1,13 @@
 """Build script: the package metadata lives in pyproject.toml; this file only wires the
 layout of the design card (top-level ``kernels/`` shipped as ``pydynrad.kernels``) and the
 native helpers in ``csrc/`` (the BVH builder, ray batches' checks, the hemicube runs' CSR, a move's segments near a sphere and its rows at the pose,
-the far field's product with chosen columns)."""
+the far field's product with chosen columns, F's components and its copy by column)."""
 
 from setuptools import Extension, find_packages, setup
 
 # pydynrad.<module>: csrc/<file>, each a small C extension with one job.
 NATIVE = {"_bvh": "bvh.c", "_raybatch": "rays.c", "_runs": "runs.c", "_segments": "segments.c",
-          "_poserows": "poserows.c", "_colproduct": "colproduct.c"}
+          "_poserows": "poserows.c", "_colproduct": "colproduct.c", "_csrgraph": "csrgraph.c"}
 
 setup(
     packages=[*find_packages(include=["pydynrad", "pydynrad.*"]), "pydynrad.kernels"],

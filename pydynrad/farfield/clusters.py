@@ -169,9 +169,9 @@ def light_components(F) -> np.ndarray:
     F[j, i] > 0): sets of patches that exchange no light at all, such as a closed room's inside
     and the world around it. A cluster spanning two would leak light from one into the other.
     Patches alone in their component get label -1 (no constraint)."""
-    from scipy.sparse.csgraph import connected_components
+    from ..csrgraph import weak_components
 
-    return free_singletons(connected_components(sp.csr_matrix(F), directed=True, connection="weak")[1])
+    return free_singletons(weak_components(F))
 
 
 def free_singletons(components: np.ndarray) -> np.ndarray:

@@ -239,6 +239,7 @@ class FarField:
                  gather: str | None = None, fine_sweeps: int | None = None, coarse: str = "auto", coarse_storage: str | None = None,
                  tol: float = 1e-4, max_sweeps: int = 1000, dtype=np.float32, device=None, *, checked: bool = False,
                  linear=None) -> None:
+        from ..csrgraph import columns_float32
         from ..device import default_device, real_dtype
         from ..devicecsr import DeviceCSR
         from ..matvec import storage_dtype
@@ -318,7 +319,9 @@ class FarField:
         with_F = gather != "cluster"
         # F L over the lit columns only: by column on the host where the host is the device (a
         # CPU), a pass of F's rows on a GPU. The shared gather and the fine sweeps need F's rows.
-        self._F_cols = sp.csc_matrix(F, dtype=dtype) if with_F and self.device.traits.cpu else None
+        self._F_cols = None
+        if with_F and self.device.traits.cpu:
+            self._F_cols = columns_float32(F) if dtype == np.float32 else sp.csc_matrix(F, dtype=dtype)
         rows_on_device = gather == "shared" or (fine_sweeps > 0 and self._fit is None) or (with_F and self._F_cols is None)
         self._F_dev = DeviceCSR(self.device, F, dtype) if rows_on_device else None
         # shared: G only makes F_c; a stored G is read per pass (:meth:`_gather`).
