@@ -67,10 +67,9 @@ def _cases(ctx, p):
     from .paper import street_walk
 
     def cached_F(key, scene, R):
-        t0 = time.perf_counter()
         F = ctx.cached(("F", *key, R), lambda: pydynrad.form_factors(scene, resolution=R, device=ctx.device,
                                                                        progress=ctx.progress))
-        return F, ctx.cache.setdefault(("F seconds", *key, R), time.perf_counter() - t0)
+        return F, ctx.made_seconds[("F", *key, R)]
 
     w, h = p["image"]
     box = ctx.cached(("cornell", p["cornell_max_edge"]), lambda: pydynrad.scenes.cornell_box(max_edge=p["cornell_max_edge"]))

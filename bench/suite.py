@@ -142,15 +142,19 @@ class Context:
     progress: bool = True
     cache: dict = field(default_factory=dict)
     section: str = ""
+    made_seconds: dict = field(default_factory=dict)  # key -> wall seconds its make() took
 
     @property
     def params(self) -> dict:
         return SIZES[self.size][self.section]
 
     def cached(self, key, make):
-        """``make()`` once per key for the whole run."""
+        """``make()`` once per key for the whole run; ``made_seconds[key]`` is how long it took,
+        whichever section asked first (a later section's own timing would see only the lookup)."""
         if key not in self.cache:
+            t0 = time.perf_counter()
             self.cache[key] = make()
+            self.made_seconds[key] = time.perf_counter() - t0
         return self.cache[key]
 
 
