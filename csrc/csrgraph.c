@@ -146,7 +146,7 @@ static PyObject *py_to_columns(PyObject *self, PyObject *args)
     Py_ssize_t n_rows = ip.len / I - 1;
     int64_t nnz = n_rows >= 0 && ip.len == (n_rows + 1) * I ? ((const int64_t *)ip.buf)[n_rows] : -1;
     Py_ssize_t isz = nnz > 0 ? ix.len / nnz : 4;
-    int ok = nnz >= 0 && n_cols >= 0 && n_rows < INT32_MAX && (isz == 4 || isz == 8) && ix.len == nnz * isz &&
+    int ok = nnz >= 0 && n_cols >= 0 && n_cols < PY_SSIZE_T_MAX / I - 1 && n_rows < INT32_MAX && (isz == 4 || isz == 8) && ix.len == nnz * isz &&
              v.len == nnz * (Py_ssize_t)sizeof(double) && op.len == (n_cols + 1) * I &&
              ox.len == nnz * (Py_ssize_t)sizeof(int32_t) && ov.len == nnz * (Py_ssize_t)sizeof(float) &&
              valid_indptr(ip.buf, n_rows, nnz);

@@ -160,6 +160,11 @@ class Device:
             fix_cpu_name(d)
         if self.queue is None:
             self.queue = cl.CommandQueue(self.context)
+        elif self.queue.properties & cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE:
+            # Every launcher relies on it: a read waits for the kernels before it, a scratch
+            # buffer is reused after the kernel that read it.
+            raise InvalidInputError("pydynrad needs an in-order command queue; got one with "
+                                    "OUT_OF_ORDER_EXEC_MODE_ENABLE")
 
     @property
     def cl_device(self):

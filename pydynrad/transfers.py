@@ -33,30 +33,37 @@ class ReadSlab:
     """One device buffer split into aligned parts of ``sizes[i]`` elements of ``dtype``.
 
     ``parts[i]`` is a sub-buffer a kernel writes; :meth:`read` brings back any of them with one
-    read of the span that covers them. Parts start on the device's base address alignment, as
-    sub-buffers must.
+    read of the span that covers them (whole parts in between included: a few bytes more in
+    one command beat a command per part). Parts start on every device's base address
+    alignment, as sub-buffers must. Reads assume the in-order queue of a :class:`Device`.
     """
 
     def __init__(self, device, sizes, dtype) -> None:
         import pyopencl as cl
 
         self.device, self.dtype = device, np.dtype(dtype)
-        align = max(self.dtype.itemsize, int(device.cl_device.mem_base_addr_align) // 8)
+        align = max([self.dtype.itemsize] + [int(d.mem_base_addr_align) // 8 for d in device.context.devices])
+        self.sizes = [max(1, int(n)) for n in sizes]
         self.offsets, end = [], 0  # in bytes
-        for n in sizes:
+        for n in self.sizes:
             self.offsets.append(end)
-            end += -(-max(1, int(n)) * self.dtype.itemsize // align) * align
+            end += -(-n * self.dtype.itemsize // align) * align
         self.nbytes = end
         self.buffer = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, end)
-        self.parts = [self.buffer.get_sub_region(o, max(1, int(n)) * self.dtype.itemsize)
-                      for o, n in zip(self.offsets, sizes)]
+        self.parts = [self.buffer.get_sub_region(o, n * self.dtype.itemsize) for o, n in zip(self.offsets, self.sizes)]
 
     def read(self, items) -> list[np.ndarray]:
         """(part index, count) pairs: the first ``count`` elements of each part, as new arrays,
         after one read (which also waits for every command queued before it)."""
         import pyopencl as cl
 
+        from .errors import InvalidInputError
+
         items = list(items)
+        bad = [(i, n) for i, n in items if not (0 <= i < len(self.sizes) and 1 <= n <= self.sizes[i])]
+        if not items or bad:
+            raise InvalidInputError(f"ReadSlab.read needs (part, count) items with 1 <= count <= the part's size "
+                                    f"{self.sizes}; got {items}")
         lo = min(self.offsets[i] for i, _ in items)
         hi = max(self.offsets[i] + n * self.dtype.itemsize for i, n in items)
         host = np.empty(hi - lo, dtype=np.uint8)

@@ -292,11 +292,11 @@ def test_memory_bytes(device, setup):
     assert dyn.memory_bytes == DynamicRadiosity.estimate_memory_bytes(64, 3, "fp16", 8, device)
     assert dyn.memory_bytes >= 3 * 64 * 64 * 2
     # The paper's figure: M = 4096, RGB, fp16 is about 96 MiB: K alone is exactly 96 MiB, the
-    # update's scratch (partial sums, the result slab and a frame's uploads, for 8 vectors)
-    # adds about 7%.
+    # update's scratch (partial sums, the result slab and the uploads of two frames' passes, for
+    # 8 vectors) adds about 8%.
     assert DynamicRadiosity.estimate_memory_bytes(4096, 3, "fp16", 1, device) / 2**20 < 97.5
     mib = DynamicRadiosity.estimate_memory_bytes(4096, 3, "fp16", 8, device) / 2**20
-    assert 96 <= mib < 103.5
+    assert 96 <= mib < 104
 
 
 # -- selection -----------------------------------------------------------------------------------

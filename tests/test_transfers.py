@@ -1,7 +1,9 @@
-"""upload() copies at once; ReadSlab's parts are separate buffers read back in one command."""
+"""upload() copies at once; ReadSlab's parts are separate buffers read back in one command, and
+its reads are checked; a Device refuses an out-of-order queue."""
 
 import numpy as np
 import pyopencl as cl
+import pytest
 
 from pydynrad.transfers import ReadSlab, upload
 
@@ -28,3 +30,25 @@ def test_read_slab_parts(device):
     np.testing.assert_array_equal(got[1], np.full(5, 1.5))
     np.testing.assert_array_equal(got[2], np.full(3, 0.5))
     assert slab.read([(2, 1)])[0].tolist() == [2.5]
+
+
+def test_read_slab_refuses_reads_past_a_part(device):
+    from pydynrad import InvalidInputError
+
+    slab = ReadSlab(device, [4, 4], np.float32)
+    for items in ([(0, 5)], [(2, 1)], [(0, 0)], []):
+        with pytest.raises(InvalidInputError, match="ReadSlab.read"):
+            slab.read(items)
+
+
+def test_an_out_of_order_queue_is_refused(device):
+    from pydynrad import InvalidInputError
+    from pydynrad.device import Device
+
+    props = cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE
+    try:
+        queue = cl.CommandQueue(device.context, properties=props)
+    except cl.Error:
+        pytest.skip(f"{device.name} has no out-of-order queues")
+    with pytest.raises(InvalidInputError, match="in-order"):
+        Device(device.context, queue)

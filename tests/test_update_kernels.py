@@ -45,13 +45,14 @@ def test_gather_and_rank_update_kernels(device, storage, M, cpu_kernels):
     assert not raw[:, M:].any()  # padding stays zero
 
 
-def test_all_channels_in_one_read_back(device):
+@pytest.mark.parametrize("cpu_kernels", [True, False], ids=["cpu-kernels", "gpu-kernels"])
+def test_all_channels_in_one_read_back(device, cpu_kernels):
     """gather_all (with the slots' columns and rows) and the per-channel Eq. 1 reduction
     equal the single-channel operations and numpy on an RGB K."""
     rng = np.random.default_rng(3)
     M, C = 70, 3
     m = DeviceMatrix(device, rng.uniform(-1, 1, (C, M, M)), "fp64")
-    uk = UpdateKernels(m, 4)
+    uk = UpdateKernels(m, 4, cpu_kernels=cpu_kernels)
     K = m.to_host()
     X, Y = rng.uniform(-1, 1, (C, 3, M)), rng.uniform(-1, 1, (C, 3, M))
     slots = np.array([69, 2])
@@ -67,8 +68,9 @@ def test_all_channels_in_one_read_back(device):
     assert dr[1] == uk.double_reflection(f_c, f_r, rho[1])
 
 
+@pytest.mark.parametrize("cpu_kernels", [True, False], ids=["cpu-kernels", "gpu-kernels"])
 @pytest.mark.parametrize("storage", ["fp16", "fp32", "fp64"])
-def test_update_slots_is_a_rank_update_then_a_slot_write(device, storage):
+def test_update_slots_is_a_rank_update_then_a_slot_write(device, storage, cpu_kernels):
     """update_slots (every upload queued before its pass; on a CPU the slot writes inside the
     rank pass) against numpy: K + A^T B, then the slots' columns and rows overwritten (agreeing
     where they cross); rank_update and write_slots one after the other give the same bits."""
@@ -82,13 +84,13 @@ def test_update_slots_is_a_rank_update_then_a_slot_write(device, storage):
     want[:, slots] = cols.T
     want[slots, :] = rows
     m = DeviceMatrix(device, K0, storage)
-    uk = UpdateKernels(m, 4)
+    uk = UpdateKernels(m, 4, cpu_kernels=cpu_kernels)
     uk.update_slots(0, A, B, slots, cols, rows)
     got = m.to_host()[0]
     # observed 4.4e-16 (fp64), 2.3e-7 (fp32), 1.1e-3 (fp16): each rounds K + A B and the written values to its type
     np.testing.assert_allclose(got, want, rtol=0, atol={"fp64": 1e-14, "fp32": 1e-6, "fp16": 4e-3}[storage])
     two = DeviceMatrix(device, K0, storage)
-    uk2 = UpdateKernels(two, 4)
+    uk2 = UpdateKernels(two, 4, cpu_kernels=cpu_kernels)
     uk2.rank_update(0, A, B)
     uk2.write_slots(0, slots, cols, rows)
     np.testing.assert_array_equal(two.to_host()[0], got)

@@ -78,15 +78,18 @@ def _density_from_env() -> float | None:
 def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, max_vectors: int,
                    channels: int = 1) -> int:
     """Device bytes of :class:`UpdateKernels`' buffers for these sizes at their peak: the
-    partial sums and the result slab, which stay, and a frame's uploads, which live until its
-    kernels are done (every channel's are queued at once)."""
+    partial sums and the result slab, which stay, and the uploads, which live until the kernels
+    reading them are done. The rank passes are not waited for, so one frame's rank factors and
+    slot values (every channel's) may still be queued when the next frame's gather inputs (or
+    paper mode's Eq. 1 input) go up: both sets are counted."""
     lay = UpdateLayout.make(device, M, ld, k_itemsize, real_itemsize)
     nv = max_vectors
     shared = lay.parts * nv * M + lay.max_partial_blocks(nv) * ld + M  # row and column partials, zeros
-    # The result slab (slot columns and rows, K X, Y K), and the larger of a frame's two sets of
-    # uploads, which never coexist: the gathers' inputs (X and Y, or the sparse values) are
-    # released by the read-back before the rank factors A, B and the slot values go up.
-    per_channel = 4 * nv * M + max(nv * ld + nv * M, 2 * nv * M + 2 * nv * ld + 2 * nv * M)
+    # The result slab (slot columns and rows, K X, Y K; plus each part's alignment padding), the
+    # gather inputs (X and Y, at least the sparse values), Eq. 1's input, the rank factors A, B
+    # and the slot values.
+    align = int(device.cl_device.mem_base_addr_align) // 8 // real_itemsize + 1
+    per_channel = 4 * (nv * M + align) + (nv * ld + nv * M) + 3 * M + (2 * nv * M + 2 * nv * ld) + 2 * nv * M
     return real_itemsize * (shared + channels * per_channel) + 4 * nv + 8 * ld  # slots, sparse gathers' indices
 
 
@@ -116,8 +119,6 @@ class UpdateKernels:
         # per channel the slots' columns and rows, then K X and Y K (gather_all's order).
         self._slab = ReadSlab(dev, [nv * M] * (len(RESULTS) * matrix.C), self.real)
         self._zeros = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.zeros(M, dtype=self.real))
-        if dev.queue.properties & cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE:
-            raise InvalidInputError("UpdateKernels needs an in-order command queue")
         #: gather_all's sparse gathers run at or below this share of 2 M non-zero slots:
         #: PYDYNRAD_SPARSE_DENSITY where set, else SPARSE_DENSITY until warm_up measures this
         #: device's crossover.
@@ -126,7 +127,8 @@ class UpdateKernels:
 
     @property
     def nbytes(self) -> int:
-        """Device bytes of the scratch buffers (vectors and partial sums)."""
+        """Device bytes of the partial sums, the result slab and the uploads at their peak
+        (:func:`scratch_nbytes`)."""
         return scratch_nbytes(self.device, self.M, self.ld, self.matrix.dtype.itemsize, self.real.itemsize, self.nv_max,
                               self.matrix.C)
 

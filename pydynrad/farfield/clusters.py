@@ -171,7 +171,7 @@ def light_components(F) -> np.ndarray:
     Patches alone in their component get label -1 (no constraint)."""
     from ..csrgraph import weak_components
 
-    return free_singletons(weak_components(F))
+    return free_singletons(weak_components(sp.csr_matrix(F)))
 
 
 def free_singletons(components: np.ndarray) -> np.ndarray:
