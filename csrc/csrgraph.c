@@ -36,13 +36,19 @@ static int64_t find(int64_t *parent, int64_t a)
     return a;
 }
 
-/* The indptr of an n-row CSR with nnz entries: starts at 0, non-decreasing, ends at nnz. */
-static int valid_indptr(const int64_t *p, Py_ssize_t n, int64_t nnz)
+/* A CSR structure's rows, entries and index size from its int64 indptr and its indices:
+ * 1 where indptr starts at 0, does not decrease and ends at nnz, and the indices are nnz
+ * int32 or int64 values; else 0. */
+static int csr_structure(const Py_buffer *ip, const Py_buffer *ix, Py_ssize_t *n_rows, int64_t *nnz, Py_ssize_t *isz)
 {
-    if (p[0] != 0 || p[n] != nnz) return 0;
+    const Py_ssize_t I = (Py_ssize_t)sizeof(int64_t);
+    const int64_t *p = ip->buf;
+    Py_ssize_t n = ip->len / I - 1;
+    if (n < 0 || ip->len != (n + 1) * I || p[0] != 0) return 0;
     for (Py_ssize_t i = 0; i < n; ++i)
         if (p[i + 1] < p[i]) return 0;
-    return 1;
+    *n_rows = n, *nnz = p[n], *isz = p[n] > 0 ? ix->len / p[n] : 4;
+    return (*isz == 4 || *isz == 8) && ix->len == *nnz * *isz;
 }
 
 #define UNITE(NAME, ITYPE)                                                                                             \
@@ -68,12 +74,9 @@ static PyObject *py_weak_components(PyObject *self, PyObject *args)
     Py_buffer ip, ix, out;
     if (!PyArg_ParseTuple(args, "y*y*w*", &ip, &ix, &out)) return NULL;
     PyObject *result = NULL;
-    const Py_ssize_t I = (Py_ssize_t)sizeof(int64_t);
-    Py_ssize_t n = ip.len / I - 1;
-    int64_t nnz = n >= 0 && ip.len == (n + 1) * I ? ((const int64_t *)ip.buf)[n] : -1;
-    Py_ssize_t isz = nnz > 0 ? ix.len / nnz : 4;
-    int ok = nnz >= 0 && out.len == n * I && (isz == 4 || isz == 8) && ix.len == nnz * isz &&
-             valid_indptr(ip.buf, n, nnz);
+    Py_ssize_t n = 0, isz = 0;
+    int64_t nnz = 0;
+    int ok = csr_structure(&ip, &ix, &n, &nnz, &isz) && out.len == n * (Py_ssize_t)sizeof(int64_t);
     if (!ok) {
         PyErr_SetString(PyExc_ValueError, "weak_components needs a square CSR structure (int64 indptr from 0, "
                                           "non-decreasing, ending at nnz; int32/int64 indices) and int64 labels of "
@@ -143,13 +146,11 @@ static PyObject *py_to_columns(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*y*y*nw*w*w*", &ip, &ix, &v, &n_cols, &op, &ox, &ov)) return NULL;
     PyObject *result = NULL;
     const Py_ssize_t I = (Py_ssize_t)sizeof(int64_t);
-    Py_ssize_t n_rows = ip.len / I - 1;
-    int64_t nnz = n_rows >= 0 && ip.len == (n_rows + 1) * I ? ((const int64_t *)ip.buf)[n_rows] : -1;
-    Py_ssize_t isz = nnz > 0 ? ix.len / nnz : 4;
-    int ok = nnz >= 0 && n_cols >= 0 && n_cols < PY_SSIZE_T_MAX / I - 1 && n_rows < INT32_MAX && (isz == 4 || isz == 8) && ix.len == nnz * isz &&
-             v.len == nnz * (Py_ssize_t)sizeof(double) && op.len == (n_cols + 1) * I &&
-             ox.len == nnz * (Py_ssize_t)sizeof(int32_t) && ov.len == nnz * (Py_ssize_t)sizeof(float) &&
-             valid_indptr(ip.buf, n_rows, nnz);
+    Py_ssize_t n_rows = 0, isz = 0;
+    int64_t nnz = 0;
+    int ok = csr_structure(&ip, &ix, &n_rows, &nnz, &isz) && n_cols >= 0 && n_cols < PY_SSIZE_T_MAX / I - 1 &&
+             n_rows < INT32_MAX && v.len == nnz * (Py_ssize_t)sizeof(double) && op.len == (n_cols + 1) * I &&
+             ox.len == nnz * (Py_ssize_t)sizeof(int32_t) && ov.len == nnz * (Py_ssize_t)sizeof(float);
     if (!ok) {
         PyErr_SetString(PyExc_ValueError, "to_columns needs a CSR matrix (int64 indptr from 0, non-decreasing, "
                                           "ending at nnz; int32/int64 indices; float64 data) of fewer than 2^31 "
