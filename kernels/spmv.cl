@@ -12,7 +12,9 @@
 // each holds about the same number of non-zeros (a core's share does not depend on how long
 // its rows happen to be). It also writes max_i |y_i - x_i| (the residual of the equation at
 // x, since y - x = L + P F x - x) and max_i |y_i| of its rows to partial[2g], partial[2g + 1],
-// so the host checks convergence by reading 2 numbers per block instead of both vectors.
+// so the host checks convergence by reading 2 numbers per block instead of both vectors. The
+// residual exists only for a square matrix (`square` != 0): a product with a non-square one
+// (the far field's G, N x C) has an x of another length, which row i must not index.
 //   LX == 1 (CPUs): one work-item walks its block row by row, 4 or 8 entries of values and
 //           indices per vector load, gathering x from cache. A tight loop of one thread.
 //   LX > 1  (GPUs, CSR-vector): the group's LX items share each row, reading adjacent
@@ -86,7 +88,7 @@ inline VEC row_dot(__global const int *cols, __global const REAL *vals, __global
 __kernel __attribute__((reqd_work_group_size(LX, 1, 1)))
 void bounce(__global const int *blk, __global const int *rowptr, __global const int *cols, __global const REAL *vals,
             __global const VEC *L, __global const VEC *rho, __global const VEC *x, __global VEC *y,
-            __global REAL *partial)
+            __global REAL *partial, const int square)
 {
     const int g = get_group_id(0);
     const int r0 = blk[g], r1 = blk[g + 1];
@@ -95,7 +97,7 @@ void bounce(__global const int *blk, __global const int *rowptr, __global const 
     for (int i = r0; i < r1; ++i) {
         const VEC yi = L[i] + rho[i] * row_dot(cols, vals, x, rowptr[i], rowptr[i + 1]);
         y[i] = yi;
-        d = fmax(d, VABSMAX(yi - x[i]));
+        if (square) d = fmax(d, VABSMAX(yi - x[i]));
         m = fmax(m, VABSMAX(yi));
     }
     partial[2 * g] = d;
@@ -116,7 +118,7 @@ void bounce(__global const int *blk, __global const int *rowptr, __global const 
         if (lid == 0) {
             const VEC yi = L[i] + rho[i] * part[0];
             y[i] = yi;
-            d = fmax(d, VABSMAX(yi - x[i]));
+            if (square) d = fmax(d, VABSMAX(yi - x[i]));
             m = fmax(m, VABSMAX(yi));
         }
         barrier(CLK_LOCAL_MEM_FENCE);  // part[0] read before the next row overwrites it

@@ -84,7 +84,9 @@ class DeviceCSR:
         return out
 
     def bounce_buffers(self, L_buf, rho_buf, x_buf, y_buf, width: int, partial_buf=None) -> None:
-        """Enqueue y = L + P (A x) on device buffers of ``width`` (1 or 4) REALs per row."""
+        """Enqueue y = L + P (A x) on device buffers of ``width`` (1 or 4) REALs per row (x per
+        column of A); for a square A also each block's max |y - x| and max |y| into
+        ``partial_buf`` (only max |y| otherwise: x is not indexed by row)."""
         import pyopencl as cl
 
         d = self.device
@@ -97,7 +99,7 @@ class DeviceCSR:
         if partial_buf is None:
             partial_buf = cl.Buffer(d.context, cl.mem_flags.READ_WRITE, 2 * self._n_blocks * self.dtype.itemsize)
         kernel(d.queue, *self._layout.grid, self._blk, self._rowptr, self._cols, self._vals,
-               L_buf, rho_buf, x_buf, y_buf, partial_buf)
+               L_buf, rho_buf, x_buf, y_buf, partial_buf, np.int32(self.shape[0] == self.shape[1]))
 
     def bounce(self, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:
         """y = L + rho * (A x): L, rho (rows, k), x (cols, k), k = 1 or 3; returns (rows, k) float64."""
