@@ -300,7 +300,10 @@ class Device:
         }
 
     def to_device(self, array: np.ndarray):
-        """Copy a host array to a new read-only device buffer."""
+        """Copy a host array to a new read-only device buffer (one element where it is empty).
+
+        Also the way small per-call inputs go up: on PoCL this costs under 1 us plus the copy,
+        where a queued write into an existing buffer costs 40-60 us (pydynrad/transfers.py)."""
         import pyopencl as cl
 
         a = np.ascontiguousarray(array)

@@ -17,7 +17,7 @@ import scipy.sparse as sp
 
 from .device import real_dtype
 from .devicecsr import row_blocks, sweeps
-from .errors import OutOfMemoryError
+from .errors import InvalidInputError, OutOfMemoryError
 
 __all__ = ["SellMatrix", "sell_slices", "DeviceSELL"]
 
@@ -73,6 +73,8 @@ class DeviceSELL:
 
     def __init__(self, device, A: sp.csr_matrix, dtype, layout) -> None:
         A = sp.csr_matrix(A)
+        if A.shape[0] != A.shape[1]:  # bounce_sell's residual reads x by row
+            raise InvalidInputError(f"DeviceSELL holds a square matrix; got shape {A.shape}")
         self.device, self.shape, self.nnz = device, A.shape, A.nnz
         self.dtype = real_dtype(dtype, device)
         self._layout = layout

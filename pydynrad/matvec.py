@@ -21,7 +21,7 @@ import numpy as np
 from .checks import finite
 from .errors import DeviceError, InvalidInputError, OutOfMemoryError
 from .launch import MAX_RHS, global_size, matvec_layout, round_up
-from .transfers import ReadSlab, upload
+from .transfers import ReadSlab
 
 __all__ = ["DeviceMatrix", "STORAGE_DTYPES", "storage_dtype", "MAX_RHS"]
 
@@ -240,7 +240,7 @@ class DeviceMatrix:
             n = min(MAX_RHS, r - q0)
             xh[:, :n, : self.M] = X[:, q0 : q0 + n]
             for c in range(self.C):
-                self.enqueue_matvec(c, upload(self.device, xh[c, :n]), slab.parts[c], n)
+                self.enqueue_matvec(c, self.device.to_device(xh[c, :n]), slab.parts[c], n)
             ys = slab.read([(c, n * self.M) for c in range(self.C)])
             out[:, q0 : q0 + n] = np.stack(ys).reshape(self.C, n, self.M)
         return out
@@ -254,7 +254,7 @@ class DeviceMatrix:
         x = self._vectors(x)
         slab = self._results()
         for c in range(self.C):
-            self.enqueue_rmatvec(c, upload(self.device, x[c].astype(self.real_dtype)), slab.parts[c])
+            self.enqueue_rmatvec(c, self.device.to_device(x[c].astype(self.real_dtype)), slab.parts[c])
         return np.stack(slab.read([(c, self.M) for c in range(self.C)])).astype(np.float64)
 
     def to_host(self) -> np.ndarray:

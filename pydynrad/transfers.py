@@ -1,12 +1,11 @@
-"""Host-device transfers in the fewest commands: small arrays up as new buffers, results down
-in one read.
+"""Results down in one read: kernels' outputs as parts of one buffer.
 
 A frame of the local update moves a few kilobytes each way in dozens of small arrays, and on
 PoCL's CPU devices each transfer command costs far more than its bytes: a queued write or read
 of 4 KB took 40-60 us, creating a buffer from host memory under 1 us plus the copy, and a
-kernel launch queued 6 us (Intel Xeon, PoCL 3.0 pthread, 2026-12-03; `bench.dynamic`). So
-:func:`upload` makes a new read-only buffer per array (OpenCL keeps it alive while a command
-uses it: nothing to hold or wait for, and no buffer to share between calls), and
+kernel launch queued 6 us (Intel Xeon, PoCL 3.0 pthread, 2026-12-03). So inputs go up as new
+buffers (:meth:`pydynrad.device.Device.to_device`: OpenCL keeps one alive while a command uses
+it, so there is nothing to hold or wait for and no buffer to share between calls), and
 :class:`ReadSlab` gives kernels their outputs as sub-buffers of one buffer, read back with one
 command.
 """
@@ -15,18 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["upload", "ReadSlab"]
-
-
-def upload(device, array: np.ndarray):
-    """A new read-only device buffer holding a copy of ``array`` (made C-contiguous; an empty
-    array gives a buffer of one zero element, since OpenCL has no empty buffers)."""
-    import pyopencl as cl
-
-    host = np.ascontiguousarray(array)
-    if host.size == 0:
-        host = np.zeros(1, dtype=host.dtype)
-    return cl.Buffer(device.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=host)
+__all__ = ["ReadSlab"]
 
 
 class ReadSlab:

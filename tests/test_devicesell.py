@@ -61,3 +61,10 @@ def test_bounces_match_scipy(device, c, channels, dtype):
     assert change == pytest.approx(np.abs(truth - prev).max() / np.abs(truth).max(), rel=1e-3 if dtype == np.float32 else 1e-10)
     # observed 1e-4 (float32: y - x of a change near 3e-4 keeps ~3 digits) and 1e-13
     assert M.nbytes >= M.stored * (4 + np.dtype(dtype).itemsize) and M.stored >= A.nnz
+
+
+def test_a_non_square_matrix_is_refused(device):
+    from pydynrad import InvalidInputError
+
+    with pytest.raises(InvalidInputError, match="square"):
+        DeviceSELL(device, sp.random(40, 7, density=0.2, format="csr", random_state=1), np.float32, SellLayout(4, 16, 2))

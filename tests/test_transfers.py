@@ -1,21 +1,21 @@
-"""upload() copies at once; ReadSlab's parts are separate buffers read back in one command, and
+"""Device.to_device copies at once; ReadSlab's parts are separate buffers read back in one command, and
 its reads are checked; a Device refuses an out-of-order queue."""
 
 import numpy as np
 import pyopencl as cl
 import pytest
 
-from pydynrad.transfers import ReadSlab, upload
+from pydynrad.transfers import ReadSlab
 
 
-def test_upload_holds_a_copy(device):
+def test_to_device_holds_a_copy(device):
     host = np.arange(10, dtype=np.float32)
-    buf = upload(device, host)
+    buf = device.to_device(host)
     host[:] = -1.0  # after the upload: the buffer must keep the values it was made from
     out = np.empty(10, dtype=np.float32)
     cl.enqueue_copy(device.queue, out, buf, is_blocking=True)
     np.testing.assert_array_equal(out, np.arange(10, dtype=np.float32))
-    assert upload(device, np.zeros((0, 4), dtype=np.int32)).size == 4  # one element: no empty buffers
+    assert device.to_device(np.zeros((0, 4), dtype=np.int32)).size == 4  # one element: no empty buffers
 
 
 def test_read_slab_parts(device):

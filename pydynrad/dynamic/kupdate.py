@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..launch import CPU_ROWS, WG, UpdateLayout, global_size, round_up
-from ..transfers import ReadSlab, upload
+from ..transfers import ReadSlab
 
 __all__ = ["UpdateKernels", "scratch_nbytes", "SPARSE_DENSITY", "PROBE_DENSITIES", "crossover"]
 
@@ -138,7 +138,7 @@ class UpdateKernels:
         a = np.atleast_2d(a)
         host = np.zeros((a.shape[0], width), dtype=dtype or self.real)
         host[:, : a.shape[1]] = a
-        return upload(self.device, host)
+        return self.device.to_device(host)
 
     def _put_slots(self, slots):
         """Check slot indices; returns (their count, their buffer). The buffer is reused while
@@ -146,7 +146,7 @@ class UpdateKernels:
         slots = np.ascontiguousarray(slots, dtype=np.int32)
         self._check(len(slots))
         if self._slots_held is None or not np.array_equal(self._slots_held[0], slots):
-            self._slots_held = (slots.copy(), upload(self.device, slots))
+            self._slots_held = (slots.copy(), self.device.to_device(slots))
         return len(slots), self._slots_held[1]
 
     def _res(self, channel: int, name: str):
@@ -249,7 +249,7 @@ class UpdateKernels:
         for nz, step in ((cols, self.layout.sw), (rows, CPU_ROWS)):
             idx = np.zeros(round_up(max(1, len(nz)), step), dtype=np.int32)
             idx[: len(nz)] = nz
-            out.append((len(idx), upload(self.device, idx)))
+            out.append((len(idx), self.device.to_device(idx)))
         return tuple(out)
 
     def _enqueue_sparse_gather(self, channel: int, X: np.ndarray, Y: np.ndarray, cols: np.ndarray,
@@ -267,7 +267,7 @@ class UpdateKernels:
         ):
             vals = np.zeros((n, rp))
             vals[:, : len(nz)] = vectors[:, nz]
-            vals_buf = upload(self.device, (vals.T if transpose else vals).astype(self.real))
+            vals_buf = self.device.to_device((vals.T if transpose else vals).astype(self.real))
             self._k[name](q, (global_size(items),), (WG,), K, M, ld, np.int32(rp), idx, vals_buf, nv,
                           self._res(channel, out))
         return n
@@ -389,7 +389,7 @@ class UpdateKernels:
         if rows.shape[0] > self.matrix.C:
             raise InvalidInputError(f"at most {self.matrix.C} albedo rows; got {rows.shape[0]}")
         for c, r in enumerate(rows):
-            v = upload(self.device, np.concatenate([f_c, f_r, r]).astype(self.real))
+            v = self.device.to_device(np.concatenate([f_c, f_r, r]).astype(self.real))
             self._k["double_reflection"](self.device.queue, *self.layout.reduction_grid(), v, np.int32(self.M),
                                          self._res(c, "KX"))
         dr = np.array([h[0, 0] for h in self._get(*[(c, "KX", 1, 1) for c in range(len(rows))])])
