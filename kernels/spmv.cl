@@ -46,7 +46,7 @@ inline VEC row_dot(__global const int *cols, __global const REAL *vals, __global
 #if NCH == 1
     // Eight independent partial sums in one vector register; lanes of x gathered from cache.
     REALV(8) accv = (REALV(8))(0);
-    for (; k + 8 <= end; k += 8) {
+    for (; k <= end - 8; k += 8) {  // end - 8, not k + 8: k + 8 overflows an int near 2^31 entries
         const int8 c = (int8)(cols[k], cols[k + 1], cols[k + 2], cols[k + 3], cols[k + 4], cols[k + 5],
                               cols[k + 6], cols[k + 7]);
         const REALV(8) xv = (REALV(8))(x[c.s0], x[c.s1], x[c.s2], x[c.s3], x[c.s4], x[c.s5], x[c.s6], x[c.s7]);
@@ -61,7 +61,7 @@ inline VEC row_dot(__global const int *cols, __global const REAL *vals, __global
     // slower (62 -> 33 ms per RGB bounce, 35 M non-zeros, PoCL pthread AMD EPYC Zen 2,
     // 2026-12-02), LLVM splitting its 512-bit vectors through shuffles.
     REALV(8) a8 = (REALV(8))(0), b8 = (REALV(8))(0);
-    for (; k + 4 <= end; k += 4) {
+    for (; k <= end - 4; k += 4) {
         const int4 c = (int4)(cols[k], cols[k + 1], cols[k + 2], cols[k + 3]);
         const REALV(4) v = (REALV(4))(vals[k], vals[k + 1], vals[k + 2], vals[k + 3]);
         a8 = fma((REALV(8))((VEC)(v.x), (VEC)(v.y)), (REALV(8))(x[c.x], x[c.y]), a8);
@@ -73,7 +73,7 @@ inline VEC row_dot(__global const int *cols, __global const REAL *vals, __global
     // Entries in fours: one 16-wide vector holds four whole RGB(A) gathers of x (a 512-bit
     // register; four separate float4 accumulators ran 1.6x slower on PoCL/AVX-512).
     REALV(16) a16 = (REALV(16))(0);
-    for (; k + 4 <= end; k += 4) {
+    for (; k <= end - 4; k += 4) {
         const int4 c = (int4)(cols[k], cols[k + 1], cols[k + 2], cols[k + 3]);
         const REALV(4) v = (REALV(4))(vals[k], vals[k + 1], vals[k + 2], vals[k + 3]);
         const REALV(16) vv = (REALV(16))((VEC)(v.x), (VEC)(v.y), (VEC)(v.z), (VEC)(v.w));

@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .device import real_dtype
-from .errors import OutOfMemoryError
+from .errors import InvalidInputError, OutOfMemoryError
 from .launch import spmv_layout
 
 __all__ = ["DeviceCSR", "row_blocks", "sweeps"]
@@ -106,6 +106,9 @@ class DeviceCSR:
         import pyopencl as cl
 
         k = x.shape[1]
+        if x.shape[0] != self.shape[1] or L.shape != (self.shape[0], k) or rho.shape != (self.shape[0], k):
+            raise InvalidInputError(f"bounce of a {self.shape} matrix needs L, rho ({self.shape[0]}, {k}) and x "
+                                    f"({self.shape[1]}, {k}); got {L.shape}, {rho.shape}, {x.shape}")
         width = 1 if k == 1 else 4
         d = self.device
         bufs = [d.to_device(self.packed(a, width)) for a in (L, rho, x)]
@@ -131,6 +134,8 @@ class DeviceCSR:
         """
         import pyopencl as cl
 
+        if self.shape[0] != self.shape[1]:  # x and y swap: each must hold a row per row and column
+            raise InvalidInputError(f"jacobi sweeps a square matrix; this one has shape {self.shape}")
         k = x0.shape[1]
         width = 1 if k == 1 else 4
         d, n, nb = self.device, self.shape[0], self._n_blocks

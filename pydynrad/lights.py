@@ -210,7 +210,13 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
     One shadow ray per point and point, spot, directional or luminaire light, traced through
     ``scene.bvh`` on the device from the point offset along its normal; a sky is not included.
     ``points = normals = None``: the patch centres (``Scene.patch_buffers``, uploaded once).
+    Otherwise points (n, 3) and normals (n, 3) or one (3,) for all, checked (the kernel reads
+    a normal per point).
     """
+    if points is not None or normals is not None:
+        from .photometry.sensors import checked_sensors
+
+        points, normals = checked_sensors(points, normals)
     return _point_irradiance(scene, points, normals, checked_lights(lights), device)
 
 

@@ -145,6 +145,10 @@ class UpdateKernels:
         the slots stay the same (a frame's read and write passes, and every channel)."""
         slots = np.ascontiguousarray(slots, dtype=np.int32)
         self._check(len(slots))
+        # The kernels index K by them: out of range they would write outside it, twice the same
+        # cell of a column would have two writers.
+        if slots.min() < 0 or slots.max() >= self.M or len(np.unique(slots)) < len(slots):
+            raise InvalidInputError(f"slots must be distinct indices in [0, {self.M}); got {slots.tolist()}")
         if self._slots_held is None or not np.array_equal(self._slots_held[0], slots):
             self._slots_held = (slots.copy(), self.device.to_device(slots))
         return len(slots), self._slots_held[1]
@@ -386,6 +390,9 @@ class UpdateKernels:
         ``rho`` (M,) gives a float; (C, M), one albedo row per channel, gives (C,) with one wait."""
         rho = np.asarray(rho)
         rows = np.atleast_2d(rho)
+        if np.shape(f_c) != (self.M,) or np.shape(f_r) != (self.M,) or rows.shape[1:] != (self.M,):
+            raise InvalidInputError(f"double_reflection needs f_c, f_r ({self.M},) and rho ({self.M},) or (C, {self.M}); "
+                                    f"got {np.shape(f_c)}, {np.shape(f_r)}, {rho.shape}")
         if rows.shape[0] > self.matrix.C:
             raise InvalidInputError(f"at most {self.matrix.C} albedo rows; got {rows.shape[0]}")
         for c, r in enumerate(rows):

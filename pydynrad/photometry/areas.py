@@ -38,7 +38,8 @@ _at_patches: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np.ndarray:
-    """(n, 3) float64 irradiance at ``points`` (unit ``normals``) from the scene's emitting patches.
+    """(n, 3) float64 irradiance at ``points`` (n, 3; unit ``normals`` (n, 3) or one (3,) for
+    all, checked: the kernel reads a normal per point) from the scene's emitting patches.
 
     ``grid``: visibility samples per emitter are ``grid^2`` shadow rays per point. A point on
     an emitter's plane (its own patch, a coplanar neighbour) receives nothing from it.
@@ -46,7 +47,9 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np
     import pyopencl as cl
 
     from ..device import default_device
+    from .sensors import checked_sensors
 
+    points, normals = checked_sensors(points, normals)
     grid = integer(grid, "grid (visibility samples per side)", 1, 64)
     n = len(points)
     em = scene.emitters
