@@ -148,8 +148,9 @@ def _hidden_entries(objects, transforms, points: np.ndarray, indptr: np.ndarray,
         rays = np.frombuffer(b"".join(f[1] for f in found), np.float64).reshape(-1, 6)
         keep = ~out[near]
         if keep.any():
-            rays = rays[keep]
-            out[near[keep]] = occluded(o.scene, rays[:, :3], rays[:, 3:], np.float32(1.0), device=device)
+            if not keep.all():  # an earlier object hid some: a copy of the rest (35k rays: 0.5 ms)
+                rays, near = rays[keep], near[keep]
+            out[near] = occluded(o.scene, rays[:, :3], rays[:, 3:], np.float32(1.0), device=device)
     return out
 
 
