@@ -15,10 +15,7 @@ __all__ = ["weak_components", "columns_float32"]
 def _csr(F) -> sp.csr_matrix:
     if not sp.issparse(F):
         raise InvalidInputError(f"F must be a scipy sparse matrix; got {type(F).__name__}")
-    F = F if F.format == "csr" else sp.csr_matrix(F)
-    if F.indices.dtype not in (np.int32, np.int64):
-        F = sp.csr_matrix((F.data, F.indices.astype(np.int64), F.indptr), shape=F.shape)
-    return F
+    return F if F.format == "csr" else sp.csr_matrix(F)
 
 
 def weak_components(F) -> np.ndarray:

@@ -30,15 +30,22 @@ class ReadSlab:
         import pyopencl as cl
 
         self.device, self.dtype = device, np.dtype(dtype)
-        align = max([self.dtype.itemsize] + [int(d.mem_base_addr_align) // 8 for d in device.context.devices])
         self.sizes = [max(1, int(n)) for n in sizes]
-        self.offsets, end = [], 0  # in bytes
-        for n in self.sizes:
-            self.offsets.append(end)
-            end += -(-n * self.dtype.itemsize // align) * align
-        self.nbytes = end
-        self.buffer = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, end)
+        self.offsets, self.nbytes = self.layout(device, self.sizes, self.dtype)
+        self.buffer = cl.Buffer(device.context, cl.mem_flags.READ_WRITE, self.nbytes)
         self.parts = [self.buffer.get_sub_region(o, n * self.dtype.itemsize) for o, n in zip(self.offsets, self.sizes)]
+
+    @staticmethod
+    def layout(device, sizes, dtype) -> tuple[list[int], int]:
+        """(byte offset of each part, bytes in all) of a slab of parts of ``sizes`` elements
+        (at least one each) of ``dtype`` on ``device``: what one takes before it is made."""
+        itemsize = np.dtype(dtype).itemsize
+        align = max([itemsize] + [int(d.mem_base_addr_align) // 8 for d in device.context.devices])
+        offsets, end = [], 0
+        for n in sizes:
+            offsets.append(end)
+            end += -(-max(1, int(n)) * itemsize // align) * align
+        return offsets, end
 
     def read(self, items) -> list[np.ndarray]:
         """(part index, count) pairs: the first ``count`` elements of each part, as new arrays,

@@ -85,12 +85,12 @@ def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int,
     lay = UpdateLayout.make(device, M, ld, k_itemsize, real_itemsize)
     nv = max_vectors
     shared = lay.parts * nv * M + lay.max_partial_blocks(nv) * ld + M  # row and column partials, zeros
-    # The result slab (slot columns and rows, K X, Y K; plus each part's alignment padding), the
-    # gather inputs (X and Y, at least the sparse values), Eq. 1's input, the rank factors A, B
-    # and the slot values.
-    align = int(device.cl_device.mem_base_addr_align) // 8 // real_itemsize + 1
-    per_channel = 4 * (nv * M + align) + (nv * ld + nv * M) + 3 * M + (2 * nv * M + 2 * nv * ld) + 2 * nv * M
-    return real_itemsize * (shared + channels * per_channel) + 4 * nv + 8 * ld  # slots, sparse gathers' indices
+    # The gather inputs (X and Y, at least the sparse values), Eq. 1's input, the rank factors
+    # A, B and the slot values; then the result slab (slot columns and rows, K X, Y K) as laid out.
+    per_channel = (nv * ld + nv * M) + 3 * M + (2 * nv * M + 2 * nv * ld) + 2 * nv * M
+    real = np.float32 if real_itemsize == 4 else np.float64
+    slab = ReadSlab.layout(device, [nv * M] * (len(RESULTS) * channels), real)[1]
+    return real_itemsize * (shared + channels * per_channel) + slab + 4 * nv + 8 * ld  # slots, sparse gathers' indices
 
 
 class UpdateKernels:
@@ -145,11 +145,11 @@ class UpdateKernels:
         the slots stay the same (a frame's read and write passes, and every channel)."""
         slots = np.ascontiguousarray(slots, dtype=np.int32)
         self._check(len(slots))
-        # The kernels index K by them: out of range they would write outside it, twice the same
-        # cell of a column would have two writers.
-        if slots.min() < 0 or slots.max() >= self.M or len(np.unique(slots)) < len(slots):
-            raise InvalidInputError(f"slots must be distinct indices in [0, {self.M}); got {slots.tolist()}")
         if self._slots_held is None or not np.array_equal(self._slots_held[0], slots):
+            # The kernels index K by them: out of range they would write outside it, twice the
+            # same cell of a column would have two writers. (The held ones were checked.)
+            if slots.min() < 0 or slots.max() >= self.M or len(np.unique(slots)) < len(slots):
+                raise InvalidInputError(f"slots must be distinct indices in [0, {self.M}); got {slots.tolist()}")
             self._slots_held = (slots.copy(), self.device.to_device(slots))
         return len(slots), self._slots_held[1]
 
