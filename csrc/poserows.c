@@ -19,29 +19,34 @@
  * move's 958 stale rows on the bench's Cornell box, against 4.4-4.7 ms here; PoCL host, 2-core
  * Xeon, 2026-12-02). The merge's branches bound it, not memory.
  *
- * Column indices are int32 (scipy's own for fewer than 2^31 columns), row pointers int64.
+ * Column indices are int32 (scipy's own for fewer than 2^31 columns), row pointers int64. The
+ * rows read are spans of a CSR matrix's entries, starts[k] <= j < ends[k] for row k, so that
+ * rows picked out of a larger matrix (a move's candidates out of the whole static F) are read
+ * where they lie, with no copy; the rows written are a CSR matrix of their own.
  *
  * Python signatures:
- *   _poserows.assemble(indptr, indices, data, hidden, r_indptr, r_indices, r_data,
+ *   _poserows.assemble(starts, ends, indices, data, hidden, r_indptr, r_indices, r_data,
  *                      out_indptr, out_indices, out_data) -> nnz
- *   indptr, indices, data : the static rows, CSR of r rows (int64, int32, float64); every
- *             column below every object column, entries in increasing column order
- *   hidden  : uint8 of len(indices): non-zero where the entry is hidden
+ *   starts, ends : int64 of r: the static rows' spans of indices (int32) and data (float64), of
+ *             m entries each; every column below every object column, entries in increasing
+ *             column order
+ *   hidden  : uint8 of m: non-zero where the entry is hidden
  *   r_indptr, r_indices, r_data : the object columns of the same r rows (CSR, final column
  *             numbers, increasing within a row)
  *   out_indptr : writable int64 of r + 1; out_indices, out_data : writable int32 and float64
- *             of at least len(indices) + len(r_indices) values; receive the rows, zeros dropped
+ *             of at least the rows' entries + len(r_indices) values; receive the rows, zeros
+ *             dropped
  *   Returns the entries written.
  *
- *   _poserows.difference(indptr, indices, data, k_indptr, k_indices, k_data, slots,
+ *   _poserows.difference(starts, ends, indices, data, k_indptr, k_indices, k_data, slots,
  *                        out_indptr, out_indices, out_data) -> nnz
- *   indptr, indices, data : r rows (CSR: int64, int32, float64), each with increasing columns
- *   k_indptr, k_indices, k_data : M rows, likewise; slots : int64 of r, each in [0, M)
- *   out_* : as for assemble, of at least len(indices) + the entries of the kept rows named
+ *   starts, ends, indices, data : r rows as spans (as for assemble), each with increasing columns
+ *   k_indptr, k_indices, k_data : M rows (CSR), likewise; slots : int64 of r, each in [0, M)
+ *   out_* : as for assemble, of at least the rows' entries + the entries of the kept rows named
  *   Row i of the output is row i minus kept row slots[i], exact zeros dropped. Returns the
  *   entries written, or -1 - i where row i (of either input) has columns out of order.
  *
- * Array lengths, indptr ranges and slots are checked: ValueError.
+ * Array lengths, spans, indptr ranges and slots are checked: ValueError.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -56,15 +61,31 @@ static int bad_indptr(const int64_t *p, Py_ssize_t rows, Py_ssize_t m)
     return 0;
 }
 
-static Py_ssize_t assemble(Py_ssize_t rows, const int64_t *ip, const int32_t *ix, const double *x, const uint8_t *hidden,
-                           const int64_t *rp, const int32_t *rx, const double *rv, int64_t *op, int32_t *ox, double *ov)
+/* Whether every span lies in [0, m). */
+static int bad_spans(const int64_t *starts, const int64_t *ends, Py_ssize_t rows, Py_ssize_t m)
+{
+    for (Py_ssize_t k = 0; k < rows; ++k)
+        if (starts[k] < 0 || ends[k] < starts[k] || ends[k] > m) return 1;
+    return 0;
+}
+
+static Py_ssize_t span_entries(const int64_t *starts, const int64_t *ends, Py_ssize_t rows)
+{
+    Py_ssize_t n = 0;
+    for (Py_ssize_t k = 0; k < rows; ++k) n += ends[k] - starts[k];
+    return n;
+}
+
+static Py_ssize_t assemble(Py_ssize_t rows, const int64_t *is, const int64_t *ie, const int32_t *ix, const double *x,
+                           const uint8_t *hidden, const int64_t *rp, const int32_t *rx, const double *rv, int64_t *op,
+                           int32_t *ox, double *ov)
 {
     Py_ssize_t n = 0;
     op[0] = 0;
     for (Py_ssize_t k = 0; k < rows; ++k) {
         Py_ssize_t start = n;
         double kept = 0.0, objects = 0.0;
-        for (int64_t j = ip[k]; j < ip[k + 1]; ++j)
+        for (int64_t j = is[k]; j < ie[k]; ++j)
             if (!hidden[j] && x[j] != 0.0) {
                 kept += x[j];
                 ox[n] = ix[j], ov[n++] = x[j];
@@ -94,14 +115,14 @@ static int increasing(const int32_t *x, int64_t start, int64_t end)
     return 1;
 }
 
-static Py_ssize_t difference(Py_ssize_t rows, const int64_t *ap, const int32_t *ax, const double *av, const int64_t *bp,
-                             const int32_t *bx, const double *bv, const int64_t *slots, int64_t *op, int32_t *ox,
-                             double *ov)
+static Py_ssize_t difference(Py_ssize_t rows, const int64_t *as, const int64_t *ae, const int32_t *ax, const double *av,
+                             const int64_t *bp, const int32_t *bx, const double *bv, const int64_t *slots, int64_t *op,
+                             int32_t *ox, double *ov)
 {
     Py_ssize_t n = 0;
     op[0] = 0;
     for (Py_ssize_t k = 0; k < rows; ++k) {
-        int64_t i = ap[k], ie = ap[k + 1], j = bp[slots[k]], je = bp[slots[k] + 1];
+        int64_t i = as[k], ie = ae[k], j = bp[slots[k]], je = bp[slots[k] + 1];
         if (!increasing(ax, i, ie) || !increasing(bx, j, je)) return -1 - k;
         while (i < ie || j < je) {
             int32_t c;
@@ -119,15 +140,15 @@ static Py_ssize_t difference(Py_ssize_t rows, const int64_t *ap, const int32_t *
     return n;
 }
 
-/* Both passes take ten buffers: seven read, three written. */
-#define BUFFERS 10
+/* Both passes take eleven buffers: eight read, three written. */
+#define BUFFERS 11
 enum { P = sizeof(int64_t), I = sizeof(int32_t), D = sizeof(double) };
 
 static PyObject *with_buffers(PyObject *args, PyObject *(*pass)(Py_buffer *b))
 {
     Py_buffer b[BUFFERS];
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*w*w*w*", &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &b[8],
-                          &b[9]))
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*w*w*w*", &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &b[8],
+                          &b[9], &b[10]))
         return NULL;
     PyObject *result = pass(b);
     for (int k = 0; k < BUFFERS; ++k) PyBuffer_Release(&b[k]);
@@ -136,43 +157,50 @@ static PyObject *with_buffers(PyObject *args, PyObject *(*pass)(Py_buffer *b))
 
 static PyObject *assemble_buffers(Py_buffer *b)
 {
-    Py_ssize_t rows = b[0].len / P - 1, m = b[1].len / I, mr = b[5].len / I;
-    if (rows < 0 || b[0].len != (rows + 1) * P || b[1].len != m * I || b[2].len != m * D || b[3].len != m ||
-        b[4].len != (rows + 1) * P || b[5].len != mr * I || b[6].len != mr * D || b[7].len != (rows + 1) * P ||
-        b[8].len < (m + mr) * I || b[9].len < (m + mr) * D) {
-        PyErr_SetString(PyExc_ValueError, "assemble needs CSR rows (int64 indptr of r + 1, int32 indices, float64 "
-                                          "data), a uint8 mask per entry, CSR object columns of the same r rows, and "
-                                          "outputs of r + 1 and of every entry");
+    Py_ssize_t rows = b[0].len / P, m = b[2].len / I, mr = b[6].len / I;
+    if (b[0].len != rows * P || b[1].len != rows * P || b[2].len != m * I || b[3].len != m * D || b[4].len != m ||
+        b[5].len != (rows + 1) * P || b[6].len != mr * I || b[7].len != mr * D || b[8].len != (rows + 1) * P) {
+        PyErr_SetString(PyExc_ValueError, "assemble needs row spans (int64 starts and ends of r) of int32 indices and "
+                                          "float64 data, a uint8 mask per entry, CSR object columns of the same r rows, "
+                                          "and an output indptr of r + 1");
         return NULL;
     }
-    if (bad_indptr(b[0].buf, rows, m) || bad_indptr(b[4].buf, rows, mr)) {
-        PyErr_SetString(PyExc_ValueError, "assemble: an indptr does not run from 0 to its entries without decreasing");
+    if (bad_spans(b[0].buf, b[1].buf, rows, m) || bad_indptr(b[5].buf, rows, mr)) {
+        PyErr_SetString(PyExc_ValueError, "assemble: a row's span lies outside the entries, or an indptr does not run "
+                                          "from 0 to its entries without decreasing");
+        return NULL;
+    }
+    const Py_ssize_t most = span_entries(b[0].buf, b[1].buf, rows) + mr;
+    if (b[9].len < most * I || b[10].len < most * D) {
+        PyErr_Format(PyExc_ValueError, "assemble: the outputs hold fewer than the %zd entries the rows may have", most);
         return NULL;
     }
     Py_ssize_t n;
     Py_BEGIN_ALLOW_THREADS
     n = assemble(rows, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, b[6].buf, b[7].buf, b[8].buf,
-                 b[9].buf);
+                 b[9].buf, b[10].buf);
     Py_END_ALLOW_THREADS
     return PyLong_FromSsize_t(n);
 }
 
 static PyObject *difference_buffers(Py_buffer *b)
 {
-    Py_ssize_t rows = b[0].len / P - 1, m = b[1].len / I, kr = b[3].len / P - 1, km = b[4].len / I;
-    if (rows < 0 || kr < 0 || b[0].len != (rows + 1) * P || b[1].len != m * I || b[2].len != m * D ||
-        b[3].len != (kr + 1) * P || b[4].len != km * I || b[5].len != km * D || b[6].len != rows * P ||
-        b[7].len != (rows + 1) * P) {
-        PyErr_SetString(PyExc_ValueError, "difference needs two CSR matrices (int64 indptr, int32 indices, float64 "
-                                          "data), an int64 slot per row of the first and an output indptr of its rows + 1");
+    Py_ssize_t rows = b[0].len / P, m = b[2].len / I, kr = b[4].len / P - 1, km = b[5].len / I;
+    if (kr < 0 || b[0].len != rows * P || b[1].len != rows * P || b[2].len != m * I || b[3].len != m * D ||
+        b[4].len != (kr + 1) * P || b[5].len != km * I || b[6].len != km * D || b[7].len != rows * P ||
+        b[8].len != (rows + 1) * P) {
+        PyErr_SetString(PyExc_ValueError, "difference needs row spans (int64 starts and ends of r) of int32 indices and "
+                                          "float64 data, a CSR matrix (int64 indptr, int32 indices, float64 data), an "
+                                          "int64 slot per row and an output indptr of r + 1");
         return NULL;
     }
-    const int64_t *slots = b[6].buf, *kp = b[3].buf;
-    if (bad_indptr(b[0].buf, rows, m) || bad_indptr(kp, kr, km)) {
-        PyErr_SetString(PyExc_ValueError, "difference: an indptr does not run from 0 to its entries without decreasing");
+    const int64_t *slots = b[7].buf, *kp = b[4].buf;
+    if (bad_spans(b[0].buf, b[1].buf, rows, m) || bad_indptr(kp, kr, km)) {
+        PyErr_SetString(PyExc_ValueError, "difference: a row's span lies outside the entries, or an indptr does not run "
+                                          "from 0 to its entries without decreasing");
         return NULL;
     }
-    Py_ssize_t most = m;
+    Py_ssize_t most = span_entries(b[0].buf, b[1].buf, rows);
     for (Py_ssize_t k = 0; k < rows; ++k) {
         if (slots[k] < 0 || slots[k] >= kr) {
             PyErr_Format(PyExc_ValueError, "difference: slot %lld of row %zd is outside the %zd kept rows",
@@ -181,13 +209,14 @@ static PyObject *difference_buffers(Py_buffer *b)
         }
         most += kp[slots[k] + 1] - kp[slots[k]];
     }
-    if (b[8].len < most * I || b[9].len < most * D) {
+    if (b[9].len < most * I || b[10].len < most * D) {
         PyErr_Format(PyExc_ValueError, "difference: the outputs hold fewer than the %zd entries the rows may have", most);
         return NULL;
     }
     Py_ssize_t n;
     Py_BEGIN_ALLOW_THREADS
-    n = difference(rows, b[0].buf, b[1].buf, b[2].buf, kp, b[4].buf, b[5].buf, slots, b[7].buf, b[8].buf, b[9].buf);
+    n = difference(rows, b[0].buf, b[1].buf, b[2].buf, b[3].buf, kp, b[5].buf, b[6].buf, slots, b[8].buf, b[9].buf,
+                   b[10].buf);
     Py_END_ALLOW_THREADS
     return PyLong_FromSsize_t(n);
 }
@@ -206,10 +235,10 @@ static PyObject *py_difference(PyObject *self, PyObject *args)
 
 static PyMethodDef methods[] = {
     {"assemble", py_assemble, METH_VARARGS,
-     "assemble(indptr, indices, data, hidden, r_indptr, r_indices, r_data, out_indptr, out_indices, out_data) -> nnz: "
+     "assemble(starts, ends, indices, data, hidden, r_indptr, r_indices, r_data, out_indptr, out_indices, out_data) -> nnz: "
      "static rows without their hidden entries, with their object columns, capped to a sum of 1"},
     {"difference", py_difference, METH_VARARGS,
-     "difference(indptr, indices, data, k_indptr, k_indices, k_data, slots, out_indptr, out_indices, out_data) -> nnz: "
+     "difference(starts, ends, indices, data, k_indptr, k_indices, k_data, slots, out_indptr, out_indices, out_data) -> nnz: "
      "each row minus kept row slots[i], zeros dropped (-1 - i: row i's columns out of order)"},
     {NULL, NULL, 0, NULL},
 };

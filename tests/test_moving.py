@@ -138,7 +138,7 @@ def test_rows_at_pose():
     expect = [[0.0, 0.0, 0.0, 0.8, 0.2], [0.4, 0.0, 0.0, 0.2, 0.3], [0.1, 0.1, 0.0, 0.0, 0.0]]
     np.testing.assert_allclose(out.toarray(), expect, rtol=1e-12)
     assert out.nnz == 7
-    with pytest.raises(pd.InvalidInputError, match="differ in shape"):
+    with pytest.raises(pd.InvalidInputError, match="do not match"):
         at_pose(rows, hidden, recip[:2])
     with pytest.raises(pd.InvalidInputError, match="one flag per entry"):
         at_pose(rows, hidden[:-1], recip)
@@ -177,6 +177,16 @@ def test_rows_at_pose_match_numpy():
     np.testing.assert_allclose(got.toarray(), np.hstack([kept, obj]), rtol=1e-13, atol=1e-17)
     assert got.sum(axis=1).max() <= 1.0 + 1e-12
     assert got.nnz == np.count_nonzero(np.hstack([kept, obj]))
+    # Rows picked out of a larger matrix (with only the static columns) and read in place give
+    # the same rows as the copy of them, the mask over the larger matrix's entries.
+    big = sp.vstack([sp.random(7, n_static, density=0.3, random_state=rng, format="csr"), dense, dense[::-1]], format="csr")
+    select = 7 + np.arange(r)
+    big_hidden = np.zeros(big.nnz, bool)
+    big_hidden[big.indptr[7]:big.indptr[7 + r]] = hidden
+    picked = at_pose(big, big_hidden, recip, select)
+    assert picked.shape == got.shape and (picked != got).nnz == 0
+    with pytest.raises(pd.InvalidInputError, match=r"\[0, "):
+        at_pose(big, big_hidden, recip, select + big.shape[0])
 
 
 @pytest.mark.parametrize("budget", [0, None])
@@ -588,7 +598,8 @@ def test_segments_near_sphere_match_numpy():
     owners = rng.integers(0, len(P), 50).astype(np.int64)
     owners[::7] = -1
     c, r = np.array([0.1, -0.2, 0.3]), 0.35
-    out, rays = _segments.near_sphere(P, indptr, indices, owners, tuple(c), r, None)
+    spans = indptr[:-1], indptr[1:]
+    out, rays = _segments.near_sphere(P, *spans, indices.astype(np.int32), owners, tuple(c), r, None)
     out, rays = np.frombuffer(out, np.int64), np.frombuffer(rays, np.float64).reshape(-1, 6)
     row = np.repeat(np.arange(50), np.diff(indptr))
     a, b = P[owners[row]], P[indices]
@@ -599,9 +610,17 @@ def test_segments_near_sphere_match_numpy():
     assert 50 < len(truth) < len(indices) // 2
     np.testing.assert_array_equal(out, truth)
     np.testing.assert_array_equal(rays, np.hstack([a[truth], d[truth]]))  # no box: the segments in world space
-    indices[3] = len(P)
+    # Rows read as spans in another order give each row's segments; spans that end before they start are refused.
+    order = rng.permutation(50)
+    out2 = np.frombuffer(_segments.near_sphere(P, indptr[:-1][order].copy(), indptr[1:][order].copy(),
+                                               indices.astype(np.int32), owners[order].copy(), tuple(c), r, None)[0], np.int64)
+    np.testing.assert_array_equal(np.sort(out2), truth)
+    bad = indices.astype(np.int32)
+    bad[3] = len(P)
     with pytest.raises(ValueError, match="out of range"):
-        _segments.near_sphere(P, indptr, indices, np.zeros(50, np.int64), tuple(c), r, None)
+        _segments.near_sphere(P, *spans, bad, np.zeros(50, np.int64), tuple(c), r, None)
+    with pytest.raises(ValueError, match="out of range"):
+        _segments.near_sphere(P, indptr[1:].copy(), indptr[:-1].copy(), indices.astype(np.int32), owners, tuple(c), r, None)
 
 
 def test_rows_minus_matches_scipy():

@@ -28,7 +28,8 @@ from ..rows.sources import HemicubeRows
 from .localrows import LocalRows
 
 __all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "sphere_form_factor",
-           "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries", "reciprocal_columns", "at_pose", "swap_chunks"]
+           "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries", "native_spans",
+           "reciprocal_columns", "at_pose", "swap_chunks"]
 
 
 def sphere_solid_angle(points: np.ndarray, normals: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
@@ -109,17 +110,33 @@ PARALLEL_SEGMENTS = 50_000
 def hidden_between(objects, transforms, points: np.ndarray, a: np.ndarray, b: np.ndarray, device=None) -> np.ndarray:
     """(n,) bool: the segments ``points[a[i]] -> points[b[i]]`` that cross an object's triangles
     at ``transforms`` (:func:`_hidden_entries` with one segment per row)."""
-    a = np.asarray(a, np.int64)
-    return _hidden_entries(objects, transforms, points, np.arange(len(a) + 1), b, a, device)
+    a, b = np.asarray(a, np.int64), np.asarray(b)
+    if len(b) and (b.min() < 0 or b.max() >= len(points)):
+        raise InvalidInputError(f"segment ends must index the {len(points)} points")
+    ends = np.arange(1, len(a) + 1)
+    return _hidden_entries(objects, transforms, points, ends - 1, ends, b.astype(np.int32), a, device)
 
 
-def _hidden_entries(objects, transforms, points: np.ndarray, indptr: np.ndarray, indices: np.ndarray,
-                    owners: np.ndarray, device=None) -> np.ndarray:
-    """(m,) bool over the entries of a CSR structure (``indptr`` (r + 1,), ``indices`` (m,)):
-    entry j of row k is the segment ``points[owners[k]] -> points[indices[j]]`` (rows with
-    ``owners[k] < 0`` are skipped: False), True where it crosses an object's triangles at
-    ``transforms``. Only segments passing within an object's bounding sphere are traced, each
-    in the object's own space against its own tree (the static scene is not looked at).
+def native_spans(m: sp.csr_matrix, select: np.ndarray | None = None):
+    """(starts, ends, indices, data) of CSR ``m``'s rows ``select`` (all by default) read where
+    they lie: int64 spans of its int32 indices and float64 data, as ``csrc/segments.c`` and
+    ``csrc/poserows.c`` read them (no copy of the entries where they already are so)."""
+    indptr = np.asarray(m.indptr)
+    rows = np.arange(m.shape[0]) if select is None else np.asarray(select, np.int64)
+    if len(rows) and (rows.min() < 0 or rows.max() >= m.shape[0]):
+        raise InvalidInputError(f"rows to select must lie in [0, {m.shape[0]})")
+    _, indices, data = native_csr(m)
+    return (indptr[rows].astype(np.int64), indptr[rows + 1].astype(np.int64), indices, data)
+
+
+def _hidden_entries(objects, transforms, points: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+                    indices: np.ndarray, owners: np.ndarray, device=None) -> np.ndarray:
+    """(m,) bool over ``indices`` (m,) int32: entry j of row k (``starts[k] <= j < ends[k]``, as
+    :func:`native_spans` gives) is the segment ``points[owners[k]] -> points[indices[j]]`` (rows
+    with ``owners[k] < 0`` are skipped, as are the entries of no row: False), True where it
+    crosses an object's triangles at ``transforms``. Only segments passing within an object's
+    bounding sphere are traced, each in the object's own space against its own tree (the static
+    scene is not looked at).
 
     The pre-test is one pass over the entries (``csrc/segments.c``): with u = p - c for the
     sphere's centre c, |u_a + t (u_b - u_a)|^2 is a quadratic in t whose coefficients are
@@ -131,19 +148,21 @@ def _hidden_entries(objects, transforms, points: np.ndarray, indptr: np.ndarray,
     from ..hostthreads import cores, pool, row_parts
 
     P = np.ascontiguousarray(points, np.float64)
-    indptr, indices = np.ascontiguousarray(indptr, np.int64), np.ascontiguousarray(indices, np.int64)
-    owners = np.ascontiguousarray(owners, np.int64)
+    starts, ends = np.ascontiguousarray(starts, np.int64), np.ascontiguousarray(ends, np.int64)
+    indices, owners = np.ascontiguousarray(indices, np.int32), np.ascontiguousarray(owners, np.int64)
     out = np.zeros(len(indices), bool)
-    # The rows in a part per core, the native pass run on each at once (it releases the GIL).
-    parts = row_parts(indptr, cores() if len(indices) >= PARALLEL_SEGMENTS else 1)
+    # The rows in a part per core, of about equal entries, the native pass run on each at once
+    # (it releases the GIL).
+    work = np.concatenate([[0], np.cumsum(ends - starts)])
+    parts = row_parts(work, cores() if work[-1] >= PARALLEL_SEGMENTS else 1)
     for o, T in zip(objects, transforms):
         c, r = o.bounding_sphere(T)
         Rt = T[:3, :3].T  # world to object space: x -> R^T (x - t)
         lo, hi = o.scene.bbox.astype(np.float64)
         box = np.concatenate([Rt.ravel(), -Rt @ T[:3, 3], lo - BOX_MARGIN * r, hi + BOX_MARGIN * r])
         args = (tuple(float(v) for v in c), r * (1.0 + SPHERE_MARGIN), box.tolist())
-        found = list(pool().map(lambda k: _segments.near_sphere(P, indptr[k[0]:k[1] + 1], indices, owners[k[0]:k[1]],
-                                                                *args), parts))
+        found = list(pool().map(lambda k: _segments.near_sphere(P, starts[k[0]:k[1]], ends[k[0]:k[1]], indices,
+                                                                owners[k[0]:k[1]], *args), parts))
         near = np.frombuffer(b"".join(f[0] for f in found), np.int64)
         rays = np.frombuffer(b"".join(f[1] for f in found), np.float64).reshape(-1, 6)
         keep = ~out[near]
@@ -155,18 +174,22 @@ def _hidden_entries(objects, transforms, points: np.ndarray, indptr: np.ndarray,
 
 
 def hidden_entries(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.ndarray, normals: np.ndarray, objects,
-                   transforms, device=None) -> np.ndarray:
-    """(nnz,) bool over the entries of static ``rows`` (of ``row_patches``): True where the
-    objects hide F[s, x], the segment between the centres of s and x crossing one
-    (:func:`_hidden_entries`): a patch-centre estimate of the occlusion a hemicube at the pose
-    would see, for no hemicube. Rows of patches whose front sees no object's bounding sphere
-    have none (nothing in front of them can be hidden)."""
+                   transforms, device=None, select: np.ndarray | None = None) -> np.ndarray:
+    """(nnz,) bool over the entries of static ``rows`` (CSR), True where the objects hide F[s, x],
+    the segment between the centres of s and x crossing one (:func:`_hidden_entries`): a
+    patch-centre estimate of the occlusion a hemicube at the pose would see, for no hemicube.
+    ``select``: the rows to test (all by default; the others' entries are False), read in place,
+    of patches ``row_patches`` (one per row tested). Rows of patches whose front sees no object's
+    bounding sphere have none (nothing in front of them can be hidden)."""
     row_patches = np.asarray(row_patches, np.int64)
+    starts, ends, indices, _ = native_spans(rows, select)
+    if len(row_patches) != len(starts):
+        raise InvalidInputError(f"hidden_entries needs one patch per row tested ({len(starts)}); got {len(row_patches)}")
     spheres = [o.bounding_sphere(T) for o, T in zip(objects, transforms)]
     sees = refresh_order(centers[row_patches], normals[row_patches], spheres)[0]
     owners = np.full(len(row_patches), -1, np.int64)
     owners[sees] = row_patches[sees]
-    return _hidden_entries(objects, transforms, centers, rows.indptr, rows.indices, owners, device)
+    return _hidden_entries(objects, transforms, centers, starts, ends, indices, owners, device)
 
 
 def reciprocal_columns(row_patches: np.ndarray, object_rows: sp.csr_matrix, object_patches: np.ndarray,
@@ -184,28 +207,31 @@ def reciprocal_columns(row_patches: np.ndarray, object_rows: sp.csr_matrix, obje
                          shape=(len(row_patches), n_cols))
 
 
-def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix) -> sp.csr_matrix:
-    """Static ``rows`` (r, N; no entries in the object columns) at the objects' poses: without
-    their entries ``hidden`` ((nnz,) bool, :func:`hidden_entries`), with the object columns
-    ``recip`` (r, N, :func:`reciprocal_columns`), and capped: where a row then sums above 1
-    (the centre segments missed part of what an object hides), its static entries are scaled
-    so that it sums to 1, clipped at zero; where the object columns alone sum above 1, they are
-    scaled to 1 and the static entries go. No row sums above 1. One native pass
+def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix, select: np.ndarray | None = None) -> sp.csr_matrix:
+    """Static ``rows`` (CSR, no entries in the object columns; its rows ``select``, read in
+    place, all by default) at the objects' poses, shaped as ``recip``: without their entries
+    ``hidden`` ((rows.nnz,) bool, :func:`hidden_entries`), with the object columns ``recip``
+    (one row per row taken, :func:`reciprocal_columns`), and capped: where a row then sums
+    above 1 (the centre segments missed part of what an object hides), its static entries are
+    scaled so that it sums to 1, clipped at zero; where the object columns alone sum above 1,
+    they are scaled to 1 and the static entries go. No row sums above 1. One native pass
     (``csrc/poserows.c``); zeros dropped."""
     from .. import _poserows
 
     if not (sp.issparse(rows) and rows.format == "csr"):
         raise InvalidInputError(f"at_pose needs the rows as CSR (hidden is over their entries); got {type(rows).__name__}")
     recip = sp.csr_matrix(recip)
-    if rows.shape != recip.shape:
-        raise InvalidInputError(f"rows {rows.shape} and their object columns {recip.shape} differ in shape")
+    starts, ends, indices, data = native_spans(rows, select)
+    if len(starts) != recip.shape[0] or rows.shape[1] > recip.shape[1]:
+        raise InvalidInputError(f"{len(starts)} rows of {rows.shape[1]} columns and their object columns {recip.shape} "
+                                f"do not match")
     if np.shape(hidden) != (rows.nnz,):
         raise InvalidInputError(f"hidden must have one flag per entry of the rows ({rows.nnz}); got {np.shape(hidden)}")
-    n = rows.nnz + recip.nnz
-    indptr, indices, data = np.empty(rows.shape[0] + 1, np.int64), np.empty(n, np.int32), np.empty(n)
-    nnz = _poserows.assemble(*native_csr(rows), np.ascontiguousarray(hidden, np.uint8), *native_csr(recip),
-                             indptr, indices, data)
-    return sp.csr_matrix((data[:nnz], indices[:nnz], indptr), shape=rows.shape)
+    n = int((ends - starts).sum()) + recip.nnz
+    indptr, out_indices, out_data = np.empty(len(starts) + 1, np.int64), np.empty(n, np.int32), np.empty(n)
+    nnz = _poserows.assemble(starts, ends, indices, data, np.ascontiguousarray(hidden, np.uint8), *native_csr(recip),
+                             indptr, out_indices, out_data)
+    return sp.csr_matrix((out_data[:nnz], out_indices[:nnz], indptr), shape=recip.shape)
 
 
 def native_csr(m: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -517,14 +543,15 @@ class WorldRows:
         return held[at]
 
     def _static_rows(self, s: np.ndarray) -> sp.csr_matrix:
-        """Rows of static patches ``s`` at the current poses, from the static F (class docstring)."""
-        static = self.static.rows(s)
-        padded = sp.csr_matrix((static.data, static.indices, static.indptr), shape=(len(s), self.n_patches))
+        """Rows of static patches ``s`` at the current poses, from the static F (class docstring):
+        read where they lie in an F held in memory (a copy of them was 1.2 ms of a move at
+        426k entries), else fetched from its source."""
+        F, select = (self.static.csr, s) if self.static.csr is not None else (self.static.rows(s), None)
         world = self.world
-        hidden = hidden_entries(padded, s, world.centers, world.normals, self.objects_moving, world.bvh.transforms,
-                                self.device)
-        return at_pose(padded, hidden, reciprocal_columns(s, self.objects(), self.object_patches, world.areas,
-                                                          self.n_patches))
+        hidden = hidden_entries(F, s, world.centers, world.normals, self.objects_moving, world.bvh.transforms,
+                                self.device, select)
+        return at_pose(F, hidden, reciprocal_columns(s, self.objects(), self.object_patches, world.areas,
+                                                     self.n_patches), select)
 
     def rows(self, idx) -> sp.csr_matrix:
         idx = np.asarray(idx, np.int64)

@@ -35,7 +35,7 @@ import scipy.sparse as sp
 from ..anderson import Anderson
 from ..errors import InvalidInputError
 
-__all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS"]
+__all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS", "PARALLEL_ENTRIES"]
 
 #: Stop when an iteration changes B on the local set by at most this much of its max. After the
 #: moves of bench/objects.py's block at budget 0: 5 passes over K per moving frame at 1e-4, 4 at
@@ -52,39 +52,87 @@ CORRECTION_ITERATIONS = 8
 ANDERSON_DEPTH = 3
 
 
-def rows_minus(rows: sp.csr_matrix, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
-    """(r, N) ``rows - kept[slots]``, exact zeros dropped: ``rows`` (r, N) and ``kept`` (M, N) CSR,
-    ``slots`` (r,) rows of ``kept``. One native merge of each row with its kept row, read in
-    place (``csrc/poserows.c``); rows with columns out of order are sorted first (a copy)."""
-    from .. import _poserows
-    from .moves import native_csr
+#: Entries from which :func:`rows_minus` splits its merge over the cores (a move's ~430k on the
+#: bench's Cornell box: 2.2 ms on one core of the Xeon).
+PARALLEL_ENTRIES = 50_000
 
-    rows, kept = sp.csr_matrix(rows), sp.csr_matrix(kept)
-    if rows.shape[1] != kept.shape[1]:
-        raise InvalidInputError(f"rows {rows.shape} and kept rows {kept.shape} differ in columns")
+
+def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
+    """(r, N) ``rows - kept[slots]``, exact zeros dropped: ``rows`` (r, N) CSR, or a sequence of
+    CSR blocks of N columns stacked in order (not copied into one), ``kept`` (M, N) CSR,
+    ``slots`` (r,) rows of ``kept``. A native merge of each row with its kept row, read in place
+    (``csrc/poserows.c``), in parts of about equal entries on the cores at once; blocks with
+    columns out of order are sorted first (a copy)."""
+    from .. import _poserows
+    from ..hostthreads import cores, pool, row_parts
+    from .moves import native_csr, native_spans
+
+    blocks = [sp.csr_matrix(rows)] if sp.issparse(rows) else [sp.csr_matrix(b) for b in rows]
+    kept = sp.csr_matrix(kept)
+    n_rows = sum(b.shape[0] for b in blocks)
+    if any(b.shape[1] != kept.shape[1] for b in blocks):
+        raise InvalidInputError(f"rows of {[b.shape[1] for b in blocks]} columns and kept rows {kept.shape} differ in columns")
     slots = np.ascontiguousarray(slots, np.int64)
-    if slots.shape != (rows.shape[0],):
-        raise InvalidInputError(f"slots must name one kept row per row ({rows.shape[0]}); got shape {slots.shape}")
+    if slots.shape != (n_rows,):
+        raise InvalidInputError(f"slots must name one kept row per row ({n_rows}); got shape {slots.shape}")
     if len(slots) and (slots.min() < 0 or slots.max() >= kept.shape[0]):
         raise InvalidInputError(f"slots must lie in [0, {kept.shape[0]}) (the kept rows); got {slots.min()}..{slots.max()}")
-    most = rows.nnz + int(np.diff(kept.indptr)[slots].sum())
-    indptr, indices, data = np.empty(rows.shape[0] + 1, np.int64), np.empty(most, np.int32), np.empty(most)
-    # Only the entries D has are ever written: the rest of the bound is not touched (no page of it faulted in).
-    nnz = _poserows.difference(*native_csr(rows), *native_csr(kept), slots, indptr, indices, data)
-    if nnz < 0:  # a row out of column order (scipy leaves sums of CSR matrices unsorted)
-        rows, kept = rows.sorted_indices(), kept.sorted_indices()
-        nnz = _poserows.difference(*native_csr(rows), *native_csr(kept), slots, indptr, indices, data)
-    return sp.csr_matrix((data[:nnz], indices[:nnz], indptr), shape=rows.shape)
+    k_csr, k_len = native_csr(kept), np.diff(kept.indptr)
+    split = cores() if sum(b.nnz for b in blocks) >= PARALLEL_ENTRIES else 1
+
+    def merge(task):
+        (starts, ends, indices, data), sl = task
+        most = int((ends - starts).sum() + k_len[sl].sum())
+        # Only the entries D has are ever written: the rest of the bound is not touched (no page of it faulted in).
+        indptr, out_i, out_d = np.empty(len(sl) + 1, np.int64), np.empty(most, np.int32), np.empty(most)
+        nnz = _poserows.difference(starts, ends, indices, data, *k_csr, sl, indptr, out_i, out_d)
+        return None if nnz < 0 else (indptr, out_i[:nnz].copy(), out_d[:nnz].copy())
+
+    def tasks():
+        first = 0
+        for b in blocks:
+            spans = native_spans(b)
+            for a, z in row_parts(b.indptr, split):
+                yield tuple(x[a:z] for x in spans[:2]) + spans[2:], slots[first + a:first + z]
+            first += b.shape[0]
+
+    parts = list(pool().map(merge, tasks()))
+    if not parts:
+        return sp.csr_matrix((0, kept.shape[1]))
+    if any(p is None for p in parts):  # a row out of column order (scipy leaves sums of CSR matrices unsorted)
+        blocks = [b.sorted_indices() for b in blocks]
+        parts = list(pool().map(merge, tasks()))
+    counts = np.array([p[0][-1] for p in parts], np.int64)
+    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    indptr = np.concatenate([[0]] + [p[0][1:] + o for p, o in zip(parts, offsets)])
+    return sp.csr_matrix((np.concatenate([p[2] for p in parts]), np.concatenate([p[1] for p in parts]), indptr),
+                         shape=(n_rows, kept.shape[1]))
+
+
+def _take(blocks: list[sp.csr_matrix], keep: np.ndarray) -> list[sp.csr_matrix]:
+    """The rows ``keep`` (increasing) of the blocks stacked in order, as blocks: a block kept
+    whole is not copied."""
+    out, first = [], 0
+    for b in blocks:
+        sel = keep[(keep >= first) & (keep < first + b.shape[0])] - first
+        if len(sel) == b.shape[0]:
+            out.append(b)
+        elif len(sel):
+            out.append(b[sel])
+        first += b.shape[0]
+    return out
 
 
 class StaleRows:
     """The rows at the current poses of the local slots whose rows in K are stale.
 
     ``held`` (h,) slot indices (in the order put) and ``current`` (h, N) sparse: their rows at
-    the current poses; ``slots`` (n,) those of them whose rows differ from K's, and ``delta``
-    (n, N) the difference, current rows minus the rows K was built from (:meth:`update`, after
-    every change of either). A held row equal to K's is not stale (not in ``slots``) but stays
-    held: dropping it would copy every other held row (~400k entries after a move at budget 0).
+    the current poses (held as the blocks put, stacked only when asked for: a stack copied the
+    ~430k entries of a move at budget 0 for a merge that reads them where they are);
+    ``slots`` (n,) those of them whose rows differ from K's, and ``delta`` (n, N) the
+    difference, current rows minus the rows K was built from (:meth:`update`, after every
+    change of either). A held row equal to K's is not stale (not in ``slots``) but stays held:
+    dropping it would copy every other held row.
     """
 
     def __init__(self, n_patches: int) -> None:
@@ -93,7 +141,7 @@ class StaleRows:
 
     def clear(self) -> None:
         self.held = np.empty(0, np.int64)
-        self.current = sp.csr_matrix((0, self.n_patches))
+        self._blocks: list[sp.csr_matrix] = []  # the rows of held, stacked in order
         self.slots = np.empty(0, np.int64)
         self.delta = sp.csr_matrix((0, self.n_patches))
         self.iterations = 0  # passes over K of the last correct() (its start's included)
@@ -107,10 +155,17 @@ class StaleRows:
         return len(self.slots)
 
     @property
+    def current(self) -> sp.csr_matrix:
+        """(h, N) CSR: the held rows at the current poses, in the order of :attr:`held`."""
+        if len(self._blocks) != 1:
+            self._blocks = [sp.vstack(self._blocks, format="csr") if self._blocks else sp.csr_matrix((0, self.n_patches))]
+        return self._blocks[0]
+
+    @property
     def nbytes(self) -> int:
         """Host bytes of the rows and D held."""
         return self.held.nbytes + self.slots.nbytes + sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes
-                                                          for m in (self.current, self.delta))
+                                                          for m in (*self._blocks, self.delta))
 
     def put(self, slots: np.ndarray, *rows: sp.csr_matrix) -> None:
         """Slots ``slots`` now have current rows ``rows`` (one or more blocks, stacked in order,
@@ -118,16 +173,15 @@ class StaleRows:
         slots = np.asarray(slots, np.int64)
         keep = np.flatnonzero(~np.isin(self.held, slots))
         self.held = np.concatenate([self.held[keep], slots])
-        # Unsorted: a sort would copy every row again. One stack of every block, not one per caller.
-        blocks = ([self.current[keep]] if len(keep) else []) + [sp.csr_matrix(r) for r in rows]
-        self.current = blocks[0] if len(blocks) == 1 else sp.vstack(blocks, format="csr")
+        # Unsorted: a sort would copy every row again.
+        self._blocks = _take(self._blocks, keep) + [sp.csr_matrix(r) for r in rows if r.shape[0]]
 
     def drop(self, slots: np.ndarray) -> None:
         """Slots whose rows in K are current again (refreshed by a swap, or holding another
         patch): nothing to correct there."""
         keep = np.flatnonzero(~np.isin(self.held, slots))
         if len(keep) < len(self.held):
-            self.held, self.current = self.held[keep], self.current[keep]
+            self.held, self._blocks = self.held[keep], _take(self._blocks, keep)
         keep = np.flatnonzero(~np.isin(self.slots, slots))
         if len(keep) < len(self.slots):
             self.slots, self.delta = self.slots[keep], self.delta[keep]
@@ -135,7 +189,7 @@ class StaleRows:
     def update(self, kept: sp.csr_matrix) -> None:
         """D = current rows - ``kept[held]`` (``kept`` (M, N): the rows K was built from), and
         the slots where they differ."""
-        delta = rows_minus(self.current, kept, self.held)
+        delta = rows_minus(self._blocks, kept, self.held)
         stale = np.diff(delta.indptr) > 0
         self.slots, self.delta = self.held[stale], (delta if stale.all() else delta[stale])
 
