@@ -1,5 +1,6 @@
-"""y = A[:, cols] x over chosen columns of a matrix held by column, on the host's cores
-(``csrc/colproduct.c``): the far field's first bounce over F's lit columns."""
+"""Products of a sparse matrix with a few dense columns on the host's cores (``csrc/colproduct.c``):
+y = A[:, cols] x over chosen columns of a matrix held by column (the far field's first bounce
+over F's lit columns), and y = A x by row (a frame's products of rows of F with B)."""
 
 from __future__ import annotations
 
@@ -9,10 +10,10 @@ import scipy.sparse as sp
 from .errors import InvalidInputError
 from .hostthreads import cores, pool, row_parts
 
-__all__ = ["columns_product", "PARALLEL_ENTRIES"]
+__all__ = ["columns_product", "rows_product", "PARALLEL_ENTRIES"]
 
 #: Entries from which :func:`columns_product` splits its columns over the cores (each part with
-#: its own sum, added at the end: an (n_rows, k) add per part).
+#: its own sum, added at the end: an (n_rows, k) add per part), and :func:`rows_product` its rows.
 PARALLEL_ENTRIES = 200_000
 
 
@@ -46,3 +47,27 @@ def columns_product(A: sp.csc_matrix, cols: np.ndarray, x: np.ndarray) -> np.nda
 
     list(pool().map(part, range(len(parts))))
     return outs[0] if len(outs) == 1 else np.sum(outs, axis=0)
+
+
+def rows_product(A: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
+    """(A.shape[0], k) float64 ``A @ x`` for CSR ``A`` and x (A.shape[1], k), 1 <= k <= 4 (or
+    (A.shape[1],), giving (A.shape[0],)): each row summed in float64 in its entries' order
+    (scipy's product with one vector; with several it may differ in the last bits), the rows
+    split over the cores (``csrc/colproduct.c``, rows_times)."""
+    from . import _colproduct
+
+    if not (sp.issparse(A) and A.format == "csr"):
+        raise InvalidInputError(f"rows_product needs a CSR matrix; got {type(A).__name__}")
+    if A.dtype not in (np.float32, np.float64) or A.indices.dtype not in (np.int32, np.int64):
+        raise InvalidInputError(f"rows_product needs float32/float64 values and int32/int64 indices; got "
+                                f"{A.dtype} and {A.indices.dtype}")
+    x = np.asarray(x)
+    vector = x.ndim == 1
+    x = np.ascontiguousarray(x[:, None] if vector else x, np.float64)
+    if x.ndim != 2 or x.shape[0] != A.shape[1] or not 1 <= x.shape[1] <= 4:
+        raise InvalidInputError(f"x must have shape ({A.shape[1]}, k) with 1 <= k <= 4; got {x.shape}")
+    k, indptr = x.shape[1], np.ascontiguousarray(A.indptr, np.int64)
+    out = np.empty((A.shape[0], k))
+    parts = row_parts(indptr, cores() if A.nnz >= PARALLEL_ENTRIES else 1)
+    list(pool().map(lambda p: _colproduct.rows_times(indptr, A.indices, A.data, p[0], p[1], x, out, k), parts))
+    return out[:, 0] if vector else out

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from ..colproduct import rows_product
 from ..errors import InvalidInputError
 from ..rows.sources import HemicubeRows
 from .localrows import LocalRows
@@ -484,7 +485,7 @@ class WorldRows:
             rows = self.rows(near) if len(near) else sp.csr_matrix((0, self.n_patches))
             self._outside = (near.copy(), rows)
         out = B[outside].copy()
-        out[chosen] = L[near] + self.world.albedo[near].astype(np.float64) * (self._outside[1] @ B)
+        out[chosen] = L[near] + self.world.albedo[near].astype(np.float64) * rows_product(self._outside[1], B)
         return out
 
     def gathered(self, outside: np.ndarray) -> np.ndarray:
@@ -536,9 +537,10 @@ class WorldRows:
             held = made if not held.shape[0] else sp.vstack([held, made], format="csr")
             self._at_pose = (where, held)
         at = where[idx]
-        if len(at) and at[0] == 0 and np.array_equal(at, np.arange(len(at))):  # a view (scipy's slice copies)
-            end = held.indptr[len(at)]
-            return sp.csr_matrix((held.data[:end], held.indices[:end], held.indptr[: len(at) + 1]),
+        if len(at) and np.array_equal(at, np.arange(at[0], at[0] + len(at))):  # a view (scipy's slice copies)
+            a, z = held.indptr[at[0]], held.indptr[at[0] + len(at)]
+            indptr = held.indptr[at[0]: at[0] + len(at) + 1]
+            return sp.csr_matrix((held.data[a:z], held.indices[a:z], indptr - a if a else indptr),
                                  shape=(len(at), held.shape[1]))
         return held[at]
 
@@ -558,9 +560,10 @@ class WorldRows:
         if self.static is None:
             return self._at(idx, lambda miss: self.fresh(miss)[0])
         obj = idx >= self.n_static
-        parts = [self._at(idx[~obj], self._static_rows)]
-        if obj.any():
-            parts.append(self.objects()[idx[obj] - self.n_static])
+        static = self._at(idx[~obj], self._static_rows)
+        if not obj.any():
+            return static
+        parts = [static, self.objects()[idx[obj] - self.n_static]]
         order = np.argsort(np.concatenate([np.flatnonzero(~obj), np.flatnonzero(obj)]), kind="stable")
         return sp.csr_matrix(sp.vstack(parts, format="csr")[order])
 

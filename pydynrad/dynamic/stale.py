@@ -33,6 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..anderson import Anderson
+from ..colproduct import rows_product
 from ..errors import InvalidInputError
 
 __all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS", "PARALLEL_ENTRIES"]
@@ -225,7 +226,7 @@ class StaleRows:
         g = np.zeros_like(LS, dtype=np.float64)
         mixing = Anderson(ANDERSON_DEPTH)
         for it in range(1, CORRECTION_ITERATIONS + 1):
-            g[self.slots] = rho * (self.delta @ x)
+            g[self.slots] = rho * rows_product(self.delta, x)
             new = solve_kept(LS + g)
             residual = new - x[S]
             scale = max(float(np.abs(new).max()), 1e-300)

@@ -68,7 +68,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..checks import check_form_factors, finite, integer, scene as checked_scene
-from ..colproduct import columns_product
+from ..colproduct import columns_product, rows_product
 from ..errors import InvalidInputError, PydynradError
 from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
 from .gather import checked_cluster_form_factors
@@ -522,7 +522,7 @@ class FarField:
             return key[3]
         far = self.B_far.copy()
         far[members] = 0.0  # X: only the patches outside S
-        out = self.rho[members] * (local_rows @ far)
+        out = self.rho[members] * rows_product(sp.csr_matrix(local_rows), far)
         self._injected = (self.B_far, local_rows, np.array(members), out)
         return out
 
