@@ -8,7 +8,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .errors import InvalidInputError
-from .hostthreads import cores, pool, row_parts
+from .hostthreads import cores, map_parts, row_parts
 
 __all__ = ["columns_product", "rows_product", "PARALLEL_ENTRIES"]
 
@@ -45,7 +45,7 @@ def columns_product(A: sp.csc_matrix, cols: np.ndarray, x: np.ndarray) -> np.nda
         a, b = parts[i]
         _colproduct.columns_times(indptr, A.indices, A.data, cols[a:b], x[a:b], outs[i], k)
 
-    list(pool().map(part, range(len(parts))))
+    map_parts(part, range(len(parts)))
     return outs[0] if len(outs) == 1 else np.sum(outs, axis=0)
 
 
@@ -69,5 +69,5 @@ def rows_product(A: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
     k, indptr = x.shape[1], np.ascontiguousarray(A.indptr, np.int64)
     out = np.empty((A.shape[0], k))
     parts = row_parts(indptr, cores() if A.nnz >= PARALLEL_ENTRIES else 1)
-    list(pool().map(lambda p: _colproduct.rows_times(indptr, A.indices, A.data, p[0], p[1], x, out, k), parts))
+    map_parts(lambda p: _colproduct.rows_times(indptr, A.indices, A.data, p[0], p[1], x, out, k), parts)
     return out[:, 0] if vector else out

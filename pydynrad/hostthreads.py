@@ -9,7 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-__all__ = ["cores", "pool", "row_parts"]
+__all__ = ["cores", "pool", "row_parts", "map_parts"]
 
 _pool: ThreadPoolExecutor | None = None
 _lock = threading.Lock()
@@ -43,6 +43,19 @@ def row_parts(indptr: np.ndarray, parts: int) -> list[tuple[int, int]]:
     """Rows [k0, k1) of a CSR structure (``indptr`` (r + 1,)) in at most ``parts`` runs of about
     equal entries, none empty unless there are no rows."""
     rows = len(indptr) - 1
-    cuts = np.searchsorted(indptr, np.linspace(0, indptr[-1], max(int(parts), 1) + 1)[1:-1], side="right") - 1
+    if parts <= 1:
+        return [(0, rows)]
+    cuts = np.searchsorted(indptr, np.linspace(0, indptr[-1], int(parts) + 1)[1:-1], side="right") - 1
     edges = np.unique(np.concatenate([[0], np.clip(cuts, 0, rows), [rows]]))
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])] or [(0, 0)]
+
+
+def map_parts(fn, parts) -> list:
+    """``[fn(p) for p in parts]``: the first part in the calling thread, the others on the pool
+    at the same time (a pass through the pool costs ~0.1 ms of wake-ups: a move made ~11 of one
+    part each on the 2-core Xeon; and a pool thread may be waiting on the device meanwhile)."""
+    parts = list(parts)
+    if len(parts) <= 1:
+        return [fn(p) for p in parts]
+    others = [pool().submit(fn, p) for p in parts[1:]]
+    return [fn(parts[0])] + [f.result() for f in others]

@@ -65,7 +65,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     (``csrc/poserows.c``), in parts of about equal entries on the cores at once; blocks with
     columns out of order are sorted first (a copy)."""
     from .. import _poserows
-    from ..hostthreads import cores, pool, row_parts
+    from ..hostthreads import cores, map_parts, row_parts
     from .moves import native_csr, native_spans
 
     blocks = [sp.csr_matrix(rows)] if sp.issparse(rows) else [sp.csr_matrix(b) for b in rows]
@@ -97,12 +97,12 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
                 yield tuple(x[a:z] for x in spans[:2]) + spans[2:], slots[first + a:first + z]
             first += b.shape[0]
 
-    parts = list(pool().map(merge, tasks()))
+    parts = map_parts(merge, tasks())
     if not parts:
         return sp.csr_matrix((0, kept.shape[1]))
     if any(p is None for p in parts):  # a row out of column order (scipy leaves sums of CSR matrices unsorted)
         blocks = [b.sorted_indices() for b in blocks]
-        parts = list(pool().map(merge, tasks()))
+        parts = map_parts(merge, tasks())
     counts = np.array([p[0][-1] for p in parts], np.int64)
     offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
     indptr = np.concatenate([[0]] + [p[0][1:] + o for p, o in zip(parts, offsets)])
