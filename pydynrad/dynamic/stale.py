@@ -110,6 +110,13 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
                          shape=(n_rows, kept.shape[1]))
 
 
+def _stale_difference(blocks: list[sp.csr_matrix], kept: sp.csr_matrix, held: np.ndarray):
+    """(slots, D): the rows of ``held`` whose ``blocks`` differ from ``kept[held]``, and the difference."""
+    delta = rows_minus(blocks, kept, held)
+    stale = np.diff(delta.indptr) > 0
+    return held[stale], (delta if stale.all() else delta[stale])
+
+
 def _take(blocks: list[sp.csr_matrix], keep: np.ndarray) -> list[sp.csr_matrix]:
     """The rows ``keep`` (increasing) of the blocks stacked in order, as blocks: a block kept
     whole is not copied."""
@@ -134,23 +141,48 @@ class StaleRows:
     difference, current rows minus the rows K was built from (:meth:`update`, after every
     change of either). A held row equal to K's is not stale (not in ``slots``) but stays held:
     dropping it would copy every other held row.
+
+    :meth:`update` computes D on a host thread and returns: the frame's work up to its
+    correction (the lights' direct light and the far field's, mostly on the device) goes on
+    meanwhile, and whatever reads ``slots`` or ``delta`` waits for it (a move's merge, 2-3 ms on
+    the 2-core Xeon, was the frame's last host-only stretch before radiosity's device work).
     """
 
     def __init__(self, n_patches: int) -> None:
         self.n_patches = int(n_patches)
+        self._pending = None
         self.clear()
 
     def clear(self) -> None:
+        self._settle()
         self.held = np.empty(0, np.int64)
         self._blocks: list[sp.csr_matrix] = []  # the rows of held, stacked in order
-        self.slots = np.empty(0, np.int64)
-        self.delta = sp.csr_matrix((0, self.n_patches))
+        self._slots = np.empty(0, np.int64)
+        self._delta = sp.csr_matrix((0, self.n_patches))
         self.iterations = 0  # passes over K of the last correct() (its start's included)
         self.converged = True  # whether the last correct() reached CORRECTION_TOLERANCE
         self._last: np.ndarray | None = None  # (N, 3) the last correct()'s B, per patch (where _known)
         self._known = np.zeros(0, bool)
         self._last_LS: np.ndarray | None = None  # (N, 3) the light it solved for, per patch (where _known)
         self._last_outside = False  # and whether with the far field outside
+
+    def _settle(self) -> None:
+        """Wait for the D that :meth:`update` is computing, if any."""
+        if self._pending is not None:
+            pending, self._pending = self._pending, None
+            self._slots, self._delta = pending.result()
+
+    @property
+    def slots(self) -> np.ndarray:
+        """(n,) the held slots whose rows differ from K's."""
+        self._settle()
+        return self._slots
+
+    @property
+    def delta(self) -> sp.csr_matrix:
+        """(n, N) CSR: their current rows minus the rows K was built from."""
+        self._settle()
+        return self._delta
 
     def __len__(self) -> int:
         return len(self.slots)
@@ -171,6 +203,7 @@ class StaleRows:
     def put(self, slots: np.ndarray, *rows: sp.csr_matrix) -> None:
         """Slots ``slots`` now have current rows ``rows`` (one or more blocks, stacked in order,
         replacing any held for them); call :meth:`update` before the next :meth:`correct`."""
+        self._settle()  # one D in the making at a time
         slots = np.asarray(slots, np.int64)
         keep = np.flatnonzero(~np.isin(self.held, slots))
         self.held = np.concatenate([self.held[keep], slots])
@@ -184,15 +217,17 @@ class StaleRows:
         if len(keep) < len(self.held):
             self.held, self._blocks = self.held[keep], _take(self._blocks, keep)
         keep = np.flatnonzero(~np.isin(self.slots, slots))
-        if len(keep) < len(self.slots):
-            self.slots, self.delta = self.slots[keep], self.delta[keep]
+        if len(keep) < len(self._slots):
+            self._slots, self._delta = self._slots[keep], self._delta[keep]
 
     def update(self, kept: sp.csr_matrix) -> None:
-        """D = current rows - ``kept[held]`` (``kept`` (M, N): the rows K was built from), and
-        the slots where they differ."""
-        delta = rows_minus(self._blocks, kept, self.held)
-        stale = np.diff(delta.indptr) > 0
-        self.slots, self.delta = self.held[stale], (delta if stale.all() else delta[stale])
+        """D = current rows - ``kept[held]`` (``kept`` (M, N): the rows K was built from, not
+        changed in place afterwards), and the slots where they differ; computed on a host
+        thread (class docstring)."""
+        from ..hostthreads import pool
+
+        self._settle()
+        self._pending = pool().submit(_stale_difference, self._blocks, kept, self.held)
 
     def correct(self, solve_kept, LS: np.ndarray, B: np.ndarray, S: np.ndarray, albedo: np.ndarray,
                 outside: bool) -> np.ndarray:
@@ -222,11 +257,12 @@ class StaleRows:
             x[S[known]] = self._last[S[known]] + (LS[known] - self._last_LS[S[known]])
             if not outside:
                 x[S[~known]] = LS[~known]
-        rho = albedo[S[self.slots]].astype(np.float64)
+        slots, delta = self.slots, self.delta
+        rho = albedo[S[slots]].astype(np.float64)
         g = np.zeros_like(LS, dtype=np.float64)
         mixing = Anderson(ANDERSON_DEPTH)
         for it in range(1, CORRECTION_ITERATIONS + 1):
-            g[self.slots] = rho * rows_product(self.delta, x)
+            g[slots] = rho * rows_product(delta, x)
             new = solve_kept(LS + g)
             residual = new - x[S]
             scale = max(float(np.abs(new).max()), 1e-300)
