@@ -299,6 +299,27 @@ def test_light_changes_follow_the_full_solve(device, cornell):
             assert sweeps[1] < sweeps[0]  # the coarse solve starts from the previous lights' solution
 
 
+def test_injection_from_the_columns_outside_the_local_set(device, cornell):
+    """The injection P_S F[S, X] B_far[X]: a first call with new rows multiplies them whole, a
+    second with the same rows and local set only their entries outside it, cut out once (where
+    they are fewer than half: a large local set); every call equals the product of the whole
+    rows with B_far zeroed on S, bit for bit."""
+    scene, F, L, _, _ = cornell
+    far = FarField(scene, F, clusters=len(scene) // 8, device=device)
+    for share, cut_out in ((0.75, True), (0.25, False)):
+        S = np.random.default_rng(3).choice(len(scene), int(share * len(scene)), replace=False)
+        rows = sp.csr_matrix(F[S], dtype=np.float64)
+        for scale in (1.0, 0.5, 2.0):  # new lights each time: B_far changes, the rows do not
+            far.light(L * scale)
+            outside = far.B_far.copy()
+            outside[S] = 0.0
+            np.testing.assert_array_equal(far.injection(rows, S), far.rho[S] * (rows @ outside))
+        held, cut = far._outside_cols[0], far._outside_cols[2]
+        assert held is rows and (cut is not None) == cut_out
+        if cut_out:
+            assert 0 < cut.nnz < rows.nnz / 2 and not np.isin(cut.indices, S).any()
+
+
 def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_path):
     from pydynrad.rows.files import open_form_factors
     from pydynrad.rows.store import compute_store

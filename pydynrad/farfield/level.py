@@ -343,6 +343,7 @@ class FarField:
         self._L = None
         self.B_far = None
         self._injected = None  # (B_far, local rows, members, injection) of the last injection
+        self._outside_cols = None  # (local rows, members, their entries outside members or None): _far_columns
         self.sweeps = 0
         self.seconds_build = time.perf_counter() - t0
         self.seconds_light = self.seconds_coarse = 0.0  # the last light change, and its coarse solve
@@ -374,8 +375,10 @@ class FarField:
     def host_memory_bytes(self) -> int:
         """Host bytes of G and F_c (with F in memory only), R, the linear fit, F by column (F's
         gathers on a CPU), the labels, B_far, the last lights' answers (:meth:`_combined`), the
-        coarse sweeps' last solutions and the last first bounce."""
-        mats = [m for m in (self.G, self.F_c, self.R, self._fit, self._F_cols) if m is not None]
+        coarse sweeps' last solutions, the last first bounce and the local rows' entries cut out
+        for the injection."""
+        cut = None if self._outside_cols is None else self._outside_cols[2]
+        mats = [m for m in (self.G, self.F_c, self.R, self._fit, self._F_cols, cut) if m is not None]
         held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats)
         far = (0 if self.B_far is None else self.B_far.nbytes) + self._lit.nbytes + self._solved.nbytes
         if self._bounced is not None:  # the last first bounce and its light (the delta bounce's start)
@@ -522,9 +525,36 @@ class FarField:
             return key[3]
         far = self.B_far.copy()
         far[members] = 0.0  # X: only the patches outside S
-        out = self.rho[members] * rows_product(sp.csr_matrix(local_rows), far)
+        out = self.rho[members] * rows_product(self._far_columns(local_rows, members, key), far)
         self._injected = (self.B_far, local_rows, np.array(members), out)
         return out
+
+    def _far_columns(self, local_rows: sp.csr_matrix, members: np.ndarray, last) -> sp.csr_matrix:
+        """The rows to multiply with B_far (zero on ``members``): ``local_rows`` as they are on a
+        first injection with them, and from a second on (the same rows and local set: new
+        lights, a moving object's frames) only their entries in the columns outside the local
+        set, cut out once where they are fewer than half. On the bench's Cornell box (M = 1,024 of
+        1,176 patches) that is a tenth of the entries: 1.7 -> 0.2 ms a frame; a walk's frames,
+        whose rows change with every swap, never pay for the cut."""
+        held = self._outside_cols
+        if held is not None and held[0] is local_rows and np.array_equal(held[1], members):
+            return sp.csr_matrix(local_rows) if held[2] is None else held[2]
+        first = last is None or last[1] is not local_rows or not np.array_equal(last[2], members)
+        given, local_rows = local_rows, sp.csr_matrix(local_rows)
+        if first:
+            return local_rows
+        inside = np.zeros(local_rows.shape[1], bool)
+        inside[members] = True
+        keep = ~inside[local_rows.indices]
+        if 2 * int(keep.sum()) > local_rows.nnz:  # most entries outside (a large scene): the rows as they are
+            self._outside_cols = (given, np.array(members), None)
+            return local_rows
+        kept_before = np.zeros(local_rows.nnz + 1, np.int64)  # entries kept before each entry
+        np.cumsum(keep, out=kept_before[1:])
+        cut = sp.csr_matrix((local_rows.data[keep], local_rows.indices[keep], kept_before[local_rows.indptr]),
+                            shape=local_rows.shape)
+        self._outside_cols = (given, np.array(members), cut)
+        return cut
 
 
 def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarField:
