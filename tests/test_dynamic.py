@@ -309,8 +309,15 @@ def test_selection_matches_the_papers_loop_by_full_sort():
     members = sel.nearest(obs, 60)[0]
     included = np.zeros(500, bool)
     included[members] = True
-    for _ in range(30):
-        obs = obs + rng.normal(0, 0.05, 3)
+    # Each observer asked three times (a still observer: the set it settles on asks for nothing
+    # more, without a query), and once after a swap made by hand (the set changed under it).
+    for step in range(90):
+        if step % 3 == 0:
+            obs = obs + rng.normal(0, 0.05, 3)
+        if step % 9 == 8:
+            out = np.flatnonzero(~included)[0]
+            included[members[0]], included[out] = False, True
+            members[0] = out
         slots, J = sel.propose(obs, members, included, 5)
         # The paper's loop, brute force: full sorts of both sides, one swap at a time.
         m2, inc2 = members.copy(), included.copy()

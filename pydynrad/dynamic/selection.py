@@ -41,6 +41,7 @@ class NearestSet:
         self.n = len(self.centers)
         self.pinned = np.zeros(self.n, dtype=bool) if pinned is None else np.asarray(pinned, dtype=bool)
         self._tree = cKDTree(self.centers)
+        self._settled: tuple[bytes, int, np.ndarray] | None = None  # (observer, k, local set) that asked for no swap
 
     def nearest(self, observer: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
         """The ``count`` patches nearest ``observer`` and their distances, nearest first."""
@@ -57,8 +58,14 @@ class NearestSet:
         """
         obs = np.asarray(observer, dtype=np.float64)
         M = len(local_patches)
+        none = np.empty(0, np.int64), np.empty(0, np.int64)
         if M >= self.n or k < 1:
-            return np.empty(0, np.int64), np.empty(0, np.int64)
+            return none
+        # A still observer over the same local set asks for nothing again (the frames of a moving
+        # object seen from one place): no query of M + k neighbours (1.1 ms at M = 1,024 of 1,176).
+        settled = self._settled
+        if settled is not None and settled[:2] == (obs.tobytes(), k) and np.array_equal(settled[2], local_patches):
+            return none
         d_in = np.linalg.norm(self.centers[local_patches] - obs, axis=1)
         d_in[self.pinned[local_patches]] = -np.inf
         k = min(k, M)
@@ -71,4 +78,5 @@ class NearestSet:
         closer = d_near[:t] < d_in[far[:t]]
         # Both lists are monotone, so the pairs that qualify are a prefix.
         n_swap = int(np.argmin(closer)) if not closer.all() else t
+        self._settled = (obs.tobytes(), k, np.array(local_patches)) if n_swap == 0 else None
         return far[:n_swap].astype(np.int64), near[:n_swap].astype(np.int64)
