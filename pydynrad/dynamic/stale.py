@@ -58,12 +58,13 @@ ANDERSON_DEPTH = 3
 PARALLEL_ENTRIES = 50_000
 
 
-def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
+def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray, parts: int | None = None) -> sp.csr_matrix:
     """(r, N) ``rows - kept[slots]``, exact zeros dropped: ``rows`` (r, N) CSR, or a sequence of
     CSR blocks of N columns stacked in order (not copied into one), ``kept`` (M, N) CSR,
     ``slots`` (r,) rows of ``kept``. A native merge of each row with its kept row, read in place
-    (``csrc/poserows.c``), in parts of about equal entries on the cores at once; blocks with
-    columns out of order are sorted first (a copy)."""
+    (``csrc/poserows.c``), in ``parts`` of about equal entries at once (by default one per core
+    from :data:`PARALLEL_ENTRIES` entries); blocks with columns out of order are sorted first (a
+    copy)."""
     from .. import _poserows
     from ..hostthreads import cores, map_parts, row_parts
     from .moves import native_csr, native_spans
@@ -79,7 +80,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     if len(slots) and (slots.min() < 0 or slots.max() >= kept.shape[0]):
         raise InvalidInputError(f"slots must lie in [0, {kept.shape[0]}) (the kept rows); got {slots.min()}..{slots.max()}")
     k_csr, k_len = native_csr(kept), np.diff(kept.indptr)
-    split = cores() if sum(b.nnz for b in blocks) >= PARALLEL_ENTRIES else 1
+    split = parts if parts is not None else cores() if sum(b.nnz for b in blocks) >= PARALLEL_ENTRIES else 1
 
     def merge(task):
         (starts, ends, indices, data), sl = task
@@ -112,7 +113,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
 
 def _stale_difference(blocks: list[sp.csr_matrix], kept: sp.csr_matrix, held: np.ndarray):
     """(slots, D): the rows of ``held`` whose ``blocks`` differ from ``kept[held]``, and the difference."""
-    delta = rows_minus(blocks, kept, held)
+    delta = rows_minus(blocks, kept, held, parts=1)  # one core: the frame goes on with the other
     stale = np.diff(delta.indptr) > 0
     return held[stale], (delta if stale.all() else delta[stale])
 
