@@ -461,7 +461,9 @@ def test_stale_rows_corrected(box, block, device):
         B = dyn.radiosity(LIGHTS, far_field=False)
         # The far field switched off: from B^(0) plus the last correction (one pass), then one to confirm.
         assert dyn._stale.converged and dyn._stale.iterations == 2
-        assert rel(B, truth) < 1e-6  # the iteration stops at 1e-4 of max B; observed 5e-8, 2e-8 (PoCL, Zen 4, 2026-12-03)
+        # The iteration stops at 1e-4 of max B; observed 8e-9, 2.3e-8 with the Gauss-Seidel step on the stale rows
+        # (5e-8, 2e-8 without; PoCL, Xeon, 2026-12-03).
+        assert rel(B, truth) < 2e-7
         assert rel(B, truth) < uncorrected / 100  # uncorrected observed 0.012
         if budget == 0:  # no swap at all: K is still the one built at the first pose
             np.testing.assert_array_equal(dyn.matrix.to_host(), unmoved)
@@ -501,7 +503,7 @@ def test_budget_zero_moves_then_walk_swaps(box, block, device, monkeypatch):
     assert dyn._stale.converged and len(dyn._stale) > 100
     dyn.refresh()
     truth = dyn.radiosity(LIGHTS, far_field=False)
-    assert rel(B, truth) < 1e-4  # the correction's tolerance; observed 1.4e-5
+    assert rel(B, truth) < 2e-5  # the correction's tolerance is 1e-4; observed 1.8e-6 (1.4e-5 without the Gauss-Seidel step)
     monkeypatch.setattr(stale, "CORRECTION_ITERATIONS", 1)
     capped = walked()
     capped.radiosity(LIGHTS, far_field=False)
@@ -510,7 +512,8 @@ def test_budget_zero_moves_then_walk_swaps(box, block, device, monkeypatch):
         B = capped.radiosity(LIGHTS, far_field=False)
         if capped._stale.converged:
             break
-    assert capped._stale.converged and rel(B, truth) < 1e-4  # observed: converged at the 6th call, 5.9e-6
+    # Observed: converged at the 2nd call, 7.6e-7 (the 6th, 5.9e-6, without the Gauss-Seidel step).
+    assert capped._stale.converged and rel(B, truth) < 1e-5
 
 
 def test_walk_frames_resume_the_correction(box, block, device):

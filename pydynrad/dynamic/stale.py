@@ -13,7 +13,16 @@ where (I + P_S K) = (I - P_S F_kept)^{-1} applies K once per iteration (one pass
 channel) and D B reads the stale rows against B of every patch (the local set's from the last
 iterate, the outside's as the frame has it: the far field's, or 0 without it). From
 B^(0) = (I + P_S K) L'_S (the uncorrected answer) each iteration is
-B^(n+1) = B^(0) + (I + P_S K) P_S D B^(n), mixed (Anderson) with the last iterates. D holds
+B^(n+1) = B^(0) + (I + P_S K) P_S D B^(n), mixed (Anderson) with the last iterates.
+
+Each image is then taken one Gauss-Seidel step further on the stale rows, for one product
+with D and no pass over K: the kept system that (I + P_S K) solves gives, for y = image and
+g = P_S D B^(n), y_s = L'_s + g_s + rho_s F_kept[s, S] y, so the true system's row s at y,
+L'_s + rho_s (F_kept[s, S] y + D[s] y), is y_s - g_s + rho_s D[s] y (with y outside S as B
+there). Without it the objects' own patches (whose whole rows are in D at budget 0) and the
+patches they light passed the residual to each other from pass to pass: after the moves of
+bench/objects.py's block 4.6 passes over K per moving frame, 3.5e-5 of max B from the fixed
+point; with it 3.0 passes and 1.9e-6 at most (PoCL, 2-core Xeon, 2026-12-03). D holds
 what the objects now hide from the stale rows and their object columns' share, and at budget 0
 the objects' whole rows too; the coupling through it is weak (light that reaches an object and
 comes back), so a few iterations reach the fixed point, which is the solution with every stale
@@ -39,9 +48,9 @@ from ..errors import InvalidInputError
 __all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS", "PARALLEL_ENTRIES"]
 
 #: Stop when an iteration changes B on the local set by at most this much of its max. After the
-#: moves of bench/objects.py's block at budget 0: 5 passes over K per moving frame at 1e-4, 4 at
-#: 1e-3, whose answer in tests/test_moving.py is 1.6e-6 of max B from a dense solve with every
-#: row current against 5e-8 at 1e-4 (PoCL, Zen 4 EPYC, 2026-12-03): one pass is not worth 30x.
+#: moves of bench/objects.py's block at budget 0 (with the Gauss-Seidel step): 3 passes over K
+#: per moving frame at 1e-4, 2-3 at 1e-3, whose answers are at most 1.9e-6 and 4.4e-5 of max B
+#: from the fixed point (PoCL, 2-core Xeon, 2026-12-03): half a pass is not worth 20x.
 CORRECTION_TOLERANCE = 1e-4
 #: The most iterations per :meth:`StaleRows.correct` (each one pass over K per channel; a call
 #: that starts from B^(0) takes one pass more for it).
@@ -265,6 +274,10 @@ class StaleRows:
         for it in range(1, CORRECTION_ITERATIONS + 1):
             g[slots] = rho * rows_product(delta, x)
             new = solve_kept(LS + g)
+            # The stale rows gather D at the new values (module docstring): one product with D.
+            x_new = x.copy()
+            x_new[S] = new
+            new[slots] += rho * rows_product(delta, x_new) - g[slots]
             residual = new - x[S]
             scale = max(float(np.abs(new).max()), 1e-300)
             self.converged = float(np.abs(residual).max()) <= CORRECTION_TOLERANCE * scale
