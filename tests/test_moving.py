@@ -651,3 +651,40 @@ def test_rows_minus_matches_scipy():
         rows_minus(rows, kept, np.full(40, 30))
     with pytest.raises(pd.InvalidInputError, match="one kept row per row"):
         rows_minus(rows, kept, slots[:-1])
+
+
+def test_stale_rows_difference_on_a_thread_and_after_a_fork():
+    """StaleRows.update computes D on a host thread: what reads it waits and gets rows_minus's
+    answer, a put or drop waits first, and a process forked before it is read computes it
+    itself (the thread is not in the child)."""
+    import os
+    import signal
+
+    from pydynrad.dynamic.stale import StaleRows, rows_minus
+
+    rng = np.random.default_rng(11)
+    kept = sp.random(40, 60, density=0.3, random_state=rng, format="csr")
+    held = rng.permutation(40)[:25]
+    rows = sp.csr_matrix(kept[held])
+    rows.data[rng.random(rows.nnz) < 0.3] *= 0.5  # some rows unchanged: not stale
+    truth = rows_minus(rows, kept, held)
+    stale_rows = np.diff(truth.indptr) > 0
+    st = StaleRows(60)
+    st.put(held[:10], rows[:10])
+    st.put(held[10:], rows[10:])
+    st.update(kept)
+    np.testing.assert_array_equal(st.slots, held[stale_rows])
+    assert (st.delta != truth[stale_rows]).nnz == 0
+    st.update(kept)
+    st.drop(held[:5])  # waits for the D in the making, then drops from it
+    keep = ~np.isin(held[stale_rows], held[:5])
+    np.testing.assert_array_equal(st.slots, held[stale_rows][keep])
+    st.update(kept)
+    pid = os.fork()
+    if pid == 0:  # the child: exit 0 only if D comes, and right
+        signal.alarm(20)
+        ok = np.array_equal(st.slots, held[5:][stale_rows[5:]]) and (st.delta != truth[5:][stale_rows[5:]]).nnz == 0
+        os._exit(0 if ok else 1)
+    _, status = os.waitpid(pid, 0)
+    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+    np.testing.assert_array_equal(st.slots, held[5:][stale_rows[5:]])

@@ -38,6 +38,8 @@ a pose that comes back still gives back the same K.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -177,10 +179,11 @@ class StaleRows:
         self._last_outside = False  # and whether with the far field outside
 
     def _settle(self) -> None:
-        """Wait for the D that :meth:`update` is computing, if any."""
+        """Wait for the D that :meth:`update` is computing, if any (computed here in a process
+        forked meanwhile: the thread computing it is not in the child)."""
         if self._pending is not None:
-            pending, self._pending = self._pending, None
-            self._slots, self._delta = pending.result()
+            (pid, pending, args), self._pending = self._pending, None
+            self._slots, self._delta = pending.result() if pid == os.getpid() else _stale_difference(*args)
 
     @property
     def slots(self) -> np.ndarray:
@@ -237,7 +240,8 @@ class StaleRows:
         from ..hostthreads import pool
 
         self._settle()
-        self._pending = pool().submit(_stale_difference, self._blocks, kept, self.held)
+        args = (self._blocks, kept, self.held)
+        self._pending = (os.getpid(), pool().submit(_stale_difference, *args), args)
 
     def correct(self, solve_kept, LS: np.ndarray, B: np.ndarray, S: np.ndarray, albedo: np.ndarray,
                 outside: bool) -> np.ndarray:
