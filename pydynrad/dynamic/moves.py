@@ -208,7 +208,8 @@ def reciprocal_columns(row_patches: np.ndarray, object_rows: sp.csr_matrix, obje
                          shape=(len(row_patches), n_cols))
 
 
-def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix, select: np.ndarray | None = None) -> sp.csr_matrix:
+def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix,
+            select: np.ndarray | None = None) -> sp.csr_matrix:
     """Static ``rows`` (CSR, no entries in the object columns; its rows ``select``, read in
     place, all by default) at the objects' poses, shaped as ``recip``: without their entries
     ``hidden`` ((rows.nnz,) bool, :func:`hidden_entries`), with the object columns ``recip``
