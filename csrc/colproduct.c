@@ -99,6 +99,19 @@ PRODUCT(product_i32_f64, int32_t, double)
 PRODUCT(product_i64_f32, int64_t, float)
 PRODUCT(product_i64_f64, int64_t, double)
 
+/* F's product for the matrix's index and value sizes (bytes: 4 or 8 each). */
+#define BY_TYPES(F, isz, vsz, ...)                                                                                     \
+    ((isz) == 4 ? ((vsz) == 4 ? F##_i32_f32(__VA_ARGS__) : F##_i32_f64(__VA_ARGS__))                                   \
+                : ((vsz) == 4 ? F##_i64_f32(__VA_ARGS__) : F##_i64_f64(__VA_ARGS__)))
+
+/* Whether indptr p of n rows (or columns) starts at 0 and never decreases. */
+static int good_indptr(const int64_t *p, Py_ssize_t n)
+{
+    int ok = p[0] == 0;
+    for (Py_ssize_t c = 0; c < n && ok; ++c) ok = p[c + 1] >= p[c];
+    return ok;
+}
+
 /* Bytes per index and per value of a matrix's nnz entries (4 or 8 each), or 0 if they are neither. */
 static int entry_sizes(Py_ssize_t nnz, const Py_buffer *ix, const Py_buffer *v, Py_ssize_t *isz, Py_ssize_t *vsz)
 {
@@ -107,114 +120,72 @@ static int entry_sizes(Py_ssize_t nnz, const Py_buffer *ix, const Py_buffer *v, 
     return (*isz == 4 || *isz == 8) && (*vsz == 4 || *vsz == 8) && ix->len == nnz * *isz && v->len == nnz * *vsz;
 }
 
+/* None, or the ValueError ``error`` where status != 0; the n buffers released either way. */
+static PyObject *finished(int status, const char *error, Py_buffer *b, int n)
+{
+    for (int q = 0; q < n; ++q) PyBuffer_Release(&b[q]);
+    if (status) {
+        PyErr_SetString(PyExc_ValueError, error);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 static PyObject *py_columns_times(PyObject *self, PyObject *args)
 {
     (void)self;
-    Py_buffer ip, ix, v, cols, x, out;
+    Py_buffer b[6], *ip = &b[0], *ix = &b[1], *v = &b[2], *cols = &b[3], *x = &b[4], *out = &b[5];
     int k;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*w*i", &ip, &ix, &v, &cols, &x, &out, &k)) return NULL;
-    PyObject *result = NULL;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*w*i", ip, ix, v, cols, x, out, &k)) return NULL;
     const Py_ssize_t I = (Py_ssize_t)sizeof(int64_t), D = (Py_ssize_t)sizeof(double);
-    Py_ssize_t n_cols = ip.len / I - 1, m = cols.len / I;
+    Py_ssize_t n_cols = ip->len / I - 1, m = cols->len / I;
     Py_ssize_t nnz = -1, isz = 0, vsz = 0;
-    if (n_cols >= 0 && ip.len == (n_cols + 1) * I) nnz = ((const int64_t *)ip.buf)[n_cols];
-    int shapes_ok = k >= 1 && k <= 4 && nnz >= 0 && cols.len == m * I && x.len == m * k * D && out.len % (k * D) == 0 &&
-                    entry_sizes(nnz, &ix, &v, &isz, &vsz);
-    if (shapes_ok) {
-        const int64_t *p = ip.buf;
-        shapes_ok = p[0] == 0;
-        for (Py_ssize_t c = 0; c < n_cols && shapes_ok; ++c) shapes_ok = p[c + 1] >= p[c];
-    }
-    if (!shapes_ok) {
-        PyErr_SetString(PyExc_ValueError, "columns_times needs a CSC matrix (int64 indptr from 0, non-decreasing; "
-                                          "int32/int64 indices and float32/float64 data of its entries), int64 "
-                                          "columns, float64 x (columns, k) and out (rows, k), 1 <= k <= 4");
-        goto done;
-    }
-    Py_ssize_t n_rows = out.len / (k * D);
+    if (n_cols >= 0 && ip->len == (n_cols + 1) * I) nnz = ((const int64_t *)ip->buf)[n_cols];
+    const int ok = k >= 1 && k <= 4 && nnz >= 0 && cols->len == m * I && x->len == m * k * D &&
+                   out->len % (k * D) == 0 && entry_sizes(nnz, ix, v, &isz, &vsz) && good_indptr(ip->buf, n_cols);
+    if (!ok)
+        return finished(1, "columns_times needs a CSC matrix (int64 indptr from 0, non-decreasing; int32/int64 "
+                           "indices and float32/float64 data of its entries), int64 columns, float64 x (columns, k) "
+                           "and out (rows, k), 1 <= k <= 4", b, 6);
+    Py_ssize_t n_rows = out->len / (k * D);
     int status = 0;
     if (nnz > 0) {
         Py_BEGIN_ALLOW_THREADS
-        if (isz == 4 && vsz == 4)
-            status = product_i32_f32(ip.buf, ix.buf, v.buf, n_cols, n_rows, cols.buf, m, x.buf, out.buf, k);
-        else if (isz == 4)
-            status = product_i32_f64(ip.buf, ix.buf, v.buf, n_cols, n_rows, cols.buf, m, x.buf, out.buf, k);
-        else if (vsz == 4)
-            status = product_i64_f32(ip.buf, ix.buf, v.buf, n_cols, n_rows, cols.buf, m, x.buf, out.buf, k);
-        else
-            status = product_i64_f64(ip.buf, ix.buf, v.buf, n_cols, n_rows, cols.buf, m, x.buf, out.buf, k);
+        status = BY_TYPES(product, isz, vsz, ip->buf, ix->buf, v->buf, n_cols, n_rows, cols->buf, m, x->buf, out->buf, k);
         Py_END_ALLOW_THREADS
     }
-    if (status) {
-        PyErr_SetString(PyExc_ValueError, "columns_times: a column number or row index is out of range");
-        goto done;
-    }
-    Py_INCREF(Py_None);
-    result = Py_None;
-done:
-    PyBuffer_Release(&ip);
-    PyBuffer_Release(&ix);
-    PyBuffer_Release(&v);
-    PyBuffer_Release(&cols);
-    PyBuffer_Release(&x);
-    PyBuffer_Release(&out);
-    return result;
+    return finished(status, "columns_times: a column number or row index is out of range", b, 6);
 }
 
 static PyObject *py_rows_times(PyObject *self, PyObject *args)
 {
     (void)self;
-    Py_buffer ip, ix, v, x, out;
+    Py_buffer b[5], *ip = &b[0], *ix = &b[1], *v = &b[2], *x = &b[3], *out = &b[4];
     Py_ssize_t first, last;
     int k;
-    if (!PyArg_ParseTuple(args, "y*y*y*nny*w*i", &ip, &ix, &v, &first, &last, &x, &out, &k)) return NULL;
-    PyObject *result = NULL;
+    if (!PyArg_ParseTuple(args, "y*y*y*nny*w*i", ip, ix, v, &first, &last, x, out, &k)) return NULL;
     const Py_ssize_t I = (Py_ssize_t)sizeof(int64_t), D = (Py_ssize_t)sizeof(double);
-    Py_ssize_t n_rows = ip.len / I - 1, nnz = -1, isz = 0, vsz = 0;
-    int ok = k >= 1 && k <= 4 && n_rows >= 0 && ip.len == (n_rows + 1) * I && out.len == n_rows * k * D &&
-             x.len % (k * D) == 0 && 0 <= first && first <= last && last <= n_rows;
+    Py_ssize_t n_rows = ip->len / I - 1, nnz = -1, isz = 0, vsz = 0;
+    int ok = k >= 1 && k <= 4 && n_rows >= 0 && ip->len == (n_rows + 1) * I && out->len == n_rows * k * D &&
+             x->len % (k * D) == 0 && 0 <= first && first <= last && last <= n_rows;
     if (ok) {
-        const int64_t *p = ip.buf;
-        nnz = p[n_rows];
-        ok = p[0] == 0 && nnz >= 0 && entry_sizes(nnz, &ix, &v, &isz, &vsz);
-        for (Py_ssize_t r = 0; r < n_rows && ok; ++r) ok = p[r + 1] >= p[r];
+        nnz = ((const int64_t *)ip->buf)[n_rows];
+        ok = nnz >= 0 && entry_sizes(nnz, ix, v, &isz, &vsz) && good_indptr(ip->buf, n_rows);
     }
-    if (!ok) {
-        PyErr_SetString(PyExc_ValueError, "rows_times needs a CSR matrix (int64 indptr from 0, non-decreasing; "
-                                          "int32/int64 indices and float32/float64 data of its entries), rows "
-                                          "0 <= first <= last <= n_rows, float64 x (columns, k) and out (rows, k), "
-                                          "1 <= k <= 4");
-        goto done;
-    }
-    Py_ssize_t n_cols = x.len / (k * D);
+    if (!ok)
+        return finished(1, "rows_times needs a CSR matrix (int64 indptr from 0, non-decreasing; int32/int64 indices "
+                           "and float32/float64 data of its entries), rows 0 <= first <= last <= n_rows, float64 x "
+                           "(columns, k) and out (rows, k), 1 <= k <= 4", b, 5);
+    Py_ssize_t n_cols = x->len / (k * D);
     int status = 0;
     if (nnz > 0) {
         Py_BEGIN_ALLOW_THREADS
-        if (isz == 4 && vsz == 4)
-            status = rows_i32_f32(ip.buf, ix.buf, v.buf, first, last, n_cols, x.buf, out.buf, k);
-        else if (isz == 4)
-            status = rows_i32_f64(ip.buf, ix.buf, v.buf, first, last, n_cols, x.buf, out.buf, k);
-        else if (vsz == 4)
-            status = rows_i64_f32(ip.buf, ix.buf, v.buf, first, last, n_cols, x.buf, out.buf, k);
-        else
-            status = rows_i64_f64(ip.buf, ix.buf, v.buf, first, last, n_cols, x.buf, out.buf, k);
+        status = BY_TYPES(rows, isz, vsz, ip->buf, ix->buf, v->buf, first, last, n_cols, x->buf, out->buf, k);
         Py_END_ALLOW_THREADS
     } else {
-        for (Py_ssize_t q = first * k; q < last * k; ++q) ((double *)out.buf)[q] = 0.0;
+        for (Py_ssize_t q = first * k; q < last * k; ++q) ((double *)out->buf)[q] = 0.0;
     }
-    if (status) {
-        PyErr_SetString(PyExc_ValueError, "rows_times: a column index is out of range");
-        goto done;
-    }
-    Py_INCREF(Py_None);
-    result = Py_None;
-done:
-    PyBuffer_Release(&ip);
-    PyBuffer_Release(&ix);
-    PyBuffer_Release(&v);
-    PyBuffer_Release(&x);
-    PyBuffer_Release(&out);
-    return result;
+    return finished(status, "rows_times: a column index is out of range", b, 5);
 }
 
 static PyMethodDef methods[] = {
