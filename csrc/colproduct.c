@@ -177,6 +177,8 @@ static PyObject *py_rows_times(PyObject *self, PyObject *args)
                            "and float32/float64 data of its entries), rows 0 <= first <= last <= n_rows, float64 x "
                            "(columns, k) and out (rows, k), 1 <= k <= 4", b, 5);
     Py_ssize_t n_cols = x->len / (k * D);
+    if (nnz > 0 && n_cols == 0)  /* every index out of range; the loop would read x[0] */
+        return finished(1, "rows_times: a column index is out of range", b, 5);
     int status = 0;
     if (nnz > 0) {
         Py_BEGIN_ALLOW_THREADS

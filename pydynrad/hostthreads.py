@@ -13,6 +13,7 @@ __all__ = ["cores", "pool", "row_parts", "map_parts"]
 
 _pool: ThreadPoolExecutor | None = None
 _lock = threading.Lock()
+_THREADS = "pydynrad-pool"  # the pool's thread names begin so
 
 
 def _after_fork_in_child() -> None:
@@ -35,7 +36,7 @@ def pool() -> ThreadPoolExecutor:
     global _pool
     with _lock:
         if _pool is None:
-            _pool = ThreadPoolExecutor(max_workers=cores(), thread_name_prefix="pydynrad")
+            _pool = ThreadPoolExecutor(max_workers=cores(), thread_name_prefix=_THREADS)
         return _pool
 
 
@@ -53,9 +54,11 @@ def row_parts(indptr: np.ndarray, parts: int) -> list[tuple[int, int]]:
 def map_parts(fn, parts) -> list:
     """``[fn(p) for p in parts]``: the first part in the calling thread, the others on the pool
     at the same time (a pass through the pool costs ~0.1 ms of wake-ups: a move made ~11 of one
-    part each on the 2-core Xeon; and a pool thread may be waiting on the device meanwhile)."""
+    part each on the 2-core Xeon; and a pool thread may be waiting on the device meanwhile).
+    Called from a pool thread, every part runs in it, one after another: a pool task waiting on
+    tasks queued behind it would wait forever once every worker did (one core: at once)."""
     parts = list(parts)
-    if len(parts) <= 1:
+    if len(parts) <= 1 or threading.current_thread().name.startswith(_THREADS):
         return [fn(p) for p in parts]
     others = [pool().submit(fn, p) for p in parts[1:]]
     return [fn(parts[0])] + [f.result() for f in others]

@@ -338,6 +338,26 @@ def test_selection_matches_the_papers_loop_by_full_sort():
         included[J] = True
 
 
+def test_a_still_observer_asks_for_no_query_again():
+    """Once a still observer's set asks for no swap, the same question is answered without a
+    k-d tree query, also with k above M (k is clamped inside propose)."""
+    rng = np.random.default_rng(3)
+    sel = NearestSet(rng.uniform(-1, 1, (200, 3)))
+    obs = np.zeros(3)
+    members = sel.nearest(obs, 16)[0]
+    included = np.zeros(200, bool)
+    included[members] = True
+    calls = []
+    real = sel.nearest
+    sel.nearest = lambda o, n: (calls.append(n), real(o, n))[1]
+    for k in (4, 32):
+        calls.clear()
+        for _ in range(3):
+            slots, J = sel.propose(obs, members, included, k)
+            assert len(slots) == len(J) == 0
+        assert len(calls) == 1
+
+
 # -- kernels -------------------------------------------------------------------------------------
 @pytest.mark.parametrize("storage", ["fp32", "fp64"])
 def test_update_kernels_against_numpy(device, storage):

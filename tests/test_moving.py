@@ -177,6 +177,7 @@ def test_rows_at_pose_match_numpy():
     np.testing.assert_allclose(got.toarray(), np.hstack([kept, obj]), rtol=1e-13, atol=1e-17)
     assert got.sum(axis=1).max() <= 1.0 + 1e-12
     assert got.nnz == np.count_nonzero(np.hstack([kept, obj]))
+    assert (at_pose(rows, 256 * hidden.astype(np.int64), recip) != got).nnz == 0  # any non-zero flag hides
     # Rows picked out of a larger matrix (with only the static columns) and read in place give
     # the same rows as the copy of them, the mask over the larger matrix's entries.
     big = sp.vstack([sp.random(7, n_static, density=0.3, random_state=rng, format="csr"), dense, dense[::-1]], format="csr")
@@ -688,3 +689,70 @@ def test_stale_rows_difference_on_a_thread_and_after_a_fork():
     _, status = os.waitpid(pid, 0)
     assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
     np.testing.assert_array_equal(st.slots, held[5:][stale_rows[5:]])
+
+
+def test_stale_rows_on_one_core_and_their_errors(monkeypatch):
+    """On one core the shared pool has one thread: D, computed on it, must not wait on tasks
+    queued behind itself (a forked child pinned to one CPU, two blocks held). A D that fails on
+    the thread is raised by every read until the next update, never answered by the last D;
+    what the merge would refuse, update() refuses where it is called."""
+    import os
+    import signal
+
+    from pydynrad.dynamic import stale
+    from pydynrad.dynamic.stale import StaleRows, rows_minus
+
+    rng = np.random.default_rng(12)
+    kept = sp.random(20, 50, density=0.3, random_state=rng, format="csr")
+    b1, b2 = (sp.random(n, 50, density=0.3, random_state=rng, format="csr") for n in (3, 4))
+    held = np.arange(7)
+    truth = rows_minus([b1, b2], kept, held)
+    if hasattr(os, "sched_setaffinity"):
+        pid = os.fork()
+        if pid == 0:  # the child: one CPU, so a pool of one thread; exit 0 only if D comes, and right
+            signal.alarm(20)
+            os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+            st = StaleRows(50)
+            st.put(held, b1, b2)
+            st.update(kept)
+            ok = (st.delta != truth[np.diff(truth.indptr) > 0]).nnz == 0
+            os._exit(0 if ok else 1)
+        _, status = os.waitpid(pid, 0)
+        assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+    st = StaleRows(50)
+    st.put(held, b1, b2)
+    st.update(kept)
+    assert len(st) == np.count_nonzero(np.diff(truth.indptr))
+
+    def broken(*args):
+        raise RuntimeError("the merge failed")
+
+    monkeypatch.setattr(stale, "_stale_difference", broken)
+    st.update(kept)
+    for _ in range(2):  # raised again by every read, not the last D
+        with pytest.raises(RuntimeError, match="the merge failed"):
+            st.slots
+    with pytest.raises(RuntimeError, match="the merge failed"):
+        len(st)
+    monkeypatch.undo()
+    st.update(kept)
+    assert len(st) == np.count_nonzero(np.diff(truth.indptr))
+    with pytest.raises(pd.InvalidInputError, match="differ in columns"):
+        st.update(kept[:, :40])
+    with pytest.raises(pd.InvalidInputError, match=r"\[0, 5\)"):
+        st.update(kept[:5])
+    with pytest.raises(pd.InvalidInputError, match="one slot per row"):
+        st.put(held[:3], b1, b2)
+
+
+def test_rows_minus_sorts_kept_rows_out_of_order():
+    """A kept row out of column order (and one with a column twice, as a CSR sum can leave it)
+    is sorted, duplicates summed, before the merge: the answer is scipy's."""
+    from pydynrad.dynamic.stale import rows_minus
+
+    kept = sp.csr_matrix((np.array([1.0, 2.0, 0.5, 0.25, 3.0]), np.array([3, 1, 1, 1, 0]), np.array([0, 2, 4, 5])),
+                         shape=(3, 5))
+    rows = sp.csr_matrix(np.array([[0.0, 2.0, 0.0, 4.0, 0.0], [0.0, 0.75, 1.0, 0.0, 0.0]]))
+    slots = np.array([0, 1])
+    truth = rows.toarray() - kept.toarray()[slots]
+    np.testing.assert_array_equal(rows_minus(rows, kept, slots).toarray(), truth)

@@ -26,7 +26,9 @@ def _replace_rows(A: sp.csr_matrix, slots: np.ndarray, rows: sp.csr_matrix) -> s
     sparse products (rows are put in whole, so the result equals the row-wise assignment).
     """
     rows = sp.csr_matrix(rows)
-    rows.eliminate_zeros()
+    if not rows.data.all():  # explicit zeros dropped from a copy: rows may be views of rows held elsewhere
+        rows = rows.copy()
+        rows.eliminate_zeros()
     lengths = np.diff(A.indptr)
     lengths[slots] = np.diff(rows.indptr)
     indptr = np.zeros(len(lengths) + 1, dtype=np.int64)

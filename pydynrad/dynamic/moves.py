@@ -231,7 +231,11 @@ def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix,
         raise InvalidInputError(f"hidden must have one flag per entry of the rows ({rows.nnz}); got {np.shape(hidden)}")
     n = int((ends - starts).sum()) + recip.nnz
     indptr, out_indices, out_data = np.empty(len(starts) + 1, np.int64), np.empty(n, np.int32), np.empty(n)
-    nnz = _poserows.assemble(starts, ends, indices, data, np.ascontiguousarray(hidden, np.uint8), *native_csr(recip),
+    # A bool mask is read as bytes in place: it spans all of F's entries when rows are picked out
+    # of F (a uint8 copy of the village's 35M was 87 ms a move).
+    hidden = np.ascontiguousarray(hidden)
+    hidden = (hidden if hidden.dtype == np.bool_ else hidden != 0).view(np.uint8)
+    nnz = _poserows.assemble(starts, ends, indices, data, hidden, *native_csr(recip),
                              indptr, out_indices, out_data)
     return sp.csr_matrix((out_data[:nnz], out_indices[:nnz], indptr), shape=recip.shape)
 
@@ -448,6 +452,9 @@ class WorldRows:
     def move(self, world) -> None:
         """The objects moved: later rows are of ``world`` (the objects' own rows are hemicubes
         when first needed, unless set in :attr:`object_rows`)."""
+        if self._tracing is not None:  # a trace of the last poses that a failed call left: not these rows
+            self._tracing.exception()
+            self._tracing = None
         self.hemicubes.scene = world
         self.object_rows = None
         self._at_pose, self._outside, self._in_view = None, None, None
@@ -600,20 +607,21 @@ class WorldRows:
             order = order[:budget]
             rows, hemicubes = self.fresh(np.concatenate([moved, candidates[order]]))
             return order, rows, hemicubes, None
-        tracing = None
-        if self.object_rows is None:
-            # The objects' hemicubes trace on the device (a pool thread waits for them) while this
-            # thread runs the static rows' pre-test on the host; their reciprocal columns wait for
-            # them (objects()). The CPU device left ~0.35 of 2 cores idle while tracing them alone:
-            # 1.5 ms of a move (t_move median 20.8-22.4 -> 18.7-20.1 ms, Cornell box, 2-core Xeon).
-            from ..hostthreads import pool
-
-            tracing = self._tracing = pool().submit(self.fresh, self.object_patches)
         # Objects that did not move are seen by those that did: their rows, new anyway, go in too.
         still = np.flatnonzero(candidates >= self.n_static)
         order = order[candidates[order] < self.n_static] if budget != 0 or correct else order[:0]
         also = None if outside is None else outside[self.gathered(outside)]
+        tracing = None
         try:
+            if self.object_rows is None:
+                # The objects' hemicubes trace on the device (a pool thread waits for them) while
+                # this thread runs the static rows' pre-test on the host; their reciprocal columns
+                # wait for them (objects()). The CPU device left ~0.35 of 2 cores idle while tracing
+                # them alone: 1.5 ms of a move (t_move median 20.8-22.4 -> 18.7-20.1 ms, Cornell
+                # box, 2-core Xeon).
+                from ..hostthreads import pool
+
+                tracing = self._tracing = pool().submit(self.fresh, self.object_patches)
             new = self._at(candidates[order], self._static_rows, also)
         finally:
             self.objects()  # never a trace left running past the call

@@ -63,8 +63,9 @@ class NearestSet:
             return none
         # A still observer over the same local set asks for nothing again (the frames of a moving
         # object seen from one place): no query of M + k neighbours (1.1 ms at M = 1,024 of 1,176).
+        asked = (obs.tobytes(), k)  # as asked: k is clamped below
         settled = self._settled
-        if settled is not None and settled[:2] == (obs.tobytes(), k) and np.array_equal(settled[2], local_patches):
+        if settled is not None and settled[:2] == asked and np.array_equal(settled[2], local_patches):
             return none
         d_in = np.linalg.norm(self.centers[local_patches] - obs, axis=1)
         d_in[self.pinned[local_patches]] = -np.inf
@@ -78,5 +79,5 @@ class NearestSet:
         closer = d_near[:t] < d_in[far[:t]]
         # Both lists are monotone, so the pairs that qualify are a prefix.
         n_swap = int(np.argmin(closer)) if not closer.all() else t
-        self._settled = (obs.tobytes(), k, np.array(local_patches)) if n_swap == 0 else None
+        self._settled = (*asked, np.array(local_patches)) if n_swap == 0 else None
         return far[:n_swap].astype(np.int64), near[:n_swap].astype(np.int64)

@@ -69,13 +69,14 @@ ANDERSON_DEPTH = 3
 PARALLEL_ENTRIES = 50_000
 
 
-def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray, parts: int | None = None) -> sp.csr_matrix:
+def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     """(r, N) ``rows - kept[slots]``, exact zeros dropped: ``rows`` (r, N) CSR, or a sequence of
     CSR blocks of N columns stacked in order (not copied into one), ``kept`` (M, N) CSR,
     ``slots`` (r,) rows of ``kept``. A native merge of each row with its kept row, read in place
-    (``csrc/poserows.c``), in ``parts`` of about equal entries at once (by default one per core
-    from :data:`PARALLEL_ENTRIES` entries); blocks with columns out of order are sorted first (a
-    copy)."""
+    (``csrc/poserows.c``), in parts of about equal entries on the cores at once from
+    :data:`PARALLEL_ENTRIES` entries (one after another on a pool thread,
+    :func:`~pydynrad.hostthreads.map_parts`); where a row of either is out of column order, both
+    are sorted first (a copy)."""
     from .. import _poserows
     from ..hostthreads import cores, map_parts, row_parts
     from .moves import native_csr, native_spans
@@ -90,15 +91,15 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray, parts: int | None =
         raise InvalidInputError(f"slots must name one kept row per row ({n_rows}); got shape {slots.shape}")
     if len(slots) and (slots.min() < 0 or slots.max() >= kept.shape[0]):
         raise InvalidInputError(f"slots must lie in [0, {kept.shape[0]}) (the kept rows); got {slots.min()}..{slots.max()}")
-    k_csr, k_len = native_csr(kept), np.diff(kept.indptr)
-    split = parts if parts is not None else cores() if sum(b.nnz for b in blocks) >= PARALLEL_ENTRIES else 1
+    k_len = np.diff(kept.indptr)
+    split = cores() if sum(b.nnz for b in blocks) >= PARALLEL_ENTRIES else 1
 
     def merge(task):
         (starts, ends, indices, data), sl = task
         most = int((ends - starts).sum() + k_len[sl].sum())
         # Only the entries D has are ever written: the rest of the bound is not touched (no page of it faulted in).
         indptr, out_i, out_d = np.empty(len(sl) + 1, np.int64), np.empty(most, np.int32), np.empty(most)
-        nnz = _poserows.difference(starts, ends, indices, data, *k_csr, sl, indptr, out_i, out_d)
+        nnz = _poserows.difference(starts, ends, indices, data, *native_csr(kept), sl, indptr, out_i, out_d)
         return None if nnz < 0 else (indptr, out_i[:nnz].copy(), out_d[:nnz].copy())
 
     def tasks():
@@ -113,7 +114,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray, parts: int | None =
     if not parts:
         return sp.csr_matrix((0, kept.shape[1]))
     if any(p is None for p in parts):  # a row out of column order (scipy leaves sums of CSR matrices unsorted)
-        blocks = [b.sorted_indices() for b in blocks]
+        blocks, kept = [_canonical(b) for b in blocks], _canonical(kept)
         parts = map_parts(merge, tasks())
     counts = np.array([p[0][-1] for p in parts], np.int64)
     offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -122,9 +123,18 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray, parts: int | None =
                          shape=(n_rows, kept.shape[1]))
 
 
+def _canonical(m: sp.csr_matrix) -> sp.csr_matrix:
+    """A copy of ``m`` with each row's columns in increasing order, duplicates summed."""
+    m = m.copy()
+    m.sum_duplicates()
+    return m
+
+
 def _stale_difference(blocks: list[sp.csr_matrix], kept: sp.csr_matrix, held: np.ndarray):
-    """(slots, D): the rows of ``held`` whose ``blocks`` differ from ``kept[held]``, and the difference."""
-    delta = rows_minus(blocks, kept, held, parts=1)  # one core: the frame goes on with the other
+    """(slots, D): the rows of ``held`` whose ``blocks`` differ from ``kept[held]``, and the
+    difference. On a pool thread the merge's parts run one after another in it: one core, the
+    frame goes on with the other."""
+    delta = rows_minus(blocks, kept, held)
     stale = np.diff(delta.indptr) > 0
     return held[stale], (delta if stale.all() else delta[stale])
 
@@ -163,10 +173,12 @@ class StaleRows:
     def __init__(self, n_patches: int) -> None:
         self.n_patches = int(n_patches)
         self._pending = None
+        self._failed: BaseException | None = None  # what the last update's D raised, raised again on every read
         self.clear()
 
     def clear(self) -> None:
-        self._settle()
+        self._settle(reading=False)
+        self._failed = None
         self.held = np.empty(0, np.int64)
         self._blocks: list[sp.csr_matrix] = []  # the rows of held, stacked in order
         self._slots = np.empty(0, np.int64)
@@ -178,12 +190,19 @@ class StaleRows:
         self._last_LS: np.ndarray | None = None  # (N, 3) the light it solved for, per patch (where _known)
         self._last_outside = False  # and whether with the far field outside
 
-    def _settle(self) -> None:
+    def _settle(self, reading: bool = True) -> None:
         """Wait for the D that :meth:`update` is computing, if any (computed here in a process
-        forked meanwhile: the thread computing it is not in the child)."""
+        forked meanwhile: the thread computing it is not in the child). If computing it raised,
+        every read raises that again until the next :meth:`update` or :meth:`clear`: no read
+        gets an older D that does not match the rows held."""
         if self._pending is not None:
             (pid, pending, args), self._pending = self._pending, None
-            self._slots, self._delta = pending.result() if pid == os.getpid() else _stale_difference(*args)
+            try:
+                self._slots, self._delta = pending.result() if pid == os.getpid() else _stale_difference(*args)
+            except Exception as e:  # kept: every read raises it
+                self._failed = e
+        if reading and self._failed is not None:
+            raise self._failed
 
     @property
     def slots(self) -> np.ndarray:
@@ -216,8 +235,10 @@ class StaleRows:
     def put(self, slots: np.ndarray, *rows: sp.csr_matrix) -> None:
         """Slots ``slots`` now have current rows ``rows`` (one or more blocks, stacked in order,
         replacing any held for them); call :meth:`update` before the next :meth:`correct`."""
-        self._settle()  # one D in the making at a time
+        self._settle(reading=False)  # one D in the making at a time
         slots = np.asarray(slots, np.int64)
+        if slots.shape != (sum(r.shape[0] for r in rows),):
+            raise InvalidInputError(f"put needs one slot per row; got {slots.shape} for {sum(r.shape[0] for r in rows)} rows")
         keep = np.flatnonzero(~np.isin(self.held, slots))
         self.held = np.concatenate([self.held[keep], slots])
         # Unsorted: a sort would copy every row again.
@@ -239,7 +260,13 @@ class StaleRows:
         thread (class docstring)."""
         from ..hostthreads import pool
 
-        self._settle()
+        self._settle(reading=False)
+        self._failed = None
+        # What the merge would refuse, refused here, where the caller is.
+        if any(b.shape[1] != kept.shape[1] for b in self._blocks):
+            raise InvalidInputError(f"held rows and kept rows {kept.shape} differ in columns")
+        if len(self.held) and (self.held.min() < 0 or self.held.max() >= kept.shape[0]):
+            raise InvalidInputError(f"held slots must lie in [0, {kept.shape[0]}) (the kept rows)")
         args = (self._blocks, kept, self.held)
         self._pending = (os.getpid(), pool().submit(_stale_difference, *args), args)
 
