@@ -111,9 +111,9 @@ PARALLEL_SEGMENTS = 50_000
 def hidden_between(objects, transforms, points: np.ndarray, a: np.ndarray, b: np.ndarray, device=None) -> np.ndarray:
     """(n,) bool: the segments ``points[a[i]] -> points[b[i]]`` that cross an object's triangles
     at ``transforms`` (:func:`_hidden_entries` with one segment per row)."""
-    a, b = np.asarray(a, np.int64), np.asarray(b)
-    if len(b) and (b.min() < 0 or b.max() >= len(points)):
-        raise InvalidInputError(f"segment ends must index the {len(points)} points")
+    from ..checks import patch_indices
+
+    a, b = np.asarray(a, np.int64), patch_indices(b, len(points), "segment ends")
     ends = np.arange(1, len(a) + 1)
     return _hidden_entries(objects, transforms, points, ends - 1, ends, b.astype(np.int32), a, device)
 
@@ -122,10 +122,10 @@ def native_spans(m: sp.csr_matrix, select: np.ndarray | None = None):
     """(starts, ends, indices, data) of CSR ``m``'s rows ``select`` (all by default) read where
     they lie: int64 spans of its int32 indices and float64 data, as ``csrc/segments.c`` and
     ``csrc/poserows.c`` read them (no copy of the entries where they already are so)."""
+    from ..checks import patch_indices
+
     indptr = np.asarray(m.indptr)
-    rows = np.arange(m.shape[0]) if select is None else np.asarray(select, np.int64)
-    if len(rows) and (rows.min() < 0 or rows.max() >= m.shape[0]):
-        raise InvalidInputError(f"rows to select must lie in [0, {m.shape[0]})")
+    rows = np.arange(m.shape[0]) if select is None else patch_indices(select, m.shape[0], "rows to select")
     _, indices, data = native_csr(m)
     return (indptr[rows].astype(np.int64), indptr[rows + 1].astype(np.int64), indices, data)
 

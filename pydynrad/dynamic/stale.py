@@ -100,7 +100,8 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
         # Only the entries D has are ever written: the rest of the bound is not touched (no page of it faulted in).
         indptr, out_i, out_d = np.empty(len(sl) + 1, np.int64), np.empty(most, np.int32), np.empty(most)
         nnz = _poserows.difference(starts, ends, indices, data, *native_csr(kept), sl, indptr, out_i, out_d)
-        return None if nnz < 0 else (indptr, out_i[:nnz].copy(), out_d[:nnz].copy())
+        return None if nnz < 0 else sp.csr_matrix((out_d[:nnz].copy(), out_i[:nnz].copy(), indptr),
+                                                  shape=(len(sl), kept.shape[1]))
 
     def tasks():
         first = 0
@@ -116,11 +117,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     if any(p is None for p in parts):  # a row out of column order (scipy leaves sums of CSR matrices unsorted)
         blocks, kept = [_canonical(b) for b in blocks], _canonical(kept)
         parts = map_parts(merge, tasks())
-    counts = np.array([p[0][-1] for p in parts], np.int64)
-    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    indptr = np.concatenate([[0]] + [p[0][1:] + o for p, o in zip(parts, offsets)])
-    return sp.csr_matrix((np.concatenate([p[2] for p in parts]), np.concatenate([p[1] for p in parts]), indptr),
-                         shape=(n_rows, kept.shape[1]))
+    return parts[0] if len(parts) == 1 else sp.vstack(parts, format="csr")
 
 
 def _canonical(m: sp.csr_matrix) -> sp.csr_matrix:
