@@ -452,9 +452,6 @@ class WorldRows:
     def move(self, world) -> None:
         """The objects moved: later rows are of ``world`` (the objects' own rows are hemicubes
         when first needed, unless set in :attr:`object_rows`)."""
-        if self._tracing is not None:  # a trace of the last poses that a failed call left: not these rows
-            self._tracing.exception()
-            self._tracing = None
         self.hemicubes.scene = world
         self.object_rows = None
         self._at_pose, self._outside, self._in_view = None, None, None
