@@ -104,20 +104,26 @@ def measure(size: str, device, progress: bool = True) -> dict:
     fresh = pd.DynamicRadiosity(box, None, local_size=M, resolution=R, objects=[final], occlusion=None,
                                 observer=OBSERVER, device=device).radiosity(lights, far_field=False)
     local_err = float(np.abs(fresh - B_ref).max() / B_ref.max())  # local only: the paper's answer
+    # The paper's variant: every pose of the path known in advance, its rows precomputed.
+    t0 = time.perf_counter()
+    stored = pd.precompute_poses(box, [pd.RigidObject(block)], poses, resolution=R, device=device)
+    t_poses = time.perf_counter() - t0
     rows = []
     for budget in p["budgets"]:
         # Hemicube rows (every refresh a hemicube) at the two ends of the trade only: slow in
         # between; the static F's rows uncorrected where the correction changes anything.
-        variants = [(F_static, True, "static F")]
+        variants = [(F_static, True, "static F", None)]
+        if budget == 0:
+            variants.append((F_static, True, "static F, stored poses", stored))
         if budget is not None:
-            variants.append((F_static, False, "static F, uncorrected"))
+            variants.append((F_static, False, "static F, uncorrected", None))
         if budget in (0, None):
-            variants.append((None, True, "hemicubes"))
-        for form_factors, correct, label in variants:
+            variants.append((None, True, "hemicubes", None))
+        for form_factors, correct, label, known in variants:
             obj = pd.RigidObject(block, poses[0])
             dyn = pd.DynamicRadiosity(box, form_factors, local_size=M, resolution=R, objects=[obj], occlusion=budget,
                                       max_swaps_per_frame=SWAPS, observer=OBSERVER, device=device,
-                                      occlusion_correction=correct)
+                                      occlusion_correction=correct, poses=known)
             dyn.radiosity(lights)  # compile and warm up
             walk, swaps = _walk(dyn, lights)
             dyn.update(OBSERVER)
@@ -157,8 +163,12 @@ def measure(size: str, device, progress: bool = True) -> dict:
                      "come from it at the new pose (entries the block hides dropped, its columns by reciprocity), "
                      "ranked by the change in the light they gather; the rows of every other patch that may see the "
                      "block are made too and B corrected for them in radiosity (occlusion_correction, the default; "
-                     "'uncorrected': without, those rows stay stale); 'hemicubes': every row a hemicube of the world "
-                     "as it is, ranked by the solid angle of the block's bounds (budget 'all' is then exact)."}
+                     "'uncorrected': without, those rows stay stale); 'stored poses': the paper's variant, the "
+                     f"rows of every pose of the path precomputed by hemicube (pydynrad.precompute_poses: "
+                     f"{len(stored)} poses in {t_poses:.2f} s, {stored.nbytes / 2**20:.1f} MiB), so a move "
+                     "takes the block's rows and those of every patch that may see it from there; 'hemicubes': "
+                     "every row a hemicube of the world as it is, ranked by the solid angle of the block's bounds "
+                     "(budget 'all' is then exact)."}
     col = {c: k for k, c in enumerate(table["columns"])}
     series = {}
     for r in rows:

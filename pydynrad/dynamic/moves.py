@@ -419,8 +419,9 @@ class WorldRows:
     Object patches' rows are hemicubes of the current world scene (or stored in ``poses``).
     Static rows come from ``static_ff`` (the static scene's (N, N) F or row source) with the
     entries the objects hide dropped (:func:`hidden_entries`), their object columns by
-    reciprocity from the objects' current rows, and capped to a sum of 1 (:func:`at_pose`); with
-    ``static_ff=None`` they are hemicubes of the world too, and exact at the current poses.
+    reciprocity from the objects' current rows, and capped to a sum of 1 (:func:`at_pose`),
+    except those ``poses`` holds for the current configuration (hemicubes of the world there);
+    with ``static_ff=None`` they are hemicubes of the world too, and exact at the current poses.
     """
 
     def __init__(self, world, n_static: int, objects, static_ff, static_scene, resolution: int,
@@ -517,14 +518,21 @@ class WorldRows:
         """Rows ``idx`` of the world as it is: from ``poses`` where it holds them for the current
         transforms, else hemicubes; and how many hemicubes that took."""
         idx = np.asarray(idx, np.int64)
+        return self._stored_or(idx, lambda miss: sp.csr_matrix(self.hemicubes.rows(miss), dtype=np.float64))
+
+    def _stored_or(self, idx: np.ndarray, make) -> tuple[sp.csr_matrix, int]:
+        """Rows ``idx``: those ``poses`` holds for the current transforms from there, the others
+        by ``make(missing indices)``; and how many ``make`` made."""
         stored = None if self.poses is None else self.poses.get(self.world.bvh.transforms)
         if stored is None:
-            return sp.csr_matrix(self.hemicubes.rows(idx), dtype=np.float64), len(idx)
+            return make(idx), len(idx)
         patches, rows = stored
-        at = np.minimum(np.searchsorted(patches, idx), len(patches) - 1)
-        have = patches[at] == idx
+        at = np.minimum(np.searchsorted(patches, idx), max(len(patches) - 1, 0))
+        have = patches[at] == idx if len(patches) else np.zeros(len(idx), bool)
+        if have.all():
+            return sp.csr_matrix(rows[at[have]], dtype=np.float64), 0
         miss = np.flatnonzero(~have)
-        parts = [rows[at[have]], sp.csr_matrix(self.hemicubes.rows(idx[miss]), dtype=np.float64)]
+        parts = [rows[at[have]], make(idx[miss])]
         order = np.argsort(np.concatenate([np.flatnonzero(have), miss]), kind="stable")
         return sp.csr_matrix(sp.vstack(parts, format="csr")[order], dtype=np.float64), len(miss)
 
@@ -554,6 +562,12 @@ class WorldRows:
         return held[at]
 
     def _static_rows(self, s: np.ndarray) -> sp.csr_matrix:
+        """Rows of static patches ``s`` at the current poses: those ``poses`` holds for them
+        (hemicubes of the world there: exact, and no pass over the rows' entries), the others
+        from the static F (:meth:`_from_static`)."""
+        return self._stored_or(np.asarray(s, np.int64), self._from_static)[0]
+
+    def _from_static(self, s: np.ndarray) -> sp.csr_matrix:
         """Rows of static patches ``s`` at the current poses, from the static F (class docstring):
         read where they lie in an F held in memory (a copy of them was 1.2 ms of a move at
         426k entries), else fetched from its source."""

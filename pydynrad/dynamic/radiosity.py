@@ -164,7 +164,8 @@ class DynamicRadiosity:
     poses : PoseRows, optional
         Rows precomputed for configurations of the objects known in advance
         (:func:`pydynrad.precompute_poses`, same ``resolution``): a move to one of them takes its
-        rows from there instead of hemicubes.
+        rows from there instead of hemicubes (with a static ``form_factors``, also the static
+        rows the store holds, instead of their estimate from F: the rows of a full build there).
     device : pydynrad.Device, optional
     """
 
