@@ -9,7 +9,8 @@ outside the local set are gathered once per frame at the current poses (docs/des
 'Moving objects').
 
 * with the static F, the rows a budget leaves stale corrected in ``radiosity`` (the default)
-  or not (``occlusion_correction=False``);
+  or not (``occlusion_correction=False``); at budget 0 also with the path's poses precomputed
+  (the paper's variant, ``precompute_poses``) and with the issue's 64-patch block;
 * a frame without a move (``update`` with the observer walking, so patches swap, then
   ``radiosity`` with a point light) against frames that move the block, per occlusion budget
   (rows refreshed per move): the move's time (the block's and the refreshed rows' hemicubes,
@@ -81,29 +82,96 @@ def _walk(dyn, lights) -> tuple[list[float], list[int]]:
     return times, swaps
 
 
+def _block64(albedo):
+    """A 100 mm cube of 64 patches, the issue's block: :func:`pydynrad.scenes.block`'s 48 at
+    subdivision 1 (its levels give 12, 48 or 192) with the 8 triangles of its top and of its
+    bottom each halved across their longest edge (orientation kept)."""
+    import pydynrad as pd
+
+    b = pd.scenes.block(100.0, 1, albedo=albedo)
+    v = b.points[b.triangles]  # (48, 3, 3)
+    split = np.abs(b.normals[:, 1]) > 0.5
+    t = v[split]
+    longest = np.argmax(np.linalg.norm(t - np.roll(t, -1, axis=1), axis=2), axis=1)  # edge k -> k + 1
+    t = np.stack([np.roll(x, -k, axis=0) for x, k in zip(t, longest)])  # that edge first, same winding
+    mid = 0.5 * (t[:, 0] + t[:, 1])
+    halves = np.concatenate([np.stack([t[:, 0], mid, t[:, 2]], 1), np.stack([mid, t[:, 1], t[:, 2]], 1)])
+    v = np.concatenate([v[~split], halves])
+    return pd.Scene(v.reshape(-1, 3), np.arange(3 * len(v)).reshape(-1, 3), albedo=albedo, name="block")
+
+
+class _Case:
+    """The box, a block, and what a move is measured against: a full solve of the world at the
+    block's final pose and the same local set built afresh there."""
+
+    def __init__(self, box, block, p, lights, camera, device) -> None:
+        import pydynrad as pd
+
+        self.box, self.block, self.lights, self.camera, self.device = box, block, lights, camera, device
+        self.R, self.M = p["R"], min(p["M"], len(box) + len(block))
+        self.poses = _poses(p["moves"])
+        final = pd.RigidObject(block, self.poses[-1])
+        self.reference = box.with_objects([final])
+        t0 = time.perf_counter()
+        F_ref = pd.form_factors(self.reference, self.R, device=device)
+        self.t_full_ff = time.perf_counter() - t0
+        self.B_ref = pd.solve(self.reference, F_ref, lights=lights, tol=1e-8, dtype=np.float64, device=device).radiosity
+        self.fresh = pd.DynamicRadiosity(box, None, local_size=self.M, resolution=self.R, objects=[final],
+                                         occlusion=None, observer=OBSERVER, device=device).radiosity(lights, far_field=False)
+        self.local_err = float(np.abs(self.fresh - self.B_ref).max() / self.B_ref.max())  # the paper's answer
+
+    def row(self, budget, form_factors, correct: bool, label: str, poses=None) -> list:
+        """One row of the table: walk frames, then the moves along the path, then walk frames."""
+        import pydynrad as pd
+
+        obj = pd.RigidObject(self.block, self.poses[0])
+        dyn = pd.DynamicRadiosity(self.box, form_factors, local_size=self.M, resolution=self.R, objects=[obj],
+                                  occlusion=budget, max_swaps_per_frame=SWAPS, observer=OBSERVER,
+                                  device=self.device, occlusion_correction=correct, poses=poses)
+        dyn.radiosity(self.lights)  # compile and warm up
+        walk, swaps = _walk(dyn, self.lights)
+        dyn.update(OBSERVER)
+        moving, t_moves, refreshed = [], [], []
+        for T in self.poses[1:]:
+            dyn.move(obj, T)
+            t = time.perf_counter()
+            st = dyn.update(OBSERVER)
+            B = dyn.radiosity(self.lights)
+            moving.append(time.perf_counter() - t)
+            t_moves.append(st.t_move)
+            refreshed.append(st.rows_refreshed)
+        B_local = dyn.radiosity(self.lights, far_field=False)  # the move's own error: K against a fresh K
+        errors = [float(np.abs(B_local - self.fresh).max() / self.fresh.max()),
+                  _visible_error(self.reference, B_local, self.fresh, self.camera, self.device),
+                  float(np.abs(B - self.B_ref).max() / self.B_ref.max()),
+                  _visible_error(self.reference, B, self.B_ref, self.camera, self.device)]
+        after = _walked(*_walk(dyn, self.lights))  # with the rows the moves left stale (corrected per frame)
+        walked = _walked(walk, swaps)
+        return ["all" if budget is None else budget, label, len(self.box), len(self.block), self.M,
+                1e3 * min(walked), float(np.mean(swaps)), 1e3 * min(after), 1e3 * min(moving),
+                1e3 * min(t_moves), min(moving) / min(walked), int(np.median(refreshed)), *errors]
+
+
+def _walked(times: list[float], swaps: list[int]) -> list[float]:
+    """The times of the walk frames that swapped patches (all of them if none did): a step
+    whose local set does not change is a still frame, not a walk frame."""
+    return [t for t, k in zip(times, swaps) if k] or times
+
+
 def measure(size: str, device, progress: bool = True) -> dict:
     import pydynrad as pd
     from pydynrad.dynamic.radiosity import MOVE_SWAPS_LIMIT
 
     p = SIZES[size]
     box = pd.scenes.cornell_box(max_edge=p["max_edge"])
-    block = pd.scenes.block(100.0, p["block"], albedo=(0.1, 0.6, 0.15))  # 48 patches at subdivision 1
-    R, M = p["R"], min(p["M"], len(box) + len(block))
+    albedo = (0.1, 0.6, 0.15)
+    block = pd.scenes.block(100.0, p["block"], albedo=albedo)  # 48 patches at subdivision 1
     lights = [pd.PointLight((278.0, 520.0, 280.0), (3e5, 3e5, 3e5))]
-    F_static = pd.form_factors(box, R, device=device)
-    poses = _poses(p["moves"])
     camera = pd.Camera(position=(278.0, 273.0, -800.0), look_at=(278.0, 273.0, 280.0), fov_y=40,
                        width=p["image"][0], height=p["image"][1])
-    final = pd.RigidObject(block, poses[-1])
-    reference = box.with_objects([final])
-    t0 = time.perf_counter()
-    F_ref = pd.form_factors(reference, R, device=device)
-    t_full_ff = time.perf_counter() - t0
-    B_ref = pd.solve(reference, F_ref, lights=lights, tol=1e-8, dtype=np.float64, device=device).radiosity
-    # What the same local set gives without any move: built at the final pose from scratch.
-    fresh = pd.DynamicRadiosity(box, None, local_size=M, resolution=R, objects=[final], occlusion=None,
-                                observer=OBSERVER, device=device).radiosity(lights, far_field=False)
-    local_err = float(np.abs(fresh - B_ref).max() / B_ref.max())  # local only: the paper's answer
+    case = _Case(box, block, p, lights, camera, device)
+    R, M, poses = case.R, case.M, case.poses
+    F_static = pd.form_factors(box, R, device=device)
     # The paper's variant: every pose of the path known in advance, its rows precomputed.
     t0 = time.perf_counter()
     stored = pd.precompute_poses(box, [pd.RigidObject(block)], poses, resolution=R, device=device)
@@ -112,39 +180,17 @@ def measure(size: str, device, progress: bool = True) -> dict:
     for budget in p["budgets"]:
         # Hemicube rows (every refresh a hemicube) at the two ends of the trade only: slow in
         # between; the static F's rows uncorrected where the correction changes anything.
-        variants = [(F_static, True, "static F", None)]
+        rows.append(case.row(budget, F_static, True, "static F"))
         if budget == 0:
-            variants.append((F_static, True, "static F, stored poses", stored))
+            rows.append(case.row(budget, F_static, True, "static F, stored poses", stored))
+            if p["block"] == 1:  # the issue's block: 64 patches
+                rows.append(_Case(box, _block64(albedo), p, lights, camera, device).row(budget, F_static, True,
+                                                                                       "static F, 64-patch block"))
         if budget is not None:
-            variants.append((F_static, False, "static F, uncorrected", None))
+            rows.append(case.row(budget, F_static, False, "static F, uncorrected"))
         if budget in (0, None):
-            variants.append((None, True, "hemicubes", None))
-        for form_factors, correct, label, known in variants:
-            obj = pd.RigidObject(block, poses[0])
-            dyn = pd.DynamicRadiosity(box, form_factors, local_size=M, resolution=R, objects=[obj], occlusion=budget,
-                                      max_swaps_per_frame=SWAPS, observer=OBSERVER, device=device,
-                                      occlusion_correction=correct, poses=known)
-            dyn.radiosity(lights)  # compile and warm up
-            walk, swaps = _walk(dyn, lights)
-            dyn.update(OBSERVER)
-            moving, t_moves, refreshed = [], [], []
-            for T in poses[1:]:
-                dyn.move(obj, T)
-                t = time.perf_counter()
-                st = dyn.update(OBSERVER)
-                B = dyn.radiosity(lights)
-                moving.append(time.perf_counter() - t)
-                t_moves.append(st.t_move)
-                refreshed.append(st.rows_refreshed)
-            B_local = dyn.radiosity(lights, far_field=False)  # the move's own error: K against a fresh K
-            errors = [float(np.abs(B_local - fresh).max() / fresh.max()),
-                      _visible_error(reference, B_local, fresh, camera, device),
-                      float(np.abs(B - B_ref).max() / B_ref.max()), _visible_error(reference, B, B_ref, camera, device)]
-            after, _ = _walk(dyn, lights)  # with the rows the moves left stale (corrected per frame)
-            rows.append(["all" if budget is None else budget, label, len(box), len(block), M,
-                         1e3 * min(walk), float(np.mean(swaps)), 1e3 * min(after), 1e3 * min(moving),
-                         1e3 * min(t_moves), min(moving) / min(walk),
-                         int(np.median(refreshed)), *errors])
+            rows.append(case.row(budget, None, True, "hemicubes"))
+    t_full_ff, local_err = case.t_full_ff, case.local_err
     table = {"title": "A move per frame against the occlusion budget (Cornell box, moving block, point light)",
              "columns": ["budget", "rows", "N", "block patches", "M", "walk frame ms", "swaps/walk frame",
                          "walk frame after the moves ms", "moving frame ms", "move ms", "moving / walk",
@@ -155,7 +201,7 @@ def measure(size: str, device, progress: bool = True) -> dict:
                      f"far field (the move's own error, in K); 'full': a full solve of Scene.with_objects there (R = {R}; "
                      f"its form factors took {t_full_ff:.2f} s) against the answer with the far field (without it the "
                      f"fresh local set alone is {local_err:.3g} max rel. off for M = {M}). Times: the fastest of the "
-                     f"{len(WALK)} walk frames and of the {p['moves']} moves (the machine is shared). "
+                     f"{len(WALK)} walk frames that swapped patches and of the {p['moves']} moves (the machine is shared). "
                      f"Walk frame: update with the observer stepping 40 mm (up to {SWAPS} swaps) and radiosity "
                      f"with the light, no move (before the moves, and after them: then with the stale rows' "
                      f"correction, where there is one); moving frame: the same with the observer still and one move "
@@ -163,7 +209,9 @@ def measure(size: str, device, progress: bool = True) -> dict:
                      "come from it at the new pose (entries the block hides dropped, its columns by reciprocity), "
                      "ranked by the change in the light they gather; the rows of every other patch that may see the "
                      "block are made too and B corrected for them in radiosity (occlusion_correction, the default; "
-                     "'uncorrected': without, those rows stay stale); 'stored poses': the paper's variant, the "
+                     "'uncorrected': without, those rows stay stale); '64-patch block': the same at budget 0 with "
+                     "the issue's block, 64 patches (the 48-patch block's top and bottom triangles halved; its errors "
+                     "against its own full solve and fresh build); 'stored poses': the paper's variant, the "
                      f"rows of every pose of the path precomputed by hemicube (pydynrad.precompute_poses: "
                      f"{len(stored)} poses in {t_poses:.2f} s, {stored.nbytes / 2**20:.1f} MiB), so a move "
                      "takes the block's rows and those of every patch that may see it from there; 'hemicubes': "
