@@ -20,6 +20,8 @@ chunks done so far are new and the rest old, which is what the next chunk remove
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -317,6 +319,9 @@ class PoseRows:
         self.store = store
         self._rows: dict[bytes, tuple[np.ndarray, sp.csr_matrix]] = {}
         self._last: tuple[bytes, tuple | None] | None = None  # (key, entry) last read from the store
+        # A move asks from two threads at once (the objects' rows on a pool thread, the static
+        # rows here): one of them reads and verifies the file, the other waits for it.
+        self._reading = threading.Lock()
 
     @staticmethod
     def key(transforms) -> bytes:
@@ -335,9 +340,10 @@ class PoseRows:
         key = self.key(transforms)
         if self.store is None:
             return self._rows.get(key)
-        if self._last is None or self._last[0] != key:
-            self._last = (key, self.store.read_pose(transforms))
-        return self._last[1]
+        with self._reading:
+            if self._last is None or self._last[0] != key:
+                self._last = (key, self.store.read_pose(transforms))
+            return self._last[1]
 
     def __contains__(self, transforms) -> bool:
         return self.key(transforms) in self._rows if self.store is None else self.store.has_pose(transforms)
@@ -563,8 +569,9 @@ class WorldRows:
 
     def _static_rows(self, s: np.ndarray) -> sp.csr_matrix:
         """Rows of static patches ``s`` at the current poses: those ``poses`` holds for them
-        (hemicubes of the world there: exact, and no pass over the rows' entries), the others
-        from the static F (:meth:`_from_static`)."""
+        (hemicubes of the world there: no estimate, and no pass over their entries), the others
+        from the static F (:meth:`_from_static`: patches that cannot see an object there, whose
+        pre-test finds nothing to hide)."""
         return self._stored_or(np.asarray(s, np.int64), self._from_static)[0]
 
     def _from_static(self, s: np.ndarray) -> sp.csr_matrix:

@@ -165,7 +165,9 @@ class DynamicRadiosity:
         Rows precomputed for configurations of the objects known in advance
         (:func:`pydynrad.precompute_poses`, same ``resolution``): a move to one of them takes its
         rows from there instead of hemicubes (with a static ``form_factors``, also the static
-        rows the store holds, instead of their estimate from F: the rows of a full build there).
+        rows it holds, instead of their estimate from F; with F and the poses at the same
+        resolution and one sample per row, the rows at a stored pose are then a full build's,
+        up to the rounding of the cap to a sum of 1 on the rows made from F).
     device : pydynrad.Device, optional
     """
 
