@@ -532,15 +532,13 @@ class WorldRows:
         stored = None if self.poses is None else self.poses.get(self.world.bvh.transforms)
         if stored is None:
             return make(idx), len(idx)
-        patches, rows = stored
-        at = np.minimum(np.searchsorted(patches, idx), max(len(patches) - 1, 0))
-        have = patches[at] == idx if len(patches) else np.zeros(len(idx), bool)
+        patches, rows = stored  # patches sorted (PoseRows.add)
+        have = np.isin(idx, patches)
+        held = rows[np.searchsorted(patches, idx[have])]
         if have.all():
-            return sp.csr_matrix(rows[at[have]], dtype=np.float64), 0
-        miss = np.flatnonzero(~have)
-        parts = [rows[at[have]], make(idx[miss])]
-        order = np.argsort(np.concatenate([np.flatnonzero(have), miss]), kind="stable")
-        return sp.csr_matrix(sp.vstack(parts, format="csr")[order], dtype=np.float64), len(miss)
+            return sp.csr_matrix(held, dtype=np.float64), 0
+        miss = idx[~have]
+        return _in_order(held, make(miss), have), len(miss)
 
     def _at(self, idx: np.ndarray, make, also: np.ndarray | None = None) -> sp.csr_matrix:
         """Rows ``idx``, each made once per pose by ``make(missing indices)`` and kept until the
@@ -593,9 +591,7 @@ class WorldRows:
         static = self._at(idx[~obj], self._static_rows)
         if not obj.any():
             return static
-        parts = [static, self.objects()[idx[obj] - self.n_static]]
-        order = np.argsort(np.concatenate([np.flatnonzero(~obj), np.flatnonzero(obj)]), kind="stable")
-        return sp.csr_matrix(sp.vstack(parts, format="csr")[order])
+        return _in_order(static, self.objects()[idx[obj] - self.n_static], ~obj)
 
     def refresh(self, moved: np.ndarray, candidates: np.ndarray, slots: np.ndarray, kept: sp.csr_matrix, spheres,
                 budget: int | None, weight: np.ndarray | None, correct: bool = False,
@@ -662,6 +658,13 @@ class WorldRows:
             order, new = order[best], new[best]
         rows = self.object_rows[np.concatenate([moved, candidates[still]]) - self.n_static]
         return np.concatenate([still, order]), sp.vstack([rows, new], format="csr"), hemicubes, left if correct else None
+
+
+def _in_order(first: sp.csr_matrix, second: sp.csr_matrix, in_first: np.ndarray) -> sp.csr_matrix:
+    """One float64 CSR of rows asked for in order: row i the next of ``first`` where
+    ``in_first[i]``, else the next of ``second``."""
+    order = np.argsort(np.concatenate([np.flatnonzero(in_first), np.flatnonzero(~in_first)]), kind="stable")
+    return sp.csr_matrix(sp.vstack([first, second], format="csr")[order], dtype=np.float64)
 
 
 def swap_chunks(slots: np.ndarray, size: int) -> list[np.ndarray]:
