@@ -17,7 +17,11 @@
  * (pydynrad/dynamic/stale.py): a merge of each current row with its kept row, read in place
  * (scipy sliced the kept rows out first, then subtracted: 5.8-6.8 ms for the ~850k entries of a
  * move's 958 stale rows on the bench's Cornell box, against 4.4-4.7 ms here; PoCL host, 2-core
- * Xeon, 2026-12-02). The merge's branches bound it, not memory.
+ * Xeon, 2026-12-02). The merge's branches bound it, not memory: so each step writes its entry
+ * and advances the output only where it is non-zero (most are zero: a stale row equals its
+ * kept row but where an object hides or shows), and the order checks run without an early
+ * exit, which vectorizes (2.0-2.2 -> 1.6-1.8 ms for the ~850k entries of a move there, one
+ * thread, 2026-12-03).
  *
  * Column indices are int32 (scipy's own for fewer than 2^31 columns), row pointers int64. The
  * rows read are spans of a CSR matrix's entries, starts[k] <= j < ends[k] for row k, so that
@@ -110,9 +114,9 @@ static Py_ssize_t assemble(Py_ssize_t rows, const int64_t *is, const int64_t *ie
 
 static int increasing(const int32_t *x, int64_t start, int64_t end)
 {
-    for (int64_t t = start + 1; t < end; ++t)
-        if (x[t] <= x[t - 1]) return 0;
-    return 1;
+    int ok = 1;  /* no early exit: the loop vectorizes, and rows in order are the rule */
+    for (int64_t t = start + 1; t < end; ++t) ok &= x[t] > x[t - 1];
+    return ok;
 }
 
 static Py_ssize_t difference(Py_ssize_t rows, const int64_t *as, const int64_t *ae, const int32_t *ax, const double *av,
@@ -124,17 +128,20 @@ static Py_ssize_t difference(Py_ssize_t rows, const int64_t *as, const int64_t *
     for (Py_ssize_t k = 0; k < rows; ++k) {
         int64_t i = as[k], ie = ae[k], j = bp[slots[k]], je = bp[slots[k] + 1];
         if (!increasing(ax, i, ie) || !increasing(bx, j, je)) return -1 - k;
-        while (i < ie || j < je) {
-            int32_t c;
+        while (i < ie && j < je) {
+            const int32_t a = ax[i], c = bx[j];
             double v;
-            if (j >= je || (i < ie && ax[i] < bx[j]))
-                c = ax[i], v = av[i++];
-            else if (i >= ie || bx[j] < ax[i])
-                c = bx[j], v = -bv[j++];
+            if (a == c)
+                v = av[i++] - bv[j++];
+            else if (a < c)
+                v = av[i++];
             else
-                c = ax[i], v = av[i++] - bv[j++];
-            if (v != 0.0) ox[n] = c, ov[n++] = v;
+                v = -bv[j++];
+            ox[n] = a < c ? a : c, ov[n] = v;
+            n += v != 0.0;
         }
+        for (; i < ie; ++i) ox[n] = ax[i], ov[n] = av[i], n += av[i] != 0.0;
+        for (; j < je; ++j) ox[n] = bx[j], ov[n] = -bv[j], n += bv[j] != 0.0;
         op[k + 1] = n;
     }
     return n;

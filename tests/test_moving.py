@@ -627,9 +627,11 @@ def test_segments_near_sphere_match_numpy():
         _segments.near_sphere(P, indptr[1:].copy(), indptr[:-1].copy(), indices.astype(np.int32), owners, tuple(c), r, None)
 
 
-def test_rows_minus_matches_scipy():
-    """D = rows - kept[slots] by the native merge against scipy, sorted and unsorted rows,
-    exact zeros dropped; slots outside the kept rows refused."""
+def test_rows_minus_matches_scipy(monkeypatch):
+    """D = rows - kept[slots] by the native merge against scipy, sorted and unsorted rows, one
+    matrix or blocks, one part or parts on the cores, exact zeros dropped; slots outside the
+    kept rows refused."""
+    from pydynrad.dynamic import stale
     from pydynrad.dynamic.stale import rows_minus
 
     rng = np.random.default_rng(7)
@@ -642,6 +644,11 @@ def test_rows_minus_matches_scipy():
     got = rows_minus(rows, kept, slots)
     np.testing.assert_array_equal(got.toarray(), truth)
     assert got.nnz == np.count_nonzero(truth) and got.has_sorted_indices
+    monkeypatch.setattr(stale, "PARALLEL_ENTRIES", 1)  # each block in parts, as many as cores
+    blocks = [rows[:13], rows[13:14], rows[14:]]
+    for parted in (rows_minus(blocks, kept, slots), rows_minus(rows, kept, slots)):
+        np.testing.assert_array_equal(parted.toarray(), truth)
+        assert parted.nnz == got.nnz and parted.has_sorted_indices
     shuffled = rows.copy()
     for k in range(shuffled.shape[0]):  # each row's entries reversed: columns out of order
         a, b = shuffled.indptr[k], shuffled.indptr[k + 1]

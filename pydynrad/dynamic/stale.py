@@ -100,8 +100,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
         # Only the entries D has are ever written: the rest of the bound is not touched (no page of it faulted in).
         indptr, out_i, out_d = np.empty(len(sl) + 1, np.int64), np.empty(most, np.int32), np.empty(most)
         nnz = _poserows.difference(starts, ends, indices, data, *native_csr(kept), sl, indptr, out_i, out_d)
-        return None if nnz < 0 else sp.csr_matrix((out_d[:nnz].copy(), out_i[:nnz].copy(), indptr),
-                                                  shape=(len(sl), kept.shape[1]))
+        return None if nnz < 0 else (indptr, out_i[:nnz], out_d[:nnz])
 
     def tasks():
         first = 0
@@ -117,7 +116,12 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     if any(p is None for p in parts):  # a row out of column order (scipy leaves sums of CSR matrices unsorted)
         blocks, kept = [_canonical(b) for b in blocks], _canonical(kept)
         parts = map_parts(merge, tasks())
-    return parts[0] if len(parts) == 1 else sp.vstack(parts, format="csr")
+    # One copy of the parts' entries into D (scipy's vstack of the parts' matrices took 0.24 ms of
+    # a move's 2 ms merge on the bench's Cornell box).
+    first = np.cumsum([0] + [len(p[1]) for p in parts])
+    indptr = np.concatenate([[0]] + [p[0][1:] + f for p, f in zip(parts, first)])
+    return sp.csr_matrix((np.concatenate([p[2] for p in parts]), np.concatenate([p[1] for p in parts]), indptr),
+                         shape=(n_rows, kept.shape[1]))
 
 
 def _canonical(m: sp.csr_matrix) -> sp.csr_matrix:
