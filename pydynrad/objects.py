@@ -124,6 +124,13 @@ class RigidObject:
         c, r = self._bound_object
         return T[:3, :3] @ c + T[:3, 3], r
 
+    @cached_property
+    def smallest_patch(self) -> float:
+        """The shortest of the patches' longest edges, in object (= world) units."""
+        corners = self.scene.points.astype(np.float64)[self.scene.triangles]
+        edges = np.linalg.norm(corners - corners[:, [1, 2, 0]], axis=2)
+        return float(edges.max(axis=1).min())
+
     def world_points(self, transform=None) -> np.ndarray:
         """(V, 3) float64 points of the object at ``transform`` (default: its pose)."""
         T = self._transform if transform is None else rigid_transform(transform)
@@ -173,6 +180,29 @@ def _combined(scene, objs: list[RigidObject], transforms=None):
                             bbox=np.stack([corners[:, 0].min(axis=0), corners[:, 1].max(axis=0)]))
 
 
+def check_reach(scene, obj: RigidObject, transform) -> None:
+    """Refuse a pose where the device cannot resolve the object: every position goes to the device
+    as float32 in the static scene's frame (:class:`~pydynrad.scene.DeviceFrame`), so at a
+    distance d from its centre positions round by ~6e-8 d. An object beyond the scene's own
+    diagonal whose smallest patch is below :data:`~pydynrad.scene.MIN_RELATIVE_SIZE` of d
+    (the fraction below which a static scene's patches get a PrecisionWarning) would have its
+    hemicubes' origins rounded off its patches, and further out its edges collapse (a 100 mm
+    block at 1e18 mm: zero-length rays). A static scene only warns, since most of it stays
+    right; an object at such a pose is wrong as a whole, and a pose is asked for per frame, so
+    it is an error (:class:`~pydynrad.errors.InvalidInputError`)."""
+    from .scene import MIN_RELATIVE_SIZE
+
+    c, r = obj.bounding_sphere(transform)
+    reach = float(np.linalg.norm(c - scene.frame.origin)) + r
+    limit = obj.smallest_patch / MIN_RELATIVE_SIZE
+    if reach > max(limit, scene.scale):
+        raise InvalidInputError(
+            f"object {obj.name!r} at this pose reaches {reach:.3g} from the scene's centre, where float32 device "
+            f"coordinates cannot resolve its smallest patch ({obj.smallest_patch:.3g}, below {MIN_RELATIVE_SIZE:g} "
+            f"of that distance): keep it within {limit:.3g} of the scene's centre (to hide an object, move it just "
+            "outside the scene)")
+
+
 def _warn_intersections(scene, objs: list[RigidObject], transforms) -> None:
     """Warn when an object's edges cross static triangles (checked by rays, once per pose)."""
     from .bvh import occluded
@@ -210,6 +240,8 @@ def instanced(scene, objects, transforms=None, bvh=None):
 
     objs = _objects(objects)
     transforms = [o.transform for o in objs] if transforms is None else [rigid_transform(t) for t in transforms]
+    for o, T in zip(objs, transforms):
+        check_reach(scene, o, T)
     _warn_intersections(scene, objs, transforms)
     out = _combined(scene, objs, transforms)
     if bvh is None:

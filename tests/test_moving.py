@@ -263,6 +263,33 @@ def test_bad_input(box, block, device):
         dyn.update(OBSERVER)
 
 
+def test_a_pose_the_device_cannot_resolve_is_refused_before_anything_moves(box, block, device):
+    """float32 device coordinates round a position d from the scene's centre by ~6e-8 d: a pose
+    whose smallest patch is below 1e-5 of its distance (the static scenes' PrecisionWarning
+    bound) is refused by move() with nothing queued, and at construction; just inside the
+    bound the block is solved (lit by the lamp from afar: finite and positive). At 1e18 mm
+    this crashed inside the intersection test's rays ("ray directions must be non-zero")."""
+    obj = pd.RigidObject(block, START)
+    dyn = pd.DynamicRadiosity(box, None, local_size=len(box), resolution=R, objects=[obj], observer=OBSERVER,
+                              device=device)
+    B = dyn.radiosity(LIGHTS)
+    limit = obj.smallest_patch / 1e-5
+    centre = dyn.static_scene.frame.origin
+    for far in (1.01 * limit, 1e18):
+        away = pose(0, centre + (0.0, 0.0, -far))
+        with pytest.raises(pd.InvalidInputError, match=r"float32 .* keep it within"):
+            dyn.move(obj, away)
+        with pytest.raises(pd.InvalidInputError, match="float32"):
+            pd.DynamicRadiosity(box, None, local_size=len(box), resolution=R, objects=[pd.RigidObject(block, away)],
+                                device=device)
+    dyn.update(OBSERVER)  # nothing was queued: the same answer
+    np.testing.assert_array_equal(dyn.radiosity(LIGHTS), B)
+    dyn.move(obj, pose(0, centre + (0.0, 0.0, -0.9 * limit)))
+    dyn.update(OBSERVER)
+    far_B = dyn.radiosity(LIGHTS)[len(box):]
+    assert np.all(np.isfinite(far_B)) and far_B.max() > 0
+
+
 def test_precomputed_poses(box, block, device):
     """The paper's variant: rows of each pose precomputed; a move there takes them (no hemicube
     for a row the store holds) and gives what hemicubes at the move would."""

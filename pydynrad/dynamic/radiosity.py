@@ -504,12 +504,16 @@ class DynamicRadiosity:
 
     # -- moving objects -------------------------------------------------------------------------------
     def move(self, obj, transform) -> None:
-        """Queue a new (4, 4) rigid pose for ``obj``; the next :meth:`update` applies every queued move."""
-        from ..objects import rigid_transform
+        """Queue a new (4, 4) rigid pose for ``obj``; the next :meth:`update` applies every queued move.
+        A pose the device cannot resolve the object at is refused here, nothing queued
+        (:func:`pydynrad.objects.check_reach`)."""
+        from ..objects import check_reach, rigid_transform
 
         if not any(o is obj for o in self.objects):
             raise InvalidInputError(f"{obj!r} was never added to this DynamicRadiosity (pass it in objects=)")
-        self._pending[id(obj)] = (obj, rigid_transform(transform))
+        T = rigid_transform(transform)
+        check_reach(self.static_scene, obj, T)
+        self._pending[id(obj)] = (obj, T)
 
     def _moved_world(self) -> None:
         """Put :attr:`scene` (and the BVH every kernel traces) at the objects' current poses."""
