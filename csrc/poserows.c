@@ -20,8 +20,8 @@
  * Xeon, 2026-12-02). The merge's branches bound it, not memory: so each step writes its entry
  * and advances the output only where it is non-zero (most are zero: a stale row equals its
  * kept row but where an object hides or shows), and the order checks run without an early
- * exit, which vectorizes (2.0-2.2 -> 1.6-1.8 ms for the ~850k entries of a move there, one
- * thread, 2026-12-03).
+ * exit, which vectorizes (medians 1.80-1.92 -> 1.58-1.73 ms for the ~850k entries of a move
+ * there, one thread, 2026-12-03).
  *
  * Column indices are int32 (scipy's own for fewer than 2^31 columns), row pointers int64. The
  * rows read are spans of a CSR matrix's entries, starts[k] <= j < ends[k] for row k, so that

@@ -247,7 +247,7 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
     idx_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, block * 4) for _ in range(2)]
     org_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, block * K * 16) for _ in range(2)]
     org_host = [None, None]  # each block's origins live until the next copy into the same buffer
-    eps = np.float32(scene.frame.length(SURFACE_OFFSET * scene.scale))
+    eps = np.float32(scene.frame.length(SURFACE_OFFSET * scene.ray_scale))
 
     def launch(first: int, k: int) -> int:
         idx = np.ascontiguousarray(rows[first : first + block])

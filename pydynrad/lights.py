@@ -247,7 +247,7 @@ def _point_irradiance(scene, points, normals, lights: list, device) -> np.ndarra
     kernel(
         device.queue, (global_size(n),), (WG,), np.int32(n), centers, normals, np.int32(len(packed)),
         device.to_device(packed), device.to_device(tables), nodes, tris,
-        np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)),
+        np.float32(scene.frame.length(SHADOW_EPSILON * scene.ray_scale)),
         np.float32(scene.frame.length(2.0 * scene.scale + outside)), out_dev,
     )
     out = np.empty((n, 4), dtype=np.float32)

@@ -21,6 +21,7 @@ from functools import cached_property
 import numpy as np
 
 from .errors import InvalidInputError
+from .formfactors import SURFACE_OFFSET
 
 __all__ = ["RigidObject", "ObjectIntersectionWarning", "rigid_transform", "with_objects", "instanced"]
 
@@ -31,6 +32,12 @@ RIGID_TOL = 1e-5
 
 class ObjectIntersectionWarning(UserWarning):
     """An object's triangles cut through the static scene's (allowed: light then leaks there)."""
+
+
+#: How far from the static scene's centre, in its diagonals, an object may reach (its bounding
+#: sphere's far side): there float32 rounds a position by 2^-24 sqrt(3) of its distance, a tenth of
+#: the rays' offset SURFACE_OFFSET from their surface (:func:`check_reach`).
+MAX_REACH = SURFACE_OFFSET / (10 * 2.0**-24 * 3**0.5)
 
 
 def rigid_transform(value, what: str = "transform") -> np.ndarray:
@@ -124,13 +131,6 @@ class RigidObject:
         c, r = self._bound_object
         return T[:3, :3] @ c + T[:3, 3], r
 
-    @cached_property
-    def smallest_patch(self) -> float:
-        """The shortest of the patches' longest edges, in object (= world) units."""
-        corners = self.scene.points.astype(np.float64)[self.scene.triangles]
-        edges = np.linalg.norm(corners - corners[:, [1, 2, 0]], axis=2)
-        return float(edges.max(axis=1).min())
-
     def world_points(self, transform=None) -> np.ndarray:
         """(V, 3) float64 points of the object at ``transform`` (default: its pose)."""
         T = self._transform if transform is None else rigid_transform(transform)
@@ -156,7 +156,9 @@ def _combined(scene, objs: list[RigidObject], transforms=None):
     Assembled from the parts, not validated again (:meth:`Scene._assembled`): the static
     patches keep their own arrays bit for bit (so their rows match those of the static scene
     wherever no object is in view), and each object's centres, normals and areas come from its
-    points at the pose as a Scene would compute them (:func:`pydynrad.scene.patch_geometry`)."""
+    points at the pose as a Scene would compute them (:func:`pydynrad.scene.patch_geometry`).
+    Its rays leave their surfaces by the static scene's :attr:`~pydynrad.scene.Scene.ray_scale`,
+    wherever the objects are."""
     from .scene import Scene, patch_geometry
 
     transforms = [o.transform for o in objs] if transforms is None else transforms
@@ -174,33 +176,33 @@ def _combined(scene, objs: list[RigidObject], transforms=None):
     arrays = [np.concatenate([getattr(scene, name)] + [g[k] for g in geometry])
               for k, name in enumerate(("centers", "normals", "areas"))]
     corners = np.stack(corners)
-    return Scene._assembled(np.concatenate(points), np.concatenate(tris), np.concatenate([p.albedo for p in parts]),
-                            np.concatenate([p.emission for p in parts]), *arrays,
-                            name="+".join([scene.name] + [o.name for o in objs]),
-                            bbox=np.stack([corners[:, 0].min(axis=0), corners[:, 1].max(axis=0)]))
+    out = Scene._assembled(np.concatenate(points), np.concatenate(tris), np.concatenate([p.albedo for p in parts]),
+                           np.concatenate([p.emission for p in parts]), *arrays,
+                           name="+".join([scene.name] + [o.name for o in objs]),
+                           bbox=np.stack([corners[:, 0].min(axis=0), corners[:, 1].max(axis=0)]))
+    out.__dict__["_ray_scale"] = scene.ray_scale  # the static patches' rays as in the static scene
+    return out
 
 
 def check_reach(scene, obj: RigidObject, transform) -> None:
-    """Refuse a pose where the device cannot resolve the object: every position goes to the device
-    as float32 in the static scene's frame (:class:`~pydynrad.scene.DeviceFrame`), so at a
-    distance d from its centre positions round by ~6e-8 d. An object beyond the scene's own
-    diagonal whose smallest patch is below :data:`~pydynrad.scene.MIN_RELATIVE_SIZE` of d
-    (the fraction below which a static scene's patches get a PrecisionWarning) would have its
-    hemicubes' origins rounded off its patches, and further out its edges collapse (a 100 mm
-    block at 1e18 mm: zero-length rays). A static scene only warns, since most of it stays
-    right; an object at such a pose is wrong as a whole, and a pose is asked for per frame, so
-    it is an error (:class:`~pydynrad.errors.InvalidInputError`)."""
-    from .scene import MIN_RELATIVE_SIZE
-
+    """Refuse a pose where the device cannot place the object's rays: every position goes to the
+    device as float32 in the static scene's frame (:class:`~pydynrad.scene.DeviceFrame`), rounded
+    by up to 2^-24 sqrt(3) of its distance from the frame's centre, and rays leave their patches
+    :data:`~pydynrad.formfactors.SURFACE_OFFSET` of the static scene's diagonal above them
+    (:attr:`~pydynrad.scene.Scene.ray_scale`). Beyond :data:`MAX_REACH` diagonals the rounding
+    exceeds a tenth of that offset, and an object's hemicube rays may start inside it; further
+    out its patches collapse (a 100 mm block at 1e18 mm: zero-length rays). A pose is asked for
+    per frame, and an object there is wrong as a whole, so it is an error
+    (:class:`~pydynrad.errors.InvalidInputError`), not a warning."""
     c, r = obj.bounding_sphere(transform)
     reach = float(np.linalg.norm(c - scene.frame.origin)) + r
-    limit = obj.smallest_patch / MIN_RELATIVE_SIZE
-    if reach > max(limit, scene.scale):
+    limit = MAX_REACH * scene.ray_scale
+    if reach > limit:
         raise InvalidInputError(
-            f"object {obj.name!r} at this pose reaches {reach:.3g} from the scene's centre, where float32 device "
-            f"coordinates cannot resolve its smallest patch ({obj.smallest_patch:.3g}, below {MIN_RELATIVE_SIZE:g} "
-            f"of that distance): keep it within {limit:.3g} of the scene's centre (to hide an object, move it just "
-            "outside the scene)")
+            f"object {obj.name!r} at this pose reaches {reach:.3g} from the static scene's centre (its bounding "
+            f"sphere's far side), beyond {limit:.3g} ({MAX_REACH:.3g} of the scene's diagonals), where float32 device "
+            "coordinates round its rays' origins by more than a tenth of their offset from its surface: keep it "
+            "within that (an object is hidden by a pose just outside the scene)")
 
 
 def _warn_intersections(scene, objs: list[RigidObject], transforms) -> None:

@@ -173,6 +173,7 @@ def walk(
     """
     from .device import default_device
     from .image_io import _format_for, write_image
+    from .objects import check_reach
     from .progress import progress_bar
     from .render import Renderer
 
@@ -208,6 +209,9 @@ def walk(
     full_F = None  # all of F in memory, read at the first reference frame
     records, images = [], []
     b = img = None
+    for t in tracks:  # a pose the device cannot resolve is refused before the first frame, not mid-walk
+        for k in range(n):
+            check_reach(scene, t.object, t.at(k, n))
     bar = progress_bar(progress, iterable=range(n), desc="walk", unit="frame")
     for k in bar:
         cam = path.camera(k)

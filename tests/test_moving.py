@@ -264,30 +264,45 @@ def test_bad_input(box, block, device):
 
 
 def test_a_pose_the_device_cannot_resolve_is_refused_before_anything_moves(box, block, device):
-    """float32 device coordinates round a position d from the scene's centre by ~6e-8 d: a pose
-    whose smallest patch is below 1e-5 of its distance (the static scenes' PrecisionWarning
-    bound) is refused by move() with nothing queued, and at construction; just inside the
-    bound the block is solved (lit by the lamp from afar: finite and positive). At 1e18 mm
-    this crashed inside the intersection test's rays ("ray directions must be non-zero")."""
+    """float32 device coordinates round a position d from the scene's centre by up to 2^-24
+    sqrt(3) d: an object reaching beyond MAX_REACH diagonals (where that passes a tenth of the
+    rays' surface offset) is refused by move() with nothing queued, at construction and by a
+    walk before its first frame. Just inside, behind the back wall, the static patches' rows
+    of the world are the box's own, bit for bit, and the block is dark: their rays leave their surfaces by the static
+    scene's offset (Scene.ray_scale), not by one grown with the world (it had been 0.4% off the
+    rows' sums at 1e5 mm). At 1e18 mm a move had crashed in the intersection test's rays."""
+    from pydynrad.objects import MAX_REACH
+
     obj = pd.RigidObject(block, START)
     dyn = pd.DynamicRadiosity(box, None, local_size=len(box), resolution=R, objects=[obj], observer=OBSERVER,
                               device=device)
     B = dyn.radiosity(LIGHTS)
-    limit = obj.smallest_patch / 1e-5
-    centre = dyn.static_scene.frame.origin
-    for far in (1.01 * limit, 1e18):
-        away = pose(0, centre + (0.0, 0.0, -far))
+    centre, radius = box.frame.origin, obj.bounding_sphere()[1]
+    behind = lambda reach: pose(0, centre + (0.0, 0.0, reach - radius))  # noqa: E731  (+z: behind the back wall)
+    limit = MAX_REACH * box.ray_scale
+    for reach in (1.01 * limit, 1e18):
         with pytest.raises(pd.InvalidInputError, match=r"float32 .* keep it within"):
-            dyn.move(obj, away)
+            dyn.move(obj, behind(reach))
         with pytest.raises(pd.InvalidInputError, match="float32"):
-            pd.DynamicRadiosity(box, None, local_size=len(box), resolution=R, objects=[pd.RigidObject(block, away)],
-                                device=device)
+            pd.DynamicRadiosity(box, None, local_size=len(box), resolution=R,
+                                objects=[pd.RigidObject(block, behind(reach))], device=device)
+    track = pd.ObjectTrack(obj, [START, behind(1.01 * limit)], interpolation="linear")
+    with pytest.raises(pd.InvalidInputError, match="float32"):
+        pd.walk(box, pd.orbit(centre, 300.0, 0.0, 3, width=8, height=6), dyn, objects=[track], device=device)
     dyn.update(OBSERVER)  # nothing was queued: the same answer
     np.testing.assert_array_equal(dyn.radiosity(LIGHTS), B)
-    dyn.move(obj, pose(0, centre + (0.0, 0.0, -0.9 * limit)))
+    far = behind(0.95 * limit)
+    world = instanced(box, [pd.RigidObject(block, far)])
+    assert world.ray_scale == box.ray_scale < world.scale / 5
+    n = len(box)
+    F_world, F_box = pd.form_factors(world, R, rows=np.arange(n), device=device), pd.form_factors(box, R, device=device)
+    assert F_world[:, n:].nnz == 0
+    np.testing.assert_array_equal(F_world[:, :n].toarray(), F_box.toarray())
+    dyn.move(obj, far)
     dyn.update(OBSERVER)
-    far_B = dyn.radiosity(LIGHTS)[len(box):]
-    assert np.all(np.isfinite(far_B)) and far_B.max() > 0
+    B = dyn.radiosity(LIGHTS)
+    assert np.all(np.isfinite(B)) and B[:n].max() > 0
+    assert not B[n:].any()  # behind the back wall no light of the box reaches it
 
 
 def test_precomputed_poses(box, block, device):
@@ -658,6 +673,7 @@ def test_rows_minus_matches_scipy(monkeypatch):
     """D = rows - kept[slots] by the native merge against scipy, sorted and unsorted rows, one
     matrix or blocks, one part or parts on the cores, exact zeros dropped; slots outside the
     kept rows refused."""
+    from pydynrad import hostthreads
     from pydynrad.dynamic import stale
     from pydynrad.dynamic.stale import rows_minus
 
@@ -671,8 +687,9 @@ def test_rows_minus_matches_scipy(monkeypatch):
     got = rows_minus(rows, kept, slots)
     np.testing.assert_array_equal(got.toarray(), truth)
     assert got.nnz == np.count_nonzero(truth) and got.has_sorted_indices
-    monkeypatch.setattr(stale, "PARALLEL_ENTRIES", 1)  # each block in parts, as many as cores
-    blocks = [rows[:13], rows[13:14], rows[14:]]
+    monkeypatch.setattr(stale, "PARALLEL_ENTRIES", 1)  # each block in parts, as many as cores: 4
+    monkeypatch.setattr(hostthreads, "cores", lambda: 4)
+    blocks = [rows[:13], rows[13:14], rows[14:14], rows[14:]]
     for parted in (rows_minus(blocks, kept, slots), rows_minus(rows, kept, slots)):
         np.testing.assert_array_equal(parted.toarray(), truth)
         assert parted.nnz == got.nnz and parted.has_sorted_indices
@@ -821,9 +838,10 @@ def test_precomputed_poses_with_static_form_factors(box, block, device):
 def test_a_thousand_moves_do_not_drift_or_grow(device):
     """1,000 moving frames at the default budget (0, a static F, the correction), the block
     stepped along a path whose two ends it keeps coming back to: K is never changed, the answer
-    at each end is the same every time to the correction's tolerance (it stops within 1e-4 of
-    max B of the fixed point, from wherever the last frame left it: observed 6e-6 apart at one
-    end, 0 at the other, whose rows are K's own), and at the first pose no row is held stale and host memory is what it was after its
+    at each end is the same every time to about the correction's tolerance (it stops once an
+    iteration changes B by at most 1e-4 of max B, starting from wherever the last frame left
+    it: observed 6e-6 of max B apart at one end, bounded at 2e-5 here; 0 at the other, whose
+    rows are K's own), and at the first pose no row is held stale and host memory is what it was after its
     first returns (nothing accumulates move by move)."""
     box = pd.scenes.cornell_box(max_edge=250.0)
     block = pd.scenes.block(100.0, 0, albedo=(0.1, 0.7, 0.1))

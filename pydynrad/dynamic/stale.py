@@ -97,7 +97,8 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     def merge(task):
         (starts, ends, indices, data), sl = task
         most = int((ends - starts).sum() + k_len[sl].sum())
-        # Only the entries D has are ever written: the rest of the bound is not touched (no page of it faulted in).
+        # Only D's entries are written, and a zero at the index after them: the rest of the bound
+        # is not touched (no page of it faulted in).
         indptr, out_i, out_d = np.empty(len(sl) + 1, np.int64), np.empty(most, np.int32), np.empty(most)
         nnz = _poserows.difference(starts, ends, indices, data, *native_csr(kept), sl, indptr, out_i, out_d)
         return None if nnz < 0 else (indptr, out_i[:nnz], out_d[:nnz])

@@ -64,7 +64,7 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np
     up = dev.to_device
     kernel(dev.queue, (global_size(n),), None, up(float4(scene.frame.points(points))), up(float4(normals)),
            np.int32(n), up(float4(packed)), up(float4(scene.emission[em])), np.int32(len(em)), nodes, tris,
-           np.float32(scene.frame.length(SHADOW_EPSILON * scene.scale)), np.int32(grid), out_dev)
+           np.float32(scene.frame.length(SHADOW_EPSILON * scene.ray_scale)), np.int32(grid), out_dev)
     out = np.empty((n, 4), np.float32)
     cl.enqueue_copy(dev.queue, out, out_dev)
     return out[:, :3].astype(np.float64)

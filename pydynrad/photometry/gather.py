@@ -73,7 +73,7 @@ def gather_irradiance(scene, points, normals, radiosity=None, sky=None, resoluti
     kernel = dev.kernel("gather.cl", "hemicube_gather", {"HC_RES": R, "BVH_PACKET": bvh_packet(dev)})
     block = min(n, BLOCK_POINTS)
     partial_dev = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, block * S * 16)
-    eps = np.float32(scene.frame.length(SURFACE_OFFSET * scene.scale))
+    eps = np.float32(scene.frame.length(SURFACE_OFFSET * scene.ray_scale))
     out = np.empty((n, 3))
     for first in range(0, n, block):
         b = min(block, n - first)
