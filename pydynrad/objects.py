@@ -162,6 +162,8 @@ def _combined(scene, objs: list[RigidObject], transforms=None):
     from .scene import Scene, patch_geometry
 
     transforms = [o.transform for o in objs] if transforms is None else transforms
+    for o, T in zip(objs, transforms):  # a reference the device cannot resolve is no reference
+        check_reach(scene, o, T)
     points, tris, geometry, corners = [scene.points], [scene.triangles], [], [scene.bbox]
     base = len(scene.points)
     for o, T in zip(objs, transforms):
@@ -242,10 +244,8 @@ def instanced(scene, objects, transforms=None, bvh=None):
 
     objs = _objects(objects)
     transforms = [o.transform for o in objs] if transforms is None else [rigid_transform(t) for t in transforms]
-    for o, T in zip(objs, transforms):
-        check_reach(scene, o, T)
+    out = _combined(scene, objs, transforms)  # reach checked first: a far object breaks the test's rays
     _warn_intersections(scene, objs, transforms)
-    out = _combined(scene, objs, transforms)
     if bvh is None:
         trees = [o.device_bvh(scene.frame.unit) for o in objs]
         bvh = InstancedBVH(scene.bvh, [t for t, _ in trees], transforms, scene.frame, [c for _, c in trees])

@@ -266,8 +266,8 @@ def test_bad_input(box, block, device):
 def test_a_pose_the_device_cannot_resolve_is_refused_before_anything_moves(box, block, device):
     """float32 device coordinates round a position d from the scene's centre by up to 2^-24
     sqrt(3) d: an object reaching beyond MAX_REACH diagonals (where that passes a tenth of the
-    rays' surface offset) is refused by move() with nothing queued, at construction and by a
-    walk before its first frame. Just inside, behind the back wall, the static patches' rows
+    rays' surface offset) is refused by move() with nothing queued, at construction, by
+    with_objects and by a walk before its first frame. Just inside, behind the back wall, the static patches' rows
     of the world are the box's own, bit for bit, and the block is dark: their rays leave their surfaces by the static
     scene's offset (Scene.ray_scale), not by one grown with the world (it had been 0.4% off the
     rows' sums at 1e5 mm). At 1e18 mm a move had crashed in the intersection test's rays."""
@@ -286,6 +286,8 @@ def test_a_pose_the_device_cannot_resolve_is_refused_before_anything_moves(box, 
         with pytest.raises(pd.InvalidInputError, match="float32"):
             pd.DynamicRadiosity(box, None, local_size=len(box), resolution=R,
                                 objects=[pd.RigidObject(block, behind(reach))], device=device)
+    with pytest.raises(pd.InvalidInputError, match="float32"):
+        box.with_objects([pd.RigidObject(block, behind(1e18))])
     track = pd.ObjectTrack(obj, [START, behind(1.01 * limit)], interpolation="linear")
     with pytest.raises(pd.InvalidInputError, match="float32"):
         pd.walk(box, pd.orbit(centre, 300.0, 0.0, 3, width=8, height=6), dyn, objects=[track], device=device)
