@@ -12,7 +12,7 @@ from pathlib import Path
 
 from .errors import InvalidInputError
 
-__all__ = ["check_parent_folder", "write_atomic", "TMP_MARK"]
+__all__ = ["check_parent_folder", "check_file_target", "write_atomic", "TMP_MARK"]
 
 #: Marks temporary files in their names, so a store can find and remove ones a crash left.
 TMP_MARK = ".tmp-"
@@ -26,6 +26,15 @@ def check_parent_folder(path) -> Path:
     return path
 
 
+def check_file_target(path) -> Path:
+    """:func:`check_parent_folder`, and :class:`InvalidInputError` when a folder stands where the
+    file would go (else found only at the rename, after the work, naming the temporary file)."""
+    path = check_parent_folder(path)
+    if path.is_dir():
+        raise InvalidInputError(f"cannot write the file {str(path)!r}: a folder of that name is in the way")
+    return path
+
+
 def write_atomic(path, payload: bytes | Callable[[Path], object]) -> Path:
     """Write ``path`` whole: into a temporary file in the same folder, fsync, then ``os.replace``.
 
@@ -33,7 +42,7 @@ def write_atomic(path, payload: bytes | Callable[[Path], object]) -> Path:
     given (for writers that want a file name: OpenImageIO, matplotlib). The folder must exist.
     Returns ``path`` as a Path.
     """
-    path = check_parent_folder(path)
+    path = check_file_target(path)
     # A leading dot hides the temporary file; the same folder makes the rename atomic.
     tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}")
     try:

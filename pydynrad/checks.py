@@ -14,8 +14,8 @@ import scipy.sparse as sp
 
 from .errors import InvalidInputError
 
-__all__ = ["floats", "vec3", "unit_vector", "number", "integer", "finite", "scene", "patch_indices", "resolution",
-           "check_form_factors", "check_form_factor_rows", "sparse_structure", "ROW_SUM_SLACK", "MAX_RESOLUTION"]
+__all__ = ["floats", "vec3", "unit_vector", "number", "stops", "integer", "finite", "scene", "patch_indices",
+           "resolution", "check_form_factors", "check_form_factor_rows", "sparse_structure", "ROW_SUM_SLACK", "MAX_RESOLUTION"]
 
 
 def floats(value, what: str) -> np.ndarray:
@@ -34,6 +34,21 @@ def number(value, what: str) -> float:
     return float(a)
 
 
+#: The most photographic stops an exposure may have either way: 2**126 is float32's largest
+#: power of two that is normal both ways, and a gain beyond makes every pixel inf or 0.
+MAX_STOPS = 126
+
+
+def stops(value, what: str = "exposure") -> float:
+    """An exposure in photographic stops (values are scaled by ``2 ** stops``): a finite number
+    within +-:data:`MAX_STOPS`; InvalidInputError naming ``what`` otherwise."""
+    v = number(value, what)
+    if abs(v) > MAX_STOPS:
+        raise InvalidInputError(f"{what} must lie within +-{MAX_STOPS} stops (a gain of 2**{v:g} is beyond float32); "
+                                f"got {value!r}")
+    return v
+
+
 def vec3(value, what: str) -> np.ndarray:
     """``value`` as a (3,) float64 array (a point or direction in scene units).
 
@@ -50,10 +65,11 @@ def vec3(value, what: str) -> np.ndarray:
 def unit_vector(value, what: str) -> np.ndarray:
     """``value`` as a unit 3-vector (float64, normalised here), or InvalidInputError if it is zero."""
     v = vec3(value, what).astype(np.float64)
-    norm = float(np.linalg.norm(v))
-    if norm == 0.0:
+    big = float(np.abs(v).max())
+    if big == 0.0:
         raise InvalidInputError(f"{what} must be a non-zero vector")
-    return v / norm
+    v = v / big  # first: the norm of (1e300, ...) overflows, and of (1e-300, ...) underflows
+    return v / float(np.linalg.norm(v))
 
 
 def integer(value, what: str, lo: int = 1, hi: int | None = None) -> int:

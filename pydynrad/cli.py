@@ -86,6 +86,16 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def _stops(text: str) -> float:
+    from .checks import stops
+
+    try:
+        return stops(float(text))
+    except (ValueError, InvalidInputError) as exc:  # float("x") or out of range: one line, before any work
+        raise argparse.ArgumentTypeError(str(exc) if isinstance(exc, InvalidInputError) else
+                                         f"expected a number of stops; got {text!r}") from None
+
+
 def _light(text: str):
     from .lighttext import parse_light
 
@@ -115,8 +125,9 @@ def _patching(max_edge: float | None) -> dict:
 
 
 def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
-    """``path`` as a Path, after checking its folder exists (and its suffix, or image format)."""
-    from .atomic import check_parent_folder
+    """``path`` as a Path, after checking its folder exists and no folder is in its place (and its
+    suffix, or image format)."""
+    from .atomic import check_file_target
     from .image_io import _format_for
 
     path = Path(path)
@@ -124,7 +135,7 @@ def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
         _format_for(path)
     elif path.suffix.lower() not in suffixes:
         raise InvalidInputError(f"output file {str(path)!r} must end in {' or '.join(suffixes)}")
-    return check_parent_folder(path)
+    return check_file_target(path)
 
 
 def _samples(args) -> int:
@@ -408,8 +419,10 @@ def _cmd_bake(args: argparse.Namespace) -> int:
         return 0
     tpu = _texels_per_unit(args, scene)
     lm = bake_lightmap(scene, sol.radiosity, tpu, padding=args.padding, crease_angle=args.crease_angle)
-    lm.write(lightmap_path)
+    # The mesh first: its embedded 8-bit image is what an exposure can be refused for, and then
+    # no lightmap file is left without its mesh.
     lm.write_mesh(out, exposure=args.exposure, image_name=lightmap_path.name)
+    lm.write(lightmap_path)
     h, w = lm.shape
     print(f"wrote {lightmap_path} ({w}x{h} texels at {tpu:g} per unit, {100 * lm.coverage:.0f}% in charts) and {out} "
           f"(lightmap UVs in TEXCOORD_1, the lightmap embedded as 8-bit sRGB at the exposure) in "
@@ -586,7 +599,7 @@ def _add_look(p: argparse.ArgumentParser) -> None:
     p.add_argument("--shading", choices=("smooth", "flat"), default="smooth",
                    help="smooth: radiosity interpolated across patches (not across creases or material borders); "
                         "flat: one value per patch (default smooth)")
-    p.add_argument("--exposure", type=float, default=0.0, metavar="STOPS",
+    p.add_argument("--exposure", type=_stops, default=0.0, metavar="STOPS",
                    help="multiply the written image by 2**STOPS: brighter (positive) or darker (negative) (default 0)")
     _add_lights(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -664,7 +677,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_dynamic(p, local_size=768)
     _add_walk_output(p, DEMO_DIR)
     p.add_argument("--shading", choices=("smooth", "flat"), default="smooth", help="smooth or flat shading (default smooth)")
-    p.add_argument("--exposure", type=float, default=DEMO_EXPOSURE, metavar="STOPS",
+    p.add_argument("--exposure", type=_stops, default=DEMO_EXPOSURE, metavar="STOPS",
                    help=f"exposure of the written frames in stops (default {DEMO_EXPOSURE:.2f} = log2(1/pi): pixels "
                         "hold radiosity, so this shows the radiance B/pi, as a path tracer would)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -752,7 +765,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="lightmap texels between charts, filled by dilation (default 2)")
     p.add_argument("--crease-angle", type=float, default=30.0, metavar="DEG",
                    help="never smooth across a sharper angle (default 30)")
-    p.add_argument("--exposure", type=float, default=0.0, metavar="STOPS",
+    p.add_argument("--exposure", type=_stops, default=0.0, metavar="STOPS",
                    help="display colours are radiosity * 2**STOPS (default 0; log2(1/pi) = -1.65 shows radiance)")
     _add_lights(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .checks import stops
 from .errors import InvalidInputError, PydynradError
 
 __all__ = ["radiosity_error", "pixel_error", "false_colour", "comparison_image", "reference_frame", "ReferenceFrame"]
@@ -118,7 +119,7 @@ def comparison_image(dynamic, reference, exposure: float = 0.0, vmax: float | No
     if not (np.isfinite(vmax) and vmax > 0):
         raise InvalidInputError(f"vmax must be a positive relative error; got {vmax!r}")
     stats["vmax"] = float(vmax)
-    gain = np.float32(2.0**exposure)
+    gain = np.float32(2.0**stops(exposure))
     gap = max(2, w // 64)
     size = max(8, h // 16)
     top_text, bottom_text = ">" + _percent(vmax), "0%"
@@ -171,6 +172,7 @@ def reference_frame(scene, form_factors, radiosity, camera, *, lights=(), render
     from .rows.files import whole_matrix
     from .solve import solve
 
+    exposure = stops(exposure)  # before the full solve
     renderer = renderer or Renderer(scene, device)
     full = solve(scene, whole_matrix(form_factors), lights, device=device).radiosity
     if image is None:

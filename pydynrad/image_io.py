@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import check_parent_folder, write_atomic
+from .atomic import check_file_target, write_atomic
+from .checks import stops
 from .errors import InvalidInputError
 
 __all__ = ["write_image", "read_image", "srgb_encode", "LINEAR_FORMATS", "DISPLAY_FORMATS"]
@@ -78,9 +79,8 @@ def write_image(path, image, exposure: float = 0.0) -> Path:
 
     path = Path(path)
     fmt, linear = _format_for(path)
-    if not np.isfinite(exposure):
-        raise InvalidInputError(f"exposure must be a finite number of stops; got {exposure!r}")
-    check_parent_folder(path)
+    exposure = stops(exposure)
+    check_file_target(path)
     with np.errstate(over="ignore"):
         a = _checked_image(image) * np.float32(2.0**exposure)
     if not np.all(np.isfinite(a)):  # 2**exposure or the product overflowed float32

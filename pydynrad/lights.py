@@ -34,7 +34,8 @@ from .errors import InvalidInputError
 from .launch import WG, float4, global_size
 
 __all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "point_irradiance", "light_vector",
-           "pack_lights", "pack_light_tables", "pack_lights_and_tables", "checked_lights", "checked_light_vector", "resolve_light"]
+           "pack_lights", "pack_light_tables", "pack_lights_and_tables", "checked_lights", "checked_light_vector",
+           "check_radiosity_range", "resolve_light"]
 
 #: Shadow-ray origins sit this fraction of the scene's bounding-box diagonal off the surface.
 SHADOW_EPSILON = 1e-4
@@ -302,6 +303,16 @@ def checked_light_vector(L, n: int) -> np.ndarray:
     if not np.all(np.isfinite(L)) or L.min(initial=0.0) < 0:
         raise InvalidInputError("the light vector must be finite and >= 0")
     return L
+
+
+def check_radiosity_range(L: np.ndarray, albedo: np.ndarray, dtype=np.float32) -> None:
+    """InvalidInputError where the radiosity of light vector ``L`` could overflow ``dtype``, before
+    any pass computes it: F's rows sum to at most 1, so max B <= max L / (1 - max albedo)."""
+    top, rho = float(np.max(L, initial=0.0)), float(np.max(albedo, initial=0.0))
+    bound = top / (1.0 - rho) if rho < 1.0 else np.inf
+    if top > 0 and bound > float(np.finfo(dtype).max):
+        raise InvalidInputError(f"the radiosity may reach {bound:.3g} (max L {top:.3g} / (1 - max albedo {rho:g})), "
+                                f"beyond {np.dtype(dtype).name}: scale the emission and the lights down")
 
 
 def resolve_light(scene, lights=(), light=None, device=None) -> np.ndarray:

@@ -33,7 +33,7 @@ from .devicecsr import DeviceCSR
 from .devicesell import DeviceSELL
 from .errors import ConvergenceError, InvalidInputError, OutOfMemoryError
 from .launch import sell_layout
-from .lights import checked_light_vector
+from .lights import check_radiosity_range, checked_light_vector
 from .memory import available_host_bytes
 
 __all__ = ["Solution", "RadiositySolver", "solve", "DENSE_MAX_PATCHES"]
@@ -136,6 +136,7 @@ class RadiositySolver:
               raise_on_failure: bool = True) -> Solution:
         """B for light vector L (N, 3). See :func:`solve` for the parameters."""
         L = checked_light_vector(L, self._n)
+        check_radiosity_range(L, self.scene.albedo, self.dtype)
         tol, max_iterations = _checked_stopping(tol, max_iterations, bounces)
         nch = _channels(self.scene, L)
         rho = self.scene.albedo.astype(np.float64)[:, :nch]

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .camera import Camera
+from .checks import stops
 from .errors import InvalidInputError
 from .paths import CameraPath, LightTrack, ObjectTrack, WalkFile, fly_through, lights_at, load_path, load_walk, orbit
 
@@ -185,6 +186,7 @@ def walk(
     for t in tracks:
         if not isinstance(t, ObjectTrack):
             raise InvalidInputError(f"objects must be ObjectTrack entries (a RigidObject with keyframes); got {type(t).__name__}")
+    exposure = stops(exposure)  # before any frame's work, not at the first image written
     n = len(path)
     refs = _frame_set(reference_frames, n)
     if refs and form_factors is None and not tracks:

@@ -280,11 +280,90 @@ def test_scene_arrays_are_read_only_and_overflowing_values_are_refused(box, devi
 
 def test_an_exposure_that_overflows_is_refused_not_written_as_inf(tmp_path):
     image = np.full((4, 4, 3), 2.0, dtype=np.float32)
-    with pytest.raises(InvalidInputError, match="exposure 200 stops overflows float32"):
-        pydynrad.write_image(tmp_path / "x.exr", image, exposure=200.0)  # main: an all-inf EXR, rc 0
+    with pytest.raises(InvalidInputError, match="exposure 120 stops overflows float32"):
+        pydynrad.write_image(tmp_path / "x.exr", image * 1e3, exposure=120.0)  # once: an all-inf EXR, rc 0
     assert not (tmp_path / "x.exr").exists()
+    # 2**exposure itself beyond float32 (2000 stops overflowed float64 in 2.0**exposure: a raw
+    # OverflowError from write_image, the bake, the comparison image).
+    from pydynrad.bake import export_mesh
+    from pydynrad.compare import comparison_image
+
+    for exposure in (2000.0, -127.0, float("nan")):
+        for call in (lambda: pydynrad.write_image(tmp_path / "z.exr", image, exposure=exposure),
+                     lambda: comparison_image(image, image, exposure),
+                     lambda: export_mesh(pydynrad.scenes.block(1.0, 0), np.ones((12, 3)), tmp_path / "m.glb",
+                                         exposure=exposure)):
+            with pytest.raises(InvalidInputError, match="exposure"):
+                call()
+    assert not list(tmp_path.glob("[zm].*"))
     with pytest.raises(InvalidInputError, match="overflows float32"):
         pydynrad.write_image(tmp_path / "y.exr", np.full((2, 2, 3), 3e38, np.float32), exposure=1.0)
+
+
+def test_a_form_factor_file_of_another_dtype_is_refused(box, box_F, tmp_path):
+    """float16 or text values (a file not written by pydynrad) are named, not left to scipy (a raw
+    ValueError inside it)."""
+    path = pydynrad.save_form_factors(box, tmp_path / "F.npz", box_F, 16)
+    with np.load(path) as z:
+        arrays = dict(z)
+    for data in (arrays["data"].astype(np.float16), arrays["data"].astype(str)):
+        np.savez(path, **{**arrays, "data": data})
+        with pytest.raises(InvalidInputError, match=f"holds {data.dtype} values"):
+            pydynrad.load_form_factors(box, path)
+
+
+def test_outputs_in_a_folders_place_and_exposures_are_refused_before_any_work(tmp_path, capsys):
+    """A folder where the output file goes, or an exposure beyond float32, is one line from the
+    CLI before the solve (once: after it, naming the temporary file, or a raw OverflowError);
+    `bake --lightmap` writes its mesh before its lightmap, so a refused mesh leaves neither."""
+    from helpers import run_main
+
+    (tmp_path / "d.png").mkdir()
+    code, _, err = run_main(["render", "cornell_box", "--max-edge", "250", "-o", str(tmp_path / "d.png")], capsys)
+    assert code == 2 and "a folder of that name is in the way" in err
+    code, _, err = run_main(["render", "cornell_box", "-o", str(tmp_path / "e.png"), "--exposure", "2000"], capsys)
+    assert code == 2 and "within +-126 stops" in err and "Traceback" not in err
+    (tmp_path / "k.glb").mkdir()
+    code, _, err = run_main(["bake", "cornell_box", "--max-edge", "250", "--resolution", "8", "-o",
+                             str(tmp_path / "k.glb"), "--lightmap", str(tmp_path / "l.exr")], capsys)
+    assert code == 2 and "in the way" in err and not (tmp_path / "l.exr").exists()
+
+
+def test_a_light_past_float32_is_refused_and_leaves_the_far_field_as_it_was(device):
+    """max B <= max L / (1 - max albedo): where that passes float32 the full solve, the dynamic
+    solution and the far field refuse the light before computing it (the iterative solve had
+    returned inf, and one such light was kept among the far field's answers and broke every
+    later one: inf, or LAPACK's SVD failing); a negative L is refused by the far field as by
+    the others. After the refusals the far field answers a light as a fresh one does."""
+    from pydynrad.farfield import FarField
+
+    box = pydynrad.scenes.cornell_box(max_edge=None)
+    F = pydynrad.form_factors(box, 16, device=device)
+    L = pydynrad.light_vector(box, [pydynrad.PointLight((278.0, 500.0, 280.0), (3e5,) * 3)], device=device)
+    far = FarField(box, F, clusters=len(box) // 8, device=device)
+    dyn = pydynrad.DynamicRadiosity(box, F, local_size=64, observer=(278.0, 273.0, -300.0), device=device)
+    for bad in (L / L.max() * 3e38, L / L.max() * 1e298):
+        for call in (lambda: far.light(bad), lambda: dyn.radiosity(light=bad),
+                     lambda: pydynrad.solve(box, F, light=bad, device=device)):
+            with pytest.raises(InvalidInputError, match="beyond float32"):
+                call()
+    with pytest.raises(InvalidInputError, match="L must be >= 0"):
+        far.light(-L)
+    fresh = FarField(box, F, clusters=len(box) // 8, device=device)
+    for x in (L, 2.0 * L):
+        np.testing.assert_array_equal(far.light(x), fresh.light(x))
+
+
+def test_unit_vectors_of_huge_and_tiny_lengths():
+    """Directions are scaled before they are normalised: (1e300, -2e300, 1e301) overflowed the
+    norm and became (0, 0, 0), a light that silently lit nothing; 1e-300 was refused as zero."""
+    from pydynrad.checks import unit_vector
+
+    d = np.array([1.0, -2.0, 10.0])
+    for scale in (1e300, 1e-300, 1.0):
+        np.testing.assert_allclose(unit_vector(d * scale, "direction"), d / np.linalg.norm(d), rtol=1e-15)
+    sun = pydynrad.DirectionalLight(direction=d * 1e300, irradiance=(1.0, 1.0, 1.0))
+    np.testing.assert_allclose(sun.direction, d / np.linalg.norm(d), rtol=1e-15)
 
 
 def test_obj_and_mtl_lines_trimesh_drops_are_named(tmp_path):

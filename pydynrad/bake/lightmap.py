@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checks import number, scene as checked_scene
+from ..checks import number, scene as checked_scene, stops
 from ..errors import InvalidInputError, OutOfMemoryError
 from ..image_io import LINEAR_FORMATS, write_image
 from ..memory import available_host_bytes
@@ -141,7 +141,7 @@ class Lightmap:
         shows it (the linear values are in the image :meth:`write` writes); otherwise the
         vertex colours of :func:`export_mesh` are written instead."""
         path = checked_mesh_path(path, (".glb",))
-        exposure = number(exposure, "exposure")
+        exposure = stops(exposure)
         meta = mesh_metadata(self.scene_name, self.n_patches, exposure, self.crease_angle)
         h, w = self.shape
         meta["lightmap"] = {"image": image_name, "width": w, "height": h, "texels_per_unit": self.texels_per_unit,

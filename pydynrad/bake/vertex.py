@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import check_parent_folder
-from ..checks import number, scene as checked_scene
+from ..atomic import check_file_target
+from ..checks import scene as checked_scene, stops
 from ..errors import InvalidInputError
 from ..image_io import srgb_encode
 from ..smoothing import smooth_vertices
@@ -41,12 +41,13 @@ MESH_FORMATS = (".glb", ".ply")
 
 
 def checked_mesh_path(path, formats: tuple[str, ...] = MESH_FORMATS) -> Path:
-    """``path`` as a Path whose extension is one of ``formats`` and whose folder exists."""
+    """``path`` as a Path whose extension is one of ``formats``, whose folder exists and where no
+    folder stands."""
     path = Path(path)
     if path.suffix.lower() not in formats:
         raise InvalidInputError(f"cannot tell the mesh format of {str(path)!r}: use one of the extensions "
                                 f"{', '.join(formats)}")
-    return check_parent_folder(path)
+    return check_file_target(path)
 
 
 def mesh_metadata(scene_name: str, n_patches: int, exposure: float, crease_angle: float) -> dict:
@@ -66,7 +67,7 @@ def mesh_metadata(scene_name: str, n_patches: int, exposure: float, crease_angle
 
 def display_values(radiosity: np.ndarray, exposure: float) -> np.ndarray:
     """(V, 3) float32 linear ``radiosity * 2**exposure`` clipped to [0, 1]."""
-    return np.clip(radiosity * 2.0**exposure, 0.0, 1.0).astype(np.float32)
+    return np.clip(radiosity * 2.0**stops(exposure), 0.0, 1.0).astype(np.float32)
 
 
 def mesh_bytes(path: Path, positions, faces, radiosity, meta: dict, uv=None, texture: bytes | None = None) -> bytes:
@@ -116,7 +117,7 @@ def export_mesh(scene, radiosity, path, *, exposure: float = 0.0, crease_angle: 
     """
     scene = checked_scene(scene)
     path = checked_mesh_path(path)
-    exposure = number(exposure, "exposure")
+    exposure = stops(exposure)
     smooth = smooth_vertices(scene, crease_angle)
     values = smooth.radiosity(radiosity)
     meta = mesh_metadata(scene.name, len(scene), exposure, float(crease_angle))

@@ -650,10 +650,12 @@ class DynamicRadiosity:
         form factor, not through K (as in :func:`pydynrad.solve`): the same solution for B - E
         with the reflected light vector L_r, plus E.
         """
+        from ..lights import check_radiosity_range
         from ..photometry.areas import analytic_emitter_light
 
         self._require_built()
         L, E = analytic_emitter_light(self.scene, lights, light, emitters, self.device)
+        check_radiosity_range(L, self.scene.albedo)  # the device's vectors are float32
         S = self._local_patches
         LS = L[S]
         far = self.far.light(L) if far_field and self.far is not None else None

@@ -70,6 +70,7 @@ import scipy.sparse as sp
 from ..checks import check_form_factors, finite, integer, scene as checked_scene
 from ..colproduct import columns_product, rows_product
 from ..errors import InvalidInputError, PydynradError
+from ..lights import check_radiosity_range
 from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
 from .gather import checked_cluster_form_factors
 from .history import Answers
@@ -400,6 +401,11 @@ class FarField:
         if L_all.shape != (n, 3):
             raise InvalidInputError(f"L must have shape ({n}, 3); got {L_all.shape}")
         finite(L_all, "L")  # checked on a light change only: an unchanged L is the cached answer
+        if L_all.min() < 0:
+            raise InvalidInputError(f"L must be >= 0 (light is not negative); got a minimum of {L_all.min():g}")
+        # Before anything is computed or recorded: an answer past float32 would be kept among the
+        # answers later lights are fitted to, and poison every one of them.
+        check_radiosity_range(L_all, self.scene.albedo, self._dtype)
         grey = self.scene.is_grey and bool(np.all(L_all[:, :1] == L_all))
         k = 1 if grey else 3
         L, rho = L_all[:, :k], self.rho[:, :k]

@@ -81,6 +81,9 @@ def load_form_factors(scene, path, *, resolution: int | None = None,
     if n != len(scene) or data.ndim != 1:
         raise InvalidInputError(f"form-factor file {str(path)!r} is damaged: header says {n} patches, "
                                 f"data has shape {data.shape}; this scene has {len(scene)} patches")
+    if data.dtype not in (np.float32, np.float64):  # float16, complex or text: scipy would fail or warn inside
+        raise InvalidInputError(f"form-factor file {str(path)!r} holds {data.dtype} values; form factors are float32 "
+                                "or float64: recompute it with `pydynrad formfactors`")
     _check_parameters(path, header, resolution, samples)
     # Before scipy sees them: its kernels index memory with these arrays unchecked.
     sparse_structure(indptr, indices, (n, n), f"form-factor file {str(path)!r}", nnz=len(data))
