@@ -423,6 +423,8 @@ def load_walk(path) -> WalkFile:
         raise InvalidInputError(f"path file {str(path)!r}: cannot read: {exc}") from None
     except json.JSONDecodeError as exc:
         raise InvalidInputError(f"path file {str(path)!r}: not valid JSON: {exc}") from None
+    except RecursionError:
+        raise InvalidInputError(f"path file {str(path)!r}: nested too deeply to be a path file") from None
     where = f"path file {str(path)!r}"
     if not isinstance(doc, dict):
         raise InvalidInputError(f"{where}: the top level must be a JSON object")

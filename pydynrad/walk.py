@@ -188,6 +188,14 @@ def walk(
             raise InvalidInputError(f"objects must be ObjectTrack entries (a RigidObject with keyframes); got {type(t).__name__}")
     exposure = stops(exposure)  # before any frame's work, not at the first image written
     n = len(path)
+    # Every frame's camera and poses before any work (the solution's build included), not mid-walk.
+    for k in range(n):
+        try:
+            path.camera(k)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"frame {k} of {n}: {exc}") from None
+        for t in tracks:
+            check_reach(scene, t.object, t.at(k, n))
     refs = _frame_set(reference_frames, n)
     if refs and form_factors is None and not tracks:
         raise InvalidInputError("reference frames need the form factors (form_factors=F) for the full solve")
@@ -211,9 +219,6 @@ def walk(
     full_F = None  # all of F in memory, read at the first reference frame
     records, images = [], []
     b = img = None
-    for t in tracks:  # a pose the device cannot resolve is refused before the first frame, not mid-walk
-        for k in range(n):
-            check_reach(scene, t.object, t.at(k, n))
     bar = progress_bar(progress, iterable=range(n), desc="walk", unit="frame")
     for k in bar:
         cam = path.camera(k)

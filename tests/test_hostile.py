@@ -354,6 +354,43 @@ def test_a_light_past_float32_is_refused_and_leaves_the_far_field_as_it_was(devi
         np.testing.assert_array_equal(far.light(x), fresh.light(x))
 
 
+def test_coarse_sweeps_that_do_not_converge_raise_and_keep_nothing(device):
+    """At albedo 0.999 one coarse sweep is far from the answer (99.6% off, returned silently
+    once): the far field raises ConvergenceError as the full solve does, and a later light with
+    enough sweeps is answered as by a fresh far field."""
+    from pydynrad.errors import ConvergenceError
+    from pydynrad.farfield import FarField
+
+    box = pydynrad.scenes.closed_box(subdivisions=2, albedo=0.999, emission=1.0)
+    F = pydynrad.form_factors(box, 16, device=device)
+    L = np.asarray(box.emission, np.float64)
+    far = FarField(box, F, coarse="sweeps", max_sweeps=1, device=device)
+    with pytest.raises(ConvergenceError, match="max_sweeps=1"):
+        far.light(L)
+    far.max_sweeps = 100_000
+    fresh = FarField(box, F, coarse="sweeps", max_sweeps=100_000, device=device)
+    np.testing.assert_array_equal(far.light(L), fresh.light(L))
+
+
+def test_a_walk_checks_every_frame_before_any_work_and_deep_json_is_named(box, box_F, tmp_path, device):
+    """A camera that degenerates mid-path (the position interpolated onto its look-at point) is
+    refused before the solution is built, naming the frame (once: frame 0 was written first),
+    and a path file nested too deeply for Python's parser is named (once: a RecursionError)."""
+    import json
+
+    doc = {"frames": 3, "interpolation": "linear", "width": 8, "height": 6,
+           "keyframes": [{"position": [0.5, 0.5, -2.0], "look_at": [0.5, 0.5, 0.0]},
+                         {"position": [0.5, 0.5, 0.0], "look_at": [0.5, 0.5, -2.0]}]}
+    (tmp_path / "degenerate.json").write_text(json.dumps(doc))
+    camera_path, _ = pydynrad.load_path(tmp_path / "degenerate.json")
+    with pytest.raises(InvalidInputError, match="frame 1 of 3: camera look_at"):
+        pydynrad.walk(box, camera_path, form_factors=box_F, local_size=16, output=tmp_path / "out", device=device)
+    assert not (tmp_path / "out").exists()
+    (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(InvalidInputError, match="nested too deeply"):
+        pydynrad.load_walk(tmp_path / "deep.json")
+
+
 def test_unit_vectors_of_huge_and_tiny_lengths():
     """Directions are scaled before they are normalised: (1e300, -2e300, 1e301) overflowed the
     norm and became (0, 0, 0), a light that silently lit nothing; 1e-300 was refused as zero."""

@@ -69,7 +69,7 @@ import scipy.sparse as sp
 
 from ..checks import check_form_factors, finite, integer, scene as checked_scene
 from ..colproduct import columns_product, rows_product
-from ..errors import InvalidInputError, PydynradError
+from ..errors import ConvergenceError, InvalidInputError, PydynradError
 from ..lights import check_radiosity_range
 from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
 from .gather import checked_cluster_form_factors
@@ -202,7 +202,8 @@ class FarField:
         sweeps of the village's N/8 F_c instead of 22 and 20 at 1e-5, errors unchanged to three
         digits; bench/farfield.py).
     max_sweeps : int
-        The most coarse sweeps per light change.
+        The most coarse sweeps per light change; a light whose sweeps do not reach ``tol`` in
+        them raises :class:`~pydynrad.errors.ConvergenceError` (nothing is kept of it).
     dtype : np.float32 | np.float64
         Precision of the sparse device products (and of K_c's build).
     device : pydynrad.Device, optional
@@ -471,8 +472,12 @@ class FarField:
         k = s.shape[1]
         rho_c = self.rho_c[:, :k]
         if self.K_c is None:
-            x, self.sweeps, _, _ = self._Fc_dev.jacobi(s, rho_c, self._warm_start(s), self.tol, self.max_sweeps,
-                                                       COARSE_MIXING)
+            x, self.sweeps, change, _ = self._Fc_dev.jacobi(s, rho_c, self._warm_start(s), self.tol, self.max_sweeps,
+                                                            COARSE_MIXING)
+            if not change <= self.tol:  # as the full solve does: an unconverged answer is not returned, nor kept
+                raise ConvergenceError(f"the far field's coarse sweeps did not reach tol={self.tol:g} in "
+                                       f"max_sweeps={self.max_sweeps} (last relative change {change:.3g}): raise "
+                                       "max_sweeps, or use coarse='dense'")
             self._solved.add(s, x)
             return x
         self.sweeps = 0
