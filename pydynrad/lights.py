@@ -149,7 +149,10 @@ def checked_lights(lights) -> list:
                                 "pass a precomputed light vector as light=L")
     if isinstance(lights, kinds):
         lights = [lights]
-    lights = list(lights)
+    try:
+        lights = list(lights)
+    except TypeError:  # None, a number: not a sequence of lights
+        raise InvalidInputError(f"not a light or a sequence of lights: {lights!r}; use {_LIGHT_NAMES}") from None
     for light in lights:
         if not isinstance(light, kinds):
             raise InvalidInputError(f"not a light: {light!r}; use {_LIGHT_NAMES}")

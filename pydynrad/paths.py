@@ -325,7 +325,12 @@ def _parse_light(item, where: str):
         return DirectionalLight(**values)
     keys = _keyframes(_field(item, "keyframes", where, required=True), f"{where}: keyframes")
     light = (PointLight if kind == "point" else SpotLight)(position=keys[0], **values)
-    return LightTrack(light, keys, item.get("interpolation", "catmull-rom")) if len(keys) > 1 else light
+    interpolation = item.get("interpolation", "catmull-rom")
+    try:  # also for one keyframe, where it is not used: a typo is still named
+        _check_interpolation(interpolation)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{where}: {exc}") from None
+    return LightTrack(light, keys, interpolation) if len(keys) > 1 else light
 
 
 def _pose(key, where: str) -> np.ndarray:
@@ -434,6 +439,9 @@ def load_walk(path) -> WalkFile:
                 "height": _field(doc, "height", where, 240)}
         up = tuple(_field(doc, "up", where, (0.0, 1.0, 0.0)))
         frames = _field(doc, "frames", where, required=True)
+        if "orbit" in doc and ("keyframes" in doc or "interpolation" in doc):
+            # An orbit is its own curve: keyframes or their interpolation beside it would be ignored.
+            raise InvalidInputError(f"{where}: give 'orbit' or 'keyframes' (with 'interpolation'), not both")
         if "orbit" in doc:
             o = doc["orbit"]
             if not isinstance(o, dict):

@@ -87,6 +87,11 @@ def test_groups_refuse_bad_input(box, device):
         LightGroups(scene, {"lamp": ["bright"]})
     with pytest.raises(InvalidInputError, match="map group names"):
         LightGroups(scene, [lights[0]])
+    with pytest.raises(InvalidInputError, match="list one per group"):  # once: a raw TypeError
+        per_group.combine(0.5)
+    for value in (None, 3):
+        with pytest.raises(InvalidInputError, match="not a light or a sequence of lights"):
+            LightGroups(scene, {"lamp": value})
     other = pydynrad.scenes.cornell_box(max_edge=300.0)
     dyn = pydynrad.DynamicRadiosity(other, pydynrad.form_factors(other, resolution=8, device=device), local_size=16,
                                     device=device)

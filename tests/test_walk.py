@@ -103,6 +103,12 @@ def test_load_path_file(tmp_path):
         ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}], "lights": [{"type": "area"}]},
          "unknown light type"),
         ({"frames": 2, "orbit": {"radius": 1}}, "missing field 'center'"),
+        # Fields that would be ignored are refused (the orbit won, the one-keyframe light kept any name).
+        ({"frames": 2, "orbit": {"center": [0, 0, 0], "radius": 1},
+          "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "'orbit' or 'keyframes'.*not both"),
+        ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
+          "lights": [{"type": "point", "intensity": 1, "keyframes": [[0, 1, 0]], "interpolation": "bogus"}]},
+         "light 0: .*bogus"),
     ],
 )
 def test_bad_path_files_name_the_file_and_the_problem(tmp_path, doc, message):

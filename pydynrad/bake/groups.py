@@ -49,7 +49,11 @@ def _weights(names: tuple[str, ...], weights) -> np.ndarray:
                                     f"the groups are {', '.join(map(repr, names))}")
         items = [(names.index(k), v) for k, v in weights.items()]
     else:
-        seq = list(weights)
+        try:
+            seq = list(weights)
+        except TypeError:  # combine(0.5): one number is no list of weights
+            raise InvalidInputError(f"weights must map group names to weights, or list one per group "
+                                    f"({', '.join(names)}); got {weights!r}") from None
         if len(seq) != len(names):
             raise InvalidInputError(f"give one weight per light group ({len(names)}: {', '.join(names)}); "
                                     f"got {len(seq)}")
