@@ -34,8 +34,8 @@ def number(value, what: str) -> float:
     return float(a)
 
 
-#: The most photographic stops an exposure may have either way: 2**126 is float32's largest
-#: power of two that is normal both ways, and a gain beyond makes every pixel inf or 0.
+#: The most photographic stops an exposure may have either way: 2**126 is the largest power of
+#: two whose inverse is normal in float32 too (2**-126 the smallest normal number).
 MAX_STOPS = 126
 
 
@@ -44,8 +44,8 @@ def stops(value, what: str = "exposure") -> float:
     within +-:data:`MAX_STOPS`; InvalidInputError naming ``what`` otherwise."""
     v = number(value, what)
     if abs(v) > MAX_STOPS:
-        raise InvalidInputError(f"{what} must lie within +-{MAX_STOPS} stops (a gain of 2**{v:g} is beyond float32); "
-                                f"got {value!r}")
+        raise InvalidInputError(f"{what} must lie within +-{MAX_STOPS} stops (a gain of 2**{v:g} is outside float32's "
+                                f"normal range); got {value!r}")
     return v
 
 

@@ -431,13 +431,15 @@ def _cmd_bake(args: argparse.Namespace) -> int:
 
 
 def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames, objects=()) -> object:
-    from .atomic import write_atomic
+    from .atomic import check_file_target, write_atomic
     from .walk import walk
 
     opts = _dynamic_options(args)
     if objects:  # their rows by hemicube at F's resolution, so reference frames match F
         opts["resolution"] = args.resolution
         opts["poses"] = _stored_poses(F, scene, objects, args.resolution)
+    if out_dir is not None and Path(out_dir).is_dir():
+        check_file_target(Path(out_dir) / "summary.txt")  # written last: checked first
     result = walk(scene, path, lights=lights, objects=objects, form_factors=F,
                   local_size=min(args.local_size, len(scene) + sum(len(t.object) for t in objects)),
                   solver_options=opts, shading=args.shading, output=out_dir, image_format=args.format,

@@ -310,11 +310,15 @@ def checked_light_vector(L, n: int) -> np.ndarray:
 
 def check_radiosity_range(L: np.ndarray, albedo: np.ndarray, dtype=np.float32) -> None:
     """InvalidInputError where the radiosity of light vector ``L`` could overflow ``dtype``, before
-    any pass computes it: F's rows sum to at most 1, so max B <= max L / (1 - max albedo)."""
-    top, rho = float(np.max(L, initial=0.0)), float(np.max(albedo, initial=0.0))
+    any pass computes it: F's rows sum to at most 1 + ROW_SUM_SLACK (what the checks allow), so
+    max B <= max L / (1 - max albedo (1 + ROW_SUM_SLACK))."""
+    from .checks import ROW_SUM_SLACK
+
+    top, rho = float(np.max(L, initial=0.0)), float(np.max(albedo, initial=0.0)) * (1.0 + ROW_SUM_SLACK)
     bound = top / (1.0 - rho) if rho < 1.0 else np.inf
     if top > 0 and bound > float(np.finfo(dtype).max):
-        raise InvalidInputError(f"the radiosity may reach {bound:.3g} (max L {top:.3g} / (1 - max albedo {rho:g})), "
+        raise InvalidInputError(f"the radiosity may reach {bound:.3g} (max L {top:.3g} / (1 - {rho:g}), the largest "
+                                f"albedo times F's largest row sum), "
                                 f"beyond {np.dtype(dtype).name}: scale the emission and the lights down")
 
 

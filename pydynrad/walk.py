@@ -174,6 +174,7 @@ def walk(
     """
     from .device import default_device
     from .image_io import _format_for, write_image
+    from .atomic import check_file_target
     from .objects import check_reach
     from .progress import progress_bar
     from .render import Renderer
@@ -214,6 +215,8 @@ def walk(
         out_dir = Path(output)
         _format_for(out_dir / f"frame.{image_format}")  # reject a bad format before any work
         out_dir.mkdir(parents=True, exist_ok=True)
+        for name in [f"frame_{k:04d}.{image_format}" for k in range(n)] + [f"compare_{k:04d}.png" for k in refs]:
+            check_file_target(out_dir / name)  # a folder in a frame's place: before the first frame
     renderer = Renderer(scene, device)
     renderer.warm_up()
     full_F = None  # all of F in memory, read at the first reference frame

@@ -323,10 +323,12 @@ def test_outputs_in_a_folders_place_and_exposures_are_refused_before_any_work(tm
     assert code == 2 and "a folder of that name is in the way" in err
     code, _, err = run_main(["render", "cornell_box", "-o", str(tmp_path / "e.png"), "--exposure", "2000"], capsys)
     assert code == 2 and "within +-126 stops" in err and "Traceback" not in err
-    (tmp_path / "k.glb").mkdir()
+    # 126 stops times the lamp's radiosity passes float32 in the mesh's embedded 8-bit image
+    # only, found after the solve: the lightmap had been written first, then the mesh refused.
     code, _, err = run_main(["bake", "cornell_box", "--max-edge", "250", "--resolution", "8", "-o",
-                             str(tmp_path / "k.glb"), "--lightmap", str(tmp_path / "l.exr")], capsys)
-    assert code == 2 and "in the way" in err and not (tmp_path / "l.exr").exists()
+                             str(tmp_path / "k.glb"), "--lightmap", str(tmp_path / "l.exr"), "--exposure", "126"],
+                            capsys)
+    assert code == 2 and "overflows float32" in err and not list(tmp_path.glob("[kl].*"))
 
 
 def test_a_light_past_float32_is_refused_and_leaves_the_far_field_as_it_was(device):
@@ -349,6 +351,22 @@ def test_a_light_past_float32_is_refused_and_leaves_the_far_field_as_it_was(devi
                 call()
     with pytest.raises(InvalidInputError, match="L must be >= 0"):
         far.light(-L)
+    # Each bound is the narrowest type its products compute in: a float64 far field with an fp32
+    # K_c is float32's, a K on the device its storage's; fp64 storage takes what fits float64.
+    from pydynrad.matvec import DeviceMatrix
+
+    big = L / L.max() * 1e300
+    far64 = FarField(box, F, clusters=len(box) // 8, dtype=np.float64, coarse="dense", coarse_storage="fp32",
+                     device=device)
+    K = DeviceMatrix(device, pydynrad.multibounce(box, F, device=device), "fp32")
+    for call in (lambda: far64.light(big), lambda: pydynrad.multibounce_radiosity(box, K, light=big)):
+        with pytest.raises(InvalidInputError, match="beyond float32"):
+            call()
+    dyn64 = pydynrad.DynamicRadiosity(box, F, local_size=64, storage="fp64", far_field=False,
+                                      observer=(278.0, 273.0, -300.0), device=device)
+    huge = L / L.max() * 2e38  # radiosity past float32, within float64
+    B = dyn64.radiosity(light=huge)
+    assert np.all(np.isfinite(B)) and B.max() >= 2e38
     fresh = FarField(box, F, clusters=len(box) // 8, device=device)
     for x in (L, 2.0 * L):
         np.testing.assert_array_equal(far.light(x), fresh.light(x))
@@ -386,6 +404,11 @@ def test_a_walk_checks_every_frame_before_any_work_and_deep_json_is_named(box, b
     with pytest.raises(InvalidInputError, match="frame 1 of 3: camera look_at"):
         pydynrad.walk(box, camera_path, form_factors=box_F, local_size=16, output=tmp_path / "out", device=device)
     assert not (tmp_path / "out").exists()
+    (tmp_path / "out" / "frame_0001.png").mkdir(parents=True)  # a folder in a later frame's place
+    good = pydynrad.fly_through([[0.5, 0.5, -2.0], [0.5, 0.5, -1.0]], 3, width=8, height=6)
+    with pytest.raises(InvalidInputError, match="frame_0001.png': a folder of that name is in the way"):
+        pydynrad.walk(box, good, form_factors=box_F, local_size=16, output=tmp_path / "out", device=device)
+    assert not (tmp_path / "out" / "frame_0000.png").exists()
     (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(InvalidInputError, match="nested too deeply"):
         pydynrad.load_walk(tmp_path / "deep.json")

@@ -651,11 +651,12 @@ class DynamicRadiosity:
         with the reflected light vector L_r, plus E.
         """
         from ..lights import check_radiosity_range
+        from ..matvec import compute_dtype
         from ..photometry.areas import analytic_emitter_light
 
         self._require_built()
         L, E = analytic_emitter_light(self.scene, lights, light, emitters, self.device)
-        check_radiosity_range(L, self.scene.albedo)  # the device's vectors are float32
+        check_radiosity_range(L, self.scene.albedo, compute_dtype(self.storage))  # the K passes' type
         S = self._local_patches
         LS = L[S]
         far = self.far.light(L) if far_field and self.far is not None else None

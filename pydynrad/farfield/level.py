@@ -244,7 +244,7 @@ class FarField:
         from ..csrgraph import columns_float32
         from ..device import default_device, real_dtype
         from ..devicecsr import DeviceCSR
-        from ..matvec import storage_dtype
+        from ..matvec import compute_dtype, storage_dtype
 
         t0 = time.perf_counter()
         self.scene = checked_scene(scene)
@@ -329,6 +329,9 @@ class FarField:
         # shared: G only makes F_c; a stored G is read per pass (:meth:`_gather`).
         self._G_dev = None if gather == "shared" or self._G_stream is not None else DeviceCSR(self.device, G, dtype)
         self._dtype = dtype
+        # The narrowest type any of its products computes in: a float64 far field may keep K_c in fp32.
+        narrow = np.dtype(dtype) == np.float32 or compute_dtype(coarse_storage) == np.float32
+        self._range_dtype = np.dtype(np.float32 if narrow else np.float64)
         self.coarse = ("dense" if C <= DENSE_CLUSTERS else "sweeps") if coarse == "auto" else coarse
         self.K_c = self._dense_coarse(coarse_storage, dtype) if self.coarse == "dense" else None
         self._Fc_dev = DeviceCSR(self.device, self.F_c, dtype) if self.coarse == "sweeps" else None
@@ -406,7 +409,7 @@ class FarField:
             raise InvalidInputError(f"L must be >= 0 (light is not negative); got a minimum of {L_all.min():g}")
         # Before anything is computed or recorded: an answer past float32 would be kept among the
         # answers later lights are fitted to, and poison every one of them.
-        check_radiosity_range(L_all, self.scene.albedo, self._dtype)
+        check_radiosity_range(L_all, self.scene.albedo, self._range_dtype)
         grey = self.scene.is_grey and bool(np.all(L_all[:, :1] == L_all))
         k = 1 if grey else 3
         L, rho = L_all[:, :k], self.rho[:, :k]
