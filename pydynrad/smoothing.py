@@ -84,8 +84,16 @@ def smoothing_groups(scene, crease_angle: float = 30.0) -> tuple[np.ndarray, int
     return labels.reshape(n, 3).astype(np.int64), int(n_groups)
 
 
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
 def checked_radiosity(radiosity, n: int) -> np.ndarray:
     """``radiosity`` of shape (n,), (n, 1) or (n, 3) as a finite (n, 3) float32 view, or InvalidInputError."""
+    given = np.asarray(radiosity)
+    if given.dtype.kind == "f" and np.all(np.isfinite(given)) and np.abs(given).max(initial=0.0) > FLOAT32_MAX:
+        # finite in float64, inf once cast: say so, not "NaN or infinite" of values that were neither
+        raise InvalidInputError(f"radiosity reaches {float(np.abs(given).max()):.3g}, beyond float32 (what renders "
+                                "and smoothed vertices hold): scale the scene's emission and lights down")
     b = np.asarray(radiosity, dtype=np.float32)
     if b.ndim == 1 and b.shape == (n,):
         b = b[:, None]

@@ -414,6 +414,14 @@ def test_a_walk_checks_every_frame_before_any_work_and_deep_json_is_named(box, b
         pydynrad.load_walk(tmp_path / "deep.json")
 
 
+def test_a_radiosity_past_float32_is_named_by_the_renderer(box, device):
+    """A float64 B from the dense solve can exceed float32; rendering it is refused as out of
+    float32's range (once: "NaN or infinite values", of values that were neither)."""
+    camera = pydynrad.Camera((0.5, 0.5, -2.0), (0.5, 0.5, 0.5), width=8, height=6)
+    with pytest.raises(InvalidInputError, match="radiosity reaches 1e\\+39, beyond float32"):
+        pydynrad.render(box, np.full((len(box), 3), 1e39), camera, device=device)
+
+
 def test_unit_vectors_of_huge_and_tiny_lengths():
     """Directions are scaled before they are normalised: (1e300, -2e300, 1e301) overflowed the
     norm and became (0, 0, 0), a light that silently lit nothing; 1e-300 was refused as zero."""
