@@ -90,10 +90,13 @@ def _stops(text: str) -> float:
     from .checks import stops
 
     try:
-        return stops(float(text))
-    except (ValueError, InvalidInputError) as exc:  # float("x") or out of range: one line, before any work
-        raise argparse.ArgumentTypeError(str(exc) if isinstance(exc, InvalidInputError) else
-                                         f"expected a number of stops; got {text!r}") from None
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of stops; got {text!r}") from None
+    try:  # out of range: one line, before any work
+        return stops(value)
+    except InvalidInputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _light(text: str):

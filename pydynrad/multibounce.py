@@ -378,10 +378,9 @@ def multibounce_radiosity(scene, K, lights=(), *, light=None, patches=None, devi
     C, M = (K.C, K.M) if isinstance(K, DeviceMatrix) else (np.shape(K)[0], np.shape(K)[1])
     if M != len(idx) or C not in (1, 3) or (not isinstance(K, DeviceMatrix) and np.shape(K) != (C, M, M)):
         raise InvalidInputError(f"K must be (1 or 3, {len(idx)}, {len(idx)}) for these patches; got {np.shape(K)}")
-    if isinstance(K, DeviceMatrix):  # a host K is applied in float64
-        check_radiosity_range(L[idx], scene.albedo[idx], K.real_dtype)
     LS = L[idx].T  # (3, M)
-    if isinstance(K, DeviceMatrix):
+    if isinstance(K, DeviceMatrix):  # only a device K has a type B could overflow (a host K is float64)
+        check_radiosity_range(L[idx], scene.albedo[idx], K.real_dtype)
         KL = K.matmat(LS[None])[0] if C == 1 else K.matvec(LS)  # one K, three colours in one pass
     else:
         Kd = np.asarray(K, dtype=np.float64)

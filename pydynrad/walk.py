@@ -172,9 +172,9 @@ def walk(
     -------
     WalkResult
     """
+    from .atomic import check_file_target
     from .device import default_device
     from .image_io import _format_for, write_image
-    from .atomic import check_file_target
     from .objects import check_reach
     from .progress import progress_bar
     from .render import Renderer
@@ -189,10 +189,12 @@ def walk(
             raise InvalidInputError(f"objects must be ObjectTrack entries (a RigidObject with keyframes); got {type(t).__name__}")
     exposure = stops(exposure)  # before any frame's work, not at the first image written
     n = len(path)
-    # Every frame's camera and poses before any work (the solution's build included), not mid-walk.
+    # Every frame's camera and poses before any work (the solution's build included), not mid-walk;
+    # the cameras made here are the frames'.
+    cameras = []
     for k in range(n):
         try:
-            path.camera(k)
+            cameras.append(path.camera(k))
         except InvalidInputError as exc:
             raise InvalidInputError(f"frame {k} of {n}: {exc}") from None
         for t in tracks:
@@ -224,7 +226,7 @@ def walk(
     b = img = None
     bar = progress_bar(progress, iterable=range(n), desc="walk", unit="frame")
     for k in bar:
-        cam = path.camera(k)
+        cam = cameras[k]
         frame_lights = lights_at(lights, k, n)
         t0 = time.perf_counter()
         for t in tracks:

@@ -91,7 +91,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
         raise InvalidInputError(f"slots must name one kept row per row ({n_rows}); got shape {slots.shape}")
     if len(slots) and (slots.min() < 0 or slots.max() >= kept.shape[0]):
         raise InvalidInputError(f"slots must lie in [0, {kept.shape[0]}) (the kept rows); got {slots.min()}..{slots.max()}")
-    k_len = np.diff(kept.indptr)
+    k_csr, k_len = native_csr(kept), np.diff(kept.indptr)
     split = cores() if sum(b.nnz for b in blocks) >= PARALLEL_ENTRIES else 1
 
     def merge(task):
@@ -100,7 +100,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
         # Only D's entries are written, and a zero at the index after them: the rest of the bound
         # is not touched (no page of it faulted in).
         indptr, out_i, out_d = np.empty(len(sl) + 1, np.int64), np.empty(most, np.int32), np.empty(most)
-        nnz = _poserows.difference(starts, ends, indices, data, *native_csr(kept), sl, indptr, out_i, out_d)
+        nnz = _poserows.difference(starts, ends, indices, data, *k_csr, sl, indptr, out_i, out_d)
         return None if nnz < 0 else (indptr, out_i[:nnz], out_d[:nnz])
 
     def tasks():
@@ -116,6 +116,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
         return sp.csr_matrix((0, kept.shape[1]))
     if any(p is None for p in parts):  # a row out of column order (scipy leaves sums of CSR matrices unsorted)
         blocks, kept = [_canonical(b) for b in blocks], _canonical(kept)
+        k_csr, k_len = native_csr(kept), np.diff(kept.indptr)  # merge() reads the sorted ones
         parts = map_parts(merge, tasks())
     # One copy of the parts' entries into D (scipy's vstack of the parts' matrices took 0.24 ms of
     # a move's 2 ms merge on the bench's Cornell box).
