@@ -1,4 +1,5 @@
-"""weak_components and columns_float32 against scipy's connected_components and csc_matrix."""
+"""weak_components, columns_float32 and sum_by_label against scipy's connected_components,
+csc_matrix and sparse product."""
 
 import numpy as np
 import pytest
@@ -6,7 +7,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from pydynrad import InvalidInputError, _csrgraph
-from pydynrad.csrgraph import columns_float32, weak_components
+from pydynrad.csrgraph import columns_float32, sum_by_label, weak_components
 
 
 def _graph(n, density, seed, index_dtype=np.int32):
@@ -29,15 +30,46 @@ def test_weak_components_join_one_way_edges():
     assert weak_components(A).tolist() == [0, 0, 1, 0, 2]
 
 
-@pytest.mark.parametrize("shape", [(60, 60), (7, 300), (300, 7)])
-def test_columns_float32_matches_scipy(shape):
+@pytest.mark.parametrize("shape, dtype", [((60, 60), np.float64), ((7, 300), np.float64), ((300, 7), np.float64),
+                                          ((60, 60), np.float32)])
+def test_columns_float32_matches_scipy(shape, dtype):
     rng = np.random.default_rng(1)
     A = sp.random(*shape, density=0.05, format="csr", random_state=rng, dtype=np.float64)
     A.data = rng.standard_normal(A.nnz) * 10.0 ** rng.integers(-30, 30, A.nnz)  # rounding to float32 checked
+    A = A.astype(dtype)
     got, want = columns_float32(A), sp.csc_matrix(A, dtype=np.float32)
     for a, b in ((got.indptr, want.indptr), (got.indices, want.indices), (got.data, want.data)):
         np.testing.assert_array_equal(a, b)
     assert got.dtype == np.float32 and got.shape == shape
+
+
+@pytest.mark.parametrize("dtype, index_dtype, weighted", [(np.float32, np.int32, False), (np.float64, np.int32, True),
+                                                         (np.float32, np.int64, True)])
+def test_sum_by_label_is_scipys_product_bit_for_bit(dtype, index_dtype, weighted):
+    # G = F Pr for a prolongation of one entry per row: the same entries, values and order as
+    # scipy's product (which the far field used), exact zeros dropped as scipy drops them.
+    rng = np.random.default_rng(2)
+    n, C = 300, 23
+    A = _graph(n, 0.06, 3, index_dtype).astype(dtype)
+    A.data = (rng.standard_normal(A.nnz) * 10.0 ** rng.integers(-8, 8, A.nnz)).astype(dtype)
+    labels = rng.integers(0, C, n)
+    # Entries that cancel exactly within a row and a label: the zero sum is dropped.
+    A = A.tolil()
+    A[0, :] = 0
+    A[0, 0], A[0, 1] = 1.5, -1.5
+    A = sp.csr_matrix(A)
+    labels[1] = labels[0]
+    w = rng.random(n) + 0.5 if weighted else np.ones(n)
+    w[1] = w[0]
+    Pr = sp.csr_matrix((w, (np.arange(n), labels)), shape=(n, C))
+    want, got = sp.csr_matrix(A @ Pr, dtype=np.float64), sum_by_label(A, labels, w, C)
+    for a, b in ((got.indptr, want.indptr), (got.indices, want.indices), (got.data, want.data)):
+        np.testing.assert_array_equal(a, b)
+    assert got.shape == (n, C) and got[0].nnz == 0
+    with pytest.raises(InvalidInputError, match="shape"):
+        sum_by_label(A, labels[:-1], w, C)
+    with pytest.raises(ValueError, match="labels in"):
+        sum_by_label(A, np.where(labels == 0, C, labels), w, C)
 
 
 def test_bad_structures_are_refused():

@@ -166,6 +166,17 @@ def _checked_linear(linear, n: int, C: int) -> tuple[sp.csr_matrix, sp.csr_matri
     return sp.csr_matrix(Pr), sp.csr_matrix(fit)
 
 
+def _cluster_columns(F, Pr) -> sp.csr_matrix:
+    """G = F Pr (N, C) float64: natively where Pr has one entry per row (the indicator and the
+    exposure-weighted prolongations: F's columns summed by cluster), else scipy's product."""
+    from ..csrgraph import sum_by_label
+
+    n = Pr.shape[0]
+    if Pr.nnz == n and np.array_equal(Pr.indptr, np.arange(n + 1)):
+        return sum_by_label(F, Pr.indices, Pr.data, Pr.shape[1])
+    return sp.csr_matrix(F @ Pr, dtype=np.float64)
+
+
 class FarField:
     """The coarse level of a scene: clusters, F_c, G, and the far radiosity B_far per light vector.
 
@@ -303,7 +314,7 @@ class FarField:
             # Checked chunk by chunk while F_c is summed from it; never held whole.
             self.F_c = G.coarse_form_factors(self.R, C)
         else:
-            G = sp.csr_matrix(F @ Pr, dtype=np.float64) if G is None else checked_cluster_form_factors(G, Pr.shape)
+            G = _cluster_columns(F, Pr) if G is None else checked_cluster_form_factors(G, Pr.shape)
             # The linear basis sums to 1 on every patch: its three column blocks add up to F times the
             # indicator. Summed after the restriction, on C x 3C, not on G (N x 3C: most of the far
             # field's memory at a million patches).
