@@ -19,16 +19,26 @@ __all__ = ["floats", "vec3", "unit_vector", "number", "stops", "integer", "finit
 
 
 def floats(value, what: str) -> np.ndarray:
-    """``value`` as a float64 array; InvalidInputError naming ``what`` if it holds non-numbers."""
+    """``value`` as a float64 array; InvalidInputError naming ``what`` if it holds non-numbers.
+
+    Text is refused even where it spells a number (numpy would parse ``"45"`` as 45.0), as
+    :func:`integer` refuses it: a path file's ``"fov_y": "45"`` is a typing mistake to name,
+    not a number to guess."""
     try:
-        return np.asarray(value, dtype=np.float64)
+        a = np.asarray(value)
+        if a.dtype.kind in "SUV" or (a.dtype.kind == "O" and any(isinstance(x, (str, bytes)) for x in a.flat)):
+            raise TypeError
+        return a.astype(np.float64, copy=False)
     except (TypeError, ValueError):
         raise InvalidInputError(f"{what} must be numbers; got {value!r}") from None
 
 
 def number(value, what: str) -> float:
     """``value`` as a finite float; InvalidInputError naming ``what`` otherwise."""
-    a = floats(value, what)
+    try:
+        a = floats(value, what)
+    except InvalidInputError:
+        a = np.full(2, np.nan)  # not a number: refused below, in this function's words
     if a.shape != () or not np.isfinite(a):
         raise InvalidInputError(f"{what} must be one finite number; got {value!r}")
     return float(a)

@@ -59,6 +59,15 @@ def test_public_entry_points_reject_non_numbers_and_non_scenes():
         pydynrad.SpotLight((0, 0, 0), (0, 0, 1), 1.0, "narrow", 0.2)
     with pytest.raises(InvalidInputError, match="camera fov_y"):
         pydynrad.Camera((0, 0, -1), (0, 0, 0), fov_y="wide")
+    # Text that spells a number is refused too (numpy alone would parse "45" as 45.0), as
+    # integers refuse it.
+    with pytest.raises(InvalidInputError, match="camera fov_y must be one finite number; got '45'"):
+        pydynrad.Camera((0, 0, -1), (0, 0, 0), fov_y="45")
+    with pytest.raises(InvalidInputError, match="PointLight.position must be numbers"):
+        pydynrad.PointLight(("0", 0, 0), 1.0)
+    with pytest.raises(InvalidInputError, match="PointLight.intensity must be numbers"):
+        pydynrad.PointLight((0, 0, 0), np.array(["1e3"] * 3, dtype=object))
+    assert pydynrad.Camera((0, 0, -1), (0, 0, 0), fov_y=np.float32(45)).fov_y == 45.0
     light = pydynrad.PointLight((0, 0, 0), 1.0)
     for call in (lambda: pydynrad.light_vector(None, [light]), lambda: pydynrad.direct_irradiance(None, [light]),
                  lambda: pydynrad.form_factors("box"), lambda: pydynrad.multibounce(None, np.eye(3))):
