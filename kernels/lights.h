@@ -67,7 +67,7 @@ inline float3 analytic_irradiance(float3 p, float3 org, float3 n, const int n_li
         const float4 a = lights[3 * l], b = lights[3 * l + 1], c = lights[3 * l + 2];
         const int type = (int)a.w;
         float3 wi;  // unit direction from p towards the light
-        float dist, scale;
+        float dist, scale, cd = 1.0f;  // cd: a luminaire's table intensity, 1 for the others
         if (type == 2) {
             wi = -b.xyz;
             dist = far;
@@ -82,13 +82,16 @@ inline float3 analytic_irradiance(float3 p, float3 org, float3 n, const int n_li
                 const float t = BVH_MIN(BVH_MAX((-BVH_DOT(b.xyz, wi) - c.w) * b.w, 0.0f), 1.0f);
                 scale *= t * t * (3.0f - 2.0f * t);
             } else if (type == 3) {
-                scale *= luminaire_intensity(tables, (int)b.w, b.xyz, -wi);
+                cd = luminaire_intensity(tables, (int)b.w, b.xyz, -wi);
             }
         }
         const float cosine = BVH_DOT(n, wi);
-        if (cosine <= 0.0f || scale <= 0.0f) continue;
+        if (cosine <= 0.0f || scale <= 0.0f || cd <= 0.0f) continue;
         if (bvh_occluded(nodes, tris, org, wi, 0.0f, dist - 2.0f * eps)) continue;
-        h += c.xyz * (scale * cosine);
+        // c.xyz carries 1 / unit^2 of the scene's frame and scale unit^2 / dist^2: their product
+        // first, so a table's candela meets the true inverse square (cd near 3e38 / (scale in
+        // frame units) had overflowed float32 before the unit's factor came in).
+        h += (c.xyz * scale) * (cd * cosine);
     }
     return h;
 }

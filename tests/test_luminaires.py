@@ -138,6 +138,18 @@ def test_lambertian_point_source(device):
     np.testing.assert_allclose(E[:, 0], I0 * cos * cos / r**2, rtol=1e-5)
 
 
+
+def test_a_luminaire_near_float32s_limit_meets_its_inverse_square_law(device):
+    # A millimetre scene is scaled to its own size on the device (1/unit^2 on the light's factor,
+    # unit^2/d^2 from the distance): with the table's candela taken first, 1e37 cd and up had
+    # overflowed float32 and been refused as irradiance overflow at ~2e33. Linear to 3e38 cd.
+    box = pydynrad.scenes.cornell_box(max_edge=200.0)
+    E = [pydynrad.direct_irradiance(box, [LuminaireLight((278, 540, 280), PhotometricDistribution.lambertian(peak))],
+                                    device).astype(np.float64) / peak for peak in (1.0, 1e37, 3e38)]
+    assert np.isfinite(E[2]).all() and E[0].max() > 0
+    np.testing.assert_allclose(E[1], E[0], rtol=1e-6)
+    np.testing.assert_allclose(E[2], E[0], rtol=1e-6)
+
 def test_flux_is_conserved_in_a_closed_black_room(device):
     # CIE 171:2006, 5.4: all the flux of a luminaire inside a closed room arrives on its walls.
     room = pydynrad.scenes.closed_box((4.0, 3.0, 2.5), subdivisions=4, albedo=0.0, emission=0.0)
