@@ -205,6 +205,12 @@ def _packed(lights: list, frame=None) -> tuple[np.ndarray, np.ndarray]:
     if not np.all(np.isfinite(out)):
         raise InvalidInputError("a light's position or intensity overflows float32 on the device "
                                 "(beyond ~3e38 once the scene is scaled to its own size)")
+    # Below float32's normal range an intensity is flushed to zero or keeps a few bits: the
+    # light would go dark without a word.
+    if np.any((packed[:, 8:11] != 0) & (np.abs(out[:, 8:11]) < np.finfo(np.float32).tiny)):
+        raise InvalidInputError("a light's intensity underflows float32 on the device (below ~1.2e-38 once the "
+                                "scene is scaled to its own size) and would light nothing; scale the light "
+                                "intensities (and emission) up")
     return out, (np.concatenate(tables).astype(np.float32) if tables else np.zeros(1, np.float32))
 
 
