@@ -133,6 +133,10 @@ def exposure_weights(scene, F: sp.csr_matrix, device, tol: float = 1e-4) -> np.n
     sky = [DirectionalLight(tuple(d), (1.0 / SKY_DIRECTIONS,) * 3) for d in sky_directions()]
     L = light_vector(scene.with_materials(emission=0.0), sky, device=device).mean(axis=1, keepdims=True)
     rho = scene.albedo.astype(np.float64).mean(axis=1, keepdims=True)
+    # At most 200 sweeps, converged or not: the weights only shape the prolongation (no answer
+    # is read from them), and a sky solve cut short near albedo 1 still ranks the patches by
+    # exposure, short of the later bounces in enclosed parts; a ConvergenceError here would
+    # refuse the exposure prolongation exactly where a scene is brightest.
     w = DeviceCSR(device, F).jacobi(L, rho, L, tol, 200)[0]
     return np.maximum(w[:, 0], 0.0)
 
