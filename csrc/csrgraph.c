@@ -142,7 +142,9 @@ done:
         /* op[c] is column c's next free place while scattering; shifted back after. */                              \
         for (Py_ssize_t r = 0; r < n_rows; ++r) {                                                                      \
             for (int64_t j = ip[r]; j < ip[r + 1]; ++j) {                                                              \
-                int64_t at = op[ix[j]]++;                                                                              \
+                int64_t c = (int64_t)ix[j];                                                                            \
+                if (c < 0 || c >= n_cols) return -1; /* read again unlocked: checked where it is used */              \
+                int64_t at = op[c]++;                                                                                  \
                 ox[at] = (int32_t)r;                                                                                   \
                 ov[at] = (float)v[j];                                                                                  \
             }                                                                                                          \
@@ -206,7 +208,7 @@ done:
  * row, else the label met before it (a chain from head, scipy's csr_matmat bookkeeping). */
 #define COUNT_LABELS(NAME, ITYPE)                                                                                      \
     static int NAME(const int64_t *ip, const ITYPE *ix, Py_ssize_t n_rows, Py_ssize_t n_cols, const int64_t *label,   \
-                    int64_t *next, int64_t *counts)                                                                    \
+                    int64_t n_labels, int64_t *next, int64_t *counts)                                                  \
     {                                                                                                                  \
         for (Py_ssize_t r = 0; r < n_rows; ++r) {                                                                      \
             int64_t head = -2, length = 0;                                                                             \
@@ -214,6 +216,7 @@ done:
                 int64_t c = (int64_t)ix[j];                                                                            \
                 if (c < 0 || c >= n_cols) return -1;                                                                   \
                 int64_t k = label[c];                                                                                  \
+                if (k < 0 || k >= n_labels) return -1; /* checked up front; read again here, unlocked */             \
                 if (next[k] == -1) next[k] = head, head = k, ++length;                                                 \
             }                                                                                                          \
             counts[r] = length;                                                                                        \
@@ -230,7 +233,8 @@ COUNT_LABELS(count_labels_i64, int64_t)
 
 #define SUM_LABELS(NAME, ITYPE, VTYPE)                                                                                 \
     static int64_t NAME(const int64_t *ip, const ITYPE *ix, const VTYPE *v, Py_ssize_t n_rows, Py_ssize_t n_cols,     \
-                        const int64_t *label, const double *w, int64_t *next, double *sums, int64_t capacity,          \
+                        const int64_t *label, int64_t n_labels, const double *w, int64_t *next, double *sums,          \
+                        int64_t capacity,                                                                              \
                         int64_t *op, int32_t *ox, double *ov)                                                          \
     {                                                                                                                  \
         int64_t nnz = 0;                                                                                               \
@@ -241,6 +245,7 @@ COUNT_LABELS(count_labels_i64, int64_t)
                 int64_t c = (int64_t)ix[j];                                                                            \
                 if (c < 0 || c >= n_cols) return -1;                                                                   \
                 int64_t k = label[c];                                                                                  \
+                if (k < 0 || k >= n_labels) return -1;                                                                 \
                 sums[k] += (double)v[j] * w[c];                                                                        \
                 if (next[k] == -1) next[k] = head, head = k;                                                           \
             }                                                                                                          \
@@ -296,11 +301,11 @@ static PyObject *py_label_counts(PyObject *self, PyObject *args)
     int status;
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t k = 0; k < n_labels; ++k) next[k] = -1;
-    status = isz == 4 ? count_labels_i32(ip.buf, ix.buf, n_rows, n_cols, lb.buf, next, out.buf)
-                      : count_labels_i64(ip.buf, ix.buf, n_rows, n_cols, lb.buf, next, out.buf);
+    status = isz == 4 ? count_labels_i32(ip.buf, ix.buf, n_rows, n_cols, lb.buf, n_labels, next, out.buf)
+                      : count_labels_i64(ip.buf, ix.buf, n_rows, n_cols, lb.buf, n_labels, next, out.buf);
     Py_END_ALLOW_THREADS
     if (status) {
-        PyErr_SetString(PyExc_ValueError, "label_counts: a column index is out of range");
+        PyErr_SetString(PyExc_ValueError, "label_counts: a column index or a label is out of range");
         goto done;
     }
     Py_INCREF(Py_None);
@@ -346,18 +351,18 @@ static PyObject *py_sum_by_label(PyObject *self, PyObject *args)
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t k = 0; k < n_labels; ++k) next[k] = -1;
     if (isz == 4)
-        got = vsz == 4 ? sum_labels_i32_f32(ip.buf, ix.buf, v.buf, n_rows, n_cols, lb.buf, w.buf, next, sums, capacity,
+        got = vsz == 4 ? sum_labels_i32_f32(ip.buf, ix.buf, v.buf, n_rows, n_cols, lb.buf, n_labels, w.buf, next, sums, capacity,
                                             op.buf, ox.buf, ov.buf)
-                       : sum_labels_i32_f64(ip.buf, ix.buf, v.buf, n_rows, n_cols, lb.buf, w.buf, next, sums, capacity,
+                       : sum_labels_i32_f64(ip.buf, ix.buf, v.buf, n_rows, n_cols, lb.buf, n_labels, w.buf, next, sums, capacity,
                                             op.buf, ox.buf, ov.buf);
     else
-        got = vsz == 4 ? sum_labels_i64_f32(ip.buf, ix.buf, v.buf, n_rows, n_cols, lb.buf, w.buf, next, sums, capacity,
+        got = vsz == 4 ? sum_labels_i64_f32(ip.buf, ix.buf, v.buf, n_rows, n_cols, lb.buf, n_labels, w.buf, next, sums, capacity,
                                             op.buf, ox.buf, ov.buf)
-                       : sum_labels_i64_f64(ip.buf, ix.buf, v.buf, n_rows, n_cols, lb.buf, w.buf, next, sums, capacity,
+                       : sum_labels_i64_f64(ip.buf, ix.buf, v.buf, n_rows, n_cols, lb.buf, n_labels, w.buf, next, sums, capacity,
                                             op.buf, ox.buf, ov.buf);
     Py_END_ALLOW_THREADS
     if (got < 0) {
-        PyErr_SetString(PyExc_ValueError, got == -1 ? "sum_by_label: a column index is out of range"
+        PyErr_SetString(PyExc_ValueError, got == -1 ? "sum_by_label: a column index or a label is out of range"
                                                     : "sum_by_label: the outputs are shorter than the result");
         goto done;
     }

@@ -70,6 +70,26 @@ def test_sum_by_label_is_scipys_product_bit_for_bit(dtype, index_dtype, weighted
         sum_by_label(A, labels[:-1], w, C)
     with pytest.raises(ValueError, match="labels in"):
         sum_by_label(A, np.where(labels == 0, C, labels), w, C)
+    with pytest.raises(InvalidInputError, match="n_labels must be an integer"):
+        sum_by_label(A, labels, w, 23.0)
+    # Values and indices that are views with a stride are read, as scipy reads them.
+    strided = sp.csr_matrix((np.repeat(A.data, 2)[::2], np.repeat(A.indices, 2)[::2], A.indptr), shape=A.shape)
+    np.testing.assert_array_equal(sum_by_label(strided, labels, w, C).data, want.data)
+
+
+def test_labels_changed_under_the_native_pass_are_refused_not_read_out_of_bounds():
+    # The labels are checked before the pass and read again in it without the GIL: an output
+    # that is the labels array itself (or another thread) writing labels beyond n_labels is an
+    # error, not a write past the scratch arrays.
+    F = sp.csr_matrix(np.ones((3, 3)))
+    labels = np.array([0, 1, 1], np.int64)
+    with pytest.raises(ValueError, match="out of range"):
+        _csrgraph.label_counts(F.indptr.astype(np.int64), F.indices, labels, 2, labels)
+    F = sp.csr_matrix(np.ones((3, 4)))
+    labels = np.array([0, 1, 0, 1], np.int64)
+    with pytest.raises(ValueError, match="out of range"):
+        _csrgraph.sum_by_label(F.indptr.astype(np.int64), F.indices, F.data, labels, np.ones(4), 2, labels,
+                               np.empty(8, np.int32), np.empty(8))
 
 
 def test_bad_structures_are_refused():

@@ -171,12 +171,13 @@ def _checked_linear(linear, n: int, C: int) -> tuple[sp.csr_matrix, sp.csr_matri
 
 
 def _cluster_columns(F, Pr) -> sp.csr_matrix:
-    """G = F Pr (N, C) float64: natively where Pr has one entry per row (the indicator and the
-    exposure-weighted prolongations: F's columns summed by cluster), else scipy's product."""
+    """G = F Pr (N, C) float64: natively where Pr is float64 with one entry per row (the
+    indicator and the exposure-weighted prolongations: F's columns summed by cluster), else
+    scipy's product (which a float32 F times a float32 Pr would sum in float32)."""
     from ..csrgraph import sum_by_label
 
     n = Pr.shape[0]
-    if Pr.nnz == n and np.array_equal(Pr.indptr, np.arange(n + 1)):
+    if Pr.dtype == np.float64 and Pr.nnz == n and np.array_equal(Pr.indptr, np.arange(n + 1)):
         return sum_by_label(F, Pr.indices, Pr.data, Pr.shape[1])
     return sp.csr_matrix(F @ Pr, dtype=np.float64)
 
