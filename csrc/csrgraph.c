@@ -159,6 +159,16 @@ SCATTER(scatter_i32_f64, int32_t, double)
 SCATTER(scatter_i64_f32, int64_t, float)
 SCATTER(scatter_i64_f64, int64_t, double)
 
+/* None where a pass returned 0, else NULL with ValueError(message). */
+static PyObject *none_unless(int status, const char *message)
+{
+    if (status) {
+        PyErr_SetString(PyExc_ValueError, message);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 static PyObject *py_to_columns(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -188,12 +198,7 @@ static PyObject *py_to_columns(PyObject *self, PyObject *args)
         status = vsz == 4 ? scatter_i64_f32(ip.buf, ix.buf, v.buf, n_rows, n_cols, op.buf, ox.buf, ov.buf)
                           : scatter_i64_f64(ip.buf, ix.buf, v.buf, n_rows, n_cols, op.buf, ox.buf, ov.buf);
     Py_END_ALLOW_THREADS
-    if (status) {
-        PyErr_SetString(PyExc_ValueError, "to_columns: a column index is out of range");
-        goto done;
-    }
-    Py_INCREF(Py_None);
-    result = Py_None;
+    result = none_unless(status, "to_columns: a column index is out of range");
 done:
     PyBuffer_Release(&ip);
     PyBuffer_Release(&ix);
@@ -304,12 +309,7 @@ static PyObject *py_label_counts(PyObject *self, PyObject *args)
     status = isz == 4 ? count_labels_i32(ip.buf, ix.buf, n_rows, n_cols, lb.buf, n_labels, next, out.buf)
                       : count_labels_i64(ip.buf, ix.buf, n_rows, n_cols, lb.buf, n_labels, next, out.buf);
     Py_END_ALLOW_THREADS
-    if (status) {
-        PyErr_SetString(PyExc_ValueError, "label_counts: a column index or a label is out of range");
-        goto done;
-    }
-    Py_INCREF(Py_None);
-    result = Py_None;
+    result = none_unless(status, "label_counts: a column index or a label is out of range");
 done:
     free(next);
     PyBuffer_Release(&ip);
