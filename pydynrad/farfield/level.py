@@ -170,6 +170,16 @@ def _checked_linear(linear, n: int, C: int) -> tuple[sp.csr_matrix, sp.csr_matri
     return sp.csr_matrix(Pr), sp.csr_matrix(fit)
 
 
+def _differing_rows(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
+    """Rows of A (N, k) with an entry other than 0 (B None) or than B's, column by column:
+    numpy's any(axis=1) over so few columns took 1.0-1.2 ms at the village's 66k rows, this
+    0.16 ms (per light change, twice)."""
+    out = A[:, 0] != (0.0 if B is None else B[:, 0])
+    for c in range(1, A.shape[1]):
+        out |= A[:, c] != (0.0 if B is None else B[:, c])
+    return np.flatnonzero(out)
+
+
 def _cluster_columns(F, Pr) -> sp.csr_matrix:
     """G = F Pr (N, C) float64: natively where Pr is float64 with one entry per row (the
     indicator and the exposure-weighted prolongations: F's columns summed by cluster), else
@@ -521,11 +531,11 @@ class FarField:
         rho = self.rho[:, : L.shape[1]]
         if self._F_cols is None:
             return self._F_dev.bounce(np.zeros_like(L), rho, L)
-        cols = np.flatnonzero(np.any(L != 0, axis=1))
+        cols = _differing_rows(L)
         x, D1 = L, 0.0
         last = self._bounced  # (L, D1, changes since a whole product) of the last light change
         if last is not None and last[0].shape == L.shape and last[2] < DELTA_BOUNCES:
-            changed = np.flatnonzero(np.any(L != last[0], axis=1))
+            changed = _differing_rows(L, last[0])
             if len(changed) < len(cols):  # D1 is linear in L: add the change's first bounce
                 cols, x, D1 = changed, L - last[0], last[1]
         # F's entries read once in their own type, not copied out and upcast (csrc/colproduct.c).
