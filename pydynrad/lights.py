@@ -317,10 +317,18 @@ def checked_light_vector(L, n: int) -> np.ndarray:
 def check_radiosity_range(L: np.ndarray, albedo: np.ndarray, dtype=np.float32) -> None:
     """InvalidInputError where the radiosity of light vector ``L`` could overflow ``dtype``, before
     any pass computes it: F's rows sum to at most 1 + ROW_SUM_SLACK (what the checks allow), so
-    max B <= max L / (1 - max albedo (1 + ROW_SUM_SLACK))."""
+    max B <= max L / (1 - max albedo (1 + ROW_SUM_SLACK)).
+
+    Where that product reaches 1 (an albedo of 0.999 or more, which a Scene allows), the slack
+    gives no bound at all, and refusing every light there would refuse scenes the solvers
+    answer (a closed box at 0.9995: 333.8 by the dense solve); the bound then takes the albedo
+    alone, max L / (1 - max albedo), as for rows that sum to 1."""
     from .checks import ROW_SUM_SLACK
 
-    top, rho = float(np.max(L, initial=0.0)), float(np.max(albedo, initial=0.0)) * (1.0 + ROW_SUM_SLACK)
+    top, albedo_max = float(np.max(L, initial=0.0)), float(np.max(albedo, initial=0.0))
+    rho = albedo_max * (1.0 + ROW_SUM_SLACK)
+    if rho >= 1.0:
+        rho = albedo_max
     bound = top / (1.0 - rho) if rho < 1.0 else np.inf
     if top > 0 and bound > float(np.finfo(dtype).max):
         raise InvalidInputError(f"the radiosity may reach {bound:.3g} (max L {top:.3g} / (1 - {rho:g}), the largest "

@@ -152,6 +152,13 @@ class DeviceMatrix:
         K = np.asarray(K)
         if K.shape != (self.C, self.M, self.M):
             raise InvalidInputError(f"K must have shape {(self.C, self.M, self.M)}; got {K.shape}")
+        # Past the storage type's range an entry would be stored as inf (numpy only warns) and
+        # every product with K would be inf or NaN: a multibounce matrix at albedos near 1.
+        top = max(float(K.max(initial=0.0)), -float(K.min(initial=0.0)))  # no temporary of |K|
+        if top > float(np.finfo(self.dtype).max):
+            raise InvalidInputError(f"K's entries reach {top:.3g}, beyond {self.storage}'s range "
+                                    f"({float(np.finfo(self.dtype).max):.4g}; albedos near 1 make K large): "
+                                    "use a wider storage")
         host = np.zeros((self.M, self.ld), dtype=self.dtype)
         for c in range(self.C):
             host[:, : self.M] = K[c]

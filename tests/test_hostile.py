@@ -658,3 +658,49 @@ def test_rows_are_checked_once_on_their_way_to_the_local_set(monkeypatch, box, b
     bare = type("Bare", (), {"n_patches": len(box), "rows": lambda self, i: sp.csr_matrix(box_F)[i]})()
     assert np.array_equal(LocalRows(box, bare, 8, device).rows(idx).toarray(), want)
     assert len(calls) == 1  # a source without the contract is checked by its reader
+
+
+def test_albedos_near_one_are_solved_or_named_for_what_they_are(device):
+    # A Scene takes albedos below 1. At 0.9995 the radiosity bound with F's row-sum slack was
+    # infinite and every light was refused as "beyond float32: scale the lights down", which
+    # could not help; the bound now takes the albedo alone there, the dynamic solution answers
+    # as the dense solve does, and the bounce iteration names the bounces it would need.
+    box = pydynrad.scenes.closed_box(subdivisions=0, emission=0.0)
+    F = pydynrad.form_factors(box, resolution=64, device=device)
+    bright = box.with_materials(albedo=0.9995, emission=np.where(box.source_face // 2 == 4, 1.0, 0.0))
+    ref = pydynrad.solve(bright, F, method="dense", dtype=np.float64, device=device).radiosity
+    dyn = pydynrad.DynamicRadiosity(bright, F, local_size=len(bright), far_field=False, storage="fp64",
+                                    observer=[0.5, 0.5, 0.5], device=device)
+    B = dyn.radiosity()
+    assert ref.max() > 300  # about 1 / (1 - 0.9995) / 6 faces' worth
+    np.testing.assert_allclose(B, ref, rtol=1e-12, atol=1e-12 * ref.max())
+    with pytest.raises(pydynrad.ConvergenceError, match="albedos near 1 need about"):
+        pydynrad.solve(bright, F, tol=1e-8, dtype=np.float64, device=device)
+    # K itself past fp16's range is refused at the build, not stored as inf with a warning.
+    brighter = box.with_materials(albedo=0.999999, emission=np.where(box.source_face // 2 == 4, 1.0, 0.0))
+    with pytest.raises(InvalidInputError, match="beyond fp16's range"):
+        pydynrad.DynamicRadiosity(brighter, F, local_size=len(brighter), far_field=False, storage="fp16",
+                                  observer=[0.5, 0.5, 0.5], device=device)
+
+
+def test_residual_is_scaled_by_k_not_by_a_column_of_rounding_residue(device):
+    # Patches that no other local patch sees have a zero column in a fresh K and rounding
+    # residue after exact swaps; scaled by that column's own maximum the residual read ~1 for
+    # a K accurate to 1e-6 and refreshed it for nothing.
+    box = pydynrad.scenes.cornell_box(max_edge=200.0)
+    F = pydynrad.form_factors(box, resolution=64, device=device)
+    a, b = np.array([50.0, 100.0, 50.0]), np.array([500.0, 450.0, 500.0])
+    dyn = pydynrad.DynamicRadiosity(box, F, local_size=128, update="exact", storage="fp32", far_field=False,
+                                    observer=a, device=device)
+    for f in range(224):
+        t = (f % 80) / 40
+        dyn.update(a + (b - a) * (t if t <= 1 else 2 - t))
+    residuals = [dyn.residual() for _ in range(10)]
+    B = dyn.radiosity()
+    dyn.refresh()  # K built afresh over the same local set
+    S = dyn.local_patches
+    B_fresh = dyn.radiosity()
+    assert np.abs(B[S] - B_fresh[S]).max() < 1e-6 * B_fresh.max()  # K is accurate: so must the residual say
+    assert max(residuals) < 1e-5, residuals
+    with pytest.raises(InvalidInputError, match="far_field must be True or False"):
+        dyn.radiosity(far_field="no")

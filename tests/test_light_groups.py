@@ -98,3 +98,15 @@ def test_groups_refuse_bad_input(box, device):
     dyn.update((278, 273, -200))
     with pytest.raises(InvalidInputError, match="another scene"):
         groups.dynamic(dyn)
+    # After a move the world is another scene: the message says so and what to do.
+    poses = [np.eye(4), np.eye(4)]
+    poses[0][:3, 3], poses[1][:3, 3] = (150.0, 420.0, 420.0), (250.0, 420.0, 380.0)  # clear of the box's blocks
+    block = pydynrad.RigidObject(pydynrad.scenes.block(100.0, 0), poses[0])
+    moving = pydynrad.DynamicRadiosity(scene, F, local_size=64, objects=[block], observer=(278, 273, -200),
+                                       device=device)
+    at_first = LightGroups(moving.scene, {"lamp": [lights[0]]}, device=device)
+    at_first.dynamic(moving)
+    moving.move(block, poses[1])
+    moving.update((278, 273, -200))
+    with pytest.raises(InvalidInputError, match="objects moved since.*from dynamic.scene"):
+        at_first.dynamic(moving)

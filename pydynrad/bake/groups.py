@@ -176,5 +176,7 @@ class LightGroups:
         if not isinstance(dynamic, DynamicRadiosity):
             raise InvalidInputError(f"dynamic must be a DynamicRadiosity; got {type(dynamic).__name__}")
         if dynamic.scene is not self.scene:
-            raise InvalidInputError("the DynamicRadiosity was built for another scene than these light groups")
+            moved = " (its objects moved since: the world's light vectors changed with them; make the light "\
+                    "groups again from dynamic.scene)" if getattr(dynamic, "objects", None) else ""
+            raise InvalidInputError(f"the DynamicRadiosity was built for another scene than these light groups{moved}")
         return self._per_group(lambda L: dynamic.radiosity(light=L))

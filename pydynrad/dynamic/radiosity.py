@@ -655,6 +655,8 @@ class DynamicRadiosity:
         from ..photometry.areas import analytic_emitter_light
 
         self._require_built()
+        if not isinstance(far_field, (bool, np.bool_)):
+            raise InvalidInputError(f"far_field must be True or False; got {far_field!r}")
         L, E = analytic_emitter_light(self.scene, lights, light, emitters, self.device)
         check_radiosity_range(L, self.scene.albedo, compute_dtype(self.storage))  # the K passes' type
         S = self._local_patches
@@ -685,7 +687,14 @@ class DynamicRadiosity:
     # -- drift -------------------------------------------------------------------------------------------
     def residual(self, probes: int = 8) -> float:
         """K's relative error on ``probes`` random columns: max over them and the channels of
-        ``|K e_j - K_fresh e_j|_inf / |K e_j|_inf``, an estimate of max entry error / max entry.
+        ``|K e_j - K_fresh e_j|_inf`` over a scale of K's entries, an estimate of max entry
+        error / max entry; inf where K holds non-finite values.
+
+        The scale is the largest entry met (of the probed columns, and of F_SS, which K bounds
+        from below entry by entry: K = F + F P F + ...). A column's own largest entry would not
+        do: a patch that no other local patch sees has a column of zeros in a fresh K and of
+        rounding residue (~1e-8) after exact swaps, which read as an error of ~1 and refreshed
+        an accurate K again and again.
 
         The error d = K e_j - K_fresh e_j is solved for directly: with A = I - F_SS P_S,
         A d = A K e_j - F_SS e_j (the residual of K's own column, formed in float64 from K as
@@ -702,11 +711,14 @@ class DynamicRadiosity:
         S, M = self._local_patches, self.M
         F = self._ff.square(S)
         rho = self._rho(S)
-        worst = 0.0
+        worst, scale = 0.0, float(F.max()) if F.nnz else 0.0
         for j in self._rng.choice(M, size=n_probe, replace=False):
             e = np.zeros(M)
             e[j] = 1.0
             Ke = self._matrix.matvec(e)
+            if not np.all(np.isfinite(Ke)):
+                return float("inf")
+            scale = max(scale, float(np.abs(Ke).max()))
             Fe = F @ e
             for c in range(self.C):
                 A = LinearOperator((M, M), matvec=lambda v, r=rho[c]: v - F @ (r * v), dtype=np.float64)
@@ -714,5 +726,5 @@ class DynamicRadiosity:
                 if not r.any():
                     continue
                 d, _ = gmres(A, r, rtol=1e-3, atol=0.0, restart=min(M, 50), maxiter=20)
-                worst = max(worst, float(np.abs(d).max() / max(np.abs(Ke[c]).max(), 1e-300)))
-        return worst
+                worst = max(worst, float(np.abs(d).max()))
+        return worst / max(scale, 1e-300)
