@@ -183,3 +183,33 @@ def test_solve_and_path_tracer_agree_under_a_luminaire(device):
     # constant-radiosity patches: 3.2% RMS per patch, 0.03% on the mean over 576 patches.
     assert np.sqrt(np.mean(rel**2)) < 0.05
     assert abs(np.mean(rel)) < 0.005
+
+
+def _ies(header="1 1000 1.0 3 1 1 2 0.5 0.5 0.1", vert="0 45 90", horiz="0", cd="100 80 60", tilt="TILT=NONE"):
+    return "\n".join(["IESNA:LM-63-2002", "[LUMINAIRE] probe", tilt, header, "1 1 0", vert, horiz, cd]) + "\n"
+
+
+@pytest.mark.parametrize("text, message", [
+    (_ies(header="1 1000 1.0 inf 1 1 2 0.5 0.5 0.1"), "line 4: expected a finite number"),  # had crashed int()
+    (_ies(vert="0 nan 90"), "line 6: expected a finite number"),
+    (_ies(header="1 1000 1.0 3 4 1 2 0.5 0.5 0.1", horiz="0 90 180 270 360", cd="100 80 60\n" * 5),
+     "value.s. after the candela table"),  # the counts say 4 planes: every value had shifted by one
+    (_ies(header="1 1000 -2.0 3 1 1 2 0.5 0.5 0.1"), "line 4: the candela multiplier"),
+    (_ies(tilt="TILT=INCLUDE\n1\n3\n90 45 0\n1.0 0.9 0.8"), "tilt angles must increase"),
+])
+def test_ies_files_that_would_have_crashed_or_shifted_are_named(text, message):
+    with pytest.raises(IESFormatError, match=message):
+        parse_ies(text, "probe.ies")
+
+
+def test_nan_angles_and_undeclared_ldt_symmetry_are_refused():
+    with pytest.raises(InvalidInputError, match="must be finite"):
+        PhotometricDistribution([0.0, np.nan, 360.0], [0.0, 90.0], np.ones((3, 2)))
+    # Isym = 0 declares no symmetry: planes over 0..90 had been mirrored round the circle.
+    text = ldt_text(0, 2, 90.0, [0.0, 90.0], [[100.0, 50.0], [80.0, 40.0]])
+    with pytest.raises(IESFormatError, match="Isym = 0 .no symmetry. needs C planes from 0 round the circle"):
+        parse_ldt(text, "probe.ldt")
+    with pytest.raises(IESFormatError, match="expected a finite number"):
+        parse_ldt(ldt_text(1, 1, 0.0, [0.0, 90.0], [[100.0, 50.0]], flux=float("nan")), "probe.ldt")
+    with pytest.raises(IESFormatError, match="conversion factor"):
+        parse_ldt(ldt_text(1, 1, 0.0, [0.0, 90.0], [[100.0, 50.0]], conversion=-1.0), "probe.ldt")

@@ -59,6 +59,8 @@ class _Numbers:
                 out[k] = float(tok)
             except ValueError:
                 raise IESFormatError(f"{self.where}: line {line}: expected a number ({what}), got {tok!r}") from None
+            if not np.isfinite(out[k]):  # no field of the format holds one (inf counts crashed int())
+                raise IESFormatError(f"{self.where}: line {line}: expected a finite number ({what}), got {tok!r}")
         first = self.items[self.pos][1] if count else self.last_line
         self.pos += count
         return out, first
@@ -126,8 +128,10 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
         n_tilt, line = nums.one("number of tilt angles")
         if n_tilt < 1 or n_tilt != int(n_tilt):
             raise IESFormatError(f"{where}: line {line}: the number of tilt angles must be a positive integer")
-        angles, _ = nums.take(int(n_tilt), "tilt angles")
+        angles, aline = nums.take(int(n_tilt), "tilt angles")
         factors, _ = nums.take(int(n_tilt), "tilt multiplying factors")
+        if np.any(np.diff(angles) <= 0):  # np.interp reads decreasing angles as garbage
+            raise IESFormatError(f"{where}: line {aline}: tilt angles must increase")
         tilt_factor = float(np.interp(tilt, angles, factors))
     elif tilt_kind != "NONE":
         raise IESFormatError(f"{where}: line {k + 1}: TILT={tilt_kind or '?'} is not supported "
@@ -150,7 +154,18 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
     cd, cline = nums.take(int(n_vert) * int(n_horiz), f"candela values ({int(n_horiz)} x {int(n_vert)})")
     if np.any(cd < 0):
         raise IESFormatError(f"{where}: line {cline}: candela values must be >= 0")
-    cd = cd.reshape(int(n_horiz), int(n_vert)) * (multiplier * factors[0] * factors[1] * tilt_factor)
+    if nums.pos < len(nums.items):  # counts that do not match the table shift every value after them
+        tok, line = nums.items[nums.pos]
+        raise IESFormatError(f"{where}: line {line}: {len(nums.items) - nums.pos} value(s) after the candela table "
+                             f"(first {tok!r}): the counts in line {head_line} ({int(n_vert)} vertical, "
+                             f"{int(n_horiz)} horizontal angles) do not match the file")
+    scale = multiplier * factors[0] * factors[1] * tilt_factor
+    with np.errstate(over="ignore", invalid="ignore"):
+        cd = cd.reshape(int(n_horiz), int(n_vert)) * scale
+    if not (scale >= 0 and np.all(np.isfinite(cd))):
+        raise IESFormatError(f"{where}: line {head_line}: the candela multiplier and the ballast factors "
+                             f"({multiplier:g} x {factors[0]:g} x {factors[1]:g}) must be >= 0 and keep the "
+                             "candela values finite")
     c, cd = expand_c_symmetry(horiz, cd, where)
     flux = None if lumens < 0 else float(n_lamps * lumens)
     return PhotometricDistribution(c, vert, cd, name=name, lumens=flux, source=where)

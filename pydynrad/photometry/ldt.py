@@ -44,9 +44,12 @@ class _Lines:
     def number(self, what: str) -> float:
         tok = self.text(what)
         try:
-            return float(tok.replace(",", "."))  # some writers use a decimal comma
+            v = float(tok.replace(",", "."))  # some writers use a decimal comma
         except ValueError:
             raise IESFormatError(f"{self.where}: line {self.k}: expected a number ({what}), got {tok!r}") from None
+        if not np.isfinite(v):  # no field of the format holds one (inf counts crashed int())
+            raise IESFormatError(f"{self.where}: line {self.k}: expected a finite number ({what}), got {tok!r}")
+        return v
 
     def integer(self, what: str, lo: int, hi: int) -> int:
         v = self.number(what)
@@ -77,6 +80,7 @@ def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
                  "downward flux fraction", "light output ratio"):
         r.number(f"the {what}")
     conversion = r.number("the conversion factor for luminous intensities")
+    conversion_line = r.k
     r.number("the tilt during measurement")
     n_sets = r.integer("the number of standard sets of lamps", 1, 20)
     lamps = []
@@ -97,6 +101,11 @@ def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
         raise IESFormatError(f"{where}: line {g_line}: gamma angles must increase within 0..180")
     if isym in (2, 3, 4) and mc % (4 if isym == 4 else 2):
         raise IESFormatError(f"{where}: line 4: Mc = {mc} does not divide for symmetry Isym = {isym}")
+    if isym == 0 and not (mc >= 2 and c[0] == 0 and c[-1] > 180):
+        # Without symmetry the planes must go round: planes over 0..90 would be mirrored as
+        # if the file had declared a symmetry it did not.
+        raise IESFormatError(f"{where}: line {c_line}: Isym = 0 (no symmetry) needs C planes from 0 round the "
+                             f"circle; got {mc} plane(s) over {c[0]:g}..{c[-1]:g}")
     if isym == 0:
         planes = np.arange(mc)
     elif isym == 1:
@@ -116,8 +125,12 @@ def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
         angles = np.where(angles >= 270, angles - 360, angles)  # 270..360..90 as -90..90
     angles, cd = expand_c_symmetry(angles, cd, where)
     flux = lamps[0]
-    return PhotometricDistribution(angles, gamma, cd * (flux / 1000.0 * conversion), name=name, lumens=flux,
-                                   source=where)
+    with np.errstate(over="ignore", invalid="ignore"):
+        cd = cd * (flux / 1000.0 * conversion)
+    if not (flux >= 0 and conversion >= 0 and np.all(np.isfinite(cd))):
+        raise IESFormatError(f"{where}: line {conversion_line}: the conversion factor ({conversion:g}) and the "
+                             f"first lamp set's flux ({flux:g} lm) must be >= 0 and keep the intensities finite")
+    return PhotometricDistribution(angles, gamma, cd, name=name, lumens=flux, source=where)
 
 
 def read_ldt(path) -> PhotometricDistribution:

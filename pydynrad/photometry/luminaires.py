@@ -50,6 +50,8 @@ class PhotometricDistribution:
         c = floats(self.c_angles, "c_angles").ravel()
         g = floats(self.gamma_angles, "gamma_angles").ravel()
         cd = floats(self.candela, "candela")
+        if not (np.all(np.isfinite(c)) and np.all(np.isfinite(g))):  # NaN passes every order test below
+            raise InvalidInputError("c_angles and gamma_angles must be finite")
         if len(g) < 2 or np.any(np.diff(g) <= 0) or g[0] < 0 or g[-1] > 180:
             raise InvalidInputError("gamma_angles must be >= 2 increasing angles within 0..180 degrees")
         if len(c) == 0 or np.any(np.diff(c) <= 0) or c[0] != 0 or (len(c) > 1 and c[-1] != 360):
