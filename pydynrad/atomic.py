@@ -32,6 +32,8 @@ def check_file_target(path) -> Path:
     path = check_parent_folder(path)
     if path.is_dir():
         raise InvalidInputError(f"cannot write the file {str(path)!r}: a folder of that name is in the way")
+    if not os.access(path.parent, os.W_OK | os.X_OK):  # else found only after the work
+        raise InvalidInputError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} is not writable")
     return path
 
 
@@ -53,6 +55,9 @@ def write_atomic(path, payload: bytes | Callable[[Path], object]) -> Path:
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
+    except OSError as exc:  # named for the file asked for, not the temporary one
+        why = f"cannot write {str(path)!r}: {exc.strerror or exc}"
+        raise (type(exc)(exc.errno, why) if exc.errno is not None else type(exc)(why)) from None
     finally:
         tmp.unlink(missing_ok=True)
     return path

@@ -30,7 +30,10 @@ def floats(value, what: str) -> np.ndarray:
             raise TypeError
         return a.astype(np.float64, copy=False)
     except (TypeError, ValueError):
-        raise InvalidInputError(f"{what} must be numbers; got {value!r}") from None
+        text = repr(value)
+        if len(text) > 80 and isinstance(value, np.ndarray):  # not a screenful of an array
+            text = f"an array of {value.dtype} values, shape {value.shape}"
+        raise InvalidInputError(f"{what} must be numbers; got {text}") from None
 
 
 def number(value, what: str) -> float:

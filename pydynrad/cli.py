@@ -70,6 +70,20 @@ def _resolution(text: str) -> int:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _ranged(lo: float, hi: float, integral: bool = False):
+    """An argparse type: a finite number (a whole one when ``integral``) in [lo, hi]."""
+    def parse(text: str):
+        try:
+            v = float(text)
+        except ValueError:
+            v = np.nan
+        if not (np.isfinite(v) and lo <= v <= hi) or (integral and v != int(v)):
+            kind = "a whole number" if integral else "a number"
+            raise argparse.ArgumentTypeError(f"expected {kind} in {lo:g}..{hi:g}; got {text!r}")
+        return int(v) if integral else v
+    return parse
+
+
 def _count(text: str) -> int:
     if not text.isdigit():
         raise argparse.ArgumentTypeError(f"expected a whole number >= 0; got {text!r}")
@@ -413,6 +427,10 @@ def _cmd_bake(args: argparse.Namespace) -> int:
         lightmap_path = _checked_target(args.lightmap, tuple(LINEAR_FORMATS))
     scene = load_scene(args.scene, args.max_edge)
     print(f"scene: {scene!r}")
+    if args.lightmap:
+        from .bake.lightmap import check_texel_density
+
+        check_texel_density(scene, _texels_per_unit(args, scene))  # before the solve it would waste
     sol = solve(scene, whole_matrix(_form_factors(args, scene)), args.light)
     print(f"solved: {sol.iterations} bounces, {len(args.light)} light(s) besides the emission")
     t0 = time.perf_counter()
@@ -721,7 +739,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "clusters (C of them made by pydynrad.farfield.cluster_patches, 'auto' for its default "
                         "count, or a .npy file of one integer cluster label per patch), from hemicubes that record "
                         "cluster ids; a store resumed later finishes its G too; walks then use its far field")
-    p.add_argument("--cluster-resolution", type=_positive_int, default=None, metavar="R",
+    p.add_argument("--cluster-resolution", type=_resolution, default=None, metavar="R",
                    help="store only: hemicube resolution of G (default: --resolution, G then summed from F's "
                         "stored rows, or with --no-f equal to F Pr of the rows walks compute on demand)")
     p.add_argument("--no-f", action="store_true",
@@ -766,9 +784,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "OUT then holds its UVs (TEXCOORD_1)")
     p.add_argument("--texels-per-unit", type=_positive_float, default=None, metavar="T",
                    help="lightmap texels per scene unit of length (default: about a 1024x1024 lightmap)")
-    p.add_argument("--padding", type=_positive_int, default=2, metavar="PX",
+    p.add_argument("--padding", type=_ranged(1, 64, integral=True), default=2, metavar="PX",
                    help="lightmap texels between charts, filled by dilation (default 2)")
-    p.add_argument("--crease-angle", type=float, default=30.0, metavar="DEG",
+    p.add_argument("--crease-angle", type=_ranged(0.0, 180.0), default=30.0, metavar="DEG",
                    help="never smooth across a sharper angle (default 30)")
     p.add_argument("--exposure", type=_stops, default=0.0, metavar="STOPS",
                    help="display colours are radiosity * 2**STOPS (default 0; log2(1/pi) = -1.65 shows radiance)")

@@ -211,7 +211,11 @@ def _packed(lights: list, frame=None) -> tuple[np.ndarray, np.ndarray]:
         raise InvalidInputError("a light's intensity underflows float32 on the device (below ~1.2e-38 once the "
                                 "scene is scaled to its own size) and would light nothing; scale the light "
                                 "intensities (and emission) up")
-    return out, (np.concatenate(tables).astype(np.float32) if tables else np.zeros(1, np.float32))
+    with np.errstate(over="ignore"):
+        table = np.concatenate(tables).astype(np.float32) if tables else np.zeros(1, np.float32)
+    if not np.all(np.isfinite(table)):  # inf candela times a zero weight is NaN on the device
+        raise InvalidInputError("a luminaire's candela table overflows float32 on the device (beyond ~3.4e38 cd)")
+    return out, table
 
 
 def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:

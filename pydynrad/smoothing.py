@@ -19,7 +19,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .checks import finite, number, scene as checked_scene
+from .checks import finite, floats, number, scene as checked_scene
 from .errors import InvalidInputError
 
 __all__ = ["SmoothVertices", "checked_radiosity", "smooth_vertices", "smoothing_groups"]
@@ -89,8 +89,8 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 def checked_radiosity(radiosity, n: int) -> np.ndarray:
     """``radiosity`` of shape (n,), (n, 1) or (n, 3) as a finite (n, 3) float32 view, or InvalidInputError."""
-    given = np.asarray(radiosity)
-    if given.dtype.kind == "f" and np.all(np.isfinite(given)) and np.abs(given).max(initial=0.0) > FLOAT32_MAX:
+    given = floats(radiosity, "radiosity")  # numbers, not text that spells them
+    if np.all(np.isfinite(given)) and np.abs(given).max(initial=0.0) > FLOAT32_MAX:
         # finite in float64, inf once cast: say so, not "NaN or infinite" of values that were neither
         raise InvalidInputError(f"radiosity reaches {float(np.abs(given).max()):.3g}, beyond float32 (what renders "
                                 "and smoothed vertices hold): scale the scene's emission and lights down")

@@ -704,3 +704,53 @@ def test_residual_is_scaled_by_k_not_by_a_column_of_rounding_residue(device):
     assert max(residuals) < 1e-5, residuals
     with pytest.raises(InvalidInputError, match="far_field must be True or False"):
         dyn.radiosity(far_field="no")
+
+
+def test_bake_and_store_arguments_are_refused_before_the_solve(tmp_path, capsys, monkeypatch):
+    """Values only found after the form factors and the solve (or, for a store, after it was
+    half made) are refused by the parser, and an unwritable folder before any work."""
+    from helpers import run_main
+
+    bake = ["bake", "parallel_plates", "--resolution", "8", "-o", str(tmp_path / "m.glb")]
+    for extra, message in ((["--crease-angle", "nan"], "expected a number in 0..180"),
+                           (["--lightmap", str(tmp_path / "l.exr"), "--padding", "100"], "whole number in 1..64"),
+                           (["--lightmap", str(tmp_path / "l.exr"), "--texels-per-unit", "1e9"], "texels")):
+        code, out, err = run_main(bake + extra, capsys)
+        assert code == 2 and message in err and "solved" not in out, (extra, err)
+    code, _, err = run_main(["formfactors", "parallel_plates", "-o", str(tmp_path / "store"), "--clusters", "4",
+                             "--cluster-resolution", "7", "--resolution", "8"], capsys)
+    assert code == 2 and "even" in err and not (tmp_path / "store").exists()
+    assert not list(tmp_path.iterdir())
+    # A folder the process may not write into (root passes permission bits, so it is simulated).
+    import pydynrad.atomic as atomic
+
+    monkeypatch.setattr(atomic.os, "access", lambda path, mode: False)
+    code, out, err = run_main(bake, capsys)
+    assert code == 2 and "is not writable" in err and "solved" not in out
+
+
+def test_a_failed_write_names_the_file_asked_for(tmp_path):
+    from pydynrad.atomic import write_atomic
+
+    def refuse(tmp):
+        raise PermissionError(1, "Operation not permitted", str(tmp))
+
+    with pytest.raises(PermissionError, match=r"cannot write '.*out\.glb': Operation not permitted") as info:
+        write_atomic(tmp_path / "out.glb", refuse)
+    assert ".tmp-" not in str(info.value) and not list(tmp_path.iterdir())
+
+
+def test_sensors_and_bakes_refuse_what_would_come_back_as_inf_or_text(tmp_path):
+    from pydynrad.photometry import LuminaireLight, PhotometricDistribution, illuminance
+
+    plates = pydynrad.scenes.parallel_plates(subdivisions=1)
+    # 1e39 cd is inf in the device's table (inf times a zero weight: NaN at the sensor), and 1e30
+    # cd times 1e10 passes float32 at the sensor: both came back as NaN or inf with a warning.
+    for lum, message in ((LuminaireLight((0.5, 0.5, 0.5), PhotometricDistribution.isotropic(1e39)), "candela table"),
+                         (LuminaireLight((0.5, 0.5, 0.5), PhotometricDistribution.isotropic(1e30), scale=1e10),
+                          "illuminance overflows float32")):
+        with pytest.raises(InvalidInputError, match=message):
+            illuminance(plates, None, [[0.5, 0.5, 0.0]], [0, 0, 1], lights=lum)
+    with pytest.raises(InvalidInputError, match="radiosity must be numbers"):
+        pydynrad.bake.export_mesh(plates, np.full((len(plates), 3), "1"), tmp_path / "m.glb")
+    assert not list(tmp_path.iterdir())

@@ -174,6 +174,13 @@ def _check_memory(texels: float, what: str) -> None:
                                f"of the {have / 2**30:.1f} GiB available; lower texels_per_unit")
 
 
+def check_texel_density(scene, texels_per_unit: float) -> None:
+    """OutOfMemoryError where ``texels_per_unit`` would give a lightmap of ``scene`` larger than
+    the kernels index or than half the host's memory: checkable before any solve."""
+    tpu = float(texels_per_unit)
+    _check_memory(float(scene.areas.sum(dtype=np.float64)) * tpu * tpu, f"{tpu:g} texels per unit")
+
+
 def _surfaces(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, int]:
     """(N,) label of each face's surface (faces joined through shared smooth vertices), and their count."""
     from scipy.sparse import coo_matrix
@@ -326,7 +333,7 @@ def bake_lightmap(scene, radiosity, texels_per_unit: float, *, padding: int = 2,
         raise InvalidInputError(f"padding must be a whole number of texels in 1..64; got {padding!r}")
     smooth = smooth_vertices(scene, crease_angle)
     values = smooth.radiosity(radiosity)  # checks the radiosity before the atlas is built
-    _check_memory(float(scene.areas.sum(dtype=np.float64)) * tpu * tpu, f"{tpu:g} texels per unit")
+    check_texel_density(scene, tpu)
     vmapping, faces, uv, w, h = _atlas(smooth.positions, smooth.corner_vertex, tpu, int(padding))
     _check_memory(float(w) * h, f"{w}x{h} texels")
     vertex_values = values[vmapping]

@@ -112,9 +112,11 @@ class PhotometricDistribution:
         return float(np.sum(I * dw))
 
     def table(self) -> np.ndarray:
-        """The device table: nC, nG, C angles and gamma angles (radians), intensities C-major, float32."""
-        return np.concatenate([[len(self.c_angles), len(self.gamma_angles)], np.radians(self.c_angles),
-                               np.radians(self.gamma_angles), self.candela.ravel()]).astype(np.float32)
+        """The device table: nC, nG, C angles and gamma angles (radians), intensities C-major, float32
+        (candela beyond float32 come out inf: the lights' packing refuses them)."""
+        with np.errstate(over="ignore"):
+            return np.concatenate([[len(self.c_angles), len(self.gamma_angles)], np.radians(self.c_angles),
+                                   np.radians(self.gamma_angles), self.candela.ravel()]).astype(np.float32)
 
 
 

@@ -116,4 +116,7 @@ def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, 
     if radiosity is not None or has_sky:
         E += gather_irradiance(scene, points, normals, radiosity, pack_sky(lights) if has_sky else None,
                                resolution, keys, own, device)
+    if not np.all(np.isfinite(E)):  # as direct_irradiance refuses it on the patches
+        raise InvalidInputError("the illuminance overflows float32 at some sensor (above 3.4e38): the lights are "
+                                "too strong for float32; scale the light intensities (and emission) down")
     return E
