@@ -213,3 +213,33 @@ def test_nan_angles_and_undeclared_ldt_symmetry_are_refused():
         parse_ldt(ldt_text(1, 1, 0.0, [0.0, 90.0], [[100.0, 50.0]], flux=float("nan")), "probe.ldt")
     with pytest.raises(IESFormatError, match="conversion factor"):
         parse_ldt(ldt_text(1, 1, 0.0, [0.0, 90.0], [[100.0, 50.0]], conversion=-1.0), "probe.ldt")
+
+
+def test_photometric_text_in_utf8_with_a_byte_order_mark_and_bad_types(tmp_path):
+    # A UTF-8 file with a byte-order mark before its first line had been "no TILT= line" (the
+    # mark before TILT=) and its name garbled (read as Latin-1); Latin-1 files still read.
+    text = _ies().replace("[LUMINAIRE] probe", "[LUMINAIRE] Größe")
+    (tmp_path / "u.ies").write_bytes(b"\xef\xbb\xbf" + text.split("\n", 1)[1].encode("utf-8"))  # mark, then TILT=
+    (tmp_path / "l.ies").write_bytes(text.encode("latin-1"))
+    assert read_ies(tmp_path / "u.ies").candela.max() == 100.0
+    assert read_ies(tmp_path / "l.ies").name == "Größe"
+    with pytest.raises(InvalidInputError, match="takes the file's text"):
+        parse_ies(text.encode())
+    with pytest.raises(IESFormatError, match="number of vertical angles must be an integer >= 2"):
+        parse_ies(_ies(header="1 1000 1.0 1 1 1 2 0.5 0.5 0.1", vert="0", cd="100"))
+
+
+def test_sensor_and_work_plane_shapes_are_named():
+    plates = pydynrad.scenes.parallel_plates(subdivisions=1)
+    with pytest.raises(InvalidInputError, match=r"sensor points must have shape \(n, 3\)"):
+        illuminance(plates, None, [1, 2], [0, 0, 1], lights=LuminaireLight((0.5, 0.5, 0.5), PhotometricDistribution.isotropic(1.0)))
+    from pydynrad.photometry import work_plane
+
+    square = [[0, 0], [4, 0], [4, 3], [0, 3]]
+    for up in (2.0, True):
+        with pytest.raises(InvalidInputError, match="up .the axis the plane faces. must be an integer"):
+            work_plane(square, 0.75, up=up)
+    with pytest.raises(InvalidInputError, match="more than half the memory available"):
+        work_plane(square, 0.75, spacing=1e-7)
+    with pytest.raises(InvalidInputError, match="more than half the memory available"):
+        work_plane([[0, 0], [1e300, 0], [1e300, 1e300]], 0.75)

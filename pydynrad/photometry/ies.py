@@ -109,7 +109,9 @@ def expand_c_symmetry(c: np.ndarray, cd: np.ndarray, where: str) -> tuple[np.nda
 
 def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> PhotometricDistribution:
     """A distribution from the text of an LM-63 file (see the module docstring)."""
-    lines = text.splitlines()
+    if not isinstance(text, str):
+        raise InvalidInputError(f"parse_ies takes the file's text (str); got {type(text).__name__} (read_ies reads a file)")
+    lines = text.removeprefix("\ufeff").splitlines()  # a UTF-8 byte-order mark, read as text
     keywords: dict[str, str] = {}
     k = 0
     while k < len(lines) and not lines[k].strip().upper().startswith("TILT"):
@@ -138,9 +140,9 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
                              "(TILT=NONE or TILT=INCLUDE; a separate tilt file is not read)")
     head, head_line = nums.take(10, "luminaire header values (lamps, lumens, multiplier, angles, type, units, sizes)")
     n_lamps, lumens, multiplier, n_vert, n_horiz, ptype = head[:6]
-    for value, what in ((n_vert, "number of vertical angles"), (n_horiz, "number of horizontal angles")):
-        if value < 1 or value != int(value):
-            raise IESFormatError(f"{where}: line {head_line}: the {what} must be a positive integer; got {value:g}")
+    for value, what, least in ((n_vert, "number of vertical angles", 2), (n_horiz, "number of horizontal angles", 1)):
+        if value < least or value != int(value):
+            raise IESFormatError(f"{where}: line {head_line}: the {what} must be an integer >= {least}; got {value:g}")
     if ptype != 1:
         raise IESFormatError(f"{where}: line {head_line}: photometric type {ptype:g} is not supported "
                              "(only type C, 1, the type of building luminaires)")
@@ -171,11 +173,21 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
     return PhotometricDistribution(c, vert, cd, name=name, lumens=flux, source=where)
 
 
-def read_ies(path, tilt: float = 0.0) -> PhotometricDistribution:
-    """Read an IES LM-63 file (type C photometry); ``tilt``: installed lamp tilt for TILT=INCLUDE, degrees."""
+def read_photometric_text(path) -> str:
+    """The text of a photometric file: UTF-8 where it decodes as such (a byte-order mark
+    dropped), else Latin-1, in which older files write their names; InvalidInputError naming
+    the file where it cannot be read."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="latin-1")
+        raw = path.read_bytes().removeprefix(b"\xef\xbb\xbf")
     except OSError as e:
         raise InvalidInputError(f"cannot read {str(path)!r}: {e.strerror}") from None
-    return parse_ies(text, str(path), tilt)
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return raw.decode("latin-1")
+
+
+def read_ies(path, tilt: float = 0.0) -> PhotometricDistribution:
+    """Read an IES LM-63 file (type C photometry); ``tilt``: installed lamp tilt for TILT=INCLUDE, degrees."""
+    return parse_ies(read_photometric_text(path), str(path), tilt)

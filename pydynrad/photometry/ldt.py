@@ -18,12 +18,9 @@ conversion factor. Every error names the line it found the problem on.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from ..errors import InvalidInputError
-from .ies import IESFormatError, expand_c_symmetry
+from .ies import IESFormatError, expand_c_symmetry, read_photometric_text
 from .luminaires import PhotometricDistribution
 
 __all__ = ["read_ldt", "parse_ldt"]
@@ -135,9 +132,4 @@ def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
 
 def read_ldt(path) -> PhotometricDistribution:
     """Read a EULUMDAT (.ldt) file."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="latin-1")
-    except OSError as e:
-        raise InvalidInputError(f"cannot read {str(path)!r}: {e.strerror}") from None
-    return parse_ldt(text, str(path))
+    return parse_ldt(read_photometric_text(path), str(path))

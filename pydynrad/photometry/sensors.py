@@ -30,9 +30,9 @@ def checked_sensors(points, normals) -> tuple[np.ndarray, np.ndarray]:
     p = floats(points, "sensor points")
     nrm = floats(normals, "sensor normals")
     p = p.reshape(1, 3) if p.shape == (3,) else p
-    nrm = np.broadcast_to(nrm, p.shape) if nrm.shape == (3,) else nrm
-    if p.ndim != 2 or p.shape[1] != 3:
+    if p.ndim != 2 or p.shape[1] != 3:  # before the normals are broadcast to it
         raise InvalidInputError(f"sensor points must have shape (n, 3); got {np.shape(points)}")
+    nrm = np.broadcast_to(nrm, p.shape) if nrm.shape == (3,) else nrm
     if nrm.shape != p.shape:
         raise InvalidInputError(f"sensor normals must have shape {p.shape} (or (3,)); got {np.shape(normals)}")
     for a, what in ((p, "points"), (nrm, "normals")):

@@ -14,8 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import floats, number
+from ..checks import floats, integer, number
 from ..errors import InvalidInputError
+from ..memory import available_host_bytes
+
+#: Host bytes per grid point while a work plane is laid out: its (u, v) and row/column grids,
+#: the points kept and their inside tests (float64 and int64 arrays, with temporaries).
+WORK_PLANE_BYTES = 96
 
 __all__ = ["WorkPlane", "work_plane", "en12464_spacing"]
 
@@ -89,11 +94,13 @@ def work_plane(polygon, height: float, spacing: float | None = None, border: flo
     poly = floats(polygon, "polygon")
     if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3 or not np.all(np.isfinite(poly)):
         raise InvalidInputError(f"polygon must be (K >= 3, 2) finite corners; got shape {poly.shape}")
-    area2 = float(np.sum(poly[:, 0] * np.roll(poly[:, 1], -1) - np.roll(poly[:, 0], -1) * poly[:, 1]))
-    if abs(area2) < 1e-12 * float(np.ptp(poly, axis=0).max()) ** 2:
+    # The area test on the polygon scaled to its extent: the corners' own products overflow
+    # far before the grid would be refused for its size.
+    extent = float(np.ptp(poly, axis=0).max())
+    q = (poly - poly.min(axis=0)) / (extent if extent > 0 else 1.0)
+    if abs(float(np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1]))) < 1e-12:
         raise InvalidInputError("polygon has no area")
-    if up not in (0, 1, 2):
-        raise InvalidInputError(f"up must be an axis 0, 1 or 2; got {up!r}")
+    up = integer(up, "up (the axis the plane faces)", 0, 2)  # 2.0 and True had passed `in (0, 1, 2)`
     height = number(height, "height")
     border = number(border, "border")
     if not border >= 0:
@@ -105,7 +112,18 @@ def work_plane(polygon, height: float, spacing: float | None = None, border: flo
     spacing = number(spacing, "spacing")
     if not (math.isfinite(spacing) and spacing > 0):
         raise InvalidInputError(f"spacing must be a positive length; got {spacing!r}")
-    counts = np.maximum(1, np.ceil(size / spacing - 1e-9)).astype(int)
+    with np.errstate(over="ignore"):
+        counts_f = np.maximum(1.0, np.ceil(size / spacing - 1e-9))
+    # The grid and its inside test hold about WORK_PLANE_BYTES per point: refused before they
+    # are allocated (a spacing of 1e-4 over a room had raised MemoryError at 11.9 GiB).
+    with np.errstate(over="ignore"):
+        points = float(np.prod(counts_f))
+    need = points * WORK_PLANE_BYTES
+    if not need <= available_host_bytes() / 2:
+        raise InvalidInputError(f"a work plane of {points:.3g} grid points at spacing {spacing:g} "
+                                f"would need {need / 2**30:.3g} GiB, more than half the memory available: use a "
+                                "larger spacing")
+    counts = counts_f.astype(int)
     steps = size / counts
     u = lo[0] + (np.arange(counts[0]) + 0.5) * steps[0]
     v = lo[1] + (np.arange(counts[1]) + 0.5) * steps[1]
