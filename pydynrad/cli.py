@@ -39,13 +39,12 @@ class _Parser(argparse.ArgumentParser):
 
 # -- option types -----------------------------------------------------------------------------
 def _vec3(text: str) -> tuple[float, float, float]:
+    from .lighttext import vector  # the light text's numbers: ASCII, finite
+
     try:
-        v = tuple(float(x) for x in text.replace(" ", "").split(","))
-    except ValueError:
-        v = ()
-    if len(v) != 3 or not all(np.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,Z; got {text!r}")
-    return v  # type: ignore[return-value]
+        return vector(text, "value")
+    except InvalidInputError:
+        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,Z; got {text!r}") from None
 
 
 def _size(text: str) -> tuple[int, int]:

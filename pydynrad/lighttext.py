@@ -16,6 +16,7 @@ so a new light type is one more entry.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -28,13 +29,16 @@ __all__ = ["LightKind", "LIGHT_KINDS", "LIGHT_ALIASES", "parse_light", "light_sy
 _REQUIRED = object()
 
 
-def _numbers(text: str, counts: tuple[int, ...], what: str) -> tuple[float, ...]:
-    try:
-        v = tuple(float(x) for x in text.replace(" ", "").split(","))
-    except ValueError:
-        v = ()
+#: A number as the light text writes one: ASCII digits, an optional point and exponent (Python's
+#: float() also takes "1_000" and other scripts' digits, which a typo should not become).
+_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", re.ASCII)
+
+
+def _numbers(text: str, counts: tuple[int, ...], what: str, names: str = "X,Y,Z") -> tuple[float, ...]:
+    parts = text.replace(" ", "").split(",")
+    v = tuple(float(x) for x in parts) if all(_NUMBER.fullmatch(x) for x in parts) else ()
     if len(v) not in counts or not all(np.isfinite(v)):
-        want = " or ".join({1: "one number", 3: "three numbers X,Y,Z"}[c] for c in counts)
+        want = " or ".join({1: "one number", 3: f"three numbers {names}"}[c] for c in counts)
         raise InvalidInputError(f"{what} must be {want}; got {text!r}")
     return v
 
@@ -46,7 +50,7 @@ def vector(text: str, what: str) -> tuple[float, float, float]:
 
 def colour(text: str, what: str):
     """One number (grey) or R,G,B."""
-    v = _numbers(text, (1, 3), what)
+    v = _numbers(text, (1, 3), what, "R,G,B")
     return v[0] if len(v) == 1 else v
 
 
@@ -97,7 +101,9 @@ def _sky(model="uniform", zenith=None, horizontal=None, sun=None, up=(0.0, 0.0, 
     from .photometry.sky import SkyLight
 
     return SkyLight(model, zenith_luminance=zenith, horizontal_illuminance=horizontal, sun_direction=sun, up=up,
-                    ground_reflectance=ground, resolution=int(resolution))
+                    ground_reflectance=ground,
+                    # a whole number as an int; 64.5 is refused as it is, not cut to 64
+                    resolution=int(resolution) if float(resolution).is_integer() else resolution)
 
 
 def _luminaire(pos, file, nadir=(0.0, 0.0, -1.0), c0=(1.0, 0.0, 0.0), scale=1.0):

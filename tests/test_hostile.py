@@ -754,3 +754,21 @@ def test_sensors_and_bakes_refuse_what_would_come_back_as_inf_or_text(tmp_path):
     with pytest.raises(InvalidInputError, match="radiosity must be numbers"):
         pydynrad.bake.export_mesh(plates, np.full((len(plates), 3), "1"), tmp_path / "m.glb")
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("text", ["point:pos=1,2,3;intensity=1_000", "point:pos=1,2,3;intensity=５",
+                                  "point:pos=1,2,3;intensity=\u0665", "point:pos=0x10,2,3;intensity=5"])
+def test_light_text_takes_plain_numbers_only(text):
+    # Python's float() reads "1_000" and other scripts' digits: a typo must not become a light.
+    from pydynrad.lighttext import parse_light
+
+    with pytest.raises(InvalidInputError, match="must be"):
+        parse_light(text)
+
+
+def test_a_sky_resolution_of_a_fraction_is_refused_not_cut():
+    from pydynrad.lighttext import parse_light
+
+    with pytest.raises(InvalidInputError, match="resolution must be an integer; got 64.5"):
+        parse_light("sky:model=uniform;zenith=100;resolution=64.5")
+    assert parse_light("sky:model=uniform;zenith=100;resolution=32").resolution == 32
