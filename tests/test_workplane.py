@@ -86,3 +86,12 @@ def test_statistics_by_hand():
     assert (s.Em, s.Emin, s.Emax, s.U0, s.Ud, s.n) == pytest.approx((200.0, 100.0, 300.0, 0.5, 1 / 3, 3))
     with pytest.raises(InvalidInputError, match="finite"):
         illuminance_statistics([1.0, np.nan])
+
+
+def test_a_plot_name_is_checked_by_its_own_suffix_before_drawing(tmp_path):
+    plane = work_plane([[0, 0], [4, 0], [4, 3], [0, 3]], 0.75)
+    with pytest.raises(InvalidInputError, match="use one of png, pdf, svg"):
+        plot_work_plane(tmp_path / "plane.xyz", plane, np.ones(len(plane)))
+    (tmp_path / "a.b").mkdir()
+    plot_work_plane(tmp_path / "a.b" / "plane", plane, np.ones(len(plane)))  # a dotted folder: png
+    assert (tmp_path / "a.b" / "plane").read_bytes()[:4] == b"\x89PNG"

@@ -6,9 +6,11 @@ import csv
 import io
 from dataclasses import asdict, dataclass
 
+from pathlib import Path
+
 import numpy as np
 
-from ..atomic import write_atomic
+from ..atomic import check_file_target, write_atomic
 from ..checks import floats
 from ..errors import InvalidInputError
 from .units import photometric
@@ -80,6 +82,13 @@ def plot_work_plane(path, plane, E, title: str = "", cmap: str = "jet") -> Illum
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    # The format from the file's own suffix (a dotted folder's is not it), checked before drawing.
+    fmt = Path(path).suffix.lower().lstrip(".") or "png"
+    if fmt not in FigureCanvasBase.get_supported_filetypes():
+        raise InvalidInputError(f"cannot write a plot as {str(path)!r}: use one of png, pdf, svg (by the suffix)")
+    check_file_target(path)
     a = _values(E)
     if len(a) != len(plane):
         raise InvalidInputError(f"illuminance has {len(a)} values for {len(plane)} work-plane points")
@@ -94,7 +103,6 @@ def plot_work_plane(path, plane, E, title: str = "", cmap: str = "jet") -> Illum
     ax.set_aspect("equal")
     heading = f"Em = {stats.Em:.4g} lx, Emin = {stats.Emin:.4g} lx, U0 = {stats.U0:.3f}"
     ax.set_title(f"{title}\n{heading}" if title else heading, fontsize=10)
-    fmt = str(path).rsplit(".", 1)[-1] if "." in str(path) else "png"
     write_atomic(path, lambda tmp: fig.savefig(tmp, format=fmt, dpi=120, bbox_inches="tight"))
     plt.close(fig)
     return stats
