@@ -402,6 +402,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
     img = render(scene, sol.radiosity, camera, args.shading)
     write_image(args.output, img, args.exposure)
     print(f"wrote {args.output} ({camera.width}x{camera.height}, {sol.iterations} bounces)")
+    if not img.any():  # e.g. the default camera outside a closed scene sees only its backs
+        print(f"warning: {args.output} is black: no pixel sees a lit front face (place the camera with --position and "
+              "--look-at)", file=sys.stderr)
     return 0
 
 

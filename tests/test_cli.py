@@ -402,3 +402,15 @@ def test_a_store_with_auto_clusters_gives_walks_their_far_field(tmp_path, capsys
     far, local = (float(x) for x in re.search(r"relative RMS error ([\d.e+-]+)% with the far field, "
                                                r"([\d.e+-]+)% local only", out).groups())
     assert far < local / 3
+
+
+def test_a_black_render_is_said_to_be_black(tmp_path, capsys):
+    # The default camera outside a closed box sees only the backs of its walls.
+    from helpers import run_main
+
+    code, _, err = run_main(["render", "closed_box", "--resolution", "8", "--size", "16x12", "-o",
+                             str(tmp_path / "b.png")], capsys)
+    assert code == 0 and "is black: no pixel sees a lit front face" in err
+    code, _, err = run_main(["render", "cornell_box", "--max-edge", "250", "--resolution", "8", "--size", "16x12", "-o",
+                             str(tmp_path / "c.png")], capsys)
+    assert code == 0 and "is black" not in err
