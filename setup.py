@@ -1,7 +1,8 @@
 """Build script: the package metadata lives in pyproject.toml; this file only wires the
 layout of the design card (top-level ``kernels/`` shipped as ``pydynrad.kernels``) and the
 native helpers in ``csrc/`` (the BVH builder, ray batches' checks, the hemicube runs' CSR, a move's segments near a sphere and its rows at the pose,
-the far field's product with chosen columns, F's components and its copy by column)."""
+the far field's product with chosen columns, F's components, its copy by column and its columns
+summed by cluster)."""
 
 from setuptools import Extension, find_packages, setup
 
