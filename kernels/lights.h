@@ -88,10 +88,11 @@ inline float3 analytic_irradiance(float3 p, float3 org, float3 n, const int n_li
         const float cosine = BVH_DOT(n, wi);
         if (cosine <= 0.0f || scale <= 0.0f || cd <= 0.0f) continue;
         if (bvh_occluded(nodes, tris, org, wi, 0.0f, dist - 2.0f * eps)) continue;
-        // c.xyz carries 1 / unit^2 of the scene's frame and scale unit^2 / dist^2: their product
-        // first, so a table's candela meets the true inverse square (cd near 3e38 / (scale in
-        // frame units) had overflowed float32 before the unit's factor came in).
-        h += (c.xyz * scale) * (cd * cosine);
+        // c.xyz carries 1 / unit^2 of the scene's frame and scale * cosine unit^2 / dist^2: their
+        // product first, the true irradiance per unit intensity, then a table's candela (cd times
+        // scale in frame units had overflowed float32 before the unit's factor came in, and
+        // c.xyz * scale before the cosine overflowed a grazing point light's).
+        h += (c.xyz * (scale * cosine)) * cd;
     }
     return h;
 }

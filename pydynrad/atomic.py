@@ -32,7 +32,8 @@ def check_file_target(path) -> Path:
     path = check_parent_folder(path)
     if path.is_dir():
         raise InvalidInputError(f"cannot write the file {str(path)!r}: a folder of that name is in the way")
-    if not os.access(path.parent, os.W_OK | os.X_OK):  # else found only after the work
+    if not os.access(path.parent, os.W_OK | os.X_OK,  # else found only after the work
+                     effective_ids=os.access in os.supports_effective_ids):
         raise InvalidInputError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} is not writable")
     return path
 
@@ -46,7 +47,9 @@ def write_atomic(path, payload: bytes | Callable[[Path], object]) -> Path:
     """
     path = check_file_target(path)
     # A leading dot hides the temporary file; the same folder makes the rename atomic.
-    tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    # The name cut to 150 bytes: a valid name near the 255-byte limit must leave room for the mark.
+    stem = path.name.encode()[:150].decode(errors="ignore")
+    tmp = path.with_name(f".{stem}{TMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}")
     try:
         if callable(payload):
             payload(tmp)
@@ -55,9 +58,16 @@ def write_atomic(path, payload: bytes | Callable[[Path], object]) -> Path:
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except OSError as exc:  # named for the file asked for, not the temporary one
-        why = f"cannot write {str(path)!r}: {exc.strerror or exc}"
-        raise (type(exc)(exc.errno, why) if exc.errno is not None else type(exc)(why)) from None
+    except OSError as exc:
+        if exc.filename is None or Path(exc.filename) != tmp:
+            raise  # about another file, or already worded by the writer
+        # Named for the file asked for, not the temporary one (of the same class where it can be).
+        why = f"cannot write {str(path)!r}: {exc.strerror}"
+        try:
+            named = type(exc)(exc.errno, why)
+        except TypeError:
+            named = OSError(exc.errno, why)
+        raise named from None
     finally:
         tmp.unlink(missing_ok=True)
     return path

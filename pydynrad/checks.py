@@ -31,8 +31,9 @@ def floats(value, what: str) -> np.ndarray:
         return a.astype(np.float64, copy=False)
     except (TypeError, ValueError):
         text = repr(value)
-        if len(text) > 80 and isinstance(value, np.ndarray):  # not a screenful of an array
-            text = f"an array of {value.dtype} values, shape {value.shape}"
+        if len(text) > 80:  # not a screenful of an array or a list
+            text = (f"an array of {value.dtype} values, shape {value.shape}" if isinstance(value, np.ndarray) else
+                    f"{text[:60]}... ({type(value).__name__} of {len(value) if hasattr(value, '__len__') else '?'})")
         raise InvalidInputError(f"{what} must be numbers; got {text}") from None
 
 

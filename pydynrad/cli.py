@@ -72,10 +72,10 @@ def _resolution(text: str) -> int:
 def _ranged(lo: float, hi: float, integral: bool = False):
     """An argparse type: a finite number (a whole one when ``integral``) in [lo, hi]."""
     def parse(text: str):
-        try:
-            v = float(text)
-        except ValueError:
-            v = np.nan
+        from .lighttext import plain_number
+
+        v = plain_number(text)
+        v = np.nan if v is None else v
         if not (np.isfinite(v) and lo <= v <= hi) or (integral and v != int(v)):
             kind = "a whole number" if integral else "a number"
             raise argparse.ArgumentTypeError(f"expected {kind} in {lo:g}..{hi:g}; got {text!r}")
@@ -90,10 +90,10 @@ def _count(text: str) -> int:
 
 
 def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        v = float("nan")
+    from .lighttext import plain_number  # ASCII digits: float() reads "4_5" and other scripts' digits
+
+    v = plain_number(text)
+    v = float("nan") if v is None else v
     if not (np.isfinite(v) and v > 0):
         raise argparse.ArgumentTypeError(f"expected a positive number; got {text!r}")
     return v
@@ -403,8 +403,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
     write_image(args.output, img, args.exposure)
     print(f"wrote {args.output} ({camera.width}x{camera.height}, {sol.iterations} bounces)")
     if not img.any():  # e.g. the default camera outside a closed scene sees only its backs
-        print(f"warning: {args.output} is black: no pixel sees a lit front face (place the camera with --position and "
-              "--look-at)", file=sys.stderr)
+        why = ("the scene has no light (no emission and no --light)" if not sol.radiosity.any() else
+               "no pixel sees a lit front face (place the camera with --position and --look-at)")
+        print(f"warning: {args.output} is black: {why}", file=sys.stderr)
     return 0
 
 

@@ -205,10 +205,10 @@ def _packed(lights: list, frame=None) -> tuple[np.ndarray, np.ndarray]:
     if not np.all(np.isfinite(out)):
         raise InvalidInputError("a light's position or intensity overflows float32 on the device "
                                 "(beyond ~3e38 once the scene is scaled to its own size)")
-    # Below float32's normal range an intensity is flushed to zero or keeps a few bits: the
-    # light would go dark without a word.
-    if np.any((packed[:, 8:11] != 0) & (np.abs(out[:, 8:11]) < np.finfo(np.float32).tiny)):
-        raise InvalidInputError("a light's intensity underflows float32 on the device (below ~1.2e-38 once the "
+    # A light whose every channel rounds to zero in float32 (below ~1.4e-45, the smallest
+    # subnormal, once the scene is scaled to its own size) would go dark without a word.
+    if np.any(np.any(packed[:, 8:11] != 0, axis=1) & ~np.any(out[:, 8:11] != 0, axis=1)):
+        raise InvalidInputError("a light's intensity underflows float32 on the device (below ~1.4e-45 once the "
                                 "scene is scaled to its own size) and would light nothing; scale the light "
                                 "intensities (and emission) up")
     with np.errstate(over="ignore"):
@@ -323,16 +323,16 @@ def check_radiosity_range(L: np.ndarray, albedo: np.ndarray, dtype=np.float32) -
     any pass computes it: F's rows sum to at most 1 + ROW_SUM_SLACK (what the checks allow), so
     max B <= max L / (1 - max albedo (1 + ROW_SUM_SLACK)).
 
-    Where that product reaches 1 (an albedo of 0.999 or more, which a Scene allows), the slack
-    gives no bound at all, and refusing every light there would refuse scenes the solvers
-    answer (a closed box at 0.9995: 333.8 by the dense solve); the bound then takes the albedo
-    alone, max L / (1 - max albedo), as for rows that sum to 1."""
+    Near an albedo of 1 (which a Scene allows) that product reaches 1 and bounds nothing, and
+    refusing every light there would refuse scenes the solvers answer (a closed box at 0.9995:
+    333.8 by the dense solve); from an albedo of about 0.998 the bound is 2 max L / (1 - max
+    albedo) instead, twice the bound of rows that sum to 1."""
     from .checks import ROW_SUM_SLACK
 
     top, albedo_max = float(np.max(L, initial=0.0)), float(np.max(albedo, initial=0.0))
-    rho = albedo_max * (1.0 + ROW_SUM_SLACK)
-    if rho >= 1.0:
-        rho = albedo_max
+    # The slack's factor, or half the albedo's own distance from 1 where that is smaller (from
+    # an albedo of 1 / (1 + 2 slack) ~ 0.998 up): finite below 1, and growing with the albedo.
+    rho = min(albedo_max * (1.0 + ROW_SUM_SLACK), 0.5 * (1.0 + albedo_max))
     bound = top / (1.0 - rho) if rho < 1.0 else np.inf
     if top > 0 and bound > float(np.finfo(dtype).max):
         raise InvalidInputError(f"the radiosity may reach {bound:.3g} (max L {top:.3g} / (1 - {rho:g}), the largest "

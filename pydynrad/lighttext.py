@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import InvalidInputError, PydynradError
 
-__all__ = ["LightKind", "LIGHT_KINDS", "LIGHT_ALIASES", "parse_light", "light_syntax"]
+__all__ = ["LightKind", "LIGHT_KINDS", "LIGHT_ALIASES", "parse_light", "light_syntax", "plain_number"]
 
 _REQUIRED = object()
 
@@ -34,9 +34,15 @@ _REQUIRED = object()
 _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", re.ASCII)
 
 
+def plain_number(text: str) -> float | None:
+    """``text`` (spaces around it allowed) as a float where it is a plain ASCII number, else None."""
+    text = text.strip()
+    return float(text) if _NUMBER.fullmatch(text) else None
+
+
 def _numbers(text: str, counts: tuple[int, ...], what: str, names: str = "X,Y,Z") -> tuple[float, ...]:
-    parts = text.replace(" ", "").split(",")
-    v = tuple(float(x) for x in parts) if all(_NUMBER.fullmatch(x) for x in parts) else ()
+    parts = [plain_number(x) for x in text.split(",")]
+    v = tuple(parts) if None not in parts else ()
     if len(v) not in counts or not all(np.isfinite(v)):
         want = " or ".join({1: "one number", 3: f"three numbers {names}"}[c] for c in counts)
         raise InvalidInputError(f"{what} must be {want}; got {text!r}")

@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from .camera import Camera
+from .checks import floats
 from .errors import InvalidInputError
 
 __all__ = ["CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path", "load_walk", "WalkFile",
@@ -62,7 +63,7 @@ INTERPOLATIONS = ("catmull-rom", "linear")
 
 
 def _keyframes(value, what: str) -> np.ndarray:
-    a = np.asarray(value, dtype=np.float64)
+    a = floats(value, what)  # numbers, not text that spells them (as every other field)
     if a.ndim == 1 and a.shape == (3,):
         a = a[None]
     if a.ndim != 2 or a.shape[1] != 3 or len(a) == 0:
@@ -342,8 +343,8 @@ def _pose(key, where: str) -> np.ndarray:
     if not isinstance(key, dict):
         return rigid_transform(key, where)
     _known_fields(key, ("position", "rotation_deg"), where)
-    pos = np.asarray(_field(key, "position", where, required=True), dtype=np.float64)
-    angles = np.asarray(_field(key, "rotation_deg", where, (0.0, 0.0, 0.0)), dtype=np.float64)
+    pos = floats(_field(key, "position", where, required=True), f"{where}: position")
+    angles = floats(_field(key, "rotation_deg", where, (0.0, 0.0, 0.0)), f"{where}: rotation_deg")
     for name, v in (("position", pos), ("rotation_deg", angles)):
         if v.shape != (3,) or not np.all(np.isfinite(v)):
             raise InvalidInputError(f"{where}: {name!r} must be 3 finite numbers; got {v.tolist()!r}")
@@ -373,7 +374,7 @@ def _object_scene(item: dict, base: Path, where: str):
     if not isinstance(b, dict):
         raise InvalidInputError(f"{where}: 'block' must be an object like {{\"size\": 100, \"subdivisions\": 1}}")
     _known_fields(b, _BLOCK_FIELDS, f"{where}: block")
-    size = np.asarray(_field(b, "size", f"{where}: block", required=True), dtype=np.float64)
+    size = floats(_field(b, "size", f"{where}: block", required=True), f"{where}: block size")
     if size.shape not in ((), (3,)) or not np.all(np.isfinite(size)) or not np.all(size > 0):
         raise InvalidInputError(f"{where}: block 'size' must be one length or three, each > 0; got {size.tolist()!r}")
     sub = _field(b, "subdivisions", where, 1)

@@ -89,7 +89,9 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 def checked_radiosity(radiosity, n: int) -> np.ndarray:
     """``radiosity`` of shape (n,), (n, 1) or (n, 3) as a finite (n, 3) float32 view, or InvalidInputError."""
-    given = floats(radiosity, "radiosity")  # numbers, not text that spells them
+    given = np.asarray(radiosity)
+    if given.dtype.kind not in "fiub":  # text that spells numbers is refused (a copy only then)
+        given = floats(radiosity, "radiosity")
     if np.all(np.isfinite(given)) and np.abs(given).max(initial=0.0) > FLOAT32_MAX:
         # finite in float64, inf once cast: say so, not "NaN or infinite" of values that were neither
         raise InvalidInputError(f"radiosity reaches {float(np.abs(given).max()):.3g}, beyond float32 (what renders "

@@ -724,7 +724,7 @@ def test_bake_and_store_arguments_are_refused_before_the_solve(tmp_path, capsys,
     # A folder the process may not write into (root passes permission bits, so it is simulated).
     import pydynrad.atomic as atomic
 
-    monkeypatch.setattr(atomic.os, "access", lambda path, mode: False)
+    monkeypatch.setattr(atomic.os, "access", lambda path, mode, **kw: False)
     code, out, err = run_main(bake, capsys)
     assert code == 2 and "is not writable" in err and "solved" not in out
 
@@ -772,3 +772,63 @@ def test_a_sky_resolution_of_a_fraction_is_refused_not_cut():
     with pytest.raises(InvalidInputError, match="resolution must be an integer; got 64.5"):
         parse_light("sky:model=uniform;zenith=100;resolution=64.5")
     assert parse_light("sky:model=uniform;zenith=100;resolution=32").resolution == 32
+
+
+def test_review_of_the_days_fixes(tmp_path, capsys, device):
+    """What a review of this landing's fixes found they had broken, each kept working."""
+    from helpers import run_main
+    from pydynrad.atomic import write_atomic
+    from pydynrad.lights import check_radiosity_range
+    from pydynrad.photometry import LuminaireLight, PhotometricDistribution
+
+    # A grazing point light of 1e37 W/sr 1 mm over a unit floor: I / r^2 passes float32 before
+    # the cosine comes in; the irradiance itself (I cos / r^2 at most 2.4e37) does not.
+    plates = pydynrad.scenes.parallel_plates(subdivisions=2)
+    for light in (pydynrad.PointLight((0.5, 0.5, 0.001), 1e37),
+                  LuminaireLight((0.5, 0.5, 0.001), PhotometricDistribution.isotropic(1e37))):
+        E = pydynrad.direct_irradiance(plates, [light], device).astype(np.float64)
+        assert np.isfinite(E).all() and 1e35 < E.max() < 3.4e38
+    # The radiosity bound grows with the albedo: a higher albedo never passes where a lower fails.
+    L = np.full((4, 3), 1e33)
+    refused = []
+    for rho in (0.998, 0.999, 0.9990009, 0.99901, 0.9995, 0.99999):
+        try:
+            check_radiosity_range(L, np.full((4, 3), rho), np.float32)
+            refused.append(False)
+        except InvalidInputError:
+            refused.append(True)
+    assert refused == sorted(refused), refused
+    # A write that fails for another file, or is already worded, passes through as it is.
+    def other(tmp):
+        raise FileNotFoundError(2, "No such file or directory", "/elsewhere/source.png")
+
+    with pytest.raises(FileNotFoundError) as info:
+        write_atomic(tmp_path / "x.png", other)
+    assert info.value.filename == "/elsewhere/source.png"
+    long_name = tmp_path / ("a" * 240 + ".npz")
+    write_atomic(long_name, b"data")
+    assert long_name.read_bytes() == b"data"
+    # The CLI's numbers: whitespace around them is fine, underscores are not.
+    code, _, err = run_main(["render", "cornell_box", "--max-edge", "250", "--resolution", "8", "--size", "16x12",
+                             "--position", "278,\t273,-800", "-o", str(tmp_path / "c.png")], capsys)
+    assert code == 0, err
+    code, _, err = run_main(["bake", "parallel_plates", "--resolution", "8", "-o", str(tmp_path / "m.glb"),
+                             "--lightmap", str(tmp_path / "l.exr"), "--padding", "1_0"], capsys)
+    assert code == 2 and "whole number in 1..64" in err
+    # A scene with no light at all is black for that reason, not the camera's.
+    code, _, err = run_main(["render", "parallel_plates", "--resolution", "8", "--size", "16x12", "-o",
+                             str(tmp_path / "p.png")], capsys)
+    assert code == 0 and "the scene has no light" in err
+
+
+def test_photometric_files_the_review_found_refused_still_read():
+    from bench.cie171_data import LM63_EXAMPLE
+    from pydynrad.photometry import parse_ies, parse_ldt
+    from test_luminaires import ldt_text
+
+    # A DOS end-of-file mark after the table.
+    assert parse_ies(LM63_EXAMPLE.rstrip() + "\r\n\x1a").candela.max() == parse_ies(LM63_EXAMPLE).candela.max()
+    # Isym = 0 with two planes C0 and C180 goes round the circle; one plane is rotational.
+    two = parse_ldt(ldt_text(0, 2, 180.0, [0.0, 90.0], [[100.0, 50.0], [80.0, 40.0]]))
+    assert two.c_angles.tolist() == [0.0, 180.0, 360.0]
+    assert parse_ldt(ldt_text(0, 1, 0.0, [0.0, 90.0], [[100.0, 50.0]])).c_angles.tolist() == [0.0]

@@ -111,7 +111,8 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
     """A distribution from the text of an LM-63 file (see the module docstring)."""
     if not isinstance(text, str):
         raise InvalidInputError(f"parse_ies takes the file's text (str); got {type(text).__name__} (read_ies reads a file)")
-    lines = text.removeprefix("\ufeff").splitlines()  # a UTF-8 byte-order mark, read as text
+    # A UTF-8 byte-order mark read as text, and a DOS end-of-file mark (Ctrl-Z) after the table.
+    lines = text.removeprefix("\ufeff").rstrip().rstrip("\x1a").splitlines()
     keywords: dict[str, str] = {}
     k = 0
     while k < len(lines) and not lines[k].strip().upper().startswith("TILT"):

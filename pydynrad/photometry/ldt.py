@@ -98,9 +98,9 @@ def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
         raise IESFormatError(f"{where}: line {g_line}: gamma angles must increase within 0..180")
     if isym in (2, 3, 4) and mc % (4 if isym == 4 else 2):
         raise IESFormatError(f"{where}: line 4: Mc = {mc} does not divide for symmetry Isym = {isym}")
-    if isym == 0 and not (mc >= 2 and c[0] == 0 and c[-1] > 180):
-        # Without symmetry the planes must go round: planes over 0..90 would be mirrored as
-        # if the file had declared a symmetry it did not.
+    if isym == 0 and mc >= 2 and not (c[0] == 0 and c[-1] + (c[-1] - c[-2]) >= 360.0 - 1e-6):
+        # Without symmetry the planes must go round (the last one step short of 360: C0, C180
+        # do): planes over 0..90 would be mirrored as if the file declared a symmetry it did not.
         raise IESFormatError(f"{where}: line {c_line}: Isym = 0 (no symmetry) needs C planes from 0 round the "
                              f"circle; got {mc} plane(s) over {c[0]:g}..{c[-1]:g}")
     if isym == 0:
