@@ -42,8 +42,8 @@ def number(value, what: str) -> float:
     try:
         a = floats(value, what)
     except InvalidInputError:
-        a = np.full(2, np.nan)  # not a number: refused below, in this function's words
-    if a.shape != () or not np.isfinite(a):
+        a = None  # not a number: refused below, in this function's words
+    if a is None or a.shape != () or not np.isfinite(a):
         raise InvalidInputError(f"{what} must be one finite number; got {value!r}")
     return float(a)
 

@@ -112,11 +112,10 @@ def work_plane(polygon, height: float, spacing: float | None = None, border: flo
     spacing = number(spacing, "spacing")
     if not (math.isfinite(spacing) and spacing > 0):
         raise InvalidInputError(f"spacing must be a positive length; got {spacing!r}")
-    with np.errstate(over="ignore"):
-        counts_f = np.maximum(1.0, np.ceil(size / spacing - 1e-9))
     # The grid and its inside test hold about WORK_PLANE_BYTES per point: refused before they
     # are allocated (a spacing of 1e-4 over a room had raised MemoryError at 11.9 GiB).
     with np.errstate(over="ignore"):
+        counts_f = np.maximum(1.0, np.ceil(size / spacing - 1e-9))
         points = float(np.prod(counts_f))
     need = points * WORK_PLANE_BYTES
     if not need <= available_host_bytes() / 2:
