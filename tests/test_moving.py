@@ -671,6 +671,53 @@ def test_segments_near_sphere_match_numpy():
         _segments.near_sphere(P, indptr[1:].copy(), indptr[:-1].copy(), indices.astype(np.int32), owners, tuple(c), r, None)
 
 
+def test_segments_near_sphere_box_matches_numpy():
+    """The pre-test's box (the object's bounds in its own space, by the slab test on the segment
+    moved there) against numpy, on rows longer than the native pass's blocks of 512 segments
+    and with segments parallel to an axis of the box, inside and outside its slab."""
+    from pydynrad import _segments
+
+    rng = np.random.default_rng(11)
+    P = rng.uniform(-1.0, 1.0, (400, 3))
+    P[:40, 1] = 0.05  # segments between these lie in a plane y = 0.05: parallel to the x-z slabs
+    P[40:80, 1] = 0.9  # and in y = 0.9, outside the box's y slab
+    indptr = np.array([0, 1300, 1300, 2000, 2040], np.int64)
+    indices = rng.integers(0, len(P), indptr[-1])
+    indices[2000:] = rng.integers(0, 80, 40)
+    owners = np.array([5, 7, 300, 45], np.int64)
+    c, r = np.array([0.05, 0.0, -0.1]), 0.6
+    a_ = np.radians(30.0)
+    A = np.array([[np.cos(a_), 0.0, -np.sin(a_)], [0.0, 1.0, 0.0], [np.sin(a_), 0.0, np.cos(a_)]])  # world -> object
+    t = -A @ c
+    lo, hi = np.array([-0.3, -0.2, -0.25]), np.array([0.3, 0.2, 0.25])
+    box = np.concatenate([A.ravel(), t, lo, hi])
+    out, rays = _segments.near_sphere(P, indptr[:-1], indptr[1:], indices.astype(np.int32), owners, tuple(c), r,
+                                      box.tolist())
+    out, rays = np.frombuffer(out, np.int64), np.frombuffer(rays, np.float64).reshape(-1, 6)
+    row = np.repeat(np.arange(len(owners)), np.diff(indptr))
+    a, b = P[owners[row]], P[indices]
+    d = b - a
+    s = np.clip(np.einsum("ij,ij->i", c - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
+    near = np.linalg.norm(a + s[:, None] * d - c, axis=1) <= r
+    def to_object(x):  # in the native pass's order of operations, for the same rounding
+        return np.stack([A[k, 0] * x[:, 0] + A[k, 1] * x[:, 1] + A[k, 2] * x[:, 2] + t[k] for k in range(3)], axis=1)
+
+    oa, ob = to_object(a), to_object(b)
+    od = ob - oa
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = (lo - oa) / od, (hi - oa) / od
+    enter, leave = np.minimum(ta, tb), np.maximum(ta, tb)
+    parallel = od == 0.0
+    enter = np.where(parallel, np.where((oa < lo) | (oa > hi), np.inf, -np.inf), enter)
+    leave = np.where(parallel, np.inf, leave)
+    crosses = np.maximum(enter.max(axis=1), 0.0) <= np.minimum(leave.min(axis=1), 1.0)
+    truth = np.flatnonzero(near & crosses)
+    assert parallel[truth].any() and (near & ~crosses)[2000:].any()  # both kinds of parallel segment met
+    assert len(truth) > 300 and (truth >= 1300).any() and (truth < 512).any() and (truth > 512).any()
+    np.testing.assert_array_equal(out, truth)
+    np.testing.assert_array_equal(rays, np.hstack([oa[truth], od[truth]]))  # in object space
+
+
 def test_rows_minus_matches_scipy(monkeypatch):
     """D = rows - kept[slots] by the native merge against scipy, sorted and unsorted rows, one
     matrix or blocks, one part or parts on the cores, exact zeros dropped; slots outside the
