@@ -208,10 +208,17 @@ def check_reach(scene, obj: RigidObject, transform) -> None:
 
 
 def _warn_intersections(scene, objs: list[RigidObject], transforms) -> None:
-    """Warn when an object's edges cross static triangles (checked by rays, once per pose)."""
+    """Warn when an object's edges cross static triangles (checked by rays, once per pose, where
+    a static triangle's box comes within the object's bounding sphere: elsewhere its edges can
+    cross none, and a move of the bench's block skips the device's round trip)."""
     from .bvh import occluded
 
+    lo, hi = scene.triangle_boxes
     for o, T in zip(objs, transforms):
+        c, r = o.bounding_sphere(T)
+        gap = np.maximum(np.maximum(lo - c, c - hi), 0.0)  # per axis, from the sphere's centre to each box
+        if not np.any(np.einsum("ij,ij->i", gap, gap) <= (r * (1.0 + 1e-6)) ** 2):
+            continue
         corners = o.world_points(T)[o.scene.triangles]  # (T, 3, 3)
         start, end = corners.reshape(-1, 3), corners[:, [1, 2, 0]].reshape(-1, 3)
         d = end - start

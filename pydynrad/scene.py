@@ -265,6 +265,13 @@ class Scene:
         p = self.points[np.unique(self.triangles)]
         return np.stack([p.min(axis=0), p.max(axis=0)])
 
+    @cached_property
+    def triangle_boxes(self) -> np.ndarray:
+        """(2, N, 3) float64: each triangle's bounding box, min and max corner (cached: a moving
+        object's intersection test reads it every move)."""
+        corners = self.points[self.triangles].astype(np.float64)
+        return np.stack([corners.min(axis=1), corners.max(axis=1)])
+
     @property
     def scale(self) -> float:
         """Length of the bounding-box diagonal: the yardstick for scene-relative lengths."""

@@ -190,3 +190,28 @@ def test_move_rewrites_table_only(box, block, device):
 def test_intersection_warned(box, block):
     with pytest.warns(pd.ObjectIntersectionWarning, match="intersects"):
         instanced(box, [pd.RigidObject(block, pose(0, (350.0, 200.0, 330.0)))])  # through the tall block
+
+
+def test_intersection_warned_exactly_where_edges_cross(box, block, device):
+    """The warning's shortcut (no ray where no static triangle's box meets the object's bounding
+    sphere) warns at the same poses as tracing every edge: poses in a grid across the box,
+    through its walls and blocks and clear of them."""
+    import warnings
+
+    from pydynrad.bvh import occluded
+
+    warned = []
+    for x in (40.0, 200.0, 350.0, 520.0):
+        for y in (45.0, 200.0, 420.0):
+            for z in (40.0, 300.0):
+                obj = pd.RigidObject(block, pose(30, (x, y, z)))
+                corners = obj.world_points()[block.triangles]
+                crosses = bool(occluded(box, corners.reshape(-1, 3), (corners[:, [1, 2, 0]] - corners).reshape(-1, 3),
+                                        np.float32(1.0), device=device).any())
+                with warnings.catch_warnings(record=True) as w:
+                    warnings.simplefilter("always")
+                    instanced(box, [obj])
+                said = any(issubclass(m.category, pd.ObjectIntersectionWarning) for m in w)
+                assert said == crosses, (x, y, z)
+                warned.append(said)
+    assert 0 < sum(warned) < len(warned)
