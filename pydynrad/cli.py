@@ -166,9 +166,13 @@ def _form_factors(args, scene):
     --cache-mb over a store folder, closed when the command ends; made with --samples where
     given), else computed now."""
     if getattr(args, "form_factors", None):
-        from .rows.files import open_form_factors
+        from .rows.files import open_form_factors, recorded_resolution
 
-        F = open_form_factors(scene, args.form_factors, cache_bytes=int(args.cache_mb * 2**20), samples=args.samples)
+        # Every later hemicube (a moving object's rows, stored poses) at F's resolution: the
+        # file's, or --resolution where it is given and is the file's.
+        F = open_form_factors(scene, args.form_factors, cache_bytes=int(args.cache_mb * 2**20), samples=args.samples,
+                              resolution=args.resolution)
+        args.resolution = recorded_resolution(args.form_factors)
         if hasattr(F, "close"):
             args.cleanup.callback(F.close)
             print(f"form factors: {F.source!r} through a {args.cache_mb:g} MiB row cache")
@@ -178,6 +182,8 @@ def _form_factors(args, scene):
     from .formfactors import form_factors
 
     t0 = time.perf_counter()
+    if args.resolution is None:
+        args.resolution = args.default_resolution
     samples = _samples(args)
     F = form_factors(scene, resolution=args.resolution, progress=_progress(args), samples=samples)
     print(f"form factors: {len(scene)} patches, resolution {args.resolution}"
@@ -583,7 +589,11 @@ def _add_form_factors(p: argparse.ArgumentParser, resolution: int = 64) -> None:
     p.add_argument("--cache-mb", type=_positive_float, default=256.0, metavar="MB",
                    help="size of the row cache in MiB when --form-factors is a store folder: the form-factor rows "
                         "held in memory (default 256; not used for a .npz file)")
-    _add_resolution(p, resolution, " when computing form factors")
+    p.add_argument("--resolution", type=_resolution, default=None, metavar="R",
+                   help=f"hemicube resolution (R x R pixels on the top face; even, 2 to 4096) when computing form "
+                        f"factors (default {resolution}); with --form-factors, the one those were computed at (the "
+                        "default), which a moving object's rows are computed at too")
+    p.set_defaults(default_resolution=resolution)
     _add_samples(p, None, "when computing form factors (default 1); with --form-factors, the hemicubes per row "
                           "those must have been computed with")
 

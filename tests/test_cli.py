@@ -276,6 +276,29 @@ def test_form_factor_path_errors_give_one_line(tmp_path, capsys):
     assert_one_line_error(code, err, "unfinished", "1 of 4 blocks missing")
 
 
+
+def test_precomputed_form_factors_set_the_resolution_of_later_hemicubes(tmp_path, capsys):
+    """With --form-factors, a moving object's rows are computed at the resolution F was (the
+    file's or store's, not the command's default), and a --resolution that is not F's is
+    refused with one line, for a file and for a store."""
+    import contextlib
+
+    from pydynrad.cli import _form_factors, build_parser
+
+    scene = pydynrad.scenes.cornell_box(max_edge=250.0)
+    for name, extra in (("ff.npz", []), ("store", ["--workers", "0"])):
+        ff = str(tmp_path / name)
+        assert run_main(["formfactors", *SMALL, "-o", ff, *extra], capsys)[0] == 0
+        args = build_parser().parse_args(["demo", "--form-factors", ff, "--max-edge", "250"])
+        with contextlib.ExitStack() as args.cleanup:
+            _form_factors(args, scene)
+            assert args.resolution == 8  # the demo's own default is 32
+        code, _, err = run_main(["demo", "--form-factors", ff, "--max-edge", "250", "--resolution", "16", "--frames",
+                                 "2", "--out", str(tmp_path / "d"), "--quiet"], capsys)
+        assert_one_line_error(code, err, "resolution")
+    args = build_parser().parse_args(["demo", "--max-edge", "250"])  # computed: the command's default
+    assert args.resolution is None and args.default_resolution == 32
+
 @pytest.mark.slow
 def test_formfactors_store_on_a_local_cluster_equals_one_process(tmp_path, capsys):
     scene, F, store = make_file_and_store(tmp_path, capsys, "--workers", "2")

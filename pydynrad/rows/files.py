@@ -26,8 +26,8 @@ from ..checks import resolution as checked_resolution, scene as checked_scene, s
 from ..errors import InvalidInputError
 from ..formfactors import checked_samples
 
-__all__ = ["FF_FORMAT", "is_form_factor_file", "load_form_factors", "open_form_factors", "save_form_factors",
-           "whole_matrix"]
+__all__ = ["FF_FORMAT", "is_form_factor_file", "load_form_factors", "open_form_factors", "recorded_resolution",
+           "save_form_factors", "whole_matrix"]
 
 FF_FORMAT = "pydynrad-form-factors"
 FF_VERSION = 1
@@ -131,13 +131,14 @@ def is_form_factor_file(path) -> bool:
     return True
 
 
-def _open_store(scene, path: Path, samples: int | None = None):
+def _open_store(scene, path: Path, samples: int | None = None, resolution: int | None = None):
     """The complete store at ``path``, checked against ``scene`` with the parameters it records
-    (and with ``samples`` where given)."""
+    (and with ``samples`` and ``resolution`` where given)."""
     from .store import FormFactorStore, StoreIncompleteError
 
     params = FormFactorStore.read_header(path)["params"]
-    store = FormFactorStore.open(scene, path, resolution=params["resolution"], patching=params["patching"],
+    store = FormFactorStore.open(scene, path, resolution=params["resolution"] if resolution is None else resolution,
+                                 patching=params["patching"],
                                  samples=params.get("samples", 1) if samples is None else samples)
     missing = store.missing_blocks()
     if missing:
@@ -146,7 +147,8 @@ def _open_store(scene, path: Path, samples: int | None = None):
     return store
 
 
-def open_form_factors(scene, path, cache_bytes: int | None = None, *, samples: int | None = None):
+def open_form_factors(scene, path, cache_bytes: int | None = None, *, samples: int | None = None,
+                      resolution: int | None = None):
     """F of ``scene`` from a ``.npz`` file or a form-factor store folder.
 
     Returns a float32 CSR matrix (N, N) for a file. For a store, the
@@ -155,7 +157,8 @@ def open_form_factors(scene, path, cache_bytes: int | None = None, *, samples: i
     with background prefetch; close it when done). ``cache_bytes`` does not apply to a file,
     which is in memory whole. With ``samples``, F must have been computed with that many
     hemicubes per row (:func:`pydynrad.form_factors`; files and stores from before it was
-    recorded hold 1).
+    recorded hold 1), and with ``resolution`` at that hemicube resolution
+    (:func:`recorded_resolution` reads the one it was).
 
     Raises :class:`InvalidInputError` for a missing path or a file that is not a pydynrad
     form-factor file, :class:`~pydynrad.store.StoreMismatchError` for a store made for
@@ -168,11 +171,30 @@ def open_form_factors(scene, path, cache_bytes: int | None = None, *, samples: i
     checked_scene(scene)
     path = Path(path)
     if path.is_dir():
-        store = _open_store(scene, path, samples)
+        store = _open_store(scene, path, samples, resolution)
         return store if cache_bytes is None else RowCache(store, cache_bytes)
     if not path.exists():
         raise InvalidInputError(f"form factors {str(path)!r}: no such file or store folder")
-    return load_form_factors(scene, path, samples=samples)[0]
+    return load_form_factors(scene, path, resolution=resolution, samples=samples)[0]
+
+
+def recorded_resolution(path) -> int:
+    """The hemicube resolution a form-factor file or store folder at ``path`` records, read from
+    its header alone (checked as :func:`open_form_factors` checks it)."""
+    from .store import FormFactorStore
+
+    path = Path(path)
+    if path.is_dir():
+        header = FormFactorStore.read_header(path).get("params")
+        header = header if isinstance(header, dict) else {}
+    elif path.exists():
+        header = _read(path, arrays=False)[0]
+    else:
+        raise InvalidInputError(f"form factors {str(path)!r}: no such file or store folder")
+    try:
+        return checked_resolution(header.get("resolution"))
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"form factors {str(path)!r} are damaged: {exc}") from None
 
 
 def whole_matrix(form_factors) -> sp.csr_matrix:
