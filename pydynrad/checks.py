@@ -29,12 +29,22 @@ def floats(value, what: str) -> np.ndarray:
         if a.dtype.kind in "SUV" or (a.dtype.kind == "O" and any(isinstance(x, (str, bytes)) for x in a.flat)):
             raise TypeError
         return a.astype(np.float64, copy=False)
-    except (TypeError, ValueError):
-        text = repr(value)
-        if len(text) > 80:  # not a screenful of an array or a list
-            text = (f"an array of {value.dtype} values, shape {value.shape}" if isinstance(value, np.ndarray) else
-                    f"{text[:60]}... ({type(value).__name__} of {len(value) if hasattr(value, '__len__') else '?'})")
+    except (TypeError, ValueError, OverflowError) as exc:
+        text = _brief(value)
+        if isinstance(exc, OverflowError):  # a Python int past float64 (10**400)
+            raise InvalidInputError(f"{what} must be numbers within float64's range (about 1.8e308); got {text}") from None
         raise InvalidInputError(f"{what} must be numbers; got {text}") from None
+
+
+def _brief(value) -> str:
+    """``repr(value)`` for a message, cut where it would fill a screen (an array, a long list, a
+    400-digit integer)."""
+    text = repr(value)
+    if len(text) <= 80:
+        return text
+    if isinstance(value, np.ndarray):
+        return f"an array of {value.dtype} values, shape {value.shape}"
+    return f"{text[:60]}... ({type(value).__name__}{f' of {len(value)}' if hasattr(value, '__len__') else ''})"
 
 
 def number(value, what: str) -> float:
@@ -44,7 +54,7 @@ def number(value, what: str) -> float:
     except InvalidInputError:
         a = None  # not a number: refused below, in this function's words
     if a is None or a.shape != () or not np.isfinite(a):
-        raise InvalidInputError(f"{what} must be one finite number; got {value!r}")
+        raise InvalidInputError(f"{what} must be one finite number; got {_brief(value)}")
     return float(a)
 
 

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+import pydynrad
 from pydynrad.checks import finite, integer, number, scene, vec3
 from pydynrad.errors import InvalidInputError
 
@@ -48,6 +49,11 @@ def test_number_and_scene():
             number(bad, "fov")
     with pytest.raises(InvalidInputError, match="scene must be a pydynrad.Scene; got str"):
         scene("cornell_box")
+    # A Python int past float64 is a value error with a message a line long, not an OverflowError.
+    with pytest.raises(InvalidInputError, match=r"fov must be one finite number; got 1000.{0,60}\.\.\. \(int\)$"):
+        number(10**400, "fov")
+    with pytest.raises(InvalidInputError, match="within float64's range"):
+        pydynrad.PointLight((0.0, 0.0, 10**400), (1.0, 1.0, 1.0))
 
 
 def test_public_entry_points_reject_non_numbers_and_non_scenes():

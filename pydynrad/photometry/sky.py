@@ -101,6 +101,14 @@ class SkyLight:
         else:
             object.__setattr__(self, "sun_direction",
                                tuple(map(float, unit_vector(self.sun_direction, "SkyLight.sun_direction"))))
+            # CIE S 011 defines the sky for a sun at or above the horizon (Z_s <= 90 degrees); below
+            # it, the formulas give a sky of its own, and the likely cause is a direction given
+            # as the sunlight's way down (a DirectionalLight's) rather than towards the sun.
+            if needs_sun and float(np.dot(self.up, self.sun_direction)) < 0.0:
+                raise InvalidInputError(
+                    f"SkyLight.sun_direction {self.sun_direction} is below the horizon (up {self.up}): CIE sky "
+                    f"type {kind} is defined for a sun at or above it; give the direction towards the sun (a "
+                    "DirectionalLight's direction is the way its light travels, the opposite)")
         given = [v is not None for v in (self.zenith_luminance, self.horizontal_illuminance)]
         if sum(given) != 1:
             raise InvalidInputError("give a SkyLight exactly one of zenith_luminance (cd/m2) or "
