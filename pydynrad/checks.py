@@ -28,7 +28,11 @@ def floats(value, what: str) -> np.ndarray:
         a = np.asarray(value)
         if a.dtype.kind in "SUV" or (a.dtype.kind == "O" and any(isinstance(x, (str, bytes)) for x in a.flat)):
             raise TypeError
+        if a.dtype.kind == "c" or (a.dtype.kind == "O" and any(isinstance(x, complex) for x in a.flat)):
+            raise InvalidInputError(f"{what} must be real numbers; got complex values ({_brief(value)})")
         return a.astype(np.float64, copy=False)
+    except InvalidInputError:
+        raise
     except (TypeError, ValueError, OverflowError) as exc:
         text = _brief(value)
         if isinstance(exc, OverflowError):  # a Python int past float64 (10**400)

@@ -248,7 +248,14 @@ def _point_irradiance(scene, points, normals, lights: list, device) -> np.ndarra
     nodes, tris, _ = scene.bvh.buffers(device)
     if points is None:
         centers, normals, outside = *scene.patch_buffers(device), 0.0
+        offset = SHADOW_EPSILON
     else:
+        # A sensor is a point, not a patch of the mesh: its shadow rays leave it by the offset of
+        # the sky's gather at it (a sensor 1 cm under a desk in a 141 m scene had been lifted
+        # above the desk by 1e-4 of the diagonal, and lit).
+        from .formfactors import SURFACE_OFFSET
+
+        offset = SURFACE_OFFSET
         p = np.asarray(points, np.float64)
         lo, hi = scene.bbox.astype(np.float64)
         # Sensors may lie outside the scene's box: directional shadow rays must reach past it from there.
@@ -261,7 +268,7 @@ def _point_irradiance(scene, points, normals, lights: list, device) -> np.ndarra
     kernel(
         device.queue, (global_size(n),), (WG,), np.int32(n), centers, normals, np.int32(len(packed)),
         device.to_device(packed), device.to_device(tables), nodes, tris,
-        np.float32(scene.frame.length(SHADOW_EPSILON * scene.ray_scale)),
+        np.float32(scene.frame.length(offset * scene.ray_scale)),
         np.float32(scene.frame.length(2.0 * scene.scale + outside)), out_dev,
     )
     out = np.empty((n, 4), dtype=np.float32)

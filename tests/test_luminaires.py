@@ -243,3 +243,68 @@ def test_sensor_and_work_plane_shapes_are_named():
         work_plane(square, 0.75, spacing=1e-7)
     with pytest.raises(InvalidInputError, match="more than half the memory available"):
         work_plane([[0, 0], [1e300, 0], [1e300, 1e300]], 0.75)
+
+
+def test_lm63_2019_generation_type_is_no_factor_and_1995_lamp_factor_is():
+    """The field after the ballast factor multiplies the candela only before LM-63-2002 (the
+    ballast-lamp factor): LM-63-2002 makes it "future use" and LM-63-2019 the file generation
+    type, a code (1.10000: accredited laboratory), which had made the table 10% too bright."""
+    body = "TILT=NONE\n1 -1 1 3 1 1 2 0 0 0\n1 1.10000 20\n0 45 90\n0\n1000 500 100\n"
+    for first, factor in (("IES:LM-63-2019\n[TEST] t\n", 1.0), ("IESNA:LM-63-2002\n", 1.0),
+                          ("IESNA:LM-63-1995\n", 1.1), ("IESNA91\n", 1.1), ("", 1.1)):
+        np.testing.assert_allclose(parse_ies(first + body).candela[0], np.array([1000.0, 500.0, 100.0]) * factor,
+                                   rtol=1e-15)
+    # A 1986 file's free text may start with the word Tilt: only TILT= ends the header.
+    np.testing.assert_allclose(parse_ies("Tiltable wall washer\n" + body).candela[0], [1100.0, 550.0, 110.0])
+
+
+def test_c_symmetries_the_reader_fills_or_refuses():
+    """A 90-270 table whose mirror images miss C = 0 gets it by the circle's interpolation; a
+    full circle one step short of 360 closes on C = 0, a wider gap is refused."""
+    two = parse_ies("TILT=NONE\n1 1000 1 2 2 1 2 0 0 0\n1 1 0\n0 90\n90 270\n100 50 10 5\n")
+    np.testing.assert_array_equal(two.c_angles, [0.0, 90.0, 270.0, 360.0])
+    np.testing.assert_allclose(two.intensity([0.0, 180.0, 45.0], 0.0), [55.0, 55.0, 77.5])
+    gap = "TILT=NONE\n1 1000 1 2 3 1 2 0 0 0\n1 1 0\n0 90\n0 90 200\n1 1 2 2 3 3\n"
+    with pytest.raises(IESFormatError, match="0..200 are not a symmetry"):
+        parse_ies(gap)
+    short = parse_ies(gap.replace("0 90 200", "0 120 240"))
+    np.testing.assert_allclose(short.intensity([300.0], 0.0), [2.0])  # halfway from C240 (3) to C360 = C0 (1)
+
+
+def test_tilt_and_closed_forms_name_their_own_bad_values():
+    body = "1 -1 1 3 1 1 2 0 0 0\n1 1 20\n0 45 90\n0\n1000 500 100\n"
+    with pytest.raises(InvalidInputError, match="tilt .* one finite number"):
+        parse_ies("TILT=NONE\n" + body, tilt=float("nan"))
+    with pytest.raises(IESFormatError, match="tilt multiplying factors must be >= 0"):
+        parse_ies("TILT=INCLUDE\n1\n2\n0 90\n-1 -1\n" + body)
+    for bad in (200.0, 0.0, 1e-9, 7.0):
+        with pytest.raises(InvalidInputError, match="lambertian step must divide 90"):
+            PhotometricDistribution.lambertian(1000.0, step=bad)
+    assert PhotometricDistribution.lambertian(1000.0, step=30.0).flux() == pytest.approx(math.pi * 1000.0, rel=0.03)
+    with pytest.raises(InvalidInputError, match="flux quadrature size"):
+        PhotometricDistribution.isotropic(1.0).flux(0)
+    with pytest.raises(InvalidInputError, match="isotropic intensity"):
+        PhotometricDistribution.isotropic("a")
+    with pytest.raises(InvalidInputError, match="C = 360 must equal those at C = 0"):
+        PhotometricDistribution([0, 180, 360], [0, 90], [[100, 100], [100, 100], [0, 0]])
+    with pytest.raises(InvalidInputError, match="finite"):
+        PhotometricDistribution.lambertian(10.0).intensity(np.nan, 10.0)
+
+
+def test_ldt_counts_that_do_not_match_the_file_are_named():
+    """Ng = 3 declared over five gamma angles and intensities: the values left after the table
+    are named, not read as the wrong fields."""
+    from pydynrad.photometry.ldt import parse_ldt
+
+    head = ["c", "1", "1", "1", "0", "3", "45", "r", "name", "n", "f", "d",
+            *"200 0 100 180 0 0 0 0 0 100 85 1 0 1 1 LED 1000 3000K 1B 20".split(), *["0.5"] * 10, "0"]
+    good = "\n".join(head + "0 45 90".split() + "500 400 300".split()) + "\n\n"
+    np.testing.assert_allclose(parse_ldt(good).candela[0], [500.0, 400.0, 300.0])
+    with pytest.raises(IESFormatError, match="line 50: 4 line"):
+        parse_ldt("\n".join(head + "0 45 90 135 180".split() + "500 400 300 0 0".split()))
+    for bad in (b"x", None):
+        with pytest.raises(InvalidInputError, match="parse_ldt takes the file's text"):
+            parse_ldt(bad)
+    for bad in (None, 5, b"/tmp/x"):
+        with pytest.raises(InvalidInputError, match="must be a str or a path"):
+            read_ies(bad)

@@ -95,3 +95,25 @@ def test_a_plot_name_is_checked_by_its_own_suffix_before_drawing(tmp_path):
     (tmp_path / "a.b").mkdir()
     plot_work_plane(tmp_path / "a.b" / "plane", plane, np.ones(len(plane)))  # a dotted folder: png
     assert (tmp_path / "a.b" / "plane").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_elongated_areas_take_the_shorter_side_and_the_csv_round_trips(tmp_path):
+    """EN 12464-1: a side at least twice the other makes d the shorter one (10 m x 2 m: p for
+    2 m); the CSV writes every coordinate as it round-trips (0.5 m apart at 4e6 m); a dark
+    plane's uniformities are written as undefined, a negative illuminance is refused."""
+    plane = work_plane([[0, 0], [10, 0], [10, 2], [0, 2]], 0.8)
+    assert max(plane.spacing) <= en12464_spacing(2.0) < en12464_spacing(10.0)
+    assert max(work_plane([[0, 0], [10, 0], [10, 6], [0, 6]], 0.8).spacing) > en12464_spacing(6.0) * 0.9
+    far = work_plane([[500000, 4000000], [500004, 4000000], [500004, 4000003], [500000, 4000003]], 12.75)
+    out = tmp_path / "e.csv"
+    write_illuminance_csv(out, far.points, np.zeros(len(far)))
+    rows = list(csv.reader(out.read_text().splitlines()))
+    pts = np.array([[float(v) for v in r[:3]] for r in rows[1:1 + len(far)]])
+    np.testing.assert_array_equal(pts, far.points)
+    assert ["U0", "undefined"] in rows
+    with pytest.raises(InvalidInputError, match=">= 0"):
+        illuminance_statistics([-1.0, 2.0, 3.0])
+    with pytest.raises(InvalidInputError, match="not a matplotlib colour map"):
+        plot_work_plane(tmp_path / "p.png", far, np.ones(len(far)), cmap="nope")
+    with pytest.raises(InvalidInputError, match="must be a WorkPlane"):
+        plot_work_plane(tmp_path / "p.png", None, np.ones(3))

@@ -1,4 +1,4 @@
-"""IES LM-63 photometric files (LM-63-1991, -1995, -2002, type C photometry) as
+"""IES LM-63 photometric files (LM-63-1986, -1991, -1995, -2002, -2019, type C photometry) as
 :class:`~pydynrad.photometry.luminaires.PhotometricDistribution`.
 
 Layout (LM-63-2002, section 5): an optional ``IESNA:LM-63-...`` line, keyword lines
@@ -10,8 +10,10 @@ photometric type (1 = C), units type, width, length, height, ballast factor, bal
 photometric factor ("future use" in 2002), input watts; the vertical angles; the horizontal
 angles; the candela values, one horizontal angle after another.
 
-Candela values are multiplied by the candela multiplier, the ballast factor and the
-ballast-lamp factor. Horizontal angles 0 (rotational symmetry), 0..90 (symmetry in each
+Candela values are multiplied by the candela multiplier, the ballast factor and, in files
+before LM-63-2002 (no header line, ``IESNA91``, ``IESNA:LM-63-1995``), the ballast-lamp factor:
+LM-63-2002 makes that field "future use" and LM-63-2019 its file generation type (a code,
+1.00001 to 1.11011, not a factor). Horizontal angles 0 (rotational symmetry), 0..90 (symmetry in each
 quadrant), 0..180 (about the 0-180 plane), 90..270 (about the 90-270 plane) or 0..360 are
 expanded to a full 0..360 table. Tilt factors are read; ``tilt`` picks the factor of an
 installed lamp tilt (degrees, linear between the file's angles; 0 by default).
@@ -26,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..checks import number
 from ..errors import InvalidInputError
 from .luminaires import PhotometricDistribution
 
@@ -84,13 +87,17 @@ def expand_c_symmetry(c: np.ndarray, cd: np.ndarray, where: str) -> tuple[np.nda
 
     A single plane stays as it is (rotational symmetry). Ranges 0..90, 0..180, 90..270 and
     -90..90 are mirrored (``_SYMMETRIES``); a range from 0 past 180 is the whole circle, with
-    360 added as a copy of 0 when missing. Every output plane is one of the input planes.
+    360 added as a copy of 0 when missing (at most one step of the table's). Every output plane
+    is one of the input planes, but C = 0 of a 90..270 table whose images miss it: the linear
+    interpolation across it, as the circle is interpolated everywhere else.
     """
     if len(c) == 1:
         return np.array([0.0]), cd
     rule = _SYMMETRIES.get((float(c[0]), float(c[-1])))
     if rule is None:
-        if not (c[0] == 0 and 180 < c[-1] <= 360):
+        # The whole circle, 0..360; a table that stops one step short of 360 (its last plane
+        # dropped as a copy of the first) is read as closing on C = 0, a wider gap is refused.
+        if not (c[0] == 0 and 180 < c[-1] <= 360 and 360 - c[-1] <= np.diff(c).max() + 1e-9):
             raise IESFormatError(f"{where}: C angles {c[0]:g}..{c[-1]:g} are not a symmetry this reader knows "
                                  "(0, 0-90, 0-180, 90-270, 270-90, 0-360)")
         rule = lambda a: [a]  # noqa: E731 (the whole circle: no images)
@@ -100,11 +107,15 @@ def expand_c_symmetry(c: np.ndarray, cd: np.ndarray, where: str) -> tuple[np.nda
             angles.append(image % 360.0)
             source.append(i)
     angles, first = np.unique(np.round(angles, 9), return_index=True)
-    source = np.asarray(source)[first]
+    planes = cd[np.asarray(source)[first]]
     if angles[0] != 0:
-        raise IESFormatError(f"{where}: the C angles do not reach C = 0 after symmetry expansion")
-    angles, source = np.append(angles, 360.0), np.append(source, source[0])
-    return angles, cd[source]
+        # A 90-270 table whose images miss C = 0 (planes 90 and 270 only, or steps that do not
+        # divide 90): C = 0 is where the circle's interpolation crosses it, between the last
+        # plane and the first.
+        t = (360.0 - angles[-1]) / (360.0 - angles[-1] + angles[0])
+        angles = np.concatenate([[0.0], angles])
+        planes = np.concatenate([(planes[-1] * (1 - t) + planes[0] * t)[None], planes])
+    return np.append(angles, 360.0), np.concatenate([planes, planes[:1]])
 
 
 def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> PhotometricDistribution:
@@ -115,7 +126,10 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
     lines = text.removeprefix("\ufeff").rstrip().rstrip("\x1a").splitlines()
     keywords: dict[str, str] = {}
     k = 0
-    while k < len(lines) and not lines[k].strip().upper().startswith("TILT"):
+    version = re.search(r"LM-63-(\d{4})", lines[0].upper()) if lines else None
+    year = int(version.group(1)) if version else (1991 if lines and lines[0].strip().upper() == "IESNA91" else 1986)
+    # A free-text line of a 1986 file may begin with the word "Tilt": only TILT= ends the header.
+    while k < len(lines) and not re.match(r"\s*TILT\s*=", lines[k], re.IGNORECASE):
         m = re.match(r"\s*\[(\w+)\]\s*(.*)", lines[k])
         if m:
             keywords.setdefault(m.group(1).upper(), m.group(2).strip())
@@ -126,6 +140,7 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
     tilt_kind = lines[k].split("=", 1)[1].strip().upper() if "=" in lines[k] else ""
     nums = _Numbers(lines, k + 1, where)
     tilt_factor = 1.0
+    tilt = number(tilt, "tilt (the installed lamp tilt, degrees)")
     if tilt_kind == "INCLUDE":
         nums.one("lamp-to-luminaire geometry")
         n_tilt, line = nums.one("number of tilt angles")
@@ -135,6 +150,8 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
         factors, _ = nums.take(int(n_tilt), "tilt multiplying factors")
         if np.any(np.diff(angles) <= 0):  # np.interp reads decreasing angles as garbage
             raise IESFormatError(f"{where}: line {aline}: tilt angles must increase")
+        if np.any(factors < 0):
+            raise IESFormatError(f"{where}: line {aline}: tilt multiplying factors must be >= 0")
         tilt_factor = float(np.interp(tilt, angles, factors))
     elif tilt_kind != "NONE":
         raise IESFormatError(f"{where}: line {k + 1}: TILT={tilt_kind or '?'} is not supported "
@@ -162,13 +179,16 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
         raise IESFormatError(f"{where}: line {line}: {len(nums.items) - nums.pos} value(s) after the candela table "
                              f"(first {tok!r}): the counts in line {head_line} ({int(n_vert)} vertical, "
                              f"{int(n_horiz)} horizontal angles) do not match the file")
-    scale = multiplier * factors[0] * factors[1] * tilt_factor
+    lamp_factor = factors[1] if year < 2002 else 1.0
+    scale = multiplier * factors[0] * lamp_factor
     with np.errstate(over="ignore", invalid="ignore"):
-        cd = cd.reshape(int(n_horiz), int(n_vert)) * scale
+        cd = cd.reshape(int(n_horiz), int(n_vert)) * (scale * tilt_factor)
     if not (scale >= 0 and np.all(np.isfinite(cd))):
-        raise IESFormatError(f"{where}: line {head_line}: the candela multiplier and the ballast factors "
-                             f"({multiplier:g} x {factors[0]:g} x {factors[1]:g}) must be >= 0 and keep the "
-                             "candela values finite")
+        parts = [f"candela multiplier {multiplier:g}", f"ballast factor {factors[0]:g}"]
+        parts += [f"ballast-lamp factor {lamp_factor:g}"] if year < 2002 else []
+        parts += [f"tilt factor {tilt_factor:g}"] if tilt_kind == "INCLUDE" else []
+        raise IESFormatError(f"{where}: line {head_line}: the {', '.join(parts)} must be >= 0 and keep the candela "
+                             "values finite")
     c, cd = expand_c_symmetry(horiz, cd, where)
     flux = None if lumens < 0 else float(n_lamps * lumens)
     return PhotometricDistribution(c, vert, cd, name=name, lumens=flux, source=where)
@@ -178,11 +198,15 @@ def read_photometric_text(path) -> str:
     """The text of a photometric file: UTF-8 where it decodes as such (a byte-order mark
     dropped), else Latin-1, in which older files write their names; InvalidInputError naming
     the file where it cannot be read."""
+    if not isinstance(path, (str, Path)) and not hasattr(path, "__fspath__"):
+        raise InvalidInputError(f"a photometric file's path must be a str or a path; got {type(path).__name__}")
     path = Path(path)
     try:
         raw = path.read_bytes().removeprefix(b"\xef\xbb\xbf")
     except OSError as e:
         raise InvalidInputError(f"cannot read {str(path)!r}: {e.strerror}") from None
+    except ValueError as e:  # a NUL byte in the path
+        raise InvalidInputError(f"cannot read {str(path)!r}: {e}") from None
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError:

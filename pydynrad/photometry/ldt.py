@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InvalidInputError
 from .ies import IESFormatError, expand_c_symmetry, read_photometric_text
 from .luminaires import PhotometricDistribution
 
@@ -60,7 +61,9 @@ class _Lines:
 
 def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
     """A distribution from the text of a EULUMDAT file (see the module docstring)."""
-    r = _Lines(text, where)
+    if not isinstance(text, str):
+        raise InvalidInputError(f"parse_ldt takes the file's text (str); got {type(text).__name__} (read_ldt reads a file)")
+    r = _Lines(text.removeprefix("\ufeff").rstrip().rstrip("\x1a"), where)
     r.text("the company identification")
     r.integer("the type indicator Ityp", 0, 3)
     isym = r.integer("the symmetry indicator Isym", 0, 4)
@@ -117,6 +120,11 @@ def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
     cd = r.numbers(len(planes) * ng, "luminous intensity (cd/klm)").reshape(len(planes), ng)
     if np.any(cd < 0):
         raise IESFormatError(f"{where}: line {cd_line}: luminous intensities must be >= 0")
+    left = [k for k in range(r.k, len(r.lines)) if r.lines[k].strip()]
+    if left:  # counts that do not match the file shift every value after them
+        raise IESFormatError(f"{where}: line {left[0] + 1}: {len(left)} line(s) after the intensity table (first "
+                             f"{r.lines[left[0]].strip()!r}): Mc = {mc}, Ng = {ng} and Isym = {isym} (lines 3, 4, 6) "
+                             "do not match the file")
     angles = c[planes]
     if isym == 3:
         angles = np.where(angles >= 270, angles - 360, angles)  # 270..360..90 as -90..90

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks import floats, unit_vector
+from ..checks import floats, integer, number, unit_vector
 from ..errors import InvalidInputError
 
 __all__ = ["PhotometricDistribution", "LuminaireLight"]
@@ -61,6 +61,9 @@ class PhotometricDistribution:
                                     f"got {cd.shape}")
         if not np.all(np.isfinite(cd)) or cd.min() < 0:
             raise InvalidInputError("candela values must be finite and >= 0")
+        if len(c) > 1 and not np.array_equal(cd[0], cd[-1]):  # one direction, two intensities
+            raise InvalidInputError("candela at C = 360 must equal those at C = 0 (the same half-plane); they differ "
+                                    f"by up to {np.abs(cd[-1] - cd[0]).max():g} cd")
         for name, a in (("c_angles", c), ("gamma_angles", g), ("candela", cd)):
             a = np.array(a, dtype=np.float64)
             a.setflags(write=False)
@@ -74,19 +77,27 @@ class PhotometricDistribution:
         Sampled every ``step`` degrees (linear interpolation of the cosine: relative error
         below ``(step in radians)^2 / 8`` of the peak, 2.4e-6 at 0.25 degrees).
         """
-        g = np.linspace(0.0, 180.0, int(round(180.0 / step)) + 1)
-        return cls([0.0], g, [np.maximum(np.cos(np.radians(g)), 0.0) * float(peak)], name="lambertian")
+        step = number(step, "lambertian step (degrees)")
+        steps = 90.0 / step if step > 0 else 0.0
+        # A step that divides 90 samples the horizon, where the cosine's kink is.
+        if not (0 < step <= 90 and abs(steps - round(steps)) <= 1e-9 * steps and steps <= 360_000):
+            raise InvalidInputError(f"lambertian step must divide 90 degrees, at least 90 / 360000; got {step!r}")
+        g = np.linspace(0.0, 180.0, 2 * int(round(steps)) + 1)
+        return cls([0.0], g, [np.maximum(np.cos(np.radians(g)), 0.0) * number(peak, "lambertian peak (cd)")],
+                   name="lambertian")
 
     @classmethod
     def isotropic(cls, intensity: float) -> "PhotometricDistribution":
         """The same intensity (cd) in every direction."""
-        return cls([0.0], [0.0, 180.0], [[float(intensity)] * 2], name="isotropic")
+        return cls([0.0], [0.0, 180.0], [[number(intensity, "isotropic intensity (cd)")] * 2], name="isotropic")
 
     # -- evaluation -----------------------------------------------------------------------------------
     def intensity(self, c, gamma) -> np.ndarray:
         """Intensity (cd) at C angles ``c`` and gamma angles ``gamma`` (degrees, broadcast), bilinear."""
-        c = np.mod(np.asarray(c, dtype=np.float64), 360.0)
-        gamma = np.asarray(gamma, dtype=np.float64)
+        c, gamma = floats(c, "C angles"), floats(gamma, "gamma angles")
+        if not (np.all(np.isfinite(c)) and np.all(np.isfinite(gamma))):  # no direction has them
+            raise InvalidInputError("C and gamma angles must be finite")
+        c = np.mod(c, 360.0)
         g = self.gamma_angles
         inside = (gamma >= g[0]) & (gamma <= g[-1])
         j = np.clip(np.searchsorted(g, gamma, side="right") - 1, 0, len(g) - 2)
@@ -105,6 +116,7 @@ class PhotometricDistribution:
 
     def flux(self, n: int = 720) -> float:
         """Luminous flux (lm) of the interpolated distribution: midpoint quadrature on an n x 2n (gamma, C) grid."""
+        n = integer(n, "flux quadrature size n", 1, 4096)
         gamma = (np.arange(n) + 0.5) * (180.0 / n)
         c = (np.arange(2 * n) + 0.5) * (180.0 / n)
         I = self.intensity(c[None, :], gamma[:, None])

@@ -20,7 +20,8 @@ __all__ = ["IlluminanceStats", "illuminance_statistics", "write_illuminance_csv"
 @dataclass(frozen=True)
 class IlluminanceStats:
     """Statistics of a grid of illuminances (lx): mean Em, minimum, maximum, uniformities
-    U0 = Emin / Em (EN 12464-1) and Ud = Emin / Emax, over n points."""
+    U0 = Emin / Em (EN 12464-1) and Ud = Emin / Emax, over n points. On a plane without light
+    (Em = 0) the uniformities are undefined: NaN here, ``undefined`` in the CSV and the plot."""
 
     n: int
     Em: float
@@ -37,7 +38,14 @@ def _values(E) -> np.ndarray:
         a = photometric(a)
     if a.ndim != 1 or len(a) == 0 or not np.all(np.isfinite(a)):
         raise InvalidInputError(f"illuminance must be finite, (n,) or (n, 3) with n >= 1; got shape {np.shape(E)}")
+    if a.min() < 0:
+        raise InvalidInputError(f"illuminance must be >= 0 (light is not negative); got a minimum of {a.min():g}")
     return a
+
+
+def _cell(v: float) -> str:
+    """A statistic as the CSV and the plot write it: 6 digits, or ``undefined`` for NaN."""
+    return "undefined" if np.isnan(v) else f"{v:.6g}"
 
 
 def illuminance_statistics(E) -> IlluminanceStats:
@@ -62,10 +70,11 @@ def write_illuminance_csv(path, points, E) -> IlluminanceStats:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["x", "y", "z", "E_lx"])
-    w.writerows([f"{v:.6g}" for v in row] for row in np.column_stack([p, a]))
+    # Every number as it round-trips: 6 digits put points 0.5 m apart at 4e6 m on one place.
+    w.writerows([repr(float(v)) for v in row] for row in np.column_stack([p, a]))
     w.writerow([])
     w.writerow(["statistic", "value"])
-    w.writerows([k, f"{v:.6g}"] for k, v in asdict(stats).items())
+    w.writerows([k, _cell(v)] for k, v in asdict(stats).items())
     write_atomic(path, buf.getvalue().encode())
     return stats
 
@@ -88,6 +97,14 @@ def plot_work_plane(path, plane, E, title: str = "", cmap: str = "jet") -> Illum
     if fmt not in FigureCanvasBase.get_supported_filetypes():
         raise InvalidInputError(f"cannot write a plot as {str(path)!r}: use one of png, pdf, svg (by the suffix)")
     check_file_target(path)
+    from .workplane import WorkPlane
+
+    if not isinstance(plane, WorkPlane):
+        raise InvalidInputError(f"plane must be a WorkPlane (pydynrad.work_plane); got {type(plane).__name__}")
+    try:
+        colours = matplotlib.colormaps[cmap]
+    except (KeyError, TypeError, ValueError):
+        raise InvalidInputError(f"cmap {cmap!r} is not a matplotlib colour map (e.g. 'jet', 'viridis')") from None
     a = _values(E)
     if len(a) != len(plane):
         raise InvalidInputError(f"illuminance has {len(a)} values for {len(plane)} work-plane points")
@@ -97,11 +114,14 @@ def plot_work_plane(path, plane, E, title: str = "", cmap: str = "jet") -> Illum
     (u0, v0), (du, dv) = plane.origin, plane.spacing
     extent = (u0, u0 + du * plane.shape[1], v0, v0 + dv * plane.shape[0])
     fig, ax = plt.subplots(figsize=(6, 5))
-    im = ax.imshow(grid, origin="lower", extent=extent, cmap=cmap, interpolation="nearest")
-    fig.colorbar(im, ax=ax, label="illuminance (lx)")
-    ax.set_aspect("equal")
-    heading = f"Em = {stats.Em:.4g} lx, Emin = {stats.Emin:.4g} lx, U0 = {stats.U0:.3f}"
-    ax.set_title(f"{title}\n{heading}" if title else heading, fontsize=10)
-    write_atomic(path, lambda tmp: fig.savefig(tmp, format=fmt, dpi=120, bbox_inches="tight"))
-    plt.close(fig)
+    try:
+        im = ax.imshow(grid, origin="lower", extent=extent, cmap=colours, interpolation="nearest")
+        fig.colorbar(im, ax=ax, label="illuminance (lx)")
+        ax.set_aspect("equal")
+        u0 = "undefined" if np.isnan(stats.U0) else f"{stats.U0:.3f}"
+        heading = f"Em = {stats.Em:.4g} lx, Emin = {stats.Emin:.4g} lx, U0 = {u0}"
+        ax.set_title(f"{title}\n{heading}" if title else heading, fontsize=10)
+        write_atomic(path, lambda tmp: fig.savefig(tmp, format=fmt, dpi=120, bbox_inches="tight"))
+    finally:
+        plt.close(fig)
     return stats

@@ -32,7 +32,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ..checks import number, resolution as checked_resolution, unit_vector
+from ..checks import integer, number, resolution as checked_resolution, unit_vector
 from ..errors import InvalidInputError
 
 __all__ = ["SkyLight", "CIE_GENERAL_SKIES", "pack_sky"]
@@ -83,7 +83,7 @@ class SkyLight:
     resolution: int = 64
 
     def __post_init__(self) -> None:
-        kind = _ALIASES.get(self.kind, self.kind)
+        kind = _ALIASES.get(self.kind, self.kind) if isinstance(self.kind, str) else self.kind
         if isinstance(kind, (int, np.integer)) and not isinstance(kind, bool):
             if int(kind) not in CIE_GENERAL_SKIES:
                 raise InvalidInputError(f"CIE standard general sky types are 1..15; got {kind}")
@@ -163,6 +163,7 @@ class SkyLight:
         the smooth CIE distributions); exactly pi for the uniform sky. The default n's value
         is computed once per sky (0.3 s).
         """
+        n = integer(n, "horizontal_factor quadrature size n", 1, 4096)
         if n == 1024:
             return self._horizontal_factor
         return self._quadrature(n)

@@ -26,8 +26,9 @@ __all__ = ["WorkPlane", "work_plane", "en12464_spacing"]
 
 
 def en12464_spacing(d: float) -> float:
-    """EN 12464-1's maximum grid spacing p (m) for an area whose longer dimension is d (m):
-    0.2 * 5^log10(d), at most 10."""
+    """EN 12464-1's maximum grid spacing p (m) for an area of dimension d (m): 0.2 * 5^log10(d), at
+    most 10. d is the area's longer side, or its shorter one where the longer is at least twice
+    it (:func:`work_plane` picks it so)."""
     d = number(d, "the area's longer dimension")
     if not (math.isfinite(d) and d > 0):
         raise InvalidInputError(f"the area's longer dimension must be a positive length; got {d!r}")
@@ -84,8 +85,9 @@ def work_plane(polygon, height: float, spacing: float | None = None, border: flo
     height : float
         The plane's coordinate along ``up`` (e.g. 0.75 m above a floor at 0 for desks).
     spacing : float, optional
-        Largest grid step; by default EN 12464-1's p for the polygon's longer side
-        (:func:`en12464_spacing`, lengths read as metres).
+        Largest grid step; by default EN 12464-1's p for the polygon's longer side, or its
+        shorter one where the longer is at least twice it (:func:`en12464_spacing`, lengths
+        read as metres).
     border : float
         Width of the strip along the polygon's edges left without points.
     up : int
@@ -108,7 +110,10 @@ def work_plane(polygon, height: float, spacing: float | None = None, border: flo
     lo, hi = poly.min(axis=0), poly.max(axis=0)
     size = hi - lo
     if spacing is None:
-        spacing = en12464_spacing(float(size.max()))
+        # EN 12464-1's d is the longer side, but the shorter where the longer is twice it or more
+        # (a corridor's grid follows its width).
+        longer, shorter = float(size.max()), float(size.min())
+        spacing = en12464_spacing(shorter if longer >= 2.0 * shorter else longer)
     spacing = number(spacing, "spacing")
     if not (math.isfinite(spacing) and spacing > 0):
         raise InvalidInputError(f"spacing must be a positive length; got {spacing!r}")
