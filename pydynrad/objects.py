@@ -48,7 +48,9 @@ def rigid_transform(value, what: str = "transform") -> np.ndarray:
     mirrors (radiosity would need new form factors for a deformed object, and a mirror turns
     its patches inside out).
     """
-    T = np.asarray(value, dtype=np.float64)
+    from .checks import floats
+
+    T = floats(value, what)
     if T.shape != (4, 4):
         raise InvalidInputError(f"{what} must be a (4, 4) matrix; got shape {T.shape}")
     if not np.all(np.isfinite(T)):
@@ -141,7 +143,10 @@ class RigidObject:
 
 
 def _objects(objects) -> list[RigidObject]:
-    objs = [objects] if isinstance(objects, RigidObject) else list(objects)
+    try:
+        objs = [objects] if isinstance(objects, RigidObject) else list(objects)
+    except TypeError:
+        raise InvalidInputError(f"objects must be a RigidObject or a list of them; got {type(objects).__name__}") from None
     for o in objs:
         if not isinstance(o, RigidObject):
             raise InvalidInputError(f"objects must be RigidObject instances; got {type(o).__name__}")

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .camera import Camera
-from .checks import stops
+from .checks import integer, stops
 from .errors import InvalidInputError
 from .paths import CameraPath, LightTrack, ObjectTrack, WalkFile, fly_through, lights_at, load_path, load_walk, orbit
 
@@ -95,14 +95,14 @@ class WalkResult:
 
 
 def _frame_set(frames, n: int) -> set[int]:
+    try:
+        frames = list(frames)
+    except TypeError:
+        raise InvalidInputError(f"reference_frames must be a sequence of frame numbers; got {frames!r}") from None
     out = set()
     for f in frames:
-        k = int(f)
-        if k < 0:
-            k += n
-        if not 0 <= k < n:
-            raise InvalidInputError(f"reference frame {f} outside the walk's {n} frames")
-        out.add(k)
+        k = integer(f, f"a reference frame of the walk's {n} frames", -n, n - 1)  # 1.7 had been frame 1
+        out.add(k + n if k < 0 else k)
     return out
 
 
@@ -183,7 +183,10 @@ def walk(
         raise InvalidInputError(f"path must be a CameraPath (orbit, fly_through, load_path); got {type(path).__name__}")
     device = device or default_device()
     lights = [lights] if not isinstance(lights, (list, tuple)) else list(lights)
-    tracks = list(objects)
+    try:
+        tracks = list(objects)
+    except TypeError:
+        raise InvalidInputError(f"objects must be a sequence of ObjectTrack; got {type(objects).__name__}") from None
     for t in tracks:
         if not isinstance(t, ObjectTrack):
             raise InvalidInputError(f"objects must be ObjectTrack entries (a RigidObject with keyframes); got {type(t).__name__}")

@@ -513,3 +513,36 @@ def test_sparse_and_dense_gathers_give_one_K(device, setup, monkeypatch, mode):
     assert rel(out[1.0][1], out[0.0][1]) < 1e-14  # observed 6e-17, 1.3e-16 (fp64)
     if mode == "exact":
         assert rel(out[1.0][1], dense_K(scene, F, out[1.0][0], 3)) < WALK_TOL["fp64"]
+
+
+def test_rows_of_another_scene_small_sets_and_albedos_near_one(device, tmp_path):
+    """Rows of another geometry with as many patches (hemicubes of it, or its store) are refused
+    (they had given a 2.4% wrong answer); residual() probes at most M columns by default, so
+    refresh_tolerance works for M < 8; near albedo 1 float32 K warns that it wants fp64."""
+    import warnings
+
+    from pydynrad.scene import PrecisionWarning
+
+    box = pydynrad.scenes.cornell_box(max_edge=250.0)
+    turned = pydynrad.Scene(box.points[:, [2, 1, 0]], box.triangles[:, [0, 2, 1]], albedo=box.albedo,
+                            emission=box.emission)
+    store = pydynrad.compute_store(turned, tmp_path / "st", resolution=8, progress=False)
+    for rows in (pydynrad.HemicubeRows(turned, 8, device), store):
+        with pytest.raises(InvalidInputError, match="another scene geometry"):
+            DynamicRadiosity(box, rows, local_size=len(box), resolution=8, far_field=False, device=device)
+    dyn = DynamicRadiosity(box, pydynrad.HemicubeRows(box, 8, device), local_size=4, resolution=8, far_field=False,
+                           refresh_tolerance=1e-3, refresh_interval=1, device=device)
+    centre = box.bbox.mean(axis=0)
+    dyn.update(centre)  # the build
+    for step in (1, 2):
+        assert dyn.update(centre + [100.0 * step, 0.0, 0.0]).residual < 1e-3
+    closed = pydynrad.scenes.closed_box(size=1.0, subdivisions=1)
+    emission = np.zeros((len(closed), 3))
+    emission[0] = 1.0
+    for albedo, storage, warned in ((0.9999999, "fp32", True), (0.9999999, "fp64", False), (0.999, "fp16", False)):
+        scene = closed.with_materials(albedo=albedo, emission=emission)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            DynamicRadiosity(scene, pydynrad.form_factors(scene, 8, device=device), local_size=len(scene),
+                             resolution=8, storage=storage, far_field=False, observer=[0.5, 0.5, 0.5], device=device)
+        assert any(issubclass(w.category, PrecisionWarning) for w in caught) == warned, (albedo, storage)

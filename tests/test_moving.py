@@ -919,3 +919,53 @@ def test_a_thousand_moves_do_not_drift_or_grow(device):
     # bytes' jitter of the frame's index arrays.
     assert all(held == 0 for _, held in memory)
     assert max(m for m, _ in memory[-100:]) <= max(m for m, _ in memory[1:10]), memory[:10]
+
+
+def test_moves_that_fail_or_come_from_elsewhere_leave_the_solution_right(box, block, device):
+    """A move refused inside update (an intersection warning made an error) leaves the pose, the
+    queue and K as they were, and goes through once allowed; a transform set on the object
+    directly, or by another solution sharing it, is a move too (it had been ignored: B of the
+    old pose). Rows precomputed for other objects, or another static scene with as many
+    patches, are refused (they had been taken as these)."""
+    import warnings
+
+    def fresh():
+        obj = pd.RigidObject(block, START)
+        return obj, pd.DynamicRadiosity(box, None, local_size=len(box) + len(block), resolution=R, objects=[obj],
+                                        occlusion=None, observer=OBSERVER, device=device, far_field=False)
+
+    obj, dyn = fresh()
+    K0 = dyn.matrix.to_host()
+    cut = pose(0, (200.0, 20.0, 40.0))  # through the floor
+    dyn.move(obj, cut)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", pd.ObjectIntersectionWarning)
+        with pytest.raises(pd.ObjectIntersectionWarning):
+            dyn.update(OBSERVER)
+    np.testing.assert_array_equal(obj.transform, START)
+    np.testing.assert_array_equal(dyn.matrix.to_host(), K0)
+    with pytest.warns(pd.ObjectIntersectionWarning):
+        assert dyn.update(OBSERVER).moved == 1  # the queued move, applied now
+    np.testing.assert_array_equal(obj.transform, cut)
+    # Set directly, and moved by a second solution sharing the object: both follow it.
+    obj, dyn = fresh()
+    other = pd.DynamicRadiosity(box, None, local_size=len(box) + len(block), resolution=R, objects=[obj],
+                                occlusion=None, observer=OBSERVER, device=device, far_field=False)
+    obj.transform = END
+    assert dyn.update(OBSERVER).moved == 1 and other.update(OBSERVER).moved == 1
+    world = instanced(box, [obj])
+    truth = pd.solve(world, pd.form_factors(world, R, device=device), method="dense").radiosity
+    for d in (dyn, other):
+        assert np.abs(d.radiosity() - truth).max() <= 1e-6 * truth.max()
+    assert dyn.update(OBSERVER).moved == 0
+    # Poses of other objects (as many patches) and of another static scene (as many patches).
+    small = pd.scenes.block(40.0, 1, albedo=(0.1, 0.7, 0.1))
+    poses = pd.precompute_poses(box, [pd.RigidObject(small)], [START], resolution=R, device=device)
+    with pytest.raises(pd.InvalidInputError, match="other objects"):
+        pd.DynamicRadiosity(box, None, local_size=len(box) + len(block), resolution=R,
+                            objects=[pd.RigidObject(block, START)], observer=OBSERVER, device=device, poses=poses)
+    turned = pd.Scene(box.points[:, [2, 1, 0]], box.triangles[:, [0, 2, 1]], albedo=box.albedo, emission=box.emission)
+    poses = pd.precompute_poses(turned, [pd.RigidObject(block)], [START], resolution=R, device=device)
+    with pytest.raises(pd.InvalidInputError, match="another static scene"):
+        pd.DynamicRadiosity(box, None, local_size=len(box) + len(block), resolution=R,
+                            objects=[pd.RigidObject(block, START)], observer=OBSERVER, device=device, poses=poses)

@@ -49,6 +49,22 @@ def _replace_rows(A: sp.csr_matrix, slots: np.ndarray, rows: sp.csr_matrix) -> s
     return sp.csr_matrix((data, indices, indptr), shape=A.shape)
 
 
+def source_geometry(source) -> str | None:
+    """The geometry hash of the scene a row source serves (a store's, a hemicube source's scene,
+    through a row cache), or None where it does not say (rows in memory, a source of the
+    library's own making that follows the scene as it moves)."""
+    from ..rows.cache import RowCache
+
+    if isinstance(source, RowCache):
+        source = source.source
+    header = getattr(source, "header", None)
+    if isinstance(header, dict) and "geometry_hash" in header:
+        return str(header["geometry_hash"])
+    if isinstance(source, HemicubeRows):
+        return source.scene.geometry_hash()
+    return None
+
+
 class LocalRows:
     """Blocks of the scene's F for the local set, from a sparse matrix or a row source.
 
@@ -67,6 +83,10 @@ class LocalRows:
         elif isinstance(form_factors, RowSource):
             if int(form_factors.n_patches) != n:
                 raise InvalidInputError(f"form_factors serves {form_factors.n_patches} patches; the scene has {n}")
+            made_for = source_geometry(form_factors)
+            if made_for is not None and made_for != scene.geometry_hash():
+                raise InvalidInputError(f"form_factors serves the rows of another scene geometry than {scene.name!r} "
+                                        f"(the same {n} patches in number): give this scene's")
             self.source = form_factors
         else:
             shape = getattr(form_factors, "shape", None)

@@ -318,14 +318,36 @@ class PoseRows:
     read) with the last configuration read kept.
     """
 
-    def __init__(self, n_patches: int, resolution: int, store=None) -> None:
+    def __init__(self, n_patches: int, resolution: int, geometry: tuple[str, tuple[str, ...]], store=None) -> None:
         self.n_patches, self.resolution = int(n_patches), int(resolution)
+        # (the static scene's geometry hash, each object's): rows of other geometry with the same
+        # patch counts would be taken as these (:meth:`check`).
+        self.geometry = (str(geometry[0]), tuple(map(str, geometry[1])))
         self.store = store
         self._rows: dict[bytes, tuple[np.ndarray, sp.csr_matrix]] = {}
         self._last: tuple[bytes, tuple | None] | None = None  # (key, entry) last read from the store
         # A move asks from two threads at once (the objects' rows on a pool thread, the static
         # rows here): one of them reads and verifies the file, the other waits for it.
         self._reading = threading.Lock()
+
+    @staticmethod
+    def geometry_of(scene, objects) -> tuple[str, tuple[str, ...]]:
+        """The fingerprint :attr:`geometry` of rows made for static ``scene`` and ``objects``."""
+        return scene.geometry_hash(), tuple(o.scene.geometry_hash() for o in objects)
+
+    def check(self, scene, objects, resolution: int) -> None:
+        """Raise InvalidInputError unless these rows are of ``scene`` with ``objects`` at ``resolution``."""
+        n = len(scene) + sum(len(o) for o in objects)
+        if self.n_patches != n or self.resolution != resolution:
+            raise InvalidInputError(f"poses= holds rows of {self.n_patches} patches at R = {self.resolution}; this "
+                                    f"scene with its objects has {n} patches at R = {resolution}")
+        static, objs = self.geometry_of(scene, objects)
+        if static != self.geometry[0]:
+            raise InvalidInputError(f"poses= holds rows made for another static scene than {scene.name!r} (its "
+                                    "geometry differs): precompute them for this one")
+        if objs != self.geometry[1]:
+            raise InvalidInputError(f"poses= holds rows made for other objects than {[o.name for o in objects]} (their "
+                                    "geometry differs): precompute them for these")
 
     @staticmethod
     def key(transforms) -> bytes:
@@ -365,8 +387,14 @@ def _configurations(objs, poses):
     """Each configuration of ``poses`` as a list of validated transforms, one per object."""
     from ..objects import rigid_transform
 
+    from ..checks import floats
+
+    try:
+        poses = list(poses)
+    except TypeError:
+        raise InvalidInputError(f"poses must be a sequence of configurations; got {type(poses).__name__}") from None
     for config in poses:
-        config = np.asarray(config, np.float64)
+        config = floats(config, "a configuration of poses")
         transforms = [rigid_transform(t) for t in (config[None] if config.ndim == 2 else config)]
         if len(transforms) != len(objs):
             raise InvalidInputError(f"a configuration needs one transform per object ({len(objs)}); got {len(transforms)}")
@@ -387,7 +415,7 @@ def stored_poses(scene, objects, store, resolution: int = 128) -> PoseRows:
         raise StoreMismatchError(f"form-factor store {store.path} is of another scene than {scene.name!r}")
     R = checked_resolution(resolution)
     store.check_pose_objects(objs, resolution=R)
-    return PoseRows(len(scene) + sum(len(o) for o in objs), R, store=store)
+    return PoseRows(len(scene) + sum(len(o) for o in objs), R, PoseRows.geometry_of(scene, objs), store=store)
 
 
 def precompute_poses(scene, objects, poses, resolution: int = 128, device=None, store=None) -> PoseRows:
@@ -408,7 +436,7 @@ def precompute_poses(scene, objects, poses, resolution: int = 128, device=None, 
     R = checked_resolution(resolution)
     n_static = len(scene)
     if store is None:
-        out = PoseRows(n_static + sum(len(o) for o in objs), R)
+        out = PoseRows(n_static + sum(len(o) for o in objs), R, PoseRows.geometry_of(scene, objs))
     else:
         store.set_pose_objects(objs, resolution=R)
         out = stored_poses(scene, objs, store, R)
@@ -436,9 +464,11 @@ class WorldRows:
 
     def __init__(self, world, n_static: int, objects, static_ff, static_scene, resolution: int,
                  device, poses: PoseRows | None = None) -> None:
-        if poses is not None and (poses.n_patches != len(world) or poses.resolution != resolution):
-            raise InvalidInputError(f"poses= holds rows of {poses.n_patches} patches at R = {poses.resolution}; this "
-                                    f"scene with its objects has {len(world)} patches at R = {resolution}")
+        if poses is not None:
+            if not isinstance(poses, PoseRows):
+                raise InvalidInputError(f"poses= must be PoseRows (precompute_poses, stored_poses); got "
+                                        f"{type(poses).__name__}")
+            poses.check(static_scene, objects, resolution)
         self.poses = poses
         self.hemicubes = HemicubeRows(world, resolution, device)
         self.device = device

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import threading
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,6 +57,9 @@ MAX_SWAPS_LIMIT = 32
 #: batches up to this many of its slots, more than a frame's swaps, since chunks of a move
 #: each pay a gather and a rank pass of their own (private arrays of twice this many terms).
 MOVE_SWAPS_LIMIT = 64
+#: The rounding of K's float32 arithmetic, amplified by the albedo (2^-24 / (1 - max albedo)),
+#: beyond which a solution warns that it wants storage="fp64" (max albedo ~0.99994).
+PRECISION_LIMIT = 1e-3
 #: Rows refreshed per move for the occlusion of moving objects by default (``occlusion="auto"``)
 #: where a refresh buys accuracy: with hemicube rows, or without the correction of stale rows.
 DEFAULT_OCCLUSION = 32
@@ -211,6 +215,7 @@ class DynamicRadiosity:
         self.mode = update
         storage_dtype(storage)
         self.storage = storage
+        self._precision_warned = False  # _check_precision's warning, once
         self.max_swaps = integer(max_swaps_per_frame, "max_swaps_per_frame", 1, MAX_SWAPS_LIMIT)
         if refresh_tolerance is not None:
             if isinstance(refresh_tolerance, (str, bytes, bool)) or not (
@@ -392,6 +397,7 @@ class DynamicRadiosity:
         from .paper import UsedPatches
 
         local_patches = np.asarray(local_patches, dtype=np.int64)
+        self._check_precision(local_patches)
         if not fetch and len(self._stale.held):  # a rebuild takes the stale rows at the current poses
             self._ff.local = _replace_rows(self._ff.local, self._stale.held, self._stale.current)
         self._stale.clear()
@@ -402,6 +408,22 @@ class DynamicRadiosity:
         if self.mode == "paper":
             self._used = self._used or UsedPatches(self.M, len(self.scene))
             self._used.reset_all(self._local_mask)
+
+    def _check_precision(self, local_patches: np.ndarray) -> None:
+        """Warn (:class:`~pydynrad.scene.PrecisionWarning`, once) where float32 arithmetic cannot
+        hold K: the series K = F + F P F + ... amplifies rounding by up to 1 / (1 - max albedo),
+        so float32's 2^-24 becomes ~2^-24 / (1 - rho) of B (a closed box at 0.9999999 was 3.5%
+        off, at 0.999999 0.09%, in float64 storage 8e-11)."""
+        from ..scene import PrecisionWarning
+
+        if self.storage == "fp64" or self._precision_warned:
+            return
+        rho = float(self.scene.albedo[local_patches].max()) if len(local_patches) else 0.0
+        if rho >= 1.0 or 2.0**-24 / (1.0 - rho) > PRECISION_LIMIT:
+            self._precision_warned = True
+            warnings.warn(f"an albedo of {rho:.9g} amplifies {self.storage} K's rounding to about "
+                          f"{2.0**-24 / max(1.0 - rho, 1e-300):.2g} of B: use storage='fp64'", PrecisionWarning,
+                          stacklevel=4)
 
     def _warm_up(self) -> None:
         """Launch, once, every kernel that frames will use, so no frame waits for PoCL to
@@ -463,18 +485,17 @@ class DynamicRadiosity:
         empty = np.empty(0, np.int64)
         if not self.built:
             t0 = time.perf_counter()
-            for obj, T in self._pending.values():
-                obj.transform = T
-            if self._pending:
-                self._pending.clear()
-                self._moved_world()
+            moves, transforms = self._moves()
+            if moves:
+                self._moved_world(transforms)  # refused (an intersection as an error): nothing moved
+                self._commit(moves)
             self._build(self._initial_set(obs))
             t1 = time.perf_counter()
             self._prefetch_next(obs)
             return FrameStats(self.frame, 0, empty, empty, t_update=t1 - t0, t_prefetch=time.perf_counter() - t1,
                               refreshed=True)
-        moved, rows_refreshed, hemicubes, t_move = len(self._pending), 0, 0, 0.0
-        if self._pending:
+        moved, rows_refreshed, hemicubes, t_move = len(self._moves()[0]), 0, 0, 0.0
+        if moved:
             t_move = time.perf_counter()
             rows_refreshed, hemicubes = self._apply_moves()
             self.device.queue.finish()
@@ -515,11 +536,31 @@ class DynamicRadiosity:
         check_reach(self.static_scene, obj, T)
         self._pending[id(obj)] = (obj, T)
 
-    def _moved_world(self) -> None:
-        """Put :attr:`scene` (and the BVH every kernel traces) at the objects' current poses."""
+    def _moves(self) -> tuple[list, list]:
+        """([(object, new pose)] of the objects that move, the poses of every object): the queued
+        moves, and an object whose ``transform`` was set directly or by another solution sharing
+        it (it differs from the pose this one holds) moves there too."""
+        held = self.scene.bvh.transforms if self.objects else []
+        moves, transforms = [], []
+        for obj, T_held in zip(self.objects, held):
+            T = self._pending[id(obj)][1] if id(obj) in self._pending else obj.transform
+            if id(obj) in self._pending or not np.array_equal(T, T_held):
+                moves.append((obj, T))
+            transforms.append(T)
+        return moves, transforms
+
+    def _commit(self, moves: list) -> None:
+        """The objects are at their new poses now that the world is: their transforms set, the queue emptied."""
+        for obj, T in moves:
+            obj.transform = T
+        self._pending.clear()
+
+    def _moved_world(self, transforms) -> None:
+        """Put :attr:`scene` (and the BVH every kernel traces) at ``transforms``, one per object;
+        where that is refused, nothing has changed."""
         from ..objects import instanced
 
-        self.scene = instanced(self.static_scene, self.objects, bvh=self.scene.bvh)
+        self.scene = instanced(self.static_scene, self.objects, transforms, bvh=self.scene.bvh)
         self._ff.source.move(self.scene)
 
     def _apply_moves(self) -> tuple[int, int]:
@@ -529,14 +570,13 @@ class DynamicRadiosity:
         from .exact import exact_swap
         from .moves import stale_rows, swap_chunks
 
-        moves = list(self._pending.values())
-        self._pending.clear()
+        moves, transforms = self._moves()
+        held = dict(zip(map(id, self.objects), self.scene.bvh.transforms))
         spheres = []
         for obj, T in moves:
-            spheres.append(obj.bounding_sphere())
-            obj.transform = T
-            spheres.append(obj.bounding_sphere())
-        self._moved_world()
+            spheres += [obj.bounding_sphere(held[id(obj)]), obj.bounding_sphere(T)]
+        self._moved_world(transforms)
+        self._commit(moves)
         source, S, M = self._ff.source, self._local_patches, self.M
         moved = np.concatenate([self._ranges[id(o)] for o, _ in moves])
         slot_of = np.full(len(self.scene), -1)
@@ -685,10 +725,11 @@ class DynamicRadiosity:
         return X + self.scene.albedo[self._local_patches].astype(np.float64) * KX.T
 
     # -- drift -------------------------------------------------------------------------------------------
-    def residual(self, probes: int = 8) -> float:
+    def residual(self, probes: int | None = None) -> float:
         """K's relative error on ``probes`` random columns: max over them and the channels of
         ``|K e_j - K_fresh e_j|_inf`` over a scale of K's entries, an estimate of max entry
-        error / max entry; inf where K holds non-finite values.
+        error / max entry; inf where K holds non-finite values. ``probes``: 8 by default, or M
+        where fewer (a local set of 4 has 4 columns to probe).
 
         The scale is the largest entry met (of the probed columns, and of F_SS, which K bounds
         from below entry by entry: K = F + F P F + ...). A column's own largest entry would not
@@ -707,7 +748,7 @@ class DynamicRadiosity:
         from scipy.sparse.linalg import LinearOperator, gmres
 
         self._require_built()
-        n_probe = integer(probes, "probes", 1, self.M)
+        n_probe = min(8, self.M) if probes is None else integer(probes, "probes", 1, self.M)
         S, M = self._local_patches, self.M
         F = self._ff.square(S)
         rho = self._rho(S)
