@@ -14,7 +14,7 @@ import scipy.sparse as sp
 
 from .errors import InvalidInputError
 
-__all__ = ["floats", "vec3", "unit_vector", "number", "stops", "integer", "finite", "scene", "patch_indices",
+__all__ = ["floats", "vec3", "unit_vector", "number", "flag", "stops", "integer", "finite", "scene", "patch_indices",
            "resolution", "check_form_factors", "check_form_factor_rows", "sparse_structure", "ROW_SUM_SLACK", "MAX_RESOLUTION"]
 
 
@@ -98,6 +98,14 @@ def unit_vector(value, what: str) -> np.ndarray:
         raise InvalidInputError(f"{what} must be a non-zero vector")
     v = v / big  # first: the norm of (1e300, ...) overflows, and of (1e-300, ...) underflows
     return v / float(np.linalg.norm(v))
+
+
+def flag(value, what: str) -> bool:
+    """``value`` as a bool; InvalidInputError naming ``what`` for anything but True or False
+    (``"no"`` is a true string, and had meant yes)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise InvalidInputError(f"{what} must be True or False; got {value!r}")
+    return bool(value)
 
 
 def integer(value, what: str, lo: int = 1, hi: int | None = None) -> int:

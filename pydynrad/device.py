@@ -39,7 +39,7 @@ from .pocl_target import cache_tag, compiler_target, fix_cpu_name, host_cpu_fami
 if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays cheap
     import pyopencl as cl
 
-__all__ = ["Device", "DeviceTraits", "default_device", "kernel_dir", "list_devices", "real_dtype"]
+__all__ = ["Device", "DeviceTraits", "default_device", "device_or_default", "kernel_dir", "list_devices", "real_dtype"]
 
 
 def _writable(folder: Path) -> bool:
@@ -355,6 +355,17 @@ def default_device() -> Device:
         if _default is None:
             _default = Device(_pick_cl_device())
         return _default
+
+
+def device_or_default(device) -> Device:
+    """``device`` where it is a :class:`Device`, the :func:`default_device` for None;
+    InvalidInputError for anything else (a name, a pyopencl device)."""
+    if device is None:
+        return default_device()
+    if not isinstance(device, Device):
+        raise InvalidInputError(f"device must be a pydynrad Device (pydynrad.default_device(), pydynrad.Device(...)) "
+                                f"or None; got {type(device).__name__}")
+    return device
 
 
 def list_devices() -> list[dict[str, object]]:

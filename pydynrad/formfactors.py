@@ -199,10 +199,10 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
     Block b + 1 is traced while the caller works on block b."""
     import pyopencl as cl
 
-    from .device import default_device
+    from .device import device_or_default
     from .progress import progress_bar
 
-    dev = device or default_device()
+    dev = device_or_default(device)
     R_total = checked_resolution(resolution)
     K = checked_samples(samples, R_total)
     R = R_total // int(round(np.sqrt(K)))  # each sample's hemicube

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from .checks import check_form_factors
+from .checks import check_form_factors, flag, number
 from .device import real_dtype
 from .devicecsr import DeviceCSR
 from .devicesell import DeviceSELL
@@ -99,9 +99,9 @@ class RadiositySolver:
     """
 
     def __init__(self, scene, F, dtype=np.float32, device=None, *, layout: tuple[int, int] | None = None) -> None:
-        from .device import default_device
+        from .device import device_or_default
 
-        self.scene, self.device = scene, device or default_device()
+        self.scene, self.device = scene, device_or_default(device)
         self.dtype = real_dtype(dtype, self.device)
         F = check_form_factors(scene, F)
         self._n = len(scene)
@@ -138,6 +138,7 @@ class RadiositySolver:
         L = checked_light_vector(L, self._n)
         check_radiosity_range(L, self.scene.albedo, self.dtype)
         tol, max_iterations = _checked_stopping(tol, max_iterations, bounces)
+        raise_on_failure = flag(raise_on_failure, "raise_on_failure")
         nch = _channels(self.scene, L)
         rho = self.scene.albedo.astype(np.float64)[:, :nch]
         t0 = time.perf_counter()
@@ -159,16 +160,26 @@ class RadiositySolver:
         )
 
 
+#: The most bounces or iterations a solve runs (10**30 had been accepted, and run until killed):
+#: a million is ~1e-45 of the light left at albedo 0.9999.
+MAX_ITERATIONS = 1_000_000
+
+
+def _whole(value, what: str, least: int) -> int:
+    """``value`` as an int in least..MAX_ITERATIONS: a whole number (25.0 too), no text or bool."""
+    v = None if isinstance(value, (bool, np.bool_)) else number(value, what)
+    if v is None or v != int(v) or not least <= v <= MAX_ITERATIONS:
+        raise InvalidInputError(f"{what} must be an integer in {least}..{MAX_ITERATIONS}; got {value!r}")
+    return int(v)
+
+
 def _checked_stopping(tol, max_iterations, bounces):
     if bounces is not None:
-        if int(bounces) != bounces or bounces < 0:
-            raise InvalidInputError(f"bounces must be a non-negative integer; got {bounces!r}")
-        return float(tol), int(bounces)
-    if not (np.isfinite(tol) and tol > 0):
+        return float(number(tol, "tol")), _whole(bounces, "bounces", 0)
+    tol = number(tol, "tol")
+    if not tol > 0:
         raise InvalidInputError(f"tol must be a positive number; got {tol!r}")
-    if int(max_iterations) != max_iterations or max_iterations < 1:
-        raise InvalidInputError(f"max_iterations must be a positive integer; got {max_iterations!r}")
-    return float(tol), int(max_iterations)
+    return tol, _whole(max_iterations, "max_iterations", 1)
 
 
 def _dense_solve(scene, F: sp.csr_matrix, L: np.ndarray) -> Solution:

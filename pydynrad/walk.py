@@ -173,7 +173,7 @@ def walk(
     WalkResult
     """
     from .atomic import check_file_target
-    from .device import default_device
+    from .device import device_or_default
     from .image_io import _format_for, write_image
     from .objects import check_reach
     from .progress import progress_bar
@@ -181,7 +181,7 @@ def walk(
 
     if not isinstance(path, CameraPath):
         raise InvalidInputError(f"path must be a CameraPath (orbit, fly_through, load_path); got {type(path).__name__}")
-    device = device or default_device()
+    device = device_or_default(device)
     lights = [lights] if not isinstance(lights, (list, tuple)) else list(lights)
     try:
         tracks = list(objects)

@@ -546,3 +546,33 @@ def test_rows_of_another_scene_small_sets_and_albedos_near_one(device, tmp_path)
             DynamicRadiosity(scene, pydynrad.form_factors(scene, 8, device=device), local_size=len(scene),
                              resolution=8, storage=storage, far_field=False, observer=[0.5, 0.5, 0.5], device=device)
         assert any(issubclass(w.category, PrecisionWarning) for w in caught) == warned, (albedo, storage)
+
+
+def test_arguments_that_had_crashed_or_been_misread(device):
+    """A far observer in the constructor, a device that is not one, stopping arguments past
+    their range, flags given as text and cluster options beside a far field that is not built:
+    each a value error that names it (they had crashed in scipy, numpy or pyopencl, run until
+    killed, or been read as True or ignored)."""
+    box = pydynrad.scenes.cornell_box(max_edge=250.0)
+    F = pydynrad.form_factors(box, 8, device=device)
+    cases = [
+        (lambda: DynamicRadiosity(box, F, local_size=64, resolution=8, observer=[1e160, 0, 0], device=device),
+         "too far"),
+        (lambda: DynamicRadiosity(box, F, local_size=64, device="cpu"), "device must be a pydynrad Device"),
+        (lambda: pydynrad.solve(box, F, device="x"), "device must be a pydynrad Device"),
+        (lambda: pydynrad.solve(box, F, tol="1e-3", device=device), "tol must be one finite number"),
+        (lambda: pydynrad.solve(box, F, max_iterations=np.inf, device=device), "max_iterations"),
+        (lambda: pydynrad.solve(box, F, bounces=10**30, device=device), r"bounces must be an integer in 0\.\.1000000"),
+        (lambda: pydynrad.solve(box, F, bounces=np.nan, device=device), "bounces"),
+        (lambda: pydynrad.solve(box, F, raise_on_failure="no", device=device), "raise_on_failure must be True or False"),
+        (lambda: DynamicRadiosity(box, F, local_size=64, keep_emitters="no", device=device), "keep_emitters"),
+        (lambda: DynamicRadiosity(box, F, local_size=64, far_field=False, clusters=50, device=device),
+         "clusters build the far field"),
+        (lambda: pydynrad.LightGroups(box, {"a": [pydynrad.PointLight([100, 500, 100], 1e5)]}, device=device)
+         .dynamic(DynamicRadiosity(box, F, local_size=64, device=device, observer=box.bbox.mean(axis=0)))
+         .combine({"a": 1e308}), "past float64's range"),
+    ]
+    for call, message in cases:
+        with pytest.raises(InvalidInputError, match=message):
+            call()
+    assert pydynrad.solve(box, F, bounces=3.0, device=device).iterations == 3  # a whole float is a count

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import floats, scene as checked_scene
+from ..checks import flag, floats, scene as checked_scene
 from ..errors import InvalidInputError
 
 __all__ = ["LightGroups", "GroupRadiosity", "EMISSION"]
@@ -91,7 +91,11 @@ class GroupRadiosity:
     def combine(self, weights=None) -> np.ndarray:
         """(N, 3) float64 ``sum_g w_g B_g``: ``weights`` maps group names to a scalar or an RGB
         triple (groups not named keep weight 1), or lists one per group in order."""
-        return np.einsum("gc,gnc->nc", _weights(self.names, weights), self.radiosity)
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = np.einsum("gc,gnc->nc", _weights(self.names, weights), self.radiosity)
+        if not np.all(np.isfinite(out)):  # each weight finite, their products with B not
+            raise InvalidInputError(f"the weights {weights!r} take the combined radiosity past float64's range")
+        return out
 
 
 class LightGroups:
@@ -117,7 +121,7 @@ class LightGroups:
         if not isinstance(groups, Mapping):
             raise InvalidInputError(f"groups must map group names to lights; got {type(groups).__name__}")
         names, vectors = [], []
-        if emission:
+        if flag(emission, "emission"):
             names.append(EMISSION)
             vectors.append(self.scene.emission.astype(np.float64))
         albedo = self.scene.albedo.astype(np.float64)

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks import integer, number, resolution as checked_resolution, scene as checked_scene, vec3
+from ..checks import flag, integer, number, resolution as checked_resolution, scene as checked_scene, vec3
 from ..errors import InvalidInputError, PydynradError
 from ..matvec import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
 from .localrows import LocalRows, _replace_rows
@@ -180,15 +180,13 @@ class DynamicRadiosity:
                  observer=None, keep_emitters: bool = True, resolution: int = 128, far_field=True, clusters=None,
                  cluster_form_factors=None, objects=None, occlusion: int | str | None = "auto", poses=None,
                  device=None, samples: int = 1, occlusion_correction: bool = True) -> None:
-        from ..device import default_device
+        from ..device import device_or_default
 
         checked_scene(scene)
-        self.device = device or default_device()
+        self.device = device_or_default(device)
         self.objects, self._pending = [], {}
         self._last_B: np.ndarray | None = None  # (N,) the last radiosity() summed over channels: ranks a move's rows
-        if not isinstance(occlusion_correction, (bool, np.bool_)):
-            raise InvalidInputError(f"occlusion_correction must be True or False; got {occlusion_correction!r}")
-        self.occlusion_correction = bool(occlusion_correction)
+        self.occlusion_correction = flag(occlusion_correction, "occlusion_correction")
         if isinstance(occlusion, str):
             if occlusion != "auto":
                 raise InvalidInputError(f"occlusion must be a row count, None or 'auto'; got {occlusion!r}")
@@ -227,7 +225,7 @@ class DynamicRadiosity:
         self.resolution = checked_resolution(resolution)  # of hemicube rows (entering patches, objects)
         self._ff = LocalRows(scene, form_factors, self.resolution, self.device, samples)
         self.C = 1 if scene.is_grey else 3
-        pinned = scene.emission.max(axis=1) > 0 if keep_emitters else np.zeros(n, bool)
+        pinned = scene.emission.max(axis=1) > 0 if flag(keep_emitters, "keep_emitters") else np.zeros(n, bool)
         pinned[self._object_patches] = True
         self._select = NearestSet(scene.centers, pinned)
         self._local_patches: np.ndarray | None = None
@@ -243,7 +241,7 @@ class DynamicRadiosity:
         self.far = self._far_field(far_field, clusters, cluster_form_factors)
         self._allocate()
         if observer is not None:
-            self._build(self._initial_set(vec3(observer, "observer")))
+            self._build(self._initial_set(self._observer(observer, "observer")))
 
     def _with_objects(self, scene, form_factors, objects, update: str, local_size, resolution: int, poses):
         """The world scene and its row source for a static scene with moving objects."""
@@ -316,6 +314,9 @@ class DynamicRadiosity:
     def _far_field(self, far_field, clusters, G):
         from ..farfield import FarField, far_field_for
 
+        if far_field is not True and (clusters is not None or G is not None):  # they build one; none is built
+            given = " and ".join(n for n, v in (("clusters", clusters), ("cluster_form_factors", G)) if v is not None)
+            raise InvalidInputError(f"{given} build the far field; with far_field={far_field!r} they would be ignored")
         if far_field is False or far_field is None:
             return None
         if isinstance(far_field, FarField):
@@ -347,10 +348,10 @@ class DynamicRadiosity:
         update's scratch), without building anything; a far field adds its
         :attr:`~pydynrad.farfield.FarField.device_memory_bytes`. ``object_patches``: the moving
         objects' patches together (a move batches up to ``MOVE_SWAPS_LIMIT`` of them)."""
-        from ..device import default_device
+        from ..device import device_or_default
         from .kupdate import scratch_nbytes
 
-        device = device or default_device()
+        device = device_or_default(device)
         ld = padded_ld(M)
         real = compute_dtype(storage).itemsize
         item = storage_dtype(storage).itemsize
@@ -464,13 +465,7 @@ class DynamicRadiosity:
         local set and K change in place, so a call while another is running (another thread)
         raises :class:`~pydynrad.errors.PydynradError` instead of corrupting them.
         """
-        obs = vec3(observer_position, "observer_position")
-        # Squared distances to the patches must be finite for the selection (beyond ~1e154 they are not).
-        with np.errstate(over="ignore"):
-            far = not np.isfinite(np.sum((obs - self.scene.frame.origin) ** 2))
-        if far:
-            raise InvalidInputError(f"observer_position {obs.tolist()} is too far from the scene for its distances "
-                                    "to the patches to be computed in float64")
+        obs = self._observer(observer_position, "observer_position")
         if not self._update_lock.acquire(blocking=False):
             raise PydynradError("DynamicRadiosity.update() is already running (another thread): its local set and K "
                                 "change in place, so calls must not overlap; use one DynamicRadiosity per thread "
@@ -479,6 +474,17 @@ class DynamicRadiosity:
             return self._update(obs)
         finally:
             self._update_lock.release()
+
+    def _observer(self, value, what: str) -> np.ndarray:
+        """An observer position (3,), refused where its squared distances to the patches, which the
+        selection sorts by, are not finite in float64 (beyond ~1e154 from the scene)."""
+        obs = vec3(value, what)
+        with np.errstate(over="ignore"):
+            far = not np.isfinite(np.sum((obs - self.scene.frame.origin) ** 2))
+        if far:
+            raise InvalidInputError(f"{what} {obs.tolist()} is too far from the scene for its distances "
+                                    "to the patches to be computed in float64")
+        return obs
 
     def _update(self, obs: np.ndarray) -> FrameStats:
         self.frame += 1
@@ -695,8 +701,7 @@ class DynamicRadiosity:
         from ..photometry.areas import analytic_emitter_light
 
         self._require_built()
-        if not isinstance(far_field, (bool, np.bool_)):
-            raise InvalidInputError(f"far_field must be True or False; got {far_field!r}")
+        far_field = flag(far_field, "far_field")
         L, E = analytic_emitter_light(self.scene, lights, light, emitters, self.device)
         check_radiosity_range(L, self.scene.albedo, compute_dtype(self.storage))  # the K passes' type
         S = self._local_patches
