@@ -29,7 +29,8 @@ MAX_IMAGE_SIDE = 16384
 
 
 def _side(value, what: str) -> int:
-    if isinstance(value, bool) or not float(value).is_integer():
+    # Numbers only: "32" had been 32 pixels, where "45" is refused as a field of view.
+    if isinstance(value, (bool, np.bool_, str, bytes)) or not float(number(value, what)).is_integer():
         raise InvalidInputError(f"{what} must be a whole number of pixels; got {value!r}")
     v = int(value)
     if not 1 <= v <= MAX_IMAGE_SIDE:

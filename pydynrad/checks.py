@@ -23,11 +23,13 @@ def floats(value, what: str) -> np.ndarray:
 
     Text is refused even where it spells a number (numpy would parse ``"45"`` as 45.0), as
     :func:`integer` refuses it: a path file's ``"fov_y": "45"`` is a typing mistake to name,
-    not a number to guess."""
+    not a number to guess; so are booleans (``"radius": true`` had been 1) and complex numbers."""
     try:
         a = np.asarray(value)
         if a.dtype.kind in "SUV" or (a.dtype.kind == "O" and any(isinstance(x, (str, bytes)) for x in a.flat)):
             raise TypeError
+        if a.dtype.kind == "b" or _holds_bool(value):
+            raise InvalidInputError(f"{what} must be numbers; got True or False ({_brief(value)})")
         if a.dtype.kind == "c" or (a.dtype.kind == "O" and any(isinstance(x, complex) for x in a.flat)):
             raise InvalidInputError(f"{what} must be real numbers; got complex values ({_brief(value)})")
         return a.astype(np.float64, copy=False)
@@ -38,6 +40,13 @@ def floats(value, what: str) -> np.ndarray:
         if isinstance(exc, OverflowError):  # a Python int past float64 (10**400)
             raise InvalidInputError(f"{what} must be numbers within float64's range (about 1.8e308); got {text}") from None
         raise InvalidInputError(f"{what} must be numbers; got {text}") from None
+
+
+def _holds_bool(value) -> bool:
+    """Whether a scalar, list or tuple (nested) holds a bool: numpy turns [1.0, True] into floats."""
+    if isinstance(value, (bool, np.bool_)):
+        return True
+    return isinstance(value, (list, tuple)) and any(_holds_bool(x) for x in value)
 
 
 def _brief(value) -> str:

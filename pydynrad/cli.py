@@ -47,15 +47,21 @@ def _vec3(text: str) -> tuple[float, float, float]:
         raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,Z; got {text!r}") from None
 
 
+def _digits(text: str) -> int | None:
+    """``text`` as a whole number where it is ASCII digits alone (str.isdigit and int() take
+    other scripts' digits, and int() "1_0"), else None."""
+    return int(text) if text.isascii() and text.isdigit() else None
+
+
 def _size(text: str) -> tuple[int, int]:
     parts = text.lower().split("x")
-    if len(parts) != 2 or not all(p.isdigit() and int(p) > 0 for p in parts):
+    if len(parts) != 2 or not all((_digits(p) or 0) > 0 for p in parts):
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, e.g. 320x240; got {text!r}")
     return int(parts[0]), int(parts[1])
 
 
 def _positive_int(text: str) -> int:
-    if not text.isdigit() or int(text) < 1:
+    if (_digits(text) or 0) < 1:
         raise argparse.ArgumentTypeError(f"expected a whole number >= 1; got {text!r}")
     return int(text)
 
@@ -64,7 +70,7 @@ def _resolution(text: str) -> int:
     from .checks import resolution
 
     try:
-        return resolution(int(text) if text.isdigit() else text)
+        return resolution(text if _digits(text) is None else _digits(text))
     except InvalidInputError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -84,9 +90,17 @@ def _ranged(lo: float, hi: float, integral: bool = False):
 
 
 def _count(text: str) -> int:
-    if not text.isdigit():
+    if _digits(text) is None:
         raise argparse.ArgumentTypeError(f"expected a whole number >= 0; got {text!r}")
     return int(text)
+
+
+def _frame_number(text: str) -> int:
+    """A frame number, negative from the end: ASCII digits with an optional minus sign."""
+    k = _digits(text.removeprefix("-"))
+    if k is None:
+        raise argparse.ArgumentTypeError(f"expected a frame number (negative: from the end); got {text!r}")
+    return -k if text.startswith("-") else k
 
 
 def _positive_float(text: str) -> float:
@@ -101,11 +115,11 @@ def _positive_float(text: str) -> float:
 
 def _stops(text: str) -> float:
     from .checks import stops
+    from .lighttext import plain_number
 
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of stops; got {text!r}") from None
+    value = plain_number(text)
+    if value is None:
+        raise argparse.ArgumentTypeError(f"expected a number of stops; got {text!r}")
     try:  # out of range: one line, before any work
         return stops(value)
     except InvalidInputError as exc:
@@ -825,7 +839,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_form_factors(p)
     _add_dynamic(p)
     _add_walk_output(p, None)
-    p.add_argument("--reference-frames", type=int, nargs="*", default=[], metavar="K",
+    p.add_argument("--reference-frames", type=_frame_number, nargs="*", default=[], metavar="K",
                    help="frames (negative: from the end) at which to also solve the full radiosity, report the "
                         "error and write compare_K.png")
     p.set_defaults(func=_cmd_walk)

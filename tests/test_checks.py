@@ -163,3 +163,16 @@ def test_one_resolution_rule_everywhere(device, tmp_path, bad, message):
     if isinstance(bad, int) and not isinstance(bad, bool):
         with pytest.raises(SystemExit):
             build_parser().parse_args(["render", "cornell_box", "-o", "x.png", "--resolution", str(bad)])
+
+
+
+def test_booleans_are_not_numbers():
+    """A path file's ``"radius": true`` had been a radius of 1, ``"width": "32"`` 32 pixels."""
+    from pydynrad.camera import Camera
+
+    with pytest.raises(InvalidInputError, match="True or False"):
+        pydynrad.checks.floats([1.0, True], "radius")
+    with pytest.raises(InvalidInputError, match="fov must be one finite number"):
+        number(True, "fov")
+    with pytest.raises(InvalidInputError, match="whole number of pixels"):
+        Camera(position=(0, 0, -5), look_at=(0, 0, 0), width="32", height=24)

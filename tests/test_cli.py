@@ -437,3 +437,14 @@ def test_a_black_render_is_said_to_be_black(tmp_path, capsys):
     code, _, err = run_main(["render", "cornell_box", "--max-edge", "250", "--resolution", "8", "--size", "16x12", "-o",
                              str(tmp_path / "c.png")], capsys)
     assert code == 0 and "is black" not in err
+
+
+@pytest.mark.parametrize("option", [["--exposure", "1_0"], ["--width", "\uff11\uff16"], ["--resolution", "\uff18"],
+                                    ["--reference-frames", "\u0661"]])
+def test_cli_numbers_are_ascii(option, capsys):
+    """Counts, sizes, stops and frame numbers in ASCII digits only: other scripts' digits and
+    Python's 1_0 had been read as numbers."""
+    command = ["walk", "cornell_box", "--path", "p.json"] if option[0] == "--reference-frames" else \
+        ["render", "cornell_box", "-o", "x.png"]
+    code, _, err = run_main([*command, *option], capsys)
+    assert_one_line_error(code, err, f"argument {option[0]}", "expected" if option[0] != "--resolution" else "integer")

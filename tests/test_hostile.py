@@ -17,6 +17,7 @@ import pydynrad
 from pydynrad.checks import sparse_structure
 from pydynrad.errors import InvalidInputError
 from pydynrad.render import Renderer
+from pydynrad.scene import PrecisionWarning
 
 
 @pytest.fixture(scope="module")
@@ -678,7 +679,7 @@ def test_albedos_near_one_are_solved_or_named_for_what_they_are(device):
         pydynrad.solve(bright, F, tol=1e-8, dtype=np.float64, device=device)
     # K itself past fp16's range is refused at the build, not stored as inf with a warning.
     brighter = box.with_materials(albedo=0.999999, emission=np.where(box.source_face // 2 == 4, 1.0, 0.0))
-    with pytest.raises(InvalidInputError, match="beyond fp16's range"):
+    with pytest.raises(InvalidInputError, match="beyond fp16's range"), pytest.warns(PrecisionWarning):
         pydynrad.DynamicRadiosity(brighter, F, local_size=len(brighter), far_field=False, storage="fp16",
                                   observer=[0.5, 0.5, 0.5], device=device)
 
