@@ -27,8 +27,11 @@ reverses the winding so normals keep pointing to the same (lit) side.
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import re
+import struct
 import warnings
 from pathlib import Path
 
@@ -119,6 +122,8 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
         _warn_malformed_lines(str(path), data.decode("utf-8", errors="replace"), "obj")
         if b"usemtl" in data:
             _warn_lost_materials(path, loaded)
+    if fmt in ("gltf", "glb"):
+        _apply_emissive_strength(path, data if fmt == "gltf" else path.read_bytes(), loaded)
     try:
         return from_mesh(loaded, max_patch_area=max_patch_area, max_edge=max_edge, default_albedo=default_albedo, name=path.stem)
     except InvalidInputError as exc:
@@ -147,6 +152,10 @@ def from_mesh(mesh, max_patch_area: float | None = None, max_edge: float | None 
 
     points, triangles, offset = [], [], 0
     for (v, f), _ in parts:
+        f = np.asarray(f)
+        if f.size and (f.min() < 0 or f.max() >= len(v)):  # PLY and GLB indices reach here unchecked
+            bad = int(np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))[0])
+            raise InvalidInputError(f"face {bad} indexes vertex {f[bad].tolist()} of {len(v)} (indices run 0..{len(v) - 1})")
         points.append(v)
         triangles.append(np.asarray(f, dtype=np.int64) + offset)
         offset += len(v)
@@ -243,6 +252,64 @@ def _face_materials(mesh: trimesh.Trimesh, default_albedo) -> tuple[np.ndarray, 
     elif isinstance(visual, trimesh.visual.TextureVisuals) and visual.material is not None:
         albedo, emission = _material_rgb(visual.material, albedo)
     return (np.broadcast_to(albedo, (n, 3)).astype(np.float64), np.broadcast_to(emission, (n, 3)).astype(np.float64))
+
+
+def _gltf_json(path: Path, data: bytes) -> dict:
+    """The JSON of a .gltf file's text or a .glb file's first chunk ({} where there is none)."""
+    if data[:4] == b"glTF":
+        length, kind = struct.unpack_from("<I4s", data, 12) if len(data) >= 20 else (0, b"")
+        data = data[20:20 + length] if kind == b"JSON" else b"{}"
+    try:
+        out = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise SceneFileError(f"{path}: malformed glTF JSON: {exc}") from None
+    return out if isinstance(out, dict) else {}
+
+
+def _apply_emissive_strength(path: Path, data: bytes, loaded) -> None:
+    """Multiply each material's emission by its KHR_materials_emissive_strength, which trimesh
+    drops (Blender writes it for any emission above 1: a lamp at strength 100 had come out 100
+    times too dim). A loaded material is matched to the file's by name, base colour and
+    emissive factor; where those cannot tell materials of different strengths apart, refused."""
+    materials = _gltf_json(path, data).get("materials")
+    materials = [m for m in materials if isinstance(m, dict)] if isinstance(materials, list) else []
+
+    def strength(m) -> float:
+        ext = (m.get("extensions") or {}).get("KHR_materials_emissive_strength") if isinstance(m.get("extensions"), dict) else None
+        value = ext.get("emissiveStrength", 1.0) if isinstance(ext, dict) else 1.0
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+            raise SceneFileError(f"{path}: material {m.get('name')!r}: emissiveStrength must be a number >= 0; got {value!r}")
+        return float(value)
+
+    strengths = [strength(m) for m in materials]
+    if all(v == 1.0 for v in strengths):
+        return
+
+    def colour(value, n, default):
+        v = np.asarray(value if value is not None else default, np.float64).ravel()
+        return v[:n] if v.size >= n else np.asarray(default, np.float64)
+
+    # The file's (name, base RGB, emissive RGB) per material; trimesh keeps base colours in 8 bits.
+    described = [(m.get("name") or None, colour((m.get("pbrMetallicRoughness") or {}).get("baseColorFactor"), 3,
+                                                (1.0, 1.0, 1.0)), colour(m.get("emissiveFactor"), 3, (0.0, 0.0, 0.0)))
+                 for m in materials]
+    geometries = loaded.geometry.values() if isinstance(loaded, trimesh.Scene) else [loaded]
+    done = set()
+    for g in geometries:
+        mat = getattr(getattr(g, "visual", None), "material", None)
+        if not isinstance(mat, trimesh.visual.material.PBRMaterial) or id(mat) in done:
+            continue
+        emissive = colour(mat.emissiveFactor, 3, (0.0, 0.0, 0.0))
+        base = None if mat.baseColorFactor is None else _rgb8_or_float(mat.baseColorFactor)
+        found = {v for (name, b, e), v in zip(described, strengths)
+                 if name == (mat.name or None) and np.allclose(e, emissive, rtol=1e-6, atol=1e-7)
+                 and (base is None or np.allclose(b, base, rtol=0.0, atol=1.0 / 255.0))}
+        if len(found) != 1:
+            raise SceneFileError(f"{path}: cannot tell which of its materials' KHR_materials_emissive_strength belongs to "
+                                 f"material {mat.name!r} (give the materials distinct names)")
+        if mat.emissiveFactor is not None:
+            mat.emissiveFactor = np.asarray(mat.emissiveFactor, np.float64) * found.pop()
+        done.add(id(mat))
 
 
 def _material_rgb(material, default_albedo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

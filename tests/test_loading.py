@@ -247,3 +247,59 @@ def test_missing_file_and_directory(tmp_path):
         pydynrad.load(tmp_path / "nothere.obj")
     with pytest.raises(SceneFileError, match="not a regular file"):
         pydynrad.load(tmp_path)
+
+
+def _gltf_two_materials(strength):
+    """A glTF of two triangles: a lamp (emissive 1, KHR_materials_emissive_strength ``strength``)
+    and a grey wall, as Blender writes an emission above 1."""
+    import base64
+    import json
+
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1]], np.float32).tobytes()
+    idx = np.array([0, 1, 2], np.uint32).tobytes()
+    idx2 = np.array([3, 4, 5], np.uint32).tobytes()
+    blob = pos + idx + idx2
+    lamp = {"name": "lamp", "emissiveFactor": [1.0, 0.5, 0.25],
+            "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": strength}}}
+    wall = {"name": "wall", "pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.5, 0.5, 1.0]}}
+    return {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0},
+                                       {"attributes": {"POSITION": 0}, "indices": 2, "material": 1}]}],
+            "materials": [lamp, wall], "extensionsUsed": ["KHR_materials_emissive_strength"],
+            "buffers": [{"byteLength": len(blob),
+                         "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
+            "bufferViews": [{"buffer": 0, "byteLength": 72}, {"buffer": 0, "byteOffset": 72, "byteLength": 12},
+                            {"buffer": 0, "byteOffset": 84, "byteLength": 12}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": 6, "type": "VEC3",
+                           "min": [0, 0, 0], "max": [1, 1, 1]},
+                          {"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR"},
+                          {"bufferView": 2, "componentType": 5125, "count": 3, "type": "SCALAR"}]}
+
+
+def test_gltf_emissive_strength_and_face_indices(tmp_path):
+    """KHR_materials_emissive_strength multiplies the emission (trimesh drops it: Blender's lamps
+    had come out 100 times too dim), in .gltf and .glb; a PLY face indexing past its vertices,
+    or below them (-1 had wrapped to the last vertex), is refused by name."""
+    import json
+
+    for suffix in ("gltf", "glb"):
+        path = tmp_path / f"lamp.{suffix}"
+        if suffix == "gltf":
+            path.write_text(json.dumps(_gltf_two_materials(100.0)))
+        else:
+            doc = json.dumps(_gltf_two_materials(100.0)).encode()
+            doc += b" " * (-len(doc) % 4)
+            path.write_bytes(b"glTF" + (2).to_bytes(4, "little") + (20 + len(doc)).to_bytes(4, "little")
+                             + len(doc).to_bytes(4, "little") + b"JSON" + doc)
+        scene = pydynrad.load(path)
+        lamp = scene.emission.max(axis=1) > 0
+        assert lamp.sum() == 1
+        np.testing.assert_allclose(scene.emission[lamp][0], [100.0, 50.0, 25.0], rtol=1e-6)
+        np.testing.assert_allclose(scene.albedo[~lamp][0], [0.5, 0.5, 0.5], atol=1 / 255)
+    for face, message in (("3 0 1 5", "face 0 indexes vertex"), ("3 0 1 -1", "face 0 indexes vertex")):
+        ply = tmp_path / "bad.ply"
+        ply.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                       "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                       f"0 0 0\n1 0 0\n0 1 0\n1 1 0\n{face}\n")
+        with pytest.raises(SceneFileError, match=message):
+            pydynrad.load(ply)
