@@ -253,7 +253,6 @@ def _gltf_two_materials(strength):
     """A glTF of two triangles: a lamp (emissive 1, KHR_materials_emissive_strength ``strength``)
     and a grey wall, as Blender writes an emission above 1."""
     import base64
-    import json
 
     pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1]], np.float32).tobytes()
     idx = np.array([0, 1, 2], np.uint32).tobytes()
