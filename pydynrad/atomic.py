@@ -48,8 +48,11 @@ def write_atomic(path, payload: bytes | Callable[[Path], object]) -> Path:
     path = check_file_target(path)
     # A leading dot hides the temporary file; the same folder makes the rename atomic.
     # The name cut to 150 bytes: a valid name near the 255-byte limit must leave room for the mark.
+    # The suffix kept last: readers that go by it (OpenImageIO's PFM rows) read the temporary
+    # file as they will read the file, so a check of it checks what they get.
     stem = path.name.encode()[:150].decode(errors="ignore")
-    tmp = path.with_name(f".{stem}{TMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    suffix = path.suffix if len(path.suffix.encode()) <= 16 else ""
+    tmp = path.with_name(f".{stem}{TMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}{suffix}")
     try:
         if callable(payload):
             payload(tmp)

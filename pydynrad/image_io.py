@@ -15,6 +15,7 @@ never sees half an image or one the encoder changed, and a failed write leaves n
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -122,9 +123,27 @@ def _check_read_back(tmp: Path, path: Path, pixels: np.ndarray, fmt: str) -> Non
         raise OSError(f"cannot write {str(path)!r}: the file read back differs from the image written")
 
 
+def _read_pfm(path: Path, name: Path) -> np.ndarray:
+    """A PFM file read by its spec (``PF`` RGB or ``Pf`` grey, width height, scale whose sign is
+    the byte order, float rows from the bottom up): OpenImageIO 3.2 returns a ``.pfm``-named
+    file's rows bottom first and the same bytes under another name top first."""
+    data = path.read_bytes()
+    header = re.match(rb"(P[Ff])\s+(\d+)\s+(\d+)\s+(\S+)\s", data)
+    try:
+        kind, w, h, scale = header.group(1), int(header.group(2)), int(header.group(3)), float(header.group(4))
+        c = 3 if kind == b"PF" else 1
+        rows = np.frombuffer(data, "<f4" if scale < 0 else ">f4", count=w * h * c, offset=header.end())
+    except (AttributeError, ValueError) as exc:
+        raise InvalidInputError(f"cannot read image {str(name)!r}: a malformed PFM file ({exc})") from None
+    return rows.reshape(h, w, c)[::-1].astype(np.float32)
+
+
 def _read_pixels(path: Path, name: Path) -> np.ndarray:
     import OpenImageIO as oiio
 
+    with open(path, "rb") as f:
+        if f.read(2) in (b"PF", b"Pf"):
+            return _read_pfm(path, name)
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise InvalidInputError(f"cannot read image {str(name)!r}: {oiio.geterror().strip() or 'unknown format'}")

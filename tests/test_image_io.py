@@ -81,3 +81,18 @@ def test_a_file_that_reads_back_different_is_not_kept(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="read back differs"):
         write_image(target, np.ones((3, 4, 3), dtype=np.float32))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_pfm_rows_follow_the_spec_and_round_trip(tmp_path):
+    """A PFM holds its rows from the bottom up; read_image returns the image as written (OpenImageIO
+    had returned a .pfm file's rows bottom first: the image upside down) and a truncated file is
+    named."""
+    a = np.arange(18, dtype=np.float32).reshape(3, 2, 3)
+    path = tmp_path / "a.pfm"
+    write_image(path, a)
+    raw = path.read_bytes()
+    assert raw.startswith(b"PF") and np.frombuffer(raw[-18 * 4:], "<f4")[0] == a[-1, 0, 0]  # bottom row first
+    np.testing.assert_array_equal(read_image(path), a)
+    path.write_bytes(raw[:-8])
+    with pytest.raises(InvalidInputError, match="malformed PFM"):
+        read_image(path)
