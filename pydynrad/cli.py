@@ -448,6 +448,12 @@ def _cmd_bake(args: argparse.Namespace) -> int:
         from .image_io import LINEAR_FORMATS
 
         lightmap_path = _checked_target(args.lightmap, tuple(LINEAR_FORMATS))
+    source = Path(args.scene)
+    for target in [out] + ([lightmap_path] if args.lightmap else []):
+        if target.exists() and source.is_file() and target.samefile(source):  # the input replaced by the bake
+            raise InvalidInputError(f"output {str(target)!r} is the scene file being baked: write the bake elsewhere")
+    if args.lightmap and out.resolve() == lightmap_path.resolve():
+        raise InvalidInputError(f"--lightmap and -o name the same file {str(out)!r}")
     scene = load_scene(args.scene, args.max_edge)
     print(f"scene: {scene!r}")
     if args.lightmap:

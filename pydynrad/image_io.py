@@ -87,6 +87,9 @@ def write_image(path, image, exposure: float = 0.0) -> Path:
     if not np.all(np.isfinite(a)):  # 2**exposure or the product overflowed float32
         raise InvalidInputError(f"exposure {exposure:g} stops overflows float32 for this image (largest value "
                                 f"{float(np.abs(_checked_image(image)).max()):g}): use a smaller exposure")
+    if fmt == "hdr" and a.min() < 0:  # RGBE has no sign
+        raise InvalidInputError(f"cannot write {str(path)!r}: Radiance HDR stores no negative values (the image's "
+                                f"least is {float(a.min()):g}); use .exr or .pfm")
     if linear:
         spec = oiio.ImageSpec(a.shape[1], a.shape[0], a.shape[2], oiio.FLOAT)
         pixels = a
@@ -117,8 +120,9 @@ def _check_read_back(tmp: Path, path: Path, pixels: np.ndarray, fmt: str) -> Non
         raise OSError(f"cannot write {str(path)!r}: it reads back as {back.shape}, not {want.shape}")
     if fmt == "jpeg":
         return
-    # RGBE shares one exponent per pixel: each channel keeps 8 bits relative to the pixel's largest.
-    tol = want.max(axis=2, keepdims=True) / 128.0 if fmt == "hdr" else 0.0
+    # RGBE shares one exponent per pixel: each channel keeps 8 bits relative to the pixel's largest,
+    # and values below float32's normal range (2^-126) are below its exponents: zeros.
+    tol = np.maximum(want.max(axis=2, keepdims=True) / 128.0, 2.0**-126) if fmt == "hdr" else 0.0
     if not np.all(np.abs(back - want) <= tol):
         raise OSError(f"cannot write {str(path)!r}: the file read back differs from the image written")
 

@@ -126,3 +126,22 @@ def test_bake_with_a_lightmap_writes_the_image_and_its_uv_mesh(reference, tmp_pa
 ])
 def test_bake_refuses_bad_targets_before_any_work(capsys, extra, needle):
     assert_one_line_error(*run_main(["bake", "cornell_box"] + extra, capsys)[::2], needle)
+
+
+def test_bake_refuses_to_overwrite_its_scene_and_escapes_its_name(tmp_path, capsys):
+    """`bake SRC -o SRC` had replaced the source mesh with the bake; a PLY bake of a scene named
+    with non-ASCII letters had crashed after the solve (a PLY header is ASCII); a store's
+    block size past any index is refused when made."""
+    src = tmp_path / "caf\u00e9.ply"
+    trimesh.Trimesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]), [[0, 1, 2]]).export(str(src))
+    before = src.read_bytes()
+    light = ["--light", "point:pos=0.2,0.2,1;intensity=1"]
+    code, _, err = run_main(["bake", str(src), "-o", str(src), "--resolution", "8", *light], capsys)
+    assert_one_line_error(code, err, "is the scene file being baked")
+    assert src.read_bytes() == before
+    code, _, err = run_main(["bake", str(src), "-o", str(tmp_path / "c.ply"), "--resolution", "8", *light], capsys)
+    assert code == 0, err
+    assert b"comment pydynrad scene: caf\\xe9" in (tmp_path / "c.ply").read_bytes()
+    code, _, err = run_main(["formfactors", "cornell_box", "--max-edge", "250", "--resolution", "8", "-o",
+                             str(tmp_path / "st"), "--workers", "0", "--block-rows", str(10**20)], capsys)
+    assert_one_line_error(code, err, "block_rows must lie in")

@@ -96,3 +96,12 @@ def test_pfm_rows_follow_the_spec_and_round_trip(tmp_path):
     path.write_bytes(raw[:-8])
     with pytest.raises(InvalidInputError, match="malformed PFM"):
         read_image(path)
+
+
+def test_hdr_takes_tiny_values_as_zeros_and_refuses_negative_ones(tmp_path):
+    """RGBE has no exponent below float32's normal range and no sign: a lamp of 1e-38 W had been
+    "read back differs" from the write's check, a negative image likewise."""
+    write_image(tmp_path / "t.hdr", np.full((2, 2, 3), 1e-40, np.float32))
+    assert read_image(tmp_path / "t.hdr").max() == 0.0
+    with pytest.raises(InvalidInputError, match="no negative values"):
+        write_image(tmp_path / "n.hdr", -np.ones((2, 2, 3), np.float32))

@@ -90,7 +90,9 @@ def mesh_bytes(path: Path, positions, faces, radiosity, meta: dict, uv=None, tex
     props = {"x": positions[:, 0], "y": positions[:, 1], "z": positions[:, 2]}
     props.update({f"radiosity_{c}": radiosity[:, i].astype(np.float32) for i, c in enumerate("rgb")})
     props.update({c: eight_bit[:, i] for i, c in enumerate(("red", "green", "blue"))})
-    comments = [f"pydynrad {k}: {v}" for k, v in meta.items()]
+    # A PLY header is ASCII lines: a scene named 'café' or with a line break in its name is
+    # written with Python's escapes (it had crashed the bake after the solve).
+    comments = [f"pydynrad {k}: " + str(v).encode("unicode_escape").decode("ascii") for k, v in meta.items()]
     comments.append("pydynrad properties: radiosity_r/g/b linear float32; red/green/blue the 8-bit display encoding")
     return ply_bytes(faces, props, comments)
 

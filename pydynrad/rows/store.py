@@ -192,11 +192,16 @@ def _canonical_params(resolution: int, patching: dict | None, samples: int = 1) 
             "dtype": "float32"}
 
 
+#: The most rows a block may hold (a block is one file read whole: 2^31 rows is past any use,
+#: and 10**20 had made a store no reader could index).
+MAX_BLOCK_ROWS = 2**31 - 1
+
+
 def _check_header_fields(path: Path, header: dict) -> None:
     """StoreCorruptError naming the first field of a store header that every reader relies on
     and that is missing or of the wrong kind (block_rows 0, a string, no params, ...)."""
-    def positive_int(v) -> bool:
-        return isinstance(v, int) and not isinstance(v, bool) and v >= 1
+    def positive_int(v) -> bool:  # within int64: numpy indexes with them (10**20 had crashed a read)
+        return isinstance(v, int) and not isinstance(v, bool) and 1 <= v < 2**62
 
     params = header.get("params")
     sub = params if isinstance(params, dict) else {}
@@ -243,7 +248,7 @@ class FormFactorStore:
         """
         checked_scene(scene)
         path = Path(path)
-        integer(block_rows, "block_rows")
+        integer(block_rows, "block_rows", 1, MAX_BLOCK_ROWS)
         params = _canonical_params(resolution, patching, samples)
         if (path / HEADER).exists():
             if not exist_ok:
