@@ -423,10 +423,15 @@ def _cmd_render(args: argparse.Namespace) -> int:
     write_image(args.output, img, args.exposure)
     print(f"wrote {args.output} ({camera.width}x{camera.height}, {sol.iterations} bounces)")
     if not img.any():  # e.g. the default camera outside a closed scene sees only its backs
-        why = ("the scene has no light (no emission and no --light)" if not sol.radiosity.any() else
-               "no pixel sees a lit front face (place the camera with --position and --look-at)")
-        print(f"warning: {args.output} is black: {why}", file=sys.stderr)
+        _warn_black(args.output, bool(sol.radiosity.any()))
     return 0
+
+
+def _warn_black(what, lit: bool, camera: str = "the camera with --position and --look-at", are: bool = False) -> None:
+    """One line on stderr that ``what`` came out black, and why: no light, or a view of none."""
+    why = ("the scene has no light (no emission and no --light)" if not lit else
+           f"no pixel sees a lit front face (place {camera})")
+    print(f"warning: {what} {'are' if are else 'is'} black: {why}", file=sys.stderr)
 
 
 def _texels_per_unit(args, scene) -> float:
@@ -462,6 +467,8 @@ def _cmd_bake(args: argparse.Namespace) -> int:
         check_texel_density(scene, _texels_per_unit(args, scene))  # before the solve it would waste
     sol = solve(scene, whole_matrix(_form_factors(args, scene)), args.light)
     print(f"solved: {sol.iterations} bounces, {len(args.light)} light(s) besides the emission")
+    if not sol.radiosity.any():
+        _warn_black(f"the bake of {args.scene}", False)
     t0 = time.perf_counter()
     if not args.lightmap:
         export_mesh(scene, sol.radiosity, out, exposure=args.exposure, crease_angle=args.crease_angle)
@@ -496,6 +503,10 @@ def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames, ob
                   exposure=args.exposure, reference_frames=reference_frames, progress=_progress(args))
     summary = result.summary()
     print(summary)
+    black = [f for f in result.frames if f.black]
+    if black:
+        _warn_black(f"{len(black)} of {len(result.frames)} frames (the first {black[0].index})", all(f.lit for f in black),
+                    "the path's cameras to look at lit faces", are=True)
     if out_dir is not None:
         write_atomic(Path(out_dir) / "summary.txt", (summary + "\n").encode())
         print(f"images in {out_dir}/")
@@ -578,6 +589,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     ref = reference_frame(scene, F, dyn.radiosity(args.light), camera, lights=args.light, shading=args.shading,
                           exposure=args.exposure, local_only=local_only)
     write_image(args.output, ref.image)
+    if ref.black:  # a view of no lit face: its 0% error says nothing
+        _warn_black(f"the view of {args.output}", bool(ref.full.any()))
     answers = [("far field", ref.error, ref.pixel_error)] if local_only is not None else []
     answers.append(("local only", ref.local_only_error, ref.local_only_pixel_error) if local_only is not None
                    else ("local only", ref.error, ref.pixel_error))

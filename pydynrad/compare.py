@@ -147,7 +147,8 @@ class ReferenceFrame:
     full : (N, 3) float64 full radiosity; error : patch error (:func:`radiosity_error`);
     image : the comparison image (:func:`comparison_image`); pixel_error : its stats;
     local_only_error, local_only_pixel_error : the same for the paper's local-only answer when
-    one was given (its comparison is then the image's top row).
+    one was given (its comparison is then the image's top row); black: no pixel of the full
+    solution's render is lit (the view sees no lit face: its errors say nothing).
     """
 
     full: np.ndarray
@@ -156,6 +157,7 @@ class ReferenceFrame:
     pixel_error: dict
     local_only_error: float | None = None
     local_only_pixel_error: dict | None = None
+    black: bool = False
 
 
 def reference_frame(scene, form_factors, radiosity, camera, *, lights=(), renderer=None, image=None,
@@ -180,10 +182,11 @@ def reference_frame(scene, form_factors, radiosity, camera, *, lights=(), render
     full_image = renderer.render(full, camera, shading)
     if local_only is None:
         composite, stats = comparison_image(image, full_image, exposure)
-        return ReferenceFrame(full, radiosity_error(radiosity, full, scene.areas), composite, stats)
+        return ReferenceFrame(full, radiosity_error(radiosity, full, scene.areas), composite, stats,
+                              black=not full_image.any())
     local_image = renderer.render(local_only, camera, shading)
     top, local_stats = comparison_image(local_image, full_image, exposure)
     bottom, stats = comparison_image(image, full_image, exposure, vmax=local_stats["vmax"])
     gap = np.ones((max(2, top.shape[0] // 64), top.shape[1], 3), dtype=top.dtype)
     return ReferenceFrame(full, radiosity_error(radiosity, full, scene.areas), np.concatenate([top, gap, bottom]),
-                          stats, radiosity_error(local_only, full, scene.areas), local_stats)
+                          stats, radiosity_error(local_only, full, scene.areas), local_stats, black=not full_image.any())

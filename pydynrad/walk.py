@@ -50,6 +50,8 @@ class FrameRecord:
     pixel_error: dict | None = None
     local_only_error: float | None = None  # the paper's local-only answer's error, beside a far field's
     local_only_pixel_error: dict | None = None
+    black: bool = False  # no pixel of the image is lit
+    lit: bool = True  # some patch has radiosity (False: the frame has no light at all)
 
 
 @dataclass
@@ -242,7 +244,8 @@ def walk(
             renderer = Renderer(dynamic.scene, device)  # the world at this frame's poses
         img = renderer.render(b, cam, shading)
         t3 = time.perf_counter()
-        rec = FrameRecord(k, cam, {"update": t1 - t0, "lighting": t2 - t1, "render": t3 - t2, "write": 0.0}, stats)
+        rec = FrameRecord(k, cam, {"update": t1 - t0, "lighting": t2 - t1, "render": t3 - t2, "write": 0.0}, stats,
+                          black=not img.any(), lit=bool(b.any()))
         if out_dir is not None:
             rec.image_path = write_image(out_dir / f"frame_{k:04d}.{image_format}", img, exposure)
             rec.seconds["write"] = time.perf_counter() - t3

@@ -437,6 +437,22 @@ def test_a_black_render_is_said_to_be_black(tmp_path, capsys):
     code, _, err = run_main(["render", "cornell_box", "--max-edge", "250", "--resolution", "8", "--size", "16x12", "-o",
                              str(tmp_path / "c.png")], capsys)
     assert code == 0 and "is black" not in err
+    # So are a walk whose cameras look away, a comparison of that view and a bake without light.
+    import json
+
+    away = tmp_path / "away.json"
+    away.write_text(json.dumps({"frames": 2, "width": 16, "height": 12,
+                                "keyframes": [{"position": [278, 273, -800], "look_at": [278, 273, -2000]}]}))
+    code, _, err = run_main(["walk", *SMALL[:5], "--path", str(away), "--out", str(tmp_path / "w"), "--quiet"], capsys)
+    assert code == 0 and "2 of 2 frames (the first 0) are black: no pixel sees a lit front face" in err
+    code, _, err = run_main(["compare", *SMALL[:5], "--position", "278,273,-800", "--look-at", "278,273,-2000",
+                             "--width", "16", "--height", "12", "-o", str(tmp_path / "cmp.png")], capsys)
+    assert code == 0 and "is black: no pixel sees" in err
+    import trimesh
+
+    trimesh.Trimesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]), [[0, 1, 2]]).export(str(tmp_path / "t.stl"))
+    code, _, err = run_main(["bake", str(tmp_path / "t.stl"), "--resolution", "8", "-o", str(tmp_path / "b.glb")], capsys)
+    assert code == 0 and "is black: the scene has no light" in err
 
 
 @pytest.mark.parametrize("option", [["--exposure", "1_0"], ["--width", "\uff11\uff16"], ["--resolution", "\uff18"],
