@@ -53,7 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from .camera import Camera
-from .checks import floats
+from .checks import floats, number, unit_vector
 from .errors import InvalidInputError
 
 __all__ = ["CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path", "load_walk", "WalkFile",
@@ -76,15 +76,25 @@ def _keyframes(value, what: str) -> np.ndarray:
 #: Most frames a path may have: a walk renders and solves every one (10^9 frames at the
 #: demo's ~0.4 s each would run for 13 years), so a typo is refused before anything starts.
 MAX_FRAMES = 1_000_000
+#: The largest path file read (a path of a million keyframes is ~100 MB of JSON; /dev/zero is endless).
+MAX_PATH_FILE_BYTES = 256 * 2**20
 
 
 def _frame_count(frames) -> int:
-    if isinstance(frames, (bool, str, bytes)) or not isinstance(frames, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(frames) or not float(frames).is_integer() or int(frames) < 1:
+    if isinstance(frames, (bool, str, bytes)) or not isinstance(frames, (int, float, np.integer, np.floating)):
         raise InvalidInputError(f"frames must be a whole number >= 1; got {frames!r}")
-    if int(frames) > MAX_FRAMES:
-        raise InvalidInputError(f"frames must be at most {MAX_FRAMES:,} (a walk renders every frame); got {int(frames):,}")
-    return int(frames)
+    if isinstance(frames, (int, np.integer)):
+        n = int(frames)  # an int past float64 (10**400) compared as it is
+    elif np.isfinite(frames) and float(frames).is_integer():
+        n = int(frames)
+    else:
+        raise InvalidInputError(f"frames must be a whole number >= 1; got {frames!r}")
+    if n < 1:
+        raise InvalidInputError(f"frames must be a whole number >= 1; got {n}")
+    if n > MAX_FRAMES:
+        raise InvalidInputError(f"frames must be at most {MAX_FRAMES:,} (a walk renders every frame); got "
+                                f"{n:,}" if n < 10**30 else f"frames must be at most {MAX_FRAMES:,}; got a {len(str(n))}-digit number")
+    return n
 
 
 def _check_interpolation(value) -> None:
@@ -189,10 +199,11 @@ def orbit(center, radius: float, elevation: float, frames: int, *, start_angle: 
     """
     c = _keyframes(center, "orbit center")[0]
     n = _frame_count(frames)
-    if not (np.isfinite(radius) and radius > 0):
+    radius, elevation = number(radius, "orbit radius"), number(elevation, "orbit elevation")
+    start_angle, turns = number(start_angle, "orbit start_angle"), number(turns, "orbit turns")
+    if not radius > 0:
         raise InvalidInputError(f"orbit radius must be > 0; got {radius!r}")
-    up_v = np.asarray(up, dtype=np.float64)
-    up_v = up_v / np.linalg.norm(up_v)
+    up_v = unit_vector(up, "orbit up")
     a = np.cross(up_v, [1.0, 0.0, 0.0] if abs(up_v[0]) < 0.9 else [0.0, 0.0, 1.0])
     a /= np.linalg.norm(a)
     b = np.cross(up_v, a)
@@ -317,7 +328,7 @@ def _parse_light(item, where: str):
     if not isinstance(item, dict):
         raise InvalidInputError(f"{where}: a light must be an object with a 'type'")
     kind = _field(item, "type", where, required=True)
-    if kind not in _LIGHT_FIELDS:
+    if not isinstance(kind, str) or kind not in _LIGHT_FIELDS:
         raise InvalidInputError(f"{where}: unknown light type {kind!r}; use {', '.join(map(repr, _LIGHT_FIELDS))}")
     fields, moves = _LIGHT_FIELDS[kind]
     _known_fields(item, ("type", *fields, *(("keyframes", "interpolation") if moves else ())), where)
@@ -421,6 +432,11 @@ def load_walk(path) -> WalkFile:
     :class:`~pydynrad.errors.InvalidInputError` naming the file and the field.
     """
     path = Path(path)
+    if path.exists() and not path.is_file():  # a folder, or /dev/zero: read without end
+        raise InvalidInputError(f"path file {str(path)!r}: not a regular file")
+    if path.is_file() and path.stat().st_size > MAX_PATH_FILE_BYTES:
+        raise InvalidInputError(f"path file {str(path)!r}: {path.stat().st_size:,} bytes, more than a path file's "
+                                f"{MAX_PATH_FILE_BYTES:,}")
     try:
         doc = json.loads(path.read_text())
     except FileNotFoundError:
@@ -438,7 +454,7 @@ def load_walk(path) -> WalkFile:
         _known_fields(doc, _TOP_FIELDS, where)
         lens = {"fov_y": _field(doc, "fov_y", where, 45.0), "width": _field(doc, "width", where, 320),
                 "height": _field(doc, "height", where, 240)}
-        up = tuple(_field(doc, "up", where, (0.0, 1.0, 0.0)))
+        up = tuple(unit_vector(_field(doc, "up", where, (0.0, 1.0, 0.0)), "up"))
         frames = _field(doc, "frames", where, required=True)
         if "orbit" in doc and ("keyframes" in doc or "interpolation" in doc):
             # An orbit is its own curve: keyframes or their interpolation beside it would be ignored.

@@ -272,3 +272,26 @@ def test_path_files_track_spot_lights(tmp_path, device):
     assert full.max() > 0 and np.abs(result.radiosity - full).max() < 1e-5 * full.max()
     first = pydynrad.solve(scene, F, lights=[expect[0]], device=device).radiosity
     assert np.abs(first - full).max() > 0.1 * full.max()  # the spot did move
+
+
+def test_path_file_fields_are_named_and_endless_files_refused(tmp_path):
+    """Orbit fields, up and light types of the wrong kind are named (numpy's and Python's own
+    messages had come through, an up of zeros blamed the keyframes); /dev/zero is not read."""
+    cases = [({"orbit": {"center": [0, 0, 0], "radius": "800"}}, "orbit radius must be one finite number"),
+             ({"orbit": {"center": [0, 0, 0], "radius": 8, "elevation": None}}, "orbit elevation"),
+             ({"orbit": {"center": [0, 0, 0], "radius": 8, "start_angle": [1, 2]}}, "orbit start_angle"),
+             ({"up": [0, 0, 0], "orbit": {"center": [0, 0, 0], "radius": 8}}, "up must be a non-zero vector"),
+             ({"up": None, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "up must be a 3-vector"),
+             ({"keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}], "lights": [{"type": ["point"]}]},
+              "unknown light type"),
+             ({"frames": 10**40, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "41-digit number")]
+    for doc, message in cases:
+        path = tmp_path / "p.json"
+        path.write_text(json.dumps({"frames": 2, **doc}))
+        with pytest.raises(InvalidInputError, match=message):
+            pydynrad.load_walk(path)
+    for endless in ("/dev/zero", tmp_path):
+        with pytest.raises(InvalidInputError, match="not a regular file"):
+            pydynrad.load_walk(endless)
+    with pytest.raises(InvalidInputError, match="not a regular file"):
+        pydynrad.photometry.read_ies("/dev/zero")

@@ -35,6 +35,10 @@ from .luminaires import PhotometricDistribution
 __all__ = ["read_ies", "parse_ies", "IESFormatError", "expand_c_symmetry"]
 
 
+#: The largest photometric file read (/dev/zero or a wrong file would be read without end).
+MAX_PHOTOMETRIC_BYTES = 64 * 2**20
+
+
 class IESFormatError(InvalidInputError):
     """A photometric file that does not follow its format; the message names the line."""
 
@@ -201,6 +205,13 @@ def read_photometric_text(path) -> str:
     if not isinstance(path, (str, Path)) and not hasattr(path, "__fspath__"):
         raise InvalidInputError(f"a photometric file's path must be a str or a path; got {type(path).__name__}")
     path = Path(path)
+    try:
+        unusable = path.exists() and (not path.is_file() or path.stat().st_size > MAX_PHOTOMETRIC_BYTES)
+    except ValueError:  # a NUL byte in the path: refused below, by the read
+        unusable = False
+    if unusable:
+        raise InvalidInputError(f"cannot read {str(path)!r}: not a regular file of at most "
+                                f"{MAX_PHOTOMETRIC_BYTES // 2**20} MiB (a photometric file is a few kB)")
     try:
         raw = path.read_bytes().removeprefix(b"\xef\xbb\xbf")
     except OSError as e:
