@@ -9,7 +9,8 @@ import scipy.sparse as sp
 
 from helpers import grid_scene, same_csr, synthetic_rows
 
-from pydynrad import InvalidInputError
+from pydynrad import InvalidInputError, RigidObject
+from pydynrad.scenes import block
 from pydynrad.rows.store import (
     FormFactorStore,
     StoreCorruptError,
@@ -187,3 +188,25 @@ def test_write_block_canonicalises_a_copy(tmp_path):
     assert got.has_sorted_indices and got[1].indices.tolist() == [1, 2, 5]
     np.testing.assert_array_equal(got.toarray(), m.toarray())
     assert np.array_equal(m.data, before[0]) and np.array_equal(m.indices, before[1])  # caller's matrix untouched
+
+
+def test_cluster_and_pose_headers_are_checked_when_read(tmp_path):
+    """A store's clusters.json and poses.json hold what readers take, or name what they lack
+    ({}, [1], a count as text, a list for the objects had crashed them with KeyError, TypeError
+    or AttributeError)."""
+    scene = grid_scene()
+    compute_store(scene, tmp_path / "ff", resolution=8, block_rows=10, progress=False, row_function=synthetic_rows)
+    good = {"n_clusters": 12, "resolution": 8, "prolongation_sha256": "ab", "basis": "indicator", "params": {}}
+    for bad, message in (({}, "n_clusters must be a positive integer"), ([1], "must hold a JSON object"),
+                         ({**good, "n_clusters": "48"}, "n_clusters"), ({**good, "n_clusters": 10**30}, "n_clusters"),
+                         ({k: v for k, v in good.items() if k != "prolongation_sha256"}, "prolongation_sha256"),
+                         ({**good, "basis": "cubic"}, "basis")):
+        (tmp_path / "ff" / "clusters.json").write_text(json.dumps(bad))
+        with pytest.raises(StoreCorruptError, match=message):
+            FormFactorStore.open(scene, tmp_path / "ff", resolution=8)
+    (tmp_path / "ff" / "clusters.json").write_text(json.dumps(good))
+    store = FormFactorStore.open(scene, tmp_path / "ff", resolution=8)
+    assert store.n_clusters == 12
+    (tmp_path / "ff" / "poses.json").write_text("[1]")
+    with pytest.raises(StoreCorruptError, match="list of 'objects'"):
+        store.check_pose_objects([RigidObject(block(10.0, 0))], resolution=8)

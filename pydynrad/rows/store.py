@@ -197,6 +197,12 @@ def _canonical_params(resolution: int, patching: dict | None, samples: int = 1) 
 MAX_BLOCK_ROWS = 2**31 - 1
 
 
+def _described(pose_header: dict) -> list[str]:
+    """Each object of a pose header as 'name (patches, hash prefix)'."""
+    return [f"{o.get('name')} ({o.get('n_patches')} patches, {str(o.get('geometry_hash'))[:8]})"
+            for o in pose_header.get("objects", [])]
+
+
 def _check_header_fields(path: Path, header: dict) -> None:
     """StoreCorruptError naming the first field of a store header that every reader relies on
     and that is missing or of the wrong kind (block_rows 0, a string, no params, ...)."""
@@ -391,11 +397,25 @@ class FormFactorStore:
     # -- the far field's G -----------------------------------------------------------------
     def _read_cluster_header(self) -> dict | None:
         try:
-            return json.loads((self.path / CLUSTER_HEADER).read_text())
+            header = json.loads((self.path / CLUSTER_HEADER).read_text())
         except FileNotFoundError:
             return None
         except (OSError, ValueError) as exc:
             raise StoreCorruptError(f"unreadable {self.path / CLUSTER_HEADER}: {exc}") from exc
+        # Every field a reader takes, checked once here ({} and "n_clusters": "48" had crashed them).
+        where = self.path / CLUSTER_HEADER
+        if not isinstance(header, dict):
+            raise StoreCorruptError(f"{where} must hold a JSON object; got {type(header).__name__}")
+        positive = lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v < 2**31  # noqa: E731
+        for name, ok, kind in (("n_clusters", positive, "a positive integer"),
+                               ("resolution", positive, "a positive integer"),
+                               ("prolongation_sha256", lambda v: isinstance(v, str), "a string"),
+                               ("basis", lambda v: v in ("indicator", "linear"), "'indicator' or 'linear'"),
+                               ("params", lambda v: isinstance(v, dict), "an object")):
+            if name in header or name in ("n_clusters", "resolution", "prolongation_sha256"):
+                if not ok(header.get(name)):
+                    raise StoreCorruptError(f"{where}: {name} must be {kind}; got {header.get(name)!r}")
+        return header
 
     def _require_clusters(self) -> dict:
         if self._cluster_header is None:
@@ -538,12 +558,16 @@ class FormFactorStore:
 
     def _require_pose_header(self) -> dict:
         try:
-            return json.loads((self.path / POSE_HEADER).read_text())
+            header = json.loads((self.path / POSE_HEADER).read_text())
         except FileNotFoundError:
             raise StoreIncompleteError(f"store {self.path} holds no per-pose rows of moving objects; precompute them "
                                        "with pydynrad.precompute_poses(..., store=...)") from None
         except (OSError, ValueError) as exc:
             raise StoreCorruptError(f"unreadable {self.path / POSE_HEADER}: {exc}") from exc
+        objects = header.get("objects") if isinstance(header, dict) else None
+        if not (isinstance(objects, list) and all(isinstance(o, dict) for o in objects)):
+            raise StoreCorruptError(f"{self.path / POSE_HEADER} must hold an object with a list of 'objects'")
+        return header
 
     @staticmethod
     def _pose_objects(objects, resolution: int) -> dict:
@@ -568,8 +592,8 @@ class FormFactorStore:
         if strip(want) != strip(have):
             raise StoreMismatchError(
                 f"store {self.path} holds per-pose rows of other objects or another resolution (store: "
-                f"{[o.get('name') for o in have.get('objects', [])]} at R = {have.get('resolution')}; requested: "
-                f"{[o['name'] for o in want['objects']]} at R = {want['resolution']})")
+                f"{_described(have)} at R = {have.get('resolution')}; requested: {_described(want)} at R = "
+                f"{want['resolution']}; objects of the same name differ in geometry where their hashes do)")
 
     @staticmethod
     def pose_key(transforms) -> str:
