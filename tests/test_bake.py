@@ -1,5 +1,8 @@
 """Baked meshes and lightmaps, read back by other tools' readers (trimesh, OpenImageIO)."""
 
+import json
+import struct
+
 import numpy as np
 import pytest
 import trimesh
@@ -99,9 +102,22 @@ def test_damaged_glb_and_ply_are_named_as_such(solved, tmp_path):
     data = export_mesh(scene, B, tmp_path / "a.glb").read_bytes()
     with pytest.raises(InvalidInputError, match="not a pydynrad GLB"):
         read_glb(data[:-8])
+    # A count of -1 (it had read the whole buffer) or past the buffer, in a file of the right length.
+    n_json = struct.unpack_from("<I", data, 12)[0]
+    doc = json.loads(data[20:20 + n_json])
+    for count in (-1, 10**30):
+        doc["accessors"][0]["count"] = count
+        text = json.dumps(doc).encode()
+        text += b" " * (-len(text) % 4)
+        rest = data[20 + n_json:]
+        forged = struct.pack("<III", 0x46546C67, 2, 20 + len(text) + len(rest)) + struct.pack("<II", len(text), 0x4E4F534A)
+        with pytest.raises(InvalidInputError, match="count"):
+            read_glb(forged + text + rest)
     data = export_mesh(scene, B, tmp_path / "a.ply").read_bytes()
     with pytest.raises(InvalidInputError, match="not a pydynrad PLY"):
         read_ply(data[:-8])
+    with pytest.raises(InvalidInputError, match="negative element counts"):
+        read_ply(data.replace(f"element face {len(scene)}".encode(), b"element face -1", 1))
 
 
 @pytest.fixture(scope="module")

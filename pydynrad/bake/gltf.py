@@ -118,13 +118,19 @@ def read_glb(data: bytes) -> tuple[dict, dict, np.ndarray]:
         def accessor(i: int, dtype) -> np.ndarray:
             acc = doc["accessors"][i]
             view = doc["bufferViews"][acc["bufferView"]]
-            width = _WIDTH[acc["type"]]
-            a = np.frombuffer(blob, dtype=dtype, count=acc["count"] * width, offset=view["byteOffset"])
+            width, count = _WIDTH[acc["type"]], acc["count"]
+            # -1 had read the whole buffer, 1e30 overflowed: a count is a whole number that fits it.
+            if isinstance(count, bool) or not isinstance(count, int) or not 0 <= count <= len(blob):
+                raise ValueError(f"accessor {i} has count {count!r}")
+            a = np.frombuffer(blob, dtype=dtype, count=count * width, offset=view["byteOffset"])
             return a.reshape(acc["count"], width) if width > 1 else a
 
         prim = doc["meshes"][0]["primitives"][0]
         attributes = {k: accessor(i, "<f4") for k, i in prim["attributes"].items()}
         faces = accessor(prim["indices"], "<u4").reshape(-1, 3)
+        lengths = {len(a) for a in attributes.values()}
+        if len(lengths) > 1 or (faces.size and faces.max() >= min(lengths, default=0)):
+            raise ValueError("its attributes differ in length or its faces index past them")
     except (ValueError, KeyError, IndexError, TypeError, struct.error) as exc:
         raise InvalidInputError(f"not a pydynrad GLB file: {exc}") from None
     return doc, attributes, faces

@@ -62,11 +62,15 @@ def read_ply(data: bytes) -> tuple[list[str], dict, np.ndarray]:
                 fields.append((words[2], "<" + _NP_TYPES[words[1]]))
         vdtype = np.dtype(fields)
         n_v, n_f = counts["vertex"], counts["face"]
+        if n_v < 0 or n_f < 0:
+            raise ValueError(f"negative element counts ({n_v} vertices, {n_f} faces)")
         vertices = np.frombuffer(data, dtype=vdtype, count=n_v, offset=end)
         rows = np.frombuffer(data, dtype=[("n", "u1"), ("v", "<i4", (3,))], count=n_f,
                              offset=end + n_v * vdtype.itemsize)
         if np.any(rows["n"] != 3) or end + n_v * vdtype.itemsize + rows.nbytes != len(data):
             raise ValueError("faces are not triangles or the file's length is wrong")
+        if rows.size and (rows["v"].min() < 0 or rows["v"].max() >= n_v):
+            raise ValueError("its faces index outside its vertices")
     except (ValueError, KeyError, IndexError, UnicodeDecodeError) as exc:
         raise InvalidInputError(f"not a pydynrad PLY file: {exc}") from None
     return comments, {k: vertices[k] for k in vdtype.names}, rows["v"]
