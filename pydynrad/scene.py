@@ -184,7 +184,10 @@ class Scene:
             raise InvalidInputError(f"source_face must have shape ({n_in},); got {source_face.shape}")
 
         v = pts[tri]
-        cross, dbl_area = _doubled_areas(v)
+        with np.errstate(over="ignore", invalid="ignore"):
+            cross, dbl_area = _doubled_areas(v)
+        if not np.all(np.isfinite(dbl_area)):  # not zero-area triangles: their areas overflow
+            raise InvalidInputError("patch areas overflow float64 (coordinates beyond ~1e154 units): rescale the scene")
         # Relative to the triangle's own size, so tiny but well-shaped patches survive.
         edge2 = np.max(np.sum((v - np.roll(v, 1, axis=1)) ** 2, axis=2), axis=1)
         keep = dbl_area > 1e-7 * edge2

@@ -464,3 +464,16 @@ def test_cli_numbers_are_ascii(option, capsys):
         ["render", "cornell_box", "-o", "x.png"]
     code, _, err = run_main([*command, *option], capsys)
     assert_one_line_error(code, err, f"argument {option[0]}", "expected" if option[0] != "--resolution" else "integer")
+
+
+def test_a_g_only_store_is_named_as_such(tmp_path, capsys):
+    """A --no-f store read for F's rows: its F is not unfinished, it was never asked for."""
+    import json
+
+    store = str(tmp_path / "g")
+    assert run_main(["formfactors", *SMALL, "-o", store, "--workers", "0", "--clusters", "40", "--no-f"], capsys)[0] == 0
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps({"frames": 2, "keyframes": [{"position": [278, 273, -800], "look_at": [278, 273, 0]}]}))
+    code, _, err = run_main(["walk", "cornell_box", "--max-edge", "250", "--path", str(path), "--form-factors", store,
+                             "--quiet"], capsys)
+    assert_one_line_error(code, err, "holds G alone (made with --no-f)")

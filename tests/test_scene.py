@@ -94,3 +94,9 @@ def test_with_materials_keeps_geometry_and_bvh():
 def test_repr_names_the_scene():
     assert "2 patches" in repr(square())
     assert isinstance(pydynrad.__version__, str)
+
+
+def test_areas_that_overflow_are_not_called_zero():
+    """Coordinates beyond ~1e154 overflow the cross product: named so, not as zero-area triangles."""
+    with pytest.raises(InvalidInputError, match="overflow float64"):
+        Scene(np.array([[0, 0, 0], [1e160, 0, 0], [0, 1e160, 0.0]]), [[0, 1, 2]])
