@@ -435,11 +435,16 @@ def _warn_black(what, lit: bool, camera: str = "the camera with --position and -
 
 
 def _texels_per_unit(args, scene) -> float:
-    """--texels-per-unit, or a density giving about LIGHTMAP_TEXELS texels of charts."""
+    """--texels-per-unit, or a density giving about LIGHTMAP_TEXELS texels of charts (at least
+    MIN_TEXELS_PER_PATCH for the median patch, rounded up)."""
+    from .bake.lightmap import MIN_TEXELS_PER_PATCH
+
     if args.texels_per_unit is not None:
         return args.texels_per_unit
-    tpu = float(np.sqrt(LIGHTMAP_TEXELS / scene.areas.sum(dtype=np.float64)))
-    return float(f"{tpu:.2g}")
+    tpu = max(float(np.sqrt(LIGHTMAP_TEXELS / scene.areas.sum(dtype=np.float64))),
+              float(np.sqrt(MIN_TEXELS_PER_PATCH / np.median(scene.areas))))
+    step = 10.0 ** (np.floor(np.log10(tpu)) - 1)  # two significant digits, rounded up: never below the floor
+    return float(f"{np.ceil(tpu / step * (1 - 1e-12)) * step:.2g}")
 
 
 def _cmd_bake(args: argparse.Namespace) -> int:

@@ -145,3 +145,14 @@ def test_bake_refuses_to_overwrite_its_scene_and_escapes_its_name(tmp_path, caps
     code, _, err = run_main(["formfactors", "cornell_box", "--max-edge", "250", "--resolution", "8", "-o",
                              str(tmp_path / "st"), "--workers", "0", "--block-rows", str(10**20)], capsys)
     assert_one_line_error(code, err, "block_rows must lie in")
+
+
+def test_a_lightmap_coarser_than_its_patches_is_refused(tmp_path, capsys):
+    """xatlas floors the density it packs at: 1e-9 texels per unit gave 1e-3's atlas and was
+    recorded as 1e-9; below a texel for the median patch the bake is refused, before the solve."""
+    code, _, err = run_main(["bake", "cornell_box", "--max-edge", "250", "--resolution", "8", "-o",
+                             str(tmp_path / "c.glb"), "--lightmap", str(tmp_path / "c.exr"), "--texels-per-unit", "1e-9"],
+                            capsys)
+    assert_one_line_error(code, err, "gives the median patch", "texels")
+    with pytest.raises(InvalidInputError, match="median patch"):
+        pydynrad.bake_lightmap(pydynrad.scenes.cornell_box(max_edge=250.0), np.ones((336, 3)), 1e-3)

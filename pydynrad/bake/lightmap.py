@@ -174,11 +174,23 @@ def _check_memory(texels: float, what: str) -> None:
                                f"of the {have / 2**30:.1f} GiB available; lower texels_per_unit")
 
 
+#: The fewest texels the median patch may get in a lightmap.
+MIN_TEXELS_PER_PATCH = 1.0
+
+
 def check_texel_density(scene, texels_per_unit: float) -> None:
     """OutOfMemoryError where ``texels_per_unit`` would give a lightmap of ``scene`` larger than
-    the kernels index or than half the host's memory: checkable before any solve."""
+    the kernels index or than half the host's memory, InvalidInputError where it would give the
+    median patch fewer than :data:`MIN_TEXELS_PER_PATCH`: checkable before any solve."""
     tpu = float(texels_per_unit)
     _check_memory(float(scene.areas.sum(dtype=np.float64)) * tpu * tpu, f"{tpu:g} texels per unit")
+    # Coarser than its patches, a lightmap averages neighbours into shared texels, and xatlas
+    # floors the density it packs at (1e-9 gave 1e-3's atlas, recorded as 1e-9).
+    texels = float(np.median(scene.areas)) * tpu * tpu
+    if texels < MIN_TEXELS_PER_PATCH:
+        raise InvalidInputError(f"{tpu:g} texels per unit gives the median patch {texels:.2g} texels; at least "
+                                f"{MIN_TEXELS_PER_PATCH:g} needs {np.sqrt(MIN_TEXELS_PER_PATCH / np.median(scene.areas)):.3g} "
+                                "per unit (or bake vertex colours, without --lightmap)")
 
 
 def _surfaces(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, int]:
