@@ -257,9 +257,9 @@ def _as_safe_csr(F, what: str, row_names=None) -> sp.csr_matrix:
 def check_form_factors(scene, F) -> sp.csr_matrix:
     """F as a validated float64 CSR matrix of shape (N, N) for ``scene``.
 
-    Refuses a broken sparse structure (:func:`sparse_structure`), a wrong shape, NaN/inf or
-    negative entries, and rows summing above 1 (beyond :data:`ROW_SUM_SLACK`): such an F has
-    no physical meaning and can make B diverge.
+    Refuses a broken sparse structure (:func:`sparse_structure`), a wrong shape, NaN/inf,
+    complex or negative entries, rows summing above 1 (beyond :data:`ROW_SUM_SLACK`), and a
+    non-zero diagonal: such an F has no physical meaning and can make B diverge.
     """
     n = len(scene)
     shape = np.shape(F)
@@ -267,7 +267,12 @@ def check_form_factors(scene, F) -> sp.csr_matrix:
         raise InvalidInputError(f"F must be a 2-D (sparse or dense) matrix; got shape {shape}")
     if shape != (n, n):
         raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {shape}")
-    return check_form_factor_rows(F)
+    F = check_form_factor_rows(F)
+    own = F.diagonal()
+    if own.any():  # a flat patch sees none of itself: another matrix's rows, or a shifted index
+        i = int(np.flatnonzero(own)[0])
+        raise InvalidInputError(f"F[{i}, {i}] = {own[i]:g}: a patch is flat and sees none of itself (F's diagonal is 0)")
+    return F
 
 
 def check_form_factor_rows(rows, what: str = "F", row_names=None, shape: tuple | None = None) -> sp.csr_matrix:
@@ -279,6 +284,8 @@ def check_form_factor_rows(rows, what: str = "F", row_names=None, shape: tuple |
     name the offending row as ``row_names[i]`` when given (the patch a row source's row
     belongs to). The caller's matrix is never modified.
     """
+    if np.iscomplexobj(rows.data if sp.issparse(rows) else np.asarray(rows)):
+        raise InvalidInputError(f"{what} must hold real numbers; got complex values")
     if not sp.issparse(rows):
         a = np.asarray(rows)
         if a.ndim != 2 or not np.issubdtype(a.dtype, np.number):

@@ -176,3 +176,24 @@ def test_booleans_are_not_numbers():
         number(True, "fov")
     with pytest.raises(InvalidInputError, match="whole number of pixels"):
         Camera(position=(0, 0, -5), look_at=(0, 0, 0), width="32", height=24)
+
+
+def test_form_factors_with_a_diagonal_or_complex_entries_are_refused():
+    """A flat patch sees none of itself: a non-zero F[i, i] is another matrix's rows or a shifted
+    index; complex entries had lost their imaginary part with only numpy's warning."""
+    import scipy.sparse as sp
+
+    from pydynrad.checks import check_form_factors
+
+    scene = pydynrad.scenes.cornell_box(max_edge=250.0)
+    n = len(scene)
+    F = sp.random(n, n, density=0.01, random_state=1, format="csr") * 0.01
+    F.setdiag(0.0)
+    F.eliminate_zeros()
+    assert check_form_factors(scene, F).nnz == F.nnz
+    shifted = F.tolil()
+    shifted[5, 5] = 0.001
+    with pytest.raises(InvalidInputError, match=r"F\[5, 5\] = 0.001"):
+        check_form_factors(scene, shifted.tocsr())
+    with pytest.raises(InvalidInputError, match="real numbers"):
+        check_form_factors(scene, F.astype(np.complex128))

@@ -200,7 +200,7 @@ def test_cluster_and_pose_headers_are_checked_when_read(tmp_path):
     for bad, message in (({}, "n_clusters must be a positive integer"), ([1], "must hold a JSON object"),
                          ({**good, "n_clusters": "48"}, "n_clusters"), ({**good, "n_clusters": 10**30}, "n_clusters"),
                          ({k: v for k, v in good.items() if k != "prolongation_sha256"}, "prolongation_sha256"),
-                         ({**good, "basis": "cubic"}, "basis")):
+                         ({**good, "basis": "cubic"}, "basis must be one of")):
         (tmp_path / "ff" / "clusters.json").write_text(json.dumps(bad))
         with pytest.raises(StoreCorruptError, match=message):
             FormFactorStore.open(scene, tmp_path / "ff", resolution=8)

@@ -410,7 +410,7 @@ class FormFactorStore:
         for name, ok, kind in (("n_clusters", positive, "a positive integer"),
                                ("resolution", positive, "a positive integer"),
                                ("prolongation_sha256", lambda v: isinstance(v, str), "a string"),
-                               ("basis", lambda v: v in ("indicator", "linear"), "'indicator' or 'linear'"),
+                               ("basis", lambda v: v in CLUSTER_BASES, f"one of {CLUSTER_BASES}"),
                                ("params", lambda v: isinstance(v, dict), "an object")):
             if name in header or name in ("n_clusters", "resolution", "prolongation_sha256"):
                 if not ok(header.get(name)):
