@@ -546,6 +546,11 @@ def test_rows_of_another_scene_small_sets_and_albedos_near_one(device, tmp_path)
             DynamicRadiosity(scene, pydynrad.form_factors(scene, 8, device=device), local_size=len(scene),
                              resolution=8, storage=storage, far_field=False, observer=[0.5, 0.5, 0.5], device=device)
         assert any(issubclass(w.category, PrecisionWarning) for w in caught) == warned, (albedo, storage)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            pydynrad.multibounce(scene, pydynrad.form_factors(scene, 8, device=device),
+                                 dtype=np.float64 if storage == "fp64" else np.float32, device=device)
+        assert any(issubclass(w.category, PrecisionWarning) for w in caught) == warned, (albedo, storage)
 
 
 def test_arguments_that_had_crashed_or_been_misread(device):

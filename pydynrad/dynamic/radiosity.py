@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import threading
 import time
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -57,9 +56,6 @@ MAX_SWAPS_LIMIT = 32
 #: batches up to this many of its slots, more than a frame's swaps, since chunks of a move
 #: each pay a gather and a rank pass of their own (private arrays of twice this many terms).
 MOVE_SWAPS_LIMIT = 64
-#: The rounding of K's float32 arithmetic, amplified by the albedo (2^-24 / (1 - max albedo)),
-#: beyond which a solution warns that it wants storage="fp64" (max albedo ~0.99994).
-PRECISION_LIMIT = 1e-3
 #: Rows refreshed per move for the occlusion of moving objects by default (``occlusion="auto"``)
 #: where a refresh buys accuracy: with hemicube rows, or without the correction of stale rows.
 DEFAULT_OCCLUSION = 32
@@ -411,20 +407,12 @@ class DynamicRadiosity:
             self._used.reset_all(self._local_mask)
 
     def _check_precision(self, local_patches: np.ndarray) -> None:
-        """Warn (:class:`~pydynrad.scene.PrecisionWarning`, once) where float32 arithmetic cannot
-        hold K: the series K = F + F P F + ... amplifies rounding by up to 1 / (1 - max albedo),
-        so float32's 2^-24 becomes ~2^-24 / (1 - rho) of B (a closed box at 0.9999999 was 3.5%
-        off, at 0.999999 0.09%, in float64 storage 8e-11)."""
-        from ..scene import PrecisionWarning
+        """:func:`pydynrad.multibounce.warn_precision` for this K's arithmetic, once."""
+        from ..multibounce import warn_precision
 
-        if self.storage == "fp64" or self._precision_warned:
-            return
-        rho = float(self.scene.albedo[local_patches].max()) if len(local_patches) else 0.0
-        if rho >= 1.0 or 2.0**-24 / (1.0 - rho) > PRECISION_LIMIT:
-            self._precision_warned = True
-            warnings.warn(f"an albedo of {rho:.9g} amplifies {self.storage} K's rounding to about "
-                          f"{2.0**-24 / max(1.0 - rho, 1e-300):.2g} of B: use storage='fp64'", PrecisionWarning,
-                          stacklevel=4)
+        if not self._precision_warned and len(local_patches):
+            rho = float(self.scene.albedo[local_patches].max())
+            self._precision_warned = warn_precision(rho, "float64" if self.storage == "fp64" else "float32", 4)
 
     def _warm_up(self) -> None:
         """Launch, once, every kernel that frames will use, so no frame waits for PoCL to
