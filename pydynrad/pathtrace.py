@@ -43,6 +43,11 @@ PATH_TRACE_BYTES_PER_PIXEL = 80
 
 #: Largest number of samples per item in one kernel launch (keeps launches short on GPUs).
 _MAX_PASS = 16
+#: Most samples per item (pixel or patch) one call takes. Each item's sum is float32, one pass of
+#: :data:`_MAX_PASS` samples added at a time: at 2^24 samples a pass adds 1e-6 of the sum, ~8
+#: ulps, rounded by up to half of one (6% of what it adds), so more samples buy rounding, not
+#: accuracy (average calls with other seeds instead); and the sample index is a uint32.
+MAX_SPP = 2**24
 
 
 class _Tracer:
@@ -52,7 +57,7 @@ class _Tracer:
         from .device import default_device
 
         checked_scene(scene)
-        integer(max_depth, "max_depth")
+        integer(max_depth, "max_depth", 1, 2**31 - 1)  # the kernel's int bounce counter
         self.device = device = device or default_device()
         self.defines = {"MAX_DEPTH": int(max_depth)}
         em = scene.emitters
@@ -124,9 +129,10 @@ class _Tracer:
 
 
 def _check_common(spp, seed, time_limit) -> None:
-    integer(spp, "spp (samples per item)")
+    integer(spp, "spp (samples per item)", 1, MAX_SPP)
     integer(seed, "seed", 0, 2**32 - 1)
-    if time_limit is not None and not time_limit > 0:
+    if time_limit is not None and (isinstance(time_limit, bool) or not isinstance(time_limit, (int, float, np.number))
+                                   or not time_limit > 0):
         raise InvalidInputError(f"time_limit must be positive seconds or None; got {time_limit!r}")
 
 

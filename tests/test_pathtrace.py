@@ -110,12 +110,16 @@ def test_time_limit_stops_early(furnace, device):
     [
         ({"spp": 0}, "spp"),
         ({"spp": 2.5}, "spp"),
+        ({"spp": 2**24 + 1}, r"spp .* 1\.\.16777216"),
         ({"seed": -1}, "seed"),
         ({"max_depth": 0}, "max_depth"),
+        ({"max_depth": 2**31}, r"max_depth .* 1\.\.2147483647"),
         ({"patches": [0, 99]}, "patch indices"),
         ({"patches": [[0]]}, "1-D"),
         ({"lights": [object()]}, "not a light"),
         ({"time_limit": 0}, "time_limit"),
+        ({"time_limit": "1"}, "time_limit"),
+        ({"time_limit": True}, "time_limit"),
     ],
 )
 def test_bad_input_is_rejected(furnace, kwargs, match):
