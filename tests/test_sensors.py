@@ -70,6 +70,12 @@ def test_bad_sensors_are_refused(lit_box):
         illuminance(scene, B, [0.5, 0.5, 0.5], [0, 0, 1], patches=[0])
     with pytest.raises(InvalidInputError, match="radiosity must be finite"):
         illuminance(scene, -B, [0.5, 0.5, 0.5], [0, 0, 1])
+    # Refused whether or not the call uses them (no radiosity and no sky: no gather; hemicube
+    # emitters: no visibility grid).
+    with pytest.raises(InvalidInputError, match=r"resolution must lie in 2\.\.4096; got 1"):
+        illuminance(scene, None, [0.5, 0.5, 0.5], [0, 0, 1], resolution=1)
+    with pytest.raises(InvalidInputError, match=r"visibility samples per side\) must lie in 1\.\.64; got 0"):
+        illuminance(scene, B, [0.5, 0.5, 0.5], [0, 0, 1], visibility_grid=0)
 
 
 def test_sensors_far_from_the_origin(device):

@@ -25,7 +25,7 @@ from ..errors import InvalidInputError
 from ..launch import float4, global_size
 from ..lights import SHADOW_EPSILON, resolve_light
 
-__all__ = ["emitter_irradiance", "reflected_light_vector", "analytic_emitter_light", "EMITTER_MODES"]
+__all__ = ["emitter_irradiance", "reflected_light_vector", "analytic_emitter_light", "EMITTER_MODES", "MAX_GRID", "checked_grid"]
 
 #: How the direct light of emitting patches reaches a receiver: through the hemicube (F or the
 #: sensor's own), or by the contour integral here.
@@ -35,6 +35,15 @@ EMITTER_MODES = ("hemicube", "analytic")
 # read-only), not on the lights: kept while the scene lives, so a relit solve or every frame of
 # DynamicRadiosity.radiosity(emitters="analytic") traces its shadow rays once.
 _at_patches: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+#: Most visibility samples per side of an emitter (``grid``): 4,096 shadow rays per point and emitter.
+MAX_GRID = 64
+
+
+def checked_grid(grid) -> int:
+    """``grid`` (visibility samples per side of an emitter) as an int in 1..:data:`MAX_GRID`."""
+    return integer(grid, "grid (visibility samples per side)", 1, MAX_GRID)
 
 
 def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np.ndarray:
@@ -50,7 +59,7 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np
     from .sensors import checked_sensors
 
     points, normals = checked_sensors(points, normals)
-    grid = integer(grid, "grid (visibility samples per side)", 1, 64)
+    grid = checked_grid(grid)
     n = len(points)
     em = scene.emitters
     if n == 0 or len(em) == 0:
@@ -85,7 +94,7 @@ def reflected_light_vector(scene, lights=(), grid: int = 4, device=None) -> np.n
 
     dev = device or default_device()
     per_scene = _at_patches.setdefault(scene, {})
-    key = (integer(grid, "grid (visibility samples per side)", 1, 64), id(dev))
+    key = (checked_grid(grid), id(dev))
     if key not in per_scene:  # the device is kept beside its value, so its id is not reused
         per_scene[key] = (dev, emitter_irradiance(scene, scene.centers, scene.normals, key[0], dev))
     H = direct_irradiance(scene, lights, dev).astype(np.float64) + per_scene[key][1]

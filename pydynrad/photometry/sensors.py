@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checks import floats, patch_indices, scene as checked_scene
+from ..checks import floats, patch_indices, resolution as checked_resolution, scene as checked_scene
 from ..errors import InvalidInputError
 from ..lights import checked_lights, point_irradiance
-from .areas import emitter_irradiance
+from .areas import checked_grid, emitter_irradiance
 from .gather import gather_irradiance
 from .sky import SkyLight, pack_sky
 
@@ -87,6 +87,8 @@ def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, 
     """
     checked_scene(scene)
     lights = checked_lights(lights)
+    # Both checked whether or not this call uses them: a bad value is the caller's mistake either way.
+    resolution, visibility_grid = checked_resolution(resolution), checked_grid(visibility_grid)
     n_patches = len(scene)
     if patches is not None:
         if points is not None or normals is not None:
