@@ -576,6 +576,21 @@ def test_malformed_scheduler_is_one_line(tmp_path, capsys, address, why):
     assert_one_line_error(code, err, f"malformed scheduler address {address!r}", why, "tcp://host:8786")
 
 
+def test_malformed_scheduler_leaves_no_half_built_client():
+    # distributed's Client refuses the address after starting its IO loop; left to the collector,
+    # the half-built Client stopped that loop later from a new LocalCluster's loop thread and
+    # failed its start (the next test, in some orders of the suite).
+    import gc
+
+    from distributed import Client
+
+    from pydynrad.rows.distributed import _start_client
+
+    with pytest.raises(InvalidInputError, match="missing port"):
+        _start_client(None, "host")
+    assert not [o for o in gc.get_objects() if isinstance(o, Client)]
+
+
 def test_worker_dying_at_start_up_is_one_line(tmp_path, capsys):
     import dask
     from helpers import assert_one_line_error, run_main

@@ -18,6 +18,7 @@ See docs/design.md, 'Distributed precompute'.
 from __future__ import annotations
 
 import functools
+import gc
 import json
 import logging
 import os
@@ -174,8 +175,15 @@ def _start_client(workers: int | None, scheduler: str | None):
         try:
             return Client(scheduler), None
         except ValueError as exc:  # distributed's address parser: no port, unknown scheme, ...
-            raise InvalidInputError(f"malformed scheduler address {scheduler!r} ({exc}); "
-                                    "expected one like tcp://host:8786") from exc
+            problem = str(exc)
+        # The Client fails so after starting its IO loop, and the half-built one is left in a
+        # cycle through the traceback: its __del__ stops that loop on whichever thread the
+        # collector next runs, and on a later LocalCluster's new IO loop thread that blocked the
+        # cluster's start for 10 s, then failed it (distributed 2026.8). Collected here, now
+        # that the exception is no longer held, with no other loop starting.
+        gc.collect()
+        raise InvalidInputError(f"malformed scheduler address {scheduler!r} ({problem}); "
+                                "expected one like tcp://host:8786")
     n = workers if workers is not None else (os.cpu_count() or 1)
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise InvalidInputError(f"workers must be a positive integer; got {workers!r}")
