@@ -477,3 +477,14 @@ def test_a_g_only_store_is_named_as_such(tmp_path, capsys):
     code, _, err = run_main(["walk", "cornell_box", "--max-edge", "250", "--path", str(path), "--form-factors", store,
                              "--quiet"], capsys)
     assert_one_line_error(code, err, "holds G alone (made with --no-f)")
+
+
+def test_a_clustered_store_stopped_before_its_first_block_is_unfinished(tmp_path):
+    """Its cluster header is written before any block: neither F nor G is there, so it is an
+    unfinished store (run again), not a G-only one."""
+    scene = pydynrad.scenes.cornell_box(max_edge=250.0)
+    labels = np.unique(scene.albedo, axis=0, return_inverse=True)[1].ravel()
+    pydynrad.compute_store(scene, tmp_path / "s", resolution=8, progress=False, clusters=labels, blocks=[],
+                           block_rows=64)
+    with pytest.raises(pydynrad.StoreIncompleteError, match=r"is unfinished \(6 of 6 blocks missing\)"):
+        open_form_factors(scene, tmp_path / "s")

@@ -141,7 +141,7 @@ def _open_store(scene, path: Path, samples: int | None = None, resolution: int |
                                  patching=params["patching"],
                                  samples=params.get("samples", 1) if samples is None else samples)
     missing = store.missing_blocks()
-    if missing and len(missing) == store.n_blocks and store.has_clusters:
+    if missing and len(missing) == store.n_blocks and store.complete_clusters:
         raise StoreIncompleteError(f"form-factor store {str(path)!r} holds G alone (made with --no-f), not F's rows, "
                                    "which the CLI's commands need: from Python, DynamicRadiosity(scene, None, "
                                    "cluster_form_factors=store.cluster_form_factors(...)); or store F too, without --no-f")
