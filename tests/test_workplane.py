@@ -103,7 +103,8 @@ def test_elongated_areas_take_the_shorter_side_and_the_csv_round_trips(tmp_path)
     plane's uniformities are written as undefined, a negative illuminance is refused."""
     plane = work_plane([[0, 0], [10, 0], [10, 2], [0, 2]], 0.8)
     assert max(plane.spacing) <= en12464_spacing(2.0) < en12464_spacing(10.0)
-    assert max(work_plane([[0, 0], [10, 0], [10, 6], [0, 6]], 0.8).spacing) > en12464_spacing(6.0) * 0.9
+    # 10 m x 6 m is not elongated: d is the longer side (the shorter's p would be 0.70 m)
+    assert work_plane([[0, 0], [10, 0], [10, 6], [0, 6]], 0.8).spacing == (en12464_spacing(10.0),) * 2
     far = work_plane([[500000, 4000000], [500004, 4000000], [500004, 4000003], [500000, 4000003]], 12.75)
     out = tmp_path / "e.csv"
     write_illuminance_csv(out, far.points, np.zeros(len(far)))
@@ -115,5 +116,9 @@ def test_elongated_areas_take_the_shorter_side_and_the_csv_round_trips(tmp_path)
         illuminance_statistics([-1.0, 2.0, 3.0])
     with pytest.raises(InvalidInputError, match="not a matplotlib colour map"):
         plot_work_plane(tmp_path / "p.png", far, np.ones(len(far)), cmap="nope")
+    import matplotlib
+
+    viridis = matplotlib.colormaps["viridis"]  # a Colormap, as imshow takes it, not only its name
+    assert plot_work_plane(tmp_path / "v.png", far, np.ones(len(far)), cmap=viridis).Em == 1.0
     with pytest.raises(InvalidInputError, match="must be a WorkPlane"):
         plot_work_plane(tmp_path / "p.png", None, np.ones(3))

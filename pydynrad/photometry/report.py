@@ -79,11 +79,12 @@ def write_illuminance_csv(path, points, E) -> IlluminanceStats:
     return stats
 
 
-def plot_work_plane(path, plane, E, title: str = "", cmap: str = "jet") -> IlluminanceStats:
+def plot_work_plane(path, plane, E, title: str = "", cmap="jet") -> IlluminanceStats:
     """A false-colour picture of a :class:`~pydynrad.photometry.workplane.WorkPlane`'s illuminance.
 
     Cells outside the polygon stay blank; the colour bar is in lx; the title carries Em and U0.
-    The format follows the file's suffix (png, pdf, svg). Needs matplotlib. Returns the statistics.
+    The format follows the file's suffix (png, pdf, svg). ``cmap``: a matplotlib colour map or
+    its name. Needs matplotlib. Returns the statistics.
     """
     import matplotlib
 
@@ -102,7 +103,7 @@ def plot_work_plane(path, plane, E, title: str = "", cmap: str = "jet") -> Illum
     if not isinstance(plane, WorkPlane):
         raise InvalidInputError(f"plane must be a WorkPlane (pydynrad.work_plane); got {type(plane).__name__}")
     try:
-        colours = matplotlib.colormaps[cmap]
+        colours = cmap if isinstance(cmap, matplotlib.colors.Colormap) else matplotlib.colormaps[cmap]
     except (KeyError, TypeError, ValueError):
         raise InvalidInputError(f"cmap {cmap!r} is not a matplotlib colour map (e.g. 'jet', 'viridis')") from None
     a = _values(E)
