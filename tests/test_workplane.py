@@ -74,6 +74,9 @@ def test_statistics_csv_and_plot_of_a_lit_work_plane(tmp_path, device):
     np.testing.assert_allclose(np.array(rows[1 : 1 + len(plane)], float)[:, 3], expected, rtol=1e-5)
     table = dict(rows[len(plane) + 3 :])
     assert float(table["U0"]) == pytest.approx(stats.U0, rel=1e-5) and int(table["n"]) == len(plane)
+    from pydynrad.photometry.report import _cell
+
+    assert _cell(1_234_567) == "1234567"  # a count whole past 6 digits (was 1.23457e+06)
     plot_work_plane(tmp_path / "plane.png", plane, E, title="point light")
     import matplotlib.image
 

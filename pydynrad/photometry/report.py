@@ -44,7 +44,10 @@ def _values(E) -> np.ndarray:
 
 
 def _cell(v: float) -> str:
-    """A statistic as the CSV and the plot write it: 6 digits, or ``undefined`` for NaN."""
+    """A statistic as the CSV and the plot write it: a count whole, a value in 6 digits, or
+    ``undefined`` for NaN."""
+    if isinstance(v, int):
+        return str(v)
     return "undefined" if np.isnan(v) else f"{v:.6g}"
 
 
