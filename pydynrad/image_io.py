@@ -169,5 +169,6 @@ def read_image(path) -> np.ndarray:
     """
     path = Path(path)
     if not path.is_file():
-        raise InvalidInputError(f"cannot read image {str(path)!r}: no such file")
+        why = "no such file" if not path.exists() else "not a regular file"
+        raise InvalidInputError(f"cannot read image {str(path)!r}: {why}")
     return _read_pixels(path, path)

@@ -34,6 +34,8 @@ def test_form_factor_file_round_trip_and_checks(tmp_path):
     junk.write_bytes(b"PK\x03\x04 not a zip")
     with pytest.raises(InvalidInputError, match="not a pydynrad form-factor file"):
         load_form_factors(scene, junk)
+    with pytest.raises(InvalidInputError, match="form-factor file .*: not a regular file"):  # a folder
+        load_form_factors(scene, tmp_path)
     np.savez(tmp_path / "alien.npz", x=np.zeros(3))
     with pytest.raises(InvalidInputError, match="not a pydynrad form-factor file"):
         open_form_factors(scene, tmp_path / "alien.npz")

@@ -64,6 +64,8 @@ def test_bad_paths_and_images_give_clear_errors(tmp_path):
         write_image(tmp_path / "a.exr", np.zeros((2, 2, 5)))
     with pytest.raises(InvalidInputError, match="no such file"):
         read_image(tmp_path / "nothing.png")
+    with pytest.raises(InvalidInputError, match="not a regular file"):  # a folder is there, not missing
+        read_image(tmp_path)
     (tmp_path / "junk.png").write_bytes(b"not an image")
     with pytest.raises(InvalidInputError, match="cannot read"):
         read_image(tmp_path / "junk.png")

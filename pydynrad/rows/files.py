@@ -71,7 +71,8 @@ def load_form_factors(scene, path, *, resolution: int | None = None,
     checked_scene(scene)
     path = Path(path)
     if not path.is_file():
-        raise InvalidInputError(f"form-factor file {str(path)!r}: no such file")
+        why = "no such file" if not path.exists() else "not a regular file"
+        raise InvalidInputError(f"form-factor file {str(path)!r}: {why}")
     header, (data, indices, indptr) = _read(path, arrays=True)
     n = int(header["n_patches"])
     if header.get("geometry_hash") != scene.geometry_hash():
