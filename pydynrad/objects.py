@@ -127,6 +127,16 @@ class RigidObject:
         lo, hi = self.scene.bbox.astype(np.float64)
         return 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
 
+    @cached_property
+    def solid_planes(self) -> np.ndarray | None:
+        """(k, 4) float64 rows (n, d) of the solid ``n . x <= d`` in object space where the object
+        is the whole boundary of one convex solid of few faces (a box), else None
+        (:func:`pydynrad.convex.solid_planes`): a move then finds the segments it hides by
+        clipping them, without tracing them."""
+        from .convex import solid_planes
+
+        return solid_planes(self.scene.points, self.scene.triangles)
+
     def bounding_sphere(self, transform=None) -> tuple[np.ndarray, float]:
         """(centre (3,), radius) of a sphere holding the object at ``transform`` (default: its pose)."""
         T = self._transform if transform is None else rigid_transform(transform)

@@ -361,11 +361,18 @@ def test_object_track_and_walk(box, block, device):
         pd.ObjectTrack(obj, [START, np.diag([1.0, 1.0, 3.0, 1.0])])
 
 
-def test_hidden_entries_match_numpy(box, block, device):
-    """Segments between patch centres that cross the block, against Moller-Trumbore in float64."""
+@pytest.mark.parametrize("solid", [True, False], ids=["convex, clipped", "two blocks, traced"])
+def test_hidden_entries_match_numpy(box, block, device, solid):
+    """Segments between patch centres that cross the object, against Moller-Trumbore in float64:
+    the block is a convex solid (its planes clip the segments), two blocks through each other
+    are not (the object's tree traces them)."""
     from pydynrad.dynamic.moves import hidden_by
 
+    if not solid:
+        block = pd.Scene(np.vstack([block.points, block.points + (60.0, 60.0, 0.0)]),
+                         np.vstack([block.triangles, block.triangles + len(block.points)]), albedo=0.5)
     obj = pd.RigidObject(block, END)
+    assert (obj.solid_planes is not None) == solid
     rng = np.random.default_rng(4)
     i, j = rng.integers(0, len(box), (2, 6000))
     p0, p1 = box.centers[i].astype(np.float64), box.centers[j].astype(np.float64)

@@ -145,7 +145,9 @@ def _hidden_entries(objects, transforms, points: np.ndarray, starts: np.ndarray,
     sphere's centre c, |u_a + t (u_b - u_a)|^2 is a quadratic in t whose coefficients are
     |u_a|^2, |u_b|^2 (per point, not per segment) and u_a . u_b; a segment near the sphere is
     then moved into object space and kept only if it crosses the object's box (slab test), and
-    comes out as the ray the object's tree traces."""
+    comes out as the ray the object's tree traces. An object that is one convex solid
+    (:attr:`~pydynrad.objects.RigidObject.solid_planes`) is not traced: the same pass clips each
+    segment by the solid's planes, which decides exactly whether it crosses the boundary."""
     from .. import _segments
     from ..bvh import occluded
     from ..hostthreads import cores, map_parts, row_parts
@@ -163,10 +165,15 @@ def _hidden_entries(objects, transforms, points: np.ndarray, starts: np.ndarray,
         Rt = T[:3, :3].T  # world to object space: x -> R^T (x - t)
         lo, hi = o.scene.bbox.astype(np.float64)
         box = np.concatenate([Rt.ravel(), -Rt @ T[:3, 3], lo - BOX_MARGIN * r, hi + BOX_MARGIN * r])
-        args = (tuple(float(v) for v in c), r * (1.0 + SPHERE_MARGIN), box.tolist())
+        planes = o.solid_planes
+        args = (tuple(float(v) for v in c), r * (1.0 + SPHERE_MARGIN), box.tolist(),
+                None if planes is None else planes.ravel().tolist())
         found = map_parts(lambda k: _segments.near_sphere(P, starts[k[0]:k[1]], ends[k[0]:k[1]], indices,
                                                           owners[k[0]:k[1]], *args), parts)
         near = np.frombuffer(b"".join(f[0] for f in found), np.int64)
+        if planes is not None:  # decided in the pass: the segments that cross the solid
+            out[near] = True
+            continue
         rays = np.frombuffer(b"".join(f[1] for f in found), np.float64).reshape(-1, 6)
         keep = ~out[near]
         if keep.any():
