@@ -162,8 +162,8 @@ def test_objects_section_tiny(tmp_path, device):
     # The path's poses precomputed: the rows of a fresh build at each pose, so only the correction's
     # tolerance stays between the two (observed 5.4e-8 against 1.0e-4 on the fly).
     assert err[(0, "static F, stored poses")] < 1e-6 < err[(0, "static F")]
-    # The interleaved frames: one row for the tiny block (12 patches), its ratios those of its times.
-    (pairs,) = results["sections"]["objects"]["tables"][1]["rows"]
-    n, frames, walk_med, walk_min, move_med, move_min, ratio_med, ratio_min = pairs
+    # The ratio by medians: one row for the tiny block (12 patches), its ratios those of its times.
+    (sequence,) = results["sections"]["objects"]["tables"][1]["rows"]
+    n, frames, walk_med, walk_min, move_med, move_min, ratio_med, ratio_min = sequence
     assert (n, frames) == (12, 4) and 0 < walk_min <= walk_med and 0 < move_min <= move_med
     assert ratio_med == pytest.approx(move_med / walk_med) and ratio_min == pytest.approx(move_min / walk_min)
