@@ -9,6 +9,8 @@ import pydynrad as pd
 from pydynrad import _segments
 from pydynrad.convex import MAX_PLANES, solid_planes
 
+from helpers import brute_force_hits
+
 
 def _mesh(m: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
@@ -76,18 +78,7 @@ def test_other_meshes_are_not_solids():
 
 def _crossings(P, T, a, b):
     """(n,) bool: segment a -> b crosses a triangle at t in (0, 1) (Moller-Trumbore, float64)."""
-    v = P[T]
-    d = b - a
-    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
-    pv = np.cross(d[:, None], e2[None])
-    det = np.einsum("tk,ntk->nt", e1, pv)
-    s = a[:, None] - v[None, :, 0]
-    q = np.cross(s, e1[None])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.einsum("ntk,ntk->nt", s, pv) / det
-        w = np.einsum("nk,ntk->nt", d, q) / det
-        t = np.einsum("tk,ntk->nt", e2, q) / det
-        return np.any((u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0) & (t < 1), axis=1)
+    return brute_force_hits(P[T], a, b - a, chunk=1024).t < 1.0
 
 
 def _clipped(P, T, a, b, pose=np.eye(4)):
