@@ -206,6 +206,7 @@ def measure(size: str, device, progress: bool = True) -> dict:
     box = pd.scenes.cornell_box(max_edge=p["max_edge"])
     albedo = (0.1, 0.6, 0.15)
     block = pd.scenes.block(100.0, p["block"], albedo=albedo)  # 48 patches at subdivision 1
+    block64 = _block64(albedo) if p["block"] == 1 else None  # the block: 64 patches
     lights = [pd.PointLight((278.0, 520.0, 280.0), (3e5, 3e5, 3e5))]
     camera = pd.Camera(position=(278.0, 273.0, -800.0), look_at=(278.0, 273.0, 280.0), fov_y=40,
                        width=p["image"][0], height=p["image"][1])
@@ -223,15 +224,15 @@ def measure(size: str, device, progress: bool = True) -> dict:
         rows.append(case.row(budget, F_static, True, "static F"))
         if budget == 0:
             rows.append(case.row(budget, F_static, True, "static F, stored poses", stored))
-            if p["block"] == 1:  # the block: 64 patches
-                rows.append(_Case(box, _block64(albedo), p, lights, camera, device).row(budget, F_static, True,
-                                                                                       "static F, 64-patch block"))
+            if block64 is not None:
+                rows.append(_Case(box, block64, p, lights, camera, device).row(budget, F_static, True,
+                                                                              "static F, 64-patch block"))
         if budget is not None:
             rows.append(case.row(budget, F_static, False, "static F, uncorrected"))
         if budget in (0, None):
             rows.append(case.row(budget, None, True, "hemicubes"))
     t_full_ff, local_err = case.t_full_ff, case.local_err
-    blocks = [block, _block64(albedo)] if p["block"] == 1 else [block]
+    blocks = [block] if block64 is None else [block, block64]
     sequence = [in_sequence(box, b, F_static, p, lights, device, p["frames"]) for b in blocks]
     table = {"title": "A move per frame against the occlusion budget (Cornell box, moving block, point light)",
              "columns": ["budget", "rows", "N", "block patches", "M", "walk frame ms", "swaps/walk frame",

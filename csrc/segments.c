@@ -47,7 +47,8 @@
  *             (n, d) of the convex solid n . x <= d in object space
  *   segments: bytes of int64, row by row in the order given: the segments j with q <= reach^2
  *             (and crossing the box; with planes, crossing the solid's boundary)
- *   rays    : bytes of float64, 6 per segment kept: its ray's origin and direction
+ *   rays    : bytes of float64, 6 per segment kept: its ray's origin and direction (empty with
+ *             planes: nothing is left to trace)
  *   Indices are checked (0 <= i < n, 0 <= starts[k] <= ends[k] <= m): ValueError if not.
  * A list of segments a[i] -> b[i] is one entry per row (starts = 0..m-1, ends = 1..m, owners = a).
  */
@@ -122,11 +123,13 @@ static int crosses_solid(const double *a, const double *b, const double *planes,
 #define BLOCK 512
 
 /* Output that grows as segments are kept: a move keeps ~30k of ~500k, so sizing it for every
-   segment would fault in ~27 MB per call for nothing. */
+   segment would fault in ~27 MB per call for nothing. Rays only where something traces them
+   (not with planes: the pass decided). */
 typedef struct {
     int64_t *seg;
     double *ray;
     Py_ssize_t count, cap;
+    int rays;
 } kept_t;
 
 static int keep(kept_t *k, int64_t j, const double *a, const double *b)
@@ -134,13 +137,19 @@ static int keep(kept_t *k, int64_t j, const double *a, const double *b)
     if (k->count == k->cap) {
         Py_ssize_t cap = k->cap ? 2 * k->cap : 4096;
         int64_t *seg = realloc(k->seg, (size_t)cap * sizeof(int64_t));
-        if (seg) k->seg = seg;
-        double *ray = seg ? realloc(k->ray, (size_t)cap * 6 * sizeof(double)) : NULL;
-        if (!ray) return -1;
-        k->ray = ray, k->cap = cap;
+        if (!seg) return -1;
+        k->seg = seg;
+        if (k->rays) {
+            double *ray = realloc(k->ray, (size_t)cap * 6 * sizeof(double));
+            if (!ray) return -1;
+            k->ray = ray;
+        }
+        k->cap = cap;
     }
-    double *r = k->ray + 6 * k->count;
-    for (int q = 0; q < 3; ++q) r[q] = a[q], r[3 + q] = b[q] - a[q];
+    if (k->rays) {
+        double *r = k->ray + 6 * k->count;
+        for (int q = 0; q < 3; ++q) r[q] = a[q], r[3 + q] = b[q] - a[q];
+    }
     k->seg[k->count++] = j;
     return 0;
 }
@@ -230,7 +239,7 @@ static PyObject *py_near_sphere(PyObject *self, PyObject *args)
                           &planes_obj))
         return NULL;
     PyObject *result = NULL;
-    kept_t out = {NULL, NULL, 0, 0};
+    kept_t out = {NULL, NULL, 0, 0, 1};
     int have_box = box_obj != Py_None, n_planes = 0;
     if (planes_obj != Py_None) {
         PyObject *seq = PySequence_Fast(planes_obj, "near_sphere: planes must be None or 4 k floats");
@@ -249,6 +258,7 @@ static PyObject *py_near_sphere(PyObject *self, PyObject *args)
             goto done;
         }
         n_planes = (int)(len / 4);
+        out.rays = 0;
     }
     if (have_box) {
         PyObject *seq = PySequence_Fast(box_obj, "near_sphere: box must be None or 18 floats");
@@ -285,7 +295,8 @@ static PyObject *py_near_sphere(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "near_sphere: a point index or a row's span is out of range");
     else
         result = Py_BuildValue("(y#y#)", out.count ? (const char *)out.seg : "", out.count * (Py_ssize_t)sizeof(int64_t),
-                               out.count ? (const char *)out.ray : "", out.count * 6 * (Py_ssize_t)sizeof(double));
+                               out.rays && out.count ? (const char *)out.ray : "",
+                               (out.rays ? out.count : 0) * 6 * (Py_ssize_t)sizeof(double));
 done:
     free(out.seg);
     free(out.ray);

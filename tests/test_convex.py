@@ -90,9 +90,10 @@ def _clipped(P, T, a, b, pose=np.eye(4)):
     pts = np.concatenate([a, b])
     n = len(a)
     ends = np.arange(1, n + 1, dtype=np.int64)
-    out, _ = _segments.near_sphere(pts, ends - 1, ends, np.arange(n, 2 * n, dtype=np.int32), np.arange(n, dtype=np.int64),
+    out, rays = _segments.near_sphere(pts, ends - 1, ends, np.arange(n, 2 * n, dtype=np.int32), np.arange(n, dtype=np.int64),
                                    tuple(pose[:3, 3]), 1e9, np.concatenate([A.ravel(), t, lo, hi]).tolist(),
                                    planes.ravel().tolist())
+    assert rays == b""  # decided in the pass: no rays to trace
     kept = np.zeros(n, bool)
     kept[np.frombuffer(out, np.int64)] = True
     return kept
