@@ -36,7 +36,7 @@ def setup():
 
 
 def test_entering_blocks_equal_dense_indexing(setup):
-    """LocalRows.entering's F[S, J], F[J, S], F[J, J] and kept rows against plain numpy indexing
+    """LocalRows.entering's F[S, J], F[J, S], F[J, J], F[S, R] and kept rows against plain numpy indexing
     of the dense F, over frames of random swaps (the scatter map must be clean between calls)."""
     from pydynrad.dynamic.localrows import LocalRows
 
@@ -49,9 +49,9 @@ def test_entering_blocks_equal_dense_indexing(setup):
     for _ in range(5):
         slots = rng.choice(40, 6, replace=False)
         J = rng.choice(np.setdiff1d(np.arange(len(scene)), S), 6, replace=False)
-        F_SJ, F_JS, F_JJ = ff.entering(S, J, slots)
+        F_SJ, F_JS, F_JJ, F_SR = ff.entering(S, J, slots)
         assert np.array_equal(F_SJ, D[np.ix_(S, J)]) and np.array_equal(F_JS, D[np.ix_(J, S)])
-        assert np.array_equal(F_JJ, D[np.ix_(J, J)])
+        assert np.array_equal(F_JJ, D[np.ix_(J, J)]) and np.array_equal(F_SR, D[np.ix_(S, S[slots])])
         S = S.copy()
         S[slots] = J
         assert np.array_equal(ff.local.toarray(), D[S])

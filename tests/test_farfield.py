@@ -320,6 +320,36 @@ def test_injection_from_the_columns_outside_the_local_set(device, cornell):
             assert 0 < cut.nnz < rows.nnz / 2 and not np.isin(cut.indices, S).any()
 
 
+@pytest.mark.parametrize("update", ["exact", "paper"])
+def test_injection_follows_the_swaps_of_a_walk(device, cornell, update):
+    """A walk's frames replace the local rows on every swap; the injection is carried over each
+    swap (FarField.follow_swap: the kept slots' change from the columns of the patches that
+    entered and left, the swapped slots' new rows) and equals the whole product of the rows
+    with B_far zeroed on the local set, to float64 rounding, also over frames whose radiosity()
+    is skipped; B equals that of a solution that multiplies the rows whole (to a float32
+    rounding: the light reaches the device's products in float32)."""
+    scene, F, L, _, _ = cornell
+    kw = dict(local_size=len(scene) // 4, update=update, max_swaps_per_frame=8, observer=[278, 273, -300],
+              device=device)
+    dyn, whole = DynamicRadiosity(scene, F, **kw), DynamicRadiosity(scene, F, **kw)
+    dyn.radiosity(light=L)
+    carried = worst = 0
+    for k, z in enumerate(np.linspace(-300, 500, 12)):
+        stats = dyn.update([278, 273, z])
+        S, rows = dyn._local_patches, dyn._ff.local
+        if stats.swaps and dyn.far._injected[1] is rows:  # carried, not recomputed
+            carried += 1
+            outside = dyn.far.B_far.copy()
+            outside[S] = 0.0
+            expected = dyn.far.rho[S] * (rows @ outside)
+            worst = max(worst, np.abs(dyn.far._injected[3] - expected).max() / np.abs(expected).max())
+        whole.update([278, 273, z])
+        whole.far._injected = None  # its injection multiplies the whole rows
+        if k % 3 != 1:
+            np.testing.assert_allclose(dyn.radiosity(light=L), whole.radiosity(light=L), rtol=1e-7, atol=0)
+    assert carried >= 8 and worst < 2e-15  # 5.6e-16 of the largest over 11 carried frames
+
+
 def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_path):
     from pydynrad.rows.files import open_form_factors
     from pydynrad.rows.store import compute_store

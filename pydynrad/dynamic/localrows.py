@@ -106,19 +106,25 @@ class LocalRows:
         self.local = self.rows(local_patches)
 
     def entering(self, local_patches: np.ndarray, J: np.ndarray, slots: np.ndarray):
-        """F[S, J] (M, k), F[J, S] (k, M) and F[J, J] (k, k), dense float64, for patches J
-        entering ``slots``; afterwards the kept rows of those slots are J's rows.
+        """F[S, J] (M, k), F[J, S] (k, M), F[J, J] (k, k) and F[S, R] (M, k), dense float64, for
+        patches J entering ``slots`` and the patches R = ``local_patches[slots]`` leaving them;
+        afterwards the kept rows of those slots are J's rows.
 
-        F[S, J] is a column slice of the kept rows (scipy's: one pass over their entries, the
-        fastest of those tried at M = 1,024 and 4,096); F[J, S] and F[J, J] are scattered from
-        J's own rows (:meth:`_scatter_rows`), which costs O(nnz(rows_J) + M), not O(N)."""
+        F[S, J] and F[S, R] are one column slice of the kept rows (scipy's: one pass over their
+        entries whatever the columns, the fastest of those tried at M = 1,024 and 4,096; F[S, R]
+        carries the far field's injection over the swap,
+        :meth:`~pydynrad.farfield.level.FarField.follow_swap`); F[J, S]
+        and F[J, J] are scattered from J's own rows (:meth:`_scatter_rows`), which costs
+        O(nnz(rows_J) + M), not O(N)."""
         slots = np.asarray(slots)
+        J = np.asarray(J, dtype=np.int64)
         rows_J = self.rows(J)
-        F_SJ = self.local[:, J].toarray()
+        cols = self.local[:, np.concatenate([J, np.asarray(local_patches)[slots]])].toarray()
+        F_SJ, F_SR = np.ascontiguousarray(cols[:, : len(J)]), np.ascontiguousarray(cols[:, len(J):])
         F_JS = self._scatter_rows(rows_J, local_patches)
         F_JJ = self._scatter_rows(rows_J, J)
         self.local = _replace_rows(self.local, slots, rows_J)
-        return F_SJ, F_JS, F_JJ
+        return F_SJ, F_JS, F_JJ, F_SR
 
     def _scatter_rows(self, rows: sp.csr_matrix, patches: np.ndarray) -> np.ndarray:
         """``rows[:, patches]`` (distinct patches) as a dense float64 (len(rows), len(patches))

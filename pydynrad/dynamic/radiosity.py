@@ -634,11 +634,22 @@ class DynamicRadiosity:
         self._local_patches[slots] = J
         self._local_mask[J] = True
 
+    def _entering(self, slots: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """F[S, J], F[J, S], F[J, J] of the patches J entering ``slots`` (their rows now kept);
+        the far field's last injection follows the swap (no pass over the rows in radiosity())."""
+        before = self._ff.local
+        F_SJ, F_JS, F_JJ, F_SR = self._ff.entering(self._local_patches, J, slots)
+        if self.far is not None:
+            members = self._local_patches.copy()
+            members[slots] = J
+            self.far.follow_swap(before, self._ff.local, members, slots, F_SJ, F_SR)
+        return F_SJ, F_JS, F_JJ
+
     def _exact_frame(self, slots: np.ndarray, J: np.ndarray) -> float:
         from .exact import exact_swap
 
         t0 = time.perf_counter()
-        F_SJ, F_JS, F_JJ = self._ff.entering(self._local_patches, J, slots)
+        F_SJ, F_JS, F_JJ = self._entering(slots, J)
         F_SJ[slots, :] = 0.0  # the leaving patches take no part in the new paths
         F_JS[:, slots] = 0.0
         t_ff = time.perf_counter() - t0
@@ -653,7 +664,7 @@ class DynamicRadiosity:
         # with slots[:t] holding J[:t], so its f_c and f_r are F_SJ[:, t] and F_JS[t] with those
         # slots read from F_JJ: the same values a fetch per step would give.
         t0 = time.perf_counter()
-        F_SJ, F_JS, F_JJ = self._ff.entering(self._local_patches, J, slots)
+        F_SJ, F_JS, F_JJ = self._entering(slots, J)
         t_ff = time.perf_counter() - t0
         for t, (s, j) in enumerate(zip(slots.tolist(), J.tolist())):
             self._swap_local(np.array([s]), np.array([j]))
