@@ -350,6 +350,33 @@ def test_injection_follows_the_swaps_of_a_walk(device, cornell, update):
     assert carried >= 8 and worst < 2e-15  # 5.6e-16 of the largest over 11 carried frames
 
 
+def test_injection_after_a_carried_swap_cuts_nothing(device, cornell, monkeypatch):
+    """New lights on every frame of a walk: each injection multiplies the rows as the swap left
+    them (they are new to the product), and none cuts out their outside columns, which the next
+    swap would drop; the carry count restarts at each product, and past MAX_CARRIED_SWAPS a
+    carry hands over to a full product."""
+    from pydynrad.farfield import level
+
+    scene, F, L, _, _ = cornell
+    dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 2, max_swaps_per_frame=8, observer=[278, 273, -300],
+                           device=device)
+    for k, z in enumerate(np.linspace(-300, 500, 8)):
+        dyn.update([278, 273, z])
+        S, rows = dyn._local_patches, dyn._ff.local
+        B = dyn.radiosity(light=L * (1.0 + 0.1 * k))  # a new light vector each frame: B_far changes
+        assert dyn.far._outside_cols is None and dyn.far._carried == 0
+        outside = dyn.far.B_far.copy()
+        outside[S] = 0.0
+        np.testing.assert_array_equal(dyn.far._injected[3], dyn.far.rho[S] * (rows @ outside))
+        assert np.isfinite(B).all()
+    monkeypatch.setattr(level, "MAX_CARRIED_SWAPS", 2)
+    carried = []
+    for z in np.linspace(500, -300, 5):
+        if dyn.update([278, 273, z]).swaps:
+            carried.append(dyn.far._injected is not None and dyn.far._injected[1] is dyn._ff.local)
+    assert carried[:3] == [True, True, False]
+
+
 def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_path):
     from pydynrad.rows.files import open_form_factors
     from pydynrad.rows.store import compute_store
