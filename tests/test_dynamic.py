@@ -200,6 +200,36 @@ def test_albedo_extremes(device, albedo, mode):
         np.testing.assert_allclose(B[S], want, rtol=1e-13)  # observed 4e-16
 
 
+def test_light_vector_reused_while_the_lights_stay(device, setup, monkeypatch):
+    """radiosity(lights) traces the lights' shadows once while the light objects (equal ones
+    count), the emitter mode and the world stay: the same B, bit for bit, with no new light
+    vector; new lights, another emitter mode or a given light vector are computed, and the B of
+    new lights equals that of their light vector passed as light=. The held vector is read-only."""
+    from pydynrad.photometry import areas
+
+    scene, F = setup
+    made = []
+    real = areas.analytic_emitter_light
+    monkeypatch.setattr(areas, "analytic_emitter_light", lambda *a, **k: made.append(1) or real(*a, **k))
+    dyn = DynamicRadiosity(scene, F, local_size=48, observer=[0.5, 0.5, 0.5], device=device)
+    made.clear()  # the constructor's warm-up lights once
+    lamp = pydynrad.PointLight((0.5, 0.8, 0.5), (2.0, 1.5, 1.0))
+    B1 = dyn.radiosity([lamp])
+    B2 = dyn.radiosity([pydynrad.PointLight((0.5, 0.8, 0.5), (2.0, 1.5, 1.0))])  # equal, not the same object
+    assert len(made) == 1 and np.array_equal(B1, B2) and not dyn._lit[3].flags.writeable
+    moved = pydynrad.PointLight((0.3, 0.8, 0.5), (2.0, 1.5, 1.0))
+    B3 = dyn.radiosity([moved])
+    assert len(made) == 2 and not np.array_equal(B3, B1)
+    np.testing.assert_array_equal(B3, dyn.radiosity(light=pydynrad.light_vector(scene, [moved], device=device)))
+    assert len(made) == 3  # light= is not held
+    dyn.radiosity([moved], emitters="analytic")
+    dyn.radiosity([moved])
+    assert len(made) == 5
+    dyn.radiosity([moved, lamp])
+    dyn.radiosity([lamp, moved])  # order matters to the check, not to the light: computed again
+    assert len(made) == 7
+
+
 def test_lighting_changes_B_not_K(device, setup):
     import pyopencl as cl
 
