@@ -234,19 +234,28 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
     return _point_irradiance(scene, points, normals, checked_lights(lights), device)
 
 
-def _point_irradiance(scene, points, normals, lights: list, device) -> np.ndarray:
-    """:func:`point_irradiance` of checked ``lights``."""
+def _point_irradiance(scene, points, normals, lights: list, device, patches=None) -> np.ndarray:
+    """:func:`point_irradiance` of checked ``lights``; with ``points = normals = None``, at the
+    patch centres, or at those of ``patches`` (k,) alone (each the same value as in a pass
+    over all of them: the same float32 centre and normal, the same ray)."""
     import pyopencl as cl
 
     from .device import default_device
 
     packed, tables = _packed(lights, scene.frame)
     n = len(scene) if points is None else len(points)
+    if patches is not None:
+        n = len(patches)
     if not len(packed) or not n:
         return np.zeros((n, 3), dtype=np.float32)
     device = device or default_device()
     nodes, tris, _ = scene.bvh.buffers(device)
-    if points is None:
+    if points is None and patches is not None:
+        patches = np.asarray(patches, np.int64)
+        centers, normals = (device.to_device(float4(a)) for a in (scene.frame.points(scene.centers[patches]),
+                                                                 scene.normals[patches]))
+        outside, offset = 0.0, SHADOW_EPSILON
+    elif points is None:
         centers, normals, outside = *scene.patch_buffers(device), 0.0
         offset = SHADOW_EPSILON
     else:

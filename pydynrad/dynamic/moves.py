@@ -31,7 +31,7 @@ from ..rows.sources import HemicubeRows
 from .localrows import LocalRows
 
 __all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "sphere_form_factor",
-           "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries", "native_spans",
+           "shadow_rays_near", "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries", "native_spans",
            "reciprocal_columns", "at_pose", "swap_chunks"]
 
 
@@ -62,6 +62,23 @@ def _sphere_view(points, normals, center, radius) -> tuple[np.ndarray, np.ndarra
     omega = np.where(inside, 2.0 * np.pi, omega)
     cos = np.where(inside, 1.0, np.clip(height / np.maximum(d, 1e-300), 0.0, 1.0))
     return np.where(height > -radius, omega, 0.0), cos
+
+
+def shadow_rays_near(points: np.ndarray, light, center, radius: float) -> np.ndarray:
+    """(n,) bool: whether the shadow ray from each point towards ``light`` passes within
+    ``radius`` of ``center``: the segment to a point or spot light's position, the ray against a
+    directional light's direction (unbounded, so a superset of the kernel's, which stops past the
+    scene). Where False, an object inside that sphere cannot shadow the point from the light."""
+    p = np.asarray(points, np.float64)
+    c = np.asarray(center, np.float64)
+    if hasattr(light, "position"):
+        v = np.asarray(light.position, np.float64) - p
+        t = np.clip(np.einsum("ij,ij->i", c - p, v) / np.maximum(np.einsum("ij,ij->i", v, v), 1e-300), 0.0, 1.0)
+    else:
+        v = np.broadcast_to(-np.asarray(light.direction, np.float64), p.shape)
+        t = np.maximum(np.einsum("ij,ij->i", c - p, v), 0.0)
+    closest = p + t[:, None] * v
+    return np.einsum("ij,ij->i", closest - c, closest - c) <= radius * radius
 
 
 def refresh_order(points, normals, spheres) -> tuple[np.ndarray, np.ndarray]:

@@ -725,25 +725,67 @@ class DynamicRadiosity:
     def _light_vector(self, lights, light, emitters: str) -> tuple[np.ndarray, np.ndarray | None]:
         """:func:`~pydynrad.photometry.areas.analytic_emitter_light` of the world as it is, reused
         while the light objects (equal ones, in order), the emitter mode and the world are those
-        of the last call (a move makes a new world: its shadows are traced again). A walk's frames
-        under lights that stay put then trace no shadow ray and gather no sky again: a SkyLight's
-        light vector is a hemicube per patch (280 ms on the Cornell box's 1,128 patches), a point
-        light's one ray per patch (0.4-0.5 ms). The arrays are read-only: every caller copies."""
+        of the last call. A walk's frames under lights that stay put then trace no shadow ray and
+        gather no sky again: a SkyLight's light vector is a hemicube per patch (280 ms on the
+        Cornell box's 1,128 patches), a point light's one ray per patch (0.4-0.5 ms). After a
+        move only the patches whose shadows it may change are lit again (:meth:`_relit`). The
+        arrays are read-only: every caller copies."""
         from ..lights import checked_lights
         from ..photometry.areas import analytic_emitter_light
 
         if light is None:
             lights = checked_lights(lights)
             held = self._lit
-            if held is not None and held[0] is self.scene and held[1] == emitters and _same_lights(held[2], lights):
-                return held[3], held[4]
+            if held is not None and held[1] == emitters and _same_lights(held[2], lights):
+                if held[0] is self.scene:
+                    return held[3], held[4]
+                L = self._relit(held[3], held[5], lights) if emitters == "hemicube" else None
+                if L is not None:
+                    L.flags.writeable = False
+                    self._lit = (self.scene, emitters, lights, L, None, self._poses())
+                    return L, None
         L, E = analytic_emitter_light(self.scene, lights, light, emitters, self.device)
         if light is None:
             for a in (L, E):
                 if a is not None:
                     a.flags.writeable = False
-            self._lit = (self.scene, emitters, lights, L, E)
+            self._lit = (self.scene, emitters, lights, L, E, self._poses())
         return L, E
+
+    def _poses(self) -> tuple:
+        """The objects' poses now, as copies (the world's InstancedBVH is moved in place)."""
+        return tuple(np.array(T) for T in self.scene.bvh.transforms) if self.objects else ()
+
+    def _relit(self, L: np.ndarray, poses: tuple, lights: list) -> np.ndarray | None:
+        """Light vector ``L`` of point, spot and directional ``lights`` in the world at ``poses``,
+        brought to the world as it is: only the patches whose direct light a move may change
+        are lit again (each the value a pass over every patch gives): every object's patch, and
+        the static patches whose shadow ray to a light passes near a moved object's bounding
+        sphere at its old or new pose (:func:`~pydynrad.dynamic.moves.shadow_rays_near`, widened
+        by twice the rays' offset from their patches). None where the lights are of another kind
+        (a sky's light is a hemicube per patch, a luminaire's its own table)."""
+        from ..lights import SHADOW_EPSILON, DirectionalLight, PointLight, SpotLight, _point_irradiance
+        from .moves import shadow_rays_near
+
+        if not self.objects or len(poses) != len(self.objects) or not lights \
+                or any(type(x) not in (PointLight, SpotLight, DirectionalLight) for x in lights):
+            return None
+        world, n = self.scene, len(self.static_scene)
+        spheres = [s for o, before, now in zip(self.objects, poses, world.bvh.transforms)
+                   if not np.array_equal(before, now) for s in (o.bounding_sphere(before), o.bounding_sphere(now))]
+        redo = np.zeros(len(world), bool)
+        redo[n:] = True
+        slack = 2.0 * SHADOW_EPSILON * world.ray_scale
+        for light in lights:
+            for c, r in spheres:
+                redo[:n] |= shadow_rays_near(world.centers[:n], light, c, r * (1.0 + 1e-6) + slack)
+        patches = np.flatnonzero(redo)
+        E = _point_irradiance(world, None, None, lights, self.device, patches=patches)
+        if not np.all(np.isfinite(E)):
+            return None  # light_vector's own pass says what overflows
+        out = np.array(L)
+        out[patches] = world.emission[patches].astype(np.float64) + world.albedo[patches].astype(np.float64) * E
+        return out
 
     def _solve_kept(self, X: np.ndarray) -> np.ndarray:
         """(M, 3) X + P_S K X for X (M, 3) on the local set: (I - P_S F_SS)^{-1} X."""
