@@ -242,6 +242,8 @@ def _point_irradiance(scene, points, normals, lights: list, device, patches=None
 
     from .device import default_device
 
+    if patches is not None and points is not None:
+        raise InvalidInputError("_point_irradiance takes sensor points or patches, not both")
     packed, tables = _packed(lights, scene.frame)
     n = len(scene) if points is None else len(points)
     if patches is not None:

@@ -216,7 +216,7 @@ def test_light_vector_reused_while_the_lights_stay(device, setup, monkeypatch):
     lamp = pydynrad.PointLight((0.5, 0.8, 0.5), (2.0, 1.5, 1.0))
     B1 = dyn.radiosity([lamp])
     B2 = dyn.radiosity([pydynrad.PointLight((0.5, 0.8, 0.5), (2.0, 1.5, 1.0))])  # equal, not the same object
-    assert len(made) == 1 and np.array_equal(B1, B2) and not dyn._lit[3].flags.writeable
+    assert len(made) == 1 and np.array_equal(B1, B2) and not dyn._held_light.L.flags.writeable
     moved = pydynrad.PointLight((0.3, 0.8, 0.5), (2.0, 1.5, 1.0))
     B3 = dyn.radiosity([moved])
     assert len(made) == 2 and not np.array_equal(B3, B1)

@@ -45,10 +45,11 @@ def full_solve(box, objects, device):
     return world, F, dense_radiosity(world, F, pd.light_vector(world, LIGHTS, device=device))
 
 
-def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, device, monkeypatch):
+def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, lamp, device, monkeypatch):
     """After each move radiosity(lights) lights again only the objects' patches and the static
     patches whose shadow rays pass near a moved object (old or new pose): the light vector is
-    the world's own, bit for bit, for point, spot and directional lights; a sky is lit whole."""
+    that of the same world built afresh (its own BVH), bit for bit, for point, spot and
+    directional lights, with one object moved or two; a sky is lit whole."""
     import pydynrad.lights as lights_module
     from pydynrad.photometry import SkyLight
 
@@ -59,21 +60,26 @@ def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, dev
         traced.append(len(scene) if patches is None else len(patches))
         return real(scene, points, normals, lights, device, patches)
 
+    def fresh(lights):  # the world at the objects' poses, BVH and uploads of its own
+        return pd.light_vector(instanced(box, dyn.objects), lights, device=device)
+
     monkeypatch.setattr(lights_module, "_point_irradiance", counting)
     lights = [pd.PointLight((278.0, 500.0, 280.0), (3e5, 3e5, 3e5)),
               pd.SpotLight((100.0, 540.0, 100.0), (0.3, -1.0, 0.4), (2e5, 2e5, 1e5), 0.3, 0.8),
-              pd.DirectionalLight((0.2, -1.0, 0.3), (40.0, 40.0, 40.0))]
-    obj = pd.RigidObject(block, START)
-    dyn = pd.DynamicRadiosity(box, None, local_size=len(box) // 2, resolution=R, objects=[obj], occlusion=0,
+              pd.DirectionalLight((0.0, -1.0, 0.0), (40.0, 40.0, 40.0))]
+    obj, carried = pd.RigidObject(block, START), pd.RigidObject(lamp, pose(0, (400.0, 300.0, 120.0)))
+    dyn = pd.DynamicRadiosity(box, None, local_size=len(box) // 2, resolution=R, objects=[obj, carried], occlusion=0,
                               observer=OBSERVER, device=device)
     dyn.radiosity(lights)
-    for T in (MIDDLE, END, START):
+    for T, U in ((MIDDLE, None), (END, pose(30, (350.0, 150.0, 200.0))), (START, None)):
         dyn.move(obj, T)
+        if U is not None:
+            dyn.move(carried, U)
         dyn.update(OBSERVER)
         traced.clear()
         dyn.radiosity(lights)
-        assert len(traced) == 1 and len(block) <= traced[0] < len(dyn.scene)
-        np.testing.assert_array_equal(dyn._lit[3], pd.light_vector(dyn.scene, lights, device=device))
+        assert len(traced) == 1 and len(block) + len(lamp) <= traced[0] < len(dyn.scene)
+        np.testing.assert_array_equal(dyn._held_light.L, fresh(lights))
     sky = [SkyLight(zenith_luminance=1.0, up=(0.0, 1.0, 0.0), resolution=8)]
     dyn.radiosity(sky)
     dyn.move(obj, MIDDLE)
@@ -81,7 +87,7 @@ def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, dev
     traced.clear()
     dyn.radiosity(sky)
     assert traced == [len(dyn.scene)]
-    np.testing.assert_array_equal(dyn._lit[3], pd.light_vector(dyn.scene, sky, device=device))
+    np.testing.assert_array_equal(dyn._held_light.L, fresh(sky))
 
 
 def test_unlimited_budget_equals_full_solve(box, block, lamp, device):

@@ -30,8 +30,8 @@ from ..errors import InvalidInputError
 from ..rows.sources import HemicubeRows
 from .localrows import LocalRows
 
-__all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "sphere_form_factor",
-           "shadow_rays_near", "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries", "native_spans",
+__all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle",
+           "sphere_form_factor", "shadow_rays_near", "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries", "native_spans",
            "reciprocal_columns", "at_pose", "swap_chunks"]
 
 
@@ -69,14 +69,16 @@ def shadow_rays_near(points: np.ndarray, light, center, radius: float) -> np.nda
     ``radius`` of ``center``: the segment to a point or spot light's position, the ray against a
     directional light's direction (unbounded, so a superset of the kernel's, which stops past the
     scene). Where False, an object inside that sphere cannot shadow the point from the light."""
+    from ..lights import DirectionalLight
+
     p = np.asarray(points, np.float64)
     c = np.asarray(center, np.float64)
-    if hasattr(light, "position"):
-        v = np.asarray(light.position, np.float64) - p
-        t = np.clip(np.einsum("ij,ij->i", c - p, v) / np.maximum(np.einsum("ij,ij->i", v, v), 1e-300), 0.0, 1.0)
-    else:
+    if isinstance(light, DirectionalLight):
         v = np.broadcast_to(-np.asarray(light.direction, np.float64), p.shape)
         t = np.maximum(np.einsum("ij,ij->i", c - p, v), 0.0)
+    else:  # a point or spot light: the segment to its position
+        v = np.asarray(light.position, np.float64) - p
+        t = np.clip(np.einsum("ij,ij->i", c - p, v) / np.maximum(np.einsum("ij,ij->i", v, v), 1e-300), 0.0, 1.0)
     closest = p + t[:, None] * v
     return np.einsum("ij,ij->i", closest - c, closest - c) <= radius * radius
 

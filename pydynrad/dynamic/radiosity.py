@@ -37,6 +37,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -182,7 +183,7 @@ class DynamicRadiosity:
         self.device = device_or_default(device)
         self.objects, self._pending = [], {}
         self._last_B: np.ndarray | None = None  # (N,) the last radiosity() summed over channels: ranks a move's rows
-        self._lit = None  # (world, emitters, lights, L, E) of the last radiosity() with lights=: _light_vector
+        self._held_light: HeldLight | None = None  # the last radiosity()'s with lights=: _light_vector
         self.occlusion_correction = flag(occlusion_correction, "occlusion_correction")
         if isinstance(occlusion, str):
             if occlusion != "auto":
@@ -690,8 +691,8 @@ class DynamicRadiosity:
 
         ``lights``: analytic lights (see :func:`pydynrad.light_vector`; emission alone when
         empty), whose light vector is kept while the same or equal lights light the same world
-        (a move traces their shadows again); or ``light``: a precomputed light vector L of
-        shape (N, 3). K is only read.
+        (after a move, lit again where it may have changed); or ``light``: a precomputed light
+        vector L of shape (N, 3). K is only read.
         ``far_field=False`` gives the paper's answer from the same K (the local-only
         comparison), also when this solution has a far field.
         ``emitters="analytic"``: emitting patches light the others by the exact point-to-polygon
@@ -726,30 +727,29 @@ class DynamicRadiosity:
         """:func:`~pydynrad.photometry.areas.analytic_emitter_light` of the world as it is, reused
         while the light objects (equal ones, in order), the emitter mode and the world are those
         of the last call. A walk's frames under lights that stay put then trace no shadow ray and
-        gather no sky again: a SkyLight's light vector is a hemicube per patch (280 ms on the
-        Cornell box's 1,128 patches), a point light's one ray per patch (0.4-0.5 ms). After a
-        move only the patches whose shadows it may change are lit again (:meth:`_relit`). The
-        arrays are read-only: every caller copies."""
+        gather no sky again (a SkyLight's light vector is a hemicube per patch, a point light's
+        one ray per patch). After a move only the patches whose shadows it may change are lit
+        again (:meth:`_relit`). The arrays are read-only: every caller copies."""
         from ..lights import checked_lights
         from ..photometry.areas import analytic_emitter_light
 
         if light is None:
             lights = checked_lights(lights)
-            held = self._lit
-            if held is not None and held[1] == emitters and _same_lights(held[2], lights):
-                if held[0] is self.scene:
-                    return held[3], held[4]
-                L = self._relit(held[3], held[5], lights) if emitters == "hemicube" else None
+            held = self._held_light
+            if held is not None and held.emitters == emitters and _same_lights(held.lights, lights):
+                if held.world is self.scene:
+                    return held.L, held.E
+                L = self._relit(held.L, held.poses, lights) if emitters == "hemicube" else None
                 if L is not None:
                     L.flags.writeable = False
-                    self._lit = (self.scene, emitters, lights, L, None, self._poses())
+                    self._held_light = HeldLight(self.scene, emitters, lights, L, None, self._poses())
                     return L, None
         L, E = analytic_emitter_light(self.scene, lights, light, emitters, self.device)
         if light is None:
             for a in (L, E):
                 if a is not None:
                     a.flags.writeable = False
-            self._lit = (self.scene, emitters, lights, L, E, self._poses())
+            self._held_light = HeldLight(self.scene, emitters, lights, L, E, self._poses())
         return L, E
 
     def _poses(self) -> tuple:
@@ -762,8 +762,9 @@ class DynamicRadiosity:
         are lit again (each the value a pass over every patch gives): every object's patch, and
         the static patches whose shadow ray to a light passes near a moved object's bounding
         sphere at its old or new pose (:func:`~pydynrad.dynamic.moves.shadow_rays_near`, widened
-        by twice the rays' offset from their patches). None where the lights are of another kind
-        (a sky's light is a hemicube per patch, a luminaire's its own table)."""
+        by twice the rays' offset from their patches). None (the caller lights the whole world)
+        where that does not hold: lights of another kind (a sky's light is a hemicube per patch,
+        a luminaire's its own table), no lights, no objects, or a direct light past float32."""
         from ..lights import SHADOW_EPSILON, DirectionalLight, PointLight, SpotLight, _point_irradiance
         from .moves import shadow_rays_near
 
@@ -840,6 +841,18 @@ class DynamicRadiosity:
                 d, _ = gmres(A, r, rtol=1e-3, atol=0.0, restart=min(M, 50), maxiter=20)
                 worst = max(worst, float(np.abs(d).max()))
         return worst / max(scale, 1e-300)
+
+
+class HeldLight(NamedTuple):
+    """The light vector of the last ``radiosity(lights=...)``: the world it lit (a move makes a
+    new one), the emitter mode, the light objects, L and E, and the objects' poses then."""
+
+    world: object
+    emitters: str
+    lights: list
+    L: np.ndarray
+    E: np.ndarray | None
+    poses: tuple
 
 
 def _same_lights(a: list, b: list) -> bool:
