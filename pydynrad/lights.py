@@ -252,13 +252,8 @@ def _point_irradiance(scene, points, normals, lights: list, device, patches=None
         return np.zeros((n, 3), dtype=np.float32)
     device = device or default_device()
     nodes, tris, _ = scene.bvh.buffers(device)
-    if points is None and patches is not None:
-        patches = np.asarray(patches, np.int64)
-        centers, normals = (device.to_device(float4(a)) for a in (scene.frame.points(scene.centers[patches]),
-                                                                 scene.normals[patches]))
-        outside, offset = 0.0, SHADOW_EPSILON
-    elif points is None:
-        centers, normals, outside = *scene.patch_buffers(device), 0.0
+    if points is None:
+        centers, normals, outside = *scene.patch_buffers(device, patches), 0.0
         offset = SHADOW_EPSILON
     else:
         # A sensor is a point, not a patch of the mesh: its shadow rays leave it by the offset of

@@ -307,16 +307,19 @@ class Scene:
 
         return BVH.build(self.frame.points(self.vertices))
 
-    def patch_buffers(self, device) -> tuple:
+    def patch_buffers(self, device, patches=None) -> tuple:
         """``(centers, normals)``: (N, 4) float32 device buffers (xyz, 0) of :attr:`centers` (in
         :attr:`frame`) and :attr:`normals`, uploaded once per device and kept beside the BVH's buffers, so kernels
         run per frame (the light pass, hemicubes) upload nothing of the scene. Scene arrays never
         change after construction, and scenes share a BVH only when they share geometry
-        (:meth:`with_materials`), so a different scene never sees these buffers."""
+        (:meth:`with_materials`), so a different scene never sees these buffers. With ``patches``
+        (k,) indices: the same float32 rows of those patches alone, uploaded for this call."""
 
-        def upload():
-            return tuple(device.to_device(float4(a)) for a in (self.frame.points(self.centers), self.normals))
+        def upload(idx=slice(None)):
+            return tuple(device.to_device(float4(a)) for a in (self.frame.points(self.centers[idx]), self.normals[idx]))
 
+        if patches is not None:
+            return upload(np.asarray(patches, np.int64))
         return self.bvh.upload_once(device, "patch_frames", upload)
 
     def content_hash(self) -> str:

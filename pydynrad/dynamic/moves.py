@@ -30,9 +30,9 @@ from ..errors import InvalidInputError
 from ..rows.sources import HemicubeRows
 from .localrows import LocalRows
 
-__all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle",
-           "sphere_form_factor", "shadow_rays_near", "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries", "native_spans",
-           "reciprocal_columns", "at_pose", "swap_chunks"]
+__all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "sphere_form_factor",
+           "shadow_rays_near", "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries",
+           "native_spans", "reciprocal_columns", "at_pose", "swap_chunks"]
 
 
 def sphere_solid_angle(points: np.ndarray, normals: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:

@@ -741,15 +741,16 @@ class DynamicRadiosity:
                     return held.L, held.E
                 L = self._relit(held.L, held.poses, lights) if emitters == "hemicube" else None
                 if L is not None:
-                    L.flags.writeable = False
-                    self._held_light = HeldLight(self.scene, emitters, lights, L, None, self._poses())
-                    return L, None
+                    return self._hold(emitters, lights, L, None)
         L, E = analytic_emitter_light(self.scene, lights, light, emitters, self.device)
-        if light is None:
-            for a in (L, E):
-                if a is not None:
-                    a.flags.writeable = False
-            self._held_light = HeldLight(self.scene, emitters, lights, L, E, self._poses())
+        return (L, E) if light is not None else self._hold(emitters, lights, L, E)
+
+    def _hold(self, emitters: str, lights: list, L: np.ndarray, E: np.ndarray | None) -> tuple:
+        """Keep (L, E) of ``lights`` for the world as it is, read-only; returns them."""
+        for a in (L, E):
+            if a is not None:
+                a.flags.writeable = False
+        self._held_light = HeldLight(self.scene, emitters, lights, L, E, self._poses())
         return L, E
 
     def _poses(self) -> tuple:
