@@ -23,6 +23,12 @@
  * exit, which vectorizes (medians 1.80-1.92 -> 1.58-1.73 ms for the ~850k entries of a move
  * there, one thread, 2026-12-03).
  *
+ * The third, moved_difference(), is the two at once where only D is wanted (a move at budget 0:
+ * pydynrad/dynamic/moves.py, WorldRows.differences): each row at the pose is made as assemble()
+ * makes it, value for value, and merged with its kept row as it is made, so the rows at the pose
+ * are never written (assemble wrote ~450k entries of a move into fresh pages, which a merge then
+ * read back: 0.9-1.4 ms and 1.4-2.5 ms of the bench's moving frame on the 2-core Zen 4).
+ *
  * Column indices are int32 (scipy's own for fewer than 2^31 columns), row pointers int64. The
  * rows read are spans of a CSR matrix's entries, starts[k] <= j < ends[k] for row k, so that
  * rows picked out of a larger matrix (a move's candidates out of the whole static F) are read
@@ -50,12 +56,20 @@
  *   Row i of the output is row i minus kept row slots[i], exact zeros dropped. Returns the
  *   entries written, or -1 - i where row i (of either input) has columns out of order.
  *
+ *   _poserows.moved_difference(starts, ends, indices, data, hidden, r_indptr, r_indices, r_data,
+ *                              k_indptr, k_indices, k_data, slots, out_indptr, out_indices, out_data) -> nnz
+ *   the first eight as for assemble, the next four as for difference; out_* of at least the
+ *   rows' entries + len(r_indices) + the entries of the kept rows named. Row i of the output is
+ *   assemble's row i minus kept row slots[i], exact zeros dropped; -1 - i where row i's static
+ *   columns or its kept row's columns are out of order.
+ *
  * Array lengths, spans, indptr ranges and slots are checked: ValueError.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
 #include <stdint.h>
+#include <stdlib.h>
 
 static int bad_indptr(const int64_t *p, Py_ssize_t rows, Py_ssize_t m)
 {
@@ -80,36 +94,43 @@ static Py_ssize_t span_entries(const int64_t *starts, const int64_t *ends, Py_ss
     return n;
 }
 
+/* Row k at the pose into ox, ov: its static entries left, then its object columns, capped (the
+   file's head). Returns the entries written. */
+static Py_ssize_t assemble_row(Py_ssize_t k, const int64_t *is, const int64_t *ie, const int32_t *ix, const double *x,
+                               const uint8_t *hidden, const int64_t *rp, const int32_t *rx, const double *rv,
+                               int32_t *ox, double *ov)
+{
+    Py_ssize_t n = 0;
+    double kept = 0.0, objects = 0.0;
+    for (int64_t j = is[k]; j < ie[k]; ++j)
+        if (!hidden[j] && x[j] != 0.0) {
+            kept += x[j];
+            ox[n] = ix[j], ov[n++] = x[j];
+        }
+    for (int64_t j = rp[k]; j < rp[k + 1]; ++j) objects += rv[j];
+    const double g = objects > 1.0 ? 1.0 / objects : 1.0;
+    if (kept > 0.0 && kept + objects > 1.0) {
+        double f = objects < 1.0 ? (1.0 - objects) / kept : 0.0;
+        Py_ssize_t w = 0;
+        for (Py_ssize_t j = 0; j < n; ++j) {
+            double v = ov[j] * f;
+            if (v != 0.0) ox[w] = ox[j], ov[w++] = v;
+        }
+        n = w;
+    }
+    for (int64_t j = rp[k]; j < rp[k + 1]; ++j)
+        if (rv[j] != 0.0) ox[n] = rx[j], ov[n++] = rv[j] * g;
+    return n;
+}
+
 static Py_ssize_t assemble(Py_ssize_t rows, const int64_t *is, const int64_t *ie, const int32_t *ix, const double *x,
                            const uint8_t *hidden, const int64_t *rp, const int32_t *rx, const double *rv, int64_t *op,
                            int32_t *ox, double *ov)
 {
-    Py_ssize_t n = 0;
     op[0] = 0;
-    for (Py_ssize_t k = 0; k < rows; ++k) {
-        Py_ssize_t start = n;
-        double kept = 0.0, objects = 0.0;
-        for (int64_t j = is[k]; j < ie[k]; ++j)
-            if (!hidden[j] && x[j] != 0.0) {
-                kept += x[j];
-                ox[n] = ix[j], ov[n++] = x[j];
-            }
-        for (int64_t j = rp[k]; j < rp[k + 1]; ++j) objects += rv[j];
-        const double g = objects > 1.0 ? 1.0 / objects : 1.0;
-        if (kept > 0.0 && kept + objects > 1.0) {
-            double f = objects < 1.0 ? (1.0 - objects) / kept : 0.0;
-            Py_ssize_t w = start;
-            for (Py_ssize_t j = start; j < n; ++j) {
-                double v = ov[j] * f;
-                if (v != 0.0) ox[w] = ox[j], ov[w++] = v;
-            }
-            n = w;
-        }
-        for (int64_t j = rp[k]; j < rp[k + 1]; ++j)
-            if (rv[j] != 0.0) ox[n] = rx[j], ov[n++] = rv[j] * g;
-        op[k + 1] = n;
-    }
-    return n;
+    for (Py_ssize_t k = 0; k < rows; ++k)
+        op[k + 1] = op[k] + assemble_row(k, is, ie, ix, x, hidden, rp, rx, rv, ox + op[k], ov + op[k]);
+    return op[rows];
 }
 
 static int increasing(const int32_t *x, int64_t start, int64_t end)
@@ -119,35 +140,75 @@ static int increasing(const int32_t *x, int64_t start, int64_t end)
     return ok;
 }
 
+/* Entries [i, ie) of (ax, av) minus entries [j, je) of (bx, bv), both in increasing column order,
+   into ox, ov, exact zeros dropped. Returns the entries written. */
+static Py_ssize_t merge_row(int64_t i, int64_t ie, const int32_t *ax, const double *av, int64_t j, int64_t je,
+                            const int32_t *bx, const double *bv, int32_t *ox, double *ov)
+{
+    Py_ssize_t n = 0;
+    while (i < ie && j < je) {
+        const int32_t a = ax[i], c = bx[j];
+        double v;
+        if (a == c)
+            v = av[i++] - bv[j++];
+        else if (a < c)
+            v = av[i++];
+        else
+            v = -bv[j++];
+        ox[n] = a < c ? a : c, ov[n] = v;
+        n += v != 0.0;
+    }
+    for (; i < ie; ++i) ox[n] = ax[i], ov[n] = av[i], n += av[i] != 0.0;
+    for (; j < je; ++j) ox[n] = bx[j], ov[n] = -bv[j], n += bv[j] != 0.0;
+    return n;
+}
+
 static Py_ssize_t difference(Py_ssize_t rows, const int64_t *as, const int64_t *ae, const int32_t *ax, const double *av,
                              const int64_t *bp, const int32_t *bx, const double *bv, const int64_t *slots, int64_t *op,
                              int32_t *ox, double *ov)
 {
-    Py_ssize_t n = 0;
     op[0] = 0;
     for (Py_ssize_t k = 0; k < rows; ++k) {
-        int64_t i = as[k], ie = ae[k], j = bp[slots[k]], je = bp[slots[k] + 1];
-        if (!increasing(ax, i, ie) || !increasing(bx, j, je)) return -1 - k;
-        while (i < ie && j < je) {
-            const int32_t a = ax[i], c = bx[j];
-            double v;
-            if (a == c)
-                v = av[i++] - bv[j++];
-            else if (a < c)
-                v = av[i++];
-            else
-                v = -bv[j++];
-            ox[n] = a < c ? a : c, ov[n] = v;
-            n += v != 0.0;
-        }
-        for (; i < ie; ++i) ox[n] = ax[i], ov[n] = av[i], n += av[i] != 0.0;
-        for (; j < je; ++j) ox[n] = bx[j], ov[n] = -bv[j], n += bv[j] != 0.0;
-        op[k + 1] = n;
+        const int64_t j = bp[slots[k]], je = bp[slots[k] + 1];
+        if (!increasing(ax, as[k], ae[k]) || !increasing(bx, j, je)) return -1 - k;
+        op[k + 1] = op[k] + merge_row(as[k], ae[k], ax, av, j, je, bx, bv, ox + op[k], ov + op[k]);
     }
-    return n;
+    return op[rows];
 }
 
-/* Both passes take eleven buffers: eight read, three written. */
+/* Each row at the pose is made into a scratch row (one row long, so it stays in the core's
+   cache) and merged from there: making it in the merge, entry by entry, was 1.5 times slower
+   than writing all the rows out and merging them after (3.3 against 2.3 ms for a move's 832
+   rows on the bench's Cornell box, Zen 4). -2 - rows: no memory for the scratch row. */
+static Py_ssize_t moved_difference(Py_ssize_t rows, const int64_t *is, const int64_t *ie, const int32_t *ix,
+                                   const double *x, const uint8_t *hidden, const int64_t *rp, const int32_t *rx,
+                                   const double *rv, const int64_t *bp, const int32_t *bx, const double *bv,
+                                   const int64_t *slots, int64_t *op, int32_t *ox, double *ov)
+{
+    int64_t longest = 1;
+    for (Py_ssize_t k = 0; k < rows; ++k) {
+        const int64_t len = ie[k] - is[k] + rp[k + 1] - rp[k];
+        longest = len > longest ? len : longest;
+    }
+    int32_t *sx = malloc((size_t)longest * sizeof(int32_t));
+    double *sv = malloc((size_t)longest * sizeof(double));
+    Py_ssize_t status = 0;
+    op[0] = 0;
+    if (!sx || !sv) status = -2 - rows;
+    for (Py_ssize_t k = 0; k < rows && !status; ++k) {
+        const int64_t j = bp[slots[k]], je = bp[slots[k] + 1];
+        if (!increasing(ix, is[k], ie[k]) || !increasing(bx, j, je)) {
+            status = -1 - k;
+            break;
+        }
+        const Py_ssize_t n = assemble_row(k, is, ie, ix, x, hidden, rp, rx, rv, sx, sv);
+        op[k + 1] = op[k] + merge_row(0, n, sx, sv, j, je, bx, bv, ox + op[k], ov + op[k]);
+    }
+    free(sx), free(sv);
+    return status ? status : op[rows];
+}
+
+/* assemble and difference take eleven buffers: eight read, three written. */
 #define BUFFERS 11
 enum { P = sizeof(int64_t), I = sizeof(int32_t), D = sizeof(double) };
 
@@ -228,6 +289,57 @@ static PyObject *difference_buffers(Py_buffer *b)
     return PyLong_FromSsize_t(n);
 }
 
+/* moved_difference's fifteen: assemble's eight, difference's four kept-row buffers, three written. */
+#define MOVED_BUFFERS 15
+
+static PyObject *py_moved_difference(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer b[MOVED_BUFFERS];
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*w*w*w*", &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6],
+                          &b[7], &b[8], &b[9], &b[10], &b[11], &b[12], &b[13], &b[14]))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t rows = b[0].len / P, m = b[2].len / I, mr = b[6].len / I, kr = b[8].len / P - 1, km = b[9].len / I;
+    const int64_t *slots = b[11].buf, *kp = b[8].buf;
+    if (kr < 0 || b[0].len != rows * P || b[1].len != rows * P || b[2].len != m * I || b[3].len != m * D ||
+        b[4].len != m || b[5].len != (rows + 1) * P || b[6].len != mr * I || b[7].len != mr * D ||
+        b[8].len != (kr + 1) * P || b[9].len != km * I || b[10].len != km * D || b[11].len != rows * P ||
+        b[12].len != (rows + 1) * P) {
+        PyErr_SetString(PyExc_ValueError, "moved_difference needs assemble's row spans, mask and object columns, a CSR "
+                                          "matrix of kept rows, an int64 slot per row and an output indptr of r + 1");
+        goto done;
+    }
+    if (bad_spans(b[0].buf, b[1].buf, rows, m) || bad_indptr(b[5].buf, rows, mr) || bad_indptr(kp, kr, km)) {
+        PyErr_SetString(PyExc_ValueError, "moved_difference: a row's span lies outside the entries, or an indptr does "
+                                          "not run from 0 to its entries without decreasing");
+        goto done;
+    }
+    Py_ssize_t most = span_entries(b[0].buf, b[1].buf, rows) + mr;
+    for (Py_ssize_t k = 0; k < rows; ++k) {
+        if (slots[k] < 0 || slots[k] >= kr) {
+            PyErr_Format(PyExc_ValueError, "moved_difference: slot %lld of row %zd is outside the %zd kept rows",
+                         (long long)slots[k], k, kr);
+            goto done;
+        }
+        most += kp[slots[k] + 1] - kp[slots[k]];
+    }
+    if (b[13].len < most * I || b[14].len < most * D) {
+        PyErr_Format(PyExc_ValueError, "moved_difference: the outputs hold fewer than the %zd entries the rows may have",
+                     most);
+        goto done;
+    }
+    Py_ssize_t n;
+    Py_BEGIN_ALLOW_THREADS
+    n = moved_difference(rows, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, b[6].buf, b[7].buf, kp,
+                         b[9].buf, b[10].buf, slots, b[12].buf, b[13].buf, b[14].buf);
+    Py_END_ALLOW_THREADS
+    result = n < -1 - rows ? PyErr_NoMemory() : PyLong_FromSsize_t(n);
+done:
+    for (int k = 0; k < MOVED_BUFFERS; ++k) PyBuffer_Release(&b[k]);
+    return result;
+}
+
 static PyObject *py_assemble(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -247,6 +359,10 @@ static PyMethodDef methods[] = {
     {"difference", py_difference, METH_VARARGS,
      "difference(starts, ends, indices, data, k_indptr, k_indices, k_data, slots, out_indptr, out_indices, out_data) -> nnz: "
      "each row minus kept row slots[i], zeros dropped (-1 - i: row i's columns out of order)"},
+    {"moved_difference", py_moved_difference, METH_VARARGS,
+     "moved_difference(starts, ends, indices, data, hidden, r_indptr, r_indices, r_data, k_indptr, k_indices, k_data, "
+     "slots, out_indptr, out_indices, out_data) -> nnz: assemble's rows minus kept rows slots[i], the rows themselves "
+     "never written (-1 - i: row i's columns out of order)"},
     {NULL, NULL, 0, NULL},
 };
 

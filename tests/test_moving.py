@@ -46,10 +46,12 @@ def full_solve(box, objects, device):
 
 
 def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, lamp, device, monkeypatch):
-    """After each move radiosity(lights) lights again only the objects' patches and the static
-    patches whose shadow rays pass near a moved object (old or new pose): the light vector is
-    that of the same world built afresh (its own BVH), bit for bit, for point, spot and
-    directional lights, with one object moved or two; a sky is lit whole."""
+    """Each move lights again only the objects' patches and the static patches whose shadow rays
+    pass near a moved object (old or new pose), in update() while the objects' hemicubes trace,
+    so that radiosity(lights) with the same lights traces nothing: the light vector is that of
+    the same world built afresh (its own BVH), bit for bit, for point, spot and directional
+    lights, with one object moved or two; other lights are lit whole in radiosity(), as is a
+    sky."""
     import pydynrad.lights as lights_module
     from pydynrad.photometry import SkyLight
 
@@ -75,11 +77,17 @@ def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, lam
         dyn.move(obj, T)
         if U is not None:
             dyn.move(carried, U)
-        dyn.update(OBSERVER)
         traced.clear()
-        dyn.radiosity(lights)
+        dyn.update(OBSERVER)
         assert len(traced) == 1 and len(block) + len(lamp) <= traced[0] < len(dyn.scene)
+        dyn.radiosity(lights)
+        assert len(traced) == 1
         np.testing.assert_array_equal(dyn._held_light.L, fresh(lights))
+    dimmer = [pd.PointLight((278.0, 500.0, 280.0), (1e5, 1e5, 1e5))]
+    traced.clear()
+    dyn.radiosity(dimmer)
+    assert traced == [len(dyn.scene)]
+    np.testing.assert_array_equal(dyn._held_light.L, fresh(dimmer))
     sky = [SkyLight(zenith_luminance=1.0, up=(0.0, 1.0, 0.0), resolution=8)]
     dyn.radiosity(sky)
     dyn.move(obj, MIDDLE)
@@ -589,7 +597,9 @@ def test_budget_zero_moves_then_walk_swaps(box, block, device, monkeypatch):
     assert dyn._stale.converged and len(dyn._stale) > 100
     dyn.refresh()
     truth = dyn.radiosity(LIGHTS, far_field=False)
-    assert rel(B, truth) < 2e-5  # the correction's tolerance is 1e-4; observed 1.8e-6 (1.4e-5 without the Gauss-Seidel step)
+    # The correction stops at an estimated error of 2e-4 (CORRECTION_TOLERANCE); observed 3.5e-5 (1.8e-6 when it
+    # stopped at a step of 1e-4, before 2026-12-06).
+    assert rel(B, truth) < 1e-4
     monkeypatch.setattr(stale, "CORRECTION_ITERATIONS", 1)
     capped = walked()
     capped.radiosity(LIGHTS, far_field=False)
@@ -795,96 +805,92 @@ def test_rows_minus_matches_scipy(monkeypatch):
         rows_minus(rows, kept, slots[:-1])
 
 
-def test_stale_rows_difference_on_a_thread_and_after_a_fork():
-    """StaleRows.update computes D on a host thread: what reads it waits and gets rows_minus's
-    answer, a put or drop waits first, and a process forked before it is read computes it
-    itself (the thread is not in the child)."""
-    import os
-    import signal
-
-    from pydynrad.dynamic.stale import StaleRows, rows_minus
+def test_stale_rows_hold_differences():
+    """StaleRows holds D only: put replaces what was held for its slots and holds none whose D
+    is empty, drop forgets slots, rebase keeps the rows at the pose when the kept rows change
+    under them, and current gives those rows back (kept + D); against dense numpy."""
+    from pydynrad.dynamic.stale import StaleRows
 
     rng = np.random.default_rng(11)
-    kept = sp.random(40, 60, density=0.3, random_state=rng, format="csr")
-    held = rng.permutation(40)[:25]
-    rows = sp.csr_matrix(kept[held])
-    rows.data[rng.random(rows.nnz) < 0.3] *= 0.5  # some rows unchanged: not stale
-    truth = rows_minus(rows, kept, held)
-    stale_rows = np.diff(truth.indptr) > 0
-    st = StaleRows(60)
-    st.put(held[:10], rows[:10])
-    st.put(held[10:], rows[10:])
-    st.update(kept)
-    np.testing.assert_array_equal(st.slots, held[stale_rows])
-    assert (st.delta != truth[stale_rows]).nnz == 0
-    st.update(kept)
-    st.drop(held[:5])  # waits for the D in the making, then drops from it
-    keep = ~np.isin(held[stale_rows], held[:5])
-    np.testing.assert_array_equal(st.slots, held[stale_rows][keep])
-    st.update(kept)
-    pid = os.fork()
-    if pid == 0:  # the child: exit 0 only if D comes, and right
-        signal.alarm(20)
-        ok = np.array_equal(st.slots, held[5:][stale_rows[5:]]) and (st.delta != truth[5:][stale_rows[5:]]).nnz == 0
-        os._exit(0 if ok else 1)
-    _, status = os.waitpid(pid, 0)
-    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
-    np.testing.assert_array_equal(st.slots, held[5:][stale_rows[5:]])
+    M, N = 40, 60
+    kept = sp.random(M, N, density=0.3, random_state=rng, format="csr")
+    pose = kept.toarray()  # the rows at the current poses, where they are stale
+    held = rng.permutation(M)[:25]
+    pose[held[:20]] *= rng.choice([0.5, 1.0], (20, 1))  # some rows unchanged: not stale
+    pose[held[20:], :7] = 0.01
+    st = StaleRows(N)
+    st.put(held[:10], sp.csr_matrix(pose[held[:10]] - kept.toarray()[held[:10]]))
+    st.put(held[5:], sp.csr_matrix(pose[held[5:]] - kept.toarray()[held[5:]]))  # replaces 5..9
+    stale = held[np.any(pose[held] != kept.toarray()[held], axis=1)]
+    assert sorted(st.slots) == sorted(stale) and len(st) == len(stale) < len(held)
+    slots, rows = st.current(kept)  # kept + (pose - kept): to a rounding of each, entries below 1
+    np.testing.assert_allclose(rows.toarray(), pose[slots], rtol=0, atol=2.3e-16)
+    st.drop(held[:3])
+    assert not np.isin(held[:3], st.slots).any() and len(st) == len(np.setdiff1d(stale, held[:3]))
+    # The kept rows change (rows swapped in elsewhere, object columns rescaled): D follows.
+    after = kept.toarray()
+    after[:, -4:] *= 0.5
+    after[held[10]] = pose[held[10]]  # this one is current now
+    st.rebase(kept, sp.csr_matrix(after))
+    slots, rows = st.current(sp.csr_matrix(after))
+    np.testing.assert_allclose(rows.toarray(), pose[slots], rtol=0, atol=4.5e-16)
+    assert held[10] not in st.slots
+    np.testing.assert_allclose(st.delta.toarray(), pose[st.slots] - after[st.slots], rtol=0, atol=4.5e-16)
+    with pytest.raises(pd.InvalidInputError, match="one row of 60 columns per slot"):
+        st.put(held[:2], sp.csr_matrix((3, N)))
+    st.clear()
+    assert len(st) == 0 and st.nbytes < 1000
 
 
-def test_stale_rows_on_one_core_and_their_errors(monkeypatch):
-    """On one core the shared pool has one thread: D, computed on it, must not wait on tasks
-    queued behind itself (a forked child pinned to one CPU, two blocks held). A D that fails on
-    the thread is raised by every read until the next update, never answered by the last D;
-    what the merge would refuse, update() refuses where it is called."""
-    import os
-    import signal
-
+def test_difference_at_pose_is_at_pose_minus_kept(monkeypatch):
+    """The fused pass gives at_pose's rows minus the kept rows bit for bit (capped rows, rows
+    whose object columns overfill them, hidden entries, rows read in place out of a larger F),
+    in one part or in parts on the cores, kept rows out of column order sorted first; bad
+    shapes refused."""
+    from pydynrad import hostthreads
     from pydynrad.dynamic import stale
-    from pydynrad.dynamic.stale import StaleRows, rows_minus
+    from pydynrad.dynamic.moves import difference_at_pose
+    from pydynrad.dynamic.stale import rows_minus
 
-    rng = np.random.default_rng(12)
-    kept = sp.random(20, 50, density=0.3, random_state=rng, format="csr")
-    b1, b2 = (sp.random(n, 50, density=0.3, random_state=rng, format="csr") for n in (3, 4))
-    held = np.arange(7)
-    truth = rows_minus([b1, b2], kept, held)
-    if hasattr(os, "sched_setaffinity"):
-        pid = os.fork()
-        if pid == 0:  # the child: one CPU, so a pool of one thread; exit 0 only if D comes, and right
-            signal.alarm(20)
-            os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-            st = StaleRows(50)
-            st.put(held, b1, b2)
-            st.update(kept)
-            ok = (st.delta != truth[np.diff(truth.indptr) > 0]).nnz == 0
-            os._exit(0 if ok else 1)
-        _, status = os.waitpid(pid, 0)
-        assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
-    st = StaleRows(50)
-    st.put(held, b1, b2)
-    st.update(kept)
-    assert len(st) == np.count_nonzero(np.diff(truth.indptr))
+    rng = np.random.default_rng(13)
+    n_static, n_obj, r, M = 40, 6, 200, 260
+    dense = rng.random((r, n_static)) * (rng.random((r, n_static)) < 0.3) * rng.choice([0.02, 0.05], (r, 1))
+    big = sp.vstack([sp.random(7, n_static, density=0.3, random_state=rng, format="csr"), dense], format="csr")
+    big = sp.csr_matrix(sp.hstack([big, sp.csr_matrix((big.shape[0], n_obj))]))
+    select = 7 + np.arange(r)
+    hidden = rng.random(big.nnz) < 0.2
+    objects = sp.csr_matrix(rng.random((n_obj, n_static + n_obj)) * (rng.random((n_obj, n_static + n_obj)) < 0.5) * 0.3)
+    areas = rng.uniform(0.5, 2.0, n_static + n_obj)
+    patches = rng.integers(0, n_static, r)
+    recip = reciprocal_columns(patches, objects, np.arange(n_static, n_static + n_obj), areas, n_static + n_obj)
+    kept = sp.random(M, n_static + n_obj, density=0.25, random_state=rng, format="csr").toarray()
+    slots = rng.permutation(M)[:r]
+    kept[slots[:50]] = at_pose(big, hidden, recip, select)[:50].toarray()  # rows equal to their kept rows: empty in D
+    kept = sp.csr_matrix(kept)
+    truth = rows_minus(at_pose(big, hidden, recip, select), kept, slots)
+    assert truth.nnz and not np.diff(truth.indptr)[:50].any()
 
-    def broken(*args):
-        raise RuntimeError("the merge failed")
+    def same(a, b):
+        return a.shape == b.shape and all(np.array_equal(getattr(a, k), getattr(b, k)) for k in ("indptr", "indices", "data"))
 
-    monkeypatch.setattr(stale, "_stale_difference", broken)
-    st.update(kept)
-    for _ in range(2):  # raised again by every read, not the last D
-        with pytest.raises(RuntimeError, match="the merge failed"):
-            st.slots
-    with pytest.raises(RuntimeError, match="the merge failed"):
-        len(st)
-    monkeypatch.undo()
-    st.update(kept)
-    assert len(st) == np.count_nonzero(np.diff(truth.indptr))
-    with pytest.raises(pd.InvalidInputError, match="differ in columns"):
-        st.update(kept[:, :40])
-    with pytest.raises(pd.InvalidInputError, match=r"\[0, 5\)"):
-        st.update(kept[:5])
-    with pytest.raises(pd.InvalidInputError, match="one slot per row"):
-        st.put(held[:3], b1, b2)
-
+    assert same(difference_at_pose(big, hidden, recip, kept, slots, select), truth)
+    monkeypatch.setattr(stale, "PARALLEL_ENTRIES", 1)
+    monkeypatch.setattr(hostthreads, "cores", lambda: 3)
+    assert same(difference_at_pose(big, hidden, recip, kept, slots, select), truth)
+    shuffled = kept.copy()
+    for k in range(M):  # each kept row's entries reversed: columns out of order
+        a, b = shuffled.indptr[k], shuffled.indptr[k + 1]
+        shuffled.indices[a:b], shuffled.data[a:b] = shuffled.indices[a:b][::-1].copy(), shuffled.data[a:b][::-1].copy()
+    shuffled.has_sorted_indices = False
+    assert same(difference_at_pose(big, hidden, recip, shuffled, slots, select), truth)
+    with pytest.raises(pd.InvalidInputError, match=r"\[0, 260\)"):
+        difference_at_pose(big, hidden, recip, kept, slots + M, select)
+    with pytest.raises(pd.InvalidInputError, match="one kept row per row"):
+        difference_at_pose(big, hidden, recip, kept, slots[:-1], select)
+    with pytest.raises(pd.InvalidInputError, match="one flag per entry"):
+        difference_at_pose(big, hidden[:-1], recip, kept, slots, select)
+    with pytest.raises(pd.InvalidInputError, match="do not match"):
+        difference_at_pose(big, hidden, recip[:-1], kept, slots, select)
 
 def test_rows_minus_sorts_kept_rows_out_of_order():
     """A kept row out of column order (and one with a column twice, as a CSR sum can leave it)
@@ -920,8 +926,8 @@ def test_precomputed_poses_with_static_form_factors(box, block, device):
     np.testing.assert_array_equal(source.rows(patches).toarray(), stored.toarray())
     _, F_full, full = full_solve(box, [pd.RigidObject(block, END)], device)
     np.testing.assert_allclose(source.rows(np.arange(n)).toarray(), F_full.toarray(), rtol=0, atol=1e-8)  # observed 0
-    # The correction stops at 1e-4 of max B; observed 7.5e-7 (PoCL, Xeon, 2026-12-03).
-    assert rel(dyn.radiosity(LIGHTS, far_field=False), full) < 2e-6
+    # The correction stops at an estimated error of 2e-4 of max B; observed 2.4e-5 (PoCL, Zen 4, 2026-12-06).
+    assert rel(dyn.radiosity(LIGHTS, far_field=False), full) < 1e-4
 
 
 @pytest.mark.slow

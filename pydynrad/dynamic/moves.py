@@ -32,7 +32,7 @@ from .localrows import LocalRows
 
 __all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "sphere_form_factor",
            "shadow_rays_near", "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries",
-           "native_spans", "reciprocal_columns", "at_pose", "swap_chunks"]
+           "native_spans", "reciprocal_columns", "at_pose", "difference_at_pose", "stacked_rows", "swap_chunks"]
 
 
 def sphere_solid_angle(points: np.ndarray, normals: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
@@ -64,23 +64,29 @@ def _sphere_view(points, normals, center, radius) -> tuple[np.ndarray, np.ndarra
     return np.where(height > -radius, omega, 0.0), cos
 
 
-def shadow_rays_near(points: np.ndarray, light, center, radius: float) -> np.ndarray:
-    """(n,) bool: whether the shadow ray from each point towards ``light`` passes within
-    ``radius`` of ``center``: the segment to a point or spot light's position, the ray against a
-    directional light's direction (unbounded, so a superset of the kernel's, which stops past the
-    scene). Where False, an object inside that sphere cannot shadow the point from the light."""
+def shadow_rays_near(points: np.ndarray, light, spheres) -> np.ndarray:
+    """(n,) bool: whether the shadow ray from each point towards ``light`` passes within the
+    radius of any of ``spheres`` [(centre, radius), ...]: the segment to a point or spot light's
+    position, the ray against a directional light's direction (unbounded, so a superset of the
+    kernel's, which stops past the scene). Where False, an object inside those spheres cannot
+    shadow the point from the light. All spheres in one pass of arrays (n, k): a pass per
+    sphere was 0.4 ms of a move's relight on the bench's Cornell box."""
     from ..lights import DirectionalLight
 
     p = np.asarray(points, np.float64)
-    c = np.asarray(center, np.float64)
+    if not len(spheres):
+        return np.zeros(len(p), bool)
+    c = np.array([s[0] for s in spheres], np.float64)  # (k, 3)
+    r = np.array([s[1] for s in spheres], np.float64)  # (k,)
+    u = c[None, :, :] - p[:, None, :]  # (n, k, 3) from each point to each centre
     if isinstance(light, DirectionalLight):
         v = np.broadcast_to(-np.asarray(light.direction, np.float64), p.shape)
-        t = np.maximum(np.einsum("ij,ij->i", c - p, v), 0.0)
+        t = np.maximum(np.einsum("nkj,nj->nk", u, v), 0.0)
     else:  # a point or spot light: the segment to its position
         v = np.asarray(light.position, np.float64) - p
-        t = np.clip(np.einsum("ij,ij->i", c - p, v) / np.maximum(np.einsum("ij,ij->i", v, v), 1e-300), 0.0, 1.0)
-    closest = p + t[:, None] * v
-    return np.einsum("ij,ij->i", closest - c, closest - c) <= radius * radius
+        t = np.clip(np.einsum("nkj,nj->nk", u, v) / np.maximum(np.einsum("nj,nj->n", v, v), 1e-300)[:, None], 0.0, 1.0)
+    gap = t[:, :, None] * v[:, None, :] - u  # closest point on the ray minus the centre
+    return np.any(np.einsum("nkj,nkj->nk", gap, gap) <= r * r, axis=1)
 
 
 def refresh_order(points, normals, spheres) -> tuple[np.ndarray, np.ndarray]:
@@ -267,9 +273,83 @@ def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix,
     # of F (a uint8 copy of the village's 35M was 87 ms a move).
     hidden = np.ascontiguousarray(hidden)
     hidden = (hidden if hidden.dtype == np.bool_ else hidden != 0).view(np.uint8)
+    # One thread: in two parts (their outputs then stacked) it took 1.25 ms against 0.70 for a
+    # move's 450k entries on the bench's Cornell box (AMD EPYC Zen 4, 2026-12-06): a pass that
+    # writes every entry once is bound by memory, not by a core.
     nnz = _poserows.assemble(starts, ends, indices, data, hidden, *native_csr(recip),
                              indptr, out_indices, out_data)
     return sp.csr_matrix((out_data[:nnz], out_indices[:nnz], indptr), shape=recip.shape)
+
+
+def difference_at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix, kept: sp.csr_matrix,
+                       slots: np.ndarray, select: np.ndarray | None = None) -> sp.csr_matrix:
+    """``at_pose(rows, hidden, recip, select) - kept[slots]`` (r, N) CSR, exact zeros dropped,
+    without the rows at the pose: each is merged with its kept row as it is made, value for
+    value as :func:`at_pose` makes it (``csrc/poserows.c``, ``moved_difference``). ``kept``
+    (M, N) CSR, ``slots`` (r,) rows of it; the rest as for :func:`at_pose`. Where a kept row is
+    out of column order, the kept rows are sorted first (a copy). In parts of about equal entries
+    on the cores at once from :data:`~pydynrad.dynamic.stale.PARALLEL_ENTRIES` entries."""
+    from .. import _poserows
+    from ..hostthreads import cores, map_parts, row_parts
+    from .stale import PARALLEL_ENTRIES
+
+    if not (sp.issparse(rows) and rows.format == "csr"):
+        raise InvalidInputError(f"difference_at_pose needs the rows as CSR (hidden is over their entries); got "
+                                f"{type(rows).__name__}")
+    recip, kept = sp.csr_matrix(recip), sp.csr_matrix(kept)
+    starts, ends, indices, data = native_spans(rows, select)
+    slots = np.ascontiguousarray(slots, np.int64)
+    if len(starts) != recip.shape[0] or rows.shape[1] > recip.shape[1] or recip.shape[1] != kept.shape[1]:
+        raise InvalidInputError(f"{len(starts)} rows of {rows.shape[1]} columns, their object columns {recip.shape} and "
+                                f"kept rows {kept.shape} do not match")
+    if slots.shape != (len(starts),):
+        raise InvalidInputError(f"slots must name one kept row per row ({len(starts)}); got shape {slots.shape}")
+    if len(slots) and (slots.min() < 0 or slots.max() >= kept.shape[0]):
+        raise InvalidInputError(f"slots must lie in [0, {kept.shape[0]}) (the kept rows); got {slots.min()}..{slots.max()}")
+    if np.shape(hidden) != (rows.nnz,):
+        raise InvalidInputError(f"hidden must have one flag per entry of the rows ({rows.nnz}); got {np.shape(hidden)}")
+    hidden = np.ascontiguousarray(hidden)
+    hidden = (hidden if hidden.dtype == np.bool_ else hidden != 0).view(np.uint8)
+    r_indptr, r_indices, r_data = native_csr(recip)
+
+    def part(task):
+        (a, z), (k_indptr, k_indices, k_data) = task
+        ra, rz, sl = r_indptr[a], r_indptr[z], slots[a:z]
+        n = int((ends[a:z] - starts[a:z]).sum()) + int(rz - ra) + int((k_indptr[sl + 1] - k_indptr[sl]).sum())
+        # Only D's entries are written (no page of the rest of the bound faulted in).
+        indptr, out_indices, out_data = np.empty(z - a + 1, np.int64), np.empty(n, np.int32), np.empty(n)
+        nnz = _poserows.moved_difference(starts[a:z], ends[a:z], indices, data, hidden, r_indptr[a:z + 1] - ra,
+                                         r_indices[ra:rz], r_data[ra:rz], k_indptr, k_indices, k_data, sl,
+                                         indptr, out_indices, out_data)
+        return (indptr, out_indices[:nnz], out_data[:nnz]) if nnz >= 0 else a - 1 - nnz  # the row out of order
+
+    work = np.concatenate([[0], np.cumsum(ends - starts)])
+    parts = row_parts(work, cores() if work[-1] >= PARALLEL_ENTRIES else 1)
+    for attempt in range(2):
+        k_csr = native_csr(kept)
+        done = map_parts(part, [(p, k_csr) for p in parts])
+        bad = [d for d in done if not isinstance(d, tuple)]
+        if not bad:
+            return stacked_rows(done, recip.shape[1])
+        if attempt or np.any(np.diff(indices[starts[bad[0]]:ends[bad[0]]]) <= 0):
+            break  # a static row out of order: at_pose's rows must be in order too
+        kept = kept.copy()
+        kept.sum_duplicates()  # scipy leaves sums of CSR matrices unsorted
+    raise InvalidInputError(f"row {bad[0]}'s static columns are out of increasing order: difference_at_pose reads "
+                            "sorted rows")
+
+
+def stacked_rows(parts: list, n_cols: int) -> sp.csr_matrix:
+    """One CSR matrix of ``n_cols`` columns from row parts ``[(indptr from 0, indices, data)]``
+    stacked in order: one part as it is, more in one copy of their entries (scipy's vstack of
+    the parts' matrices took 0.24 ms of a move's 2 ms merge on the bench's Cornell box)."""
+    if len(parts) == 1:
+        indptr, indices, data = parts[0]
+        return sp.csr_matrix((data, indices, indptr), shape=(len(indptr) - 1, n_cols))
+    first = np.cumsum([0] + [len(p[1]) for p in parts])
+    indptr = np.concatenate([[0]] + [p[0][1:] + f for p, f in zip(parts, first)])
+    return sp.csr_matrix((np.concatenate([p[2] for p in parts]), np.concatenate([p[1] for p in parts]), indptr),
+                         shape=(len(indptr) - 1, n_cols))
 
 
 def native_csr(m: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -505,6 +585,7 @@ class WorldRows:
         self.static = None if static_ff is None else LocalRows(static_scene, static_ff, resolution, device)
         self.object_rows: sp.csr_matrix | None = None  # rows of object_patches at the current poses
         self._tracing = None  # a Future of fresh(object_patches) while refresh() traces them (objects() waits)
+        self._meanwhile = None  # refresh()'s work to run before objects() first waits for that trace
         self._at_pose: tuple[np.ndarray, sp.csr_matrix] | None = None  # rows made at the current poses (:meth:`_at`)
         self._outside: tuple[np.ndarray, sp.csr_matrix] | None = None  # (patches, their rows) last gathered
         # Where the objects were when the far field's coarse level was made (the first poses).
@@ -574,6 +655,9 @@ class WorldRows:
     def objects(self) -> sp.csr_matrix:
         """The objects' rows at the current poses (computed once per pose)."""
         if self._tracing is not None:
+            meanwhile, self._meanwhile = self._meanwhile, None
+            if meanwhile is not None:
+                meanwhile()
             tracing, self._tracing = self._tracing, None
             self.object_rows = tracing.result()[0]
         if self.object_rows is None:
@@ -633,15 +717,43 @@ class WorldRows:
         return self._stored_or(np.asarray(s, np.int64), self._from_static)[0]
 
     def _from_static(self, s: np.ndarray) -> sp.csr_matrix:
-        """Rows of static patches ``s`` at the current poses, from the static F (class docstring):
-        read where they lie in an F held in memory (a copy of them was 1.2 ms of a move at
-        426k entries), else fetched from its source."""
-        F, select = (self.static.csr, s) if self.static.csr is not None else (self.static.rows(s), None)
+        """Rows of static patches ``s`` at the current poses, from the static F (class docstring)."""
+        return at_pose(*self._pose_inputs(s))
+
+    def _pose_inputs(self, s: np.ndarray) -> tuple:
+        """(rows, hidden, object columns, select): :func:`at_pose`'s inputs for static patches
+        ``s``, their rows of the static F read where they lie in an F held in memory (a copy of
+        them was 1.2 ms of a move at 426k entries), else fetched from its source."""
+        F, select = (self.static.csr, s) if self.static.csr is not None else (self.static.rows(s), np.arange(len(s)))
         world = self.world
         hidden = hidden_entries(F, s, world.centers, world.normals, self.objects_moving, world.bvh.transforms,
                                 self.device, select)
-        return at_pose(F, hidden, reciprocal_columns(s, self.objects(), self.object_patches, world.areas,
-                                                     self.n_patches), select)
+        return F, hidden, reciprocal_columns(s, self.objects(), self.object_patches, world.areas, self.n_patches), select
+
+    def differences(self, s: np.ndarray, kept: sp.csr_matrix, at: np.ndarray, also: np.ndarray | None = None):
+        """(len(s), N) CSR: the rows of static patches ``s`` at the current poses (:meth:`rows`)
+        minus ``kept[at]`` (``kept`` (M, N), ``at`` (len(s),) its rows). From the static F they
+        are never made: :func:`difference_at_pose` merges each with its kept row as it is made
+        (writing a move's ~450k entries at the pose, then reading them back to merge them, was
+        2.4-3.9 ms of the bench's moving frame; AMD EPYC Zen 4, 2026-12-06). Rows ``also``
+        missing at the pose are made in the same pass (one pre-test of both) and kept for the
+        pose, as :meth:`rows` keeps them. Rows ``poses`` holds come from there, merged."""
+        from .stale import rows_minus
+
+        s, at = np.asarray(s, np.int64), np.asarray(at, np.int64)
+        also = np.empty(0, np.int64) if also is None else np.asarray(also, np.int64)
+        if self.poses is not None and self.poses.get(self.world.bvh.transforms) is not None:
+            return rows_minus(self._at(s, self._static_rows, also), kept, at)
+        if self._at_pose is not None:  # rows already made at this pose are not made again
+            also = also[self._at_pose[0][also] < 0]
+        both = np.concatenate([s, also])
+        F, hidden, recip, select = self._pose_inputs(both)
+        recip = sp.csr_matrix(recip)
+        if len(also):
+            first = {p: k for k, p in enumerate(both.tolist()) if k >= len(s)}
+            self._at(also, lambda miss: at_pose(F, hidden, recip[[first[p] for p in miss.tolist()]],
+                                                select[[first[p] for p in miss.tolist()]]))
+        return difference_at_pose(F, hidden, recip[: len(s)], kept, at, select[: len(s)])
 
     def rows(self, idx) -> sp.csr_matrix:
         idx = np.asarray(idx, np.int64)
@@ -655,7 +767,8 @@ class WorldRows:
 
     def refresh(self, moved: np.ndarray, candidates: np.ndarray, slots: np.ndarray, kept: sp.csr_matrix, spheres,
                 budget: int | None, weight: np.ndarray | None, correct: bool = False,
-                outside: np.ndarray | None = None) -> tuple[np.ndarray, sp.csr_matrix, int, tuple | None]:
+                outside: np.ndarray | None = None,
+                meanwhile=None) -> tuple[np.ndarray, sp.csr_matrix, int, tuple | None]:
         """Which of the static ``candidates`` (patch indices in ``slots``; ``kept`` the local
         set's rows (M, N) in slot order, so theirs are ``current = kept[slots]``, sliced only
         when the budget ranks them) to refresh after a move, and the new rows of ``moved``
@@ -673,14 +786,25 @@ class WorldRows:
         ``moved`` then of those, hemicubes computed, left): ``left`` is (indices into
         ``candidates``, their rows at the new poses) for the candidates made but not kept (with
         a static F and a budget that leaves some), for :class:`~pydynrad.dynamic.stale.StaleRows`;
-        else None. ``outside``: patches whose rows the frame will gather at the new poses
-        (:meth:`gather_outside`): with a static F made in the same pass as the candidates'."""
+        else None. ``left`` is (indices into ``candidates``, D): their rows at the new poses
+        minus their kept rows ``kept[slots[...]]``, for :class:`~pydynrad.dynamic.stale.StaleRows`
+        (at budget 0 the rows themselves are never made: :meth:`differences`).
+        ``outside``: patches whose rows the frame will gather at the new poses
+        (:meth:`gather_outside`): with a static F made in the same pass as the candidates'.
+        ``meanwhile``: a callable run once while the objects' hemicubes trace on the device,
+        after the static rows' pre-test on the host (with hemicube rows: before they are
+        made), so that the host's work of the caller overlaps the trace."""
+        from .stale import rows_minus
+
         world = self.world
-        order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
         if self.static is None:
+            order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
             order = order[:budget]
+            if meanwhile is not None:
+                meanwhile()
             rows, hemicubes = self.fresh(np.concatenate([moved, candidates[order]]))
             return order, rows, hemicubes, None
+        order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
         # Objects that did not move are seen by those that did: their rows, new anyway, go in too.
         still = np.flatnonzero(candidates >= self.n_static)
         order = order[candidates[order] < self.n_static] if budget != 0 or correct else order[:0]
@@ -692,18 +816,27 @@ class WorldRows:
                 # this thread runs the static rows' pre-test on the host; their reciprocal columns
                 # wait for them (objects()). The CPU device left ~0.35 of 2 cores idle while tracing
                 # them alone: 1.5 ms of a move (t_move median 20.8-22.4 -> 18.7-20.1 ms, Cornell
-                # box, 2-core Xeon).
+                # box, 2-core Xeon). Submitted once this thread's numpy work before the pre-test is
+                # done: both threads wanting the interpreter's lock for small numpy steps at once
+                # cost refresh_order 3 ms instead of 0.3 (Zen 4, 2026-12-06).
                 from ..hostthreads import pool
 
                 tracing = self._tracing = pool().submit(self.fresh, self.object_patches)
-            new = self._at(candidates[order], self._static_rows, also)
+                self._meanwhile = meanwhile
+            elif meanwhile is not None:
+                meanwhile()
+            if budget == 0:  # every row made is left stale: only their differences are wanted
+                left = (order, self.differences(candidates[order], kept, slots[order], also))
+                order, new = order[:0], sp.csr_matrix((0, self.n_patches))
+            else:
+                new, left = self._at(candidates[order], self._static_rows, also), None
         finally:
-            self.objects()  # never a trace left running past the call
+            try:
+                self.objects()  # never a trace left running past the call (nor its meanwhile not run)
+            finally:
+                self._meanwhile = None
         hemicubes = 0 if tracing is None else tracing.result()[1]
-        left = None
-        if budget == 0:
-            left, order, new = (order, new), order[:0], new[:0]
-        elif budget is not None and len(order) > budget:
+        if budget != 0 and budget is not None and len(order) > budget:
             w = np.ones(self.n_patches) if weight is None else np.asarray(weight, np.float64)
             keep = np.ones(self.n_patches)
             keep[self.object_patches] = 0.0
@@ -714,7 +847,7 @@ class WorldRows:
             best = np.argsort(-score, kind="stable")[:budget]
             best = best[score[best] > 0]
             rest = np.setdiff1d(np.arange(len(order)), best)
-            left = (order[rest], new[rest])
+            left = (order[rest], rows_minus(new[rest], kept, slots[order[rest]]))
             order, new = order[best], new[best]
         rows = self.object_rows[np.concatenate([moved, candidates[still]]) - self.n_static]
         return np.concatenate([still, order]), sp.vstack([rows, new], format="csr"), hemicubes, left if correct else None

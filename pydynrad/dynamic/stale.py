@@ -38,8 +38,6 @@ a pose that comes back still gives back the same K.
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import scipy.sparse as sp
 
@@ -53,7 +51,10 @@ __all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERAT
 #: moves of bench/objects.py's block at budget 0 (with the Gauss-Seidel step): 3 passes over K
 #: per moving frame at 1e-4, 2-3 at 1e-3, whose answers are at most 1.9e-6 and 4.4e-5 of max B
 #: from the fixed point (PoCL, 2-core Xeon, 2026-12-03): half a pass is not worth 20x.
-CORRECTION_TOLERANCE = 1e-4
+CORRECTION_TOLERANCE = 2e-4
+#: The ratio of successive steps below which :meth:`StaleRows.correct` takes the iteration as
+#: contracting by that ratio, and bounds an answer's error by it (:func:`_error_bound`).
+CONTRACTION_LIMIT = 0.5
 #: The most iterations per :meth:`StaleRows.correct` (each one pass over K per channel; a call
 #: that starts from B^(0) takes one pass more for it).
 CORRECTION_ITERATIONS = 8
@@ -79,7 +80,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     are sorted first (a copy)."""
     from .. import _poserows
     from ..hostthreads import cores, map_parts, row_parts
-    from .moves import native_csr, native_spans
+    from .moves import native_csr, native_spans, stacked_rows
 
     blocks = [sp.csr_matrix(rows)] if sp.issparse(rows) else [sp.csr_matrix(b) for b in rows]
     kept = sp.csr_matrix(kept)
@@ -118,12 +119,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
         blocks, kept = [_canonical(b) for b in blocks], _canonical(kept)
         k_csr, k_len = native_csr(kept), np.diff(kept.indptr)  # merge() reads the sorted ones
         parts = map_parts(merge, tasks())
-    # One copy of the parts' entries into D (scipy's vstack of the parts' matrices took 0.24 ms of
-    # a move's 2 ms merge on the bench's Cornell box).
-    first = np.cumsum([0] + [len(p[1]) for p in parts])
-    indptr = np.concatenate([[0]] + [p[0][1:] + f for p, f in zip(parts, first)])
-    return sp.csr_matrix((np.concatenate([p[2] for p in parts]), np.concatenate([p[1] for p in parts]), indptr),
-                         shape=(n_rows, kept.shape[1]))
+    return stacked_rows(parts, kept.shape[1])
 
 
 def _canonical(m: sp.csr_matrix) -> sp.csr_matrix:
@@ -133,59 +129,33 @@ def _canonical(m: sp.csr_matrix) -> sp.csr_matrix:
     return m
 
 
-def _stale_difference(blocks: list[sp.csr_matrix], kept: sp.csr_matrix, held: np.ndarray):
-    """(slots, D): the rows of ``held`` whose ``blocks`` differ from ``kept[held]``, and the
-    difference. On a pool thread the merge's parts run one after another in it: one core, the
-    frame goes on with the other."""
-    delta = rows_minus(blocks, kept, held)
-    stale = np.diff(delta.indptr) > 0
-    return held[stale], (delta if stale.all() else delta[stale])
-
-
-def _take(blocks: list[sp.csr_matrix], keep: np.ndarray) -> list[sp.csr_matrix]:
-    """The rows ``keep`` (increasing) of the blocks stacked in order, as blocks: a block kept
-    whole is not copied."""
-    out, first = [], 0
-    for b in blocks:
-        sel = keep[(keep >= first) & (keep < first + b.shape[0])] - first
-        if len(sel) == b.shape[0]:
-            out.append(b)
-        elif len(sel):
-            out.append(b[sel])
-        first += b.shape[0]
-    return out
+def _error_bound(change: float, last: float) -> float:
+    """How far the image whose step from the last iterate was ``change`` (max norm) may lie from
+    the fixed point, the step before having been ``last``: for a map that contracts by q, at most
+    q / (1 - q) times the step, with q estimated as change / last where that shows a contraction
+    by :data:`CONTRACTION_LIMIT` or more; else the step itself (the first, or no clear contraction)."""
+    q = change / last if 0.0 < last < np.inf else np.inf
+    return q / (1.0 - q) * change if q <= CONTRACTION_LIMIT else change
 
 
 class StaleRows:
-    """The rows at the current poses of the local slots whose rows in K are stale.
+    """The local slots whose rows in K are stale, and how: ``slots`` (n,) and ``delta`` (n, N)
+    CSR, D = their rows at the current poses minus the rows K was built from (the kept rows).
 
-    ``held`` (h,) slot indices (in the order put) and ``current`` (h, N) sparse: their rows at
-    the current poses (held as the blocks put, stacked only when asked for: a stack copied the
-    ~430k entries of a move at budget 0 for a merge that reads them where they are);
-    ``slots`` (n,) those of them whose rows differ from K's, and ``delta`` (n, N) the
-    difference, current rows minus the rows K was built from (:meth:`update`, after every
-    change of either). A held row equal to K's is not stale (not in ``slots``) but stays held:
-    dropping it would copy every other held row.
-
-    :meth:`update` computes D on a host thread and returns: the frame's work up to its
-    correction (the lights' direct light and the far field's, mostly on the device) goes on
-    meanwhile, and whatever reads ``slots`` or ``delta`` waits for it (a move's merge, 2-3 ms on
-    the 2-core Xeon, was the frame's last host-only stretch before radiosity's device work).
+    Only D is held, never the rows at the pose: a move at budget 0 makes D without them
+    (:meth:`~pydynrad.dynamic.moves.WorldRows.differences`), and a rebuild takes them as the kept
+    rows plus D (:meth:`current`). A slot whose row at the pose equals its kept row is not
+    stale and not held. Where the kept rows change under the held slots (a move that swaps rows
+    in, :meth:`rebase`), D follows them, so it always holds against K as it is.
     """
 
     def __init__(self, n_patches: int) -> None:
         self.n_patches = int(n_patches)
-        self._pending = None
-        self._failed: BaseException | None = None  # what the last update's D raised, raised again on every read
         self.clear()
 
     def clear(self) -> None:
-        self._settle(reading=False)
-        self._failed = None
-        self.held = np.empty(0, np.int64)
-        self._blocks: list[sp.csr_matrix] = []  # the rows of held, stacked in order
-        self._slots = np.empty(0, np.int64)
-        self._delta = sp.csr_matrix((0, self.n_patches))
+        self.slots = np.empty(0, np.int64)
+        self.delta = sp.csr_matrix((0, self.n_patches))
         self.iterations = 0  # passes over K of the last correct() (its start's included)
         self.converged = True  # whether the last correct() reached CORRECTION_TOLERANCE
         self._last: np.ndarray | None = None  # (N, 3) the last correct()'s B, per patch (where _known)
@@ -193,85 +163,57 @@ class StaleRows:
         self._last_LS: np.ndarray | None = None  # (N, 3) the light it solved for, per patch (where _known)
         self._last_outside = False  # and whether with the far field outside
 
-    def _settle(self, reading: bool = True) -> None:
-        """Wait for the D that :meth:`update` is computing, if any (computed here in a process
-        forked meanwhile: the thread computing it is not in the child). If computing it raised,
-        every read raises that again until the next :meth:`update` or :meth:`clear`: no read
-        gets an older D that does not match the rows held."""
-        if self._pending is not None:
-            (pid, pending, args), self._pending = self._pending, None
-            try:
-                self._slots, self._delta = pending.result() if pid == os.getpid() else _stale_difference(*args)
-            except Exception as e:  # kept: every read raises it
-                self._failed = e
-        if reading and self._failed is not None:
-            raise self._failed
-
-    @property
-    def slots(self) -> np.ndarray:
-        """(n,) the held slots whose rows differ from K's."""
-        self._settle()
-        return self._slots
-
-    @property
-    def delta(self) -> sp.csr_matrix:
-        """(n, N) CSR: their current rows minus the rows K was built from."""
-        self._settle()
-        return self._delta
-
     def __len__(self) -> int:
         return len(self.slots)
 
-    @property
-    def current(self) -> sp.csr_matrix:
-        """(h, N) CSR: the held rows at the current poses, in the order of :attr:`held`."""
-        if len(self._blocks) != 1:
-            self._blocks = [sp.vstack(self._blocks, format="csr") if self._blocks else sp.csr_matrix((0, self.n_patches))]
-        return self._blocks[0]
+    def current(self, kept: sp.csr_matrix) -> tuple[np.ndarray, sp.csr_matrix]:
+        """(slots, their rows at the current poses): ``kept[slots] + delta`` for the kept rows
+        ``kept`` (M, N) of K, zeros dropped."""
+        rows = sp.csr_matrix(sp.csr_matrix(kept)[self.slots] + self.delta)
+        rows.eliminate_zeros()
+        return self.slots, rows
 
     @property
     def nbytes(self) -> int:
-        """Host bytes of the rows and D held."""
-        return self.held.nbytes + self.slots.nbytes + sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes
-                                                          for m in (*self._blocks, self.delta))
+        """Host bytes of the slots and D held."""
+        return self.slots.nbytes + self.delta.data.nbytes + self.delta.indices.nbytes + self.delta.indptr.nbytes
 
-    def put(self, slots: np.ndarray, *rows: sp.csr_matrix) -> None:
-        """Slots ``slots`` now have current rows ``rows`` (one or more blocks, stacked in order,
-        replacing any held for them); call :meth:`update` before the next :meth:`correct`."""
-        self._settle(reading=False)  # one D in the making at a time
+    def put(self, slots: np.ndarray, *deltas: sp.csr_matrix) -> None:
+        """Slots ``slots`` (k,) now have rows at the current poses that differ from their kept rows
+        by ``deltas`` (one or more blocks of CSR rows of N columns, k rows in all, in order),
+        replacing what was held for them; rows that are empty leave their slots current. One
+        copy of D's rows at most (each held row is put once per move)."""
+        from .moves import stacked_rows
+
         slots = np.asarray(slots, np.int64)
-        if slots.shape != (sum(r.shape[0] for r in rows),):
-            raise InvalidInputError(f"put needs one slot per row; got {slots.shape} for {sum(r.shape[0] for r in rows)} rows")
-        keep = np.flatnonzero(~np.isin(self.held, slots))
-        self.held = np.concatenate([self.held[keep], slots])
-        # Unsorted: a sort would copy every row again.
-        self._blocks = _take(self._blocks, keep) + [sp.csr_matrix(r) for r in rows if r.shape[0]]
+        blocks = [sp.csr_matrix(d) for d in deltas]
+        if any(b.shape[1] != self.n_patches for b in blocks) or sum(b.shape[0] for b in blocks) != len(slots):
+            raise InvalidInputError(f"put needs one row of {self.n_patches} columns per slot ({len(slots)}); got "
+                                    f"{[b.shape for b in blocks]}")
+        keep = ~np.isin(self.slots, slots)
+        if keep.any():
+            blocks.insert(0, self.delta if keep.all() else self.delta[np.flatnonzero(keep)])
+            slots = np.concatenate([self.slots[keep], slots])
+        blocks = [b for b in blocks if b.shape[0]] or [sp.csr_matrix((0, self.n_patches))]
+        delta = blocks[0] if len(blocks) == 1 else \
+            stacked_rows([(b.indptr, b.indices[: b.indptr[-1]], b.data[: b.indptr[-1]]) for b in blocks], self.n_patches)
+        stale = np.diff(delta.indptr) > 0
+        self.slots, self.delta = (slots, delta) if stale.all() else (slots[stale], delta[np.flatnonzero(stale)])
 
     def drop(self, slots: np.ndarray) -> None:
         """Slots whose rows in K are current again (refreshed by a swap, or holding another
         patch): nothing to correct there."""
-        keep = np.flatnonzero(~np.isin(self.held, slots))
-        if len(keep) < len(self.held):
-            self.held, self._blocks = self.held[keep], _take(self._blocks, keep)
         keep = np.flatnonzero(~np.isin(self.slots, slots))
-        if len(keep) < len(self._slots):
-            self._slots, self._delta = self._slots[keep], self._delta[keep]
+        if len(keep) < len(self.slots):
+            self.slots, self.delta = self.slots[keep], self.delta[keep]
 
-    def update(self, kept: sp.csr_matrix) -> None:
-        """D = current rows - ``kept[held]`` (``kept`` (M, N): the rows K was built from, not
-        changed in place afterwards), and the slots where they differ; computed on a host
-        thread (class docstring)."""
-        from ..hostthreads import pool
-
-        self._settle(reading=False)
-        self._failed = None
-        # What the merge would refuse, refused here, where the caller is.
-        if any(b.shape[1] != kept.shape[1] for b in self._blocks):
-            raise InvalidInputError(f"held rows and kept rows {kept.shape} differ in columns")
-        if len(self.held) and (self.held.min() < 0 or self.held.max() >= kept.shape[0]):
-            raise InvalidInputError(f"held slots must lie in [0, {kept.shape[0]}) (the kept rows)")
-        args = (self._blocks, kept, self.held)
-        self._pending = (os.getpid(), pool().submit(_stale_difference, *args), args)
+    def rebase(self, before: sp.csr_matrix, after: sp.csr_matrix) -> None:
+        """The kept rows changed from ``before`` to ``after`` (M, N): D of every held slot follows,
+        D + before[slots] - after[slots], so the rows at the pose stay what they were."""
+        if not len(self.slots):
+            return
+        change = rows_minus(sp.csr_matrix(after)[self.slots], before, self.slots)
+        self.put(self.slots, sp.csr_matrix(self.delta - change))
 
     def correct(self, solve_kept, LS: np.ndarray, B: np.ndarray, S: np.ndarray, albedo: np.ndarray,
                 outside: bool) -> np.ndarray:
@@ -305,6 +247,7 @@ class StaleRows:
         rho = albedo[S[slots]].astype(np.float64)
         g = np.zeros_like(LS, dtype=np.float64)
         mixing = Anderson(ANDERSON_DEPTH)
+        last_change = np.inf
         for it in range(1, CORRECTION_ITERATIONS + 1):
             g[slots] = rho * rows_product(delta, x)
             new = solve_kept(LS + g)
@@ -314,7 +257,9 @@ class StaleRows:
             new[slots] += rho * rows_product(delta, x_new) - g[slots]
             residual = new - x[S]
             scale = max(float(np.abs(new).max()), 1e-300)
-            self.converged = float(np.abs(residual).max()) <= CORRECTION_TOLERANCE * scale
+            change = float(np.abs(residual).max())
+            self.converged = _error_bound(change, last_change) <= CORRECTION_TOLERANCE * scale
+            last_change = change
             if self.converged or it == CORRECTION_ITERATIONS:
                 x[S] = new  # an evaluated image, never an unchecked mixed point
                 break
