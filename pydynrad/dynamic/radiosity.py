@@ -46,7 +46,7 @@ from ..errors import InvalidInputError, PydynradError
 from ..matvec import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
 from .localrows import LocalRows, _replace_rows
 from .selection import NearestSet
-from .stale import StaleRows
+from .stale import CORRECTION_TOLERANCE, StaleRows
 
 __all__ = ["DynamicRadiosity", "FrameStats"]
 
@@ -162,6 +162,12 @@ class DynamicRadiosity:
         are corrected for like the others, K stays as built, :meth:`refresh` takes them all
         in. False: the rows left stale are used as they are (at ``occlusion=0`` the
         cheapest move). No effect with hemicube rows (``form_factors=None``).
+    correction_tolerance : float
+        Where that correction stops: at an estimated distance from its fixed point (the answer
+        with every stale row at the current poses) of at most this fraction of max B
+        (:data:`pydynrad.dynamic.stale.CORRECTION_TOLERANCE` by default, 2e-4: two passes over
+        K a moving frame on the bench's box; 1e-6 takes three). See docs/design.md, 'Moving
+        objects'.
     poses : PoseRows, optional
         Rows precomputed for configurations of the objects known in advance
         (:func:`pydynrad.precompute_poses`, same ``resolution``): a move to one of them takes its
@@ -176,7 +182,8 @@ class DynamicRadiosity:
                  max_swaps_per_frame: int = 8, refresh_tolerance: float | None = None, refresh_interval: int = 32,
                  observer=None, keep_emitters: bool = True, resolution: int = 128, far_field=True, clusters=None,
                  cluster_form_factors=None, objects=None, occlusion: int | str | None = "auto", poses=None,
-                 device=None, samples: int = 1, occlusion_correction: bool = True) -> None:
+                 device=None, samples: int = 1, occlusion_correction: bool = True,
+                 correction_tolerance: float = CORRECTION_TOLERANCE) -> None:
         from ..device import device_or_default
 
         checked_scene(scene)
@@ -185,6 +192,10 @@ class DynamicRadiosity:
         self._last_B: np.ndarray | None = None  # (N,) the last radiosity() summed over channels: ranks a move's rows
         self._held_light: HeldLight | None = None  # the last radiosity()'s with lights=: _light_vector
         self.occlusion_correction = flag(occlusion_correction, "occlusion_correction")
+        if isinstance(correction_tolerance, (str, bytes, bool)) or not (
+                np.isfinite(number(correction_tolerance, "correction_tolerance")) and 0 < correction_tolerance < 1):
+            raise InvalidInputError(f"correction_tolerance must be a number in (0, 1); got {correction_tolerance!r}")
+        self.correction_tolerance = float(correction_tolerance)
         if isinstance(occlusion, str):
             if occlusion != "auto":
                 raise InvalidInputError(f"occlusion must be a row count, None or 'auto'; got {occlusion!r}")
@@ -713,7 +724,8 @@ class DynamicRadiosity:
             LS = LS + self.far.injection(self._ff.local, S)
         B = far.copy() if far is not None else L.copy()
         if len(self._stale):
-            B[S] = self._stale.correct(self._solve_kept, LS, B, S, self.scene.albedo, far is not None)
+            B[S] = self._stale.correct(self._solve_kept, LS, B, S, self.scene.albedo, far is not None,
+                                       self.correction_tolerance)
         else:
             B[S] = self._solve_kept(LS)
         if self.objects:

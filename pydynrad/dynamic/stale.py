@@ -27,9 +27,12 @@ what the objects now hide from the stale rows and their object columns' share, a
 the objects' whole rows too; the coupling through it is weak (light that reaches an object and
 comes back), so a few iterations reach the fixed point, which is the solution with every stale
 row at the current poses: what refreshing every row would give, without its swap slots. It
-stops at :data:`CORRECTION_TOLERANCE` or after :data:`CORRECTION_ITERATIONS` (then
-:attr:`StaleRows.converged` is False and the answer is the last iterate's image, from which the
-next call goes on). A call after the first starts from the last answer plus the change in
+stops where the answer's estimated distance from that fixed point is at most the tolerance
+(:data:`CORRECTION_TOLERANCE` of max B by default): for an iteration that contracts by q, an
+image lies within q / (1 - q) of its step from the fixed point, and q is estimated by the
+ratio of the last two steps (:func:`_error_bound`). Or it stops after
+:data:`CORRECTION_ITERATIONS` (then :attr:`StaleRows.converged` is False and the answer is the
+last iterate's image, from which the next call goes on). A call after the first starts from the last answer plus the change in
 L'_S and folds B^(0) into the first image, B^(1) = (I + P_S K) (L'_S + P_S D x), so a frame
 with no move, no swap and the same far-field mode takes one pass over K in all (two before:
 B^(0), then one iteration to confirm), a moving frame one fewer. K itself is never changed, so
@@ -47,10 +50,13 @@ from ..errors import InvalidInputError
 
 __all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS", "PARALLEL_ENTRIES"]
 
-#: Stop when an iteration changes B on the local set by at most this much of its max. After the
-#: moves of bench/objects.py's block at budget 0 (with the Gauss-Seidel step): 3 passes over K
-#: per moving frame at 1e-4, 2-3 at 1e-3, whose answers are at most 1.9e-6 and 4.4e-5 of max B
-#: from the fixed point (PoCL, 2-core Xeon, 2026-12-03): half a pass is not worth 20x.
+#: Stop where the answer's estimated distance from the fixed point on the local set is at most
+#: this much of its max (:func:`_error_bound`). After 24 moves of bench/objects.py's 64-patch
+#: block at budget 0: 2.0 passes over K a moving frame, answers 6.7e-5 of max B from the fixed
+#: point (median; 1.7e-4 at most), where stopping at a step of 1e-4 (the rule until 2026-12-06)
+#: took 2.8-3 passes for 1.9e-6: a pass is 0.6-0.8 ms of a 20 ms frame, and the rows the
+#: correction solves with are themselves 0.9% per pixel from a full solve (PoCL, AMD EPYC Zen 4,
+#: 2026-12-06). ``DynamicRadiosity(correction_tolerance=...)`` sets it per solution.
 CORRECTION_TOLERANCE = 2e-4
 #: The ratio of successive steps below which :meth:`StaleRows.correct` takes the iteration as
 #: contracting by that ratio, and bounds an answer's error by it (:func:`_error_bound`).
@@ -157,7 +163,7 @@ class StaleRows:
         self.slots = np.empty(0, np.int64)
         self.delta = sp.csr_matrix((0, self.n_patches))
         self.iterations = 0  # passes over K of the last correct() (its start's included)
-        self.converged = True  # whether the last correct() reached CORRECTION_TOLERANCE
+        self.converged = True  # whether the last correct() reached its tolerance
         self._last: np.ndarray | None = None  # (N, 3) the last correct()'s B, per patch (where _known)
         self._known = np.zeros(0, bool)
         self._last_LS: np.ndarray | None = None  # (N, 3) the light it solved for, per patch (where _known)
@@ -216,13 +222,14 @@ class StaleRows:
         self.put(self.slots, sp.csr_matrix(self.delta - change))
 
     def correct(self, solve_kept, LS: np.ndarray, B: np.ndarray, S: np.ndarray, albedo: np.ndarray,
-                outside: bool) -> np.ndarray:
+                outside: bool, tolerance: float = CORRECTION_TOLERANCE) -> np.ndarray:
         """(M, 3) B on the local set with the stale rows at the current poses (module docstring).
 
         ``solve_kept(X)``: X + P_S K X for X (M, 3); ``LS`` (M, 3): the light to solve for on the
         local set ``S``; ``B`` (N, 3): the frame's B outside the local set; ``albedo`` (N, 3);
         ``outside``: whether B outside the local set is part of the solution (the far field's),
-        else it is not gathered.
+        else it is not gathered; ``tolerance``: it stops where the answer's estimated distance
+        from the fixed point (:func:`_error_bound`) is at most this fraction of its max.
 
         After a first call, each starts from the last answer plus the change in the light to solve
         for, per patch (a move changes L'_S where the objects cast and catch light; a patch new to
@@ -258,7 +265,7 @@ class StaleRows:
             residual = new - x[S]
             scale = max(float(np.abs(new).max()), 1e-300)
             change = float(np.abs(residual).max())
-            self.converged = _error_bound(change, last_change) <= CORRECTION_TOLERANCE * scale
+            self.converged = _error_bound(change, last_change) <= tolerance * scale
             last_change = change
             if self.converged or it == CORRECTION_ITERATIONS:
                 x[S] = new  # an evaluated image, never an unchecked mixed point
