@@ -87,6 +87,22 @@ static int bad_spans(const int64_t *starts, const int64_t *ends, Py_ssize_t rows
     return 0;
 }
 
+/* The entries of the kept rows slots[k] (of kr rows with row pointers kp), k < rows; -1 with
+   a ValueError set where a slot names no kept row. */
+static Py_ssize_t kept_entries(const char *pass, const int64_t *slots, const int64_t *kp, Py_ssize_t rows, Py_ssize_t kr)
+{
+    Py_ssize_t n = 0;
+    for (Py_ssize_t k = 0; k < rows; ++k) {
+        if (slots[k] < 0 || slots[k] >= kr) {
+            PyErr_Format(PyExc_ValueError, "%s: slot %lld of row %zd is outside the %zd kept rows", pass,
+                         (long long)slots[k], k, kr);
+            return -1;
+        }
+        n += kp[slots[k] + 1] - kp[slots[k]];
+    }
+    return n;
+}
+
 static Py_ssize_t span_entries(const int64_t *starts, const int64_t *ends, Py_ssize_t rows)
 {
     Py_ssize_t n = 0;
@@ -268,15 +284,9 @@ static PyObject *difference_buffers(Py_buffer *b)
                                           "from 0 to its entries without decreasing");
         return NULL;
     }
-    Py_ssize_t most = span_entries(b[0].buf, b[1].buf, rows);
-    for (Py_ssize_t k = 0; k < rows; ++k) {
-        if (slots[k] < 0 || slots[k] >= kr) {
-            PyErr_Format(PyExc_ValueError, "difference: slot %lld of row %zd is outside the %zd kept rows",
-                         (long long)slots[k], k, kr);
-            return NULL;
-        }
-        most += kp[slots[k] + 1] - kp[slots[k]];
-    }
+    const Py_ssize_t kept = kept_entries("difference", slots, kp, rows, kr);
+    if (kept < 0) return NULL;
+    const Py_ssize_t most = span_entries(b[0].buf, b[1].buf, rows) + kept;
     if (b[9].len < most * I || b[10].len < most * D) {
         PyErr_Format(PyExc_ValueError, "difference: the outputs hold fewer than the %zd entries the rows may have", most);
         return NULL;
@@ -315,15 +325,9 @@ static PyObject *py_moved_difference(PyObject *self, PyObject *args)
                                           "not run from 0 to its entries without decreasing");
         goto done;
     }
-    Py_ssize_t most = span_entries(b[0].buf, b[1].buf, rows) + mr;
-    for (Py_ssize_t k = 0; k < rows; ++k) {
-        if (slots[k] < 0 || slots[k] >= kr) {
-            PyErr_Format(PyExc_ValueError, "moved_difference: slot %lld of row %zd is outside the %zd kept rows",
-                         (long long)slots[k], k, kr);
-            goto done;
-        }
-        most += kp[slots[k] + 1] - kp[slots[k]];
-    }
+    const Py_ssize_t kept = kept_entries("moved_difference", slots, kp, rows, kr);
+    if (kept < 0) goto done;
+    const Py_ssize_t most = span_entries(b[0].buf, b[1].buf, rows) + mr + kept;
     if (b[13].len < most * I || b[14].len < most * D) {
         PyErr_Format(PyExc_ValueError, "moved_difference: the outputs hold fewer than the %zd entries the rows may have",
                      most);
