@@ -47,11 +47,12 @@ def full_solve(box, objects, device):
 
 def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, lamp, device, monkeypatch):
     """Each move lights again only the objects' patches and the static patches whose shadow rays
-    pass near a moved object (old or new pose), in update() while the objects' hemicubes trace,
-    so that radiosity(lights) with the same lights traces nothing: the light vector is that of
-    the same world built afresh (its own BVH), bit for bit, for point, spot and directional
-    lights, with one object moved or two; other lights are lit whole in radiosity(), as is a
-    sky."""
+    pass near a moved object (old or new pose), in update() while the objects' hemicubes trace
+    when the lights were steady (the last frame's those of the frame before), so that
+    radiosity(lights) with the same lights traces nothing: the light vector is that of the same
+    world built afresh (its own BVH), bit for bit, for point, spot and directional lights, with
+    one object moved or two. Lights new in the last frame are relit in radiosity() instead (the
+    move does not guess), other lights are lit whole there, as is a sky."""
     import pydynrad.lights as lights_module
     from pydynrad.photometry import SkyLight
 
@@ -73,6 +74,7 @@ def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, lam
     dyn = pd.DynamicRadiosity(box, None, local_size=len(box) // 2, resolution=R, objects=[obj, carried], occlusion=0,
                               observer=OBSERVER, device=device)
     dyn.radiosity(lights)
+    dyn.radiosity(lights)  # steady
     for T, U in ((MIDDLE, None), (END, pose(30, (350.0, 150.0, 200.0))), (START, None)):
         dyn.move(obj, T)
         if U is not None:
@@ -87,6 +89,13 @@ def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, lam
     traced.clear()
     dyn.radiosity(dimmer)
     assert traced == [len(dyn.scene)]
+    np.testing.assert_array_equal(dyn._held_light.L, fresh(dimmer))
+    dyn.move(obj, MIDDLE)  # the lights changed in the last frame: the move leaves them to radiosity()
+    traced.clear()
+    dyn.update(OBSERVER)
+    assert traced == []
+    dyn.radiosity(dimmer)
+    assert len(traced) == 1 and len(block) + len(lamp) <= traced[0] < len(dyn.scene)
     np.testing.assert_array_equal(dyn._held_light.L, fresh(dimmer))
     sky = [SkyLight(zenith_luminance=1.0, up=(0.0, 1.0, 0.0), resolution=8)]
     dyn.radiosity(sky)

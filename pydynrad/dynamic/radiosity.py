@@ -750,31 +750,34 @@ class DynamicRadiosity:
             held = self._held_light
             if held is not None and held.emitters == emitters and _same_lights(held.lights, lights):
                 if held.world is self.scene:
+                    self._held_light = held._replace(steady=True)
                     return held.L, held.E
                 L = self._relit(held.L, held.poses, lights) if emitters == "hemicube" else None
                 if L is not None:
-                    return self._hold(emitters, lights, L, None)
+                    return self._hold(emitters, lights, L, None, steady=True)
         L, E = analytic_emitter_light(self.scene, lights, light, emitters, self.device)
-        return (L, E) if light is not None else self._hold(emitters, lights, L, E)
+        return (L, E) if light is not None else self._hold(emitters, lights, L, E, steady=False)
 
     def _follow_light(self) -> None:
         """After a move, while the objects' hemicubes trace: the held light vector brought to the
         world as it is (:meth:`_relit`) and the far field's answer for it, which the next
         :meth:`radiosity` with the same lights then finds (its own light pass and coarse level
         after a move were 2.8 ms of a 21 ms moving frame on the Cornell box, on a host thread
-        that otherwise waits for the trace; AMD EPYC Zen 4, 2026-12-06). Work for other lights
-        is only lost: radiosity() computes theirs. An answer the far field cannot give (a light
-        past float32, coarse sweeps that do not converge) is left to radiosity(), which raises
-        it where the caller asked for it."""
+        that otherwise waits for the trace; AMD EPYC Zen 4, 2026-12-06). Only for lights that
+        were steady, the last call's those of the call before: lights that change every frame
+        would have the move relight them for nothing, since radiosity() computes other lights'
+        vector whole. An answer the far field cannot give (a light past float32, coarse sweeps
+        that do not converge) is left to radiosity(), which raises it where the caller asked
+        for it."""
         from ..lights import check_radiosity_range
 
         held = self._held_light
-        if held is None or held.world is self.scene or held.emitters != "hemicube":
+        if held is None or not held.steady or held.world is self.scene or held.emitters != "hemicube":
             return
         L = self._relit(held.L, held.poses, held.lights)
         if L is None:
             return
-        self._hold(held.emitters, held.lights, L, None)
+        self._hold(held.emitters, held.lights, L, None, steady=True)
         if self.far is not None:
             try:
                 check_radiosity_range(L, self.scene.albedo, compute_dtype(self.storage))
@@ -782,12 +785,13 @@ class DynamicRadiosity:
             except PydynradError:
                 pass
 
-    def _hold(self, emitters: str, lights: list, L: np.ndarray, E: np.ndarray | None) -> tuple:
-        """Keep (L, E) of ``lights`` for the world as it is, read-only; returns them."""
+    def _hold(self, emitters: str, lights: list, L: np.ndarray, E: np.ndarray | None, steady: bool) -> tuple:
+        """Keep (L, E) of ``lights`` for the world as it is, read-only; returns them. ``steady``:
+        whether these lights are those of the call before (:meth:`_follow_light`)."""
         for a in (L, E):
             if a is not None:
                 a.flags.writeable = False
-        self._held_light = HeldLight(self.scene, emitters, lights, L, E, self._poses())
+        self._held_light = HeldLight(self.scene, emitters, lights, L, E, self._poses(), steady)
         return L, E
 
     def _poses(self) -> tuple:
@@ -883,7 +887,8 @@ class DynamicRadiosity:
 
 class HeldLight(NamedTuple):
     """The light vector of the last ``radiosity(lights=...)``: the world it lit (a move makes a
-    new one), the emitter mode, the light objects, L and E, and the objects' poses then."""
+    new one), the emitter mode, the light objects, L and E, the objects' poses then, and whether
+    the lights were those of the call before (steady: a move brings the vector along)."""
 
     world: object
     emitters: str
@@ -891,6 +896,7 @@ class HeldLight(NamedTuple):
     L: np.ndarray
     E: np.ndarray | None
     poses: tuple
+    steady: bool
 
 
 def _same_lights(a: list, b: list) -> bool:
