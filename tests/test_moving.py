@@ -578,14 +578,84 @@ def test_stale_rows_corrected(box, block, device):
         assert rel(dyn.radiosity(LIGHTS, far_field=False), truth) < 2e-6  # fp32 K; observed 8e-9
 
 
+def test_a_move_that_fails_is_not_half_applied(box, block, device, monkeypatch):
+    """A relight that fails inside the move (the light's guess while the objects trace) does not
+    fail the move: radiosity() lights the world itself. A trace that fails leaves the world at
+    the poses K and the stale rows are of, the move still queued: the next update applies it.
+    Either way B is then the same move's without a failure (budget 0, static F)."""
+    import pydynrad.dynamic.moves as moves_module
+    import pydynrad.lights as lights_module
+
+    F_static = pd.form_factors(box, R, device=device)
+    n = len(box) + len(block)
+
+    def made():
+        obj = pd.RigidObject(block, START)
+        dyn = pd.DynamicRadiosity(box, F_static, local_size=n, resolution=R, objects=[obj], occlusion=0,
+                                  observer=OBSERVER, device=device)
+        dyn.radiosity(LIGHTS)
+        dyn.radiosity(LIGHTS)  # steady lights: the move brings them along
+        return dyn, obj
+
+    ok, obj = made()
+    ok.move(obj, MIDDLE)
+    ok.update(OBSERVER)
+    truth = ok.radiosity(LIGHTS)
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("clEnqueueNDRangeKernel failed: OUT_OF_RESOURCES")
+
+    dyn, obj = made()
+    real = lights_module._point_irradiance
+    monkeypatch.setattr(lights_module, "_point_irradiance", broken)
+    dyn.move(obj, MIDDLE)
+    dyn.update(OBSERVER)  # the guess failed, the move did not
+    with pytest.raises(RuntimeError, match="OUT_OF_RESOURCES"):
+        dyn.radiosity(LIGHTS)  # where the caller asked for the light
+    monkeypatch.setattr(lights_module, "_point_irradiance", real)
+    np.testing.assert_array_equal(dyn.radiosity(LIGHTS), truth)
+
+    dyn, obj = made()
+    before = dyn.scene
+    monkeypatch.setattr(moves_module.WorldRows, "fresh", broken)
+    dyn.move(obj, MIDDLE)
+    with pytest.raises(RuntimeError, match="OUT_OF_RESOURCES"):
+        dyn.update(OBSERVER)
+    np.testing.assert_array_equal(dyn.scene.bvh.transforms[0], START)
+    np.testing.assert_array_equal(dyn.scene.centers, before.centers)
+    np.testing.assert_array_equal(obj.transform, START)
+    monkeypatch.undo()
+    assert dyn.update(OBSERVER).moved == 1  # still queued
+    np.testing.assert_array_equal(obj.transform, MIDDLE)
+    np.testing.assert_array_equal(dyn.radiosity(LIGHTS), truth)
+
+
+def test_shadow_rays_near_in_chunks_of_spheres(monkeypatch):
+    """Many spheres in chunks of SHADOW_SPHERES give what one call per sphere gives."""
+    from pydynrad.dynamic import moves as moves_module
+    from pydynrad.dynamic.moves import shadow_rays_near
+
+    rng = np.random.default_rng(8)
+    points = rng.uniform(-100.0, 100.0, (3000, 3))
+    spheres = [(rng.uniform(-50.0, 50.0, 3), float(rng.uniform(5.0, 30.0))) for _ in range(11)]
+    monkeypatch.setattr(moves_module, "SHADOW_SPHERES", 4)
+    for light in (pd.PointLight((10.0, 150.0, 5.0), (1.0, 1.0, 1.0)), pd.DirectionalLight((0.3, -1.0, 0.2), (1.0, 1.0, 1.0))):
+        one_by_one = np.zeros(len(points), bool)
+        for sphere in spheres:
+            one_by_one |= shadow_rays_near(points, light, [sphere])
+        got = shadow_rays_near(points, light, spheres)
+        assert 100 < got.sum() < len(points) and np.array_equal(got, one_by_one)
+    assert not shadow_rays_near(points, light, []).any()
+
+
 def test_correction_tolerance_trades_passes_for_accuracy(box, block, device):
     """correction_tolerance bounds the correction's estimated distance from its fixed point (what
     refresh() then solves exactly): the answer's distance stays under it, a tighter one takes more
     passes over K for a closer answer; values outside (0, 1) are refused."""
-    from pydynrad.dynamic.stale import _error_bound
+    from pydynrad.dynamic.stale import _error_estimate
 
-    assert _error_bound(1.0, np.inf) == 1.0 and _error_bound(0.6, 1.0) == 0.6  # no clear contraction: the step
-    assert _error_bound(0.1, 1.0) == pytest.approx(0.1 / 9.0)  # q = 0.1: q / (1 - q) of the step
+    assert _error_estimate(1.0, np.inf) == 1.0 and _error_estimate(0.6, 1.0) == 0.6  # no clear contraction: the step
+    assert _error_estimate(0.1, 1.0) == pytest.approx(0.1 / 9.0)  # q = 0.1: q / (1 - q) of the step
     F_static = pd.form_factors(box, R, device=device)
     n = len(box) + len(block)
     errors, passes = {}, {}
@@ -880,6 +950,8 @@ def test_stale_rows_hold_differences():
     np.testing.assert_allclose(st.delta.toarray(), pose[st.slots] - after[st.slots], rtol=0, atol=4.5e-16)
     with pytest.raises(pd.InvalidInputError, match="one row of 60 columns per slot"):
         st.put(held[:2], sp.csr_matrix((3, N)))
+    with pytest.raises(pd.InvalidInputError, match="each slot once"):
+        st.put(held[[4, 4]], sp.csr_matrix(np.ones((2, N))))
     st.clear()
     assert len(st) == 0 and st.nbytes < 1000
 
@@ -925,6 +997,12 @@ def test_difference_at_pose_is_at_pose_minus_kept(monkeypatch):
         shuffled.indices[a:b], shuffled.data[a:b] = shuffled.indices[a:b][::-1].copy(), shuffled.data[a:b][::-1].copy()
     shuffled.has_sorted_indices = False
     assert same(difference_at_pose(big, hidden, recip, shuffled, slots, select), truth)
+    rows = sp.csr_matrix(big[select])  # the same rows as a matrix of their own, read whole
+    assert same(difference_at_pose(rows, hidden[big.indptr[7]:], recip, kept, slots), truth)
+    bad = rows.copy()
+    bad.indices[bad.indptr[3]:bad.indptr[4]] = bad.indices[bad.indptr[3]:bad.indptr[4]][::-1].copy()
+    with pytest.raises(pd.InvalidInputError, match="row 3's static columns are out of increasing order"):
+        difference_at_pose(bad, hidden[big.indptr[7]:], recip, kept, slots)
     with pytest.raises(pd.InvalidInputError, match=r"\[0, 260\)"):
         difference_at_pose(big, hidden, recip, kept, slots + M, select)
     with pytest.raises(pd.InvalidInputError, match="one kept row per row"):

@@ -64,6 +64,11 @@ def _sphere_view(points, normals, center, radius) -> tuple[np.ndarray, np.ndarra
     return np.where(height > -radius, omega, 0.0), cos
 
 
+#: Spheres :func:`shadow_rays_near` takes in one pass (its temporaries are points x spheres x 3
+#: float64: 13 MB for the 66k village at this many).
+SHADOW_SPHERES = 8
+
+
 def shadow_rays_near(points: np.ndarray, light, spheres) -> np.ndarray:
     """(n,) bool: whether the shadow ray from each point towards ``light`` passes within the
     radius of any of ``spheres`` [(centre, radius), ...]: the segment to a point or spot light's
@@ -78,15 +83,20 @@ def shadow_rays_near(points: np.ndarray, light, spheres) -> np.ndarray:
         return np.zeros(len(p), bool)
     c = np.array([s[0] for s in spheres], np.float64)  # (k, 3)
     r = np.array([s[1] for s in spheres], np.float64)  # (k,)
-    u = c[None, :, :] - p[:, None, :]  # (n, k, 3) from each point to each centre
     if isinstance(light, DirectionalLight):
         v = np.broadcast_to(-np.asarray(light.direction, np.float64), p.shape)
-        t = np.maximum(np.einsum("nkj,nj->nk", u, v), 0.0)
+        vv = None
     else:  # a point or spot light: the segment to its position
         v = np.asarray(light.position, np.float64) - p
-        t = np.clip(np.einsum("nkj,nj->nk", u, v) / np.maximum(np.einsum("nj,nj->n", v, v), 1e-300)[:, None], 0.0, 1.0)
-    gap = t[:, :, None] * v[:, None, :] - u  # closest point on the ray minus the centre
-    return np.any(np.einsum("nkj,nkj->nk", gap, gap) <= r * r, axis=1)
+        vv = np.maximum(np.einsum("nj,nj->n", v, v), 1e-300)[:, None]
+    near = np.zeros(len(p), bool)
+    for k in range(0, len(c), SHADOW_SPHERES):  # (n, k, 3) temporaries of a bounded size
+        u = c[None, k:k + SHADOW_SPHERES, :] - p[:, None, :]  # from each point to each centre
+        uv = np.einsum("nkj,nj->nk", u, v)
+        t = np.maximum(uv, 0.0) if vv is None else np.clip(uv / vv, 0.0, 1.0)
+        gap = t[:, :, None] * v[:, None, :] - u  # closest point on the ray minus the centre
+        near |= np.any(np.einsum("nkj,nkj->nk", gap, gap) <= r[k:k + SHADOW_SPHERES] ** 2, axis=1)
+    return near
 
 
 def refresh_order(points, normals, spheres) -> tuple[np.ndarray, np.ndarray]:
@@ -777,18 +787,17 @@ class WorldRows:
         Hemicube rows (no static F): the ``budget`` candidates that see the most of the objects'
         old and new bounding ``spheres`` (:func:`refresh_order`), by hemicube. With a static F:
         every candidate that may see a sphere gets its row at the new poses from the static F
-        (:meth:`rows`, no hemicube; kept for the pose; at budget 0 only when ``correct``, for
-        the correction of the rows left stale), and the ``budget`` whose gathered light
+        (:meth:`rows`, no hemicube; kept for the pose), and the ``budget`` whose gathered light
         that changes most relative to their own are kept (a shortlist by solid angle first
         loses: 6.6% mean pixel error at 32 rows against 4.5%, bench/objects.py's scene): ``A_s rho_s |(new_s - current_s) w| / w_s`` with
         ``w`` (N,) the last radiosity summed over channels (ones before any), the row's share of
-        the mean relative error over the surface. Returns (indices into ``candidates``, rows of
-        ``moved`` then of those, hemicubes computed, left): ``left`` is (indices into
-        ``candidates``, their rows at the new poses) for the candidates made but not kept (with
-        a static F and a budget that leaves some), for :class:`~pydynrad.dynamic.stale.StaleRows`;
-        else None. ``left`` is (indices into ``candidates``, D): their rows at the new poses
-        minus their kept rows ``kept[slots[...]]``, for :class:`~pydynrad.dynamic.stale.StaleRows`
-        (at budget 0 the rows themselves are never made: :meth:`differences`).
+        the mean relative error over the surface. At budget 0 only when ``correct``, and then
+        only their differences from their kept rows are made, not the rows (:meth:`differences`).
+        Returns (indices into ``candidates``, rows of ``moved`` then of those, hemicubes
+        computed, left): with ``correct``, ``left`` is (indices into ``candidates``, D) for the
+        candidates made but not kept (with a static F and a budget that leaves some): their rows
+        at the new poses minus their kept rows ``kept[slots[...]]``, for
+        :class:`~pydynrad.dynamic.stale.StaleRows`; else None.
         ``outside``: patches whose rows the frame will gather at the new poses
         (:meth:`gather_outside`): with a static F made in the same pass as the candidates'.
         ``meanwhile``: a callable run once while the objects' hemicubes trace on the device,
@@ -830,6 +839,9 @@ class WorldRows:
                 order, new = order[:0], sp.csr_matrix((0, self.n_patches))
             else:
                 new, left = self._at(candidates[order], self._static_rows, also), None
+        except BaseException:
+            self._meanwhile = None  # the refresh failed: no work of the caller's to overlap
+            raise
         finally:
             try:
                 self.objects()  # never a trace left running past the call (nor its meanwhile not run)
@@ -847,7 +859,7 @@ class WorldRows:
             best = np.argsort(-score, kind="stable")[:budget]
             best = best[score[best] > 0]
             rest = np.setdiff1d(np.arange(len(order)), best)
-            left = (order[rest], rows_minus(new[rest], kept, slots[order[rest]]))
+            left = (order[rest], rows_minus(new[rest], kept, slots[order[rest]])) if correct else None
             order, new = order[best], new[best]
         rows = self.object_rows[np.concatenate([moved, candidates[still]]) - self.n_static]
         return np.concatenate([still, order]), sp.vstack([rows, new], format="csr"), hemicubes, left if correct else None

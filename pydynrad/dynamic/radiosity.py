@@ -164,7 +164,9 @@ class DynamicRadiosity:
         cheapest move). No effect with hemicube rows (``form_factors=None``).
     correction_tolerance : float
         Where that correction stops: at an estimated distance from its fixed point (the answer
-        with every stale row at the current poses) of at most this fraction of max B
+        with every stale row at the current poses; an estimate from the ratio of its last two
+        steps, which has fallen short of the true distance by up to 2x on the bench's moves)
+        of at most this fraction of max B
         (:data:`pydynrad.dynamic.stale.CORRECTION_TOLERANCE` by default, 2e-4: two passes over
         K a moving frame on the bench's box; 1e-6 takes three). See docs/design.md, 'Moving
         objects'.
@@ -584,7 +586,6 @@ class DynamicRadiosity:
         for obj, T in moves:
             spheres += [obj.bounding_sphere(held[id(obj)]), obj.bounding_sphere(T)]
         self._moved_world(transforms)
-        self._commit(moves)
         source, S, M = self._ff.source, self._local_patches, self.M
         moved = np.concatenate([self._ranges[id(o)] for o, _ in moves])
         slot_of = np.full(len(self.scene), -1)
@@ -592,9 +593,16 @@ class DynamicRadiosity:
         others = np.flatnonzero(~np.isin(S, moved))
         # With the far field, radiosity() gathers the patches outside S at the new poses.
         outside = np.flatnonzero(~self._local_mask) if self.far is not None else None
-        order, new_rows, hemicubes, left = source.refresh(moved, S[others], others, self._ff.local, spheres,
-                                                          self.occlusion, self._last_B, self.occlusion_correction,
-                                                          outside, meanwhile=self._follow_light)
+        try:
+            order, new_rows, hemicubes, left = source.refresh(moved, S[others], others, self._ff.local, spheres,
+                                                              self.occlusion, self._last_B, self.occlusion_correction,
+                                                              outside, meanwhile=self._follow_light)
+        except BaseException:
+            # Nothing of the move reached K or the stale rows: the world goes back to the poses
+            # they are of, and the moves stay queued for the next update.
+            self._moved_world([held[id(o)] for o in self.objects])
+            raise
+        self._commit(moves)
         slots = np.concatenate([slot_of[moved], others[order]])
         if self.occlusion == 0 and left is not None:
             # Budget 0 with the correction: no swap. The objects' new rows join the rows left
@@ -774,16 +782,16 @@ class DynamicRadiosity:
         held = self._held_light
         if held is None or not held.steady or held.world is self.scene or held.emitters != "hemicube":
             return
-        L = self._relit(held.L, held.poses, held.lights)
-        if L is None:
-            return
-        self._hold(held.emitters, held.lights, L, None, steady=True)
-        if self.far is not None:
-            try:
-                check_radiosity_range(L, self.scene.albedo, compute_dtype(self.storage))
+        try:
+            L = self._relit(held.L, held.poses, held.lights)
+            if L is None:
+                return
+            check_radiosity_range(L, self.scene.albedo, compute_dtype(self.storage))
+            if self.far is not None:
                 self.far.light(L)
-            except PydynradError:
-                pass
+        except Exception:  # a guess that failed (a device error, a light past float32) must not fail the move:
+            return         # radiosity() lights the world itself and raises what it meets there
+        self._hold(held.emitters, held.lights, L, None, steady=True)
 
     def _hold(self, emitters: str, lights: list, L: np.ndarray, E: np.ndarray | None, steady: bool) -> tuple:
         """Keep (L, E) of ``lights`` for the world as it is, read-only; returns them. ``steady``:
