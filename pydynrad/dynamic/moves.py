@@ -32,7 +32,8 @@ from .localrows import LocalRows
 
 __all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "sphere_form_factor",
            "shadow_rays_near", "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries",
-           "native_spans", "reciprocal_columns", "at_pose", "difference_at_pose", "stacked_rows", "swap_chunks"]
+           "native_spans", "reciprocal_columns", "at_pose", "difference_at_pose", "kept_slots", "stacked_rows",
+           "swap_chunks"]
 
 
 def sphere_solid_angle(points: np.ndarray, normals: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
@@ -268,8 +269,22 @@ def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix,
     (``csrc/poserows.c``); zeros dropped."""
     from .. import _poserows
 
+    starts, ends, indices, data, hidden, recip = _pose_spans("at_pose", rows, hidden, recip, select)
+    n = int((ends - starts).sum()) + recip.nnz
+    indptr, out_indices, out_data = np.empty(len(starts) + 1, np.int64), np.empty(n, np.int32), np.empty(n)
+    # One thread: in two parts (their outputs then stacked) it took 1.25 ms against 0.70 for a
+    # move's 450k entries on the bench's Cornell box (AMD EPYC Zen 4, 2026-12-06): a pass that
+    # writes every entry once is bound by memory, not by a core.
+    nnz = _poserows.assemble(starts, ends, indices, data, hidden, *native_csr(recip),
+                             indptr, out_indices, out_data)
+    return sp.csr_matrix((out_data[:nnz], out_indices[:nnz], indptr), shape=recip.shape)
+
+
+def _pose_spans(caller: str, rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix, select) -> tuple:
+    """(starts, ends, indices, data, hidden as uint8, recip as CSR): the checked inputs of
+    :func:`at_pose` and :func:`difference_at_pose` as ``csrc/poserows.c`` reads them."""
     if not (sp.issparse(rows) and rows.format == "csr"):
-        raise InvalidInputError(f"at_pose needs the rows as CSR (hidden is over their entries); got {type(rows).__name__}")
+        raise InvalidInputError(f"{caller} needs the rows as CSR (hidden is over their entries); got {type(rows).__name__}")
     recip = sp.csr_matrix(recip)
     starts, ends, indices, data = native_spans(rows, select)
     if len(starts) != recip.shape[0] or rows.shape[1] > recip.shape[1]:
@@ -277,18 +292,21 @@ def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix,
                                 f"do not match")
     if np.shape(hidden) != (rows.nnz,):
         raise InvalidInputError(f"hidden must have one flag per entry of the rows ({rows.nnz}); got {np.shape(hidden)}")
-    n = int((ends - starts).sum()) + recip.nnz
-    indptr, out_indices, out_data = np.empty(len(starts) + 1, np.int64), np.empty(n, np.int32), np.empty(n)
     # A bool mask is read as bytes in place: it spans all of F's entries when rows are picked out
     # of F (a uint8 copy of the village's 35M was 87 ms a move).
     hidden = np.ascontiguousarray(hidden)
-    hidden = (hidden if hidden.dtype == np.bool_ else hidden != 0).view(np.uint8)
-    # One thread: in two parts (their outputs then stacked) it took 1.25 ms against 0.70 for a
-    # move's 450k entries on the bench's Cornell box (AMD EPYC Zen 4, 2026-12-06): a pass that
-    # writes every entry once is bound by memory, not by a core.
-    nnz = _poserows.assemble(starts, ends, indices, data, hidden, *native_csr(recip),
-                             indptr, out_indices, out_data)
-    return sp.csr_matrix((out_data[:nnz], out_indices[:nnz], indptr), shape=recip.shape)
+    return starts, ends, indices, data, (hidden if hidden.dtype == np.bool_ else hidden != 0).view(np.uint8), recip
+
+
+def kept_slots(slots: np.ndarray, n_rows: int, n_kept: int) -> np.ndarray:
+    """``slots`` as contiguous int64, checked to name one of ``n_kept`` kept rows for each of
+    ``n_rows`` rows (:func:`difference_at_pose`, :func:`~pydynrad.dynamic.stale.rows_minus`)."""
+    slots = np.ascontiguousarray(slots, np.int64)
+    if slots.shape != (n_rows,):
+        raise InvalidInputError(f"slots must name one kept row per row ({n_rows}); got shape {slots.shape}")
+    if len(slots) and (slots.min() < 0 or slots.max() >= n_kept):
+        raise InvalidInputError(f"slots must lie in [0, {n_kept}) (the kept rows); got {slots.min()}..{slots.max()}")
+    return slots
 
 
 def difference_at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix, kept: sp.csr_matrix,
@@ -303,23 +321,11 @@ def difference_at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_ma
     from ..hostthreads import cores, map_parts, row_parts
     from .stale import PARALLEL_ENTRIES
 
-    if not (sp.issparse(rows) and rows.format == "csr"):
-        raise InvalidInputError(f"difference_at_pose needs the rows as CSR (hidden is over their entries); got "
-                                f"{type(rows).__name__}")
-    recip, kept = sp.csr_matrix(recip), sp.csr_matrix(kept)
-    starts, ends, indices, data = native_spans(rows, select)
-    slots = np.ascontiguousarray(slots, np.int64)
-    if len(starts) != recip.shape[0] or rows.shape[1] > recip.shape[1] or recip.shape[1] != kept.shape[1]:
-        raise InvalidInputError(f"{len(starts)} rows of {rows.shape[1]} columns, their object columns {recip.shape} and "
-                                f"kept rows {kept.shape} do not match")
-    if slots.shape != (len(starts),):
-        raise InvalidInputError(f"slots must name one kept row per row ({len(starts)}); got shape {slots.shape}")
-    if len(slots) and (slots.min() < 0 or slots.max() >= kept.shape[0]):
-        raise InvalidInputError(f"slots must lie in [0, {kept.shape[0]}) (the kept rows); got {slots.min()}..{slots.max()}")
-    if np.shape(hidden) != (rows.nnz,):
-        raise InvalidInputError(f"hidden must have one flag per entry of the rows ({rows.nnz}); got {np.shape(hidden)}")
-    hidden = np.ascontiguousarray(hidden)
-    hidden = (hidden if hidden.dtype == np.bool_ else hidden != 0).view(np.uint8)
+    starts, ends, indices, data, hidden, recip = _pose_spans("difference_at_pose", rows, hidden, recip, select)
+    kept = sp.csr_matrix(kept)
+    if recip.shape[1] != kept.shape[1]:
+        raise InvalidInputError(f"object columns {recip.shape} and kept rows {kept.shape} do not match")
+    slots = kept_slots(slots, len(starts), kept.shape[0])
     r_indptr, r_indices, r_data = native_csr(recip)
 
     def part(task):
@@ -758,11 +764,14 @@ class WorldRows:
             also = also[self._at_pose[0][also] < 0]
         both = np.concatenate([s, also])
         F, hidden, recip, select = self._pose_inputs(both)
-        recip = sp.csr_matrix(recip)
         if len(also):
-            first = {p: k for k, p in enumerate(both.tolist()) if k >= len(s)}
-            self._at(also, lambda miss: at_pose(F, hidden, recip[[first[p] for p in miss.tolist()]],
-                                                select[[first[p] for p in miss.tolist()]]))
+            at_both = {p: k for k, p in enumerate(both.tolist()) if k >= len(s)}
+
+            def made(miss):
+                k = [at_both[p] for p in miss.tolist()]
+                return at_pose(F, hidden, recip[k], select[k])
+
+            self._at(also, made)
         return difference_at_pose(F, hidden, recip[: len(s)], kept, at, select[: len(s)])
 
     def rows(self, idx) -> sp.csr_matrix:
@@ -806,14 +815,13 @@ class WorldRows:
         from .stale import rows_minus
 
         world = self.world
+        order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
         if self.static is None:
-            order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
             order = order[:budget]
             if meanwhile is not None:
                 meanwhile()
             rows, hemicubes = self.fresh(np.concatenate([moved, candidates[order]]))
             return order, rows, hemicubes, None
-        order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
         # Objects that did not move are seen by those that did: their rows, new anyway, go in too.
         still = np.flatnonzero(candidates >= self.n_static)
         order = order[candidates[order] < self.n_static] if budget != 0 or correct else order[:0]

@@ -86,18 +86,14 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     are sorted first (a copy)."""
     from .. import _poserows
     from ..hostthreads import cores, map_parts, row_parts
-    from .moves import native_csr, native_spans, stacked_rows
+    from .moves import kept_slots, native_csr, native_spans, stacked_rows
 
     blocks = [sp.csr_matrix(rows)] if sp.issparse(rows) else [sp.csr_matrix(b) for b in rows]
     kept = sp.csr_matrix(kept)
     n_rows = sum(b.shape[0] for b in blocks)
     if any(b.shape[1] != kept.shape[1] for b in blocks):
         raise InvalidInputError(f"rows of {[b.shape[1] for b in blocks]} columns and kept rows {kept.shape} differ in columns")
-    slots = np.ascontiguousarray(slots, np.int64)
-    if slots.shape != (n_rows,):
-        raise InvalidInputError(f"slots must name one kept row per row ({n_rows}); got shape {slots.shape}")
-    if len(slots) and (slots.min() < 0 or slots.max() >= kept.shape[0]):
-        raise InvalidInputError(f"slots must lie in [0, {kept.shape[0]}) (the kept rows); got {slots.min()}..{slots.max()}")
+    slots = kept_slots(slots, n_rows, kept.shape[0])
     k_csr, k_len = native_csr(kept), np.diff(kept.indptr)
     split = cores() if sum(b.nnz for b in blocks) >= PARALLEL_ENTRIES else 1
 
