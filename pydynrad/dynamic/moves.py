@@ -21,6 +21,7 @@ chunks done so far are new and the rest old, which is what the next chunk remove
 from __future__ import annotations
 
 import threading
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -32,7 +33,7 @@ from .localrows import LocalRows
 
 __all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "sphere_form_factor",
            "shadow_rays_near", "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries",
-           "native_spans", "reciprocal_columns", "at_pose", "difference_at_pose", "kept_slots", "stacked_rows",
+           "native_spans", "reciprocal_columns", "at_pose", "Since", "PoseDifference", "difference_at_pose", "kept_slots", "stacked_rows",
            "swap_chunks"]
 
 
@@ -309,50 +310,117 @@ def kept_slots(slots: np.ndarray, n_rows: int, n_kept: int) -> np.ndarray:
     return slots
 
 
+class Since(NamedTuple):
+    """What :func:`difference_at_pose` may start from for some of its rows: their rows at the
+    last pose, made from the same static rows, and their D then.
+
+    ``rows`` (r,) bool: the rows whose row at the last pose was made with the mask ``hidden``
+    ((nnz,) bool over the static rows' entries, as :func:`hidden_entries` gave it then) and not
+    capped, and whose D then holds against the same kept rows: row ``last_row[i]`` of ``last``
+    (CSR of N columns; -1: an empty row); ``row_sums`` (r,) float64: each static row's sum;
+    ``first_object``: the first object column (every static column lies below it)."""
+
+    rows: np.ndarray
+    hidden: np.ndarray
+    row_sums: np.ndarray
+    last: sp.csr_matrix
+    last_row: np.ndarray
+    first_object: int
+
+
+class PoseDifference(NamedTuple):
+    """:func:`difference_at_pose`'s answer: ``delta`` (r, N) CSR, D; ``capped`` (r,) bool, where
+    the row at the pose was scaled or capped (:func:`at_pose`)."""
+
+    delta: sp.csr_matrix
+    capped: np.ndarray
+
+
 def difference_at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix, kept: sp.csr_matrix,
-                       slots: np.ndarray, select: np.ndarray | None = None) -> sp.csr_matrix:
+                       slots: np.ndarray, select: np.ndarray | None = None, since: Since | None = None) -> PoseDifference:
     """``at_pose(rows, hidden, recip, select) - kept[slots]`` (r, N) CSR, exact zeros dropped,
     without the rows at the pose: each is merged with its kept row as it is made, value for
     value as :func:`at_pose` makes it (``csrc/poserows.c``, ``moved_difference``). ``kept``
     (M, N) CSR, ``slots`` (r,) rows of it; the rest as for :func:`at_pose`. Where a kept row is
     out of column order, the kept rows are sorted first (a copy). In parts of about equal entries
-    on the cores at once from :data:`~pydynrad.dynamic.stale.PARALLEL_ENTRIES` entries."""
+    on the cores at once from :data:`~pydynrad.dynamic.stale.PARALLEL_ENTRIES` entries.
+
+    ``since``: for the rows it names whose row at the pose is not capped either, D is their
+    last D with the entries whose presence changed since (hidden then and not now, or the
+    reverse) made again, and the object columns: the same values bit for bit, reading a flag
+    or two per entry instead of the static and kept rows whole (:class:`Since`). Used where both
+    ``rows`` and ``kept`` are in canonical order (scipy's cached ``has_canonical_format``)."""
     from .. import _poserows
     from ..hostthreads import cores, map_parts, row_parts
     from .stale import PARALLEL_ENTRIES
 
     starts, ends, indices, data, hidden, recip = _pose_spans("difference_at_pose", rows, hidden, recip, select)
-    kept = sp.csr_matrix(kept)
+    # Not wrapped again where it is CSR: a new wrapper forgets scipy's cached order flags.
+    kept = kept if sp.issparse(kept) and kept.format == "csr" else sp.csr_matrix(kept)
     if recip.shape[1] != kept.shape[1]:
         raise InvalidInputError(f"object columns {recip.shape} and kept rows {kept.shape} do not match")
     slots = kept_slots(slots, len(starts), kept.shape[0])
     r_indptr, r_indices, r_data = native_csr(recip)
+    flags, p_starts, p_ends, p_indices, p_data, hidden_prev, row_sums, first = \
+        _since_inputs(since, rows, hidden, len(starts), kept.shape[1])
+    capped = np.zeros(len(starts), np.uint8)
 
     def part(task):
-        (a, z), (k_indptr, k_indices, k_data) = task
+        (a, z), (k_indptr, k_indices, k_data), use = task
         ra, rz, sl = r_indptr[a], r_indptr[z], slots[a:z]
-        n = int((ends[a:z] - starts[a:z]).sum()) + int(rz - ra) + int((k_indptr[sl + 1] - k_indptr[sl]).sum())
+        n = int((ends[a:z] - starts[a:z]).sum()) + int(rz - ra) + int((k_indptr[sl + 1] - k_indptr[sl]).sum()) \
+            + int((p_ends[a:z] - p_starts[a:z]).sum())
         # Only D's entries are written (no page of the rest of the bound faulted in).
         indptr, out_indices, out_data = np.empty(z - a + 1, np.int64), np.empty(n, np.int32), np.empty(n)
         nnz = _poserows.moved_difference(starts[a:z], ends[a:z], indices, data, hidden, r_indptr[a:z + 1] - ra,
                                          r_indices[ra:rz], r_data[ra:rz], k_indptr, k_indices, k_data, sl,
-                                         indptr, out_indices, out_data)
+                                         use[a:z], hidden_prev, row_sums[a:z], p_starts[a:z], p_ends[a:z],
+                                         p_indices, p_data, first, indptr, out_indices, out_data, capped[a:z])
         return (indptr, out_indices[:nnz], out_data[:nnz]) if nnz >= 0 else a - 1 - nnz  # the row out of order
 
     work = np.concatenate([[0], np.cumsum(ends - starts)])
     parts = row_parts(work, cores() if work[-1] >= PARALLEL_ENTRIES else 1)
     for attempt in range(2):
         k_csr = native_csr(kept)
-        done = map_parts(part, [(p, k_csr) for p in parts])
+        # The last D is read only against kept rows in canonical order (it was made against them).
+        use = flags if kept.has_canonical_format else np.zeros_like(flags)
+        done = map_parts(part, [(p, k_csr, use) for p in parts])
         bad = [d for d in done if not isinstance(d, tuple)]
         if not bad:
-            return stacked_rows(done, recip.shape[1])
+            return PoseDifference(stacked_rows(done, recip.shape[1]), capped.view(bool))
         if attempt or np.any(np.diff(indices[starts[bad[0]]:ends[bad[0]]]) <= 0):
             break  # a static row out of order: at_pose's rows must be in order too
         kept = kept.copy()
         kept.sum_duplicates()  # scipy leaves sums of CSR matrices unsorted
     raise InvalidInputError(f"row {bad[0]}'s static columns are out of increasing order: difference_at_pose reads "
                             "sorted rows")
+
+
+def _since_inputs(since: Since | None, rows: sp.csr_matrix, hidden: np.ndarray, r: int, n_cols: int) -> tuple:
+    """(flags uint8 (r,), the last D's spans (starts, ends int64 (r,)), indices and data, the last
+    mask uint8, row sums float64 (r,), first object column): :func:`difference_at_pose`'s
+    "since" inputs, checked, or none to use."""
+    empty = np.zeros(r, np.int64)
+    none = (np.zeros(r, np.uint8), empty, empty, np.zeros(0, np.int32), np.zeros(0), np.zeros(0, np.uint8),
+            np.zeros(r), 0)
+    if since is None:
+        return none
+    flags, at = np.ascontiguousarray(since.rows, bool), np.asarray(since.last_row, np.int64)
+    last = since.last
+    if flags.shape != (r,) or at.shape != (r,) or np.shape(since.row_sums) != (r,) \
+            or np.shape(since.hidden) != hidden.shape or not (sp.issparse(last) and last.format == "csr") \
+            or last.shape[1] != n_cols or (r and (at.min() < -1 or at.max() >= last.shape[0])):
+        raise InvalidInputError(f"since must give a flag, a row sum and a row of its last D (CSR, {n_cols} columns, "
+                                f"or -1) for each of the {r} rows, and a mask of the same entries as hidden")
+    if not (flags.any() and rows.has_canonical_format):
+        return none
+    indptr, indices, data = native_csr(last)
+    held = flags & (at >= 0)
+    starts, ends = np.where(held, indptr[at], 0), np.where(held, indptr[at + 1], 0)
+    prev = np.ascontiguousarray(since.hidden)
+    prev = (prev if prev.dtype == np.bool_ else prev != 0).view(np.uint8)
+    return (flags.view(np.uint8), starts, ends, indices, data, prev, np.ascontiguousarray(since.row_sums, np.float64),
+            int(since.first_object))
 
 
 def stacked_rows(parts: list, n_cols: int) -> sp.csr_matrix:
@@ -608,6 +676,11 @@ class WorldRows:
         self._first_spheres = [o.bounding_sphere() for o in self.objects_moving]
         self._in_view: np.ndarray | None = None  # (N,) bool, per pose: :meth:`in_view`
         self._first_view: np.ndarray | None = None  # its part for the first poses
+        self.pose = 0  # moves so far: the number of the poses the world is at
+        # (pose, hidden over the static F's entries, capped (n_static,) bool) of the last pass of
+        # :meth:`differences` over the pre-test: what the next pose's differences start from.
+        self._made: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._row_sums: np.ndarray | None = None  # (n_static,) the static F's row sums, once
 
     @property
     def world(self):
@@ -619,6 +692,7 @@ class WorldRows:
         self.hemicubes.scene = world
         self.object_rows = None
         self._at_pose, self._outside, self._in_view = None, None, None
+        self.pose += 1
 
     def in_view(self) -> np.ndarray:
         """(N,) bool: the static patches whose view an object changes, by a form factor of at
@@ -746,14 +820,20 @@ class WorldRows:
                                 self.device, select)
         return F, hidden, reciprocal_columns(s, self.objects(), self.object_patches, world.areas, self.n_patches), select
 
-    def differences(self, s: np.ndarray, kept: sp.csr_matrix, at: np.ndarray, also: np.ndarray | None = None):
+    def differences(self, s: np.ndarray, kept: sp.csr_matrix, at: np.ndarray, also: np.ndarray | None = None,
+                    held=None) -> sp.csr_matrix:
         """(len(s), N) CSR: the rows of static patches ``s`` at the current poses (:meth:`rows`)
         minus ``kept[at]`` (``kept`` (M, N), ``at`` (len(s),) its rows). From the static F they
         are never made: :func:`difference_at_pose` merges each with its kept row as it is made
         (writing a move's ~450k entries at the pose, then reading them back to merge them, was
         2.4-3.9 ms of the bench's moving frame; AMD EPYC Zen 4, 2026-12-06). Rows ``also``
         missing at the pose are made in the same pass (one pre-test of both) and kept for the
-        pose, as :meth:`rows` keeps them. Rows ``poses`` holds come from there, merged."""
+        pose, as :meth:`rows` keeps them. Rows ``poses`` holds come from there, merged.
+
+        ``held``: the stale rows (:class:`~pydynrad.dynamic.stale.StaleRows`) whose D, where put
+        at the last pose by this pass and held since against the same kept rows, the pass starts
+        from (:class:`Since`): it then reads the rows' hidden flags then and now, not their
+        entries."""
         from .stale import rows_minus
 
         s, at = np.asarray(s, np.int64), np.asarray(at, np.int64)
@@ -772,7 +852,28 @@ class WorldRows:
                 return at_pose(F, hidden, recip[k], select[k])
 
             self._at(also, made)
-        return difference_at_pose(F, hidden, recip[: len(s)], kept, at, select[: len(s)])
+        since = self._since(s, at, hidden, held) if F is self.static.csr else None
+        D, capped = difference_at_pose(F, hidden, recip[: len(s)], kept, at, select[: len(s)], since)
+        if F is self.static.csr:
+            flags = np.ones(self.n_static, bool)  # rows not made here: never started from
+            flags[s] = capped
+            self._made = (self.pose, hidden, flags)
+        return D
+
+    def _since(self, s: np.ndarray, at: np.ndarray, hidden: np.ndarray, held) -> Since | None:
+        """What :meth:`differences` at this pose starts from for static patches ``s`` in slots
+        ``at``: their D that ``held`` put at the last pose, where that pose's pass made their
+        rows uncapped."""
+        made = self._made
+        if held is None or made is None or made[0] != self.pose - 1 or made[1].shape != hidden.shape:
+            return None
+        flags, last, last_row = held.since(at, made[0])
+        flags &= ~made[2][s]
+        if not flags.any():
+            return None
+        if self._row_sums is None:
+            self._row_sums = np.asarray(self.static.csr.sum(axis=1), np.float64).ravel()
+        return Since(flags, made[1], self._row_sums[s], last, last_row, self.n_static)
 
     def rows(self, idx) -> sp.csr_matrix:
         idx = np.asarray(idx, np.int64)
@@ -786,8 +887,8 @@ class WorldRows:
 
     def refresh(self, moved: np.ndarray, candidates: np.ndarray, slots: np.ndarray, kept: sp.csr_matrix, spheres,
                 budget: int | None, weight: np.ndarray | None, correct: bool = False,
-                outside: np.ndarray | None = None,
-                meanwhile=None) -> tuple[np.ndarray, sp.csr_matrix, int, tuple | None]:
+                outside: np.ndarray | None = None, meanwhile=None,
+                held=None) -> tuple[np.ndarray, sp.csr_matrix, int, tuple | None]:
         """Which of the static ``candidates`` (patch indices in ``slots``; ``kept`` the local
         set's rows (M, N) in slot order, so theirs are ``current = kept[slots]``, sliced only
         when the budget ranks them) to refresh after a move, and the new rows of ``moved``
@@ -811,7 +912,8 @@ class WorldRows:
         (:meth:`gather_outside`): with a static F made in the same pass as the candidates'.
         ``meanwhile``: a callable run once while the objects' hemicubes trace on the device,
         after the static rows' pre-test on the host (with hemicube rows: before they are
-        made), so that the host's work of the caller overlaps the trace."""
+        made), so that the host's work of the caller overlaps the trace. ``held``: the stale
+        rows the differences at budget 0 may start from (:meth:`differences`)."""
         from .stale import rows_minus
 
         world = self.world
@@ -843,7 +945,7 @@ class WorldRows:
             elif meanwhile is not None:
                 meanwhile()
             if budget == 0:  # every row made is left stale: only their differences are wanted
-                left = (order, self.differences(candidates[order], kept, slots[order], also))
+                left = (order, self.differences(candidates[order], kept, slots[order], also, held))
                 order, new = order[:0], sp.csr_matrix((0, self.n_patches))
             else:
                 new, left = self._at(candidates[order], self._static_rows, also), None

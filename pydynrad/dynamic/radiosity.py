@@ -596,7 +596,7 @@ class DynamicRadiosity:
         try:
             order, new_rows, hemicubes, left = source.refresh(moved, S[others], others, self._ff.local, spheres,
                                                               self.occlusion, self._last_B, self.occlusion_correction,
-                                                              outside, meanwhile=self._follow_light)
+                                                              outside, meanwhile=self._follow_light, held=self._stale)
         except BaseException:
             # Nothing of the move reached K or the stale rows: the world goes back to the poses
             # they are of, and the moves stay queued for the next update.
@@ -608,7 +608,8 @@ class DynamicRadiosity:
             # Budget 0 with the correction: no swap. The objects' new rows join the rows left
             # stale, K keeps the rows it was built from, and radiosity() solves with all of them
             # (a rank-2k swap of every object slot cost more than the rest of the move).
-            self._stale.put(np.concatenate([slots, others[left[0]]]), rows_minus(new_rows, self._ff.local, slots), left[1])
+            self._stale.put(np.concatenate([slots, others[left[0]]]), rows_minus(new_rows, self._ff.local, slots), left[1],
+                            pose=source.pose)
             return 0, hemicubes
         before = self._ff.local
         local = _replace_rows(before, slots, new_rows)

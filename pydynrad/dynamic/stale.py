@@ -164,6 +164,9 @@ class StaleRows:
     def clear(self) -> None:
         self.slots = np.empty(0, np.int64)
         self.delta = sp.csr_matrix((0, self.n_patches))
+        # Per slot, the pose (WorldRows.pose) whose rows minus the kept rows its D is, bit for bit
+        # as the pass that put it made it (an empty D not held), or -1: for since().
+        self._made_at = np.full(0, -1, np.int64)
         self.iterations = 0  # passes over K of the last correct() (its start's included)
         self.converged = True  # whether the last correct() reached its tolerance
         self._last: np.ndarray | None = None  # (N, 3) the last correct()'s B, per patch (where _known)
@@ -186,11 +189,12 @@ class StaleRows:
         """Host bytes of the slots and D held."""
         return self.slots.nbytes + self.delta.data.nbytes + self.delta.indices.nbytes + self.delta.indptr.nbytes
 
-    def put(self, slots: np.ndarray, *deltas: sp.csr_matrix) -> None:
+    def put(self, slots: np.ndarray, *deltas: sp.csr_matrix, pose: int | None = None) -> None:
         """Slots ``slots`` (k,) now have rows at the current poses that differ from their kept rows
         by ``deltas`` (one or more blocks of CSR rows of N columns, k rows in all, in order),
         replacing what was held for them; rows that are empty leave their slots current. One
-        copy of D's rows at most (each held row is put once per move)."""
+        copy of D's rows at most (each held row is put once per move). ``pose``: the pose whose
+        rows minus the kept rows ``deltas`` are exactly, as made (:meth:`since`), if any."""
         from .moves import stacked_rows
 
         slots = np.asarray(slots, np.int64)
@@ -200,6 +204,7 @@ class StaleRows:
                                     f"{[b.shape for b in blocks]}")
         if len(np.unique(slots)) != len(slots):
             raise InvalidInputError("put needs each slot once: a slot's row differs from its kept row in one way")
+        self._made_slots(slots)[slots] = -1 if pose is None else int(pose)
         keep = ~np.isin(self.slots, slots)
         if keep.any():
             blocks.insert(0, self.delta if keep.all() else self.delta[np.flatnonzero(keep)])
@@ -210,9 +215,28 @@ class StaleRows:
         stale = np.diff(delta.indptr) > 0
         self.slots, self.delta = (slots, delta) if stale.all() else (slots[stale], delta[np.flatnonzero(stale)])
 
+    def _made_slots(self, slots: np.ndarray) -> np.ndarray:
+        """The per-slot poses of :meth:`since`, grown to hold ``slots``."""
+        need = int(slots.max()) + 1 if len(slots) else 0
+        if need > len(self._made_at):
+            self._made_at = np.concatenate([self._made_at, np.full(need - len(self._made_at), -1, np.int64)])
+        return self._made_at
+
+    def since(self, slots: np.ndarray, pose: int) -> tuple[np.ndarray, sp.csr_matrix, np.ndarray]:
+        """For each of ``slots`` (k,): whether its D was put for ``pose`` and has held since against
+        the same kept rows; D as held; and the row of D that is its own (-1: none held, its D
+        empty). For :meth:`~pydynrad.dynamic.moves.WorldRows.differences`."""
+        slots = np.asarray(slots, np.int64)
+        made = self._made_slots(slots)
+        row = np.full(len(made), -1, np.int64)
+        row[self.slots] = np.arange(len(self.slots))
+        return made[slots] == pose, self.delta, row[slots]
+
     def drop(self, slots: np.ndarray) -> None:
         """Slots whose rows in K are current again (refreshed by a swap, or holding another
         patch): nothing to correct there."""
+        slots = np.asarray(slots, np.int64)
+        self._made_slots(slots)[slots] = -1
         keep = np.flatnonzero(~np.isin(self.slots, slots))
         if len(keep) < len(self.slots):
             self.slots, self.delta = self.slots[keep], self.delta[keep]
@@ -223,7 +247,7 @@ class StaleRows:
         if not len(self.slots):
             return
         change = rows_minus(sp.csr_matrix(after)[self.slots], before, self.slots)
-        self.put(self.slots, sp.csr_matrix(self.delta - change))
+        self.put(self.slots, sp.csr_matrix(self.delta - change))  # no pose: D is no longer as a pass made it
 
     def correct(self, solve_kept, LS: np.ndarray, B: np.ndarray, S: np.ndarray, albedo: np.ndarray,
                 outside: bool, tolerance: float = CORRECTION_TOLERANCE) -> np.ndarray:
