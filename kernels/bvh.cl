@@ -387,14 +387,15 @@ inline void bvh_walk_tree_p(__global const float4 *nodes, __global const float4 
     }
 }
 
-// Every tree for every lane (the static one, then each instance's in its object space):
-// bvh_walk_tree_p of each, the same `any_hit`.
+// Every tree for every lane (the static one, then each instance's in its object space but
+// instance `skip`, -1 for none): bvh_walk_tree_p of each, the same `any_hit`.
 inline void bvh_walk_p(__global const float4 *nodes, __global const float4 *tris, const RayPacket *r, float tmin,
-                       HitPacket *h, int any_hit)
+                       HitPacket *h, int any_hit, int skip)
 {
     bvh_walk_tree_p(nodes, tris, 0, r, tmin, h, any_hit);
     int4 inst = bvh_instances(nodes);
     for (int i = 0; i < inst.x; ++i) {
+        if (i == skip) continue;
         if (any_hit && bvh_hmaxP(h->t) == -INFINITY) return;  // every lane has hit
         __global const float4 *m = nodes + inst.y + BVH_INSTANCE * i;
         RayPacket q;
@@ -409,12 +410,14 @@ inline void bvh_walk_p(__global const float4 *nodes, __global const float4 *tris
 }
 
 // Nearest hit of every lane along org + t dir for t in (tmin, tmax): bvh_closest per lane,
-// one shared walk per tree.
+// one shared walk per tree; instance `skip` (-1: none) is not looked at (the rays leave a
+// convex object's surface outwards, where nothing of that object lies).
 inline HitPacket bvh_closest_packet(__global const float4 *nodes, __global const float4 *tris,
-                                    __global const int *order, const RayPacket *r, float tmin, bvh_floatP tmax)
+                                    __global const int *order, const RayPacket *r, float tmin, bvh_floatP tmax,
+                                    int skip)
 {
     HitPacket h = {tmax, (bvh_floatP)0.0f, (bvh_floatP)0.0f, (bvh_intP)(-1), (bvh_intP)0};
-    bvh_walk_p(nodes, tris, r, tmin, &h, 0);
+    bvh_walk_p(nodes, tris, r, tmin, &h, 0, skip);
     // Map BVH order to patch indices lane by lane (OpenCL has no vector gather).
     int ids[BVH_PACKET];
     bvh_vstoreP(h.patch, 0, ids);
@@ -429,7 +432,7 @@ inline bvh_intP bvh_occluded_packet(__global const float4 *nodes, __global const
                                     float tmin, bvh_floatP tmax)
 {
     HitPacket h = {tmax, (bvh_floatP)0.0f, (bvh_floatP)0.0f, (bvh_intP)(-1), (bvh_intP)0};
-    bvh_walk_p(nodes, tris, r, tmin, &h, 1);
+    bvh_walk_p(nodes, tris, r, tmin, &h, 1, -1);
     return h.patch >= 0;
 }
 

@@ -105,12 +105,12 @@ inline void hc_scanline(float3 n, uint key, int s, float3 *base, float3 *step)
 }
 
 // The packet org + t (dx, dy, dz) traced: each lane's nearest patch (-1: none) and whether it
-// met that patch's front.
+// met that patch's front; instance `skip` (-1: none) not looked at (bvh_closest_packet).
 inline void hc_trace(__global const float4 *nodes, __global const float4 *tris, __global const int *order,
-                     float3 org, bvh_floatP dx, bvh_floatP dy, bvh_floatP dz, int *ids, int *fronts)
+                     float3 org, bvh_floatP dx, bvh_floatP dy, bvh_floatP dz, int skip, int *ids, int *fronts)
 {
     RayPacket r = {org.x, org.y, org.z, dx, dy, dz};
-    HitPacket hp = bvh_closest_packet(nodes, tris, order, &r, 0.0f, (bvh_floatP)INFINITY);
+    HitPacket hp = bvh_closest_packet(nodes, tris, order, &r, 0.0f, (bvh_floatP)INFINITY, skip);
     bvh_vstoreP(hp.patch, 0, ids);
     bvh_vstoreP(hp.front, 0, fronts);
 }
@@ -121,7 +121,7 @@ inline void hc_trace_packet(__global const float4 *nodes, __global const float4 
                             float3 org, float3 base, float3 step, int x0, int *ids, int *fronts)
 {
     const bvh_floatP xs = BVH_MIN((bvh_floatP)x0 + HC_LANES, (bvh_floatP)(HC_RES - 1));
-    hc_trace(nodes, tris, order, org, base.x + xs * step.x, base.y + xs * step.y, base.z + xs * step.z, ids, fronts);
+    hc_trace(nodes, tris, order, org, base.x + xs * step.x, base.y + xs * step.y, base.z + xs * step.z, -1, ids, fronts);
 }
 
 #ifdef HC_TILE_Y
@@ -150,17 +150,18 @@ inline int hc_band(int b, int *rows)
 
 // The tile of pixels x0 .. x0 + HC_TILE_X - 1 of `rows` consecutive scanlines of one face, the
 // first of them given by hc_face_scanline (base, step, row), traced from org as one packet
-// (hc_trace). Lane l is pixel x0 + l % HC_TILE_X of the tile's scanline l / HC_TILE_X; lanes
-// past the face's last pixel or the band's last scanline repeat it.
+// (hc_trace, instance `skip` not looked at). Lane l is pixel x0 + l % HC_TILE_X of the tile's
+// scanline l / HC_TILE_X; lanes past the face's last pixel or the band's last scanline repeat it.
 inline void hc_trace_tile(__global const float4 *nodes, __global const float4 *tris, __global const int *order,
-                          float3 org, float3 base, float3 step, float3 row, int x0, int rows, int *ids, int *fronts)
+                          float3 org, float3 base, float3 step, float3 row, int x0, int rows, int skip, int *ids,
+                          int *fronts)
 {
     const bvh_floatP lane = HC_LANES;
     const bvh_floatP ly = floor(lane * (1.0f / HC_TILE_X));
     const bvh_floatP xs = BVH_MIN((bvh_floatP)x0 + (lane - ly * HC_TILE_X), (bvh_floatP)(HC_RES - 1));
     const bvh_floatP ys = BVH_MIN(ly, (bvh_floatP)(rows - 1));
     hc_trace(nodes, tris, order, org, base.x + xs * step.x + ys * row.x, base.y + xs * step.y + ys * row.y,
-             base.z + xs * step.z + ys * row.z, ids, fronts);
+             base.z + xs * step.z + ys * row.z, skip, ids, fronts);
 }
 #endif  // HC_TILE_Y
 

@@ -37,7 +37,7 @@ __kernel void cast_closest(__global const float4 *nodes, __global const float4 *
     if (first >= n_rays) return;
     bvh_floatP tm;
     RayPacket r = load_packet(origins, directions, tmax, first, n_rays, &tm);
-    HitPacket h = bvh_closest_packet(nodes, tris, order, &r, 0.0f, tm);
+    HitPacket h = bvh_closest_packet(nodes, tris, order, &r, 0.0f, tm, -1);
     int hp[BVH_PACKET], hf[BVH_PACKET];
     float ht[BVH_PACKET];
     bvh_vstoreP(h.patch, 0, hp);

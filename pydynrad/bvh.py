@@ -118,6 +118,11 @@ class BVH:
         """(n_nodes, 4) int32 child references."""
         return _children(self.nodes)
 
+    def own_instances(self, patches) -> np.ndarray:
+        """(len(patches),) int32: per patch, the instance its hemicube rays need not look at
+        (:meth:`InstancedBVH.own_instances`); a plain tree has none, -1."""
+        return np.full(len(patches), -1, np.int32)
+
     @property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi), each (n_nodes, 4, 3) float32: the children's boxes."""
@@ -185,12 +190,16 @@ class InstancedBVH:
         in it; sharing its unit, the objects' trees keep the map from it to theirs rigid.
     origins : (n_objects, 3) float, optional
         The object-space point each object's tree is centred on (default: zeros).
+    convex : (n_objects,) bool, optional
+        Whether each object is the whole boundary of one convex solid (default: none is); the
+        hemicube rays of its own patches then skip its tree (:meth:`own_instances`).
 
     See docs/design.md, 'BVH' and 'Moving objects'.
     """
 
-    def __init__(self, static: BVH, objects, transforms, frame=None, origins=None) -> None:
+    def __init__(self, static: BVH, objects, transforms, frame=None, origins=None, convex=None) -> None:
         objects = list(objects)
+        self.convex = np.zeros(len(objects), bool) if convex is None else np.array(convex, bool).reshape(len(objects))
         self.frame_origin = np.zeros(3) if frame is None else np.asarray(frame.origin, np.float64)
         self.frame_unit = 1.0 if frame is None else float(frame.unit)
         self.origins = np.zeros((len(objects), 3)) if origins is None else np.asarray(origins, np.float64).reshape(-1, 3)
@@ -204,6 +213,7 @@ class InstancedBVH:
         self._table_float4 = int(node_at[-1]) * (NODE_FLOATS // 4)
         self.nodes.view(np.int32)[0, 28:30] = (len(objects), self._table_float4)
         self.order = np.concatenate([static.order] + [b.order + int(t0) for b, t0 in zip(objects, tri_at)])
+        self.patch_starts = tri_at.astype(np.int64)  # the static patches', then each object's first patch
         self.tris = np.concatenate([static.tris] + [b.tris for b in objects])
         self.n_objects = len(objects)
         self._device_buffers: dict = {}
@@ -238,6 +248,18 @@ class InstancedBVH:
             if bvh is not None:
                 uploads["bvh"] = bvh
                 cl.enqueue_copy(device.queue, bvh[0], table, dst_offset=16 * self._table_float4)
+
+    def own_instances(self, patches) -> np.ndarray:
+        """(len(patches),) int32: per patch, the object it lies on where that object is convex,
+        else -1: a ray leaving a point of a convex solid's surface into the hemisphere outside
+        it meets nothing of the solid, which lies wholly behind the point's plane, so its tree
+        need not be walked (kernels/hemicube.cl)."""
+        p = np.asarray(patches, np.int64)
+        k = np.searchsorted(self.patch_starts, p, side="right") - 1  # -1: a static patch
+        inside = (k >= 0) & (k < self.n_objects)
+        out = np.full(len(p), -1, np.int32)
+        out[inside] = np.where(self.convex[k[inside]], k[inside], -1)
+        return out
 
     @property
     def nbytes(self) -> int:

@@ -244,15 +244,19 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
     # the queue to drain on PoCL), and the read-back of block b + 1 is enqueued only after
     # block b's host work: PoCL's reads wait for the kernel before them even when not blocking.
     buffers = [tuple(cl.Buffer(dev.context, mf.WRITE_ONLY, block * K * S * w) for w in (R * 4, R * 4, 4)) for _ in range(2)]
-    idx_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, block * 4) for _ in range(2)]
+    # Each block's rows, then the instance each row's rays skip (BVH.own_instances), in one copy.
+    idx_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, 2 * block * 4) for _ in range(2)]
     org_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, block * K * 16) for _ in range(2)]
     org_host = [None, None]  # each block's origins live until the next copy into the same buffer
     eps = np.float32(scene.frame.length(SURFACE_OFFSET * scene.ray_scale))
 
+    idx_host = [None, None]  # as org_host
+
     def launch(first: int, k: int) -> int:
         idx = np.ascontiguousarray(rows[first : first + block])
         org_host[k] = float4(scene.frame.points(sample_points(scene, idx, K).reshape(-1, 3)))
-        cl.enqueue_copy(dev.queue, idx_bufs[k], idx, is_blocking=False)  # rows outlives the copy
+        idx_host[k] = np.concatenate([idx, scene.bvh.own_instances(idx)]).astype(np.int32)
+        cl.enqueue_copy(dev.queue, idx_bufs[k], idx_host[k], is_blocking=False)
         cl.enqueue_copy(dev.queue, org_bufs[k], org_host[k], is_blocking=False)
         knl(dev.queue, (global_size(len(idx) * K * tiles.bands(R), wg),), (wg,), nodes, tris, order, org_bufs[k], normals,
             idx_bufs[k], np.int32(len(idx)), eps, *buffers[k], *extra)

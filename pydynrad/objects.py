@@ -275,7 +275,8 @@ def instanced(scene, objects, transforms=None, bvh=None):
     _warn_intersections(scene, objs, transforms)
     if bvh is None:
         trees = [o.device_bvh(scene.frame.unit) for o in objs]
-        bvh = InstancedBVH(scene.bvh, [t for t, _ in trees], transforms, scene.frame, [c for _, c in trees])
+        bvh = InstancedBVH(scene.bvh, [t for t, _ in trees], transforms, scene.frame, [c for _, c in trees],
+                           convex=[o.solid_planes is not None for o in objs])
     else:
         bvh.set_transforms(transforms)
     # The static scene's device frame, the one its tree and every upload of positions are in.

@@ -97,6 +97,36 @@ def test_hemicube_rows_match_static_copy(box, block, device, offset):
     assert ref[len(box):].sum() > 0.9 * len(block)  # the object's rows are there and see the box
 
 
+def test_convex_objects_rows_skip_their_own_tree(box, block, device):
+    """The hemicube rows of a convex object's own patches do not walk its tree (nothing of a
+    convex solid lies in front of its surface): the same rows bit for bit as with it walked, on
+    the block at several poses. An object that is not convex (two blocks apart, whose facing
+    sides see each other) keeps walking its own tree, and its rows hold those entries."""
+    obj = pd.RigidObject(block, pose(30))
+    world = instanced(box, [obj])
+    n, m = len(box), len(block)
+    assert world.bvh.convex.tolist() == [True]
+    own = world.bvh.own_instances(np.array([0, n - 1, n, n + m - 1]))
+    assert own.tolist() == [-1, -1, 0, 0] and box.bvh.own_instances([0, 1]).tolist() == [-1, -1]
+    idx = np.arange(n, n + m)
+    for T in (pose(30), pose(75, (100.0, 400.0, 150.0)), pose(10, (450.0, 450.0, 120.0))):
+        world = instanced(box, [obj], [T])
+        skipped = pd.form_factors(world, R, rows=idx, device=device)
+        world.bvh.convex[:] = False
+        walked = pd.form_factors(world, R, rows=idx, device=device)
+        assert skipped.nnz > 30 * m and all(np.array_equal(getattr(skipped, k), getattr(walked, k))
+                                             for k in ("indptr", "indices", "data"))
+    one = pd.scenes.block(60.0, 1)
+    pair = pd.Scene(np.vstack([one.points - (50.0, 0.0, 0.0), one.points + (50.0, 0.0, 0.0)]),
+                    np.vstack([one.triangles, one.triangles + len(one.points)]),
+                    np.vstack([one.albedo, one.albedo]), np.vstack([one.emission, one.emission]), name="pair")
+    world = instanced(box, [pd.RigidObject(pair, pose(20))])
+    assert world.bvh.convex.tolist() == [False]
+    assert (world.bvh.own_instances(np.arange(n, len(world))) == -1).all()
+    rows = pd.form_factors(world, R, rows=np.arange(n, len(world)), device=device)
+    assert rows[:, n:].sum() > 1.0  # the two blocks' facing sides see each other
+
+
 def test_shadow_follows_object(box, block, device):
     """A point light's shadow of the object on the floor moves with it, exactly."""
     light = [pd.PointLight((278.0, 540.0, 280.0), (1e6, 1e6, 1e6))]
