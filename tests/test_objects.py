@@ -48,6 +48,17 @@ def test_rigid_transform_refused(block):
         pd.RigidObject(block, transform=projective)
     with pytest.raises(pd.InvalidInputError, match="RigidObject"):
         pd.scenes.cornell_box(max_edge=None).with_objects([block])
+    # A pose checked once is found again by its bytes, not trusted after a change in place.
+    obj, T = pd.RigidObject(block), pose(30)
+    c, r = obj.bounding_sphere(T)
+    np.testing.assert_array_equal(obj.bounding_sphere(T.copy())[0], c)
+    T[0, 0] = 2.0
+    with pytest.raises(pd.InvalidInputError, match="not rigid"):
+        obj.bounding_sphere(T)
+    with pytest.raises(pd.InvalidInputError, match="not rigid"):
+        obj.world_points(T)
+    for k in range(20):  # more poses than it keeps: each still right
+        np.testing.assert_allclose(obj.bounding_sphere(pose(k))[0], pose(k)[:3, :3] @ obj.bounding_sphere()[0] + pose(k)[:3, 3])
 
 
 def test_with_objects_numbering(box, block):
