@@ -1181,6 +1181,8 @@ def test_moves_start_from_the_last_poses_difference(box, block, device, monkeypa
     # (observed 194-218 of 204-222 rows).
     assert per_move[0] == 0 and per_move[4] == 0 and min(per_move[1:4] + per_move[5:]) > 150, per_move
     assert not any(started[len(path):])
+    with pytest.raises(pd.InvalidInputError, match="distinct patches"):
+        dyn._ff.source.differences(np.array([0]), dyn._ff.local, np.array([0]), also=np.array([3, 3]))
 
 
 @pytest.mark.slow
