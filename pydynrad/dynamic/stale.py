@@ -213,7 +213,12 @@ class StaleRows:
         delta = blocks[0] if len(blocks) == 1 else \
             stacked_rows([(b.indptr, b.indices[: b.indptr[-1]], b.data[: b.indptr[-1]]) for b in blocks], self.n_patches)
         stale = np.diff(delta.indptr) > 0
-        self.slots, self.delta = (slots, delta) if stale.all() else (slots[stale], delta[np.flatnonzero(stale)])
+        if not stale.all():  # the empty rows go from the row pointers alone: they hold no entries
+            nnz = delta.indptr[-1]
+            delta = sp.csr_matrix((delta.data[:nnz], delta.indices[:nnz], np.concatenate([[0], delta.indptr[1:][stale]])),
+                                  shape=(int(stale.sum()), self.n_patches))
+            slots = slots[stale]
+        self.slots, self.delta = slots, delta
 
     def _made_slots(self, slots: np.ndarray) -> np.ndarray:
         """The per-slot poses of :meth:`since`, grown to hold ``slots``."""
