@@ -12,6 +12,12 @@
  * The sums are those of np.bincount bit for bit: float64, each column's weights added in the
  * order the runs appear (scanline by scanline, run by run: the sort is stable), from 0.0.
  *
+ * Up to DENSE_COLUMNS columns the runs are summed into a dense row instead, its columns marked
+ * in a bitmap read in order after: the same sums in the same order, with no sort. A radix
+ * pass over 2^11 digits cleared and summed those digits for every row, however few its runs:
+ * for the ~1,100 runs of each of the bench's moving block's 64 rows (N = 1,192) that was most
+ * of the call (0.44 ms; Zen 4, 2026-12-06).
+ *
  * Python signature:  _runs.to_csr(patch, weight, count, runs_per_line, n_cols, indptr, indices, data) -> nnz
  *   patch   : int32 buffer of B*S*L values: line k's j-th run's column at [k*L + j] (< 0: none)
  *   weight  : float32 buffer of B*S*L values, the runs' weights
@@ -36,6 +42,8 @@ typedef struct {
 
 #define DIGIT_BITS 11
 #define DIGITS (1 << DIGIT_BITS)
+/* The most columns summed densely: the bitmap read per row is at most 1,024 words. */
+#define DENSE_COLUMNS (1 << 16)
 
 /* Sort runs[0..n) by column, stably (LSD radix), for columns below 2^bits; scratch holds n
  * runs. Returns where the sorted runs are (runs or scratch). */
@@ -77,8 +85,15 @@ static Py_ssize_t to_csr(const int32_t *patch, const float *weight, const int32_
     }
     int bits = 0;
     while (bits < 31 && ((int64_t)1 << bits) < n_cols) ++bits;
-    Run *buf = malloc(sizeof(Run) * 2 * (size_t)(most > 0 ? most : 1));
-    if (!buf) return -2;
+    const int dense = n_cols <= DENSE_COLUMNS;
+    const size_t words = (size_t)((n_cols + 63) / 64);
+    Run *buf = dense ? NULL : malloc(sizeof(Run) * 2 * (size_t)(most > 0 ? most : 1));
+    double *acc = dense ? malloc(sizeof(double) * (size_t)(n_cols > 0 ? n_cols : 1)) : NULL;
+    uint64_t *mark = dense ? calloc(words > 0 ? words : 1, sizeof(uint64_t)) : NULL;
+    if (dense ? !acc || !mark : !buf) {
+        free(buf), free(acc), free(mark);
+        return -2;
+    }
     Py_ssize_t nnz = 0;
     indptr[0] = 0;
     for (Py_ssize_t r = 0; r < B; ++r) {
@@ -90,25 +105,43 @@ static Py_ssize_t to_csr(const int32_t *patch, const float *weight, const int32_
                 if (p[j] < 0) continue;
                 if (p[j] >= n_cols) {
                     *bad = "a run's column is not below n_cols";
-                    free(buf);
+                    free(buf), free(acc), free(mark);
                     return -1;
                 }
-                buf[n].col = p[j];
-                buf[n].weight = w[j];
-                ++n;
+                if (dense) {
+                    const uint32_t c = (uint32_t)p[j];
+                    const uint64_t bit = (uint64_t)1 << (c & 63);
+                    acc[c] = (mark[c >> 6] & bit ? acc[c] : 0.0) + (double)w[j];
+                    mark[c >> 6] |= bit;
+                } else {
+                    buf[n].col = p[j];
+                    buf[n].weight = w[j];
+                    ++n;
+                }
             }
         }
-        const Run *sorted = sort_runs(buf, buf + most, n, bits);
-        for (Py_ssize_t i = 0; i < n;) {
-            int32_t col = sorted[i].col;
-            double sum = 0.0;
-            for (; i < n && sorted[i].col == col; ++i) sum += (double)sorted[i].weight;
-            indices[nnz] = col;
-            data[nnz++] = sum;
+        if (dense) {
+            for (size_t q = 0; q < words; ++q) {
+                for (uint64_t m = mark[q]; m; m &= m - 1) {
+                    const int32_t col = (int32_t)(64 * q + (size_t)__builtin_ctzll(m));
+                    indices[nnz] = col;
+                    data[nnz++] = acc[col];
+                }
+                mark[q] = 0;
+            }
+        } else {
+            const Run *sorted = sort_runs(buf, buf + most, n, bits);
+            for (Py_ssize_t i = 0; i < n;) {
+                int32_t col = sorted[i].col;
+                double sum = 0.0;
+                for (; i < n && sorted[i].col == col; ++i) sum += (double)sorted[i].weight;
+                indices[nnz] = col;
+                data[nnz++] = sum;
+            }
         }
         indptr[r + 1] = nnz;
     }
-    free(buf);
+    free(buf), free(acc), free(mark);
     return nnz;
 }
 

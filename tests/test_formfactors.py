@@ -239,29 +239,35 @@ def test_row_blocks_give_the_single_block_rows(device, monkeypatch, block_rows):
     assert same_csr(form_factors(scene, resolution=16, rows=idx, device=device), part)
 
 
-def test_runs_sum_into_csr_rows_in_the_order_they_come():
+@pytest.mark.parametrize("n_cols", [5000, 1 << 16, (1 << 16) + 1, 3_000_000])
+def test_runs_sum_into_csr_rows_in_the_order_they_come(n_cols):
     """The host's CSR of run-length scanlines (csrc/runs.c) against plain float64 additions of
     the same runs in the same order (scanline by scanline, run by run), so equal bit for bit:
-    runs of no patch (-1) dropped, slots past a line's count never read, columns sorted. Columns
-    up to 2^13 take the radix sort's second pass."""
+    runs of no patch (-1) dropped, slots past a line's count never read, columns sorted. Up to
+    2^16 columns they are summed in a dense row; past it sorted by radix, in two passes below
+    2^22 columns, in three above."""
     from pydynrad.formfactors import _runs_to_csr
 
     rng = np.random.default_rng(5)
-    B, S, L, n_cols = 6, 12, 9, 5000
+    B, S, L = 6, 12, 9
     seen = rng.choice(n_cols, 40, replace=False)  # few columns per block: many duplicates
     patch = np.where(rng.random((B, S, L)) < 0.2, -1, rng.choice(seen, (B, S, L))).astype(np.int32)
     weight = rng.uniform(0.1, 1.0, (B, S, L)).astype(np.float32)
     count = rng.integers(0, L + 1, (B, S)).astype(np.int32)
     count[0] = 0  # an empty row
-    truth = np.zeros((B, n_cols))
+    truth = [{} for _ in range(B)]  # column -> sum, per row
     for b, s in np.ndindex(B, S):
         for j in range(count[b, s]):
             if patch[b, s, j] >= 0:
-                truth[b, patch[b, s, j]] += float(weight[b, s, j])
+                c = int(patch[b, s, j])
+                truth[b][c] = truth[b].get(c, 0.0) + float(weight[b, s, j])
         patch[b, s, count[b, s]:] = n_cols  # past the count: a column that would be refused if read
     got = _runs_to_csr(patch, weight, count, n_cols)
     assert got.dtype == np.float64 and got.has_sorted_indices and got.shape == (B, n_cols)
-    assert got.nnz == np.count_nonzero(truth) and np.array_equal(got.toarray(), truth)
+    for b in range(B):
+        cols = sorted(truth[b])
+        row = got[b]
+        assert np.array_equal(row.indices, cols) and np.array_equal(row.data, [truth[b][c] for c in cols])
 
 
 def test_runs_refuse_what_the_device_cannot_have_written():
