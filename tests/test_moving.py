@@ -956,6 +956,15 @@ def test_stale_rows_hold_differences():
     assert len(st) == 0 and st.nbytes < 1000
 
 
+def _static_rows_in_f(rng, n_static: int, n_obj: int, r: int, density: float):
+    """(F, select): a CSR "static F" of 7 + r rows over n_static + n_obj columns (the object
+    columns empty) whose rows ``select``, the last r, hold entries of 0.02 or 0.05 (one value
+    per row) at ``density``: rows read in place out of a larger F, as a move reads them."""
+    dense = rng.random((r, n_static)) * (rng.random((r, n_static)) < density) * rng.choice([0.02, 0.05], (r, 1))
+    big = sp.vstack([sp.random(7, n_static, density=0.3, random_state=rng, format="csr"), dense], format="csr")
+    return sp.csr_matrix(sp.hstack([big, sp.csr_matrix((big.shape[0], n_obj))])), 7 + np.arange(r)
+
+
 def test_difference_at_pose_is_at_pose_minus_kept(monkeypatch):
     """The fused pass gives at_pose's rows minus the kept rows bit for bit (capped rows, rows
     whose object columns overfill them, hidden entries, rows read in place out of a larger F),
@@ -968,10 +977,7 @@ def test_difference_at_pose_is_at_pose_minus_kept(monkeypatch):
 
     rng = np.random.default_rng(13)
     n_static, n_obj, r, M = 40, 6, 200, 260
-    dense = rng.random((r, n_static)) * (rng.random((r, n_static)) < 0.3) * rng.choice([0.02, 0.05], (r, 1))
-    big = sp.vstack([sp.random(7, n_static, density=0.3, random_state=rng, format="csr"), dense], format="csr")
-    big = sp.csr_matrix(sp.hstack([big, sp.csr_matrix((big.shape[0], n_obj))]))
-    select = 7 + np.arange(r)
+    big, select = _static_rows_in_f(rng, n_static, n_obj, r, 0.3)
     hidden = rng.random(big.nnz) < 0.2
     objects = sp.csr_matrix(rng.random((n_obj, n_static + n_obj)) * (rng.random((n_obj, n_static + n_obj)) < 0.5) * 0.3)
     areas = rng.uniform(0.5, 2.0, n_static + n_obj)
@@ -1031,10 +1037,7 @@ def test_difference_since_the_last_pose_is_the_pass_made_whole(monkeypatch):
 
     rng = np.random.default_rng(29)
     n_static, n_obj, r, M = 50, 6, 240, 300
-    dense = rng.random((r, n_static)) * (rng.random((r, n_static)) < 0.4) * rng.choice([0.02, 0.05], (r, 1))
-    big = sp.vstack([sp.random(7, n_static, density=0.3, random_state=rng, format="csr"), dense], format="csr")
-    big = sp.csr_matrix(sp.hstack([big, sp.csr_matrix((big.shape[0], n_obj))]))
-    select = 7 + np.arange(r)
+    big, select = _static_rows_in_f(rng, n_static, n_obj, r, 0.4)
     areas = rng.uniform(0.5, 2.0, n_static + n_obj)
     patches = rng.integers(0, n_static, r)
 
