@@ -91,9 +91,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* How far below 1, relative to the row's sum, a row at the pose must sum, by the estimate of
-   surely_uncapped(), to take moved_difference's "since" path: that estimate differs from
-   assemble_row's own sum by rounding alone, ~1e-13 for rows of a few thousand entries. */
+/* How far below 1, relative to the row's sum, a row at the pose must sum, by since_row's
+   estimate, to take moved_difference's "since" path: that estimate differs from assemble_row's
+   own sum by rounding alone, ~1e-13 for rows of a few thousand entries. */
 #define SINCE_MARGIN 1e-9
 
 static int bad_indptr(const int64_t *p, Py_ssize_t rows, Py_ssize_t m)
@@ -240,29 +240,42 @@ static int64_t gallop(const int32_t *x, int64_t j, int64_t je, int32_t c)
     return j;
 }
 
+/* A word of eight flags with each non-zero byte made 1 (a flag may be any non-zero byte). */
+static uint64_t ones(uint64_t w)
+{
+    w |= w >> 4;
+    w |= w >> 2;
+    w |= w >> 1;
+    return w & 0x0101010101010101ULL;
+}
+
 /* Entries [t, te)'s flags whose presence changed since the last pose (hidden then and not now, or
    the reverse; explicit zeros have none), into changed (their positions); and the sum of the
-   hidden entries. Eight flags (bytes of 0 or 1) at a time, visiting only the set bits of each
-   word: most words of both masks are zero, and a byte loop over the rest was most of the pass.
+   hidden entries. Eight flags at a time, visiting only the set bits of each word (a byte's
+   bit, at 8 times its place in the word, on a little-endian machine; a byte loop elsewhere):
+   most words of both masks are zero, and a byte loop over the rest was most of the pass.
    Returns the count. */
 static Py_ssize_t changed_entries(int64_t t, int64_t te, const double *x, const uint8_t *hidden,
                                   const uint8_t *hidden_prev, int64_t *changed, double *hidden_sum)
 {
     Py_ssize_t n = 0;
     double sum = 0.0;
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
     for (; t + 8 <= te; t += 8) {
         uint64_t h, p;
         memcpy(&h, hidden + t, 8);
         memcpy(&p, hidden_prev + t, 8);
+        h = ones(h), p = ones(p);
         for (uint64_t w = h; w; w &= w - 1) sum += x[t + (__builtin_ctzll(w) >> 3)];
         for (uint64_t w = h ^ p; w; w &= w - 1) {
             const int64_t u = t + (__builtin_ctzll(w) >> 3);
             if (x[u] != 0.0) changed[n++] = u;
         }
     }
+#endif
     for (; t < te; ++t) {
         if (hidden[t]) sum += x[t];
-        if (hidden[t] != hidden_prev[t] && x[t] != 0.0) changed[n++] = t;
+        if (!hidden[t] != !hidden_prev[t] && x[t] != 0.0) changed[n++] = t;
     }
     *hidden_sum = sum;
     return n;

@@ -213,7 +213,7 @@ class InstancedBVH:
         self._table_float4 = int(node_at[-1]) * (NODE_FLOATS // 4)
         self.nodes.view(np.int32)[0, 28:30] = (len(objects), self._table_float4)
         self.order = np.concatenate([static.order] + [b.order + int(t0) for b, t0 in zip(objects, tri_at)])
-        self.patch_starts = tri_at.astype(np.int64)  # the static patches', then each object's first patch
+        self.patch_starts = tri_at.astype(np.int64)  # each object's first patch, then the patch count
         self.tris = np.concatenate([static.tris] + [b.tris for b in objects])
         self.n_objects = len(objects)
         self._device_buffers: dict = {}

@@ -159,8 +159,9 @@ def _runs_to_csr(patch, weight, count, n_cols: int) -> sp.csr_matrix:
 
     Native (``csrc/runs.c``): only the runs are read, not the whole (B, K 3R, R) buffers (a
     scanline holds ~15 runs of 64 pixels in the village), and duplicates (a patch seen on
-    several scanlines) are summed in float64 in the order the runs come: each row's runs sorted
-    by column with a stable radix sort, runs of one column summed where they meet.
+    several scanlines) are summed in float64 in the order the runs come: up to 2^16 columns in a
+    dense row whose columns a bitmap lists in order, beyond it each row's runs sorted by column
+    with a stable radix sort and runs of one column summed where they meet.
     """
     B, S, R = patch.shape
     count = np.ascontiguousarray(count, np.int32)

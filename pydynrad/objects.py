@@ -146,6 +146,18 @@ class RigidObject:
 
         return solid_planes(self.scene.points, self.scene.triangles)
 
+    @cached_property
+    def faces_out(self) -> bool:
+        """Whether the object is one convex solid (:attr:`solid_planes`) whose every patch faces
+        out of it: a hemicube ray of its own patches then meets nothing of it
+        (:meth:`pydynrad.bvh.InstancedBVH.own_instances`). A patch wound inwards faces into the
+        solid and sees its other sides, so such an object is not taken as one."""
+        if self.solid_planes is None:
+            return False
+        inside = self.scene.vertices.astype(np.float64).reshape(-1, 3).mean(axis=0)  # a convex solid holds it
+        towards = inside - self.scene.centers.astype(np.float64)
+        return bool(np.all(np.einsum("ij,ij->i", self.scene.normals.astype(np.float64), towards) < 0.0))
+
     def bounding_sphere(self, transform=None) -> tuple[np.ndarray, float]:
         """(centre (3,), radius) of a sphere holding the object at ``transform`` (default: its pose)."""
         T = self._pose(transform)
@@ -160,8 +172,9 @@ class RigidObject:
     def _pose(self, transform) -> np.ndarray:
         """``transform`` checked (:func:`rigid_transform`), read-only; the pose for None. A move
         asks for the spheres and points of the same few poses about ten times, and each check
-        was 30-45 us (0.3-0.4 ms of a moving frame on the 2-core Zen 4, 2026-12-06): the last
-        :data:`CHECKED_POSES` (4, 4) float64 poses checked are found again by their bytes."""
+        was 30-45 us (0.3-0.4 ms of a moving frame on the 2-core Zen 4, 2026-12-06): (4, 4)
+        float64 poses checked are found again by their bytes, up to :data:`CHECKED_POSES` of them
+        (then all are forgotten at once)."""
         if transform is None:
             return self._transform
         key = transform.tobytes() if isinstance(transform, np.ndarray) and transform.shape == (4, 4) \
@@ -172,8 +185,8 @@ class RigidObject:
         T = rigid_transform(transform)
         T.flags.writeable = False
         if key is not None:
-            if len(checked) >= CHECKED_POSES:
-                checked.pop(next(iter(checked)))  # the oldest
+            if len(checked) >= CHECKED_POSES:  # a new dict, not one changed under another thread
+                checked = self.__dict__["_checked"] = {}
             checked[key] = T
         return T
 
@@ -300,7 +313,7 @@ def instanced(scene, objects, transforms=None, bvh=None):
     if bvh is None:
         trees = [o.device_bvh(scene.frame.unit) for o in objs]
         bvh = InstancedBVH(scene.bvh, [t for t, _ in trees], transforms, scene.frame, [c for _, c in trees],
-                           convex=[o.solid_planes is not None for o in objs])
+                           convex=[o.faces_out for o in objs])
     else:
         bvh.set_transforms(transforms)
     # The static scene's device frame, the one its tree and every upload of positions are in.

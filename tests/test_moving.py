@@ -965,6 +965,23 @@ def _static_rows_in_f(rng, n_static: int, n_obj: int, r: int, density: float):
     return sp.csr_matrix(sp.hstack([big, sp.csr_matrix((big.shape[0], n_obj))])), 7 + np.arange(r)
 
 
+def test_stale_rows_put_that_fails_leaves_no_pose(monkeypatch):
+    """A D put for a pose is started from at the next move only once it is held: a put that
+    fails on the way leaves its slots without that pose (their old D is not taken for it)."""
+    from pydynrad.dynamic import moves, stale
+
+    N = 12
+    st = stale.StaleRows(N)
+    st.put(np.array([1, 2]), sp.csr_matrix(np.eye(2, N)), pose=1)
+    flags, last, row = st.since(np.array([1, 2, 3]), 1)
+    assert flags.tolist() == [True, True, False] and row.tolist() == [0, 1, -1]
+    monkeypatch.setattr(moves, "stacked_rows", lambda *a: (_ for _ in ()).throw(MemoryError()))
+    with pytest.raises(MemoryError):
+        st.put(np.array([1, 4]), sp.csr_matrix(np.eye(2, N)), pose=2)  # stacked with slot 2's held row
+    assert not st.since(np.array([1, 4]), 2)[0].any() and not st.since(np.array([1]), 1)[0].any()
+    assert st.since(np.array([2]), 1)[0].tolist() == [True]  # untouched
+
+
 def test_difference_at_pose_is_at_pose_minus_kept(monkeypatch):
     """The fused pass gives at_pose's rows minus the kept rows bit for bit (capped rows, rows
     whose object columns overfill them, hidden entries, rows read in place out of a larger F),
@@ -1090,6 +1107,10 @@ def test_difference_since_the_last_pose_is_the_pass_made_whole(monkeypatch):
         shuffled.indices[a:b], shuffled.data[a:b] = shuffled.indices[a:b][::-1].copy(), shuffled.data[a:b][::-1].copy()
     shuffled.has_sorted_indices = False
     assert same(difference_at_pose(big, h_now, r_now, shuffled, slots, select, since), truth)
+    # Masks whose flags are any non-zero byte (a bool array viewed from bytes of 2 and 5) read as 0 and 1.
+    twos = lambda h, v: (h.astype(np.uint8) * v).view(bool)  # noqa: E731
+    assert same(difference_at_pose(big, twos(h_now, 2), r_now, kept, slots, select,
+                                   since._replace(hidden=twos(h_last, 5))), truth)
     for bad in (since._replace(rows=named[:-1]), since._replace(hidden=h_last[:-1]), since._replace(last_row=last_row + r),
                 since._replace(row_sums=row_sums[:-1])):
         with pytest.raises(pd.InvalidInputError, match="since must give"):

@@ -111,8 +111,9 @@ def test_hemicube_rows_match_static_copy(box, block, device, offset):
 def test_convex_objects_rows_skip_their_own_tree(box, block, device):
     """The hemicube rows of a convex object's own patches do not walk its tree (nothing of a
     convex solid lies in front of its surface): the same rows bit for bit as with it walked, on
-    the block at several poses. An object that is not convex (two blocks apart, whose facing
-    sides see each other) keeps walking its own tree, and its rows hold those entries."""
+    the block at several poses. A convex solid wound inwards, and an object that is not convex
+    (two blocks apart, whose facing sides see each other), keep walking their own tree, and
+    their rows hold those entries."""
     obj = pd.RigidObject(block, pose(30))
     world = instanced(box, [obj])
     n, m = len(box), len(block)
@@ -127,6 +128,11 @@ def test_convex_objects_rows_skip_their_own_tree(box, block, device):
         walked = pd.form_factors(world, R, rows=idx, device=device)
         assert skipped.nnz > 30 * m and all(np.array_equal(getattr(skipped, k), getattr(walked, k))
                                              for k in ("indptr", "indices", "data"))
+    inward = pd.Scene(block.points, block.triangles[:, ::-1], block.albedo, block.emission, name="inward")
+    world = instanced(box, [pd.RigidObject(inward, pose(30))])  # its patches face into the solid
+    assert pd.RigidObject(inward).solid_planes is not None and world.bvh.convex.tolist() == [False]
+    rows = pd.form_factors(world, R, rows=idx, device=device)
+    assert rows[:, n:].sum() > 0.9 * m  # each sees the solid's other sides, which its tree shows
     one = pd.scenes.block(60.0, 1)
     pair = pd.Scene(np.vstack([one.points - (50.0, 0.0, 0.0), one.points + (50.0, 0.0, 0.0)]),
                     np.vstack([one.triangles, one.triangles + len(one.points)]),
