@@ -1205,8 +1205,13 @@ def test_moves_start_from_the_last_poses_difference(box, block, device, monkeypa
     # (observed 194-218 of 204-222 rows).
     assert per_move[0] == 0 and per_move[4] == 0 and min(per_move[1:4] + per_move[5:]) > 150, per_move
     assert not any(started[len(path):])
+    source = dyn._ff.source
     with pytest.raises(pd.InvalidInputError, match="distinct patches"):
-        dyn._ff.source.differences(np.array([0]), dyn._ff.local, np.array([0]), also=np.array([3, 3]))
+        source.differences(np.array([0]), dyn._ff.local, np.array([0]), also=np.array([3, 3]))
+    dyn._moved_world([START])  # a world at a new pose, no rows made there yet
+    monkeypatch.setattr(source, "_at", lambda idx, make, also=None: make(idx[:1]))
+    with pytest.raises(pd.PydynradError, match="not those made"):
+        source.differences(np.array([0]), dyn._ff.local, np.array([0]), also=np.array([3, 4]))
 
 
 @pytest.mark.slow
