@@ -30,7 +30,7 @@
  * read back: 0.9-1.4 ms and 1.4-2.5 ms of the bench's moving frame on the 2-core Zen 4).
  *
  * A move after a move mostly changes little of a row at the pose: of its static entries only
- * those whose segment the objects hide now and did not then, or the reverse (~3% on the bench's
+ * those whose segment the objects hide now and did not then, or the reverse (3-8% on the bench's
  * box). Where a row's D at the last pose was made here from the same static row, is held
  * against the same kept row, and neither row at the pose is capped, moved_difference() starts
  * from that D (since_row): it reads two flags per entry, and the static and kept rows only where

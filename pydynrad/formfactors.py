@@ -248,10 +248,9 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
     # Each block's rows, then the instance each row's rays skip (BVH.own_instances), in one copy.
     idx_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, 2 * block * 4) for _ in range(2)]
     org_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, block * K * 16) for _ in range(2)]
-    org_host = [None, None]  # each block's origins live until the next copy into the same buffer
+    # Each block's origins and rows live until the next copy into the same buffer.
+    org_host, idx_host = [None, None], [None, None]
     eps = np.float32(scene.frame.length(SURFACE_OFFSET * scene.ray_scale))
-
-    idx_host = [None, None]  # as org_host
 
     def launch(first: int, k: int) -> int:
         idx = np.ascontiguousarray(rows[first : first + block])

@@ -33,8 +33,8 @@ from .localrows import LocalRows
 
 __all__ = ["PoseRows", "precompute_poses", "stored_poses", "WorldRows", "sphere_solid_angle", "sphere_form_factor",
            "shadow_rays_near", "refresh_order", "stale_rows", "hidden_by", "hidden_between", "hidden_entries",
-           "native_spans", "reciprocal_columns", "at_pose", "Since", "PoseDifference", "difference_at_pose", "kept_slots", "stacked_rows",
-           "swap_chunks"]
+           "native_spans", "reciprocal_columns", "at_pose", "Since", "PoseDifference", "difference_at_pose",
+           "kept_slots", "stacked_rows", "swap_chunks"]
 
 
 def sphere_solid_angle(points: np.ndarray, normals: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
@@ -293,10 +293,15 @@ def _pose_spans(caller: str, rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.
                                 f"do not match")
     if np.shape(hidden) != (rows.nnz,):
         raise InvalidInputError(f"hidden must have one flag per entry of the rows ({rows.nnz}); got {np.shape(hidden)}")
-    # A bool mask is read as bytes in place: it spans all of F's entries when rows are picked out
-    # of F (a uint8 copy of the village's 35M was 87 ms a move).
-    hidden = np.ascontiguousarray(hidden)
-    return starts, ends, indices, data, (hidden if hidden.dtype == np.bool_ else hidden != 0).view(np.uint8), recip
+    return starts, ends, indices, data, _mask_bytes(hidden), recip
+
+
+def _mask_bytes(mask: np.ndarray) -> np.ndarray:
+    """A mask over a CSR matrix's entries as the uint8 flags ``csrc/poserows.c`` reads. A bool
+    mask is read as bytes in place: it spans all of F's entries when rows are picked out of F
+    (a uint8 copy of the village's 35M was 87 ms a move)."""
+    mask = np.ascontiguousarray(mask)
+    return (mask if mask.dtype == np.bool_ else mask != 0).view(np.uint8)
 
 
 def kept_slots(slots: np.ndarray, n_rows: int, n_kept: int) -> np.ndarray:
@@ -417,10 +422,8 @@ def _since_inputs(since: Since | None, rows: sp.csr_matrix, hidden: np.ndarray, 
     indptr, indices, data = native_csr(last)
     held = flags & (at >= 0)
     starts, ends = np.where(held, indptr[at], 0), np.where(held, indptr[at + 1], 0)
-    prev = np.ascontiguousarray(since.hidden)
-    prev = (prev if prev.dtype == np.bool_ else prev != 0).view(np.uint8)
-    return (flags.view(np.uint8), starts, ends, indices, data, prev, np.ascontiguousarray(since.row_sums, np.float64),
-            int(since.first_object))
+    return (flags.view(np.uint8), starts, ends, indices, data, _mask_bytes(since.hidden),
+            np.ascontiguousarray(since.row_sums, np.float64), int(since.first_object))
 
 
 def stacked_rows(parts: list, n_cols: int) -> sp.csr_matrix:
@@ -857,7 +860,7 @@ class WorldRows:
                 return at_pose(F, hidden, recip[len(s):], select[len(s):])
 
             self._at(also, made)
-        since = self._since(s, at, hidden, held) if F is self.static.csr else None
+        since = self._since(s, at, held) if F is self.static.csr else None
         D, capped = difference_at_pose(F, hidden, recip[: len(s)], kept, at, select[: len(s)], since)
         if F is self.static.csr:
             flags = np.ones(self.n_static, bool)  # rows not made here: never started from
@@ -865,12 +868,12 @@ class WorldRows:
             self._made = (self.pose, hidden, flags)
         return D
 
-    def _since(self, s: np.ndarray, at: np.ndarray, hidden: np.ndarray, held) -> Since | None:
+    def _since(self, s: np.ndarray, at: np.ndarray, held) -> Since | None:
         """What :meth:`differences` at this pose starts from for static patches ``s`` in slots
         ``at``: their D that ``held`` put at the last pose, where that pose's pass made their
         rows uncapped."""
-        made = self._made
-        if held is None or made is None or made[0] != self.pose - 1 or made[1].shape != hidden.shape:
+        made = self._made  # over the same static F's entries as this pose's mask
+        if held is None or made is None or made[0] != self.pose - 1:
             return None
         flags, last, last_row = held.since(at, made[0])
         flags &= ~made[2][s]

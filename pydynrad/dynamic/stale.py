@@ -204,8 +204,8 @@ class StaleRows:
                                     f"{[b.shape for b in blocks]}")
         if len(np.unique(slots)) != len(slots):
             raise InvalidInputError("put needs each slot once: a slot's row differs from its kept row in one way")
-        put = slots
-        self._made_slots(put)[put] = -1  # until the new D is held (a put that fails leaves no pose on the old)
+        given = slots
+        self._made_slots(given)[given] = -1  # until the new D is held (a put that fails leaves no pose on the old)
         keep = ~np.isin(self.slots, slots)
         if keep.any():
             blocks.insert(0, self.delta if keep.all() else self.delta[np.flatnonzero(keep)])
@@ -221,7 +221,7 @@ class StaleRows:
             slots = slots[stale]
         self.slots, self.delta = slots, delta
         if pose is not None:
-            self._made_at[put] = int(pose)
+            self._made_at[given] = int(pose)
 
     def _made_slots(self, slots: np.ndarray) -> np.ndarray:
         """The per-slot poses of :meth:`since`, grown to hold ``slots``."""
