@@ -11,6 +11,8 @@ from pydynrad.compare import radiosity_error
 from pydynrad.farfield import Clusters, FarField, cluster_patches
 from pydynrad.farfield.clusters import NORMAL_BINS
 from helpers import box_scene, dense_radiosity, reciprocal_F
+from pydynrad.hostproduct import HostBounce, HostMatrix
+from pydynrad.matvec import DeviceMatrix
 
 
 @pytest.fixture(scope="module")
@@ -151,7 +153,9 @@ def test_dense_coarse_level_and_first_bounce_gather(device, cornell, storage, rt
     scene, F, L, _, _ = cornell
     far = FarField(scene, F, clusters=len(scene) // 8, coarse="dense", coarse_storage=storage, dtype=np.float64,
                    device=device)
-    assert far.coarse == "dense" and far.device_memory_bytes > far.K_c.nbytes >= 3 * far.C**2 * int(storage[2:]) // 8
+    # Small beside a CPU device: K_c and G on the host (pydynrad.hostproduct); elsewhere on the device.
+    assert far.coarse == "dense" and isinstance(far.K_c, HostMatrix) and isinstance(far._G_product, HostBounce)
+    assert far.host_memory_bytes > far.K_c.nbytes >= 3 * far.C**2 * int(storage[2:]) // 8
     rho = scene.albedo.astype(np.float64)
     D1 = rho * (F @ L)
     s = far.R @ D1
@@ -162,7 +166,8 @@ def test_dense_coarse_level_and_first_bounce_gather(device, cornell, storage, rt
     # As on a GPU: D1 from a device pass of F's rows, not the host's lit columns of F.
     gpu = FarField(scene, F, clusters=far.clusters, coarse="dense", coarse_storage=storage, dtype=np.float64,
                    device=device.with_traits(cpu=False))
-    assert gpu._F_cols is None and gpu._F_dev is not None
+    assert gpu._F_cols is None and gpu._F_dev is not None and isinstance(gpu.K_c, DeviceMatrix)
+    assert gpu.device_memory_bytes > gpu.K_c.nbytes >= 3 * far.C**2 * int(storage[2:]) // 8
     np.testing.assert_allclose(gpu.light(L), want, rtol=rtol, atol=rtol * want.max())
     sweeps = FarField(scene, F, clusters=far.clusters, coarse="sweeps", tol=1e-13, dtype=np.float64, device=device)
     np.testing.assert_allclose(sweeps.light(L), want, rtol=2e-13, atol=2e-13 * want.max())
@@ -402,7 +407,11 @@ def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_pat
     assert dyn.far._G_stream is not None and dyn.far.device_memory_bytes < 8 * dyn.far.G_nnz
     assert dyn.memory_bytes - bare.memory_bytes == dyn.far.device_memory_bytes
     held = FarField(scene, None, dyn.far.clusters, G=store.cluster_form_factors(), device=device)
-    assert held.device_memory_bytes - dyn.far.device_memory_bytes > 8 * held.G_nnz  # G held whole on the device
+    # G held whole: on the host beside a CPU device where it is small (pydynrad.hostproduct), else on the device.
+    assert isinstance(held._G_product, HostBounce) and held.device_memory_bytes == dyn.far.device_memory_bytes
+    assert held.host_memory_bytes > held._G_product.nbytes >= 4 * held.G_nnz
+    gpu = FarField(scene, None, dyn.far.clusters, G=store.cluster_form_factors(), device=device.with_traits(cpu=False))
+    assert gpu.device_memory_bytes - dyn.far.device_memory_bytes > 8 * gpu.G_nnz
     compute_store(scene, tmp_path / "no-G", resolution=32, progress=False,
                   row_function=lambda scene, rows, resolution, device=None: F[rows])
     with pytest.raises(pydynrad.InvalidInputError, match="holds no far-field G"):
