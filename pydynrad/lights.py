@@ -234,10 +234,12 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
     return _point_irradiance(scene, points, normals, checked_lights(lights), device)
 
 
-def _point_irradiance(scene, points, normals, lights: list, device, patches=None) -> np.ndarray:
+def _point_irradiance(scene, points, normals, lights: list, device, patches=None, queued: bool = False):
     """:func:`point_irradiance` of checked ``lights``; with ``points = normals = None``, at the
     patch centres, or at those of ``patches`` (k,) alone (each the same value as in a pass
-    over all of them: the same float32 centre and normal, the same ray)."""
+    over all of them: the same float32 centre and normal, the same ray). ``queued``: a callable
+    that waits for the result and returns it, the rays queued on the device but not waited for
+    (so that work queued after them does not delay them)."""
     import pyopencl as cl
 
     from .device import default_device
@@ -249,7 +251,8 @@ def _point_irradiance(scene, points, normals, lights: list, device, patches=None
     if patches is not None:
         n = len(patches)
     if not len(packed) or not n:
-        return np.zeros((n, 3), dtype=np.float32)
+        zero = np.zeros((n, 3), dtype=np.float32)
+        return (lambda: zero) if queued else zero
     device = device or default_device()
     nodes, tris, _ = scene.bvh.buffers(device)
     if points is None:
@@ -278,8 +281,15 @@ def _point_irradiance(scene, points, normals, lights: list, device, patches=None
         np.float32(scene.frame.length(2.0 * scene.scale + outside)), out_dev,
     )
     out = np.empty((n, 4), dtype=np.float32)
-    cl.enqueue_copy(device.queue, out, out_dev, is_blocking=True)
-    return np.ascontiguousarray(out[:, :3])
+    read = cl.enqueue_copy(device.queue, out, out_dev, is_blocking=not queued)
+    if not queued:
+        return np.ascontiguousarray(out[:, :3])
+
+    def result() -> np.ndarray:
+        read.wait()
+        return np.ascontiguousarray(out[:, :3])
+
+    return result
 
 
 def direct_irradiance(scene, lights, device=None) -> np.ndarray:

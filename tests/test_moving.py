@@ -59,9 +59,9 @@ def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, lam
     traced = []
     real = lights_module._point_irradiance
 
-    def counting(scene, points, normals, lights, device, patches=None):
+    def counting(scene, points, normals, lights, device, patches=None, queued=False):
         traced.append(len(scene) if patches is None else len(patches))
-        return real(scene, points, normals, lights, device, patches)
+        return real(scene, points, normals, lights, device, patches, queued)
 
     def fresh(lights):  # the world at the objects' poses, BVH and uploads of its own
         return pd.light_vector(instanced(box, dyn.objects), lights, device=device)

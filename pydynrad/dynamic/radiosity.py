@@ -594,9 +594,11 @@ class DynamicRadiosity:
         # With the far field, radiosity() gathers the patches outside S at the new poses.
         outside = np.flatnonzero(~self._local_mask) if self.far is not None else None
         try:
+            # The relight's shadow rays go on the device's queue ahead of the objects' hemicubes.
+            follow = self._follow_light()
             order, new_rows, hemicubes, left = source.refresh(moved, S[others], others, self._ff.local, spheres,
                                                               self.occlusion, self._last_B, self.occlusion_correction,
-                                                              outside, meanwhile=self._follow_light, held=self._stale)
+                                                              outside, meanwhile=follow, held=self._stale)
         except BaseException:
             # Nothing of the move reached K or the stale rows: the world goes back to the poses
             # they are of, and the moves stay queued for the next update.
@@ -767,32 +769,44 @@ class DynamicRadiosity:
         L, E = analytic_emitter_light(self.scene, lights, light, emitters, self.device)
         return (L, E) if light is not None else self._hold(emitters, lights, L, E, steady=False)
 
-    def _follow_light(self) -> None:
-        """After a move, while the objects' hemicubes trace: the held light vector brought to the
-        world as it is (:meth:`_relit`) and the far field's answer for it, which the next
-        :meth:`radiosity` with the same lights then finds (its own light pass and coarse level
-        after a move were 2.8 ms of a 21 ms moving frame on the Cornell box, on a host thread
-        that otherwise waits for the trace; AMD EPYC Zen 4, 2026-12-06). Only for lights that
-        were steady, the last call's those of the call before: lights that change every frame
-        would have the move relight them for nothing, since radiosity() computes other lights'
-        vector whole. An answer the far field cannot give (a light past float32, coarse sweeps
-        that do not converge) is left to radiosity(), which raises it where the caller asked
-        for it."""
+    def _follow_light(self):
+        """After a move, the held light vector brought to the world as it is (:meth:`_relit`)
+        and the far field's answer for it, which the next :meth:`radiosity` with the same lights
+        then finds: its shadow rays queued now, ahead of the objects' hemicubes, and a callable
+        (or None) that the move runs while those trace, which takes the rays' result and gives
+        the far field its light (on the host beside a CPU device, :mod:`pydynrad.hostproduct`, so
+        that nothing of it waits behind the trace; radiosity()'s own light pass and coarse level
+        after a move had been 2.8 ms of a 21 ms moving frame on the Cornell box, AMD EPYC Zen 4,
+        2026-12-06). Only for lights that were steady, the last call's those of the call before:
+        lights that change every frame would have the move relight them for nothing, since
+        radiosity() computes other lights' vector whole. An answer the far field cannot give (a
+        light past float32, coarse sweeps that do not converge) is left to radiosity(), which
+        raises it where the caller asked for it."""
         from ..lights import check_radiosity_range
 
         held = self._held_light
         if held is None or not held.steady or held.world is self.scene or held.emitters != "hemicube":
-            return
+            return None
         try:
-            L = self._relit(held.L, held.poses, held.lights)
-            if L is None:
+            relit = self._relit_queued(held.L, held.poses, held.lights)
+        except Exception:  # a guess that failed (a device error) must not fail the move:
+            return None    # radiosity() lights the world itself and raises what it meets there
+        if relit is None:
+            return None
+
+        def follow() -> None:
+            try:
+                L = relit()
+                if L is None:
+                    return
+                check_radiosity_range(L, self.scene.albedo, compute_dtype(self.storage))
+                if self.far is not None:
+                    self.far.light(L)
+            except Exception:  # as above; a light past float32 is raised by radiosity()
                 return
-            check_radiosity_range(L, self.scene.albedo, compute_dtype(self.storage))
-            if self.far is not None:
-                self.far.light(L)
-        except Exception:  # a guess that failed (a device error, a light past float32) must not fail the move:
-            return         # radiosity() lights the world itself and raises what it meets there
-        self._hold(held.emitters, held.lights, L, None, steady=True)
+            self._hold(held.emitters, held.lights, L, None, steady=True)
+
+        return follow
 
     def _hold(self, emitters: str, lights: list, L: np.ndarray, E: np.ndarray | None, steady: bool) -> tuple:
         """Keep (L, E) of ``lights`` for the world as it is, read-only; returns them. ``steady``:
@@ -816,6 +830,13 @@ class DynamicRadiosity:
         by twice the rays' offset from their patches). None (the caller lights the whole world)
         where that does not hold: lights of another kind (a sky's light is a hemicube per patch,
         a luminaire's its own table), no lights, no objects, or a direct light past float32."""
+        relit = self._relit_queued(L, poses, lights)
+        return None if relit is None else relit()
+
+    def _relit_queued(self, L: np.ndarray, poses: tuple, lights: list):
+        """:meth:`_relit` with its shadow rays queued on the device: a callable that waits for
+        them and returns its answer (None for a direct light past float32), or None where
+        :meth:`_relit` does not hold for other reasons."""
         from ..lights import SHADOW_EPSILON, DirectionalLight, PointLight, SpotLight, _point_irradiance
         from .moves import shadow_rays_near
 
@@ -832,12 +853,17 @@ class DynamicRadiosity:
         for light in lights:
             redo[:n] |= shadow_rays_near(world.centers[:n], light, widened)
         patches = np.flatnonzero(redo)
-        E = _point_irradiance(world, None, None, lights, self.device, patches=patches)
-        if not np.all(np.isfinite(E)):
-            return None  # light_vector's own pass says what overflows
-        out = np.array(L)
-        out[patches] = world.emission[patches].astype(np.float64) + world.albedo[patches].astype(np.float64) * E
-        return out
+        irradiance = _point_irradiance(world, None, None, lights, self.device, patches=patches, queued=True)
+
+        def relit() -> np.ndarray | None:
+            E = irradiance()
+            if not np.all(np.isfinite(E)):
+                return None  # light_vector's own pass says what overflows
+            out = np.array(L)
+            out[patches] = world.emission[patches].astype(np.float64) + world.albedo[patches].astype(np.float64) * E
+            return out
+
+        return relit
 
     def _solve_kept(self, X: np.ndarray) -> np.ndarray:
         """(M, 3) X + P_S K X for X (M, 3) on the local set: (I - P_S F_SS)^{-1} X."""
