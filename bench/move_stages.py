@@ -85,7 +85,8 @@ def stages(moves: int = 8, device=None, correction: bool = False, village: bool 
                                (dyn._kernels, "update_slots", "rank-2k passes + slot writes"),
                                (exact, "exact_swap", "swap total (gathers, algebra, passes)"),
                                (dyn._ff.source, "_static_rows", "static rows at the pose from F (move and radiosity)"),
-                               (dyn._stale, "update", "stale rows: D = current - kept, handed to a host thread (radiosity waits for it)")):
+                               (dyn._ff.source, "differences", "stale rows: D = rows at the pose - kept (pre-test, D)"),
+                               (dyn._stale, "put", "stale rows: D held")):
         _timed(owner, name, label, q, times)
     for owner, name, label in ((moves_mod, "hidden_entries", "hidden entries found (candidates' and outside rows)"),
                                (moves_mod, "at_pose", "rows assembled at the pose (candidates' and outside rows)"),

@@ -167,3 +167,17 @@ def test_objects_section_tiny(tmp_path, device):
     n, frames, walk_med, walk_min, move_med, move_min, ratio_med, ratio_min = sequence
     assert (n, frames) == (12, 4) and 0 < walk_min <= walk_med and 0 < move_min <= move_med
     assert ratio_med == pytest.approx(move_med / walk_med) and ratio_min == pytest.approx(move_min / walk_min)
+
+
+@pytest.mark.slow
+def test_move_stages_times_every_stage(device):
+    """bench/move_stages.py wraps the move's functions by name: each must still exist and run."""
+    from bench.move_stages import stages
+
+    for correction in (False, True):
+        rows = stages(2, device, correction)
+        times = {name: med for name, med, _ in rows}
+        assert times["move (t_move)"] > 0 and times["radiosity after the move"] > 0
+        assert all(med >= 0 for med in times.values())
+        assert times["hidden entries found (candidates' and outside rows)"] > 0
+        assert (times.get("radiosity: stale rows corrected", 0) > 0) == correction
