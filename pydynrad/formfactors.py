@@ -184,20 +184,23 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     each pixel by ``scale[patch]``, so a block is (b, C): rows of F Pr for the prolongation
     Pr[i, labels[i]] = scale[i]. Each row averages ``samples`` hemicubes of resolution
     R / sqrt(samples) (see the module's docstring). ``rows``, ``resolution`` and ``samples``
-    are checked here.
+    are checked here, and the first block is queued on the device before this returns (as
+    :func:`hemicube_runs`).
     """
     n_cols = len(checked_scene(scene)) if clusters is None else clusters[2]
-    for runs in hemicube_runs(scene, resolution, rows, device, progress, desc=desc, clusters=clusters, samples=samples):
-        yield _runs_to_csr(*runs, n_cols)
+    runs = hemicube_runs(scene, resolution, rows, device, progress, desc=desc, clusters=clusters, samples=samples)
+    return (_runs_to_csr(*r, n_cols) for r in runs)
 
 
 def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | None = None, *,
                   desc: str = "form factors", clusters: tuple[np.ndarray, np.ndarray, int] | None = None,
                   samples: int = 1):
-    """The device's side of :func:`hemicube_blocks`: yields each block's run-length scanlines
-    ``(patch, weight, count)`` as read back, (b, K 3R, R) int32 and float32 and (b, K 3R) int32
-    for K = ``samples`` hemicubes per row (see kernels/hemicube.cl), before any host work.
-    Block b + 1 is traced while the caller works on block b."""
+    """The device's side of :func:`hemicube_blocks`: an iterator of each block's run-length
+    scanlines ``(patch, weight, count)`` as read back, (b, K 3R, R) int32 and float32 and
+    (b, K 3R) int32 for K = ``samples`` hemicubes per row (see kernels/hemicube.cl), before any
+    host work. Block b + 1 is traced while the caller works on block b. The first block is
+    queued before this returns: a caller may queue it from one thread and read it from another
+    (a moving object's hemicubes, queued beside the frame's other host work)."""
     import pyopencl as cl
 
     from .device import device_or_default
@@ -212,7 +215,7 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
     n = len(checked_scene(scene))
     rows = np.arange(n, dtype=np.int32) if rows is None else patch_indices(rows, n, "rows").astype(np.int32)
     if len(rows) == 0:
-        return
+        return iter(())
     S = 3 * R
     per_row = K * S * R * 8
     # Two blocks in flight (see below), each at most half of BLOCK_BYTES, and about
@@ -269,15 +272,18 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
         return host
 
     long = len(rows) > block and len(rows) * S * R > LONG_RUN_RAYS
-    with progress_bar(progress, long=long, total=len(rows), unit="patch", desc=f"{desc} R={R}") as bar:
-        b = launch(0, 0)
-        runs = read(b, 0)
-        for k, first in enumerate(range(0, len(rows), block)):
-            following = launch(first + block, (k + 1) % 2) if first + block < len(rows) else 0
-            yield runs
-            bar.update(b)
-            if following:
-                b, runs = following, read(following, (k + 1) % 2)
+
+    def blocks(b: int):
+        with progress_bar(progress, long=long, total=len(rows), unit="patch", desc=f"{desc} R={R}") as bar:
+            runs = read(b, 0)
+            for k, first in enumerate(range(0, len(rows), block)):
+                following = launch(first + block, (k + 1) % 2) if first + block < len(rows) else 0
+                yield runs
+                bar.update(b)
+                if following:
+                    b, runs = following, read(following, (k + 1) % 2)
+
+    return blocks(launch(0, 0))
 
 
 def stack_blocks(blocks, n_cols: int) -> sp.csr_matrix:

@@ -615,19 +615,24 @@ def test_a_move_that_fails_is_not_half_applied(box, block, device, monkeypatch):
     monkeypatch.setattr(lights_module, "_point_irradiance", real)
     np.testing.assert_array_equal(dyn.radiosity(LIGHTS), truth)
 
-    dyn, obj = made()
-    before = dyn.scene
-    monkeypatch.setattr(moves_module.WorldRows, "fresh", broken)
-    dyn.move(obj, MIDDLE)
-    with pytest.raises(RuntimeError, match="OUT_OF_RESOURCES"):
-        dyn.update(OBSERVER)
-    np.testing.assert_array_equal(dyn.scene.bvh.transforms[0], START)
-    np.testing.assert_array_equal(dyn.scene.centers, before.centers)
-    np.testing.assert_array_equal(obj.transform, START)
-    monkeypatch.undo()
-    assert dyn.update(OBSERVER).moved == 1  # still queued
-    np.testing.assert_array_equal(obj.transform, MIDDLE)
-    np.testing.assert_array_equal(dyn.radiosity(LIGHTS), truth)
+    # The objects' hemicubes fail as they are queued, or as they are waited for on a pool thread.
+    from pydynrad.rows.sources import HemicubeRows
+
+    for owner, name, failing in ((moves_module.WorldRows, "fresh_queued", broken),
+                                 (HemicubeRows, "queued", lambda *args: broken)):
+        dyn, obj = made()
+        before = dyn.scene
+        monkeypatch.setattr(owner, name, failing)
+        dyn.move(obj, MIDDLE)
+        with pytest.raises(RuntimeError, match="OUT_OF_RESOURCES"):
+            dyn.update(OBSERVER)
+        np.testing.assert_array_equal(dyn.scene.bvh.transforms[0], START)
+        np.testing.assert_array_equal(dyn.scene.centers, before.centers)
+        np.testing.assert_array_equal(obj.transform, START)
+        monkeypatch.undo()
+        assert dyn.update(OBSERVER).moved == 1  # still queued
+        np.testing.assert_array_equal(obj.transform, MIDDLE)
+        np.testing.assert_array_equal(dyn.radiosity(LIGHTS), truth)
 
 
 def test_shadow_rays_near_in_chunks_of_spheres(monkeypatch):

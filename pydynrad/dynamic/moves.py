@@ -761,13 +761,24 @@ class WorldRows:
     def fresh(self, idx) -> tuple[sp.csr_matrix, int]:
         """Rows ``idx`` of the world as it is: from ``poses`` where it holds them for the current
         transforms, else hemicubes; and how many hemicubes that took."""
-        idx = np.asarray(idx, np.int64)
-        return self._stored_or(idx, lambda miss: sp.csr_matrix(self.hemicubes.rows(miss), dtype=np.float64))
+        return self.fresh_queued(idx)()
 
-    def _stored_or(self, idx: np.ndarray, make) -> tuple[sp.csr_matrix, int]:
-        """Rows ``idx``: those ``poses`` holds for the current transforms from there, the others
-        by ``make(missing indices)``; and how many ``make`` made."""
-        stored = None if self.poses is None else self.poses.get(self.world.bvh.transforms)
+    def fresh_queued(self, idx):
+        """:meth:`fresh` with its hemicubes queued on the device now: a callable (to call once,
+        from any thread) that waits for them and returns what :meth:`fresh` does."""
+        idx = np.asarray(idx, np.int64)
+        stored = self._stored()
+        miss = idx if stored is None else idx[~np.isin(idx, stored[0])]
+        made = self.hemicubes.queued(miss) if len(miss) else None
+        return lambda: self._stored_or(idx, lambda _: sp.csr_matrix(made(), dtype=np.float64), stored)
+
+    def _stored(self):
+        """(patches, rows) that ``poses`` holds for the current transforms, or None."""
+        return None if self.poses is None else self.poses.get(self.world.bvh.transforms)
+
+    def _stored_or(self, idx: np.ndarray, make, stored) -> tuple[sp.csr_matrix, int]:
+        """Rows ``idx``: those ``stored`` (``poses``'s rows for the current transforms, or None)
+        holds from there, the others by ``make(missing indices)``; and how many ``make`` made."""
         if stored is None:
             return make(idx), len(idx)
         patches, rows = stored  # patches sorted (PoseRows.add)
@@ -808,7 +819,7 @@ class WorldRows:
         (hemicubes of the world there: no estimate, and no pass over their entries), the others
         from the static F (:meth:`_from_static`: patches that cannot see an object there, whose
         pre-test finds nothing to hide)."""
-        return self._stored_or(np.asarray(s, np.int64), self._from_static)[0]
+        return self._stored_or(np.asarray(s, np.int64), self._from_static, self._stored())[0]
 
     def _from_static(self, s: np.ndarray) -> sp.csr_matrix:
         """Rows of static patches ``s`` at the current poses, from the static F (class docstring)."""
@@ -845,7 +856,7 @@ class WorldRows:
         also = np.empty(0, np.int64) if also is None else np.asarray(also, np.int64)
         if len(np.unique(also)) != len(also):
             raise InvalidInputError("differences() needs distinct patches in also")
-        if self.poses is not None and self.poses.get(self.world.bvh.transforms) is not None:
+        if self._stored() is not None:
             return rows_minus(self._at(s, self._static_rows, also), kept, at)
         if self._at_pose is not None:  # rows already made at this pose are not made again
             also = also[self._at_pose[0][also] < 0]
@@ -925,33 +936,35 @@ class WorldRows:
         from .stale import rows_minus
 
         world = self.world
-        order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
         if self.static is None:
+            order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
             order = order[:budget]
             if meanwhile is not None:
                 meanwhile()
             rows, hemicubes = self.fresh(np.concatenate([moved, candidates[order]]))
             return order, rows, hemicubes, None
-        # Objects that did not move are seen by those that did: their rows, new anyway, go in too.
-        still = np.flatnonzero(candidates >= self.n_static)
-        order = order[candidates[order] < self.n_static] if budget != 0 or correct else order[:0]
-        also = None if outside is None else outside[self.gathered(outside)]
         tracing = None
         try:
             if self.object_rows is None:
-                # The objects' hemicubes trace on the device (a pool thread waits for them) while
-                # this thread runs the static rows' pre-test on the host; their reciprocal columns
-                # wait for them (objects()). The CPU device left ~0.35 of 2 cores idle while tracing
-                # them alone: 1.5 ms of a move (t_move median 20.8-22.4 -> 18.7-20.1 ms, Cornell
-                # box, 2-core Xeon). Submitted once this thread's numpy work before the pre-test is
-                # done: both threads wanting the interpreter's lock for small numpy steps at once
-                # cost refresh_order 3 ms instead of 0.3 (Zen 4, 2026-12-06).
+                # The objects' hemicubes trace on the device while this thread runs the static
+                # rows' pre-test on the host; a pool thread waits for them, and their reciprocal
+                # columns for it (objects()). The CPU device left ~0.35 of 2 cores idle while
+                # tracing them alone: 1.5 ms of a move (t_move median 20.8-22.4 -> 18.7-20.1 ms,
+                # Cornell box, 2-core Xeon). Queued by this thread, first: the pool thread only
+                # waits, and takes the interpreter's lock once they are traced (queued by it, both
+                # threads had wanted the lock for small numpy steps at once: refresh_order took 3
+                # ms instead of 0.3, and the trace started after it; Zen 4, 2026-12-06).
                 from ..hostthreads import pool
 
-                tracing = self._tracing = pool().submit(self.fresh, self.object_patches)
+                tracing = self._tracing = pool().submit(self.fresh_queued(self.object_patches))
                 self._meanwhile = meanwhile
             elif meanwhile is not None:
                 meanwhile()
+            order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
+            # Objects that did not move are seen by those that did: their rows, new anyway, go in too.
+            still = np.flatnonzero(candidates >= self.n_static)
+            order = order[candidates[order] < self.n_static] if budget != 0 or correct else order[:0]
+            also = None if outside is None else outside[self.gathered(outside)]
             if budget == 0:  # every row made is left stale: only their differences are wanted
                 left = (order, self.differences(candidates[order], kept, slots[order], also, held))
                 order, new = order[:0], sp.csr_matrix((0, self.n_patches))

@@ -103,6 +103,12 @@ class HemicubeRows:
         self.n_patches = len(scene)
 
     def rows(self, idx) -> sp.csr_matrix:
-        from ..formfactors import form_factors
+        return self.queued(idx)()
 
-        return form_factors(self.scene, resolution=self.resolution, rows=idx, device=self.device, samples=self.samples)
+    def queued(self, idx):
+        """:meth:`rows` with their hemicubes queued on the device now: a callable (to call once,
+        from any thread) that waits for them and returns the rows."""
+        from ..formfactors import hemicube_blocks, stack_blocks
+
+        blocks = hemicube_blocks(self.scene, self.resolution, idx, self.device, samples=self.samples)
+        return lambda: stack_blocks(blocks, self.n_patches)
