@@ -174,6 +174,7 @@ def _coarse_rows(ctx, name, scene, F, L, moving, ref_last, per) -> list[list]:
     lights (each change new: back and forth, the sweeps' warm start would make each a repeat)."""
     from pydynrad.compare import radiosity_error
     from pydynrad.farfield import FarField, cluster_patches
+    from pydynrad.hostproduct import HostMatrix
 
     n, rows = len(scene), []
     groups = cluster_patches(scene, n).groups
@@ -194,7 +195,8 @@ def _coarse_rows(ctx, name, scene, F, L, moving, ref_last, per) -> list[list]:
                 far.light(x)
                 best = min(best, (far.seconds_coarse, far.sweeps))
             held = far.K_c.nbytes if far.K_c is not None else far.F_c.nnz * 8
-            rows.append([name, n, C, coarse, storage or "fp32 F_c", t_build, held / 2**20, 1e3 * best[0], best[1],
+            where = "host" if isinstance(far.K_c, HostMatrix) else "device"
+            rows.append([name, n, C, coarse, storage or "fp32 F_c", where, t_build, held / 2**20, 1e3 * best[0], best[1],
                          100 * radiosity_error(far.light(moving[-1]), ref_last, scene.areas)])
     return rows
 
@@ -298,14 +300,16 @@ def farfield_section(ctx) -> dict:
                     "hemicube time.",
         }, {
             "title": "The coarse solve over C: sweeps of the sparse F_c against the dense K_c",
-            "columns": ["scene", "N", "C", "coarse", "storage", "far field build s", "K_c or F_c MiB",
+            "columns": ["scene", "N", "C", "coarse", "storage", "held on", "far field build s", "K_c or F_c MiB",
                         "coarse solve ms (light change)", "sweeps", "all % after the last change"],
             "rows": coarse_rows,
             "note": f"coarse solve = B_c for a light change (the fastest of {2 * CHANGES + 1} changes of moving "
                     "lights, as in the third table; sweeps warm-started, FarField's default tol); all % after the "
                     "last of them; build = the whole FarField (clusters, "
                     "G, F_c and K_c: LU of I - F_c P_c per channel, by the host's LAPACK on a CPU device); "
-                    "F_c MiB counts 8 bytes a non-zero (fp32 value and index). Default gather (first bounce).",
+                    "F_c MiB counts 8 bytes a non-zero (fp32 value and index); held on: where the products run "
+                    "(a K_c of at most 4 MiB beside a CPU device on the host, in the type it computes in: fp16 "
+                    "storage then takes fp32's bytes; pydynrad.hostproduct). Default gather (first bounce).",
         }, {
             "title": "Light changes of the default far field (C = N/8): back and forth, dimmed, and moving lights",
             "columns": ["scene", "N", "M", "C", "changes", "combined", "light change ms", "coarse solve ms", "sweeps",

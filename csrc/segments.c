@@ -156,8 +156,8 @@ static int keep(kept_t *k, int64_t j, const double *a, const double *b)
 }
 
 /* Clones of a loop for the SIMD widths of x86 CPUs, picked when the module loads (GCC's
-   ifunc): the wheel's baseline is SSE2, whatever CPU runs it. */
-#if defined(__GNUC__) && defined(__x86_64__) && defined(__linux__)
+   ifunc, which glibc has and musl has not): the wheel's baseline is SSE2, whatever CPU runs it. */
+#if defined(__GNUC__) && defined(__x86_64__) && defined(__linux__) && defined(__GLIBC__)
 #define SIMD_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
 #else
 #define SIMD_CLONES

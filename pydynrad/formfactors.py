@@ -238,7 +238,6 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
         defines["HC_CLUSTERS"] = 1
         extra = [dev.to_device(np.ascontiguousarray(a, dtype=t)) for a, t in
                  ((labels, np.int32), (scale, np.float32), (weights, np.float32))]
-    knl = dev.kernel("hemicube.cl", "hemicube_runs", defines)
     nodes, tris, order = scene.bvh.buffers(dev)
     normals = scene.patch_buffers(dev)[1]
     mf = cl.mem_flags
@@ -261,6 +260,9 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
         idx_host[k] = np.concatenate([idx, scene.bvh.own_instances(idx)]).astype(np.int32)
         cl.enqueue_copy(dev.queue, idx_bufs[k], idx_host[k], is_blocking=False)
         cl.enqueue_copy(dev.queue, org_bufs[k], org_host[k], is_blocking=False)
+        # The first block is launched by the caller's thread, later ones by the thread that reads
+        # the blocks: a kernel object per thread (Device.kernel), its arguments its own.
+        knl = dev.kernel("hemicube.cl", "hemicube_runs", defines)
         knl(dev.queue, (global_size(len(idx) * K * tiles.bands(R), wg),), (wg,), nodes, tris, order, org_bufs[k], normals,
             idx_bufs[k], np.int32(len(idx)), eps, *buffers[k], *extra)
         return len(idx)

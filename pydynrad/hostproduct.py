@@ -11,9 +11,10 @@ Above :data:`HOST_PRODUCT_BYTES`, and on every other device, matrices stay on th
 
 :class:`HostBounce` is :class:`~pydynrad.devicecsr.DeviceCSR`'s ``bounce`` on the host, dense
 where that reads at most twice the CSR's bytes; :class:`HostMatrix` is
-:class:`~pydynrad.matvec.DeviceMatrix`'s ``matvec``/``matmat`` for dense channels. Both compute in
-the type the device would (float32 products of float32 values, or float64), one BLAS thread
-beside a CPU device (:mod:`pydynrad.hostblas`).
+:class:`~pydynrad.matvec.DeviceMatrix`'s ``matvec``/``matmat`` for dense channels. Their dense
+products multiply in the matrix's type as the device does (float32 values by float32 vectors,
+or float64), on one BLAS thread beside a CPU device (:mod:`pydynrad.hostblas`); a CSR product
+sums in float64, and ``L + P (A x)`` is formed in float64: at least the device's precision.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .checks import finite
 from .errors import InvalidInputError
 from .hostblas import one_blas_thread
 
@@ -55,7 +57,9 @@ class HostBounce:
         self.shape, self.nnz, self.dtype = A.shape, int(A.nnz), np.dtype(dtype)
         size = A.shape[0] * A.shape[1]
         self.dense = size > 0 and A.nnz >= DENSE_FILL * size
-        self._A = A.toarray().astype(self.dtype) if self.dense else sp.csr_matrix(A, dtype=self.dtype)
+        # A copy either way: a CSR of A's own dtype would share its arrays, counted twice where
+        # the caller keeps A too.
+        self._A = A.toarray().astype(self.dtype) if self.dense else sp.csr_matrix(A, dtype=self.dtype, copy=True)
         self.nbytes = self.nbytes_of(A, self.dtype)
 
     @staticmethod
@@ -94,6 +98,8 @@ class HostMatrix:
         K = np.asarray(K)
         if K.ndim != 3 or K.shape[1] != K.shape[2] or K.shape[1] == 0:
             raise InvalidInputError(f"K must have shape (C, M, M) with M > 0; got {K.shape}")
+        if not np.issubdtype(K.dtype, np.floating):
+            raise InvalidInputError(f"K must hold floating-point values; got {K.dtype}")
         stored = storage_dtype(storage)
         top = max(float(K.max(initial=0.0)), -float(K.min(initial=0.0)))
         if not np.all(np.isfinite(K)) or top > float(np.finfo(stored).max):
@@ -119,6 +125,7 @@ class HostMatrix:
             X = np.broadcast_to(X, (self.C, *X.shape))
         if X.ndim != 3 or X.shape[0] != self.C or X.shape[2] != self.M or X.shape[1] < 1:
             raise InvalidInputError(f"X must have shape ({self.C}, r, {self.M}) or (r, {self.M}) with r >= 1; got {X.shape}")
+        finite(X, "X")
         with one_blas_thread():
             return np.matmul(X.astype(self.real_dtype), self._K.transpose(0, 2, 1)).astype(np.float64)
 

@@ -54,6 +54,10 @@ def test_matrix_products_of_the_stored_entries(device, storage, rtol):
         HostMatrix(np.full((1, 2, 2), 1e6), "fp16")
     with pytest.raises(InvalidInputError, match="finite"):
         HostMatrix(np.full((1, 2, 2), np.nan), "fp32")
+    with pytest.raises(InvalidInputError, match="floating"):
+        HostMatrix(np.ones((1, 2, 2), int), "fp32")
+    with pytest.raises(InvalidInputError, match="NaN or infinite"):
+        host.matvec(np.full((3, 40), np.inf))
 
 
 def test_small_matrices_go_to_the_host_beside_a_cpu_device_only(device):

@@ -633,6 +633,24 @@ def test_a_move_that_fails_is_not_half_applied(box, block, device, monkeypatch):
         assert dyn.update(OBSERVER).moved == 1  # still queued
         np.testing.assert_array_equal(obj.transform, MIDDLE)
         np.testing.assert_array_equal(dyn.radiosity(LIGHTS), truth)
+    # A queue that fails once: the failed move does not trace them again in its cleanup.
+    real_queued, calls = HemicubeRows.queued, []
+
+    def once(self, idx):
+        calls.append(len(idx))
+        if len(calls) == 1:
+            raise RuntimeError("clEnqueueNDRangeKernel failed: OUT_OF_RESOURCES")
+        return real_queued(self, idx)
+
+    dyn, obj = made()
+    monkeypatch.setattr(HemicubeRows, "queued", once)
+    dyn.move(obj, MIDDLE)
+    with pytest.raises(RuntimeError, match="OUT_OF_RESOURCES"):
+        dyn.update(OBSERVER)
+    assert calls == [len(block)]
+    assert dyn.update(OBSERVER).moved == 1 and calls == [len(block)] * 2
+    np.testing.assert_array_equal(dyn.radiosity(LIGHTS), truth)
+    assert dyn._ff.source.fresh([])[0].shape == (0, len(dyn.scene))  # no rows asked, none made
 
 
 def test_shadow_rays_near_in_chunks_of_spheres(monkeypatch):

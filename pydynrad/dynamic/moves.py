@@ -771,7 +771,7 @@ class WorldRows:
         idx = np.asarray(idx, np.int64)
         stored = self._stored()
         miss = idx if stored is None else idx[~np.isin(idx, stored[0])]
-        made = self.hemicubes.queued(miss) if len(miss) else None
+        made = self.hemicubes.queued(miss) if len(miss) else lambda: sp.csr_matrix((0, self.n_patches))
         return lambda: self._stored_or(idx, lambda _: sp.csr_matrix(made(), dtype=np.float64), stored)
 
     def _stored(self):
@@ -977,7 +977,8 @@ class WorldRows:
             raise
         finally:
             try:
-                self.objects()  # never a trace left running past the call (nor its meanwhile not run)
+                if self._tracing is not None:  # never a trace left running past the call (nor its meanwhile not run)
+                    self.objects()
             finally:
                 self._meanwhile = None
         hemicubes = 0 if tracing is None else tracing.result()[1]

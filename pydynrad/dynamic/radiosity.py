@@ -347,7 +347,8 @@ class DynamicRadiosity:
     @property
     def memory_bytes(self) -> int:
         """Device bytes of K (all channels), the update's scratch buffers and the far field's
-        F_c and G (or F)."""
+        F_c and G (or F) where they are on the device (:attr:`FarField.device_memory_bytes
+        <pydynrad.farfield.FarField.device_memory_bytes>`)."""
         self._require_built()
         far = self.far.device_memory_bytes if self.far is not None else 0
         return self._matrix.nbytes + self._kernels.nbytes + far
@@ -773,7 +774,8 @@ class DynamicRadiosity:
         """After a move, the held light vector brought to the world as it is (:meth:`_relit`)
         and the far field's answer for it, which the next :meth:`radiosity` with the same lights
         then finds: its shadow rays queued now, ahead of the objects' hemicubes, and a callable
-        (or None) that the move runs while those trace, which takes the rays' result and gives
+        (or None) that the move runs while those trace (with hemicube rows and no static F, just
+        before they are queued), which takes the rays' result and gives
         the far field its light (on the host beside a CPU device, :mod:`pydynrad.hostproduct`, so
         that nothing of it waits behind the trace; radiosity()'s own light pass and coarse level
         after a move had been 2.8 ms of a 21 ms moving frame on the Cornell box, AMD EPYC Zen 4,

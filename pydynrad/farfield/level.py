@@ -18,7 +18,8 @@ With C = N (every patch its own cluster) G = F and B_far is the full solution.
 The coarse system x = s + P_c F_c x (s = L_c, or R D1 below) is solved per light change either
 with a dense coarse multibounce matrix K_c = (I - F_c P_c)^-1 F_c per channel (x = s + P_c K_c s:
 one product, K_c built once by :mod:`pydynrad.multibounce`'s builder, stored fp16/fp32/fp64 on
-the device), or by Jacobi sweeps of the sparse F_c on the device (Anderson-mixed, :data:`COARSE_MIXING`), warm-started from the best
+the device, or on the host in the type it computes in where that is a CPU device and K_c is
+small: :mod:`pydynrad.hostproduct`), or by Jacobi sweeps of the sparse F_c on the device (Anderson-mixed, :data:`COARSE_MIXING`), warm-started from the best
 combination of earlier solutions (x is linear in s: lights switched back, or summed, start at
 their answer) (``coarse="auto"``: dense up to :data:`DENSE_CLUSTERS` clusters; bench/farfield.py
 measured the switch-over). Every patch's B_far then comes from one of three gathers (``gather=``, measured in
@@ -237,8 +238,9 @@ class FarField:
         The coarse solve: the dense K_c product, or Jacobi sweeps of F_c; "auto": dense for
         C <= :data:`DENSE_CLUSTERS`.
     coarse_storage : "fp16" | "fp32" | "fp64", optional
-        Element type of the dense K_c on the device (:class:`pydynrad.matvec.DeviceMatrix`);
-        default "fp64" for ``dtype=np.float64``, else "fp32".
+        Element type of the dense K_c on the device (:class:`pydynrad.matvec.DeviceMatrix`; held on
+        the host, :class:`pydynrad.hostproduct.HostMatrix`, its entries are rounded to it and kept
+        in the type products compute in); default "fp64" for ``dtype=np.float64``, else "fp32".
     tol : float
         Relative max-norm change of the coarse solution at which the sweeps stop (1e-4: 17 and 14
         sweeps of the village's N/8 F_c instead of 22 and 20 at 1e-5, errors unchanged to three
@@ -262,8 +264,8 @@ class FarField:
     R, G, F_c : scipy.sparse.csr_matrix
         (C, N) restriction, (N, C) patch-to-cluster and (C, C) coarse form factors, float64
         (G: 3C columns for the linear basis; a G passed in keeps its own dtype, float32 from a
-        store). Without F, G and F_c are None after construction:
-        they are kept on the device only.
+        store). Without F, G and F_c are None after construction: they are kept only where their
+        products run (the device, or the host beside a CPU device where small).
     G_nnz, F_c_nnz : int
         Their non-zeros.
     K_c : pydynrad.matvec.DeviceMatrix, pydynrad.hostproduct.HostMatrix or None
@@ -427,9 +429,10 @@ class FarField:
     @property
     def host_memory_bytes(self) -> int:
         """Host bytes of G and F_c (with F in memory only), R, the linear fit, F by column (F's
-        gathers on a CPU), the labels, B_far, the last lights' answers (:meth:`_combined`), the
-        coarse sweeps' last solutions, the last first bounce and the local rows' entries cut out
-        for the injection."""
+        gathers on a CPU), G's product and K_c where they are on the host
+        (:mod:`pydynrad.hostproduct`), the labels, B_far, the last lights' answers
+        (:meth:`_combined`), the coarse sweeps' last solutions, the last first bounce and the
+        local rows' entries cut out for the injection."""
         cut = None if self._outside_cols is None else self._outside_cols[2]
         mats = [m for m in (self.G, self.F_c, self.R, self._fit, self._F_cols, cut) if m is not None]
         held = sum(m.data.nbytes + m.indices.nbytes + m.indptr.nbytes for m in mats)
@@ -513,7 +516,8 @@ class FarField:
         return B if np.all(off[:, 0] <= COMBINED_TOLERANCE) and np.all(off[:, 1] <= COMBINED_GAIN) else None
 
     def _gather(self, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """L + rho (G x) (N, k) on the device: G resident there, or read from its store per chunk."""
+        """L + rho (G x) (N, k): G held (on the device, or on the host beside a CPU device where
+        small), or read from its store per chunk."""
         if self._G_stream is not None:
             return self._G_stream.bounce(self.device, self._dtype, L, rho, x)
         return self._G_product.bounce(L, rho, x)
