@@ -6,7 +6,8 @@ whatever the size, and a call queued behind other device work (a moved object's 
 for all of it. The far field's coarse K_c (149 x 149 x 3, float32) took 0.28 ms a product on
 the device and 0.03 ms on the host; its gather matrix G (1192 x 447, 47% of its entries non-zero)
 0.36 ms by the device's CSR kernel, 0.38 ms by the host's (:func:`pydynrad.colproduct.rows_product`)
-and 0.09 ms held dense through BLAS (the Cornell box's far field, AMD EPYC Zen 4, 2026-12-06).
+and 0.16-0.18 ms held dense through one BLAS thread (0.09 ms through two; the Cornell box's far
+field, AMD EPYC Zen 4, 2026-12-06).
 Above :data:`HOST_PRODUCT_BYTES`, and on every other device, matrices stay on the device.
 
 :class:`HostBounce` is :class:`~pydynrad.devicecsr.DeviceCSR`'s ``bounce`` on the host, dense
@@ -35,7 +36,7 @@ HOST_PRODUCT_BYTES = 4 << 20
 
 #: The fraction of non-zero entries from which :class:`HostBounce` holds its matrix dense: dense
 #: float32 reads 4 bytes an entry, CSR 8 a non-zero, so from 1/4 dense reads at most twice the
-#: bytes, and BLAS streams them where CSR gathers x by index (4x faster at 47%, above).
+#: bytes, and BLAS streams them where CSR gathers x by index (2x faster at 47%, above).
 DENSE_FILL = 0.25
 
 
@@ -55,20 +56,24 @@ class HostBounce:
     def __init__(self, A: sp.csr_matrix, dtype) -> None:
         A = sp.csr_matrix(A)
         self.shape, self.nnz, self.dtype = A.shape, int(A.nnz), np.dtype(dtype)
-        size = A.shape[0] * A.shape[1]
-        self.dense = size > 0 and A.nnz >= DENSE_FILL * size
+        self.dense = self._full_enough(A)
         # A copy either way: a CSR of A's own dtype would share its arrays, counted twice where
         # the caller keeps A too.
         self._A = A.toarray().astype(self.dtype) if self.dense else sp.csr_matrix(A, dtype=self.dtype, copy=True)
         self.nbytes = self.nbytes_of(A, self.dtype)
 
     @staticmethod
+    def _full_enough(A: sp.csr_matrix) -> bool:
+        """Whether ``A`` is held dense: at least :data:`DENSE_FILL` of its entries non-zero."""
+        size = A.shape[0] * A.shape[1]
+        return size > 0 and A.nnz >= DENSE_FILL * size
+
+    @staticmethod
     def nbytes_of(A: sp.csr_matrix, dtype) -> int:
         """The bytes a HostBounce of ``A`` in ``dtype`` holds."""
         item = np.dtype(dtype).itemsize
-        size = A.shape[0] * A.shape[1]
-        if size > 0 and A.nnz >= DENSE_FILL * size:
-            return size * item
+        if HostBounce._full_enough(A):
+            return A.shape[0] * A.shape[1] * item
         return A.nnz * (item + A.indices.dtype.itemsize) + A.indptr.nbytes
 
     def bounce(self, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:

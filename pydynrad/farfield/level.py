@@ -188,7 +188,7 @@ def _differing_rows(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
 
 def _gather_product(device, G: sp.csr_matrix, dtype):
     """G's bounce product L + P (G x): on the host where that is the device and G is small
-    (:mod:`pydynrad.hostproduct`; a gather of the Cornell box's far field took 0.09 ms there
+    (:mod:`pydynrad.hostproduct`; a gather of the Cornell box's far field took 0.16-0.18 ms there
     against 0.36 ms on the device), else on the device."""
     from ..devicecsr import DeviceCSR
 
