@@ -194,10 +194,9 @@ class DynamicRadiosity:
         self._last_B: np.ndarray | None = None  # (N,) the last radiosity() summed over channels: ranks a move's rows
         self._held_light: HeldLight | None = None  # the last radiosity()'s with lights=: _light_vector
         self.occlusion_correction = flag(occlusion_correction, "occlusion_correction")
-        if isinstance(correction_tolerance, (str, bytes, bool)) or not (
-                np.isfinite(number(correction_tolerance, "correction_tolerance")) and 0 < correction_tolerance < 1):
+        self.correction_tolerance = number(correction_tolerance, "correction_tolerance")  # finite, not a str or bool
+        if not 0 < self.correction_tolerance < 1:
             raise InvalidInputError(f"correction_tolerance must be a number in (0, 1); got {correction_tolerance!r}")
-        self.correction_tolerance = float(correction_tolerance)
         if isinstance(occlusion, str):
             if occlusion != "auto":
                 raise InvalidInputError(f"occlusion must be a row count, None or 'auto'; got {occlusion!r}")
