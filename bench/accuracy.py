@@ -10,7 +10,7 @@ plus lighting) and the error of the result near the observer against
 * the path-traced reference (patch radiosities gathered at patch centres, and the image),
   whose own noise is estimated from two independent halves and reported as the floor.
 
-Errors are area-weighted relative RMS over the local patches (``pydynrad.compare.radiosity_error``)
+Errors are area-weighted relative RMS over the local patches (``pydynrad.comparison.radiosity_error``)
 and relative RMS over the image's pixels.
 """
 
@@ -30,7 +30,7 @@ FURNACE_ALBEDO, FURNACE_EMISSION = 0.6, 1.0
 
 def relative_image_error(image: np.ndarray, reference: np.ndarray) -> float:
     """Relative RMS error over all pixels and channels (unweighted)."""
-    from pydynrad.compare import radiosity_error
+    from pydynrad.comparison import radiosity_error
 
     return float(radiosity_error(image.reshape(-1, 3), reference.reshape(-1, 3), np.ones(image.size // 3)))
 
@@ -38,7 +38,7 @@ def relative_image_error(image: np.ndarray, reference: np.ndarray) -> float:
 def _two_halves(fn, spp: int) -> tuple[np.ndarray, float]:
     """Run ``fn(spp, seed)`` twice with spp/2 samples and independent seeds; return the
     average and its own relative RMS noise (half the RMS difference of the halves)."""
-    from pydynrad.compare import radiosity_error
+    from pydynrad.comparison import radiosity_error
 
     half = max(1, spp // 2)
     a, b = fn(half, 1), fn(half, 2)
@@ -56,10 +56,10 @@ def pathtracer_section(ctx) -> dict:
                                        emission=FURNACE_EMISSION)
     truth = FURNACE_EMISSION / (1.0 - FURNACE_ALBEDO)
     rows, errs = [], []
-    pydynrad.path_trace_patches(scene, spp=1, device=ctx.device)  # compile outside the timings
+    pydynrad.pathtracer.path_trace_patches(scene, spp=1, device=ctx.device)  # compile outside the timings
     for spp in p["spp"]:
         t0 = time.perf_counter()
-        b = pydynrad.path_trace_patches(scene, spp=spp, seed=spp, device=ctx.device)
+        b = pydynrad.pathtracer.path_trace_patches(scene, spp=spp, seed=spp, device=ctx.device)
         dt = time.perf_counter() - t0
         err = float(np.sqrt(np.mean((b - truth) ** 2)) / truth)
         errs.append(err)
@@ -146,8 +146,8 @@ def timed_walk(dyn, path: np.ndarray, warm: int = 2) -> tuple[float, list]:
 def accuracy_section(ctx) -> dict:
     """The trade curve: error vs frame time per M, update mode, storage and resolution."""
     import pydynrad
-    from pydynrad.compare import radiosity_error
-    from pydynrad.render import Renderer
+    from pydynrad.comparison import radiosity_error
+    from pydynrad.renderer import Renderer
 
     p = ctx.params
     scene = ctx.cached(("cornell", p["max_edge"]), lambda: pydynrad.scenes.cornell_box(max_edge=p["max_edge"]))
@@ -168,7 +168,7 @@ def accuracy_section(ctx) -> dict:
         t = time_call(lambda: pydynrad.solve(scene, F, device=ctx.device), repeats=3)
         full[R] = (sol.radiosity, t["median_s"])
     ref_patches, noise_patches = _two_halves(
-        lambda spp, seed: pydynrad.path_trace_patches(scene, spp=spp, seed=seed, device=ctx.device,
+        lambda spp, seed: pydynrad.pathtracer.path_trace_patches(scene, spp=spp, seed=seed, device=ctx.device,
                                                       progress=ctx.progress), p["ref_spp"])
     ref_image, noise_image = _two_halves(
         lambda spp, seed: pydynrad.path_trace(scene, cam, spp=spp, seed=seed, device=ctx.device,

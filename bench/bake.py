@@ -63,7 +63,7 @@ def _chart_edge_distance(lm, patch, uv) -> np.ndarray:
 
 
 def _border_errors(scene, lm, B, camera, device) -> dict:
-    from pydynrad.render import Renderer
+    from pydynrad.renderer import Renderer
 
     renderer = Renderer(scene, device)
     vis = renderer.visibility(camera)

@@ -117,7 +117,7 @@ def case_5_2(device=None, resolution=128):
     """Isotropic (1,000 cd) and cosine (I0 = 1,000 cd, downwards) point sources 0.5 m below the
     ceiling's centre of the black room: E = I(gamma) cos(theta) / d^2 on floor and wall points."""
     import pydynrad
-    from pydynrad.photometry import LuminaireLight, PhotometricDistribution
+    from pydynrad.lights import LuminaireLight, PhotometricDistribution
 
     scene, _ = rectangles_scene(room_rectangles(), 0.5)
     src = np.array([2.0, 2.0, 2.5])
@@ -169,16 +169,16 @@ def case_5_4(device=None, resolution=128):
     """All the flux of a source inside the closed black room arrives on its walls: sum E_i A_i over
     patches (patch-centre direct light, 0.1 m cells) against the source's flux."""
     import pydynrad
-    from pydynrad.photometry import LuminaireLight, parse_ies
+    from pydynrad.lights import LuminaireLight, parse_ies
 
     scene, _ = rectangles_scene(room_rectangles(), 0.1)
     rows = []
     iso = pydynrad.PointLight([1.2, 2.3, 1.9], 1000.0)
-    H = pydynrad.direct_irradiance(scene, [iso], device).astype(np.float64)
+    H = pydynrad.lights.direct_irradiance(scene, [iso], device).astype(np.float64)
     rows += _rows("5.4 flux", ["isotropic 1,000 cd"], [4 * math.pi * 1000.0], [np.sum(H[:, 0] * scene.areas)])
     dist = parse_ies(LM63_EXAMPLE)
     lum = LuminaireLight([2.0, 2.0, 2.7], dist, nadir=(0.2, 0.1, -1.0))
-    H = pydynrad.direct_irradiance(scene, [lum], device).astype(np.float64)
+    H = pydynrad.lights.direct_irradiance(scene, [lum], device).astype(np.float64)
     rows += _rows("5.4 flux", ["LM-63-2002 example"], [dist.flux()], [np.sum(H[:, 0] * scene.areas)])
     return rows
 
@@ -286,7 +286,7 @@ def case_5_8(device=None, resolution=64, cell=0.25):
     light = pydynrad.PointLight([1.7, 2.2, 1.6], 1000.0)
     F = pydynrad.form_factors(scene, resolution, device=device)
     B = pydynrad.solve(scene, F, lights=[light], tol=1e-9, device=device).radiosity
-    direct = pydynrad.direct_irradiance(scene, [light], device).astype(np.float64)
+    direct = pydynrad.lights.direct_irradiance(scene, [light], device).astype(np.float64)
     indirect = B[:, 0] / rho - direct[:, 0]  # B = rho (H_direct + H_indirect)
     A = scene.areas.astype(np.float64)
     phi = 4 * math.pi * 1000.0
@@ -303,7 +303,7 @@ def case_5_9(device=None, resolution=128):
     """The black room with a 1 x 1 m opening in its roof under a uniform sky of luminance
     L = 1,000 / pi cd/m2: E = pi L F(point -> opening) at floor points."""
     import pydynrad
-    from pydynrad.photometry import SkyLight
+    from pydynrad.lights import SkyLight
 
     scene, _ = rectangles_scene(room_rectangles(opening=OPENING), 0.5)
     points = np.array([[2, 1.5, 0], [2, 2, 0], [1, 1, 0], [3.5, 3.5, 0], [0.5, 1.5, 0]], float)

@@ -57,7 +57,7 @@ SPARSE_SHARES = (0.03, 0.1)
 
 def _kernel_rows(device, sizes, copy_gbs):
     from pydynrad.dynamic.kupdate import UpdateKernels
-    from pydynrad.matvec import DeviceMatrix
+    from pydynrad.device.matrix import DeviceMatrix
 
     rows = []
     rng = np.random.default_rng(0)

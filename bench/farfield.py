@@ -6,8 +6,8 @@ street), then the lights change: they move (timed), then switch to the second se
 (``pydynrad.solve``, relative residual 1e-6):
 
 * errors: all patches and the local patches (area-weighted relative RMS,
-  :func:`pydynrad.compare.radiosity_error`), mean per-pixel relative error of the observer's view
-  (:func:`pydynrad.compare.pixel_error`), and the all-patch error right after the light change;
+  :func:`pydynrad.comparison.radiosity_error`), mean per-pixel relative error of the observer's view
+  (:func:`pydynrad.comparison.pixel_error`), and the all-patch error right after the light change;
 * times: a frame with static lights (update + radiosity), a light change (radiosity with a new
   light vector: the coarse solve, B_far and the injection), of which the coarse solve (B_c) and
   all of the far field's light() (B_c and B_far), and the far field's precompute (clusters, G,
@@ -139,7 +139,7 @@ def _moving_lights(ctx, scene, lights) -> list[np.ndarray]:
 def _change_rows(ctx, name, scene, F, L, L2, moving, path, M) -> list[list]:
     """The default far field's light changes, back and forth, dimmed and with moving lights, part by part."""
     import pydynrad
-    from pydynrad.compare import radiosity_error
+    from pydynrad.comparison import radiosity_error
     from pydynrad.farfield import FarField
 
     n = len(scene)
@@ -172,9 +172,9 @@ def _change_rows(ctx, name, scene, F, L, L2, moving, path, M) -> list[list]:
 def _coarse_rows(ctx, name, scene, F, L, moving, ref_last, per) -> list[list]:
     """The coarse solve alone over C: sweeps of F_c against the dense K_c per storage, for moving
     lights (each change new: back and forth, the sweeps' warm start would make each a repeat)."""
-    from pydynrad.compare import radiosity_error
+    from pydynrad.comparison import radiosity_error
     from pydynrad.farfield import FarField, cluster_patches
-    from pydynrad.hostproduct import HostMatrix
+    from pydynrad.host.product import HostMatrix
 
     n, rows = len(scene), []
     groups = cluster_patches(scene, n).groups
@@ -203,9 +203,9 @@ def _coarse_rows(ctx, name, scene, F, L, moving, ref_last, per) -> list[list]:
 
 def farfield_section(ctx) -> dict:
     import pydynrad
-    from pydynrad.compare import pixel_error, radiosity_error
+    from pydynrad.comparison import pixel_error, radiosity_error
     from pydynrad.farfield import FarField
-    from pydynrad.render import Renderer
+    from pydynrad.renderer import Renderer
 
     p = {**SIZES[ctx.size], **(ctx.params or {})}
     rows, coarse_rows, change_rows, series = [], [], [], {}
@@ -309,7 +309,7 @@ def farfield_section(ctx) -> dict:
                     "G, F_c and K_c: LU of I - F_c P_c per channel, by the host's LAPACK on a CPU device); "
                     "F_c MiB counts 8 bytes a non-zero (fp32 value and index); held on: where the products run "
                     "(a K_c of at most 4 MiB beside a CPU device on the host, in the type it computes in: fp16 "
-                    "storage then takes fp32's bytes; pydynrad.hostproduct). Default gather (first bounce).",
+                    "storage then takes fp32's bytes; pydynrad.host.product). Default gather (first bounce).",
         }, {
             "title": "Light changes of the default far field (C = N/8): back and forth, dimmed, and moving lights",
             "columns": ["scene", "N", "M", "C", "changes", "combined", "light change ms", "coarse solve ms", "sweeps",

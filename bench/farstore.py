@@ -36,10 +36,10 @@ SIZES = {
 
 def farstore_section(ctx) -> dict:
     import pydynrad
-    from pydynrad.compare import pixel_error, radiosity_error
+    from pydynrad.comparison import pixel_error, radiosity_error
     from pydynrad.farfield import FarField, cluster_form_factors, cluster_patches
     from pydynrad.farfield.gather import basis_prolongation
-    from pydynrad.render import Renderer
+    from pydynrad.renderer import Renderer
 
     from .farfield import _cases
 

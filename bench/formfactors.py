@@ -14,7 +14,7 @@ each sees the same load on the machine:
   gets them;
 * ``pydynrad.formfactors.hemicube_runs``: the same without the host's CSR (tracing, run-length
   scanlines and their read-back): the ray tracing alone;
-* ``pydynrad.bvh.cast_rays``: our BVH kernel alone on the explicit rays (validation and upload
+* ``pydynrad.geometry.bvh.cast_rays``: our BVH kernel alone on the explicit rays (validation and upload
   included), BVH_PACKET consecutive rays per work-item as one packet (kernels/bvh.cl
   bvh_closest_packet, one origin per lane);
 * Embree (``embreex``, closest hit, driven from Python): the peer to beat.
@@ -162,9 +162,9 @@ def _taking_turns(calls: dict, repeats: int) -> dict:
 
 def throughput(scene, n_rows: int, resolution: int, device, repeats: int = 3) -> dict:
     """Rays per second of the three ray casters on one scene's hemicube rays."""
-    from pydynrad.bvh import cast_rays
+    from pydynrad.geometry.bvh import cast_rays
     from pydynrad.formfactors import form_factors, hemicube_runs
-    from pydynrad.launch import bvh_packet
+    from pydynrad.device.launch import bvh_packet
 
     rows = np.linspace(0, len(scene) - 1, min(n_rows, len(scene))).astype(np.int32)
     o, d = hemicube_rays(scene, rows, resolution)
@@ -201,7 +201,7 @@ def throughput(scene, n_rows: int, resolution: int, device, repeats: int = 3) ->
 
 def bvh_build(n: int, repeats: int = 3) -> dict:
     """Seconds to build the BVH over n random triangles (unit-ish triangles in a 100^3 box)."""
-    from pydynrad.bvh import BVH
+    from pydynrad.geometry.bvh import BVH
 
     rng = np.random.default_rng(0)
     v = (rng.uniform(0, 100, (n, 1, 3)) + rng.normal(scale=0.3, size=(n, 3, 3))).astype(np.float32)

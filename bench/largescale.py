@@ -52,7 +52,7 @@ SIZES = {"quick": {"detail": 2.0, "frames": 40}, "full": {"detail": 20.0, "frame
 
 
 def village_spec(detail: float):
-    from pydynrad.rows.distributed import SceneSpec
+    from pydynrad.precompute.distributed import SceneSpec
 
     return SceneSpec("village", {"detail": detail})
 
@@ -156,7 +156,7 @@ def walk_in_subprocess(args, source: str, cache_mib: float, far_field: str = "of
 
 
 def precompute(args, scene, path: Path, workers: int, blocks=None, clusters=None, compute_f: bool = True) -> float:
-    from pydynrad.rows.distributed import precompute_distributed
+    from pydynrad.precompute.distributed import precompute_distributed
 
     t0 = time.perf_counter()
     precompute_distributed(village_spec(args.detail), path, resolution=args.resolution, block_rows=args.block_rows,

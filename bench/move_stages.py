@@ -64,7 +64,7 @@ def stages(moves: int = 8, device=None, correction: bool = False, village: bool 
     ``correction``: with the stale rows made and corrected (``occlusion_correction``), else
     without (the cheapest move); ``village``: on the 66k village (:func:`_case`)."""
     import pydynrad as pd
-    from pydynrad.device import default_device
+    from pydynrad.device.devices import default_device
     from pydynrad.dynamic import exact, localrows, moves as moves_mod
 
     device = device or default_device()
@@ -132,7 +132,7 @@ def main(argv=None) -> int:
     import os
     from datetime import datetime, timezone
 
-    from pydynrad.device import default_device
+    from pydynrad.device.devices import default_device
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--moves", type=int, default=8)

@@ -62,9 +62,9 @@ def _poses(n: int) -> list[np.ndarray]:
 
 
 def _visible_error(scene, B, B_ref, camera, device) -> float:
-    """Mean of :func:`pydynrad.compare.pixel_error` over the pixels that see a patch."""
+    """Mean of :func:`pydynrad.comparison.pixel_error` over the pixels that see a patch."""
     import pydynrad as pd
-    from pydynrad.compare import pixel_error
+    from pydynrad.comparison import pixel_error
 
     a = pd.render(scene, B, camera, device=device)
     b = pd.render(scene, B_ref, camera, device=device)
@@ -215,7 +215,7 @@ def measure(size: str, device, progress: bool = True) -> dict:
     F_static = pd.form_factors(box, R, device=device)
     # The paper's variant: every pose of the path known in advance, its rows precomputed.
     t0 = time.perf_counter()
-    stored = pd.precompute_poses(box, [pd.RigidObject(block)], poses, resolution=R, device=device)
+    stored = pd.precompute.precompute_poses(box, [pd.RigidObject(block)], poses, resolution=R, device=device)
     t_poses = time.perf_counter() - t0
     rows = []
     for budget in p["budgets"]:
@@ -255,7 +255,7 @@ def measure(size: str, device, progress: bool = True) -> dict:
                      "'uncorrected': without, those rows stay stale); '64-patch block': the same at budget 0 with "
                      "the issue's block, 64 patches (the 48-patch block's top and bottom triangles halved; its errors "
                      "against its own full solve and fresh build); 'stored poses': the paper's variant, the "
-                     f"rows of every pose of the path precomputed by hemicube (pydynrad.precompute_poses: "
+                     f"rows of every pose of the path precomputed by hemicube (pydynrad.precompute.precompute_poses: "
                      f"{len(stored)} poses in {t_poses:.2f} s, {stored.nbytes / 2**20:.1f} MiB), so a move "
                      "takes the block's rows and those of every patch that may see it from there; 'hemicubes': "
                      "every row a hemicube of the world as it is, ranked by the solid angle of the block's bounds "

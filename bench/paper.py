@@ -47,8 +47,8 @@ FORMAT_BOUNCES = 20
 def _spmv_formats(device, scene, F, L, copy_gbs) -> list:
     """Rows (channels, format, MiB, ms per bounce, GB/s, copy / SpMV) for RGB and grey solves of
     the village in the device's default format and in CSR, alternated, fastest of 3."""
-    from pydynrad.launch import spmv_layout
-    from pydynrad.solve import RadiositySolver
+    from pydynrad.device.launch import spmv_layout
+    from pydynrad.solution import RadiositySolver
 
     grey = scene.with_materials(albedo=np.repeat(scene.albedo.mean(axis=1, keepdims=True), 3, axis=1),
                                 emission=np.repeat(scene.emission.mean(axis=1, keepdims=True), 3, axis=1))
@@ -89,7 +89,7 @@ def paper_section(ctx) -> dict:
     spmv_gbs = (F.nnz * 8 + 4 * (n + 1)) * sol.iterations / t_naive / 1e9
     # The same bounces with F already on the device (a RadiositySolver made once, as a user
     # relighting the scene keeps it): solve() also checks F and uploads it, every call.
-    from pydynrad.solve import RadiositySolver
+    from pydynrad.solution import RadiositySolver
 
     solver = RadiositySolver(scene, F, device=ctx.device)
     t_bounces = time_call(lambda: solver.solve(L), repeats=3)["median_s"]
@@ -148,7 +148,7 @@ def paper_section(ctx) -> dict:
             "columns": ["channels", "format", "device MiB of F", "ms / bounce (best of 3)", "GB/s of F's CSR bytes", "copy / SpMV"],
             "rows": formats,
             "note": f"{FORMAT_BOUNCES} bounces per try, float32; grey = the village with its albedos and light averaged "
-                    "over RGB. 'default' is the format RadiositySolver picks for this device (pydynrad.launch.sell_layout), "
+                    "over RGB. 'default' is the format RadiositySolver picks for this device (pydynrad.device.launch.sell_layout), "
                     "'csr' forced by an explicit layout. GB/s counts F's CSR bytes (as above) for every format.",
         }],
         "plots": [{

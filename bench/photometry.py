@@ -25,7 +25,8 @@ def _timed(fn, repeats: int = 3):
 
 def photometry_section(ctx) -> dict:
     import pydynrad
-    from pydynrad.photometry import SkyLight, illuminance, work_plane
+    from pydynrad.photometry import illuminance, work_plane
+    from pydynrad.lights import SkyLight
 
     p = ctx.params
     dev = ctx.device
@@ -42,11 +43,11 @@ def photometry_section(ctx) -> dict:
                                          emitters="analytic", device=dev))
     # The sky term on patches: a room with a roof opening, per sky-pass resolution, against a point light's pass.
     roofed, _ = rectangles_scene(room_rectangles(opening=(1.5, 2.5, 1.0, 2.0)), p["cell"], albedo=0.5)
-    _, dt_point = _timed(lambda: pydynrad.direct_irradiance(roofed, [pydynrad.PointLight([2, 2, 2], 100.0)], dev))
+    _, dt_point = _timed(lambda: pydynrad.lights.direct_irradiance(roofed, [pydynrad.PointLight([2, 2, 2], 100.0)], dev))
     sky_rows = [[len(roofed), "point light", dt_point, dt_point / len(roofed) * 1e6]]
     for R in p["sky_resolutions"]:
         sky = SkyLight("cie_overcast", zenith_luminance=1000.0, resolution=R)
-        _, dt = _timed(lambda: pydynrad.direct_irradiance(roofed, [sky], dev))
+        _, dt = _timed(lambda: pydynrad.lights.direct_irradiance(roofed, [sky], dev))
         sky_rows.append([len(roofed), f"CIE overcast sky, R = {R}", dt, dt / len(roofed) * 1e6])
     # Near an emitter: a 1 x 1 m ceiling source, sensors beside its edge facing it (edge-on) and
     # below its centre facing up, at distances d from its plane.

@@ -64,7 +64,7 @@ def _make_scene_and_F(n: int, device, village, resolution: int, progress: bool):
 
 
 def _matvec_rows(device, sizes, copy_gbs):
-    from pydynrad.matvec import DeviceMatrix
+    from pydynrad.device.matrix import DeviceMatrix
 
     rows = []
     rng = np.random.default_rng(1)
@@ -119,7 +119,7 @@ def _gmres_scipy(F, rho, L):
 
 def _solver_rows(device, Ns, village, resolution, progress):
     import pydynrad
-    from pydynrad.solve import RadiositySolver
+    from pydynrad.solution import RadiositySolver
 
     rows = []
     cases = [(n, None) for n in Ns] + ([(0, village)] if village else [])
@@ -148,7 +148,7 @@ def _solver_rows(device, Ns, village, resolution, progress):
 
 
 def _build_rows(device, sizes, resolution, progress):
-    from pydynrad.multibounce import multibounce_block
+    from pydynrad.bounces import multibounce_block
 
     rows = []
     for M in sizes:

@@ -42,7 +42,7 @@ SIZES = {
 
 def _reordered(scene, seed: int):
     """``scene`` with its patches in another order (the same geometry, other hemicube rotations)."""
-    from pydynrad.scene import Scene
+    from pydynrad.geometry.scene import Scene
 
     if seed == 0:
         return scene

@@ -175,7 +175,7 @@ def run_suite(size: str = "quick", sections=None, out_dir=None, device=None, pro
     out_dir : path, optional
         Report folder (default ``bench/results/<device-slug>``, and the index of bench/results is
         rewritten).
-    device : pydynrad.Device, optional
+    device : pydynrad.device.Device, optional
     progress : bool
         tqdm bars and one status line per section on stderr.
     strict : bool

@@ -1,1 +1,1 @@
-"""OpenCL C sources of pydynrad, shipped as package data (see ``pydynrad.device``)."""
+"""OpenCL C sources of pydynrad, shipped as package data (see ``pydynrad.device.devices``)."""

@@ -1,6 +1,6 @@
 // BVH traversal shared by every kernel that casts rays (hemicubes, shadows, rendering,
-// path tracing). Include it; pass the three buffers of pydynrad.bvh.BVH.buffers() (or of
-// pydynrad.bvh.InstancedBVH.buffers(): the static tree plus moving objects, see below).
+// path tracing). Include it; pass the three buffers of pydynrad.geometry.bvh.BVH.buffers() (or of
+// pydynrad.geometry.bvh.InstancedBVH.buffers(): the static tree plus moving objects, see below).
 //
 // nodes: 4-wide nodes of 8 float4 each (csrc/bvh.c): the four children's boxes as
 //        minx, maxx, miny, maxy, minz, maxz (one float4 per plane, a lane per child), then
@@ -139,7 +139,7 @@ inline bool bvh_pop(const int *refs, const float *entries, int *sp, float reach,
     return true;
 }
 
-// Instances: moving rigid objects (pydynrad.bvh.InstancedBVH), each a tree of its own built once
+// Instances: moving rigid objects (pydynrad.geometry.bvh.InstancedBVH), each a tree of its own built once
 // in object space and stored after the static tree in the same three buffers. Node 0's padding
 // float4 holds, as int bits, (count, table, 0, 0); the table at nodes[table] has BVH_INSTANCE
 // float4 per object: the rows of its world-to-object transform (xyz: rotation, w: translation),
@@ -232,7 +232,7 @@ inline bool bvh_occluded(__global const float4 *nodes, __global const float4 *tr
 // one walk tests a box or triangle against all lanes in a few vector instructions. Lanes need
 // no activity mask: a ray that misses a box cannot hit the triangles inside it, so testing it
 // anyway changes nothing; the lanes' entry distances only steer which subtrees the packet enters.
-// BVH_PACKET (the host's pydynrad.launch.bvh_packet) selects this part: programs that trace
+// BVH_PACKET (the host's pydynrad.device.launch.bvh_packet) selects this part: programs that trace
 // one ray per work-item leave it undefined. BVH_SHARED_ORIGIN (defined by hemicube.h) builds
 // it for packets whose rays all leave one point: the origin is then a scalar, and each
 // triangle's corners are moved to it once per packet instead of once per lane.

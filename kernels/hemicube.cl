@@ -16,7 +16,7 @@
 // on different patches of one cluster form one run, and sums each run's pixels' weights times
 // their patch's scale.
 #if !defined(HC_TILE_Y) || HC_TILE_Y < 1 || BVH_PACKET % HC_TILE_Y != 0
-#error "hemicube.cl needs HC_TILE_Y (scanlines per tile, dividing BVH_PACKET) from the host (pydynrad.launch.hemicube_tiles)"
+#error "hemicube.cl needs HC_TILE_Y (scanlines per tile, dividing BVH_PACKET) from the host (pydynrad.device.launch.hemicube_tiles)"
 #endif
 #include "hemicube.h"  // and bvh.cl
 

@@ -25,7 +25,7 @@
 #endif
 // The lane offsets (HC_LANES) are written out for these widths.
 #if BVH_PACKET != 4 && BVH_PACKET != 8 && BVH_PACKET != 16
-#error "hemicube.h needs BVH_PACKET of 4, 8 or 16 from the host (pydynrad.launch.bvh_packet)"
+#error "hemicube.h needs BVH_PACKET of 4, 8 or 16 from the host (pydynrad.device.launch.bvh_packet)"
 #endif
 
 // Every ray of a packet leaves the hemicube's centre.
@@ -128,7 +128,7 @@ inline void hc_trace_packet(__global const float4 *nodes, __global const float4 
 #define HC_TILE_X (BVH_PACKET / HC_TILE_Y)
 #define HC_TOP_BANDS ((HC_RES + HC_TILE_Y - 1) / HC_TILE_Y)
 #define HC_SIDE_BANDS ((HC_RES / 2 + HC_TILE_Y - 1) / HC_TILE_Y)
-// Bands per hemicube (pydynrad.launch.HemicubeTiles.bands computes the same for the host).
+// Bands per hemicube (pydynrad.device.launch.HemicubeTiles.bands computes the same for the host).
 #define HC_BANDS (HC_TOP_BANDS + 4 * HC_SIDE_BANDS)
 
 // Band b (0 .. HC_BANDS - 1): its first scanline, and in *rows how many it holds.

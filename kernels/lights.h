@@ -2,14 +2,14 @@
 // light pass at patch centres and sensors (lights.cl) and the path tracer's next-event
 // estimation (pathtrace.cl).
 //
-// lights: 3 float4 per light (packed by pydynrad.lights.pack_lights):
+// lights: 3 float4 per light (packed by pydynrad.lights.sources.pack_lights):
 //   [0] position.xyz, type (0 point, 1 spot, 2 directional, 3 luminaire)
 //   [1] direction.xyz (unit; for spot: the axis; directional: the way the light travels;
 //       luminaire: the nadir, gamma = 0), then for a spot 1 / (cos_inner - cos_outer) (falloff
 //       slope; huge for a hard edge), for a luminaire the offset of its table in `tables`
 //   [2] intensity.rgb (point/spot: W/sr or cd; directional: irradiance; luminaire: RGB scale
 //       on the table's cd), cos_outer (spot)
-// tables (pydynrad.lights.pack_light_tables), per luminaire at its offset: c0.xyz, c90.xyz,
+// tables (pydynrad.lights.sources.pack_light_tables), per luminaire at its offset: c0.xyz, c90.xyz,
 //   nC, nG, nC C angles, nG gamma angles (radians, increasing; C spans 0..2 pi unless nC = 1),
 //   nC * nG intensities C-major (cd).
 // Only the side a surface's normal faces is lit.

@@ -1,5 +1,5 @@
 // Primary visibility for images: one work-item per pixel casts the camera ray that
-// pydynrad.camera.Camera.ray_directions() computed on the host (so host and device agree on
+// pydynrad.geometry.camera.Camera.ray_directions() computed on the host (so host and device agree on
 // every pixel's ray) and records what it sees. Shading happens afterwards from these records.
 #include "bvh.cl"
 

@@ -2,7 +2,7 @@
 // sky and the CIE standard general skies (CIE S 011 / ISO 15469), over a uniform ground.
 // Shared by the hemicube gathers (gather.cl) and the path tracer (pathtrace.cl).
 //
-// sky: 4 float4 (packed by pydynrad.photometry.sky.pack_sky):
+// sky: 4 float4 (packed by pydynrad.lights.sky.pack_sky):
 //   [0] up.xyz (unit zenith), mode (0 no sky, 1 CIE general sky, 2 traditional overcast)
 //   [1] sun.xyz (unit, towards the sun), zenith luminance Lz (cd/m2)
 //   [2] a, b, c, d of the gradation phi(Z) = 1 + a exp(b / cos Z) and the indicatrix

@@ -3,122 +3,73 @@
 Diffuse global illumination where a local multibounce form-factor matrix over the M patches
 nearest the observer is kept up to date frame by frame. Kernels live in ``kernels/`` and run
 on PoCL CPU devices by default or on any OpenCL GPU (``PYOPENCL_CTX``).
+
+The names here are the ones most programs need; the rest live in the subpackages that own
+them (:mod:`pydynrad.device`, :mod:`pydynrad.geometry`, :mod:`pydynrad.lights`,
+:mod:`pydynrad.photometry`, :mod:`pydynrad.rows`, :mod:`pydynrad.farfield`,
+:mod:`pydynrad.dynamic`, :mod:`pydynrad.precompute`, :mod:`pydynrad.bake`,
+:mod:`pydynrad.scenes`).
 """
 
-from .device import Device, default_device, list_devices
-from .errors import (
-    ConvergenceError,
-    DeviceError,
-    InvalidInputError,
-    KernelBuildError,
-    OutOfMemoryError,
-    PydynradError,
-    SceneFileError,
-)
-from .scene import DegenerateTriangleWarning, Scene
-from .objects import ObjectIntersectionWarning, RigidObject
-from .formfactors import form_factors
-from .patching import subdivide
-from .loading import load
-from . import scenes
-from .camera import Camera
-from .render import render
-from .image_io import read_image, write_image
-from .walk import CameraPath, LightTrack, ObjectTrack, WalkFile, WalkResult, fly_through, load_path, load_walk, orbit, walk
-from .matvec import DeviceMatrix
-from .dynamic import DynamicRadiosity, FrameStats
-from .dynamic.moves import PoseRows, precompute_poses, stored_poses
-from .lights import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector, pack_lights
-from .solve import Solution, solve
-from .multibounce import multibounce, multibounce_radiosity
-from .pathtrace import path_trace, path_trace_patches
-from . import photometry
-from .photometry import LuminaireLight, PhotometricDistribution, SkyLight, illuminance, read_ies, read_ldt
-from .rows.store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError, compute_store
-from .rows.cache import RowCache
-from .rows.sources import CSRRows, HemicubeRows, RowSource, as_row_source
-from .rows.distributed import SceneSpec, precompute_distributed
-from .rows.files import load_form_factors, open_form_factors, save_form_factors
-from .bake import GroupRadiosity, Lightmap, LightGroups, bake_lightmap, export_mesh
+from importlib import import_module
+from importlib.metadata import PackageNotFoundError, version
+import warnings
 
-__version__ = "0.1.0"
+from . import bake, device, dynamic, farfield, geometry, lights, photometry, precompute, rows, scenes
+from .bake import bake_lightmap, export_mesh
+from .bounces import multibounce, multibounce_radiosity
+from .device import default_device
+from .dynamic import DynamicRadiosity, FrameStats
+from .errors import InvalidInputError, PydynradError
+from .farfield import FarField
+from .formfactors import form_factors
+from .geometry import Camera, RigidObject, Scene, load
+from .lights import DirectionalLight, LuminaireLight, PointLight, SkyLight, SpotLight, light_vector, read_ies, read_ldt
+from .pathtracer import path_trace
+from .photometry import illuminance
+from .renderer import render
+from .rows import FormFactorStore, compute_store, open_form_factors, save_form_factors
+from .solution import Solution, solve
+from .walks import CameraPath, WalkResult, fly_through, load_path, orbit, walk
+
+try:
+    __version__ = version("pydynrad")
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"
 
 __all__ = [
-    "as_row_source",
-    "bake_lightmap",
-    "Camera",
-    "CameraPath",
-    "compute_store",
-    "ConvergenceError",
-    "CSRRows",
-    "default_device",
-    "DegenerateTriangleWarning",
-    "Device",
-    "DeviceError",
-    "DeviceMatrix",
-    "direct_irradiance",
-    "DirectionalLight",
-    "DynamicRadiosity",
-    "export_mesh",
-    "fly_through",
-    "form_factors",
-    "FormFactorStore",
-    "FrameStats",
-    "GroupRadiosity",
-    "HemicubeRows",
-    "illuminance",
-    "InvalidInputError",
-    "KernelBuildError",
-    "light_vector",
-    "LightGroups",
-    "Lightmap",
-    "LightTrack",
-    "LuminaireLight",
-    "list_devices",
-    "load",
-    "load_form_factors",
-    "load_path",
-    "load_walk",
-    "WalkFile",
-    "multibounce",
-    "multibounce_radiosity",
-    "ObjectTrack",
-    "ObjectIntersectionWarning",
-    "open_form_factors",
-    "orbit",
-    "OutOfMemoryError",
-    "pack_lights",
-    "path_trace",
-    "path_trace_patches",
-    "PhotometricDistribution",
-    "photometry",
-    "PointLight",
-    "PoseRows",
-    "precompute_poses",
-    "precompute_distributed",
-    "PydynradError",
-    "read_ies",
-    "read_image",
-    "read_ldt",
-    "render",
-    "RigidObject",
-    "RowCache",
-    "RowSource",
-    "save_form_factors",
-    "Scene",
-    "SceneFileError",
-    "scenes",
-    "SceneSpec",
-    "SkyLight",
-    "Solution",
-    "solve",
-    "SpotLight",
-    "stored_poses",
-    "StoreCorruptError",
-    "StoreIncompleteError",
-    "StoreMismatchError",
-    "subdivide",
-    "walk",
-    "WalkResult",
-    "write_image",
+    "bake_lightmap", "Camera", "CameraPath", "compute_store", "default_device", "DirectionalLight",
+    "DynamicRadiosity", "export_mesh", "FarField", "fly_through", "form_factors", "FormFactorStore", "FrameStats",
+    "illuminance", "InvalidInputError", "light_vector", "load", "load_path", "LuminaireLight", "multibounce",
+    "multibounce_radiosity", "open_form_factors", "orbit", "path_trace", "PointLight", "PydynradError", "read_ies",
+    "read_ldt", "render", "RigidObject", "save_form_factors", "Scene", "SkyLight", "Solution", "solve", "SpotLight",
+    "walk", "WalkResult",
 ]
+
+# Names that were top-level before the subpackages: still served, with a warning naming the new home
+# (CHANGELOG.md, 'Moved').
+_MOVED = {
+    "as_row_source": "rows", "ConvergenceError": "errors", "CSRRows": "rows", "DegenerateTriangleWarning": "geometry",
+    "Device": "device", "DeviceError": "errors", "DeviceMatrix": "device", "direct_irradiance": "lights",
+    "GroupRadiosity": "bake", "HemicubeRows": "rows", "KernelBuildError": "errors", "LightGroups": "bake",
+    "Lightmap": "bake", "LightTrack": "walks", "list_devices": "device", "load_form_factors": "rows",
+    "load_walk": "walks", "ObjectIntersectionWarning": "geometry", "ObjectTrack": "walks",
+    "OutOfMemoryError": "errors", "pack_lights": "lights", "path_trace_patches": "pathtracer",
+    "PhotometricDistribution": "lights", "PoseRows": "precompute", "precompute_distributed": "precompute",
+    "precompute_poses": "precompute", "read_image": "image_io", "RowCache": "rows", "RowSource": "rows",
+    "SceneFileError": "errors", "SceneSpec": "precompute", "StoreCorruptError": "rows",
+    "StoreIncompleteError": "rows", "StoreMismatchError": "rows", "stored_poses": "precompute",
+    "subdivide": "geometry", "WalkFile": "walks", "write_image": "image_io",
+}
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        home = f"pydynrad.{_MOVED[name]}"
+        warnings.warn(f"pydynrad.{name} moved to {home}.{name}", DeprecationWarning, stacklevel=2)
+        return getattr(import_module(home), name)
+    raise AttributeError(f"module 'pydynrad' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_MOVED})

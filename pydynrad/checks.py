@@ -142,7 +142,7 @@ def finite(a: np.ndarray, what: str) -> None:
 
 def scene(value, what: str = "scene"):
     """``value`` if it is a :class:`pydynrad.Scene`, else InvalidInputError naming its type."""
-    from .scene import Scene
+    from .geometry.scene import Scene
 
     if not isinstance(value, Scene):
         # Functions that take a scene and a file take them in that order: f(scene, path, ...).

@@ -29,8 +29,8 @@ import scipy.sparse as sp
 from . import _runs
 from .checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
-from .launch import float4, global_size, hemicube_tiles, ray_work_group
-from .memory import available_host_bytes
+from .device.launch import float4, global_size, hemicube_tiles, ray_work_group
+from .host.memory import available_host_bytes
 
 __all__ = ["checked_samples", "form_factors", "hemicube_blocks", "hemicube_runs", "pixel_form_factors", "sample_points", "stack_blocks",
            "CLUSTER_RESOLUTION", "SURFACE_OFFSET"]
@@ -203,7 +203,7 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
     (a moving object's hemicubes, queued beside the frame's other host work)."""
     import pyopencl as cl
 
-    from .device import device_or_default
+    from .device.devices import device_or_default
     from .progress import progress_bar
 
     dev = device_or_default(device)

@@ -7,7 +7,7 @@ keyframe index (Catmull-Rom, which passes through every keyframe, or linear). A
 :class:`LightTrack` moves a point or spot light the same way.
 
 Path file (JSON); its fields are named as the Python API names them (:class:`Camera`,
-:func:`orbit`, :mod:`pydynrad.lights`), and any other field is an error::
+:func:`orbit`, :mod:`pydynrad.lights.sources`), and any other field is an error::
 
     {
       "frames": 48,                       # number of frames (>= 1)
@@ -32,7 +32,7 @@ Path file (JSON); its fields are named as the Python API names them (:class:`Cam
     }
 
 ``"lights"`` is optional. Point and spot lights (intensity in W/sr, spot angles in radians
-as :class:`~pydynrad.lights.SpotLight` takes them) move through their position keyframes
+as :class:`~pydynrad.lights.sources.SpotLight` takes them) move through their position keyframes
 (one keyframe: a fixed light; ``"interpolation"`` per light, default catmull-rom); a spot
 light keeps its direction. A directional light has a direction and an irradiance.
 
@@ -52,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Camera
+from .geometry.camera import Camera
 from .checks import floats, number, unit_vector
 from .errors import InvalidInputError
 
@@ -224,7 +224,7 @@ def fly_through(points, frames: int, *, up=(0.0, 1.0, 0.0), fov_y: float = 45.0,
 class LightTrack:
     """A light whose position follows keyframes over a walk.
 
-    ``light`` is a :class:`~pydynrad.lights.PointLight` or ``SpotLight`` (any frozen dataclass
+    ``light`` is a :class:`~pydynrad.lights.sources.PointLight` or ``SpotLight`` (any frozen dataclass
     with a ``position`` field); frame i of an n-frame walk places it on the curve through
     ``positions`` at parameter ``i (K - 1) / (n - 1)``.
     """
@@ -260,7 +260,7 @@ class ObjectTrack:
     interpolation: str = "catmull-rom"
 
     def __post_init__(self) -> None:
-        from .objects import RigidObject, rigid_transform
+        from .geometry.objects import RigidObject, rigid_transform
 
         if not isinstance(self.object, RigidObject):
             raise InvalidInputError(f"an ObjectTrack needs a RigidObject; got {type(self.object).__name__}")
@@ -323,7 +323,7 @@ _LIGHT_FIELDS = {"point": (("intensity",), True),
 
 
 def _parse_light(item, where: str):
-    from .lights import DirectionalLight, PointLight, SpotLight
+    from .lights.sources import DirectionalLight, PointLight, SpotLight
 
     if not isinstance(item, dict):
         raise InvalidInputError(f"{where}: a light must be an object with a 'type'")
@@ -349,7 +349,7 @@ def _pose(key, where: str) -> np.ndarray:
     """A keyframe of an object: a 4x4 matrix, or {"position", "rotation_deg"}."""
     from scipy.spatial.transform import Rotation
 
-    from .objects import rigid_transform
+    from .geometry.objects import rigid_transform
 
     if not isinstance(key, dict):
         return rigid_transform(key, where)
@@ -372,7 +372,7 @@ def _object_scene(item: dict, base: Path, where: str):
     if ("mesh" in item) == ("block" in item):
         raise InvalidInputError(f"{where}: give exactly one of 'mesh' (a file) or 'block'")
     if "mesh" in item:
-        from .loading import load
+        from .geometry.loading import load
 
         mesh = item["mesh"]
         if not isinstance(mesh, str):
@@ -396,7 +396,7 @@ def _object_scene(item: dict, base: Path, where: str):
 
 
 def _parse_object(item, base: Path, where: str) -> ObjectTrack:
-    from .objects import RigidObject
+    from .geometry.objects import RigidObject
 
     if not isinstance(item, dict):
         raise InvalidInputError(f"{where}: an object must be a JSON object with 'mesh' or 'block' and 'keyframes'")

@@ -211,8 +211,8 @@ def brute_force_hits(vertices, origins, directions, chunk: int = 128) -> Hits:
 
 # -- the command line ----------------------------------------------------------------------------
 def run_main(argv, capsys):
-    """pydynrad.cli.main(argv) -> (exit code, stdout, stderr); argparse's own exits count as exit codes."""
-    from pydynrad.cli import main
+    """pydynrad.cli.main.main(argv) -> (exit code, stdout, stderr); argparse's own exits count as exit codes."""
+    from pydynrad.cli.main import main
 
     try:
         code = main(argv)

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from pydynrad.anderson import Anderson
-from pydynrad.devicecsr import DeviceCSR
+from pydynrad.host.anderson import Anderson
+from pydynrad.device.csr import DeviceCSR
 
 
 def test_anderson_mixing_solves_a_low_rank_fixed_point():

@@ -8,10 +8,11 @@ import pytest
 import trimesh
 
 import pydynrad
-from pydynrad import InvalidInputError, OutOfMemoryError, bake_lightmap, export_mesh
+from pydynrad import InvalidInputError, bake_lightmap, export_mesh
+from pydynrad.errors import OutOfMemoryError
 from pydynrad.bake.gltf import read_glb
 from pydynrad.bake.ply import read_ply
-from pydynrad.render import Renderer
+from pydynrad.renderer import Renderer
 
 
 @pytest.fixture(scope="module")
@@ -243,7 +244,7 @@ def test_lightmap_files_rendered_through_their_uvs_match_render(solved, lightmap
     uv = np.asarray(mesh.visual.uv, dtype=np.float64).copy()
     uv[:, 1] = 1.0 - uv[:, 1]  # trimesh moves glTF's top-left origin to the bottom left
     np.testing.assert_allclose(uv, attributes["TEXCOORD_1"], atol=1e-7)
-    image = pydynrad.read_image(exr)
+    image = pydynrad.image_io.read_image(exr)
     np.testing.assert_array_equal(image, lightmap.image)
     h, w = image.shape[:2]
 

@@ -6,7 +6,7 @@ import trimesh
 from helpers import brute_force_hits
 
 from pydynrad import InvalidInputError, Scene
-from pydynrad.bvh import BVH, MAX_DEPTH, cast_rays, leaf_ranges, occluded
+from pydynrad.geometry.bvh import BVH, MAX_DEPTH, cast_rays, leaf_ranges, occluded
 
 
 def random_triangles(rng, n, spread=10.0, size=1.0):
@@ -171,8 +171,8 @@ def test_rays_move_into_the_device_frame_as_numpy_moves_them(real):
     """The native ray pass (csrc/rays.c) gives DeviceFrame.points / directions' float32 bit for
     bit, magnitudes from 1e-40 to 1e30 (float32's subnormals included), and the rays' own
     rounding without a frame."""
-    from pydynrad.bvh import _rays
-    from pydynrad.scene import DeviceFrame
+    from pydynrad.geometry.bvh import _rays
+    from pydynrad.geometry.scene import DeviceFrame
 
     rng = np.random.default_rng(9)
     size = 10.0 ** rng.integers(-40, 31, (5000, 1))
@@ -203,10 +203,10 @@ def test_packet_lanes_are_independent(device):
 
 @pytest.mark.parametrize("chunk", [7, 32, 69])
 def test_chunks_give_the_whole_batch(device, monkeypatch, chunk):
-    """cast_rays in launches of `chunk` rays (pydynrad.bvh.CAST_CHUNK: chunks ending inside a
+    """cast_rays in launches of `chunk` rays (pydynrad.geometry.bvh.CAST_CHUNK: chunks ending inside a
     packet, on one, and a one-ray tail) returns what one launch does, bit for bit; a bad tmax
     in a later chunk is reported by its index in the whole batch."""
-    import pydynrad.bvh as bvh_module
+    import pydynrad.geometry.bvh as bvh_module
 
     rng = np.random.default_rng(8)
     bvh = BVH.build(random_triangles(rng, 300))
@@ -233,6 +233,6 @@ def test_depth_guard(monkeypatch):
     v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])[None] + x * [1.0, 0, 0]
     bvh = BVH.build(v)
     assert bvh.depth == _depth_recursive(bvh.children) > 10
-    monkeypatch.setattr("pydynrad.bvh.MAX_DEPTH", bvh.depth - 1)
+    monkeypatch.setattr("pydynrad.geometry.bvh.MAX_DEPTH", bvh.depth - 1)
     with pytest.raises(InvalidInputError, match=f"depth {bvh.depth} exceeds"):
         BVH.build(v)

@@ -75,7 +75,7 @@ def test_public_entry_points_reject_non_numbers_and_non_scenes():
         pydynrad.PointLight((0, 0, 0), np.array(["1e3"] * 3, dtype=object))
     assert pydynrad.Camera((0, 0, -1), (0, 0, 0), fov_y=np.float32(45)).fov_y == 45.0
     light = pydynrad.PointLight((0, 0, 0), 1.0)
-    for call in (lambda: pydynrad.light_vector(None, [light]), lambda: pydynrad.direct_irradiance(None, [light]),
+    for call in (lambda: pydynrad.light_vector(None, [light]), lambda: pydynrad.lights.direct_irradiance(None, [light]),
                  lambda: pydynrad.form_factors("box"), lambda: pydynrad.multibounce(None, np.eye(3))):
         with pytest.raises(InvalidInputError, match="scene must be a pydynrad.Scene"):
             call()
@@ -92,12 +92,12 @@ def _index_takers(device, tmp_path):
     cache = RowCache(store, 2**20)
     takers = {
         "form_factors rows": lambda i: pydynrad.form_factors(s, resolution=8, rows=i, device=device),
-        "CSRRows": lambda i: pydynrad.CSRRows(F).rows(i),
+        "CSRRows": lambda i: pydynrad.rows.CSRRows(F).rows(i),
         "FormFactorStore": store.rows,
         "RowCache": cache.rows,
-        "HemicubeRows": lambda i: pydynrad.HemicubeRows(s, 8, device).rows(i),
+        "HemicubeRows": lambda i: pydynrad.rows.HemicubeRows(s, 8, device).rows(i),
         "multibounce patches": lambda i: pydynrad.multibounce(s, F, patches=i, device=device),
-        "path_trace_patches": lambda i: pydynrad.path_trace_patches(s, patches=i, spp=1, device=device),
+        "path_trace_patches": lambda i: pydynrad.pathtracer.path_trace_patches(s, patches=i, spp=1, device=device),
     }
     return s, takers, cache
 
@@ -144,7 +144,7 @@ def test_one_resolution_rule_everywhere(device, tmp_path, bad, message):
     import scipy.sparse as sp
 
     import pydynrad
-    from pydynrad.cli import build_parser
+    from pydynrad.cli.main import build_parser
 
     s = pydynrad.scenes.parallel_plates(subdivisions=0)
     F = sp.csr_matrix((len(s), len(s)), dtype=np.float32)
@@ -153,7 +153,7 @@ def test_one_resolution_rule_everywhere(device, tmp_path, bad, message):
         lambda R: pydynrad.FormFactorStore.create(s, tmp_path / "st", resolution=R),
         lambda R: pydynrad.compute_store(s, tmp_path / "st", resolution=R, progress=False, device=device),
         lambda R: pydynrad.save_form_factors(s, tmp_path / "f.npz", F, R),
-        lambda R: pydynrad.HemicubeRows(s, R, device),
+        lambda R: pydynrad.rows.HemicubeRows(s, R, device),
         lambda R: pydynrad.DynamicRadiosity(s, None, local_size=1, resolution=R, device=device),
     ]
     for take in takers:
@@ -168,7 +168,7 @@ def test_one_resolution_rule_everywhere(device, tmp_path, bad, message):
 
 def test_booleans_are_not_numbers():
     """A path file's ``"radius": true`` had been a radius of 1, ``"width": "32"`` 32 pixels."""
-    from pydynrad.camera import Camera
+    from pydynrad.geometry.camera import Camera
 
     with pytest.raises(InvalidInputError, match="True or False"):
         pydynrad.checks.floats([1.0, True], "radius")

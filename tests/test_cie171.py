@@ -9,7 +9,7 @@ import pytest
 from scipy import integrate
 
 from bench import cie171
-from pydynrad.photometry import parse_ies
+from pydynrad.lights import parse_ies
 
 CIE_TOLERANCE = 0.02  # the per-point requirement (CIE's own practice: 5%)
 

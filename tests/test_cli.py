@@ -8,7 +8,7 @@ from helpers import assert_one_line_error, run_main, same_csr
 
 import pydynrad
 
-from pydynrad.cli import build_parser
+from pydynrad.cli.main import build_parser
 from pydynrad.rows.files import load_form_factors, open_form_factors
 from pydynrad.scenes import cornell_box
 
@@ -85,8 +85,8 @@ def test_demo_moving_block(tmp_path, capsys):
     solved from scratch) agree with the dynamic solution as closely as without it."""
     import warnings
 
-    from pydynrad.cli import demo_block
-    from pydynrad.objects import ObjectIntersectionWarning, instanced
+    from pydynrad.cli.main import demo_block
+    from pydynrad.geometry.objects import ObjectIntersectionWarning, instanced
 
     track = demo_block()
     box = pydynrad.scenes.cornell_box(max_edge=250.0)
@@ -110,7 +110,7 @@ def test_demo_moving_block(tmp_path, capsys):
 
 
 def test_demo_runs_reduced_and_writes_readable_images(tmp_path, capsys):
-    from pydynrad import read_image
+    from pydynrad.image_io import read_image
 
     out = tmp_path / "demo"
     code, stdout, err = run_main(["demo", "--frames", "3", "--width", "40", "--height", "30", "--max-edge", "250", "--resolution", "8",
@@ -136,7 +136,7 @@ def test_demo_runs_reduced_and_writes_readable_images(tmp_path, capsys):
 def test_formfactors_render_walk_compare_chain(tmp_path, capsys):
     import json
 
-    from pydynrad import read_image
+    from pydynrad.image_io import read_image
 
     ff = tmp_path / "cbox.npz"
     small = ["--max-edge", "250"]
@@ -213,7 +213,7 @@ def test_commands_read_a_store_like_the_file(tmp_path, capsys, device):
     same (hemicube, so not exactly reciprocal) F."""
     import json
 
-    from pydynrad import read_image
+    from pydynrad.image_io import read_image
     from pydynrad.rows.files import save_form_factors
     from pydynrad.formfactors import form_factors
     from pydynrad.rows.store import compute_store
@@ -283,7 +283,7 @@ def test_precomputed_form_factors_set_the_resolution_of_later_hemicubes(tmp_path
     refused with one line, for a file and for a store."""
     import contextlib
 
-    from pydynrad.cli import _form_factors, build_parser
+    from pydynrad.cli.main import _form_factors, build_parser
 
     scene = pydynrad.scenes.cornell_box(max_edge=250.0)
     for name, extra in (("ff.npz", []), ("store", ["--workers", "0"])):
@@ -321,7 +321,7 @@ def test_max_edge_works_on_every_builtin(tmp_path, capsys, name, max_edge, patch
     """--max-edge on a built-in whose function has no max_edge (village, plates, box) used to end
     in a TypeError traceback; now every built-in is split to it. The patch counts are what
     the generators give at that edge; every patch edge is within the limit."""
-    from pydynrad.cli import BUILTIN_SCENES, load_scene
+    from pydynrad.cli.main import BUILTIN_SCENES, load_scene
 
     assert name in BUILTIN_SCENES and len(BUILTIN_SCENES) == 5
     scene = load_scene(name, max_edge)
@@ -343,7 +343,7 @@ def test_unknown_builtin_parameters_are_named(capsys):
 def test_deprecated_size_and_fov_still_work_with_one_warning_line(tmp_path, capsys):
     """--size WxH and --fov (documented in the README) work for one release, warn once each, and
     give the same image as --width/--height/--fov-y."""
-    from pydynrad import read_image
+    from pydynrad.image_io import read_image
 
     common = ["render", "cornell_box", "--max-edge", "250", "--resolution", "4", "--quiet"]
     code, _, err = run_main([*common, "--size", "20x12", "--fov", "50", "-o", str(tmp_path / "old.exr")], capsys)
@@ -362,7 +362,7 @@ def test_deprecated_options_raise_deprecation_warning():
     import argparse
     import warnings
 
-    from pydynrad.cli import _fov_y, _image_size
+    from pydynrad.cli.main import _fov_y, _image_size
 
     args = argparse.Namespace(size=(20, 12), width=None, height=None, fov=50.0, fov_y=None)
     with warnings.catch_warnings(record=True) as caught:
@@ -486,5 +486,5 @@ def test_a_clustered_store_stopped_before_its_first_block_is_unfinished(tmp_path
     labels = np.unique(scene.albedo, axis=0, return_inverse=True)[1].ravel()
     pydynrad.compute_store(scene, tmp_path / "s", resolution=8, progress=False, clusters=labels, blocks=[],
                            block_rows=64)
-    with pytest.raises(pydynrad.StoreIncompleteError, match=r"is unfinished \(6 of 6 blocks missing\)"):
+    with pytest.raises(pydynrad.rows.StoreIncompleteError, match=r"is unfinished \(6 of 6 blocks missing\)"):
         open_form_factors(scene, tmp_path / "s")

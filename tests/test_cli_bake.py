@@ -11,10 +11,10 @@ import pydynrad
 from bench.cie171_data import LM63_EXAMPLE
 from pydynrad import DirectionalLight, InvalidInputError, PointLight, SkyLight, SpotLight
 from pydynrad.bake.gltf import read_glb
-from pydynrad.cli import build_parser
-from pydynrad.lighttext import parse_light
-from pydynrad.photometry import parse_ies
-from pydynrad.render import Renderer
+from pydynrad.cli.main import build_parser
+from pydynrad.lights.text import parse_light
+from pydynrad.lights import parse_ies
+from pydynrad.renderer import Renderer
 
 SPOT = "spot:pos=278,540,280;dir=0,-1,0.2;intensity=1e5,8e4,6e4;outer=35;inner=25"
 SUN = "sun:dir=0.1,-0.2,1;irradiance=0.01"
@@ -105,7 +105,7 @@ def test_bake_with_a_lightmap_writes_the_image_and_its_uv_mesh(reference, tmp_pa
     assert code == 0, err
     doc, attributes, faces = read_glb(out.read_bytes())
     meta = doc["asset"]["extras"]["pydynrad"]["lightmap"]
-    image = pydynrad.read_image(exr)
+    image = pydynrad.image_io.read_image(exr)
     assert image.shape == (meta["height"], meta["width"], 3) and meta["image"] == "box.exr"
     assert "TEXCOORD_1" in attributes and len(faces) == len(scene)
     np.testing.assert_allclose(attributes["_RADIOSITY"][faces], corners, rtol=1e-6)

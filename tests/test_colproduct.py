@@ -7,8 +7,8 @@ import pytest
 import scipy.sparse as sp
 
 import pydynrad as pd
-import pydynrad.colproduct as colproduct
-from pydynrad.colproduct import columns_product, rows_product
+import pydynrad.host.colproduct as colproduct
+from pydynrad.host.colproduct import columns_product, rows_product
 
 
 @pytest.mark.parametrize("index_dtype", [np.int32, np.int64])

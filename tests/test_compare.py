@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from pydynrad import InvalidInputError
-from pydynrad.compare import comparison_image, false_colour, pixel_error, radiosity_error
+from pydynrad.comparison import comparison_image, false_colour, pixel_error, radiosity_error
 
 
 def _linear_viridis(t):

@@ -7,7 +7,7 @@ import trimesh
 
 import pydynrad as pd
 from pydynrad import _segments
-from pydynrad.convex import MAX_PLANES, solid_planes
+from pydynrad.geometry.convex import MAX_PLANES, solid_planes
 
 from helpers import brute_force_hits
 

@@ -7,7 +7,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from pydynrad import InvalidInputError, _csrgraph
-from pydynrad.csrgraph import columns_float32, sum_by_label, weak_components
+from pydynrad.host.csrgraph import columns_float32, sum_by_label, weak_components
 
 
 def _graph(n, density, seed, index_dtype=np.int32):

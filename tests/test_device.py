@@ -1,7 +1,7 @@
 import pytest
 
 import pydynrad
-from pydynrad.device import kernel_dir
+from pydynrad.device.devices import kernel_dir
 
 
 def test_default_device_is_shared(device):
@@ -60,7 +60,7 @@ def test_kernels_are_reused_per_thread_not_shared_across_threads(device):
 
 
 def test_build_error_carries_log(device):
-    with pytest.raises(pydynrad.KernelBuildError) as info:
+    with pytest.raises(pydynrad.errors.KernelBuildError) as info:
         device.program("selftest.cl", {"SELFTEST_BREAK": 1})
     assert "selftest.cl" in str(info.value)
     assert info.value.build_log
@@ -89,8 +89,8 @@ def test_compiler_output_only_when_asked(device, monkeypatch, asked):
 def test_pocl_cache_folder(monkeypatch, tmp_path):
     import os
 
-    from pydynrad.device import _use_pocl_cache
-    from pydynrad.pocl_target import cache_tag
+    from pydynrad.device.devices import _use_pocl_cache
+    from pydynrad.device.pocl import cache_tag
 
     monkeypatch.setenv("POCL_CACHE_DIR", str(tmp_path / "mine"))
     _use_pocl_cache()

@@ -7,7 +7,7 @@ import pyopencl as cl
 import pytest
 import scipy.sparse as sp
 
-from pydynrad.devicecsr import DeviceCSR
+from pydynrad.device.csr import DeviceCSR
 
 
 def _bounce(device, A, L, rho, x):

@@ -1,12 +1,12 @@
-"""SELL-C-sigma F (pydynrad.devicesell) against the CSR matrix it was built from: the layout's
+"""SELL-C-sigma F (pydynrad.device.sell) against the CSR matrix it was built from: the layout's
 arrays rebuilt into a dense matrix in numpy, and its bounces against scipy's products."""
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from pydynrad.devicesell import DeviceSELL, sell_slices
-from pydynrad.launch import SellLayout
+from pydynrad.device.sell import DeviceSELL, sell_slices
+from pydynrad.device.launch import SellLayout
 
 
 def _ragged(n, seed):

@@ -9,7 +9,7 @@ import trimesh
 from helpers import grid_scene, same_csr, synthetic_rows
 
 from pydynrad import InvalidInputError
-from pydynrad.rows.distributed import _WORKER_SCENE, SceneSpec, _worker_scene, precompute_distributed
+from pydynrad.precompute.distributed import _WORKER_SCENE, SceneSpec, _worker_scene, precompute_distributed
 from pydynrad.rows.store import FormFactorStore, StoreMismatchError, compute_store
 
 # Workers unpickle the synthetic row function by value: they need not import the tests' helpers.

@@ -21,7 +21,7 @@ from pydynrad.dynamic import DynamicRadiosity
 from pydynrad.errors import InvalidInputError
 from pydynrad.dynamic.exact import batched_swap
 from pydynrad.dynamic.kupdate import UpdateKernels
-from pydynrad.matvec import DeviceMatrix
+from pydynrad.device.matrix import DeviceMatrix
 from pydynrad.rows.sources import CSRRows
 from pydynrad.dynamic.selection import NearestSet
 
@@ -205,7 +205,7 @@ def test_light_vector_reused_while_the_lights_stay(device, setup, monkeypatch):
     count), the emitter mode and the world stay: the same B, bit for bit, with no new light
     vector; new lights, another emitter mode or a given light vector are computed, and the B of
     new lights equals that of their light vector passed as light=. The held vector is read-only."""
-    from pydynrad.photometry import areas
+    from pydynrad.lights import areas
 
     scene, F = setup
     made = []
@@ -551,16 +551,16 @@ def test_rows_of_another_scene_small_sets_and_albedos_near_one(device, tmp_path)
     refresh_tolerance works for M < 8; near albedo 1 float32 K warns that it wants fp64."""
     import warnings
 
-    from pydynrad.scene import PrecisionWarning
+    from pydynrad.geometry.scene import PrecisionWarning
 
     box = pydynrad.scenes.cornell_box(max_edge=250.0)
     turned = pydynrad.Scene(box.points[:, [2, 1, 0]], box.triangles[:, [0, 2, 1]], albedo=box.albedo,
                             emission=box.emission)
     store = pydynrad.compute_store(turned, tmp_path / "st", resolution=8, progress=False)
-    for rows in (pydynrad.HemicubeRows(turned, 8, device), store):
+    for rows in (pydynrad.rows.HemicubeRows(turned, 8, device), store):
         with pytest.raises(InvalidInputError, match="another scene geometry"):
             DynamicRadiosity(box, rows, local_size=len(box), resolution=8, far_field=False, device=device)
-    dyn = DynamicRadiosity(box, pydynrad.HemicubeRows(box, 8, device), local_size=4, resolution=8, far_field=False,
+    dyn = DynamicRadiosity(box, pydynrad.rows.HemicubeRows(box, 8, device), local_size=4, resolution=8, far_field=False,
                            refresh_tolerance=1e-3, refresh_interval=1, device=device)
     centre = box.bbox.mean(axis=0)
     dyn.update(centre)  # the build
@@ -603,7 +603,7 @@ def test_arguments_that_had_crashed_or_been_misread(device):
         (lambda: DynamicRadiosity(box, F, local_size=64, keep_emitters="no", device=device), "keep_emitters"),
         (lambda: DynamicRadiosity(box, F, local_size=64, far_field=False, clusters=50, device=device),
          "clusters build the far field"),
-        (lambda: pydynrad.LightGroups(box, {"a": [pydynrad.PointLight([100, 500, 100], 1e5)]}, device=device)
+        (lambda: pydynrad.bake.LightGroups(box, {"a": [pydynrad.PointLight([100, 500, 100], 1e5)]}, device=device)
          .dynamic(DynamicRadiosity(box, F, local_size=64, device=device, observer=box.bbox.mean(axis=0)))
          .combine({"a": 1e308}), "past float64's range"),
     ]

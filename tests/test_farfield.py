@@ -7,12 +7,12 @@ from scipy.linalg import lu_factor, lu_solve
 
 import pydynrad
 from pydynrad import DirectionalLight, DynamicRadiosity, PointLight, Scene
-from pydynrad.compare import radiosity_error
+from pydynrad.comparison import radiosity_error
 from pydynrad.farfield import Clusters, FarField, cluster_patches
 from pydynrad.farfield.clusters import NORMAL_BINS
 from helpers import box_scene, dense_radiosity, reciprocal_F
-from pydynrad.hostproduct import HostBounce, HostMatrix
-from pydynrad.matvec import DeviceMatrix
+from pydynrad.host.product import HostBounce, HostMatrix
+from pydynrad.device.matrix import DeviceMatrix
 
 
 @pytest.fixture(scope="module")
@@ -153,7 +153,7 @@ def test_dense_coarse_level_and_first_bounce_gather(device, cornell, storage, rt
     scene, F, L, _, _ = cornell
     far = FarField(scene, F, clusters=len(scene) // 8, coarse="dense", coarse_storage=storage, dtype=np.float64,
                    device=device)
-    # Small beside a CPU device: K_c and G on the host (pydynrad.hostproduct); elsewhere on the device.
+    # Small beside a CPU device: K_c and G on the host (pydynrad.host.product); elsewhere on the device.
     assert far.coarse == "dense" and isinstance(far.K_c, HostMatrix) and isinstance(far._G_product, HostBounce)
     assert far.host_memory_bytes > far.K_c.nbytes >= 3 * far.C**2 * int(storage[2:]) // 8
     rho = scene.albedo.astype(np.float64)
@@ -407,7 +407,7 @@ def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_pat
     assert dyn.far._G_stream is not None and dyn.far.device_memory_bytes < 8 * dyn.far.G_nnz
     assert dyn.memory_bytes - bare.memory_bytes == dyn.far.device_memory_bytes
     held = FarField(scene, None, dyn.far.clusters, G=store.cluster_form_factors(), device=device)
-    # G held whole: on the host beside a CPU device where it is small (pydynrad.hostproduct), else on the device.
+    # G held whole: on the host beside a CPU device where it is small (pydynrad.host.product), else on the device.
     assert isinstance(held._G_product, HostBounce) and held.device_memory_bytes == dyn.far.device_memory_bytes
     assert held.host_memory_bytes > held._G_product.nbytes >= 4 * held.G_nnz
     gpu = FarField(scene, None, dyn.far.clusters, G=store.cluster_form_factors(), device=device.with_traits(cpu=False))

@@ -5,7 +5,7 @@ import pytest
 
 import pydynrad
 from pydynrad import DirectionalLight, DynamicRadiosity
-from pydynrad.compare import radiosity_error
+from pydynrad.comparison import radiosity_error
 from pydynrad.farfield import FarField, cluster_form_factors, cluster_patches
 from pydynrad.farfield.clusters import LINEAR_FUNCTIONS, labels_of_linear, linear_basis
 from pydynrad.farfield.gather import basis_prolongation, clusters_without_f, light_components_by_hemicube

@@ -15,7 +15,7 @@ from helpers import same_csr
 
 from pydynrad import InvalidInputError, Scene
 from pydynrad.formfactors import form_factors, pixel_form_factors
-from pydynrad.patching import subdivide
+from pydynrad.geometry.patching import subdivide
 from pydynrad.scenes.analytic import closed_box, parallel_plates, perpendicular_plates
 
 
@@ -287,7 +287,7 @@ def rows_cast_one_by_one(scene, rows, R, device):
     to the patch it meets from the front (not the row's own)."""
     from bench.formfactors import hemicube_rays
 
-    from pydynrad.bvh import cast_rays
+    from pydynrad.geometry.bvh import cast_rays
 
     patch, _, front = cast_rays(scene, *hemicube_rays(scene, rows, R), device=device)
     patch, front = patch.reshape(len(rows), 3 * R, R), front.reshape(len(rows), 3 * R, R)
@@ -297,12 +297,12 @@ def rows_cast_one_by_one(scene, rows, R, device):
     return sp.csr_matrix((weight, (row, patch[seen])), shape=(len(rows), len(scene))).toarray()
 
 
-# Tiles of every packet width the device may pick (pydynrad.launch.bvh_packet), and R whose
+# Tiles of every packet width the device may pick (pydynrad.device.launch.bvh_packet), and R whose
 # faces end inside a band (6, 10) or on a band's end (16).
 @pytest.mark.parametrize("packet, tile_rows, resolution", [(16, 4, 6), (16, 4, 10), (16, 4, 16), (8, 2, 10), (4, 2, 6)])
 def test_rows_are_the_hemicube_rays_cast_one_by_one(device, monkeypatch, resolution, packet, tile_rows):
     import pydynrad.formfactors as formfactors
-    from pydynrad.launch import HemicubeTiles
+    from pydynrad.device.launch import HemicubeTiles
     from pydynrad.scenes import cornell_box
 
     monkeypatch.setattr(formfactors, "hemicube_tiles", lambda dev: HemicubeTiles(packet, tile_rows))

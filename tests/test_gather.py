@@ -224,7 +224,7 @@ def test_g_for_each_kind_of_row_source(box, tmp_path, device, monkeypatch):
     """A store's own G (also through a row cache), cluster-id hemicubes for on-demand rows, and
     F Pr from the source's own rows otherwise (F in memory, a store of F alone); a store with
     neither G nor all of F, one of another scene or other clusters is refused."""
-    from pydynrad import CSRRows, HemicubeRows, RowCache
+    from pydynrad.rows import CSRRows, HemicubeRows, RowCache
     from pydynrad.farfield import gather
 
     scene, labels, G = box

@@ -1,9 +1,9 @@
-"""Host BLAS threads beside a CPU device (pydynrad.hostblas)."""
+"""Host BLAS threads beside a CPU device (pydynrad.host.blas)."""
 
 import numpy as np
 from threadpoolctl import threadpool_info
 
-from pydynrad.hostblas import blas_beside
+from pydynrad.host.blas import blas_beside
 
 
 def _blas_threads() -> list[int]:
@@ -46,7 +46,7 @@ def test_limits_from_other_threads_leave_the_count_alone():
     left numpy's OpenBLAS on one thread for good)."""
     import threading
 
-    from pydynrad.hostblas import one_blas_thread
+    from pydynrad.host.blas import one_blas_thread
 
     before = _blas_threads()
     a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
@@ -72,7 +72,7 @@ def test_limits_from_other_threads_leave_the_count_alone():
 
 
 def test_nested_limits_in_the_main_thread_restore_on_the_outermost_exit():
-    from pydynrad.hostblas import one_blas_thread
+    from pydynrad.host.blas import one_blas_thread
 
     before = _blas_threads()
     with one_blas_thread():

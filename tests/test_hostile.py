@@ -16,8 +16,8 @@ import scipy.sparse as sp
 import pydynrad
 from pydynrad.checks import sparse_structure
 from pydynrad.errors import InvalidInputError
-from pydynrad.render import Renderer
-from pydynrad.scene import PrecisionWarning
+from pydynrad.renderer import Renderer
+from pydynrad.geometry.scene import PrecisionWarning
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +59,7 @@ def test_broken_F_is_refused_by_every_entry_point(box, box_F, device, kind):
     calls = {"solve": lambda: pydynrad.solve(box, G, device=device),
              "multibounce": lambda: pydynrad.multibounce(box, G, np.arange(8), device=device),
              "DynamicRadiosity": lambda: pydynrad.DynamicRadiosity(box, G, local_size=8, device=device),
-             "CSRRows": lambda: pydynrad.CSRRows(G),
+             "CSRRows": lambda: pydynrad.rows.CSRRows(G),
              "CSC input": lambda: pydynrad.solve(box, sp.csc_matrix((G.data, G.indices, G.indptr), shape=G.shape),
                                                  device=device)}
     for name, call in calls.items():
@@ -117,7 +117,7 @@ def test_row_source_blocks_are_checked_with_the_patch_named(box, box_F, device, 
     dyn = pydynrad.DynamicRadiosity(box, source, local_size=48, far_field=False, device=device)
     with pytest.raises(InvalidInputError, match=message):
         dyn.update(box.centers[30])
-    with pydynrad.RowCache(source, 1 << 20) as cache, pytest.raises(InvalidInputError, match=message):
+    with pydynrad.rows.RowCache(source, 1 << 20) as cache, pytest.raises(InvalidInputError, match=message):
         cache.rows([29, 30])
 
 
@@ -129,11 +129,11 @@ def test_a_form_factor_file_with_broken_arrays_is_refused(box, box_F, tmp_path):
     arrays["indices"][arrays["indptr"][9]] = 4096
     np.savez(path, **arrays)
     with pytest.raises(InvalidInputError, match=r"F\.npz'.*row 9 has column index 4096 outside 0\.\.47"):
-        pydynrad.load_form_factors(box, path)
+        pydynrad.rows.load_form_factors(box, path)
     arrays["indptr"] = arrays["indptr"][:-1]
     np.savez(path, **arrays)
     with pytest.raises(InvalidInputError, match="indptr has 48 entries; 48 rows need 49"):
-        pydynrad.load_form_factors(box, path)
+        pydynrad.rows.load_form_factors(box, path)
 
 
 def test_sparse_structure_accepts_what_scipy_builds():
@@ -188,14 +188,14 @@ def test_furnace_far_from_origin_and_at_extreme_scales(device, scale, offset):
 def test_point_light_and_rays_in_the_users_frame(device, scale, offset):
     scene = _moved_box(scale, offset, emission=0.0)
     light = scene.bbox.mean(axis=0) + 0.1 * scale
-    E = pydynrad.direct_irradiance(scene, [pydynrad.PointLight(light, 5.0)], device=device)[:, 0]
+    E = pydynrad.lights.direct_irradiance(scene, [pydynrad.PointLight(light, 5.0)], device=device)[:, 0]
     # Nothing inside a convex box occludes: E = I cos / r^2 in float64.
     to_light = light - scene.centers
     r = np.linalg.norm(to_light, axis=1)
     expected = 5.0 * np.einsum("ij,ij->i", scene.normals.astype(np.float64), to_light) / r**3
     np.testing.assert_allclose(E, expected, rtol=1e-5)
     # A ray from the light to each patch centre stops there: t = 1 for directions of that length.
-    patch, t, front = pydynrad.bvh.cast_rays(scene, np.broadcast_to(light, to_light.shape), -to_light, device=device)
+    patch, t, front = pydynrad.geometry.bvh.cast_rays(scene, np.broadcast_to(light, to_light.shape), -to_light, device=device)
     np.testing.assert_allclose(t, 1.0, rtol=1e-5)
     assert front.all() and np.mean(patch == np.arange(len(scene))) > 0.99  # a centre may sit on an edge
     # Depth from the renderer in the user's unit: the box is [0, scale]^3 shifted.
@@ -210,7 +210,7 @@ def test_patches_too_small_for_float32_warn():
     tiny = np.array([[0.5, 0.5, 0.5], [0.5 + 1e-7, 0.5, 0.5], [0.5, 0.5 + 1e-7, 0.5]])
     points = np.concatenate([base.points, tiny])
     triangles = np.concatenate([base.triangles, [[len(base.points), len(base.points) + 1, len(base.points) + 2]]])
-    with pytest.warns(pydynrad.scene.PrecisionWarning, match="1 patch"):
+    with pytest.warns(pydynrad.geometry.scene.PrecisionWarning, match="1 patch"):
         pydynrad.Scene(points, triangles)
 
 
@@ -282,15 +282,15 @@ def test_scene_arrays_are_read_only_and_overflowing_values_are_refused(box, devi
 def test_an_exposure_that_overflows_is_refused_not_written_as_inf(tmp_path):
     image = np.full((4, 4, 3), 2.0, dtype=np.float32)
     with pytest.raises(InvalidInputError, match="exposure 120 stops overflows float32"):
-        pydynrad.write_image(tmp_path / "x.exr", image * 1e3, exposure=120.0)  # once: an all-inf EXR, rc 0
+        pydynrad.image_io.write_image(tmp_path / "x.exr", image * 1e3, exposure=120.0)  # once: an all-inf EXR, rc 0
     assert not (tmp_path / "x.exr").exists()
     # 2**exposure itself beyond float32 (2000 stops overflowed float64 in 2.0**exposure: a raw
     # OverflowError from write_image, the bake, the comparison image).
     from pydynrad.bake import export_mesh
-    from pydynrad.compare import comparison_image
+    from pydynrad.comparison import comparison_image
 
     for exposure in (2000.0, -127.0, float("nan")):
-        for call in (lambda: pydynrad.write_image(tmp_path / "z.exr", image, exposure=exposure),
+        for call in (lambda: pydynrad.image_io.write_image(tmp_path / "z.exr", image, exposure=exposure),
                      lambda: comparison_image(image, image, exposure),
                      lambda: export_mesh(pydynrad.scenes.block(1.0, 0), np.ones((12, 3)), tmp_path / "m.glb",
                                          exposure=exposure)):
@@ -298,7 +298,7 @@ def test_an_exposure_that_overflows_is_refused_not_written_as_inf(tmp_path):
                 call()
     assert not list(tmp_path.glob("[zm].*"))
     with pytest.raises(InvalidInputError, match="overflows float32"):
-        pydynrad.write_image(tmp_path / "y.exr", np.full((2, 2, 3), 3e38, np.float32), exposure=1.0)
+        pydynrad.image_io.write_image(tmp_path / "y.exr", np.full((2, 2, 3), 3e38, np.float32), exposure=1.0)
 
 
 def test_a_form_factor_file_of_another_dtype_is_refused(box, box_F, tmp_path):
@@ -310,7 +310,7 @@ def test_a_form_factor_file_of_another_dtype_is_refused(box, box_F, tmp_path):
     for data in (arrays["data"].astype(np.float16), arrays["data"].astype(str)):
         np.savez(path, **{**arrays, "data": data})
         with pytest.raises(InvalidInputError, match=f"holds {data.dtype} values"):
-            pydynrad.load_form_factors(box, path)
+            pydynrad.rows.load_form_factors(box, path)
 
 
 def test_outputs_in_a_folders_place_and_exposures_are_refused_before_any_work(tmp_path, capsys):
@@ -354,7 +354,7 @@ def test_a_light_past_float32_is_refused_and_leaves_the_far_field_as_it_was(devi
         far.light(-L)
     # Each bound is the narrowest type its products compute in: a float64 far field with an fp32
     # K_c is float32's, a K on the device its storage's; fp64 storage takes what fits float64.
-    from pydynrad.matvec import DeviceMatrix
+    from pydynrad.device.matrix import DeviceMatrix
 
     big = L / L.max() * 1e300
     far64 = FarField(box, F, clusters=len(box) // 8, dtype=np.float64, coarse="dense", coarse_storage="fp32",
@@ -412,7 +412,7 @@ def test_a_walk_checks_every_frame_before_any_work_and_deep_json_is_named(box, b
     assert not (tmp_path / "out" / "frame_0000.png").exists()
     (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(InvalidInputError, match="nested too deeply"):
-        pydynrad.load_walk(tmp_path / "deep.json")
+        pydynrad.walks.load_walk(tmp_path / "deep.json")
 
 
 def test_a_radiosity_past_float32_is_named_by_the_renderer(box, device):
@@ -436,7 +436,7 @@ def test_unit_vectors_of_huge_and_tiny_lengths():
 
 
 def test_obj_and_mtl_lines_trimesh_drops_are_named(tmp_path):
-    from pydynrad.loading import MalformedLineWarning
+    from pydynrad.geometry.loading import MalformedLineWarning
 
     (tmp_path / "m.mtl").write_text("newmtl wall\nKd x y z\n")
     (tmp_path / "s.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl wall\n"
@@ -454,7 +454,7 @@ def test_a_block_from_another_store_is_refused_and_recomputed_on_resume(tmp_path
     import json
     import shutil
 
-    from pydynrad.cli import main
+    from pydynrad.cli.main import main
     from pydynrad.rows.store import StoreCorruptError
 
     def formfactors(name, R):
@@ -491,7 +491,7 @@ def test_a_block_from_another_store_is_refused_and_recomputed_on_resume(tmp_path
 
 
 def test_formfactors_verify_checks_every_block_and_recomputes_what_fails(tmp_path, capsys, device):
-    from pydynrad.cli import main
+    from pydynrad.cli.main import main
 
     out = tmp_path / "s"
     args = ["formfactors", "closed_box", "-o", str(out), "--resolution", "8", "--block-rows", "64", "--workers", "0",
@@ -525,14 +525,14 @@ def test_one_line_errors_for_wrong_types(box, box_F, device):
     # Each was a raw TypeError or ValueError from numpy on main (issue 14, item 8).
     with pytest.raises(InvalidInputError, match="refresh_tolerance must be a positive number or None; got '1e-4'"):
         pydynrad.DynamicRadiosity(box, box_F, local_size=8, refresh_tolerance="1e-4", device=device)
-    with pytest.raises(pydynrad.SceneFileError, match="path must be a file name .* got NoneType"):
+    with pytest.raises(pydynrad.errors.SceneFileError, match="path must be a file name .* got NoneType"):
         pydynrad.load(None)
     with pytest.raises(InvalidInputError, match="points must be numbers"):
         pydynrad.Scene([["a", "b", "c"]] * 3, [[0, 1, 2]])
 
 
 def test_formfactors_will_not_overwrite_an_unrelated_npz(tmp_path, capsys):
-    from pydynrad.cli import main
+    from pydynrad.cli.main import main
 
     other = tmp_path / "weights.npz"
     np.savez(other, w=np.arange(3))
@@ -560,7 +560,7 @@ def test_path_file_frames_are_named(tmp_path, frames, message):
 def test_bad_pyopencl_ctx_is_one_line(monkeypatch, capsys):
     from helpers import assert_one_line_error, run_main
 
-    monkeypatch.setattr(pydynrad.device, "_default", None)  # the session's device is built already
+    monkeypatch.setattr(pydynrad.device.devices, "_default", None)  # the session's device is built already
     monkeypatch.setenv("PYOPENCL_CTX", "9:0")
     code, _, err = run_main(["info"], capsys)  # main: pyopencl's RuntimeError with a traceback
     assert_one_line_error(code, err, "PYOPENCL_CTX='9:0' selects no OpenCL device", "pydynrad info")
@@ -584,7 +584,7 @@ def test_malformed_scheduler_leaves_no_half_built_client():
 
     from distributed import Client
 
-    from pydynrad.rows.distributed import _start_client
+    from pydynrad.precompute.distributed import _start_client
 
     with pytest.raises(InvalidInputError, match="missing port"):
         _start_client(None, "host")
@@ -606,13 +606,13 @@ def test_worker_dying_at_start_up_is_one_line(tmp_path, capsys):
 def test_oversize_image_is_refused_before_the_solve(monkeypatch, capsys, box, device):
     from helpers import assert_one_line_error, run_main
 
-    monkeypatch.setattr(pydynrad.camera, "available_host_bytes", lambda: 8 * 2**30)  # a 24 GiB machine, in use
+    monkeypatch.setattr(pydynrad.geometry.camera, "available_host_bytes", lambda: 8 * 2**30)  # a 24 GiB machine, in use
     code, _, err = run_main(["render", "cornell_box", "-o", "x.png", "--width", "16384", "--height", "16384"], capsys)
     assert_one_line_error(code, err, "rendering a 16384 x 16384 image needs about 32.0 GiB of host memory; 8.0 GiB")
     camera = pydynrad.Camera((0.5, 0.5, 0.5), (0.5, 0.5, 0.0), width=16384, height=8192)
-    with pytest.raises(pydynrad.OutOfMemoryError, match="16384 x 8192 image needs about 16.0 GiB"):
+    with pytest.raises(pydynrad.errors.OutOfMemoryError, match="16384 x 8192 image needs about 16.0 GiB"):
         Renderer(box, device).render(np.ones((len(box), 3)), camera)
-    with pytest.raises(pydynrad.OutOfMemoryError, match="path tracing a 16384 x 8192 image needs about 10.0 GiB"):
+    with pytest.raises(pydynrad.errors.OutOfMemoryError, match="path tracing a 16384 x 8192 image needs about 10.0 GiB"):
         pydynrad.path_trace(box, camera, spp=1, device=device)
 
 
@@ -620,14 +620,14 @@ def test_resolution_needing_more_than_memory_is_refused(monkeypatch, box, device
     with pytest.raises(InvalidInputError, match=r"resolution must lie in 2\.\.4096; got 8192"):
         pydynrad.form_factors(box, resolution=8192, rows=[0], device=device)
     monkeypatch.setattr(pydynrad.formfactors, "available_host_bytes", lambda: 8 * 2**30)
-    with pytest.raises(pydynrad.OutOfMemoryError, match="resolution 4096 needs about 11.2 GiB .* 8.0 GiB is available"):
+    with pytest.raises(pydynrad.errors.OutOfMemoryError, match="resolution 4096 needs about 11.2 GiB .* 8.0 GiB is available"):
         pydynrad.form_factors(box, resolution=4096, rows=[0], device=device)  # main: 11 GiB in numpy first
 
 
 def test_available_memory_obeys_rlimit_as():
     code = textwrap.dedent("""
         import resource
-        from pydynrad.memory import available_host_bytes
+        from pydynrad.host.memory import available_host_bytes
         size = next(int(l.split()[1]) * 1024 for l in open("/proc/self/status") if l.startswith("VmSize:"))
         resource.setrlimit(resource.RLIMIT_AS, (size + 2**30, resource.getrlimit(resource.RLIMIT_AS)[1]))
         print(available_host_bytes())
@@ -639,7 +639,7 @@ def test_available_memory_obeys_rlimit_as():
 
 @pytest.mark.parametrize("layout", ["v2", "v1"])
 def test_available_memory_obeys_the_cgroup_limit(monkeypatch, tmp_path, layout):
-    from pydynrad import memory
+    from pydynrad.host import memory
 
     folder = tmp_path if layout == "v2" else tmp_path / "memory"
     folder.mkdir(exist_ok=True)
@@ -690,7 +690,7 @@ def test_albedos_near_one_are_solved_or_named_for_what_they_are(device):
     B = dyn.radiosity()
     assert ref.max() > 300  # about 1 / (1 - 0.9995) / 6 faces' worth
     np.testing.assert_allclose(B, ref, rtol=1e-12, atol=1e-12 * ref.max())
-    with pytest.raises(pydynrad.ConvergenceError, match="albedos near 1 need about"):
+    with pytest.raises(pydynrad.errors.ConvergenceError, match="albedos near 1 need about"):
         pydynrad.solve(bright, F, tol=1e-8, dtype=np.float64, device=device)
     # K itself past fp16's range is refused at the build, not stored as inf with a warning.
     brighter = box.with_materials(albedo=0.999999, emission=np.where(box.source_face // 2 == 4, 1.0, 0.0))
@@ -757,7 +757,8 @@ def test_a_failed_write_names_the_file_asked_for(tmp_path):
 
 
 def test_sensors_and_bakes_refuse_what_would_come_back_as_inf_or_text(tmp_path):
-    from pydynrad.photometry import LuminaireLight, PhotometricDistribution, illuminance
+    from pydynrad.photometry import illuminance
+    from pydynrad.lights import LuminaireLight, PhotometricDistribution
 
     plates = pydynrad.scenes.parallel_plates(subdivisions=1)
     # 1e39 cd is inf in the device's table (inf times a zero weight: NaN at the sensor), and 1e30
@@ -776,14 +777,14 @@ def test_sensors_and_bakes_refuse_what_would_come_back_as_inf_or_text(tmp_path):
                                   "point:pos=1,2,3;intensity=\u0665", "point:pos=0x10,2,3;intensity=5"])
 def test_light_text_takes_plain_numbers_only(text):
     # Python's float() reads "1_000" and other scripts' digits: a typo must not become a light.
-    from pydynrad.lighttext import parse_light
+    from pydynrad.lights.text import parse_light
 
     with pytest.raises(InvalidInputError, match="must be"):
         parse_light(text)
 
 
 def test_a_sky_resolution_of_a_fraction_is_refused_not_cut():
-    from pydynrad.lighttext import parse_light
+    from pydynrad.lights.text import parse_light
 
     with pytest.raises(InvalidInputError, match="resolution must be an integer; got 64.5"):
         parse_light("sky:model=uniform;zenith=100;resolution=64.5")
@@ -794,15 +795,15 @@ def test_review_of_the_days_fixes(tmp_path, capsys, device):
     """What a review of this landing's fixes found they had broken, each kept working."""
     from helpers import run_main
     from pydynrad.atomic import write_atomic
-    from pydynrad.lights import check_radiosity_range
-    from pydynrad.photometry import LuminaireLight, PhotometricDistribution
+    from pydynrad.lights.sources import check_radiosity_range
+    from pydynrad.lights import LuminaireLight, PhotometricDistribution
 
     # A grazing point light of 1e37 W/sr 1 mm over a unit floor: I / r^2 passes float32 before
     # the cosine comes in; the irradiance itself (I cos / r^2 at most 2.4e37) does not.
     plates = pydynrad.scenes.parallel_plates(subdivisions=2)
     for light in (pydynrad.PointLight((0.5, 0.5, 0.001), 1e37),
                   LuminaireLight((0.5, 0.5, 0.001), PhotometricDistribution.isotropic(1e37))):
-        E = pydynrad.direct_irradiance(plates, [light], device).astype(np.float64)
+        E = pydynrad.lights.direct_irradiance(plates, [light], device).astype(np.float64)
         assert np.isfinite(E).all() and 1e35 < E.max() < 3.4e38
     # The radiosity bound grows with the albedo: a higher albedo never passes where a lower fails.
     L = np.full((4, 3), 1e33)
@@ -839,7 +840,7 @@ def test_review_of_the_days_fixes(tmp_path, capsys, device):
 
 def test_photometric_files_the_review_found_refused_still_read():
     from bench.cie171_data import LM63_EXAMPLE
-    from pydynrad.photometry import parse_ies, parse_ldt
+    from pydynrad.lights import parse_ies, parse_ldt
     from test_luminaires import ldt_text
 
     # A DOS end-of-file mark after the table.

@@ -1,4 +1,4 @@
-"""Host products beside a CPU device (pydynrad.hostproduct) against float64 products of the same
+"""Host products beside a CPU device (pydynrad.host.product) against float64 products of the same
 stored values, and the rule that puts a matrix there."""
 
 import numpy as np
@@ -6,9 +6,9 @@ import pytest
 import scipy.sparse as sp
 
 from pydynrad import InvalidInputError
-from pydynrad.devicecsr import DeviceCSR
-from pydynrad.hostproduct import HOST_PRODUCT_BYTES, HostBounce, HostMatrix, on_host
-from pydynrad.matvec import DeviceMatrix
+from pydynrad.device.csr import DeviceCSR
+from pydynrad.host.product import HOST_PRODUCT_BYTES, HostBounce, HostMatrix, on_host
+from pydynrad.device.matrix import DeviceMatrix
 
 
 @pytest.mark.parametrize("density, dense", [(0.6, True), (0.25, True), (0.05, False)])

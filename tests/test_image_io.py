@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from pydynrad import InvalidInputError, read_image, write_image
+from pydynrad import InvalidInputError
+from pydynrad.image_io import read_image, write_image
 from pydynrad.image_io import srgb_encode
 
 

@@ -8,11 +8,11 @@ from helpers import grid_scene
 
 import pydynrad
 from pydynrad import InvalidInputError
-from pydynrad.devicecsr import DeviceCSR
+from pydynrad.device.csr import DeviceCSR
 from pydynrad.dynamic.kupdate import UpdateKernels
-from pydynrad.lights import point_irradiance
-from pydynrad.matvec import DeviceMatrix
-from pydynrad.photometry.areas import emitter_irradiance
+from pydynrad.lights.sources import point_irradiance
+from pydynrad.device.matrix import DeviceMatrix
+from pydynrad.lights.areas import emitter_irradiance
 
 
 def test_one_normal_serves_every_point_and_bad_normals_are_refused(device):

@@ -1,4 +1,4 @@
-"""pydynrad.launch: global sizes, the kernels' required layout defines, and the per-device
+"""pydynrad.device.launch: global sizes, the kernels' required layout defines, and the per-device
 cache of scene arrays beside the BVH buffers."""
 
 from dataclasses import replace
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import pydynrad
-from pydynrad.launch import WG, global_size, round_up
+from pydynrad.device.launch import WG, global_size, round_up
 from helpers import box_scene
 
 
@@ -23,19 +23,19 @@ def test_global_size_rounds_up_to_whole_work_groups():
     ("gemm.cl", "VW and TM"),
 ])
 def test_kernels_take_layout_defines_from_the_host(device, filename, missing):
-    with pytest.raises(pydynrad.KernelBuildError) as info:
+    with pytest.raises(pydynrad.errors.KernelBuildError) as info:
         device.program(filename, {"STORAGE_FP32": 1})
     assert f"needs {missing} from the host" in info.value.build_log
 
 
 def test_spmv_needs_the_rgb_step_with_lx(device):
-    with pytest.raises(pydynrad.KernelBuildError) as info:
+    with pytest.raises(pydynrad.errors.KernelBuildError) as info:
         device.program("spmv.cl", {"STORAGE_FP32": 1, "NCH": 4, "LX": 1})
     assert "needs NCH and LX (with RGB_STEP) or SELL_C from the host" in info.value.build_log
 
 
 def test_path_tracer_needs_the_bounce_limit(device):
-    with pytest.raises(pydynrad.KernelBuildError) as info:
+    with pytest.raises(pydynrad.errors.KernelBuildError) as info:
         device.program("pathtrace.cl")
     assert "MAX_DEPTH (the bounce limit) must come from the host" in info.value.build_log
 
@@ -45,13 +45,13 @@ def test_hemicube_needs_the_hosts_packet_width_and_tiles(device):
                              ({"HC_RES": 8, "BVH_PACKET": 12, "HC_TILE_Y": 2}, "needs BVH_PACKET of 4, 8 or 16"),
                              ({"HC_RES": 8, "BVH_PACKET": 8}, "needs HC_TILE_Y"),
                              ({"HC_RES": 8, "BVH_PACKET": 8, "HC_TILE_Y": 3}, "needs HC_TILE_Y")):
-        with pytest.raises(pydynrad.KernelBuildError) as info:
+        with pytest.raises(pydynrad.errors.KernelBuildError) as info:
             device.program("hemicube.cl", defines)
         assert missing in info.value.build_log
 
 
 def test_packet_width_follows_the_device(device):
-    from pydynrad.launch import BVH_PACKETS, bvh_packet, hemicube_tiles
+    from pydynrad.device.launch import BVH_PACKETS, bvh_packet, hemicube_tiles
 
     width = device.cl_device.preferred_vector_width_float
     packet = bvh_packet(device)
@@ -81,8 +81,8 @@ def test_patch_buffers_once_per_device_and_per_geometry(device):
 
 
 def test_sell_layout_only_for_grey_solves_on_wide_simd_cpus():
-    from pydynrad.device import DeviceTraits
-    from pydynrad.launch import SELL_WINDOW_SLICES, sell_layout
+    from pydynrad.device.devices import DeviceTraits
+    from pydynrad.device.launch import SELL_WINDOW_SLICES, sell_layout
 
     avx512 = DeviceTraits(cpu=True, compute_units=2, float_width=16, double_width=8, max_work_group=4096,
                           local_mem_bytes=1 << 20)

@@ -1,4 +1,4 @@
-"""Kernel layouts chosen from what a device reports (pydynrad.launch), for devices that are not
+"""Kernel layouts chosen from what a device reports (pydynrad.device.launch), for devices that are not
 here: described by hand as DeviceTraits (an AVX-512, an AVX2 and an SSE/NEON CPU, GPUs), and
 the kernels built at those widths run on the test device against numpy.
 
@@ -13,10 +13,10 @@ import pytest
 from helpers import coloured_box, dense_K, reciprocal_F, rel
 
 from pydynrad import multibounce
-from pydynrad.device import DeviceTraits
+from pydynrad.device.devices import DeviceTraits
 from pydynrad.dynamic.kupdate import UpdateKernels
-from pydynrad.launch import GEMM_GRAIN, UpdateLayout, cpu_vector_width, gemm_layout, matvec_layout, spmv_layout
-from pydynrad.matvec import DeviceMatrix, padded_ld
+from pydynrad.device.launch import GEMM_GRAIN, UpdateLayout, cpu_vector_width, gemm_layout, matvec_layout, spmv_layout
+from pydynrad.device.matrix import DeviceMatrix, padded_ld
 
 AVX512 = DeviceTraits(cpu=True, compute_units=2, float_width=16, double_width=8, max_work_group=4096,
                       local_mem_bytes=2**21, aligned_vectors=True)
@@ -53,7 +53,7 @@ def test_matvec_rows_side_by_side_hide_the_fma_latency():
     """RI rows per CPU item: MATVEC_CHAINS accumulator registers at least (one per row, vector
     and register of REALs), at most MATVEC_ACC_REGS; narrow storage from memory keeps one row;
     a GPU and the LX > 1 layout always one; the grid covers every row."""
-    from pydynrad.launch import MATVEC_ACC_REGS, MATVEC_CHAINS
+    from pydynrad.device.launch import MATVEC_ACC_REGS, MATVEC_CHAINS
     M, ld = 1000, padded_ld(1000)
     cached = dataclasses.replace(AVX512, cache_bytes=2**25)
     for traits in (cached, dataclasses.replace(AVX2, cache_bytes=2**25)):

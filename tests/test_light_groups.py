@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import pydynrad
-from pydynrad import DirectionalLight, InvalidInputError, LightGroups, PointLight, SpotLight
+from pydynrad import DirectionalLight, InvalidInputError, PointLight, SpotLight
+from pydynrad.bake import LightGroups
 
 WEIGHTS = {"emission": 0.5, "lamp": (1.0, 0.5, 0.2), "spots": 2.0}
 

@@ -7,7 +7,8 @@ import pytest
 from helpers import plane_mesh
 
 import pydynrad
-from pydynrad import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector
+from pydynrad import DirectionalLight, PointLight, SpotLight, light_vector
+from pydynrad.lights import direct_irradiance
 
 
 def plate(n=12, size=2.0, z=0.0, extra=None, albedo=0.5):
@@ -119,7 +120,7 @@ def test_light_validation():
         light_vector(box, [PointLight((278, 540, 280), 1e-42)])
     with pytest.raises(pydynrad.InvalidInputError, match="underflows float32"):
         light_vector(box, [DirectionalLight((0, -1, 0), (1e-46,) * 3)])
-    faint, normal = (pydynrad.direct_irradiance(box, [PointLight((278, 540, 280), I)]).astype(np.float64) / I
+    faint, normal = (pydynrad.lights.direct_irradiance(box, [PointLight((278, 540, 280), I)]).astype(np.float64) / I
                      for I in (1e-33, 1.0))
     lit = normal > 1e-3 * normal.max()
     np.testing.assert_allclose(faint[lit], normal[lit], rtol=1e-2)  # subnormal on the device: few bits
@@ -132,13 +133,13 @@ def test_pack_lights_layout():
     # The three float4 per light that kernels/lights.h reads, written out by hand.
     spot = SpotLight((1, 2, 3), (0, 0, 2), (0.5, 0.25, 1.0), 0.1, 0.3)
     sun = DirectionalLight((0, -1, 0), 2.0)
-    packed = pydynrad.pack_lights([spot, sun])
+    packed = pydynrad.lights.pack_lights([spot, sun])
     assert packed.shape == (2, 12) and packed.dtype == np.float32
     slope = 1.0 / (math.cos(0.1) - math.cos(0.3))
     np.testing.assert_allclose(packed[0], [1, 2, 3, 1, 0, 0, 1, slope, 0.5, 0.25, 1.0, math.cos(0.3)], rtol=1e-6)
     np.testing.assert_array_equal(packed[1, :8], [0, 0, 0, 2, 0, -1, 0, 1])
     np.testing.assert_array_equal(packed[1, 8:11], [2, 2, 2])
-    np.testing.assert_array_equal(pydynrad.pack_lights(PointLight((4, 5, 6), 1.0))[0, :4], [4, 5, 6, 0])
-    assert pydynrad.pack_lights([]).shape == (0, 12)
+    np.testing.assert_array_equal(pydynrad.lights.pack_lights(PointLight((4, 5, 6), 1.0))[0, :4], [4, 5, 6, 0])
+    assert pydynrad.lights.pack_lights([]).shape == (0, 12)
     with pytest.raises(pydynrad.InvalidInputError, match="not a light"):
-        pydynrad.pack_lights([spot, "lamp"])
+        pydynrad.lights.pack_lights([spot, "lamp"])

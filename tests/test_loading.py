@@ -7,9 +7,11 @@ import pytest
 import trimesh
 
 import pydynrad
-from pydynrad import DegenerateTriangleWarning, Scene, SceneFileError
+from pydynrad import Scene
+from pydynrad.geometry import DegenerateTriangleWarning
+from pydynrad.errors import SceneFileError
 from pydynrad.errors import InvalidInputError
-from pydynrad.loading import MAX_ALBEDO, AlbedoClampedWarning, MissingMaterialWarning, from_mesh
+from pydynrad.geometry.loading import MAX_ALBEDO, AlbedoClampedWarning, MissingMaterialWarning, from_mesh
 
 # Two unit squares and a triangle; three materials, one emitting; faces listed out of material order.
 OBJ = """mtllib scene.mtl

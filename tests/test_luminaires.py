@@ -9,8 +9,8 @@ import pytest
 import pydynrad
 from pydynrad import InvalidInputError
 from bench.cie171_data import LM63_EXAMPLE
-from pydynrad.photometry import (IESFormatError, LuminaireLight, PhotometricDistribution, illuminance, parse_ies,
-                                 parse_ldt, read_ies, read_ldt)
+from pydynrad.photometry import illuminance
+from pydynrad.lights import IESFormatError, LuminaireLight, PhotometricDistribution, parse_ies, parse_ldt, read_ies, read_ldt
 
 # The candela table of the LM-63-2002 standard's example file (LM63_EXAMPLE: TILT=INCLUDE,
 # quadrant symmetry), one row per horizontal angle 0, 45, 90.
@@ -106,7 +106,7 @@ def test_device_distribution_matches_the_host_and_follows_orientation(device):
     # Tilted: nadir 30 degrees off straight down, C0 along y.
     nadir = np.array([math.sin(math.radians(30)), 0.0, -math.cos(math.radians(30))])
     lum = LuminaireLight(pos, d, nadir=nadir, c0=(0, 1, 0), scale=(1.0, 0.5, 0.25))
-    H = pydynrad.direct_irradiance(scene, [lum], device)
+    H = pydynrad.lights.direct_irradiance(scene, [lum], device)
     v = scene.centers - pos
     r = np.linalg.norm(v, axis=1)
     expected = lum.intensity_towards(v / r[:, None]) * (-v[:, 2] / r) / r**2
@@ -144,7 +144,7 @@ def test_a_luminaire_near_float32s_limit_meets_its_inverse_square_law(device):
     # unit^2/d^2 from the distance): with the table's candela taken first, 1e37 cd and up had
     # overflowed float32 and been refused as irradiance overflow at ~2e33. Linear to 3e38 cd.
     box = pydynrad.scenes.cornell_box(max_edge=200.0)
-    E = [pydynrad.direct_irradiance(box, [LuminaireLight((278, 540, 280), PhotometricDistribution.lambertian(peak))],
+    E = [pydynrad.lights.direct_irradiance(box, [LuminaireLight((278, 540, 280), PhotometricDistribution.lambertian(peak))],
                                     device).astype(np.float64) / peak for peak in (1.0, 1e37, 3e38)]
     assert np.isfinite(E[2]).all() and E[0].max() > 0
     np.testing.assert_allclose(E[1], E[0], rtol=1e-6)
@@ -155,7 +155,7 @@ def test_flux_is_conserved_in_a_closed_black_room(device):
     room = pydynrad.scenes.closed_box((4.0, 3.0, 2.5), subdivisions=4, albedo=0.0, emission=0.0)
     d = parse_ies(LM63_EXAMPLE)
     lum = LuminaireLight([1.5, 1.2, 1.8], d, nadir=(0.2, 0.1, -1.0))
-    H = pydynrad.direct_irradiance(room, [lum], device).astype(np.float64)
+    H = pydynrad.lights.direct_irradiance(room, [lum], device).astype(np.float64)
     arriving = float(np.sum(H[:, 0] * room.areas))
     # Patch-centre quadrature on 9,216 patches: 0.043% off the distribution's flux (whose own
     # quadrature is good to 3e-7).
@@ -177,7 +177,7 @@ def test_solve_and_path_tracer_agree_under_a_luminaire(device):
     lum = LuminaireLight([1.5, 1.2, 2.3], parse_ies(LM63_EXAMPLE), nadir=(0.2, 0.1, -1.0))
     F = pydynrad.form_factors(room, 64, device=device)
     B = pydynrad.solve(room, F, lights=[lum], device=device).radiosity
-    P = pydynrad.path_trace_patches(room, spp=1024, lights=[lum], device=device).astype(np.float64)
+    P = pydynrad.pathtracer.path_trace_patches(room, spp=1024, lights=[lum], device=device).astype(np.float64)
     rel = (P - B) / B
     # Both share lights.h's direct term; the indirect part differs by 1,024-path noise and by
     # constant-radiosity patches: 3.2% RMS per patch, 0.03% on the mean over 576 patches.
@@ -294,7 +294,7 @@ def test_tilt_and_closed_forms_name_their_own_bad_values():
 def test_ldt_counts_that_do_not_match_the_file_are_named():
     """Ng = 3 declared over five gamma angles and intensities: the values left after the table
     are named, not read as the wrong fields."""
-    from pydynrad.photometry.ldt import parse_ldt
+    from pydynrad.lights.ldt import parse_ldt
 
     head = ["c", "1", "1", "1", "0", "3", "45", "r", "name", "n", "f", "d",
             *"200 0 100 180 0 0 0 0 0 100 85 1 0 1 1 LED 1000 3000K 1B 20".split(), *["0.5"] * 10, "0"]

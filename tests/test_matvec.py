@@ -10,7 +10,7 @@ import pytest
 from helpers import rel
 
 import pydynrad
-from pydynrad.matvec import DeviceMatrix
+from pydynrad.device.matrix import DeviceMatrix
 
 TOL = {"fp16": 1e-3, "fp32": 2e-6, "fp64": 1e-13}
 LAYOUTS = [None, (4, 64), (8, 4)]  # the default, the GPU layout, one in between
@@ -78,13 +78,13 @@ def test_bad_inputs(device):
 
 def test_fp64_refused_without_device_support(device, monkeypatch):
     monkeypatch.setattr(type(device), "supports_fp64", property(lambda self: False))
-    with pytest.raises(pydynrad.DeviceError, match="fp64"):
+    with pytest.raises(pydynrad.errors.DeviceError, match="fp64"):
         DeviceMatrix(device, np.ones((1, 4, 4)), "fp64")
 
 
 def test_oversized_matrix_refused_before_allocating(device):
     # 63,125 patches (the paper's full scene) in fp32: 16 GB per channel.
-    with pytest.raises(pydynrad.OutOfMemoryError, match="MiB"):
+    with pytest.raises(pydynrad.errors.OutOfMemoryError, match="MiB"):
         DeviceMatrix.zeros(device, 3, 63125, "fp32")
 
 

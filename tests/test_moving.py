@@ -11,7 +11,7 @@ import scipy.sparse as sp
 
 import pydynrad as pd
 from pydynrad.dynamic.moves import at_pose, reciprocal_columns, sphere_solid_angle
-from pydynrad.objects import instanced
+from pydynrad.geometry.objects import instanced
 
 from helpers import brute_force_hits, dense_K, dense_radiosity, pose, rel
 
@@ -53,8 +53,8 @@ def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, lam
     world built afresh (its own BVH), bit for bit, for point, spot and directional lights, with
     one object moved or two. Lights new in the last frame are relit in radiosity() instead (the
     move does not guess), other lights are lit whole there, as is a sky."""
-    import pydynrad.lights as lights_module
-    from pydynrad.photometry import SkyLight
+    import pydynrad.lights.sources as lights_module
+    from pydynrad.lights import SkyLight
 
     traced = []
     real = lights_module._point_irradiance
@@ -321,7 +321,7 @@ def test_bad_input(box, block, device):
     with pytest.raises(pd.InvalidInputError, match="'auto'"):
         pd.DynamicRadiosity(box, None, local_size=len(box), objects=[obj], occlusion="some", device=device)
     dyn.move(obj, pose(0, (350.0, 200.0, 330.0)))  # through the tall block: allowed, warned
-    with pytest.warns(pd.ObjectIntersectionWarning):
+    with pytest.warns(pd.geometry.ObjectIntersectionWarning):
         dyn.update(OBSERVER)
 
 
@@ -333,7 +333,7 @@ def test_a_pose_the_device_cannot_resolve_is_refused_before_anything_moves(box, 
     of the world are the box's own, bit for bit, and the block is dark: their rays leave their surfaces by the static
     scene's offset (Scene.ray_scale), not by one grown with the world (it had been 0.4% off the
     rows' sums at 1e5 mm). At 1e18 mm a move had crashed in the intersection test's rays."""
-    from pydynrad.objects import MAX_REACH
+    from pydynrad.geometry.objects import MAX_REACH
 
     obj = pd.RigidObject(block, START)
     dyn = pd.DynamicRadiosity(box, None, local_size=len(box), resolution=R, objects=[obj], observer=OBSERVER,
@@ -350,7 +350,7 @@ def test_a_pose_the_device_cannot_resolve_is_refused_before_anything_moves(box, 
                                 objects=[pd.RigidObject(block, behind(reach))], device=device)
     with pytest.raises(pd.InvalidInputError, match="float32"):
         box.with_objects([pd.RigidObject(block, behind(1e18))])
-    track = pd.ObjectTrack(obj, [START, behind(1.01 * limit)], interpolation="linear")
+    track = pd.walks.ObjectTrack(obj, [START, behind(1.01 * limit)], interpolation="linear")
     with pytest.raises(pd.InvalidInputError, match="float32"):
         pd.walk(box, pd.orbit(centre, 300.0, 0.0, 3, width=8, height=6), dyn, objects=[track], device=device)
     dyn.update(OBSERVER)  # nothing was queued: the same answer
@@ -373,7 +373,7 @@ def test_precomputed_poses(box, block, device):
     """The paper's variant: rows of each pose precomputed; a move there takes them (no hemicube
     for a row the store holds) and gives what hemicubes at the move would."""
     n = len(box) + len(block)
-    poses = pd.precompute_poses(box, [pd.RigidObject(block)], [START, END], resolution=R, device=device)
+    poses = pd.precompute.precompute_poses(box, [pd.RigidObject(block)], [START, END], resolution=R, device=device)
     assert len(poses) == 2 and poses.nbytes > 0
     runs = []
     for stored in (poses, None):
@@ -402,13 +402,13 @@ def test_object_track_and_walk(box, block, device):
     """walk with a keyframed block: each frame moves it, renders the world as it is, and the
     reference frames' full solves (fresh hemicubes of that world) agree with dynamic radiosity."""
     obj = pd.RigidObject(block, START)
-    straight = pd.ObjectTrack(obj, [START, END], interpolation="linear")
+    straight = pd.walks.ObjectTrack(obj, [START, END], interpolation="linear")
     np.testing.assert_array_equal(straight.at(0, 3), START)
     np.testing.assert_array_equal(straight.at(2, 3), END)
     half = straight.at(1, 3)
     np.testing.assert_allclose(half[:3, 3], 0.5 * (START[:3, 3] + END[:3, 3]), atol=1e-9)
     np.testing.assert_allclose(half[:3, :3], pose(35, (0, 0, 0))[:3, :3], atol=1e-12)  # halfway between 0 and 70 deg
-    track = pd.ObjectTrack(obj, [START, MIDDLE, END])  # three frames: one on each keyframe
+    track = pd.walks.ObjectTrack(obj, [START, MIDDLE, END])  # three frames: one on each keyframe
     path = pd.fly_through([(278.0, 273.0, -300.0), (278.0, 273.0, -250.0)], frames=3, fov_y=40, width=24, height=18)
     n = len(box) + len(block)
     dyn = pd.DynamicRadiosity(box, None, local_size=n, resolution=R, objects=[obj], occlusion=None,
@@ -420,7 +420,7 @@ def test_object_track_and_walk(box, block, device):
     with pytest.raises(pd.InvalidInputError, match="ObjectTrack"):
         pd.walk(box, path, dyn, objects=[obj], device=device)
     with pytest.raises(pd.InvalidInputError, match="not rigid"):
-        pd.ObjectTrack(obj, [START, np.diag([1.0, 1.0, 3.0, 1.0])])
+        pd.walks.ObjectTrack(obj, [START, np.diag([1.0, 1.0, 3.0, 1.0])])
 
 
 @pytest.mark.parametrize("solid", [True, False], ids=["convex, clipped", "two blocks, traced"])
@@ -477,7 +477,7 @@ def test_outside_gathered_only_where_objects_are_in_view(device, monkeypatch):
     every outside patch gives them, the others keep the far field's B_far; and the answer stays
     within the far field's accuracy of a full solve of the scene with the block."""
     import pydynrad.dynamic.moves as moves
-    from pydynrad.compare import radiosity_error
+    from pydynrad.comparison import radiosity_error
 
     village = pd.scenes.village(houses=1, detail=0.5)
     F = pd.form_factors(village, 16, device=device)
@@ -584,7 +584,7 @@ def test_a_move_that_fails_is_not_half_applied(box, block, device, monkeypatch):
     the poses K and the stale rows are of, the move still queued: the next update applies it.
     Either way B is then the same move's without a failure (budget 0, static F)."""
     import pydynrad.dynamic.moves as moves_module
-    import pydynrad.lights as lights_module
+    import pydynrad.lights.sources as lights_module
 
     F_static = pd.form_factors(box, R, device=device)
     n = len(box) + len(block)
@@ -780,9 +780,9 @@ def test_poses_in_store(box, block, device, tmp_path):
     hemicubes; a store of another scene, or of poses of other objects, is refused; a file
     tampered with fails its checksum."""
     store = pd.FormFactorStore.create(box, tmp_path / "ff", resolution=R)
-    poses = pd.precompute_poses(box, [pd.RigidObject(block)], [START, END], resolution=R, device=device, store=store)
+    poses = pd.precompute.precompute_poses(box, [pd.RigidObject(block)], [START, END], resolution=R, device=device, store=store)
     assert len(poses) == 2 and poses.nbytes == 0  # on disk, not in memory
-    reopened = pd.stored_poses(box, [pd.RigidObject(block)], pd.FormFactorStore.open(box, tmp_path / "ff", resolution=R), R)
+    reopened = pd.precompute.stored_poses(box, [pd.RigidObject(block)], pd.FormFactorStore.open(box, tmp_path / "ff", resolution=R), R)
     n = len(box) + len(block)
     K, hemicubes = [], []
     for stored in (reopened, None):
@@ -795,17 +795,17 @@ def test_poses_in_store(box, block, device, tmp_path):
     np.testing.assert_array_equal(K[0], K[1])  # the same float32 rows, the same swap
     assert hemicubes[0] < hemicubes[1] // 2
     # Resuming writes nothing new; other objects, another resolution, another scene: refused.
-    assert len(pd.precompute_poses(box, [pd.RigidObject(block)], [END], resolution=R, device=device, store=store)) == 2
+    assert len(pd.precompute.precompute_poses(box, [pd.RigidObject(block)], [END], resolution=R, device=device, store=store)) == 2
     other = pd.scenes.block(50.0, 1)
-    with pytest.raises(pd.StoreMismatchError, match="other objects"):
-        pd.stored_poses(box, [pd.RigidObject(other)], store, R)
-    with pytest.raises(pd.StoreMismatchError, match="other objects"):
-        pd.stored_poses(box, [pd.RigidObject(block)], store, 2 * R)
-    with pytest.raises(pd.StoreMismatchError, match="another scene"):
-        pd.stored_poses(pd.scenes.cornell_box(max_edge=250.0), [pd.RigidObject(block)], store, R)
+    with pytest.raises(pd.rows.StoreMismatchError, match="other objects"):
+        pd.precompute.stored_poses(box, [pd.RigidObject(other)], store, R)
+    with pytest.raises(pd.rows.StoreMismatchError, match="other objects"):
+        pd.precompute.stored_poses(box, [pd.RigidObject(block)], store, 2 * R)
+    with pytest.raises(pd.rows.StoreMismatchError, match="another scene"):
+        pd.precompute.stored_poses(pd.scenes.cornell_box(max_edge=250.0), [pd.RigidObject(block)], store, R)
     files = sorted((tmp_path / "ff" / "poses").glob("p*.npz"))
     files[1].write_bytes(files[0].read_bytes())  # one configuration's file under another's name
-    with pytest.raises(pd.StoreCorruptError, match="checksum"):
+    with pytest.raises(pd.rows.StoreCorruptError, match="checksum"):
         [reopened.get(T) for T in (pd.RigidObject(block, START).transform[None], END[None])]
 
 
@@ -908,7 +908,7 @@ def test_rows_minus_matches_scipy(monkeypatch):
     """D = rows - kept[slots] by the native merge against scipy, sorted and unsorted rows, one
     matrix or blocks, one part or parts on the cores, exact zeros dropped; slots outside the
     kept rows refused."""
-    from pydynrad import hostthreads
+    from pydynrad.host import threads as hostthreads
     from pydynrad.dynamic import stale
     from pydynrad.dynamic.stale import rows_minus
 
@@ -1010,7 +1010,7 @@ def test_difference_at_pose_is_at_pose_minus_kept(monkeypatch):
     whose object columns overfill them, hidden entries, rows read in place out of a larger F),
     in one part or in parts on the cores, kept rows out of column order sorted first; bad
     shapes refused."""
-    from pydynrad import hostthreads
+    from pydynrad.host import threads as hostthreads
     from pydynrad.dynamic import stale
     from pydynrad.dynamic.moves import difference_at_pose
     from pydynrad.dynamic.stale import rows_minus
@@ -1071,7 +1071,7 @@ def test_difference_since_the_last_pose_is_the_pass_made_whole(monkeypatch):
     rows, rows capped at the pose (made whole), rows not named; in one part and in parts. It
     does start from the last D (a wrong one shows), and not where the kept rows are out of
     order (then sorted, the last D unread); bad inputs refused."""
-    from pydynrad import hostthreads
+    from pydynrad.host import threads as hostthreads
     from pydynrad.dynamic import stale
     from pydynrad.dynamic.moves import PoseDifference, Since, difference_at_pose
 
@@ -1162,7 +1162,7 @@ def test_precomputed_poses_with_static_form_factors(box, block, device):
     box, none here), and B is its solve."""
     F_static = pd.form_factors(box, R, device=device)
     n = len(box) + len(block)
-    poses = pd.precompute_poses(box, [pd.RigidObject(block)], [END], resolution=R, device=device)
+    poses = pd.precompute.precompute_poses(box, [pd.RigidObject(block)], [END], resolution=R, device=device)
     obj = pd.RigidObject(block, START)
     dyn = pd.DynamicRadiosity(box, F_static, local_size=n, resolution=R, objects=[obj], occlusion=0, poses=poses,
                               observer=OBSERVER, device=device)
@@ -1293,12 +1293,12 @@ def test_moves_that_fail_or_come_from_elsewhere_leave_the_solution_right(box, bl
     cut = pose(0, (200.0, 20.0, 40.0))  # through the floor
     dyn.move(obj, cut)
     with warnings.catch_warnings():
-        warnings.simplefilter("error", pd.ObjectIntersectionWarning)
-        with pytest.raises(pd.ObjectIntersectionWarning):
+        warnings.simplefilter("error", pd.geometry.ObjectIntersectionWarning)
+        with pytest.raises(pd.geometry.ObjectIntersectionWarning):
             dyn.update(OBSERVER)
     np.testing.assert_array_equal(obj.transform, START)
     np.testing.assert_array_equal(dyn.matrix.to_host(), K0)
-    with pytest.warns(pd.ObjectIntersectionWarning):
+    with pytest.warns(pd.geometry.ObjectIntersectionWarning):
         assert dyn.update(OBSERVER).moved == 1  # the queued move, applied now
     np.testing.assert_array_equal(obj.transform, cut)
     # Set directly, and moved by a second solution sharing the object: both follow it.
@@ -1314,12 +1314,12 @@ def test_moves_that_fail_or_come_from_elsewhere_leave_the_solution_right(box, bl
     assert dyn.update(OBSERVER).moved == 0
     # Poses of other objects (as many patches) and of another static scene (as many patches).
     small = pd.scenes.block(40.0, 1, albedo=(0.1, 0.7, 0.1))
-    poses = pd.precompute_poses(box, [pd.RigidObject(small)], [START], resolution=R, device=device)
+    poses = pd.precompute.precompute_poses(box, [pd.RigidObject(small)], [START], resolution=R, device=device)
     with pytest.raises(pd.InvalidInputError, match="other objects"):
         pd.DynamicRadiosity(box, None, local_size=len(box) + len(block), resolution=R,
                             objects=[pd.RigidObject(block, START)], observer=OBSERVER, device=device, poses=poses)
     turned = pd.Scene(box.points[:, [2, 1, 0]], box.triangles[:, [0, 2, 1]], albedo=box.albedo, emission=box.emission)
-    poses = pd.precompute_poses(turned, [pd.RigidObject(block)], [START], resolution=R, device=device)
+    poses = pd.precompute.precompute_poses(turned, [pd.RigidObject(block)], [START], resolution=R, device=device)
     with pytest.raises(pd.InvalidInputError, match="another static scene"):
         pd.DynamicRadiosity(box, None, local_size=len(box) + len(block), resolution=R,
                             objects=[pd.RigidObject(block, START)], observer=OBSERVER, device=device, poses=poses)

@@ -14,7 +14,7 @@ import scipy.sparse as sp
 
 import pydynrad
 from pydynrad import multibounce, multibounce_radiosity
-from pydynrad.multibounce import multibounce_memory
+from pydynrad.bounces import multibounce_memory
 from helpers import box_scene, dense_K, dense_radiosity, reciprocal_F, rel
 
 
@@ -38,16 +38,16 @@ def test_host_build_side_by_side_or_in_turn(device, monkeypatch, cores):
     process has no more cores than channels, and in turn otherwise: the same K either way."""
     import importlib
 
-    import pydynrad.hostblas
+    import pydynrad.host.blas
 
-    mb = importlib.import_module("pydynrad.multibounce")  # the module, not the function pydynrad exports
+    mb = importlib.import_module("pydynrad.bounces")  # the module, not the function pydynrad exports
     monkeypatch.setattr(mb, "host_cores", lambda: cores)
     rng = np.random.default_rng(5)
     s = box_scene(3).with_materials(albedo=rng.uniform(0, 0.9, (108, 3)))
     F = reciprocal_F(s.areas, row_sum=0.95, density=0.3, seed=5)
     limits = []
-    real = pydynrad.hostblas.one_blas_thread
-    monkeypatch.setattr(pydynrad.hostblas, "one_blas_thread", lambda: limits.append(1) or real())
+    real = pydynrad.host.blas.one_blas_thread
+    monkeypatch.setattr(pydynrad.host.blas, "one_blas_thread", lambda: limits.append(1) or real())
     K = multibounce(s, F, dtype=np.float64, device=device, backend="host")
     assert limits == ([1] if cores <= 3 else [])
     truth = dense_K(s, F)
@@ -112,7 +112,7 @@ def test_B_from_K_matches_iterative_and_dense(device):
     np.testing.assert_allclose(B, iterative, rtol=1e-10)  # the iteration's tol 1e-12: observed 1.1e-12
     # The same product on the device, from K stored in fp32 and fp16.
     for storage, tol in (("fp32", 3e-6), ("fp16", 1e-3)):  # observed 2.7e-8 and 1.5e-5
-        Bd = multibounce_radiosity(s, pydynrad.DeviceMatrix(device, K, storage), light=L)
+        Bd = multibounce_radiosity(s, pydynrad.device.DeviceMatrix(device, K, storage), light=L)
         assert rel(Bd, dense) < tol
 
 
@@ -142,7 +142,7 @@ def test_grey_K_with_coloured_light(device):
     assert K.shape[0] == 1
     dense = pydynrad.solve(s, F, method="dense", light=L, device=device).radiosity
     np.testing.assert_allclose(multibounce_radiosity(s, K, light=L), dense, rtol=1e-13, atol=1e-15)  # observed 8e-16
-    np.testing.assert_allclose(multibounce_radiosity(s, pydynrad.DeviceMatrix(device, K, "fp64"), light=L), dense, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(multibounce_radiosity(s, pydynrad.device.DeviceMatrix(device, K, "fp64"), light=L), dense, rtol=1e-13, atol=1e-15)
 
 
 def test_paper_scale_refused_quickly(device):
@@ -150,7 +150,7 @@ def test_paper_scale_refused_quickly(device):
     pts = np.random.default_rng(0).random((3 * n, 3))
     s = pydynrad.Scene(pts, np.arange(3 * n).reshape(n, 3), albedo=(0.5, 0.4, 0.3))
     t0 = time.perf_counter()
-    with pytest.raises(pydynrad.OutOfMemoryError, match="GiB"):
+    with pytest.raises(pydynrad.errors.OutOfMemoryError, match="GiB"):
         multibounce(s, sp.csr_matrix((n, n), dtype=np.float32), device=device)
     assert time.perf_counter() - t0 < 5.0  # refused before allocating or validating anything big
     need = multibounce_memory(n, 3, np.float32)

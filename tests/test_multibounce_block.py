@@ -7,7 +7,7 @@ import scipy.sparse as sp
 from helpers import box_scene, dense_K, reciprocal_F, rel
 
 import pydynrad
-from pydynrad.multibounce import multibounce, multibounce_block
+from pydynrad.bounces import multibounce, multibounce_block
 from pydynrad.rows.sources import CSRRows
 
 

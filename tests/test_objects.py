@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import pydynrad as pd
-from pydynrad.bvh import cast_rays
+from pydynrad.geometry.bvh import cast_rays
 from pydynrad.formfactors import pixel_form_factors
-from pydynrad.objects import instanced
+from pydynrad.geometry.objects import instanced
 
 R = 32
 
@@ -153,8 +153,8 @@ def test_shadow_follows_object(box, block, device):
     for T in (pose(0, (200.0, 300.0, 300.0)), pose(45, (380.0, 250.0, 150.0))):
         obj = pd.RigidObject(block, T)
         ref, inst = box.with_objects([obj]), instanced(box, [obj])
-        E_ref = pd.direct_irradiance(ref, light, device=device)
-        E_inst = pd.direct_irradiance(inst, light, device=device)
+        E_ref = pd.lights.direct_irradiance(ref, light, device=device)
+        E_inst = pd.lights.direct_irradiance(inst, light, device=device)
         np.testing.assert_array_equal(E_inst, E_ref)
         # Independent truth: a floor centre is shadowed where the segment to the light crosses
         # the object's triangles, tested in numpy (Moller-Trumbore in float64).
@@ -173,7 +173,7 @@ def test_shadow_follows_object(box, block, device):
         lit = E_inst[floor].max(axis=1) > 0
         assert blocked.any() and (~blocked).any()
         # The static box shadows nothing on the floor at these centres except its own blocks.
-        static_lit = pd.direct_irradiance(box, light, device=device)[floor].max(axis=1) > 0
+        static_lit = pd.lights.direct_irradiance(box, light, device=device)[floor].max(axis=1) > 0
         np.testing.assert_array_equal(lit, static_lit & ~blocked)
         shadows.append(lit)
     assert (shadows[0] != shadows[1]).any()
@@ -203,8 +203,8 @@ def test_rays_and_render_match_static_copy(box, block, device):
     np.testing.assert_array_equal(f_inst[same], f_ref[same])
     for width in (16, 8, 4):  # any-hit packets through the instance at every packet width
         dev = device.with_traits(float_width=width)
-        np.testing.assert_array_equal(pd.bvh.occluded(inst, o, d, 300.0, device=dev),
-                                      pd.bvh.occluded(ref, o, d, 300.0, device=dev))
+        np.testing.assert_array_equal(pd.geometry.bvh.occluded(inst, o, d, 300.0, device=dev),
+                                      pd.geometry.bvh.occluded(ref, o, d, 300.0, device=dev))
 
 
 def test_path_tracer_sees_object(box, block, device):
@@ -235,7 +235,7 @@ def test_move_rewrites_table_only(box, block, device):
 
 
 def test_intersection_warned(box, block):
-    with pytest.warns(pd.ObjectIntersectionWarning, match="intersects"):
+    with pytest.warns(pd.geometry.ObjectIntersectionWarning, match="intersects"):
         instanced(box, [pd.RigidObject(block, pose(0, (350.0, 200.0, 330.0)))])  # through the tall block
 
 
@@ -245,7 +245,7 @@ def test_intersection_warned_exactly_where_edges_cross(box, block, device):
     through its walls and blocks and clear of them."""
     import warnings
 
-    from pydynrad.bvh import occluded
+    from pydynrad.geometry.bvh import occluded
 
     warned = []
     for x in (40.0, 200.0, 350.0, 520.0):
@@ -258,7 +258,7 @@ def test_intersection_warned_exactly_where_edges_cross(box, block, device):
                 with warnings.catch_warnings(record=True) as w:
                     warnings.simplefilter("always")
                     instanced(box, [obj])
-                said = any(issubclass(m.category, pd.ObjectIntersectionWarning) for m in w)
+                said = any(issubclass(m.category, pd.geometry.ObjectIntersectionWarning) for m in w)
                 assert said == crosses, (x, y, z)
                 warned.append(said)
     assert 0 < sum(warned) < len(warned)

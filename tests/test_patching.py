@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from pydynrad import InvalidInputError
-from pydynrad.patching import subdivide
+from pydynrad.geometry.patching import subdivide
 from pydynrad.scenes.analytic import closed_box, parallel_plates, perpendicular_plates
 
 

@@ -44,7 +44,7 @@ def test_a_walk_from_a_path_file_with_a_moving_block_is_the_walk_of_the_same_tra
                                   occlusion=None, observer=path.camera(0).position, device=device)
         return pd.walk(box, path, dyn, lights=LIGHTS, objects=tracks, device=device).radiosity
 
-    by_hand = pd.ObjectTrack(pd.RigidObject(pd.scenes.block(100.0, 1, albedo=green), keys[0]), keys)
+    by_hand = pd.walks.ObjectTrack(pd.RigidObject(pd.scenes.block(100.0, 1, albedo=green), keys[0]), keys)
     b_file, b_hand = walked(loaded.path, loaded.objects), walked(loaded.path, [by_hand])
     np.testing.assert_allclose(track.object.transform, keys[-1], atol=1e-12)
     assert b_file.shape == (len(box) + 48, 3) and b_file[len(box):, 1].max() > 0  # the block is lit
@@ -114,7 +114,7 @@ def test_cli_walk_moves_the_objects_of_the_path_file(tmp_path, capsys):
                                "--path", str(write(tmp_path, doc)), "--local-size", "400",
                                "--out", str(tmp_path / "w"), "--reference-frames", "0", "1"], capsys)
     assert code == 0, err
-    frames = [pd.read_image(tmp_path / "w" / f"frame_{k:04d}.png") for k in (0, 1)]
+    frames = [pd.image_io.read_image(tmp_path / "w" / f"frame_{k:04d}.png") for k in (0, 1)]
     assert frames[0].shape == (12, 16, 3) and np.abs(frames[0] - frames[1]).max() > 0.05  # a still camera: the block moved
     # Against fresh hemicubes of the world with the block: the static F's stale rows and the
     # columns by reciprocity cost ~1% (observed 1.06% and 1.17%; the demo's is 1.4%).
@@ -126,7 +126,7 @@ def test_cli_stores_the_poses_of_a_path_file_and_walk_takes_them(tmp_path, capsy
     """formfactors --poses: the rows of the path file's objects at each frame of its walk go
     into the store (the same rows as precompute_poses in memory, bit for bit); a second run
     adds none; a walk over the store reads them."""
-    from pydynrad.cli import load_scene
+    from pydynrad.cli.main import load_scene
     from pydynrad.rows.store import FormFactorStore
 
     doc = dict(CAMERA, frames=2, objects=[{"block": {"size": 100, "subdivisions": 0},
@@ -142,9 +142,9 @@ def test_cli_stores_the_poses_of_a_path_file_and_walk_takes_them(tmp_path, capsy
     scene, loaded = load_scene("cornell_box", 250.0), load_walk(path)
     objs = [t.object for t in loaded.objects]
     configs = [[t.at(k, 2) for t in loaded.objects] for k in range(2)]
-    memory = pd.precompute_poses(scene, objs, configs, resolution=R)
+    memory = pd.precompute.precompute_poses(scene, objs, configs, resolution=R)
     opened = FormFactorStore.open(scene, store, resolution=R, patching={"max_edge": 250.0, "scene": "cornell_box"})
-    stored = pd.stored_poses(scene, objs, opened, R)
+    stored = pd.precompute.stored_poses(scene, objs, opened, R)
     for config in configs:
         (p_mem, rows_mem), (p_st, rows_st) = memory.get(config), stored.get(config)
         np.testing.assert_array_equal(p_mem, p_st)

@@ -9,7 +9,8 @@ import pytest
 from helpers import plane_mesh
 
 import pydynrad
-from pydynrad import Camera, Scene, path_trace, path_trace_patches
+from pydynrad import Camera, Scene, path_trace
+from pydynrad.pathtracer import path_trace_patches
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +74,7 @@ def test_analytic_lights_match_direct_irradiance(device):
     """A single lit plane of albedo rho with a black occluder above: no light returns to the
     plane, so B = rho * direct irradiance exactly, as lights.direct_irradiance computes it
     (point, spot and directional lights, shadows included)."""
-    from pydynrad.lights import DirectionalLight, PointLight, SpotLight, direct_irradiance
+    from pydynrad.lights.sources import DirectionalLight, PointLight, SpotLight, direct_irradiance
 
     floor, up = plane_mesh(6)
     blocker = np.array([[0.1, 0.1, 0.5], [0.4, 0.1, 0.5], [0.4, 0.4, 0.5]])
@@ -135,7 +136,7 @@ def test_bad_camera_is_rejected(furnace):
 def _cornell_vs_radiosity(device, max_edge, resolution, spp):
     """Path-traced patch radiosities of the Cornell box vs the full radiosity solution:
     (relative RMS difference, the path tracer's own relative RMS noise, scene, solution)."""
-    from pydynrad.compare import radiosity_error
+    from pydynrad.comparison import radiosity_error
 
     scene = pydynrad.scenes.cornell_box(max_edge=max_edge)
     F = pydynrad.form_factors(scene, resolution=resolution, device=device)

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from pydynrad.pocl_target import _cpu_flags, compiler_target, library_cpu, needs_replacing, psabi_level, replaced_cpu
+from pydynrad.device.pocl import _cpu_flags, compiler_target, library_cpu, needs_replacing, psabi_level, replaced_cpu
 
 # /proc/cpuinfo flags of the machines named (subsets: the flags the levels read, plus noise).
 V2 = {"fpu", "sse2", "cx16", "lahf_lm", "popcnt", "sse4_1", "sse4_2", "ssse3"}

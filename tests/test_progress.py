@@ -17,7 +17,7 @@ def test_long_calls_follow_it(device, capsys, tmp_path):
     """The path tracer used to treat progress=None as False; walk and the stores as True."""
     s = pydynrad.scenes.parallel_plates(subdivisions=0)
     calls = {
-        "path tracing": lambda p: pydynrad.path_trace_patches(s, spp=2, device=device, progress=p),
+        "path tracing": lambda p: pydynrad.pathtracer.path_trace_patches(s, spp=2, device=device, progress=p),
         "form factors R=8": lambda p: pydynrad.form_factors(s, resolution=8, device=device, progress=p),
         "multibounce": lambda p: pydynrad.multibounce(s, pydynrad.form_factors(s, resolution=8, device=device),
                                                       device=device, progress=p),

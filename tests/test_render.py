@@ -3,7 +3,7 @@ import pytest
 from helpers import box_mesh, brute_force_hits
 
 from pydynrad import Camera, InvalidInputError, Scene
-from pydynrad.render import Renderer, render, smoothing_groups
+from pydynrad.renderer import Renderer, render, smoothing_groups
 
 
 def cast_camera(scene, camera):

@@ -141,7 +141,7 @@ def test_cli_samples_file_and_store(tmp_path, capsys):
 @pytest.mark.slow
 def test_distributed_store_of_samples(box, sampled, tmp_path):
     """Workers open the store with its samples and compute its rows with them (2 spawned workers)."""
-    from pydynrad.rows.distributed import precompute_distributed
+    from pydynrad.precompute.distributed import precompute_distributed
 
     store = precompute_distributed(box, tmp_path / "ff", resolution=R, samples=K, block_rows=16, workers=2,
                                    progress=False)

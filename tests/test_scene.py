@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 import pydynrad
-from pydynrad import DegenerateTriangleWarning, InvalidInputError, Scene
+from pydynrad import InvalidInputError, Scene
+from pydynrad.geometry import DegenerateTriangleWarning
 
 SQUARE_PTS = [[0, 0, 0], [2, 0, 0], [2, 3, 0], [0, 3, 0]]
 SQUARE_TRI = [[0, 1, 2], [0, 2, 3]]

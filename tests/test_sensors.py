@@ -24,7 +24,7 @@ def test_sensors_on_patches_gather_exactly_their_rows(lit_box, device):
     scene, F, B, light = lit_box
     ids = np.arange(len(scene))
     E = illuminance(scene, B, lights=light, patches=ids, resolution=16, device=device)
-    direct = pydynrad.direct_irradiance(scene, [light], device)
+    direct = pydynrad.lights.direct_irradiance(scene, [light], device)
     # The same rays as F's rows: equal to float32 summation (4e-8 observed).
     np.testing.assert_allclose(E - direct, F @ B, rtol=1e-6)
     # And the radiosity equation itself: B = E + rho H.
@@ -53,7 +53,7 @@ def test_sensors_cast_no_shadows(device):
     E = illuminance(scene, None, points, [0, 0, 1], lights=light, device=device)
     np.testing.assert_allclose(E[:, 0], 100.0 / (3.0 - z) ** 2, rtol=1e-6)
     # and the floor below them still receives the light in full (it is the scene's patch).
-    H = pydynrad.direct_irradiance(scene, [light], device)
+    H = pydynrad.lights.direct_irradiance(scene, [light], device)
     d2 = np.sum((scene.centers - light.position) ** 2, axis=1)
     np.testing.assert_allclose(H[:, 0], 100.0 * 3.0 / d2**1.5, rtol=1e-6)
 

@@ -9,7 +9,8 @@ import pytest
 import pydynrad
 from pydynrad import InvalidInputError
 from pydynrad.formfactors import _polygon_form_factor
-from pydynrad.photometry import SkyLight, illuminance
+from pydynrad.photometry import illuminance
+from pydynrad.lights import SkyLight
 
 
 def _floor(size=10.0, albedo=0.3):
@@ -19,7 +20,7 @@ def _floor(size=10.0, albedo=0.3):
 
 def test_uniform_sky_on_an_unobstructed_horizontal_patch_is_pi_L(device):
     L = 1234.0
-    H = pydynrad.direct_irradiance(_floor(), [SkyLight("uniform", zenith_luminance=L, resolution=32)], device)
+    H = pydynrad.lights.direct_irradiance(_floor(), [SkyLight("uniform", zenith_luminance=L, resolution=32)], device)
     # Every hemicube pixel escapes: the weights sum to 1 (float32 sums: ~1e-7).
     np.testing.assert_allclose(H, math.pi * L, rtol=2e-6)
 
@@ -28,7 +29,7 @@ def test_cie_overcast_horizontal_illuminance_over_zenith_luminance_is_seven_pi_o
     sky = SkyLight("cie_overcast", zenith_luminance=1.0, resolution=64)
     # Closed form: 2 pi int_0^1 (1 + 2 mu) / 3 mu dmu = 7 pi / 9.
     assert sky.horizontal_factor() == pytest.approx(7 * math.pi / 9, rel=1e-6)
-    H = pydynrad.direct_irradiance(_floor(), [sky], device)
+    H = pydynrad.lights.direct_irradiance(_floor(), [sky], device)
     # The hemicube samples the sky at pixel centres: 2.8e-5 relative at R = 64.
     np.testing.assert_allclose(H, 7 * math.pi / 9, rtol=1e-4)
 
@@ -36,7 +37,7 @@ def test_cie_overcast_horizontal_illuminance_over_zenith_luminance_is_seven_pi_o
 def test_horizontal_illuminance_fixes_the_zenith_luminance(device):
     sky = SkyLight("clear", horizontal_illuminance=20000.0, sun_direction=(0.5, 0.2, 0.6))
     assert sky.zenith * sky.horizontal_factor() == pytest.approx(20000.0, rel=1e-12)
-    H = pydynrad.direct_irradiance(_floor(), [sky], device)
+    H = pydynrad.lights.direct_irradiance(_floor(), [sky], device)
     np.testing.assert_allclose(H, 20000.0, rtol=2e-4)  # 3.7e-5 observed
 
 
@@ -102,7 +103,7 @@ def test_bad_skies_are_refused():
     with pytest.raises(InvalidInputError, match="ground_reflectance"):
         SkyLight(zenith_luminance=1.0, ground_reflectance=1.0)
     with pytest.raises(InvalidInputError, match="at most one SkyLight"):
-        pydynrad.direct_irradiance(_floor(), [SkyLight(zenith_luminance=1.0)] * 2)
+        pydynrad.lights.direct_irradiance(_floor(), [SkyLight(zenith_luminance=1.0)] * 2)
 
 
 def test_solve_dynamic_and_path_tracer_agree_under_a_sky(device):
@@ -114,7 +115,7 @@ def test_solve_dynamic_and_path_tracer_agree_under_a_sky(device):
     dyn = pydynrad.DynamicRadiosity(scene, F, local_size=len(scene), storage="fp64", observer=[0.5, 0.5, 0.5],
                                     device=device)
     np.testing.assert_allclose(dyn.radiosity([sky]), B, rtol=1e-5)
-    P = pydynrad.path_trace_patches(scene, spp=4096, lights=[sky], device=device).astype(np.float64)
+    P = pydynrad.pathtracer.path_trace_patches(scene, spp=4096, lights=[sky], device=device).astype(np.float64)
     rel = (P - B) / B
     # 4,096 paths per patch: 0.8% RMS per patch; the mean over 64 patches is ~10x tighter.
     assert np.sqrt(np.mean(rel**2)) < 0.02

@@ -122,7 +122,7 @@ def test_albedo_zero_gives_light_exactly(device):
 def test_albedo_0999_reports_non_convergence_or_converges(device):
     s = box_scene(2, albedo=0.999, emission=1.0)
     F = reciprocal_F(s.areas, seed=10)
-    with pytest.raises(pydynrad.ConvergenceError, match="200 iterations"):
+    with pytest.raises(pydynrad.errors.ConvergenceError, match="200 iterations"):
         solve(s, F, dtype=np.float64, max_iterations=200, device=device)
     partial = solve(s, F, dtype=np.float64, max_iterations=200, raise_on_failure=False, device=device)
     assert not partial.converged and partial.iterations == 200 and partial.residual > 1e-6
@@ -164,7 +164,7 @@ def test_bad_form_factors_refused(device):
 def test_dense_refused_when_too_large(device, monkeypatch):
     import sys
 
-    solve_module = sys.modules["pydynrad.solve"]  # the package attribute is the function
+    solve_module = sys.modules["pydynrad.solution"]  # the package attribute is the function
     s = box_scene(2, emission=1.0)
     monkeypatch.setattr(solve_module, "DENSE_MAX_PATCHES", 10)
     with pytest.raises(pydynrad.InvalidInputError, match="iterative"):
@@ -263,7 +263,7 @@ def test_rgb_pass_equals_three_grey_solves(device, dtype):
 def test_kernel_layouts_give_the_series(device, layout, grey):
     """Every work split (one block or many, one work-item per block or a work-group per row,
     the GPU's CSR-vector path run here on the CPU) computes the same bounces and residual."""
-    from pydynrad.solve import RadiositySolver
+    from pydynrad.solution import RadiositySolver
 
     rng = np.random.default_rng(14)
     s = box_scene(3)
@@ -287,7 +287,7 @@ def test_float32_rgb_steps_give_the_series(device, layout):
     """Both vector steps of the float32 RGB loop (pairs of entries for 8-float registers, fours
     for 16-float ones; each machine uses one) compute the same bounces, on rows of every length
     mod 4."""
-    from pydynrad.solve import RadiositySolver
+    from pydynrad.solution import RadiositySolver
 
     rng = np.random.default_rng(17)
     s = box_scene(3)
@@ -300,7 +300,7 @@ def test_float32_rgb_steps_give_the_series(device, layout):
 
 
 def test_row_blocks_cover_every_row_with_balanced_entries():
-    from pydynrad.devicecsr import row_blocks
+    from pydynrad.device.csr import row_blocks
 
     rng = np.random.default_rng(16)
     lengths = rng.integers(0, 300, 1000)
@@ -317,7 +317,7 @@ def test_row_blocks_cover_every_row_with_balanced_entries():
 
 
 def test_bad_layout_refused(device):
-    from pydynrad.solve import RadiositySolver
+    from pydynrad.solution import RadiositySolver
 
     s = box_scene(2, emission=1.0)
     with pytest.raises(pydynrad.InvalidInputError, match="layout"):
@@ -331,7 +331,7 @@ def test_bad_layout_refused(device):
 def test_grey_solve_in_every_device_format(device, traits, dtype):
     """A grey scene runs SELL-16 (float) / SELL-8 (double) on an AVX-512 CPU, CSR on a narrower
     CPU and CSR-vector on a GPU: the same bounces either way."""
-    from pydynrad.solve import RadiositySolver
+    from pydynrad.solution import RadiositySolver
 
     dev = device.with_traits(**traits)
     rng = np.random.default_rng(17)

@@ -5,7 +5,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from pydynrad.transfers import ReadSlab
+from pydynrad.device.transfers import ReadSlab
 
 
 def test_to_device_holds_a_copy(device):
@@ -43,7 +43,7 @@ def test_read_slab_refuses_reads_past_a_part(device):
 
 def test_an_out_of_order_queue_is_refused(device):
     from pydynrad import InvalidInputError
-    from pydynrad.device import Device
+    from pydynrad.device.devices import Device
 
     props = cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE
     try:

@@ -12,7 +12,7 @@ import pytest
 from helpers import rel
 
 from pydynrad.dynamic.kupdate import UpdateKernels
-from pydynrad.matvec import DeviceMatrix
+from pydynrad.device.matrix import DeviceMatrix
 
 
 # M = 13: one partial row group; 600: ld = 640, a full and a partial column strip of the CPU

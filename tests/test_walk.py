@@ -5,11 +5,12 @@ import pytest
 from helpers import box_mesh
 
 import pydynrad
-from pydynrad import InvalidInputError, Scene, read_image
-from pydynrad.lights import PointLight, light_vector
+from pydynrad import InvalidInputError, Scene
+from pydynrad.image_io import read_image
+from pydynrad.lights.sources import PointLight, light_vector
 from pydynrad.paths import CameraPath, LightTrack, fly_through, load_path, orbit
-from pydynrad.render import Renderer
-from pydynrad.walk import walk
+from pydynrad.renderer import Renderer
+from pydynrad.walks import walk
 
 
 def test_keyframes_are_hit_and_interpolation_is_smooth():
@@ -249,7 +250,7 @@ def test_path_files_track_spot_lights(tmp_path, device):
     promised it; the parser knew only point and directional) and keeps its cone: a walk with
     the local set holding every patch gives the full solution for the spot at each frame."""
     from pydynrad.formfactors import form_factors
-    from pydynrad.lights import SpotLight
+    from pydynrad.lights.sources import SpotLight
     from pydynrad.paths import lights_at
 
     doc = {"frames": 3, "width": 12, "height": 10, "fov_y": 80,
@@ -289,9 +290,9 @@ def test_path_file_fields_are_named_and_endless_files_refused(tmp_path):
         path = tmp_path / "p.json"
         path.write_text(json.dumps({"frames": 2, **doc}))
         with pytest.raises(InvalidInputError, match=message):
-            pydynrad.load_walk(path)
+            pydynrad.walks.load_walk(path)
     for endless in ("/dev/zero", tmp_path):
         with pytest.raises(InvalidInputError, match="not a regular file"):
-            pydynrad.load_walk(endless)
+            pydynrad.walks.load_walk(endless)
     with pytest.raises(InvalidInputError, match="not a regular file"):
-        pydynrad.photometry.read_ies("/dev/zero")
+        pydynrad.lights.read_ies("/dev/zero")

@@ -115,7 +115,7 @@ class LightGroups:
     """
 
     def __init__(self, scene, groups: Mapping, *, emission: bool = True, device=None) -> None:
-        from ..lights import checked_light_vector, direct_irradiance
+        from ..lights.sources import checked_light_vector, direct_irradiance
 
         self.scene = checked_scene(scene)
         if not isinstance(groups, Mapping):
@@ -155,7 +155,7 @@ class LightGroups:
         """Full radiosity per group (:func:`pydynrad.solve`; ``options`` are its tol,
         max_iterations, bounces, raise_on_failure). The iterative method keeps F on the device
         across the groups."""
-        from ..solve import RadiositySolver, solve
+        from ..solution import RadiositySolver, solve
 
         if method == "iterative":
             solver = RadiositySolver(self.scene, F, dtype=dtype, device=self.device)
@@ -165,7 +165,7 @@ class LightGroups:
 
     def multibounce(self, K, patches=None) -> GroupRadiosity:
         """Radiosity per group through a multibounce matrix K (:func:`pydynrad.multibounce_radiosity`)."""
-        from ..multibounce import multibounce_radiosity
+        from ..bounces import multibounce_radiosity
 
         return self._per_group(lambda L: multibounce_radiosity(self.scene, K, light=L, patches=patches,
                                                                device=self.device))

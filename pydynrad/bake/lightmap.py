@@ -35,7 +35,7 @@ import numpy as np
 from ..checks import number, scene as checked_scene, stops
 from ..errors import InvalidInputError, OutOfMemoryError
 from ..image_io import LINEAR_FORMATS, write_image
-from ..memory import available_host_bytes
+from ..host.memory import available_host_bytes
 from ..smoothing import smooth_vertices
 from .files import write_checked
 from .vertex import checked_mesh_path, mesh_bytes, mesh_metadata
@@ -125,7 +125,7 @@ class Lightmap:
                          self.uv[self.faces[np.asarray(patch)]].astype(np.float64))
 
     def write(self, path) -> Path:
-        """Write the image as a linear float file (.exr, .hdr, .tif, .pfm; see :func:`pydynrad.write_image`)."""
+        """Write the image as a linear float file (.exr, .hdr, .tif, .pfm; see :func:`pydynrad.image_io.write_image`)."""
         if Path(path).suffix.lower() not in LINEAR_FORMATS:
             raise InvalidInputError(f"a lightmap holds linear radiosity: write it as {', '.join(LINEAR_FORMATS)}, "
                                     f"not {str(path)!r}")
@@ -244,7 +244,7 @@ def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int, device):
     vertex ``values`` (T, 3, 3); see the module docstring and ``kernels/lightmap.cl``."""
     import pyopencl as cl
 
-    from ..launch import global_size
+    from ..device.launch import global_size
 
     n = len(corners)
     a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
@@ -350,7 +350,7 @@ def bake_lightmap(scene, radiosity, texels_per_unit: float, *, padding: int = 2,
     _check_memory(float(w) * h, f"{w}x{h} texels")
     vertex_values = values[vmapping]
     corners = (uv.astype(np.float64) * [w, h])[faces]
-    from ..device import default_device
+    from ..device.devices import default_device
 
     image, covered, filled = _rasterise(corners, vertex_values[faces], h, w, device or default_device())
     _dilate(image, filled, int(padding))

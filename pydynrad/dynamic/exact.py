@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..hostblas import blas_beside
+from ..host.blas import blas_beside
 
 __all__ = ["SwapUpdate", "batched_swap", "exact_swap"]
 

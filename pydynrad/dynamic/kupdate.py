@@ -1,4 +1,4 @@
-"""Device operations on a :class:`~pydynrad.matvec.DeviceMatrix` K for the local update.
+"""Device operations on a :class:`~pydynrad.device.matrix.DeviceMatrix` K for the local update.
 
 Thin wrappers around ``kernels/update.cl`` with numpy in and out (float64 on the host, the
 matrix's compute type on the device). Each method works on one channel's buffer in place:
@@ -23,8 +23,8 @@ import time
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..launch import CPU_ROWS, WG, UpdateLayout, global_size, round_up
-from ..transfers import ReadSlab
+from ..device.launch import CPU_ROWS, WG, UpdateLayout, global_size, round_up
+from ..device.transfers import ReadSlab
 
 __all__ = ["UpdateKernels", "scratch_nbytes", "SPARSE_DENSITY", "PROBE_DENSITIES", "crossover"]
 

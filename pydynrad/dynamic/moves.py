@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from ..colproduct import rows_product
+from ..host.colproduct import rows_product
 from ..errors import InvalidInputError, PydynradError
 from ..rows.sources import HemicubeRows
 from .localrows import LocalRows
@@ -78,7 +78,7 @@ def shadow_rays_near(points: np.ndarray, light, spheres) -> np.ndarray:
     kernel's, which stops past the scene). Where False, an object inside those spheres cannot
     shadow the point from the light. All spheres in one pass of arrays (n, k): a pass per
     sphere was 0.4 ms of a move's relight on the bench's Cornell box."""
-    from ..lights import DirectionalLight
+    from ..lights.sources import DirectionalLight
 
     p = np.asarray(points, np.float64)
     if not len(spheres):
@@ -183,11 +183,11 @@ def _hidden_entries(objects, transforms, points: np.ndarray, starts: np.ndarray,
     |u_a|^2, |u_b|^2 (per point, not per segment) and u_a . u_b; a segment near the sphere is
     then moved into object space and kept only if it crosses the object's box (slab test), and
     comes out as the ray the object's tree traces. An object that is one convex solid
-    (:attr:`~pydynrad.objects.RigidObject.solid_planes`) is not traced: the same pass clips each
+    (:attr:`~pydynrad.geometry.objects.RigidObject.solid_planes`) is not traced: the same pass clips each
     segment by the solid's planes, which decides exactly whether it crosses the boundary."""
     from .. import _segments
-    from ..bvh import occluded
-    from ..hostthreads import cores, map_parts, row_parts
+    from ..geometry.bvh import occluded
+    from ..host.threads import cores, map_parts, row_parts
 
     P = np.ascontiguousarray(points, np.float64)
     starts, ends = np.ascontiguousarray(starts, np.int64), np.ascontiguousarray(ends, np.int64)
@@ -358,7 +358,7 @@ def difference_at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_ma
     or two per entry instead of the static and kept rows whole (:class:`Since`). Used where both
     ``rows`` and ``kept`` are in canonical order (scipy's cached ``has_canonical_format``)."""
     from .. import _poserows
-    from ..hostthreads import cores, map_parts, row_parts
+    from ..host.threads import cores, map_parts, row_parts
     from .stale import PARALLEL_ENTRIES
 
     starts, ends, indices, data, hidden, recip = _pose_spans("difference_at_pose", rows, hidden, recip, select)
@@ -580,7 +580,7 @@ class PoseRows:
 
 def _configurations(objs, poses):
     """Each configuration of ``poses`` as a list of validated transforms, one per object."""
-    from ..objects import rigid_transform
+    from ..geometry.objects import rigid_transform
 
     from ..checks import floats
 
@@ -602,7 +602,7 @@ def stored_poses(scene, objects, store, resolution: int = 128) -> PoseRows:
     :class:`~pydynrad.rows.store.StoreMismatchError` for a store of another scene, or whose
     poses are of other objects or another resolution."""
     from ..checks import resolution as checked_resolution
-    from ..objects import _objects
+    from ..geometry.objects import _objects
     from ..rows.store import StoreMismatchError
 
     objs = _objects(objects)
@@ -625,7 +625,7 @@ def precompute_poses(scene, objects, poses, resolution: int = 128, device=None, 
     """
     from ..checks import resolution as checked_resolution
     from ..formfactors import form_factors
-    from ..objects import _objects, instanced
+    from ..geometry.objects import _objects, instanced
 
     objs = _objects(objects)
     R = checked_resolution(resolution)
@@ -956,7 +956,7 @@ class WorldRows:
                 # waits, and takes the interpreter's lock once they are traced (queued by it, both
                 # threads had wanted the lock for small numpy steps at once: refresh_order took 3
                 # ms instead of 0.3, and the trace started after it; Zen 4, 2026-12-06).
-                from ..hostthreads import pool
+                from ..host.threads import pool
 
                 tracing = self._tracing = pool().submit(self.fresh_queued(self.object_patches))
                 self._meanwhile = meanwhile

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..checks import flag, integer, number, resolution as checked_resolution, scene as checked_scene, vec3
 from ..errors import InvalidInputError, PydynradError
-from ..matvec import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
+from ..device.matrix import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
 from .localrows import LocalRows, _replace_rows
 from .selection import NearestSet
 from .stale import CORRECTION_TOLERANCE, StaleRows
@@ -172,12 +172,12 @@ class DynamicRadiosity:
         objects'.
     poses : PoseRows, optional
         Rows precomputed for configurations of the objects known in advance
-        (:func:`pydynrad.precompute_poses`, same ``resolution``): a move to one of them takes its
+        (:func:`pydynrad.precompute.precompute_poses`, same ``resolution``): a move to one of them takes its
         rows from there instead of hemicubes (with a static ``form_factors``, also the static
         rows it holds, instead of their estimate from F; with F and the poses at the same
         resolution and one sample per row, the rows at a stored pose are then a full build's,
         up to the rounding of the cap to a sum of 1 on the rows made from F).
-    device : pydynrad.Device, optional
+    device : pydynrad.device.Device, optional
     """
 
     def __init__(self, scene, form_factors, local_size: int = 1024, update: str = "exact", storage: str = "fp32",
@@ -186,7 +186,7 @@ class DynamicRadiosity:
                  cluster_form_factors=None, objects=None, occlusion: int | str | None = "auto", poses=None,
                  device=None, samples: int = 1, occlusion_correction: bool = True,
                  correction_tolerance: float = CORRECTION_TOLERANCE) -> None:
-        from ..device import device_or_default
+        from ..device.devices import device_or_default
 
         checked_scene(scene)
         self.device = device_or_default(device)
@@ -255,7 +255,7 @@ class DynamicRadiosity:
 
     def _with_objects(self, scene, form_factors, objects, update: str, local_size, resolution: int, poses):
         """The world scene and its row source for a static scene with moving objects."""
-        from ..objects import _objects, instanced
+        from ..geometry.objects import _objects, instanced
         from .moves import WorldRows
 
         if update != "exact":
@@ -359,7 +359,7 @@ class DynamicRadiosity:
         update's scratch), without building anything; a far field adds its
         :attr:`~pydynrad.farfield.FarField.device_memory_bytes`. ``object_patches``: the moving
         objects' patches together (a move batches up to ``MOVE_SWAPS_LIMIT`` of them)."""
-        from ..device import device_or_default
+        from ..device.devices import device_or_default
         from .kupdate import scratch_nbytes
 
         device = device_or_default(device)
@@ -386,7 +386,7 @@ class DynamicRadiosity:
 
     # -- building ----------------------------------------------------------------------------------
     def _fresh_K(self, local_patches: np.ndarray, fetch: bool = True) -> np.ndarray:
-        from ..multibounce import multibounce_block
+        from ..bounces import multibounce_block
 
         if fetch:
             self._ff.fetch_local(local_patches)
@@ -422,8 +422,8 @@ class DynamicRadiosity:
             self._used.reset_all(self._local_mask)
 
     def _check_precision(self, local_patches: np.ndarray) -> None:
-        """:func:`pydynrad.multibounce.warn_precision` for this K's arithmetic, once."""
-        from ..multibounce import warn_precision
+        """:func:`pydynrad.bounces.warn_precision` for this K's arithmetic, once."""
+        from ..bounces import warn_precision
 
         if not self._precision_warned and len(local_patches):
             rho = float(self.scene.albedo[local_patches].max())
@@ -435,8 +435,8 @@ class DynamicRadiosity:
         under one grey K, residual()'s one), and radiosity()'s light pass and far field (lit by
         a light of zero power while it holds no light yet: lit, it has run its kernels, and
         relighting it would discard the B_far it keeps for an unchanged light). K is left as it was."""
-        from ..lights import PointLight
-        from ..photometry.areas import analytic_emitter_light
+        from ..lights.sources import PointLight
+        from ..lights.areas import analytic_emitter_light
 
         self._kernels.warm_up()
         self._matrix.matvec(np.zeros(self.M))
@@ -536,8 +536,8 @@ class DynamicRadiosity:
     def move(self, obj, transform) -> None:
         """Queue a new (4, 4) rigid pose for ``obj``; the next :meth:`update` applies every queued move.
         A pose the device cannot resolve the object at is refused here, nothing queued
-        (:func:`pydynrad.objects.check_reach`)."""
-        from ..objects import check_reach, rigid_transform
+        (:func:`pydynrad.geometry.objects.check_reach`)."""
+        from ..geometry.objects import check_reach, rigid_transform
 
         if not any(o is obj for o in self.objects):
             raise InvalidInputError(f"{obj!r} was never added to this DynamicRadiosity (pass it in objects=)")
@@ -567,7 +567,7 @@ class DynamicRadiosity:
     def _moved_world(self, transforms) -> None:
         """Put :attr:`scene` (and the BVH every kernel traces) at ``transforms``, one per object;
         where that is refused, nothing has changed."""
-        from ..objects import instanced
+        from ..geometry.objects import instanced
 
         self.scene = instanced(self.static_scene, self.objects, transforms, bvh=self.scene.bvh)
         self._ff.source.move(self.scene)
@@ -721,8 +721,8 @@ class DynamicRadiosity:
         form factor, not through K (as in :func:`pydynrad.solve`): the same solution for B - E
         with the reflected light vector L_r, plus E.
         """
-        from ..lights import check_radiosity_range
-        from ..matvec import compute_dtype
+        from ..lights.sources import check_radiosity_range
+        from ..device.matrix import compute_dtype
 
         self._require_built()
         far_field = flag(far_field, "far_field")
@@ -747,14 +747,14 @@ class DynamicRadiosity:
         return B if E is None else B + E
 
     def _light_vector(self, lights, light, emitters: str) -> tuple[np.ndarray, np.ndarray | None]:
-        """:func:`~pydynrad.photometry.areas.analytic_emitter_light` of the world as it is, reused
+        """:func:`~pydynrad.lights.areas.analytic_emitter_light` of the world as it is, reused
         while the light objects (equal ones, in order), the emitter mode and the world are those
         of the last call. A walk's frames under lights that stay put then trace no shadow ray and
         gather no sky again (a SkyLight's light vector is a hemicube per patch, a point light's
         one ray per patch). After a move only the patches whose shadows it may change are lit
         again (:meth:`_relit`). The arrays are read-only: every caller copies."""
-        from ..lights import checked_lights
-        from ..photometry.areas import analytic_emitter_light
+        from ..lights.sources import checked_lights
+        from ..lights.areas import analytic_emitter_light
 
         if light is None:
             lights = checked_lights(lights)
@@ -775,7 +775,7 @@ class DynamicRadiosity:
         then finds: its shadow rays queued now, ahead of the objects' hemicubes, and a callable
         (or None) that the move runs while those trace (with hemicube rows and no static F, just
         before they are queued), which takes the rays' result and gives
-        the far field its light (on the host beside a CPU device, :mod:`pydynrad.hostproduct`, so
+        the far field its light (on the host beside a CPU device, :mod:`pydynrad.host.product`, so
         that nothing of it waits behind the trace; radiosity()'s own light pass and coarse level
         after a move had been 2.8 ms of a 21 ms moving frame on the Cornell box, AMD EPYC Zen 4,
         2026-12-06. Queued ahead, the rays take ~0.6 ms of this thread before the trace starts,
@@ -785,7 +785,7 @@ class DynamicRadiosity:
         for nothing, since radiosity() computes other lights' vector whole. An answer the far
         field cannot give (a light past float32, coarse sweeps that do not converge) is left to
         radiosity(), which raises it where the caller asked for it."""
-        from ..lights import check_radiosity_range
+        from ..lights.sources import check_radiosity_range
 
         held = self._held_light
         if held is None or not held.steady or held.world is self.scene or held.emitters != "hemicube":
@@ -840,7 +840,7 @@ class DynamicRadiosity:
         """:meth:`_relit` with its shadow rays queued on the device: a callable that waits for
         them and returns its answer (None for a direct light past float32), or None where
         :meth:`_relit` does not hold for other reasons."""
-        from ..lights import SHADOW_EPSILON, DirectionalLight, PointLight, SpotLight, _point_irradiance
+        from ..lights.sources import SHADOW_EPSILON, DirectionalLight, PointLight, SpotLight, _point_irradiance
         from .moves import shadow_rays_near
 
         if not self.objects or len(poses) != len(self.objects) or not lights \

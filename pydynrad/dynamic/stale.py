@@ -44,8 +44,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..anderson import Anderson
-from ..colproduct import rows_product
+from ..host.anderson import Anderson
+from ..host.colproduct import rows_product
 from ..errors import InvalidInputError
 
 __all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS", "PARALLEL_ENTRIES"]
@@ -64,7 +64,7 @@ CONTRACTION_LIMIT = 0.5
 #: The most iterations per :meth:`StaleRows.correct` (each one pass over K per channel; a call
 #: that starts from B^(0) takes one pass more for it).
 CORRECTION_ITERATIONS = 8
-#: Earlier iterates that Anderson mixing combines (:class:`~pydynrad.anderson.Anderson`). After the
+#: Earlier iterates that Anderson mixing combines (:class:`~pydynrad.host.anderson.Anderson`). After the
 #: moves of bench/objects.py's block at budget 0 (its own rows among the stale ones) plain
 #: iteration took 4-7 passes over K (6.1 on average over 8 moves), mixing 4-5 (4.9) at depth 3,
 #: the same at 5, 5.4 at 1 (PoCL, AMD EPYC Zen 3, 2026-12-02).
@@ -82,10 +82,10 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     ``slots`` (r,) rows of ``kept``. A native merge of each row with its kept row, read in place
     (``csrc/poserows.c``), in parts of about equal entries on the cores at once from
     :data:`PARALLEL_ENTRIES` entries (one after another on a pool thread,
-    :func:`~pydynrad.hostthreads.map_parts`); where a row of either is out of column order, both
+    :func:`~pydynrad.host.threads.map_parts`); where a row of either is out of column order, both
     are sorted first (a copy)."""
     from .. import _poserows
-    from ..hostthreads import cores, map_parts, row_parts
+    from ..host.threads import cores, map_parts, row_parts
     from .moves import kept_slots, native_csr, native_spans, stacked_rows
 
     blocks = [sp.csr_matrix(rows)] if sp.issparse(rows) else [sp.csr_matrix(b) for b in rows]

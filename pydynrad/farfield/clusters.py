@@ -169,7 +169,7 @@ def light_components(F) -> np.ndarray:
     F[j, i] > 0): sets of patches that exchange no light at all, such as a closed room's inside
     and the world around it. A cluster spanning two would leak light from one into the other.
     Patches alone in their component get label -1 (no constraint)."""
-    from ..csrgraph import weak_components
+    from ..host.csrgraph import weak_components
 
     return free_singletons(weak_components(sp.csr_matrix(F)))
 

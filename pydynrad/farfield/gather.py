@@ -256,10 +256,10 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
 
     ``source`` is what :class:`~pydynrad.DynamicRadiosity` reads F's rows from:
 
-    * a :class:`~pydynrad.rows.store.FormFactorStore` (or a :class:`~pydynrad.RowCache` over
+    * a :class:`~pydynrad.rows.store.FormFactorStore` (or a :class:`~pydynrad.rows.RowCache` over
       one) holding G gives its G, checked to be for these clusters
-      (:class:`~pydynrad.StoreMismatchError` otherwise);
-    * the on-demand :class:`~pydynrad.HemicubeRows` gets G from cluster-id hemicubes of
+      (:class:`~pydynrad.rows.StoreMismatchError` otherwise);
+    * the on-demand :class:`~pydynrad.rows.HemicubeRows` gets G from cluster-id hemicubes of
       ``resolution`` (:func:`cluster_form_factors`), by default the rows' own (with their
       ``samples``): then G is F Pr of the very rows the local set reads (to float32 rounding). A lower one is cheaper but
       disagrees with them: at night (village, one lamp, M = 1024) R_G = 24 against rows of
@@ -267,7 +267,7 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
       (bench/results/pthread-intel-r-xeon-r-processor-rocketlake/farstore-quick.md, PoCL CPU, 2026-12-02);
     * any other source (F in memory, a store of F without G) gets F Pr from its own rows,
       :data:`SUM_BLOCK_ROWS` at a time, so G agrees with that F; a store with neither G nor all
-      of F raises :class:`~pydynrad.StoreIncompleteError`.
+      of F raises :class:`~pydynrad.rows.StoreIncompleteError`.
 
     ``clusters``: Pr (N, C), (N,) labels or a :class:`pydynrad.farfield.Clusters`.
     Returns float32 CSR.

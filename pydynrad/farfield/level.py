@@ -17,9 +17,9 @@ With C = N (every patch its own cluster) G = F and B_far is the full solution.
 
 The coarse system x = s + P_c F_c x (s = L_c, or R D1 below) is solved per light change either
 with a dense coarse multibounce matrix K_c = (I - F_c P_c)^-1 F_c per channel (x = s + P_c K_c s:
-one product, K_c built once by :mod:`pydynrad.multibounce`'s builder, stored fp16/fp32/fp64 on
+one product, K_c built once by :mod:`pydynrad.bounces`'s builder, stored fp16/fp32/fp64 on
 the device, or on the host in the type it computes in where that is a CPU device and K_c is
-small: :mod:`pydynrad.hostproduct`), or by Jacobi sweeps of the sparse F_c on the device (Anderson-mixed, :data:`COARSE_MIXING`), warm-started from the best
+small: :mod:`pydynrad.host.product`), or by Jacobi sweeps of the sparse F_c on the device (Anderson-mixed, :data:`COARSE_MIXING`), warm-started from the best
 combination of earlier solutions (x is linear in s: lights switched back, or summed, start at
 their answer) (``coarse="auto"``: dense up to :data:`DENSE_CLUSTERS` clusters; bench/farfield.py
 measured the switch-over). Every patch's B_far then comes from one of three gathers (``gather=``, measured in
@@ -69,10 +69,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..checks import check_form_factors, finite, integer, scene as checked_scene
-from ..colproduct import columns_product, rows_product
+from ..host.colproduct import columns_product, rows_product
 from ..errors import ConvergenceError, InvalidInputError, PydynradError
-from ..lights import check_radiosity_range
-from ..hostproduct import HostBounce, HostMatrix, on_host
+from ..lights.sources import check_radiosity_range
+from ..host.product import HostBounce, HostMatrix, on_host
 from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
 from .gather import checked_cluster_form_factors
 from .history import Answers
@@ -98,7 +98,7 @@ MAX_CARRIED_SWAPS = 1024
 WARM_STARTS = 4
 
 #: Steps that the coarse sweeps' Anderson mixing combines (0: plain Jacobi sweeps;
-#: :meth:`pydynrad.devicecsr.DeviceCSR.jacobi`).
+#: :meth:`pydynrad.device.csr.DeviceCSR.jacobi`).
 COARSE_MIXING = 3
 
 #: A light vector within this much of its maximum (per channel) of a combination of the last
@@ -133,8 +133,8 @@ def sky_directions(n: int = SKY_DIRECTIONS) -> np.ndarray:
 
 def exposure_weights(scene, F: sp.csr_matrix, device, tol: float = 1e-4) -> np.ndarray:
     """(N,) radiosity (grey, channel mean) under a uniform sky of :data:`SKY_DIRECTIONS` lights."""
-    from ..devicecsr import DeviceCSR
-    from ..lights import DirectionalLight, light_vector
+    from ..device.csr import DeviceCSR
+    from ..lights.sources import DirectionalLight, light_vector
 
     sky = [DirectionalLight(tuple(d), (1.0 / SKY_DIRECTIONS,) * 3) for d in sky_directions()]
     L = light_vector(scene.with_materials(emission=0.0), sky, device=device).mean(axis=1, keepdims=True)
@@ -188,9 +188,9 @@ def _differing_rows(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
 
 def _gather_product(device, G: sp.csr_matrix, dtype):
     """G's bounce product L + P (G x): on the host where that is the device and G is small
-    (:mod:`pydynrad.hostproduct`; a gather of the Cornell box's far field took 0.16-0.18 ms there
+    (:mod:`pydynrad.host.product`; a gather of the Cornell box's far field took 0.16-0.18 ms there
     against 0.36 ms on the device), else on the device."""
-    from ..devicecsr import DeviceCSR
+    from ..device.csr import DeviceCSR
 
     if on_host(device, HostBounce.nbytes_of(G, dtype)):
         return HostBounce(G, dtype)
@@ -201,7 +201,7 @@ def _cluster_columns(F, Pr) -> sp.csr_matrix:
     """G = F Pr (N, C) float64: natively where Pr is float64 with one entry per row (the
     indicator and the exposure-weighted prolongations: F's columns summed by cluster), else
     scipy's product (which a float32 F times a float32 Pr would sum in float32)."""
-    from ..csrgraph import sum_by_label
+    from ..host.csrgraph import sum_by_label
 
     n = Pr.shape[0]
     if Pr.dtype == np.float64 and Pr.nnz == n and np.array_equal(Pr.indptr, np.arange(n + 1)):
@@ -238,8 +238,8 @@ class FarField:
         The coarse solve: the dense K_c product, or Jacobi sweeps of F_c; "auto": dense for
         C <= :data:`DENSE_CLUSTERS`.
     coarse_storage : "fp16" | "fp32" | "fp64", optional
-        Element type of the dense K_c on the device (:class:`pydynrad.matvec.DeviceMatrix`; held on
-        the host, :class:`pydynrad.hostproduct.HostMatrix`, its entries are rounded to it and kept
+        Element type of the dense K_c on the device (:class:`pydynrad.device.matrix.DeviceMatrix`; held on
+        the host, :class:`pydynrad.host.product.HostMatrix`, its entries are rounded to it and kept
         in the type products compute in); default "fp64" for ``dtype=np.float64``, else "fp32".
     tol : float
         Relative max-norm change of the coarse solution at which the sweeps stop (1e-4: 17 and 14
@@ -250,7 +250,7 @@ class FarField:
         above 0 in them raises :class:`~pydynrad.errors.ConvergenceError` (nothing is kept of it).
     dtype : np.float32 | np.float64
         Precision of the sparse device products (and of K_c's build).
-    device : pydynrad.Device, optional
+    device : pydynrad.device.Device, optional
     checked : bool
         ``form_factors`` already passed :func:`pydynrad.checks.check_form_factors` (a
         DynamicRadiosity's own copy): skip validating it again.
@@ -268,9 +268,9 @@ class FarField:
         products run (the device, or the host beside a CPU device where small).
     G_nnz, F_c_nnz : int
         Their non-zeros.
-    K_c : pydynrad.matvec.DeviceMatrix, pydynrad.hostproduct.HostMatrix or None
+    K_c : pydynrad.device.matrix.DeviceMatrix, pydynrad.host.product.HostMatrix or None
         The dense coarse multibounce matrix (``coarse`` resolved to "dense"), else None: on the
-        host where that is the device and K_c is small (:mod:`pydynrad.hostproduct`).
+        host where that is the device and K_c is small (:mod:`pydynrad.host.product`).
     B_far : (N, 3) float64 or None
         Every patch's far radiosity for the last light vector (:meth:`light`).
     sweeps : int
@@ -286,10 +286,10 @@ class FarField:
                  gather: str | None = None, fine_sweeps: int | None = None, coarse: str = "auto", coarse_storage: str | None = None,
                  tol: float = 1e-4, max_sweeps: int = 1000, dtype=np.float32, device=None, *, checked: bool = False,
                  linear=None) -> None:
-        from ..csrgraph import columns_float32
-        from ..device import default_device, real_dtype
-        from ..devicecsr import DeviceCSR
-        from ..matvec import compute_dtype, storage_dtype
+        from ..host.csrgraph import columns_float32
+        from ..device.devices import default_device, real_dtype
+        from ..device.csr import DeviceCSR
+        from ..device.matrix import compute_dtype, storage_dtype
 
         t0 = time.perf_counter()
         self.scene = checked_scene(scene)
@@ -402,9 +402,9 @@ class FarField:
 
     def _dense_coarse(self, storage: str, dtype):
         """K_c (one channel for a grey scene, else three) in ``storage``: on the device, or on the
-        host where that is the device and K_c is small (:func:`pydynrad.hostproduct.on_host`)."""
-        from ..matvec import DeviceMatrix
-        from ..multibounce import multibounce_block
+        host where that is the device and K_c is small (:func:`pydynrad.host.product.on_host`)."""
+        from ..device.matrix import DeviceMatrix
+        from ..bounces import multibounce_block
 
         channels = 1 if self.scene.is_grey else 3
         # checked: F_c is made here from checked parts, and with the exposure prolongation its
@@ -430,7 +430,7 @@ class FarField:
     def host_memory_bytes(self) -> int:
         """Host bytes of G and F_c (with F in memory only), R, the linear fit, F by column (F's
         gathers on a CPU), G's product and K_c where they are on the host
-        (:mod:`pydynrad.hostproduct`), the labels, B_far, the last lights' answers
+        (:mod:`pydynrad.host.product`), the labels, B_far, the last lights' answers
         (:meth:`_combined`), the coarse sweeps' last solutions, the last first bounce and the
         local rows' entries cut out for the injection."""
         cut = None if self._outside_cols is None else self._outside_cols[2]
@@ -675,7 +675,7 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     """The FarField a :class:`~pydynrad.DynamicRadiosity` uses for its form factors
     (:class:`pydynrad.dynamic.localrows.LocalRows`).
 
-    F in memory (a matrix, or :class:`~pydynrad.CSRRows`): everything from F. Without F the
+    F in memory (a matrix, or :class:`~pydynrad.rows.CSRRows`): everything from F. Without F the
     coarse level is piecewise linear (``prolongation="linear"``, the indicator where a store's
     G was made with it): a form-factor store (also behind a row cache) gives its own clusters
     and G (refused when it holds none), G left in the store and read per light change

@@ -56,7 +56,7 @@ class StoredG:
         Holding all of G's blocks.
     prolongation : (N, K) sparse, optional
         The prolongation the caller's far field uses; checked to be the one G was made with
-        (:class:`~pydynrad.StoreMismatchError` otherwise).
+        (:class:`~pydynrad.rows.StoreMismatchError` otherwise).
     chunk_nnz : int
         About how many non-zeros of G one chunk holds.
     spill : bool
@@ -173,11 +173,11 @@ class StoredG:
                              shape=(clusters, clusters))
 
     def bounce(self, device, dtype, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """y = L + rho * (G x) as :meth:`pydynrad.devicecsr.DeviceCSR.bounce` (the same kernel and
+        """y = L + rho * (G x) as :meth:`pydynrad.device.csr.DeviceCSR.bounce` (the same kernel and
         precision, per chunk): L, rho (N, k), x (K, k); returns (N, k) float64."""
         import pyopencl as cl
 
-        from ..devicecsr import DeviceCSR
+        from ..device.csr import DeviceCSR
 
         k = x.shape[1]
         width = 1 if k == 1 else 4

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..checks import resolution as checked_resolution
 from ..formfactors import SURFACE_OFFSET, pixel_form_factors
-from ..launch import bvh_packet, float4, global_size
+from ..device.launch import bvh_packet, float4, global_size
 
 __all__ = ["gather_irradiance"]
 
@@ -38,7 +38,7 @@ def gather_irradiance(scene, points, normals, radiosity=None, sky=None, resoluti
     radiosity : (N, 3), optional
         Patch radiosity B gathered from the patches; none (0) by default.
     sky : (4, 4) float32, optional
-        A packed sky (:func:`pydynrad.photometry.sky.pack_sky`); no sky by default.
+        A packed sky (:func:`pydynrad.lights.sky.pack_sky`); no sky by default.
     resolution : int
         Hemicube resolution R (3 R^2 rays per point).
     keys : (n,) int, optional
@@ -49,7 +49,7 @@ def gather_irradiance(scene, points, normals, radiosity=None, sky=None, resoluti
     """
     import pyopencl as cl
 
-    from ..device import default_device
+    from ..device.devices import default_device
 
     dev = device or default_device()
     R = checked_resolution(resolution)

@@ -13,10 +13,10 @@ import numpy as np
 
 from ..checks import floats, patch_indices, resolution as checked_resolution, scene as checked_scene
 from ..errors import InvalidInputError
-from ..lights import checked_lights, point_irradiance
-from .areas import checked_grid, emitter_irradiance
+from ..lights.sources import checked_lights, point_irradiance
+from ..lights.areas import checked_grid, emitter_irradiance
 from .gather import gather_irradiance
-from .sky import SkyLight, pack_sky
+from ..lights.sky import SkyLight, pack_sky
 
 __all__ = ["illuminance", "checked_sensors"]
 
@@ -77,7 +77,7 @@ def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, 
     emitters : "hemicube" or "analytic"
         How the direct light of emitting patches is found: through their radiosity in the
         hemicube, or by the exact point-to-polygon form factor with ``visibility_grid^2``
-        shadow rays per emitter (:mod:`pydynrad.photometry.areas`; the hemicube then gathers
+        shadow rays per emitter (:mod:`pydynrad.lights.areas`; the hemicube then gathers
         only ``B - E``). Use "analytic" near emitters, where the hemicube is coarse.
 
     Returns

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..checks import floats, integer, number
 from ..errors import InvalidInputError
-from ..memory import available_host_bytes
+from ..host.memory import available_host_bytes
 
 #: Host bytes per grid point while a work plane is laid out: its (u, v) and row/column grids,
 #: the points kept and their inside tests (float64 and int64 arrays, with temporaries).

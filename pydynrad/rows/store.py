@@ -13,7 +13,7 @@ and, when the far field's patch-to-cluster form factors G = F Pr are stored besi
     STORE/prolongation.npz     Pr (N, C), float32, as one CSR block (the clusters G was made with)
     STORE/gblocks/g000000.npz  rows [0, block_rows) of G, ...
 
-and, for moving objects whose poses are known in advance (:func:`pydynrad.precompute_poses`)::
+and, for moving objects whose poses are known in advance (:func:`pydynrad.precompute.precompute_poses`)::
 
     STORE/poses.json           the objects (geometry hashes, in order) and the rows' resolution
     STORE/poses/p<sha256>.npz  one configuration's rows, named by the SHA-256 of its transforms
@@ -561,7 +561,7 @@ class FormFactorStore:
             header = json.loads((self.path / POSE_HEADER).read_text())
         except FileNotFoundError:
             raise StoreIncompleteError(f"store {self.path} holds no per-pose rows of moving objects; precompute them "
-                                       "with pydynrad.precompute_poses(..., store=...)") from None
+                                       "with pydynrad.precompute.precompute_poses(..., store=...)") from None
         except (OSError, ValueError) as exc:
             raise StoreCorruptError(f"unreadable {self.path / POSE_HEADER}: {exc}") from exc
         objects = header.get("objects") if isinstance(header, dict) else None

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..patching import subdivide
-from ..scene import Scene
+from ..geometry.patching import subdivide
+from ..geometry.scene import Scene
 
 __all__ = ["parallel_plates", "perpendicular_plates", "closed_box", "block"]
 

@@ -1,10 +1,10 @@
 """Scenes by name: the one resolver behind the CLI's SCENE argument, the Dask workers'
-:class:`~pydynrad.rows.distributed.SceneSpec` and the benchmarks.
+:class:`~pydynrad.precompute.distributed.SceneSpec` and the benchmarks.
 
 A name is a built-in (:data:`BUILTIN_SCENES`, functions of :mod:`pydynrad.scenes`) or a mesh
 file :func:`pydynrad.load` reads. ``max_edge`` works for all of them: built-ins whose
 function has no ``max_edge`` of its own (the village, the analytic plates and box) are built
-with their defaults and then split by :func:`pydynrad.patching.subdivide_scene`.
+with their defaults and then split by :func:`pydynrad.geometry.patching.subdivide_scene`.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def scene_by_name(name: str, **params):
 
     Built-ins take their function's keyword arguments plus ``max_edge``; mesh files take
     :func:`pydynrad.load`'s. Raises :class:`~pydynrad.InvalidInputError` for an unknown name
-    or parameter, :class:`~pydynrad.SceneFileError` for an unreadable file.
+    or parameter, :class:`~pydynrad.errors.SceneFileError` for an unreadable file.
     """
     from .. import scenes
 
@@ -45,12 +45,12 @@ def scene_by_name(name: str, **params):
         scene = make(**params)
         if split is None:
             return scene
-        from ..patching import subdivide_scene
+        from ..geometry.patching import subdivide_scene
 
         return subdivide_scene(scene, max_edge=split)
     path = Path(name)
     if not path.exists() and not path.suffix:
         raise InvalidInputError(f"scene {name!r} is neither a mesh file nor a built-in scene ({', '.join(BUILTIN_SCENES)})")
-    from ..loading import load
+    from ..geometry.loading import load
 
     return load(path, **params)

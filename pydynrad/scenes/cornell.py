@@ -25,8 +25,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import Delaunay
 
-from ..loading import soup_scene
-from ..scene import Scene
+from ..geometry.loading import soup_scene
+from ..geometry.scene import Scene
 
 __all__ = ["cornell_box", "WHITE", "RED", "GREEN", "LIGHT_ALBEDO", "LIGHT_RADIANCE"]
 

@@ -14,7 +14,7 @@ the scene.
 
 Every surface is a planar quad gridded into near-square cells of ``cell`` metres (the ground
 ``2 * cell``), two triangles per cell; the triangular gables are split 4-way by
-:func:`pydynrad.patching.subdivide` to the same size. The layout is drawn from
+:func:`pydynrad.geometry.patching.subdivide` to the same size. The layout is drawn from
 ``numpy.random.default_rng(seed)``, so a seed fixes the scene bit for bit.
 """
 
@@ -25,8 +25,8 @@ import math
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..patching import subdivide
-from ..scene import Scene
+from ..geometry.patching import subdivide
+from ..geometry.scene import Scene
 
 __all__ = ["village", "BASE_CELL", "MATERIALS", "EMISSION"]
 

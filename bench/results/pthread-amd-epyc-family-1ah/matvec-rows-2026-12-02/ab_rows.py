@@ -1,6 +1,6 @@
-import time, sys, numpy as np, pydynrad.launch as L
-from pydynrad.device import default_device
-from pydynrad.matvec import DeviceMatrix
+import time, sys, numpy as np, pydynrad.device.launch as L
+from pydynrad.device.devices import default_device
+from pydynrad.device.matrix import DeviceMatrix
 dev = default_device(); rng = np.random.default_rng(0)
 new_grid = L.MatvecLayout.matvec_grid
 def old_grid(self, M, nrhs=1):

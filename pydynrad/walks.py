@@ -1,0 +1,285 @@
+"""The frame loop: a camera walks through a scene, the local matrix follows it.
+
+Per frame :func:`walk` does what an interactive viewer would, and times each stage:
+
+1. ``update``: ``dynamic.update(camera.position)`` moves the local patch set to the observer
+   (the paper's per-frame swaps of the multibounce matrix K);
+2. ``lighting``: ``dynamic.radiosity(lights)`` with the lights of this frame (lights may move
+   along :class:`~pydynrad.paths.LightTrack` keyframes): one light pass and B = L + P K L;
+3. ``render``: primary visibility and shading (:class:`~pydynrad.renderer.Renderer`);
+4. ``write``: the image file, when an output folder is given.
+
+At chosen frames it can also solve the full radiosity (all N patches) for the same lights and
+record the local-versus-full error, with a comparison image (:mod:`pydynrad.comparison`).
+Timings are wall-clock seconds measured on the host after each stage has finished on the
+device; the first frame includes kernel builds and uploads.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .geometry.camera import Camera
+from .checks import integer, stops
+from .errors import InvalidInputError
+from .paths import CameraPath, LightTrack, ObjectTrack, WalkFile, fly_through, lights_at, load_path, load_walk, orbit
+
+__all__ = ["walk", "WalkResult", "FrameRecord", "CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path",
+           "load_walk", "WalkFile", "STAGES"]
+
+STAGES = ("update", "lighting", "render", "write")
+
+
+@dataclass
+class FrameRecord:
+    """One frame of a walk: its camera, stage times (seconds), the dynamic solver's stats,
+    the image written (if any) and, at reference frames, the local-versus-full error
+    (area-weighted relative RMS over patches, see :func:`pydynrad.comparison.radiosity_error`)."""
+
+    index: int
+    camera: Camera
+    seconds: dict[str, float]
+    stats: object = None
+    image_path: Path | None = None
+    error: float | None = None
+    comparison_path: Path | None = None
+    pixel_error: dict | None = None
+    local_only_error: float | None = None  # the paper's local-only answer's error, beside a far field's
+    local_only_pixel_error: dict | None = None
+    black: bool = False  # no pixel of the image is lit
+    lit: bool = True  # some patch has radiosity (False: the frame has no light at all)
+
+
+@dataclass
+class WalkResult:
+    """What :func:`walk` returns: per-frame records, the last frame's radiosity (N, 3) and
+    image (H, W, 3), and every image when ``keep_images`` was set."""
+
+    frames: list[FrameRecord]
+    radiosity: np.ndarray
+    image: np.ndarray
+    images: list[np.ndarray] = field(default_factory=list)
+
+    def timings(self) -> dict[str, np.ndarray]:
+        """Seconds per stage, one entry per frame."""
+        return {s: np.array([f.seconds.get(s, 0.0) for f in self.frames]) for s in STAGES}
+
+    def errors(self) -> dict[int, float]:
+        """Local-versus-full error at each reference frame."""
+        return {f.index: f.error for f in self.frames if f.error is not None}
+
+    def summary(self) -> str:
+        """A table of stage times: first frame (warm-up), median and max of the others."""
+        t = self.timings()
+        lines = [f"{'stage':10s} {'first ms':>10s} {'median ms':>10s} {'max ms':>10s}   ({len(self.frames)} frames)"]
+        for stage in STAGES:
+            v = 1e3 * t[stage]
+            rest = v[1:] if len(v) > 1 else v
+            lines.append(f"{stage:10s} {v[0]:10.1f} {np.median(rest):10.1f} {rest.max():10.1f}")
+        total = sum(t[s] for s in STAGES)
+        rest = total[1:] if len(total) > 1 else total
+        lines.append(f"{'frame':10s} {1e3 * total[0]:10.1f} {1e3 * np.median(rest):10.1f} {1e3 * rest.max():10.1f}"
+                     f"   -> {1.0 / max(np.median(rest), 1e-9):.1f} frames/s")
+        for f in self.frames:
+            if f.error is None:
+                continue
+            line = f"dynamic vs full radiosity at frame {f.index}: relative RMS error {100 * f.error:.3g}%"
+            if f.local_only_error is not None:
+                line += (f" with the far field, {100 * f.local_only_error:.3g}% local only (the paper's method); "
+                         f"mean per pixel {100 * f.pixel_error['mean']:.3g}% and "
+                         f"{100 * f.local_only_pixel_error['mean']:.3g}%")
+            lines.append(line)
+        return "\n".join(lines)
+
+
+def _frame_set(frames, n: int) -> set[int]:
+    try:
+        frames = list(frames)
+    except TypeError:
+        raise InvalidInputError(f"reference_frames must be a sequence of frame numbers; got {frames!r}") from None
+    out = set()
+    for f in frames:
+        k = integer(f, f"a reference frame of the walk's {n} frames", -n, n - 1)  # 1.7 had been frame 1
+        out.add(k + n if k < 0 else k)
+    return out
+
+
+def walk(
+    scene,
+    path: CameraPath,
+    dynamic=None,
+    *,
+    lights=(),
+    objects=(),
+    form_factors=None,
+    local_size: int | None = None,
+    solver_options: dict | None = None,
+    shading: str = "smooth",
+    output=None,
+    image_format: str = "png",
+    exposure: float = 0.0,
+    reference_frames=(),
+    keep_images: bool = False,
+    progress: bool | None = None,
+    device=None,
+) -> WalkResult:
+    """Walk a camera through ``scene`` with dynamic radiosity.
+
+    Parameters
+    ----------
+    scene : Scene
+    path : CameraPath
+        From :func:`orbit`, :func:`fly_through`, :class:`CameraPath` keyframes or :func:`load_path`.
+    dynamic : DynamicRadiosity, optional
+        The solver to drive (anything with ``update(position)`` and ``radiosity(lights)``).
+        Built from ``form_factors`` when omitted.
+    lights : sequence of lights and LightTrack
+        Analytic lights of every frame; a :class:`LightTrack` moves along its keyframes.
+    objects : sequence of ObjectTrack
+        Moving objects: each frame moves every track's object to its pose before the update
+        (``dynamic`` must hold those objects; built with them when omitted). Renders and
+        reference solves then see the world at that frame's poses: reference frames solve it
+        from fresh hemicubes at ``dynamic``'s resolution, whatever ``form_factors`` is.
+    form_factors : (N, N) scipy.sparse or RowSource, optional
+        F (of the static scene) for building ``dynamic`` and for the reference solves; required
+        for either (except reference solves with ``objects``). A row
+        source (a form-factor store, a RowCache: see :func:`pydynrad.open_form_factors`)
+        streams rows to ``dynamic``; reference frames then read all of F into memory once.
+    local_size : int, optional
+        M, the local set's size, when building ``dynamic`` (default min(N, 1024)).
+    solver_options : dict, optional
+        More keyword arguments for :class:`~pydynrad.DynamicRadiosity` (``update``,
+        ``storage``, ``max_swaps_per_frame``, ...).
+    shading : "smooth" or "flat"
+    output : str or Path, optional
+        Folder for ``frame_0000.<image_format>``, ... (created if missing); None writes nothing.
+    image_format : str
+        File extension of the frames: png, jpg, exr, ...
+    exposure : float
+        Stops applied when writing images.
+    reference_frames : iterable of int
+        Frames (negative counts from the end) at which to solve the full radiosity and record
+        the error; with ``output`` a ``compare_0000.png`` is written there too.
+    keep_images : bool
+        Return every frame's image in ``WalkResult.images``.
+    progress : bool, optional
+        Show a tqdm bar over the frames; None: when stderr is a terminal.
+    device : Device, optional
+
+    Returns
+    -------
+    WalkResult
+    """
+    from .atomic import check_file_target
+    from .device.devices import device_or_default
+    from .image_io import _format_for, write_image
+    from .geometry.objects import check_reach
+    from .progress import progress_bar
+    from .renderer import Renderer
+
+    if not isinstance(path, CameraPath):
+        raise InvalidInputError(f"path must be a CameraPath (orbit, fly_through, load_path); got {type(path).__name__}")
+    device = device_or_default(device)
+    lights = [lights] if not isinstance(lights, (list, tuple)) else list(lights)
+    try:
+        tracks = list(objects)
+    except TypeError:
+        raise InvalidInputError(f"objects must be a sequence of ObjectTrack; got {type(objects).__name__}") from None
+    for t in tracks:
+        if not isinstance(t, ObjectTrack):
+            raise InvalidInputError(f"objects must be ObjectTrack entries (a RigidObject with keyframes); got {type(t).__name__}")
+    exposure = stops(exposure)  # before any frame's work, not at the first image written
+    n = len(path)
+    # Every frame's camera and poses before any work (the solution's build included), not mid-walk;
+    # the cameras made here are the frames'.
+    cameras = []
+    for k in range(n):
+        try:
+            cameras.append(path.camera(k))
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"frame {k} of {n}: {exc}") from None
+        for t in tracks:
+            check_reach(scene, t.object, t.at(k, n))
+    refs = _frame_set(reference_frames, n)
+    if refs and form_factors is None and not tracks:
+        raise InvalidInputError("reference frames need the form factors (form_factors=F) for the full solve")
+    if dynamic is None:
+        if form_factors is None:
+            raise InvalidInputError("walk needs a DynamicRadiosity (dynamic=...) or the form factors (form_factors=F)")
+        from .dynamic import DynamicRadiosity
+
+        m = min(len(scene), 1024) if local_size is None else local_size
+        options = dict(solver_options or {})
+        if tracks:
+            options["objects"] = [t.object for t in tracks]
+        dynamic = DynamicRadiosity(scene, form_factors, local_size=m, device=device, **options)
+    out_dir = None
+    if output is not None:
+        out_dir = Path(output)
+        _format_for(out_dir / f"frame.{image_format}")  # reject a bad format before any work
+        out_dir.mkdir(parents=True, exist_ok=True)
+        for name in [f"frame_{k:04d}.{image_format}" for k in range(n)] + [f"compare_{k:04d}.png" for k in refs]:
+            check_file_target(out_dir / name)  # a folder in a frame's place: before the first frame
+    renderer = Renderer(scene, device)
+    renderer.warm_up()
+    full_F = None  # all of F in memory, read at the first reference frame
+    records, images = [], []
+    b = img = None
+    bar = progress_bar(progress, iterable=range(n), desc="walk", unit="frame")
+    for k in bar:
+        cam = cameras[k]
+        frame_lights = lights_at(lights, k, n)
+        t0 = time.perf_counter()
+        for t in tracks:
+            dynamic.move(t.object, t.at(k, n))
+        stats = dynamic.update(cam.position)
+        t1 = time.perf_counter()
+        b = np.asarray(dynamic.radiosity(frame_lights))
+        t2 = time.perf_counter()
+        if tracks:
+            renderer = Renderer(dynamic.scene, device)  # the world at this frame's poses
+        img = renderer.render(b, cam, shading)
+        t3 = time.perf_counter()
+        rec = FrameRecord(k, cam, {"update": t1 - t0, "lighting": t2 - t1, "render": t3 - t2, "write": 0.0}, stats,
+                          black=not img.any(), lit=bool(b.any()))
+        if out_dir is not None:
+            rec.image_path = write_image(out_dir / f"frame_{k:04d}.{image_format}", img, exposure)
+            rec.seconds["write"] = time.perf_counter() - t3
+        if k in refs and tracks:
+            from .formfactors import form_factors as hemicubes
+
+            world = dynamic.scene
+            _reference(rec, dynamic, world, hemicubes(world, dynamic.resolution, device=device), frame_lights, b, img,
+                       renderer, shading, out_dir, exposure, device)
+        elif k in refs:
+            if full_F is None:
+                from .rows.files import whole_matrix
+
+                full_F = whole_matrix(form_factors)
+            _reference(rec, dynamic, scene, full_F, frame_lights, b, img, renderer, shading, out_dir, exposure, device)
+        if keep_images:
+            images.append(img)
+        records.append(rec)
+        bar.set_postfix_str(" ".join(f"{s} {1e3 * v:.0f}ms" for s, v in rec.seconds.items() if s != "write"))
+    return WalkResult(records, b, img, images)
+
+
+def _reference(rec: FrameRecord, dynamic, scene, F, lights, b, img, renderer, shading, out_dir, exposure,
+               device) -> None:
+    """Solve the full radiosity for this frame's lights; record the error and the comparison."""
+    from .comparison import reference_frame
+    from .image_io import write_image
+
+    local_only = None
+    if getattr(dynamic, "far", None) is not None:  # the paper's answer from the same K, for comparison
+        local_only = np.asarray(dynamic.radiosity(lights, far_field=False))
+    ref = reference_frame(scene, F, b, rec.camera, lights=lights, renderer=renderer, image=img, shading=shading,
+                          exposure=exposure, local_only=local_only, device=device)
+    rec.error, rec.pixel_error = ref.error, ref.pixel_error
+    rec.local_only_error, rec.local_only_pixel_error = ref.local_only_error, ref.local_only_pixel_error
+    if out_dir is not None:
+        rec.comparison_path = write_image(out_dir / f"compare_{rec.index:04d}.png", ref.image)
