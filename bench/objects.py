@@ -16,7 +16,7 @@ outside the local set are gathered once per frame at the current poses (docs/des
   (rows refreshed per move): the move's time (the block's and the refreshed rows' hemicubes,
   the swap, waited for);
 * the error of B after the moves against the same local set built afresh at the final pose
-  (the move's own error) and against a full solve of ``Scene.with_objects`` there (fresh
+  (the move's own error) and against a full solve of ``with_objects`` there (fresh
   hemicubes of every patch, same resolution): max over patches relative to max B, and the mean
   relative error over the pixels of a render that see a patch.
 
@@ -107,12 +107,13 @@ class _Case:
 
     def __init__(self, box, block, p, lights, camera, device) -> None:
         import pydynrad as pd
+        from pydynrad.geometry.objects import with_objects
 
         self.box, self.block, self.lights, self.camera, self.device = box, block, lights, camera, device
         self.R, self.M = p["R"], min(p["M"], len(box) + len(block))
         self.poses = _poses(p["moves"])
         final = pd.RigidObject(block, self.poses[-1])
-        self.reference = box.with_objects([final])
+        self.reference = with_objects(box, [final])
         t0 = time.perf_counter()
         F_ref = pd.form_factors(self.reference, self.R, device=device)
         self.t_full_ff = time.perf_counter() - t0
@@ -241,7 +242,7 @@ def measure(size: str, device, progress: bool = True) -> dict:
                          "max rel. error vs full", "pixel error vs full"],
              "rows": rows,
              "note": f"'fresh': the same M local patches built at the final pose from hemicubes, both without the "
-                     f"far field (the move's own error, in K); 'full': a full solve of Scene.with_objects there (R = {R}; "
+                     f"far field (the move's own error, in K); 'full': a full solve of with_objects there (R = {R}; "
                      f"its form factors took {t_full_ff:.2f} s) against the answer with the far field (without it the "
                      f"fresh local set alone is {local_err:.3g} max rel. off for M = {M}). Times: the fastest of the "
                      f"{len(WALK)} walk frames that swapped patches and of the {p['moves']} moves (the machine is shared). "

@@ -39,7 +39,8 @@ import warnings
 import numpy as np
 import scipy.sparse as sp
 
-from .checks import check_form_factors, check_form_factor_rows, patch_indices, scene as checked_scene
+from .checks import check_form_factors, check_form_factor_rows, patch_indices
+from .geometry.scene import checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
 from .host.threads import cores as host_cores, pool as host_pool
 from .device.launch import GEMM_GRAIN, PANEL, gemm_layout, round_up

@@ -140,16 +140,6 @@ def finite(a: np.ndarray, what: str) -> None:
                                 f"first at index {where}: {a[first]})")
 
 
-def scene(value, what: str = "scene"):
-    """``value`` if it is a :class:`pydynrad.Scene`, else InvalidInputError naming its type."""
-    from .geometry.scene import Scene
-
-    if not isinstance(value, Scene):
-        # Functions that take a scene and a file take them in that order: f(scene, path, ...).
-        hint = " (the scene comes first, then the path)" if isinstance(value, (str, os.PathLike)) else ""
-        raise InvalidInputError(f"{what} must be a pydynrad.Scene; got {type(value).__name__}{hint}")
-    return value
-
 
 def patch_indices(value, n: int, what: str = "patch indices", *, unique: bool = False,
                   nonempty: bool = False) -> np.ndarray:
@@ -310,3 +300,46 @@ def check_form_factor_rows(rows, what: str = "F", row_names=None, shape: tuple |
             f"(tolerance {ROW_SUM_SLACK:g})"
         )
     return F
+
+
+def checked_sensors(points, normals) -> tuple[np.ndarray, np.ndarray]:
+    """``points`` (n, 3) and unit ``normals`` (n, 3) float64 (normalised here), or InvalidInputError.
+
+    A single point (3,) is accepted as (1, 3); a zero or non-finite normal is an error
+    naming the first offending sensor.
+    """
+    p = floats(points, "sensor points")
+    nrm = floats(normals, "sensor normals")
+    p = p.reshape(1, 3) if p.shape == (3,) else p
+    if p.ndim != 2 or p.shape[1] != 3:  # before the normals are broadcast to it
+        raise InvalidInputError(f"sensor points must have shape (n, 3); got {np.shape(points)}")
+    nrm = np.broadcast_to(nrm, p.shape) if nrm.shape == (3,) else nrm
+    if nrm.shape != p.shape:
+        raise InvalidInputError(f"sensor normals must have shape {p.shape} (or (3,)); got {np.shape(normals)}")
+    for a, what in ((p, "points"), (nrm, "normals")):
+        bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
+        if len(bad):
+            raise InvalidInputError(f"sensor {what}[{bad[0]}] is not finite: {a[bad[0]].tolist()}")
+    length = np.linalg.norm(nrm, axis=1)
+    bad = np.flatnonzero(length < 1e-12)
+    if len(bad):
+        raise InvalidInputError(f"sensor normals[{bad[0]}] is zero: a sensor needs the direction it faces")
+    return np.ascontiguousarray(p), np.ascontiguousarray(nrm / length[:, None])
+
+
+def vec3_tuple(value, what: str) -> tuple[float, float, float]:
+    return tuple(float(v) for v in vec3(value, what))
+
+
+def rgb_tuple(value, what: str) -> tuple[float, float, float]:
+    a = floats(value, what)
+    if a.ndim == 0:
+        a = np.full(3, float(a))
+    rgb = vec3_tuple(a, what)
+    if min(rgb) < 0:
+        raise InvalidInputError(f"{what} must be >= 0; got {rgb}")
+    return rgb
+
+
+def unit_tuple(value, what: str) -> tuple[float, float, float]:
+    return tuple(float(v) for v in unit_vector(value, what))

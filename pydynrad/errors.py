@@ -38,3 +38,19 @@ class DeviceError(PydynradError):
 
 class ConvergenceError(PydynradError):
     """An iterative solve did not reach its tolerance within its iteration budget."""
+
+
+class MissingExtraError(PydynradError, ImportError):
+    """An optional dependency is not installed; the message names the extra that installs it.
+
+    ``MissingExtraError("precompute_distributed", "Dask", "dask")`` reads "precompute_distributed
+    needs Dask: pip install 'pydynrad[dask]'"; ``alternative`` adds a way that needs no extra
+    (", or ..."). Also an :class:`ImportError`, so code that already guards an optional import
+    with ``except ImportError`` keeps working. ``name`` is the module that was missing.
+    """
+
+    def __init__(self, feature: str, needs: str, extra: str, *, alternative: str = "", name: str | None = None) -> None:
+        super().__init__(f"{feature} needs {needs}: pip install 'pydynrad[{extra}]'"
+                         + (f", or {alternative}" if alternative else ""), name=name)
+        self.feature = feature
+        self.extra = extra

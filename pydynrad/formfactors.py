@@ -27,7 +27,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _runs
-from .checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene
+from .checks import integer, patch_indices, resolution as checked_resolution
+from .geometry.scene import checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
 from .device.launch import float4, global_size, hemicube_tiles, ray_work_group
 from .host.memory import available_host_bytes

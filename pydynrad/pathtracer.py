@@ -28,7 +28,8 @@ import time
 import numpy as np
 
 from .geometry.camera import Camera, check_image_memory
-from .checks import integer, patch_indices, scene as checked_scene
+from .checks import integer, patch_indices
+from .geometry.scene import checked_scene
 from .errors import InvalidInputError
 from .device.launch import float4, global_size
 from .lights.sources import SHADOW_EPSILON, checked_lights, pack_lights_and_tables

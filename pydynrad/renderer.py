@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry.camera import Camera, check_image_memory
-from .checks import number, scene as checked_scene
+from .checks import number
+from .geometry.scene import checked_scene
 from .errors import InvalidInputError
 from .device.launch import WG, global_size
 from .smoothing import checked_radiosity as _as_radiosity, smooth_vertices, smoothing_groups

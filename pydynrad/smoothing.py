@@ -19,7 +19,8 @@ from functools import cached_property
 
 import numpy as np
 
-from .checks import finite, floats, number, scene as checked_scene
+from .checks import finite, floats, number
+from .geometry.scene import checked_scene
 from .errors import InvalidInputError
 
 __all__ = ["SmoothVertices", "checked_radiosity", "smooth_vertices", "smoothing_groups"]

@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 import pydynrad
-from pydynrad.checks import finite, integer, number, scene, vec3
+from pydynrad.checks import finite, integer, number, vec3
+from pydynrad.geometry.scene import checked_scene as scene
 from pydynrad.errors import InvalidInputError
 
 

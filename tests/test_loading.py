@@ -193,7 +193,7 @@ def test_scene_graph_transforms_and_mirrors():
     graph.add_geometry(box, node_name="a", geom_name="box")
     graph.add_geometry(box, node_name="b", geom_name="box", transform=shift)
     graph.add_geometry(box, node_name="c", geom_name="box", transform=mirror)
-    scene = pydynrad.Scene.from_mesh(graph)
+    scene = pydynrad.load(graph)
     assert len(scene) == 36
     centres = {"a": np.zeros(3), "b": np.array([5.0, 0, 0]), "c": np.array([-3.0, -1.0, 0])}
     owner = np.argmin([np.linalg.norm(scene.centers - c, axis=1) for c in centres.values()], axis=0)
@@ -207,7 +207,7 @@ def test_scene_graph_transforms_and_mirrors():
 
 def test_from_mesh_matches_scene_from_mesh_and_rejects_other_types():
     box = trimesh.creation.box()
-    a, b = from_mesh(box, max_edge=0.4), Scene.from_mesh(box, max_edge=0.4)
+    a, b = from_mesh(box, max_edge=0.4), pydynrad.load(box, max_edge=0.4)
     assert a.content_hash() == b.content_hash()
     with pytest.raises(InvalidInputError, match="trimesh"):
         from_mesh(np.zeros((3, 3)))

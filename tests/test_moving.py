@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from pydynrad.geometry.objects import with_objects
 import pydynrad as pd
 from pydynrad.dynamic.moves import at_pose, reciprocal_columns, sphere_solid_angle
 from pydynrad.geometry.objects import instanced
@@ -125,7 +126,7 @@ def test_unlimited_budget_equals_full_solve(box, block, lamp, device):
     np.testing.assert_allclose(dyn.matrix.to_host(), dense_K(world, F, dyn.local_patches), atol=1e-6, rtol=0)
     # Against the static copy (one BVH over everything): a grazing hemicube pixel may see the
     # neighbouring patch, so the two F differ in a few pixels' worth.
-    ref = box.with_objects([obj, carried])
+    ref = with_objects(box, [obj, carried])
     F_flat = pd.form_factors(ref, R, device=device)
     assert rel(B, dense_radiosity(ref, F_flat, pd.light_vector(ref, LIGHTS, device=device))) < 3e-3
     # The objects receive light and reflect it: green bleeds onto the floor next to the block.
@@ -349,7 +350,7 @@ def test_a_pose_the_device_cannot_resolve_is_refused_before_anything_moves(box, 
             pd.DynamicRadiosity(box, None, local_size=len(box), resolution=R,
                                 objects=[pd.RigidObject(block, behind(reach))], device=device)
     with pytest.raises(pd.InvalidInputError, match="float32"):
-        box.with_objects([pd.RigidObject(block, behind(1e18))])
+        with_objects(box, [pd.RigidObject(block, behind(1e18))])
     track = pd.walks.ObjectTrack(obj, [START, behind(1.01 * limit)], interpolation="linear")
     with pytest.raises(pd.InvalidInputError, match="float32"):
         pd.walk(box, pd.orbit(centre, 300.0, 0.0, 3, width=8, height=6), dyn, objects=[track], device=device)
@@ -504,7 +505,7 @@ def test_outside_gathered_only_where_objects_are_in_view(device, monkeypatch):
     monkeypatch.setattr(moves, "VIEW_FORM_FACTOR", 0.0)  # every outside patch gathered
     _, B_all = moved()
     np.testing.assert_allclose(B[outside & view], B_all[outside & view], rtol=1e-12, atol=0.0)
-    world = village.with_objects([pd.RigidObject(block, at(4.0))])
+    world = with_objects(village, [pd.RigidObject(block, at(4.0))])
     truth = pd.solve(world, pd.form_factors(world, 16, device=device), lights=sun, tol=1e-8, dtype=np.float64,
                      device=device).radiosity
     # observed 0.26% (0.10% gathering every outside patch, 0.36% gathering none)

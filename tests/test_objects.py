@@ -1,12 +1,13 @@
 """Rigid objects and the two-level BVH: an instanced object is seen exactly where a static copy is.
 
 Every ray user (hemicubes, shadow rays, primary visibility, the path tracer) is compared with
-the same geometry built as one static scene (``Scene.with_objects``).
+the same geometry built as one static scene .
 """
 
 import numpy as np
 import pytest
 
+from pydynrad.geometry.objects import with_objects
 import pydynrad as pd
 from pydynrad.geometry.bvh import cast_rays
 from pydynrad.formfactors import pixel_form_factors
@@ -47,7 +48,7 @@ def test_rigid_transform_refused(block):
     with pytest.raises(pd.InvalidInputError, match="last row"):
         pd.RigidObject(block, transform=projective)
     with pytest.raises(pd.InvalidInputError, match="RigidObject"):
-        pd.scenes.cornell_box(max_edge=None).with_objects([block])
+        with_objects(pd.scenes.cornell_box(max_edge=None), [block])
     # A pose checked once is found again by its bytes, not trusted after a change in place.
     obj, T = pd.RigidObject(block), pose(30)
     c, r = obj.bounding_sphere(T)
@@ -63,7 +64,7 @@ def test_rigid_transform_refused(block):
 
 def test_with_objects_numbering(box, block):
     a, b = pd.RigidObject(block, pose(30)), pd.RigidObject(block, pose(0, (400.0, 450.0, 150.0)))
-    both = box.with_objects([a, b])
+    both = with_objects(box, [a, b])
     n, m = len(box), len(block)
     assert len(both) == n + 2 * m
     np.testing.assert_array_equal(both.centers[:n], box.centers)
@@ -78,7 +79,7 @@ def test_with_objects_is_the_validated_scene(box, block):
     bit for bit, a Scene validated from the same points and triangles (static patches: the
     static scene's own arrays, as before), its bounds included; the arrays are read-only."""
     a, b = pd.RigidObject(block, pose(30)), pd.RigidObject(block, pose(0, (400.0, 450.0, 150.0)))
-    both = box.with_objects([a, b])
+    both = with_objects(box, [a, b])
     parts = [box, block, block]
     checked = pd.Scene(both.points, both.triangles, np.concatenate([p.albedo for p in parts]),
                        np.concatenate([p.emission for p in parts]))
@@ -97,7 +98,7 @@ def test_hemicube_rows_match_static_copy(box, block, device, offset):
     if offset:
         box = pd.Scene(box.points + offset, box.triangles, box.albedo, box.emission, name="far box")
     obj = pd.RigidObject(block, pose(30, (150.0 + offset, 300.0 + offset, 400.0 + offset)))
-    ref = pd.form_factors(box.with_objects([obj]), R, device=device)
+    ref = pd.form_factors(with_objects(box, [obj]), R, device=device)
     inst = pd.form_factors(instanced(box, [obj]), R, device=device)
     assert ref.shape == inst.shape == (len(box) + len(block),) * 2
     diff = abs(ref - inst)
@@ -152,7 +153,7 @@ def test_shadow_follows_object(box, block, device):
     shadows = []
     for T in (pose(0, (200.0, 300.0, 300.0)), pose(45, (380.0, 250.0, 150.0))):
         obj = pd.RigidObject(block, T)
-        ref, inst = box.with_objects([obj]), instanced(box, [obj])
+        ref, inst = with_objects(box, [obj]), instanced(box, [obj])
         E_ref = pd.lights.direct_irradiance(ref, light, device=device)
         E_inst = pd.lights.direct_irradiance(inst, light, device=device)
         np.testing.assert_array_equal(E_inst, E_ref)
@@ -181,7 +182,7 @@ def test_shadow_follows_object(box, block, device):
 
 def test_rays_and_render_match_static_copy(box, block, device):
     obj = pd.RigidObject(block, pose(60, (280.0, 420.0, 300.0)))
-    ref, inst = box.with_objects([obj]), instanced(box, [obj])
+    ref, inst = with_objects(box, [obj]), instanced(box, [obj])
     cam = pd.Camera(position=(278.0, 273.0, -800.0), look_at=(278.0, 273.0, 280.0), fov_y=40, width=48, height=40)
     B = np.random.default_rng(1).random((len(ref), 3))
     img_ref = pd.render(ref, B, cam, device=device)
@@ -210,7 +211,7 @@ def test_rays_and_render_match_static_copy(box, block, device):
 def test_path_tracer_sees_object(box, block, device):
     """Same seed, same paths: the path tracer's image of the instanced scene is the static copy's."""
     obj = pd.RigidObject(block, pose(20, (280.0, 420.0, 300.0)))
-    ref, inst = box.with_objects([obj]), instanced(box, [obj])
+    ref, inst = with_objects(box, [obj]), instanced(box, [obj])
     cam = pd.Camera(position=(278.0, 273.0, -800.0), look_at=(278.0, 273.0, 280.0), fov_y=40, width=16, height=12)
     a = pd.path_trace(ref, cam, spp=2, seed=3, device=device)
     b = pd.path_trace(inst, cam, spp=2, seed=3, device=device)
@@ -229,7 +230,7 @@ def test_move_rewrites_table_only(box, block, device):
     assert moved.bvh is bvh
     changed = np.flatnonzero(np.any(nodes_before.view(np.int32) != bvh.nodes.view(np.int32), axis=1))
     assert len(changed) and changed.min() * 8 >= bvh._table_float4  # only the instance table
-    ref = pd.form_factors(box.with_objects([obj]), R, rows=np.arange(len(box), len(moved)), device=device)
+    ref = pd.form_factors(with_objects(box, [obj]), R, rows=np.arange(len(box), len(moved)), device=device)
     got = pd.form_factors(moved, R, rows=np.arange(len(box), len(moved)), device=device)
     assert (abs(ref - got) > 1e-6).nnz <= 4
 

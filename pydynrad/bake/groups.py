@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import flag, floats, scene as checked_scene
+from ..checks import flag, floats
+from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
 
 __all__ = ["LightGroups", "GroupRadiosity", "EMISSION"]

@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checks import number, scene as checked_scene, stops
+from ..checks import number, stops
+from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError, OutOfMemoryError
 from ..image_io import LINEAR_FORMATS, write_image
 from ..host.memory import available_host_bytes

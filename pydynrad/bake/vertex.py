@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import check_file_target
-from ..checks import scene as checked_scene, stops
+from ..checks import stops
+from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
 from ..image_io import srgb_encode
 from ..smoothing import smooth_vertices

@@ -315,10 +315,14 @@ def _cluster_labels(args: argparse.Namespace, scene) -> tuple[np.ndarray | None,
 
 def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     """Create or resume the store at ``out``: in this process (--workers 0) or on a Dask cluster."""
-    from ..precompute.distributed import SceneSpec, precompute_distributed
+    from ..precompute.distributed import SceneSpec, _require_dask, precompute_distributed
     from ..atomic import check_parent_folder
     from ..rows.store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore, compute_store
 
+    if args.workers != 0:  # without the dask extra: one line naming it, before the scene is loaded
+        given = ("--scheduler" if args.scheduler else "--workers 2 (the default)" if args.workers is None
+                 else f"--workers {args.workers}")
+        _require_dask(given, "--workers 0 computes in this process without it")
     check_parent_folder(out)
     walk_poses = _walk_poses(args.poses) if args.poses else None  # a bad path file fails before the work
     scene = load_scene(args.scene, args.max_edge)

@@ -41,7 +41,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..checks import flag, integer, number, resolution as checked_resolution, scene as checked_scene, vec3
+from ..checks import flag, integer, number, resolution as checked_resolution, vec3
+from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError, PydynradError
 from ..device.matrix import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
 from .localrows import LocalRows, _replace_rows

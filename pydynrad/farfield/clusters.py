@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import integer, number, scene as checked_scene
+from ..checks import integer, number
+from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
 
 __all__ = ["Clusters", "cluster_patches", "default_cluster_count", "NORMAL_BINS", "NORMAL_WEIGHT",

@@ -21,7 +21,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factor_rows, scene as checked_scene, sparse_structure
+from ..checks import check_form_factor_rows, sparse_structure
+from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
 

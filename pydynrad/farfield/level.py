@@ -68,7 +68,8 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factors, finite, integer, scene as checked_scene
+from ..checks import check_form_factors, finite, integer
+from ..geometry.scene import checked_scene
 from ..host.colproduct import columns_product, rows_product
 from ..errors import ConvergenceError, InvalidInputError, PydynradError
 from ..lights.sources import check_radiosity_range

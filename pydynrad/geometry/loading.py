@@ -87,8 +87,9 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
 
     Parameters
     ----------
-    path : str or Path
-        An ``.obj`` (with its ``.mtl``), ``.ply``, ``.glb``, ``.gltf``, ``.stl`` or ``.off`` file.
+    path : str, Path, trimesh.Trimesh or trimesh.Scene
+        An ``.obj`` (with its ``.mtl``), ``.ply``, ``.glb``, ``.gltf``, ``.stl`` or ``.off`` file,
+        or a mesh already in memory (read as :func:`from_mesh` reads it).
     max_patch_area, max_edge : float, optional
         Split triangles (4-way, at edge midpoints) until no patch exceeds this area (file
         units squared) or edge length (file units). ``None``: keep the file's triangles.
@@ -102,8 +103,11 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
         triangles, or holds invalid values (NaN vertices, albedo above 1, negative emission);
         the message names the file and the problem.
     """
+    if isinstance(path, (trimesh.Trimesh, trimesh.Scene)):
+        return from_mesh(path, max_patch_area=max_patch_area, max_edge=max_edge, default_albedo=default_albedo)
     if not isinstance(path, (str, os.PathLike)):
-        raise SceneFileError(f"path must be a file name (str or os.PathLike); got {type(path).__name__}")
+        raise SceneFileError("path must be a file name (str or os.PathLike) or a trimesh mesh; "
+                             f"got {type(path).__name__}")
     path = Path(path)
     fmt = path.suffix.lower().lstrip(".")
     if not path.is_file():

@@ -4,7 +4,7 @@ A :class:`RigidObject` holds its geometry and materials in object space (a :clas
 and a rigid object-to-world transform. Next to a static scene of N patches, the objects'
 patches are numbered N.. in the order the objects are given. Two views of the same world:
 
-* :func:`with_objects` (``Scene.with_objects``): a plain static Scene of the combined geometry
+* :func:`with_objects` : a plain static Scene of the combined geometry
   at the current poses, with a BVH built over all of it (full solves, references, tests);
 * :func:`instanced`: the same patches, traced through a two-level :class:`~pydynrad.geometry.bvh.InstancedBVH`
   (the static tree plus each object's tree, built once), so a move rewrites one small table

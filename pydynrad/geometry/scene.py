@@ -14,6 +14,8 @@ See docs/design.md, 'Conventions'.
 
 from __future__ import annotations
 
+import os
+
 import hashlib
 import warnings
 from functools import cached_property
@@ -23,6 +25,7 @@ import numpy as np
 from ..checks import floats
 from ..errors import InvalidInputError
 from ..device.launch import float4
+from .bvh import BVH
 
 __all__ = ["Scene", "DegenerateTriangleWarning", "DeviceFrame", "PrecisionWarning"]
 
@@ -236,13 +239,6 @@ class Scene:
         out.__dict__["bbox"] = _frozen(np.asarray(bbox, np.float64))
         return out
 
-    @classmethod
-    def from_mesh(cls, mesh, **kw) -> "Scene":
-        """A scene from a ``trimesh.Trimesh`` or ``trimesh.Scene``; see :func:`pydynrad.geometry.loading.from_mesh`."""
-        from .loading import from_mesh
-
-        return from_mesh(mesh, **kw)
-
     # -- sizes and views -------------------------------------------------------------------
     def __len__(self) -> int:
         return len(self.triangles)
@@ -303,8 +299,6 @@ class Scene:
     @cached_property
     def bvh(self):
         """The patch BVH (in :attr:`frame`), built on first use and shared by every kernel that casts rays."""
-        from .bvh import BVH
-
         return BVH.build(self.frame.points(self.vertices))
 
     def patch_buffers(self, device, patches=None) -> tuple:
@@ -349,12 +343,14 @@ class Scene:
             out.emission = _checked_emission(emission, len(self))
         return out
 
-    def with_objects(self, objects) -> "Scene":
-        """A plain static Scene: these N patches, then each :class:`~pydynrad.RigidObject`'s at its
-        current pose (see :func:`pydynrad.geometry.objects.with_objects`)."""
-        from .objects import with_objects
-
-        return with_objects(self, objects)
-
     def __repr__(self) -> str:
         return f"Scene({self.name!r}, {len(self)} patches, {len(self.emitters)} emitting, grey={self.is_grey})"
+
+
+def checked_scene(value, what: str = "scene") -> Scene:
+    """``value`` if it is a :class:`Scene`, else InvalidInputError naming its type."""
+    if not isinstance(value, Scene):
+        # Functions that take a scene and a file take them in that order: f(scene, path, ...).
+        hint = " (the scene comes first, then the path)" if isinstance(value, (str, os.PathLike)) else ""
+        raise InvalidInputError(f"{what} must be a pydynrad.Scene; got {type(value).__name__}{hint}")
+    return value

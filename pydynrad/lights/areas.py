@@ -56,7 +56,7 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np
     import pyopencl as cl
 
     from ..device.devices import default_device
-    from ..photometry.sensors import checked_sensors
+    from ..checks import checked_sensors
 
     points, normals = checked_sensors(points, normals)
     grid = checked_grid(grid)

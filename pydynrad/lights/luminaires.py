@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks import floats, integer, number, unit_vector
+from ..checks import floats, integer, number, rgb_tuple, unit_vector, vec3_tuple
 from ..errors import InvalidInputError
 
 __all__ = ["PhotometricDistribution", "LuminaireLight"]
@@ -159,12 +159,11 @@ class LuminaireLight:
     scale: tuple = (1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
-        from .sources import _rgb, _vec3
 
         if not isinstance(self.distribution, PhotometricDistribution):
             raise InvalidInputError("LuminaireLight.distribution must be a PhotometricDistribution "
                                     "(read_ies, read_ldt, PhotometricDistribution.lambertian)")
-        object.__setattr__(self, "position", _vec3(self.position, "LuminaireLight.position"))
+        object.__setattr__(self, "position", vec3_tuple(self.position, "LuminaireLight.position"))
         nadir = unit_vector(self.nadir, "LuminaireLight.nadir")
         c0 = unit_vector(self.c0, "LuminaireLight.c0")
         c0 = c0 - nadir * float(c0 @ nadir)
@@ -172,7 +171,7 @@ class LuminaireLight:
             raise InvalidInputError("LuminaireLight.c0 must not be parallel to nadir")
         object.__setattr__(self, "nadir", tuple(map(float, nadir)))
         object.__setattr__(self, "c0", tuple(map(float, c0 / np.linalg.norm(c0))))
-        object.__setattr__(self, "scale", _rgb(self.scale, "LuminaireLight.scale"))
+        object.__setattr__(self, "scale", rgb_tuple(self.scale, "LuminaireLight.scale"))
 
     @property
     def c90(self) -> tuple:

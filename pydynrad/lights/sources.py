@@ -29,9 +29,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import floats, number, scene as checked_scene, unit_vector, vec3
+from ..checks import checked_sensors, floats, number, rgb_tuple, unit_tuple, vec3_tuple
+from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
 from ..device.launch import WG, float4, global_size
+from .gather import gather_irradiance
+from .luminaires import LuminaireLight
+from .sky import SkyLight, pack_sky
 
 __all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "point_irradiance", "light_vector",
            "pack_lights", "pack_light_tables", "pack_lights_and_tables", "checked_lights", "checked_light_vector",
@@ -39,24 +43,6 @@ __all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "
 
 #: Shadow-ray origins sit this fraction of the scene's bounding-box diagonal off the surface.
 SHADOW_EPSILON = 1e-4
-
-
-def _vec3(value, what: str) -> tuple[float, float, float]:
-    return tuple(float(v) for v in vec3(value, what))
-
-
-def _rgb(value, what: str) -> tuple[float, float, float]:
-    a = floats(value, what)
-    if a.ndim == 0:
-        a = np.full(3, float(a))
-    rgb = _vec3(a, what)
-    if min(rgb) < 0:
-        raise InvalidInputError(f"{what} must be >= 0; got {rgb}")
-    return rgb
-
-
-def _unit(value, what: str) -> tuple[float, float, float]:
-    return tuple(float(v) for v in unit_vector(value, what))
 
 
 # Each light is a frozen dataclass whose __post_init__ runs one validator per field and whose _packed
@@ -69,8 +55,8 @@ class PointLight:
     intensity: tuple
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "position", _vec3(self.position, "PointLight.position"))
-        object.__setattr__(self, "intensity", _rgb(self.intensity, "PointLight.intensity"))
+        object.__setattr__(self, "position", vec3_tuple(self.position, "PointLight.position"))
+        object.__setattr__(self, "intensity", rgb_tuple(self.intensity, "PointLight.intensity"))
 
     def _packed(self) -> list:
         return [*self.position, 0.0, 0.0, 0.0, 1.0, 0.0, *self.intensity, -2.0]
@@ -92,9 +78,9 @@ class SpotLight:
     outer_angle: float
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "position", _vec3(self.position, "SpotLight.position"))
-        object.__setattr__(self, "direction", _unit(self.direction, "SpotLight.direction"))
-        object.__setattr__(self, "intensity", _rgb(self.intensity, "SpotLight.intensity"))
+        object.__setattr__(self, "position", vec3_tuple(self.position, "SpotLight.position"))
+        object.__setattr__(self, "direction", unit_tuple(self.direction, "SpotLight.direction"))
+        object.__setattr__(self, "intensity", rgb_tuple(self.intensity, "SpotLight.intensity"))
         inner = number(self.inner_angle, "SpotLight.inner_angle")
         outer = number(self.outer_angle, "SpotLight.outer_angle")
         if not (0.0 <= inner <= outer <= math.pi and outer > 0.0):
@@ -120,8 +106,8 @@ class DirectionalLight:
     irradiance: tuple
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "direction", _unit(self.direction, "DirectionalLight.direction"))
-        object.__setattr__(self, "irradiance", _rgb(self.irradiance, "DirectionalLight.irradiance"))
+        object.__setattr__(self, "direction", unit_tuple(self.direction, "DirectionalLight.direction"))
+        object.__setattr__(self, "irradiance", rgb_tuple(self.irradiance, "DirectionalLight.irradiance"))
 
     def _packed(self) -> list:
         return [0.0, 0.0, 0.0, 2.0, *self.direction, 1.0, *self.irradiance, -2.0]
@@ -134,10 +120,6 @@ _LIGHT_NAMES = "PointLight, SpotLight, DirectionalLight, LuminaireLight or SkyLi
 
 
 def _photometric_types() -> tuple:
-    # Imported late: the photometry package builds on this module.
-    from .luminaires import LuminaireLight
-    from .sky import SkyLight
-
     return LuminaireLight, SkyLight
 
 
@@ -228,7 +210,6 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
     a normal per point).
     """
     if points is not None or normals is not None:
-        from ..photometry.sensors import checked_sensors
 
         points, normals = checked_sensors(points, normals)
     return _point_irradiance(scene, points, normals, checked_lights(lights), device)
@@ -303,13 +284,11 @@ def direct_irradiance(scene, lights, device=None) -> np.ndarray:
 
 def _direct_irradiance(scene, lights: list, device) -> np.ndarray:
     """:func:`direct_irradiance` of checked ``lights``."""
-    from .sky import SkyLight, pack_sky
 
     checked_scene(scene)
     E = _point_irradiance(scene, None, None, lights, device)
     skies = [light for light in lights if isinstance(light, SkyLight)]
     if skies:
-        from ..photometry.gather import gather_irradiance
 
         ids = np.arange(len(scene))
         E = E + gather_irradiance(scene, None, None, sky=pack_sky(lights), resolution=skies[0].resolution,

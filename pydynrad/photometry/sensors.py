@@ -11,39 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checks import floats, patch_indices, resolution as checked_resolution, scene as checked_scene
+from ..checks import checked_sensors, floats, patch_indices, resolution as checked_resolution
+from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
 from ..lights.sources import checked_lights, point_irradiance
 from ..lights.areas import checked_grid, emitter_irradiance
-from .gather import gather_irradiance
+from ..lights.gather import gather_irradiance
 from ..lights.sky import SkyLight, pack_sky
 
-__all__ = ["illuminance", "checked_sensors"]
+__all__ = ["illuminance"]
 
-
-def checked_sensors(points, normals) -> tuple[np.ndarray, np.ndarray]:
-    """``points`` (n, 3) and unit ``normals`` (n, 3) float64 (normalised here), or InvalidInputError.
-
-    A single point (3,) is accepted as (1, 3); a zero or non-finite normal is an error
-    naming the first offending sensor.
-    """
-    p = floats(points, "sensor points")
-    nrm = floats(normals, "sensor normals")
-    p = p.reshape(1, 3) if p.shape == (3,) else p
-    if p.ndim != 2 or p.shape[1] != 3:  # before the normals are broadcast to it
-        raise InvalidInputError(f"sensor points must have shape (n, 3); got {np.shape(points)}")
-    nrm = np.broadcast_to(nrm, p.shape) if nrm.shape == (3,) else nrm
-    if nrm.shape != p.shape:
-        raise InvalidInputError(f"sensor normals must have shape {p.shape} (or (3,)); got {np.shape(normals)}")
-    for a, what in ((p, "points"), (nrm, "normals")):
-        bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
-        if len(bad):
-            raise InvalidInputError(f"sensor {what}[{bad[0]}] is not finite: {a[bad[0]].tolist()}")
-    length = np.linalg.norm(nrm, axis=1)
-    bad = np.flatnonzero(length < 1e-12)
-    if len(bad):
-        raise InvalidInputError(f"sensor normals[{bad[0]}] is zero: a sensor needs the direction it faces")
-    return np.ascontiguousarray(p), np.ascontiguousarray(nrm / length[:, None])
 
 
 def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, patches=None,

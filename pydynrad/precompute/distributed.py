@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
-from ..errors import InvalidInputError, PydynradError
+from ..errors import InvalidInputError, MissingExtraError, PydynradError
 from ..geometry.scene import Scene
 from ..scenes.byname import BUILTIN_SCENES, is_builtin, scene_by_name
 from ..rows.store import DEFAULT_BLOCK_ROWS, DEFAULT_TASK_ROWS, FormFactorStore, RowFunction, compute_blocks, form_factor_rows, prepare_store, task_groups
@@ -97,6 +97,7 @@ def opencl_worker_plugin_class() -> type:
 
     Made on first use so that ``import pydynrad`` does not import ``distributed``.
     """
+    _require_dask("opencl_worker_plugin_class")
     from distributed.diagnostics.plugin import WorkerPlugin
 
     class OpenCLWorkerPlugin(WorkerPlugin):
@@ -156,7 +157,19 @@ def _blocks_task(path: str, group: list[int], payload, geometry_hash: str, resol
     return group, rows, time.perf_counter() - t0
 
 
+def _require_dask(feature: str, alternative: str = "") -> None:
+    """Raise :class:`MissingExtraError` naming the ``dask`` extra if Dask's ``distributed`` is not
+    installed. Deferred: Dask is an optional dependency (the ``dask`` extra), and ``import pydynrad``
+    needs neither it nor its start-up time."""
+    try:
+        import dask  # noqa: F401
+        import distributed  # noqa: F401
+    except ImportError as exc:
+        raise MissingExtraError(feature, "Dask", "dask", alternative=alternative, name=exc.name) from exc
+
+
 def _start_client(workers: int | None, scheduler: str | None):
+    _require_dask("precompute_distributed")
     import dask
     from distributed import Client, LocalCluster
 
@@ -225,6 +238,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
 
     The patching parameters recorded in the header are the spec's recipe (empty for a Scene).
     """
+    _require_dask("precompute_distributed")
     from distributed import as_completed
 
     from ..progress import progress_bar

@@ -22,7 +22,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..atomic import check_parent_folder, write_atomic
-from ..checks import resolution as checked_resolution, scene as checked_scene, sparse_structure
+from ..checks import resolution as checked_resolution, sparse_structure
+from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
 from ..formfactors import checked_samples
 

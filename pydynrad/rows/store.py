@@ -65,7 +65,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..atomic import TMP_MARK, write_atomic
-from ..checks import integer, patch_indices, resolution as checked_resolution, scene as checked_scene, sparse_structure
+from ..checks import integer, patch_indices, resolution as checked_resolution, sparse_structure
+from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError, PydynradError
 
 __all__ = [
