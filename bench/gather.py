@@ -104,7 +104,7 @@ def _store_times(scene, labels, resolution: int, device) -> list:
     from pathlib import Path
 
     from pydynrad.formfactors import CLUSTER_RESOLUTION
-    from pydynrad.rows.store import compute_store
+    from pydynrad.precompute.store import compute_store
 
     out = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -12,9 +12,9 @@ them (:mod:`pydynrad.device`, :mod:`pydynrad.geometry`, :mod:`pydynrad.lights`,
 """
 
 from importlib import import_module
-from importlib.metadata import PackageNotFoundError, version
 import warnings
 
+from ._version import __version__
 from . import bake, device, dynamic, farfield, geometry, lights, photometry, precompute, rows, scenes
 from .bake import bake_lightmap, export_mesh
 from .bounces import multibounce, multibounce_radiosity
@@ -28,14 +28,11 @@ from .lights import DirectionalLight, LuminaireLight, PointLight, SkyLight, Spot
 from .pathtracer import path_trace
 from .photometry import illuminance
 from .renderer import render
-from .rows import FormFactorStore, compute_store, open_form_factors, save_form_factors
+from .precompute import compute_store
+from .rows import FormFactorStore, open_form_factors, save_form_factors
 from .solution import Solution, solve
 from .walks import CameraPath, WalkResult, fly_through, load_path, orbit, walk
 
-try:
-    __version__ = version("pydynrad")
-except PackageNotFoundError:  # a source tree that was never installed
-    __version__ = "0+unknown"
 
 __all__ = [
     "bake_lightmap", "Camera", "CameraPath", "compute_store", "default_device", "DirectionalLight",

@@ -7,7 +7,6 @@ solution."""
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 import scipy.sparse as sp

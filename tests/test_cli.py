@@ -216,7 +216,7 @@ def test_commands_read_a_store_like_the_file(tmp_path, capsys, device):
     from pydynrad.image_io import read_image
     from pydynrad.rows.files import save_form_factors
     from pydynrad.formfactors import form_factors
-    from pydynrad.rows.store import compute_store
+    from pydynrad.precompute.store import compute_store
 
     scene = cornell_box(max_edge=250)
     F = form_factors(scene, resolution=8, device=device, progress=False)

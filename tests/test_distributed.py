@@ -10,7 +10,8 @@ from helpers import grid_scene, same_csr, synthetic_rows
 
 from pydynrad import InvalidInputError
 from pydynrad.precompute.distributed import _WORKER_SCENE, SceneSpec, _worker_scene, precompute_distributed
-from pydynrad.rows.store import FormFactorStore, StoreMismatchError, compute_store
+from pydynrad.rows.store import FormFactorStore, StoreMismatchError
+from pydynrad.precompute.store import compute_store
 
 # Workers unpickle the synthetic row function by value: they need not import the tests' helpers.
 cloudpickle.register_pickle_by_value(sys.modules["helpers"])

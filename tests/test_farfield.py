@@ -384,7 +384,7 @@ def test_injection_after_a_carried_swap_cuts_nothing(device, cornell, monkeypatc
 
 def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_path):
     from pydynrad.rows.files import open_form_factors
-    from pydynrad.rows.store import compute_store
+    from pydynrad.precompute.store import compute_store
 
     scene, F, L, ref, _ = cornell
     cl = cluster_patches(scene, patches_per_cluster=8)

@@ -7,7 +7,8 @@ import pydynrad
 from pydynrad import DirectionalLight, DynamicRadiosity
 from pydynrad.comparison import radiosity_error
 from pydynrad.farfield import FarField, cluster_form_factors, cluster_patches
-from pydynrad.farfield.clusters import LINEAR_FUNCTIONS, labels_of_linear, linear_basis
+from pydynrad.farfield.clusters import linear_basis
+from pydynrad.rows.prolongation import LINEAR_FUNCTIONS, labels_of_linear
 from pydynrad.farfield.gather import basis_prolongation, clusters_without_f, light_components_by_hemicube
 from pydynrad.farfield.clusters import light_components
 from helpers import box_scene, dense_radiosity, reciprocal_F
@@ -79,7 +80,7 @@ def test_bad_basis(device):
 
 
 def test_light_components_without_f_are_those_of_f(device, tmp_path):
-    from pydynrad.rows.store import compute_store
+    from pydynrad.precompute.store import compute_store
 
     scene = yard_and_room()  # the closed room's inside exchanges no light with the yard
     F = pydynrad.form_factors(scene, resolution=32, device=device, progress=False)
@@ -93,7 +94,8 @@ def test_light_components_without_f_are_those_of_f(device, tmp_path):
 
 
 def test_light_components_refuse_a_store_of_another_scene(device, tmp_path):
-    from pydynrad.rows.store import StoreIncompleteError, compute_store
+    from pydynrad.rows.store import StoreIncompleteError
+    from pydynrad.precompute.store import compute_store
 
     scene = box_scene(2)
     F = pydynrad.form_factors(scene, resolution=8, device=device, progress=False)

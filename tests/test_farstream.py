@@ -13,7 +13,8 @@ from pydynrad.farfield import clusters as clusters_module
 from pydynrad.farfield import level
 from pydynrad.farfield.gather import basis_prolongation
 from pydynrad.farfield.streamed import StoredG
-from pydynrad.rows.store import StoreIncompleteError, StoreMismatchError, compute_store
+from pydynrad.rows.store import StoreIncompleteError, StoreMismatchError
+from pydynrad.precompute.store import compute_store
 from helpers import box_scene, dense_radiosity, reciprocal_F
 
 

@@ -9,7 +9,8 @@ from pydynrad import InvalidInputError, Scene
 from pydynrad.rows.files import load_form_factors, open_form_factors, save_form_factors, whole_matrix
 from pydynrad.rows.cache import RowCache
 from pydynrad.rows.sources import CSRRows
-from pydynrad.rows.store import FormFactorStore, StoreIncompleteError, StoreMismatchError, compute_store
+from pydynrad.rows.store import FormFactorStore, StoreIncompleteError, StoreMismatchError
+from pydynrad.precompute.store import compute_store
 
 
 def small_scene():

@@ -133,13 +133,8 @@ def test_bad_input(cornell, device):
 
 
 # -- G in the form-factor store ----------------------------------------------------------------
-from pydynrad.rows.store import (  # noqa: E402
-    FormFactorStore,
-    StoreCorruptError,
-    StoreIncompleteError,
-    StoreMismatchError,
-    compute_store,
-)
+from pydynrad.rows.store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError
+from pydynrad.precompute.store import compute_store
 
 
 @pytest.fixture(scope="module")

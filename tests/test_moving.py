@@ -11,7 +11,8 @@ import scipy.sparse as sp
 
 from pydynrad.geometry.objects import with_objects
 import pydynrad as pd
-from pydynrad.dynamic.moves import at_pose, reciprocal_columns, sphere_solid_angle
+from pydynrad.dynamic.poserows import at_pose, reciprocal_columns
+from pydynrad.dynamic.occlusion import sphere_solid_angle
 from pydynrad.geometry.objects import instanced
 
 from helpers import brute_force_hits, dense_K, dense_radiosity, pose, rel
@@ -429,7 +430,7 @@ def test_hidden_entries_match_numpy(box, block, device, solid):
     """Segments between patch centres that cross the object, against Moller-Trumbore in float64:
     the block is a convex solid (its planes clip the segments), two blocks through each other
     are not (the object's tree traces them)."""
-    from pydynrad.dynamic.moves import hidden_by
+    from pydynrad.dynamic.occlusion import hidden_by
 
     if not solid:
         block = pd.Scene(np.vstack([block.points, block.points + (60.0, 60.0, 0.0)]),
@@ -656,13 +657,13 @@ def test_a_move_that_fails_is_not_half_applied(box, block, device, monkeypatch):
 
 def test_shadow_rays_near_in_chunks_of_spheres(monkeypatch):
     """Many spheres in chunks of SHADOW_SPHERES give what one call per sphere gives."""
-    from pydynrad.dynamic import moves as moves_module
-    from pydynrad.dynamic.moves import shadow_rays_near
+    from pydynrad.dynamic import occlusion
+    from pydynrad.dynamic.occlusion import shadow_rays_near
 
     rng = np.random.default_rng(8)
     points = rng.uniform(-100.0, 100.0, (3000, 3))
     spheres = [(rng.uniform(-50.0, 50.0, 3), float(rng.uniform(5.0, 30.0))) for _ in range(11)]
-    monkeypatch.setattr(moves_module, "SHADOW_SPHERES", 4)
+    monkeypatch.setattr(occlusion, "SHADOW_SPHERES", 4)
     for light in (pd.PointLight((10.0, 150.0, 5.0), (1.0, 1.0, 1.0)), pd.DirectionalLight((0.3, -1.0, 0.2), (1.0, 1.0, 1.0))):
         one_by_one = np.zeros(len(points), bool)
         for sphere in spheres:
@@ -1013,7 +1014,7 @@ def test_difference_at_pose_is_at_pose_minus_kept(monkeypatch):
     shapes refused."""
     from pydynrad.host import threads as hostthreads
     from pydynrad.dynamic import stale
-    from pydynrad.dynamic.moves import difference_at_pose
+    from pydynrad.dynamic.poserows import difference_at_pose
     from pydynrad.dynamic.stale import rows_minus
 
     rng = np.random.default_rng(13)
@@ -1074,7 +1075,7 @@ def test_difference_since_the_last_pose_is_the_pass_made_whole(monkeypatch):
     order (then sorted, the last D unread); bad inputs refused."""
     from pydynrad.host import threads as hostthreads
     from pydynrad.dynamic import stale
-    from pydynrad.dynamic.moves import PoseDifference, Since, difference_at_pose
+    from pydynrad.dynamic.poserows import PoseDifference, Since, difference_at_pose
 
     rng = np.random.default_rng(29)
     n_static, n_obj, r, M = 50, 6, 240, 300

@@ -11,7 +11,8 @@ from pydynrad import InvalidInputError
 from pydynrad.dynamic import DynamicRadiosity
 from pydynrad.rows.cache import ROW_OVERHEAD, RowCache
 from pydynrad.rows.sources import CSRRows, RowSource, as_row_source
-from pydynrad.rows.store import StoreCorruptError, compute_store
+from pydynrad.rows.store import StoreCorruptError
+from pydynrad.precompute.store import compute_store
 
 
 class CountingSource:

@@ -12,10 +12,12 @@ import pytest
 from helpers import assert_one_line_error, box_mesh, run_main, same_csr
 
 from pydynrad import DynamicRadiosity, InvalidInputError, Scene, form_factors
-from pydynrad.farfield.gather import as_prolongation, cluster_form_factors_for
+from pydynrad.farfield.gather import cluster_form_factors_for
+from pydynrad.rows.prolongation import as_prolongation
 from pydynrad.rows.files import FF_FORMAT, load_form_factors, open_form_factors, save_form_factors
 from pydynrad.rows.sources import HemicubeRows
-from pydynrad.rows.store import HEADER, FormFactorStore, StoreCorruptError, StoreMismatchError, compute_store
+from pydynrad.rows.store import HEADER, FormFactorStore, StoreCorruptError, StoreMismatchError
+from pydynrad.precompute.store import compute_store
 from pydynrad.scenes import cornell_box
 
 R, K = 16, 4

@@ -11,13 +11,8 @@ from helpers import grid_scene, same_csr, synthetic_rows
 
 from pydynrad import InvalidInputError, RigidObject
 from pydynrad.scenes import block
-from pydynrad.rows.store import (
-    FormFactorStore,
-    StoreCorruptError,
-    StoreIncompleteError,
-    StoreMismatchError,
-    compute_store,
-)
+from pydynrad.rows.store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError
+from pydynrad.precompute.store import compute_store
 
 
 def reference(scene, resolution=8):

@@ -209,7 +209,7 @@ def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     from pydynrad.rows.sources import CSRRows
     from pydynrad.farfield import FarField, cluster_patches
     from pydynrad.farfield.gather import basis_prolongation
-    from pydynrad.rows.store import compute_store
+    from pydynrad.precompute.store import compute_store
 
     pts, tris = box_mesh(n=4, inward=True)
     scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))

@@ -317,7 +317,8 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     """Create or resume the store at ``out``: in this process (--workers 0) or on a Dask cluster."""
     from ..precompute.distributed import SceneSpec, _require_dask, precompute_distributed
     from ..atomic import check_parent_folder
-    from ..rows.store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore, compute_store
+    from ..rows.store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore
+    from ..precompute.store import compute_store
 
     if args.workers != 0:  # without the dask extra: one line naming it, before the scene is loaded
         given = ("--scheduler" if args.scheduler else "--workers 2 (the default)" if args.workers is None
@@ -389,7 +390,7 @@ def _walk_poses(path) -> tuple[list, list]:
 
 def _store_poses(args: argparse.Namespace, scene, store, objects, configs) -> None:
     """--poses: the rows of ``objects`` at each configuration into the store's per-pose part."""
-    from ..dynamic.moves import precompute_poses
+    from ..precompute.poses import precompute_poses
     from ..rows.store import POSE_HEADER
 
     before = len(store.pose_files()) if (store.path / POSE_HEADER).exists() else 0
@@ -402,7 +403,7 @@ def _store_poses(args: argparse.Namespace, scene, store, objects, configs) -> No
 def _stored_poses(F, scene, tracks, resolution: int):
     """The per-pose rows of ``tracks``' objects in the store behind ``F``, or None where F is
     no store or its store holds no poses (then the moves compute their rows)."""
-    from ..dynamic.moves import stored_poses
+    from ..precompute.poses import stored_poses
     from ..rows.store import POSE_HEADER, FormFactorStore
 
     store = getattr(F, "source", F)

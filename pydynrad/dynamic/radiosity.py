@@ -578,7 +578,7 @@ class DynamicRadiosity:
         budget 0 with the correction: put them all among the stale rows, no swap); the count
         refreshed and the hemicubes computed."""
         from .exact import exact_swap
-        from .moves import stale_rows, swap_chunks
+        from .poserows import stale_rows, swap_chunks
         from .stale import rows_minus
 
         moves, transforms = self._moves()
@@ -842,7 +842,7 @@ class DynamicRadiosity:
         them and returns its answer (None for a direct light past float32), or None where
         :meth:`_relit` does not hold for other reasons."""
         from ..lights.sources import SHADOW_EPSILON, DirectionalLight, PointLight, SpotLight, _point_irradiance
-        from .moves import shadow_rays_near
+        from .occlusion import shadow_rays_near
 
         if not self.objects or len(poses) != len(self.objects) or not lights \
                 or any(type(x) not in (PointLight, SpotLight, DirectionalLight) for x in lights):

@@ -47,8 +47,9 @@ import scipy.sparse as sp
 from ..host.anderson import Anderson
 from ..host.colproduct import rows_product
 from ..errors import InvalidInputError
+from .poserows import PARALLEL_ENTRIES
 
-__all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS", "PARALLEL_ENTRIES"]
+__all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS"]
 
 #: Stop where the answer's estimated distance from the fixed point on the local set is at most
 #: this much of its max (:func:`_error_estimate`). After 24 moves of bench/objects.py's 64-patch
@@ -71,9 +72,6 @@ CORRECTION_ITERATIONS = 8
 ANDERSON_DEPTH = 3
 
 
-#: Entries from which :func:`rows_minus` splits its merge over the cores (a move's ~430k on the
-#: bench's Cornell box: 2.2 ms on one core of the Xeon).
-PARALLEL_ENTRIES = 50_000
 
 
 def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
@@ -86,7 +84,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     are sorted first (a copy)."""
     from .. import _poserows
     from ..host.threads import cores, map_parts, row_parts
-    from .moves import kept_slots, native_csr, native_spans, stacked_rows
+    from .poserows import kept_slots, native_csr, native_spans, stacked_rows
 
     blocks = [sp.csr_matrix(rows)] if sp.issparse(rows) else [sp.csr_matrix(b) for b in rows]
     kept = sp.csr_matrix(kept)
@@ -195,7 +193,7 @@ class StaleRows:
         replacing what was held for them; rows that are empty leave their slots current. One
         copy of D's rows at most (each held row is put once per move). ``pose``: the pose whose
         rows minus the kept rows ``deltas`` are exactly, as made (:meth:`since`), if any."""
-        from .moves import stacked_rows
+        from .poserows import stacked_rows
 
         slots = np.asarray(slots, np.int64)
         blocks = [sp.csr_matrix(d) for d in deltas]

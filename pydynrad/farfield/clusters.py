@@ -23,9 +23,10 @@ import scipy.sparse as sp
 from ..checks import integer, number
 from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
+from ..rows.prolongation import LINEAR_FUNCTIONS
 
 __all__ = ["Clusters", "cluster_patches", "default_cluster_count", "NORMAL_BINS", "NORMAL_WEIGHT",
-           "DEFAULT_PATCHES_PER_CLUSTER", "light_components", "linear_basis", "LINEAR_FUNCTIONS"]
+           "DEFAULT_PATCHES_PER_CLUSTER", "light_components", "linear_basis"]
 
 #: The 26 unit directions of the normal bins.
 NORMAL_BINS = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) != (0, 0, 0)],
@@ -237,8 +238,6 @@ def cluster_patches(scene, clusters: int | None = None, patches_per_cluster: flo
     return Clusters(labels=labels, count=C, groups=n_groups, scene_hash=scene.content_hash())
 
 
-#: Basis functions per cluster of :func:`linear_basis`.
-LINEAR_FUNCTIONS = 3
 
 
 def _tangents(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -304,14 +303,3 @@ def linear_basis(clusters: Clusters, scene) -> tuple[sp.csr_matrix, sp.csr_matri
     return Pr, R
 
 
-def labels_of_linear(prolongation: sp.csr_matrix) -> np.ndarray | None:
-    """(N,) cluster labels of a prolongation laid out like :func:`linear_basis`'s (every row's
-    entries in columns c + k C of one cluster c), else None."""
-    pr = sp.csr_matrix(prolongation)
-    if pr.shape[1] % LINEAR_FUNCTIONS or np.any(np.diff(pr.indptr) == 0):
-        return None
-    C = pr.shape[1] // LINEAR_FUNCTIONS
-    lab = pr.indices[pr.indptr[:-1]] % C
-    if np.any(pr.indices % C != np.repeat(lab, np.diff(pr.indptr))):
-        return None
-    return lab.astype(np.int64)

@@ -24,55 +24,17 @@ import scipy.sparse as sp
 from ..checks import check_form_factor_rows, sparse_structure
 from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
+from ..rows.prolongation import BASES, as_prolongation, check_prolongation, g_samples, split_prolongation
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
 
-__all__ = ["cluster_form_factors", "g_samples", "cluster_form_factors_for", "as_prolongation", "basis_prolongation",
-           "check_prolongation", "split_prolongation", "checked_cluster_form_factors", "light_components_by_hemicube",
-           "clusters_without_f", "check_store", "BASES", "COMPONENT_RESOLUTION"]
-
-#: The coarse bases a prolongation can be made for from cluster labels.
-BASES = ("indicator", "linear")
+__all__ = ["cluster_form_factors", "cluster_form_factors_for", "basis_prolongation",
+           "checked_cluster_form_factors", "light_components_by_hemicube",
+           "clusters_without_f", "check_store", "COMPONENT_RESOLUTION"]
 
 
-def check_prolongation(prolongation, n: int) -> sp.csr_matrix:
-    """``prolongation`` as a float64 (N, C) CSR matrix with explicit zeros removed, or InvalidInputError."""
-    if sp.issparse(prolongation):
-        pr = sp.csr_matrix(prolongation, dtype=np.float64, copy=True)
-    else:
-        try:
-            a = np.asarray(prolongation, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InvalidInputError(f"prolongation must be an (N, C) matrix of numbers; got {type(prolongation).__name__}") from None
-        if a.ndim != 2:
-            raise InvalidInputError(f"prolongation must be a 2-D (N, C) matrix; got shape {a.shape}")
-        pr = sp.csr_matrix(a)
-    if pr.shape[0] != n or pr.shape[1] < 1:
-        raise InvalidInputError(f"prolongation must have shape (N, C) = ({n}, C >= 1) for this scene; got {pr.shape}")
-    if not np.all(np.isfinite(pr.data)):
-        raise InvalidInputError("prolongation holds NaN or infinite entries")
-    if pr.data.size and pr.data.min() < 0:
-        raise InvalidInputError(f"prolongation entries must be >= 0; the smallest is {pr.data.min():g}")
-    pr.eliminate_zeros()
-    pr.sort_indices()
-    return pr
 
 
-def as_prolongation(clusters, n: int) -> sp.csr_matrix:
-    """A checked (N, C) prolongation from an (N, C) matrix, (N,) integer cluster labels (the
-    indicator) or a clusters object with ``labels`` (:class:`pydynrad.farfield.Clusters`)."""
-    labels = getattr(clusters, "labels", None)
-    if labels is None and not sp.issparse(clusters):
-        a = np.asarray(clusters)
-        if a.ndim == 1:
-            labels = a
-    if labels is None:
-        return check_prolongation(clusters, n)
-    labels = np.asarray(labels)
-    if labels.shape != (n,) or not np.issubdtype(labels.dtype, np.integer) or (n and labels.min() < 0):
-        raise InvalidInputError(f"cluster labels must be {n} integers >= 0 (one per patch); got shape {labels.shape}, "
-                                f"dtype {labels.dtype}")
-    C = int(getattr(clusters, "count", labels.max() + 1 if n else 1))
-    return check_prolongation(sp.csr_matrix((np.ones(n), (np.arange(n), labels)), shape=(n, C)), n)
+
 
 
 #: Hemicube resolution of the pass that finds which patches exchange light when F is never formed:
@@ -166,21 +128,6 @@ def basis_prolongation(scene, clusters, basis: str = "linear") -> sp.csr_matrix:
     return check_prolongation(linear_basis(clusters, scene)[0], n)
 
 
-def split_prolongation(prolongation) -> tuple[np.ndarray, np.ndarray] | None:
-    """(labels, scale) of a prolongation with at most one entry per row, else None.
-
-    ``labels[i]``: the cluster of patch i (-1 where its row is empty); ``scale[i]``: the entry
-    (0 where empty). A checked CSR matrix (:func:`check_prolongation`) is expected.
-    """
-    per_row = np.diff(prolongation.indptr)
-    if per_row.size and per_row.max() > 1:
-        return None
-    has = per_row == 1
-    labels = np.full(prolongation.shape[0], -1, np.int32)
-    scale = np.zeros(prolongation.shape[0], np.float64)
-    labels[has] = prolongation.indices
-    scale[has] = prolongation.data
-    return labels, scale
 
 
 def cluster_form_factors(scene, prolongation, resolution: int = CLUSTER_RESOLUTION, rows=None, device=None,
@@ -245,10 +192,6 @@ def checked_cluster_form_factors(G, shape: tuple[int, int]) -> sp.csr_matrix:
     return G
 
 
-def g_samples(f_resolution: int, f_samples: int, g_resolution: int) -> int:
-    """Hemicubes per row of G: F's at F's resolution (G is then F Pr of F's very rows), else 1
-    (F's count need not divide another resolution)."""
-    return int(f_samples) if int(g_resolution) == int(f_resolution) else 1
 
 
 def cluster_form_factors_for(scene, source, clusters, resolution: int | None = None, device=None,

@@ -74,7 +74,8 @@ from ..host.colproduct import columns_product, rows_product
 from ..errors import ConvergenceError, InvalidInputError, PydynradError
 from ..lights.sources import check_radiosity_range
 from ..host.product import HostBounce, HostMatrix, on_host
-from .clusters import LINEAR_FUNCTIONS, Clusters, cluster_patches, light_components, linear_basis
+from .clusters import Clusters, cluster_patches, light_components, linear_basis
+from ..rows.prolongation import LINEAR_FUNCTIONS
 from .gather import checked_cluster_form_factors
 from .history import Answers
 from .streamed import StoredG
@@ -688,7 +689,8 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     """
     from ..rows.sources import CSRRows, HemicubeRows
     from ..rows.store import FormFactorStore
-    from .gather import basis_prolongation, check_prolongation, check_store, cluster_form_factors_for, clusters_without_f
+    from .gather import basis_prolongation, check_store, cluster_form_factors_for, clusters_without_f
+    from ..rows.prolongation import check_prolongation
 
     if local_rows.csr is not None:
         return FarField(scene, local_rows.csr, clusters, G, device=device, checked=True)

@@ -5,11 +5,14 @@ A :class:`Scene` is the unit every other part of pydynrad works on. Patches are 
 renderer can interpolate radiosity smoothly. Geometry is validated once here, so kernels
 never see NaNs, degenerate triangles or out-of-range materials.
 
-Units: lengths in the scene's own unit (the Cornell box uses millimetres), areas in that
-unit squared, albedo dimensionless in [0, 1), emission as radiant exitance (W/unit^2, any
-consistent scale: radiosity is linear in it).
+Units: lengths in the scene's own unit, which the scene declares (:attr:`Scene.unit`, metres
+per scene unit: the Cornell box is in millimetres, ``unit = 0.001``), and its up axis
+(:attr:`Scene.up`); albedo dimensionless in [0, 1), emission as radiant exitance per square
+metre (W/m^2 or lm/m^2, any consistent scale: radiosity is linear in it). Form factors are
+dimensionless, so only lights given per solid angle (point, spot, luminaire intensities, W/sr
+or cd) depend on the unit: their irradiance is ``I cos / (d * unit)^2``, per square metre.
 
-See docs/design.md, 'Conventions'.
+See docs/guide/units.md.
 """
 
 from __future__ import annotations
@@ -44,6 +47,74 @@ class PrecisionWarning(UserWarning):
 MIN_RELATIVE_SIZE = 1e-5
 
 
+#: Metres per unit, by the unit names :func:`unit_metres` accepts.
+UNIT_NAMES = {"m": 1.0, "metre": 1.0, "meter": 1.0, "metres": 1.0, "meters": 1.0, "cm": 0.01, "mm": 0.001,
+              "km": 1000.0, "in": 0.0254, "inch": 0.0254, "ft": 0.3048, "foot": 0.3048, "feet": 0.3048}
+_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def unit_metres(unit) -> float:
+    """Metres per scene unit from a name (``"m"``, ``"cm"``, ``"mm"``, ``"in"``, ``"ft"``, ``"km"``)
+    or a positive number of metres; InvalidInputError otherwise."""
+    if isinstance(unit, str):
+        key = unit.strip().lower()
+        if key not in UNIT_NAMES:
+            raise InvalidInputError(f"unknown length unit {unit!r}; use one of m, cm, mm, in, ft, km or metres per "
+                                    "unit as a number")
+        return UNIT_NAMES[key]
+    if isinstance(unit, bool):
+        raise InvalidInputError(f"unit must be a unit name or metres per unit; got {unit!r}")
+    try:
+        value = float(unit)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"unit must be a unit name or metres per unit; got {unit!r}") from None
+    if not (np.isfinite(value) and value > 0):
+        raise InvalidInputError(f"unit (metres per scene unit) must be positive and finite; got {unit!r}")
+    return value
+
+
+def unit_name(metres: float) -> str:
+    """The short name of ``metres`` per unit ("mm", ...), or the number in metres."""
+    for name in ("m", "cm", "mm", "km", "in", "ft"):
+        if UNIT_NAMES[name] == metres:
+            return name
+    return f"{metres:g} m"
+
+
+def up_vector(up) -> np.ndarray:
+    """A unit up vector (3,) float64 from ``"+y"``, ``"y"``, ``"-z"``, ... or a non-zero 3-vector."""
+    if isinstance(up, str):
+        text = up.strip().lower()
+        sign = -1.0 if text.startswith("-") else 1.0
+        axis = text.lstrip("+-")
+        if axis not in _AXES:
+            raise InvalidInputError(f"up must be an axis such as '+y', '-z' or a 3-vector; got {up!r}")
+        v = np.zeros(3)
+        v[_AXES[axis]] = sign
+        return v
+    v = floats(up, "up")
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
+        raise InvalidInputError(f"up must be a non-zero finite 3-vector or an axis name; got {up!r}")
+    return v / np.linalg.norm(v)
+
+
+def rotation_to(up, target=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """(3, 3) the smallest rotation taking unit ``up`` to ``target`` (half a turn about x, or about
+    z for an up along x, when they are opposite)."""
+    a, b = up_vector(up), up_vector(target)
+    c = float(a @ b)
+    if c > 1.0 - 1e-15:
+        return np.eye(3)
+    if c < -1.0 + 1e-15:
+        axis = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+        axis = axis - a * (axis @ a)
+        axis /= np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    v = np.cross(a, b)
+    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + k + k @ k / (1.0 + c)
+
+
 class DeviceFrame:
     """The frame geometry is in on the device: x_device = (x - origin) / unit, float32.
 
@@ -55,8 +126,11 @@ class DeviceFrame:
     directions are scaled by the same unit (:meth:`directions`); lengths convert by ``unit``.
     """
 
-    def __init__(self, lo: np.ndarray, hi: np.ndarray) -> None:
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, metres: float = 1.0, up=None) -> None:
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        #: The scene's metres per unit (light intensities per m^2 are packed through it) and up axis.
+        self.metres = float(metres)
+        self.up = None if up is None else tuple(map(float, up))
         self.origin = 0.5 * (lo + hi)
         diag = float(np.linalg.norm(hi - lo))
         self.unit = float(2.0 ** np.round(np.log2(diag))) if diag > 0 else 1.0  # exact divisions
@@ -156,12 +230,27 @@ class Scene:
         Index of the input-mesh face each patch came from (identity by default).
     name : str
         A label used in reports and file headers.
+    unit : str or float
+        Metres per scene unit, or a unit name ("m", "cm", "mm", "in", "ft"); ``Scene.unit`` is
+        the number. Metres by default.
+    up : str or (3,)
+        The scene's up axis ("+y", "+z", ... or a vector); ``Scene.up`` is the unit vector. +z
+        by default for a scene made from arrays (what skies and work planes assumed before
+        scenes knew their up axis); :func:`~pydynrad.load` and the built-in scenes declare theirs.
 
     Zero-area triangles are dropped with a :class:`DegenerateTriangleWarning` that counts
     them; everything else invalid raises :class:`~pydynrad.errors.InvalidInputError`.
     """
 
-    def __init__(self, points, triangles, albedo=0.5, emission=0.0, source_face=None, name: str = "scene") -> None:
+    #: Defaults for scenes assembled without the constructor (see :meth:`_assembled`).
+    unit = 1.0
+    up = np.array([0.0, 0.0, 1.0])
+    materials = None
+
+    def __init__(self, points, triangles, albedo=0.5, emission=0.0, source_face=None, name: str = "scene",
+                 unit="m", up="+z") -> None:
+        self.unit = unit_metres(unit)
+        self.up = _frozen(np.array(up_vector(up)))
         pts = floats(points, "points")
         tri = np.asarray(triangles)
         if pts.ndim != 2 or pts.shape[1] != 3:
@@ -294,7 +383,7 @@ class Scene:
     @cached_property
     def frame(self) -> DeviceFrame:
         """The device frame (:class:`DeviceFrame`): every upload of positions goes through it."""
-        return DeviceFrame(*self.bbox)
+        return DeviceFrame(*self.bbox, metres=self.unit, up=self.up)
 
     @cached_property
     def bvh(self):
@@ -342,6 +431,18 @@ class Scene:
         if emission is not None:
             out.emission = _checked_emission(emission, len(self))
         return out
+
+    @property
+    def unit_name(self) -> str:
+        """:attr:`unit` as a short name ("mm") where it has one."""
+        return unit_name(self.unit)
+
+    def summary(self) -> str:
+        """What was read: size, unit and up axis, and per material (for a loaded scene) the patch
+        count, mean albedo and emission, the textures used and what was clamped or ignored."""
+        from .materials import scene_summary
+
+        return scene_summary(self)
 
     def __repr__(self) -> str:
         return f"Scene({self.name!r}, {len(self)} patches, {len(self.emitters)} emitting, grey={self.is_grey})"

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..atomic import check_file_target, write_atomic
 from ..checks import floats
-from ..errors import InvalidInputError
+from ..errors import InvalidInputError, MissingExtraError
 from .units import photometric
 
 __all__ = ["IlluminanceStats", "illuminance_statistics", "write_illuminance_csv", "plot_work_plane"]
@@ -87,9 +87,12 @@ def plot_work_plane(path, plane, E, title: str = "", cmap="jet") -> IlluminanceS
 
     Cells outside the polygon stay blank; the colour bar is in lx; the title carries Em and U0.
     The format follows the file's suffix (png, pdf, svg). ``cmap``: a matplotlib colour map or
-    its name. Needs matplotlib. Returns the statistics.
+    its name. Needs matplotlib (the ``plot`` extra). Returns the statistics.
     """
-    import matplotlib
+    try:  # deferred: matplotlib is the optional ``plot`` extra
+        import matplotlib
+    except ImportError as exc:
+        raise MissingExtraError("plot_work_plane", "matplotlib", "plot", name=exc.name) from exc
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -2,10 +2,13 @@
 
 * :mod:`.distributed`: :func:`precompute_distributed`, a store filled by a Dask cluster
   (the ``dask`` extra);
-* :mod:`pydynrad.rows.store`'s :func:`~pydynrad.rows.store.compute_store` fills one in process.
+* :mod:`.store`: :func:`compute_store`, the same blocks computed in this process;
+* :func:`precompute_poses` and :func:`stored_poses`: a moving object's rows at each of its poses.
 """
 
-from ..dynamic.moves import PoseRows, precompute_poses, stored_poses
+from .poses import precompute_poses, stored_poses
+from ..dynamic.poses import PoseRows
 from .distributed import SceneSpec, precompute_distributed
+from .store import compute_store
 
-__all__ = ["PoseRows", "SceneSpec", "precompute_distributed", "precompute_poses", "stored_poses"]
+__all__ = ["PoseRows", "SceneSpec", "compute_store", "precompute_distributed", "precompute_poses", "stored_poses"]

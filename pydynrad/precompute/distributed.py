@@ -31,7 +31,8 @@ from pathlib import Path
 from ..errors import InvalidInputError, MissingExtraError, PydynradError
 from ..geometry.scene import Scene
 from ..scenes.byname import BUILTIN_SCENES, is_builtin, scene_by_name
-from ..rows.store import DEFAULT_BLOCK_ROWS, DEFAULT_TASK_ROWS, FormFactorStore, RowFunction, compute_blocks, form_factor_rows, prepare_store, task_groups
+from ..rows.store import DEFAULT_BLOCK_ROWS, DEFAULT_TASK_ROWS, FormFactorStore, RowFunction
+from .store import compute_blocks, form_factor_rows, prepare_store, task_groups
 
 __all__ = ["SceneSpec", "opencl_worker_plugin_class", "precompute_distributed"]
 

@@ -5,7 +5,9 @@
 * :mod:`.cache`: :class:`RowCache`, a bounded prefetching cache in front of any source;
 * :mod:`.files`: one-file ``.npz`` form factors and opening any saved F for a scene;
 * :mod:`.store`: :class:`FormFactorStore`, a chunked, checksummed, resumable store on disk;
-* :mod:`.distributed`: filling a store with a Dask cluster.
+* :mod:`.prolongation`: the layout of the far field's prolongation as stores keep it.
+
+Filling a store is :mod:`pydynrad.precompute`'s job.
 
 See docs/design.md, 'Row sources, stores and caches' and 'Distributed precompute'.
 """
@@ -13,8 +15,8 @@ See docs/design.md, 'Row sources, stores and caches' and 'Distributed precompute
 from .cache import RowCache
 from .files import load_form_factors, open_form_factors, save_form_factors
 from .sources import CSRRows, HemicubeRows, RowSource, as_row_source
-from .store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError, compute_store
+from .store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError
 
-__all__ = ["as_row_source", "compute_store", "CSRRows", "FormFactorStore", "HemicubeRows", "load_form_factors",
+__all__ = ["as_row_source", "CSRRows", "FormFactorStore", "HemicubeRows", "load_form_factors",
            "open_form_factors", "RowCache", "RowSource", "save_form_factors", "StoreCorruptError",
            "StoreIncompleteError", "StoreMismatchError"]
