@@ -2,8 +2,11 @@
 
 import json
 import re
+import sys
+from pathlib import Path
 
-from bench.report import RESULTS_ROOT, performance_markdown, write_performance_page
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package lives in the repo root
+from bench.report import RESULTS_ROOT, performance_markdown, write_performance_page  # noqa: E402
 
 
 def _device_folders(root):
