@@ -15,7 +15,8 @@ NATIVE = {"_bvh": "bvh.c", "_raybatch": "rays.c", "_runs": "runs.c", "_segments"
 setup(
     packages=[*find_packages(include=["pydynrad", "pydynrad.*"]), "pydynrad.kernels"],
     package_dir={"pydynrad": "pydynrad", "pydynrad.kernels": "kernels"},
-    package_data={"pydynrad.kernels": ["*.cl", "*.h"]},
+    # py.typed: the package's inline annotations are for type checkers too (PEP 561).
+    package_data={"pydynrad": ["py.typed"], "pydynrad.kernels": ["*.cl", "*.h"]},
     ext_modules=[Extension(f"pydynrad.{name}", sources=[f"csrc/{source}"], extra_compile_args=["-O3", "-std=c99", "-ffp-contract=off"])
                  for name, source in NATIVE.items()],
 )
