@@ -45,6 +45,15 @@ from .errors import InvalidInputError, OutOfMemoryError
 from .host.threads import cores as host_cores, pool as host_pool
 from .device.launch import GEMM_GRAIN, PANEL, gemm_layout, round_up
 from .host.memory import available_host_bytes
+from .device.devices import default_device
+from .device.devices import device_or_default
+from .device.devices import real_dtype
+from .device.matrix import DeviceMatrix
+from .geometry.scene import PrecisionWarning
+from .host.blas import one_blas_thread
+from .lights.sources import check_radiosity_range
+from .lights.sources import resolve_light
+from .progress import progress_bar
 
 __all__ = ["multibounce", "multibounce_block", "multibounce_radiosity", "multibounce_memory"]
 
@@ -224,8 +233,6 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
         Before allocating anything, when the result or the working buffers would not fit in
         host memory or on the device (e.g. all 63,125 patches of the paper's scene: 44 GiB).
     """
-    from .device.devices import device_or_default
-
     out, bounces = _checked_options(dtype, bounces, backend)
     device = device_or_default(device)
     idx = _checked_patches(patches, len(checked_scene(scene)))
@@ -249,8 +256,6 @@ def warn_precision(max_albedo: float, arithmetic: str, stacklevel: int = 2) -> b
     ``arithmetic`` cannot hold K: the series K = F + F P F + ... amplifies rounding by up to
     1 / (1 - max albedo), so float32's 2^-24 becomes ~2^-24 / (1 - rho) of B (a closed box at
     0.9999999 was 3.5% off, at 0.999999 0.09%, in float64 8e-11)."""
-    from .geometry.scene import PrecisionWarning
-
     if arithmetic == "float64" or (max_albedo < 1.0 and 2.0**-24 / (1.0 - max_albedo) <= PRECISION_LIMIT):
         return False
     warnings.warn(f"an albedo of {max_albedo:.9g} amplifies float32 rounding in K to about "
@@ -286,8 +291,6 @@ def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32
     -------
     (C, M, M) ndarray of ``dtype``.
     """
-    from .device.devices import default_device
-
     out, bounces = _checked_options(dtype, bounces, backend)
     device = device or default_device()
     shape = np.shape(F_SS)
@@ -348,7 +351,6 @@ def _host_channels(F_work: np.ndarray, rho: np.ndarray, bounces: int | None, res
         for c in range(C):
             channel(c)
         return
-    from .host.blas import one_blas_thread
 
     with one_blas_thread():
         list(host_pool().map(channel, range(C)))
@@ -359,8 +361,6 @@ def _build(F_SS: np.ndarray, rho: np.ndarray, bounces: int | None, out: np.dtype
     """K per channel from a validated F_SS (M, M, sparse or dense; never written) and albedos
     rho (M, C), float64. The host's solve takes F_SS made dense in its working dtype at once
     (a float64 copy first cost a fifth of numpy's own solve at M = 768)."""
-    from .device.devices import real_dtype
-    from .progress import progress_bar
 
     work = real_dtype(np.float64 if out == np.float64 else np.float32, device)
     M, C = rho.shape
@@ -392,12 +392,12 @@ def multibounce_radiosity(scene, K, lights=(), *, light=None, patches=None, devi
 
     K : (C, M, M) ndarray or :class:`~pydynrad.device.matrix.DeviceMatrix` from :func:`multibounce`
         over ``patches`` (all N patches by default).
+
     lights : light objects (see :func:`pydynrad.light_vector`), or
     light : a precomputed (N, 3) light vector L of the whole scene.
+
     Changing a light or an emission changes only L: one light pass plus this one product.
     """
-    from .lights.sources import check_radiosity_range, resolve_light
-    from .device.matrix import DeviceMatrix
 
     idx = _checked_patches(patches, len(checked_scene(scene)))
     L = resolve_light(scene, lights, light, device)

@@ -327,7 +327,8 @@ def checked_sensors(points, normals) -> tuple[np.ndarray, np.ndarray]:
 
 
 def vec3_tuple(value, what: str) -> tuple[float, float, float]:
-    return tuple(float(v) for v in vec3(value, what))
+    x, y, z = (float(v) for v in vec3(value, what))
+    return x, y, z
 
 
 def rgb_tuple(value, what: str) -> tuple[float, float, float]:
@@ -341,4 +342,5 @@ def rgb_tuple(value, what: str) -> tuple[float, float, float]:
 
 
 def unit_tuple(value, what: str) -> tuple[float, float, float]:
-    return tuple(float(v) for v in unit_vector(value, what))
+    x, y, z = (float(v) for v in unit_vector(value, what))
+    return x, y, z

@@ -18,6 +18,9 @@ import numpy as np
 
 from .checks import stops
 from .errors import InvalidInputError, PydynradError
+from .renderer import Renderer
+from .rows.files import whole_matrix
+from .solution import solve
 
 __all__ = ["radiosity_error", "pixel_error", "false_colour", "comparison_image", "reference_frame", "ReferenceFrame"]
 
@@ -170,9 +173,6 @@ def reference_frame(scene, form_factors, radiosity, camera, *, lights=(), render
     ``local_only``: the paper's local-only answer (N, 3) beside a far-field ``radiosity``: it is
     compared too, its row (local only | full | error) above the far field's, on one error scale.
     """
-    from .renderer import Renderer
-    from .rows.files import whole_matrix
-    from .solution import solve
 
     exposure = stops(exposure)  # before the full solve
     renderer = renderer or Renderer(scene, device)

@@ -32,6 +32,8 @@ from .geometry.scene import checked_scene
 from .errors import InvalidInputError, OutOfMemoryError
 from .device.launch import float4, global_size, hemicube_tiles, ray_work_group
 from .host.memory import available_host_bytes
+from .device.devices import device_or_default
+from .progress import progress_bar
 
 __all__ = ["checked_samples", "form_factors", "hemicube_blocks", "hemicube_runs", "pixel_form_factors", "sample_points", "stack_blocks",
            "CLUSTER_RESOLUTION", "SURFACE_OFFSET"]
@@ -204,8 +206,6 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
     (a moving object's hemicubes, queued beside the frame's other host work)."""
     import pyopencl as cl
 
-    from .device.devices import device_or_default
-    from .progress import progress_bar
 
     dev = device_or_default(device)
     R_total = checked_resolution(resolution)

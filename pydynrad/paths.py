@@ -55,6 +55,13 @@ import numpy as np
 from .geometry.camera import Camera
 from .checks import floats, number, unit_vector
 from .errors import InvalidInputError
+from .geometry.loading import load
+from .geometry.objects import RigidObject
+from .geometry.objects import rigid_transform
+from .lights.sources import DirectionalLight
+from .lights.sources import PointLight
+from .lights.sources import SpotLight
+from .scenes import block
 
 __all__ = ["CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path", "load_walk", "WalkFile",
            "INTERPOLATIONS"]
@@ -260,8 +267,6 @@ class ObjectTrack:
     interpolation: str = "catmull-rom"
 
     def __post_init__(self) -> None:
-        from .geometry.objects import RigidObject, rigid_transform
-
         if not isinstance(self.object, RigidObject):
             raise InvalidInputError(f"an ObjectTrack needs a RigidObject; got {type(self.object).__name__}")
         T = np.asarray(self.transforms, dtype=np.float64)
@@ -323,8 +328,6 @@ _LIGHT_FIELDS = {"point": (("intensity",), True),
 
 
 def _parse_light(item, where: str):
-    from .lights.sources import DirectionalLight, PointLight, SpotLight
-
     if not isinstance(item, dict):
         raise InvalidInputError(f"{where}: a light must be an object with a 'type'")
     kind = _field(item, "type", where, required=True)
@@ -349,8 +352,6 @@ def _pose(key, where: str) -> np.ndarray:
     """A keyframe of an object: a 4x4 matrix, or {"position", "rotation_deg"}."""
     from scipy.spatial.transform import Rotation
 
-    from .geometry.objects import rigid_transform
-
     if not isinstance(key, dict):
         return rigid_transform(key, where)
     _known_fields(key, ("position", "rotation_deg"), where)
@@ -367,13 +368,9 @@ def _pose(key, where: str) -> np.ndarray:
 
 def _object_scene(item: dict, base: Path, where: str):
     """The object-space Scene of an object entry: its mesh file or a built-in block."""
-    from .scenes import block
-
     if ("mesh" in item) == ("block" in item):
         raise InvalidInputError(f"{where}: give exactly one of 'mesh' (a file) or 'block'")
     if "mesh" in item:
-        from .geometry.loading import load
-
         mesh = item["mesh"]
         if not isinstance(mesh, str):
             raise InvalidInputError(f"{where}: 'mesh' must be a file name; got {mesh!r}")
@@ -396,8 +393,6 @@ def _object_scene(item: dict, base: Path, where: str):
 
 
 def _parse_object(item, base: Path, where: str) -> ObjectTrack:
-    from .geometry.objects import RigidObject
-
     if not isinstance(item, dict):
         raise InvalidInputError(f"{where}: an object must be a JSON object with 'mesh' or 'block' and 'keyframes'")
     _known_fields(item, _OBJECT_FIELDS, where)

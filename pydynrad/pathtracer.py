@@ -35,6 +35,8 @@ from .device.launch import float4, global_size
 from .lights.sources import SHADOW_EPSILON, checked_lights, pack_lights_and_tables
 from .lights.sky import pack_sky
 from .geometry.scene import Scene
+from .device.devices import default_device
+from .progress import progress_bar
 
 __all__ = ["path_trace", "path_trace_patches"]
 
@@ -55,8 +57,6 @@ class _Tracer:
     """A scene's and its lights' device buffers (the kernels' SCENE_ARGS) and the bounce limit."""
 
     def __init__(self, scene: Scene, lights, max_depth: int, device) -> None:
-        from .device.devices import default_device
-
         checked_scene(scene)
         integer(max_depth, "max_depth", 1, 2**31 - 1)  # the kernel's int bounce counter
         self.device = device = device or default_device()
@@ -99,8 +99,6 @@ class _Tracer:
                    progress, time_limit: float | None) -> tuple[np.ndarray, int]:
         """Run passes until ``spp`` samples (or the time limit); return (sum (n, 3), samples)."""
         import pyopencl as cl
-
-        from .progress import progress_bar
 
         kernel = self.device.kernel("pathtrace.cl", kernel_name, self.defines)
         queue = self.device.queue
@@ -190,13 +188,13 @@ def path_trace_patches(scene: Scene, patches=None, spp: int = 256, lights=(), se
     ``B_i = E_i + rho_i * H_i`` with the irradiance ``H_i`` at patch i's centre estimated from
     ``spp`` paths (next-event estimation at every vertex). Compare with the radiosity of
     :func:`pydynrad.solve`: that is an area average, this is a point value at the centre, so
-    the two differ by the variation of B across a patch (small for fine patches).
+    the two differ by the variation of B across a patch (small for fine patches). Parameters
+    other than ``patches`` are as in :func:`path_trace`.
 
     Parameters
     ----------
     patches : (n,) int, optional
         Patch indices (default: every patch).
-    Other parameters as in :func:`path_trace`.
 
     Returns
     -------

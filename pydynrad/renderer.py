@@ -30,6 +30,7 @@ from .geometry.scene import checked_scene
 from .errors import InvalidInputError
 from .device.launch import WG, global_size
 from .smoothing import checked_radiosity as _as_radiosity, smooth_vertices, smoothing_groups
+from .device.devices import default_device
 
 __all__ = ["Renderer", "Visibility", "render", "smoothing_groups", "SHADINGS"]
 
@@ -82,8 +83,6 @@ class Renderer:
     """
 
     def __init__(self, scene, device=None, crease_angle: float = 30.0) -> None:
-        from .device.devices import default_device
-
         self.scene = checked_scene(scene)
         self.device = device or default_device()
         self.crease_angle = number(crease_angle, "crease_angle")

@@ -35,6 +35,8 @@ from .errors import ConvergenceError, InvalidInputError, OutOfMemoryError
 from .device.launch import sell_layout
 from .lights.sources import check_radiosity_range, checked_light_vector
 from .host.memory import available_host_bytes
+from .device.devices import device_or_default
+from .lights.areas import analytic_emitter_light
 
 __all__ = ["Solution", "RadiositySolver", "solve", "DENSE_MAX_PATCHES"]
 
@@ -58,6 +60,7 @@ class Solution:
     converged : bool
         residual <= tol (always True for the dense method).
     method, dtype : str
+        The solve method and the working precision.
     channels : int
         Colour channels actually computed (1 when albedos and L are grey).
     seconds : float
@@ -84,6 +87,8 @@ def _channels(scene, L: np.ndarray) -> int:
 class RadiositySolver:
     """The iterative solver with F resident on the device: build once, solve for many L.
 
+    F is uploaded at once in the format of the scene's channels (:meth:`format`).
+
     Parameters
     ----------
     scene : Scene
@@ -94,13 +99,9 @@ class RadiositySolver:
     device : Device, optional
     layout : (LX, blocks), optional
         The CSR kernel's layout (:func:`pydynrad.device.launch.spmv_layout`); forces CSR.
-
-    F is uploaded at once in the format of the scene's channels (:meth:`format`).
     """
 
     def __init__(self, scene, F, dtype=np.float32, device=None, *, layout: tuple[int, int] | None = None) -> None:
-        from .device.devices import device_or_default
-
         self.scene, self.device = scene, device_or_default(device)
         self.dtype = real_dtype(dtype, self.device)
         F = check_form_factors(scene, F)
@@ -246,8 +247,6 @@ def solve(scene, F, lights=(), method: str = "iterative", tol: float = 1e-6, max
     -------
     Solution
     """
-    from .lights.areas import analytic_emitter_light
-
     if method not in ("iterative", "dense"):
         raise InvalidInputError(f"unknown method {method!r}; allowed: 'iterative', 'dense'")
     L, E = analytic_emitter_light(scene, lights, light, emitters, device)

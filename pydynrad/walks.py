@@ -27,6 +27,17 @@ from .geometry.camera import Camera
 from .checks import integer, stops
 from .errors import InvalidInputError
 from .paths import CameraPath, LightTrack, ObjectTrack, WalkFile, fly_through, lights_at, load_path, load_walk, orbit
+from .atomic import check_file_target
+from .comparison import reference_frame
+from .device.devices import device_or_default
+from .dynamic import DynamicRadiosity
+from .formfactors import form_factors as hemicubes
+from .geometry.objects import check_reach
+from .image_io import _format_for
+from .image_io import write_image
+from .progress import progress_bar
+from .renderer import Renderer
+from .rows.files import whole_matrix
 
 __all__ = ["walk", "WalkResult", "FrameRecord", "CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path",
            "load_walk", "WalkFile", "STAGES"]
@@ -174,12 +185,6 @@ def walk(
     -------
     WalkResult
     """
-    from .atomic import check_file_target
-    from .device.devices import device_or_default
-    from .image_io import _format_for, write_image
-    from .geometry.objects import check_reach
-    from .progress import progress_bar
-    from .renderer import Renderer
 
     if not isinstance(path, CameraPath):
         raise InvalidInputError(f"path must be a CameraPath (orbit, fly_through, load_path); got {type(path).__name__}")
@@ -210,7 +215,6 @@ def walk(
     if dynamic is None:
         if form_factors is None:
             raise InvalidInputError("walk needs a DynamicRadiosity (dynamic=...) or the form factors (form_factors=F)")
-        from .dynamic import DynamicRadiosity
 
         m = min(len(scene), 1024) if local_size is None else local_size
         options = dict(solver_options or {})
@@ -250,15 +254,11 @@ def walk(
             rec.image_path = write_image(out_dir / f"frame_{k:04d}.{image_format}", img, exposure)
             rec.seconds["write"] = time.perf_counter() - t3
         if k in refs and tracks:
-            from .formfactors import form_factors as hemicubes
-
             world = dynamic.scene
             _reference(rec, dynamic, world, hemicubes(world, dynamic.resolution, device=device), frame_lights, b, img,
                        renderer, shading, out_dir, exposure, device)
         elif k in refs:
             if full_F is None:
-                from .rows.files import whole_matrix
-
                 full_F = whole_matrix(form_factors)
             _reference(rec, dynamic, scene, full_F, frame_lights, b, img, renderer, shading, out_dir, exposure, device)
         if keep_images:
@@ -271,8 +271,6 @@ def walk(
 def _reference(rec: FrameRecord, dynamic, scene, F, lights, b, img, renderer, shading, out_dir, exposure,
                device) -> None:
     """Solve the full radiosity for this frame's lights; record the error and the comparison."""
-    from .comparison import reference_frame
-    from .image_io import write_image
 
     local_only = None
     if getattr(dynamic, "far", None) is not None:  # the paper's answer from the same K, for comparison

@@ -205,12 +205,12 @@ def test_light_vector_reused_while_the_lights_stay(device, setup, monkeypatch):
     count), the emitter mode and the world stay: the same B, bit for bit, with no new light
     vector; new lights, another emitter mode or a given light vector are computed, and the B of
     new lights equals that of their light vector passed as light=. The held vector is read-only."""
-    from pydynrad.lights import areas
+    from pydynrad.dynamic import radiosity
 
     scene, F = setup
     made = []
-    real = areas.analytic_emitter_light
-    monkeypatch.setattr(areas, "analytic_emitter_light", lambda *a, **k: made.append(1) or real(*a, **k))
+    real = radiosity.analytic_emitter_light
+    monkeypatch.setattr(radiosity, "analytic_emitter_light", lambda *a, **k: made.append(1) or real(*a, **k))
     dyn = DynamicRadiosity(scene, F, local_size=48, observer=[0.5, 0.5, 0.5], device=device)
     made.clear()  # the constructor's warm-up lights once
     lamp = pydynrad.PointLight((0.5, 0.8, 0.5), (2.0, 1.5, 1.0))

@@ -55,11 +55,12 @@ def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, lam
     world built afresh (its own BVH), bit for bit, for point, spot and directional lights, with
     one object moved or two. Lights new in the last frame are relit in radiosity() instead (the
     move does not guess), other lights are lit whole there, as is a sky."""
+    import pydynrad.dynamic.radiosity as radiosity_module
     import pydynrad.lights.sources as lights_module
     from pydynrad.lights import SkyLight
 
     traced = []
-    real = lights_module._point_irradiance
+    real = radiosity_module._point_irradiance
 
     def counting(scene, points, normals, lights, device, patches=None, queued=False):
         traced.append(len(scene) if patches is None else len(patches))
@@ -68,7 +69,8 @@ def test_light_vector_after_moves_relights_only_what_they_shadow(box, block, lam
     def fresh(lights):  # the world at the objects' poses, BVH and uploads of its own
         return pd.light_vector(instanced(box, dyn.objects), lights, device=device)
 
-    monkeypatch.setattr(lights_module, "_point_irradiance", counting)
+    monkeypatch.setattr(radiosity_module, "_point_irradiance", counting)  # a relight after a move
+    monkeypatch.setattr(lights_module, "_point_irradiance", counting)  # a light vector traced whole
     lights = [pd.PointLight((278.0, 500.0, 280.0), (3e5, 3e5, 3e5)),
               pd.SpotLight((100.0, 540.0, 100.0), (0.3, -1.0, 0.4), (2e5, 2e5, 1e5), 0.3, 0.8),
               pd.DirectionalLight((0.0, -1.0, 0.0), (40.0, 40.0, 40.0))]
@@ -586,7 +588,7 @@ def test_a_move_that_fails_is_not_half_applied(box, block, device, monkeypatch):
     the poses K and the stale rows are of, the move still queued: the next update applies it.
     Either way B is then the same move's without a failure (budget 0, static F)."""
     import pydynrad.dynamic.moves as moves_module
-    import pydynrad.lights.sources as lights_module
+    import pydynrad.dynamic.radiosity as radiosity_module
 
     F_static = pd.form_factors(box, R, device=device)
     n = len(box) + len(block)
@@ -608,13 +610,13 @@ def test_a_move_that_fails_is_not_half_applied(box, block, device, monkeypatch):
         raise RuntimeError("clEnqueueNDRangeKernel failed: OUT_OF_RESOURCES")
 
     dyn, obj = made()
-    real = lights_module._point_irradiance
-    monkeypatch.setattr(lights_module, "_point_irradiance", broken)
+    real = radiosity_module._point_irradiance
+    monkeypatch.setattr(radiosity_module, "_point_irradiance", broken)
     dyn.move(obj, MIDDLE)
     dyn.update(OBSERVER)  # the guess failed, the move did not
     with pytest.raises(RuntimeError, match="OUT_OF_RESOURCES"):
         dyn.radiosity(LIGHTS)  # where the caller asked for the light
-    monkeypatch.setattr(lights_module, "_point_irradiance", real)
+    monkeypatch.setattr(radiosity_module, "_point_irradiance", real)
     np.testing.assert_array_equal(dyn.radiosity(LIGHTS), truth)
 
     # The objects' hemicubes fail as they are queued, or as they are waited for on a pool thread.
@@ -910,7 +912,6 @@ def test_rows_minus_matches_scipy(monkeypatch):
     """D = rows - kept[slots] by the native merge against scipy, sorted and unsorted rows, one
     matrix or blocks, one part or parts on the cores, exact zeros dropped; slots outside the
     kept rows refused."""
-    from pydynrad.host import threads as hostthreads
     from pydynrad.dynamic import stale
     from pydynrad.dynamic.stale import rows_minus
 
@@ -925,7 +926,7 @@ def test_rows_minus_matches_scipy(monkeypatch):
     np.testing.assert_array_equal(got.toarray(), truth)
     assert got.nnz == np.count_nonzero(truth) and got.has_sorted_indices
     monkeypatch.setattr(stale, "PARALLEL_ENTRIES", 1)  # each block in parts, as many as cores: 4
-    monkeypatch.setattr(hostthreads, "cores", lambda: 4)
+    monkeypatch.setattr(stale, "cores", lambda: 4)
     blocks = [rows[:13], rows[13:14], rows[14:14], rows[14:]]
     for parted in (rows_minus(blocks, kept, slots), rows_minus(rows, kept, slots)):
         np.testing.assert_array_equal(parted.toarray(), truth)
@@ -993,14 +994,14 @@ def _static_rows_in_f(rng, n_static: int, n_obj: int, r: int, density: float):
 def test_stale_rows_put_that_fails_leaves_no_pose(monkeypatch):
     """A D put for a pose is started from at the next move only once it is held: a put that
     fails on the way leaves its slots without that pose (their old D is not taken for it)."""
-    from pydynrad.dynamic import moves, stale
+    from pydynrad.dynamic import stale
 
     N = 12
     st = stale.StaleRows(N)
     st.put(np.array([1, 2]), sp.csr_matrix(np.eye(2, N)), pose=1)
     flags, last, row = st.since(np.array([1, 2, 3]), 1)
     assert flags.tolist() == [True, True, False] and row.tolist() == [0, 1, -1]
-    monkeypatch.setattr(moves, "stacked_rows", lambda *a: (_ for _ in ()).throw(MemoryError()))
+    monkeypatch.setattr(stale, "stacked_rows", lambda *a: (_ for _ in ()).throw(MemoryError()))
     with pytest.raises(MemoryError):
         st.put(np.array([1, 4]), sp.csr_matrix(np.eye(2, N)), pose=2)  # stacked with slot 2's held row
     assert not st.since(np.array([1, 4]), 2)[0].any() and not st.since(np.array([1]), 1)[0].any()
@@ -1012,8 +1013,7 @@ def test_difference_at_pose_is_at_pose_minus_kept(monkeypatch):
     whose object columns overfill them, hidden entries, rows read in place out of a larger F),
     in one part or in parts on the cores, kept rows out of column order sorted first; bad
     shapes refused."""
-    from pydynrad.host import threads as hostthreads
-    from pydynrad.dynamic import stale
+    from pydynrad.dynamic import poserows
     from pydynrad.dynamic.poserows import difference_at_pose
     from pydynrad.dynamic.stale import rows_minus
 
@@ -1042,8 +1042,8 @@ def test_difference_at_pose_is_at_pose_minus_kept(monkeypatch):
     objects = np.asarray(recip.sum(axis=1)).ravel()
     np.testing.assert_array_equal(got.capped, (objects > 1.0) | ((sums - objects > 0) & (sums > 1.0)))
     assert 0 < got.capped.sum() < r
-    monkeypatch.setattr(stale, "PARALLEL_ENTRIES", 1)
-    monkeypatch.setattr(hostthreads, "cores", lambda: 3)
+    monkeypatch.setattr(poserows, "PARALLEL_ENTRIES", 1)
+    monkeypatch.setattr(poserows, "cores", lambda: 3)
     assert same(difference_at_pose(big, hidden, recip, kept, slots, select).delta, truth)
     shuffled = kept.copy()
     for k in range(M):  # each kept row's entries reversed: columns out of order
@@ -1073,8 +1073,7 @@ def test_difference_since_the_last_pose_is_the_pass_made_whole(monkeypatch):
     rows, rows capped at the pose (made whole), rows not named; in one part and in parts. It
     does start from the last D (a wrong one shows), and not where the kept rows are out of
     order (then sorted, the last D unread); bad inputs refused."""
-    from pydynrad.host import threads as hostthreads
-    from pydynrad.dynamic import stale
+    from pydynrad.dynamic import poserows
     from pydynrad.dynamic.poserows import PoseDifference, Since, difference_at_pose
 
     rng = np.random.default_rng(29)
@@ -1116,8 +1115,8 @@ def test_difference_since_the_last_pose_is_the_pass_made_whole(monkeypatch):
             and all(np.array_equal(getattr(a.delta, k), getattr(b.delta, k)) for k in ("indptr", "indices", "data"))
 
     assert same(difference_at_pose(big, h_now, r_now, kept, slots, select, since), truth)
-    monkeypatch.setattr(stale, "PARALLEL_ENTRIES", 1)
-    monkeypatch.setattr(hostthreads, "cores", lambda: 3)
+    monkeypatch.setattr(poserows, "PARALLEL_ENTRIES", 1)
+    monkeypatch.setattr(poserows, "cores", lambda: 3)
     assert same(difference_at_pose(big, h_now, r_now, kept, slots, select, since), truth)
     # A wrong last D, where a row named has one that nothing since changes, shows in the answer.
     k = next(k for k in np.flatnonzero(named & ~truth.capped & (last_row >= 0))

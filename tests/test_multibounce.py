@@ -38,16 +38,14 @@ def test_host_build_side_by_side_or_in_turn(device, monkeypatch, cores):
     process has no more cores than channels, and in turn otherwise: the same K either way."""
     import importlib
 
-    import pydynrad.host.blas
-
     mb = importlib.import_module("pydynrad.bounces")  # the module, not the function pydynrad exports
     monkeypatch.setattr(mb, "host_cores", lambda: cores)
     rng = np.random.default_rng(5)
     s = box_scene(3).with_materials(albedo=rng.uniform(0, 0.9, (108, 3)))
     F = reciprocal_F(s.areas, row_sum=0.95, density=0.3, seed=5)
     limits = []
-    real = pydynrad.host.blas.one_blas_thread
-    monkeypatch.setattr(pydynrad.host.blas, "one_blas_thread", lambda: limits.append(1) or real())
+    real = mb.one_blas_thread
+    monkeypatch.setattr(mb, "one_blas_thread", lambda: limits.append(1) or real())
     K = multibounce(s, F, dtype=np.float64, device=device, backend="host")
     assert limits == ([1] if cores <= 3 else [])
     truth = dense_K(s, F)

@@ -30,6 +30,12 @@ import numpy as np
 from ..checks import flag, floats
 from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
+from ..bounces import multibounce_radiosity
+from ..dynamic import DynamicRadiosity
+from ..lights.sources import checked_light_vector
+from ..lights.sources import direct_irradiance
+from ..solution import RadiositySolver
+from ..solution import solve
 
 __all__ = ["LightGroups", "GroupRadiosity", "EMISSION"]
 
@@ -116,8 +122,6 @@ class LightGroups:
     """
 
     def __init__(self, scene, groups: Mapping, *, emission: bool = True, device=None) -> None:
-        from ..lights.sources import checked_light_vector, direct_irradiance
-
         self.scene = checked_scene(scene)
         if not isinstance(groups, Mapping):
             raise InvalidInputError(f"groups must map group names to lights; got {type(groups).__name__}")
@@ -156,8 +160,6 @@ class LightGroups:
         """Full radiosity per group (:func:`pydynrad.solve`; ``options`` are its tol,
         max_iterations, bounces, raise_on_failure). The iterative method keeps F on the device
         across the groups."""
-        from ..solution import RadiositySolver, solve
-
         if method == "iterative":
             solver = RadiositySolver(self.scene, F, dtype=dtype, device=self.device)
             return self._per_group(lambda L: solver.solve(L, **options).radiosity)
@@ -166,8 +168,6 @@ class LightGroups:
 
     def multibounce(self, K, patches=None) -> GroupRadiosity:
         """Radiosity per group through a multibounce matrix K (:func:`pydynrad.multibounce_radiosity`)."""
-        from ..bounces import multibounce_radiosity
-
         return self._per_group(lambda L: multibounce_radiosity(self.scene, K, light=L, patches=patches,
                                                                device=self.device))
 
@@ -176,8 +176,6 @@ class LightGroups:
         (call again after each ``update``: the local matrix changed). With its far field built
         from F, the combination matches the weighted lights' answer to about 1e-4 of the maximum,
         not to rounding: the far field shares indirect light by each light's own first bounce."""
-        from ..dynamic import DynamicRadiosity
-
         if not isinstance(dynamic, DynamicRadiosity):
             raise InvalidInputError(f"dynamic must be a DynamicRadiosity; got {type(dynamic).__name__}")
         if dynamic.scene is not self.scene:

@@ -40,6 +40,8 @@ from ..host.memory import available_host_bytes
 from ..smoothing import smooth_vertices
 from .files import write_checked
 from .vertex import checked_mesh_path, mesh_bytes, mesh_metadata
+from ..device.devices import default_device
+from ..device.launch import global_size
 
 __all__ = ["Lightmap", "bake_lightmap", "BYTES_PER_TEXEL"]
 
@@ -245,8 +247,6 @@ def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int, device):
     vertex ``values`` (T, 3, 3); see the module docstring and ``kernels/lightmap.cl``."""
     import pyopencl as cl
 
-    from ..device.launch import global_size
-
     n = len(corners)
     a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
     area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
@@ -351,7 +351,6 @@ def bake_lightmap(scene, radiosity, texels_per_unit: float, *, padding: int = 2,
     _check_memory(float(w) * h, f"{w}x{h} texels")
     vertex_values = values[vmapping]
     corners = (uv.astype(np.float64) * [w, h])[faces]
-    from ..device.devices import default_device
 
     image, covered, filled = _rasterise(corners, vertex_values[faces], h, w, device or default_device())
     _dilate(image, filled, int(padding))

@@ -17,6 +17,7 @@ import scipy.sparse as sp
 from .devices import real_dtype
 from ..errors import InvalidInputError, OutOfMemoryError
 from .launch import spmv_layout
+from ..host.anderson import Anderson
 
 __all__ = ["DeviceCSR", "row_blocks", "sweeps"]
 
@@ -32,14 +33,15 @@ def row_blocks(indptr: np.ndarray, blocks: int) -> np.ndarray:
 
 
 def sweeps(device, bounce, x, y, partial_buf, blocks: int, dtype, tol: float, max_sweeps: int):
-    """Run ``bounce(x, y)`` (enqueue y from x, each block's max |y - x| and max |y| into
-    ``partial_buf``), swapping x and y, until the relative change max|y - x| / max|y| is <= tol
+    """Run ``bounce(x, y)`` (enqueue y from x, each block's ``max |y - x|`` and ``max |y|`` into
+    ``partial_buf``), swapping x and y, until the relative change ``max|y - x| / max|y|`` is <= tol
     or ``max_sweeps`` ran. Returns (the buffer holding the last iterate, the last change, every
     sweep's change)."""
     import pyopencl as cl
 
     partial = np.empty((blocks, 2), dtype=dtype)
-    change, history = np.inf, []
+    change = np.inf
+    history: list[float] = []
     while len(history) < max_sweeps:
         bounce(x, y)
         x, y = y, x
@@ -85,12 +87,12 @@ class DeviceCSR:
 
     def bounce_buffers(self, L_buf, rho_buf, x_buf, y_buf, width: int, partial_buf=None) -> None:
         """Enqueue y = L + P (A x) on device buffers of ``width`` (1 or 4) REALs per row (x per
-        column of A); for a square A also each block's max |y - x| and max |y| into
-        ``partial_buf`` (only max |y| otherwise: x is not indexed by row)."""
+        column of A); for a square A also each block's ``max |y - x|`` and ``max |y|`` into
+        ``partial_buf`` (only ``max |y|`` otherwise: x is not indexed by row)."""
         import pyopencl as cl
 
         d = self.device
-        kernels = self._kernels.__dict__
+        kernels: dict = self._kernels.__dict__  # this thread's kernels, keyed by width
         kernel = kernels.get(width)
         if kernel is None:
             defines = {"STORAGE_FP64" if self.dtype == np.float64 else "STORAGE_FP32": 1, "NCH": width,
@@ -113,7 +115,8 @@ class DeviceCSR:
         d = self.device
         bufs = [d.to_device(self.packed(a, width)) for a in (L, rho, x)]
         y = cl.Buffer(d.context, cl.mem_flags.READ_WRITE, max(self.shape[0], 1) * width * self.dtype.itemsize)
-        self.bounce_buffers(*bufs, y, width)
+        L_buf, rho_buf, x_buf = bufs
+        self.bounce_buffers(L_buf, rho_buf, x_buf, y, width)
         out = np.empty((self.shape[0], width), dtype=self.dtype)
         if self.shape[0]:
             cl.enqueue_copy(d.queue, out, y, is_blocking=True)
@@ -122,7 +125,7 @@ class DeviceCSR:
     def jacobi(self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float, max_sweeps: int,
                mixing: int = 0) -> tuple[np.ndarray, int, float, list[float]]:
         """Iterate x <- L + rho * (A x) from x0 (A square) until the relative max-norm change
-        max |x_new - x| / max |x_new| is <= tol (never, for tol < 0) or ``max_sweeps`` ran.
+        ``max |x_new - x| / max |x_new|`` is <= tol (never, for tol < 0) or ``max_sweeps`` ran.
 
         ``mixing`` > 0: each next x is the Anderson mixing (:class:`pydynrad.host.anderson.Anderson`,
         that many earlier steps) of the sweeps' images, on the host in float64 (each sweep then
@@ -158,10 +161,9 @@ class DeviceCSR:
         """:meth:`jacobi` with Anderson mixing from u (n, k) float64 (already in ``x_buf``)."""
         import pyopencl as cl
 
-        from ..host.anderson import Anderson
-
         d, k, width = self.device, u.shape[1], out.shape[1]
-        mixer, history, staged = Anderson(depth), [], np.zeros_like(out)
+        mixer, staged = Anderson(depth), np.zeros_like(out)
+        history: list[float] = []
         if max_sweeps < 1:  # as the plain sweeps: x0, no change measured
             return u, 0, np.inf, history
         while True:

@@ -294,8 +294,8 @@ class Device:
             "max_alloc_MiB": self.max_alloc_bytes // 2**20,
             "fp64": self.supports_fp64,
             "fp16_arithmetic": "cl_khr_fp16" in d.extensions,
-            **({"compiler_cpu": f"{replaced_cpu(d)} (PoCL's LLVM named it {compiler_target(d)[1]})"}
-               if replaced_cpu(d) else {}),
+            **({"compiler_cpu": f"{replaced_cpu(d)} (PoCL's LLVM named it {target[1]})"}
+               if replaced_cpu(d) and (target := compiler_target(d)) else {}),
             **({"cpu_family": family} if family else {}),
         }
 
@@ -380,7 +380,7 @@ def list_devices() -> list[dict[str, object]]:
                     "PYOPENCL_CTX": f"{pi}:{di}",
                     "platform": p.name.strip(),
                     "device": d.name.strip(),
-                    "type": cl.device_type.to_string(d.type),
+                    "type": cl.device_type.to_string(d.type),  # type: ignore[operator]  # pyopencl's stub types the class, not its static method
                     "compute_units": int(d.max_compute_units),
                     "global_memory_MiB": int(d.global_mem_size) // 2**20,
                 }

@@ -16,34 +16,26 @@ See docs/design.md, 'Cost model'.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ..checks import finite
 from ..errors import DeviceError, InvalidInputError, OutOfMemoryError
 from .launch import MAX_RHS, global_size, matvec_layout, round_up
 from .transfers import ReadSlab
+from ..precision import compute_dtype, storage_dtype
 
-__all__ = ["DeviceMatrix", "STORAGE_DTYPES", "storage_dtype", "MAX_RHS"]
+__all__ = ["DeviceMatrix", "MAX_RHS"]
 
-#: Element type in device memory per storage name.
-STORAGE_DTYPES = {"fp16": np.dtype(np.float16), "fp32": np.dtype(np.float32), "fp64": np.dtype(np.float64)}
 
 #: Rows are padded to a multiple of this many elements (128 bytes of fp16, 256 of fp32), so
 #: every vector load is aligned and rows start on cache-line boundaries.
 LD_ALIGN = 64
 
 
-def storage_dtype(storage: str) -> np.dtype:
-    """The numpy element type of a storage name; InvalidInputError naming the allowed ones."""
-    try:
-        return STORAGE_DTYPES[storage]
-    except (KeyError, TypeError):
-        raise InvalidInputError(f"unknown storage {storage!r}; allowed: {', '.join(STORAGE_DTYPES)}") from None
 
 
-def compute_dtype(storage: str) -> np.dtype:
-    """The type kernels compute in and vectors are passed as: float64 for fp64 storage, else float32."""
-    return np.dtype(np.float64 if storage_dtype(storage) == np.float64 else np.float32)
 
 
 def padded_ld(M: int) -> int:
@@ -135,7 +127,8 @@ class DeviceMatrix:
             raise OutOfMemoryError(f"allocating {C} x {per / 2**20:.1f} MiB on {device.name} failed: {exc}") from exc
         self._layout = matvec_layout(device, M, self.ld, layout, self.real_dtype.itemsize, self.dtype.itemsize)
         self._n_blocks = -(-M // self._layout.rb)
-        self._y = self._partial = None
+        self._y: ReadSlab | None = None
+        self._partial: Any = None  # a pyopencl Buffer once the first transposed product needs it
         prg = self._program(1)
         # Kernel objects hold their arguments: one per matrix, reused by every call.
         self._k_matvec = {1: cl.Kernel(prg, "matvec")}

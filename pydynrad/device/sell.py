@@ -95,7 +95,7 @@ class DeviceSELL:
         return out
 
     def _kernel(self, channels: int):
-        kernels = self._kernels.__dict__
+        kernels: dict = self._kernels.__dict__  # this thread's kernels, keyed by width
         kernel = kernels.get(channels)
         if kernel is None:
             defines = {"STORAGE_FP64" if self.dtype == np.float64 else "STORAGE_FP32": 1,

@@ -13,6 +13,7 @@ command.
 from __future__ import annotations
 
 import numpy as np
+from ..errors import InvalidInputError
 
 __all__ = ["ReadSlab"]
 
@@ -51,8 +52,6 @@ class ReadSlab:
         """(part index, count) pairs: the first ``count`` elements of each part, as new arrays,
         after one read (which also waits for every command queued before it)."""
         import pyopencl as cl
-
-        from ..errors import InvalidInputError
 
         items = list(items)
         bad = [(i, n) for i, n in items if not (0 <= i < len(self.sizes) and 1 <= n <= self.sizes[i])]

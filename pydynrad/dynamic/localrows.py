@@ -15,6 +15,7 @@ import scipy.sparse as sp
 from ..checks import check_form_factors
 from ..errors import InvalidInputError
 from ..rows.sources import HemicubeRows, RowSource, read_rows
+from ..rows.cache import RowCache
 
 __all__ = ["LocalRows"]
 
@@ -53,8 +54,6 @@ def source_geometry(source) -> str | None:
     """The geometry hash of the scene a row source serves (a store's, a hemicube source's scene,
     through a row cache), or None where it does not say (rows in memory, a source of the
     library's own making that follows the scene as it moves)."""
-    from ..rows.cache import RowCache
-
     if isinstance(source, RowCache):
         source = source.source
     header = getattr(source, "header", None)

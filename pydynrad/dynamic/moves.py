@@ -31,6 +31,8 @@ from .localrows import LocalRows
 from .occlusion import GATHER_ALL_OUTSIDE, VIEW_FORM_FACTOR, hidden_entries, refresh_order, sphere_form_factor
 from .poserows import Since, at_pose, difference_at_pose, in_order, reciprocal_columns
 from .poses import PoseRows
+from .stale import rows_minus
+from ..host.threads import pool
 
 __all__ = ["WorldRows"]
 
@@ -301,8 +303,6 @@ class WorldRows:
         at the last pose by this pass and held since against the same kept rows, the pass starts
         from (:class:`Since`): it then reads the rows' hidden flags then and now, not their
         entries."""
-        from .stale import rows_minus
-
         s, at = np.asarray(s, np.int64), np.asarray(at, np.int64)
         also = np.empty(0, np.int64) if also is None else np.asarray(also, np.int64)
         if len(np.unique(also)) != len(also):
@@ -384,8 +384,6 @@ class WorldRows:
         after the static rows' pre-test on the host (with hemicube rows: before they are
         made), so that the host's work of the caller overlaps the trace. ``held``: the stale
         rows the differences at budget 0 may start from (:meth:`differences`)."""
-        from .stale import rows_minus
-
         world = self.world
         if self.static is None:
             order, _ = refresh_order(world.centers[candidates], world.normals[candidates], spheres)
@@ -405,7 +403,6 @@ class WorldRows:
                 # waits, and takes the interpreter's lock once they are traced (queued by it, both
                 # threads had wanted the lock for small numpy steps at once: refresh_order took 3
                 # ms instead of 0.3, and the trace started after it; Zen 4, 2026-12-06).
-                from ..host.threads import pool
 
                 tracing = self._tracing = pool().submit(self.fresh_queued(self.object_patches))
                 self._meanwhile = meanwhile

@@ -13,6 +13,13 @@ import scipy.sparse as sp
 
 from ..errors import InvalidInputError
 from .poserows import native_spans
+from .. import _segments
+from ..checks import patch_indices
+from ..geometry.bvh import occluded
+from ..host.threads import cores
+from ..host.threads import map_parts
+from ..host.threads import row_parts
+from ..lights.sources import DirectionalLight
 
 __all__ = ["sphere_solid_angle", "sphere_form_factor", "shadow_rays_near", "refresh_order", "hidden_by", "hidden_between", "hidden_entries"]
 
@@ -58,8 +65,6 @@ def shadow_rays_near(points: np.ndarray, light, spheres) -> np.ndarray:
     kernel's, which stops past the scene). Where False, an object inside those spheres cannot
     shadow the point from the light. All spheres in one pass of arrays (n, k): a pass per
     sphere was 0.4 ms of a move's relight on the bench's Cornell box."""
-    from ..lights.sources import DirectionalLight
-
     p = np.asarray(points, np.float64)
     if not len(spheres):
         return np.zeros(len(p), bool)
@@ -135,8 +140,6 @@ PARALLEL_SEGMENTS = 50_000
 def hidden_between(objects, transforms, points: np.ndarray, a: np.ndarray, b: np.ndarray, device=None) -> np.ndarray:
     """(n,) bool: the segments ``points[a[i]] -> points[b[i]]`` that cross an object's triangles
     at ``transforms`` (:func:`_hidden_entries` with one segment per row)."""
-    from ..checks import patch_indices
-
     a, b = np.asarray(a, np.int64), patch_indices(b, len(points), "segment ends")
     ends = np.arange(1, len(a) + 1)
     return _hidden_entries(objects, transforms, points, ends - 1, ends, b.astype(np.int32), a, device)
@@ -158,9 +161,6 @@ def _hidden_entries(objects, transforms, points: np.ndarray, starts: np.ndarray,
     comes out as the ray the object's tree traces. An object that is one convex solid
     (:attr:`~pydynrad.geometry.objects.RigidObject.solid_planes`) is not traced: the same pass clips each
     segment by the solid's planes, which decides exactly whether it crosses the boundary."""
-    from .. import _segments
-    from ..geometry.bvh import occluded
-    from ..host.threads import cores, map_parts, row_parts
 
     P = np.ascontiguousarray(points, np.float64)
     starts, ends = np.ascontiguousarray(starts, np.int64), np.ascontiguousarray(ends, np.int64)

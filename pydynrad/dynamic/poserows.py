@@ -12,6 +12,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InvalidInputError
+from .. import _poserows
+from ..checks import patch_indices
+from ..host.threads import cores
+from ..host.threads import map_parts
+from ..host.threads import row_parts
 
 __all__ = ["stale_rows", "native_spans", "reciprocal_columns", "at_pose", "Since", "PoseDifference", "difference_at_pose", "kept_slots", "stacked_rows", "swap_chunks", "PARALLEL_ENTRIES"]
 
@@ -20,8 +25,6 @@ def native_spans(m: sp.csr_matrix, select: np.ndarray | None = None):
     """(starts, ends, indices, data) of CSR ``m``'s rows ``select`` (all by default) read where
     they lie: int64 spans of its int32 indices and float64 data, as ``csrc/segments.c`` and
     ``csrc/poserows.c`` read them (no copy of the entries where they already are so)."""
-    from ..checks import patch_indices
-
     indptr = np.asarray(m.indptr)
     rows = np.arange(m.shape[0]) if select is None else patch_indices(select, m.shape[0], "rows to select")
     _, indices, data = native_csr(m)
@@ -55,8 +58,6 @@ def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix,
     scaled so that it sums to 1, clipped at zero; where the object columns alone sum above 1,
     they are scaled to 1 and the static entries go. No row sums above 1. One native pass
     (``csrc/poserows.c``); zeros dropped."""
-    from .. import _poserows
-
     starts, ends, indices, data, hidden, recip = _pose_spans("at_pose", rows, hidden, recip, select)
     n = int((ends - starts).sum()) + recip.nnz
     indptr, out_indices, out_data = np.empty(len(starts) + 1, np.int64), np.empty(n, np.int32), np.empty(n)
@@ -142,8 +143,6 @@ def difference_at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_ma
     reverse) made again, and the object columns: the same values bit for bit, reading a flag
     or two per entry instead of the static and kept rows whole (:class:`Since`). Used where both
     ``rows`` and ``kept`` are in canonical order (scipy's cached ``has_canonical_format``)."""
-    from .. import _poserows
-    from ..host.threads import cores, map_parts, row_parts
 
     starts, ends, indices, data, hidden, recip = _pose_spans("difference_at_pose", rows, hidden, recip, select)
     # Not wrapped again where it is CSR: a new wrapper forgets scipy's cached order flags.

@@ -44,10 +44,38 @@ import numpy as np
 from ..checks import flag, integer, number, resolution as checked_resolution, vec3
 from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError, PydynradError
-from ..device.matrix import DeviceMatrix, compute_dtype, padded_ld, storage_dtype
+from ..device.matrix import DeviceMatrix, padded_ld
+from ..precision import compute_dtype, storage_dtype
 from .localrows import LocalRows, _replace_rows
 from .selection import NearestSet
 from .stale import CORRECTION_TOLERANCE, StaleRows
+from .exact import exact_swap
+from .kupdate import UpdateKernels
+from .kupdate import scratch_nbytes
+from .moves import WorldRows
+from .occlusion import shadow_rays_near
+from .paper import UsedPatches
+from .paper import paper_swap
+from .poserows import stale_rows
+from .poserows import swap_chunks
+from .stale import rows_minus
+from ..bounces import multibounce_block
+from ..bounces import warn_precision
+from ..device.devices import device_or_default
+from ..farfield import FarField
+from ..farfield import far_field_for
+from ..geometry.objects import _objects
+from ..geometry.objects import check_reach
+from ..geometry.objects import instanced
+from ..geometry.objects import rigid_transform
+from ..lights.areas import analytic_emitter_light
+from ..lights.sources import DirectionalLight
+from ..lights.sources import PointLight
+from ..lights.sources import SHADOW_EPSILON
+from ..lights.sources import SpotLight
+from ..lights.sources import _point_irradiance
+from ..lights.sources import check_radiosity_range
+from ..lights.sources import checked_lights
 
 __all__ = ["DynamicRadiosity", "FrameStats"]
 
@@ -187,8 +215,6 @@ class DynamicRadiosity:
                  cluster_form_factors=None, objects=None, occlusion: int | str | None = "auto", poses=None,
                  device=None, samples: int = 1, occlusion_correction: bool = True,
                  correction_tolerance: float = CORRECTION_TOLERANCE) -> None:
-        from ..device.devices import device_or_default
-
         checked_scene(scene)
         self.device = device_or_default(device)
         self.objects, self._pending = [], {}
@@ -256,8 +282,6 @@ class DynamicRadiosity:
 
     def _with_objects(self, scene, form_factors, objects, update: str, local_size, resolution: int, poses):
         """The world scene and its row source for a static scene with moving objects."""
-        from ..geometry.objects import _objects, instanced
-        from .moves import WorldRows
 
         if update != "exact":
             raise InvalidInputError(f"moving objects need update='exact' (a move is an exact batched swap); got {update!r}")
@@ -323,8 +347,6 @@ class DynamicRadiosity:
         return levels
 
     def _far_field(self, far_field, clusters, G):
-        from ..farfield import FarField, far_field_for
-
         if far_field is not True and (clusters is not None or G is not None):  # they build one; none is built
             given = " and ".join(n for n, v in (("clusters", clusters), ("cluster_form_factors", G)) if v is not None)
             raise InvalidInputError(f"{given} build the far field; with far_field={far_field!r} they would be ignored")
@@ -360,8 +382,6 @@ class DynamicRadiosity:
         update's scratch), without building anything; a far field adds its
         :attr:`~pydynrad.farfield.FarField.device_memory_bytes`. ``object_patches``: the moving
         objects' patches together (a move batches up to ``MOVE_SWAPS_LIMIT`` of them)."""
-        from ..device.devices import device_or_default
-        from .kupdate import scratch_nbytes
 
         device = device_or_default(device)
         ld = padded_ld(M)
@@ -387,8 +407,6 @@ class DynamicRadiosity:
 
     # -- building ----------------------------------------------------------------------------------
     def _fresh_K(self, local_patches: np.ndarray, fetch: bool = True) -> np.ndarray:
-        from ..bounces import multibounce_block
-
         if fetch:
             self._ff.fetch_local(local_patches)
         # The rows were validated when fetched (LocalRows.rows) or made here at a pose (moves.at_pose
@@ -400,15 +418,11 @@ class DynamicRadiosity:
     def _allocate(self) -> None:
         """K's device buffers and the update's kernels, built and launched once (on zeros) here
         rather than inside the first frame."""
-        from .kupdate import UpdateKernels
-
         self._matrix = DeviceMatrix.zeros(self.device, self.C, self.M, self.storage)
         self._kernels = UpdateKernels(self._matrix, self._swap_size)
         self._warm_up()
 
     def _build(self, local_patches: np.ndarray, fetch: bool = True) -> None:
-        from .paper import UsedPatches
-
         local_patches = np.asarray(local_patches, dtype=np.int64)
         self._check_precision(local_patches)
         if not fetch and len(self._stale):  # a rebuild takes the stale rows at the current poses
@@ -424,8 +438,6 @@ class DynamicRadiosity:
 
     def _check_precision(self, local_patches: np.ndarray) -> None:
         """:func:`pydynrad.bounces.warn_precision` for this K's arithmetic, once."""
-        from ..bounces import warn_precision
-
         if not self._precision_warned and len(local_patches):
             rho = float(self.scene.albedo[local_patches].max())
             self._precision_warned = warn_precision(rho, "float64" if self.storage == "fp64" else "float32", 4)
@@ -436,8 +448,6 @@ class DynamicRadiosity:
         under one grey K, residual()'s one), and radiosity()'s light pass and far field (lit by
         a light of zero power while it holds no light yet: lit, it has run its kernels, and
         relighting it would discard the B_far it keeps for an unchanged light). K is left as it was."""
-        from ..lights.sources import PointLight
-        from ..lights.areas import analytic_emitter_light
 
         self._kernels.warm_up()
         self._matrix.matvec(np.zeros(self.M))
@@ -538,8 +548,6 @@ class DynamicRadiosity:
         """Queue a new (4, 4) rigid pose for ``obj``; the next :meth:`update` applies every queued move.
         A pose the device cannot resolve the object at is refused here, nothing queued
         (:func:`pydynrad.geometry.objects.check_reach`)."""
-        from ..geometry.objects import check_reach, rigid_transform
-
         if not any(o is obj for o in self.objects):
             raise InvalidInputError(f"{obj!r} was never added to this DynamicRadiosity (pass it in objects=)")
         T = rigid_transform(transform)
@@ -568,8 +576,6 @@ class DynamicRadiosity:
     def _moved_world(self, transforms) -> None:
         """Put :attr:`scene` (and the BVH every kernel traces) at ``transforms``, one per object;
         where that is refused, nothing has changed."""
-        from ..geometry.objects import instanced
-
         self.scene = instanced(self.static_scene, self.objects, transforms, bvh=self.scene.bvh)
         self._ff.source.move(self.scene)
 
@@ -577,9 +583,6 @@ class DynamicRadiosity:
         """Swap the moved objects' patches and the most changed rows with their new rows (at
         budget 0 with the correction: put them all among the stale rows, no swap); the count
         refreshed and the hemicubes computed."""
-        from .exact import exact_swap
-        from .poserows import stale_rows, swap_chunks
-        from .stale import rows_minus
 
         moves, transforms = self._moves()
         held = dict(zip(map(id, self.objects), self.scene.bvh.transforms))
@@ -671,8 +674,6 @@ class DynamicRadiosity:
         return F_SJ, F_JS, F_JJ
 
     def _exact_frame(self, slots: np.ndarray, J: np.ndarray) -> float:
-        from .exact import exact_swap
-
         t0 = time.perf_counter()
         F_SJ, F_JS, F_JJ = self._entering(slots, J)
         F_SJ[slots, :] = 0.0  # the leaving patches take no part in the new paths
@@ -683,8 +684,6 @@ class DynamicRadiosity:
         return t_ff
 
     def _paper_frame(self, slots: np.ndarray, J: np.ndarray) -> float:
-        from .paper import paper_swap
-
         # One fetch per frame (slots are distinct): step t's local set is the frame's first set
         # with slots[:t] holding J[:t], so its f_c and f_r are F_SJ[:, t] and F_JS[t] with those
         # slots read from F_JJ: the same values a fetch per step would give.
@@ -722,8 +721,6 @@ class DynamicRadiosity:
         form factor, not through K (as in :func:`pydynrad.solve`): the same solution for B - E
         with the reflected light vector L_r, plus E.
         """
-        from ..lights.sources import check_radiosity_range
-        from ..device.matrix import compute_dtype
 
         self._require_built()
         far_field = flag(far_field, "far_field")
@@ -754,8 +751,6 @@ class DynamicRadiosity:
         gather no sky again (a SkyLight's light vector is a hemicube per patch, a point light's
         one ray per patch). After a move only the patches whose shadows it may change are lit
         again (:meth:`_relit`). The arrays are read-only: every caller copies."""
-        from ..lights.sources import checked_lights
-        from ..lights.areas import analytic_emitter_light
 
         if light is None:
             lights = checked_lights(lights)
@@ -786,8 +781,6 @@ class DynamicRadiosity:
         for nothing, since radiosity() computes other lights' vector whole. An answer the far
         field cannot give (a light past float32, coarse sweeps that do not converge) is left to
         radiosity(), which raises it where the caller asked for it."""
-        from ..lights.sources import check_radiosity_range
-
         held = self._held_light
         if held is None or not held.steady or held.world is self.scene or held.emitters != "hemicube":
             return None
@@ -841,8 +834,6 @@ class DynamicRadiosity:
         """:meth:`_relit` with its shadow rays queued on the device: a callable that waits for
         them and returns its answer (None for a direct light past float32), or None where
         :meth:`_relit` does not hold for other reasons."""
-        from ..lights.sources import SHADOW_EPSILON, DirectionalLight, PointLight, SpotLight, _point_irradiance
-        from .occlusion import shadow_rays_near
 
         if not self.objects or len(poses) != len(self.objects) or not lights \
                 or any(type(x) not in (PointLight, SpotLight, DirectionalLight) for x in lights):

@@ -48,6 +48,14 @@ from ..host.anderson import Anderson
 from ..host.colproduct import rows_product
 from ..errors import InvalidInputError
 from .poserows import PARALLEL_ENTRIES
+from .poserows import kept_slots
+from .poserows import native_csr
+from .poserows import native_spans
+from .poserows import stacked_rows
+from .. import _poserows
+from ..host.threads import cores
+from ..host.threads import map_parts
+from ..host.threads import row_parts
 
 __all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS"]
 
@@ -82,9 +90,6 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     :data:`PARALLEL_ENTRIES` entries (one after another on a pool thread,
     :func:`~pydynrad.host.threads.map_parts`); where a row of either is out of column order, both
     are sorted first (a copy)."""
-    from .. import _poserows
-    from ..host.threads import cores, map_parts, row_parts
-    from .poserows import kept_slots, native_csr, native_spans, stacked_rows
 
     blocks = [sp.csr_matrix(rows)] if sp.issparse(rows) else [sp.csr_matrix(b) for b in rows]
     kept = sp.csr_matrix(kept)
@@ -193,8 +198,6 @@ class StaleRows:
         replacing what was held for them; rows that are empty leave their slots current. One
         copy of D's rows at most (each held row is put once per move). ``pose``: the pose whose
         rows minus the kept rows ``deltas`` are exactly, as made (:meth:`since`), if any."""
-        from .poserows import stacked_rows
-
         slots = np.asarray(slots, np.int64)
         blocks = [sp.csr_matrix(d) for d in deltas]
         if any(b.shape[1] != self.n_patches for b in blocks) or sum(b.shape[0] for b in blocks) != len(slots):

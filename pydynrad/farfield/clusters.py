@@ -1,7 +1,7 @@
 """A partition of a scene's patches into clusters for the far field's coarse level.
 
 Every cluster is pure: one albedo, one emission and one orientation (one of 26 normal bins:
-the directions (a, b, c) / |(a, b, c)| with a, b, c in {-1, 0, 1}), and, given F, inside one of
+the directions ``(a, b, c) / |(a, b, c)|`` with a, b, c in {-1, 0, 1}), and, given F, inside one of
 its connected components (so a closed room's inside never shares a cluster with the lit floor
 outside: that leaked sunlight into closed rooms in tests/test_farfield.py), so the coarse albedo is
 exact and no cluster mixes emitters of different power (mixing them overestimated lamp-lit
@@ -24,6 +24,7 @@ from ..checks import integer, number
 from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
 from ..rows.prolongation import LINEAR_FUNCTIONS
+from ..host.csrgraph import weak_components
 
 __all__ = ["Clusters", "cluster_patches", "default_cluster_count", "NORMAL_BINS", "NORMAL_WEIGHT",
            "DEFAULT_PATCHES_PER_CLUSTER", "light_components", "linear_basis"]
@@ -171,8 +172,6 @@ def light_components(F) -> np.ndarray:
     F[j, i] > 0): sets of patches that exchange no light at all, such as a closed room's inside
     and the world around it. A cluster spanning two would leak light from one into the other.
     Patches alone in their component get label -1 (no constraint)."""
-    from ..host.csrgraph import weak_components
-
     return free_singletons(weak_components(sp.csr_matrix(F)))
 
 

@@ -26,6 +26,14 @@ from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
 from ..rows.prolongation import BASES, as_prolongation, check_prolongation, g_samples, split_prolongation
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
+from .clusters import Clusters
+from .clusters import cluster_patches
+from .clusters import free_singletons
+from .clusters import linear_basis
+from ..progress import progress_bar
+from ..rows.sources import HemicubeRows
+from ..rows.store import FormFactorStore
+from ..rows.store import StoreIncompleteError
 
 __all__ = ["cluster_form_factors", "cluster_form_factors_for", "basis_prolongation",
            "checked_cluster_form_factors", "light_components_by_hemicube",
@@ -66,15 +74,11 @@ def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, 
     """
     from scipy.sparse.csgraph import connected_components
 
-    from .clusters import free_singletons
-
     n = len(checked_scene(scene))
     if store is not None:
         check_store(scene, store, n)
         missing = store.missing_blocks()
         if missing:
-            from ..rows.store import StoreIncompleteError
-
             raise StoreIncompleteError(f"form-factor store {store.path} holds only part of F ({len(missing)} of "
                                        f"{store.n_blocks} blocks missing): its light components need all of it")
         blocks = (store.read_block(k) for k in range(store.n_blocks))
@@ -105,8 +109,6 @@ def clusters_without_f(scene, clusters=None, device=None, progress: bool | None 
     whose F is not in memory: kept inside the light components of
     :func:`light_components_by_hemicube` (from ``store``'s F where given), so no cluster spans a
     closed room's inside and outside."""
-    from .clusters import cluster_patches
-
     components = light_components_by_hemicube(scene, device=device, progress=progress, store=store)
     return cluster_patches(scene, clusters, components=components)
 
@@ -115,8 +117,6 @@ def basis_prolongation(scene, clusters, basis: str = "linear") -> sp.csr_matrix:
     """The checked (N, C) or (N, 3C) prolongation of ``basis`` for ``clusters`` ((N,) labels or a
     :class:`pydynrad.farfield.Clusters`): the indicator, or the piecewise-linear
     :func:`pydynrad.farfield.clusters.linear_basis`. An (N, K) matrix is itself the prolongation."""
-    from .clusters import Clusters, linear_basis
-
     if basis not in BASES:
         raise InvalidInputError(f"the coarse basis must be one of {BASES}; got {basis!r}")
     n = len(checked_scene(scene))
@@ -216,9 +216,6 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
     ``clusters``: Pr (N, C), (N,) labels or a :class:`pydynrad.farfield.Clusters`.
     Returns float32 CSR.
     """
-    from ..progress import progress_bar
-    from ..rows.sources import HemicubeRows
-    from ..rows.store import FormFactorStore, StoreIncompleteError
 
     n = len(checked_scene(scene))
     pr = as_prolongation(clusters, n)

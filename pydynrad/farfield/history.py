@@ -65,7 +65,7 @@ class Answers:
         """The best combination of the recorded sources for ``source`` (n, k), per channel:
         (a (k, count) coefficients, X a (n, k) the same combination of the answers, r (n, k) =
         source - S a, a view of scratch that the next fit overwrites, and (k, 2) per channel:
-        max |r| and sum_i |a_i| max |S_i|, both over max |source| (inf where the source is 0
+        ``max |r|`` and ``sum_i |a_i| max |S_i|``, both over ``max |source|`` (inf where the source is 0
         and they are not): how far the fit is off, and how much the combination cancels, which
         scales the recorded answers' own errors), or None when nothing of this shape is
         recorded.

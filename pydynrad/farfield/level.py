@@ -79,6 +79,25 @@ from ..rows.prolongation import LINEAR_FUNCTIONS
 from .gather import checked_cluster_form_factors
 from .history import Answers
 from .streamed import StoredG
+from .gather import basis_prolongation
+from .gather import check_store
+from .gather import cluster_form_factors_for
+from .gather import clusters_without_f
+from ..bounces import multibounce_block
+from ..device.csr import DeviceCSR
+from ..device.devices import default_device
+from ..device.devices import real_dtype
+from ..device.matrix import DeviceMatrix
+from ..precision import compute_dtype
+from ..precision import storage_dtype
+from ..host.csrgraph import columns_float32
+from ..host.csrgraph import sum_by_label
+from ..lights.sources import DirectionalLight
+from ..lights.sources import light_vector
+from ..rows.prolongation import check_prolongation
+from ..rows.sources import CSRRows
+from ..rows.sources import HemicubeRows
+from ..rows.store import FormFactorStore
 
 __all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS",
            "GATHERS", "COARSE_SOLVES", "DENSE_CLUSTERS"]
@@ -135,8 +154,6 @@ def sky_directions(n: int = SKY_DIRECTIONS) -> np.ndarray:
 
 def exposure_weights(scene, F: sp.csr_matrix, device, tol: float = 1e-4) -> np.ndarray:
     """(N,) radiosity (grey, channel mean) under a uniform sky of :data:`SKY_DIRECTIONS` lights."""
-    from ..device.csr import DeviceCSR
-    from ..lights.sources import DirectionalLight, light_vector
 
     sky = [DirectionalLight(tuple(d), (1.0 / SKY_DIRECTIONS,) * 3) for d in sky_directions()]
     L = light_vector(scene.with_materials(emission=0.0), sky, device=device).mean(axis=1, keepdims=True)
@@ -192,8 +209,6 @@ def _gather_product(device, G: sp.csr_matrix, dtype):
     """G's bounce product L + P (G x): on the host where that is the device and G is small
     (:mod:`pydynrad.host.product`; a gather of the Cornell box's far field took 0.16-0.18 ms there
     against 0.36 ms on the device), else on the device."""
-    from ..device.csr import DeviceCSR
-
     if on_host(device, HostBounce.nbytes_of(G, dtype)):
         return HostBounce(G, dtype)
     return DeviceCSR(device, G, dtype)
@@ -203,8 +218,6 @@ def _cluster_columns(F, Pr) -> sp.csr_matrix:
     """G = F Pr (N, C) float64: natively where Pr is float64 with one entry per row (the
     indicator and the exposure-weighted prolongations: F's columns summed by cluster), else
     scipy's product (which a float32 F times a float32 Pr would sum in float32)."""
-    from ..host.csrgraph import sum_by_label
-
     n = Pr.shape[0]
     if Pr.dtype == np.float64 and Pr.nnz == n and np.array_equal(Pr.indptr, np.arange(n + 1)):
         return sum_by_label(F, Pr.indices, Pr.data, Pr.shape[1])
@@ -288,10 +301,6 @@ class FarField:
                  gather: str | None = None, fine_sweeps: int | None = None, coarse: str = "auto", coarse_storage: str | None = None,
                  tol: float = 1e-4, max_sweeps: int = 1000, dtype=np.float32, device=None, *, checked: bool = False,
                  linear=None) -> None:
-        from ..host.csrgraph import columns_float32
-        from ..device.devices import default_device, real_dtype
-        from ..device.csr import DeviceCSR
-        from ..device.matrix import compute_dtype, storage_dtype
 
         t0 = time.perf_counter()
         self.scene = checked_scene(scene)
@@ -405,8 +414,6 @@ class FarField:
     def _dense_coarse(self, storage: str, dtype):
         """K_c (one channel for a grey scene, else three) in ``storage``: on the device, or on the
         host where that is the device and K_c is small (:func:`pydynrad.host.product.on_host`)."""
-        from ..device.matrix import DeviceMatrix
-        from ..bounces import multibounce_block
 
         channels = 1 if self.scene.is_grey else 3
         # checked: F_c is made here from checked parts, and with the exposure prolongation its
@@ -687,10 +694,6 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     any other row source: G summed from its rows, each block validated
     (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
     """
-    from ..rows.sources import CSRRows, HemicubeRows
-    from ..rows.store import FormFactorStore
-    from .gather import basis_prolongation, check_store, cluster_form_factors_for, clusters_without_f
-    from ..rows.prolongation import check_prolongation
 
     if local_rows.csr is not None:
         return FarField(scene, local_rows.csr, clusters, G, device=device, checked=True)

@@ -24,6 +24,7 @@ import scipy.sparse as sp
 
 from ..checks import check_form_factor_rows
 from ..errors import InvalidInputError
+from ..device.csr import DeviceCSR
 
 __all__ = ["StoredG", "CHUNK_NNZ", "READERS"]
 
@@ -176,8 +177,6 @@ class StoredG:
         """y = L + rho * (G x) as :meth:`pydynrad.device.csr.DeviceCSR.bounce` (the same kernel and
         precision, per chunk): L, rho (N, k), x (K, k); returns (N, k) float64."""
         import pyopencl as cl
-
-        from ..device.csr import DeviceCSR
 
         k = x.shape[1]
         width = 1 if k == 1 else 4

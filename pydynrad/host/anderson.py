@@ -42,6 +42,7 @@ class Anderson:
             self._last = (np.array(fu.T), np.array(residual.T))
             self._dg, self._dr = np.empty((k, self.depth, n)), np.empty((k, self.depth, n))
             return fu
+        assert self._dg is not None and self._dr is not None  # made with _last, on the first step
         slot = self._steps % self.depth
         np.subtract(fu.T, self._last[0], out=self._dg[:, slot])
         np.subtract(residual.T, self._last[1], out=self._dr[:, slot])

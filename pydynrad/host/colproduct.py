@@ -9,6 +9,7 @@ import scipy.sparse as sp
 
 from ..errors import InvalidInputError
 from .threads import cores, map_parts, row_parts
+from .. import _colproduct
 
 __all__ = ["columns_product", "rows_product", "PARALLEL_ENTRIES"]
 
@@ -21,8 +22,6 @@ def columns_product(A: sp.csc_matrix, cols: np.ndarray, x: np.ndarray) -> np.nda
     """(A.shape[0], k) float64: the sum over t of column ``cols[t]`` of ``A`` (CSC) times
     ``x[t]``, for x (len(cols), k), 1 <= k <= 4; A's entries are read once, in its own type,
     and summed in float64. Equals ``A[:, cols] @ x`` without copying the columns out."""
-    from .. import _colproduct
-
     if not (sp.issparse(A) and A.format == "csc"):
         raise InvalidInputError(f"columns_product needs a CSC matrix; got {type(A).__name__}")
     if A.dtype not in (np.float32, np.float64) or A.indices.dtype not in (np.int32, np.int64):
@@ -54,8 +53,6 @@ def rows_product(A: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
     (A.shape[1],), giving (A.shape[0],)): each row summed in float64 in its entries' order
     (scipy's product with one vector; with several it may differ in the last bits), the rows
     split over the cores (``csrc/colproduct.c``, rows_times)."""
-    from .. import _colproduct
-
     if not (sp.issparse(A) and A.format == "csr"):
         raise InvalidInputError(f"rows_product needs a CSR matrix; got {type(A).__name__}")
     if A.dtype not in (np.float32, np.float64) or A.indices.dtype not in (np.int32, np.int64):

@@ -8,6 +8,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InvalidInputError
+from .. import _csrgraph
+from ..checks import integer
 
 __all__ = ["weak_components", "columns_float32", "sum_by_label"]
 
@@ -23,8 +25,6 @@ def weak_components(F) -> np.ndarray:
     where F[i, j] or F[j, i] is stored: ``scipy.sparse.csgraph.connected_components(F,
     connection="weak")[1]``, numbered the same way (by each component's smallest node), by a
     union-find over F's entries instead of a pass over F plus its transpose."""
-    from .. import _csrgraph
-
     F = _csr(F)
     if F.shape[0] != F.shape[1]:
         raise InvalidInputError(f"weak_components needs a square matrix; got shape {F.shape}")
@@ -37,8 +37,6 @@ def columns_float32(F) -> sp.csc_matrix:
     """``sp.csc_matrix(F, dtype=np.float32)`` for an ``F`` of fewer than 2^31 rows (int32 row
     indices, ascending within each column), in one counting pass and one scatter, from F's own
     float32 or float64 values."""
-    from .. import _csrgraph
-
     F = _csr(F)
     if F.dtype not in (np.float32, np.float64):
         F = F.astype(np.float64)
@@ -61,8 +59,6 @@ def sum_by_label(F, labels: np.ndarray, weights: np.ndarray, n_labels: int) -> s
 
     labels : (columns,) integers in [0, n_labels); weights : (columns,) float64.
     """
-    from .. import _csrgraph
-    from ..checks import integer
 
     F = _csr(F)
     n_labels = integer(n_labels, "n_labels", 1, 2**31 - 1)

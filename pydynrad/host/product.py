@@ -26,6 +26,9 @@ import scipy.sparse as sp
 from ..checks import finite
 from ..errors import InvalidInputError
 from .blas import one_blas_thread
+from .colproduct import rows_product
+from ..precision import compute_dtype
+from ..precision import storage_dtype
 
 __all__ = ["HOST_PRODUCT_BYTES", "DENSE_FILL", "on_host", "HostBounce", "HostMatrix"]
 
@@ -78,8 +81,6 @@ class HostBounce:
 
     def bounce(self, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:
         """y = L + rho * (A x): L, rho (rows, k), x (cols, k), k = 1 or 3; returns (rows, k) float64."""
-        from .colproduct import rows_product
-
         k = x.shape[1]
         if x.shape[0] != self.shape[1] or L.shape != (self.shape[0], k) or rho.shape != (self.shape[0], k):
             raise InvalidInputError(f"bounce of a {self.shape} matrix needs L, rho ({self.shape[0]}, {k}) and x "
@@ -98,8 +99,6 @@ class HostMatrix:
     the device computes in (float32, or float64 for fp64 storage)."""
 
     def __init__(self, K: np.ndarray, storage: str = "fp32") -> None:
-        from ..device.matrix import compute_dtype, storage_dtype
-
         K = np.asarray(K)
         if K.ndim != 3 or K.shape[1] != K.shape[2] or K.shape[1] == 0:
             raise InvalidInputError(f"K must have shape (C, M, M) with M > 0; got {K.shape}")
@@ -115,8 +114,6 @@ class HostMatrix:
 
     @staticmethod
     def nbytes_of(C: int, M: int, storage: str) -> int:
-        from ..device.matrix import compute_dtype
-
         return C * M * M * compute_dtype(storage).itemsize
 
     @property

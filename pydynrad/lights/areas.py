@@ -24,6 +24,9 @@ from ..checks import integer
 from ..errors import InvalidInputError
 from ..device.launch import float4, global_size
 from .sources import SHADOW_EPSILON, resolve_light
+from .sources import direct_irradiance
+from ..checks import checked_sensors
+from ..device.devices import default_device
 
 __all__ = ["emitter_irradiance", "reflected_light_vector", "analytic_emitter_light", "EMITTER_MODES", "MAX_GRID", "checked_grid"]
 
@@ -55,8 +58,6 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np
     """
     import pyopencl as cl
 
-    from ..device.devices import default_device
-    from ..checks import checked_sensors
 
     points, normals = checked_sensors(points, normals)
     grid = checked_grid(grid)
@@ -88,10 +89,6 @@ def reflected_light_vector(scene, lights=(), grid: int = 4, device=None) -> np.n
     emission; ``solve`` and ``DynamicRadiosity.radiosity`` do this with ``emitters="analytic"``
     and add E back.
     """
-    from .sources import direct_irradiance
-
-    from ..device.devices import default_device
-
     dev = device or default_device()
     per_scene = _at_patches.setdefault(scene, {})
     key = (checked_grid(grid), id(dev))

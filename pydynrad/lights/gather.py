@@ -15,6 +15,7 @@ import numpy as np
 from ..checks import resolution as checked_resolution
 from ..formfactors import SURFACE_OFFSET, pixel_form_factors
 from ..device.launch import bvh_packet, float4, global_size
+from ..device.devices import default_device
 
 __all__ = ["gather_irradiance"]
 
@@ -48,8 +49,6 @@ def gather_irradiance(scene, points, normals, radiosity=None, sky=None, resoluti
         The patch each point lies on, which its hemicube ignores (default: none, -1).
     """
     import pyopencl as cl
-
-    from ..device.devices import default_device
 
     dev = device or default_device()
     R = checked_resolution(resolution)

@@ -23,6 +23,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError, PydynradError
+from .ies import read_ies
+from .ldt import read_ldt
+from .luminaires import LuminaireLight
+from .sky import SkyLight
+from .sources import DirectionalLight
+from .sources import PointLight
+from .sources import SpotLight
 
 __all__ = ["LightKind", "LIGHT_KINDS", "LIGHT_ALIASES", "parse_light", "light_syntax", "plain_number"]
 
@@ -103,33 +110,24 @@ def sky_model(text: str, what: str):
     return int(text) if text.isdigit() else text
 
 
-def _sky(model="uniform", zenith=None, horizontal=None, sun=None, up=(0.0, 0.0, 1.0), ground=0.0, resolution=64):
-    from .sky import SkyLight
-
+def _sky(model="uniform", zenith=None, horizontal=None, sun=None, up=None, ground=0.0, resolution=64):
     return SkyLight(model, zenith_luminance=zenith, horizontal_illuminance=horizontal, sun_direction=sun, up=up,
                     ground_reflectance=ground,
                     # a whole number as an int; 64.5 is refused as it is, not cut to 64
                     resolution=int(resolution) if float(resolution).is_integer() else resolution)
 
 
-def _luminaire(pos, file, nadir=(0.0, 0.0, -1.0), c0=(1.0, 0.0, 0.0), scale=1.0):
-    from .ies import read_ies
-    from .ldt import read_ldt
-    from .luminaires import LuminaireLight
+def _luminaire(pos, file, nadir=None, c0=(1.0, 0.0, 0.0), scale=1.0):
 
     read = read_ldt if file.lower().endswith(".ldt") else read_ies
     return LuminaireLight(pos, read(file), nadir=nadir, c0=c0, scale=scale)
 
 
 def _point(pos, intensity):
-    from .sources import PointLight
-
     return PointLight(pos, intensity)
 
 
 def _spot(pos, dir, intensity, outer, inner=None):
-    from .sources import SpotLight
-
     if inner is not None and inner > outer:
         raise InvalidInputError(f"inner ({math.degrees(inner):g} degrees) must not exceed outer "
                                 f"({math.degrees(outer):g} degrees)")
@@ -137,8 +135,6 @@ def _spot(pos, dir, intensity, outer, inner=None):
 
 
 def _sun(dir, irradiance):
-    from .sources import DirectionalLight
-
     return DirectionalLight(dir, irradiance)
 
 
@@ -161,13 +157,13 @@ LIGHT_KINDS: dict[str, LightKind] = {
         Field("zenith", number, "zenith luminance, cd/m2 (give this or horizontal)", default=None),
         Field("horizontal", number, "unobstructed horizontal illuminance, lx", default=None),
         Field("sun", vector, "direction X,Y,Z towards the sun (CIE skies that depend on it)", default=None),
-        Field("up", vector, "the zenith X,Y,Z", default=(0.0, 0.0, 1.0)),
+        Field("up", vector, "the zenith X,Y,Z (default: the scene's up axis)", default=None),
         Field("ground", number, "ground reflectance in [0, 1)", default=0.0),
         Field("resolution", number, "hemicube resolution of the sky pass", default=64)),
         "a sky over a uniform ground, seen by every patch through the scene's openings"),
     "luminaire": LightKind(_luminaire, (
         _POS, Field("file", lambda text, what: text.strip(), "an IES LM-63 (.ies) or EULUMDAT (.ldt) file"),
-        Field("nadir", vector, "direction X,Y,Z of gamma = 0", default=(0.0, 0.0, -1.0)),
+        Field("nadir", vector, "direction X,Y,Z of gamma = 0 (default: down the scene's up axis)", default=None),
         Field("c0", vector, "direction X,Y,Z of the C = 0 plane", default=(1.0, 0.0, 0.0)),
         Field("scale", colour, "factor on the file's candela, one number or R,G,B", default=1.0)),
         "a point source with a measured intensity distribution"),

@@ -33,6 +33,8 @@ from ..geometry.scene import Scene
 from ..scenes.byname import BUILTIN_SCENES, is_builtin, scene_by_name
 from ..rows.store import DEFAULT_BLOCK_ROWS, DEFAULT_TASK_ROWS, FormFactorStore, RowFunction
 from .store import compute_blocks, form_factor_rows, prepare_store, task_groups
+from ..device.devices import default_device
+from ..progress import progress_bar
 
 __all__ = ["SceneSpec", "opencl_worker_plugin_class", "precompute_distributed"]
 
@@ -75,7 +77,7 @@ class SceneSpec:
         return scene_by_name(self.resolved().name, **self.params)
 
     def recipe(self) -> dict:
-        """JSON description: {"scene": name, **params} (what the store header records)."""
+        """JSON description: ``{"scene": name, **params}`` (what the store header records)."""
         return {"scene": self.name, **self.params}
 
 
@@ -148,8 +150,6 @@ def _worker_prolongation(store: FormFactorStore):
 def _blocks_task(path: str, group: list[int], payload, geometry_hash: str, resolution: int, patching: dict,
                  row_function: RowFunction, part: str = "F", samples: int = 1) -> tuple[list[int], int, float]:
     """Compute and write the consecutive blocks ``group`` of F or G on a worker; returns (group, rows, seconds)."""
-    from ..device.devices import default_device
-
     t0 = time.perf_counter()
     scene = _worker_scene(payload, geometry_hash)
     store = FormFactorStore.open(scene, path, resolution=resolution, patching=patching, samples=samples)
@@ -241,8 +241,6 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     """
     _require_dask("precompute_distributed")
     from distributed import as_completed
-
-    from ..progress import progress_bar
 
     spec = _as_spec(scene_spec)
     scene = spec if isinstance(spec, Scene) else spec.build()

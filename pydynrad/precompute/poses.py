@@ -11,16 +11,19 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..dynamic.occlusion import refresh_order
 from ..dynamic.poses import PoseRows
+from ..checks import floats
+from ..checks import resolution as checked_resolution
+from ..formfactors import form_factors
+from ..geometry.objects import _objects
+from ..geometry.objects import instanced
+from ..geometry.objects import rigid_transform
+from ..rows.store import StoreMismatchError
 
 __all__ = ["precompute_poses", "stored_poses"]
 
 
 def _configurations(objs, poses):
     """Each configuration of ``poses`` as a list of validated transforms, one per object."""
-    from ..geometry.objects import rigid_transform
-
-    from ..checks import floats
-
     try:
         poses = list(poses)
     except TypeError:
@@ -38,9 +41,6 @@ def stored_poses(scene, objects, store, resolution: int = 128) -> PoseRows:
     static ``scene``) as :class:`PoseRows` for ``DynamicRadiosity(poses=...)``. Raises
     :class:`~pydynrad.rows.store.StoreMismatchError` for a store of another scene, or whose
     poses are of other objects or another resolution."""
-    from ..checks import resolution as checked_resolution
-    from ..geometry.objects import _objects
-    from ..rows.store import StoreMismatchError
 
     objs = _objects(objects)
     if store.header["geometry_hash"] != scene.geometry_hash() or store.n_patches != len(scene):
@@ -60,9 +60,6 @@ def precompute_poses(scene, objects, poses, resolution: int = 128, device=None, 
     (a file per configuration; configurations already there are kept, so an interrupted run
     resumes) and the result reads them from there.
     """
-    from ..checks import resolution as checked_resolution
-    from ..formfactors import form_factors
-    from ..geometry.objects import _objects, instanced
 
     objs = _objects(objects)
     R = checked_resolution(resolution)

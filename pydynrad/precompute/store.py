@@ -19,6 +19,8 @@ from ..checks import integer
 from ..rows.store import (DEFAULT_BLOCK_ROWS, DEFAULT_TASK_ROWS, FormFactorStore, RowFunction)
 from ..formfactors import form_factors
 from ..progress import progress_bar
+from ..farfield.gather import basis_prolongation
+from ..farfield.gather import cluster_form_factors
 
 
 def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None, samples: int = 1) -> sp.csr_matrix:
@@ -41,8 +43,6 @@ def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: di
                                    patching=patching, exist_ok=True, samples=samples)
     store.remove_stale_temporaries()
     if clusters is not None:
-        from ..farfield.gather import basis_prolongation
-
         given = sp.issparse(clusters) or np.ndim(clusters) == 2  # a matrix is its own prolongation
         if cluster_resolution is None:
             # F's own: G is then F Pr of the stored rows, or (--no-f) of the rows a walk computes
@@ -92,8 +92,6 @@ def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function
     first, last = store.block_range(group[0]), store.block_range(group[-1])
     rows = np.arange(first.start, last.stop)
     if part == "G":
-        from ..farfield.gather import cluster_form_factors
-
         pr = store.prolongation() if prolongation is None else prolongation
         if store.cluster_resolution == store.header["params"]["resolution"] and all(
                 store.block_path(k).exists() for k in group):

@@ -26,6 +26,10 @@ from ..checks import resolution as checked_resolution, sparse_structure
 from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
 from ..formfactors import checked_samples
+from .cache import RowCache
+from .sources import RowSource
+from .store import FormFactorStore
+from .store import StoreIncompleteError
 
 __all__ = ["FF_FORMAT", "is_form_factor_file", "load_form_factors", "open_form_factors", "recorded_resolution",
            "save_form_factors", "whole_matrix"]
@@ -136,8 +140,6 @@ def is_form_factor_file(path) -> bool:
 def _open_store(scene, path: Path, samples: int | None = None, resolution: int | None = None):
     """The complete store at ``path``, checked against ``scene`` with the parameters it records
     (and with ``samples`` and ``resolution`` where given)."""
-    from .store import FormFactorStore, StoreIncompleteError
-
     params = FormFactorStore.read_header(path)["params"]
     store = FormFactorStore.open(scene, path, resolution=params["resolution"] if resolution is None else resolution,
                                  patching=params["patching"],
@@ -172,8 +174,6 @@ def open_form_factors(scene, path, cache_bytes: int | None = None, *, samples: i
     ``samples`` raises InvalidInputError), :class:`~pydynrad.store.StoreIncompleteError`
     for a store not finished yet.
     """
-    from .cache import RowCache
-
     checked_scene(scene)
     path = Path(path)
     if path.is_dir():
@@ -187,8 +187,6 @@ def open_form_factors(scene, path, cache_bytes: int | None = None, *, samples: i
 def recorded_resolution(path) -> int:
     """The hemicube resolution a form-factor file or store folder at ``path`` records, read from
     its header alone (checked as :func:`open_form_factors` checks it)."""
-    from .store import FormFactorStore
-
     path = Path(path)
     if path.is_dir():
         header = FormFactorStore.read_header(path).get("params")
@@ -208,8 +206,6 @@ def whole_matrix(form_factors) -> sp.csr_matrix:
 
     For the full radiosity solve, which needs every row; only for scenes whose F fits in RAM.
     """
-    from .cache import RowCache
-    from .sources import RowSource
 
     if isinstance(form_factors, RowCache):
         form_factors = form_factors.source  # reading all rows through the cache would only evict it

@@ -19,6 +19,9 @@ import scipy.sparse as sp
 
 from ..checks import check_form_factor_rows, patch_indices, resolution as checked_resolution
 from ..errors import InvalidInputError
+from ..formfactors import checked_samples
+from ..formfactors import hemicube_blocks
+from ..formfactors import stack_blocks
 
 __all__ = ["RowSource", "CSRRows", "HemicubeRows", "as_row_source", "read_rows"]
 
@@ -96,8 +99,6 @@ class HemicubeRows:
     """
 
     def __init__(self, scene, resolution: int, device=None, *, samples: int = 1) -> None:
-        from ..formfactors import checked_samples
-
         self.scene, self.resolution, self.device = scene, checked_resolution(resolution), device
         self.samples = checked_samples(samples, self.resolution)
         self.n_patches = len(scene)
@@ -108,7 +109,5 @@ class HemicubeRows:
     def queued(self, idx):
         """:meth:`rows` with their hemicubes queued on the device now: a callable (to call once,
         from any thread) that waits for them and returns the rows."""
-        from ..formfactors import hemicube_blocks, stack_blocks
-
         blocks = hemicube_blocks(self.scene, self.resolution, idx, self.device, samples=self.samples)
         return lambda: stack_blocks(blocks, self.n_patches)

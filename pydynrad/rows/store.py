@@ -69,6 +69,12 @@ from ..checks import integer, patch_indices, resolution as checked_resolution, s
 from ..geometry.scene import checked_scene
 from .._version import __version__
 from ..errors import InvalidInputError, PydynradError
+from .prolongation import LINEAR_FUNCTIONS
+from .prolongation import as_prolongation
+from .prolongation import g_samples
+from .prolongation import labels_of_linear
+from .prolongation import split_prolongation
+from ..formfactors import checked_samples
 
 __all__ = [
     "FormFactorStore",
@@ -179,8 +185,6 @@ def _read_csr(path: Path, k: int, rows: range, n_cols: int, what: str, store: Pa
 
 
 def _canonical_params(resolution: int, patching: dict | None, samples: int = 1) -> dict:
-    from ..formfactors import checked_samples
-
     resolution = checked_resolution(resolution)
     samples = checked_samples(samples, resolution)
     try:
@@ -319,8 +323,6 @@ class FormFactorStore:
     @property
     def cluster_samples(self) -> int:
         """Hemicubes per row of G: F's at F's resolution (G is then F Pr of the stored rows), else 1."""
-        from .prolongation import g_samples
-
         return g_samples(self.header["params"]["resolution"], self.samples, self.cluster_resolution)
 
     # -- layout ----------------------------------------------------------------------------
@@ -437,8 +439,6 @@ class FormFactorStore:
     @property
     def cluster_count(self) -> int:
         """C, the clusters G was made for."""
-        from .prolongation import LINEAR_FUNCTIONS
-
         return self.n_clusters // (LINEAR_FUNCTIONS if self.cluster_basis == "linear" else 1)
 
     @property
@@ -486,8 +486,6 @@ class FormFactorStore:
                 f"store, or delete {CLUSTER_HEADER}, {PROLONGATION} and {PARTS['G'][0]}/ there to replace G")
 
     def _canonical_prolongation(self, clusters) -> tuple[sp.csr_matrix, str]:
-        from .prolongation import as_prolongation
-
         pr = as_prolongation(clusters, self.n_patches).astype(np.float32)
         return pr, _digest(pr.indptr.astype(np.int64), pr.indices.astype(np.int32), pr.data)
 
@@ -507,8 +505,6 @@ class FormFactorStore:
     def cluster_labels(self) -> np.ndarray:
         """(N,) int: each patch's cluster (-1 for none), for a prolongation with one entry per row
         or a piecewise-linear one (:func:`pydynrad.farfield.clusters.linear_basis`)."""
-        from .prolongation import labels_of_linear
-        from .prolongation import split_prolongation
 
         pr = self.prolongation()
         single = split_prolongation(pr) if self.cluster_basis != "linear" else None
@@ -708,8 +704,6 @@ CLUSTER_BASES = ("indicator", "linear", "given")
 def _check_basis(pr: sp.csr_matrix, basis: str) -> None:
     """InvalidInputError unless ``pr`` has the layout of ``basis``: what the store records is what
     :attr:`FormFactorStore.cluster_labels` and :attr:`FormFactorStore.cluster_count` read back."""
-    from .prolongation import LINEAR_FUNCTIONS, labels_of_linear
-
     if basis not in CLUSTER_BASES:
         raise InvalidInputError(f"the cluster basis must be one of {CLUSTER_BASES}; got {basis!r}")
     if basis == "indicator":
