@@ -70,9 +70,7 @@ def stages(moves: int = 8, device=None, correction: bool = False, village: bool 
     device = device or default_device()
     box, block, F, R, M, poses, observer, light = _case(village, moves, device)
     obj = pd.RigidObject(block, poses[0])
-    dyn = pd.DynamicRadiosity(box, F, local_size=M, resolution=R, objects=[obj], occlusion=0,
-                              max_swaps_per_frame=SWAPS, observer=observer, device=device,
-                              occlusion_correction=correction)
+    dyn = pd.DynamicRadiosity(box, F, local_size=M, resolution=R, objects=pd.MovingObjects([obj], occlusion=0, occlusion_correction=correction), max_swaps_per_frame=SWAPS, observer=observer, device=device)
     dyn.radiosity(light)
     dyn.update(observer)
     q, times = device.queue, {}

@@ -118,8 +118,7 @@ class _Case:
         F_ref = pd.form_factors(self.reference, self.R, device=device)
         self.t_full_ff = time.perf_counter() - t0
         self.B_ref = pd.solve(self.reference, F_ref, lights=lights, tol=1e-8, dtype=np.float64, device=device).radiosity
-        self.fresh = pd.DynamicRadiosity(box, None, local_size=self.M, resolution=self.R, objects=[final],
-                                         occlusion=None, observer=OBSERVER, device=device).radiosity(lights, far_field=False)
+        self.fresh = pd.DynamicRadiosity(box, None, local_size=self.M, resolution=self.R, objects=pd.MovingObjects([final], occlusion=None), observer=OBSERVER, device=device).radiosity(lights, far_field=False)
         self.local_err = float(np.abs(self.fresh - self.B_ref).max() / self.B_ref.max())  # the paper's answer
 
     def row(self, budget, form_factors, correct: bool, label: str, poses=None) -> list:
@@ -127,9 +126,7 @@ class _Case:
         import pydynrad as pd
 
         obj = pd.RigidObject(self.block, self.poses[0])
-        dyn = pd.DynamicRadiosity(self.box, form_factors, local_size=self.M, resolution=self.R, objects=[obj],
-                                  occlusion=budget, max_swaps_per_frame=SWAPS, observer=OBSERVER,
-                                  device=self.device, occlusion_correction=correct, poses=poses)
+        dyn = pd.DynamicRadiosity(self.box, form_factors, local_size=self.M, resolution=self.R, objects=pd.MovingObjects([obj], occlusion=budget, occlusion_correction=correct, poses=poses), max_swaps_per_frame=SWAPS, observer=OBSERVER, device=self.device)
         dyn.radiosity(self.lights)  # compile and warm up
         walk, swaps = _walk(dyn, self.lights)
         dyn.update(OBSERVER)
@@ -166,9 +163,7 @@ def in_sequence(box, block, form_factors, p, lights, device, frames: int) -> lis
 
     poses = _poses(8)
     path = poses[1:] + poses[-2::-1]  # there and back, as long as needed
-    dyn = pd.DynamicRadiosity(box, form_factors, local_size=min(p["M"], len(box) + len(block)), resolution=p["R"],
-                              objects=[pd.RigidObject(block, poses[0])], occlusion=0, max_swaps_per_frame=SWAPS,
-                              observer=OBSERVER, device=device)
+    dyn = pd.DynamicRadiosity(box, form_factors, local_size=min(p['M'], len(box) + len(block)), resolution=p['R'], objects=pd.MovingObjects([pd.RigidObject(block, poses[0])], occlusion=0), max_swaps_per_frame=SWAPS, observer=OBSERVER, device=device)
     dyn.radiosity(lights)
     steps = [np.add(OBSERVER, w) for w in WALK + WALK[-2::-1] + [(0.0, 0.0, 0.0)]]
     walk, moving, k = [], [], 0

@@ -19,7 +19,7 @@ from . import bake, device, dynamic, farfield, geometry, lights, photometry, pre
 from .bake import bake_lightmap, export_mesh
 from .bounces import multibounce, multibounce_radiosity
 from .device import default_device
-from .dynamic import DynamicRadiosity, FrameStats
+from .dynamic import DynamicRadiosity, FrameStats, MovingObjects
 from .errors import InvalidInputError, PydynradError
 from .farfield import FarField
 from .formfactors import form_factors
@@ -37,7 +37,7 @@ from .walks import CameraPath, WalkResult, fly_through, load_path, orbit, walk
 __all__ = [
     "bake_lightmap", "Camera", "CameraPath", "compute_store", "default_device", "DirectionalLight",
     "DynamicRadiosity", "export_mesh", "FarField", "fly_through", "form_factors", "FormFactorStore", "FrameStats",
-    "illuminance", "InvalidInputError", "light_vector", "load", "load_path", "LuminaireLight", "multibounce",
+    "illuminance", "InvalidInputError", "light_vector", "load", "load_path", "LuminaireLight", "MovingObjects", "multibounce",
     "multibounce_radiosity", "open_form_factors", "orbit", "path_trace", "PointLight", "PydynradError", "read_ies",
     "read_ldt", "render", "RigidObject", "save_form_factors", "Scene", "SkyLight", "Solution", "solve", "SpotLight",
     "walk", "WalkResult",

@@ -17,6 +17,7 @@ device; the first frame includes kernel builds and uploads.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +27,7 @@ import numpy as np
 from .geometry.camera import Camera
 from .checks import integer, stops
 from .errors import InvalidInputError
+from .dynamic.moves import MovingObjects
 from .paths import CameraPath, LightTrack, ObjectTrack, WalkFile, fly_through, lights_at, load_path, load_walk, orbit
 from .atomic import check_file_target
 from .comparison import reference_frame
@@ -164,7 +166,9 @@ def walk(
         M, the local set's size, when building ``dynamic`` (default min(N, 1024)).
     solver_options : dict, optional
         More keyword arguments for :class:`~pydynrad.DynamicRadiosity` (``update``,
-        ``storage``, ``max_swaps_per_frame``, ...).
+        ``storage``, ``max_swaps_per_frame``, ...). With ``objects``, an ``objects=``
+        :class:`~pydynrad.MovingObjects` there gives the moves' settings (its own objects are
+        replaced by the tracks').
     shading : "smooth" or "flat"
     output : str or Path, optional
         Folder for ``frame_0000.<image_format>``, ... (created if missing); None writes nothing.
@@ -218,8 +222,10 @@ def walk(
 
         m = min(len(scene), 1024) if local_size is None else local_size
         options = dict(solver_options or {})
-        if tracks:
-            options["objects"] = [t.object for t in tracks]
+        if tracks:  # the tracks' objects, moved as a MovingObjects in solver_options says (its defaults else)
+            settings = options.get("objects")
+            settings = settings if isinstance(settings, MovingObjects) else MovingObjects(())
+            options["objects"] = dataclasses.replace(settings, objects=[t.object for t in tracks])
         dynamic = DynamicRadiosity(scene, form_factors, local_size=m, device=device, **options)
     out_dir = None
     if output is not None:

@@ -40,8 +40,7 @@ def test_a_walk_from_a_path_file_with_a_moving_block_is_the_walk_of_the_same_tra
 
     def walked(path, tracks):
         n = len(box) + sum(len(t.object) for t in tracks)
-        dyn = pd.DynamicRadiosity(box, None, local_size=n, resolution=R, objects=[t.object for t in tracks],
-                                  occlusion=None, observer=path.camera(0).position, device=device)
+        dyn = pd.DynamicRadiosity(box, None, local_size=n, resolution=R, objects=pd.MovingObjects([t.object for t in tracks], occlusion=None), observer=path.camera(0).position, device=device)
         return pd.walk(box, path, dyn, lights=LIGHTS, objects=tracks, device=device).radiosity
 
     by_hand = pd.walks.ObjectTrack(pd.RigidObject(pd.scenes.block(100.0, 1, albedo=green), keys[0]), keys)
@@ -150,8 +149,7 @@ def test_cli_stores_the_poses_of_a_path_file_and_walk_takes_them(tmp_path, capsy
         np.testing.assert_array_equal(p_mem, p_st)
         assert (rows_mem != rows_st).nnz == 0
     # The walk's poses are the stored ones: a move to frame 1's takes no hemicube.
-    dyn = pd.DynamicRadiosity(scene, opened, local_size=300, resolution=R, objects=objs, poses=stored,
-                              observer=(278.0, 273.0, -300.0))
+    dyn = pd.DynamicRadiosity(scene, opened, local_size=300, resolution=R, objects=pd.MovingObjects(objs, poses=stored), observer=(278.0, 273.0, -300.0))
     for t in loaded.objects:
         dyn.move(t.object, t.at(1, 2))
     assert dyn.update((278.0, 273.0, -300.0)).hemicubes == 0

@@ -11,6 +11,7 @@
 See docs/design.md, 'Paper mode', 'Exact mode', 'Batched swap' and 'Local set'.
 """
 
+from .moves import MovingObjects
 from .radiosity import DynamicRadiosity, FrameStats
 
-__all__ = ["DynamicRadiosity", "FrameStats"]
+__all__ = ["DynamicRadiosity", "FrameStats", "MovingObjects"]

@@ -101,7 +101,7 @@ class LocalRows:
         return read_rows(self.source, idx)  # checked, once: not again for a RowCache or CSRRows
 
     def fetch_local(self, local_patches: np.ndarray) -> None:
-        """Fetch the rows of a whole new local set (a build or refresh), validated by :meth:`rows`."""
+        """Fetch the rows of a whole new local set (a build or refresh), validated by ``rows``."""
         self.local = self.rows(local_patches)
 
     def entering(self, local_patches: np.ndarray, J: np.ndarray, slots: np.ndarray):

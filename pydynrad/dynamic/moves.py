@@ -9,7 +9,7 @@ rows and add them back with new ones (docs/design.md, 'Moving objects', 'Batched
 * refreshed rows: hemicubes of the local patches that see the most of O's old and new
   bounding spheres (their view of the static scene changed: O now hides or uncovers parts);
 * rows left stale whose sum the new object columns would push above 1: those columns are
-  scaled down to fill the row to 1 (:func:`stale_rows`); being in the objects' columns, they
+  scaled down to fill the row to 1 (:func:`~pydynrad.dynamic.poserows.stale_rows`); being in the objects' columns, they
   need no slot of their own in the swap. With a static F their rows at the new poses are made
   too (:meth:`WorldRows.refresh`) and B is corrected for them (:mod:`pydynrad.dynamic.stale`).
 
@@ -19,6 +19,9 @@ chunks done so far are new and the rest old, which is what the next chunk remove
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 
 import numpy as np
@@ -31,10 +34,58 @@ from .localrows import LocalRows
 from .occlusion import GATHER_ALL_OUTSIDE, VIEW_FORM_FACTOR, hidden_entries, refresh_order, sphere_form_factor
 from .poserows import Since, at_pose, difference_at_pose, in_order, reciprocal_columns
 from .poses import PoseRows
-from .stale import rows_minus
+from .stale import CORRECTION_TOLERANCE, rows_minus
 from ..host.threads import pool
 
-__all__ = ["WorldRows"]
+__all__ = ["MovingObjects", "WorldRows"]
+
+
+@dataclass(frozen=True)
+class MovingObjects:
+    """Rigid objects that move through a static scene, and how each move refreshes the rows it changes.
+
+    Give it to :class:`~pydynrad.DynamicRadiosity` as ``objects=`` (a plain sequence of
+    :class:`~pydynrad.RigidObject` means these defaults). See docs/design.md, 'Moving objects'.
+
+    Parameters
+    ----------
+    objects : sequence of pydynrad.RigidObject
+        The objects (exact mode only). Their patches follow the scene's N, in order, and are
+        always local (their count must not exceed M).
+    occlusion : int, None or "auto"
+        Per move, refresh the rows of at most this many other local patches (0: none, the
+        cheapest; None: every one that may see the moved objects' old or new bounding spheres):
+        with a static F those whose gathered light the move changes most, else those that see
+        the most of the spheres. "auto" (the default): 0 with a static F and
+        ``occlusion_correction`` (there every budget gives the same error, and a refresh only
+        costs its swap), else :data:`pydynrad.dynamic.radiosity.DEFAULT_OCCLUSION`.
+    occlusion_correction : bool
+        With a static ``form_factors``: make the row at the new poses of every local patch that
+        may see a moved object (from the static F, no hemicube), swap the ``occlusion`` budget of
+        them into K and correct :meth:`~pydynrad.DynamicRadiosity.radiosity` for the rest by a
+        few iterations with K (:mod:`pydynrad.dynamic.stale`; about as accurate as refreshing
+        every row, for no swap slots). At ``occlusion=0`` a move swaps nothing, not even the
+        objects' own rows: they are corrected for like the others, K stays as built, and
+        :meth:`~pydynrad.DynamicRadiosity.refresh` takes them all in. False: the rows left stale
+        are used as they are (at ``occlusion=0`` the cheapest move). No effect with hemicube rows
+        (``form_factors=None``).
+    correction_tolerance : float
+        Where that correction stops: at an estimated distance from its fixed point (the answer
+        with every stale row at the current poses; an estimate from the ratio of its last two
+        steps) of at most this fraction of max B, in (0, 1)
+        (:data:`pydynrad.dynamic.stale.CORRECTION_TOLERANCE` by default).
+    poses : PoseRows, optional
+        Rows precomputed for configurations of the objects known in advance
+        (:func:`pydynrad.precompute.precompute_poses`, at the solution's ``resolution``): a move
+        to one of them takes its rows from there instead of hemicubes (with a static
+        ``form_factors``, also the static rows it holds, instead of their estimate from F).
+    """
+
+    objects: Sequence
+    occlusion: int | str | None = "auto"
+    occlusion_correction: bool = True
+    correction_tolerance: float = CORRECTION_TOLERANCE
+    poses: PoseRows | None = None
 
 
 
@@ -102,7 +153,7 @@ class WorldRows:
 
     Object patches' rows are hemicubes of the current world scene (or stored in ``poses``).
     Static rows come from ``static_ff`` (the static scene's (N, N) F or row source) with the
-    entries the objects hide dropped (:func:`hidden_entries`), their object columns by
+    entries the objects hide dropped (:func:`~pydynrad.dynamic.occlusion.hidden_entries`), their object columns by
     reciprocity from the objects' current rows, and capped to a sum of 1 (:func:`at_pose`),
     except those ``poses`` holds for the current configuration (hemicubes of the world there);
     with ``static_ff=None`` they are hemicubes of the world too, and exact at the current poses.
@@ -174,7 +225,7 @@ class WorldRows:
 
     def gather_outside(self, outside: np.ndarray, L: np.ndarray, B: np.ndarray) -> np.ndarray:
         """(len(outside), 3) B on the patches ``outside`` the local set: ``L + P F B`` with their
-        rows at the current poses (:meth:`rows`) for those :meth:`gathered` chooses (every one,
+        rows at the current poses (``rows``) for those :meth:`gathered` chooses (every one,
         or in a large scene those whose view an object changes, :meth:`in_view`), so the far
         field's patches see the objects where they are, their light and their shadows; ``B`` as
         given (the far field's) for the others, which the objects change by less than
@@ -290,13 +341,13 @@ class WorldRows:
 
     def differences(self, s: np.ndarray, kept: sp.csr_matrix, at: np.ndarray, also: np.ndarray | None = None,
                     held=None) -> sp.csr_matrix:
-        """(len(s), N) CSR: the rows of static patches ``s`` at the current poses (:meth:`rows`)
+        """(len(s), N) CSR: the rows of static patches ``s`` at the current poses (``rows``)
         minus ``kept[at]`` (``kept`` (M, N), ``at`` (len(s),) its rows). From the static F they
         are never made: :func:`difference_at_pose` merges each with its kept row as it is made
         (writing a move's ~450k entries at the pose, then reading them back to merge them, was
         2.4-3.9 ms of the bench's moving frame; AMD EPYC Zen 4, 2026-12-06). Rows ``also``
         missing at the pose are made in the same pass (one pre-test of both) and kept for the
-        pose, as :meth:`rows` keeps them (distinct patches). Rows ``poses`` holds come from
+        pose, as ``rows`` keeps them (distinct patches). Rows ``poses`` holds come from
         there, merged.
 
         ``held``: the stale rows (:class:`~pydynrad.dynamic.stale.StaleRows`) whose D, where put
@@ -365,9 +416,9 @@ class WorldRows:
         (object patches) and of those.
 
         Hemicube rows (no static F): the ``budget`` candidates that see the most of the objects'
-        old and new bounding ``spheres`` (:func:`refresh_order`), by hemicube. With a static F:
+        old and new bounding ``spheres`` (:func:`~pydynrad.dynamic.occlusion.refresh_order`), by hemicube. With a static F:
         every candidate that may see a sphere gets its row at the new poses from the static F
-        (:meth:`rows`, no hemicube; kept for the pose), and the ``budget`` whose gathered light
+        (``rows``, no hemicube; kept for the pose), and the ``budget`` whose gathered light
         that changes most relative to their own are kept (a shortlist by solid angle first
         loses: 6.6% mean pixel error at 32 rows against 4.5%, bench/objects.py's scene): ``A_s rho_s |(new_s - current_s) w| / w_s`` with
         ``w`` (N,) the last radiosity summed over channels (ones before any), the row's share of

@@ -52,7 +52,7 @@ def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix,
             select: np.ndarray | None = None) -> sp.csr_matrix:
     """Static ``rows`` (CSR, no entries in the object columns; its rows ``select``, read in
     place, all by default) at the objects' poses, shaped as ``recip``: without their entries
-    ``hidden`` ((rows.nnz,) bool, :func:`hidden_entries`), with the object columns ``recip``
+    ``hidden`` ((rows.nnz,) bool, :func:`~pydynrad.dynamic.occlusion.hidden_entries`), with the object columns ``recip``
     (one row per row taken, :func:`reciprocal_columns`), and capped: where a row then sums
     above 1 (the centre segments missed part of what an object hides), its static entries are
     scaled so that it sums to 1, clipped at zero; where the object columns alone sum above 1,
@@ -108,7 +108,7 @@ class Since(NamedTuple):
     last pose, made from the same static rows, and their D then.
 
     ``rows`` (r,) bool: the rows whose row at the last pose was made with the mask ``hidden``
-    ((nnz,) bool over the static rows' entries, as :func:`hidden_entries` gave it then) and not
+    ((nnz,) bool over the static rows' entries, as :func:`~pydynrad.dynamic.occlusion.hidden_entries` gave it then) and not
     capped, and whose D then holds against the same kept rows: row ``last_row[i]`` of ``last``
     (CSR of N columns; -1: an empty row); ``row_sums`` (r,) float64: each static row's sum;
     ``first_object``: the first object column (every static column lies below it)."""

@@ -21,7 +21,7 @@ class PoseRows:
 
     Keyed by the objects' transforms together (a row of a static patch depends on every
     object): for each configuration, the rows of the object patches and of the static patches
-    that may see an object there (:func:`refresh_order`). A move to a stored configuration
+    that may see an object there (:func:`~pydynrad.dynamic.occlusion.refresh_order`). A move to a stored configuration
     takes those rows from here instead of hemicubes. Made by :func:`precompute_poses`; held in
     memory, or read from a form-factor store's per-pose part (``store``, each file verified on
     read) with the last configuration read kept.

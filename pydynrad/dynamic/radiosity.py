@@ -52,7 +52,7 @@ from .stale import CORRECTION_TOLERANCE, StaleRows
 from .exact import exact_swap
 from .kupdate import UpdateKernels
 from .kupdate import scratch_nbytes
-from .moves import WorldRows
+from .moves import MovingObjects, WorldRows
 from .occlusion import shadow_rays_near
 from .paper import UsedPatches
 from .paper import paper_swap
@@ -166,56 +166,28 @@ class DynamicRadiosity:
     cluster_form_factors : (N, C) sparse, optional
         G for those clusters; by default F Pr from F, a form-factor store's own G, or G by
         cluster-id hemicubes for rows computed on demand (:func:`pydynrad.farfield.far_field_for`).
-    objects : sequence of pydynrad.RigidObject, optional
-        Moving objects (exact mode only). Their patches follow the scene's N, in order, and are
-        always local (their count must not exceed M); :attr:`scene` is then the combined scene
-        at the current poses, traced through a two-level BVH. ``form_factors`` stays the
-        static scene's (rows fetched or refreshed then come from it at the current poses: the
-        entries an object hides dropped, object columns by reciprocity), or None: every row a
-        hemicube of the world as it is, so K equals a fresh build over the same set when
-        ``occlusion`` is None. With the far field, the patches outside the local set are
-        gathered at the current poses in :meth:`radiosity`.
-    occlusion : int, None or "auto"
-        Per move, refresh the rows of at most this many other local patches (0: none, the
-        cheapest; None: every one that may see the moved objects' old or new bounding spheres):
-        with a static F those whose gathered light the move changes most, else those that see
-        the most of the spheres. "auto" (the default): 0 with a static F and
-        ``occlusion_correction`` (there every budget gives the same error, and a refresh only
-        costs its swap), else :data:`DEFAULT_OCCLUSION`. See docs/design.md, 'Moving objects'.
-    occlusion_correction : bool
-        With a static ``form_factors``: make the row at the new poses of every local patch that
-        may see a moved object (from the static F, no hemicube), swap the ``occlusion`` budget of
-        them into K and correct :meth:`radiosity` for the rest by a few iterations with K
-        (:mod:`pydynrad.dynamic.stale`; about as accurate as refreshing every row, for no swap
-        slots). At ``occlusion=0`` a move swaps nothing, not even the objects' own rows: they
-        are corrected for like the others, K stays as built, :meth:`refresh` takes them all
-        in. False: the rows left stale are used as they are (at ``occlusion=0`` the
-        cheapest move). No effect with hemicube rows (``form_factors=None``).
-    correction_tolerance : float
-        Where that correction stops: at an estimated distance from its fixed point (the answer
-        with every stale row at the current poses; an estimate from the ratio of its last two
-        steps, which has fallen short of the true distance by up to 2x on the bench's moves)
-        of at most this fraction of max B
-        (:data:`pydynrad.dynamic.stale.CORRECTION_TOLERANCE` by default, 2e-4: two passes over
-        K a moving frame on the bench's box; 1e-6 takes three). See docs/design.md, 'Moving
-        objects'.
-    poses : PoseRows, optional
-        Rows precomputed for configurations of the objects known in advance
-        (:func:`pydynrad.precompute.precompute_poses`, same ``resolution``): a move to one of them takes its
-        rows from there instead of hemicubes (with a static ``form_factors``, also the static
-        rows it holds, instead of their estimate from F; with F and the poses at the same
-        resolution and one sample per row, the rows at a stored pose are then a full build's,
-        up to the rounding of the cap to a sum of 1 on the rows made from F).
+    objects : sequence of pydynrad.RigidObject or MovingObjects, optional
+        Moving objects (exact mode only), with how each move refreshes the rows it changes
+        (:class:`~pydynrad.dynamic.moves.MovingObjects`; a plain sequence takes its defaults).
+        Their patches follow the scene's N, in order, and are always local (their count must
+        not exceed M); :attr:`scene` is then the combined scene at the current poses, traced
+        through a two-level BVH. ``form_factors`` stays the static scene's (rows fetched or
+        refreshed then come from it at the current poses: the entries an object hides dropped,
+        object columns by reciprocity), or None: every row a hemicube of the world as it is, so
+        K equals a fresh build over the same set when ``occlusion`` is None. With the far field,
+        the patches outside the local set are gathered at the current poses in :meth:`radiosity`.
     device : pydynrad.device.Device, optional
     """
 
     def __init__(self, scene, form_factors, local_size: int = 1024, update: str = "exact", storage: str = "fp32",
                  max_swaps_per_frame: int = 8, refresh_tolerance: float | None = None, refresh_interval: int = 32,
                  observer=None, keep_emitters: bool = True, resolution: int = 128, far_field=True, clusters=None,
-                 cluster_form_factors=None, objects=None, occlusion: int | str | None = "auto", poses=None,
-                 device=None, samples: int = 1, occlusion_correction: bool = True,
-                 correction_tolerance: float = CORRECTION_TOLERANCE) -> None:
+                 cluster_form_factors=None, objects=None, device=None, samples: int = 1) -> None:
         checked_scene(scene)
+        moving = objects if isinstance(objects, MovingObjects) or objects is None else MovingObjects(objects)
+        occlusion = "auto" if moving is None else moving.occlusion
+        occlusion_correction = True if moving is None else moving.occlusion_correction
+        correction_tolerance = CORRECTION_TOLERANCE if moving is None else moving.correction_tolerance
         self.device = device_or_default(device)
         self.objects, self._pending = [], {}
         self._last_B: np.ndarray | None = None  # (N,) the last radiosity() summed over channels: ranks a move's rows
@@ -236,11 +208,9 @@ class DynamicRadiosity:
             raise InvalidInputError(f"samples={samples!r} applies to rows computed on demand (form_factors=None) without "
                                     "moving objects; pass HemicubeRows(scene, R, samples=K) or form factors computed "
                                     "with samples=K instead")
-        if objects is not None:
-            scene, form_factors = self._with_objects(scene, form_factors, objects, update, local_size,
-                                                     checked_resolution(resolution), poses)
-        elif poses is not None:
-            raise InvalidInputError("poses= holds rows of moving objects: pass objects= too")
+        if moving is not None:
+            scene, form_factors = self._with_objects(scene, form_factors, moving.objects, update, local_size,
+                                                     checked_resolution(resolution), moving.poses)
         n = len(scene)
         self.scene = scene
         self._stale = StaleRows(n)  # rows a move left stale in K (a static F with occlusion_correction)
@@ -547,7 +517,7 @@ class DynamicRadiosity:
     def move(self, obj, transform) -> None:
         """Queue a new (4, 4) rigid pose for ``obj``; the next :meth:`update` applies every queued move.
         A pose the device cannot resolve the object at is refused here, nothing queued
-        (:func:`pydynrad.geometry.objects.check_reach`)."""
+        (``pydynrad.geometry.objects.check_reach``)."""
         if not any(o is obj for o in self.objects):
             raise InvalidInputError(f"{obj!r} was never added to this DynamicRadiosity (pass it in objects=)")
         T = rigid_transform(transform)

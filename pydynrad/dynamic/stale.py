@@ -65,7 +65,7 @@ __all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERAT
 #: point (median; 1.7e-4 at most), where stopping at a step of 1e-4 (the rule until 2026-12-06)
 #: took 2.8-3 passes for 1.9e-6: a pass is 0.6-0.8 ms of a 20 ms frame, and the rows the
 #: correction solves with are themselves 0.9% per pixel from a full solve (PoCL, AMD EPYC Zen 4,
-#: 2026-12-06). ``DynamicRadiosity(correction_tolerance=...)`` sets it per solution.
+#: 2026-12-06). ``MovingObjects(correction_tolerance=...)`` sets it per solution.
 CORRECTION_TOLERANCE = 2e-4
 #: The ratio of successive steps below which :meth:`StaleRows.correct` takes the iteration as
 #: contracting by that ratio, and estimates an answer's error by it (:func:`_error_estimate`).

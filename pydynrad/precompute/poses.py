@@ -38,7 +38,7 @@ def _configurations(objs, poses):
 
 def stored_poses(scene, objects, store, resolution: int = 128) -> PoseRows:
     """The per-pose rows in form-factor ``store`` (a :class:`~pydynrad.FormFactorStore` of the
-    static ``scene``) as :class:`PoseRows` for ``DynamicRadiosity(poses=...)``. Raises
+    static ``scene``) as :class:`PoseRows` for ``MovingObjects(poses=...)``. Raises
     :class:`~pydynrad.rows.store.StoreMismatchError` for a store of another scene, or whose
     poses are of other objects or another resolution."""
 
@@ -51,7 +51,7 @@ def stored_poses(scene, objects, store, resolution: int = 128) -> PoseRows:
 
 
 def precompute_poses(scene, objects, poses, resolution: int = 128, device=None, store=None) -> PoseRows:
-    """The rows of each configuration in ``poses`` for :class:`pydynrad.DynamicRadiosity`'s ``poses=``.
+    """The rows of each configuration in ``poses`` for :class:`pydynrad.MovingObjects`'s ``poses=``.
 
     ``poses``: a sequence of configurations, each a (4, 4) transform per object (a single
     (4, 4) per entry for one object): a keyframed path. Costs one hemicube per object patch
