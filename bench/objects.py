@@ -52,7 +52,7 @@ SWAPS = 32
 def _poses(n: int) -> list[np.ndarray]:
     """The block's path: across the box above the floor, turning, clear of the box's own blocks."""
     out = []
-    for k, s in enumerate(np.linspace(0.0, 1.0, n + 1)):
+    for s in np.linspace(0.0, 1.0, n + 1):
         a = np.radians(60.0 * s)
         T = np.eye(4)
         T[:3, :3] = [[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]

@@ -291,7 +291,7 @@ def performance_markdown(root=RESULTS_ROOT) -> str:
         dev = max(latest.values(), key=lambda c: c[:2])[3].get("device", {})
         lines += [f"Device: {dev.get('platform', '?')} / {dev.get('device', '?')} ({dev.get('type', '?')}, "
                   f"{dev.get('compute_units', '?')} compute units).", ""]
-        for (name, size), (date, rel, _path, report) in sorted(latest.items()):
+        for (name, size), (_date, rel, _path, report) in sorted(latest.items()):
             sec = report["sections"][name]
             lines += [f"### {sec.get('title', name)} ({size})", "",
                       f"Device `{folder.name}`, run {_date_label(report['date'])}, size `{size}`; "

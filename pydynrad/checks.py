@@ -13,7 +13,7 @@ import scipy.sparse as sp
 
 from .errors import InvalidInputError
 
-__all__ = ["floats", "vec3", "unit_vector", "number", "flag", "stops", "integer", "finite", "scene", "patch_indices",
+__all__ = ["floats", "vec3", "unit_vector", "number", "flag", "stops", "integer", "finite", "patch_indices",
            "resolution", "check_form_factors", "check_form_factor_rows", "sparse_structure", "ROW_SUM_SLACK", "MAX_RESOLUTION"]
 
 

@@ -12,7 +12,7 @@ def test_photometry_section_tiny(tmp_path, device):
     assert sensors == 16 and R == 16 and per_s == sensors / dt and math.isfinite(mrays)
     near = tables["Hemicube near an emitter"]["rows"]
     assert len(near) == 2 * 2  # two sensors x two distances at one resolution
-    for label, d, R, exact, hemi, err in near:
+    for label, d, _R, exact, hemi, err in near:
         assert err == abs(hemi - exact) / exact
         if d == 1.0 and label.startswith("below"):
             assert err < 0.01  # far below the centre even R = 16 is good: 0.2% observed

@@ -81,9 +81,10 @@ def _crossings(P, T, a, b):
     return brute_force_hits(P[T], a, b - a, chunk=1024).t < 1.0
 
 
-def _clipped(P, T, a, b, pose=np.eye(4)):
+def _clipped(P, T, a, b, pose=None):
     """The segments a[i] -> b[i] (world) the native pass keeps for the solid of mesh (P, T) at
     ``pose``: one segment per row, a sphere holding everything, the box of the solid."""
+    pose = np.eye(4) if pose is None else pose
     planes = solid_planes(P, T)
     A, t = pose[:3, :3].T, -pose[:3, :3].T @ pose[:3, 3]
     lo, hi = P.min(axis=0) - 1e-9, P.max(axis=0) + 1e-9

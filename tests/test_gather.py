@@ -24,6 +24,8 @@ from pydynrad.scenes.cornell import cornell_box
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package lives in the repo root
 
 from bench.gather import indicator, weighted  # noqa: E402  (the two prolongations)
+from pydynrad.precompute.store import compute_store
+from pydynrad.rows.store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError
 
 R = 16
 
@@ -133,8 +135,6 @@ def test_bad_input(cornell, device):
 
 
 # -- G in the form-factor store ----------------------------------------------------------------
-from pydynrad.rows.store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError
-from pydynrad.precompute.store import compute_store
 
 
 @pytest.fixture(scope="module")

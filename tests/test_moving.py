@@ -137,7 +137,10 @@ def test_unlimited_budget_equals_full_solve(box, block, lamp, device):
     floor = np.flatnonzero((box.normals[:, 1] > 0.99) & (box.centers[:, 1] < 1.0))
     without = dense_radiosity(box, pd.form_factors(box, R, device=device), pd.light_vector(box, LIGHTS, device=device))
     near = floor[np.argsort(np.linalg.norm(box.centers[floor] - END[:3, 3], axis=1))[:4]]
-    green = lambda b: b[near, 1] / b[near].sum(axis=1)
+
+    def green(b):
+        return b[near, 1] / b[near].sum(axis=1)
+
     assert np.all(green(B) > green(without))
 
 

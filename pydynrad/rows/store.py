@@ -40,8 +40,8 @@ Guarantees:
   renamed over its final name, so a reader sees either no block or a whole one;
 * every read verifies the block's SHA-256 (and the zip CRCs); a mismatch raises
   :class:`StoreCorruptError` and no row of that block is served;
-* a store interrupted mid-way is resumed by :func:`compute_store` (or the distributed
-  :func:`pydynrad.distributed.precompute_distributed`): finished blocks are kept, missing
+* a store interrupted mid-way is resumed by :func:`~pydynrad.precompute.store.compute_store` (or the distributed
+  :func:`~pydynrad.precompute.precompute_distributed`): finished blocks are kept, missing
   ones computed, stale temporary files removed;
 * opening a store for another scene geometry or other form-factor parameters raises
   :class:`StoreMismatchError`, naming the fields that differ.
@@ -81,10 +81,6 @@ __all__ = [
     "StoreCorruptError",
     "StoreIncompleteError",
     "StoreMismatchError",
-    "compute_blocks",
-    "compute_store",
-    "form_factor_rows",
-    "task_groups",
 ]
 
 FORMAT = "pydynrad-formfactor-store"
@@ -584,7 +580,9 @@ class FormFactorStore:
     def check_pose_objects(self, objects, *, resolution: int) -> None:
         """Raise :class:`StoreMismatchError` unless the per-pose rows are of ``objects`` at ``resolution``."""
         want, have = self._pose_objects(objects, resolution), self._require_pose_header()
-        strip = lambda h: (h.get("resolution"), [(o.get("geometry_hash"), o.get("n_patches")) for o in h.get("objects", [])])
+        def strip(h: dict) -> tuple:
+            return h.get("resolution"), [(o.get("geometry_hash"), o.get("n_patches")) for o in h.get("objects", [])]
+
         if strip(want) != strip(have):
             raise StoreMismatchError(
                 f"store {self.path} holds per-pose rows of other objects or another resolution (store: "
