@@ -80,7 +80,7 @@ def _cases(ctx, p):
     # 0.87x and 1.50x the local-only one in two runs on an AMD EPYC (2026-12-06).
     path = walk_positions(p.get("cornell_frames", p["frames"]) + 3)
     cam = lambda pos: Camera(pos, pos + np.array([0.0, -60.0, 300.0]), (0.0, 1.0, 0.0), 60.0, w, h)  # noqa: E731
-    yield ("Cornell box", box, F, t, [PointLight((278, 450, 280), (2e5,) * 3)], [PointLight((150, 450, 400), (2e5,) * 3)],
+    yield ("Cornell box", box, F, t, [PointLight((278, 450, 280), (0.2,) * 3)], [PointLight((150, 450, 400), (0.2,) * 3)],
            path, cam)
     key = tuple(sorted(p["village"].items()))
     village = ctx.cached(("village", key), lambda: pydynrad.scenes.village(**p["village"]))

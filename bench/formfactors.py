@@ -92,7 +92,7 @@ def _hash(x: np.ndarray) -> np.ndarray:
 def hemicube_rays(scene, rows: np.ndarray, resolution: int) -> tuple[np.ndarray, np.ndarray]:
     """Origins and directions, (len(rows) * 3R * R, 3) float32 each, of the rays that
     ``kernels/hemicube.cl`` casts for these patches, in its (row, scanline, pixel) order."""
-    from pydynrad.formfactors import SURFACE_OFFSET
+    from pydynrad.geometry.scene import SURFACE_OFFSET
 
     R, H = resolution, resolution // 2
     n = scene.normals[rows].astype(np.float64)

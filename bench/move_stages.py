@@ -46,7 +46,7 @@ def _case(village: bool, moves: int, device):
         p = SIZES["quick"]
         box = pd.scenes.cornell_box(max_edge=p["max_edge"])
         return (box, pd.scenes.block(100.0, p["block"], albedo=(0.1, 0.6, 0.15)), pd.form_factors(box, p["R"], device=device),
-                p["R"], p["M"], _poses(moves), OBSERVER, [pd.PointLight((278.0, 520.0, 280.0), (3e5, 3e5, 3e5))])
+                p["R"], p["M"], _poses(moves), OBSERVER, [pd.PointLight((278.0, 520.0, 280.0), (0.3, 0.3, 0.3))])
     from .paper import street_walk
 
     scene = pd.scenes.village(houses=12, detail=1.0)

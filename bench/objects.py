@@ -203,7 +203,7 @@ def measure(size: str, device, progress: bool = True) -> dict:
     albedo = (0.1, 0.6, 0.15)
     block = pd.scenes.block(100.0, p["block"], albedo=albedo)  # 48 patches at subdivision 1
     block64 = _block64(albedo) if p["block"] == 1 else None  # the block: 64 patches
-    lights = [pd.PointLight((278.0, 520.0, 280.0), (3e5, 3e5, 3e5))]
+    lights = [pd.PointLight((278.0, 520.0, 280.0), (0.3, 0.3, 0.3))]
     camera = pd.Camera(position=(278.0, 273.0, -800.0), look_at=(278.0, 273.0, 280.0), fov_y=40,
                        width=p["image"][0], height=p["image"][1])
     case = _Case(box, block, p, lights, camera, device)

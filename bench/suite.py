@@ -129,6 +129,7 @@ SECTIONS: dict[str, str] = {
     "photometry": "bench.photometry:photometry_section",
     "objects": "bench.objects:suite_section",
     "sampling": "bench.sampling:suite_section",
+    "corpus": "bench.corpus:corpus_section",
 }
 
 

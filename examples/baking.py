@@ -18,7 +18,7 @@ import pydynrad
 
 SMALL = os.environ.get("PYDYNRAD_DOCS_SMALL") == "1"
 scene = pydynrad.scenes.cornell_box(max_edge=150.0 if SMALL else 100.0)
-light = pydynrad.PointLight(position=[278, 450, 280], intensity=[2e5] * 3)
+light = pydynrad.PointLight(position=[278, 450, 280], intensity=[0.2] * 3)
 B = pydynrad.solve(scene, pydynrad.form_factors(scene, resolution=32), lights=[light]).radiosity
 
 # %%

@@ -37,7 +37,7 @@ path = pydynrad.CameraPath(
     look_ats=[(278, 273, 0), (278, 260, 280), (300, 200, 300), (250, 220, 300)],
     frames=frames, fov_y=39.3, width=size, height=size)
 orbit = [(130, 420, 130), (130, 420, 430), (430, 420, 430), (430, 420, 130), (130, 420, 130)]
-lamp = pydynrad.walks.LightTrack(pydynrad.PointLight(orbit[0], (60000.0, 50000.0, 30000.0)), orbit)
+lamp = pydynrad.walks.LightTrack(pydynrad.PointLight(orbit[0], (0.06, 0.05, 0.03)), orbit)
 
 # %%
 # Walk it. ``local_size`` is M, the size of the local set; the first and the last frame are

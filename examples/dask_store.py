@@ -51,7 +51,7 @@ if __name__ == "__main__":
 # field of a walk without F in memory needs its coarse form factors G in the store too
 # (``pydynrad formfactors SCENE -o STORE --clusters auto``).
 if __name__ == "__main__":
-    light = pydynrad.PointLight(position=[278, 450, 280], intensity=[2e5] * 3)
+    light = pydynrad.PointLight(position=[278, 450, 280], intensity=[0.2] * 3)
     rows = pydynrad.open_form_factors(scene, "cbox-store", cache_bytes=4 << 20)
     try:
         dyn = pydynrad.DynamicRadiosity(scene, rows, local_size=len(scene) // 2, far_field=False,

@@ -22,7 +22,7 @@ size, poses = (128, 3) if SMALL else (384, 6)
 
 scene = pydynrad.scenes.cornell_box(max_edge=150.0 if SMALL else 100.0)
 F = pydynrad.form_factors(scene, resolution=32)
-light = pydynrad.PointLight(position=[278, 450, 280], intensity=[2e5] * 3)
+light = pydynrad.PointLight(position=[278, 450, 280], intensity=[0.2] * 3)
 
 
 def pose(z, degrees):

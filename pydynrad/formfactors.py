@@ -34,13 +34,11 @@ from .device.launch import float4, global_size, hemicube_tiles, ray_work_group
 from .host.memory import available_host_bytes
 from .device.devices import device_or_default
 from .progress import progress_bar
+from .geometry.scene import SURFACE_OFFSET
 
 __all__ = ["checked_samples", "form_factors", "hemicube_blocks", "hemicube_runs", "pixel_form_factors", "sample_points", "stack_blocks",
-           "CLUSTER_RESOLUTION", "SURFACE_OFFSET"]
+           "CLUSTER_RESOLUTION"]
 
-#: Hemicube centres sit this far off their patch, times the scene's bounding-box diagonal:
-#: far above float32 rounding of coordinates (about 6e-8 of them), far below any patch size.
-SURFACE_OFFSET = 1e-5
 
 #: Bytes of run buffers of the two blocks in flight (8 bytes per pixel slot); bounds memory for any N.
 BLOCK_BYTES = 128 * 2**20

@@ -90,7 +90,7 @@ class _Tracer:
             normals, up(float4(scene.albedo)), up(float4(scene.emission)),
             np.int32(len(em)), up(tri), up(float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
             up(cdf.astype(np.float32)), np.float32(inv_power),
-            np.int32(n_lights), up(packed), up(tables), up(pack_sky(lights)),
+            np.int32(n_lights), up(packed), up(tables), up(pack_sky(lights, scene.up)),
             np.float32(scene.frame.length(SHADOW_EPSILON * scene.ray_scale)),
             np.float32(scene.frame.length(2.0 * scene.scale)),  # directional shadow rays need only leave the scene
         )

@@ -39,8 +39,9 @@ def test_glb_round_trip_holds_the_smooth_vertex_radiosity(solved, tmp_path):
     scene, B = solved
     path = export_mesh(scene, B, tmp_path / "box.glb", exposure=-6.0)
     mesh = _load_one(path)
-    # Triangle i is patch i, at the scene's own coordinates (millimetres, not rescaled; glTF holds float32).
-    np.testing.assert_array_equal(mesh.vertices[mesh.faces], scene.vertices.astype(np.float32))
+    # Triangle i is patch i, in metres +y up (issue 41: glTF's convention; the box is in millimetres,
+    # y up, so scaled only; glTF holds float32).
+    np.testing.assert_allclose(mesh.vertices[mesh.faces], scene.vertices * scene.unit, rtol=1e-6, atol=1e-9)
     radiosity = np.asarray(mesh.vertex_attributes["_RADIOSITY"])
     # Every corner carries what smooth shading interpolates there, to float32 rounding.
     corners = Renderer(scene).corner_radiosity(B)

@@ -14,8 +14,8 @@ WEIGHTS = {"emission": 0.5, "lamp": (1.0, 0.5, 0.2), "spots": 2.0}
 def box(device):
     scene = pydynrad.scenes.cornell_box(max_edge=200.0)
     F = pydynrad.form_factors(scene, resolution=16, device=device)
-    lamp = PointLight((278, 450, 280), 4e4)
-    spot = SpotLight((100, 500, 100), (0.3, -1, 0.4), (3e4, 2e4, 1e4), 0.3, 0.6)
+    lamp = PointLight((278, 450, 280), 0.04)  # W/sr in the millimetre box, irradiance per m^2 (issue 41): what 1e6 times more had lit per mm^2
+    spot = SpotLight((100, 500, 100), (0.3, -1, 0.4), (0.03, 0.02, 0.01), 0.3, 0.6)
     sun = DirectionalLight((0.2, -0.3, 1.0), 0.02)  # through the open side
     groups = LightGroups(scene, {"lamp": [lamp], "spots": [spot, sun]}, device=device)
     return scene, F, groups, (lamp, spot, sun)

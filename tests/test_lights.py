@@ -112,16 +112,17 @@ def test_light_validation():
         light_vector(plate(n=2), ["sun"])
     spot = SpotLight((0, 0, 0), (0, 0, 3), 1.0, 0.1, 0.2)
     assert spot.direction == (0.0, 0.0, 1.0)
-    # A light whose intensity rounds to zero in float32 on the device (1e-42 W/sr over a
-    # millimetre box's 1/unit^2 = 1/1024^2 is below the smallest subnormal) would light
-    # nothing: refused, not a dark answer. Subnormal intensities light as they should.
+    # A light whose intensity rounds to zero in float32 on the device (1e-48 W/sr over the box's
+    # device unit squared, (1024 mm)^2 = 1.05 m^2 now that the box declares millimetres (issue
+    # 41), is below the smallest subnormal) would light nothing: refused, not a dark answer.
+    # Subnormal intensities light as they should.
     box = pydynrad.scenes.cornell_box(max_edge=250.0)
     with pytest.raises(pydynrad.InvalidInputError, match="underflows float32"):
-        light_vector(box, [PointLight((278, 540, 280), 1e-42)])
+        light_vector(box, [PointLight((278, 540, 280), 1e-48)])
     with pytest.raises(pydynrad.InvalidInputError, match="underflows float32"):
         light_vector(box, [DirectionalLight((0, -1, 0), (1e-46,) * 3)])
     faint, normal = (pydynrad.lights.direct_irradiance(box, [PointLight((278, 540, 280), I)]).astype(np.float64) / I
-                     for I in (1e-33, 1.0))
+                     for I in (1e-39, 1.0))
     lit = normal > 1e-3 * normal.max()
     np.testing.assert_allclose(faint[lit], normal[lit], rtol=1e-2)  # subnormal on the device: few bits
     light_vector(box, [DirectionalLight((0, -1, 0), (1.0, 1e-50, 1.0))])  # one negligible channel: fine

@@ -81,12 +81,11 @@ def test_obj_mtl_materials_per_face(tmp_path):
     np.testing.assert_allclose(scene.albedo, albedo, rtol=1e-6)
     np.testing.assert_allclose(scene.emission, emission, rtol=1e-6)
     assert len(scene.emitters) == 1
-    # source_face indexes the concatenation of the loaded geometries (scene-graph order).
-    loaded = trimesh.load(str(tmp_path / "scene.obj"), process=False)
-    faces = np.concatenate([trimesh.transform_points(loaded.geometry[g].vertices, t)[loaded.geometry[g].faces]
-                            for t, g in (loaded.graph[n] for n in loaded.graph.nodes_geometry)])
+    # source_face is the file's face order (its `f` lines), and the patches come in it (issue 41:
+    # it had followed trimesh's per-material geometries, not the file its name points to).
+    faces = np.array([VERTS[np.array(face) - 1] for face in FILE_FACES])
     np.testing.assert_allclose(scene.centers, faces[scene.source_face].mean(axis=1), atol=1e-6)
-    assert sorted(scene.source_face) == list(range(5))
+    assert list(scene.source_face) == list(range(5))
     # Per-material geometries repeat vertices; the scene merges them into one mesh.
     assert len(scene.points) == 7
 

@@ -95,8 +95,12 @@ def test_bad_skies_are_refused():
         SkyLight(16, zenith_luminance=1.0)
     # A sun below the horizon (a sunlight direction given for the direction towards the sun) is
     # outside CIE S 011 for the types it shapes; at the horizon it is not, and type 1 ignores it.
+    # (Issue 41: a sky without ``up`` takes the scene's up axis, so the horizon is known, and
+    # checked, when the sky is placed in a scene, or at once where ``up`` is given.)
     with pytest.raises(InvalidInputError, match="below the horizon"):
-        SkyLight(12, zenith_luminance=1.0, sun_direction=(0.3, 0.2, -1.0))
+        SkyLight(12, zenith_luminance=1.0, sun_direction=(0.3, 0.2, -1.0), up=(0, 0, 1))
+    with pytest.raises(InvalidInputError, match="below the horizon"):
+        SkyLight(12, zenith_luminance=1.0, sun_direction=(0.3, 0.2, -1.0)).placed((0, 0, 1))
     assert SkyLight(12, zenith_luminance=1.0, sun_direction=(1.0, 0.0, 0.0)).luminance([[0.0, 0.0, 1.0]])[0] == \
         pytest.approx(1.0, rel=1e-12)
     SkyLight(1, zenith_luminance=1.0, sun_direction=(0.3, 0.2, -1.0))

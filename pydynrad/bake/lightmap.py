@@ -39,6 +39,7 @@ from ..image_io import LINEAR_FORMATS, write_image
 from ..host.memory import available_host_bytes
 from ..smoothing import smooth_vertices
 from .files import write_checked
+from .files import write_pair
 from .vertex import checked_mesh_path, mesh_bytes, mesh_metadata
 from ..device.devices import default_device
 from ..device.launch import global_size
@@ -78,6 +79,9 @@ class Lightmap:
         The parameters it was baked with.
     scene_name, n_patches :
         The scene it was baked from, for the metadata of :meth:`write_mesh`.
+    scene_unit, scene_up :
+        Its metres per unit and up axis: :meth:`write_mesh` writes metres, +y up, as glTF
+        specifies (None: the scene's own coordinates).
     """
 
     image: np.ndarray
@@ -93,6 +97,8 @@ class Lightmap:
     crease_angle: float
     scene_name: str = "scene"
     n_patches: int = 0
+    scene_unit: float | None = None
+    scene_up: tuple | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -145,7 +151,8 @@ class Lightmap:
         vertex colours of :func:`export_mesh` are written instead."""
         path = checked_mesh_path(path, (".glb",))
         exposure = stops(exposure)
-        meta = mesh_metadata(self.scene_name, self.n_patches, exposure, self.crease_angle)
+        meta = mesh_metadata(self.scene_name, self.n_patches, exposure, self.crease_angle, unit=self.scene_unit,
+                             up=self.scene_up)
         h, w = self.shape
         meta["lightmap"] = {"image": image_name, "width": w, "height": h, "texels_per_unit": self.texels_per_unit,
                             "padding_texels": self.padding, "uv_set": "TEXCOORD_1 (TEXCOORD_0 holds the same)",
@@ -157,6 +164,23 @@ class Lightmap:
                                             "[0, 1], sRGB-encoded; no COLOR_0 (glTF would multiply it in)")
         data = mesh_bytes(path, self.positions, self.faces, self.vertex_radiosity, meta, uv=self.uv, texture=texture)
         return write_checked(path, data)
+
+    def write_pair(self, mesh_path, image_path, *, exposure: float = 0.0) -> tuple[Path, Path]:
+        """Write the mesh (:meth:`write_mesh`, naming the image) and the image (:meth:`write`)
+        as one pair: both whole to temporary names first, then the image renamed into place and
+        the mesh last (:func:`pydynrad.bake.files.write_pair`), so a mesh never stands beside an
+        image that is not its own, even when the process is killed; an exposure the mesh's 8-bit
+        image refuses, or a full disk, leaves the old pair as it was. Temporaries killed writers
+        of these names left are removed. Returns (mesh path, image path)."""
+        image_path = Path(image_path)
+        if image_path.suffix.lower() not in LINEAR_FORMATS:
+            raise InvalidInputError(f"a lightmap holds linear radiosity: write it as {', '.join(LINEAR_FORMATS)}, "
+                                    f"not {str(image_path)!r}")
+        mesh_path = checked_mesh_path(mesh_path, (".glb",))
+        exposure = stops(exposure)
+        image, mesh = write_pair(image_path, self.write, mesh_path,
+                                 lambda tmp: self.write_mesh(tmp, exposure=exposure, image_name=image_path.name))
+        return mesh, image
 
     def _png(self, exposure: float) -> bytes:
         """The image as an exposed, sRGB-encoded 8-bit PNG file's bytes."""
@@ -356,4 +380,5 @@ def bake_lightmap(scene, radiosity, texels_per_unit: float, *, padding: int = 2,
     _dilate(image, filled, int(padding))
     return Lightmap(image=image, covered=covered, filled=filled, uv=uv, faces=faces, vertex=vmapping,
                     vertex_radiosity=vertex_values, positions=smooth.positions[vmapping], texels_per_unit=tpu,
-                    padding=int(padding), crease_angle=float(crease_angle), scene_name=scene.name, n_patches=len(scene))
+                    padding=int(padding), crease_angle=float(crease_angle), scene_name=scene.name, n_patches=len(scene),
+                    scene_unit=float(scene.unit), scene_up=tuple(float(x) for x in scene.up))

@@ -35,6 +35,7 @@ from ..smoothing import smooth_vertices
 from .files import write_checked
 from .gltf import glb_bytes
 from .ply import ply_bytes
+from ..geometry.scene import rotation_to
 
 __all__ = ["export_mesh", "MESH_FORMATS"]
 
@@ -51,19 +52,35 @@ def checked_mesh_path(path, formats: tuple[str, ...] = MESH_FORMATS) -> Path:
     return check_file_target(path)
 
 
-def mesh_metadata(scene_name: str, n_patches: int, exposure: float, crease_angle: float) -> dict:
-    """What a baked file's values mean, for its metadata."""
+def mesh_metadata(scene_name: str, n_patches: int, exposure: float, crease_angle: float, unit: float | None = None,
+                  up=None) -> dict:
+    """What a baked file's values mean, for its metadata. With ``unit`` (metres per scene unit)
+    and ``up`` (the scene's up axis) :func:`mesh_bytes` writes positions in metres, +y up (glTF's
+    convention); without them, in the scene's own coordinates."""
+    frame = {"length_unit": "the scene's own unit (not rescaled to metres)"}
+    if unit is not None and up is not None:
+        frame = {"length_unit": "metres, +y up (the scene's coordinates scaled and rotated on write)",
+                 "scene_unit_metres": float(unit), "scene_up": [float(x) for x in up]}
     return {
         "scene": scene_name,
         "patches": n_patches,
         "triangles": "triangle i is patch i of the scene",
-        "length_unit": "the scene's own unit (not rescaled to metres)",
+        **frame,
         "radiosity": ("linear radiosity (radiant exitance, the unit of the scene's emission); "
                       "radiance is radiosity / pi"),
         "exposure": exposure,
         "display_encoding": "radiosity * 2**exposure, clipped to [0, 1]; 8-bit values are sRGB-encoded (IEC 61966-2-1)",
         "crease_angle_degrees": crease_angle,
     }
+
+
+def to_metres_y_up(positions, unit: float, up) -> np.ndarray:
+    """(V, 3) float32 ``positions`` of a scene of ``unit`` metres per unit and up axis ``up`` in
+    metres, +y up: the smallest rotation taking ``up`` to +y (a rotation: windings and normals
+    keep their sides), then the scale."""
+    p = np.asarray(positions, np.float64)
+    r = rotation_to(up, (0.0, 1.0, 0.0))
+    return ((p @ r.T) * float(unit)).astype(np.float32)
 
 
 def display_values(radiosity: np.ndarray, exposure: float) -> np.ndarray:
@@ -76,6 +93,8 @@ def mesh_bytes(path: Path, positions, faces, radiosity, meta: dict, uv=None, tex
     and, for GLB, lightmap coordinates ``uv`` (V, 2) as ``TEXCOORD_0`` and ``TEXCOORD_1``, and
     a PNG ``texture`` seen through ``TEXCOORD_1`` in place of the vertex colours."""
     shown = display_values(radiosity, meta["exposure"])
+    if "scene_unit_metres" in meta:
+        positions = to_metres_y_up(positions, meta["scene_unit_metres"], meta["scene_up"])
     if path.suffix.lower() == ".glb":
         attributes = {"POSITION": positions, "_RADIOSITY": radiosity}
         if texture is None:  # glTF multiplies COLOR_0 into the base colour texture: one or the other
@@ -123,5 +142,5 @@ def export_mesh(scene, radiosity, path, *, exposure: float = 0.0, crease_angle: 
     exposure = stops(exposure)
     smooth = smooth_vertices(scene, crease_angle)
     values = smooth.radiosity(radiosity)
-    meta = mesh_metadata(scene.name, len(scene), exposure, float(crease_angle))
+    meta = mesh_metadata(scene.name, len(scene), exposure, float(crease_angle), unit=scene.unit, up=scene.up)
     return write_checked(path, mesh_bytes(path, smooth.positions, smooth.corner_vertex, values, meta))

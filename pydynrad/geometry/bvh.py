@@ -19,6 +19,7 @@ from .. import _bvh, _raybatch
 from ..checks import finite
 from ..errors import InvalidInputError
 from ..device.launch import bvh_packet, global_size, ray_work_group
+from ..device.devices import default_device
 
 __all__ = ["BVH", "InstancedBVH", "cast_rays", "occluded"]
 
@@ -61,7 +62,7 @@ class BVH:
         4-wide nodes, root first: ``minx[4], maxx[4], miny[4], maxy[4], minz[4], maxz[4]``
         (the children's boxes), ``child[4]`` (int32 bit-cast, see :attr:`children`), 4 floats
         of padding. A child reference > 0 is a node, 0 an empty slot (inverted box), < 0 a
-        leaf (:func:`leaf_ranges`).
+        leaf (``leaf_ranges``).
     order : (N,) int32
         Patch index of each triangle in BVH order.
     tris : (N, 12) float32
@@ -307,8 +308,6 @@ def _rays(origins, directions, tmax, frame=None, first: int = 0) -> tuple[np.nda
 
 def _resolve(scene_or_bvh, device):
     """(bvh, device, frame): a Scene's BVH lives in the scene's DeviceFrame, a bare BVH in the rays' own."""
-    from ..device.devices import default_device
-
     traced = (BVH, InstancedBVH)
     bvh = scene_or_bvh if isinstance(scene_or_bvh, traced) else getattr(scene_or_bvh, "bvh", None)
     if not isinstance(bvh, traced):

@@ -36,7 +36,7 @@ def _triangle_areas(corners: np.ndarray) -> np.ndarray:
 
 
 def solid_planes(points: np.ndarray, triangles: np.ndarray) -> np.ndarray | None:
-    """(k, 4) float64 rows (n, d), |n| = 1, of the solid ``n . x <= d`` (all k at once) whose
+    """(k, 4) float64 rows (n, d), ``|n| = 1``, of the solid ``dot(n, x) <= d`` (all k at once) whose
     whole boundary the triangles are (module docstring), in the points' own coordinates; None
     where they are not the boundary of one convex solid of at most :data:`MAX_PLANES` faces.
 

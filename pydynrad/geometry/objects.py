@@ -21,7 +21,15 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..formfactors import SURFACE_OFFSET
+from .scene import SURFACE_OFFSET
+from .bvh import BVH
+from .bvh import InstancedBVH
+from .bvh import occluded
+from .convex import solid_planes
+from .loading import load
+from .scene import Scene
+from .scene import patch_geometry
+from ..checks import floats
 
 __all__ = ["RigidObject", "ObjectIntersectionWarning", "rigid_transform", "with_objects", "instanced"]
 
@@ -51,8 +59,6 @@ def rigid_transform(value, what: str = "transform") -> np.ndarray:
     mirrors (radiosity would need new form factors for a deformed object, and a mirror turns
     its patches inside out).
     """
-    from ..checks import floats
-
     T = floats(value, what)
     if T.shape != (4, 4):
         raise InvalidInputError(f"{what} must be a (4, 4) matrix; got shape {T.shape}")
@@ -93,15 +99,11 @@ class RigidObject:
     """
 
     def __init__(self, mesh_or_scene, transform=None, name: str | None = None, **load_kw) -> None:
-        from .scene import Scene
-
         if isinstance(mesh_or_scene, Scene):
             if load_kw:
                 raise InvalidInputError(f"load options {sorted(load_kw)} apply to a mesh or path, not to a Scene")
             scene = mesh_or_scene
         else:
-            from .loading import load
-
             scene = load(mesh_or_scene, **load_kw)
         self.scene = scene
         self.name = str(name if name is not None else scene.name)
@@ -123,8 +125,6 @@ class RigidObject:
         """(BVH, origin): the object-space tree over ``(v - origin) / unit`` (origin: the centre
         of the object's bounds), built once per ``unit`` (a world's device frame): moving never
         rebuilds it."""
-        from .bvh import BVH
-
         cache = self.__dict__.setdefault("_device_bvhs", {})
         if unit not in cache:
             origin = self._bound_object[0]
@@ -142,8 +142,6 @@ class RigidObject:
         is the whole boundary of one convex solid of few faces (a box), else None
         (:func:`pydynrad.geometry.convex.solid_planes`): a move then finds the segments it hides by
         clipping them, without tracing them."""
-        from .convex import solid_planes
-
         return solid_planes(self.scene.points, self.scene.triangles)
 
     @cached_property
@@ -216,8 +214,6 @@ def _combined(scene, objs: list[RigidObject], transforms=None):
     points at the pose as a Scene would compute them (:func:`pydynrad.geometry.scene.patch_geometry`).
     Its rays leave their surfaces by the static scene's :attr:`~pydynrad.geometry.scene.Scene.ray_scale`,
     wherever the objects are."""
-    from .scene import Scene, patch_geometry
-
     transforms = [o.transform for o in objs] if transforms is None else transforms
     for o, T in zip(objs, transforms):  # a reference the device cannot resolve is no reference
         check_reach(scene, o, T)
@@ -240,6 +236,7 @@ def _combined(scene, objs: list[RigidObject], transforms=None):
                            name="+".join([scene.name] + [o.name for o in objs]),
                            bbox=np.stack([corners[:, 0].min(axis=0), corners[:, 1].max(axis=0)]))
     out.__dict__["_ray_scale"] = scene.ray_scale  # the static patches' rays as in the static scene
+    out.unit, out.up = scene.unit, scene.up  # the static scene's unit and up axis
     return out
 
 
@@ -268,8 +265,6 @@ def _warn_intersections(scene, objs: list[RigidObject], transforms) -> None:
     """Warn when an object's edges cross static triangles (checked by rays, once per pose, where
     a static triangle's box comes within the object's bounding sphere: elsewhere its edges can
     cross none, and a move of the bench's block skips the device's round trip)."""
-    from .bvh import occluded
-
     lo, hi = scene.triangle_boxes
     for o, T in zip(objs, transforms):
         c, r = o.bounding_sphere(T)
@@ -304,8 +299,6 @@ def instanced(scene, objects, transforms=None, bvh=None):
     in place, so an earlier view's BVH moves with it), else a new one. Warns
     :class:`ObjectIntersectionWarning` when an object cuts through the static scene.
     """
-    from .bvh import InstancedBVH
-
     objs = _objects(objects)
     transforms = [o.transform for o in objs] if transforms is None else [rigid_transform(t) for t in transforms]
     out = _combined(scene, objs, transforms)  # reach checked first: a far object breaks the test's rays

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InvalidInputError
+from .scene import Scene
 
 __all__ = ["subdivide", "subdivide_scene"]
 
@@ -151,8 +152,9 @@ def subdivide(points, triangles, max_area: float | None = None, max_edge: float 
 def subdivide_scene(scene, max_area: float | None = None, max_edge: float | None = None):
     """``scene`` with its patches split by :func:`subdivide`: every child keeps its parent's
     albedo, emission and source face, so materials and file faces stay as they were."""
-    from .scene import Scene
-
     points, triangles, parent = subdivide(scene.points, scene.triangles, max_area=max_area, max_edge=max_edge)
-    return Scene(points, triangles, albedo=scene.albedo[parent], emission=scene.emission[parent],
-                 source_face=scene.source_face[parent], name=scene.name)
+    out = Scene(points, triangles, albedo=scene.albedo[parent], emission=scene.emission[parent],
+                source_face=scene.source_face[parent], name=scene.name, unit=scene.unit, up=scene.up)
+    if scene.materials is not None:
+        out.materials = scene.materials.take(parent)
+    return out

@@ -29,6 +29,7 @@ from ..checks import floats
 from ..errors import InvalidInputError
 from ..device.launch import float4
 from .bvh import BVH
+from .materials import scene_summary
 
 __all__ = ["Scene", "DegenerateTriangleWarning", "DeviceFrame", "PrecisionWarning"]
 
@@ -216,6 +217,9 @@ def _checked_emission(value, n: int) -> np.ndarray:
 class Scene:
     """N triangular patches with materials.
 
+    Zero-area triangles are dropped with a :class:`~pydynrad.geometry.DegenerateTriangleWarning`
+    that counts them; everything else invalid raises :class:`~pydynrad.errors.InvalidInputError`.
+
     Parameters
     ----------
     points : (V, 3) float
@@ -237,9 +241,6 @@ class Scene:
         The scene's up axis ("+y", "+z", ... or a vector); ``Scene.up`` is the unit vector. +z
         by default for a scene made from arrays (what skies and work planes assumed before
         scenes knew their up axis); :func:`~pydynrad.load` and the built-in scenes declare theirs.
-
-    Zero-area triangles are dropped with a :class:`DegenerateTriangleWarning` that counts
-    them; everything else invalid raises :class:`~pydynrad.errors.InvalidInputError`.
     """
 
     #: Defaults for scenes assembled without the constructor (see :meth:`_assembled`).
@@ -369,7 +370,7 @@ class Scene:
     @property
     def ray_scale(self) -> float:
         """The length that rays' offsets from their surfaces are fractions of: :attr:`scale`, or
-        for a scene with moving objects (:meth:`with_objects`) the static scene's, whose device
+        for a scene with moving objects (:func:`~pydynrad.geometry.objects.with_objects`) the static scene's, whose device
         frame every position is in (an object moved away must not lift every static patch's
         rays off its surface: at 1e5 mm from the bench's box, 1 mm, 0.4% off the rows' sums)."""
         return self.__dict__.get("_ray_scale", self.scale)
@@ -382,7 +383,7 @@ class Scene:
     # -- derived structures ----------------------------------------------------------------
     @cached_property
     def frame(self) -> DeviceFrame:
-        """The device frame (:class:`DeviceFrame`): every upload of positions goes through it."""
+        """The device frame (:class:`~pydynrad.geometry.scene.DeviceFrame`): every upload of positions goes through it."""
         return DeviceFrame(*self.bbox, metres=self.unit, up=self.up)
 
     @cached_property
@@ -440,8 +441,6 @@ class Scene:
     def summary(self) -> str:
         """What was read: size, unit and up axis, and per material (for a loaded scene) the patch
         count, mean albedo and emission, the textures used and what was clamped or ignored."""
-        from .materials import scene_summary
-
         return scene_summary(self)
 
     def __repr__(self) -> str:
@@ -455,3 +454,8 @@ def checked_scene(value, what: str = "scene") -> Scene:
         hint = " (the scene comes first, then the path)" if isinstance(value, (str, os.PathLike)) else ""
         raise InvalidInputError(f"{what} must be a pydynrad.Scene; got {type(value).__name__}{hint}")
     return value
+
+
+#: Hemicube centres sit this far off their patch, times the scene's bounding-box diagonal:
+#: far above float32 rounding of coordinates (about 6e-8 of them), far below any patch size.
+SURFACE_OFFSET = 1e-5

@@ -1,7 +1,7 @@
 """Irradiance gathered by hemicubes at arbitrary points (``kernels/gather.cl``).
 
 One hemicube per point, laid out and weighted exactly as the form-factor rows are
-(``kernels/hemicube.h``, :func:`pydynrad.formfactors.pixel_form_factors`): each pixel's ray
+(``kernels/hemicube.h``, ``pydynrad.formfactors.pixel_form_factors``): each pixel's ray
 adds its delta form factor times the radiosity of the patch it meets from the front, or pi
 times the sky's luminance when it leaves the scene. Points are processed in blocks, so memory
 stays bounded whatever their number. At a patch centre with the patch's own key and index,
@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..checks import resolution as checked_resolution
-from ..formfactors import SURFACE_OFFSET, pixel_form_factors
+from ..formfactors import pixel_form_factors
+from ..geometry.scene import SURFACE_OFFSET
 from ..device.launch import bvh_packet, float4, global_size
 from ..device.devices import default_device
 

@@ -139,26 +139,44 @@ class LuminaireLight:
     Parameters
     ----------
     position : (3,)
-        Scene units (metres for photometric results).
+        Scene units (the light's irradiance is per square metre in a scene of any unit: the
+        scene's ``unit`` converts).
     distribution : PhotometricDistribution
         Intensities in cd.
-    nadir : (3,)
-        Direction of gamma = 0 (normalised here): straight down, (0, 0, -1), for a ceiling
-        luminaire in a z-up scene.
+    nadir : (3,), optional
+        Direction of gamma = 0 (normalised here); by default straight down in the scene it
+        lights (``-scene.up``: a ceiling luminaire). Host-side methods of a luminaire not yet
+        placed in a scene (:meth:`placed`) take (0, 0, -1).
     c0 : (3,)
         Direction of the C = 0 half-plane (made perpendicular to ``nadir`` here); C = 90 lies
-        along ``-nadir x c0``, as in the C-gamma system seen from above.
+        along ``-nadir x c0``, as in the C-gamma system seen from above. Where it is parallel to
+        a default nadir, +z (for a nadir along x) is used instead.
     scale : float or (3,)
         RGB factor on the intensities (1: the table's candela in every channel).
     """
 
     position: tuple
     distribution: PhotometricDistribution
-    nadir: tuple = (0.0, 0.0, -1.0)
+    nadir: tuple | None = None
     c0: tuple = (1.0, 0.0, 0.0)
     scale: tuple = (1.0, 1.0, 1.0)
 
+    def placed(self, up) -> "LuminaireLight":
+        """This luminaire in a scene whose up axis is ``up``: itself where its nadir is given,
+        else a copy pointing down ``-up``."""
+        if self._given_nadir:
+            return self
+        nadir = -unit_vector(up, "up")
+        c0 = np.asarray(self._given_c0, np.float64)
+        if np.linalg.norm(c0 - nadir * float(c0 @ nadir)) < 1e-6 * np.linalg.norm(c0):
+            c0 = np.array([0.0, 0.0, 1.0])
+        return LuminaireLight(self.position, self.distribution, tuple(nadir), tuple(c0), self.scale)
+
     def __post_init__(self) -> None:
+        object.__setattr__(self, "_given_nadir", self.nadir is not None)
+        object.__setattr__(self, "_given_c0", tuple(np.asarray(self.c0, np.float64).ravel()) if np.size(self.c0) == 3 else self.c0)
+        if self.nadir is None:
+            object.__setattr__(self, "nadir", (0.0, 0.0, -1.0))
 
         if not isinstance(self.distribution, PhotometricDistribution):
             raise InvalidInputError("LuminaireLight.distribution must be a PhotometricDistribution "

@@ -21,7 +21,13 @@ Sky models (``kind``):
   (the CIE standard clear sky, low turbidity). Types with a sun-dependent indicatrix need
   ``sun_direction``.
 
-Units: luminance in cd/m2, illuminance in lux (see docs/design.md, 'Units and photometry').
+The sky's zenith is the scene's up axis (:attr:`pydynrad.Scene.up`) unless ``up`` is given:
+a sky is placed in a scene when it lights it. A sky that lights no patch at all (its zenith
+pointing into the floor, say) is warned about with :class:`SkyOrientationWarning`, which says
+why. :func:`sun_direction` turns a solar elevation and azimuth into a direction in a scene of
+any up axis.
+
+Units: luminance in cd/m2, illuminance in lux (see docs/guide/units.md).
 """
 
 from __future__ import annotations
@@ -34,8 +40,37 @@ import numpy as np
 
 from ..checks import integer, number, resolution as checked_resolution, unit_vector
 from ..errors import InvalidInputError
+from ..geometry.scene import rotation_to
+from ..geometry.scene import up_vector
 
-__all__ = ["SkyLight", "CIE_GENERAL_SKIES", "pack_sky"]
+__all__ = ["SkyLight", "CIE_GENERAL_SKIES", "pack_sky", "sun_direction", "north_east", "SkyOrientationWarning"]
+
+
+class SkyOrientationWarning(UserWarning):
+    """A sky adds nothing to a scene, or its zenith disagrees with the scene's up axis."""
+
+
+def north_east(up=(0.0, 1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Unit (north, east) directions on the horizon of a scene whose up axis is ``up``: for +y up
+    (glTF) north is -z and east +x; for +z up north is +y and east +x; for any other up, those of
+    +y carried by the smallest rotation from +y to ``up``."""
+    r = rotation_to((0.0, 1.0, 0.0), up)  # accepts "+y", "-z", ... or a vector
+    return r @ np.array([0.0, 0.0, -1.0]), r @ np.array([1.0, 0.0, 0.0])
+
+
+def sun_direction(elevation: float, azimuth: float, up=(0.0, 1.0, 0.0)) -> tuple:
+    """Unit vector towards the sun at ``elevation`` degrees above the horizon and ``azimuth``
+    degrees clockwise from north (90 = east) seen from above, in a scene whose up axis is ``up``
+    (``scene.up``; north and east as :func:`north_east` gives them). A
+    :class:`~pydynrad.DirectionalLight` for that sun travels the opposite way."""
+    el, az = math.radians(number(elevation, "elevation")), math.radians(number(azimuth, "azimuth"))
+    if not -90.0 <= math.degrees(el) <= 90.0:
+        raise InvalidInputError(f"elevation must lie in -90..90 degrees; got {elevation!r}")
+
+    north, east = north_east(up)
+    u = up_vector(up)
+    d = math.cos(el) * (math.cos(az) * north + math.sin(az) * east) + math.sin(el) * u
+    return tuple(map(float, d / np.linalg.norm(d)))
 
 _GRADATION = {1: (4.0, -0.70), 2: (1.1, -0.8), 3: (0.0, -1.0), 4: (-1.0, -0.55), 5: (-1.0, -0.32),
               6: (-1.0, -0.15)}
@@ -66,8 +101,10 @@ class SkyLight:
     sun_direction : (3,), optional
         Unit vector towards the sun (normalised here); needed by types whose indicatrix
         depends on the sun (c or e non-zero), ignored otherwise.
-    up : (3,)
-        The zenith in scene coordinates (normalised here), +z by default.
+    up : (3,), optional
+        The zenith in scene coordinates (normalised here); by default the up axis of the scene
+        the sky lights (:attr:`pydynrad.Scene.up`). Host-side methods of a sky not yet placed
+        in a scene (:meth:`placed`) take +z.
     ground_reflectance : float
         Reflectance of the ground below the horizon, in [0, 1).
     resolution : int
@@ -78,7 +115,7 @@ class SkyLight:
     zenith_luminance: float | None = None
     horizontal_illuminance: float | None = None
     sun_direction: tuple | None = None
-    up: tuple = (0.0, 0.0, 1.0)
+    up: tuple | None = None
     ground_reflectance: float = 0.0
     resolution: int = 64
 
@@ -92,19 +129,19 @@ class SkyLight:
             raise InvalidInputError(f"sky kind must be 'uniform', 'cie_overcast', 'overcast', 'clear' or 1..15; "
                                     f"got {self.kind!r}")
         object.__setattr__(self, "kind", kind)
-        object.__setattr__(self, "up", tuple(map(float, unit_vector(self.up, "SkyLight.up"))))
+        if self.up is not None:
+            object.__setattr__(self, "up", tuple(map(float, unit_vector(self.up, "SkyLight.up"))))
         needs_sun = isinstance(kind, int) and (CIE_GENERAL_SKIES[kind][2] != 0 or CIE_GENERAL_SKIES[kind][4] != 0)
         if self.sun_direction is None:
             if needs_sun:
                 raise InvalidInputError(f"CIE sky type {kind} depends on the sun's position: give sun_direction")
-            object.__setattr__(self, "sun_direction", self.up)
         else:
             object.__setattr__(self, "sun_direction",
                                tuple(map(float, unit_vector(self.sun_direction, "SkyLight.sun_direction"))))
             # CIE S 011 defines the sky for a sun at or above the horizon (Z_s <= 90 degrees); below
             # it, the formulas give a sky of its own, and the likely cause is a direction given
             # as the sunlight's way down (a DirectionalLight's) rather than towards the sun.
-            if needs_sun and float(np.dot(self.up, self.sun_direction)) < 0.0:
+            if needs_sun and self.up is not None and float(np.dot(self.up, self.sun_direction)) < 0.0:
                 raise InvalidInputError(
                     f"SkyLight.sun_direction {self.sun_direction} is below the horizon (up {self.up}): CIE sky "
                     f"type {kind} is defined for a sun at or above it; give the direction towards the sun (a "
@@ -126,6 +163,25 @@ class SkyLight:
         object.__setattr__(self, "ground_reflectance", rho)
         object.__setattr__(self, "resolution", checked_resolution(self.resolution, "SkyLight.resolution"))
 
+    # -- placing the sky in a scene -------------------------------------------------------------------
+    @property
+    def zenith_direction(self) -> tuple:
+        """The zenith used on the host: ``up``, or +z for a sky not placed in a scene."""
+        return self.up if self.up is not None else (0.0, 0.0, 1.0)
+
+    @property
+    def _sun(self) -> tuple:
+        return self.sun_direction if self.sun_direction is not None else self.zenith_direction
+
+    def placed(self, up) -> "SkyLight":
+        """This sky in a scene whose up axis is ``up``: itself where its own ``up`` is given,
+        else a copy with that zenith."""
+        if self.up is not None:
+            return self
+        from dataclasses import replace
+
+        return replace(self, up=tuple(map(float, unit_vector(up, "up"))))
+
     # -- the luminance distribution, in float64 on the host ------------------------------------------
     def _parameters(self) -> tuple[float, float, float, float, float]:
         if self.kind == "uniform":
@@ -137,21 +193,21 @@ class SkyLight:
     def _norm(self) -> float:
         """1 / (f(Z_s) phi(0)): the general sky's zenith normalisation."""
         a, b, c, d, e = self._parameters()
-        chi = math.acos(max(-1.0, min(1.0, float(np.dot(self.up, self.sun_direction)))))
+        chi = math.acos(max(-1.0, min(1.0, float(np.dot(self.zenith_direction, self._sun)))))
         f = 1.0 + c * (math.exp(d * chi) - math.exp(d * math.pi / 2)) + e * math.cos(chi) ** 2
         return 1.0 / (f * (1.0 + a * math.exp(b)))
 
     def relative_luminance(self, directions) -> np.ndarray:
         """L / L_z of the sky along unit ``directions`` (..., 3); 0 below the horizon (no ground)."""
         w = np.asarray(directions, dtype=np.float64)
-        cz = w @ np.asarray(self.up)
+        cz = w @ np.asarray(self.zenith_direction)
         above = cz > 0
         czs = np.where(above, cz, 1.0)
         if self.kind == "cie_overcast":
             rel = (1.0 + 2.0 * czs) / 3.0
         else:
             a, b, c, d, e = self._parameters()
-            cchi = np.clip(w @ np.asarray(self.sun_direction), -1.0, 1.0)
+            cchi = np.clip(w @ np.asarray(self._sun), -1.0, 1.0)
             f = 1.0 + c * (np.exp(d * np.arccos(cchi)) - math.exp(d * math.pi / 2)) + e * cchi**2
             rel = f * (1.0 + a * np.exp(b / czs)) * self._norm()
         return np.where(above, rel, 0.0)
@@ -175,7 +231,7 @@ class SkyLight:
     def _quadrature(self, n: int) -> float:
         if self.kind == "uniform":
             return math.pi
-        up = np.asarray(self.up)
+        up = np.asarray(self.zenith_direction)
         helper = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
         t = np.cross(up, helper)
         t /= np.linalg.norm(t)
@@ -209,25 +265,27 @@ class SkyLight:
     def luminance(self, directions) -> np.ndarray:
         """Luminance (cd/m2) along unit ``directions`` (..., 3), the ground's below the horizon."""
         w = np.asarray(directions, dtype=np.float64)
-        above = w @ np.asarray(self.up) > 0
+        above = w @ np.asarray(self.zenith_direction) > 0
         return np.where(above, self.zenith * self.relative_luminance(w), self.ground_luminance)
 
     def _packed(self) -> np.ndarray:
         mode = 2.0 if self.kind == "cie_overcast" else 1.0
         a, b, c, d, e = (0.0,) * 5 if self.kind == "cie_overcast" else self._parameters()
         norm = 0.0 if self.kind == "cie_overcast" else self._norm()
-        return np.array([*self.up, mode, *self.sun_direction, self.zenith, a, b, c, d,
+        return np.array([*self.zenith_direction, mode, *self._sun, self.zenith, a, b, c, d,
                          e, norm, self.ground_luminance, 0.0], dtype=np.float32)
 
 
-def pack_sky(lights) -> np.ndarray:
+def pack_sky(lights, up=None) -> np.ndarray:
     """(4, 4) float32: the sky among ``lights`` in ``kernels/sky.h``'s packing (mode 0: none).
 
-    ``lights`` is a checked sequence of light objects; more than one sky is an error.
+    ``lights`` is a checked sequence of light objects; more than one sky is an error. ``up``:
+    the scene's up axis (``scene.up``), the zenith of a sky that gives none (+z without it).
     """
     skies = [light for light in lights if isinstance(light, SkyLight)]
     if len(skies) > 1:
         raise InvalidInputError(f"at most one SkyLight per call; got {len(skies)}")
     if not skies:
         return np.zeros((4, 4), dtype=np.float32)
-    return skies[0]._packed().reshape(4, 4)
+    sky = skies[0] if up is None else skies[0].placed(up)
+    return sky._packed().reshape(4, 4)

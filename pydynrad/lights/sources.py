@@ -13,9 +13,10 @@ Every function that takes lights names them the same way: ``lights=`` for light 
 (the emission is always included), ``light=`` for a precomputed light vector L (N, 3).
 
 Units: positions in scene units; a point or spot light's intensity in W/sr, or cd
-photometrically (irradiance falls off as intensity * cos(theta) / d^2: lux with metres); a
-directional light's irradiance in W/unit^2 (lux) on a surface facing it; see docs/design.md,
-'Units and photometry'. Only the front side of a patch (its normal's side) receives light.
+photometrically; irradiance falls off as intensity * cos(theta) / (d * unit)^2, with
+``unit = scene.unit`` the scene's metres per unit, so it is per square metre (lux) in a scene
+of any unit; a directional light's irradiance in W/m^2 (lux) on a surface facing it; see
+docs/guide/units.md. Only the front side of a patch (its normal's side) receives light.
 A :class:`~pydynrad.lights.SkyLight` is accepted wherever lights are: its direct light
 comes from a hemicube per patch (sky visibility), not from shadow rays.
 
@@ -36,6 +37,10 @@ from ..device.launch import WG, float4, global_size
 from .gather import gather_irradiance
 from .luminaires import LuminaireLight
 from .sky import SkyLight, pack_sky
+from .sky import SkyOrientationWarning
+from ..checks import ROW_SUM_SLACK
+from ..device.devices import default_device
+from ..geometry.scene import SURFACE_OFFSET
 
 __all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "point_irradiance", "light_vector",
            "pack_lights", "pack_light_tables", "pack_lights_and_tables", "checked_lights", "checked_light_vector",
@@ -148,9 +153,10 @@ def pack_lights(lights, frame=None) -> np.ndarray:
     points into :func:`pack_light_tables` (a sky is packed apart, by
     :func:`pydynrad.lights.sky.pack_sky`). Raises InvalidInputError for anything that is
     not a light. With ``frame`` (a :class:`pydynrad.geometry.scene.DeviceFrame`) positions are moved
-    into it and the intensities (a luminaire's: its scale on the table) divided by its unit
-    squared, so that the kernels' I / r^2 over device distances gives the irradiance of the
-    user's frame.
+    into it and the intensities (a luminaire's: its scale on the table) divided by the square of
+    its unit in metres (its unit times the scene's metres per unit), so that the kernels'
+    I / r^2 over device distances gives the irradiance per square metre; a luminaire without
+    a nadir points down the frame's up axis.
     """
     return pack_lights_and_tables(lights, frame)[0]
 
@@ -170,10 +176,12 @@ def _packed(lights: list, frame=None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`pack_lights` and :func:`pack_light_tables` of checked ``lights``, in one pass."""
     luminaire = _photometric_types()[0]
     packed, tables, offset = [], [], 0
+    up = getattr(frame, "up", None)
     for light in lights:
         if isinstance(light, LIGHT_TYPES):
             packed.append(light._packed())
         elif isinstance(light, luminaire):
+            light = light.placed(up if up is not None else (0.0, 0.0, 1.0))
             packed.append(light._packed(offset))
             tables.append(light._table())
             offset += len(tables[-1])
@@ -181,7 +189,7 @@ def _packed(lights: list, frame=None) -> tuple[np.ndarray, np.ndarray]:
     if frame is not None:
         positional = packed[:, 3] != 2.0  # every light but the directional (type 2) has a position
         packed[positional, :3] = frame.points(packed[positional, :3])
-        packed[positional, 8:11] /= frame.unit**2
+        packed[positional, 8:11] /= (frame.unit * getattr(frame, "metres", 1.0)) ** 2
     with np.errstate(over="ignore"):
         out = packed.astype(np.float32)
     if not np.all(np.isfinite(out)):
@@ -223,8 +231,6 @@ def _point_irradiance(scene, points, normals, lights: list, device, patches=None
     (so that work queued after them does not delay them)."""
     import pyopencl as cl
 
-    from ..device.devices import default_device
-
     if patches is not None and points is not None:
         raise InvalidInputError("_point_irradiance takes sensor points or patches, not both")
     packed, tables = _packed(lights, scene.frame)
@@ -243,7 +249,6 @@ def _point_irradiance(scene, points, normals, lights: list, device, patches=None
         # A sensor is a point, not a patch of the mesh: its shadow rays leave it by the offset of
         # the sky's gather at it (a sensor 1 cm under a desk in a 141 m scene had been lifted
         # above the desk by 1e-4 of the diagonal, and lit).
-        from ..formfactors import SURFACE_OFFSET
 
         offset = SURFACE_OFFSET
         p = np.asarray(points, np.float64)
@@ -291,14 +296,36 @@ def _direct_irradiance(scene, lights: list, device) -> np.ndarray:
     if skies:
 
         ids = np.arange(len(scene))
-        E = E + gather_irradiance(scene, None, None, sky=pack_sky(lights), resolution=skies[0].resolution,
-                                  keys=ids, own=ids, device=device)
+        sky_light = gather_irradiance(scene, None, None, sky=pack_sky(lights, scene.up), resolution=skies[0].resolution,
+                                      keys=ids, own=ids, device=device)
+        check_sky_orientation(scene, skies[0], sky_light)
+        E = E + sky_light
     with np.errstate(over="ignore"):
         E = np.asarray(E, dtype=np.float32)
     if not np.all(np.isfinite(E)):
         raise InvalidInputError("the direct irradiance overflows float32 (above 3.4e38 at some patch): the lights "
                                 "are too strong for float32; scale the light intensities (and emission) down")
     return E
+
+
+def check_sky_orientation(scene, sky: SkyLight, lit) -> None:
+    """Warn (:class:`~pydynrad.lights.sky.SkyOrientationWarning`) where ``sky`` lights no patch of
+    ``scene`` (``lit``: the sky's irradiance at the patches) or its own ``up`` points away from
+    the scene's: a sky adding nothing is almost always a zenith pointing into the floor."""
+    import warnings
+
+    zenith = np.asarray(sky.placed(scene.up).up)
+    agree = float(zenith @ np.asarray(scene.up, np.float64))
+    if sky.up is not None and agree < 0.5:
+        warnings.warn(f"the sky's zenith {tuple(round(float(x), 4) for x in zenith)} is {np.degrees(np.arccos(np.clip(agree, -1, 1))):.0f} "
+                      f"degrees from the scene's up axis {tuple(round(float(x), 4) for x in scene.up)}: leave SkyLight.up "
+                      "out to use the scene's", SkyOrientationWarning, stacklevel=4)
+    if sky.horizontal > 0 and not np.any(np.asarray(lit) > 0):
+        facing = int(np.count_nonzero(scene.normals.astype(np.float64) @ zenith > 1e-6))
+        warnings.warn(f"the sky (zenith {tuple(round(float(x), 4) for x in zenith)}) lights no patch of {scene.name!r}: "
+                      f"{facing} of {len(scene)} patches face its upper half and none sees it past the scene "
+                      f"(scene.up is {tuple(round(float(x), 4) for x in scene.up)}; a closed room is lit by a sky only "
+                      "through openings)", SkyOrientationWarning, stacklevel=4)
 
 
 def light_vector(scene, lights=(), device=None) -> np.ndarray:
@@ -329,8 +356,6 @@ def check_radiosity_range(L: np.ndarray, albedo: np.ndarray, dtype=np.float32) -
     refusing every light there would refuse scenes the solvers answer (a closed box at 0.9995:
     333.8 by the dense solve); from an albedo of about 0.998 the bound is 2 max L / (1 - max
     albedo) instead, twice the bound of rows that sum to 1."""
-    from ..checks import ROW_SUM_SLACK
-
     top, albedo_max = float(np.max(L, initial=0.0)), float(np.max(albedo, initial=0.0))
     # The slack's factor, or half the albedo's own distance from 1 where that is smaller (from
     # an albedo of 1 / (1 + 2 slack) ~ 0.998 up): finite below 1, and growing with the albedo.

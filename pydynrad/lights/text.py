@@ -1,8 +1,8 @@
 """Lights written as text, for the command line: ``KIND:FIELD=VALUE;FIELD=VALUE``.
 
-    point:pos=278,500,280;intensity=5e4            # W/sr; one number is grey, or R,G,B
-    spot:pos=278,540,280;dir=0,-1,0;intensity=1e5;outer=30;inner=20   # cone angles in degrees
-    sun:dir=0.3,-1,0.2;irradiance=800              # W/unit^2 on a surface facing it
+    point:pos=278,500,280;intensity=0.05           # W/sr; one number is grey, or R,G,B
+    spot:pos=278,540,280;dir=0,-1,0;intensity=0.1;outer=30;inner=20   # cone angles in degrees
+    sun:dir=0.3,-1,0.2;irradiance=800              # W/m^2 (lux) on a surface facing it
     sky:model=cie_overcast;zenith=3000;up=0,0,1    # cd/m2 at the zenith (or horizontal= lx)
     sky:model=clear;horizontal=20000;sun=0.5,0.2,0.6;ground=0.2
     luminaire:pos=2,2,2.8;file=lamp.ies;nadir=0,0,-1;c0=1,0,0    # an IES or EULUMDAT (.ldt) file

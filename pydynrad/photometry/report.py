@@ -13,6 +13,7 @@ from ..atomic import check_file_target, write_atomic
 from ..checks import floats
 from ..errors import InvalidInputError, MissingExtraError
 from .units import photometric
+from .workplane import WorkPlane
 
 __all__ = ["IlluminanceStats", "illuminance_statistics", "write_illuminance_csv", "plot_work_plane"]
 
@@ -104,7 +105,6 @@ def plot_work_plane(path, plane, E, title: str = "", cmap="jet") -> IlluminanceS
     if fmt not in FigureCanvasBase.get_supported_filetypes():
         raise InvalidInputError(f"cannot write a plot as {str(path)!r}: use one of png, pdf, svg (by the suffix)")
     check_file_target(path)
-    from .workplane import WorkPlane
 
     if not isinstance(plane, WorkPlane):
         raise InvalidInputError(f"plane must be a WorkPlane (pydynrad.work_plane); got {type(plane).__name__}")

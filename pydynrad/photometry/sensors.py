@@ -93,7 +93,7 @@ def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, 
             radiosity = radiosity - scene.emission
     has_sky = any(isinstance(light, SkyLight) for light in lights)
     if radiosity is not None or has_sky:
-        E += gather_irradiance(scene, points, normals, radiosity, pack_sky(lights) if has_sky else None,
+        E += gather_irradiance(scene, points, normals, radiosity, pack_sky(lights, scene.up) if has_sky else None,
                                resolution, keys, own, device)
     if not np.all(np.isfinite(E)):  # as direct_irradiance refuses it on the patches
         raise InvalidInputError("the illuminance overflows float32 at some sensor (above 3.4e38): the lights are "

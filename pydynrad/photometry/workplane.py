@@ -40,8 +40,10 @@ class WorkPlane:
     """Sensor points of a work plane.
 
     points, normals : (n, 3) float64, scene coordinates; the normals point along ``up``.
+
     cells : (n, 2) int, each point's (row, column) in the grid of ``shape`` (rows along the
-        polygon's second coordinate), for plots; grid cells outside the polygon hold no point.
+    polygon's second coordinate), for plots; grid cells outside the polygon hold no point.
+
     spacing : (2,) the grid steps along the polygon's two coordinates.
     """
 
@@ -74,7 +76,8 @@ def _edge_distance(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return np.min(np.linalg.norm(p[:, None] - (a + t[..., None] * ab), axis=2), axis=1)
 
 
-def work_plane(polygon, height: float, spacing: float | None = None, border: float = 0.0, up: int = 2) -> WorkPlane:
+def work_plane(polygon, height: float, spacing: float | None = None, border: float = 0.0, up: int | None = None,
+               scene=None) -> WorkPlane:
     """A grid of sensors at ``height`` over ``polygon``, facing up.
 
     Parameters
@@ -86,13 +89,28 @@ def work_plane(polygon, height: float, spacing: float | None = None, border: flo
         The plane's coordinate along ``up`` (e.g. 0.75 m above a floor at 0 for desks).
     spacing : float, optional
         Largest grid step; by default EN 12464-1's p for the polygon's longer side, or its
-        shorter one where the longer is at least twice it (:func:`en12464_spacing`, lengths
-        read as metres).
+        shorter one where the longer is at least twice it (:func:`en12464_spacing`, in metres:
+        converted through ``scene.unit`` when a scene is given, else lengths read as metres).
     border : float
         Width of the strip along the polygon's edges left without points.
-    up : int
-        The axis (0, 1, 2) the plane faces.
+    up : int, optional
+        The axis (0, 1, 2) the plane faces; by default the scene's up axis (which must then be
+        a coordinate axis, + or -), or 2 (z) without a scene.
+    scene : Scene, optional
+        The scene the plane lies in: its ``up`` and ``unit`` give the defaults above.
     """
+    metres = 1.0
+    if scene is not None:
+        metres = float(scene.unit)
+        if up is None:
+            axis = int(np.argmax(np.abs(scene.up)))
+            if abs(abs(float(scene.up[axis])) - 1.0) > 1e-9:
+                raise InvalidInputError(f"the scene's up axis {tuple(map(float, scene.up))} is not a coordinate axis: "
+                                        "give work_plane's up")
+            up = axis
+            if scene.up[axis] < 0:
+                raise InvalidInputError(f"the scene's up axis points down its axis {axis}: give work_plane's up")
+    up = 2 if up is None else up
     poly = floats(polygon, "polygon")
     if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3 or not np.all(np.isfinite(poly)):
         raise InvalidInputError(f"polygon must be (K >= 3, 2) finite corners; got shape {poly.shape}")
@@ -113,7 +131,7 @@ def work_plane(polygon, height: float, spacing: float | None = None, border: flo
         # EN 12464-1's d is the longer side, but the shorter where the longer is twice it or more
         # (a corridor's grid follows its width).
         longer, shorter = float(size.max()), float(size.min())
-        spacing = en12464_spacing(shorter if longer >= 2.0 * shorter else longer)
+        spacing = en12464_spacing((shorter if longer >= 2.0 * shorter else longer) * metres) / metres
     spacing = number(spacing, "spacing")
     if not (math.isfinite(spacing) and spacing > 0):
         raise InvalidInputError(f"spacing must be a positive length; got {spacing!r}")

@@ -40,7 +40,8 @@ def _rectangles(corners: list[np.ndarray], subdivisions: int, max_patch_area, al
     if max_patch_area is not None:
         points, triangles, finer = subdivide(points, triangles, max_area=max_patch_area)
         parent = parent[finer]
-    return Scene(points, triangles, albedo=albedo, emission=emission, source_face=parent, name=name)
+    # Lengths in any unit, declared metres; the plates' floors face +z, the declared up axis.
+    return Scene(points, triangles, albedo=albedo, emission=emission, source_face=parent, name=name, unit="m", up="+z")
 
 
 def parallel_plates(a: float = 1.0, b: float = 1.0, c: float = 1.0, subdivisions: int = 3,

@@ -13,6 +13,9 @@ import inspect
 from pathlib import Path
 
 from ..errors import InvalidInputError
+from .. import scenes
+from ..geometry.loading import load
+from ..geometry.patching import subdivide_scene
 
 __all__ = ["BUILTIN_SCENES", "is_builtin", "scene_by_name"]
 
@@ -32,8 +35,6 @@ def scene_by_name(name: str, **params):
     :func:`pydynrad.load`'s. Raises :class:`~pydynrad.InvalidInputError` for an unknown name
     or parameter, :class:`~pydynrad.errors.SceneFileError` for an unreadable file.
     """
-    from .. import scenes
-
     if is_builtin(name):
         make = getattr(scenes, name)
         accepted = inspect.signature(make).parameters
@@ -45,12 +46,10 @@ def scene_by_name(name: str, **params):
         scene = make(**params)
         if split is None:
             return scene
-        from ..geometry.patching import subdivide_scene
 
         return subdivide_scene(scene, max_edge=split)
     path = Path(name)
     if not path.exists() and not path.suffix:
         raise InvalidInputError(f"scene {name!r} is neither a mesh file nor a built-in scene ({', '.join(BUILTIN_SCENES)})")
-    from ..geometry.loading import load
 
     return load(path, **params)

@@ -183,4 +183,4 @@ def cornell_box(max_patch_area: float | None = None, max_edge: float | None = 10
     emission = [np.zeros((len(t), 3)) for t in tris]
     emission[5][:] = np.pi * np.asarray(light_radiance, dtype=np.float64)
     return soup_scene(np.concatenate(tris), np.concatenate(albedo), np.concatenate(emission),
-                      max_patch_area=max_patch_area, max_edge=max_edge, name="cornell_box")
+                      max_patch_area=max_patch_area, max_edge=max_edge, name="cornell_box", unit="mm", up="+y")

@@ -320,4 +320,5 @@ def village(seed: int = 0, houses: int | None = None, detail: float = 1.0) -> Sc
     offsets = np.cumsum([0, len(pts_q), len(pts_g)])
     triangles = np.concatenate([tri_q + offsets[0], tri_g + offsets[1], tri_t + offsets[2]])
     mats = np.concatenate([mat_q, mat_g, mat_t])
-    return Scene(points, triangles, albedo=_ALBEDO[mats], emission=_EMISSION[mats], name=f"village(seed={seed})")
+    return Scene(points, triangles, albedo=_ALBEDO[mats], emission=_EMISSION[mats], name=f"village(seed={seed})",
+                 unit="m", up="+y")
