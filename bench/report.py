@@ -29,7 +29,8 @@ from pathlib import Path
 from pydynrad.atomic import write_atomic
 
 __all__ = ["RESULTS_ROOT", "slugify", "device_slug", "device_dir", "write_report", "write_index", "markdown",
-           "plot_files", "format_value", "performance_markdown", "write_performance_page"]
+           "plot_files", "format_value", "performance_markdown", "write_performance_page", "README",
+           "write_readme_targets"]
 
 #: The folder holding one sub-folder of reports per device: bench/results next to this file.
 RESULTS_ROOT = Path(__file__).resolve().parent / "results"
@@ -275,6 +276,13 @@ def performance_markdown(root=RESULTS_ROOT) -> str:
              "(one folder per device; `python -m bench` writes them). For each device, the latest run of each "
              "benchmark at each size, labelled with the date it ran (UTC) and the report it comes from. "
              "The devices are OpenCL devices: on CPUs, PoCL's `pthread` device and the CPU its compiler targets.", ""]
+    from bench.targets import evaluate, performance_table
+
+    lines += ["## Targets", "",
+              "Each target (declared in `bench/targets.py`) against the latest report of each device that ran its "
+              "benchmark: met when every value read meets the threshold. README.md's targets table is made from the "
+              "same evaluation (`python -m bench.report --readme`).", ""]
+    lines += performance_table(evaluate(root)) + [""]
     folders = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".") and p.name != "tmp")
     for folder in folders:
         latest: dict[tuple[str, str], tuple[str, str, Path, dict]] = {}
@@ -321,6 +329,21 @@ def write_performance_page(path=PERFORMANCE_PAGE, root=RESULTS_ROOT) -> Path:
     return path
 
 
+#: The README whose targets table ``python -m bench.report --readme`` rewrites.
+README = Path(__file__).resolve().parent.parent / "README.md"
+
+
+def write_readme_targets(path=README, root=RESULTS_ROOT) -> Path:
+    """Rewrite the targets table between ``<!-- targets:begin -->`` and ``<!-- targets:end -->``
+    in ``path`` from the reports under ``root`` (:func:`bench.targets.readme_table`)."""
+    from bench.targets import evaluate, readme_table, replace_readme_table
+
+    path = Path(path)
+    text = replace_readme_table(path.read_text(), readme_table(evaluate(root)))
+    write_atomic(path, text.encode())
+    return path
+
+
 def _main(argv=None) -> int:
     import argparse
 
@@ -329,14 +352,18 @@ def _main(argv=None) -> int:
     parser.add_argument("--docs", nargs="?", const=str(PERFORMANCE_PAGE), metavar="PATH",
                         help=f"write the documentation's performance page (default {PERFORMANCE_PAGE})")
     parser.add_argument("--index", action="store_true", help="rewrite bench/results/README.md")
+    parser.add_argument("--readme", nargs="?", const=str(README), metavar="PATH",
+                        help=f"rewrite the targets table in the README (default {README})")
     parser.add_argument("--results", default=str(RESULTS_ROOT), metavar="DIR", help="the results folder")
     args = parser.parse_args(argv)
-    if not (args.docs or args.index):
-        parser.error("nothing to do: give --docs and/or --index")
+    if not (args.docs or args.index or args.readme):
+        parser.error("nothing to do: give --docs, --index and/or --readme")
     if args.docs:
         print(f"wrote {write_performance_page(args.docs, args.results)}")
     if args.index:
         print(f"wrote {write_index(args.results)}")
+    if args.readme:
+        print(f"wrote {write_readme_targets(args.readme, args.results)}")
     return 0
 
 
