@@ -70,7 +70,9 @@ typedef struct {
 inline RayFrame bvh_ray_frame(float3 dir)
 {
     float3 d = dir * rsqrt(BVH_DOT(dir, dir));
-    float sg = copysign(1.0f, d.z);
+    // copysign(1, d.z), -0 included, in bits: Oclgrind 21.10 cannot run the llvm.copysign.f32
+    // intrinsic that clang makes of the scalar builtin (and of a select on the sign).
+    float sg = as_float((as_uint(d.z) & 0x80000000u) | 0x3f800000u);
     float a = -1.0f / (sg + d.z), b = d.x * d.y * a;
     RayFrame f;
     f.p = (float3)(1.0f + sg * d.x * d.x * a, sg * b, -sg * d.x);

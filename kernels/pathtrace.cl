@@ -88,7 +88,7 @@ inline float3 emitter_irradiance(float3 x, float3 n, uint *rng, SCENE_ARGS)
 // Cosine-weighted direction about n (pdf cos / pi); branchless basis of Duff et al. 2017.
 inline float3 sample_cosine(float3 n, uint *rng)
 {
-    float sign = as_int(n.z) < 0 ? -1.0f : 1.0f;  // copysign(1, n.z), -0 included
+    float sign = as_float((as_uint(n.z) & 0x80000000u) | 0x3f800000u);  // copysign(1, n.z), -0 included (bvh_ray_frame)
     float a = -1.0f / (sign + n.z);
     float b = n.x * n.y * a;
     float3 t = (float3)(1.0f + sign * n.x * n.x * a, sign * b, -sign * n.x);

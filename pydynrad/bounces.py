@@ -47,6 +47,7 @@ from .device.launch import GEMM_GRAIN, PANEL, gemm_layout, round_up
 from .host.memory import available_host_bytes
 from .device.devices import default_device
 from .device.devices import device_or_default
+from .host.shortcuts import host_shortcuts
 from .device.devices import real_dtype
 from .device.matrix import DeviceMatrix
 from .geometry.scene import PrecisionWarning
@@ -221,7 +222,8 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
         Show a tqdm bar; None: on a terminal, for M >= 2048 (:mod:`pydynrad.progress`).
     backend : "auto" | "device" | "host"
         Who does the O(M^3) work: "device" the OpenCL kernels, "host" numpy (LAPACK/BLAS),
-        "auto" the host when ``device`` is a CPU (its traits say so: ``Device.with_traits(cpu=False)`` takes the device path), else the device.
+        "auto" the host when ``device`` is a CPU (its traits say so: ``Device.with_traits(cpu=False)`` or
+        ``PYDYNRAD_FORCE_DEVICE=1`` takes the device path, :func:`pydynrad.host.shortcuts.host_shortcuts`), else the device.
 
     Returns
     -------
@@ -364,7 +366,7 @@ def _build(F_SS: np.ndarray, rho: np.ndarray, bounces: int | None, out: np.dtype
 
     work = real_dtype(np.float64 if out == np.float64 else np.float32, device)
     M, C = rho.shape
-    host = backend == "host" or (backend == "auto" and device.traits.cpu)
+    host = backend == "host" or (backend == "auto" and host_shortcuts(device))
     builder = None if host else _Builder(device, M, work)
     if bounces is not None:
         steps = bounces

@@ -39,7 +39,11 @@ from .pocl import cache_tag, compiler_target, fix_cpu_name, host_cpu_family, rep
 if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays cheap
     import pyopencl as cl
 
-__all__ = ["Device", "DeviceTraits", "default_device", "device_or_default", "kernel_dir", "list_devices", "real_dtype"]
+__all__ = ["Device", "DeviceTraits", "default_device", "device_or_default", "kernel_dir",
+           "list_devices", "real_dtype"]
+
+
+
 
 
 def _writable(folder: Path) -> bool:
@@ -184,7 +188,10 @@ class Device:
     def is_cpu(self) -> bool:
         import pyopencl as cl
 
-        return bool(self.cl_device.type & cl.device_type.CPU)
+        # Oclgrind reports every type bit (CPU | GPU | ACCELERATOR): it simulates a GPU-like
+        # device, so a device that says GPU gets the GPU layouts even where it also says CPU.
+        t = self.cl_device.type
+        return bool(t & cl.device_type.CPU) and not t & cl.device_type.GPU
 
     @cached_property
     def aligned_vector_access(self) -> bool:

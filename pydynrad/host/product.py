@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..checks import finite
+from .shortcuts import host_shortcuts
 from ..errors import InvalidInputError
 from .blas import one_blas_thread
 from .colproduct import rows_product
@@ -44,8 +45,9 @@ DENSE_FILL = 0.25
 
 
 def on_host(device, nbytes: int) -> bool:
-    """Whether a matrix of ``nbytes`` has its products on the host: a CPU device, and small."""
-    return bool(device.traits.cpu) and nbytes <= HOST_PRODUCT_BYTES
+    """Whether a matrix of ``nbytes`` has its products on the host: a CPU device, and small
+    (never with ``PYDYNRAD_FORCE_DEVICE=1``: :func:`pydynrad.host.shortcuts.host_shortcuts`)."""
+    return host_shortcuts(device) and nbytes <= HOST_PRODUCT_BYTES
 
 
 class HostBounce:
