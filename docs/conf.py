@@ -134,22 +134,52 @@ ALIASES: dict[str, str] = {}
 autosummary_context = _api_context(pydynrad)
 
 
+def _docstring_scopes(node) -> list[str]:
+    """The class and module scopes (``pydynrad.rows.store.FormFactorStore.``,
+    ``pydynrad.rows.store.``) of the docstring ``node`` was written in, from the source autodoc
+    gives it (``.../store.py:docstring of pydynrad.rows.store.FormFactorStore.create``); none
+    for a node outside a docstring."""
+    from docutils.utils import get_source_line
+
+    source = get_source_line(node)[0] or ""
+    if "docstring of " not in source:
+        return []
+    parts = source.rpartition("docstring of ")[2].split(".")
+    for cut in range(len(parts), 0, -1):  # the longest prefix that is a module
+        modname = ".".join(parts[:cut])
+        if modname in sys.modules:
+            break
+    else:
+        return []
+    scopes = []
+    if cut < len(parts) - 1:  # a member of a class (or the class's own docstring: no harm)
+        scopes.append(f"{modname}.{parts[cut]}.")
+    return scopes + [".".join(parts[:k]) + "." for k in range(cut, 0, -1)]
+
+
 def _resolve_alias(app, env, node, contnode):
     """A reference to an object by another of its paths (``pydynrad.geometry.scene.Scene``, or
     ``multibounce`` inside the module defining it) resolves to the one page documenting it."""
     target = node.get("reftarget", "").lstrip("~.")
     module, klass = node.get("py:module"), node.get("py:class")
-    # The class, its module, the packages above it (``StoreMismatchError`` written anywhere in
-    # pydynrad reaches pydynrad.StoreMismatchError), then the target as written.
+    # The class, its module, the packages above it (``InvalidInputError`` written anywhere in
+    # pydynrad reaches pydynrad.InvalidInputError), the docstring's own class and module, then
+    # the target as written.
     parts = (module or "").split(".") if module else []
     scopes = ([f"{module}.{klass}."] if module and klass else []) + \
-        [".".join(parts[:k]) + "." for k in range(len(parts), 0, -1)] + [""]
+        [".".join(parts[:k]) + "." for k in range(len(parts), 0, -1)]
+    # A docstring documented on a shorter path's page (pydynrad.FormFactorStore.create, written
+    # in pydynrad.rows.store) names things as its own module sees them: its class and module too.
+    for scope in _docstring_scopes(node):
+        if scope not in scopes:
+            scopes.append(scope)
+    scopes.append("")
     for scope in scopes:
         full = scope + target
         parts = full.split(".")
         for cut in range(len(parts), 0, -1):  # the longest documented prefix, then its members
             head = ".".join(parts[:cut])
-            if head in ALIASES and ALIASES[head] != head:
+            if head in ALIASES:
                 new = ".".join([ALIASES[head]] + parts[cut:])
                 domain = env.get_domain("py")
                 resolved = domain.resolve_xref(env, node.get("refdoc"), app.builder, node.get("reftype"), new,

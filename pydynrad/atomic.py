@@ -1,5 +1,5 @@
 """Writing files whole: every file pydynrad writes (form-factor files and store blocks, images,
-bench reports) goes through :func:`write_atomic`, so a reader sees the old file or the new
+bench reports) goes through :func:`~pydynrad.atomic.write_atomic`, so a reader sees the old file or the new
 one, never half of one, and a failed write leaves no debris.
 """
 

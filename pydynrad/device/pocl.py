@@ -193,7 +193,7 @@ def compiler_target(device) -> tuple[str, str] | None:
 
 def fix_cpu_name(device) -> str | None:
     """Give a PoCL CPU ``device`` (a ``pyopencl.Device``) whose compiler CPU cannot compile the kernel
-    library (:func:`needs_replacing`) the library's own CPU instead, once per process; return the
+    library (``needs_replacing``) the library's own CPU instead, once per process; return the
     name written (or written before), None where nothing needed or could be done. Call before the
     first program build."""
     address = int(device.int_ptr)

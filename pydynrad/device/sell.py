@@ -67,7 +67,7 @@ def sell_slices(A: sp.csr_matrix, c: int, sigma: int, dtype=np.float32) -> SellM
 
 class DeviceSELL:
     """An (N, N) matrix on the device as SELL-C-sigma (:func:`sell_slices`) with the layout
-    ``layout`` (:class:`pydynrad.device.launch.SellLayout`), iterated by :meth:`jacobi` like
+    ``layout`` (:class:`pydynrad.device.launch.SellLayout`), iterated by :meth:`~pydynrad.device.sell.DeviceSELL.jacobi` like
     :meth:`pydynrad.device.csr.DeviceCSR.jacobi` (same arguments, results in the original patch
     order). ``stored``: entries held, padding included; ``nbytes``: device bytes of F."""
 

@@ -24,7 +24,7 @@ class ReadSlab:
     ``parts[i]`` is a sub-buffer a kernel writes; :meth:`read` brings back any of them with one
     read of the span that covers them (whole parts in between included: a few bytes more in
     one command beat a command per part). Parts start on every device's base address
-    alignment, as sub-buffers must. Reads assume the in-order queue of a :class:`Device`.
+    alignment, as sub-buffers must. Reads assume the in-order queue of a :class:`~pydynrad.device.Device`.
     """
 
     def __init__(self, device, sizes, dtype) -> None:

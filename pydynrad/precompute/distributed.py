@@ -1,6 +1,6 @@
 """Distributed form-factor precomputation with Dask (``dask.distributed``).
 
-:func:`precompute_distributed` fills a :class:`~pydynrad.store.FormFactorStore` with one
+:func:`precompute_distributed` fills a :class:`~pydynrad.FormFactorStore` with one
 task per missing row block. The client writes the header once; each worker rebuilds the
 scene (from a small :class:`SceneSpec`, or from arrays broadcast to it once), checks its
 geometry hash against the header, computes its blocks with its own OpenCL context and writes
@@ -10,7 +10,7 @@ shares the local one).
 
 OpenCL contexts must not cross a fork (a forked child of a process holding one can hang), so
 the LocalCluster starts its worker processes with the ``spawn`` method and every worker builds
-its context after start, in a worker plugin (:func:`opencl_worker_plugin_class`).
+its context after start, in a worker plugin (``opencl_worker_plugin_class``).
 
 See docs/design.md, 'Distributed precompute'.
 """
@@ -222,7 +222,7 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     path : folder of the store (created, or resumed if its header matches).
     resolution : hemicube resolution (pixels on the top face's side).
     samples : hemicubes per row (1, 4, 16, ...: :func:`pydynrad.form_factors`), recorded in the
-        header; a resume with other samples raises :class:`~pydynrad.store.StoreMismatchError`.
+        header; a resume with other samples raises :class:`~pydynrad.rows.StoreMismatchError`.
     block_rows : rows per block file (the unit of reads and of resuming).
     workers : worker processes of the LocalCluster started by default (one thread each;
         default: one per CPU core).
@@ -230,12 +230,12 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     progress : a tqdm bar over the rows (None: when stderr is a terminal).
     verify : re-check finished blocks' checksums and recompute corrupt ones.
     row_function : ``f(scene, rows, resolution, device=...) -> csr``; must be importable (or
-        cloudpickle-able) on the workers. Default: :func:`pydynrad.store.form_factor_rows`.
+        cloudpickle-able) on the workers. Default: :func:`pydynrad.precompute.store.form_factor_rows`.
     blocks : compute only these block indices (to split one store over several runs).
     task_rows : rows per task: consecutive missing blocks are computed by one row-function
         call of at most this many rows (at least one block), amortising per-call set-up.
     clusters, cluster_resolution, cluster_params, compute_f, cluster_basis : the far field's G beside F, as
-        for :func:`pydynrad.rows.store.compute_store`; workers read the prolongation from the store.
+        for :func:`pydynrad.precompute.store.compute_store`; workers read the prolongation from the store.
 
     The patching parameters recorded in the header are the spec's recipe (empty for a Scene).
     """

@@ -82,12 +82,12 @@ def g_samples(f_resolution: int, f_samples: int, g_resolution: int) -> int:
     return int(f_samples) if int(g_resolution) == int(f_resolution) else 1
 
 
-#: Basis functions per cluster of :func:`linear_basis`.
+#: Basis functions per cluster of :func:`~pydynrad.farfield.clusters.linear_basis`.
 LINEAR_FUNCTIONS = 3
 
 
 def labels_of_linear(prolongation: sp.csr_matrix) -> np.ndarray | None:
-    """(N,) cluster labels of a prolongation laid out like :func:`linear_basis`'s (every row's
+    """(N,) cluster labels of a prolongation laid out like :func:`~pydynrad.farfield.clusters.linear_basis`'s (every row's
     entries in columns c + k C of one cluster c), else None."""
     pr = sp.csr_matrix(prolongation)
     if pr.shape[1] % LINEAR_FUNCTIONS or np.any(np.diff(pr.indptr) == 0):

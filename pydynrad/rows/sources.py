@@ -107,7 +107,7 @@ class HemicubeRows:
         return self.queued(idx)()
 
     def queued(self, idx):
-        """:meth:`rows` with their hemicubes queued on the device now: a callable (to call once,
+        """``rows`` with their hemicubes queued on the device now: a callable (to call once,
         from any thread) that waits for them and returns the rows."""
         blocks = hemicube_blocks(self.scene, self.resolution, idx, self.device, samples=self.samples)
         return lambda: stack_blocks(blocks, self.n_patches)
