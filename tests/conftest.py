@@ -40,3 +40,36 @@ def portable_kernels(device, monkeypatch):
         assert built and not any("PDR_CLANG_VECTORS" in d for d in built)
 
     return portable
+
+
+# Scenes several test files share, named for what they are: a fixture name means one scene everywhere.
+@pytest.fixture(scope="session")
+def closed_box_48():
+    """The unit closed box, one subdivision: 48 patches, every row of F sums to 1."""
+    import pydynrad
+
+    return pydynrad.scenes.closed_box(subdivisions=1)
+
+
+@pytest.fixture(scope="module")
+def closed_box_48_F(closed_box_48, device):
+    """F of :func:`closed_box_48` at R = 16 (a fresh CSR matrix per test module: tests may break copies)."""
+    import pydynrad
+
+    return pydynrad.form_factors(closed_box_48, resolution=16, device=device)
+
+
+@pytest.fixture(scope="session")
+def cornell_384():
+    """The Cornell box patched to a 200 mm edge: 384 patches, millimetres, +y up."""
+    import pydynrad
+
+    return pydynrad.scenes.cornell_box(max_edge=200.0)
+
+
+@pytest.fixture(scope="session")
+def green_block():
+    """A 100 mm cube, green: the block moved through :func:`cornell_384` (its light bleeds onto the floor)."""
+    import pydynrad
+
+    return pydynrad.scenes.block(100.0, 1, albedo=(0.1, 0.7, 0.1))

@@ -11,6 +11,7 @@ import numpy as np
 import scipy.sparse as sp
 
 import pydynrad
+from pydynrad.geometry.objects import instanced
 
 
 # -- meshes ----------------------------------------------------------------------------------------
@@ -238,3 +239,21 @@ def ceiling_lit_box(albedo: float, exitance: float = 10.0, subdivisions: int = 2
     emission = np.zeros((len(scene), 3))
     emission[scene.source_face // 2 == 5] = exitance
     return scene.with_materials(emission=emission)
+
+
+# -- A block moving through the Cornell box (tests/dynamic and tests/precompute) -------------------
+#: Hemicube resolution of the moving-object tests.
+MOVING_R = 16
+#: Where the observer stands: the box's open side, at mid height.
+MOVING_OBSERVER = (278.0, 273.0, 0.0)
+#: W/sr in the millimetre box, irradiance per square metre.
+MOVING_LIGHTS = [pydynrad.PointLight((278.0, 500.0, 280.0), (0.3, 0.3, 0.3))]
+#: The block's poses: on the floor, in the air, near the right wall.
+START, MIDDLE, END = pose(0, (150.0, 300.0, 400.0)), pose(30, (250.0, 420.0, 300.0)), pose(70, (380.0, 420.0, 150.0))
+
+
+def moving_full_solve(scene, objects, device):
+    """B of the world from scratch: fresh hemicubes of every patch, solved in float64."""
+    world = instanced(scene, objects)
+    F = pydynrad.form_factors(world, MOVING_R, device=device)
+    return world, F, dense_radiosity(world, F, pydynrad.light_vector(world, MOVING_LIGHTS, device=device))

@@ -7,7 +7,6 @@ but not run is fenced as ```text, or as ```python with ``# docs: skip`` on its f
 A failure names the file and the line its block starts on.
 """
 
-import os
 import re
 import shutil
 import traceback

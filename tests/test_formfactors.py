@@ -142,22 +142,22 @@ def test_no_aliasing_spikes_r16_to_r256(device):
 
 
 @pytest.fixture(scope="module")
-def box(device):
+def closed_box_384_F(device):
     scene = closed_box(1.0, subdivisions=2)
     assert len(scene) == 6 * 2 * 4**2
     return scene, form_factors(scene, resolution=32, device=device)
 
 
-def test_closed_box_rows_sum_to_one(box):
-    scene, F = box
+def test_closed_box_rows_sum_to_one(closed_box_384_F):
+    scene, F = closed_box_384_F
     sums = np.asarray(F.sum(axis=1), dtype=np.float64).ravel()
     np.testing.assert_allclose(sums, 1.0, atol=1e-5)
     assert np.all(F.diagonal() == 0)
     assert F.data.min() > 0
 
 
-def test_closed_box_face_reciprocity_and_catalogue(box):
-    scene, F = box
+def test_closed_box_face_reciprocity_and_catalogue(closed_box_384_F):
+    scene, F = closed_box_384_F
     face = scene.source_face // 2
     area = np.bincount(face, weights=scene.areas.astype(np.float64))
     for f in range(6):

@@ -172,14 +172,14 @@ def test_dense_refused_when_too_large(device, monkeypatch):
 
 
 @pytest.fixture(scope="module")
-def cornell(device):
+def cornell_solved(device):
     s = pydynrad.scenes.cornell_box(max_edge=200.0)
     assert len(s) == 384  # the floor cut at the blocks' footprints (274 when it ran on under them)
     F = pydynrad.form_factors(s, resolution=32, device=device)
     return s, F, solve(s, F, dtype=np.float64, tol=1e-12, device=device)
 
 
-def test_cornell_energy_balance(cornell):
+def test_cornell_energy_balance(cornell_solved):
     """Two checks. (1) Exact bookkeeping, any F: with H = F B, absorbed - emitted =
     sum_j B_j (sum_i A_i F_ij - A_j); this holds to the solve's tolerance. (2) Physics:
     emitted = absorbed + escaped through the open front, escaped = sum_j A_j B_j (1 - sum_i F_ji).
@@ -189,7 +189,7 @@ def test_cornell_energy_balance(cornell):
     their rows send. The floor's share fell from 0.66% to 0.13% when it stopped running on under
     the blocks (the total was 1.3% then because the two partly cancelled). Area-sampled rows
     (``form_factors(samples=)``) remove the centre points' part: test_scenes.py."""
-    s, F, sol = cornell
+    s, F, sol = cornell_solved
     A, rho, E, B = (s.areas.astype(np.float64), s.albedo.astype(np.float64), s.emission.astype(np.float64), sol.radiosity)
     H = F @ B
     emitted, absorbed = A @ E, A @ ((1 - rho) * H)
@@ -200,8 +200,8 @@ def test_cornell_energy_balance(cornell):
     np.testing.assert_allclose(absorbed + escaped, emitted, rtol=0.03)
 
 
-def test_cornell_colour_bleeding(cornell):
-    s, _, sol = cornell
+def test_cornell_colour_bleeding(cornell_solved):
+    s, _, sol = cornell_solved
     rho = s.albedo
     red = (rho[:, 0] > 0.5) & (rho[:, 1] < 0.2)
     green = (rho[:, 1] > 0.3) & (rho[:, 0] < 0.2)

@@ -100,7 +100,7 @@ def test_load_path_file(tmp_path):
                       "outer_angle": 0.2, "keyframes": [[0, 1, 0]], "cone": 3}]}, "light 0: unknown field 'cone'"),
         ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
           "lights": [{"type": "spot", "intensity": 1, "direction": [0, -1, 0], "keyframes": [[0, 1, 0]]}]},
-         "light 0: missing field 'inner_angle'"),
+         "light 0: missing field 'outer_angle_deg'"),
         ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}], "lights": [{"type": "area"}]},
          "unknown light type"),
         ({"frames": 2, "orbit": {"radius": 1}}, "missing field 'center'"),

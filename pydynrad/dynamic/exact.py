@@ -6,7 +6,7 @@ supplies, from one read pass over K, the columns U = K[:, I], the rows V = K[I, 
 products K (P_S F_SJ) and (F_JS P_S) K; everything here is O(M k + k^3) on the host. The
 result is a rank-2k update ``K += A B`` (one read-write pass) followed by writing J's columns
 and rows into I's slots. With k = 1 this is exactly the Sherman-Morrison downdate of the
-removed patch followed by the bordering update of the added one (tests/test_dynamic.py
+removed patch followed by the bordering update of the added one (tests/dynamic/test_dynamic.py
 transcribes both and checks it).
 
 Shapes: M slots, k swaps. F_SJ (M, k) holds F[S[a], J[m]] with the rows of the slots I

@@ -3,7 +3,7 @@
 Every cluster is pure: one albedo, one emission and one orientation (one of 26 normal bins:
 the directions ``(a, b, c) / |(a, b, c)|`` with a, b, c in {-1, 0, 1}), and, given F, inside one of
 its connected components (so a closed room's inside never shares a cluster with the lit floor
-outside: that leaked sunlight into closed rooms in tests/test_farfield.py), so the coarse albedo is
+outside: that leaked sunlight into closed rooms in tests/farfield/test_farfield.py), so the coarse albedo is
 exact and no cluster mixes emitters of different power (mixing them overestimated lamp-lit
 ceilings by 18% in the float64 prototype). Inside each group of equal albedo, emission and
 normal bin the patches are split by recursive bisection, k-d style: a segment that must become

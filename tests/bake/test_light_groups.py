@@ -11,7 +11,7 @@ WEIGHTS = {"emission": 0.5, "lamp": (1.0, 0.5, 0.2), "spots": 2.0}
 
 
 @pytest.fixture(scope="module")
-def box(device):
+def cornell_lights(device):
     scene = pydynrad.scenes.cornell_box(max_edge=200.0)
     F = pydynrad.form_factors(scene, resolution=16, device=device)
     lamp = PointLight((278, 450, 280), 0.04)  # W/sr in the millimetre box, irradiance per m^2 (issue 41): what 1e6 times more had lit per mm^2
@@ -32,8 +32,8 @@ def _weighted(scene, lights):
     return scene.with_materials(emission=scene.emission * 0.5), scaled
 
 
-def test_combined_dense_solves_equal_a_solve_with_weighted_lights(box):
-    scene, F, groups, lights = box
+def test_combined_dense_solves_equal_a_solve_with_weighted_lights(cornell_lights):
+    scene, F, groups, lights = cornell_lights
     combined = groups.solve(F, method="dense").combine(WEIGHTS)
     scene2, scaled = _weighted(scene, lights)
     truth = pydynrad.solve(scene2, F, scaled, method="dense").radiosity
@@ -43,16 +43,16 @@ def test_combined_dense_solves_equal_a_solve_with_weighted_lights(box):
     np.testing.assert_allclose(groups.light(), pydynrad.light_vector(scene, list(lights)), rtol=1e-6)
 
 
-def test_combined_iterative_solves_equal_to_the_tolerance(box):
-    scene, F, groups, lights = box
+def test_combined_iterative_solves_equal_to_the_tolerance(cornell_lights):
+    scene, F, groups, lights = cornell_lights
     combined = groups.solve(F, dtype=np.float64, tol=1e-10).combine(WEIGHTS)
     scene2, scaled = _weighted(scene, lights)
     truth = pydynrad.solve(scene2, F, scaled, method="dense").radiosity
     np.testing.assert_allclose(combined, truth, rtol=0, atol=1e-8 * truth.max())
 
 
-def test_combined_multibounce_and_dynamic_equal_weighted_lights(box, device):
-    scene, F, groups, lights = box
+def test_combined_multibounce_and_dynamic_equal_weighted_lights(cornell_lights, device):
+    scene, F, groups, lights = cornell_lights
     scene2, scaled = _weighted(scene, lights)
     L = pydynrad.light_vector(scene2, scaled, device)
     K = pydynrad.multibounce(scene, F, dtype=np.float64, device=device)
@@ -71,8 +71,8 @@ def test_combined_multibounce_and_dynamic_equal_weighted_lights(box, device):
     np.testing.assert_allclose(groups.dynamic(dyn).combine(WEIGHTS), truth, rtol=0, atol=1e-3 * truth.max())
 
 
-def test_groups_refuse_bad_input(box, device):
-    scene, F, groups, lights = box
+def test_groups_refuse_bad_input(cornell_lights, device):
+    scene, F, groups, lights = cornell_lights
     per_group = groups.multibounce(pydynrad.multibounce(scene, F, device=device))
     with pytest.raises(InvalidInputError, match="unknown light group.*'sky'"):
         per_group.combine({"sky": 1.0})

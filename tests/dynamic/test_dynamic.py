@@ -29,18 +29,18 @@ WALK_TOL = {"fp64": 1e-13, "fp32": 2e-5, "fp16": 3e-3}
 
 
 @pytest.fixture(scope="module")
-def setup():
+def coloured_box_F():
     scene = coloured_box(4)  # 192 patches, RGB
     F = reciprocal_F(scene.areas, row_sum=0.95, density=0.08, seed=1)
     return scene, F
 
 
-def test_entering_blocks_equal_dense_indexing(setup):
+def test_entering_blocks_equal_dense_indexing(coloured_box_F):
     """LocalRows.entering's F[S, J], F[J, S], F[J, J], F[S, R] and kept rows against plain numpy indexing
     of the dense F, over frames of random swaps (the scatter map must be clean between calls)."""
     from pydynrad.dynamic.localrows import LocalRows
 
-    scene, F = setup
+    scene, F = coloured_box_F
     D = F.toarray()
     rng = np.random.default_rng(3)
     ff = LocalRows(scene, F, 16, None)
@@ -59,8 +59,8 @@ def test_entering_blocks_equal_dense_indexing(setup):
 
 # -- exact mode ----------------------------------------------------------------------------------
 @pytest.mark.parametrize("storage", ["fp64", "fp32", "fp16"])
-def test_exact_walk_equals_fresh_build(device, setup, storage):
-    scene, F = setup
+def test_exact_walk_equals_fresh_build(device, coloured_box_F, storage):
+    scene, F = coloured_box_F
     rng = np.random.default_rng(5)
     dyn = DynamicRadiosity(scene, F, local_size=48, update="exact", storage=storage, max_swaps_per_frame=6,
                            observer=[0.5, 0.5, 0.5], device=device)
@@ -116,10 +116,10 @@ def test_single_swap_is_downdate_then_bordering():
     np.testing.assert_allclose(got, dense_K(scene, F, S2, channels=2)[1], rtol=0, atol=1e-15)  # observed 3.5e-17
 
 
-def test_row_source_matches_sparse(device, setup):
+def test_row_source_matches_sparse(device, coloured_box_F):
     """A RowSource gives only rows; F[S, J] comes from the kept rows of S, so a walk over a row
     source equals the walk over the matrix itself."""
-    scene, F = setup
+    scene, F = coloured_box_F
     kw = dict(local_size=40, update="exact", storage="fp64", max_swaps_per_frame=4, observer=[0.2, 0.5, 0.5], device=device)
     a, b = DynamicRadiosity(scene, F, **kw), DynamicRadiosity(scene, CSRRows(F), **kw)
     for p in observer_walk(np.random.default_rng(2), 15):
@@ -166,8 +166,8 @@ def test_full_set_reproduces_the_full_solution(device, mode):
     np.testing.assert_allclose(dyn.radiosity(), ref, rtol=1e-13)  # observed 1.2e-15
 
 
-def test_one_patch_gives_its_own_light(device, setup):
-    scene, F = setup
+def test_one_patch_gives_its_own_light(device, coloured_box_F):
+    scene, F = coloured_box_F
     dyn = DynamicRadiosity(scene, F, local_size=1, observer=[0.5, 0.5, 0.02], far_field=False, device=device)
     L = np.random.default_rng(3).random((len(scene), 3))
     (i,) = dyn.local_patches
@@ -200,14 +200,14 @@ def test_albedo_extremes(device, albedo, mode):
         np.testing.assert_allclose(B[S], want, rtol=1e-13)  # observed 4e-16
 
 
-def test_light_vector_reused_while_the_lights_stay(device, setup, monkeypatch):
+def test_light_vector_reused_while_the_lights_stay(device, coloured_box_F, monkeypatch):
     """radiosity(lights) traces the lights' shadows once while the light objects (equal ones
     count), the emitter mode and the world stay: the same B, bit for bit, with no new light
     vector; new lights, another emitter mode or a given light vector are computed, and the B of
     new lights equals that of their light vector passed as light=. The held vector is read-only."""
     from pydynrad.dynamic import radiosity
 
-    scene, F = setup
+    scene, F = coloured_box_F
     made = []
     real = radiosity.analytic_emitter_light
     monkeypatch.setattr(radiosity, "analytic_emitter_light", lambda *a, **k: made.append(1) or real(*a, **k))
@@ -230,10 +230,10 @@ def test_light_vector_reused_while_the_lights_stay(device, setup, monkeypatch):
     assert len(made) == 7
 
 
-def test_lighting_changes_B_not_K(device, setup):
+def test_lighting_changes_B_not_K(device, coloured_box_F):
     import pyopencl as cl
 
-    scene, F = setup
+    scene, F = coloured_box_F
     dyn = DynamicRadiosity(scene, F, local_size=32, storage="fp16", observer=[0.5, 0.5, 0.5], far_field=False,
                            device=device)
     dyn.update([0.3, 0.6, 0.5])
@@ -290,8 +290,8 @@ def test_grey_scene_keeps_one_channel(device):
 
 
 # -- drift, refresh, memory ----------------------------------------------------------------------
-def test_residual_and_refresh(device, setup):
-    scene, F = setup
+def test_residual_and_refresh(device, coloured_box_F):
+    scene, F = coloured_box_F
     exact = DynamicRadiosity(scene, F, local_size=40, update="exact", storage="fp64", observer=[0.5, 0.5, 0.5], device=device)
     paper = DynamicRadiosity(scene, F, local_size=40, update="paper", storage="fp64", observer=[0.5, 0.5, 0.5],
                              refresh_tolerance=1e-3, refresh_interval=10, device=device)
@@ -315,8 +315,8 @@ def test_residual_and_refresh(device, setup):
     assert 0.003 < exact.residual() < 0.03
 
 
-def test_memory_bytes(device, setup):
-    scene, F = setup
+def test_memory_bytes(device, coloured_box_F):
+    scene, F = coloured_box_F
     dyn = DynamicRadiosity(scene, F, local_size=64, storage="fp16", max_swaps_per_frame=8, observer=[0.5, 0.5, 0.5],
                            far_field=False, device=device)
     assert dyn.memory_bytes == DynamicRadiosity.estimate_memory_bytes(64, 3, "fp16", 8, device)
@@ -413,8 +413,8 @@ def test_update_kernels_against_numpy(device, storage):
 
 
 # -- bad input -----------------------------------------------------------------------------------
-def test_bad_input(device, setup):
-    scene, F = setup
+def test_bad_input(device, coloured_box_F):
+    scene, F = coloured_box_F
     N = len(scene)
     for M in (0, -3, N + 1, 2.5, True):
         with pytest.raises(InvalidInputError, match="local_size"):
@@ -450,7 +450,7 @@ def test_bad_input(device, setup):
         dyn.radiosity([pydynrad.PointLight([0.5, 0.5, 0.5], 1.0)], light=np.ones((N, 3)))
 
 
-def test_prefetch_time_is_its_own_field(device, setup, monkeypatch):
+def test_prefetch_time_is_its_own_field(device, coloured_box_F, monkeypatch):
     """A prefetching row source's call is timed as t_prefetch, not folded into t_select or
     t_update. The frame loop's clock is replaced by one that a prefetch call advances by
     1,000 s, so the split is checked exactly and no load on the machine can blur it."""
@@ -459,7 +459,7 @@ def test_prefetch_time_is_its_own_field(device, setup, monkeypatch):
 
     import pydynrad.dynamic.radiosity as frame_loop
 
-    scene, F = setup
+    scene, F = coloured_box_F
     skipped = [0.0]
     monkeypatch.setattr(frame_loop, "time", types.SimpleNamespace(perf_counter=lambda: time.perf_counter() + skipped[0]))
 
@@ -481,10 +481,10 @@ def test_prefetch_time_is_its_own_field(device, setup, monkeypatch):
 
 
 @pytest.mark.parametrize("mode,storage", [("exact", "fp16"), ("paper", "fp32")])
-def test_warm_up_leaves_K_unchanged(device, setup, mode, storage):
+def test_warm_up_leaves_K_unchanged(device, coloured_box_F, mode, storage):
     """The constructor's warm-up launches every update kernel; a second one must leave K
     bit for bit as it was, and the frames after it give what a solver never warmed gives."""
-    scene, F = setup
+    scene, F = coloured_box_F
     dyn = DynamicRadiosity(scene, F, local_size=48, update=mode, storage=storage, observer=[0.5, 0.5, 0.5],
                            device=device)
     before = dyn.matrix.to_host()
@@ -493,11 +493,11 @@ def test_warm_up_leaves_K_unchanged(device, setup, mode, storage):
     assert np.array_equal(before, DeviceMatrix(device, dyn._fresh_K(dyn.local_patches), storage).to_host())
 
 
-def test_warm_up_keeps_the_far_fields_light(device, setup):
+def test_warm_up_keeps_the_far_fields_light(device, coloured_box_F):
     """A warm-up after lighting leaves the far field's B_far for the same light in place: it
     relit the far field with its zero-power light, so the next radiosity() solved the far field
     again (and a FarField shared with a new solver lost its light the same way)."""
-    scene, F = setup
+    scene, F = coloured_box_F
     dyn = DynamicRadiosity(scene, F, local_size=48, observer=[0.5, 0.5, 0.5], device=device)
     light = [pydynrad.PointLight([0.5, 0.9, 0.5], 2.0)]
     B = dyn.radiosity(light)
@@ -508,11 +508,11 @@ def test_warm_up_keeps_the_far_fields_light(device, setup):
     assert np.array_equal(dyn.radiosity(light), B) and dyn.far.B_far is kept  # served from the cache
 
 
-def test_frames_build_no_program(device, setup):
+def test_frames_build_no_program(device, coloured_box_F):
     """Every program the frames use is built with the solver: updates (swaps in both modes,
     and the first update() of a solver built without an observer) and lighting after
     construction add none to the device's cache."""
-    scene, F = setup
+    scene, F = coloured_box_F
     rng = np.random.default_rng(11)
     for mode, observer in (("exact", [0.5, 0.5, 0.5]), ("paper", [0.5, 0.5, 0.5]), ("exact", None)):
         # Without an observer the first update() builds the set and K: still no program.
@@ -527,10 +527,10 @@ def test_frames_build_no_program(device, setup):
 
 
 @pytest.mark.parametrize("mode", ["exact", "paper"])
-def test_sparse_and_dense_gathers_give_one_K(device, setup, monkeypatch, mode):
+def test_sparse_and_dense_gathers_give_one_K(device, coloured_box_F, monkeypatch, mode):
     """The same walk with the sparse gathers forced on and off: K within rounding of each other
     (exact mode also of a fresh build over the final set)."""
-    scene, F = setup
+    scene, F = coloured_box_F
     out = {}
     for share in (0.0, 1.0):  # 0: never sparse (every batch has non-zeros), 1: always
         monkeypatch.setenv("PYDYNRAD_SPARSE_DENSITY", str(share))

@@ -10,7 +10,6 @@ factor and the vertex colour interpolated linearly, integrated on a fine barycen
 import base64
 import io
 import json
-import struct
 import warnings
 
 import numpy as np

@@ -12,7 +12,7 @@ import pytest
 import pydynrad
 from pydynrad.geometry.scene import DegenerateTriangleWarning
 
-CORPUS = Path(__file__).resolve().parents[1] / "bench" / "data" / "corpus"
+CORPUS = Path(__file__).resolve().parents[2] / "bench" / "data" / "corpus"
 FACTS = {s["name"]: s for s in json.loads((CORPUS / "corpus.json").read_text())["scenes"]}
 FAST = ["cornell_box", "veach_ajar", "kenney_retro_urban"]
 

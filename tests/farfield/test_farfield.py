@@ -16,7 +16,7 @@ from pydynrad.device.matrix import DeviceMatrix
 
 
 @pytest.fixture(scope="module")
-def cornell(device):
+def cornell_lit(device):
     scene = pydynrad.scenes.cornell_box()
     F = pydynrad.form_factors(scene, resolution=32, device=device, progress=False)
     # W/sr in the millimetre box, irradiance per m^2 (issue 41): what 2e5 had lit per mm^2
@@ -82,8 +82,8 @@ def yard_and_room() -> Scene:
 
 # -- clusters ------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("per", [1, 3, 8, 40])
-def test_clusters_are_pure_and_cover_every_patch_once(cornell, per):
-    scene = cornell[0]
+def test_clusters_are_pure_and_cover_every_patch_once(cornell_lit, per):
+    scene = cornell_lit[0]
     cl = cluster_patches(scene, patches_per_cluster=per)
     assert cl.labels.shape == (len(scene),) and np.array_equal(np.unique(cl.labels), np.arange(cl.count))
     assert cl.count == max(cl.groups, -(-len(scene) // per))
@@ -116,8 +116,8 @@ def test_every_patch_its_own_cluster_is_the_full_solve(device):
 
 @pytest.mark.parametrize("inside", [True, False])
 @pytest.mark.parametrize("fraction", [8, 4])
-def test_cornell_box_within_one_percent(device, cornell, inside, fraction):
-    scene, F, L, ref, _ = cornell
+def test_cornell_box_within_one_percent(device, cornell_lit, inside, fraction):
+    scene, F, L, ref, _ = cornell_lit
     obs = [278, 273, 280] if inside else [278, 273, -800]
     n = len(scene)
     dyn = DynamicRadiosity(scene, F, local_size=n // fraction, observer=obs, clusters=n // fraction, device=device)
@@ -149,9 +149,9 @@ def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
 
 
 @pytest.mark.parametrize("storage, rtol", [("fp64", 5e-14), ("fp32", 5e-6), ("fp16", 2e-3)])
-def test_dense_coarse_level_and_first_bounce_gather(device, cornell, storage, rtol):
+def test_dense_coarse_level_and_first_bounce_gather(device, cornell_lit, storage, rtol):
     """B_far = L + D1 + P G D_c, D1 = P F L, with D_c = R D1 + P_c F_c D_c solved densely in float64."""
-    scene, F, L, _, _ = cornell
+    scene, F, L, _, _ = cornell_lit
     far = FarField(scene, F, clusters=len(scene) // 8, coarse="dense", coarse_storage=storage, dtype=np.float64,
                    device=device)
     # Small beside a CPU device: K_c and G on the host (pydynrad.host.product); elsewhere on the device.
@@ -175,11 +175,11 @@ def test_dense_coarse_level_and_first_bounce_gather(device, cornell, storage, rt
     assert sweeps.K_c is None and sweeps.sweeps > 10
 
 
-def test_coarse_sweeps_start_from_earlier_solutions_combined(device, cornell):
+def test_coarse_sweeps_start_from_earlier_solutions_combined(device, cornell_lit):
     """The coarse solution is linear in its source: lights that are a combination of earlier ones
     start the sweeps at their answer (one sweep to confirm it); new lights still converge to the
     answer a far field that never saw other lights gives."""
-    scene, F, _, _, _ = cornell
+    scene, F, _, _, _ = cornell_lit
     lamp = lambda x: pydynrad.light_vector(scene, [PointLight(position=[x, 450, 280], intensity=[0.2] * 3)],  # noqa: E731
                                            device=device)
     far = FarField(scene, F, clusters=len(scene) // 8, coarse="sweeps", dtype=np.float64, device=device)
@@ -203,12 +203,12 @@ def coloured_lamp(scene, x: float, device):
     return pydynrad.light_vector(scene, [PointLight(position=[x, 450, 280], intensity=[0.2, 0.1, 0.05])], device=device)
 
 
-def test_light_combinations_reuse_earlier_answers(device, cornell):
+def test_light_combinations_reuse_earlier_answers(device, cornell_lit):
     """B_far is linear in L: a light that is a combination of the last ones (switched back,
     dimmed, recoloured, summed) is answered by the same combination of their B_far, with no pass
     over F or G, and equals what a far field computing it gives; a new light, or one that only
     an extrapolation of near-parallel lights makes, is computed."""
-    scene, F, _, _, full = cornell
+    scene, F, _, _, full = cornell_lit
     lamp = lambda x: coloured_lamp(scene, x, device)  # noqa: E731
     far = FarField(scene, F, clusters=len(scene) // 8, device=device)
     fresh = FarField(scene, F, clusters=far.clusters, device=device)
@@ -244,9 +244,9 @@ def test_light_combinations_reuse_earlier_answers(device, cornell):
     assert not cancels.combined
 
 
-def test_light_combinations_in_float64(device, cornell):
+def test_light_combinations_in_float64(device, cornell_lit):
     """A float64 far field keeps its answers in float64: a combination is as exact as they are."""
-    scene, F, _, _, _ = cornell
+    scene, F, _, _, _ = cornell_lit
     lamp = lambda x: coloured_lamp(scene, x, device)  # noqa: E731
     far = FarField(scene, F, clusters=len(scene) // 8, coarse_storage="fp64", dtype=np.float64, device=device)
     fresh = FarField(scene, F, clusters=far.clusters, coarse_storage="fp64", dtype=np.float64, device=device)
@@ -287,8 +287,8 @@ def test_first_bounce_of_a_lamp_switched_under_a_sun_multiplies_only_its_columns
     assert columns == [lit(sun), changed, changed, changed, lit(sun), changed]
 
 
-def test_light_changes_follow_the_full_solve(device, cornell):
-    scene, F, _, _, full = cornell
+def test_light_changes_follow_the_full_solve(device, cornell_lit):
+    scene, F, _, _, full = cornell_lit
     for coarse in ("dense", "sweeps"):
         far = FarField(scene, F, clusters=len(scene) // 8, coarse=coarse, device=device)
         dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=[278, 273, 280], far_field=far,
@@ -305,12 +305,12 @@ def test_light_changes_follow_the_full_solve(device, cornell):
             assert sweeps[1] < sweeps[0]  # the coarse solve starts from the previous lights' solution
 
 
-def test_injection_from_the_columns_outside_the_local_set(device, cornell):
+def test_injection_from_the_columns_outside_the_local_set(device, cornell_lit):
     """The injection P_S F[S, X] B_far[X]: a first call with new rows multiplies them whole, a
     second with the same rows and local set only their entries outside it, cut out once (where
     they are fewer than half: a large local set); every call equals the product of the whole
     rows with B_far zeroed on S, bit for bit."""
-    scene, F, L, _, _ = cornell
+    scene, F, L, _, _ = cornell_lit
     far = FarField(scene, F, clusters=len(scene) // 8, device=device)
     for share, cut_out in ((0.75, True), (0.25, False)):
         S = np.random.default_rng(3).choice(len(scene), int(share * len(scene)), replace=False)
@@ -327,14 +327,14 @@ def test_injection_from_the_columns_outside_the_local_set(device, cornell):
 
 
 @pytest.mark.parametrize("update", ["exact", "paper"])
-def test_injection_follows_the_swaps_of_a_walk(device, cornell, update):
+def test_injection_follows_the_swaps_of_a_walk(device, cornell_lit, update):
     """A walk's frames replace the local rows on every swap; the injection is carried over each
     swap (FarField.follow_swap: the kept slots' change from the columns of the patches that
     entered and left, the swapped slots' new rows) and equals the whole product of the rows
     with B_far zeroed on the local set, to float64 rounding, also over frames whose radiosity()
     is skipped; B equals that of a solution that multiplies the rows whole (to a float32
     rounding: the light reaches the device's products in float32)."""
-    scene, F, L, _, _ = cornell
+    scene, F, L, _, _ = cornell_lit
     kw = dict(local_size=len(scene) // 4, update=update, max_swaps_per_frame=8, observer=[278, 273, -300],
               device=device)
     dyn, whole = DynamicRadiosity(scene, F, **kw), DynamicRadiosity(scene, F, **kw)
@@ -356,14 +356,14 @@ def test_injection_follows_the_swaps_of_a_walk(device, cornell, update):
     assert carried >= 8 and worst < 2e-15  # 5.6e-16 of the largest over 11 carried frames
 
 
-def test_injection_after_a_carried_swap_cuts_nothing(device, cornell, monkeypatch):
+def test_injection_after_a_carried_swap_cuts_nothing(device, cornell_lit, monkeypatch):
     """New lights on every frame of a walk: each injection multiplies the rows as the swap left
     them (they are new to the product), and none cuts out their outside columns, which the next
     swap would drop; the carry count restarts at each product, and past MAX_CARRIED_SWAPS a
     carry hands over to a full product."""
     from pydynrad.farfield import level
 
-    scene, F, L, _, _ = cornell
+    scene, F, L, _, _ = cornell_lit
     dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 2, max_swaps_per_frame=8, observer=[278, 273, -300],
                            device=device)
     for k, z in enumerate(np.linspace(-300, 500, 8)):
@@ -383,11 +383,11 @@ def test_injection_after_a_carried_swap_cuts_nothing(device, cornell, monkeypatc
     assert carried[:3] == [True, True, False]
 
 
-def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_path):
+def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell_lit, tmp_path):
     from pydynrad.rows.files import open_form_factors
     from pydynrad.precompute.store import compute_store
 
-    scene, F, L, ref, _ = cornell
+    scene, F, L, ref, _ = cornell_lit
     cl = cluster_patches(scene, patches_per_cluster=8)
     compute_store(scene, tmp_path / "ff", resolution=32, clusters=cl, progress=False,
                   row_function=lambda scene, rows, resolution, device=None: F[rows])
@@ -419,8 +419,8 @@ def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell, tmp_pat
         DynamicRadiosity(scene, open_form_factors(scene, tmp_path / "no-G"), local_size=10, device=device)
 
 
-def test_light_refuses_bad_light_vectors(device, cornell):
-    scene, F, L, _, _ = cornell
+def test_light_refuses_bad_light_vectors(device, cornell_lit):
+    scene, F, L, _, _ = cornell_lit
     far = FarField(scene, F, clusters=len(scene) // 8, coarse="sweeps", device=device)
     nan = L.copy()
     nan[3, 1] = np.nan
@@ -432,8 +432,8 @@ def test_light_refuses_bad_light_vectors(device, cornell):
     assert far.B_far is None
 
 
-def test_bad_input(device, cornell):
-    scene, F = cornell[:2]
+def test_bad_input(device, cornell_lit):
+    scene, F = cornell_lit[:2]
     n = len(scene)
     groups = cluster_patches(scene).groups
     for bad in (0, -1, n + 1, groups - 1, 2.5):

@@ -121,8 +121,8 @@ def test_demo_runs_reduced_and_writes_readable_images(tmp_path, capsys):
         assert img.shape == (30, 40, 3) and np.all(np.isfinite(img)) and img.std() > 0.01
     for k in (0, 2):  # first and last frames carry the full solve and a comparison image
         cmp_img = read_image(out / f"compare_{k:04d}.png")
-        # Two rows (local only above the far field) of dynamic | full | error, 2 px apart.
-        assert cmp_img.shape[0] == 2 * 30 + 2 and cmp_img.shape[1] > 3 * 40 and cmp_img.std() > 0.01
+        # Two titled rows (local only above the far field) of dynamic | full | error, 2 px apart.
+        assert cmp_img.shape[0] > 2 * 30 + 2 and cmp_img.shape[1] > 3 * 40 and cmp_img.std() > 0.01
     summary = (out / "summary.txt").read_text()
     for stage in ("update", "lighting", "render", "write", "median ms", "dynamic vs full radiosity at frame 2",
                   "local only (the paper's method)"):
@@ -292,12 +292,12 @@ def test_precomputed_form_factors_set_the_resolution_of_later_hemicubes(tmp_path
         args = build_parser().parse_args(["demo", "--form-factors", ff, "--max-edge", "250"])
         with contextlib.ExitStack() as args.cleanup:
             _form_factors(args, scene)
-            assert args.resolution == 8  # the demo's own default is 32
+            assert args.resolution == 8  # the demo's own default is 64
         code, _, err = run_main(["demo", "--form-factors", ff, "--max-edge", "250", "--resolution", "16", "--frames",
                                  "2", "--out", str(tmp_path / "d"), "--quiet"], capsys)
         assert_one_line_error(code, err, "resolution")
     args = build_parser().parse_args(["demo", "--max-edge", "250"])  # computed: the command's default
-    assert args.resolution is None and args.default_resolution == 32
+    assert args.resolution is None and args.default_resolution == 64
 
 @pytest.mark.slow
 def test_formfactors_store_on_a_local_cluster_equals_one_process(tmp_path, capsys):

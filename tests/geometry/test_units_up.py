@@ -1,6 +1,5 @@
 """A scene's unit and up axis (issue 41): skies, suns, luminaires, sensors and exports use them."""
 
-import math
 import warnings
 
 import numpy as np

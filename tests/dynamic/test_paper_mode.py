@@ -60,7 +60,7 @@ class PaperReference:
 
 
 @pytest.fixture(scope="module")
-def setup():
+def emitting_box_F():
     scene = coloured_box(4, seed=21, emitters=2)
     F = reciprocal_F(scene.areas, row_sum=0.95, density=0.08, seed=22)
     return scene, F
@@ -82,8 +82,8 @@ def run_walk(device, scene, F, storage, frames=60, seed=23):
 
 
 @pytest.mark.parametrize("storage", ["fp64", "fp32", "fp16"])
-def test_paper_mode_equals_numpy_transcription(device, setup, storage):
-    scene, F = setup
+def test_paper_mode_equals_numpy_transcription(device, emitting_box_F, storage):
+    scene, F = emitting_box_F
     dyn, ref, plain, swaps = run_walk(device, scene, F, storage)
     assert swaps >= 100
     assert np.array_equal(dyn.local_patches, ref.members)
@@ -94,9 +94,9 @@ def test_paper_mode_equals_numpy_transcription(device, setup, storage):
     assert rel(plain.K, ref.K) > 0.05  # observed ~0.2: far above every storage tolerance
 
 
-def test_paper_mode_is_an_approximation(device, setup):
+def test_paper_mode_is_an_approximation(device, emitting_box_F):
     """Paper K drifts from the exact multibounce matrix of its set; exact mode does not."""
-    scene, F = setup
+    scene, F = emitting_box_F
     dyn, ref, _, _ = run_walk(device, scene, F, "fp64", frames=30)
     fresh = dense_K(scene, F, dyn.local_patches, 3)
     err = rel(dyn.matrix.to_host(), fresh)
@@ -106,17 +106,17 @@ def test_paper_mode_is_an_approximation(device, setup):
     assert np.all(np.isfinite(dyn.radiosity(light=L)))
 
 
-def test_bitset_transcription_matches_the_library_table(device, setup):
+def test_bitset_transcription_matches_the_library_table(device, emitting_box_F):
     """The library's packed bitsets hold exactly the reference's bool table after a walk."""
-    scene, F = setup
+    scene, F = emitting_box_F
     dyn, ref, _, _ = run_walk(device, scene, F, "fp64", frames=30)
     table = np.unpackbits(dyn._used.bits, axis=1, count=len(scene)).astype(bool)
     np.testing.assert_array_equal(table, ref.used)
 
 
 @pytest.mark.slow
-def test_long_paper_walk_stays_finite(device, setup):
-    scene, F = setup
+def test_long_paper_walk_stays_finite(device, emitting_box_F):
+    scene, F = emitting_box_F
     dyn, ref, _, swaps = run_walk(device, scene, F, "fp32", frames=2000, seed=25)
     assert swaps > 1000
     assert np.all(np.isfinite(dyn.matrix.to_host()))

@@ -21,7 +21,7 @@ from pydynrad.formfactors import form_factors
 from pydynrad.scenes.analytic import closed_box
 from pydynrad.scenes.cornell import cornell_box
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package lives in the repo root
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the bench package lives in the repo root
 
 from bench.gather import indicator, weighted  # noqa: E402  (the two prolongations)
 from pydynrad.precompute.store import compute_store
@@ -31,7 +31,7 @@ R = 16
 
 
 @pytest.fixture(scope="module")
-def cornell(device):
+def cornell_weighted(device):
     scene = cornell_box()
     labels = cluster_patches(scene).labels
     w = np.random.default_rng(1).uniform(0.1, 2.0, len(scene))
@@ -47,8 +47,8 @@ def assert_float32_equal(G, ref):
     assert np.max(np.abs(g - r) / scale) < 1e-6
 
 
-def test_indicator_equals_f_times_pr(cornell, device):
-    scene, labels, _, F = cornell
+def test_indicator_equals_f_times_pr(cornell_weighted, device):
+    scene, labels, _, F = cornell_weighted
     Pr = indicator(labels)
     assert Pr.shape[1] < len(scene) / 4  # clusters really merge patches
     G = cluster_form_factors(scene, Pr, resolution=R, device=device)
@@ -58,24 +58,24 @@ def test_indicator_equals_f_times_pr(cornell, device):
     assert G.nnz < F.nnz / 2
 
 
-def test_weighted_equals_f_times_pr(cornell, device):
-    scene, labels, w, F = cornell
+def test_weighted_equals_f_times_pr(cornell_weighted, device):
+    scene, labels, w, F = cornell_weighted
     Pr = weighted(labels, scene.areas.astype(np.float64), w)
     G = cluster_form_factors(scene, Pr, resolution=R, device=device)
     assert_float32_equal(G, F @ Pr)
 
 
-def test_shared_patches_and_dense_input(cornell, device):
+def test_shared_patches_and_dense_input(cornell_weighted, device):
     """A patch in two clusters (two entries in its row) and a dense Pr take the host path, same truth."""
-    scene, labels, _, F = cornell
+    scene, labels, _, F = cornell_weighted
     Pr = indicator(labels).toarray()
     Pr[::7, 0] += 0.5
     G = cluster_form_factors(scene, Pr, resolution=R, device=device)
     assert_float32_equal(G, F @ Pr)
 
 
-def test_rows_and_small_blocks(cornell, device, monkeypatch):
-    scene, labels, _, _ = cornell
+def test_rows_and_small_blocks(cornell_weighted, device, monkeypatch):
+    scene, labels, _, _ = cornell_weighted
     Pr = indicator(labels)
     rows = np.array([5, 900, 17, 5, 300])
     whole = cluster_form_factors(scene, Pr, resolution=R, device=device)
@@ -106,8 +106,8 @@ def test_closed_box_rows_sum_to_one_and_catalogue(device):
     assert_float32_equal(sp.csr_matrix(G.astype(np.float32)), F @ Pr)
 
 
-def test_bad_input(cornell, device):
-    scene, labels, _, _ = cornell
+def test_bad_input(cornell_weighted, device):
+    scene, labels, _, _ = cornell_weighted
     Pr = indicator(labels)
     n, c = Pr.shape
     with pytest.raises(InvalidInputError, match="shape"):
