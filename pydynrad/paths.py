@@ -11,7 +11,7 @@ Path file (JSON); its fields are named as the Python API names them (:class:`Cam
 
     {
       "frames": 48,                       # number of frames (>= 1)
-      "fov_y": 39.3,                      # vertical field of view, degrees (default 45)
+      "fov_y": 39.3,                      # vertical field of view, degrees (default 39.3, as --fov-y)
       "width": 320, "height": 240,        # image size in pixels (default 320 x 240)
       "up": [0, 1, 0],                    # optional, default +y
       "interpolation": "catmull-rom",     # or "linear"
@@ -20,7 +20,7 @@ Path file (JSON); its fields are named as the Python API names them (:class:`Cam
       #                                     "start_angle": degrees, "turns": 1.0}
       "lights": [{"type": "point", "intensity": [r, g, b], "keyframes": [[x, y, z], ...]},
                  {"type": "spot", "direction": [x, y, z], "intensity": [r, g, b],
-                  "inner_angle": 0.3, "outer_angle": 0.5, "keyframes": [[x, y, z], ...]},
+                  "inner_angle_deg": 20, "outer_angle_deg": 30, "keyframes": [[x, y, z], ...]},
                  {"type": "directional", "direction": [x, y, z], "irradiance": [r, g, b]}],
       "objects": [{"mesh": "cube.obj",              # relative to the path file; or instead
                    # "block": {"size": 100, "subdivisions": 1},   (see pydynrad.scenes.block)
@@ -31,8 +31,10 @@ Path file (JSON); its fields are named as the Python API names them (:class:`Cam
                    "interpolation": "catmull-rom"}]
     }
 
-``"lights"`` is optional. Point and spot lights (intensity in W/sr, spot angles in radians
-as :class:`~pydynrad.lights.sources.SpotLight` takes them) move through their position keyframes
+``"lights"`` is optional. Point and spot lights (intensity in W/sr; spot cone half-angles in
+degrees, as on the command line, ``"inner_angle_deg"`` defaulting to ``"outer_angle_deg"``, a
+hard edge; the radians keys ``"inner_angle"``/``"outer_angle"`` of earlier releases are still
+read, with a DeprecationWarning, for one release) move through their position keyframes
 (one keyframe: a fixed light; ``"interpolation"`` per light, default catmull-rom); a spot
 light keeps its direction. A directional light has a direction and an irradiance.
 
@@ -52,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .defaults import FOV_Y
 from .geometry.camera import Camera
 from .checks import floats, number, unit_vector
 from .errors import InvalidInputError
@@ -155,7 +158,7 @@ class CameraPath:
     positions: np.ndarray
     look_ats: np.ndarray | None
     frames: int
-    fov_y: float = 45.0
+    fov_y: float = FOV_Y
     width: int = 320
     height: int = 240
     up: tuple = (0.0, 1.0, 0.0)
@@ -198,7 +201,7 @@ class CameraPath:
 
 
 def orbit(center, radius: float, elevation: float, frames: int, *, start_angle: float = 0.0, turns: float = 1.0,
-          up=(0.0, 1.0, 0.0), fov_y: float = 45.0, width: int = 320, height: int = 240) -> CameraPath:
+          up=(0.0, 1.0, 0.0), fov_y: float = FOV_Y, width: int = 320, height: int = 240) -> CameraPath:
     """A circle of ``radius`` around ``center`` at ``elevation`` above it (along ``up``), always
     looking at ``center``; ``turns`` full turns over ``frames`` frames, starting at
     ``start_angle`` degrees. ``fov_y`` (degrees), ``width`` and ``height`` (pixels) set the
@@ -220,7 +223,7 @@ def orbit(center, radius: float, elevation: float, frames: int, *, start_angle: 
     return CameraPath(pos, np.repeat(c[None], n, axis=0), n, fov_y, width, height, up=tuple(up_v), interpolation="linear")
 
 
-def fly_through(points, frames: int, *, up=(0.0, 1.0, 0.0), fov_y: float = 45.0, width: int = 320,
+def fly_through(points, frames: int, *, up=(0.0, 1.0, 0.0), fov_y: float = FOV_Y, width: int = 320,
                 height: int = 240) -> CameraPath:
     """Fly through ``points`` (K >= 2, Catmull-Rom) in ``frames`` frames, looking ahead;
     lens and image as in :func:`orbit`."""
@@ -323,8 +326,29 @@ _OBJECT_FIELDS = ("mesh", "block", "albedo", "emission", "name", "keyframes", "i
 _BLOCK_FIELDS = ("size", "subdivisions")
 #: Per light type: the light's own fields (its dataclass's, position aside) and whether it moves.
 _LIGHT_FIELDS = {"point": (("intensity",), True),
-                 "spot": (("direction", "intensity", "inner_angle", "outer_angle"), True),
+                 "spot": (("direction", "intensity", "outer_angle_deg"), True),
                  "directional": (("direction", "irradiance"), False)}
+
+
+def _spot_degrees(item: dict, where: str) -> tuple[dict, dict]:
+    """A spot light's fields, and the angles given by the radians keys of earlier releases
+    ("inner_angle", "outer_angle": read as they were, with a DeprecationWarning, their degree
+    keys then standing in for them); both spellings of one angle are an error."""
+    import warnings
+
+    old = [k for k in ("inner_angle", "outer_angle") if k in item]
+    if not old:
+        return item, {}
+    item, radians = dict(item), {}
+    for k in old:
+        if f"{k}_deg" in item:
+            raise InvalidInputError(f"{where}: give {k + '_deg'!r} (degrees) or the deprecated {k!r} (radians), not both")
+        radians[k] = number(item.pop(k), f"{where}: {k}")
+        item[f"{k}_deg"] = float(np.degrees(radians[k]))
+    warnings.warn(f"{where}: {' and '.join(map(repr, old))} (radians) are deprecated and will be removed in the next "
+                  f"release; give the cone half-angles in degrees as {' and '.join(repr(k + '_deg') for k in old)}",
+                  DeprecationWarning, stacklevel=4)
+    return item, radians
 
 
 def _parse_light(item, where: str):
@@ -334,8 +358,19 @@ def _parse_light(item, where: str):
     if not isinstance(kind, str) or kind not in _LIGHT_FIELDS:
         raise InvalidInputError(f"{where}: unknown light type {kind!r}; use {', '.join(map(repr, _LIGHT_FIELDS))}")
     fields, moves = _LIGHT_FIELDS[kind]
-    _known_fields(item, ("type", *fields, *(("keyframes", "interpolation") if moves else ())), where)
+    radians = {}
+    if kind == "spot":
+        item, radians = _spot_degrees(item, where)
+    optional = ("inner_angle_deg",) if kind == "spot" else ()
+    _known_fields(item, ("type", *fields, *optional, *(("keyframes", "interpolation") if moves else ())), where)
     values = {f: _field(item, f, where, required=True) for f in fields}
+    if kind == "spot":  # degrees in the file, radians in SpotLight
+        outer = radians.get("outer_angle") or np.radians(number(values.pop("outer_angle_deg"),
+                                                                 f"{where}: outer_angle_deg"))
+        values.pop("outer_angle_deg", None)
+        inner = radians.get("inner_angle") or np.radians(number(_field(item, "inner_angle_deg", where,
+                                                                       np.degrees(outer)), f"{where}: inner_angle_deg"))
+        values["outer_angle"], values["inner_angle"] = float(outer), float(inner)
     if not moves:
         return DirectionalLight(**values)
     keys = _keyframes(_field(item, "keyframes", where, required=True), f"{where}: keyframes")
@@ -374,6 +409,12 @@ def _object_scene(item: dict, base: Path, where: str):
         mesh = item["mesh"]
         if not isinstance(mesh, str):
             raise InvalidInputError(f"{where}: 'mesh' must be a file name; got {mesh!r}")
+        # Confined to the path file's folder (and below): a path file names meshes beside it, not
+        # any file the reader may open ('../x.obj', an absolute path, a link leading out).
+        target = (base / mesh).resolve()
+        if Path(mesh).is_absolute() or not target.is_relative_to(base.resolve()):
+            raise InvalidInputError(f"{where}: 'mesh' {mesh!r} is outside the path file's folder {str(base)!r}; "
+                                    "put the mesh in that folder (or below it) and name it relative to it")
         try:
             return load(base / mesh)
         except InvalidInputError as exc:
@@ -423,7 +464,8 @@ class WalkFile:
 def load_walk(path) -> WalkFile:
     """Read a JSON path file (format in the module docstring), moving objects included.
 
-    Mesh files of objects are read relative to the path file's folder. Every problem raises
+    Mesh files of objects are read relative to the path file's folder, and only from there or
+    below (a name leading out of it is refused). Every problem raises
     :class:`~pydynrad.errors.InvalidInputError` naming the file and the field.
     """
     path = Path(path)
@@ -447,7 +489,7 @@ def load_walk(path) -> WalkFile:
         raise InvalidInputError(f"{where}: the top level must be a JSON object")
     try:
         _known_fields(doc, _TOP_FIELDS, where)
-        lens = {"fov_y": _field(doc, "fov_y", where, 45.0), "width": _field(doc, "width", where, 320),
+        lens = {"fov_y": _field(doc, "fov_y", where, FOV_Y), "width": _field(doc, "width", where, 320),
                 "height": _field(doc, "height", where, 240)}
         up = tuple(unit_vector(_field(doc, "up", where, (0.0, 1.0, 0.0)), "up"))
         frames = _field(doc, "frames", where, required=True)

@@ -34,6 +34,7 @@ See docs/design.md, 'Conventions', 'Local set' and 'Drift and refresh'.
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from dataclasses import dataclass, field
@@ -42,8 +43,9 @@ from typing import NamedTuple
 import numpy as np
 
 from ..checks import flag, integer, number, resolution as checked_resolution, vec3
+from ..defaults import RESOLUTION, default_local_size
 from ..geometry.scene import checked_scene
-from ..errors import InvalidInputError, PydynradError
+from ..errors import InvalidInputError, OutOfMemoryError, PydynradError
 from ..device.matrix import DeviceMatrix, padded_ld
 from ..precision import compute_dtype, storage_dtype
 from .localrows import LocalRows, _replace_rows
@@ -60,10 +62,13 @@ from .poserows import stale_rows
 from .poserows import swap_chunks
 from .stale import rows_minus
 from ..bounces import multibounce_block
+from ..bounces import multibounce_memory
+from ..host.memory import available_host_bytes
 from ..bounces import warn_precision
 from ..device.devices import device_or_default
 from ..farfield import FarField
 from ..farfield import far_field_for
+from ..farfield.estimate import DEFAULT_TOLERANCE, ErrorControl
 from ..geometry.objects import _objects
 from ..geometry.objects import check_reach
 from ..geometry.objects import instanced
@@ -91,6 +96,19 @@ MOVE_SWAPS_LIMIT = 64
 DEFAULT_OCCLUSION = 32
 
 
+def _locked(method):
+    """Run ``method`` holding the solution's lock (:attr:`DynamicRadiosity.lock`, re-entrant):
+    a call waits for a frame in progress in another thread and sees K, the local set and the
+    far field's light as that frame left them, never half of one."""
+
+    @functools.wraps(method)
+    def locked(self, *args, **kwargs):
+        with self._lock:
+            return method(self, *args, **kwargs)
+
+    return locked
+
+
 def swap_size(max_swaps: int, object_patches: int) -> int:
     """The most vectors per batch of the update kernels: a frame's swaps, or a move's batch
     of the objects' patches when larger (a 48-patch block in one batch, not 32 + 16)."""
@@ -115,6 +133,9 @@ class FrameStats:
     hemicubes: int = 0  # rows the moves computed by hemicube (not taken from poses=)
     rows_refreshed: int = 0  # rows of other local patches refreshed for the objects' occlusion
     t_move: float = 0.0  # applying the moves: the objects' and refreshed rows' hemicubes and the swap, waited for
+    #: The far field's :class:`~pydynrad.farfield.estimate.ErrorEstimate` of this frame's answer: filled in by
+    #: the radiosity() call that follows this update (None until then, and without a far field).
+    error_estimate: object = None
 
     @property
     def t_total(self) -> float:
@@ -130,8 +151,10 @@ class DynamicRadiosity:
     form_factors : (N, N) sparse matrix, RowSource, or None
         F as :func:`pydynrad.form_factors` returns it; a row source (form-factor store, row
         cache) serving its rows; or None for one hemicube per entering patch.
-    local_size : int
-        M, the number of local patches, 1 <= M <= N.
+    local_size : int, optional
+        M, the number of local patches, 1 <= M <= N. Default: min(1024, N // 2), at least the
+        moving objects' patches (:func:`pydynrad.defaults.default_local_size`), so at least
+        half of the scene is far field; the size chosen is :attr:`M`.
     update : "exact" | "paper"
         The paper's update (sections 3-4, with section 4.1's bitset) or the exact one.
     storage : "fp16" | "fp32" | "fp64"
@@ -152,7 +175,8 @@ class DynamicRadiosity:
         update; we do the same in exact mode, since an emitter outside the set lights
         nothing). If every slot holds an emitter, no more swaps happen.
     resolution : int
-        Hemicube resolution when ``form_factors`` is None, and of every moving object's rows.
+        Hemicube resolution when ``form_factors`` is None, and of every moving object's rows
+        (default 64, :data:`pydynrad.defaults.RESOLUTION`, as :func:`pydynrad.form_factors`).
     samples : int
         Hemicubes per row when ``form_factors`` is None (1, 4, 16, ...:
         :func:`pydynrad.form_factors`); given form factors carry their own, and moving objects'
@@ -177,12 +201,35 @@ class DynamicRadiosity:
         K equals a fresh build over the same set when ``occlusion`` is None. With the far field,
         the patches outside the local set are gathered at the current poses in :meth:`radiosity`.
     device : pydynrad.device.Device, optional
+    tolerance : float or None
+        With the far field: every answer's all-patch error is estimated from its residual
+        L + P F B - B (:attr:`error_estimate`; :mod:`pydynrad.farfield.estimate`), and while the
+        estimate exceeds ``tolerance`` (area-weighted relative RMS; default
+        :data:`~pydynrad.farfield.estimate.DEFAULT_TOLERANCE`, 0.5%) sweeps B <- L + P F B refine
+        it (F in memory; a frame with unchanged lights only beyond twice the tolerance). None:
+        estimate only. Without F in memory the residual is sampled and nothing is refined.
+
+    Notes
+    -----
+    Threads: one solution may be shared by threads (a viewer serving requests while another thread walks).
+    Every method that reads or writes K, the local set, the kept rows, the queued moves or the
+    far field's light (:meth:`update`, :meth:`radiosity`, :meth:`refresh`, :meth:`residual`,
+    :meth:`move`, :meth:`warm_up`, :attr:`local_patches`, :attr:`local_mask`,
+    :attr:`patch_levels`, :attr:`memory_bytes`, :attr:`host_memory_bytes`) holds one re-entrant
+    lock, :attr:`lock`, for the whole call: a reader waits for a frame in progress and sees the
+    state that frame leaves, whole. Two :meth:`update` calls must not overlap: the second
+    raises :class:`~pydynrad.errors.PydynradError` at once rather than queue a frame behind
+    another. A FarField shared by solutions serves each :meth:`radiosity` its own light under
+    the far field's own lock (:attr:`pydynrad.farfield.FarField.lock`). To read several things
+    of one frame together (:attr:`frame` and :meth:`radiosity`, or :attr:`matrix`, which is the
+    device buffer itself), hold ``with solution.lock:`` around them.
     """
 
-    def __init__(self, scene, form_factors, local_size: int = 1024, update: str = "exact", storage: str = "fp32",
+    def __init__(self, scene, form_factors, local_size: int | None = None, update: str = "exact", storage: str = "fp32",
                  max_swaps_per_frame: int = 8, refresh_tolerance: float | None = None, refresh_interval: int = 32,
-                 observer=None, keep_emitters: bool = True, resolution: int = 128, far_field=True, clusters=None,
-                 cluster_form_factors=None, objects=None, device=None, samples: int = 1) -> None:
+                 observer=None, keep_emitters: bool = True, resolution: int = RESOLUTION, far_field=True, clusters=None,
+                 cluster_form_factors=None, objects=None, device=None, samples: int = 1,
+                 tolerance: float | None = DEFAULT_TOLERANCE) -> None:
         checked_scene(scene)
         moving = objects if isinstance(objects, MovingObjects) or objects is None else MovingObjects(objects)
         occlusion = "auto" if moving is None else moving.occlusion
@@ -200,8 +247,8 @@ class DynamicRadiosity:
             if occlusion != "auto":
                 raise InvalidInputError(f"occlusion must be a row count, None or 'auto'; got {occlusion!r}")
             # With a static F and the correction every budget gives the same error (the rows left
-            # stale are corrected for) and swapping rows only costs: a moving frame took 152 ms at
-            # 32 rows against 60 ms at 0 (bench.objects, Zen 3, 2026-12-02), both 0.90% per pixel.
+            # stale are corrected for) and swapping rows only costs time
+            # (docs/decisions/0025-moving-objects-rows-and-correction.md).
             occlusion = 0 if form_factors is not None and self.occlusion_correction else DEFAULT_OCCLUSION
         self.occlusion = None if occlusion is None else integer(occlusion, "occlusion", 0)
         if samples != 1 and (form_factors is not None or objects is not None):
@@ -214,6 +261,8 @@ class DynamicRadiosity:
         n = len(scene)
         self.scene = scene
         self._stale = StaleRows(n)  # rows a move left stale in K (a static F with occlusion_correction)
+        if local_size is None:  # the rule of pydynrad.defaults: at least half the scene stays far
+            local_size = default_local_size(n, n - len(getattr(self, "static_scene", scene)))
         self.M = integer(local_size, "local_size (M)", 1, n)
         if update not in UPDATE_MODES:
             raise InvalidInputError(f"update must be one of {UPDATE_MODES}; got {update!r}")
@@ -241,11 +290,16 @@ class DynamicRadiosity:
         self._matrix: DeviceMatrix | None = None
         self._kernels = None
         self._used = None
-        self._update_lock = threading.Lock()
+        self._update_lock = threading.Lock()  # held by update() alone: a second caller is refused
+        self._lock = threading.RLock()  # held by every call that reads or writes the solution (Threads)
         self.frame = 0
         self.refreshes = 0
         self._rng = np.random.default_rng(0x5EEAC106)
+        self._check_memory()  # before any of it is allocated: a refusal, never a signal
         self.far = self._far_field(far_field, clusters, cluster_form_factors)
+        # The far field's error, estimated on every answer, and sweeps to ``tolerance`` (farfield/estimate.py).
+        self._errors = None if self.far is None else ErrorControl(scene, self.far, self._ff, self.device, tolerance)
+        self._frame_stats: FrameStats | None = None  # the last update()'s, whose error_estimate radiosity() fills
         self._allocate()
         if observer is not None:
             self._build(self._initial_set(self._observer(observer, "observer")))
@@ -295,18 +349,21 @@ class DynamicRadiosity:
             raise PydynradError("the local set is not built yet: pass observer= or call update(position) first")
 
     @property
+    @_locked
     def local_patches(self) -> np.ndarray:
         """(M,) patch index held by each slot (row/column of K)."""
         self._require_built()
         return self._local_patches.copy()
 
     @property
+    @_locked
     def local_mask(self) -> np.ndarray:
         """(N,) bool: True on the patches whose radiosity K computes."""
         self._require_built()
         return self._local_mask.copy()
 
     @property
+    @_locked
     def patch_levels(self) -> np.ndarray:
         """(N,) str: how :meth:`radiosity` solves each patch now: ``"local"`` (the local matrix K),
         ``"far"`` (the far field's coarse level) or ``"light"`` (L only: no far field, or a call
@@ -331,12 +388,21 @@ class DynamicRadiosity:
         return far_field_for(self.scene, self._ff, clusters, G, self.device)
 
     @property
+    def lock(self) -> threading.RLock:
+        """The re-entrant lock every call that reads or writes this solution holds (class
+        docstring, 'Threads'): hold it to read several things of one frame together."""
+        return self._lock
+
+    @property
     def matrix(self) -> DeviceMatrix:
-        """The device-resident K (C, M, M) in slot order (see :attr:`local_patches`)."""
+        """The device-resident K (C, M, M) in slot order (see :attr:`local_patches`): the buffer
+        itself, which the next :meth:`update` changes in place; read it under :attr:`lock`
+        where another thread may update."""
         self._require_built()
         return self._matrix
 
     @property
+    @_locked
     def memory_bytes(self) -> int:
         """Device bytes of K (all channels), the update's scratch buffers and the far field's
         F_c and G (or F) where they are on the device (:attr:`FarField.device_memory_bytes
@@ -360,7 +426,34 @@ class DynamicRadiosity:
         swaps = swap_size(max_swaps_per_frame, object_patches)
         return channels * M * ld * item + scratch_nbytes(device, M, ld, item, real, swaps, channels)
 
+    def _check_memory(self) -> None:
+        """OutOfMemoryError where K and the update's scratch (:meth:`estimate_memory_bytes`) and
+        K's build (:func:`pydynrad.bounces.multibounce_memory`) would not fit: on the device
+        (its memory, and its largest buffer) and in what this process may still allocate
+        (:func:`pydynrad.host.memory.available_host_bytes`: the machine's, the cgroup's and
+        RLIMIT_AS's headroom), which on a CPU device holds the device's buffers too. PoCL's
+        failed host allocation under ``ulimit -v`` had crashed the process (signal 11)."""
+        gib = 2.0**30
+        dtype = compute_dtype(self.storage)
+        device_need = self.estimate_memory_bytes(self.M, self.C, self.storage, self.max_swaps, self.device,
+                                                 len(self._object_patches))
+        build = multibounce_memory(self.M, self.C, dtype)
+        host_need = build["host"] + ((device_need + build["device"]) if self.device.traits.cpu else 0)
+        have = available_host_bytes()
+        if host_need > have:
+            raise OutOfMemoryError(
+                f"a DynamicRadiosity of M = {self.M} local patches ({self.C} channel(s), {self.storage}) needs about "
+                f"{host_need / gib:.2f} GiB of host memory for K, its scratch and its build; this process may "
+                f"allocate {have / gib:.2f} GiB (the least of the machine's, its cgroup's and ulimit -v's). Use a "
+                "smaller local_size or fp16 storage")
+        if device_need + build["device"] > self.device.global_mem_bytes:
+            raise OutOfMemoryError(
+                f"a DynamicRadiosity of M = {self.M} local patches needs about {(device_need + build['device']) / gib:.2f} "
+                f"GiB of device memory; {self.device.name} has {self.device.global_mem_bytes / gib:.2f} GiB. Use a "
+                "smaller local_size or fp16 storage")
+
     @property
+    @_locked
     def host_memory_bytes(self) -> int:
         """Host bytes of the bookkeeping: slot map, local mask, the local set's form-factor
         rows, the rows moves left stale, (paper mode) the bitsets and the far field (G, F_c, R,
@@ -381,7 +474,7 @@ class DynamicRadiosity:
             self._ff.fetch_local(local_patches)
         # The rows were validated when fetched (LocalRows.rows) or made here at a pose (moves.at_pose
         # and stale_rows cap every row to a sum of 1; hemicube rows are so by construction): not
-        # checked again (~3 ms at M = 768, an eighth of the solve, on the Zen 3).
+        # checked again (checking them was a sizeable share of the solve).
         return multibounce_block(self._ff.square(local_patches), self._rho(local_patches).T,
                                  dtype=compute_dtype(self.storage), device=self.device, checked=True)
 
@@ -427,12 +520,14 @@ class DynamicRadiosity:
         if self.far is not None and self.far.B_far is None:
             self.far.light(L)
 
+    @_locked
     def warm_up(self) -> None:
         """Launch every kernel the frames will use once, leaving K and the far field's light as
         they are. Construction does this; a second call costs a read pass and a read-write pass
         over one channel of K and changes nothing."""
         self._warm_up()
 
+    @_locked
     def refresh(self) -> None:
         """Rebuild K from scratch over the current local set and its kept rows (slots keep their
         patches; rows refreshed for moving objects stay)."""
@@ -447,7 +542,8 @@ class DynamicRadiosity:
         Returns a :class:`FrameStats`. The first call builds the set if the constructor had no
         ``observer`` (that frame reports ``refreshed=True`` and no swaps). Not re-entrant: the
         local set and K change in place, so a call while another is running (another thread)
-        raises :class:`~pydynrad.errors.PydynradError` instead of corrupting them.
+        raises :class:`~pydynrad.errors.PydynradError` instead of corrupting them. The frame
+        holds :attr:`lock`: other threads' reads wait for it and see it whole.
         """
         obs = self._observer(observer_position, "observer_position")
         if not self._update_lock.acquire(blocking=False):
@@ -455,7 +551,9 @@ class DynamicRadiosity:
                                 "change in place, so calls must not overlap; use one DynamicRadiosity per thread "
                                 "or hold a lock around update()")
         try:
-            return self._update(obs)
+            with self._lock:
+                self._frame_stats = self._update(obs)
+                return self._frame_stats
         finally:
             self._update_lock.release()
 
@@ -514,6 +612,7 @@ class DynamicRadiosity:
         return stats
 
     # -- moving objects -------------------------------------------------------------------------------
+    @_locked
     def move(self, obj, transform) -> None:
         """Queue a new (4, 4) rigid pose for ``obj``; the next :meth:`update` applies every queued move.
         A pose the device cannot resolve the object at is refused here, nothing queued
@@ -674,6 +773,7 @@ class DynamicRadiosity:
         return t_ff
 
     # -- lighting ----------------------------------------------------------------------------------------
+    @_locked
     def radiosity(self, lights=(), *, light=None, far_field: bool = True, emitters: str = "hemicube") -> np.ndarray:
         """B (N, 3) float64 for every patch (see :attr:`patch_levels` for how each was solved).
 
@@ -698,21 +798,47 @@ class DynamicRadiosity:
         check_radiosity_range(L, self.scene.albedo, compute_dtype(self.storage))  # the K passes' type
         S = self._local_patches
         LS = L[S]
-        far = self.far.light(L) if far_field and self.far is not None else None
-        if far is not None:
-            LS = LS + self.far.injection(self._ff.local, S)
+        far = None
+        if far_field and self.far is not None:
+            with self.far.lock:  # a FarField shared with other solutions: this light and its injection together
+                far = self.far.light(L)
+                LS = LS + self.far.injection(self._ff.local, S)
         B = far.copy() if far is not None else L.copy()
         if len(self._stale):
             B[S] = self._stale.correct(self._solve_kept, LS, B, S, self.scene.albedo, far is not None,
                                        self.correction_tolerance)
         else:
             B[S] = self._solve_kept(LS)
+        if far is not None and not self.objects and not len(self._stale):  # its residual, and sweeps to tolerance
+            with self.far.lock:
+                B = self._errors.check(L, B, S, lambda B_far: self._resolved(L, B_far))
+            if self._frame_stats is not None:
+                self._frame_stats.error_estimate = self._errors.last
         if self.objects:
             if far is not None:  # the coarse level is of the first poses: gather the outside at these
                 outside = np.flatnonzero(~self._local_mask)
                 B[outside] = self._ff.source.gather_outside(outside, L, B)
             self._last_B = B.sum(axis=1)
         return B if E is None else B + E
+
+    def _resolved(self, L: np.ndarray, B_far: np.ndarray) -> np.ndarray:
+        """The whole answer with the far field's answer replaced by ``B_far`` (a refinement sweep's,
+        :mod:`pydynrad.farfield.estimate`): B_far outside the local set, the local set solved
+        from its injection. Under the far field's lock."""
+        S = self._local_patches
+        self.far.B_far = B_far
+        B = B_far.copy()
+        B[S] = self._solve_kept(L[S] + self.far.injection(self._ff.local, S))
+        return B
+
+    @property
+    @_locked
+    def error_estimate(self):
+        """The far field's :class:`~pydynrad.farfield.estimate.ErrorEstimate` of the last
+        :meth:`radiosity` answer (None before one, without a far field, with moving objects, or
+        after a call with ``far_field=False`` only). Its ``error`` estimates the area-weighted
+        all-patch relative RMS error against the full solve of the same F."""
+        return None if self._errors is None else self._errors.last
 
     def _light_vector(self, lights, light, emitters: str) -> tuple[np.ndarray, np.ndarray | None]:
         """:func:`~pydynrad.lights.areas.analytic_emitter_light` of the world as it is, reused
@@ -743,10 +869,9 @@ class DynamicRadiosity:
         before they are queued), which takes the rays' result and gives
         the far field its light (on the host beside a CPU device, :mod:`pydynrad.host.product`, so
         that nothing of it waits behind the trace; radiosity()'s own light pass and coarse level
-        after a move had been 2.8 ms of a 21 ms moving frame on the Cornell box, AMD EPYC Zen 4,
-        2026-12-06. Queued ahead, the rays take ~0.6 ms of this thread before the trace starts,
-        against the far field's light after it: the same frame time, A/B on the same machine,
-        whose two cores the frame keeps busy). Only for lights that were steady, the last call's
+        after a move had been a sizeable share of a moving frame. Queued ahead, the rays delay the
+        trace a little, which the far field's light after it makes up: the same frame time, its
+        cores busy either way; docs/decisions/0026-moving-frame-cost.md). Only for lights that were steady, the last call's
         those of the call before: lights that change every frame would have the move relight them
         for nothing, since radiosity() computes other lights' vector whole. An answer the far
         field cannot give (a light past float32, coarse sweeps that do not converge) is left to
@@ -839,6 +964,7 @@ class DynamicRadiosity:
         return X + self.scene.albedo[self._local_patches].astype(np.float64) * KX.T
 
     # -- drift -------------------------------------------------------------------------------------------
+    @_locked
     def residual(self, probes: int | None = None) -> float:
         """K's relative error on ``probes`` random columns: max over them and the channels of
         ``|K e_j - K_fresh e_j|_inf`` over a scale of K's entries, an estimate of max entry

@@ -63,6 +63,8 @@ enclosed ones. Needs F. It lost at night (the sky is not where lamps shine).
 
 from __future__ import annotations
 
+import functools
+import threading
 import time
 
 import numpy as np
@@ -86,6 +88,7 @@ from .gather import clusters_without_f
 from ..bounces import multibounce_block
 from ..device.csr import DeviceCSR
 from ..device.devices import default_device
+from ..host.shortcuts import host_shortcuts
 from ..device.devices import real_dtype
 from ..device.matrix import DeviceMatrix
 from ..precision import compute_dtype
@@ -197,8 +200,8 @@ def _checked_linear(linear, n: int, C: int) -> tuple[sp.csr_matrix, sp.csr_matri
 
 def _differing_rows(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
     """Rows of A (N, k) with an entry other than 0 (B None) or than B's, column by column:
-    numpy's any(axis=1) over so few columns took 1.0-1.2 ms at the village's 66k rows, this
-    0.16 ms (per light change, twice)."""
+    numpy's any(axis=1) over so few columns is several times slower than a pass per column
+    (run twice per light change)."""
     out = A[:, 0] != (0.0 if B is None else B[:, 0])
     for c in range(1, A.shape[1]):
         out |= A[:, c] != (0.0 if B is None else B[:, c])
@@ -207,11 +210,35 @@ def _differing_rows(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
 
 def _gather_product(device, G: sp.csr_matrix, dtype):
     """G's bounce product L + P (G x): on the host where that is the device and G is small
-    (:mod:`pydynrad.host.product`; a gather of the Cornell box's far field took 0.16-0.18 ms there
-    against 0.36 ms on the device), else on the device."""
+    (:mod:`pydynrad.host.product`: a small G costs less there than one device call), else on the
+    device."""
     if on_host(device, HostBounce.nbytes_of(G, dtype)):
         return HostBounce(G, dtype)
     return DeviceCSR(device, G, dtype)
+
+
+#: How far a given G's row sums may stray from those of F Pr where F is in memory: per row
+#: (absolute + relative to F Pr's) and area-weighted over the scene. A G of hemicubes at another
+#: resolution than F stays within a few percent; an all-zero G (23% error against 1.4%) does not.
+G_ROW_TOLERANCE = (0.05, 0.25)
+G_MEAN_TOLERANCE = (0.01, 0.05)
+
+
+def _check_g_against_f(G, F, Pr, areas) -> None:
+    """InvalidInputError where a given G contradicts F: its row sums (the light a patch gathers
+    from every cluster) against those of F Pr, per row and area-weighted (:data:`G_ROW_TOLERANCE`,
+    :data:`G_MEAN_TOLERANCE`)."""
+    want = np.asarray(F @ np.asarray(Pr.sum(axis=1), dtype=np.float64).ravel(), dtype=np.float64).ravel()
+    have = np.asarray(G.sum(axis=1), dtype=np.float64).ravel()
+    d = np.abs(have - want)
+    a = np.asarray(areas, np.float64) / float(np.sum(areas))
+    worst = int(np.argmax(d - G_ROW_TOLERANCE[1] * want))
+    if d[worst] > G_ROW_TOLERANCE[0] + G_ROW_TOLERANCE[1] * want[worst] or \
+            float(a @ d) > G_MEAN_TOLERANCE[0] + G_MEAN_TOLERANCE[1] * float(a @ want):
+        raise InvalidInputError(
+            f"cluster_form_factors (G) contradicts the form factors F: patch {worst}'s row of G sums to "
+            f"{have[worst]:.4g} where F Pr's sums to {want[worst]:.4g} (area-weighted mean difference {float(a @ d):.3g}); "
+            "G must be F Pr for these clusters (pydynrad.farfield.gather.cluster_form_factors), or leave it out")
 
 
 def _cluster_columns(F, Pr) -> sp.csr_matrix:
@@ -224,8 +251,25 @@ def _cluster_columns(F, Pr) -> sp.csr_matrix:
     return sp.csr_matrix(F @ Pr, dtype=np.float64)
 
 
+def _locked(method):
+    """Run ``method`` holding the far field's :attr:`FarField.lock`."""
+
+    @functools.wraps(method)
+    def locked(self, *args, **kwargs):
+        with self.lock:
+            return method(self, *args, **kwargs)
+
+    return locked
+
+
 class FarField:
     """The coarse level of a scene: clusters, F_c, G, and the far radiosity B_far per light vector.
+
+    Threads: :meth:`light`, :meth:`injection` and :meth:`follow_swap` change the per-light state
+    (B_far, the last injection, the answers later lights are fitted to) and each holds
+    :attr:`lock`, a re-entrant lock; a caller that needs B_far and the injection of one light
+    together (two solutions sharing this far field, each with its own lights) holds ``lock``
+    around both calls, as :meth:`pydynrad.DynamicRadiosity.radiosity` does.
 
     Parameters
     ----------
@@ -303,6 +347,7 @@ class FarField:
                  linear=None) -> None:
 
         t0 = time.perf_counter()
+        self.lock = threading.RLock()  # the per-light state's (class docstring, 'Threads')
         self.scene = checked_scene(scene)
         n = len(scene)
         self.device = device or default_device()
@@ -359,7 +404,10 @@ class FarField:
             # Checked chunk by chunk while F_c is summed from it; never held whole.
             self.F_c = G.coarse_form_factors(self.R, C)
         else:
+            given = G is not None
             G = _cluster_columns(F, Pr) if G is None else checked_cluster_form_factors(G, Pr.shape)
+            if given and F is not None:
+                _check_g_against_f(G, F, Pr, scene.areas)
             # The linear basis sums to 1 on every patch: its three column blocks add up to F times the
             # indicator. Summed after the restriction, on C x 3C, not on G (N x 3C: most of the far
             # field's memory at a million patches).
@@ -378,7 +426,7 @@ class FarField:
         # F L over the lit columns only: by column on the host where the host is the device (a
         # CPU), a pass of F's rows on a GPU. The shared gather and the fine sweeps need F's rows.
         self._F_cols = None
-        if with_F and self.device.traits.cpu:
+        if with_F and host_shortcuts(self.device):
             self._F_cols = columns_float32(F) if dtype == np.float32 else sp.csc_matrix(F, dtype=dtype)
         rows_on_device = gather == "shared" or (fine_sweeps > 0 and self._fit is None) or (with_F and self._F_cols is None)
         self._F_dev = DeviceCSR(self.device, F, dtype) if rows_on_device else None
@@ -451,6 +499,7 @@ class FarField:
             far += self._bounced[0].nbytes + self._bounced[1].nbytes
         return held + self.clusters.labels.nbytes + far
 
+    @_locked
     def light(self, L: np.ndarray) -> np.ndarray:
         """B_far (N, 3) float64 for light vector L (N, 3); cached while L is unchanged, and the
         combination of earlier answers where L combines earlier lights (:meth:`_combined`;
@@ -592,6 +641,7 @@ class FarField:
         share = np.where(mean > 0, D1 / np.where(mean > 0, mean, 1.0), 1.0)
         return self._F_dev.bounce(L, self.rho[:, : L.shape[1]], L + share * D_c[lab])
 
+    @_locked
     def injection(self, local_rows: sp.csr_matrix, members: np.ndarray) -> np.ndarray:
         """L'_S - L_S = P_S F[S, X] B_far[X] (M, 3) for the local set ``members`` (slot order)
         whose F rows are ``local_rows`` (M, N)."""
@@ -608,6 +658,7 @@ class FarField:
         self._injected, self._carried = (self.B_far, local_rows, self._multiplied[1], out), 0
         return out
 
+    @_locked
     def follow_swap(self, before: sp.csr_matrix, after: sp.csr_matrix, members: np.ndarray, slots: np.ndarray,
                     F_SJ: np.ndarray, F_SR: np.ndarray) -> None:
         """Carry the last injection over a swap, so that the next :meth:`injection` with the
@@ -617,8 +668,8 @@ class FarField:
         over those rows. A kept slot s gathers B_far from the outside X' = X - J + R now, so
         its injection changes by rho_s (F[s, R] B_far[R] - F[s, J] B_far[J]); a swapped slot's
         is its new row's product over X'. O(M k + nnz(rows of J)) instead of O(nnz(after)):
-        a walk's frames replace the rows on every swap (the 66k village at M = 1,024 / 4,096:
-        0.70 / 2.86 ms a frame for the whole product). Nothing happens unless the last injection
+        a walk's frames replace the rows on every swap, and the whole product would be most of
+        each frame's injection (docs/decisions/0022-per-frame-injection.md). Nothing happens unless the last injection
         was of ``before`` and this local set before the swap, under the current B_far; the
         update is summed in float64, as the product is, and after :data:`MAX_CARRIED_SWAPS`
         carries the next injection multiplies the rows again (the carries' rounding, ~1e-16 of
@@ -651,13 +702,13 @@ class FarField:
         """The rows to multiply with B_far (zero on ``members``): ``local_rows`` as they are on a
         first injection with them, and from a second on (the same rows and local set: new
         lights, a moving object's frames) only their entries in the columns outside the local
-        set, cut out once where they are fewer than half. On the bench's Cornell box (M = 1,024 of
-        1,176 patches) that is a tenth of the entries: 1.7 -> 0.4 ms a frame; a walk's frames,
+        set, cut out once where they are fewer than half. Where the local set covers most of the
+        scene that is a small share of the entries, and the product shrinks with it; a walk's frames,
         whose rows change with every swap, never pay for the cut. ``last``: (rows, members) of
         the last injection multiplied, not one carried over a swap (:meth:`follow_swap`): after a
         carry the rows are new to the product, and a cut of them would be dropped at the next
-        swap (a light change a frame: 0.9 -> 3.0 ms an injection at M = 1,024 of the box, cut
-        each time)."""
+        swap (with new lights every frame, a cut made each time costs more than it saves;
+        docs/decisions/0022-per-frame-injection.md)."""
         held = self._outside_cols
         if held is not None and held[0] is local_rows and np.array_equal(held[1], members):
             return sp.csr_matrix(local_rows) if held[2] is None else held[2]

@@ -57,7 +57,9 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import struct
 import zipfile
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -153,31 +155,74 @@ def _write_csr(path: Path, k: int, rows: range, block, n_cols: int, binding: str
     return len(payload)
 
 
-def _read_csr(path: Path, k: int, rows: range, n_cols: int, what: str, store: Path, binding: str = "") -> sp.csr_matrix:
-    """Read and verify a block written by :func:`_write_csr`; ``what`` names it in errors."""
+#: Every error decoding a stored file can raise: the zip's structure and CRCs (BadZipFile, EOFError,
+#: struct.error), a broken DEFLATE stream (zlib.error, which zipfile lets through), an unknown
+#: compression or an encrypted member (NotImplementedError, RuntimeError), the .npy headers and
+#: meta.json (ValueError, UnicodeDecodeError, KeyError, TypeError, AttributeError, IndexError).
+DECODE_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error, struct.error,
+                 NotImplementedError, RuntimeError, TypeError, AttributeError, IndexError, OverflowError)
+
+
+def _read_csr(path: Path, k: int, rows: range, n_cols: int, what: str, store: Path, binding: str = "",
+              legacy: bool = True) -> sp.csr_matrix:
+    """Read and verify a block written by :func:`_write_csr`; ``what`` names it in errors. Every
+    decoding or parse error is a :class:`StoreCorruptError` naming the block. ``legacy``: the
+    store's blocks may be of the format from before checksums were bound (decided once per
+    store, :attr:`FormFactorStore.legacy`); where False a block without the binding is refused."""
     try:
         with zipfile.ZipFile(path) as zf:
             meta = json.loads(zf.read("meta.json"))
+            if not isinstance(meta, dict):
+                raise ValueError("meta.json is not an object")
             arrays = {n: np.lib.format.read_array(zf.open(f"{n}.npy"), allow_pickle=False)
                       for n in ("indptr", "indices", "data")}
     except FileNotFoundError:
         raise StoreIncompleteError(f"{what} of store {store} has not been computed; run compute_store to finish "
                                    "the store") from None
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
-        raise StoreCorruptError(f"file {path} is corrupt ({type(exc).__name__}: {exc}); delete it and "
-                                "re-run compute_store to recompute it") from exc
+    except DECODE_ERRORS as exc:
+        raise StoreCorruptError(f"{what} of store {store} is corrupt: file {path} cannot be decoded "
+                                f"({type(exc).__name__}: {exc}); run pydynrad formfactors with --verify (or "
+                                "compute_store(..., verify=True)) to recompute it") from exc
     indptr, indices, data = arrays["indptr"], arrays["indices"], arrays["data"]
+    if binding and not legacy and meta.get("bound") is not True:
+        raise StoreCorruptError(f"{what} of store {store}: file {path} has the unbound checksum of a store from "
+                                "before checksums were bound, in a store whose blocks are bound (a block from "
+                                "elsewhere); run pydynrad formfactors with --verify to recompute it")
     # Blocks written before checksums were bound to their store carry no "bound" flag.
     bound = binding if meta.get("bound") else ""
     if (meta.get("block") != k or meta.get("row_start") != rows.start or meta.get("row_stop") != rows.stop
             or meta.get("sha256") != _digest(indptr, indices, data, bound)):
-        raise StoreCorruptError(f"file {path} fails its checksum or belongs to another store or block; delete it "
-                                "and re-run compute_store to recompute it")
+        raise StoreCorruptError(f"{what} of store {store}: file {path} fails its checksum or belongs to another "
+                                "store or block; run pydynrad formfactors with --verify (or compute_store(..., "
+                                "verify=True)) to recompute it")
     try:  # a consistent checksum over hand-made arrays still must not send scipy past memory
         sparse_structure(indptr, indices, (len(rows), n_cols), f"file {path}", nnz=len(data))
     except InvalidInputError as exc:
         raise StoreCorruptError(f"{exc}; delete it and re-run compute_store to recompute it") from None
     return sp.csr_matrix((data, indices, indptr), shape=(len(rows), n_cols))
+
+
+def _is_bound(path: Path) -> bool:
+    """Whether the block file at ``path`` records a checksum bound to its store (False where
+    it is missing or unreadable: :func:`_read_csr` says what is wrong with it)."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            meta = json.loads(zf.read("meta.json"))
+    except FileNotFoundError:
+        return False
+    except DECODE_ERRORS:
+        return False
+    return isinstance(meta, dict) and meta.get("bound") is True
+
+
+def _intact(path: Path) -> bool:
+    """Whether the zip file at ``path`` decodes whole with every member's CRC holding: its bytes
+    are as written, so a checksum it fails is another store's or block's, not damage."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return zf.testzip() is None
+    except DECODE_ERRORS:
+        return False
 
 
 def _canonical_params(resolution: int, patching: dict | None, samples: int = 1) -> dict:
@@ -232,8 +277,13 @@ class FormFactorStore:
     """
 
     def __init__(self, path: Path, header: dict) -> None:
-        self.path = path
+        self.path = Path(path)  # a str too (it had raised a bare TypeError at the first block)
+        if not isinstance(header, dict):
+            raise InvalidInputError(f"header must be a store header (a dict, FormFactorStore.read_header); got "
+                                    f"{type(header).__name__}")
+        _check_header_fields(self.path, header)
         self.header = header
+        self._legacy: bool | None = None  # decided once, on the first read (legacy)
         self.n_patches = int(header["n_patches"])
         self.block_rows = int(header["block_rows"])
         self.n_blocks = -(-self.n_patches // self.block_rows)
@@ -273,6 +323,7 @@ class FormFactorStore:
             "n_patches": int(len(scene)),
             "block_rows": int(block_rows),
             "params": params,
+            "checksums": "bound",  # every block's checksum is bound to this store (legacy)
         }
         (path / BLOCK_DIR).mkdir(parents=True, exist_ok=True)
         write_atomic(path / HEADER, json.dumps(header, indent=2, sort_keys=True).encode())
@@ -360,6 +411,22 @@ class FormFactorStore:
             key["prolongation_sha256"] = self._require_clusters().get("prolongation_sha256")
         return json.dumps(key, sort_keys=True)
 
+    @property
+    def legacy(self) -> bool:
+        """Whether this store's blocks may carry the plain checksum of the format from before
+        checksums were bound to their store. Decided once per store, from its header
+        (``"checksums": "bound"``, which every store made since records) or, for a header
+        without it, from its blocks: legacy only where no finished block of F or G (nor a pose
+        file) is bound. A block from another store rewritten in the old format then fails in a
+        store of bound blocks, rather than being checked with the plain checksum."""
+        if self._legacy is None:
+            if self.header.get("checksums") == "bound":
+                self._legacy = False
+            else:
+                files = [self.block_path(k, part) for part in PARTS for k in range(self.n_blocks)]
+                self._legacy = not any(_is_bound(f) for f in files + self.pose_files())
+        return self._legacy
+
     def remove_stale_temporaries(self) -> int:
         """Delete temporary files left by interrupted writers; returns how many. Not while a writer runs."""
         n = 0
@@ -375,7 +442,7 @@ class FormFactorStore:
         rows = self.block_range(k)
         what = f"block {k} (rows {rows.start}..{rows.stop - 1})" + (" of G" if part == "G" else "")
         return _read_csr(self.block_path(k, part), k, rows, self._columns(part), what, self.path,
-                         self._binding(k, part))
+                         self._binding(k, part), self.legacy)
 
     def rows(self, idx, part: str = "F") -> sp.csr_matrix:
         """Rows ``idx`` of F (or of G) as a (len(idx), N or C) float32 CSR matrix, in the order given."""
@@ -466,6 +533,12 @@ class FormFactorStore:
                   "basis": basis}
         if self._cluster_header is not None:
             self._match_clusters(header)  # params are a record of how, not part of what G is
+            try:
+                self.prolongation()
+            except (StoreCorruptError, StoreIncompleteError):
+                # Damaged or lost: these clusters are the recorded ones (their digest matched), so
+                # the file is rewritten from them; G's blocks are bound to the digest, not the file.
+                _write_csr(self.path / PROLONGATION, 0, range(self.n_patches), pr, pr.shape[1])
             return
         header["params"] = extra
         _write_csr(self.path / PROLONGATION, 0, range(self.n_patches), pr, pr.shape[1])
@@ -604,6 +677,31 @@ class FormFactorStore:
         """The files of the pose configurations written so far (one per configuration)."""
         return sorted((self.path / POSE_DIR).glob("p*.npz"))
 
+    def verify_poses(self, remove: bool = False) -> dict[str, list[Path]]:
+        """Check every per-pose file: ``{"verified": [...], "corrupt": [...]}`` (paths). A file's
+        name keeps part of its configuration's key, not the whole one its checksum is bound to, so
+        this checks that it decodes whole (every zip CRC) and holds a square CSR block of the
+        world's N; :meth:`read_pose` checks the binding when it is read. With ``remove`` the
+        corrupt files are deleted: :func:`pydynrad.precompute.precompute_poses` (``pydynrad
+        formfactors --poses``) then computes those configurations again."""
+        found: dict[str, list[Path]] = {"verified": [], "corrupt": []}
+        files = self.pose_files()
+        n = self.n_patches + sum(int(o["n_patches"]) for o in self._require_pose_header()["objects"]) if files else 0
+        for path in files:
+            ok = _intact(path)
+            if ok:
+                try:
+                    with zipfile.ZipFile(path) as zf:
+                        meta = json.loads(zf.read("meta.json"))
+                    ok = isinstance(meta, dict) and meta.get("row_start") == 0 and meta.get("row_stop") == n
+                except DECODE_ERRORS:
+                    ok = False
+            found["verified" if ok else "corrupt"].append(path)
+        if remove:
+            for path in found["corrupt"]:
+                path.unlink(missing_ok=True)
+        return found
+
     def write_pose(self, transforms, patches: np.ndarray, rows) -> int:
         """Write the rows ``rows`` (len(patches), world N) of ``patches`` at ``transforms``, one
         checksummed file, atomically; returns its size in bytes."""
@@ -626,7 +724,7 @@ class FormFactorStore:
         if not path.exists():
             return None
         n, binding = self._pose_layout(key)
-        full = _read_csr(path, 0, range(n), n, "per-pose rows", self.path, binding)
+        full = _read_csr(path, 0, range(n), n, f"per-pose rows {path.name}", self.path, binding, self.legacy)
         patches = np.flatnonzero(np.diff(full.indptr))
         return patches, full[patches]
 
@@ -637,6 +735,7 @@ class FormFactorStore:
             self._columns(part)
             return [k for k in range(self.n_blocks) if not self.block_path(k, part).exists()]
         found = self.verify(part)
+        self._refuse_edited_header(found, part)  # before any of them is recomputed over
         return sorted(found["missing"] + found["corrupt"])
 
     def verify(self, part: str = "F", remove: bool = False) -> dict[str, list[int]]:
@@ -658,9 +757,26 @@ class FormFactorStore:
             except StoreCorruptError:
                 found["corrupt"].append(k)
         if remove:
+            self._refuse_edited_header(found, part)  # before anything is removed
             for k in found["corrupt"]:
                 self.block_path(k, part).unlink(missing_ok=True)
         return found
+
+    def _refuse_edited_header(self, found: dict[str, list[int]], part: str) -> None:
+        """StoreMismatchError where no finished block verifies and two or more are intact (every
+        zip CRC holds) yet fail their checksum: they were bound to another header, so this
+        header was edited after they were written (or the whole folder is another store's).
+        Deleting or recomputing them would throw away valid work before the parameters could be
+        told apart; a resume over an edited header had deleted 36 valid blocks before refusing."""
+        if found["verified"]:
+            return
+        intact = [k for k in found["corrupt"] if _intact(self.block_path(k, part))]
+        if len(intact) >= 2:
+            raise StoreMismatchError(
+                f"store {self.path}: none of its {len(found['corrupt'])} finished blocks"
+                f"{' of G' if part == 'G' else ''} matches its header, though {len(intact)} are intact: "
+                f"{HEADER} was edited after they were written (or they are another store's). Nothing was "
+                f"deleted; restore {HEADER}, or remove the folder to compute the store afresh")
 
     @property
     def complete(self) -> bool:
