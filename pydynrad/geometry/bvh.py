@@ -147,7 +147,7 @@ class BVH:
         entry = self._device_buffers.get(id(device))
         if entry is None:
             entry = self._device_buffers[id(device)] = (device, {})
-        uploads = entry[1]
+        uploads: dict[str, object] = entry[1]
         if name not in uploads:
             uploads[name] = upload()
         return uploads[name]
@@ -271,8 +271,9 @@ class InstancedBVH:
 
 
 #: Rays per launch of :func:`cast_rays`: the host converts the next chunk while the device
-#: traces one (see there), in buffers of this size whatever the batch. 2^18 hemicube rays take
-#: ~1 ms to check and convert and ~6 ms to trace (2 cores of an AMD EPYC Zen 5, 2026-12-02).
+#: traces one (see there), in buffers of this size whatever the batch. A chunk this size
+#: takes several times longer to trace than to check and convert, so the conversion hides behind
+#: the trace (docs/decisions/0011-ray-tracing.md).
 CAST_CHUNK = 1 << 18
 
 
@@ -362,11 +363,12 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
     # The host checks and converts chunk c + 1 (float64, one core) while the device traces chunk
     # c; then reads c back and uploads c + 1 (PoCL's reads and uploads wait for the kernels
     # queued before them, so that order keeps the host free while a chunk is traced).
+    hosts: tuple[np.ndarray, ...] = (patch, t, front)  # (annotated: mypy joins their dtypes to object)
     a, rays = prepare(0)
     launch(a, rays)
     while a < n:
         following = prepare(a + chunk) if a + chunk < n else None
-        for host, buf in zip((patch, t, front), outs):
+        for host, buf in zip(hosts, outs):
             cl.enqueue_copy(dev.queue, host[a : a + chunk], buf, is_blocking=False)
         if following is None:
             break
@@ -392,7 +394,7 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
     buf = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
     nodes, tris, _ = bvh.buffers(dev)
     # A fixed work-group: left to choose, PoCL compiles the kernel anew for each new global
-    # size (90-140 ms the first time each, on the Xeon), and a move's shadow rays vary in number.
+    # size (each compile far longer than the trace), and a move's shadow rays vary in number.
     wg = ray_work_group(dev)
     packet = bvh_packet(dev)
     dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": packet})(  # one program with cast_closest

@@ -78,7 +78,7 @@ class Camera:
         up = vec3(self.up, "camera up")
         forward = target - pos
         dist = np.linalg.norm(forward)
-        if dist <= 1e-9 * max(1.0, np.linalg.norm(pos)):
+        if dist <= 1e-9 * max(1.0, float(np.linalg.norm(pos))):
             raise InvalidInputError(f"camera look_at {target.tolist()} must differ from its position {pos.tolist()}")
         forward /= dist
         if np.linalg.norm(up) == 0 or np.linalg.norm(np.cross(forward, up / np.linalg.norm(up))) < 1e-6:

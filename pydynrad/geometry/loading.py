@@ -243,16 +243,19 @@ def _parts(mesh) -> list:
 
 def _scene_of_parts(parts, max_patch_area, max_edge, default_albedo, name, unit, up, doc=None, order=None,
                     base=None, check_order=False) -> Scene:
-    points, triangles, offset = [], [], 0
+    point_parts: list[np.ndarray] = []
+    triangle_parts: list[np.ndarray] = []
+    offset = 0
     for (v, f), _ in parts:
         f = np.asarray(f)
         if f.size and (f.min() < 0 or f.max() >= len(v)):  # PLY and GLB indices reach here unchecked
             bad = int(np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))[0])
             raise InvalidInputError(f"face {bad} indexes vertex {f[bad].tolist()} of {len(v)} (indices run 0..{len(v) - 1})")
-        points.append(v)
-        triangles.append(np.asarray(f, dtype=np.int64) + offset)
+        point_parts.append(v)
+        triangle_parts.append(np.asarray(f, dtype=np.int64) + offset)
         offset += len(v)
-    table, cache = [], {}
+    table: list[Material] = []
+    cache: dict[object, int] = {}  # ("default",) or id(material) -> index into table
     read = [_face_materials(g, np.asarray(f), default_albedo, table, cache, doc, base) for (_, f), g in parts]
     face_mat = np.concatenate([r[0] for r in read])
     n_faces = len(face_mat)
@@ -262,7 +265,7 @@ def _scene_of_parts(parts, max_patch_area, max_edge, default_albedo, name, unit,
     face_col = None
     if any(r[2] is not None for r in read):
         face_col = np.concatenate([r[2] if r[2] is not None else np.ones((len(r[0]), 3, 3)) for r in read])
-    points, triangles = np.concatenate(points), np.concatenate(triangles)
+    points, triangles = np.concatenate(point_parts), np.concatenate(triangle_parts)
     file_face = np.arange(n_faces)
     if order is not None:  # the file's face order: patches sorted by the file's face (f line)
         file_face = np.concatenate(order)
@@ -567,7 +570,7 @@ def _obj_file_order(text: str, parts) -> list | None:
             elif t[0] == "f" and len(t) >= 4:
                 idx = [int(x.split("/")[0]) for x in t[1:]]
                 faces.append((current, [i - 1 if i > 0 else len(verts) + i for i in idx]))
-        containing: dict = {}
+        containing: dict[tuple[float, ...], list[int]] = {}
         for k, (_, idx) in enumerate(faces):
             for i in idx:
                 containing.setdefault(verts[i], []).append(k)
@@ -581,10 +584,10 @@ def _obj_file_order(text: str, parts) -> list | None:
         name = getattr(material, "name", None) if material is not None else None
         ids = np.empty(len(f), np.int64)
         for k, tri in enumerate(np.asarray(v, np.float64)[np.asarray(f)].tolist()):
-            sets = [containing.get(tuple(p)) for p in tri]
-            if any(c is None for c in sets):
+            s0, s1, s2 = (containing.get(tuple(p)) for p in tri)  # the faces holding each corner
+            if s0 is None or s1 is None or s2 is None:
                 return None
-            found = sorted(set(sets[0]).intersection(sets[1], sets[2]))
+            found = sorted(set(s0).intersection(s1, s2))
             found = [c for c in found if left[c] > 0 and (single or faces[c][0] == name)]
             if not found:
                 return None

@@ -245,7 +245,7 @@ def sample_materials(table: list, face_material: np.ndarray, face_uv: np.ndarray
         for tex, factor, out, with_colour in ((mat.albedo_texture, mat.albedo, albedo, True),
                                               (mat.emission_texture, mat.emission, emission, False)):
             c = col if with_colour else None
-            if tex is not None and has_uv and np.any(factor > 0):
+            if tex is not None and uv is not None and has_uv and np.any(factor > 0):  # has_uv implies uv
                 out[pick] = factor * _textured_mean(tex, uv[pick], c)
             else:
                 if tex is not None and not has_uv:
@@ -291,7 +291,7 @@ def scene_summary(scene) -> str:
         w = areas[rows] / areas[rows].sum()
         a = w @ scene.albedo[rows].astype(np.float64)
         e = w @ scene.emission[rows].astype(np.float64)
-        extra = []
+        extra: list[str] = []
         if mat is not None:
             if mat.albedo_texture is not None:
                 extra.append(f"albedo texture {mat.albedo_texture.name} {mat.albedo_texture.size[0]}x"

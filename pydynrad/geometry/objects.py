@@ -64,7 +64,7 @@ def rigid_transform(value, what: str = "transform") -> np.ndarray:
         raise InvalidInputError(f"{what} must be a (4, 4) matrix; got shape {T.shape}")
     if not np.all(np.isfinite(T)):
         raise InvalidInputError(f"{what} contains NaN or infinite values")
-    # Compared directly: np.allclose was half of this check's 32 us, and a move checks its
+    # Compared directly: np.allclose's overhead was half of this check, and a move checks its
     # poses about ten times (every bounding sphere of a held pose).
     if float(np.abs(T[3] - _LAST_ROW).max()) > RIGID_TOL:
         raise InvalidInputError(f"{what} must have last row (0, 0, 0, 1) (no projection); got {T[3]}")
@@ -169,8 +169,8 @@ class RigidObject:
 
     def _pose(self, transform) -> np.ndarray:
         """``transform`` checked (:func:`rigid_transform`), read-only; the pose for None. A move
-        asks for the spheres and points of the same few poses about ten times, and each check
-        was 30-45 us (0.3-0.4 ms of a moving frame on the 2-core Zen 4, 2026-12-06): (4, 4)
+        asks for the spheres and points of the same few poses about ten times, and the checks
+        added up to a visible share of a moving frame (docs/decisions/0026-moving-frame-cost.md): (4, 4)
         float64 poses checked are found again by their bytes, up to :data:`CHECKED_POSES` of them
         (then all are forgotten at once)."""
         if transform is None:
@@ -228,13 +228,13 @@ def _combined(scene, objs: list[RigidObject], transforms=None):
         corners.append(np.stack([used.min(axis=0), used.max(axis=0)]))
         base += len(p)
     parts = [scene] + [o.scene for o in objs]
-    arrays = [np.concatenate([getattr(scene, name)] + [g[k] for g in geometry])
-              for k, name in enumerate(("centers", "normals", "areas"))]
-    corners = np.stack(corners)
+    centers, normals, areas = [np.concatenate([getattr(scene, name)] + [g[k] for g in geometry])
+                               for k, name in enumerate(("centers", "normals", "areas"))]
+    boxes = np.stack(corners)
     out = Scene._assembled(np.concatenate(points), np.concatenate(tris), np.concatenate([p.albedo for p in parts]),
-                           np.concatenate([p.emission for p in parts]), *arrays,
+                           np.concatenate([p.emission for p in parts]), centers, normals, areas,
                            name="+".join([scene.name] + [o.name for o in objs]),
-                           bbox=np.stack([corners[:, 0].min(axis=0), corners[:, 1].max(axis=0)]))
+                           bbox=np.stack([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)]))
     out.__dict__["_ray_scale"] = scene.ray_scale  # the static patches' rays as in the static scene
     out.unit, out.up = scene.unit, scene.up  # the static scene's unit and up axis
     return out

@@ -29,7 +29,7 @@ from ..checks import floats
 from ..errors import InvalidInputError
 from ..device.launch import float4
 from .bvh import BVH
-from .materials import scene_summary
+from .materials import MaterialTable, scene_summary
 
 __all__ = ["Scene", "DegenerateTriangleWarning", "DeviceFrame", "PrecisionWarning"]
 
@@ -246,7 +246,7 @@ class Scene:
     #: Defaults for scenes assembled without the constructor (see :meth:`_assembled`).
     unit = 1.0
     up = np.array([0.0, 0.0, 1.0])
-    materials = None
+    materials: MaterialTable | None = None
 
     def __init__(self, points, triangles, albedo=0.5, emission=0.0, source_face=None, name: str = "scene",
                  unit="m", up="+z") -> None:
@@ -315,8 +315,9 @@ class Scene:
     def _assembled(cls, points, triangles, albedo, emission, centers, normals, areas, name: str,
                    bbox: np.ndarray) -> "Scene":
         """A Scene of arrays already sound: parts of validated scenes, moved rigidly
-        (:func:`pydynrad.geometry.objects.instanced`, once per move). Not checked again: a 66k-patch
-        scene's checks and geometry took 75-87 ms, a move's own cost many times over."""
+        (:func:`pydynrad.geometry.objects.instanced`, once per move). Not checked again: a large scene's
+        checks and geometry cost a move's own work many times over
+        (docs/decisions/0028-moving-objects-large-scenes.md)."""
         out = object.__new__(cls)
         out.points, out.triangles = np.asarray(points, np.float64), np.asarray(triangles, np.int32)
         out.albedo, out.emission = np.asarray(albedo, np.float32), np.asarray(emission, np.float32)
@@ -384,7 +385,8 @@ class Scene:
     @cached_property
     def frame(self) -> DeviceFrame:
         """The device frame (:class:`~pydynrad.geometry.scene.DeviceFrame`): every upload of positions goes through it."""
-        return DeviceFrame(*self.bbox, metres=self.unit, up=self.up)
+        lo, hi = self.bbox
+        return DeviceFrame(lo, hi, metres=self.unit, up=self.up)
 
     @cached_property
     def bvh(self):
