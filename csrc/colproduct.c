@@ -7,8 +7,8 @@
  * (pydynrad/farfield/level.py, FarField._first_bounce).
  *
  * scipy first copied the chosen columns out (F[:, cols]) and then multiplied: two passes over
- * their entries, the first writing them all (~4.5M entries when a lamp lights a seventh of the
- * 66k village: ~45 ms on the 2-core EPYC). Here each entry is read once and added into y; the
+ * their entries, the first writing them all (millions of entries when a lamp lights part of a
+ * large scene). Here each entry is read once and added into y; the
  * caller splits the columns over threads, each with its own y (the GIL is released).
  *
  * Python signature:
@@ -21,8 +21,7 @@
  *
  * rows_times: y[first:last] = A[first:last] x for a matrix held by row (CSR), each row summed
  * in float64 in its entries' order (scipy's with one vector). scipy's CSR times an
- * (n, 3) array took 1.0 ms at 426k entries where one column took 0.29 (2-core Xeon,
- * 2026-12-03), and ran on one core; the caller splits the rows over threads.
+ * (n, 3) array took several times one column's time, and ran on one core; the caller splits the rows over threads.
  *
  *   _colproduct.rows_times(indptr, indices, data, first, last, x, out, k) -> None
  *   indptr  : int64 (n_rows + 1); indices, data : as for columns_times
@@ -54,7 +53,7 @@
     }
 
 /* One row product per k, so that the k sums live in registers (with k a run-time bound they
-   went through memory: 3x slower than scipy at k = 1). Indices are checked in the same pass. */
+   went through memory, slower than scipy even at k = 1). Indices are checked in the same pass. */
 #define ROWS_K(NAME, ITYPE, DTYPE, K)                                                                                  \
     static int NAME##_##K(const int64_t *ip, const ITYPE *ix, const DTYPE *v, Py_ssize_t first, Py_ssize_t last,      \
                           Py_ssize_t n_cols, const double *x, double *y)                                              \

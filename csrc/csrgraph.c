@@ -5,13 +5,13 @@
  * bounce's product over lit columns).
  *
  * scipy did both through a transpose of F: connected_components(connection="weak") adds F's
- * transpose to F, and csc_matrix(F, dtype=float32) transposes and then converts. On the 66k
- * village (35M entries) the two transposes took 1.7 of the far field's 2.6 s build (Intel Xeon,
- * PoCL host, 2026-12-03). Here the components come from a union-find over the entries (no
+ * transpose to F, and csc_matrix(F, dtype=float32) transposes and then converts. On a large
+ * scene the two transposes were most of the far field's build
+ * (docs/decisions/0033-native-host-passes.md). Here the components come from a union-find over the entries (no
  * transpose), and the by-column copy is one counting pass and one scatter that writes float32.
  *
  * The far field's G = F Pr (Pr one entry per row: the patch's cluster and its weight) was
- * scipy's general sparse product, 0.5-1.6 s on the same village (AMD EPYC Zen 4, 2026-12-04),
+ * scipy's general sparse product, seconds on a large scene,
  * most of it converting F's float32 values and a symbolic pass; here it is one counting pass
  * and one summing pass that read F as it is, with scipy's order of sums and of entries.
  *

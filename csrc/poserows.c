@@ -10,24 +10,22 @@
  * object columns are scaled to sum to 1, so no row ever sums above 1.
  * scipy did this in five passes that each copied the ~500k entries of a move's rows on the
  * bench's Cornell box (a mask copy, eliminate_zeros, a sum of two CSR matrices, the capping's
- * copy and a second eliminate_zeros: ~15 ms on the 2-core EPYC); here it is one read and one
+ * copy and a second eliminate_zeros); here it is one read and one
  * write of each entry.
  *
  * The second pass, difference(), is D = current - kept for the rows a move leaves stale in K
  * (pydynrad/dynamic/stale.py): a merge of each current row with its kept row, read in place
- * (scipy sliced the kept rows out first, then subtracted: 5.8-6.8 ms for the ~850k entries of a
- * move's 958 stale rows on the bench's Cornell box, against 4.4-4.7 ms here; PoCL host, 2-core
- * Xeon, 2026-12-02). The merge's branches bound it, not memory: so each step writes its entry
+ * (scipy sliced the kept rows out first, then subtracted: a copy more, and slower;
+ * docs/decisions/0033-native-host-passes.md). The merge's branches bound it, not memory: so each step writes its entry
  * and advances the output only where it is non-zero (most are zero: a stale row equals its
  * kept row but where an object hides or shows), and the order checks run without an early
- * exit, which vectorizes (medians 1.80-1.92 -> 1.58-1.73 ms for the ~850k entries of a move
- * there, one thread, 2026-12-03).
+ * exit, which vectorizes.
  *
  * The third, moved_difference(), is the two at once where only D is wanted (a move at budget 0:
  * pydynrad/dynamic/moves.py, WorldRows.differences): each row at the pose is made as assemble()
  * makes it, value for value, and merged with its kept row as it is made, so the rows at the pose
- * are never written (assemble wrote ~450k entries of a move into fresh pages, which a merge then
- * read back: 0.9-1.4 ms and 1.4-2.5 ms of the bench's moving frame on the 2-core Zen 4).
+ * are never written (assemble wrote a move's entries into fresh pages, which a merge then read
+ * back from memory, each a visible share of a moving frame).
  *
  * A move after a move mostly changes little of a row at the pose: of its static entries only
  * those whose segment the objects hide now and did not then, or the reverse (3-8% on the bench's
@@ -35,8 +33,7 @@
  * against the same kept row, and neither row at the pose is capped, moved_difference() starts
  * from that D (since_row): it reads two flags per entry, and the static and kept rows only where
  * a presence changed, where the whole merge read ~25 bytes per entry, out of the cache in a
- * frame (one part of a move's 190k entries: 1.2-1.3 ms cold and 0.74-0.91 warm made whole,
- * 0.78-0.87 cold and 0.17-0.47 warm started from the last D; Zen 4, 2026-12-06).
+ * frame (docs/decisions/0033-native-host-passes.md).
  *
  * Column indices are int32 (scipy's own for fewer than 2^31 columns), row pointers int64. The
  * rows read are spans of a CSR matrix's entries, starts[k] <= j < ends[k] for row k, so that
@@ -329,9 +326,8 @@ static Py_ssize_t since_row(Py_ssize_t k, const int64_t *is, const int64_t *ie, 
 }
 
 /* Each row at the pose is made into a scratch row (one row long, so it stays in the core's
-   cache) and merged from there: making it in the merge, entry by entry, was 1.5 times slower
-   than writing all the rows out and merging them after (3.3 against 2.3 ms for a move's 832
-   rows on the bench's Cornell box, Zen 4). Rows with since[k] take since_row instead where
+   cache) and merged from there: making it in the merge, entry by entry, was slower than
+   writing all the rows out and merging them after. Rows with since[k] take since_row instead where
    they are surely uncapped. capped[k]: 1 where row k at the pose was scaled or capped. -2 -
    rows: no memory for the scratch row. */
 static Py_ssize_t moved_difference(Py_ssize_t rows, const int64_t *is, const int64_t *ie, const int32_t *ix,

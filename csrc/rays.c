@@ -3,8 +3,8 @@
  *
  * Host-side by design: the rays come from the user as (n, 3) float32 or float64 arrays, and the
  * kernels read float32 in the scene's DeviceFrame, x_device = (x - origin) / unit. numpy did this
- * in a dozen passes over float64 temporaries (~20 ns a ray on one core, as long as tracing the
- * ray on both; ~4 ns here); each ray is converted and checked once, with the same arithmetic:
+ * in a dozen passes over float64 temporaries (as long as tracing the rays; here a fraction of
+ * it); each ray is converted and checked once, with the same arithmetic:
  * positions (double)x - origin, then / unit, then rounded to float; directions (double)x / unit,
  * rounded; without a frame, only rounded. The result is numpy's bit for bit (the unit is a power
  * of two, so dividing by it is multiplying by its exact reciprocal).

@@ -4,10 +4,11 @@
  * Host-side by design: each row's runs (patch, weight) come back from the device scanline by
  * scanline, a patch seen on several scanlines once per run; the row's entry for it is the sum
  * of those weights. numpy did this with one sort of every run's (row, column) key per block
- * (np.unique + bincount: 45 ms of CPU for the 1.17 M runs of 400 village rows at R = 64, a fifth
- * of tracing them, on the one core PoCL's two threads also need); here each row's runs are
+ * (np.unique + bincount: a sizeable share of the CPU time of tracing them, on the one core
+ * PoCL's two threads also need); here each row's runs are
  * sorted by column alone, by a stable radix sort of 11-bit digits (two passes below 2^22
- * columns), and runs of one column summed where they meet (12-16 ms for the same runs).
+ * columns), and runs of one column summed where they meet, a few times faster
+ * (docs/decisions/0011-ray-tracing.md).
  *
  * The sums are those of np.bincount bit for bit: float64, each column's weights added in the
  * order the runs appear (scanline by scanline, run by run: the sort is stable), from 0.0.
@@ -15,8 +16,8 @@
  * Up to DENSE_COLUMNS columns the runs are summed into a dense row instead, its columns marked
  * in a bitmap read in order after: the same sums in the same order, with no sort. A radix
  * pass over 2^11 digits cleared and summed those digits for every row, however few its runs:
- * for the ~1,100 runs of each of the bench's moving block's 64 rows (N = 1,192) that was most
- * of the call (0.44 ms; Zen 4, 2026-12-06).
+ * for rows of about a thousand runs over a small scene's columns (a moving block's rows) that
+ * was most of the call (docs/decisions/0033-native-host-passes.md).
  *
  * Python signature:  _runs.to_csr(patch, weight, count, runs_per_line, n_cols, indptr, indices, data) -> nnz
  *   patch   : int32 buffer of B*S*L values: line k's j-th run's column at [k*L + j] (< 0: none)

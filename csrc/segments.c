@@ -5,8 +5,8 @@
  * Host-side by design: a move tests every entry of the ~900 rows that may see the object
  * (~400k segments between patch centres on the bench's Cornell box) and traces only the few
  * that pass within the object's bounding sphere. numpy did the test in ~15 passes over
- * float64 temporaries and gathers (~8 ms on the loaded 2-core EPYC, the largest single cost of
- * a corrected move); here it is one pass:
+ * float64 temporaries and gathers (the largest single cost of a corrected move;
+ * docs/decisions/0033-native-host-passes.md); here it is one pass:
  *
  *   u = p - c per point; g = u_a . u_b; uv = g - |u_a|^2; vv = |u_a|^2 + |u_b|^2 - 2 g;
  *   the segment's closest point to c is at t = -uv / vv clipped to [0, 1], near when its
@@ -20,7 +20,7 @@
  *
  * Each segment kept is written out as the ray that the object's tree traces (origin a and
  * direction b - a in object space, t in (0, 1)): moving ~30k of them into object space took
- * numpy ~3 ms of gathers and small matrix products, here they are a copy of what the slab
+ * numpy passes of gathers and small matrix products, here they are a copy of what the slab
  * test computed anyway.
  *
  * With planes (an object that is one convex solid, pydynrad/convex.py), a segment that crosses
@@ -31,7 +31,7 @@
  *
  * Rows are read where they lie: row k is the span starts[k] <= j < ends[k] of the indices (the
  * rows of F that a move tests, picked out of the whole F by their patches without a copy: the
- * copy and an int64 version of the indices were 1.7 ms of a 3.8 ms pre-test at 426k entries).
+ * copy and an int64 version of the indices were almost half of the pre-test).
  *
  * Python signature:  _segments.near_sphere(points, starts, ends, indices, owners, center, reach, box[, planes]) -> (segments, rays)
  *   points  : C-contiguous float64 buffer of n*3 values
@@ -118,9 +118,8 @@ static int crosses_solid(const double *a, const double *b, const double *planes,
 #define TEST 4
 /* Segments whose sphere test runs before the few near ones are looked at: a pass of compares
    without branches, then a scan of its flags. The outcome is data dependent (5-15% near), and
-   branching on it per segment mispredicted: a move's pre-test on the bench's Cornell box took
-   6.0-7.4 ns a segment, 4.1-5.3 ns so (both with the box test; 2-core EPYC Zen 4, 2026-12-04;
-   the same segments kept). */
+   branching on it per segment mispredicted often enough to cost more than the flags' second
+   pass (docs/decisions/0033-native-host-passes.md). */
 #define BLOCK 512
 
 /* Output that grows as segments are kept: a move keeps ~30k of ~500k, so sizing it for every

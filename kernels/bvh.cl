@@ -337,7 +337,7 @@ __attribute__((always_inline)) inline float4 bvh_child_entry4_p(__global const f
 // INFINITY where every lane misses it. The four children's minima are taken together, two
 // children per vector, not one after another: each child's own reduction across its lanes
 // was a chain of dependent shuffles, the walk's hottest instructions (perf on PoCL's kernel),
-// and together they cost 4% less of the bench's 64-patch block's trace (Zen 4, 2026-12-06).
+// and together they shorten that chain (docs/decisions/0011-ray-tracing.md).
 // Min is exact, so the distances are those of a child-by-child reduction. Inlined by force:
 // left to itself PoCL's LLVM called it, its arguments through memory.
 __attribute__((always_inline)) inline float4 bvh_child_entries_p(__global const float4 *n, const BvhSlabs *s, float tmin,

@@ -33,8 +33,8 @@
 // origins: float4 per (row k, sample m) of this block, at [k * HC_SAMPLES + m]; normals: float4
 // per patch. rows: the patches whose hemicubes this block renders, then (at n_rows + k) the
 // instance each row's rays need not look at, -1 for none: the patch's own object where it is
-// convex (a ray leaving its surface outwards meets nothing of it: 8% of the trace of the bench's
-// 64-patch block, Zen 4, 2026-12-06). Outputs per hemicube
+// convex (a ray leaving its surface outwards meets nothing of it, so its tree is not walked).
+// Outputs per hemicube
 // q = k * HC_SAMPLES + m and scanline s: run_patch / run_weight at [(q * 3R + s) * R + j] for
 // the j-th run (patch -1: nothing front-facing visible), run_count at [q * 3R + s]. The pixel
 // weights (weights_cum, pixel_weights) are the hemicube's, 3R scanlines, divided by HC_SAMPLES.

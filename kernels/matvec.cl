@@ -31,7 +31,7 @@ __kernel void matvec(__global const STORE_T *K, const int M, const int ld,
 #if LX == 1
     // RI rows at a time, each with its own accumulators: RI * NRHS independent FMA chains per
     // step (one chain waits on the FMA's latency: an fp16 K in cache, one zmm chain per row, ran
-    // 1.45x slower on a Zen 5), and each x vector is loaded once for RI rows. Every row's
+    // markedly slower; docs/decisions/0007-kernel-widths-from-device.md), and each x vector is loaded once for RI rows. Every row's
     // sum is the same sequence of operations as with RI = 1. Rows past M repeat row M - 1
     // (in bounds, never written). The loops over rows and vectors are unrolled so that the
     // accumulators stay in registers (PoCL's LLVM 14 kept RI = 4 arrays in memory otherwise).

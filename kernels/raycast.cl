@@ -52,10 +52,9 @@ __kernel void cast_closest(__global const float4 *nodes, __global const float4 *
 
 // Any-hit (shadow) query: 1 where some triangle lies at t in (0, tmax[k]); BVH_PACKET
 // consecutive rays per work-item as one packet, as in cast_closest. Against one work-item per
-// ray (bvh_occluded), measured on a Zen 4 EPYC (PoCL, 16 lanes, 2026-12-03): a move's ~35k
-// occlusion rays against a 48-patch block 2.7 ms for 4.2, 66k shadow rays of the village's
-// patches to a point 11.8 for 15.8, 66k random directions the same, but the shadow rays in a
-// random order 40 for 24 ms: callers keep coherent rays consecutive.
+// ray (bvh_occluded), packets are faster for coherent rays (a move's occlusion rays, shadow
+// rays to a point), no slower for random directions, and slower for coherent rays in a random
+// order (docs/decisions/0011-ray-tracing.md): callers keep coherent rays consecutive.
 __kernel void cast_occluded(__global const float4 *nodes, __global const float4 *tris,
                             __global const float *origins, __global const float *directions,
                             __global const float *tmax, int n_rays, __global char *occluded)

@@ -38,8 +38,8 @@ typedef REALV(4) VEC;
 #ifdef LX
 // sum_k vals[k] x[cols[k]] over k in [k, end) for one work-item, several entries per step.
 // Indices and values are read element by element, not by vload: PoCL does not inline its
-// vload builtins, and a call per step cost the RGB loop 1.6-1.7x (village, 35 M non-zeros,
-// float32, PoCL pthread AMD EPYC, 2026-12-02); the compiler combines the plain loads itself.
+// vload builtins, and a call per step slowed the RGB loop markedly
+// (docs/decisions/0004-pocl-compiler.md); the compiler combines the plain loads itself.
 inline VEC row_dot(__global const int *cols, __global const REAL *vals, __global const VEC *x, int k, const int end)
 {
     VEC acc = (VEC)(0);
@@ -57,9 +57,9 @@ inline VEC row_dot(__global const int *cols, __global const REAL *vals, __global
     acc = HSUM(8, accv);
 #elif defined(STORAGE_FP64) || RGB_STEP == 2
     // Entries in pairs: one 8-wide vector holds two whole RGB(A) gathers of x. float32 takes
-    // this path on CPUs with 8-float registers (AVX2): there the 16-wide loop below ran 1.9x
-    // slower (62 -> 33 ms per RGB bounce, 35 M non-zeros, PoCL pthread AMD EPYC Zen 2,
-    // 2026-12-02), LLVM splitting its 512-bit vectors through shuffles.
+    // this path on CPUs with 8-float registers (AVX2): there the 16-wide loop below ran about
+    // half as fast, LLVM splitting its 512-bit vectors through shuffles
+    // (docs/decisions/0010-full-solve-formats.md).
     REALV(8) a8 = (REALV(8))(0), b8 = (REALV(8))(0);
     for (; k <= end - 4; k += 4) {
         const int4 c = (int4)(cols[k], cols[k + 1], cols[k + 2], cols[k + 3]);
@@ -71,7 +71,7 @@ inline VEC row_dot(__global const int *cols, __global const REAL *vals, __global
     acc = a8.lo + a8.hi;
 #else  // RGB_STEP == 4
     // Entries in fours: one 16-wide vector holds four whole RGB(A) gathers of x (a 512-bit
-    // register; four separate float4 accumulators ran 1.6x slower on PoCL/AVX-512).
+    // register; four separate float4 accumulators ran markedly slower on PoCL/AVX-512).
     REALV(16) a16 = (REALV(16))(0);
     for (; k <= end - 4; k += 4) {
         const int4 c = (int4)(cols[k], cols[k + 1], cols[k + 2], cols[k + 3]);
@@ -138,9 +138,9 @@ void bounce(__global const int *blk, __global const int *rowptr, __global const 
 // value 0, column 0). One work-item walks a block of slices (blk, as for bounce); each step
 // reads SELL_C values and indices contiguously and gathers x at them, one lane per row, so no
 // reduction across lanes. L, rho, x, y hold NCH REALs per (renumbered) patch as for bounce,
-// N rounded up to SELL_C with zero rows. Grey: 1.2-1.35x the CSR loop's speed; RGB: 0.6-0.7x
-// (three gathers of 16 floats per 16 entries against CSR's one float4 load per entry), so the
-// host uses it for one channel only (village, 35 M non-zeros, PoCL AMD EPYC, 2026-12-02).
+// N rounded up to SELL_C with zero rows. Grey: faster than the CSR loop; RGB: slower (three
+// gathers of 16 floats per 16 entries against CSR's one float4 load per entry), so the host
+// uses it for one channel only (docs/decisions/0010-full-solve-formats.md).
 #ifdef SELL_C
 #define SV REALV(SELL_C)
 #define IV PDR_XCAT(int, SELL_C)

@@ -47,10 +47,9 @@ BLOCK_BYTES = 128 * 2**20
 OVERLAP_BLOCKS = 8
 MIN_BLOCK_ROWS = 64
 
-#: The default hemicube resolution of the far field's patch-to-cluster form factors G. In
-#: bench/gather.py (2026-12-01) G at R = 24 moved the far field's all-patch error by 0.24-0.52%
-#: against G from F at R = 128 (R = 16: 0.45-1.04%, too close to the 1% target) for 14% of the
-#: rays of F at R = 64 and 3.5% of those at R = 128.
+#: The default hemicube resolution of the far field's patch-to-cluster form factors G: the lowest
+#: whose own error stays well inside the far field's 1% target (one step lower comes too close to
+#: it), for a small share of F's rays; see docs/decisions/0021-far-field-without-f.md.
 CLUSTER_RESOLUTION = 24
 
 #: Peak host memory of :func:`pixel_form_factors` per R^2, rounded up: 708 bytes measured at

@@ -76,7 +76,8 @@ class DeviceCSR:
         self._vals = device.to_device(A.data.astype(self.dtype))
         self.nbytes = A.nnz * (4 + self.dtype.itemsize) + 4 * (A.shape[0] + 1) + 4 * (self._n_blocks + 1)
         # Kernel objects per channel width, one set per thread (a kernel object holds its
-        # arguments): a fresh one per bounce cost ~0.5 ms of host time, a Jacobi sweep's share.
+        # arguments): a fresh one per bounce cost host time on the order of a Jacobi sweep
+        # (docs/decisions/0005-warm-up-and-fixed-local-sizes.md).
         self._kernels = threading.local()
 
     def packed(self, a: np.ndarray, width: int) -> np.ndarray:

@@ -273,9 +273,9 @@ class Device:
         """Kernel ``name`` of :meth:`program` (filename, defines): one object per thread, made
         once and reused. A kernel object holds its arguments, so it must not be shared across
         threads; within one, every caller sets all arguments and enqueues in one call, so
-        sharing is safe. A fresh pyopencl Kernel cost ~0.3 ms a call in its argument handler's
-        setup against 0.03 ms reused (PoCL CPU, AMD EPYC Zen 3, 2026-12-02), and a frame or a
-        move makes several."""
+        sharing is safe. A fresh pyopencl Kernel pays its argument handler's setup on every
+        call, many times a reused one's cost, and a frame or a move makes several
+        (docs/decisions/0005-warm-up-and-fixed-local-sizes.md)."""
         import pyopencl as cl
 
         prg = self.program(filename, defines)
@@ -309,8 +309,9 @@ class Device:
     def to_device(self, array: np.ndarray):
         """Copy a host array to a new read-only device buffer (one element where it is empty).
 
-        Also the way small per-call inputs go up: on PoCL this costs under 1 us plus the copy,
-        where a queued write into an existing buffer costs 40-60 us (pydynrad/transfers.py)."""
+        Also the way small per-call inputs go up: on PoCL this costs little more than the copy,
+        where a queued write into an existing buffer costs tens of times as much
+        (:mod:`pydynrad.device.transfers`)."""
         import pyopencl as cl
 
         a = np.ascontiguousarray(array)

@@ -66,7 +66,8 @@ def bvh_packet(device) -> int:
 #: Left to itself PoCL cuts a launch into a few equal groups (12,288 items: 3 groups of 4,096
 #: for 2 threads, so one thread idled for a third of the launch; 3,072: 2 groups, as unequal as
 #: the rows in them); small groups let its threads share the work as they free up. A group of
-#: 8 hemicube bands is ~0.1 ms of tracing, far above the cost of starting it.
+#: 8 hemicube bands is still far more tracing than the cost of starting it
+#: (docs/decisions/0011-ray-tracing.md).
 RAY_WG_CPU = 8
 
 
@@ -166,7 +167,8 @@ def spmv_layout(device, n: int, override: tuple[int, ...] | None = None) -> Spmv
 
     CPU: one work-item per block, 16 blocks per core so a core slowed by other work hands
     blocks to the others; float32 RGB entries in fours where a register holds 16 floats, in
-    pairs where it holds 8 (AVX2: 1.9x faster than fours there). GPU: a 64-item work-group per
+    pairs where it holds 8 (on AVX2 fours split into shuffles and ran about half as fast;
+    docs/decisions/0010-full-solve-formats.md). GPU: a 64-item work-group per
     row (CSR-vector), enough blocks to fill every compute unit many times over.
     """
     rgb_step = 4 if cpu_vector_width(device, 4) >= 16 else 2
@@ -309,10 +311,10 @@ class MatvecLayout:
 
 #: Work-items per row of the GPU ``matvec`` (the most: fewer where the device allows fewer).
 _MATVEC_GPU_LX = 64
-#: Independent accumulator chains per CPU ``matvec`` item: an FMA's latency (4 cycles on Zen 5
-#: and Skylake) over the loop's step. With one chain (one row, one vector, VW = one zmm: what an
-#: AVX-512 device got) an fp16 K in cache ran 1.45x slower than with four (AMD EPYC Zen 5,
-#: M = 1,024-2,048, 2026-12-02).
+#: Independent accumulator chains per CPU ``matvec`` item: an FMA's latency (a few cycles on
+#: current x86 cores) over the loop's step. With one chain (one row, one vector, VW = one zmm:
+#: what an AVX-512 device got) an fp16 K in cache ran markedly slower than with four
+#: (docs/decisions/0007-kernel-widths-from-device.md).
 MATVEC_CHAINS = 4
 #: Most accumulator registers per CPU ``matvec`` item (AVX2 has 16 registers: the accumulators,
 #: the NRHS x vectors and the K vectors of a step must fit).
@@ -331,8 +333,8 @@ def matvec_layout(device, M: int, ld: int, override: tuple[int, int] | None = No
     Rows side by side (:data:`MATVEC_CHAINS`) where K is served from cache (one channel in half
     the device's cache) or stored as wide as it computes; an fp16 K streamed from memory keeps
     one row per item: there the single-chain loop already ran at the memory's speed and four
-    interleaved rows ran 1.15-1.2x slower (AMD EPYC Zen 5, M = 4096, 2026-12-02), while from
-    cache they ran 1.4-1.5x faster (M = 1024 and 2048)."""
+    interleaved rows ran slower, while from cache they ran faster
+    (docs/decisions/0007-kernel-widths-from-device.md)."""
     t = _traits(device)
     if override is not None:
         vw, lx = override
@@ -384,7 +386,8 @@ class UpdateLayout:
     sw : int
         Vector width of the sparse gathers: two SIMD registers on a CPU (their entries come one
         by one from scattered columns, so a longer step amortises the NV accumulators' passes;
-        measured 1.2-1.4x faster than one register for fp64 on AVX-512), GPU_VW on a GPU.
+        faster than one register for fp64 on AVX-512; docs/decisions/0007-kernel-widths-from-device.md),
+        GPU_VW on a GPU.
     wg : int
         GPU: work-items per row block of the gather.
     rank_rb : int
@@ -457,8 +460,8 @@ class UpdateLayout:
     def element_grid(self, n: int) -> tuple[tuple[int, int], tuple[int, int]]:
         """(global, local) of the per-(i, m) kernels for n vectors. The local size is fixed, not
         left to the runtime: PoCL compiles a kernel once per local size, and its own choice
-        varies with n, which cost ~50-100 ms per kernel inside the frame loop at each new
-        vector count."""
+        varies with n, which put a compile per kernel inside the frame loop at each new
+        vector count (docs/decisions/0005-warm-up-and-fixed-local-sizes.md)."""
         return (global_size(self.M), n), (WG, 1)
 
     def gather_grid(self, blocks: int) -> tuple[tuple[int, int], tuple[int, int]]:

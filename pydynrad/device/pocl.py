@@ -11,7 +11,7 @@ AMD Zen 4 (family 19h, model 10h and up) and Zen 5 (family 1Ah), and answers wro
   vectors. Programs build, but the first launch of any kernel that calls a 16-wide builtin
   (``floor``, ``rsqrt``, ``fabs`` on ``float16``) aborts the process inside LLVM's code generator
   ("LLVM ERROR: Cannot select: ... vselect"): the library's AVX-512 code cannot be compiled for a
-  CPU without it (measured on a Zen 4 EPYC, 2026-12-03).
+  CPU without it (docs/decisions/0004-pocl-compiler.md).
 
 PoCL 3.0 has no setting for the name (``POCL_LLVM_CPU_NAME`` came in a later release) and refuses
 ``-target-cpu`` among build options. So, on a PoCL CPU device whose compiler CPU is ``generic``, or

@@ -2,8 +2,9 @@
 
 A frame of the local update moves a few kilobytes each way in dozens of small arrays, and on
 PoCL's CPU devices each transfer command costs far more than its bytes: a queued write or read
-of 4 KB took 40-60 us, creating a buffer from host memory under 1 us plus the copy, and a
-kernel launch queued 6 us (Intel Xeon, PoCL 3.0 pthread, 2026-12-03). So inputs go up as new
+of a few KB costs tens of times what creating a buffer from host memory does (little more than
+the copy) or what queuing a kernel launch does (docs/decisions/0006-fewer-waits-and-transfers.md).
+So inputs go up as new
 buffers (:meth:`pydynrad.device.devices.Device.to_device`: OpenCL keeps one alive while a command uses
 it, so there is nothing to hold or wait for and no buffer to share between calls), and
 :class:`ReadSlab` gives kernels their outputs as sub-buffers of one buffer, read back with one

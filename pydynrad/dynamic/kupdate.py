@@ -29,14 +29,11 @@ from ..device.transfers import ReadSlab
 __all__ = ["UpdateKernels", "scratch_nbytes", "SPARSE_DENSITY", "PROBE_DENSITIES", "crossover"]
 
 #: The sparse gathers run when the vectors' non-zero slots, on both sides together, are at
-#: most this share of 2 M. Measured (PoCL CPU, Xeon 2 cores, 2026-12-02, 8 vectors): 0.4-0.7x
-#: the dense pass's time at 2-10% non-zero slots, about even at 15-20%, slower above; a swap
-#: batch along a walk through a 6k-patch village had a median of 3% (M = 1024), 7% (M = 256).
-#: On the AMD EPYC (PoCL pthread, 2026-12-02, fp16, real swap batches of the 66k village,
-#: load ~5): 0.93x at 9%, 1.15-1.6x at 14-23% (M = 4,096), 1.25-1.4x at 35-44% (M = 1,024).
-#: On an AVX2 AMD EPYC (Zen 2, quiet, 2026-12-02, fp32, 8 vectors, M = 4,096) the dense pass
-#: is compute-bound on 8-float FMAs (9.3-9.5 ms) and the sparse gathers beat it up to ~29%
-#: (3.4 / 5.4 / 7.6 / 9.9 ms at 3 / 10 / 20 / 30%). So this is only the threshold before
+#: most this share of 2 M. Below some density the sparse gathers beat the dense pass and above
+#: it they lose, and where they meet moves with the CPU (a dense pass bound by 8-float FMAs on
+#: AVX2 leaves the gathers ahead to a higher density than a 16-wide one), while a walk's swap
+#: batches are mostly sparse (docs/decisions/0008-measured-sparse-gather-threshold.md). So this
+#: is only the threshold before
 #: :meth:`UpdateKernels.warm_up` measures the device's own (:data:`PROBE_DENSITIES`).
 SPARSE_DENSITY = 0.10
 
@@ -174,8 +171,8 @@ class UpdateKernels:
     def warm_up(self) -> None:
         """Launch every kernel once on channel 0, leaving K as it was.
 
-        PoCL compiles a kernel's work-group function at its first launch (~100 ms each on a
-        2-core CPU), which would otherwise land inside the first frame that swaps. Costs one
+        PoCL compiles a kernel's work-group function at its first launch (far longer than a
+        frame), which would otherwise land inside the first frame that swaps. Costs one
         read pass and one read-write pass over one channel of K; the write-back of slot 0's
         column and row restores the values read (a round trip through REAL is exact)."""
         zero = np.zeros((1, self.M))
@@ -376,8 +373,8 @@ class UpdateKernels:
         """:meth:`rank_update` then :meth:`write_slots`, queued together and not waited for.
 
         On a CPU the slot writes happen inside the rank pass (``rank_update_rows`` with NS > 0),
-        on each row while it is in cache: 5-12% less time than the two kernels (M = 1,024 and
-        4,096, fp16 and fp32, alternating in one process, PoCL pthread AMD EPYC, 2026-12-02)."""
+        on each row while it is in cache: less time than two kernels that each read the row
+        (docs/decisions/0006-fewer-waits-and-transfers.md)."""
         self._launch_rank(channel, self._put_rank(A, B), self._put_write(slots, cols, rows))
 
     def clear_slot(self, channel: int, slot: int) -> None:

@@ -332,7 +332,7 @@ class WorldRows:
     def _pose_inputs(self, s: np.ndarray) -> tuple:
         """(rows, hidden, object columns, select): :func:`at_pose`'s inputs for static patches
         ``s``, their rows of the static F read where they lie in an F held in memory (a copy of
-        them was 1.2 ms of a move at 426k entries), else fetched from its source."""
+        them was a visible share of a move), else fetched from its source."""
         F, select = (self.static.csr, s) if self.static.csr is not None else (self.static.rows(s), np.arange(len(s)))
         world = self.world
         hidden = hidden_entries(F, s, world.centers, world.normals, self.objects_moving, world.bvh.transforms,
@@ -344,8 +344,8 @@ class WorldRows:
         """(len(s), N) CSR: the rows of static patches ``s`` at the current poses (``rows``)
         minus ``kept[at]`` (``kept`` (M, N), ``at`` (len(s),) its rows). From the static F they
         are never made: :func:`difference_at_pose` merges each with its kept row as it is made
-        (writing a move's ~450k entries at the pose, then reading them back to merge them, was
-        2.4-3.9 ms of the bench's moving frame; AMD EPYC Zen 4, 2026-12-06). Rows ``also``
+        (writing a move's entries at the pose into fresh memory, then reading them back to merge
+        them, was a large share of a moving frame; docs/decisions/0033-native-host-passes.md). Rows ``also``
         missing at the pose are made in the same pass (one pre-test of both) and kept for the
         pose, as ``rows`` keeps them (distinct patches). Rows ``poses`` holds come from
         there, merged.
@@ -367,7 +367,7 @@ class WorldRows:
         if len(also):
             def made(miss):
                 # _at() asks for all of them, in order: distinct, none at the pose yet (a dict from
-                # patch to place in both, for any order, was 0.2 ms a move).
+                # patch to place in both, for any order, cost a move far more than this check).
                 if not np.array_equal(miss, also):
                     raise PydynradError("differences(): the outside rows asked for are not those made")
                 return at_pose(F, hidden, recip[len(s):], select[len(s):])
@@ -448,12 +448,12 @@ class WorldRows:
             if self.object_rows is None:
                 # The objects' hemicubes trace on the device while this thread runs the static
                 # rows' pre-test on the host; a pool thread waits for them, and their reciprocal
-                # columns for it (objects()). The CPU device left ~0.35 of 2 cores idle while
-                # tracing them alone: 1.5 ms of a move (t_move median 20.8-22.4 -> 18.7-20.1 ms,
-                # Cornell box, 2-core Xeon). Queued by this thread, first: the pool thread only
+                # columns for it (objects()). A CPU device tracing them alone left part
+                # of its cores idle. Queued by this thread, first: the pool thread only
                 # waits, and takes the interpreter's lock once they are traced (queued by it, both
-                # threads had wanted the lock for small numpy steps at once: refresh_order took 3
-                # ms instead of 0.3, and the trace started after it; Zen 4, 2026-12-06).
+                # threads had wanted the lock for small numpy steps at once, which slowed those
+                # steps many times over and started the trace after them;
+                # docs/decisions/0026-moving-frame-cost.md).
 
                 tracing = self._tracing = pool().submit(self.fresh_queued(self.object_patches))
                 self._meanwhile = meanwhile

@@ -64,7 +64,7 @@ def shadow_rays_near(points: np.ndarray, light, spheres) -> np.ndarray:
     position, the ray against a directional light's direction (unbounded, so a superset of the
     kernel's, which stops past the scene). Where False, an object inside those spheres cannot
     shadow the point from the light. All spheres in one pass of arrays (n, k): a pass per
-    sphere was 0.4 ms of a move's relight on the bench's Cornell box."""
+    sphere repeated every array step's overhead per sphere."""
     p = np.asarray(points, np.float64)
     if not len(spheres):
         return np.zeros(len(p), bool)
@@ -118,9 +118,10 @@ BOX_MARGIN = 1e-4
 #: The least form factor from a patch outside the local set to a moving object's bounding sphere
 #: (at its pose, or where the far field's coarse level has it) for which the frame gathers the
 #: patch's light at the objects' poses (:meth:`WorldRows.gather_outside`); the others keep the
-#: far field's B, which the object changes by less than this share of the light around them. On
-#: the 66k village a 1 m block is seen so by 2,816 patches (1.4M entries of F) where 44,402 have
-#: it in front (35M entries of F to gather per frame: 0.5-2.3 s; AMD EPYC Zen 3, 2026-12-02).
+#: far field's B, which the object changes by less than this share of the light around them. On a
+#: large scene a small object is seen so by a small share of the patches that have it in front,
+#: whose rows would be most of F to gather per frame
+#: (docs/decisions/0028-moving-objects-large-scenes.md).
 VIEW_FORM_FACTOR = 1e-3
 
 
@@ -187,7 +188,7 @@ def _hidden_entries(objects, transforms, points: np.ndarray, starts: np.ndarray,
         rays = np.frombuffer(b"".join(f[1] for f in found), np.float64).reshape(-1, 6)
         keep = ~out[near]
         if keep.any():
-            if not keep.all():  # an earlier object hid some: a copy of the rest (35k rays: 0.5 ms)
+            if not keep.all():  # an earlier object hid some: a copy of the rest (only then)
                 rays, near = rays[keep], near[keep]
             out[near] = occluded(o.scene, rays[:, :3], rays[:, 3:], np.float32(1.0), device=device)
     return out
@@ -206,7 +207,7 @@ def hidden_entries(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.nda
     if len(row_patches) != len(starts):
         raise InvalidInputError(f"hidden_entries needs one patch per row tested ({len(starts)}); got {len(row_patches)}")
     # Only whether a front can see a sphere (it is not wholly behind the patch's plane), not
-    # the ranking's solid angles and sort (line-profiled in a move: 1.4 ms, now 0.3).
+    # the ranking's solid angles and sort (several times the cost, line-profiled in a move).
     P, n = np.asarray(centers, np.float64)[row_patches], np.asarray(normals, np.float64)[row_patches]
     sees = np.zeros(len(row_patches), bool)
     for o, T in zip(objects, transforms):

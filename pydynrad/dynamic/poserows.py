@@ -61,9 +61,9 @@ def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix,
     starts, ends, indices, data, hidden, recip = _pose_spans("at_pose", rows, hidden, recip, select)
     n = int((ends - starts).sum()) + recip.nnz
     indptr, out_indices, out_data = np.empty(len(starts) + 1, np.int64), np.empty(n, np.int32), np.empty(n)
-    # One thread: in two parts (their outputs then stacked) it took 1.25 ms against 0.70 for a
-    # move's 450k entries on the bench's Cornell box (AMD EPYC Zen 4, 2026-12-06): a pass that
-    # writes every entry once is bound by memory, not by a core.
+    # One thread: in two parts (their outputs then stacked) it was slower, since a pass that
+    # writes every entry once is bound by memory, not by a core, and stacking copies it again
+    # (docs/decisions/0033-native-host-passes.md).
     nnz = _poserows.assemble(starts, ends, indices, data, hidden, *native_csr(recip),
                              indptr, out_indices, out_data)
     return sp.csr_matrix((out_data[:nnz], out_indices[:nnz], indptr), shape=recip.shape)
@@ -87,7 +87,7 @@ def _pose_spans(caller: str, rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.
 def _mask_bytes(mask: np.ndarray) -> np.ndarray:
     """A mask over a CSR matrix's entries as the uint8 flags ``csrc/poserows.c`` reads. A bool
     mask is read as bytes in place: it spans all of F's entries when rows are picked out of F
-    (a uint8 copy of the village's 35M was 87 ms a move)."""
+    (a uint8 copy would cost each move a pass over all of a large scene's F)."""
     mask = np.ascontiguousarray(mask)
     return (mask if mask.dtype == np.bool_ else mask != 0).view(np.uint8)
 
@@ -214,7 +214,7 @@ def _since_inputs(since: Since | None, rows: sp.csr_matrix, hidden: np.ndarray, 
 def stacked_rows(parts: list, n_cols: int) -> sp.csr_matrix:
     """One CSR matrix of ``n_cols`` columns from row parts ``[(indptr from 0, indices, data)]``
     stacked in order: one part as it is, more in one copy of their entries (scipy's vstack of
-    the parts' matrices took 0.24 ms of a move's 2 ms merge on the bench's Cornell box)."""
+    the parts' matrices, with its checks and conversions, was a visible share of a move's merge)."""
     if len(parts) == 1:
         indptr, indices, data = parts[0]
         return sp.csr_matrix((data, indices, indptr), shape=(len(indptr) - 1, n_cols))
@@ -299,6 +299,7 @@ def swap_chunks(slots: np.ndarray, size: int) -> list[np.ndarray]:
     return [slots[i:i + size] for i in range(0, len(slots), size)]
 
 
-#: Entries from which :func:`~pydynrad.dynamic.stale.rows_minus` and :func:`difference_at_pose` split its merge over the cores (a move's ~430k on the
-#: bench's Cornell box: 2.2 ms on one core of the Xeon).
+#: Entries from which :func:`~pydynrad.dynamic.stale.rows_minus` and :func:`difference_at_pose` split its merge over the cores: a move on a small
+#: scene is well above it, and long enough on one core for a second to pay
+#: (docs/decisions/0033-native-host-passes.md).
 PARALLEL_ENTRIES = 50_000

@@ -20,9 +20,8 @@ with D and no pass over K: the kept system that (I + P_S K) solves gives, for y 
 g = P_S D B^(n), y_s = L'_s + g_s + rho_s F_kept[s, S] y, so the true system's row s at y,
 L'_s + rho_s (F_kept[s, S] y + D[s] y), is y_s - g_s + rho_s D[s] y (with y outside S as B
 there). Without it the objects' own patches (whose whole rows are in D at budget 0) and the
-patches they light passed the residual to each other from pass to pass: after the moves of
-bench/objects.py's block 4.6 passes over K per moving frame, 3.5e-5 of max B from the fixed
-point; with it 3.0 passes and 1.9e-6 at most (PoCL, 2-core Xeon, 2026-12-03). D holds
+patches they light passed the residual to each other from pass to pass, which took more passes over K to a worse answer than with the step
+(docs/decisions/0025-moving-objects-rows-and-correction.md). D holds
 what the objects now hide from the stale rows and their object columns' share, and at budget 0
 the objects' whole rows too; the coupling through it is weak (light that reaches an object and
 comes back), so a few iterations reach the fixed point, which is the solution with every stale
@@ -60,12 +59,10 @@ from ..host.threads import row_parts
 __all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS"]
 
 #: Stop where the answer's estimated distance from the fixed point on the local set is at most
-#: this much of its max (:func:`_error_estimate`). After 24 moves of bench/objects.py's 64-patch
-#: block at budget 0: 2.0 passes over K a moving frame, answers 6.7e-5 of max B from the fixed
-#: point (median; 1.7e-4 at most), where stopping at a step of 1e-4 (the rule until 2026-12-06)
-#: took 2.8-3 passes for 1.9e-6: a pass is 0.6-0.8 ms of a 20 ms frame, and the rows the
-#: correction solves with are themselves 0.9% per pixel from a full solve (PoCL, AMD EPYC Zen 4,
-#: 2026-12-06). ``MovingObjects(correction_tolerance=...)`` sets it per solution.
+#: this much of its max (:func:`_error_estimate`). A tighter stop buys nothing visible: each
+#: further pass over K is a share of a moving frame, and the rows the correction solves with
+#: are themselves much further than this from a full solve
+#: (docs/decisions/0025-moving-objects-rows-and-correction.md). ``MovingObjects(correction_tolerance=...)`` sets it per solution.
 CORRECTION_TOLERANCE = 2e-4
 #: The ratio of successive steps below which :meth:`StaleRows.correct` takes the iteration as
 #: contracting by that ratio, and estimates an answer's error by it (:func:`_error_estimate`).
@@ -73,10 +70,9 @@ CONTRACTION_LIMIT = 0.5
 #: The most iterations per :meth:`StaleRows.correct` (each one pass over K per channel; a call
 #: that starts from B^(0) takes one pass more for it).
 CORRECTION_ITERATIONS = 8
-#: Earlier iterates that Anderson mixing combines (:class:`~pydynrad.host.anderson.Anderson`). After the
-#: moves of bench/objects.py's block at budget 0 (its own rows among the stale ones) plain
-#: iteration took 4-7 passes over K (6.1 on average over 8 moves), mixing 4-5 (4.9) at depth 3,
-#: the same at 5, 5.4 at 1 (PoCL, AMD EPYC Zen 3, 2026-12-02).
+#: Earlier iterates that Anderson mixing combines (:class:`~pydynrad.host.anderson.Anderson`): after a move,
+#: mixing takes fewer passes over K than plain iteration; a depth of 5 saves no more than 3, a
+#: depth of 1 less (docs/decisions/0025-moving-objects-rows-and-correction.md).
 ANDERSON_DEPTH = 3
 
 
@@ -142,9 +138,9 @@ def _error_estimate(change: float, last: float) -> float:
     clear contraction). An estimate, not a bound: the ratio of two steps is the contraction
     along the last direction only, and after Anderson mixing (from the third step) it measures
     the mixing's gain as well. After the bench's moves (stopping at the second step, whose ratio
-    is of two plain images) the true distance was at most 2.0x the estimate; on random
-    contractions (norm <= 0.6) mixed by Anderson over more steps, 1.5x in the median and up to
-    3.5x (a review's test, 2026-12-06)."""
+    is of two plain images), and on random contractions mixed by Anderson over more steps, the
+    true distance stayed within a small multiple of the estimate
+    (docs/decisions/0025-moving-objects-rows-and-correction.md)."""
     q = change / last if 0.0 < last < np.inf else np.inf
     return q / (1.0 - q) * change if q <= CONTRACTION_LIMIT else change
 

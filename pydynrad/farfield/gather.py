@@ -10,9 +10,8 @@ block of rows ever exists, whatever N.
 Prolongations. ``Pr`` (N, C) maps cluster values to patches: the indicator one (Pr[i, c] = 1
 for i in c) or a weighted one (Pr_w[i, c] = w_i / mean_c(w)). With one entry per row, as both
 have, the device records cluster ids and weighs each pixel by its patch's entry. A row of G
-then costs about what a row of F does at the same resolution (the rays dominate: 0.55-1.1x at
-R >= 24 on the PoCL CPU), and 5-45% less than F's patch runs weighted on the host
-(bench/gather.py, 2026-12-01/02). A prolongation with several entries in a row (a patch shared by
+then costs about what a row of F does at the same resolution (the rays dominate), and less than
+F's patch runs weighted on the host (docs/decisions/0021-far-field-without-f.md). A prolongation with several entries in a row (a patch shared by
 clusters) takes that host path: F's block, then a sparse product.
 """
 
@@ -206,9 +205,9 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
     * the on-demand :class:`~pydynrad.rows.HemicubeRows` gets G from cluster-id hemicubes of
       ``resolution`` (:func:`cluster_form_factors`), by default the rows' own (with their
       ``samples``): then G is F Pr of the very rows the local set reads (to float32 rounding). A lower one is cheaper but
-      disagrees with them: at night (village, one lamp, M = 1024) R_G = 24 against rows of
-      R = 32 left 11.3% mean pixel error and R_G = 48 7.7%, against 0.11% for G = F Pr
-      (bench/results/pthread-intel-r-xeon-r-processor-rocketlake/farstore-quick.md, PoCL CPU, 2026-12-02);
+      disagrees with them: where the far field carries most of the light (at night, one lamp)
+      the mismatch is many times the error of G = F Pr
+      (docs/decisions/0021-far-field-without-f.md);
     * any other source (F in memory, a store of F without G) gets F Pr from its own rows,
       :data:`SUM_BLOCK_ROWS` at a time, so G agrees with that F; a store with neither G nor all
       of F raises :class:`~pydynrad.rows.StoreIncompleteError`.

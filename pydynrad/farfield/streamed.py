@@ -5,8 +5,8 @@ held whole, more than the rest of a store-fed walk; docs/design.md, 'Far field',
 G is needed only when the lights change (B_far, then fixed until the next change), so a
 :class:`StoredG` keeps none of it in memory: each pass goes through G in chunks of about
 :data:`CHUNK_NNZ` non-zeros. The store's blocks are zipped and checksummed, and unzipping them
-is most of a pass (village at a million patches, PoCL CPU, 2026-12-02: 22 s a pass against 2 s
-of products), so the first pass, which checks every block as rows of F and sums F_c, also
+is most of a pass, far more than the products (docs/decisions/0021-far-field-without-f.md),
+so the first pass, which checks every block as rows of F and sums F_c, also
 writes the chunks unzipped to a temporary file (8 bytes a non-zero; removed when the StoredG
 goes) that every later pass reads instead. Reads run ahead of the products on threads (unzipping
 and file reads release the GIL).

@@ -52,9 +52,9 @@ class Anderson:
         m = min(self._steps, self.depth)
         dR, dG = self._dr[:, :m], self._dg[:, :m]  # (k, m, n), in ring order (no matter to least squares)
         # The least squares min |residual - dR gamma| per channel by its m x m normal equations,
-        # every channel in one batched solve: lstsq's SVD of each (n, m) column set cost ~0.3 ms
-        # a channel at n = 8,269 (the village's coarse level), and lstsq's overhead alone ~0.13 ms
-        # a small system, against a 4-6 ms sweep. A ridge of 1e-12 of the trace keeps a singular
+        # every channel in one batched solve: lstsq's SVD of each (n, m) column set per channel, and
+        # its overhead alone on a small system, were a visible share of a coarse sweep
+        # (docs/decisions/0019-far-field-coarse-solve.md). A ridge of 1e-12 of the trace keeps a singular
         # system (a direction repeated; no change at all) solvable; squaring the condition does
         # not matter at a window of a few steps.
         gram = dR @ dR.transpose(0, 2, 1)

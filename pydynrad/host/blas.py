@@ -3,9 +3,9 @@
 A threaded BLAS (OpenBLAS) spins its threads while they wait for work. Where the OpenCL
 device is the host's own CPU (PoCL), the kernels queued on it hold those cores, so every
 BLAS thread beyond the first competes with them and with the other BLAS threads: the exact
-swap's k x M products (M = 1024, k = 48) took a median of 7.8-11.7 ms with OpenBLAS's two
-threads and 3.4 ms with one on a loaded 2-core Xeon (PoCL, 2026-12-02), and a moving-object
-frame 324-399 ms against 145-195 ms (bench/results/pthread-intel-r-xeon-r-processor-rocketlake/objects-openblas-1-thread/).
+swap's k x M products ran two to three times slower with OpenBLAS's two threads than with one,
+and a moving-object frame about twice as slow
+(docs/decisions/0009-host-lapack-and-one-blas-thread.md).
 Big solves with the device idle (the K build) keep their threads, except where the channels
 already run side by side (:mod:`pydynrad.bounces`).
 """
@@ -21,14 +21,14 @@ __all__ = ["one_blas_thread", "blas_beside"]
 
 @lru_cache(maxsize=1)
 def _controller():
-    # Inspecting the loaded libraries costs ~ms; a limit through a kept controller ~10 us.
+    # Inspecting the loaded libraries is slow; a limit through a kept controller is cheap.
     from threadpoolctl import ThreadpoolController
 
     return ThreadpoolController()
 
 
 # threadpoolctl's limit is process-wide and puts back what it found on entry, and numpy's
-# OpenBLAS (numpy 2.4, 2026-12-02) does not honour a count set or restored from another thread
+# OpenBLAS (as numpy 2.4 ships it) does not honour a count set or restored from another thread
 # as it does one from the main thread: a limit taken in one worker thread and restored in a
 # second left the whole process on one thread. So only the main thread lowers the limit
 # (counted, for nesting: the outermost holder restores it); the threads it starts inherit it,

@@ -1,13 +1,11 @@
 """Small products on the host where the device is the host's own CPU.
 
 A product with a matrix of a few MiB costs less on the host than one call on a CPU device
-(PoCL): a call's upload, launch, wake-up of the device's threads and read-back cost 0.2-0.3 ms
+(PoCL): a call's upload, launch, wake-up of the device's threads and read-back cost the same
 whatever the size, and a call queued behind other device work (a moved object's hemicubes) waits
-for all of it. The far field's coarse K_c (149 x 149 x 3, float32) took 0.28 ms a product on
-the device and 0.03 ms on the host; its gather matrix G (1192 x 447, 47% of its entries non-zero)
-0.36 ms by the device's CSR kernel, 0.38 ms by the host's (:func:`pydynrad.host.colproduct.rows_product`)
-and 0.16-0.18 ms held dense through one BLAS thread (0.09 ms through two; the Cornell box's far
-field, AMD EPYC Zen 4, 2026-12-06).
+for all of it. The far field's coarse K_c and its gather matrix G on a small scene are such
+matrices: held dense and multiplied through one BLAS thread, each costs the host a fraction of
+one device call (docs/decisions/0019-far-field-coarse-solve.md).
 Above :data:`HOST_PRODUCT_BYTES`, and on every other device, matrices stay on the device.
 
 :class:`HostBounce` is :class:`~pydynrad.device.csr.DeviceCSR`'s ``bounce`` on the host, dense
@@ -34,13 +32,14 @@ from ..precision import storage_dtype
 __all__ = ["HOST_PRODUCT_BYTES", "DENSE_FILL", "on_host", "HostBounce", "HostMatrix"]
 
 #: The largest matrix (bytes as it would be held) whose products run on the host beside a CPU
-#: device: at the host's ~10-20 GB/s per core a product of it takes about one device call's
-#: fixed cost (above).
+#: device: at one core's memory bandwidth a product of it takes about one device call's fixed
+#: cost (above; docs/decisions/0019-far-field-coarse-solve.md).
 HOST_PRODUCT_BYTES = 4 << 20
 
 #: The fraction of non-zero entries from which :class:`HostBounce` holds its matrix dense: dense
 #: float32 reads 4 bytes an entry, CSR 8 a non-zero, so from 1/4 dense reads at most twice the
-#: bytes, and BLAS streams them where CSR gathers x by index (2x faster at 47%, above).
+#: bytes, and BLAS streams them where CSR gathers x by index (faster for the far field's G,
+#: about half filled; docs/decisions/0019-far-field-coarse-solve.md).
 DENSE_FILL = 0.25
 
 

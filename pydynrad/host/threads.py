@@ -53,8 +53,9 @@ def row_parts(indptr: np.ndarray, parts: int) -> list[tuple[int, int]]:
 
 def map_parts(fn, parts) -> list:
     """``[fn(p) for p in parts]``: the first part in the calling thread, the others on the pool
-    at the same time (a pass through the pool costs ~0.1 ms of wake-ups: a move made ~11 of one
-    part each on the 2-core Xeon; and a pool thread may be waiting on the device meanwhile).
+    at the same time (a pass through the pool costs its threads' wake-ups, which a move's many
+    passes of one part each would pay for nothing; and a pool thread may be waiting on the device
+    meanwhile).
     Called from a pool thread, every part runs in it, one after another: a pool task waiting on
     tasks queued behind it would wait forever once every worker did (one core: at once)."""
     parts = list(parts)

@@ -13,7 +13,9 @@ from ..dynamic.occlusion import refresh_order
 from ..dynamic.poses import PoseRows
 from ..checks import floats
 from ..checks import resolution as checked_resolution
+from ..defaults import RESOLUTION
 from ..formfactors import form_factors
+from ..progress import progress_bar
 from ..geometry.objects import _objects
 from ..geometry.objects import instanced
 from ..geometry.objects import rigid_transform
@@ -36,7 +38,7 @@ def _configurations(objs, poses):
         yield transforms
 
 
-def stored_poses(scene, objects, store, resolution: int = 128) -> PoseRows:
+def stored_poses(scene, objects, store, resolution: int = RESOLUTION) -> PoseRows:
     """The per-pose rows in form-factor ``store`` (a :class:`~pydynrad.FormFactorStore` of the
     static ``scene``) as :class:`PoseRows` for ``MovingObjects(poses=...)``. Raises
     :class:`~pydynrad.rows.store.StoreMismatchError` for a store of another scene, or whose
@@ -50,7 +52,8 @@ def stored_poses(scene, objects, store, resolution: int = 128) -> PoseRows:
     return PoseRows(len(scene) + sum(len(o) for o in objs), R, PoseRows.geometry_of(scene, objs), store=store)
 
 
-def precompute_poses(scene, objects, poses, resolution: int = 128, device=None, store=None) -> PoseRows:
+def precompute_poses(scene, objects, poses, resolution: int = RESOLUTION, device=None, store=None,
+                     progress: bool | None = None) -> PoseRows:
     """The rows of each configuration in ``poses`` for :class:`pydynrad.MovingObjects`'s ``poses=``.
 
     ``poses``: a sequence of configurations, each a (4, 4) transform per object (a single
@@ -58,7 +61,9 @@ def precompute_poses(scene, objects, poses, resolution: int = 128, device=None, 
     and per static patch that may see an object, per configuration. With ``store`` (a
     :class:`~pydynrad.FormFactorStore` of ``scene``) the rows go into the store's per-pose part
     (a file per configuration; configurations already there are kept, so an interrupted run
-    resumes) and the result reads them from there.
+    resumes) and the result reads them from there. ``resolution``: of the hemicubes (default
+    64, as everywhere: :mod:`pydynrad.defaults`); ``progress``: a bar over the configurations
+    (:mod:`pydynrad.progress`).
     """
 
     objs = _objects(objects)
@@ -69,12 +74,13 @@ def precompute_poses(scene, objects, poses, resolution: int = 128, device=None, 
     else:
         store.set_pose_objects(objs, resolution=R)
         out = stored_poses(scene, objs, store, R)
-    for transforms in _configurations(objs, poses):
+    configurations = list(_configurations(objs, poses))
+    for transforms in progress_bar(progress, iterable=configurations, desc="poses", unit="pose"):
         world = instanced(scene, objs, transforms)
         if world.bvh.transforms in out:
             continue
         spheres = [o.bounding_sphere(T) for o, T in zip(objs, transforms)]
         seeing, _ = refresh_order(world.centers[:n_static], world.normals[:n_static], spheres)
         patches = np.concatenate([seeing, np.arange(n_static, len(world))])
-        out.add(world.bvh.transforms, patches, form_factors(world, R, rows=patches, device=device))
+        out.add(world.bvh.transforms, patches, form_factors(world, R, rows=patches, device=device, progress=False))
     return out
