@@ -1,3 +1,6 @@
-from .cli.main import main
+"""``python -m pydynrad``: the ``pydynrad`` command."""
 
-raise SystemExit(main())
+from .cli import main
+
+if __name__ == "__main__":  # importing the module (documentation tools do) runs nothing
+    raise SystemExit(main())
