@@ -4,7 +4,7 @@ Each case builds its scene with the public API, computes the reference from the 
 formulas (closed forms, or for the reflection cases the defining integral by fine quadrature in
 float64 numpy) and returns one row per measuring point: case, point, reference, ours, error.
 The geometry is a 4 x 4 x 3 m room (the report's test room), the light sources and points are
-stated per case. ``tests/test_cie171.py`` checks every row against its own, independently written
+stated per case. ``tests/photometry/test_cie171.py`` checks every row against its own, independently written
 references; :func:`cie171_section` is the bench report (``python -m bench --sections cie171``).
 
 Cases: 5.2 point sources (isotropic and cosine), 5.3 an area source (floor points: the
@@ -157,11 +157,13 @@ def case_5_3(device=None, resolution=128):
     reference = np.concatenate([1000.0 * parallel_rectangle_factor(floor[:, :2], AREA_SOURCE, 3.0),
                                 [1000.0 * contour_factor(p, np.array([1.0, 0, 0]), square) for p in wall]])
     B = scene.emission.astype(np.float64)  # black room: the radiosity is the emission
-    hemi = pydynrad.illuminance(scene, B, points, normals, resolution=resolution, device=device)
+    hemi = pydynrad.illuminance(scene, B, points, normals, resolution=resolution, emitters="hemicube", device=device)
     exact = pydynrad.illuminance(scene, B, points, normals, emitters="analytic", device=device)
+    default = pydynrad.illuminance(scene, B, points, normals, device=device)  # every setting its default
     labels = [_label(p) for p in points]
     return (_rows(f"5.3 hemicube R={resolution}", labels, reference, hemi[:, 0])
-            + _rows("5.3 contour", labels, reference, exact[:, 0]))
+            + _rows("5.3 contour", labels, reference, exact[:, 0])
+            + _rows("5.3 defaults", labels, reference, default[:, 0]))
 
 
 # -- 5.4 flux conservation ------------------------------------------------------------------------
@@ -337,7 +339,7 @@ def cie171_section(ctx) -> dict:
             "(closed form, or for 5.6/5.7 the defining integral by Gauss-Legendre quadrature on cells cut "
             "along the shadow edges), "
             "ours, and the relative error. CIE's own validation practice accepts 5% per point; the "
-            "tests (tests/test_cie171.py) require 2%. Geometry: a 4 x 4 x 3 m room; see bench/cie171.py."
+            "tests (tests/photometry/test_cie171.py) require 2%. Geometry: a 4 x 4 x 3 m room; see bench/cie171.py."
         ),
         "tables": [
             {"title": "Points", "columns": ["case", "point", "reference (lx or lm)", "ours", "rel. error"],

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .checks import stops
+from .defaults import exposure_or_auto
 from .errors import InvalidInputError, PydynradError
 from .renderer import Renderer
 from .rows.files import whole_matrix
@@ -95,18 +96,23 @@ def _percent(v: float) -> str:
     return f"{p:.0f}%" if p >= 10 else f"{p:.1f}%" if p >= 0.1 else f"{p:.2f}%"
 
 
-def comparison_image(dynamic, reference, exposure: float = 0.0, vmax: float | None = None) -> tuple[np.ndarray, dict]:
+def comparison_image(dynamic, reference, exposure: float | str = "auto", vmax: float | None = None,
+                     titles=None) -> tuple[np.ndarray, dict]:
     """Side-by-side panels: ``dynamic`` | ``reference`` | relative error map + colour bar.
 
     Parameters
     ----------
     dynamic, reference : (H, W, 3) float
         Linear renders of the same view (e.g. the local-matrix and the full solution).
-    exposure : float
+    exposure : float or "auto"
         Stops applied to the two renders here (not to the error map); write the result with
-        exposure 0.
+        exposure 0. "auto" (the default): :func:`pydynrad.defaults.auto_exposure` of
+        ``reference``.
     vmax : float, optional
         Relative error shown as the top colour (default: the 99th percentile, at least 1e-3).
+    titles : three str, optional
+        Titles drawn in a band above the three panels (the image is then taller by the band);
+        the error panel's title gets the colour bar's range appended.
 
     Returns
     -------
@@ -122,7 +128,7 @@ def comparison_image(dynamic, reference, exposure: float = 0.0, vmax: float | No
     if not (np.isfinite(vmax) and vmax > 0):
         raise InvalidInputError(f"vmax must be a positive relative error; got {vmax!r}")
     stats["vmax"] = float(vmax)
-    gain = np.float32(2.0**stops(exposure))
+    gain = np.float32(2.0**stops(exposure_or_auto(exposure, reference)))
     gap = max(2, w // 64)
     size = max(8, h // 16)
     top_text, bottom_text = ">" + _percent(vmax), "0%"
@@ -140,7 +146,22 @@ def comparison_image(dynamic, reference, exposure: float = 0.0, vmax: float | No
         labels = out[:, x0 + bar_w + gap:].copy()
         _label(labels, [(top_text, 0, t_up), (bottom_text, 0, h - 1 - b_down)], size)
         out[:, x0 + bar_w + gap:] = labels
+    if titles is not None:
+        out = _with_titles(out, list(titles), w, gap, size, f" (0-{_percent(vmax)})")
     return out, stats
+
+
+def _with_titles(panels: np.ndarray, titles: list[str], w: int, gap: int, size: int, scale: str) -> np.ndarray:
+    """``panels`` below a band holding one title per panel (the last, the error map's, with
+    ``scale`` appended); the band is black, the text white."""
+    if len(titles) != 3 or not all(isinstance(t, str) for t in titles):
+        raise InvalidInputError(f"titles must be three strings (dynamic, reference, error); got {titles!r}")
+    titles = titles[:2] + [titles[2] + scale]
+    ascent = max(_text_box(t, size)[1] for t in titles)
+    descent = max(_text_box(t, size)[2] for t in titles)
+    band = np.zeros((ascent + descent + 2 * gap, panels.shape[1], 3), dtype=np.float32)
+    _label(band, [(t, k * (w + gap) + gap, gap + ascent) for k, t in enumerate(titles)], size)
+    return np.concatenate([band, panels])
 
 
 @dataclass
@@ -161,32 +182,46 @@ class ReferenceFrame:
     local_only_error: float | None = None
     local_only_pixel_error: dict | None = None
     black: bool = False
+    exposure: float = 0.0  # the stops the renders in ``image`` were shown at
 
 
 def reference_frame(scene, form_factors, radiosity, camera, *, lights=(), renderer=None, image=None,
-                    shading: str = "smooth", exposure: float = 0.0, local_only=None, device=None) -> ReferenceFrame:
+                    shading: str = "smooth", exposure: float | str = "auto", local_only=None,
+                    device=None) -> ReferenceFrame:
     """Solve the full radiosity for ``lights`` and compare ``radiosity`` (N, 3) with it.
 
     ``form_factors``: all of F (a matrix, or any row source, read whole); ``camera`` the view
     of the comparison image; ``image``: ``radiosity`` already rendered from it (rendered
     here when None); ``renderer``: a :class:`~pydynrad.renderer.Renderer` of ``scene`` to reuse.
     ``local_only``: the paper's local-only answer (N, 3) beside a far-field ``radiosity``: it is
-    compared too, its row (local only | full | error) above the far field's, on one error scale.
+    compared too, its row (local only | full | error) above the far field's. Every row is titled
+    (what it shows, per column) and has its own error scale (its colour bar's range is in the
+    error panel's title): the far field's small errors are not lost on the local-only row's
+    scale. ``exposure``: stops, or "auto" (the default): from the full solution's render.
     """
 
-    exposure = stops(exposure)  # before the full solve
+    auto = exposure is None or (isinstance(exposure, str) and exposure == "auto")
+    exposure = None if auto else stops(exposure)  # before the full solve
     renderer = renderer or Renderer(scene, device)
     full = solve(scene, whole_matrix(form_factors), lights, device=device).radiosity
     if image is None:
         image = renderer.render(radiosity, camera, shading)
     full_image = renderer.render(full, camera, shading)
+    exposure = exposure_or_auto(exposure, full_image)
+    error_title = "relative error"
     if local_only is None:
-        composite, stats = comparison_image(image, full_image, exposure)
+        composite, stats = comparison_image(image, full_image, exposure,
+                                            titles=("dynamic", "full solve", error_title))
         return ReferenceFrame(full, radiosity_error(radiosity, full, scene.areas), composite, stats,
-                              black=not full_image.any())
+                              black=not full_image.any(), exposure=exposure)
     local_image = renderer.render(local_only, camera, shading)
-    top, local_stats = comparison_image(local_image, full_image, exposure)
-    bottom, stats = comparison_image(image, full_image, exposure, vmax=local_stats["vmax"])
+    top, local_stats = comparison_image(local_image, full_image, exposure,
+                                        titles=("local only (paper)", "full solve", error_title))
+    bottom, stats = comparison_image(image, full_image, exposure,
+                                     titles=("with far field", "full solve", error_title))
+    width = max(top.shape[1], bottom.shape[1])  # the colour bars' labels differ in width
+    top, bottom = (np.pad(x, ((0, 0), (0, width - x.shape[1]), (0, 0))) for x in (top, bottom))
     gap = np.ones((max(2, top.shape[0] // 64), top.shape[1], 3), dtype=top.dtype)
     return ReferenceFrame(full, radiosity_error(radiosity, full, scene.areas), np.concatenate([top, gap, bottom]),
-                          stats, radiosity_error(local_only, full, scene.areas), local_stats, black=not full_image.any())
+                          stats, radiosity_error(local_only, full, scene.areas), local_stats, black=not full_image.any(),
+                          exposure=exposure)

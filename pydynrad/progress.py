@@ -1,26 +1,34 @@
-"""Progress bars: one rule for every long call that takes ``progress=``.
+"""Progress bars: one rule for every call that can take seconds and takes ``progress=``.
 
-``progress=True`` shows a tqdm bar, ``False`` never does, and ``None`` (the default
-everywhere) shows one only when stderr is a terminal, and only for work the caller counts
-as long, so scripts, tests and notebooks stay quiet unless asked.
+tqdm's own rules (``tqdm.auto``: a text bar on stderr, a widget in Jupyter):
+
+- ``progress=None`` (the default everywhere): a bar appears once the work has run for
+  :data:`pydynrad.defaults.PROGRESS_DELAY` (2) seconds (tqdm's ``delay=``), on any stream,
+  terminal or not; work that ends sooner prints nothing;
+- ``progress=True``: a bar from the start;
+- ``progress=False`` (``--quiet`` on the command line): never.
+
+Used by form factors (and stores), far-field G, multibounce matrices, solves, pose
+precompute, baking, walks and the path tracer.
 """
 
 from __future__ import annotations
 
-import sys
+from .defaults import PROGRESS_DELAY
 
 __all__ = ["progress_bar", "shows_progress"]
 
 
 def shows_progress(progress: bool | None, long: bool = True) -> bool:
-    """Whether a bar is shown: ``progress`` itself, or for None: long work on a terminal."""
-    if progress is None:
-        return bool(long) and sys.stderr.isatty()
-    return bool(progress)
+    """Whether a bar may be shown: ``progress`` itself; for None, yes (after the delay).
+    ``long`` is accepted for callers of earlier releases and no longer matters: the delay is
+    the rule."""
+    return True if progress is None else bool(progress)
 
 
 def progress_bar(progress: bool | None, *, long: bool = True, **tqdm_options):
-    """A ``tqdm.auto.tqdm`` (``total=``, ``desc=``, ``unit=``, or an iterable) shown by :func:`shows_progress`."""
+    """A ``tqdm.auto.tqdm`` (``total=``, ``desc=``, ``unit=``, or an iterable) by the rule above."""
     from tqdm.auto import tqdm
 
+    tqdm_options.setdefault("delay", PROGRESS_DELAY if progress is None else 0.0)
     return tqdm(disable=not shows_progress(progress, long), **tqdm_options)

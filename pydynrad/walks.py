@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .geometry.camera import Camera
+from .defaults import auto_exposure, default_local_size
 from .checks import integer, stops
 from .errors import InvalidInputError
 from .dynamic.moves import MovingObjects
@@ -76,6 +77,8 @@ class WalkResult:
     radiosity: np.ndarray
     image: np.ndarray
     images: list[np.ndarray] = field(default_factory=list)
+    exposure: float = 0.0  # the stops the frames were written with (chosen once when exposure="auto")
+    rendered: bool = True  # False: render=False, the frames were solved but not rendered
 
     def timings(self) -> dict[str, np.ndarray]:
         """Seconds per stage, one entry per frame."""
@@ -89,14 +92,15 @@ class WalkResult:
         """A table of stage times: first frame (warm-up), median and max of the others."""
         t = self.timings()
         lines = [f"{'stage':10s} {'first ms':>10s} {'median ms':>10s} {'max ms':>10s}   ({len(self.frames)} frames)"]
-        for stage in STAGES:
+        for stage in STAGES if self.rendered else ("update", "lighting"):
             v = 1e3 * t[stage]
             rest = v[1:] if len(v) > 1 else v
             lines.append(f"{stage:10s} {v[0]:10.1f} {np.median(rest):10.1f} {rest.max():10.1f}")
         total = sum(t[s] for s in STAGES)
         rest = total[1:] if len(total) > 1 else total
         lines.append(f"{'frame':10s} {1e3 * total[0]:10.1f} {1e3 * np.median(rest):10.1f} {1e3 * rest.max():10.1f}"
-                     f"   -> {1.0 / max(np.median(rest), 1e-9):.1f} frames/s")
+                     f"   -> {1.0 / max(np.median(rest), 1e-9):.1f} frames/s"
+                     + ("" if self.rendered else " (update + lighting only: nothing rendered)"))
         for f in self.frames:
             if f.error is None:
                 continue
@@ -134,11 +138,14 @@ def walk(
     shading: str = "smooth",
     output=None,
     image_format: str = "png",
-    exposure: float = 0.0,
+    exposure: float | str | None = "auto",
     reference_frames=(),
     keep_images: bool = False,
     progress: bool | None = None,
     device=None,
+    render: bool = True,
+    video=None,
+    fps: float = 24.0,
 ) -> WalkResult:
     """Walk a camera through ``scene`` with dynamic radiosity.
 
@@ -163,7 +170,8 @@ def walk(
         source (a form-factor store, a RowCache: see :func:`pydynrad.open_form_factors`)
         streams rows to ``dynamic``; reference frames then read all of F into memory once.
     local_size : int, optional
-        M, the local set's size, when building ``dynamic`` (default min(N, 1024)).
+        M, the local set's size, when building ``dynamic`` (default
+        :func:`pydynrad.defaults.default_local_size`: min(1024, N // 2)).
     solver_options : dict, optional
         More keyword arguments for :class:`~pydynrad.DynamicRadiosity` (``update``,
         ``storage``, ``max_swaps_per_frame``, ...). With ``objects``, an ``objects=``
@@ -174,16 +182,28 @@ def walk(
         Folder for ``frame_0000.<image_format>``, ... (created if missing); None writes nothing.
     image_format : str
         File extension of the frames: png, jpg, exr, ...
-    exposure : float
-        Stops applied when writing images.
+    exposure : float or "auto"
+        Stops applied when writing images. "auto" (the default; None too): for 8-bit formats
+        (png, jpg) fixed once for the whole walk from the first frame with a lit pixel by
+        :func:`pydynrad.defaults.auto_exposure`, so frames do not flicker; linear formats (exr,
+        hdr, tif) keep the values (0 stops). The value used is ``WalkResult.exposure``.
     reference_frames : iterable of int
         Frames (negative counts from the end) at which to solve the full radiosity and record
         the error; with ``output`` a ``compare_0000.png`` is written there too.
     keep_images : bool
         Return every frame's image in ``WalkResult.images``.
     progress : bool, optional
-        Show a tqdm bar over the frames; None: when stderr is a terminal.
+        A tqdm bar over the frames (:mod:`pydynrad.progress`); False: none.
     device : Device, optional
+    render : bool
+        Render the frames (default). False: only ``update`` and ``lighting`` run and are timed
+        (no images, ``output`` and ``keep_images`` must not be given); reference frames still
+        compare radiosity per patch, and render their comparison image.
+    video : str or Path, optional
+        Also encode the frames (at the walk's exposure, sRGB, 8-bit) into this video file
+        (.mp4: H.264; .mkv, .mov, .webm, .gif) at ``fps`` frames per second. Needs the
+        ``video`` extra (imageio with imageio-ffmpeg); without it MissingExtraError names it,
+        before any work.
 
     Returns
     -------
@@ -201,7 +221,16 @@ def walk(
     for t in tracks:
         if not isinstance(t, ObjectTrack):
             raise InvalidInputError(f"objects must be ObjectTrack entries (a RigidObject with keyframes); got {type(t).__name__}")
-    exposure = stops(exposure)  # before any frame's work, not at the first image written
+    auto = exposure is None or (isinstance(exposure, str) and exposure == "auto")
+    exposure = None if auto else stops(exposure)  # before any frame's work, not at the first image written
+    if not render and (output is not None or keep_images or video is not None):
+        raise InvalidInputError("render=False renders no frames: it cannot write them (output=, video=) or keep them "
+                                "(keep_images=)")
+    movie = None
+    if video is not None:
+        from .video import VideoWriter
+
+        movie = VideoWriter(video, fps, feature="walk(video=...)")  # the extra and the file, before any work
     n = len(path)
     # Every frame's camera and poses before any work (the solution's build included), not mid-walk;
     # the cameras made here are the frames'.
@@ -220,7 +249,7 @@ def walk(
         if form_factors is None:
             raise InvalidInputError("walk needs a DynamicRadiosity (dynamic=...) or the form factors (form_factors=F)")
 
-        m = min(len(scene), 1024) if local_size is None else local_size
+        m = local_size  # None: DynamicRadiosity's default rule (pydynrad.defaults.default_local_size)
         options = dict(solver_options or {})
         if tracks:  # the tracks' objects, moved as a MovingObjects in solver_options says (its defaults else)
             settings = options.get("objects")
@@ -230,48 +259,60 @@ def walk(
     out_dir = None
     if output is not None:
         out_dir = Path(output)
-        _format_for(out_dir / f"frame.{image_format}")  # reject a bad format before any work
+        _, linear = _format_for(out_dir / f"frame.{image_format}")  # reject a bad format before any work
+        if linear and exposure is None:  # auto: linear float frames keep their values
+            exposure = 0.0
         out_dir.mkdir(parents=True, exist_ok=True)
         for name in [f"frame_{k:04d}.{image_format}" for k in range(n)] + [f"compare_{k:04d}.png" for k in refs]:
             check_file_target(out_dir / name)  # a folder in a frame's place: before the first frame
     renderer = Renderer(scene, device)
-    renderer.warm_up()
+    if render:
+        renderer.warm_up()
     full_F = None  # all of F in memory, read at the first reference frame
     records, images = [], []
     b = img = None
     bar = progress_bar(progress, iterable=range(n), desc="walk", unit="frame")
-    for k in bar:
-        cam = cameras[k]
-        frame_lights = lights_at(lights, k, n)
-        t0 = time.perf_counter()
-        for t in tracks:
-            dynamic.move(t.object, t.at(k, n))
-        stats = dynamic.update(cam.position)
-        t1 = time.perf_counter()
-        b = np.asarray(dynamic.radiosity(frame_lights))
-        t2 = time.perf_counter()
-        if tracks:
-            renderer = Renderer(dynamic.scene, device)  # the world at this frame's poses
-        img = renderer.render(b, cam, shading)
-        t3 = time.perf_counter()
-        rec = FrameRecord(k, cam, {"update": t1 - t0, "lighting": t2 - t1, "render": t3 - t2, "write": 0.0}, stats,
-                          black=not img.any(), lit=bool(b.any()))
-        if out_dir is not None:
-            rec.image_path = write_image(out_dir / f"frame_{k:04d}.{image_format}", img, exposure)
-            rec.seconds["write"] = time.perf_counter() - t3
-        if k in refs and tracks:
-            world = dynamic.scene
-            _reference(rec, dynamic, world, hemicubes(world, dynamic.resolution, device=device), frame_lights, b, img,
-                       renderer, shading, out_dir, exposure, device)
-        elif k in refs:
-            if full_F is None:
-                full_F = whole_matrix(form_factors)
-            _reference(rec, dynamic, scene, full_F, frame_lights, b, img, renderer, shading, out_dir, exposure, device)
-        if keep_images:
-            images.append(img)
-        records.append(rec)
-        bar.set_postfix_str(" ".join(f"{s} {1e3 * v:.0f}ms" for s, v in rec.seconds.items() if s != "write"))
-    return WalkResult(records, b, img, images)
+    try:
+        for k in bar:
+            cam = cameras[k]
+            frame_lights = lights_at(lights, k, n)
+            t0 = time.perf_counter()
+            for t in tracks:
+                dynamic.move(t.object, t.at(k, n))
+            stats = dynamic.update(cam.position)
+            t1 = time.perf_counter()
+            b = np.asarray(dynamic.radiosity(frame_lights))
+            t2 = time.perf_counter()
+            if tracks and (render or k in refs):
+                renderer = Renderer(dynamic.scene, device)  # the world at this frame's poses
+            img = renderer.render(b, cam, shading) if render else None
+            t3 = time.perf_counter()
+            rec = FrameRecord(k, cam, {"update": t1 - t0, "lighting": t2 - t1, "render": t3 - t2, "write": 0.0}, stats,
+                              black=img is not None and not img.any(), lit=bool(b.any()))
+            if exposure is None and img is not None and img.any():  # auto: fixed at the first lit frame
+                exposure = auto_exposure(img)
+            if out_dir is not None:
+                rec.image_path = write_image(out_dir / f"frame_{k:04d}.{image_format}", img, exposure or 0.0)
+            if movie is not None:
+                movie.append(img, exposure or 0.0)
+            if out_dir is not None or movie is not None:
+                rec.seconds["write"] = time.perf_counter() - t3
+            if k in refs and tracks:
+                world = dynamic.scene
+                _reference(rec, dynamic, world, hemicubes(world, dynamic.resolution, device=device), frame_lights, b, img,
+                           renderer, shading, out_dir, exposure, device)
+            elif k in refs:
+                if full_F is None:
+                    full_F = whole_matrix(form_factors)
+                _reference(rec, dynamic, scene, full_F, frame_lights, b, img, renderer, shading, out_dir, exposure, device)
+            if keep_images:
+                images.append(img)
+            records.append(rec)
+            bar.set_postfix_str(" ".join(f"{s} {1e3 * v:.0f}ms" for s, v in rec.seconds.items() if s != "write"))
+    finally:
+        if movie is not None:
+            movie.close()
+    return WalkResult(records, b, img, images, exposure=exposure or 0.0, rendered=render)
 
 
 def _reference(rec: FrameRecord, dynamic, scene, F, lights, b, img, renderer, shading, out_dir, exposure,

@@ -72,7 +72,7 @@ def test_start_client_without_dask_names_the_extra(without_dask):
         _start_client(1, None)
 
 
-@pytest.mark.parametrize("where, given", [([], "--workers 2 (the default)"), (["--workers", "3"], "--workers 3"),
+@pytest.mark.parametrize("where, given", [(["--workers", "3"], "--workers 3"),
                                           (["--scheduler", "tcp://localhost:1"], "--scheduler")])
 def test_cli_store_on_dask_without_dask_is_one_line(without_dask, tmp_path, capsys, where, given):
     code, out, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "ff"), *where], capsys)

@@ -49,12 +49,13 @@ def checked_grid(grid) -> int:
     return integer(grid, "grid (visibility samples per side)", 1, MAX_GRID)
 
 
-def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np.ndarray:
+def emitter_irradiance(scene, points, normals, grid: int = 4, device=None, subset=None) -> np.ndarray:
     """(n, 3) float64 irradiance at ``points`` (n, 3; unit ``normals`` (n, 3) or one (3,) for
     all, checked: the kernel reads a normal per point) from the scene's emitting patches.
 
     ``grid``: visibility samples per emitter are ``grid^2`` shadow rays per point. A point on
     an emitter's plane (its own patch, a coplanar neighbour) receives nothing from it.
+    ``subset``: patch indices of the emitters to count (default: all of ``scene.emitters``).
     """
     import pyopencl as cl
 
@@ -62,7 +63,7 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None) -> np
     points, normals = checked_sensors(points, normals)
     grid = checked_grid(grid)
     n = len(points)
-    em = scene.emitters
+    em = scene.emitters if subset is None else np.asarray(subset, dtype=np.int64).reshape(-1)
     if n == 0 or len(em) == 0:
         return np.zeros((n, 3))
     dev = device or default_device()

@@ -63,8 +63,11 @@ def illuminance_statistics(E) -> IlluminanceStats:
 def write_illuminance_csv(path, points, E) -> IlluminanceStats:
     """Write ``points`` (n, 3) and their illuminance ``E`` to a CSV file, atomically.
 
-    Columns ``x, y, z, E_lx``, then a blank line and a ``statistic, value`` table (Em, Emin,
-    Emax, U0, Ud, n). Returns the statistics.
+    One tidy table: a header row ``x,y,z,E_lx`` and one row per point, read back by
+    ``numpy.genfromtxt(path, delimiter=",", names=True)`` and ``pandas.read_csv(path,
+    comment="#")``. The statistics (n, Em, Emin, Emax, U0, Ud; ``undefined`` for NaN) follow
+    the table as ``# name = value`` comment lines, which both skip (after the table, since
+    genfromtxt takes its names from the first line, comment or not). Returns the statistics.
     """
     p = floats(points, "points")
     a = _values(E)
@@ -76,9 +79,7 @@ def write_illuminance_csv(path, points, E) -> IlluminanceStats:
     w.writerow(["x", "y", "z", "E_lx"])
     # Every number as it round-trips: 6 digits put points 0.5 m apart at 4e6 m on one place.
     w.writerows([repr(float(v)) for v in row] for row in np.column_stack([p, a]))
-    w.writerow([])
-    w.writerow(["statistic", "value"])
-    w.writerows([k, _cell(v)] for k, v in asdict(stats).items())
+    buf.writelines(f"# {k} = {_cell(v)}\n" for k, v in asdict(stats).items())
     write_atomic(path, buf.getvalue().encode())
     return stats
 
@@ -89,16 +90,19 @@ def plot_work_plane(path, plane, E, title: str = "", cmap="jet") -> IlluminanceS
     Cells outside the polygon stay blank; the colour bar is in lx; the title carries Em and U0.
     The format follows the file's suffix (png, pdf, svg). ``cmap``: a matplotlib colour map or
     its name. Needs matplotlib (the ``plot`` extra). Returns the statistics.
+
+    Drawn through matplotlib's object API on a figure of its own (``matplotlib.figure.Figure``
+    with an Agg canvas): pyplot's global state and the session's backend (a notebook's) are
+    left as they were.
     """
     try:  # deferred: matplotlib is the optional ``plot`` extra
         import matplotlib
+        import matplotlib.colors  # noqa: F401  (matplotlib.colors.Colormap below)
+        from matplotlib.backend_bases import FigureCanvasBase
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
     except ImportError as exc:
         raise MissingExtraError("plot_work_plane", "matplotlib", "plot", name=exc.name) from exc
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from matplotlib.backend_bases import FigureCanvasBase
 
     # The format from the file's own suffix (a dotted folder's is not it), checked before drawing.
     fmt = Path(path).suffix.lower().lstrip(".") or "png"
@@ -120,15 +124,14 @@ def plot_work_plane(path, plane, E, title: str = "", cmap="jet") -> IlluminanceS
     grid[plane.cells[:, 0], plane.cells[:, 1]] = a
     (u0, v0), (du, dv) = plane.origin, plane.spacing
     extent = (u0, u0 + du * plane.shape[1], v0, v0 + dv * plane.shape[0])
-    fig, ax = plt.subplots(figsize=(6, 5))
-    try:
-        im = ax.imshow(grid, origin="lower", extent=extent, cmap=colours, interpolation="nearest")
-        fig.colorbar(im, ax=ax, label="illuminance (lx)")
-        ax.set_aspect("equal")
-        u0 = "undefined" if np.isnan(stats.U0) else f"{stats.U0:.3f}"
-        heading = f"Em = {stats.Em:.4g} lx, Emin = {stats.Emin:.4g} lx, U0 = {u0}"
-        ax.set_title(f"{title}\n{heading}" if title else heading, fontsize=10)
-        write_atomic(path, lambda tmp: fig.savefig(tmp, format=fmt, dpi=120, bbox_inches="tight"))
-    finally:
-        plt.close(fig)
+    fig = Figure(figsize=(6, 5))
+    FigureCanvasAgg(fig)  # this figure's own canvas: no pyplot, no backend switch
+    ax = fig.add_subplot()
+    im = ax.imshow(grid, origin="lower", extent=extent, cmap=colours, interpolation="nearest")
+    fig.colorbar(im, ax=ax, label="illuminance (lx)")
+    ax.set_aspect("equal")
+    u0 = "undefined" if np.isnan(stats.U0) else f"{stats.U0:.3f}"
+    heading = f"Em = {stats.Em:.4g} lx, Emin = {stats.Emin:.4g} lx, U0 = {u0}"
+    ax.set_title(f"{title}\n{heading}" if title else heading, fontsize=10)
+    write_atomic(path, lambda tmp: fig.savefig(tmp, format=fmt, dpi=120, bbox_inches="tight"))
     return stats

@@ -68,11 +68,11 @@ def test_statistics_csv_and_plot_of_a_lit_work_plane(tmp_path, device):
     stats = write_illuminance_csv(tmp_path / "plane.csv", plane.points, E)
     assert stats.Em == pytest.approx(expected.mean(), rel=1e-6)
     assert stats.U0 == pytest.approx(expected.min() / expected.mean(), rel=1e-6)
-    with open(tmp_path / "plane.csv") as f:
-        rows = list(csv.reader(f))
-    assert rows[0] == ["x", "y", "z", "E_lx"]
+    lines = (tmp_path / "plane.csv").read_text().splitlines()
+    table = dict(line[2:].split(" = ") for line in lines if line.startswith("# "))  # the statistics, as comments
+    rows = list(csv.reader(line for line in lines if not line.startswith("#")))
+    assert rows[0] == ["x", "y", "z", "E_lx"] and len(rows) == 1 + len(plane)
     np.testing.assert_allclose(np.array(rows[1 : 1 + len(plane)], float)[:, 3], expected, rtol=1e-5)
-    table = dict(rows[len(plane) + 3 :])
     assert float(table["U0"]) == pytest.approx(stats.U0, rel=1e-5) and int(table["n"]) == len(plane)
     from pydynrad.photometry.report import _cell
 
@@ -111,10 +111,11 @@ def test_elongated_areas_take_the_shorter_side_and_the_csv_round_trips(tmp_path)
     far = work_plane([[500000, 4000000], [500004, 4000000], [500004, 4000003], [500000, 4000003]], 12.75)
     out = tmp_path / "e.csv"
     write_illuminance_csv(out, far.points, np.zeros(len(far)))
-    rows = list(csv.reader(out.read_text().splitlines()))
+    lines = out.read_text().splitlines()
+    rows = list(csv.reader(line for line in lines if not line.startswith("#")))
     pts = np.array([[float(v) for v in r[:3]] for r in rows[1:1 + len(far)]])
     np.testing.assert_array_equal(pts, far.points)
-    assert ["U0", "undefined"] in rows
+    assert "# U0 = undefined" in lines
     with pytest.raises(InvalidInputError, match=">= 0"):
         illuminance_statistics([-1.0, 2.0, 3.0])
     with pytest.raises(InvalidInputError, match="not a matplotlib colour map"):
