@@ -16,8 +16,8 @@ PACKAGE = Path(pydynrad.__file__).parent
 #: Families from the bottom up: a module may import its own family and the ones listed before it.
 #: Top-level modules are their own family (named as the module).
 LAYERS = [
-    {"errors", "_version", "checks", "progress", "atomic", "precision"},
-    {"image_io"},
+    {"errors", "_version", "checks", "progress", "atomic", "precision", "defaults"},
+    {"image_io", "video"},
     {"host"},
     {"device"},
     {"geometry"},
@@ -27,7 +27,7 @@ LAYERS = [
     {"farfield"},
     {"dynamic", "comparison", "paths"},
     {"precompute", "bake", "walks"},
-    {"cli", "__main__"},
+    {"cli", "viewer", "__main__"},
 ]
 RANK = {family: i for i, layer in enumerate(LAYERS) for family in layer}
 
