@@ -40,8 +40,19 @@ __all__ = [
     "illuminance", "InvalidInputError", "light_vector", "load", "load_path", "LuminaireLight", "MovingObjects", "multibounce",
     "multibounce_radiosity", "open_form_factors", "orbit", "path_trace", "PointLight", "PydynradError", "read_ies",
     "read_ldt", "render", "RigidObject", "save_form_factors", "Scene", "SkyLight", "Solution", "solve", "SpotLight",
-    "walk", "WalkResult",
+    "view", "walk", "WalkResult",
 ]
+
+
+def view(scene_or_dynamic, form_factors=None, **options):
+    """Watch a dynamic radiosity solution live in a web browser: :func:`pydynrad.viewer.view`
+    (its parameters and the :class:`~pydynrad.viewer.Viewer` it returns). Needs the ``view``
+    extra (``pip install 'pydynrad[view]'``)."""
+    # Deferred: the viewer's server library is an optional extra, and `import pydynrad` stays as it was.
+    from .viewer import view as serve
+
+    return serve(scene_or_dynamic, form_factors, **options)
+
 
 # Names that were top-level before the subpackages: still served, with a warning naming the new home
 # (CHANGELOG.md, 'Moved').

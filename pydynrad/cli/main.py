@@ -15,8 +15,65 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import defaults
 from ..errors import InvalidInputError, PydynradError
 from ..scenes.byname import BUILTIN_SCENES
+from ..atomic import check_file_target
+from ..atomic import check_parent_folder
+from ..atomic import write_atomic
+from ..bake import MESH_FORMATS
+from ..bake import bake_lightmap
+from ..bake import export_mesh
+from ..bake.lightmap import MIN_TEXELS_PER_PATCH
+from ..bake.lightmap import check_texel_density
+from ..checks import resolution
+from ..checks import stops
+from ..comparison import reference_frame
+from ..device.devices import default_device
+from ..device.devices import list_devices
+from ..dynamic import DynamicRadiosity
+from ..dynamic import MovingObjects
+from ..farfield.gather import clusters_without_f
+from ..farfield.estimate import DEFAULT_TOLERANCE
+from ..formfactors import checked_samples
+from ..formfactors import form_factors
+from ..geometry.camera import Camera
+from ..geometry.camera import check_image_memory
+from ..geometry.objects import RigidObject
+from ..image_io import LINEAR_FORMATS
+from ..image_io import _format_for
+from ..image_io import write_image
+from ..lights.sources import PointLight
+from ..lights.text import light_syntax
+from ..lights.text import parse_light
+from ..lights.text import plain_number
+from ..lights.text import vector
+from ..paths import CameraPath
+from ..paths import LightTrack
+from ..paths import ObjectTrack
+from ..paths import load_walk
+from ..precompute.distributed import SceneSpec
+from ..precompute.distributed import _require_dask
+from ..precompute.distributed import precompute_distributed
+from ..precompute.poses import precompute_poses
+from ..precompute.poses import stored_poses
+from ..precompute.store import compute_store
+from ..renderer import RENDER_BYTES_PER_PIXEL
+from ..renderer import render
+from ..rows.files import is_form_factor_file
+from ..rows.files import open_form_factors
+from ..rows.files import recorded_resolution
+from ..rows.files import save_form_factors
+from ..rows.files import whole_matrix
+from ..rows.store import DEFAULT_BLOCK_ROWS
+from ..rows.store import FormFactorStore
+from ..rows.store import HEADER
+from ..rows.store import POSE_HEADER
+from ..scenes import block
+from ..scenes import cornell_box
+from ..scenes.byname import scene_by_name
+from ..solution import solve
+from ..walks import walk
 
 __all__ = ["main", "build_parser", "load_scene", "BUILTIN_SCENES"]
 
@@ -24,10 +81,9 @@ __all__ = ["main", "build_parser", "load_scene", "BUILTIN_SCENES"]
 DEMO_DIR = "pydynrad-demo"
 #: Chart texels of a lightmap when --texels-per-unit is not given (about a 1024 x 1024 image).
 LIGHTMAP_TEXELS = 0.75 * 2**20
-DEFAULT_WIDTH, DEFAULT_HEIGHT = 320, 240
-#: The Cornell box camera's vertical field of view (degrees).
-DEFAULT_FOV_Y = 39.3
-DEMO_EXPOSURE = float(-np.log2(np.pi))
+DEFAULT_WIDTH, DEFAULT_HEIGHT = defaults.WIDTH, defaults.HEIGHT
+#: The Cornell box camera's vertical field of view (degrees), as in path files.
+DEFAULT_FOV_Y = defaults.FOV_Y
 
 
 class _Parser(argparse.ArgumentParser):
@@ -39,8 +95,6 @@ class _Parser(argparse.ArgumentParser):
 
 # -- option types -----------------------------------------------------------------------------
 def _vec3(text: str) -> tuple[float, float, float]:
-    from ..lights.text import vector  # the light text's numbers: ASCII, finite
-
     try:
         return vector(text, "value")
     except InvalidInputError:
@@ -67,8 +121,6 @@ def _positive_int(text: str) -> int:
 
 
 def _resolution(text: str) -> int:
-    from ..checks import resolution
-
     try:
         return resolution(text if _digits(text) is None else _digits(text))
     except InvalidInputError as exc:
@@ -78,8 +130,6 @@ def _resolution(text: str) -> int:
 def _ranged(lo: float, hi: float, integral: bool = False):
     """An argparse type: a finite number (a whole one when ``integral``) in [lo, hi]."""
     def parse(text: str):
-        from ..lights.text import plain_number
-
         v = plain_number(text)
         v = np.nan if v is None else v
         if not (np.isfinite(v) and lo <= v <= hi) or (integral and v != int(v)):
@@ -104,8 +154,6 @@ def _frame_number(text: str) -> int:
 
 
 def _positive_float(text: str) -> float:
-    from ..lights.text import plain_number  # ASCII digits: float() reads "4_5" and other scripts' digits
-
     v = plain_number(text)
     v = float("nan") if v is None else v
     if not (np.isfinite(v) and v > 0):
@@ -114,8 +162,6 @@ def _positive_float(text: str) -> float:
 
 
 def _stops(text: str) -> float:
-    from ..checks import stops
-    from ..lights.text import plain_number
 
     value = plain_number(text)
     if value is None:
@@ -126,9 +172,31 @@ def _stops(text: str) -> float:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _light(text: str):
-    from ..lights.text import parse_light
+def _exposure(text: str):
+    """--exposure: "auto" (pydynrad.defaults.auto_exposure) or a number of stops."""
+    return "auto" if text.strip().lower() == "auto" else _stops(text)
 
+
+def _chosen_exposure(args, values, weights=None) -> float:
+    """--exposure in stops; for "auto" the rule's choice for ``values``, said on stdout."""
+    exposure = defaults.exposure_or_auto(args.exposure, values, weights)
+    if args.exposure == "auto":
+        print(f"exposure: {exposure:+.2f} stops (auto: log-average luminance to {defaults.KEY_VALUE}; "
+              "--exposure STOPS sets it)")
+    return exposure
+
+
+def _local_size(args, n: int, must_hold: int = 0) -> int:
+    """--local-size, or the rule min(1024, N // 2) (pydynrad.defaults.default_local_size), said on stdout."""
+    if args.local_size is not None:
+        return min(args.local_size, n)
+    m = defaults.default_local_size(n, must_hold)
+    print(f"local set: {m} of {n} patches (default min({defaults.LOCAL_SIZE_CAP}, N/2): {n - m} stay in the far "
+          "field; --local-size M sets it)")
+    return m
+
+
+def _light(text: str):
     try:
         return parse_light(text)
     except PydynradError as exc:
@@ -144,8 +212,6 @@ def _progress(args) -> bool | None:
 def load_scene(name: str, max_edge: float | None = None):
     """SCENE: a built-in name or a mesh file (:func:`pydynrad.scenes.byname.scene_by_name`),
     split to ``max_edge`` (scene units) when given; None keeps each scene's default patching."""
-    from ..scenes.byname import scene_by_name
-
     return scene_by_name(name, **_patching(max_edge))
 
 
@@ -157,8 +223,6 @@ def _patching(max_edge: float | None) -> dict:
 def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
     """``path`` as a Path, after checking its folder exists and no folder is in its place (and its
     suffix, or image format)."""
-    from ..atomic import check_file_target
-    from ..image_io import _format_for
 
     path = Path(path)
     if suffixes is None:
@@ -170,8 +234,6 @@ def _checked_target(path, suffixes: tuple[str, ...] | None = None) -> Path:
 
 def _samples(args) -> int:
     """--samples (1 when not given) checked against --resolution, before any work."""
-    from ..formfactors import checked_samples
-
     return checked_samples(1 if args.samples is None else args.samples, args.resolution)
 
 
@@ -180,8 +242,6 @@ def _form_factors(args, scene):
     --cache-mb over a store folder, closed when the command ends; made with --samples where
     given), else computed now."""
     if getattr(args, "form_factors", None):
-        from ..rows.files import open_form_factors, recorded_resolution
-
         # Every later hemicube (a moving object's rows, stored poses) at F's resolution: the
         # file's, or --resolution where it is given and is the file's.
         F = open_form_factors(scene, args.form_factors, cache_bytes=int(args.cache_mb * 2**20), samples=args.samples,
@@ -193,7 +253,6 @@ def _form_factors(args, scene):
         else:
             print(f"form factors: {args.form_factors} ({F.nnz} non-zeros)")
         return F
-    from ..formfactors import form_factors
 
     t0 = time.perf_counter()
     if args.resolution is None:
@@ -232,8 +291,6 @@ def _default_camera(scene, args):
     """A camera from --position/--look-at/--up/--fov-y/--width/--height; unset parts frame the scene:
     looking at the bounding-box centre along +z from 1.1 diagonals away (the Cornell box's
     published view)."""
-    from ..geometry.camera import Camera, check_image_memory
-    from ..renderer import RENDER_BYTES_PER_PIXEL
 
     lo, hi = scene.bbox.astype(np.float64)
     centre = (lo + hi) / 2
@@ -247,8 +304,6 @@ def _default_camera(scene, args):
 
 # -- subcommands -----------------------------------------------------------------------------
 def _cmd_info(args: argparse.Namespace) -> int:
-    from ..device.devices import default_device, list_devices
-
     print("OpenCL devices (select one with PYOPENCL_CTX=<platform>:<device>):")
     for d in list_devices():
         print(f"  [{d['PYOPENCL_CTX']}] {d['platform']} / {d['device']} ({d['type']}, "
@@ -268,8 +323,6 @@ def _cmd_formfactors(args: argparse.Namespace) -> int:
 
 
 def _formfactors_file(args: argparse.Namespace, out: Path) -> int:
-    from ..rows.files import is_form_factor_file, save_form_factors
-
     given = [o for o, v in (("--workers", args.workers), ("--scheduler", args.scheduler),
                             ("--block-rows", args.block_rows), ("--clusters", args.clusters),
                             ("--cluster-resolution", args.cluster_resolution)) if v is not None]
@@ -296,8 +349,6 @@ def _cluster_labels(args: argparse.Namespace, scene) -> tuple[np.ndarray | None,
             raise InvalidInputError("--cluster-resolution and --no-f need --clusters (the clusters G is made for)")
         return None, {}
     if args.clusters == "auto" or args.clusters.isdigit():
-        from ..farfield.gather import clusters_without_f
-
         # A store's walks have no F in memory: its clusters keep light components apart from hemicubes.
         clusters = clusters_without_f(scene, None if args.clusters == "auto" else int(args.clusters),
                                       progress=_progress(args))
@@ -315,15 +366,11 @@ def _cluster_labels(args: argparse.Namespace, scene) -> tuple[np.ndarray | None,
 
 def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
     """Create or resume the store at ``out``: in this process (--workers 0) or on a Dask cluster."""
-    from ..precompute.distributed import SceneSpec, _require_dask, precompute_distributed
-    from ..atomic import check_parent_folder
-    from ..rows.store import DEFAULT_BLOCK_ROWS, HEADER, FormFactorStore
-    from ..precompute.store import compute_store
 
-    if args.workers != 0:  # without the dask extra: one line naming it, before the scene is loaded
-        given = ("--scheduler" if args.scheduler else "--workers 2 (the default)" if args.workers is None
-                 else f"--workers {args.workers}")
-        _require_dask(given, "--workers 0 computes in this process without it")
+    dask = bool(args.workers) or args.scheduler is not None  # in this process unless Dask is asked for
+    if dask:  # without the dask extra: one line naming it, before the scene is loaded
+        given = "--scheduler" if args.scheduler else f"--workers {args.workers}"
+        _require_dask(given, "leave out --workers (or give --workers 0) to compute in this process without it")
     check_parent_folder(out)
     walk_poses = _walk_poses(args.poses) if args.poses else None  # a bad path file fails before the work
     scene = load_scene(args.scene, args.max_edge)
@@ -348,6 +395,11 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
                   + (f"; {len(corrupt)} fail their checksum and are recomputed (block {', '.join(map(str, corrupt[:8]))}"
                      f"{', ...' if len(corrupt) > 8 else ''})" if corrupt else "")
                   + (f"; {len(found['missing'])} missing" if args.verify and found["missing"] else ""))
+        if args.verify and (out / "poses.json").exists():  # damaged pose files: removed, then recomputed by --poses
+            bad = store.verify_poses(remove=True)["corrupt"]
+            if bad:
+                print(f"verified {out}, poses: {len(bad)} damaged configuration files removed "
+                      f"({', '.join(p.name for p in bad[:4])}{', ...' if len(bad) > 4 else ''}); --poses computes them again")
     elif args.verify:
         raise InvalidInputError(f"--verify checks an existing store; there is none at {str(out)!r}")
     block_rows = block_rows or DEFAULT_BLOCK_ROWS
@@ -356,11 +408,11 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
                   cluster_resolution=args.cluster_resolution,
                   cluster_params=cluster_params, compute_f=not args.no_f)
     t0 = time.perf_counter()
-    if args.workers == 0:
+    if not dask:
         store = compute_store(scene, out, patching=spec.recipe(), **common)
-        where = "this process (no Dask)"
+        where = "this process (no Dask; --workers N or --scheduler for a Dask cluster)"
     else:
-        workers = None if args.scheduler else (args.workers or 2)
+        workers = None if args.scheduler else args.workers
         store = precompute_distributed(spec, out, workers=workers, scheduler=args.scheduler, **common)
         where = f"the cluster at {args.scheduler}" if args.scheduler else f"a LocalCluster of {workers} workers"
     seconds = time.perf_counter() - t0
@@ -379,8 +431,6 @@ def _formfactors_store(args: argparse.Namespace, out: Path) -> int:
 def _walk_poses(path) -> tuple[list, list]:
     """The moving objects of path file ``path`` and their configuration at each frame of its
     walk (the poses ``pydynrad walk --path`` moves them to)."""
-    from ..paths import load_walk
-
     loaded = load_walk(path)
     if not loaded.objects:
         raise InvalidInputError(f"--poses {str(path)!r}: the path file moves no objects")
@@ -390,12 +440,11 @@ def _walk_poses(path) -> tuple[list, list]:
 
 def _store_poses(args: argparse.Namespace, scene, store, objects, configs) -> None:
     """--poses: the rows of ``objects`` at each configuration into the store's per-pose part."""
-    from ..precompute.poses import precompute_poses
-    from ..rows.store import POSE_HEADER
 
     before = len(store.pose_files()) if (store.path / POSE_HEADER).exists() else 0
     t0 = time.perf_counter()
-    poses = precompute_poses(scene, objects, configs, resolution=args.resolution, store=store)
+    poses = precompute_poses(scene, objects, configs, resolution=args.resolution, store=store,
+                             progress=_progress(args))
     print(f"wrote the poses of {args.poses}: {len(poses) - before} new configurations ({len(poses)} in the store, "
           f"{len(configs)} frames), {time.perf_counter() - t0:.1f} s")
 
@@ -403,8 +452,6 @@ def _store_poses(args: argparse.Namespace, scene, store, objects, configs) -> No
 def _stored_poses(F, scene, tracks, resolution: int):
     """The per-pose rows of ``tracks``' objects in the store behind ``F``, or None where F is
     no store or its store holds no poses (then the moves compute their rows)."""
-    from ..precompute.poses import stored_poses
-    from ..rows.store import POSE_HEADER, FormFactorStore
 
     store = getattr(F, "source", F)
     if not tracks or not isinstance(store, FormFactorStore) or not (store.path / POSE_HEADER).exists():
@@ -415,17 +462,14 @@ def _stored_poses(F, scene, tracks, resolution: int):
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from ..rows.files import whole_matrix
-    from ..image_io import write_image
-    from ..renderer import render
-    from ..solution import solve
 
     _checked_target(args.output)  # reject a bad image name before any work
     scene = load_scene(args.scene, args.max_edge)
     camera = _default_camera(scene, args)
     sol = solve(scene, whole_matrix(_form_factors(args, scene)), args.light)
     img = render(scene, sol.radiosity, camera, args.shading)
-    write_image(args.output, img, args.exposure)
+    linear = _format_for(Path(args.output))[1]  # auto: linear float images keep their values
+    write_image(args.output, img, 0.0 if linear and args.exposure == "auto" else _chosen_exposure(args, img))
     print(f"wrote {args.output} ({camera.width}x{camera.height}, {sol.iterations} bounces)")
     if not img.any():  # e.g. the default camera outside a closed scene sees only its backs
         _warn_black(args.output, bool(sol.radiosity.any()))
@@ -442,8 +486,6 @@ def _warn_black(what, lit: bool, camera: str = "the camera with --position and -
 def _texels_per_unit(args, scene) -> float:
     """--texels-per-unit, or a density giving about LIGHTMAP_TEXELS texels of charts (at least
     MIN_TEXELS_PER_PATCH for the median patch, rounded up)."""
-    from ..bake.lightmap import MIN_TEXELS_PER_PATCH
-
     if args.texels_per_unit is not None:
         return args.texels_per_unit
     tpu = max(float(np.sqrt(LIGHTMAP_TEXELS / scene.areas.sum(dtype=np.float64))),
@@ -453,15 +495,10 @@ def _texels_per_unit(args, scene) -> float:
 
 
 def _cmd_bake(args: argparse.Namespace) -> int:
-    from ..bake import MESH_FORMATS, bake_lightmap, export_mesh
-    from ..rows.files import whole_matrix
-    from ..solution import solve
 
     # Names are checked before any work: a typo must not cost a solve.
     out = _checked_target(args.output, (".glb",) if args.lightmap else MESH_FORMATS)
     if args.lightmap:
-        from ..image_io import LINEAR_FORMATS
-
         lightmap_path = _checked_target(args.lightmap, tuple(LINEAR_FORMATS))
     source = Path(args.scene)
     for target in [out] + ([lightmap_path] if args.lightmap else []):
@@ -472,24 +509,21 @@ def _cmd_bake(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, args.max_edge)
     print(f"scene: {scene!r}")
     if args.lightmap:
-        from ..bake.lightmap import check_texel_density
-
         check_texel_density(scene, _texels_per_unit(args, scene))  # before the solve it would waste
     sol = solve(scene, whole_matrix(_form_factors(args, scene)), args.light)
     print(f"solved: {sol.iterations} bounces, {len(args.light)} light(s) besides the emission")
     if not sol.radiosity.any():
         _warn_black(f"the bake of {args.scene}", False)
+    exposure = _chosen_exposure(args, sol.radiosity, scene.areas)  # the area-weighted log-average of the patches
     t0 = time.perf_counter()
     if not args.lightmap:
-        export_mesh(scene, sol.radiosity, out, exposure=args.exposure, crease_angle=args.crease_angle)
+        export_mesh(scene, sol.radiosity, out, exposure=exposure, crease_angle=args.crease_angle)
         print(f"wrote {out} (vertex colours, {time.perf_counter() - t0:.2f} s)")
         return 0
     tpu = _texels_per_unit(args, scene)
     lm = bake_lightmap(scene, sol.radiosity, tpu, padding=args.padding, crease_angle=args.crease_angle)
-    # The mesh first: its embedded 8-bit image is what an exposure can be refused for, and then
-    # no lightmap file is left without its mesh.
-    lm.write_mesh(out, exposure=args.exposure, image_name=lightmap_path.name)
-    lm.write(lightmap_path)
+    # As one pair: a mesh never beside a lightmap not its own, even after kill -9 (issue 46).
+    lm.write_pair(out, lightmap_path, exposure=exposure)
     h, w = lm.shape
     print(f"wrote {lightmap_path} ({w}x{h} texels at {tpu:g} per unit, {100 * lm.coverage:.0f}% in charts) and {out} "
           f"(lightmap UVs in TEXCOORD_1, the lightmap embedded as 8-bit sRGB at the exposure) in "
@@ -498,19 +532,29 @@ def _cmd_bake(args: argparse.Namespace) -> int:
 
 
 def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames, objects=()) -> object:
-    from ..atomic import check_file_target, write_atomic
-    from ..walks import walk
 
     opts = _dynamic_options(args)
     if objects:  # their rows by hemicube at F's resolution, so reference frames match F
         opts["resolution"] = args.resolution
-        opts["poses"] = _stored_poses(F, scene, objects, args.resolution)
+
+        opts["objects"] = MovingObjects((), poses=_stored_poses(F, scene, objects, args.resolution))
     if out_dir is not None and Path(out_dir).is_dir():
         check_file_target(Path(out_dir) / "summary.txt")  # written last: checked first
-    result = walk(scene, path, lights=lights, objects=objects, form_factors=F,
-                  local_size=min(args.local_size, len(scene) + sum(len(t.object) for t in objects)),
+    n_objects = sum(len(t.object) for t in objects)
+    local_size = _local_size(args, len(scene) + n_objects, n_objects)
+    video = getattr(args, "video", None)
+    if out_dir is None and video is None:
+        print("no --out: each frame is solved (update + lighting) and timed, not rendered or written; "
+              "--out DIR (or --video FILE) renders the frames and writes them")
+    result = walk(scene, path, lights=lights, objects=objects, form_factors=F, local_size=local_size,
                   solver_options=opts, shading=args.shading, output=out_dir, image_format=args.format,
-                  exposure=args.exposure, reference_frames=reference_frames, progress=_progress(args))
+                  exposure=args.exposure, reference_frames=reference_frames, progress=_progress(args),
+                  render=out_dir is not None or video is not None, video=video)
+    if video is not None:
+        print(f"wrote {video} ({len(result.frames)} frames at 24 frames/s)")
+    if (out_dir is not None or video is not None) and args.exposure == "auto":
+        print(f"exposure: {result.exposure:+.2f} stops for every frame (auto: the first lit frame's log-average "
+              f"luminance to {defaults.KEY_VALUE}; --exposure STOPS sets it)")
     summary = result.summary()
     print(summary)
     black = [f for f in result.frames if f.black]
@@ -524,8 +568,6 @@ def _walk_and_report(args, scene, path, lights, F, out_dir, reference_frames, ob
 
 
 def _cmd_walk(args: argparse.Namespace) -> int:
-    from ..paths import load_walk
-
     loaded = load_walk(args.path)
     scene = load_scene(args.scene, args.max_edge)
     F = _form_factors(args, scene)
@@ -537,24 +579,21 @@ def _cmd_walk(args: argparse.Namespace) -> int:
 def demo_setup(frames: int, width: int, height: int):
     """The demo's Cornell box walk: the camera moves from the published viewpoint up to the
     box's open side and pans across it, while a point light circles above the blocks."""
-    from ..lights.sources import PointLight
-    from ..paths import CameraPath, LightTrack
 
     positions = [(278, 273, -800), (278, 273, -450), (150, 320, -250), (400, 220, -200)]
     look_ats = [(278, 273, 0), (278, 260, 280), (300, 200, 300), (250, 220, 300)]
     cam = CameraPath(positions, look_ats, frames, fov_y=DEFAULT_FOV_Y, width=width, height=height)
     # Above both blocks (the tall one is 330 mm high), below the ceiling (548.8 mm).
     orbit_keys = [(130, 420, 130), (130, 420, 430), (430, 420, 430), (430, 420, 130), (130, 420, 130)]
-    light = LightTrack(PointLight(orbit_keys[0], (60000.0, 50000.0, 30000.0)), orbit_keys)
+    # W/sr: the box declares millimetres, so irradiance is per square metre (issue 41); the lamp
+    # lights it as (60000, 50000, 30000) had when intensities were read per mm^2.
+    light = LightTrack(PointLight(orbit_keys[0], (0.06, 0.05, 0.03)), orbit_keys)
     return cam, [light]
 
 
 def demo_block():
     """The demo's moving block (``--moving-block``): a green 100 mm cube (48 patches) gliding
     and turning 45 degrees through the box's back left, clear of both blocks and the light."""
-    from ..geometry.objects import RigidObject
-    from ..paths import ObjectTrack
-    from ..scenes import block
 
     keys = []
     for z, angle in ((460.0, 0.0), (395.0, 22.5), (330.0, 45.0)):
@@ -567,8 +606,6 @@ def demo_block():
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from ..scenes import cornell_box
-
     t0 = time.perf_counter()
     scene = cornell_box(max_edge=args.max_edge)
     print(f"scene: {scene!r}")
@@ -585,20 +622,20 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from ..comparison import reference_frame
-    from ..dynamic import DynamicRadiosity
-    from ..image_io import write_image
 
     _checked_target(args.output)
     scene = load_scene(args.scene, args.max_edge)
     camera = _default_camera(scene, args)
     F = _form_factors(args, scene)
-    dyn = DynamicRadiosity(scene, F, local_size=min(args.local_size, len(scene)), **_dynamic_options(args))
+    dyn = DynamicRadiosity(scene, F, local_size=_local_size(args, len(scene)), **_dynamic_options(args))
     dyn.update(camera.position)
     local_only = dyn.radiosity(args.light, far_field=False) if dyn.far is not None else None
     ref = reference_frame(scene, F, dyn.radiosity(args.light), camera, lights=args.light, shading=args.shading,
                           exposure=args.exposure, local_only=local_only)
     write_image(args.output, ref.image)
+    if args.exposure == "auto":
+        print(f"exposure: {ref.exposure:+.2f} stops (auto: the full solution's log-average luminance to "
+              f"{defaults.KEY_VALUE}; --exposure STOPS sets it)")
     if ref.black:  # a view of no lit face: its 0% error says nothing
         _warn_black(f"the view of {args.output}", bool(ref.full.any()))
     answers = [("far field", ref.error, ref.pixel_error)] if local_only is not None else []
@@ -608,9 +645,29 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     for name, error, stats in answers:
         print(f"  {name:10s} relative RMS error {100 * error:.3g}% over patches; per pixel mean "
               f"{100 * stats['mean']:.3g}%, 99th percentile {100 * stats['p99']:.3g}%")
-    rows = "local only (top) and far field (bottom): " if local_only is not None else ""
-    print(f"wrote {args.output} ({rows}dynamic | full | error map, colour bar 0 to "
-          f"{100 * ref.pixel_error['vmax']:.3g}%)")
+    if dyn.error_estimate is not None:
+        print(f"  far field's own {dyn.error_estimate}")
+    rows = "rows: local only (top) and with far field (bottom), each on its own error scale; " if local_only is not None else ""
+    scales = " and ".join(f"{100 * stats['vmax']:.3g}%" for _, _, stats in answers[::-1])
+    print(f"wrote {args.output} ({rows}columns: dynamic | full | error map, colour bar 0 to {scales})")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    # Deferred: the viewer's server library (websockets) is the optional 'view' extra; checked
+    # before any form factor is computed.
+    from ..viewer import view
+    from ..viewer.server import require_websockets
+
+    require_websockets()
+    scene = load_scene(args.scene, args.max_edge)
+    loaded = load_walk(args.path) if args.path else None
+    F = _form_factors(args, scene)
+    viewer = view(scene, F, lights=list(args.light), path=loaded, local_size=args.local_size,
+                  solver_options={**_dynamic_options(args), "resolution": args.resolution}, host=args.host,
+                  port=args.port, open_browser=args.open)
+    print(f"pydynrad view: {viewer.url} (M = {viewer.dynamic.M}; Ctrl-C stops it)", flush=True)
+    viewer.serve_forever()
     return 0
 
 
@@ -624,7 +681,7 @@ def _add_scene(p: argparse.ArgumentParser) -> None:
                         "default: the scene's own patching")
 
 
-def _add_form_factors(p: argparse.ArgumentParser, resolution: int = 64) -> None:
+def _add_form_factors(p: argparse.ArgumentParser, resolution: int = defaults.RESOLUTION) -> None:
     p.add_argument("--form-factors", metavar="PATH", default=None,
                    help="precomputed form factors from `pydynrad formfactors`: a .npz file (read whole) or a store "
                         "folder (rows read on demand through a cache of --cache-mb; full solves, as in render, "
@@ -678,26 +735,31 @@ def _add_look(p: argparse.ArgumentParser) -> None:
     p.add_argument("--shading", choices=("smooth", "flat"), default="smooth",
                    help="smooth: radiosity interpolated across patches (not across creases or material borders); "
                         "flat: one value per patch (default smooth)")
-    p.add_argument("--exposure", type=_stops, default=0.0, metavar="STOPS",
-                   help="multiply the written image by 2**STOPS: brighter (positive) or darker (negative) (default 0)")
+    _add_exposure(p, "the written images (multiplied by 2**STOPS)")
     _add_lights(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
-def _add_lights(p: argparse.ArgumentParser) -> None:
-    from ..lights.text import light_syntax
+def _add_exposure(p: argparse.ArgumentParser, what: str, of: str = "the (first lit) image's") -> None:
+    p.add_argument("--exposure", type=_exposure, default=defaults.EXPOSURE, metavar="STOPS|auto",
+                   help=f"exposure of {what} in stops, or auto (the default): {of} log-average luminance "
+                        f"mapped to {defaults.KEY_VALUE}, fixed once per walk so frames do not flicker; the "
+                        "choice is printed")
 
+
+def _add_lights(p: argparse.ArgumentParser) -> None:
     p.add_argument("--light", type=_light, action="append", default=[], metavar="KIND:FIELD=VALUE;...",
                    help="add a light (repeatable, any mix of kinds; quote it: ';' ends a shell command), e.g. "
-                        "'point:pos=278,500,280;intensity=5e4' or 'sun:dir=0.3,-1,0.2;irradiance=800'. Kinds: "
+                        "'point:pos=278,500,280;intensity=0.05' or 'sun:dir=0.3,-1,0.2;irradiance=800'. Kinds: "
                         f"{light_syntax()}. X,Y,Z:R,G,B is a point light too. Emitting patches of the scene always "
                         "shine")
 
 
-def _add_dynamic(p: argparse.ArgumentParser, local_size: int = 1024) -> None:
-    p.add_argument("--local-size", type=_positive_int, default=local_size, metavar="M",
+def _add_dynamic(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--local-size", type=_positive_int, default=None, metavar="M",
                    help=f"patches in the local set around the observer, the size of the multibounce matrix K "
-                        f"(default {local_size}; capped at the scene's patch count)")
+                        f"(default min({defaults.LOCAL_SIZE_CAP}, N/2), so half the scene at least stays in the far "
+                        "field; printed; capped at the scene's patch count)")
     p.add_argument("--update", choices=("exact", "paper"), default="exact",
                    help="local-matrix update: exact (Sherman-Morrison swaps, equals a rebuild) or paper "
                         "(the published rank-one update) (default exact)")
@@ -708,12 +770,27 @@ def _add_dynamic(p: argparse.ArgumentParser, local_size: int = 1024) -> None:
                         "theirs reaches it (default: the far field lights every patch)")
     p.add_argument("--clusters", type=_positive_int, default=None, metavar="C",
                    help="clusters of the far field's coarse level (default N/8)")
+    p.add_argument("--tolerance", type=_tolerance, default=DEFAULT_TOLERANCE, metavar="REL|none",
+                   help="the far field refines (sweeps of F) until its estimated all-patch relative RMS error is "
+                        f"under this (default {DEFAULT_TOLERANCE:g}); none: estimate only")
+
+
+def _tolerance(text: str):
+    if text.lower() == "none":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--tolerance must be a positive number or none; got {text!r}") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"--tolerance must be a positive number or none; got {text!r}")
+    return value
 
 
 def _dynamic_options(args: argparse.Namespace) -> dict:
     """DynamicRadiosity keywords from the options of :func:`_add_dynamic`."""
     return {"update": args.update, "storage": args.storage, "far_field": not args.no_far_field,
-            "clusters": args.clusters}
+            "clusters": args.clusters, "tolerance": args.tolerance}
 
 
 def _add_walk_output(p: argparse.ArgumentParser, out: str | None) -> None:
@@ -722,6 +799,9 @@ def _add_walk_output(p: argparse.ArgumentParser, out: str | None) -> None:
                         + (f"; default ./{out}" if out else "; default: write no images"))
     p.add_argument("--format", default="png", choices=("png", "jpg", "exr", "hdr", "tif"),
                    help="image format of the frames (exr keeps linear float values) (default png)")
+    p.add_argument("--video", default=None, metavar="FILE.mp4",
+                   help="also encode the frames into a video (.mp4, .mkv, .mov, .webm or .gif; 24 frames/s) at "
+                        "the frames' exposure; needs the video extra: pip install 'pydynrad[video]'")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -730,6 +810,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Dynamic Radiosity on OpenCL: form factors, local multibounce matrices, frame loops. "
                     "Start with `pydynrad demo`.",
     )
+    from .._version import __version__
+
+    parser.add_argument("--version", action="version", version=f"pydynrad {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=_Parser)
 
     # One block per subcommand, built from the shared option groups (_add_scene, _add_look, _add_lights,
@@ -752,13 +835,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--moving-block", action="store_true",
                    help="add a green cube that glides and turns through the box (a moving rigid object: its shadow "
                         "and colour bleeding follow it; reference frames solve the box with it from fresh hemicubes)")
-    _add_form_factors(p, resolution=32)
-    _add_dynamic(p, local_size=768)
+    _add_form_factors(p)
+    _add_dynamic(p)
     _add_walk_output(p, DEMO_DIR)
     p.add_argument("--shading", choices=("smooth", "flat"), default="smooth", help="smooth or flat shading (default smooth)")
-    p.add_argument("--exposure", type=_stops, default=DEMO_EXPOSURE, metavar="STOPS",
-                   help=f"exposure of the written frames in stops (default {DEMO_EXPOSURE:.2f} = log2(1/pi): pixels "
-                        "hold radiosity, so this shows the radiance B/pi, as a path tracer would)")
+    _add_exposure(p, "the written frames")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_demo)
 
@@ -767,8 +848,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    ".npz: one file (CSR arrays plus a header with the scene's geometry hash and the "
                                    "parameters), computed in this process, for scenes whose F fits in memory. Any "
                                    "other OUT: a form-factor store folder (compressed, checksummed row blocks, read "
-                                   "on demand by walk/render/compare), computed with Dask on a LocalCluster "
-                                   "(--workers) or an existing cluster (--scheduler). A store is resumable: running "
+                                   "on demand by walk/render/compare), computed in this process, or with Dask on a "
+                                   "LocalCluster (--workers N) or an existing cluster (--scheduler). A store is "
+                                   "resumable: running "
                                    "the same command again computes only the blocks still missing. Either way data is "
                                    "never used with the wrong scene, and files are written whole (temporary file, "
                                    "then rename).")
@@ -776,14 +858,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="OUT",
                    help="FILE.npz for a single file, or a folder (new, empty, or a store to resume) for a store; "
                         "its parent folder must exist")
-    _add_resolution(p, 64)
+    _add_resolution(p, defaults.RESOLUTION)
     _add_samples(p, 1, "recorded in the file or store; a store resumed with other K is refused (default 1)")
     p.add_argument("--force", action="store_true",
                    help="file only: replace an existing OUT.npz that is not a pydynrad form-factor file")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=_count, default=None, metavar="N",
-                       help="store only: worker processes of a local Dask cluster (LocalCluster, one thread and one "
-                            "OpenCL context each) (default 2); 0 computes in this process without Dask")
+                       help="store only: compute on a local Dask cluster of N worker processes (LocalCluster, one "
+                            "thread and one OpenCL context each; the dask extra); default (and 0): in this process, "
+                            "without Dask")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="store only: address of an existing Dask cluster's scheduler (e.g. tcp://host:8786); "
                             "its workers must see OUT's folder and have pydynrad installed")
@@ -844,8 +927,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="lightmap texels between charts, filled by dilation (default 2)")
     p.add_argument("--crease-angle", type=_ranged(0.0, 180.0), default=30.0, metavar="DEG",
                    help="never smooth across a sharper angle (default 30)")
-    p.add_argument("--exposure", type=_stops, default=0.0, metavar="STOPS",
-                   help="display colours are radiosity * 2**STOPS (default 0; log2(1/pi) = -1.65 shows radiance)")
+    _add_exposure(p, "the display colours (radiosity * 2**STOPS)", "the patches' area-weighted")
     _add_lights(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     _add_form_factors(p)
@@ -884,6 +966,26 @@ def build_parser() -> argparse.ArgumentParser:
     _add_form_factors(p)
     _add_dynamic(p)
     p.set_defaults(func=_cmd_compare)
+
+    p = sub.add_parser("view", help="watch the dynamic solution live in a web browser (the view extra)",
+                       description="Serve a page at http://HOST:PORT/ where the browser's camera is the observer: "
+                                   "the local set follows it every frame, the lights are edited live (sun, sky, "
+                                   "point lights), --path plays a path file, and overlays show the local set, the "
+                                   "far field's clusters and the error against a full solve. Needs pip install "
+                                   "'pydynrad[view]'. Over SSH: ssh -L PORT:localhost:PORT HOST, or --host 0.0.0.0.")
+    _add_scene(p)
+    p.add_argument("--path", default=None, metavar="FILE",
+                   help="a camera path file (JSON, as walk reads it) to play, pause and scrub")
+    _add_lights(p)
+    _add_form_factors(p, resolution=32)
+    _add_dynamic(p)
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1: this machine only; 0.0.0.0: every interface)")
+    p.add_argument("--port", type=_ranged(0, 65535, integral=True), default=8080,
+                   help="port to listen on (default 8080; 0: any free port)")
+    p.add_argument("--open", action="store_true", help="open the page in this machine's web browser")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cmd_view)
     return parser
 
 

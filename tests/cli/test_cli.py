@@ -16,7 +16,7 @@ from pydynrad.scenes import cornell_box
 def test_every_option_of_every_subcommand_is_explained():
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")
-    assert set(sub.choices) == {"info", "demo", "formfactors", "render", "walk", "compare", "bake"}
+    assert set(sub.choices) == {"info", "demo", "formfactors", "render", "walk", "compare", "bake", "view"}
     for name, p in sub.choices.items():
         assert p.description, name
         for action in p._actions:
