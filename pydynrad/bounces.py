@@ -20,11 +20,10 @@ float32 gives ~1e-5 at rho = 0.9 and ~1e-3 at rho = 0.999; use dtype=np.float64 
 
 On a CPU device the same system is solved by the host's LAPACK through ``numpy.linalg.solve``
 (LU with partial pivoting, the same flops), and the series by numpy's matrix products:
-an OpenCL CPU runtime's GEMM does not reach the BLAS numpy links against (bench/radiosity.py
-measured it 1.9-2.2x slower). With no more cores than channels the channels are solved side
+an OpenCL CPU runtime's GEMM does not reach the BLAS numpy links against (docs/decisions/0009-host-lapack-and-one-blas-thread.md). With no more cores than channels the channels are solved side
 by side, one core and one BLAS thread each: a threaded BLAS shares a few cores among its own
-threads by spinning, which on a busy 2-core machine made three channels at M = 768 take
-0.9-1.7 s instead of 0.4 s. GPUs run the kernels; ``backend="device"`` forces them anywhere.
+threads by spinning, which on a busy machine of few cores made the channels, solved in turn,
+several times slower than side by side. GPUs run the kernels; ``backend="device"`` forces them anywhere.
 
 ``bounces=n`` instead gives the truncated series sum_{k=0}^{n} (F_SS P_S)^k F_SS (paths of at
 most n + 1 hops; what a fixed-bounce renderer computes), one M^3 GEMM per bounce.

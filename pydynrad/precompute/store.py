@@ -46,8 +46,8 @@ def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: di
         given = sp.issparse(clusters) or np.ndim(clusters) == 2  # a matrix is its own prolongation
         if cluster_resolution is None:
             # F's own: G is then F Pr of the stored rows, or (--no-f) of the rows a walk computes
-            # on demand at that resolution; at another one the two disagree (11.3% mean pixel
-            # error at night with G at 24 and rows at 32: bench/results/pthread-intel-r-xeon-r-processor-rocketlake/farstore-quick.md).
+            # on demand at that resolution; at another one the two disagree, by far more than
+            # the far field's own error (docs/decisions/0021-far-field-without-f.md).
             cluster_resolution = resolution
         store.set_clusters(basis_prolongation(scene, clusters, cluster_basis), resolution=cluster_resolution,
                            params=cluster_params, basis="given" if given else cluster_basis)
@@ -119,7 +119,7 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
 
     ``samples``: hemicubes per row (1, 4, 16, ...: :func:`pydynrad.form_factors`), recorded
     in the header; a resume with other samples (or another resolution) raises
-    :class:`StoreMismatchError`. ``row_function(scene, rows, resolution, device=...)`` (and
+    :class:`~pydynrad.rows.StoreMismatchError`. ``row_function(scene, rows, resolution, device=...)`` (and
     ``samples=`` when ``samples`` > 1) returns the (len(rows), N) CSR
     rows; the default is :func:`form_factor_rows`; it is called on runs of up to
     ``task_rows`` rows. ``verify`` re-checks finished blocks and recomputes corrupt ones.

@@ -3,7 +3,7 @@
 * a single ``.npz`` file (:func:`save_form_factors` / :func:`load_form_factors`): the CSR
   arrays of F plus a JSON header (format, scene geometry hash, N, resolution, samples); read whole
   into memory, for scenes whose F fits in RAM;
-* a form-factor store folder (:class:`pydynrad.store.FormFactorStore`): F in compressed row
+* a form-factor store folder (:class:`pydynrad.FormFactorStore`): F in compressed row
   blocks, read on demand, for scenes whose F does not fit.
 
 :func:`open_form_factors` takes either and returns what :class:`~pydynrad.DynamicRadiosity`
@@ -160,7 +160,7 @@ def open_form_factors(scene, path, cache_bytes: int | None = None, *, samples: i
     """F of ``scene`` from a ``.npz`` file or a form-factor store folder.
 
     Returns a float32 CSR matrix (N, N) for a file. For a store, the
-    :class:`~pydynrad.store.FormFactorStore` itself (every row read goes to disk) or, with
+    :class:`~pydynrad.FormFactorStore` itself (every row read goes to disk) or, with
     ``cache_bytes``, a :class:`~pydynrad.rows.cache.RowCache` of that many bytes over it (LRU,
     with background prefetch; close it when done). ``cache_bytes`` does not apply to a file,
     which is in memory whole. With ``samples``, F must have been computed with that many
@@ -169,9 +169,9 @@ def open_form_factors(scene, path, cache_bytes: int | None = None, *, samples: i
     (:func:`recorded_resolution` reads the one it was).
 
     Raises :class:`InvalidInputError` for a missing path or a file that is not a pydynrad
-    form-factor file, :class:`~pydynrad.store.StoreMismatchError` for a store made for
+    form-factor file, :class:`~pydynrad.rows.StoreMismatchError` for a store made for
     another scene geometry (or other parameters, ``samples`` among them; a file with other
-    ``samples`` raises InvalidInputError), :class:`~pydynrad.store.StoreIncompleteError`
+    ``samples`` raises InvalidInputError), :class:`~pydynrad.rows.StoreIncompleteError`
     for a store not finished yet.
     """
     checked_scene(scene)
