@@ -60,8 +60,15 @@ SIZES: dict[str, dict] = {
         "pathtracer": {"furnace_subdivisions": 2, "spp": (4, 16, 64), "image": (16, 12), "image_spp": 8},
         "formfactors": {},
         "paper": {"village": {"houses": 1, "detail": 0.25}, "resolution": 16, "M": (64, 128), "frames": 4},
-        "accuracy": {"max_edge": 250.0, "resolutions": (16, 32), "M": (48, 96), "base_M": 96,
-                     "frames": 3, "ref_spp": 64, "image": (24, 18)},
+        "accuracy": {
+            "max_edge": 250.0,
+            "resolutions": (16, 32),
+            "M": (48, 96),
+            "base_M": 96,
+            "frames": 3,
+            "ref_spp": 64,
+            "image": (24, 18),
+        },
         "dynamic": {},
         "bandwidth": {},
         "gather": {},
@@ -69,8 +76,13 @@ SIZES: dict[str, dict] = {
         "farfield": {},
         "farstore": {},
         "cie171": {"resolution": 64, "room_resolution": 32, "room_cell": 0.5},
-        "photometry": {"cell": 1.0, "sensors": 16, "resolutions": (16,), "sky_resolutions": (8,),
-                       "distances": (0.1, 1.0)},
+        "photometry": {
+            "cell": 1.0,
+            "sensors": 16,
+            "resolutions": (16,),
+            "sky_resolutions": (8,),
+            "distances": (0.1, 1.0),
+        },
         "objects": {},
         "sampling": {},
     },
@@ -78,8 +90,15 @@ SIZES: dict[str, dict] = {
         "pathtracer": {"furnace_subdivisions": 3, "spp": (4, 16, 64, 256), "image": (64, 48), "image_spp": 64},
         "formfactors": {},
         "paper": {"village": {"houses": 2, "detail": 1.0}, "resolution": 32, "M": (1024,), "frames": 8},
-        "accuracy": {"max_edge": 100.0, "resolutions": (32, 64), "M": (256, 512, 768), "base_M": 512,
-                     "frames": 6, "ref_spp": 512, "image": (64, 48)},
+        "accuracy": {
+            "max_edge": 100.0,
+            "resolutions": (32, 64),
+            "M": (256, 512, 768),
+            "base_M": 512,
+            "frames": 6,
+            "ref_spp": 512,
+            "image": (64, 48),
+        },
         "dynamic": {},
         "bandwidth": {},
         "gather": {},
@@ -87,17 +106,34 @@ SIZES: dict[str, dict] = {
         "farfield": {},
         "farstore": {},
         "cie171": {"resolution": 128, "room_resolution": 64, "room_cell": 0.25},
-        "photometry": {"cell": 0.25, "sensors": 1024, "resolutions": (32, 64, 128), "sky_resolutions": (32, 64),
-                       "distances": (0.01, 0.03, 0.1, 0.3, 1.0)},
+        "photometry": {
+            "cell": 0.25,
+            "sensors": 1024,
+            "resolutions": (32, 64, 128),
+            "sky_resolutions": (32, 64),
+            "distances": (0.01, 0.03, 0.1, 0.3, 1.0),
+        },
         "objects": {},
         "sampling": {},
     },
     "full": {
-        "pathtracer": {"furnace_subdivisions": 4, "spp": (4, 16, 64, 256, 1024, 4096), "image": (320, 240), "image_spp": 1024},
+        "pathtracer": {
+            "furnace_subdivisions": 4,
+            "spp": (4, 16, 64, 256, 1024, 4096),
+            "image": (320, 240),
+            "image_spp": 1024,
+        },
         "formfactors": {},
         "paper": {"village": {"houses": 12, "detail": 1.0}, "resolution": 32, "M": (1024, 4096), "frames": 16},
-        "accuracy": {"max_edge": 50.0, "resolutions": (64, 128, 256), "M": (1024, 2048, 3072),
-                     "base_M": 2048, "frames": 12, "ref_spp": 4096, "image": (320, 240)},
+        "accuracy": {
+            "max_edge": 50.0,
+            "resolutions": (64, 128, 256),
+            "M": (1024, 2048, 3072),
+            "base_M": 2048,
+            "frames": 12,
+            "ref_spp": 4096,
+            "image": (320, 240),
+        },
         "dynamic": {},
         "bandwidth": {},
         "gather": {},
@@ -105,9 +141,13 @@ SIZES: dict[str, dict] = {
         "farfield": {},
         "farstore": {},
         "cie171": {"resolution": 256, "room_resolution": 128, "room_cell": 0.25},
-        "photometry": {"cell": 0.25, "sensors": 4096, "resolutions": (32, 64, 128, 256),
-                       "sky_resolutions": (32, 64, 128),
-                       "distances": (0.003, 0.01, 0.03, 0.1, 0.3, 1.0)},
+        "photometry": {
+            "cell": 0.25,
+            "sensors": 4096,
+            "resolutions": (32, 64, 128, 256),
+            "sky_resolutions": (32, 64, 128),
+            "distances": (0.003, 0.01, 0.03, 0.1, 0.3, 1.0),
+        },
         "objects": {},
         "sampling": {},
     },
@@ -130,6 +170,7 @@ SECTIONS: dict[str, str] = {
     "objects": "bench.objects:suite_section",
     "sampling": "bench.sampling:suite_section",
     "corpus": "bench.corpus:corpus_section",
+    "farfield_corpus": "bench.farfield_corpus:farfield_corpus_section",
 }
 
 
@@ -164,8 +205,9 @@ def _resolve(spec: str):
     return getattr(importlib.import_module(module), func)
 
 
-def run_suite(size: str = "quick", sections=None, out_dir=None, device=None, progress: bool = True,
-              strict: bool = False) -> tuple[dict, dict]:
+def run_suite(
+    size: str = "quick", sections=None, out_dir=None, device=None, progress: bool = True, strict: bool = False
+) -> tuple[dict, dict]:
     """Run the suite and write its report.
 
     Parameters
@@ -202,8 +244,12 @@ def run_suite(size: str = "quick", sections=None, out_dir=None, device=None, pro
         "device": info,
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "size": size,
-        "host": {"machine": platform.machine(), "processor": platform.processor(), "python": platform.python_version(),
-                 "pydynrad": pydynrad.__version__},
+        "host": {
+            "machine": platform.machine(),
+            "processor": platform.processor(),
+            "python": platform.python_version(),
+            "pydynrad": pydynrad.__version__,
+        },
         "sections": {},
     }
     ctx = Context(size=size, device=device, progress=progress)
@@ -218,8 +264,7 @@ def run_suite(size: str = "quick", sections=None, out_dir=None, device=None, pro
         except Exception as exc:  # recorded in the report; the other sections still run
             if strict:
                 raise
-            body = {"title": name, "error": f"{type(exc).__name__}: {exc}",
-                    "traceback": traceback.format_exc(limit=8)}
+            body = {"title": name, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=8)}
         body["seconds"] = time.perf_counter() - t0
         results["sections"][name] = body
     results["seconds"] = time.perf_counter() - start
@@ -242,14 +287,23 @@ def main(argv=None) -> int:
 
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.split("\n\n")[0])
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--quick", dest="size", action="store_const", const="quick",
-                       help="CI-scale sizes: a few minutes on two CPU cores (default)")
-    group.add_argument("--full", dest="size", action="store_const", const="full",
-                       help="the paper's sizes (village >= 60k patches, M up to 4096, 10,000 drift frames)")
+    group.add_argument(
+        "--quick",
+        dest="size",
+        action="store_const",
+        const="quick",
+        help="CI-scale sizes: a few minutes on two CPU cores (default)",
+    )
+    group.add_argument(
+        "--full",
+        dest="size",
+        action="store_const",
+        const="full",
+        help="the paper's sizes (village >= 60k patches, M up to 4096, 10,000 drift frames)",
+    )
     group.add_argument("--size", choices=list(SIZES), help=argparse.SUPPRESS)
     parser.add_argument("--sections", help=f"comma-separated subset of: {', '.join(SECTIONS)}")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="report folder (default: bench/results/<device-slug>)")
+    parser.add_argument("--out", type=Path, default=None, help="report folder (default: bench/results/<device-slug>)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     sections = args.sections.split(",") if args.sections else None

@@ -42,45 +42,38 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..checks import flag, integer, number, resolution as checked_resolution, vec3
+from ..bounces import multibounce_block, multibounce_memory, warn_precision
+from ..checks import flag, integer, number, vec3
+from ..checks import resolution as checked_resolution
 from ..defaults import RESOLUTION, default_local_size
-from ..geometry.scene import checked_scene
-from ..errors import InvalidInputError, OutOfMemoryError, PydynradError
+from ..device.devices import device_or_default
 from ..device.matrix import DeviceMatrix, padded_ld
+from ..errors import InvalidInputError, OutOfMemoryError, PydynradError
+from ..farfield import FarField, far_field_for
+from ..farfield.estimate import DEFAULT_TOLERANCE, ErrorControl
+from ..geometry.objects import _objects, check_reach, instanced, rigid_transform
+from ..geometry.scene import checked_scene
+from ..host.memory import available_host_bytes
+from ..lights.areas import analytic_emitter_light
+from ..lights.sources import (
+    SHADOW_EPSILON,
+    DirectionalLight,
+    PointLight,
+    SpotLight,
+    _point_irradiance,
+    check_radiosity_range,
+    checked_lights,
+)
 from ..precision import compute_dtype, storage_dtype
-from .localrows import LocalRows, _replace_rows
-from .selection import NearestSet
-from .stale import CORRECTION_TOLERANCE, StaleRows
 from .exact import exact_swap
-from .kupdate import UpdateKernels
-from .kupdate import scratch_nbytes
+from .kupdate import UpdateKernels, scratch_nbytes
+from .localrows import LocalRows, _replace_rows
 from .moves import MovingObjects, WorldRows
 from .occlusion import shadow_rays_near
-from .paper import UsedPatches
-from .paper import paper_swap
-from .poserows import stale_rows
-from .poserows import swap_chunks
-from .stale import rows_minus
-from ..bounces import multibounce_block
-from ..bounces import multibounce_memory
-from ..host.memory import available_host_bytes
-from ..bounces import warn_precision
-from ..device.devices import device_or_default
-from ..farfield import FarField
-from ..farfield import far_field_for
-from ..farfield.estimate import DEFAULT_TOLERANCE, ErrorControl
-from ..geometry.objects import _objects
-from ..geometry.objects import check_reach
-from ..geometry.objects import instanced
-from ..geometry.objects import rigid_transform
-from ..lights.areas import analytic_emitter_light
-from ..lights.sources import DirectionalLight
-from ..lights.sources import PointLight
-from ..lights.sources import SHADOW_EPSILON
-from ..lights.sources import SpotLight
-from ..lights.sources import _point_irradiance
-from ..lights.sources import check_radiosity_range
-from ..lights.sources import checked_lights
+from .paper import UsedPatches, paper_swap
+from .poserows import stale_rows, swap_chunks
+from .selection import NearestSet
+from .stale import CORRECTION_TOLERANCE, StaleRows, rows_minus
 
 __all__ = ["DynamicRadiosity", "FrameStats"]
 
@@ -225,11 +218,27 @@ class DynamicRadiosity:
     device buffer itself), hold ``with solution.lock:`` around them.
     """
 
-    def __init__(self, scene, form_factors, local_size: int | None = None, update: str = "exact", storage: str = "fp32",
-                 max_swaps_per_frame: int = 8, refresh_tolerance: float | None = None, refresh_interval: int = 32,
-                 observer=None, keep_emitters: bool = True, resolution: int = RESOLUTION, far_field=True, clusters=None,
-                 cluster_form_factors=None, objects=None, device=None, samples: int = 1,
-                 tolerance: float | None = DEFAULT_TOLERANCE) -> None:
+    def __init__(
+        self,
+        scene,
+        form_factors,
+        local_size: int | None = None,
+        update: str = "exact",
+        storage: str = "fp32",
+        max_swaps_per_frame: int = 8,
+        refresh_tolerance: float | None = None,
+        refresh_interval: int = 32,
+        observer=None,
+        keep_emitters: bool = True,
+        resolution: int = RESOLUTION,
+        far_field=True,
+        clusters=None,
+        cluster_form_factors=None,
+        objects=None,
+        device=None,
+        samples: int = 1,
+        tolerance: float | None = DEFAULT_TOLERANCE,
+    ) -> None:
         checked_scene(scene)
         moving = objects if isinstance(objects, MovingObjects) or objects is None else MovingObjects(objects)
         occlusion = "auto" if moving is None else moving.occlusion
@@ -252,12 +261,15 @@ class DynamicRadiosity:
             occlusion = 0 if form_factors is not None and self.occlusion_correction else DEFAULT_OCCLUSION
         self.occlusion = None if occlusion is None else integer(occlusion, "occlusion", 0)
         if samples != 1 and (form_factors is not None or objects is not None):
-            raise InvalidInputError(f"samples={samples!r} applies to rows computed on demand (form_factors=None) without "
-                                    "moving objects; pass HemicubeRows(scene, R, samples=K) or form factors computed "
-                                    "with samples=K instead")
+            raise InvalidInputError(
+                f"samples={samples!r} applies to rows computed on demand (form_factors=None) without "
+                "moving objects; pass HemicubeRows(scene, R, samples=K) or form factors computed "
+                "with samples=K instead"
+            )
         if moving is not None:
-            scene, form_factors = self._with_objects(scene, form_factors, moving.objects, update, local_size,
-                                                     checked_resolution(resolution), moving.poses)
+            scene, form_factors = self._with_objects(
+                scene, form_factors, moving.objects, update, local_size, checked_resolution(resolution), moving.poses
+            )
         n = len(scene)
         self.scene = scene
         self._stale = StaleRows(n)  # rows a move left stale in K (a static F with occlusion_correction)
@@ -273,8 +285,11 @@ class DynamicRadiosity:
         self.max_swaps = integer(max_swaps_per_frame, "max_swaps_per_frame", 1, MAX_SWAPS_LIMIT)
         if refresh_tolerance is not None:
             if isinstance(refresh_tolerance, (str, bytes, bool)) or not (
-                    np.isfinite(number(refresh_tolerance, "refresh_tolerance")) and refresh_tolerance > 0):
-                raise InvalidInputError(f"refresh_tolerance must be a positive number or None; got {refresh_tolerance!r}")
+                np.isfinite(number(refresh_tolerance, "refresh_tolerance")) and refresh_tolerance > 0
+            ):
+                raise InvalidInputError(
+                    f"refresh_tolerance must be a positive number or None; got {refresh_tolerance!r}"
+                )
             refresh_tolerance = float(refresh_tolerance)
         self.refresh_tolerance = refresh_tolerance
         self.refresh_interval = integer(refresh_interval, "refresh_interval", 1, 2**31 - 1)
@@ -308,14 +323,18 @@ class DynamicRadiosity:
         """The world scene and its row source for a static scene with moving objects."""
 
         if update != "exact":
-            raise InvalidInputError(f"moving objects need update='exact' (a move is an exact batched swap); got {update!r}")
+            raise InvalidInputError(
+                f"moving objects need update='exact' (a move is an exact batched swap); got {update!r}"
+            )
         self.objects = _objects(objects)
         self.static_scene = scene
         world = instanced(scene, self.objects)
         n_static, n_obj = len(scene), len(world) - len(scene)
         if isinstance(local_size, (int, np.integer)) and n_obj > local_size:
-            raise InvalidInputError(f"the objects have {n_obj} patches, more than local_size M = {local_size}: "
-                                    "every object patch must be local")
+            raise InvalidInputError(
+                f"the objects have {n_obj} patches, more than local_size M = {local_size}: "
+                "every object patch must be local"
+            )
         self._ranges = {}
         start = n_static
         for o in self.objects:
@@ -412,8 +431,9 @@ class DynamicRadiosity:
         return self._matrix.nbytes + self._kernels.nbytes + far
 
     @staticmethod
-    def estimate_memory_bytes(M: int, channels: int, storage: str, max_swaps_per_frame: int = 8, device=None,
-                              object_patches: int = 0) -> int:
+    def estimate_memory_bytes(
+        M: int, channels: int, storage: str, max_swaps_per_frame: int = 8, device=None, object_patches: int = 0
+    ) -> int:
         """What :attr:`memory_bytes` will be for these sizes without a far field (K and the
         update's scratch), without building anything; a far field adds its
         :attr:`~pydynrad.farfield.FarField.device_memory_bytes`. ``object_patches``: the moving
@@ -435,8 +455,9 @@ class DynamicRadiosity:
         failed host allocation under ``ulimit -v`` had crashed the process (signal 11)."""
         gib = 2.0**30
         dtype = compute_dtype(self.storage)
-        device_need = self.estimate_memory_bytes(self.M, self.C, self.storage, self.max_swaps, self.device,
-                                                 len(self._object_patches))
+        device_need = self.estimate_memory_bytes(
+            self.M, self.C, self.storage, self.max_swaps, self.device, len(self._object_patches)
+        )
         build = multibounce_memory(self.M, self.C, dtype)
         host_need = build["host"] + ((device_need + build["device"]) if self.device.traits.cpu else 0)
         have = available_host_bytes()
@@ -445,12 +466,14 @@ class DynamicRadiosity:
                 f"a DynamicRadiosity of M = {self.M} local patches ({self.C} channel(s), {self.storage}) needs about "
                 f"{host_need / gib:.2f} GiB of host memory for K, its scratch and its build; this process may "
                 f"allocate {have / gib:.2f} GiB (the least of the machine's, its cgroup's and ulimit -v's). Use a "
-                "smaller local_size or fp16 storage")
+                "smaller local_size or fp16 storage"
+            )
         if device_need + build["device"] > self.device.global_mem_bytes:
             raise OutOfMemoryError(
                 f"a DynamicRadiosity of M = {self.M} local patches needs about {(device_need + build['device']) / gib:.2f} "
                 f"GiB of device memory; {self.device.name} has {self.device.global_mem_bytes / gib:.2f} GiB. Use a "
-                "smaller local_size or fp16 storage")
+                "smaller local_size or fp16 storage"
+            )
 
     @property
     @_locked
@@ -461,8 +484,7 @@ class DynamicRadiosity:
         self._require_built()
         used = self._used.nbytes if self._used is not None else 0
         far = self.far.host_memory_bytes if self.far is not None else 0
-        return (self._local_patches.nbytes + self._local_mask.nbytes + self._ff.nbytes + self._stale.nbytes + used
-                + far)
+        return self._local_patches.nbytes + self._local_mask.nbytes + self._ff.nbytes + self._stale.nbytes + used + far
 
     def _rho(self, patches: np.ndarray) -> np.ndarray:
         """(C, len(patches)) albedo per K channel."""
@@ -475,8 +497,13 @@ class DynamicRadiosity:
         # The rows were validated when fetched (LocalRows.rows) or made here at a pose (moves.at_pose
         # and stale_rows cap every row to a sum of 1; hemicube rows are so by construction): not
         # checked again (checking them was a sizeable share of the solve).
-        return multibounce_block(self._ff.square(local_patches), self._rho(local_patches).T,
-                                 dtype=compute_dtype(self.storage), device=self.device, checked=True)
+        return multibounce_block(
+            self._ff.square(local_patches),
+            self._rho(local_patches).T,
+            dtype=compute_dtype(self.storage),
+            device=self.device,
+            checked=True,
+        )
 
     def _allocate(self) -> None:
         """K's device buffers and the update's kernels, built and launched once (on zeros) here
@@ -516,7 +543,9 @@ class DynamicRadiosity:
         self._matrix.matvec(np.zeros(self.M))
         if self.C == 1:
             self._matrix.matmat(np.zeros((3, self.M)))
-        L, _ = analytic_emitter_light(self.scene, [PointLight(self.scene.centers[0], 0.0)], None, "hemicube", self.device)
+        L, _ = analytic_emitter_light(
+            self.scene, [PointLight(self.scene.centers[0], 0.0)], None, "hemicube", self.device
+        )
         if self.far is not None and self.far.B_far is None:
             self.far.light(L)
 
@@ -547,9 +576,11 @@ class DynamicRadiosity:
         """
         obs = self._observer(observer_position, "observer_position")
         if not self._update_lock.acquire(blocking=False):
-            raise PydynradError("DynamicRadiosity.update() is already running (another thread): its local set and K "
-                                "change in place, so calls must not overlap; use one DynamicRadiosity per thread "
-                                "or hold a lock around update()")
+            raise PydynradError(
+                "DynamicRadiosity.update() is already running (another thread): its local set and K "
+                "change in place, so calls must not overlap; use one DynamicRadiosity per thread "
+                "or hold a lock around update()"
+            )
         try:
             with self._lock:
                 self._frame_stats = self._update(obs)
@@ -564,8 +595,10 @@ class DynamicRadiosity:
         with np.errstate(over="ignore"):
             far = not np.isfinite(np.sum((obs - self.scene.frame.origin) ** 2))
         if far:
-            raise InvalidInputError(f"{what} {obs.tolist()} is too far from the scene for its distances "
-                                    "to the patches to be computed in float64")
+            raise InvalidInputError(
+                f"{what} {obs.tolist()} is too far from the scene for its distances "
+                "to the patches to be computed in float64"
+            )
         return obs
 
     def _update(self, obs: np.ndarray) -> FrameStats:
@@ -580,8 +613,9 @@ class DynamicRadiosity:
             self._build(self._initial_set(obs))
             t1 = time.perf_counter()
             self._prefetch_next(obs)
-            return FrameStats(self.frame, 0, empty, empty, t_update=t1 - t0, t_prefetch=time.perf_counter() - t1,
-                              refreshed=True)
+            return FrameStats(
+                self.frame, 0, empty, empty, t_update=t1 - t0, t_prefetch=time.perf_counter() - t1, refreshed=True
+            )
         moved, rows_refreshed, hemicubes, t_move = len(self._moves()[0]), 0, 0, 0.0
         if moved:
             t_move = time.perf_counter()
@@ -601,9 +635,20 @@ class DynamicRadiosity:
         t_pre = time.perf_counter() - t_pre
         self.device.queue.finish()
         t2 = time.perf_counter()
-        stats = FrameStats(self.frame, len(slots), removed, J, t_select=t1 - t0, t_form_factors=t_ff,
-                           t_update=t2 - t1 - t_ff - t_pre, t_prefetch=t_pre, moved=moved, rows_refreshed=rows_refreshed,
-                           hemicubes=hemicubes, t_move=t_move)
+        stats = FrameStats(
+            self.frame,
+            len(slots),
+            removed,
+            J,
+            t_select=t1 - t0,
+            t_form_factors=t_ff,
+            t_update=t2 - t1 - t_ff - t_pre,
+            t_prefetch=t_pre,
+            moved=moved,
+            rows_refreshed=rows_refreshed,
+            hemicubes=hemicubes,
+            t_move=t_move,
+        )
         if self.refresh_tolerance is not None and self.frame % self.refresh_interval == 0:
             stats.residual = self.residual()
             if stats.residual > self.refresh_tolerance:
@@ -669,9 +714,19 @@ class DynamicRadiosity:
         try:
             # The relight's shadow rays go on the device's queue ahead of the objects' hemicubes.
             follow = self._follow_light()
-            order, new_rows, hemicubes, left = source.refresh(moved, S[others], others, self._ff.local, spheres,
-                                                              self.occlusion, self._last_B, self.occlusion_correction,
-                                                              outside, meanwhile=follow, held=self._stale)
+            order, new_rows, hemicubes, left = source.refresh(
+                moved,
+                S[others],
+                others,
+                self._ff.local,
+                spheres,
+                self.occlusion,
+                self._last_B,
+                self.occlusion_correction,
+                outside,
+                meanwhile=follow,
+                held=self._stale,
+            )
         except BaseException:
             # Nothing of the move reached K or the stale rows: the world goes back to the poses
             # they are of, and the moves stay queued for the next update.
@@ -683,8 +738,12 @@ class DynamicRadiosity:
             # Budget 0 with the correction: no swap. The objects' new rows join the rows left
             # stale, K keeps the rows it was built from, and radiosity() solves with all of them
             # (a rank-2k swap of every object slot cost more than the rest of the move).
-            self._stale.put(np.concatenate([slots, others[left[0]]]), rows_minus(new_rows, self._ff.local, slots), left[1],
-                            pose=source.pose)
+            self._stale.put(
+                np.concatenate([slots, others[left[0]]]),
+                rows_minus(new_rows, self._ff.local, slots),
+                left[1],
+                pose=source.pose,
+            )
             return 0, hemicubes
         before = self._ff.local
         local = _replace_rows(before, slots, new_rows)
@@ -805,8 +864,9 @@ class DynamicRadiosity:
                 LS = LS + self.far.injection(self._ff.local, S)
         B = far.copy() if far is not None else L.copy()
         if len(self._stale):
-            B[S] = self._stale.correct(self._solve_kept, LS, B, S, self.scene.albedo, far is not None,
-                                       self.correction_tolerance)
+            B[S] = self._stale.correct(
+                self._solve_kept, LS, B, S, self.scene.albedo, far is not None, self.correction_tolerance
+            )
         else:
             B[S] = self._solve_kept(LS)
         if far is not None and not self.objects and not len(self._stale):  # its residual, and sweeps to tolerance
@@ -882,7 +942,7 @@ class DynamicRadiosity:
         try:
             relit = self._relit_queued(held.L, held.poses, held.lights)
         except Exception:  # a guess that failed (a device error) must not fail the move:
-            return None    # radiosity() lights the world itself and raises what it meets there
+            return None  # radiosity() lights the world itself and raises what it meets there
         if relit is None:
             return None
 
@@ -930,12 +990,20 @@ class DynamicRadiosity:
         them and returns its answer (None for a direct light past float32), or None where
         :meth:`_relit` does not hold for other reasons."""
 
-        if not self.objects or len(poses) != len(self.objects) or not lights \
-                or any(type(x) not in (PointLight, SpotLight, DirectionalLight) for x in lights):
+        if (
+            not self.objects
+            or len(poses) != len(self.objects)
+            or not lights
+            or any(type(x) not in (PointLight, SpotLight, DirectionalLight) for x in lights)
+        ):
             return None
         world, n = self.scene, len(self.static_scene)
-        spheres = [s for o, before, now in zip(self.objects, poses, world.bvh.transforms)
-                   if not np.array_equal(before, now) for s in (o.bounding_sphere(before), o.bounding_sphere(now))]
+        spheres = [
+            s
+            for o, before, now in zip(self.objects, poses, world.bvh.transforms)
+            if not np.array_equal(before, now)
+            for s in (o.bounding_sphere(before), o.bounding_sphere(now))
+        ]
         redo = np.zeros(len(world), bool)
         redo[n:] = True
         slack = 2.0 * SHADOW_EPSILON * world.ray_scale

@@ -1,0 +1,115 @@
+"""The far field's error estimate (pydynrad.farfield.estimate) against the true error, and the
+tolerance it refines to."""
+
+import numpy as np
+import pytest
+
+import pydynrad
+from pydynrad import DirectionalLight, DynamicRadiosity, PointLight
+from pydynrad.comparison import radiosity_error
+from pydynrad.errors import InvalidInputError
+from pydynrad.farfield.estimate import DEFAULT_TOLERANCE, relative_rms
+from pydynrad.rows import CSRRows
+
+
+@pytest.fixture(scope="module")
+def builtins(device):
+    box = pydynrad.scenes.cornell_box(max_edge=150.0)
+    Fb = pydynrad.form_factors(box, resolution=32, device=device, progress=False)
+    village = pydynrad.scenes.village(houses=1, detail=0.5)
+    Fv = pydynrad.form_factors(village, resolution=24, device=device, progress=False)
+    return {
+        "box": (box, Fb, [PointLight((278, 450, 280), (0.2,) * 3)], [278, 273, 280]),
+        "village night": (village, Fv, [PointLight((8.0, 3.0, 8.0), (400.0,) * 3)], [5.0, 1.7, 5.0]),
+        "village sun": (village, Fv, [DirectionalLight((-0.4, -1.0, -0.3), (100.0,) * 3)], [5.0, 1.7, 5.0]),
+    }
+
+
+def _ref(scene, F, L, device):
+    return pydynrad.solve(scene, F, light=L, tol=1e-10, device=device).radiosity
+
+
+@pytest.mark.parametrize("case", ["box", "village night", "village sun"])
+def test_estimate_against_truth_on_builtins(device, builtins, case):
+    scene, F, lights, obs = builtins[case]
+    L = pydynrad.light_vector(scene, lights, device=device)
+    ref = _ref(scene, F, L, device)
+    dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device, tolerance=None)
+    for step in range(3):  # a light change, then frames whose local set moved
+        stats_frame = dyn.update(np.asarray(obs) + np.array([0.1, 0.0, 0.08]) * step * scene.scale)
+        B = dyn.radiosity(light=L)
+        err, est = radiosity_error(B, ref, scene.areas), dyn.error_estimate
+        # Observed ratios 0.94-1.06 (PoCL, AMD EPYC, 2026-12-07).
+        assert 0.5 * err <= est.error and (est.error <= 3 * err or err < 1e-4), (case, step, err, est)
+        assert est.sweeps == 0 and (est.light_change == (step == 0) or not stats_frame.swaps)
+        assert stats_frame.error_estimate is est
+        r = L + scene.albedo * (F @ B) - B
+        assert est.residual == pytest.approx(relative_rms(r, B, scene.areas), rel=1e-3)
+
+
+@pytest.mark.parametrize("tolerance", [0.004, 0.0015, 0.0005])
+def test_tolerance_is_honoured(device, builtins, tolerance):
+    scene, F, lights, obs = builtins["village night"]  # 2.2% off without refinement
+    L = pydynrad.light_vector(scene, lights, device=device)
+    ref = _ref(scene, F, L, device)
+    dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device, tolerance=tolerance)
+    B = dyn.radiosity(light=L)
+    est = dyn.error_estimate
+    err = radiosity_error(B, ref, scene.areas)
+    assert est.sweeps >= 1 and est.error <= tolerance
+    assert err <= tolerance, (err, est)
+    assert 0.5 * err <= est.error <= 3 * err
+    # Lights unchanged, the observer moves: still under it; far_field=False untouched by it.
+    dyn.update(np.asarray(obs) + [1.0, 0.0, 1.0])
+    B = dyn.radiosity(light=L)
+    assert radiosity_error(B, ref, scene.areas) <= tolerance
+    paper = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device, far_field=False)
+    paper.update(np.asarray(obs) + [1.0, 0.0, 1.0])
+    np.testing.assert_array_equal(paper.radiosity(light=L), dyn.radiosity(light=L, far_field=False))
+    assert paper.error_estimate is None
+
+
+def test_a_scene_under_tolerance_takes_no_sweep(device, builtins):
+    scene, F, lights, obs = builtins["village sun"]  # 0.2-0.3% at the coarse level
+    L = pydynrad.light_vector(scene, lights, device=device)
+    dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device)
+    B = dyn.radiosity(light=L)
+    assert dyn.error_estimate.error < DEFAULT_TOLERANCE and dyn.error_estimate.sweeps == 0
+    plain = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device, tolerance=None)
+    np.testing.assert_array_equal(plain.radiosity(light=L), B)  # nothing refined: the same answer
+
+
+def test_moving_light_warm_starts_from_the_last_correction(device, builtins):
+    scene, F, _, obs = builtins["village night"]
+    dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device, tolerance=0.002)
+    sweeps = []
+    for k in range(4):
+        L = pydynrad.light_vector(scene, [PointLight((8.0 + 0.05 * k, 3.0, 8.0), (400.0,) * 3)], device=device)
+        B = dyn.radiosity(light=L)
+        sweeps.append(dyn.error_estimate.sweeps)
+        assert radiosity_error(B, _ref(scene, F, L, device), scene.areas) <= 0.002
+    assert sweeps[0] >= 2 and max(sweeps[2:]) < sweeps[0]
+
+
+def test_sampled_rows_estimate(device, builtins):
+    """Without F in memory: the residual from sampled rows, no refinement, the truth inside a
+    factor of 3 and the interval stated."""
+    scene, F, lights, obs = builtins["village night"]
+    L = pydynrad.light_vector(scene, lights, device=device)
+    ref = _ref(scene, F, L, device)
+    dyn = DynamicRadiosity(scene, CSRRows(F), local_size=len(scene) // 8, observer=obs, device=device)
+    whole = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device, tolerance=None)
+    dyn._errors._F = None  # as a store: rows only
+    B = dyn.radiosity(light=L)
+    est = dyn.error_estimate
+    err = radiosity_error(B, ref, scene.areas)
+    assert est.sampled > 0 and est.sweeps == 0 and est.interval[0] <= est.error <= est.interval[1]
+    assert 0.5 * err <= est.error <= 3 * err, (err, est)
+    assert whole.radiosity(light=L) is not None
+
+
+def test_tolerance_is_checked(device, builtins):
+    scene, F, _, obs = builtins["box"]
+    for bad in (0.0, -1.0, float("nan"), "1%"):
+        with pytest.raises((InvalidInputError, ValueError, TypeError)):
+            DynamicRadiosity(scene, F, local_size=32, device=device, tolerance=bad)
