@@ -52,8 +52,9 @@ def pathtracer_section(ctx) -> dict:
     import pydynrad
 
     p = ctx.params
-    scene = pydynrad.scenes.closed_box(1.0, subdivisions=p["furnace_subdivisions"], albedo=FURNACE_ALBEDO,
-                                       emission=FURNACE_EMISSION)
+    scene = pydynrad.scenes.closed_box(
+        1.0, subdivisions=p["furnace_subdivisions"], albedo=FURNACE_ALBEDO, emission=FURNACE_EMISSION
+    )
     truth = FURNACE_EMISSION / (1.0 - FURNACE_ALBEDO)
     rows, errs = [], []
     pydynrad.pathtracer.path_trace_patches(scene, spp=1, device=ctx.device)  # compile outside the timings
@@ -82,19 +83,36 @@ def pathtracer_section(ctx) -> dict:
             "Throughput counts paths (a path is one sample at one patch, with all its bounces)."
         ),
         "tables": [
-            {"title": "Furnace convergence", "columns": ["spp", "patches", "mean B", "analytic B",
-                                                         "rel. RMS error", "time s", "M paths/s"],
-             "rows": rows},
-            {"title": "Cornell box image", "columns": ["width", "height", "spp", "time s", "M paths/s"],
-             "rows": [[w, h, p["image_spp"], dt, w * h * p["image_spp"] / dt / 1e6]]},
+            {
+                "title": "Furnace convergence",
+                "columns": ["spp", "patches", "mean B", "analytic B", "rel. RMS error", "time s", "M paths/s"],
+                "rows": rows,
+            },
+            {
+                "title": "Cornell box image",
+                "columns": ["width", "height", "spp", "time s", "M paths/s"],
+                "rows": [[w, h, p["image_spp"], dt, w * h * p["image_spp"] / dt / 1e6]],
+            },
         ],
-        "plots": [{
-            "name": "furnace", "title": "Path tracer: furnace error vs samples",
-            "xlabel": "samples per patch", "ylabel": "relative RMS error", "xscale": "log", "yscale": "log",
-            "series": [{"label": "measured", "x": list(spp), "y": errs},
-                       {"label": "1/sqrt(spp) through the first point", "style": "--",
-                        "x": list(spp), "y": list(errs[0] * np.sqrt(spp[0] / spp))}],
-        }],
+        "plots": [
+            {
+                "name": "furnace",
+                "title": "Path tracer: furnace error vs samples",
+                "xlabel": "samples per patch",
+                "ylabel": "relative RMS error",
+                "xscale": "log",
+                "yscale": "log",
+                "series": [
+                    {"label": "measured", "x": list(spp), "y": errs},
+                    {
+                        "label": "1/sqrt(spp) through the first point",
+                        "style": "--",
+                        "x": list(spp),
+                        "y": list(errs[0] * np.sqrt(spp[0] / spp)),
+                    },
+                ],
+            }
+        ],
     }
 
 
@@ -116,8 +134,12 @@ def _settings(p: dict) -> list[dict]:
     local-only answer), then the M series again with the far field."""
     base = {"M": p["base_M"], "update": "exact", "storage": "fp32", "R": max(p["resolutions"]), "far_field": False}
     out = [dict(base)]
-    for key, values in (("M", p["M"]), ("update", ("paper", "exact")), ("storage", ("fp16", "fp32", "fp64")),
-                        ("R", p["resolutions"])):
+    for key, values in (
+        ("M", p["M"]),
+        ("update", ("paper", "exact")),
+        ("storage", ("fp16", "fp32", "fp64")),
+        ("R", p["resolutions"]),
+    ):
         for v in values:
             s = {**base, key: v}
             if s not in out:
@@ -134,10 +156,10 @@ def timed_walk(dyn, path: np.ndarray, warm: int = 2) -> tuple[float, list]:
     [(seconds, FrameStats) for each timed frame]).
     """
     t_build = time_call(lambda: dyn.update(path[0]), repeats=1, warmup=0)["median_s"]
-    for pos in path[1:1 + warm]:
+    for pos in path[1 : 1 + warm]:
         dyn.update(pos)
     frames = []
-    for pos in path[1 + warm:]:
+    for pos in path[1 + warm :]:
         t = time_call(lambda: dyn.update(pos), repeats=1, warmup=0)
         frames.append((t["median_s"], t["result"]))
     return t_build, frames
@@ -158,8 +180,10 @@ def accuracy_section(ctx) -> dict:
     cam = _box_camera(w, h).with_view(path[-1], path[-1] + np.array([0.0, -60.0, 300.0]))
 
     def form_factors(R):
-        return ctx.cached(("F", "cornell", p["max_edge"], R),
-                          lambda: pydynrad.form_factors(scene, resolution=R, device=ctx.device, progress=ctx.progress))
+        return ctx.cached(
+            ("F", "cornell", p["max_edge"], R),
+            lambda: pydynrad.form_factors(scene, resolution=R, device=ctx.device, progress=ctx.progress),
+        )
 
     full = {}
     for R in p["resolutions"]:
@@ -168,11 +192,15 @@ def accuracy_section(ctx) -> dict:
         t = time_call(lambda: pydynrad.solve(scene, F, device=ctx.device), repeats=3)
         full[R] = (sol.radiosity, t["median_s"])
     ref_patches, noise_patches = _two_halves(
-        lambda spp, seed: pydynrad.pathtracer.path_trace_patches(scene, spp=spp, seed=seed, device=ctx.device,
-                                                      progress=ctx.progress), p["ref_spp"])
+        lambda spp, seed: pydynrad.pathtracer.path_trace_patches(
+            scene, spp=spp, seed=seed, device=ctx.device, progress=ctx.progress
+        ),
+        p["ref_spp"],
+    )
     ref_image, noise_image = _two_halves(
-        lambda spp, seed: pydynrad.path_trace(scene, cam, spp=spp, seed=seed, device=ctx.device,
-                                              progress=ctx.progress), p["ref_spp"])
+        lambda spp, seed: pydynrad.path_trace(scene, cam, spp=spp, seed=seed, device=ctx.device, progress=ctx.progress),
+        p["ref_spp"],
+    )
 
     renderer = Renderer(scene, ctx.device)
     vis = renderer.visibility(cam)  # one primary-ray pass serves every image below
@@ -181,13 +209,36 @@ def accuracy_section(ctx) -> dict:
         b, t_solve = full[R]
         img = full_images[R] = renderer.shade(vis, b)
         err_img = relative_image_error(img, ref_image)
-        rows.append(["full radiosity", n, "—", "fp32", R, None, t_solve * 1e3, t_solve * 1e3, 0.0,
-                     radiosity_error(b, ref_patches, scene.areas), 0.0, err_img, err_img, None])
+        rows.append(
+            [
+                "full radiosity",
+                n,
+                "—",
+                "fp32",
+                R,
+                None,
+                t_solve * 1e3,
+                t_solve * 1e3,
+                0.0,
+                radiosity_error(b, ref_patches, scene.areas),
+                0.0,
+                err_img,
+                err_img,
+                None,
+            ]
+        )
     for s in _settings(p):
         M = min(s["M"], n)
         F = form_factors(s["R"])
-        dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=s["update"], storage=s["storage"],
-                                        far_field=s["far_field"], device=ctx.device)
+        dyn = pydynrad.DynamicRadiosity(
+            scene,
+            F,
+            local_size=M,
+            update=s["update"],
+            storage=s["storage"],
+            far_field=s["far_field"],
+            device=ctx.device,
+        )
         _, frames = timed_walk(dyn, path)
         t_update = [dt for dt, _ in frames]
         b, t_light = dyn.radiosity(), time_call(dyn.radiosity)["median_s"]
@@ -199,11 +250,24 @@ def accuracy_section(ctx) -> dict:
         err_pt = radiosity_error(b[local], ref_patches[local], scene.areas[local])
         err_img = relative_image_error(img, ref_image)
         label = f"M={M} {s['update']} {s['storage']} R={s['R']}" + (" far field" if s["far_field"] else "")
-        rows.append([label, M, s["update"], s["storage"], s["R"],
-                     float(np.median(t_update)) * 1e3 if t_update else None, t_light * 1e3, frame * 1e3,
-                     err_full, err_pt, relative_image_error(img, full_images[s["R"]]), err_img,
-                     relative_image_error(img[near], ref_image[near]) if near.any() else None,
-                     dyn.memory_bytes / 2**20])
+        rows.append(
+            [
+                label,
+                M,
+                s["update"],
+                s["storage"],
+                s["R"],
+                float(np.median(t_update)) * 1e3 if t_update else None,
+                t_light * 1e3,
+                frame * 1e3,
+                err_full,
+                err_pt,
+                relative_image_error(img, full_images[s["R"]]),
+                err_img,
+                relative_image_error(img[near], ref_image[near]) if near.any() else None,
+                dyn.memory_bytes / 2**20,
+            ]
+        )
         points.append((s, frame, {"path traced": err_pt, "full": err_full}))
 
     base = _settings(p)[0]
@@ -212,14 +276,28 @@ def accuracy_section(ctx) -> dict:
         """One series per factor: the settings that differ from the base in that factor only."""
         series = []
         for key in ("M", "update", "storage", "R"):
-            pts = sorted((f, e[reference], s[key]) for s, f, e in points
-                         if all(s[k] == v for k, v in base.items() if k != key))
-            series.append({"label": f"vary {key}", "style": "o-" if key in ("M", "R") else "o",
-                           "x": [f * 1e3 for f, _, _ in pts], "y": [e for _, e, _ in pts],
-                           "labels": [f"{key}={v}" for _, _, v in pts]})
+            pts = sorted(
+                (f, e[reference], s[key]) for s, f, e in points if all(s[k] == v for k, v in base.items() if k != key)
+            )
+            series.append(
+                {
+                    "label": f"vary {key}",
+                    "style": "o-" if key in ("M", "R") else "o",
+                    "x": [f * 1e3 for f, _, _ in pts],
+                    "y": [e for _, e, _ in pts],
+                    "labels": [f"{key}={v}" for _, _, v in pts],
+                }
+            )
         pts = sorted((f, e[reference], s["M"]) for s, f, e in points if s["far_field"])
-        series.append({"label": "vary M, far field", "style": "s-", "x": [f * 1e3 for f, _, _ in pts],
-                       "y": [e for _, e, _ in pts], "labels": [f"M={v}" for _, _, v in pts]})
+        series.append(
+            {
+                "label": "vary M, far field",
+                "style": "s-",
+                "x": [f * 1e3 for f, _, _ in pts],
+                "y": [e for _, e, _ in pts],
+                "labels": [f"M={v}" for _, _, v in pts],
+            }
+        )
         return series
 
     return {
@@ -241,18 +319,40 @@ def accuracy_section(ctx) -> dict:
             f"{noise_image:.2%}; errors near these are noise-limited. Settings vary one factor at a "
             "time around the first setting row (M, exact, fp32, largest R)."
         ),
-        "tables": [{
-            "title": "Error and cost per setting",
-            "columns": ["setting", "M", "update", "storage", "R", "update ms/frame", "lighting ms",
-                        "frame ms", "err vs full", "err vs path traced", "image err vs full",
-                        "image err vs path traced", "same, local pixels only", "device MiB (K, far field)"],
-            "rows": rows,
-            "note": "Full-radiosity rows: frame time is one full solve; errors over all patches.",
-        }],
-        "plots": [{
-            "name": f"trade-{ref.replace(' ', '-')}", "title": f"Error vs frame time (local patches, vs {ref})",
-            "xlabel": "frame time (ms)", "ylabel": f"relative error vs {ref}",
-            "xscale": "log", "yscale": "log", "series": curve(ref),
-        } for ref in ("path traced", "full")],
+        "tables": [
+            {
+                "title": "Error and cost per setting",
+                "columns": [
+                    "setting",
+                    "M",
+                    "update",
+                    "storage",
+                    "R",
+                    "update ms/frame",
+                    "lighting ms",
+                    "frame ms",
+                    "err vs full",
+                    "err vs path traced",
+                    "image err vs full",
+                    "image err vs path traced",
+                    "same, local pixels only",
+                    "device MiB (K, far field)",
+                ],
+                "rows": rows,
+                "note": "Full-radiosity rows: frame time is one full solve; errors over all patches.",
+            }
+        ],
+        "plots": [
+            {
+                "name": f"trade-{ref.replace(' ', '-')}",
+                "title": f"Error vs frame time (local patches, vs {ref})",
+                "xlabel": "frame time (ms)",
+                "ylabel": f"relative error vs {ref}",
+                "xscale": "log",
+                "yscale": "log",
+                "series": curve(ref),
+            }
+            for ref in ("path traced", "full")
+        ],
         "numbers": {"reference_noise_patches": noise_patches, "reference_noise_image": noise_image},
     }

@@ -79,18 +79,21 @@ def _border_errors(scene, lm, B, camera, device) -> dict:
         e = err[mask]
         return (float(e.mean()), float(np.percentile(e, 99)), float(e.max())) if e.size else (0.0, 0.0, 0.0)
 
-    return {"pixels": int(len(err)), "border_fraction": float(1 - inside.mean()), "border": stats(~inside),
-            "inside": stats(inside)}
+    return {
+        "pixels": int(len(err)),
+        "border_fraction": float(1 - inside.mean()),
+        "border": stats(~inside),
+        "inside": stats(inside),
+    }
 
 
 def bake_section(ctx) -> dict:
+    import os
     import tempfile
     from pathlib import Path
 
     import pydynrad
     from pydynrad.bake import bake_lightmap, export_mesh
-
-    import os
 
     p = {**SIZES[ctx.size], **ctx.params}
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
@@ -113,8 +116,9 @@ def bake_section(ctx) -> dict:
             t_write = time.perf_counter() - t0
             h, w = lm.shape
             e = _border_errors(scene, lm, B, camera, ctx.device)
-            bake_rows.append([tpu, w, h, lm.coverage, t_bake, t_write, e["border_fraction"], *e["inside"],
-                              *e["border"]])
+            bake_rows.append(
+                [tpu, w, h, lm.coverage, t_bake, t_write, e["border_fraction"], *e["inside"], *e["border"]]
+            )
     return {
         "title": "Baking: vertex colours and lightmaps of the village",
         "description": (
@@ -128,12 +132,30 @@ def bake_section(ctx) -> dict:
             f"on {os.cpu_count()} CPUs (times on a shared machine vary by 2-3x)."
         ),
         "tables": [
-            {"title": "Vertex-colour export", "columns": ["format", "patches", "cold s", "warm s", "MiB"],
-             "rows": export_rows},
-            {"title": "Lightmap bake, coverage and seam error",
-             "columns": ["texels/m", "width", "height", "coverage", "bake s", "write s", "border pixels",
-                         "inside mean", "inside p99", "inside max", "border mean", "border p99", "border max"],
-             "rows": bake_rows},
+            {
+                "title": "Vertex-colour export",
+                "columns": ["format", "patches", "cold s", "warm s", "MiB"],
+                "rows": export_rows,
+            },
+            {
+                "title": "Lightmap bake, coverage and seam error",
+                "columns": [
+                    "texels/m",
+                    "width",
+                    "height",
+                    "coverage",
+                    "bake s",
+                    "write s",
+                    "border pixels",
+                    "inside mean",
+                    "inside p99",
+                    "inside max",
+                    "border mean",
+                    "border p99",
+                    "border max",
+                ],
+                "rows": bake_rows,
+            },
         ],
         "numbers": {"patches": len(scene)},
     }

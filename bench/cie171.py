@@ -24,8 +24,16 @@ import numpy as np
 
 from .cie171_data import LM63_EXAMPLE
 
-__all__ = ["LM63_EXAMPLE", "CASES", "ROOM", "room_rectangles", "rectangles_scene", "parallel_rectangle_factor",
-           "contour_factor", "cie171_section"]
+__all__ = [
+    "LM63_EXAMPLE",
+    "CASES",
+    "ROOM",
+    "room_rectangles",
+    "rectangles_scene",
+    "parallel_rectangle_factor",
+    "contour_factor",
+    "cie171_section",
+]
 
 #: The test room, metres.
 ROOM = (4.0, 4.0, 3.0)
@@ -47,14 +55,15 @@ def rectangles_scene(rects, cell: float, albedo=0.0, emission=0.0, name: str = "
         nu, nv = (max(1, math.ceil(np.linalg.norm(a) / cell - 1e-9)) for a in (u, v))
         s, t = np.meshgrid(np.linspace(0, 1, nu + 1), np.linspace(0, 1, nv + 1), indexing="ij")
         base = len(pts) and sum(len(p) for p in pts)
-        pts.append((corner + s.ravel()[:, None] * u + t.ravel()[:, None] * v))
+        pts.append(corner + s.ravel()[:, None] * u + t.ravel()[:, None] * v)
         q = (np.arange(nu)[:, None] * (nv + 1) + np.arange(nv)[None, :]).ravel() + base
         tris += [np.stack([q, q + nv + 1, q + nv + 2], 1), np.stack([q, q + nv + 2, q + 1], 1)]
         rect_of += [k] * (2 * nu * nv)
     rect_of = np.asarray(rect_of)
     per_rect = lambda value: np.asarray(value, float)[rect_of] if np.ndim(value) else value  # noqa: E731
-    return pydynrad.Scene(np.concatenate(pts), np.concatenate(tris), albedo=per_rect(albedo),
-                          emission=per_rect(emission), name=name), rect_of
+    return pydynrad.Scene(
+        np.concatenate(pts), np.concatenate(tris), albedo=per_rect(albedo), emission=per_rect(emission), name=name
+    ), rect_of
 
 
 def room_rectangles(opening=None, ceiling_emitter=None) -> list:
@@ -62,16 +71,24 @@ def room_rectangles(opening=None, ceiling_emitter=None) -> list:
     y0, y1) left out, or split so that ``ceiling_emitter`` (x0, x1, y0, y1) is its own rectangle
     (last in the list)."""
     X, Y, Z = ROOM
-    rects = [((0, 0, 0), (X, 0, 0), (0, Y, 0), (0, 0, 1)),  # floor
-             ((0, 0, 0), (0, Y, 0), (0, 0, Z), (1, 0, 0)), ((X, 0, 0), (0, Y, 0), (0, 0, Z), (-1, 0, 0)),
-             ((0, 0, 0), (X, 0, 0), (0, 0, Z), (0, 1, 0)), ((0, Y, 0), (X, 0, 0), (0, 0, Z), (0, -1, 0))]
+    rects = [
+        ((0, 0, 0), (X, 0, 0), (0, Y, 0), (0, 0, 1)),  # floor
+        ((0, 0, 0), (0, Y, 0), (0, 0, Z), (1, 0, 0)),
+        ((X, 0, 0), (0, Y, 0), (0, 0, Z), (-1, 0, 0)),
+        ((0, 0, 0), (X, 0, 0), (0, 0, Z), (0, 1, 0)),
+        ((0, Y, 0), (X, 0, 0), (0, 0, Z), (0, -1, 0)),
+    ]
     hole = opening or ceiling_emitter
     if hole is None:
         return rects + [((0, 0, Z), (X, 0, 0), (0, Y, 0), (0, 0, -1))]
     x0, x1, y0, y1 = hole
     down = (0, 0, -1)
-    rects += [((0, 0, Z), (X, 0, 0), (0, y0, 0), down), ((0, y1, Z), (X, 0, 0), (0, Y - y1, 0), down),
-              ((0, y0, Z), (x0, 0, 0), (0, y1 - y0, 0), down), ((x1, y0, Z), (X - x1, 0, 0), (0, y1 - y0, 0), down)]
+    rects += [
+        ((0, 0, Z), (X, 0, 0), (0, y0, 0), down),
+        ((0, y1, Z), (X, 0, 0), (0, Y - y1, 0), down),
+        ((0, y0, Z), (x0, 0, 0), (0, y1 - y0, 0), down),
+        ((x1, y0, Z), (X - x1, 0, 0), (0, y1 - y0, 0), down),
+    ]
     if ceiling_emitter is not None:
         rects.append(((x0, y0, Z), (x1 - x0, 0, 0), (0, y1 - y0, 0), down))
     return rects
@@ -87,8 +104,10 @@ def parallel_rectangle_factor(p, rect, height):
 
     def corner(a, b):
         A, B = a / height, b / height
-        return (A / np.sqrt(1 + A * A) * np.arctan(B / np.sqrt(1 + A * A))
-                + B / np.sqrt(1 + B * B) * np.arctan(A / np.sqrt(1 + B * B))) / (2 * math.pi)
+        return (
+            A / np.sqrt(1 + A * A) * np.arctan(B / np.sqrt(1 + A * A))
+            + B / np.sqrt(1 + B * B) * np.arctan(A / np.sqrt(1 + B * B))
+        ) / (2 * math.pi)
 
     x, y = p[:, 0], p[:, 1]
     return corner(x1 - x, y1 - y) - corner(x0 - x, y1 - y) - corner(x1 - x, y0 - y) + corner(x0 - x, y0 - y)
@@ -154,16 +173,22 @@ def case_5_3(device=None, resolution=128):
     normals = np.array([[0, 0, 1]] * len(floor) + [[1, 0, 0]] * len(wall), float)
     x0, x1, y0, y1 = AREA_SOURCE
     square = np.array([[x0, y0, 3], [x1, y0, 3], [x1, y1, 3], [x0, y1, 3]], float)
-    reference = np.concatenate([1000.0 * parallel_rectangle_factor(floor[:, :2], AREA_SOURCE, 3.0),
-                                [1000.0 * contour_factor(p, np.array([1.0, 0, 0]), square) for p in wall]])
+    reference = np.concatenate(
+        [
+            1000.0 * parallel_rectangle_factor(floor[:, :2], AREA_SOURCE, 3.0),
+            [1000.0 * contour_factor(p, np.array([1.0, 0, 0]), square) for p in wall],
+        ]
+    )
     B = scene.emission.astype(np.float64)  # black room: the radiosity is the emission
     hemi = pydynrad.illuminance(scene, B, points, normals, resolution=resolution, emitters="hemicube", device=device)
     exact = pydynrad.illuminance(scene, B, points, normals, emitters="analytic", device=device)
     default = pydynrad.illuminance(scene, B, points, normals, device=device)  # every setting its default
     labels = [_label(p) for p in points]
-    return (_rows(f"5.3 hemicube R={resolution}", labels, reference, hemi[:, 0])
-            + _rows("5.3 contour", labels, reference, exact[:, 0])
-            + _rows("5.3 defaults", labels, reference, default[:, 0]))
+    return (
+        _rows(f"5.3 hemicube R={resolution}", labels, reference, hemi[:, 0])
+        + _rows("5.3 contour", labels, reference, exact[:, 0])
+        + _rows("5.3 defaults", labels, reference, default[:, 0])
+    )
 
 
 # -- 5.4 flux conservation ------------------------------------------------------------------------
@@ -214,10 +239,18 @@ def reflected_reference(points, normals, obstruction=None, order: int = 16, piec
     nodes, weights = np.polynomial.legendre.leggauss(order)
     out = []
     for p, nrm in zip(np.asarray(points, float), np.asarray(normals, float)):
-        holes = [] if obstruction is None else [r for r in (_shadow_rectangle(FLOOR_SOURCE, obstruction),
-                                                           _shadow_rectangle(p, obstruction)) if r is not None]
-        cuts = [np.unique(np.clip([0.0, 4.0, *[h[k] for h in holes for k in axis]], 0.0, 4.0))
-                for axis in ((0, 1), (2, 3))]
+        holes = (
+            []
+            if obstruction is None
+            else [
+                r
+                for r in (_shadow_rectangle(FLOOR_SOURCE, obstruction), _shadow_rectangle(p, obstruction))
+                if r is not None
+            ]
+        )
+        cuts = [
+            np.unique(np.clip([0.0, 4.0, *[h[k] for h in holes for k in axis]], 0.0, 4.0)) for axis in ((0, 1), (2, 3))
+        ]
         total = 0.0
         for xa, xb in zip(cuts[0][:-1], cuts[0][1:]):
             for ya, yb in zip(cuts[1][:-1], cuts[1][1:]):
@@ -248,8 +281,10 @@ def _reflection_case(case, obstruction, device, resolution):
     rects = [((0, 0, 0), (4, 0, 0), (0, 4, 0), (0, 0, 1))]
     if obstruction is not None:
         x0, x1, y0, y1, z = obstruction
-        rects += [((x0, y0, z), (x1 - x0, 0, 0), (0, y1 - y0, 0), (0, 0, 1)),
-                  ((x0, y0, z), (x1 - x0, 0, 0), (0, y1 - y0, 0), (0, 0, -1))]
+        rects += [
+            ((x0, y0, z), (x1 - x0, 0, 0), (0, y1 - y0, 0), (0, 0, 1)),
+            ((x0, y0, z), (x1 - x0, 0, 0), (0, y1 - y0, 0), (0, 0, -1)),
+        ]
     # 1/12 m cells put patch edges on the shadow's edges (x = 4/3, y = 4/3 and 8/3): with cells
     # that cut it, triangles whose centres lie on the edge come out wholly lit or dark (1/16 m
     # cells: 4.4% at the point below the obstruction, which sees mostly that edge).
@@ -293,8 +328,9 @@ def case_5_8(device=None, resolution=64, cell=0.25):
     A = scene.areas.astype(np.float64)
     phi = 4 * math.pi * 1000.0
     reference = phi * rho / (A.sum() * (1 - rho))
-    return _rows(f"5.8 R={resolution}, {len(scene)} patches", ["area average"], [reference],
-                 [np.sum(indirect * A) / A.sum()])
+    return _rows(
+        f"5.8 R={resolution}, {len(scene)} patches", ["area average"], [reference], [np.sum(indirect * A) / A.sum()]
+    )
 
 
 # -- 5.9 roof opening under a uniform sky ----------------------------------------------------------
@@ -316,8 +352,15 @@ def case_5_9(device=None, resolution=128):
 
 
 #: Case -> function, in the report's order.
-CASES = {"5.2": case_5_2, "5.3": case_5_3, "5.4": case_5_4, "5.6": case_5_6, "5.7": case_5_7, "5.8": case_5_8,
-         "5.9": case_5_9}
+CASES = {
+    "5.2": case_5_2,
+    "5.3": case_5_3,
+    "5.4": case_5_4,
+    "5.6": case_5_6,
+    "5.7": case_5_7,
+    "5.8": case_5_8,
+    "5.9": case_5_9,
+}
 
 
 def cie171_section(ctx) -> dict:
@@ -325,8 +368,11 @@ def cie171_section(ctx) -> dict:
     p = ctx.params
     rows, worst = [], []
     for name, case in CASES.items():
-        kw = {"resolution": p["room_resolution"], "cell": p["room_cell"]} if name == "5.8" else \
-            {"resolution": p["resolution"]}
+        kw = (
+            {"resolution": p["room_resolution"], "cell": p["room_cell"]}
+            if name == "5.8"
+            else {"resolution": p["resolution"]}
+        )
         t0 = time.perf_counter()
         r = case(ctx.device, **kw)
         dt = time.perf_counter() - t0
@@ -342,10 +388,16 @@ def cie171_section(ctx) -> dict:
             "tests (tests/photometry/test_cie171.py) require 2%. Geometry: a 4 x 4 x 3 m room; see bench/cie171.py."
         ),
         "tables": [
-            {"title": "Points", "columns": ["case", "point", "reference (lx or lm)", "ours", "rel. error"],
-             "rows": rows},
-            {"title": "Worst point per case", "columns": ["case", "points", "max |rel. error|", "time s"],
-             "rows": worst},
+            {
+                "title": "Points",
+                "columns": ["case", "point", "reference (lx or lm)", "ours", "rel. error"],
+                "rows": rows,
+            },
+            {
+                "title": "Worst point per case",
+                "columns": ["case", "points", "max |rel. error|", "time s"],
+                "rows": worst,
+            },
         ],
         "plots": [],
     }

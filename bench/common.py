@@ -29,8 +29,13 @@ def time_call(fn, repeats: int = 5, warmup: int = 1) -> dict:
         t = time.perf_counter()
         result = fn()
         times.append(time.perf_counter() - t)
-    return {"median_s": float(np.median(times)), "min_s": float(min(times)), "warmup_s": warm,
-            "repeats": len(times), "result": result}
+    return {
+        "median_s": float(np.median(times)),
+        "min_s": float(min(times)),
+        "warmup_s": warm,
+        "repeats": len(times),
+        "result": result,
+    }
 
 
 def copy_bandwidth_numpy(nbytes: int = 256 * 2**20, repeats: int = 5) -> float:
@@ -79,8 +84,13 @@ def run_standalone(name: str, doc: str, sizes, measure, argv=None) -> int:
     device = pydynrad.default_device()
     t0 = time.perf_counter()
     section = measure(args.size, device)
-    results = {"device": device.info(), "date": time.strftime("%Y-%m-%dT%H:%M:%S"), "size": args.size,
-               "sections": {name: section}, "seconds": time.perf_counter() - t0}
+    results = {
+        "device": device.info(),
+        "date": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        "size": args.size,
+        "sections": {name: section},
+        "seconds": time.perf_counter() - t0,
+    }
     written = write_report(results, args.out or device_dir(results["device"]), name)
     if args.out is None:
         write_index()
@@ -99,6 +109,5 @@ def entry_points(name: str, doc: str, sizes, measure):
     def main(argv=None) -> int:
         return run_standalone(name, doc, sizes, measure, argv)
 
-    suite_section.__doc__ = f'The suite\'s "{name}" section at the suite\'s size.'
+    suite_section.__doc__ = f"The suite's \"{name}\" section at the suite's size."
     return suite_section, main
-

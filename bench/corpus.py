@@ -1,4 +1,4 @@
-"""Corpus section of the suite (issue 41): the real third-party scenes of bench/data/corpus as read.
+"""Corpus section of the suite: the real third-party scenes of bench/data/corpus as read.
 
 Per scene: patches, the load's wall time, the part of it spent sampling textures (each patch's
 footprint mean, :func:`pydynrad.geometry.materials.sample_materials`), the form factors' time
@@ -58,8 +58,9 @@ def corpus_rows(resolution: int = 16, device=None, names=None) -> list:
         ff_s = time.perf_counter() - t0
         w = scene.areas.astype(np.float64) / scene.areas.sum()
         mean = w @ scene.albedo.astype(np.float64)
-        rows.append([s["name"], len(scene), load_s, spent[0], ff_s, spent[0] / ff_s,
-                     ", ".join(f"{x:.3f}" for x in mean)])
+        rows.append(
+            [s["name"], len(scene), load_s, spent[0], ff_s, spent[0] / ff_s, ", ".join(f"{x:.3f}" for x in mean)]
+        )
     return rows
 
 
@@ -74,10 +75,23 @@ def corpus_section(ctx) -> dict:
             "(the files' triangles, zero-area ones dropped), the load's wall time, the part of it spent on "
             "materials (each patch's area mean of factor x vertex colour x texture over its footprint), the "
             f"form factors' time on the same patches (hemicube R = {R}), and the area-weighted mean albedo "
-            "(linear RGB) as read."),
-        "tables": [{"title": "Corpus", "columns": ["scene", "patches", "load s", "texture sampling s",
-                                                   "form factors s", "sampling / form factors", "mean albedo"],
-                    "rows": rows}],
+            "(linear RGB) as read."
+        ),
+        "tables": [
+            {
+                "title": "Corpus",
+                "columns": [
+                    "scene",
+                    "patches",
+                    "load s",
+                    "texture sampling s",
+                    "form factors s",
+                    "sampling / form factors",
+                    "mean albedo",
+                ],
+                "rows": rows,
+            }
+        ],
     }
 
 

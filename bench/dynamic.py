@@ -28,7 +28,6 @@ The copy bound and the passes per frame are explained in docs/design.md, 'Cost m
 
 from __future__ import annotations
 
-
 import numpy as np
 import scipy.sparse as sp
 
@@ -38,10 +37,22 @@ __all__ = ["suite_section", "main", "SIZES"]
 
 SIZES = {
     "tiny": {"kernel_M": (256,), "frame_M": (128,), "frames": 20, "acc_M": (64,), "acc_sub": 2, "drift": (128, 200)},
-    "quick": {"kernel_M": (1024, 4096), "frame_M": (256, 512), "frames": 60, "acc_M": (128, 256), "acc_sub": 3,
-              "drift": (256, 1000)},
-    "full": {"kernel_M": (1024, 2048, 4096), "frame_M": (256, 1024, 2048, 4096), "frames": 100,
-             "acc_M": (256, 512, 1024, 2048), "acc_sub": 4, "drift": (256, 10000)},
+    "quick": {
+        "kernel_M": (1024, 4096),
+        "frame_M": (256, 512),
+        "frames": 60,
+        "acc_M": (128, 256),
+        "acc_sub": 3,
+        "drift": (256, 1000),
+    },
+    "full": {
+        "kernel_M": (1024, 2048, 4096),
+        "frame_M": (256, 1024, 2048, 4096),
+        "frames": 100,
+        "acc_M": (256, 512, 1024, 2048),
+        "acc_sub": 4,
+        "drift": (256, 10000),
+    },
 }
 STORAGES = ("fp16", "fp32", "fp64")
 BATCH = 8
@@ -56,8 +67,8 @@ SPARSE_SHARES = (0.03, 0.1)
 
 
 def _kernel_rows(device, sizes, copy_gbs):
-    from pydynrad.dynamic.kupdate import UpdateKernels
     from pydynrad.device.matrix import DeviceMatrix
+    from pydynrad.dynamic.kupdate import UpdateKernels
 
     rows = []
     rng = np.random.default_rng(0)
@@ -75,18 +86,33 @@ def _kernel_rows(device, sizes, copy_gbs):
                 def run():
                     fn()
                     device.queue.finish()
+
                 return run
 
             ops = [("rank-1 update (paper swap)", fin(lambda: uk.rank_update(0, a[:1], b[:1])), 2 * kb)]
             for k in KERNEL_SWAPS:
-                ops += [(f"rank-{2 * k} update (exact, k={k})", fin(lambda k=k: uk.rank_update(0, a[:2 * k], b[:2 * k])), 2 * kb),
-                        (f"gather K x and y K, {k} vector{'s' * (k > 1)}", fin(lambda k=k: uk.gather(0, x[:k], x[:k])), kb)]
+                ops += [
+                    (
+                        f"rank-{2 * k} update (exact, k={k})",
+                        fin(lambda k=k: uk.rank_update(0, a[: 2 * k], b[: 2 * k])),
+                        2 * kb,
+                    ),
+                    (f"gather K x and y K, {k} vector{'s' * (k > 1)}", fin(lambda k=k: uk.gather(0, x[:k], x[:k])), kb),
+                ]
             for share in SPARSE_SHARES:
                 xs = _sparse_vectors(rng, BATCH, M, share)
-                ops += [(f"sparse gather, {BATCH} vectors, {100 * share:g}% non-zero", fin(lambda xs=xs: uk.gather_all(
-                    xs, xs, sparse=True)), kb),
-                        (f"exact update, {BATCH} swaps, {100 * share:g}% non-zero", fin(lambda xs=xs: _exact_update(
-                            uk, rng, xs[0], M)), 3 * kb)]
+                ops += [
+                    (
+                        f"sparse gather, {BATCH} vectors, {100 * share:g}% non-zero",
+                        fin(lambda xs=xs: uk.gather_all(xs, xs, sparse=True)),
+                        kb,
+                    ),
+                    (
+                        f"exact update, {BATCH} swaps, {100 * share:g}% non-zero",
+                        fin(lambda xs=xs: _exact_update(uk, rng, xs[0], M)),
+                        3 * kb,
+                    ),
+                ]
             ops.append(("lighting K x", lambda: m.matvec(x[0][None]), kb))
             for name, fn, nbytes in ops:
                 t = time_call(fn, repeats=7)
@@ -160,17 +186,33 @@ def _frame_rows(device, sizes, frames):
         L = np.asarray(scene.emission, dtype=np.float64)
         for mode in ("exact", "paper"):
             for storage in STORAGES:
-                dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=mode, storage=storage,
-                                                max_swaps_per_frame=BATCH, observer=next(_walk(scene, 1)), far_field=False,
-                                                device=device)
+                dyn = pydynrad.DynamicRadiosity(
+                    scene,
+                    F,
+                    local_size=M,
+                    update=mode,
+                    storage=storage,
+                    max_swaps_per_frame=BATCH,
+                    observer=next(_walk(scene, 1)),
+                    far_field=False,
+                    device=device,
+                )
                 stats = [dyn.update(p) for p in _walk(scene, frames, seed=1)]
                 busy = [s for s in stats if s.swaps]
                 light = time_call(lambda: dyn.radiosity(light=L), repeats=5)
-                rows.append([M, len(scene), mode, storage, float(np.mean([s.swaps for s in stats])),
-                             1e3 * float(np.mean([s.t_update for s in busy])) if busy else 0.0,
-                             1e3 * float(np.mean([s.t_select for s in stats])),
-                             1e3 * float(np.mean([s.t_form_factors for s in busy])) if busy else 0.0,
-                             light["median_s"] * 1e3])
+                rows.append(
+                    [
+                        M,
+                        len(scene),
+                        mode,
+                        storage,
+                        float(np.mean([s.swaps for s in stats])),
+                        1e3 * float(np.mean([s.t_update for s in busy])) if busy else 0.0,
+                        1e3 * float(np.mean([s.t_select for s in stats])),
+                        1e3 * float(np.mean([s.t_form_factors for s in busy])) if busy else 0.0,
+                        light["median_s"] * 1e3,
+                    ]
+                )
     return rows
 
 
@@ -184,9 +226,17 @@ def _accuracy_rows(device, sizes, sub):
         if M > len(scene):
             continue
         for mode in ("exact", "paper"):
-            dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=mode, storage="fp32",
-                                            max_swaps_per_frame=BATCH, observer=next(_walk(scene, 1)), far_field=False,
-                                            device=device)
+            dyn = pydynrad.DynamicRadiosity(
+                scene,
+                F,
+                local_size=M,
+                update=mode,
+                storage="fp32",
+                max_swaps_per_frame=BATCH,
+                observer=next(_walk(scene, 1)),
+                far_field=False,
+                device=device,
+            )
             for p in _walk(scene, 40, seed=2):
                 dyn.update(p)
             B = dyn.radiosity()
@@ -197,27 +247,54 @@ def _accuracy_rows(device, sizes, sub):
 
 
 def _drift_rows(device, M, frames, progress: bool = True):
-    import pydynrad
     from tqdm import tqdm
+
+    import pydynrad
 
     scene, F = _box(_sub_for(3 * M), device, hemicubes=False)
     rows = []
     for storage in ("fp16", "fp32"):
         for tol in (None, DRIFT_REFRESH_TOLERANCE):
-            dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update="exact", storage=storage, max_swaps_per_frame=BATCH,
-                                            refresh_tolerance=tol, refresh_interval=100, observer=next(_walk(scene, 1)),
-                                            far_field=False, device=device)
+            dyn = pydynrad.DynamicRadiosity(
+                scene,
+                F,
+                local_size=M,
+                update="exact",
+                storage=storage,
+                max_swaps_per_frame=BATCH,
+                refresh_tolerance=tol,
+                refresh_interval=100,
+                observer=next(_walk(scene, 1)),
+                far_field=False,
+                device=device,
+            )
             swaps = 0
-            for p in tqdm(_walk(scene, frames, seed=3), total=frames, desc=f"drift {storage} tol={tol}", leave=False,
-                          disable=not progress):
+            for p in tqdm(
+                _walk(scene, frames, seed=3),
+                total=frames,
+                desc=f"drift {storage} tol={tol}",
+                leave=False,
+                disable=not progress,
+            ):
                 swaps += dyn.update(p).swaps
             K = dyn.matrix.to_host()
             fresh = pydynrad.multibounce(scene, F, patches=dyn.local_patches, dtype=np.float64, device=device)
             err = np.abs(K - fresh).max() / np.abs(fresh).max()
             ones = np.ones(K.shape[-1])  # light leaving every local patch: what B sees of K's error
             light_err = np.linalg.norm(K @ ones - fresh @ ones) / np.linalg.norm(fresh @ ones)
-            rows.append([M, storage, frames, swaps, "none" if tol is None else tol, dyn.refreshes, err, light_err,
-                         dyn.residual()])
+            rows.append(
+                [
+                    M,
+                    storage,
+                    frames,
+                    swaps,
+                    "none" if tol is None else tol,
+                    dyn.refreshes,
+                    err,
+                    light_err,
+                    dyn.residual(),
+                ]
+            )
     return rows
 
 
@@ -226,25 +303,52 @@ def measure(size: str, device, progress: bool = True) -> dict:
     copy_dev = copy_bandwidth_device(device)
     tables = [
         {"title": "Copy bandwidth (OpenCL buffer copy, read + write)", "columns": ["GB/s"], "rows": [[copy_dev]]},
-        {"title": "Update kernels and lighting product on one channel of K",
-         "columns": ["M", "storage", "pass", "ms (fastest of 7)", "GB/s of K", "copy / ours"],
-         "rows": _kernel_rows(device, p["kernel_M"], copy_dev),
-         "note": "Updates count K read + written, gathers and K x count K read; 'copy / ours' <= 1.5 meets the target."},
-        {"title": "Whole frames along a walk (closed box, synthetic F, N >= 3 M, grey, up to 8 swaps per frame)",
-         "columns": ["M", "N", "mode", "storage", "swaps/frame", "update ms", "select ms", "form factors ms", "lighting ms"],
-         "rows": _frame_rows(device, p["frame_M"], p["frames"]),
-         "note": "update ms: mean over frames that swapped (host algebra + all device passes, waited for)."},
-        {"title": "Accuracy of B near the observer vs the full solution (hemicube F, R=64)",
-         "columns": ["N", "M", "mode", "rel. L1 error (nearest M/4)", "residual()"],
-         "rows": _accuracy_rows(device, p["acc_M"], p["acc_sub"]),
-         "note": "Both modes ignore light from patches outside the set (the paper's limitation 4): that error shrinks as M grows."},
-        {"title": "Drift of exact mode: K vs a fresh float64 build over the same set",
-         "columns": ["M", "storage", "frames", "swaps", "refresh_tolerance", "refreshes", "max rel. error",
-                     "rel. error of K 1", "residual()"],
-         "rows": _drift_rows(device, *p["drift"], progress=progress),
-         "note": "max rel. error: max |K - K_fresh| / max |K_fresh| (fp16 rounding after every update adds up "
-                 "entry by entry); rel. error of K 1: the same for the product with a uniform light, what B sees; "
-                 "residual(): the random-probe estimate the refresh policy checks every 100 frames."},
+        {
+            "title": "Update kernels and lighting product on one channel of K",
+            "columns": ["M", "storage", "pass", "ms (fastest of 7)", "GB/s of K", "copy / ours"],
+            "rows": _kernel_rows(device, p["kernel_M"], copy_dev),
+            "note": "Updates count K read + written, gathers and K x count K read; 'copy / ours' <= 1.5 meets the target.",
+        },
+        {
+            "title": "Whole frames along a walk (closed box, synthetic F, N >= 3 M, grey, up to 8 swaps per frame)",
+            "columns": [
+                "M",
+                "N",
+                "mode",
+                "storage",
+                "swaps/frame",
+                "update ms",
+                "select ms",
+                "form factors ms",
+                "lighting ms",
+            ],
+            "rows": _frame_rows(device, p["frame_M"], p["frames"]),
+            "note": "update ms: mean over frames that swapped (host algebra + all device passes, waited for).",
+        },
+        {
+            "title": "Accuracy of B near the observer vs the full solution (hemicube F, R=64)",
+            "columns": ["N", "M", "mode", "rel. L1 error (nearest M/4)", "residual()"],
+            "rows": _accuracy_rows(device, p["acc_M"], p["acc_sub"]),
+            "note": "Both modes ignore light from patches outside the set (the paper's limitation 4): that error shrinks as M grows.",
+        },
+        {
+            "title": "Drift of exact mode: K vs a fresh float64 build over the same set",
+            "columns": [
+                "M",
+                "storage",
+                "frames",
+                "swaps",
+                "refresh_tolerance",
+                "refreshes",
+                "max rel. error",
+                "rel. error of K 1",
+                "residual()",
+            ],
+            "rows": _drift_rows(device, *p["drift"], progress=progress),
+            "note": "max rel. error: max |K - K_fresh| / max |K_fresh| (fp16 rounding after every update adds up "
+            "entry by entry); rel. error of K 1: the same for the product with a uniform light, what B sees; "
+            "residual(): the random-probe estimate the refresh policy checks every 100 frames.",
+        },
     ]
     return {"title": "Dynamic radiosity", "description": __doc__.split("\n\n")[1], "tables": tables}
 

@@ -1,4 +1,4 @@
-"""The far field (issue 16): error and frame time with and without it, over C and M.
+"""The far field: error and frame time with and without it, over C and M.
 
 For the Cornell box under a point light and the built-in village at night (its lamps) and
 under a sun with hard shadows: the observer walks (inside the box; down the village's first
@@ -50,12 +50,35 @@ DENSE_BENCH_CLUSTERS = 2100
 CHANGES = 3
 
 SIZES = {
-    "tiny": {"village": {"houses": 1, "detail": 0.25}, "resolution": 16, "cornell_max_edge": 250.0, "M": (64,),
-             "per": (4, 16), "frames": 3, "image": (24, 18)},
-    "quick": {"village": {}, "resolution": 32, "cornell_max_edge": 100.0, "M": (1024,), "per": (4, 8, 16, 32, 64),
-              "frames": 5, "cornell_frames": 15, "village_frames": 15, "image": (96, 64)},
-    "full": {"village": {}, "resolution": 32, "cornell_max_edge": 100.0, "M": (1024, 4096),
-             "per": (4, 8, 16, 32, 64), "frames": 12, "image": (320, 240)},
+    "tiny": {
+        "village": {"houses": 1, "detail": 0.25},
+        "resolution": 16,
+        "cornell_max_edge": 250.0,
+        "M": (64,),
+        "per": (4, 16),
+        "frames": 3,
+        "image": (24, 18),
+    },
+    "quick": {
+        "village": {},
+        "resolution": 32,
+        "cornell_max_edge": 100.0,
+        "M": (1024,),
+        "per": (4, 8, 16, 32, 64),
+        "frames": 5,
+        "cornell_frames": 15,
+        "village_frames": 15,
+        "image": (96, 64),
+    },
+    "full": {
+        "village": {},
+        "resolution": 32,
+        "cornell_max_edge": 100.0,
+        "M": (1024, 4096),
+        "per": (4, 8, 16, 32, 64),
+        "frames": 12,
+        "image": (320, 240),
+    },
 }
 
 
@@ -68,20 +91,31 @@ def _cases(ctx, p):
     from .paper import street_walk
 
     def cached_F(key, scene, R):
-        F = ctx.cached(("F", *key, R), lambda: pydynrad.form_factors(scene, resolution=R, device=ctx.device,
-                                                                       progress=ctx.progress))
+        F = ctx.cached(
+            ("F", *key, R), lambda: pydynrad.form_factors(scene, resolution=R, device=ctx.device, progress=ctx.progress)
+        )
         return F, ctx.made_seconds[("F", *key, R)]
 
     w, h = p["image"]
-    box = ctx.cached(("cornell", p["cornell_max_edge"]), lambda: pydynrad.scenes.cornell_box(max_edge=p["cornell_max_edge"]))
+    box = ctx.cached(
+        ("cornell", p["cornell_max_edge"]), lambda: pydynrad.scenes.cornell_box(max_edge=p["cornell_max_edge"])
+    )
     F, t = cached_F(("cornell", p["cornell_max_edge"]), box, 64)
     # The same path in more, shorter steps (the errors are taken at its end): with 5, the fastest
     # update and radiosity of the box's ~5 ms frames put the far field's static-light frame at
     # 0.87x and 1.50x the local-only one in two runs on an AMD EPYC (2026-12-06).
     path = walk_positions(p.get("cornell_frames", p["frames"]) + 3)
     cam = lambda pos: Camera(pos, pos + np.array([0.0, -60.0, 300.0]), (0.0, 1.0, 0.0), 60.0, w, h)  # noqa: E731
-    yield ("Cornell box", box, F, t, [PointLight((278, 450, 280), (0.2,) * 3)], [PointLight((150, 450, 400), (0.2,) * 3)],
-           path, cam)
+    yield (
+        "Cornell box",
+        box,
+        F,
+        t,
+        [PointLight((278, 450, 280), (0.2,) * 3)],
+        [PointLight((150, 450, 400), (0.2,) * 3)],
+        path,
+        cam,
+    )
     key = tuple(sorted(p["village"].items()))
     village = ctx.cached(("village", key), lambda: pydynrad.scenes.village(**p["village"]))
     F, t = cached_F(("village", key), village, p["resolution"])
@@ -93,8 +127,16 @@ def _cases(ctx, p):
     cam = lambda pos: Camera(pos, pos + np.array([10.0, -0.5, 0.0]), (0.0, 1.0, 0.0), 70.0, w, h)  # noqa: E731
     lamp = PointLight((8.0, 3.0, 8.0), (400.0,) * 3)
     yield "village at night", village, F, t, [], [lamp], path, cam
-    yield ("village under a sun", village, F, t, [DirectionalLight((-0.4, -1.0, -0.3), (100.0,) * 3)],
-           [DirectionalLight((0.5, -0.8, -0.2), (100.0,) * 3)], path, cam)
+    yield (
+        "village under a sun",
+        village,
+        F,
+        t,
+        [DirectionalLight((-0.4, -1.0, -0.3), (100.0,) * 3)],
+        [DirectionalLight((0.5, -0.8, -0.2), (100.0,) * 3)],
+        path,
+        cam,
+    )
 
 
 def _variants(n: int, per) -> list[tuple[str, int, dict | None]]:
@@ -102,12 +144,14 @@ def _variants(n: int, per) -> list[tuple[str, int, dict | None]]:
     out = [("local only (paper)", 0, None)]
     out += [(f"far field, C = N/{k}", max(1, n // k), {}) for k in per]
     c8 = max(1, n // 8)
-    out += [("C = N/8, shared + 1 fine sweep (old default)", c8, {"gather": "shared", "fine_sweeps": 1}),
-            ("C = N/8, shared", c8, {"gather": "shared"}),
-            ("C = N/8, first bounce + 1 fine sweep", c8, {"fine_sweeps": 1}),
-            ("C = N/8, plain cluster gather", c8, {"gather": "cluster"}),
-            ("C = N/8, exposure-weighted", c8, {"gather": "cluster", "prolongation": "exposure"}),
-            ("4 Jacobi sweeps of F", n, {"gather": "cluster", "coarse": "sweeps", "max_sweeps": 4, "tol": 0.0})]
+    out += [
+        ("C = N/8, shared + 1 fine sweep (old default)", c8, {"gather": "shared", "fine_sweeps": 1}),
+        ("C = N/8, shared", c8, {"gather": "shared"}),
+        ("C = N/8, first bounce + 1 fine sweep", c8, {"fine_sweeps": 1}),
+        ("C = N/8, plain cluster gather", c8, {"gather": "cluster"}),
+        ("C = N/8, exposure-weighted", c8, {"gather": "cluster", "prolongation": "exposure"}),
+        ("4 Jacobi sweeps of F", n, {"gather": "cluster", "coarse": "sweeps", "max_sweeps": 4, "tol": 0.0}),
+    ]
     return out
 
 
@@ -122,7 +166,9 @@ def _moved(lights, step: int, extent: float) -> list:
         if isinstance(light, DirectionalLight):
             a = np.radians(2.0 * step)
             x, y, z = light.direction
-            out.append(dataclasses.replace(light, direction=(np.cos(a) * x - np.sin(a) * z, y, np.sin(a) * x + np.cos(a) * z)))
+            out.append(
+                dataclasses.replace(light, direction=(np.cos(a) * x - np.sin(a) * z, y, np.sin(a) * x + np.cos(a) * z))
+            )
         else:
             out.append(dataclasses.replace(light, position=tuple(np.add(light.position, (0.01 * extent * step, 0, 0)))))
     return out
@@ -133,7 +179,9 @@ def _moving_lights(ctx, scene, lights) -> list[np.ndarray]:
     import pydynrad
 
     extent = float(np.linalg.norm(np.subtract(*scene.bbox.astype(np.float64))))
-    return [pydynrad.light_vector(scene, _moved(lights, i, extent), device=ctx.device) for i in range(1, 2 * CHANGES + 2)]
+    return [
+        pydynrad.light_vector(scene, _moved(lights, i, extent), device=ctx.device) for i in range(1, 2 * CHANGES + 2)
+    ]
 
 
 def _change_rows(ctx, name, scene, F, L, L2, moving, path, M) -> list[list]:
@@ -143,11 +191,13 @@ def _change_rows(ctx, name, scene, F, L, L2, moving, path, M) -> list[list]:
     from pydynrad.farfield import FarField
 
     n = len(scene)
-    base = pydynrad.DynamicRadiosity(scene, F, local_size=M, storage="fp32", far_field=False, observer=path[0],
-                                     device=ctx.device)
+    base = pydynrad.DynamicRadiosity(
+        scene, F, local_size=M, storage="fp32", far_field=False, observer=path[0], device=ctx.device
+    )
     far = FarField(scene, F, clusters=max(1, n // 8), device=ctx.device, checked=True)
-    dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, storage="fp32", far_field=far, observer=path[0],
-                                    device=ctx.device)
+    dyn = pydynrad.DynamicRadiosity(
+        scene, F, local_size=M, storage="fp32", far_field=far, observer=path[0], device=ctx.device
+    )
     for d in (base, dyn):
         d.update(path[1])
         d.radiosity(light=L)
@@ -163,9 +213,24 @@ def _change_rows(ctx, name, scene, F, L, L2, moving, path, M) -> list[list]:
         parts = np.array(parts[1:], dtype=np.float64)  # the first change of each kind follows another kind's lights
         ref = pydynrad.solve(scene, F, light=seq[-1], device=ctx.device).radiosity
         change, coarse, light, sweeps, _ = np.median(parts, axis=0)
-        rows.append([name, n, M, far.C, kind, f"{int(parts[:, 4].sum())}/{len(parts)}", 1e3 * change, 1e3 * coarse,
-                     sweeps, 1e3 * (light - coarse), 1e3 * (change - light), 1e3 * lighting,
-                     (change - coarse) / lighting, 100 * radiosity_error(dyn.radiosity(light=seq[-1]), ref, scene.areas)])
+        rows.append(
+            [
+                name,
+                n,
+                M,
+                far.C,
+                kind,
+                f"{int(parts[:, 4].sum())}/{len(parts)}",
+                1e3 * change,
+                1e3 * coarse,
+                sweeps,
+                1e3 * (light - coarse),
+                1e3 * (change - light),
+                1e3 * lighting,
+                (change - coarse) / lighting,
+                100 * radiosity_error(dyn.radiosity(light=seq[-1]), ref, scene.areas),
+            ]
+        )
     return rows
 
 
@@ -196,8 +261,21 @@ def _coarse_rows(ctx, name, scene, F, L, moving, ref_last, per) -> list[list]:
                 best = min(best, (far.seconds_coarse, far.sweeps))
             held = far.K_c.nbytes if far.K_c is not None else far.F_c.nnz * 8
             where = "host" if isinstance(far.K_c, HostMatrix) else "device"
-            rows.append([name, n, C, coarse, storage or "fp32 F_c", where, t_build, held / 2**20, 1e3 * best[0], best[1],
-                         100 * radiosity_error(far.light(moving[-1]), ref_last, scene.areas)])
+            rows.append(
+                [
+                    name,
+                    n,
+                    C,
+                    coarse,
+                    storage or "fp32 F_c",
+                    where,
+                    t_build,
+                    held / 2**20,
+                    1e3 * best[0],
+                    best[1],
+                    100 * radiosity_error(far.light(moving[-1]), ref_last, scene.areas),
+                ]
+            )
     return rows
 
 
@@ -234,8 +312,9 @@ def farfield_section(ctx) -> dict:
                 # F came from form_factors: validated once, as DynamicRadiosity does for its own far field.
                 far = False if opts is None else FarField(scene, F, clusters=C, device=ctx.device, checked=True, **opts)
                 t_pre = time.perf_counter() - t0
-                dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, storage="fp32", far_field=far,
-                                                observer=path[0], device=ctx.device)
+                dyn = pydynrad.DynamicRadiosity(
+                    scene, F, local_size=M, storage="fp32", far_field=far, observer=path[0], device=ctx.device
+                )
                 for pos in path[1:3]:  # warm-up: kernel builds, the first light
                     dyn.update(pos)
                     dyn.radiosity(light=L)
@@ -266,13 +345,30 @@ def farfield_section(ctx) -> dict:
                     best = min(best, (t_change, *parts))
                 B2 = dyn.radiosity(light=L2)
                 t_change, t_coarse, t_far, sweeps = best
-                row = [name, n, M, label, C or "—",
-                       100 * radiosity_error(B, ref, scene.areas), 100 * radiosity_error(B[S], ref[S], scene.areas[S]),
-                       100 * float(pixel_error(img, ref_img).mean()), 100 * radiosity_error(B2, ref2, scene.areas),
-                       1e3 * t_frame, t_frame / base_frame, 1e3 * t_light, 1e3 * t_change, 1e3 * t_coarse, 1e3 * t_far,
-                       (t_change - t_coarse) / base_light, (t_change - t_far) / base_light, sweeps,
-                       t_pre, 100 * t_pre / t_ff if opts is not None else None,
-                       far.G.nnz if far else 0, far.coarse if far else "—"]
+                row = [
+                    name,
+                    n,
+                    M,
+                    label,
+                    C or "—",
+                    100 * radiosity_error(B, ref, scene.areas),
+                    100 * radiosity_error(B[S], ref[S], scene.areas[S]),
+                    100 * float(pixel_error(img, ref_img).mean()),
+                    100 * radiosity_error(B2, ref2, scene.areas),
+                    1e3 * t_frame,
+                    t_frame / base_frame,
+                    1e3 * t_light,
+                    1e3 * t_change,
+                    1e3 * t_coarse,
+                    1e3 * t_far,
+                    (t_change - t_coarse) / base_light,
+                    (t_change - t_far) / base_light,
+                    sweeps,
+                    t_pre,
+                    100 * t_pre / t_ff if opts is not None else None,
+                    far.G.nnz if far else 0,
+                    far.coarse if far else "—",
+                ]
                 rows.append(row)
                 key = f"{name}, M = {M}"
                 series.setdefault(key, {"x": [], "y": [], "labels": []})
@@ -280,56 +376,110 @@ def farfield_section(ctx) -> dict:
                 series[key]["y"].append(max(row[5], 1e-3))
                 series[key]["labels"].append(label.replace("far field, ", ""))
     return {
-        "title": "The far field: every patch lit, not just the local set (issue 16)",
+        "title": "The far field: every patch lit, not just the local set",
         "description": __doc__.split("\n\n", 1)[1].strip(),
-        "tables": [{
-            "title": "Error against the full solve and time, far field off and on",
-            "columns": ["scene", "N", "M", "variant", "C", "all %", "local %", "pixels %", "after light change %",
-                        "frame ms (static lights)", "x local-only frame", "lighting ms", "light change ms",
-                        "coarse solve ms", "far light() ms", "(change - coarse) / local lighting",
-                        "(change - light()) / local lighting", "sweeps", "precompute s", "precompute % of F", "nnz(G)",
-                        "coarse"],
-            "rows": rows,
-            "note": "frame = update + radiosity while walking (the fastest update plus the fastest radiosity "
-                    "of the walk's frames, every one of which swaps patches); lighting = radiosity() with unchanged lights "
-                    "(the local product plus the injection); light change = radiosity() with new lights (the fastest "
-                    f"of {2 * CHANGES + 1} changes of moving lights, as in the third table), of which the coarse "
-                    "solve (B_c: the dense K_c product or Jacobi sweeps of F_c, warm-started) and the far field's whole light() (B_c and B_far); the "
-                    "issue's target for a light change is (change - coarse) <= 3 local-only lighting products. "
-                    "Precompute = clusters + G + F_c + K_c (+ the exposure weights' sky solve), against F's own "
-                    "hemicube time.",
-        }, {
-            "title": "The coarse solve over C: sweeps of the sparse F_c against the dense K_c",
-            "columns": ["scene", "N", "C", "coarse", "storage", "held on", "far field build s", "K_c or F_c MiB",
-                        "coarse solve ms (light change)", "sweeps", "all % after the last change"],
-            "rows": coarse_rows,
-            "note": f"coarse solve = B_c for a light change (the fastest of {2 * CHANGES + 1} changes of moving "
-                    "lights, as in the third table; sweeps warm-started, FarField's default tol); all % after the "
-                    "last of them; build = the whole FarField (clusters, "
-                    "G, F_c and K_c: LU of I - F_c P_c per channel, by the host's LAPACK on a CPU device); "
-                    "F_c MiB counts 8 bytes a non-zero (fp32 value and index); held on: where the products run "
-                    "(a K_c of at most 4 MiB beside a CPU device on the host, in the type it computes in: fp16 "
-                    "storage then takes fp32's bytes; pydynrad.host.product). Default gather (first bounce).",
-        }, {
-            "title": "Light changes of the default far field (C = N/8): back and forth, dimmed, and moving lights",
-            "columns": ["scene", "N", "M", "C", "changes", "combined", "light change ms", "coarse solve ms", "sweeps",
-                        "first bounce + gather ms", "injection + local ms", "local-only lighting ms",
-                        "(change - coarse) / local lighting", "all % after the last change"],
-            "rows": change_rows,
-            "note": f"medians over {2 * CHANGES - 1} changes after the first of each kind; back and forth: "
-                    "between the case's two light sets; dimmed: the first set at 95%, 90%, ... of its power; "
-                    "combined: the changes the far field answered as a combination of its last answers (the light "
-                    "vector a combination of the last ones: no pass over F or G, no coarse solve; FarField._combined); "
-                    "moving: a lamp stepped 1% of the scene's extent along x, the sun turned 2 degrees "
-                    "about the vertical, per change (new sources). first bounce + gather = the far field's light() "
-                    "less the coarse solve (P F L over the lit columns, R D1, the pass over G; the combination when "
-                    "combined).",
-        }],
-        "plots": [{
-            "name": "trade", "title": "All-patch error vs frame time (far field off and on)",
-            "xlabel": "frame ms (update + radiosity)", "ylabel": "relative RMS error over all patches, %",
-            "xscale": "log", "yscale": "log",
-            "series": [{"label": k, "x": v["x"], "y": v["y"], "labels": v["labels"], "style": "o-"}
-                       for k, v in series.items()],
-        }],
+        "tables": [
+            {
+                "title": "Error against the full solve and time, far field off and on",
+                "columns": [
+                    "scene",
+                    "N",
+                    "M",
+                    "variant",
+                    "C",
+                    "all %",
+                    "local %",
+                    "pixels %",
+                    "after light change %",
+                    "frame ms (static lights)",
+                    "x local-only frame",
+                    "lighting ms",
+                    "light change ms",
+                    "coarse solve ms",
+                    "far light() ms",
+                    "(change - coarse) / local lighting",
+                    "(change - light()) / local lighting",
+                    "sweeps",
+                    "precompute s",
+                    "precompute % of F",
+                    "nnz(G)",
+                    "coarse",
+                ],
+                "rows": rows,
+                "note": "frame = update + radiosity while walking (the fastest update plus the fastest radiosity "
+                "of the walk's frames, every one of which swaps patches); lighting = radiosity() with unchanged lights "
+                "(the local product plus the injection); light change = radiosity() with new lights (the fastest "
+                f"of {2 * CHANGES + 1} changes of moving lights, as in the third table), of which the coarse "
+                "solve (B_c: the dense K_c product or Jacobi sweeps of F_c, warm-started) and the far field's whole light() (B_c and B_far); the "
+                "issue's target for a light change is (change - coarse) <= 3 local-only lighting products. "
+                "Precompute = clusters + G + F_c + K_c (+ the exposure weights' sky solve), against F's own "
+                "hemicube time.",
+            },
+            {
+                "title": "The coarse solve over C: sweeps of the sparse F_c against the dense K_c",
+                "columns": [
+                    "scene",
+                    "N",
+                    "C",
+                    "coarse",
+                    "storage",
+                    "held on",
+                    "far field build s",
+                    "K_c or F_c MiB",
+                    "coarse solve ms (light change)",
+                    "sweeps",
+                    "all % after the last change",
+                ],
+                "rows": coarse_rows,
+                "note": f"coarse solve = B_c for a light change (the fastest of {2 * CHANGES + 1} changes of moving "
+                "lights, as in the third table; sweeps warm-started, FarField's default tol); all % after the "
+                "last of them; build = the whole FarField (clusters, "
+                "G, F_c and K_c: LU of I - F_c P_c per channel, by the host's LAPACK on a CPU device); "
+                "F_c MiB counts 8 bytes a non-zero (fp32 value and index); held on: where the products run "
+                "(a K_c of at most 4 MiB beside a CPU device on the host, in the type it computes in: fp16 "
+                "storage then takes fp32's bytes; pydynrad.host.product). Default gather (first bounce).",
+            },
+            {
+                "title": "Light changes of the default far field (C = N/8): back and forth, dimmed, and moving lights",
+                "columns": [
+                    "scene",
+                    "N",
+                    "M",
+                    "C",
+                    "changes",
+                    "combined",
+                    "light change ms",
+                    "coarse solve ms",
+                    "sweeps",
+                    "first bounce + gather ms",
+                    "injection + local ms",
+                    "local-only lighting ms",
+                    "(change - coarse) / local lighting",
+                    "all % after the last change",
+                ],
+                "rows": change_rows,
+                "note": f"medians over {2 * CHANGES - 1} changes after the first of each kind; back and forth: "
+                "between the case's two light sets; dimmed: the first set at 95%, 90%, ... of its power; "
+                "combined: the changes the far field answered as a combination of its last answers (the light "
+                "vector a combination of the last ones: no pass over F or G, no coarse solve; FarField._combined); "
+                "moving: a lamp stepped 1% of the scene's extent along x, the sun turned 2 degrees "
+                "about the vertical, per change (new sources). first bounce + gather = the far field's light() "
+                "less the coarse solve (P F L over the lit columns, R D1, the pass over G; the combination when "
+                "combined).",
+            },
+        ],
+        "plots": [
+            {
+                "name": "trade",
+                "title": "All-patch error vs frame time (far field off and on)",
+                "xlabel": "frame ms (update + radiosity)",
+                "ylabel": "relative RMS error over all patches, %",
+                "xscale": "log",
+                "yscale": "log",
+                "series": [
+                    {"label": k, "x": v["x"], "y": v["y"], "labels": v["labels"], "style": "o-"}
+                    for k, v in series.items()
+                ],
+            }
+        ],
     }

@@ -1,4 +1,4 @@
-"""The far field without F (issue 16, item 3): the coarse basis and the resolution G needs.
+"""The far field without F: the coarse basis and the resolution G needs.
 
 Stores and rows on demand never hold F, so their far field has only G = F Pr, from
 cluster-id hemicubes at resolution R_G (:func:`pydynrad.farfield.cluster_form_factors`). For the
@@ -21,16 +21,39 @@ from __future__ import annotations
 
 import time
 
-
 __all__ = ["farstore_section", "SIZES"]
 
 SIZES = {
-    "tiny": {"village": {"houses": 1, "detail": 0.25}, "resolution": 16, "cornell_max_edge": 250.0, "M": 64,
-             "R_G": (8,), "frames": 3, "image": (24, 18), "per": 8},
-    "quick": {"village": {}, "resolution": 32, "cornell_max_edge": 100.0, "M": 1024, "R_G": (24, 48),
-              "frames": 5, "image": (96, 64), "per": 8},
-    "full": {"village": {}, "resolution": 32, "cornell_max_edge": 100.0, "M": 1024, "R_G": (8, 16, 24, 32, 48),
-             "frames": 12, "image": (320, 240), "per": 8},
+    "tiny": {
+        "village": {"houses": 1, "detail": 0.25},
+        "resolution": 16,
+        "cornell_max_edge": 250.0,
+        "M": 64,
+        "R_G": (8,),
+        "frames": 3,
+        "image": (24, 18),
+        "per": 8,
+    },
+    "quick": {
+        "village": {},
+        "resolution": 32,
+        "cornell_max_edge": 100.0,
+        "M": 1024,
+        "R_G": (24, 48),
+        "frames": 5,
+        "image": (96, 64),
+        "per": 8,
+    },
+    "full": {
+        "village": {},
+        "resolution": 32,
+        "cornell_max_edge": 100.0,
+        "M": 1024,
+        "R_G": (8, 16, 24, 32, 48),
+        "frames": 12,
+        "image": (320, 240),
+        "per": 8,
+    },
 }
 
 
@@ -74,32 +97,66 @@ def farstore_section(ctx) -> dict:
                 t0 = time.perf_counter()
                 far = FarField(scene, None, clusters, G=G, prolongation=basis, fine_sweeps=sweeps, device=ctx.device)
                 t_level = time.perf_counter() - t0
-                dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, storage="fp32", far_field=far,
-                                                observer=path[0], device=ctx.device)
+                dyn = pydynrad.DynamicRadiosity(
+                    scene, F, local_size=M, storage="fp32", far_field=far, observer=path[0], device=ctx.device
+                )
                 for pos in path[1:]:
                     dyn.update(pos)
                 B = dyn.radiosity(light=L)
                 img = renderer.shade(vis, B)
                 pre = t_clusters + t_G + t_level
-                rows.append([name, n, M, clusters.count, basis, far.fine_sweeps if basis == "linear" else "—",
-                             "F Pr" if R_G == "F" else R_G,
-                             100 * radiosity_error(B, ref, scene.areas), 100 * float(pixel_error(img, ref_img).mean()),
-                             G.nnz / n, far.F_c_nnz, 1e3 * far.seconds_coarse, 1e3 * far.seconds_light, far.sweeps, pre,
-                             None if R_G == "F" else 100 * pre / t_rows[R_G], 100 * pre / t_F if R_G != "F" else None,
-                             R_F])
+                rows.append(
+                    [
+                        name,
+                        n,
+                        M,
+                        clusters.count,
+                        basis,
+                        far.fine_sweeps if basis == "linear" else "—",
+                        "F Pr" if R_G == "F" else R_G,
+                        100 * radiosity_error(B, ref, scene.areas),
+                        100 * float(pixel_error(img, ref_img).mean()),
+                        G.nnz / n,
+                        far.F_c_nnz,
+                        1e3 * far.seconds_coarse,
+                        1e3 * far.seconds_light,
+                        far.sweeps,
+                        pre,
+                        None if R_G == "F" else 100 * pre / t_rows[R_G],
+                        100 * pre / t_F if R_G != "F" else None,
+                        R_F,
+                    ]
+                )
     return {
-        "title": "The far field without F: coarse basis and G's resolution (issue 16, item 3)",
+        "title": "The far field without F: coarse basis and G's resolution",
         "description": __doc__.split("\n\n", 1)[1].strip(),
-        "tables": [{
-            "title": "F-less far field: error against the full solve, G's size and precompute",
-            "columns": ["scene", "N", "M", "C", "basis", "linear sweeps", "R_G", "all %", "pixels %", "nnz(G) per row",
-                        "nnz(F_c)", "coarse solve ms", "light change ms", "coarse sweeps",
-                        "precompute s (clusters + G + F_c)",
-                        "% of F's rows at R_G", "% of F at R_F", "R_F"],
-            "rows": rows,
-            "note": "Rows of the local set come from F in memory (as a store serves them); only the far field "
-                    "is F-less. 'F Pr' is G from F itself (what G tends to as R_G reaches F's resolution).",
-        }],
+        "tables": [
+            {
+                "title": "F-less far field: error against the full solve, G's size and precompute",
+                "columns": [
+                    "scene",
+                    "N",
+                    "M",
+                    "C",
+                    "basis",
+                    "linear sweeps",
+                    "R_G",
+                    "all %",
+                    "pixels %",
+                    "nnz(G) per row",
+                    "nnz(F_c)",
+                    "coarse solve ms",
+                    "light change ms",
+                    "coarse sweeps",
+                    "precompute s (clusters + G + F_c)",
+                    "% of F's rows at R_G",
+                    "% of F at R_F",
+                    "R_F",
+                ],
+                "rows": rows,
+                "note": "Rows of the local set come from F in memory (as a store serves them); only the far field "
+                "is F-less. 'F Pr' is G from F itself (what G tends to as R_G reaches F's resolution).",
+            }
+        ],
         "plots": [],
     }
-

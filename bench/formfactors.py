@@ -60,21 +60,47 @@ from pydynrad.scenes.byname import scene_by_name
 
 from .common import time_call
 
-__all__ = ["SIZES", "BUNNY", "bench_scene", "hemicube_rays", "throughput", "bvh_build", "accuracy", "measure",
-           "suite_section", "main"]
+__all__ = [
+    "SIZES",
+    "BUNNY",
+    "bench_scene",
+    "hemicube_rays",
+    "throughput",
+    "bvh_build",
+    "accuracy",
+    "measure",
+    "suite_section",
+    "main",
+]
 
 #: The Stanford Bunny (see the module docstring for its origin and licence).
 BUNNY = Path(__file__).resolve().parent / "data" / "stanford-bunny.obj.gz"
 
 SIZES = {
-    "tiny": {"bvh_triangles": 100_000, "scenes": ("cornell_box",), "ray_rows": 16, "ray_resolution": 16,
-             "resolutions": (16, 32), "subdivisions": (2,)},
-    "quick": {"bvh_triangles": 1_000_000, "scenes": ("cornell_box", "village", "stanford_bunny"), "ray_rows": 200,
-              "ray_resolution": 32,
-              "resolutions": (16, 32, 64, 128), "subdivisions": (1, 2, 3, 4)},
-    "full": {"bvh_triangles": 1_000_000, "scenes": ("cornell_box", "village", "stanford_bunny"), "ray_rows": 1000,
-             "ray_resolution": 64,
-             "resolutions": (16, 32, 64, 128, 256, 512), "subdivisions": (1, 2, 3, 4, 5)},
+    "tiny": {
+        "bvh_triangles": 100_000,
+        "scenes": ("cornell_box",),
+        "ray_rows": 16,
+        "ray_resolution": 16,
+        "resolutions": (16, 32),
+        "subdivisions": (2,),
+    },
+    "quick": {
+        "bvh_triangles": 1_000_000,
+        "scenes": ("cornell_box", "village", "stanford_bunny"),
+        "ray_rows": 200,
+        "ray_resolution": 32,
+        "resolutions": (16, 32, 64, 128),
+        "subdivisions": (1, 2, 3, 4),
+    },
+    "full": {
+        "bvh_triangles": 1_000_000,
+        "scenes": ("cornell_box", "village", "stanford_bunny"),
+        "ray_rows": 1000,
+        "ray_resolution": 64,
+        "resolutions": (16, 32, 64, 128, 256, 512),
+        "subdivisions": (1, 2, 3, 4, 5),
+    },
 }
 
 
@@ -108,9 +134,15 @@ def hemicube_rays(scene, rows: np.ndarray, resolution: int) -> tuple[np.ndarray,
     h = (np.arange(H) + 0.5) * 2 / R  # pixel centres up a side
     # Local (tangent, bitangent, normal) coordinates of every pixel, scanline-major.
     top = np.stack(np.broadcast_arrays(c[None, :], c[:, None], 1.0), -1).reshape(-1, 3)
-    side = [np.stack(np.broadcast_arrays(*comp), -1).reshape(-1, 3) for comp in (
-        (1.0, c[None, :], h[:, None]), (-1.0, -c[None, :], h[:, None]),
-        (-c[None, :], 1.0, h[:, None]), (c[None, :], -1.0, h[:, None]))]
+    side = [
+        np.stack(np.broadcast_arrays(*comp), -1).reshape(-1, 3)
+        for comp in (
+            (1.0, c[None, :], h[:, None]),
+            (-1.0, -c[None, :], h[:, None]),
+            (-c[None, :], 1.0, h[:, None]),
+            (c[None, :], -1.0, h[:, None]),
+        )
+    ]
     local = np.concatenate([top, *side])  # (3R * R, 3)
     d = local[None, :, 0:1] * T[:, None] + local[None, :, 1:2] * B[:, None] + local[None, :, 2:3] * n[:, None]
     o = scene.centers[rows].astype(np.float64) + SURFACE_OFFSET * scene.scale * n
@@ -162,9 +194,9 @@ def _taking_turns(calls: dict, repeats: int) -> dict:
 
 def throughput(scene, n_rows: int, resolution: int, device, repeats: int = 3) -> dict:
     """Rays per second of the three ray casters on one scene's hemicube rays."""
-    from pydynrad.geometry.bvh import cast_rays
-    from pydynrad.formfactors import form_factors, hemicube_runs
     from pydynrad.device.launch import bvh_packet
+    from pydynrad.formfactors import form_factors, hemicube_runs
+    from pydynrad.geometry.bvh import cast_rays
 
     rows = np.linspace(0, len(scene) - 1, min(n_rows, len(scene))).astype(np.int32)
     o, d = hemicube_rays(scene, rows, resolution)
@@ -176,26 +208,46 @@ def throughput(scene, n_rows: int, resolution: int, device, repeats: int = 3) ->
     es = _embree(scene)
     t_embree_build = time.perf_counter() - t_embree_build
     load = os.getloadavg()[0]
-    t = _taking_turns({
-        "form_factors": lambda: form_factors(scene, resolution=resolution, rows=rows, device=device, progress=False),
-        "hemicube_runs": lambda: sum(len(c) for *_, c in hemicube_runs(scene, resolution, rows, device, progress=False)),
-        "cast_rays": lambda: cast_rays(scene, o, d, device=device)[0],
-        "embree": lambda: np.asarray(es.run(o, d)),
-    }, repeats)
+    t = _taking_turns(
+        {
+            "form_factors": lambda: form_factors(
+                scene, resolution=resolution, rows=rows, device=device, progress=False
+            ),
+            "hemicube_runs": lambda: sum(
+                len(c) for *_, c in hemicube_runs(scene, resolution, rows, device, progress=False)
+            ),
+            "cast_rays": lambda: cast_rays(scene, o, d, device=device)[0],
+            "embree": lambda: np.asarray(es.run(o, d)),
+        },
+        repeats,
+    )
     (ff, ff_cpu, _), (hc, hc_cpu, _) = t["form_factors"], t["hemicube_runs"]
     (ours, ours_cpu, patch_ours), (emb, emb_cpu, patch_emb) = t["cast_rays"], t["embree"]
     return {
-        "scene": scene.name, "patches": len(scene), "rows": len(rows), "R": resolution, "rays": n_rays,
-        "packet": bvh_packet(device), "load_average": load,
-        "form_factors_rays_per_s": n_rays / ff, "hemicube_runs_rays_per_s": n_rays / hc,
-        "cast_rays_per_s": n_rays / ours, "embree_rays_per_s": n_rays / emb,
-        "form_factors_over_embree": emb / ff, "hemicube_runs_over_embree": emb / hc, "cast_rays_over_embree": emb / ours,
-        "form_factors_over_embree_per_cpu_s": emb_cpu / ff_cpu, "hemicube_runs_over_embree_per_cpu_s": emb_cpu / hc_cpu,
+        "scene": scene.name,
+        "patches": len(scene),
+        "rows": len(rows),
+        "R": resolution,
+        "rays": n_rays,
+        "packet": bvh_packet(device),
+        "load_average": load,
+        "form_factors_rays_per_s": n_rays / ff,
+        "hemicube_runs_rays_per_s": n_rays / hc,
+        "cast_rays_per_s": n_rays / ours,
+        "embree_rays_per_s": n_rays / emb,
+        "form_factors_over_embree": emb / ff,
+        "hemicube_runs_over_embree": emb / hc,
+        "cast_rays_over_embree": emb / ours,
+        "form_factors_over_embree_per_cpu_s": emb_cpu / ff_cpu,
+        "hemicube_runs_over_embree_per_cpu_s": emb_cpu / hc_cpu,
         "cast_rays_over_embree_per_cpu_s": emb_cpu / ours_cpu,
-        "form_factors_cpu_use": ff_cpu / ff, "hemicube_runs_cpu_use": hc_cpu / hc, "cast_rays_cpu_use": ours_cpu / ours,
+        "form_factors_cpu_use": ff_cpu / ff,
+        "hemicube_runs_cpu_use": hc_cpu / hc,
+        "cast_rays_cpu_use": ours_cpu / ours,
         "embree_cpu_use": emb_cpu / emb,
         "same_hit_fraction": float(np.mean(patch_ours == patch_emb)),
-        "bvh_upload_s": t_bvh, "embree_build_s": t_embree_build,
+        "bvh_upload_s": t_bvh,
+        "embree_build_s": t_embree_build,
     }
 
 
@@ -206,23 +258,40 @@ def bvh_build(n: int, repeats: int = 3) -> dict:
     rng = np.random.default_rng(0)
     v = (rng.uniform(0, 100, (n, 1, 3)) + rng.normal(scale=0.3, size=(n, 3, 3))).astype(np.float32)
     t = time_call(lambda: BVH.build(v), repeats=repeats, warmup=0)
-    return {"triangles": n, "median_s": t["median_s"], "min_s": t["min_s"], "nodes": t["result"].n_nodes,
-            "triangles_per_s": n / t["median_s"]}
+    return {
+        "triangles": n,
+        "median_s": t["median_s"],
+        "min_s": t["min_s"],
+        "nodes": t["result"].n_nodes,
+        "triangles_per_s": n / t["median_s"],
+    }
 
 
 def _howell_parallel(a, b, c):
     X, Y = a / c, b / c
     x1, y1 = np.sqrt(1 + X**2), np.sqrt(1 + Y**2)
-    return (2 / (np.pi * X * Y)) * (np.log(x1**2 * y1**2 / (x1**2 + y1**2 - 1)) / 2 + X * y1 * np.arctan(X / y1)
-                                    + Y * x1 * np.arctan(Y / x1) - X * np.arctan(X) - Y * np.arctan(Y))
+    return (2 / (np.pi * X * Y)) * (
+        np.log(x1**2 * y1**2 / (x1**2 + y1**2 - 1)) / 2
+        + X * y1 * np.arctan(X / y1)
+        + Y * x1 * np.arctan(Y / x1)
+        - X * np.arctan(X)
+        - Y * np.arctan(Y)
+    )
 
 
 def _howell_perpendicular(l, w, h):
     H, W = h / l, w / l
     s = H**2 + W**2
-    log = np.log((1 + W**2) * (1 + H**2) / (1 + s)
-                 * (W**2 * (1 + s) / ((1 + W**2) * s)) ** (W**2) * (H**2 * (1 + s) / ((1 + H**2) * s)) ** (H**2))
-    return (W * np.arctan(1 / W) + H * np.arctan(1 / H) - np.sqrt(s) * np.arctan(1 / np.sqrt(s)) + log / 4) / (np.pi * W)
+    log = np.log(
+        (1 + W**2)
+        * (1 + H**2)
+        / (1 + s)
+        * (W**2 * (1 + s) / ((1 + W**2) * s)) ** (W**2)
+        * (H**2 * (1 + s) / ((1 + H**2) * s)) ** (H**2)
+    )
+    return (W * np.arctan(1 / W) + H * np.arctan(1 / H) - np.sqrt(s) * np.arctan(1 / np.sqrt(s)) + log / 4) / (
+        np.pi * W
+    )
 
 
 def accuracy(resolutions, subdivisions, device, samples: int = 1) -> list[dict]:
@@ -231,44 +300,91 @@ def accuracy(resolutions, subdivisions, device, samples: int = 1) -> list[dict]:
     from pydynrad.scenes.analytic import parallel_plates, perpendicular_plates
 
     out = []
-    for name, make, truth in (("parallel", parallel_plates, _howell_parallel(1, 1, 1)),
-                              ("perpendicular", perpendicular_plates, _howell_perpendicular(1, 1, 1))):
+    for name, make, truth in (
+        ("parallel", parallel_plates, _howell_parallel(1, 1, 1)),
+        ("perpendicular", perpendicular_plates, _howell_perpendicular(1, 1, 1)),
+    ):
         for sub in subdivisions:
             scene = make(subdivisions=sub)
             a = scene.areas.astype(np.float64)
             src, dst = scene.source_face // 2 == 0, scene.source_face // 2 == 1
             for R in resolutions:
-                form_factors(scene, resolution=R, rows=[0], samples=samples, device=device)  # kernel build outside the timing
+                form_factors(
+                    scene, resolution=R, rows=[0], samples=samples, device=device
+                )  # kernel build outside the timing
                 t = time.perf_counter()
                 F = form_factors(scene, resolution=R, samples=samples, device=device, progress=False)
                 dt = time.perf_counter() - t
                 got = float(a[src] @ np.asarray(F[src][:, dst].sum(axis=1)).ravel() / a[src].sum())
-                out.append({"case": name, "subdivisions": sub, "patches": len(scene), "R": R, "samples": samples, "F": got,
-                            "truth": float(truth), "rel_error": got / truth - 1, "seconds": dt,
-                            "rays_per_s": len(scene) * 3 * R * R / dt})
+                out.append(
+                    {
+                        "case": name,
+                        "subdivisions": sub,
+                        "patches": len(scene),
+                        "R": R,
+                        "samples": samples,
+                        "F": got,
+                        "truth": float(truth),
+                        "rel_error": got / truth - 1,
+                        "seconds": dt,
+                        "rays_per_s": len(scene) * 3 * R * R / dt,
+                    }
+                )
     return out
 
 
 def measure(params: dict, device) -> dict:
     """The section dict (see bench.report) for one parameter set."""
-    tp = [throughput(bench_scene(name), params["ray_rows"], params["ray_resolution"], device)
-          for name in params["scenes"]]
+    tp = [
+        throughput(bench_scene(name), params["ray_rows"], params["ray_resolution"], device) for name in params["scenes"]
+    ]
     acc = accuracy(params["resolutions"], params["subdivisions"], device)
     build = bvh_build(int(params.get("bvh_triangles", 1_000_000)))
     build_cols = ["triangles", "median_s", "min_s", "nodes", "triangles_per_s"]
-    tp_cols = ["scene", "patches", "rows", "R", "rays", "packet", "load_average", "form_factors_rays_per_s",
-               "hemicube_runs_rays_per_s", "cast_rays_per_s", "embree_rays_per_s", "form_factors_over_embree",
-               "hemicube_runs_over_embree", "cast_rays_over_embree", "form_factors_over_embree_per_cpu_s",
-               "hemicube_runs_over_embree_per_cpu_s", "cast_rays_over_embree_per_cpu_s", "form_factors_cpu_use",
-               "hemicube_runs_cpu_use", "cast_rays_cpu_use", "embree_cpu_use", "same_hit_fraction"]
+    tp_cols = [
+        "scene",
+        "patches",
+        "rows",
+        "R",
+        "rays",
+        "packet",
+        "load_average",
+        "form_factors_rays_per_s",
+        "hemicube_runs_rays_per_s",
+        "cast_rays_per_s",
+        "embree_rays_per_s",
+        "form_factors_over_embree",
+        "hemicube_runs_over_embree",
+        "cast_rays_over_embree",
+        "form_factors_over_embree_per_cpu_s",
+        "hemicube_runs_over_embree_per_cpu_s",
+        "cast_rays_over_embree_per_cpu_s",
+        "form_factors_cpu_use",
+        "hemicube_runs_cpu_use",
+        "cast_rays_cpu_use",
+        "embree_cpu_use",
+        "same_hit_fraction",
+    ]
     acc_cols = ["case", "subdivisions", "patches", "R", "F", "truth", "rel_error", "seconds", "rays_per_s"]
-    plots = [{
-        "name": f"error-{case}", "title": f"{case} unit plates: |relative error| vs R", "xlabel": "R",
-        "ylabel": "|F / F_exact - 1|", "xscale": "log", "yscale": "log",
-        "series": [{"label": f"subdivisions {s}", "x": [r["R"] for r in acc if r["case"] == case and r["subdivisions"] == s],
-                    "y": [max(abs(r["rel_error"]), 1e-7) for r in acc if r["case"] == case and r["subdivisions"] == s]}
-                   for s in params["subdivisions"]],
-    } for case in ("parallel", "perpendicular")]
+    plots = [
+        {
+            "name": f"error-{case}",
+            "title": f"{case} unit plates: |relative error| vs R",
+            "xlabel": "R",
+            "ylabel": "|F / F_exact - 1|",
+            "xscale": "log",
+            "yscale": "log",
+            "series": [
+                {
+                    "label": f"subdivisions {s}",
+                    "x": [r["R"] for r in acc if r["case"] == case and r["subdivisions"] == s],
+                    "y": [max(abs(r["rel_error"]), 1e-7) for r in acc if r["case"] == case and r["subdivisions"] == s],
+                }
+                for s in params["subdivisions"]
+            ],
+        }
+        for case in ("parallel", "perpendicular")
+    ]
     return {
         "title": "Hemicube form factors",
         "description": (
@@ -285,10 +401,16 @@ def measure(params: dict, device) -> dict:
         ),
         "tables": [
             {"title": "Ray throughput (rays/s)", "columns": tp_cols, "rows": [[r[c] for c in tp_cols] for r in tp]},
-            {"title": "Accuracy vs the analytic plates", "columns": acc_cols,
-             "rows": [[r[c] for c in acc_cols] for r in acc]},
-            {"title": "BVH build (native binned SAH, random triangles)", "columns": build_cols,
-             "rows": [[build[c] for c in build_cols]]},
+            {
+                "title": "Accuracy vs the analytic plates",
+                "columns": acc_cols,
+                "rows": [[r[c] for c in acc_cols] for r in acc],
+            },
+            {
+                "title": "BVH build (native binned SAH, random triangles)",
+                "columns": build_cols,
+                "rows": [[build[c] for c in build_cols]],
+            },
         ],
         "plots": plots,
         "throughput": tp,
@@ -328,10 +450,14 @@ def main(argv=None) -> int:
     device = pydynrad.default_device()
     t0 = time.perf_counter()
     section = measure(params, device)
-    results = {"device": device.info(),
-               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-               "size": args.size, "params": {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()},
-               "sections": {"formfactors": section}, "seconds": time.perf_counter() - t0}
+    results = {
+        "device": device.info(),
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "size": args.size,
+        "params": {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()},
+        "sections": {"formfactors": section},
+        "seconds": time.perf_counter() - t0,
+    }
     written = write_report(results, args.out or device_dir(results["device"]), "formfactors")
     if args.out is None:
         write_index()

@@ -33,12 +33,36 @@ from .common import run_standalone, time_call
 __all__ = ["SIZES", "indicator", "weighted", "measure", "suite_section", "main"]
 
 SIZES = {
-    "tiny": {"scenes": {"cornell_box": {"max_edge": 250.0}}, "resolutions": (4, 8), "reference": 16,
-             "sample": 32, "time_rows": 32, "per_cluster": 8, "store_resolution": 16, "repeats": 1},
-    "quick": {"scenes": {"cornell_box": {}, "village": {"houses": 2, "detail": 0.5}}, "resolutions": (8, 16, 24, 32, 64),
-              "reference": 128, "sample": 256, "time_rows": 1024, "per_cluster": 8, "store_resolution": 64, "repeats": 5},
-    "full": {"scenes": {"cornell_box": {}, "village": {"houses": 12, "detail": 1.0}}, "resolutions": (8, 16, 24, 32, 64),
-             "reference": 128, "sample": 1024, "time_rows": 4096, "per_cluster": 8, "store_resolution": 64, "repeats": 3},
+    "tiny": {
+        "scenes": {"cornell_box": {"max_edge": 250.0}},
+        "resolutions": (4, 8),
+        "reference": 16,
+        "sample": 32,
+        "time_rows": 32,
+        "per_cluster": 8,
+        "store_resolution": 16,
+        "repeats": 1,
+    },
+    "quick": {
+        "scenes": {"cornell_box": {}, "village": {"houses": 2, "detail": 0.5}},
+        "resolutions": (8, 16, 24, 32, 64),
+        "reference": 128,
+        "sample": 256,
+        "time_rows": 1024,
+        "per_cluster": 8,
+        "store_resolution": 64,
+        "repeats": 5,
+    },
+    "full": {
+        "scenes": {"cornell_box": {}, "village": {"houses": 12, "detail": 1.0}},
+        "resolutions": (8, 16, 24, 32, 64),
+        "reference": 128,
+        "sample": 1024,
+        "time_rows": 4096,
+        "per_cluster": 8,
+        "store_resolution": 64,
+        "repeats": 3,
+    },
 }
 
 
@@ -92,7 +116,9 @@ def _far_radiosity(G, Rm, rho, L) -> np.ndarray:
     G = G.astype(np.float64)
     F_c = (Rm @ G).toarray()
     L_c, rho_c = Rm @ L, Rm @ rho
-    B_c = np.column_stack([np.linalg.solve(np.eye(len(F_c)) - rho_c[:, [k]] * F_c, L_c[:, k]) for k in range(L.shape[1])])
+    B_c = np.column_stack(
+        [np.linalg.solve(np.eye(len(F_c)) - rho_c[:, [k]] * F_c, L_c[:, k]) for k in range(L.shape[1])]
+    )
     return L + rho * (G @ B_c)
 
 
@@ -150,14 +176,21 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
         Rm = _restriction(labels, scene.areas)
         rho, L = scene.albedo.astype(np.float64), scene.emission.astype(np.float64)
         B_full = _full_radiosity(F_full, rho, L)
-        B_far_ref = {kind: _far_radiosity(F_full @ pr, Rm, rho, L) for kind, pr in (("indicator", ind), ("weighted", wtd))}
+        B_far_ref = {
+            kind: _far_radiosity(F_full @ pr, Rm, rho, L) for kind, pr in (("indicator", ind), ("weighted", wtd))
+        }
         for R in p["resolutions"]:
             row, far = [name, n, C, R], [name, n, C, R]
             for kind, pr in (("indicator", ind), ("weighted", wtd)):
                 G_all = cluster_form_factors(scene, pr, R, device=device)
                 G = G_all[sample]
                 e = _row_l1(G, refs[kind])
-                row += [float(e.mean()), float(np.percentile(e, 95)), float(e.max()), _transport_error(G, refs[kind], x)]
+                row += [
+                    float(e.mean()),
+                    float(np.percentile(e, 95)),
+                    float(e.max()),
+                    _transport_error(G, refs[kind], x),
+                ]
                 B_far = _far_radiosity(G_all, Rm, rho, L)
                 far += [_rel_rms(B_far, B_full), _rel_rms(B_far, B_far_ref[kind])]
                 if kind == "indicator":  # the library's far field on the device, from the same G
@@ -177,52 +210,114 @@ def measure(size: str, device, overrides: dict | None = None) -> dict:
             time_rows.append([name, n, C, R, tf, tg, twd, twh, F.nnz / len(timed), G.nnz / len(timed)])
         for kind, col in (("indicator", 4), ("weighted", 8)):
             pts = [r for r in err_rows if r[0] == name]
-            plot_series.append({"label": f"{name} {kind}", "x": [r[3] for r in pts], "y": [r[col] for r in pts],
-                                "style": "o-" if kind == "indicator" else "s--"})
+            plot_series.append(
+                {
+                    "label": f"{name} {kind}",
+                    "x": [r[3] for r in pts],
+                    "y": [r[col] for r in pts],
+                    "style": "o-" if kind == "indicator" else "s--",
+                }
+            )
         tF = {r[3]: r[4] for r in time_rows if r[0] == name}
         tF_store = tF.get(p["store_resolution"])
         if tF_store is None:
-            tF_store = time_call(lambda: form_factors(scene, p["store_resolution"], rows=timed, device=device),
-                                 repeats=p["repeats"])["min_s"] / len(timed) * 1e3
+            tF_store = (
+                time_call(
+                    lambda: form_factors(scene, p["store_resolution"], rows=timed, device=device), repeats=p["repeats"]
+                )["min_s"]
+                / len(timed)
+                * 1e3
+            )
         store_rows.append([name, n, C, *_store_times(scene, labels, p["store_resolution"], device)])
         for r in (r for r in time_rows if r[0] == name):
-            cost_rows.append([name, p["store_resolution"], r[3], (r[3] / p["store_resolution"]) ** 2, r[5] / tF_store,
-                              r[6] / tF_store])
-    e_cols = ["scene", "N", "C", "R"] + [f"{k} {s}" for k in ("indicator", "weighted")
-                                         for s in ("row L1 mean", "row L1 p95", "row L1 max", "G x rel. RMS")]
+            cost_rows.append(
+                [
+                    name,
+                    p["store_resolution"],
+                    r[3],
+                    (r[3] / p["store_resolution"]) ** 2,
+                    r[5] / tF_store,
+                    r[6] / tF_store,
+                ]
+            )
+    e_cols = ["scene", "N", "C", "R"] + [
+        f"{k} {s}"
+        for k in ("indicator", "weighted")
+        for s in ("row L1 mean", "row L1 p95", "row L1 max", "G x rel. RMS")
+    ]
     return {
         "title": "Patch-to-cluster form factors G (far field): resolution and cost",
         "description": __doc__.split("\n\n", 1)[1],
         "tables": [
-            {"title": f"Row-wise relative L1 error of G at R against G = F Pr at R = {p['reference']}",
-             "columns": e_cols, "rows": err_rows,
-             "note": f"{p['sample']} sampled rows per scene; clusters of about {p['per_cluster']} patches; "
-                     "G x: a random cluster radiosity x in [0, 1) through G"},
-            {"title": "Far-field error: B_far = L + P G B_c with G at R, relative RMS over all patches",
-             "columns": ["scene", "N", "C", "R", "indicator vs full solve", "indicator vs G at ref",
-                         "FarField (device) vs full solve", "weighted vs full solve", "weighted vs G at ref"],
-             "rows": far_rows,
-             "note": f"the scene's own emitters; full solve and 'G at ref': F at R = {p['reference']}; the coarse "
-                     "level solved densely in float64 (the far field's algebra in plain numpy), and by "
-                     "pydynrad.farfield.FarField from the same G (Jacobi sweeps on the device, tolerance 1e-5)"},
-            {"title": "Time per row (ms) of F and of G at the same resolution, and non-zeros per row",
-             "columns": ["scene", "N", "C", "R", "F ms/row", "G indicator ms/row", "G weighted (device) ms/row",
-                         "F rows @ Pr_w (host) ms/row", "F nnz/row", "G nnz/row"],
-             "rows": time_rows, "note": f"fastest of {p['repeats']} runs (a shared 2-core machine: the minimum is the "
-                                         f"least disturbed) over {p['time_rows']} sampled rows (or all), kernel builds "
-                                         "excluded"},
-            {"title": "Precompute: G at R as a fraction of F at the store's resolution",
-             "columns": ["scene", "F's R", "G's R", "rays G / F", "G indicator / F (time)", "G weighted / F (time)"],
-             "rows": cost_rows,
-             "note": "rays: (R_G / R_F)^2, what the times follow where the shared machine is quiet; issue target: "
-                     "clusters + K_c + G <= 0.2 of F"},
-            {"title": "Whole-store precompute in this process: F at the store's resolution, G alone at the default",
-             "columns": ["scene", "N", "C", "F's R", "G's R", "F s", "G s", "G / F", "F MiB", "G MiB"],
-             "rows": store_rows, "note": "compute_store with the default block and task sizes, one run each"},
+            {
+                "title": f"Row-wise relative L1 error of G at R against G = F Pr at R = {p['reference']}",
+                "columns": e_cols,
+                "rows": err_rows,
+                "note": f"{p['sample']} sampled rows per scene; clusters of about {p['per_cluster']} patches; "
+                "G x: a random cluster radiosity x in [0, 1) through G",
+            },
+            {
+                "title": "Far-field error: B_far = L + P G B_c with G at R, relative RMS over all patches",
+                "columns": [
+                    "scene",
+                    "N",
+                    "C",
+                    "R",
+                    "indicator vs full solve",
+                    "indicator vs G at ref",
+                    "FarField (device) vs full solve",
+                    "weighted vs full solve",
+                    "weighted vs G at ref",
+                ],
+                "rows": far_rows,
+                "note": f"the scene's own emitters; full solve and 'G at ref': F at R = {p['reference']}; the coarse "
+                "level solved densely in float64 (the far field's algebra in plain numpy), and by "
+                "pydynrad.farfield.FarField from the same G (Jacobi sweeps on the device, tolerance 1e-5)",
+            },
+            {
+                "title": "Time per row (ms) of F and of G at the same resolution, and non-zeros per row",
+                "columns": [
+                    "scene",
+                    "N",
+                    "C",
+                    "R",
+                    "F ms/row",
+                    "G indicator ms/row",
+                    "G weighted (device) ms/row",
+                    "F rows @ Pr_w (host) ms/row",
+                    "F nnz/row",
+                    "G nnz/row",
+                ],
+                "rows": time_rows,
+                "note": f"fastest of {p['repeats']} runs (a shared 2-core machine: the minimum is the "
+                f"least disturbed) over {p['time_rows']} sampled rows (or all), kernel builds "
+                "excluded",
+            },
+            {
+                "title": "Precompute: G at R as a fraction of F at the store's resolution",
+                "columns": ["scene", "F's R", "G's R", "rays G / F", "G indicator / F (time)", "G weighted / F (time)"],
+                "rows": cost_rows,
+                "note": "rays: (R_G / R_F)^2, what the times follow where the shared machine is quiet; issue target: "
+                "clusters + K_c + G <= 0.2 of F",
+            },
+            {
+                "title": "Whole-store precompute in this process: F at the store's resolution, G alone at the default",
+                "columns": ["scene", "N", "C", "F's R", "G's R", "F s", "G s", "G / F", "F MiB", "G MiB"],
+                "rows": store_rows,
+                "note": "compute_store with the default block and task sizes, one run each",
+            },
         ],
-        "plots": [{"name": "error", "title": "G's row-wise relative L1 error vs hemicube resolution",
-                   "xlabel": "resolution R", "ylabel": "mean relative L1 error", "xscale": "log", "yscale": "log",
-                   "series": plot_series}],
+        "plots": [
+            {
+                "name": "error",
+                "title": "G's row-wise relative L1 error vs hemicube resolution",
+                "xlabel": "resolution R",
+                "ylabel": "mean relative L1 error",
+                "xscale": "log",
+                "yscale": "log",
+                "series": plot_series,
+            }
+        ],
     }
 
 

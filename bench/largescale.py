@@ -17,7 +17,7 @@ Stages (each reported with wall-clock times on this machine):
    the store, prefetching the next candidates, with the far field off (the paper's method) and
    on (the store's clusters and G: left in the store and read per light change, and held on the
    device as before 2026-12-02, ``--far-g``); and the same walk fed from F in memory when F fits in a
-   quarter of RAM. Each walk runs in its own process, so its peak RSS is its own (issue 16's
+   quarter of RAM. Each walk runs in its own process, so its peak RSS is its own (the
    target: the far field on within 1.5x of it off).
 
 With ``--far-field`` (the default) the store also holds the far field's G = F Pr for
@@ -98,9 +98,17 @@ def run_walk(args) -> dict:
     t0 = time.perf_counter()
     # --far-g held: the store's G read whole onto the device (before 2026-12-02, G stayed in the store).
     G = store.cluster_form_factors() if args.walk_far_field == "on" and args.far_g == "held" else None
-    dyn = pydynrad.DynamicRadiosity(scene, source, local_size=args.local_size, update="exact", storage="fp32",
-                                    max_swaps_per_frame=args.swaps, far_field=args.walk_far_field == "on",
-                                    observer=walk_path(scene, 1, args.step)[0], cluster_form_factors=G)
+    dyn = pydynrad.DynamicRadiosity(
+        scene,
+        source,
+        local_size=args.local_size,
+        update="exact",
+        storage="fp32",
+        max_swaps_per_frame=args.swaps,
+        far_field=args.walk_far_field == "on",
+        observer=walk_path(scene, 1, args.step)[0],
+        cluster_form_factors=G,
+    )
     del G
     t_solution = time.perf_counter() - t0
     rss_solution = rss_mib()
@@ -121,21 +129,35 @@ def run_walk(args) -> dict:
         ff_times.append(st.t_form_factors)
         swaps.append(st.swaps)
     out = {
-        "source": args.source, "far_field": args.walk_far_field + (f" ({args.far_g} G)" if dyn.far is not None else ""),
-        "N": len(scene), "M": args.local_size,
+        "source": args.source,
+        "far_field": args.walk_far_field + (f" ({args.far_g} G)" if dyn.far is not None else ""),
+        "N": len(scene),
+        "M": args.local_size,
         "frames": len(times),
-        "solution_s": t_solution, "rss_after_solution_mib": rss_solution,
-        "build_s": t_build, "build_refreshed": bool(first.refreshed),
-        "frame_ms_median": 1e3 * float(np.median(times)), "frame_ms_p95": 1e3 * float(np.percentile(times, 95)),
-        "rows_ms_median": 1e3 * float(np.median(ff_times)), "swaps_per_frame": float(np.mean(swaps)),
-        "rss_scene_mib": base, "rss_after_source_mib": loaded, "peak_rss_mib": peak_rss_mib(),
+        "solution_s": t_solution,
+        "rss_after_solution_mib": rss_solution,
+        "build_s": t_build,
+        "build_refreshed": bool(first.refreshed),
+        "frame_ms_median": 1e3 * float(np.median(times)),
+        "frame_ms_p95": 1e3 * float(np.percentile(times, 95)),
+        "rows_ms_median": 1e3 * float(np.median(ff_times)),
+        "swaps_per_frame": float(np.mean(swaps)),
+        "rss_scene_mib": base,
+        "rss_after_source_mib": loaded,
+        "peak_rss_mib": peak_rss_mib(),
         "K_mib": dyn.memory_bytes / 2**20 if hasattr(dyn, "memory_bytes") else None,
     }
     if dyn.far is not None:
-        out.update(C=dyn.far.C, G_nnz=dyn.far.G_nnz, F_c_nnz=dyn.far.F_c_nnz,
-                   far_device_mib=dyn.far.device_memory_bytes / 2**20,
-                   far_host_mib=dyn.far.host_memory_bytes / 2**20, far_build_s=dyn.far.seconds_build,
-                   far_light_s=dyn.far.seconds_light, far_coarse_s=dyn.far.seconds_coarse)
+        out.update(
+            C=dyn.far.C,
+            G_nnz=dyn.far.G_nnz,
+            F_c_nnz=dyn.far.F_c_nnz,
+            far_device_mib=dyn.far.device_memory_bytes / 2**20,
+            far_host_mib=dyn.far.host_memory_bytes / 2**20,
+            far_build_s=dyn.far.seconds_build,
+            far_light_s=dyn.far.seconds_light,
+            far_coarse_s=dyn.far.seconds_coarse,
+        )
     if cache is not None:
         out.update(cache_mib=cache.max_bytes / 2**20, cache_peak_mib=cache.peak_nbytes / 2**20, **cache.stats)
         cache.close()
@@ -143,15 +165,40 @@ def run_walk(args) -> dict:
 
 
 def walk_in_subprocess(args, source: str, cache_mib: float, far_field: str = "off", far_g: str = "stored") -> dict:
-    cmd = [sys.executable, __file__, "_walk", "--source", source, "--walk-far-field", far_field, "--far-g", far_g,
-           "--store", str(args.store),
-           "--detail", str(args.detail), "--resolution", str(args.resolution), "--local-size", str(args.local_size),
-           "--frames", str(args.frames), "--step", str(args.step), "--swaps", str(args.swaps),
-           "--cache-mib", str(cache_mib)]
+    cmd = [
+        sys.executable,
+        __file__,
+        "_walk",
+        "--source",
+        source,
+        "--walk-far-field",
+        far_field,
+        "--far-g",
+        far_g,
+        "--store",
+        str(args.store),
+        "--detail",
+        str(args.detail),
+        "--resolution",
+        str(args.resolution),
+        "--local-size",
+        str(args.local_size),
+        "--frames",
+        str(args.frames),
+        "--step",
+        str(args.step),
+        "--swaps",
+        str(args.swaps),
+        "--cache-mib",
+        str(cache_mib),
+    ]
     done = subprocess.run(cmd, capture_output=True, text=True)
     if done.returncode != 0:
-        return {"source": source, "far_field": far_field,
-                "error": done.stderr.strip().splitlines()[-1] if done.stderr.strip() else "failed"}
+        return {
+            "source": source,
+            "far_field": far_field,
+            "error": done.stderr.strip().splitlines()[-1] if done.stderr.strip() else "failed",
+        }
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
@@ -159,9 +206,18 @@ def precompute(args, scene, path: Path, workers: int, blocks=None, clusters=None
     from pydynrad.precompute.distributed import precompute_distributed
 
     t0 = time.perf_counter()
-    precompute_distributed(village_spec(args.detail), path, resolution=args.resolution, block_rows=args.block_rows,
-                           workers=workers, blocks=blocks, progress=True, clusters=clusters,
-                           cluster_resolution=args.cluster_resolution or args.resolution, compute_f=compute_f)
+    precompute_distributed(
+        village_spec(args.detail),
+        path,
+        resolution=args.resolution,
+        block_rows=args.block_rows,
+        workers=workers,
+        blocks=blocks,
+        progress=True,
+        clusters=clusters,
+        cluster_resolution=args.cluster_resolution or args.resolution,
+        compute_f=compute_f,
+    )
     return time.perf_counter() - t0
 
 
@@ -176,10 +232,15 @@ def far_field_precompute(args, scene, store, f_numbers: dict) -> dict:
     secs = precompute(args, scene, args.store, args.workers, clusters=clusters.labels, compute_f=False)
     rows = sum(len(store.block_range(k)) for k in missing)
     f_rate = f_numbers.get("rows_per_s_this_run")
-    out = {"C": clusters.count, "cluster_resolution": args.cluster_resolution or args.resolution,
-           "clusters_s": t_clusters, "G_rows_this_run": rows, "G_s_this_run": secs,
-           "G_rows_per_s": rows / secs if rows else None,
-           "G_bytes_on_disk": sum(p.stat().st_size for p in (args.store / "gblocks").glob("g*.npz"))}
+    out = {
+        "C": clusters.count,
+        "cluster_resolution": args.cluster_resolution or args.resolution,
+        "clusters_s": t_clusters,
+        "G_rows_this_run": rows,
+        "G_s_this_run": secs,
+        "G_rows_per_s": rows / secs if rows else None,
+        "G_bytes_on_disk": sum(p.stat().st_size for p in (args.store / "gblocks").glob("g*.npz")),
+    }
     if rows and f_rate:
         # The issue's target: clusters + G within 20% of F's rows (at G's resolution when they are equal).
         out["clusters_plus_G_over_F"] = (t_clusters + secs) / (rows / f_rate)
@@ -191,9 +252,15 @@ def store_numbers(store) -> dict:
     rows = sum(len(store.block_range(k)) for k in done)
     nnz = sum(store.read_block(k).nnz for k in done[:: max(1, len(done) // 64)])
     sampled_rows = sum(len(store.block_range(k)) for k in done[:: max(1, len(done) // 64)])
-    return {"blocks_done": len(done), "blocks": store.n_blocks, "rows_done": rows,
-            "bytes_on_disk": store.nbytes_on_disk, "bytes_per_patch": store.nbytes_on_disk / max(rows, 1),
-            "nnz_per_row": nnz / max(sampled_rows, 1), "in_memory_bytes_est": rows and (nnz / sampled_rows) * 8 * store.n_patches}
+    return {
+        "blocks_done": len(done),
+        "blocks": store.n_blocks,
+        "rows_done": rows,
+        "bytes_on_disk": store.nbytes_on_disk,
+        "bytes_per_patch": store.nbytes_on_disk / max(rows, 1),
+        "nnz_per_row": nnz / max(sampled_rows, 1),
+        "in_memory_bytes_est": rows and (nnz / sampled_rows) * 8 * store.n_patches,
+    }
 
 
 def main(argv=None) -> int:
@@ -213,13 +280,25 @@ def main(argv=None) -> int:
     ap.add_argument("--swaps", type=int, default=32, help="max_swaps_per_frame")
     ap.add_argument("--cache-mib", type=float, default=None, help="row cache size (default: a quarter of F's RAM size)")
     ap.add_argument("--source", choices=["store", "memory"], default="store")
-    ap.add_argument("--far-field", action=argparse.BooleanOptionalAction, default=True,
-                    help="store G beside F and walk with the far field on as well as off")
+    ap.add_argument(
+        "--far-field",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="store G beside F and walk with the far field on as well as off",
+    )
     ap.add_argument("--cluster-resolution", type=int, default=None, help="G's hemicube resolution (default: F's)")
-    ap.add_argument("--walks", action=argparse.BooleanOptionalAction, default=True,
-                    help="walk the store once it is complete (--no-walks: precompute only)")
-    ap.add_argument("--far-g", choices=["stored", "held"], default="stored",
-                    help="the far field's G in its store, read per light change (default), or held on the device")
+    ap.add_argument(
+        "--walks",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="walk the store once it is complete (--no-walks: precompute only)",
+    )
+    ap.add_argument(
+        "--far-g",
+        choices=["stored", "held"],
+        default="stored",
+        help="the far field's G in its store, read per light change (default), or held on the device",
+    )
     ap.add_argument("--walk-far-field", choices=["on", "off"], default="off", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     size = "quick" if args.quick else "full"
@@ -234,8 +313,14 @@ def main(argv=None) -> int:
 
     from pydynrad.rows.store import FormFactorStore
 
-    report = {"size": size, "detail": args.detail, "resolution": args.resolution, "block_rows": args.block_rows,
-              "cpu_count": os.cpu_count(), "date": time.strftime("%Y-%m-%d %H:%M")}
+    report = {
+        "size": size,
+        "detail": args.detail,
+        "resolution": args.resolution,
+        "block_rows": args.block_rows,
+        "cpu_count": os.cpu_count(),
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+    }
     t0 = time.perf_counter()
     scene = village_spec(args.detail).build()
     report["scene"] = {"N": len(scene), "build_s": time.perf_counter() - t0}
@@ -255,17 +340,31 @@ def main(argv=None) -> int:
         print(f"throughput, {w} worker(s): {rows / secs:.1f} rows/s", flush=True)
     report["throughput"] = list(tp.values())
 
-    todo = FormFactorStore.create(scene, args.store, resolution=args.resolution, block_rows=args.block_rows,
-                                  patching=village_spec(args.detail).recipe(), exist_ok=True).missing_blocks()
+    todo = FormFactorStore.create(
+        scene,
+        args.store,
+        resolution=args.resolution,
+        block_rows=args.block_rows,
+        patching=village_spec(args.detail).recipe(),
+        exist_ok=True,
+    ).missing_blocks()
     if args.max_minutes is not None:
         per_block = tp[2]["seconds"] / len(sample)
         todo = todo[: max(0, int(args.max_minutes * 60 / per_block))]
     rows_todo = sum(len(range(k * args.block_rows, min(len(scene), (k + 1) * args.block_rows))) for k in todo)
     secs = precompute(args, scene, args.store, args.workers, blocks=todo) if todo else 0.0
-    store = FormFactorStore.open(scene, args.store, resolution=args.resolution, patching=village_spec(args.detail).recipe())
-    report["store"] = {"path": str(args.store), "workers": args.workers, "rows_this_run": rows_todo,
-                       "seconds_this_run": secs, "rows_per_s_this_run": rows_todo / secs if secs else None,
-                       "complete": store.complete, **store_numbers(store)}
+    store = FormFactorStore.open(
+        scene, args.store, resolution=args.resolution, patching=village_spec(args.detail).recipe()
+    )
+    report["store"] = {
+        "path": str(args.store),
+        "workers": args.workers,
+        "rows_this_run": rows_todo,
+        "seconds_this_run": secs,
+        "rows_per_s_this_run": rows_todo / secs if secs else None,
+        "complete": store.complete,
+        **store_numbers(store),
+    }
     print(json.dumps(report["store"], indent=1), flush=True)
     if args.far_field:
         report["far_field_precompute"] = far_field_precompute(args, scene, store, report["store"])
@@ -291,8 +390,14 @@ def _table(title: str, rows: list[dict]) -> list[str]:
         return []
     cols = list(dict.fromkeys(k for r in rows for k in r))
     fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
-    return [f"**{title}**", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols),
-            *("| " + " | ".join(fmt(r.get(c, "")) for c in cols) + " |" for r in rows), ""]
+    return [
+        f"**{title}**",
+        "",
+        "| " + " | ".join(cols) + " |",
+        "|" + "---|" * len(cols),
+        *("| " + " | ".join(fmt(r.get(c, "")) for c in cols) + " |" for r in rows),
+        "",
+    ]
 
 
 def write_report(report: dict, size: str) -> None:
@@ -303,13 +408,20 @@ def write_report(report: dict, size: str) -> None:
     report["device"] = pydynrad.default_device().info()
     out = device_dir(report["device"])
     out.mkdir(parents=True, exist_ok=True)
-    md = [f"# Large scenes ({size}, {report['date']}, {report['device']['device']})", "",
-          f"village(detail={report['detail']}): N = {report['scene']['N']} patches; hemicube resolution "
-          f"{report['resolution']}; blocks of {report['block_rows']} rows; {report['cpu_count']} CPU cores.", "",
-          *_table("Precompute throughput (cluster start-up included)", report["throughput"]),
-          *_table("Store", [report["store"]]),
-          *_table("Walks (each in its own process)", report.get("walks", []))]
-    for name, text in ((f"largescale-{size}.json", json.dumps(report, indent=1)), (f"largescale-{size}.md", "\n".join(md))):
+    md = [
+        f"# Large scenes ({size}, {report['date']}, {report['device']['device']})",
+        "",
+        f"village(detail={report['detail']}): N = {report['scene']['N']} patches; hemicube resolution "
+        f"{report['resolution']}; blocks of {report['block_rows']} rows; {report['cpu_count']} CPU cores.",
+        "",
+        *_table("Precompute throughput (cluster start-up included)", report["throughput"]),
+        *_table("Store", [report["store"]]),
+        *_table("Walks (each in its own process)", report.get("walks", [])),
+    ]
+    for name, text in (
+        (f"largescale-{size}.json", json.dumps(report, indent=1)),
+        (f"largescale-{size}.md", "\n".join(md)),
+    ):
         write_atomic(out / name, text.encode())
     write_index()
 

@@ -45,8 +45,16 @@ def _case(village: bool, moves: int, device):
     if not village:
         p = SIZES["quick"]
         box = pd.scenes.cornell_box(max_edge=p["max_edge"])
-        return (box, pd.scenes.block(100.0, p["block"], albedo=(0.1, 0.6, 0.15)), pd.form_factors(box, p["R"], device=device),
-                p["R"], p["M"], _poses(moves), OBSERVER, [pd.PointLight((278.0, 520.0, 280.0), (0.3, 0.3, 0.3))])
+        return (
+            box,
+            pd.scenes.block(100.0, p["block"], albedo=(0.1, 0.6, 0.15)),
+            pd.form_factors(box, p["R"], device=device),
+            p["R"],
+            p["M"],
+            _poses(moves),
+            OBSERVER,
+            [pd.PointLight((278.0, 520.0, 280.0), (0.3, 0.3, 0.3))],
+        )
     from .paper import street_walk
 
     scene = pd.scenes.village(houses=12, detail=1.0)
@@ -55,41 +63,65 @@ def _case(village: bool, moves: int, device):
         T = np.eye(4)
         T[:3, 3] = (3.0 + 0.2 * k, 0.6, 2.5)
         poses.append(T)
-    return (scene, pd.scenes.block(1.0, 1, albedo=(0.1, 0.6, 0.15)), pd.form_factors(scene, 32, device=device), 32, 1024,
-            poses, street_walk(1)[0], [pd.DirectionalLight((-0.4, -1.0, -0.3), (100.0,) * 3)])
+    return (
+        scene,
+        pd.scenes.block(1.0, 1, albedo=(0.1, 0.6, 0.15)),
+        pd.form_factors(scene, 32, device=device),
+        32,
+        1024,
+        poses,
+        street_walk(1)[0],
+        [pd.DirectionalLight((-0.4, -1.0, -0.3), (100.0,) * 3)],
+    )
 
 
-def stages(moves: int = 8, device=None, correction: bool = False, village: bool = False) -> list[tuple[str, float, float]]:
+def stages(
+    moves: int = 8, device=None, correction: bool = False, village: bool = False
+) -> list[tuple[str, float, float]]:
     """(stage, median ms, min ms) of ``moves`` moves at budget 0 and the radiosity after each;
     ``correction``: with the stale rows made and corrected (``occlusion_correction``), else
     without (the cheapest move); ``village``: on the 66k village (:func:`_case`)."""
     import pydynrad as pd
     from pydynrad.device.devices import default_device
-    from pydynrad.dynamic import exact, localrows, moves as moves_mod
+    from pydynrad.dynamic import exact, localrows
+    from pydynrad.dynamic import moves as moves_mod
 
     device = device or default_device()
     box, block, F, R, M, poses, observer, light = _case(village, moves, device)
     obj = pd.RigidObject(block, poses[0])
-    dyn = pd.DynamicRadiosity(box, F, local_size=M, resolution=R, objects=pd.MovingObjects([obj], occlusion=0, occlusion_correction=correction), max_swaps_per_frame=SWAPS, observer=observer, device=device)
+    dyn = pd.DynamicRadiosity(
+        box,
+        F,
+        local_size=M,
+        resolution=R,
+        objects=pd.MovingObjects([obj], occlusion=0, occlusion_correction=correction),
+        max_swaps_per_frame=SWAPS,
+        observer=observer,
+        device=device,
+    )
     dyn.radiosity(light)
     dyn.update(observer)
     q, times = device.queue, {}
-    for owner, name, label in ((dyn, "_moved_world", "world at the new pose (instanced scene)"),
-                               (dyn._ff.source, "refresh", "refresh: object rows (hemicubes), candidates' rows"),
-                               (localrows, "_replace_rows", "kept rows replaced"),
-                               (moves_mod, "stale_rows", "stale rows (reciprocal object columns)"),
-                               (dyn._kernels, "gather_all", "gathers + slot reads, all channels, one read-back"),
-                               (exact, "batched_swap", "host algebra (batched_swap, all channels)"),
-                               (dyn._kernels, "update_slots", "rank-2k passes + slot writes"),
-                               (exact, "exact_swap", "swap total (gathers, algebra, passes)"),
-                               (dyn._ff.source, "_static_rows", "static rows at the pose from F (move and radiosity)"),
-                               (dyn._ff.source, "differences", "stale rows: D = rows at the pose - kept (pre-test, D)"),
-                               (dyn._stale, "put", "stale rows: D held")):
+    for owner, name, label in (
+        (dyn, "_moved_world", "world at the new pose (instanced scene)"),
+        (dyn._ff.source, "refresh", "refresh: object rows (hemicubes), candidates' rows"),
+        (localrows, "_replace_rows", "kept rows replaced"),
+        (moves_mod, "stale_rows", "stale rows (reciprocal object columns)"),
+        (dyn._kernels, "gather_all", "gathers + slot reads, all channels, one read-back"),
+        (exact, "batched_swap", "host algebra (batched_swap, all channels)"),
+        (dyn._kernels, "update_slots", "rank-2k passes + slot writes"),
+        (exact, "exact_swap", "swap total (gathers, algebra, passes)"),
+        (dyn._ff.source, "_static_rows", "static rows at the pose from F (move and radiosity)"),
+        (dyn._ff.source, "differences", "stale rows: D = rows at the pose - kept (pre-test, D)"),
+        (dyn._stale, "put", "stale rows: D held"),
+    ):
         _timed(owner, name, label, q, times)
-    for owner, name, label in ((moves_mod, "hidden_entries", "hidden entries found (candidates' and outside rows)"),
-                               (moves_mod, "at_pose", "rows assembled at the pose (candidates' and outside rows)"),
-                               (dyn._ff.source, "gather_outside", "radiosity: outside gathered at the pose (rows and product)"),
-                               (dyn._stale, "correct", "radiosity: stale rows corrected")):
+    for owner, name, label in (
+        (moves_mod, "hidden_entries", "hidden entries found (candidates' and outside rows)"),
+        (moves_mod, "at_pose", "rows assembled at the pose (candidates' and outside rows)"),
+        (dyn._ff.source, "gather_outside", "radiosity: outside gathered at the pose (rows and product)"),
+        (dyn._stale, "correct", "radiosity: stale rows corrected"),
+    ):
         _timed(owner, name, label, q, times)
     runs = []
     for T in poses[1:]:
@@ -101,8 +133,10 @@ def stages(moves: int = 8, device=None, correction: bool = False, village: bool 
         dyn.radiosity(light)
         times["radiosity after the move"] = time.perf_counter() - t
         runs.append(dict(times))
-    out = [(k, 1e3 * float(np.median([r.get(k, 0.0) for r in runs])), 1e3 * min(r.get(k, 0.0) for r in runs))
-           for k in runs[0]]
+    out = [
+        (k, 1e3 * float(np.median([r.get(k, 0.0) for r in runs])), 1e3 * min(r.get(k, 0.0) for r in runs))
+        for k in runs[0]
+    ]
     return out + _floor(dyn, len(block), device)
 
 
@@ -122,8 +156,10 @@ def _floor(dyn, k: int, device) -> list[tuple[str, float, float]]:
 
     rk = time_call(rank, repeats=15)
     ga = time_call(lambda: [kern.gather(c, X, X) for c in range(C)], repeats=15)
-    return [(f"floor: rank-{2 * k} pass x {C} channels", 1e3 * rk["median_s"], 1e3 * rk["min_s"]),
-            (f"floor: gather of {k} vectors x {C} channels", 1e3 * ga["median_s"], 1e3 * ga["min_s"])]
+    return [
+        (f"floor: rank-{2 * k} pass x {C} channels", 1e3 * rk["median_s"], 1e3 * rk["min_s"]),
+        (f"floor: gather of {k} vectors x {C} channels", 1e3 * ga["median_s"], 1e3 * ga["min_s"]),
+    ]
 
 
 def main(argv=None) -> int:
@@ -140,9 +176,11 @@ def main(argv=None) -> int:
     device = default_device()
     load = os.getloadavg()
     rows = stages(args.moves, device, args.correction, args.village)
-    print(f"Device: {device.name}. Date: {datetime.now(timezone.utc):%Y-%m-%dT%H:%M}Z. "
-          f"Load average before: {load[0]:.2f}. {'Village' if args.village else 'Cornell box'}. "
-          f"Stale rows {'made and corrected' if args.correction else 'left'}.\n")
+    print(
+        f"Device: {device.name}. Date: {datetime.now(timezone.utc):%Y-%m-%dT%H:%M}Z. "
+        f"Load average before: {load[0]:.2f}. {'Village' if args.village else 'Cornell box'}. "
+        f"Stale rows {'made and corrected' if args.correction else 'left'}.\n"
+    )
     print("| stage | median ms | min ms |\n|---|---|---|")
     for name, med, lo in rows:
         print(f"| {name} | {med:.2f} | {lo:.2f} |")

@@ -50,8 +50,10 @@ def _spmv_formats(device, scene, F, L, copy_gbs) -> list:
     from pydynrad.device.launch import spmv_layout
     from pydynrad.solution import RadiositySolver
 
-    grey = scene.with_materials(albedo=np.repeat(scene.albedo.mean(axis=1, keepdims=True), 3, axis=1),
-                                emission=np.repeat(scene.emission.mean(axis=1, keepdims=True), 3, axis=1))
+    grey = scene.with_materials(
+        albedo=np.repeat(scene.albedo.mean(axis=1, keepdims=True), 3, axis=1),
+        emission=np.repeat(scene.emission.mean(axis=1, keepdims=True), 3, axis=1),
+    )
     Lg = np.repeat(L.mean(axis=1, keepdims=True), 3, axis=1)
     csr = spmv_layout(device, len(scene))
     cases = []
@@ -67,15 +69,19 @@ def _spmv_formats(device, scene, F, L, copy_gbs) -> list:
             t = time_call(lambda: solver.solve(light, bounces=FORMAT_BOUNCES), repeats=1, warmup=0)["min_s"]
             best[i] = min(best[i], t / FORMAT_BOUNCES)
     nbytes = F.nnz * 8 + 4 * (len(scene) + 1)
-    return [[ch, fmt, mib, t * 1e3, nbytes / t / 1e9, copy_gbs / (nbytes / t / 1e9)]
-            for (ch, fmt, mib, _, _), t in zip(cases, best)]
+    return [
+        [ch, fmt, mib, t * 1e3, nbytes / t / 1e9, copy_gbs / (nbytes / t / 1e9)]
+        for (ch, fmt, mib, _, _), t in zip(cases, best)
+    ]
 
 
 def paper_section(ctx) -> dict:
     import pydynrad
 
     p = ctx.params
-    scene = ctx.cached(("village", tuple(sorted(p["village"].items()))), lambda: pydynrad.scenes.village(**p["village"]))
+    scene = ctx.cached(
+        ("village", tuple(sorted(p["village"].items()))), lambda: pydynrad.scenes.village(**p["village"])
+    )
     n, R = len(scene), p["resolution"]
     key = ("F", "village", tuple(sorted(p["village"].items())), R)
     F = ctx.cached(key, lambda: pydynrad.form_factors(scene, resolution=R, device=ctx.device, progress=ctx.progress))
@@ -101,17 +107,40 @@ def paper_section(ctx) -> dict:
         if M > n:
             continue
         for mode in ("paper", "exact", "exact + far field"):
-            dyn = pydynrad.DynamicRadiosity(scene, F, local_size=M, update=mode.split()[0], storage="fp16",
-                                            far_field=mode.endswith("far field"), device=ctx.device)
+            dyn = pydynrad.DynamicRadiosity(
+                scene,
+                F,
+                local_size=M,
+                update=mode.split()[0],
+                storage="fp16",
+                far_field=mode.endswith("far field"),
+                device=ctx.device,
+            )
             t_build, walked = timed_walk(dyn, walk)
             frames = [(dt, stats.swaps) for dt, stats in walked if stats.swaps]
             t_update = float(np.median([dt for dt, _ in frames])) if frames else float("nan")
             swaps = float(np.mean([k for _, k in frames])) if frames else 0.0
             t_light = time_call(lambda: dyn.radiosity(light=L))["median_s"]
             t_refresh = time_call(dyn.refresh, repeats=1, warmup=0)["median_s"]
-            rows.append([M, mode, "fp16", n, t_naive * 1e3, sol.iterations, t_build, t_refresh, swaps,
-                         t_update * 1e3, t_light * 1e3, t_naive / t_light, PAPER_LIGHTING_RATIO, t_naive / t_update,
-                         PAPER_UPDATE_RATIO])
+            rows.append(
+                [
+                    M,
+                    mode,
+                    "fp16",
+                    n,
+                    t_naive * 1e3,
+                    sol.iterations,
+                    t_build,
+                    t_refresh,
+                    swaps,
+                    t_update * 1e3,
+                    t_light * 1e3,
+                    t_naive / t_light,
+                    PAPER_LIGHTING_RATIO,
+                    t_naive / t_update,
+                    PAPER_UPDATE_RATIO,
+                ]
+            )
     headline = [r for r in rows if r[1] == "paper"]
     return {
         "title": "The paper's comparison (Fig. 12 and 15): naive radiosity vs the local matrix",
@@ -128,40 +157,104 @@ def paper_section(ctx) -> dict:
             "patch (pydynrad.farfield, default clusters): its lighting adds the injection of the far patches' "
             "light into the local set (lights unchanged, so the coarse level is not re-solved)."
         ),
-        "tables": [{
-            "title": "Naive full radiosity vs the dynamic method",
-            "columns": ["M", "update", "K storage", "N", "naive ms", "naive bounces", "build s", "refresh s",
-                        "swaps/frame", "update ms/frame", "lighting ms", "lighting ratio", "paper", "update ratio", "paper"],
-            "rows": rows,
-        }, {
-            "title": "Naive full radiosity's SpMV vs the copy bound",
-            "columns": ["N", "nnz(F)", "channels", "bounces", "naive ms", "SpMV GB/s of F", "copy GB/s", "copy / SpMV",
-                        "F on the device ms", "its SpMV GB/s", "copy / its SpMV"],
-            "rows": [[n, F.nnz, L.shape[1], sol.iterations, t_naive * 1e3, spmv_gbs, copy_gbs, copy_gbs / spmv_gbs,
-                      t_bounces * 1e3, bounce_gbs, copy_gbs / bounce_gbs]],
-            "note": "float32 CSR bounce kernel (pydynrad.solve), values + int32 indices + row pointers once per bounce; "
-                    "copy: one OpenCL buffer copy of 256 MiB, read + write counted (target: copy / SpMV <= 1.5). "
-                    "'naive ms': pydynrad.solve(scene, F), which checks F and uploads it each call; 'F on the "
-                    "device': RadiositySolver(scene, F).solve(L) with the solver made once, the bounces alone.",
-        }, {
-            "title": "The bounce's formats of F, alternated in one run",
-            "columns": ["channels", "format", "device MiB of F", "ms / bounce (best of 3)", "GB/s of F's CSR bytes", "copy / SpMV"],
-            "rows": formats,
-            "note": f"{FORMAT_BOUNCES} bounces per try, float32; grey = the village with its albedos and light averaged "
-                    "over RGB. 'default' is the format RadiositySolver picks for this device (pydynrad.device.launch.sell_layout), "
-                    "'csr' forced by an explicit layout. GB/s counts F's CSR bytes (as above) for every format.",
-        }],
-        "plots": [{
-            "name": "ratios", "title": "Speed-up over naive full radiosity (paper update mode)",
-            "xlabel": "M (local patches)", "ylabel": "naive time / method time", "xscale": "log", "yscale": "log",
-            "series": [
-                {"label": "lighting (ours)", "x": [r[0] for r in headline], "y": [r[11] for r in headline]},
-                {"label": "update (ours)", "x": [r[0] for r in headline], "y": [r[13] for r in headline]},
-                {"label": "lighting (paper, 400x)", "style": "--", "x": [r[0] for r in headline],
-                 "y": [PAPER_LIGHTING_RATIO] * len(headline)},
-                {"label": "update (paper, 200x)", "style": ":", "x": [r[0] for r in headline],
-                 "y": [PAPER_UPDATE_RATIO] * len(headline)},
-            ],
-        }],
+        "tables": [
+            {
+                "title": "Naive full radiosity vs the dynamic method",
+                "columns": [
+                    "M",
+                    "update",
+                    "K storage",
+                    "N",
+                    "naive ms",
+                    "naive bounces",
+                    "build s",
+                    "refresh s",
+                    "swaps/frame",
+                    "update ms/frame",
+                    "lighting ms",
+                    "lighting ratio",
+                    "paper",
+                    "update ratio",
+                    "paper",
+                ],
+                "rows": rows,
+            },
+            {
+                "title": "Naive full radiosity's SpMV vs the copy bound",
+                "columns": [
+                    "N",
+                    "nnz(F)",
+                    "channels",
+                    "bounces",
+                    "naive ms",
+                    "SpMV GB/s of F",
+                    "copy GB/s",
+                    "copy / SpMV",
+                    "F on the device ms",
+                    "its SpMV GB/s",
+                    "copy / its SpMV",
+                ],
+                "rows": [
+                    [
+                        n,
+                        F.nnz,
+                        L.shape[1],
+                        sol.iterations,
+                        t_naive * 1e3,
+                        spmv_gbs,
+                        copy_gbs,
+                        copy_gbs / spmv_gbs,
+                        t_bounces * 1e3,
+                        bounce_gbs,
+                        copy_gbs / bounce_gbs,
+                    ]
+                ],
+                "note": "float32 CSR bounce kernel (pydynrad.solve), values + int32 indices + row pointers once per bounce; "
+                "copy: one OpenCL buffer copy of 256 MiB, read + write counted (target: copy / SpMV <= 1.5). "
+                "'naive ms': pydynrad.solve(scene, F), which checks F and uploads it each call; 'F on the "
+                "device': RadiositySolver(scene, F).solve(L) with the solver made once, the bounces alone.",
+            },
+            {
+                "title": "The bounce's formats of F, alternated in one run",
+                "columns": [
+                    "channels",
+                    "format",
+                    "device MiB of F",
+                    "ms / bounce (best of 3)",
+                    "GB/s of F's CSR bytes",
+                    "copy / SpMV",
+                ],
+                "rows": formats,
+                "note": f"{FORMAT_BOUNCES} bounces per try, float32; grey = the village with its albedos and light averaged "
+                "over RGB. 'default' is the format RadiositySolver picks for this device (pydynrad.device.launch.sell_layout), "
+                "'csr' forced by an explicit layout. GB/s counts F's CSR bytes (as above) for every format.",
+            },
+        ],
+        "plots": [
+            {
+                "name": "ratios",
+                "title": "Speed-up over naive full radiosity (paper update mode)",
+                "xlabel": "M (local patches)",
+                "ylabel": "naive time / method time",
+                "xscale": "log",
+                "yscale": "log",
+                "series": [
+                    {"label": "lighting (ours)", "x": [r[0] for r in headline], "y": [r[11] for r in headline]},
+                    {"label": "update (ours)", "x": [r[0] for r in headline], "y": [r[13] for r in headline]},
+                    {
+                        "label": "lighting (paper, 400x)",
+                        "style": "--",
+                        "x": [r[0] for r in headline],
+                        "y": [PAPER_LIGHTING_RATIO] * len(headline),
+                    },
+                    {
+                        "label": "update (paper, 200x)",
+                        "style": ":",
+                        "x": [r[0] for r in headline],
+                        "y": [PAPER_UPDATE_RATIO] * len(headline),
+                    },
+                ],
+            }
+        ],
         "numbers": {"naive_ms": t_naive * 1e3, "patches": n},
     }

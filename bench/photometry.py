@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from .cie171 import room_rectangles, rectangles_scene
+from .cie171 import rectangles_scene, room_rectangles
 
 __all__ = ["photometry_section"]
 
@@ -25,8 +25,8 @@ def _timed(fn, repeats: int = 3):
 
 def photometry_section(ctx) -> dict:
     import pydynrad
-    from pydynrad.photometry import illuminance, work_plane
     from pydynrad.lights import SkyLight
+    from pydynrad.photometry import illuminance, work_plane
 
     p = ctx.params
     dev = ctx.device
@@ -39,11 +39,16 @@ def photometry_section(ctx) -> dict:
     for R in p["resolutions"]:
         _, dt = _timed(lambda: illuminance(room, B, plane.points, plane.normals, resolution=R, device=dev))
         sensor_rows.append([len(plane), R, dt, len(plane) / dt, 3 * R * R * len(plane) / dt / 1e6])
-    _, dt_a = _timed(lambda: illuminance(room, B, plane.points, plane.normals, resolution=p["resolutions"][0],
-                                         emitters="analytic", device=dev))
+    _, dt_a = _timed(
+        lambda: illuminance(
+            room, B, plane.points, plane.normals, resolution=p["resolutions"][0], emitters="analytic", device=dev
+        )
+    )
     # The sky term on patches: a room with a roof opening, per sky-pass resolution, against a point light's pass.
     roofed, _ = rectangles_scene(room_rectangles(opening=(1.5, 2.5, 1.0, 2.0)), p["cell"], albedo=0.5)
-    _, dt_point = _timed(lambda: pydynrad.lights.direct_irradiance(roofed, [pydynrad.PointLight([2, 2, 2], 100.0)], dev))
+    _, dt_point = _timed(
+        lambda: pydynrad.lights.direct_irradiance(roofed, [pydynrad.PointLight([2, 2, 2], 100.0)], dev)
+    )
     sky_rows = [[len(roofed), "point light", dt_point, dt_point / len(roofed) * 1e6]]
     for R in p["sky_resolutions"]:
         sky = SkyLight("cie_overcast", zenith_luminance=1000.0, resolution=R)
@@ -55,8 +60,10 @@ def photometry_section(ctx) -> dict:
     lamp = pydynrad.Scene(emitter, [[0, 1, 2], [0, 2, 3]], albedo=0.0, emission=1000.0)
     Bl = lamp.emission.astype(np.float64)
     near_rows, series = [], {}
-    for label, point, normal in (("beside the edge, facing it", lambda d: (1.06, 0.5, 1 - d), (-1, 0, 0)),
-                                 ("below the centre, facing up", lambda d: (0.5, 0.5, 1 - d), (0, 0, 1))):
+    for label, point, normal in (
+        ("beside the edge, facing it", lambda d: (1.06, 0.5, 1 - d), (-1, 0, 0)),
+        ("below the centre, facing up", lambda d: (0.5, 0.5, 1 - d), (0, 0, 1)),
+    ):
         for d in p["distances"]:
             pt = np.array([point(d)])
             exact = illuminance(lamp, None, pt, normal, emitters="analytic", device=dev)[0, 0]
@@ -76,19 +83,35 @@ def photometry_section(ctx) -> dict:
             "(exact for an unoccluded emitter) at distance d from the emitter's plane."
         ),
         "tables": [
-            {"title": "Sensor throughput", "columns": ["sensors", "R", "time s", "sensors/s", "M rays/s"],
-             "rows": sensor_rows,
-             "note": f"emitters='analytic' at R = {p['resolutions'][0]}: {dt_a:.3g} s for the same sensors."},
-            {"title": "Direct light on every patch", "columns": ["patches", "light", "time s", "us per patch"],
-             "rows": sky_rows},
-            {"title": "Hemicube near an emitter", "columns": ["sensor", "d (m)", "R", "contour lx", "hemicube lx",
-                                                              "rel. error"], "rows": near_rows},
+            {
+                "title": "Sensor throughput",
+                "columns": ["sensors", "R", "time s", "sensors/s", "M rays/s"],
+                "rows": sensor_rows,
+                "note": f"emitters='analytic' at R = {p['resolutions'][0]}: {dt_a:.3g} s for the same sensors.",
+            },
+            {
+                "title": "Direct light on every patch",
+                "columns": ["patches", "light", "time s", "us per patch"],
+                "rows": sky_rows,
+            },
+            {
+                "title": "Hemicube near an emitter",
+                "columns": ["sensor", "d (m)", "R", "contour lx", "hemicube lx", "rel. error"],
+                "rows": near_rows,
+            },
         ],
-        "plots": [{
-            "name": "near-emitter", "title": "Hemicube error near a 1 x 1 m emitter",
-            "xlabel": "distance from the emitter plane (m)",
-            "ylabel": "relative error", "xscale": "log", "yscale": "log",
-            "series": [{"label": f"{label}, R = {R}", "x": list(p["distances"]), "y": [max(e, 1e-9) for e in errs]}
-                       for (label, R), errs in series.items()],
-        }],
+        "plots": [
+            {
+                "name": "near-emitter",
+                "title": "Hemicube error near a 1 x 1 m emitter",
+                "xlabel": "distance from the emitter plane (m)",
+                "ylabel": "relative error",
+                "xscale": "log",
+                "yscale": "log",
+                "series": [
+                    {"label": f"{label}, R = {R}", "x": list(p["distances"]), "y": [max(e, 1e-9) for e in errs]}
+                    for (label, R), errs in series.items()
+                ],
+            }
+        ],
     }

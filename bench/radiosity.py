@@ -31,8 +31,13 @@ __all__ = ["suite_section", "main", "SIZES"]
 SIZES = {
     "tiny": {"M": (256,), "N": (1000,), "build_M": (256,), "village": None, "R": 16},
     "quick": {"M": (1024, 2048), "N": (1000, 4000), "build_M": (512, 1024), "village": None, "R": 32},
-    "full": {"M": (1024, 2048, 4096), "N": (1000, 4000, 16000), "build_M": (1024, 2048, 4096),
-             "village": {"houses": 12, "detail": 1.0}, "R": 64},
+    "full": {
+        "M": (1024, 2048, 4096),
+        "N": (1000, 4000, 16000),
+        "build_M": (1024, 2048, 4096),
+        "village": {"houses": 12, "detail": 1.0},
+        "R": 64,
+    },
 }
 TOL = 1e-6
 
@@ -95,8 +100,20 @@ def _matvec_rows(device, sizes, copy_gbs):
                 device.queue.finish()
 
             t3 = time_call(run3, repeats=9)["median_s"]
-            rows.append([M, storage, t["median_s"] * 1e3, gbs, gbs / copy_gbs, t3 * 1e3, 3 * t["median_s"] / t3,
-                         t_np * 1e3, K[0].nbytes / t_np / 1e9, t["warmup_s"] * 1e3])
+            rows.append(
+                [
+                    M,
+                    storage,
+                    t["median_s"] * 1e3,
+                    gbs,
+                    gbs / copy_gbs,
+                    t3 * 1e3,
+                    3 * t["median_s"] / t3,
+                    t_np * 1e3,
+                    K[0].nbytes / t_np / 1e9,
+                    t["warmup_s"] * 1e3,
+                ]
+            )
     return rows
 
 
@@ -138,12 +155,28 @@ def _solver_rows(device, Ns, village, resolution, progress):
         gm = time_call(lambda: _gmres_scipy(F64, rho, L[:, :1]), repeats=1, warmup=0)
         dense = np.nan
         if N <= 4096:
-            dense = time_call(lambda: pydynrad.solve(scene, F, light=L, method="dense"), repeats=1, warmup=0)["median_s"]
+            dense = time_call(lambda: pydynrad.solve(scene, F, light=L, method="dense"), repeats=1, warmup=0)[
+                "median_s"
+            ]
         ref = pydynrad.solve(scene, F, light=L, dtype=np.float64, tol=1e-10, device=device).radiosity
         err = np.abs(sol.radiosity - ref).max() / np.abs(ref).max()
-        rows.append([scene.name, N, F.nnz, source, sol.iterations, ours["median_s"] * 1e3, err,
-                     bytes_per_bounce * sol.iterations / ours["median_s"] / 1e9, rgb * 1e3, jac["median_s"] * 1e3,
-                     jac["result"][1], gm["median_s"] * 1e3, dense * 1e3])
+        rows.append(
+            [
+                scene.name,
+                N,
+                F.nnz,
+                source,
+                sol.iterations,
+                ours["median_s"] * 1e3,
+                err,
+                bytes_per_bounce * sol.iterations / ours["median_s"] / 1e9,
+                rgb * 1e3,
+                jac["median_s"] * 1e3,
+                jac["result"][1],
+                gm["median_s"] * 1e3,
+                dense * 1e3,
+            ]
+        )
     return rows
 
 
@@ -166,9 +199,13 @@ def _build_rows(device, sizes, resolution, progress):
             for _ in range(3):
                 # As DynamicRadiosity builds K: its rows were validated when fetched (checked=True);
                 # the public call without it adds an O(nnz) check of the block (~3 ms at M = 768).
-                t = time_call(lambda dtype=dtype: multibounce_block(block, rho, dtype=dtype, device=device,
-                                                                    progress=False, checked=True),
-                              repeats=1, warmup=0)
+                t = time_call(
+                    lambda dtype=dtype: multibounce_block(
+                        block, rho, dtype=dtype, device=device, progress=False, checked=True
+                    ),
+                    repeats=1,
+                    warmup=0,
+                )
                 n = time_call(lambda a=a, f=f: np.linalg.solve(a, f), repeats=1, warmup=0)
                 ours[name] = min(ours.get(name, np.inf), t["min_s"])
                 theirs[name] = min(theirs.get(name, np.inf), n["min_s"])
@@ -176,8 +213,20 @@ def _build_rows(device, sizes, resolution, progress):
         truth = theirs["f64 K"]
         err = np.abs(ours["f32 K"] - truth).max() / np.abs(truth).max()
         flops = 3.0 * m**3
-        rows.append([m, source, ours["f32"], flops / ours["f32"] / 1e9, err, theirs["f32"], ours["f32"] / theirs["f32"],
-                     ours["f64"], theirs["f64"], ours["f64"] / theirs["f64"]])
+        rows.append(
+            [
+                m,
+                source,
+                ours["f32"],
+                flops / ours["f32"] / 1e9,
+                err,
+                theirs["f32"],
+                ours["f32"] / theirs["f32"],
+                ours["f64"],
+                theirs["f64"],
+                ours["f64"] / theirs["f64"],
+            ]
+        )
     return rows
 
 
@@ -186,31 +235,77 @@ def measure(size: str, device, progress: bool = True) -> dict:
     p = SIZES[size]
     copy_np, copy_dev = copy_bandwidth_numpy(), copy_bandwidth_device(device)
     tables = [
-        {"title": "Copy bandwidth of this machine (read + write)", "columns": ["copy", "GB/s"],
-         "rows": [["numpy np.copyto, 256 MiB", copy_np], ["OpenCL buffer copy, 256 MiB", copy_dev]]},
-        {"title": "Lighting product y = K x (one channel)",
-         "columns": ["M", "storage", "ms", "GB/s of K", "/ device copy", "3 vectors, one pass ms", "3 x one-vector / one pass",
-                     "numpy f32 gemv ms", "numpy GB/s", "first call ms"],
-         "rows": _matvec_rows(device, p["M"], copy_dev),
-         "note": "K is read once per product; compare its GB/s with the copy bandwidth (read + write) above. "
-                 "'3 vectors, one pass': DeviceMatrix.matmat's kernel multiplying three vectors (RGB light "
-                 "under a grey K) while streaming K once."},
-        {"title": "Full radiosity solve (bounce iteration, float32, tol 1e-6) vs SciPy/numpy",
-         "columns": ["scene", "N", "nnz(F)", "F", "bounces", "ours ms", "rel. error", "SpMV GB/s", "ours RGB ms", "SciPy Jacobi ms",
-                     "SciPy bounces", "SciPy GMRES ms", "numpy dense ms"],
-         "rows": _solver_rows(device, p["N"], p["village"], p["R"], progress),
-         "note": "SciPy runs one channel (the scenes are grey), float64. rel. error vs a float64 solve at tol 1e-10. "
-                 "'ours RGB ms': the same scene under a coloured light (three channels, still one pass over F "
-                 "per bounce)."},
-        {"title": "Multibounce build K = (I - F P)^-1 F (grey) vs numpy.linalg.solve on the same system",
-         "columns": ["M", "F", "ours f32 s", "GFLOP/s (3 M^3)", "rel. error vs f64", "numpy f32 s", "ours / numpy f32",
-                     "ours f64 s", "numpy f64 s", "ours / numpy f64"],
-         "note": "ours: multibounce_block (on a CPU device numpy's LAPACK, on a GPU the OpenCL Gauss-Jordan) on the "
-                 "block as DynamicRadiosity passes it (checked=True: its rows were validated when fetched; called "
-                 "without, the block's O(nnz) check adds ~3 ms at M = 768); fastest of 3, alternated with numpy's.",
-         "rows": _build_rows(device, p["build_M"], p["R"], progress)},
+        {
+            "title": "Copy bandwidth of this machine (read + write)",
+            "columns": ["copy", "GB/s"],
+            "rows": [["numpy np.copyto, 256 MiB", copy_np], ["OpenCL buffer copy, 256 MiB", copy_dev]],
+        },
+        {
+            "title": "Lighting product y = K x (one channel)",
+            "columns": [
+                "M",
+                "storage",
+                "ms",
+                "GB/s of K",
+                "/ device copy",
+                "3 vectors, one pass ms",
+                "3 x one-vector / one pass",
+                "numpy f32 gemv ms",
+                "numpy GB/s",
+                "first call ms",
+            ],
+            "rows": _matvec_rows(device, p["M"], copy_dev),
+            "note": "K is read once per product; compare its GB/s with the copy bandwidth (read + write) above. "
+            "'3 vectors, one pass': DeviceMatrix.matmat's kernel multiplying three vectors (RGB light "
+            "under a grey K) while streaming K once.",
+        },
+        {
+            "title": "Full radiosity solve (bounce iteration, float32, tol 1e-6) vs SciPy/numpy",
+            "columns": [
+                "scene",
+                "N",
+                "nnz(F)",
+                "F",
+                "bounces",
+                "ours ms",
+                "rel. error",
+                "SpMV GB/s",
+                "ours RGB ms",
+                "SciPy Jacobi ms",
+                "SciPy bounces",
+                "SciPy GMRES ms",
+                "numpy dense ms",
+            ],
+            "rows": _solver_rows(device, p["N"], p["village"], p["R"], progress),
+            "note": "SciPy runs one channel (the scenes are grey), float64. rel. error vs a float64 solve at tol 1e-10. "
+            "'ours RGB ms': the same scene under a coloured light (three channels, still one pass over F "
+            "per bounce).",
+        },
+        {
+            "title": "Multibounce build K = (I - F P)^-1 F (grey) vs numpy.linalg.solve on the same system",
+            "columns": [
+                "M",
+                "F",
+                "ours f32 s",
+                "GFLOP/s (3 M^3)",
+                "rel. error vs f64",
+                "numpy f32 s",
+                "ours / numpy f32",
+                "ours f64 s",
+                "numpy f64 s",
+                "ours / numpy f64",
+            ],
+            "note": "ours: multibounce_block (on a CPU device numpy's LAPACK, on a GPU the OpenCL Gauss-Jordan) on the "
+            "block as DynamicRadiosity passes it (checked=True: its rows were validated when fetched; called "
+            "without, the block's O(nnz) check adds ~3 ms at M = 768); fastest of 3, alternated with numpy's.",
+            "rows": _build_rows(device, p["build_M"], p["R"], progress),
+        },
     ]
-    return {"title": "Reference radiosity and kernel bandwidth", "description": "\n\n".join(__doc__.split("\n\n")[2:4]), "tables": tables}
+    return {
+        "title": "Reference radiosity and kernel bandwidth",
+        "description": "\n\n".join(__doc__.split("\n\n")[2:4]),
+        "tables": tables,
+    }
 
 
 def suite_section(ctx) -> dict:

@@ -27,16 +27,27 @@ from .common import entry_points
 __all__ = ["SIZES", "energy_balance", "plates", "measure", "suite_section", "main"]
 
 SIZES = {
-    "tiny": {"scenes": {"cornell_box": {"max_edge": 250.0}}, "configs": ((16, 1), (16, 4)), "orders": 1,
-             "plate_subdivisions": (1,), "plate_configs": ((16, 1), (16, 4))},
-    "quick": {"scenes": {"cornell_box": {}, "village": {"houses": 1, "detail": 0.25}},
-              "configs": ((32, 1), (32, 4), (64, 1), (64, 4), (64, 16), (128, 1), (128, 4), (128, 16), (256, 16)),
-              "orders": 3,
-              "plate_subdivisions": (1, 2), "plate_configs": ((32, 1), (32, 4), (64, 4), (128, 1), (128, 4), (128, 16))},
-    "full": {"scenes": {"cornell_box": {}, "village": {"houses": 1, "detail": 0.25}},
-             "configs": ((32, 1), (64, 1), (64, 4), (128, 1), (128, 4), (128, 16), (256, 1), (256, 16), (256, 64)),
-             "orders": 4, "plate_subdivisions": (1, 2, 3),
-             "plate_configs": ((32, 1), (64, 4), (128, 1), (128, 16), (256, 16), (256, 64))},
+    "tiny": {
+        "scenes": {"cornell_box": {"max_edge": 250.0}},
+        "configs": ((16, 1), (16, 4)),
+        "orders": 1,
+        "plate_subdivisions": (1,),
+        "plate_configs": ((16, 1), (16, 4)),
+    },
+    "quick": {
+        "scenes": {"cornell_box": {}, "village": {"houses": 1, "detail": 0.25}},
+        "configs": ((32, 1), (32, 4), (64, 1), (64, 4), (64, 16), (128, 1), (128, 4), (128, 16), (256, 16)),
+        "orders": 3,
+        "plate_subdivisions": (1, 2),
+        "plate_configs": ((32, 1), (32, 4), (64, 4), (128, 1), (128, 4), (128, 16)),
+    },
+    "full": {
+        "scenes": {"cornell_box": {}, "village": {"houses": 1, "detail": 0.25}},
+        "configs": ((32, 1), (64, 1), (64, 4), (128, 1), (128, 4), (128, 16), (256, 1), (256, 16), (256, 64)),
+        "orders": 4,
+        "plate_subdivisions": (1, 2, 3),
+        "plate_configs": ((32, 1), (64, 4), (128, 1), (128, 16), (256, 16), (256, 64)),
+    },
 }
 
 
@@ -69,8 +80,11 @@ def plates(subdivisions, configs, device) -> list[list]:
     """Rows (case, subdivisions, patches, R, samples, rel. error) of the unit plates, per (R, samples) in ``configs``."""
     from .formfactors import accuracy
 
-    rows = [[r["case"], r["subdivisions"], r["patches"], r["R"], r["samples"], r["rel_error"]]
-            for R, K in configs for r in accuracy((R,), subdivisions, device, samples=K)]
+    rows = [
+        [r["case"], r["subdivisions"], r["patches"], r["R"], r["samples"], r["rel_error"]]
+        for R, K in configs
+        for r in accuracy((R,), subdivisions, device, samples=K)
+    ]
     return sorted(rows, key=lambda r: (r[0], r[1]))  # by case and subdivision, configs in order
 
 
@@ -86,19 +100,46 @@ def measure(size: str, device, progress: bool = False) -> dict:
             b = np.array([r[0] for r in runs])
             mean, sd = b.mean(axis=0), (b.std(axis=0, ddof=1) if len(b) > 1 else np.full(3, np.nan))
             c = int(np.argmax(np.abs(mean)))
-            rows.append([base.name, len(base), R, K, R // int(round(np.sqrt(K))), float(mean[c]), float(sd[c]),
-                         float(np.abs(b).max()), float(np.median([r[1] for r in runs]))])
-    balance = {"title": "Energy balance after a full solve: (emitted - absorbed - escaped) / emitted",
-               "columns": ["scene", "N", "R", "samples", "R per sample", "mean (bias)", "sd (noise)",
-                           "max |.| over orders", "form factors s"],
-               "rows": rows,
-               "note": f"Over {p['orders']} patch orders (new hemicube rotations each); worst RGB channel of the "
-                       "mean, its sd, and the largest |imbalance| of any order and channel."}
-    plate = {"title": "Unit plates: relative error of the plate-to-plate form factor (Howell)",
-             "columns": ["case", "subdivisions", "patches", "R", "samples", "rel. error"],
-             "rows": plates(p["plate_subdivisions"], p["plate_configs"], device)}
-    return {"title": "Area-sampled form-factor rows", "description": "\n\n".join(__doc__.split("\n\n")[2:]),
-            "tables": [balance, plate]}
+            rows.append(
+                [
+                    base.name,
+                    len(base),
+                    R,
+                    K,
+                    R // int(round(np.sqrt(K))),
+                    float(mean[c]),
+                    float(sd[c]),
+                    float(np.abs(b).max()),
+                    float(np.median([r[1] for r in runs])),
+                ]
+            )
+    balance = {
+        "title": "Energy balance after a full solve: (emitted - absorbed - escaped) / emitted",
+        "columns": [
+            "scene",
+            "N",
+            "R",
+            "samples",
+            "R per sample",
+            "mean (bias)",
+            "sd (noise)",
+            "max |.| over orders",
+            "form factors s",
+        ],
+        "rows": rows,
+        "note": f"Over {p['orders']} patch orders (new hemicube rotations each); worst RGB channel of the "
+        "mean, its sd, and the largest |imbalance| of any order and channel.",
+    }
+    plate = {
+        "title": "Unit plates: relative error of the plate-to-plate form factor (Howell)",
+        "columns": ["case", "subdivisions", "patches", "R", "samples", "rel. error"],
+        "rows": plates(p["plate_subdivisions"], p["plate_configs"], device),
+    }
+    return {
+        "title": "Area-sampled form-factor rows",
+        "description": "\n\n".join(__doc__.split("\n\n")[2:]),
+        "tables": [balance, plate],
+    }
 
 
 suite_section, main = entry_points("sampling", __doc__, SIZES, measure)

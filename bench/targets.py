@@ -23,8 +23,20 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["Target", "DeviceResult", "TargetResult", "TARGETS", "NOT_MEASURED", "rows_of", "evaluate",
-           "readme_table", "performance_table", "README_BEGIN", "README_END", "replace_readme_table"]
+__all__ = [
+    "Target",
+    "DeviceResult",
+    "TargetResult",
+    "TARGETS",
+    "NOT_MEASURED",
+    "rows_of",
+    "evaluate",
+    "readme_table",
+    "performance_table",
+    "README_BEGIN",
+    "README_END",
+    "replace_readme_table",
+]
 
 README_BEGIN = "<!-- targets:begin -->"
 README_END = "<!-- targets:end -->"
@@ -57,6 +69,7 @@ class Target:
 def _where(column: str, **match):
     """``extract`` reading ``column`` from the rows whose other columns equal ``match`` (a tuple
     value: any of those); keyword names use ``_`` for spaces (``pass_``: column ``pass``)."""
+
     def extract(rows):
         def ok(row):
             for key, want in match.items():
@@ -64,7 +77,9 @@ def _where(column: str, **match):
                 if got not in (want if isinstance(want, tuple) else (want,)):
                     return False
             return True
+
         return [row[column] for row in rows if ok(row) and row.get(column) is not None]
+
     return extract
 
 
@@ -92,53 +107,175 @@ _DEFAULT_FAR = {"variant": "far field, C = N/8"}
 
 #: Every target, in the order of README's table.
 TARGETS: tuple[Target, ...] = (
-    Target("a frame with a moving object (budget 0) within 3x a walk frame, by medians",
-           "objects", "A moving frame against a walk frame", "moving / walk, medians", "<=", 3.0, "x",
-           _where("moving / walk, medians")),
-    Target("pixel error of a moving-object frame against the full solve <= 2%",
-           "objects", "A move per frame against the occlusion budget", "pixel error vs full", "<=", 2.0, "%",
-           _percent(_where("pixel error vs full", budget=0, rows=("static F", "static F, 64-patch block")))),
-    Target("form factors' hemicube rays >= 2x Embree",
-           "formfactors", "Ray throughput", "form_factors_over_embree", ">=", 2.0, "x",
-           _where("form_factors_over_embree")),
-    Target("exact update of 8 swaps within 1.5x of its memory bound (M = 1,024, fp16 and fp32)",
-           "dynamic", "Update kernels and lighting product", "copy / ours", "<=", 1.5, "x",
-           _where("copy / ours", M=1024, storage=("fp16", "fp32"),
-                  pass_=("exact update, 8 swaps, 3% non-zero", "exact update, 8 swaps, 10% non-zero"))),
-    Target("exact frame >= 400x naive radiosity (M = 1,024, 66k-patch village)",
-           "paper", "Naive full radiosity vs the dynamic method", "update ratio", ">=", 400.0, "x",
-           _where("update ratio", M=1024, update=("exact", "exact + far field")), size="full"),
-    Target("exact frame >= 100x naive radiosity (M = 4,096, 66k-patch village)",
-           "paper", "Naive full radiosity vs the dynamic method", "update ratio", ">=", 100.0, "x",
-           _where("update ratio", M=4096, update=("exact", "exact + far field")), size="full"),
-    Target("lighting product within 1.2x of the copy bound (M = 1,024)",
-           "dynamic", "Update kernels and lighting product", "copy / ours", "<=", 1.2, "x",
-           _where("copy / ours", M=1024, pass_="lighting K x")),
-    Target("full solve's sparse product within 1.5x of the copy bound",
-           "paper", "Naive full radiosity's SpMV vs the copy bound", "copy / its SpMV", "<=", 1.5, "x",
-           _where("copy / its SpMV"), size="full"),
-    Target("multibounce build (float32) within 1.2x of `numpy.linalg.solve`",
-           "bandwidth", "Multibounce build", "ours / numpy f32", "<=", 1.2, "x",
-           _where("ours / numpy f32")),
-    Target("demo: first frame <= 0.5 s, no later frame over 3x the median",
-           None, "", "", "<=", 0.5, "", why="no benchmark records the demo's frame times"),
-    Target("far field (C = N/8): all-patch error <= 1%",
-           "farfield", "Error against the full solve", "all %", "<=", 1.0, "%",
-           _where("all %", **_DEFAULT_FAR)),
-    Target("far field (C = N/8): mean pixel error <= 2%",
-           "farfield", "Error against the full solve", "pixels %", "<=", 2.0, "%",
-           _where("pixels %", **_DEFAULT_FAR)),
-    Target("frame with static lights <= 1.3x the local-only frame",
-           "farfield", "Error against the full solve", "x local-only frame", "<=", 1.3, "x",
-           _where("x local-only frame", **_DEFAULT_FAR)),
-    Target("light change <= 3x a local-only lighting product plus the coarse solve",
-           "farfield", "Light changes of the default far field", "(change - coarse) / local lighting",
-           "<=", 3.0, "x", _where("(change - coarse) / local lighting")),
-    Target("far-field precompute <= 20% of the form factors' time",
-           "farfield", "Error against the full solve", "precompute % of F", "<=", 20.0, "%",
-           _where("precompute % of F", **_DEFAULT_FAR)),
-    Target("a 1,000,000-patch store walked with the far field within 1.5x the peak memory",
-           "largescale", "walks", "peak_rss_mib", "<=", 1.5, "x", _store_peak_ratio, size="full"),
+    Target(
+        "a frame with a moving object (budget 0) within 3x a walk frame, by medians",
+        "objects",
+        "A moving frame against a walk frame",
+        "moving / walk, medians",
+        "<=",
+        3.0,
+        "x",
+        _where("moving / walk, medians"),
+    ),
+    Target(
+        "pixel error of a moving-object frame against the full solve <= 2%",
+        "objects",
+        "A move per frame against the occlusion budget",
+        "pixel error vs full",
+        "<=",
+        2.0,
+        "%",
+        _percent(_where("pixel error vs full", budget=0, rows=("static F", "static F, 64-patch block"))),
+    ),
+    Target(
+        "form factors' hemicube rays >= 2x Embree",
+        "formfactors",
+        "Ray throughput",
+        "form_factors_over_embree",
+        ">=",
+        2.0,
+        "x",
+        _where("form_factors_over_embree"),
+    ),
+    Target(
+        "exact update of 8 swaps within 1.5x of its memory bound (M = 1,024, fp16 and fp32)",
+        "dynamic",
+        "Update kernels and lighting product",
+        "copy / ours",
+        "<=",
+        1.5,
+        "x",
+        _where(
+            "copy / ours",
+            M=1024,
+            storage=("fp16", "fp32"),
+            pass_=("exact update, 8 swaps, 3% non-zero", "exact update, 8 swaps, 10% non-zero"),
+        ),
+    ),
+    Target(
+        "exact frame >= 400x naive radiosity (M = 1,024, 66k-patch village)",
+        "paper",
+        "Naive full radiosity vs the dynamic method",
+        "update ratio",
+        ">=",
+        400.0,
+        "x",
+        _where("update ratio", M=1024, update=("exact", "exact + far field")),
+        size="full",
+    ),
+    Target(
+        "exact frame >= 100x naive radiosity (M = 4,096, 66k-patch village)",
+        "paper",
+        "Naive full radiosity vs the dynamic method",
+        "update ratio",
+        ">=",
+        100.0,
+        "x",
+        _where("update ratio", M=4096, update=("exact", "exact + far field")),
+        size="full",
+    ),
+    Target(
+        "lighting product within 1.2x of the copy bound (M = 1,024)",
+        "dynamic",
+        "Update kernels and lighting product",
+        "copy / ours",
+        "<=",
+        1.2,
+        "x",
+        _where("copy / ours", M=1024, pass_="lighting K x"),
+    ),
+    Target(
+        "full solve's sparse product within 1.5x of the copy bound",
+        "paper",
+        "Naive full radiosity's SpMV vs the copy bound",
+        "copy / its SpMV",
+        "<=",
+        1.5,
+        "x",
+        _where("copy / its SpMV"),
+        size="full",
+    ),
+    Target(
+        "multibounce build (float32) within 1.2x of `numpy.linalg.solve`",
+        "bandwidth",
+        "Multibounce build",
+        "ours / numpy f32",
+        "<=",
+        1.2,
+        "x",
+        _where("ours / numpy f32"),
+    ),
+    Target(
+        "demo: first frame <= 0.5 s, no later frame over 3x the median",
+        None,
+        "",
+        "",
+        "<=",
+        0.5,
+        "",
+        why="no benchmark records the demo's frame times",
+    ),
+    Target(
+        "far field (C = N/8): all-patch error <= 1%",
+        "farfield",
+        "Error against the full solve",
+        "all %",
+        "<=",
+        1.0,
+        "%",
+        _where("all %", **_DEFAULT_FAR),
+    ),
+    Target(
+        "far field (C = N/8): mean pixel error <= 2%",
+        "farfield",
+        "Error against the full solve",
+        "pixels %",
+        "<=",
+        2.0,
+        "%",
+        _where("pixels %", **_DEFAULT_FAR),
+    ),
+    Target(
+        "frame with static lights <= 1.3x the local-only frame",
+        "farfield",
+        "Error against the full solve",
+        "x local-only frame",
+        "<=",
+        1.3,
+        "x",
+        _where("x local-only frame", **_DEFAULT_FAR),
+    ),
+    Target(
+        "light change <= 3x a local-only lighting product plus the coarse solve",
+        "farfield",
+        "Light changes of the default far field",
+        "(change - coarse) / local lighting",
+        "<=",
+        3.0,
+        "x",
+        _where("(change - coarse) / local lighting"),
+    ),
+    Target(
+        "far-field precompute <= 20% of the form factors' time",
+        "farfield",
+        "Error against the full solve",
+        "precompute % of F",
+        "<=",
+        20.0,
+        "%",
+        _where("precompute % of F", **_DEFAULT_FAR),
+    ),
+    Target(
+        "a 1,000,000-patch store walked with the far field within 1.5x the peak memory",
+        "largescale",
+        "walks",
+        "peak_rss_mib",
+        "<=",
+        1.5,
+        "x",
+        _store_peak_ratio,
+        size="full",
+    ),
 )
 
 
@@ -226,16 +363,20 @@ def evaluate(root=None, targets=TARGETS) -> list[TargetResult]:
     for target in targets:
         result = TargetResult(target)
         for folder in folders if target.section else ():
-            candidates = [(_date_key(d["date"]), p.relative_to(root).as_posix(), d)
-                          for p, d in records[folder] if _has_section(d, target)]
+            candidates = [
+                (_date_key(d["date"]), p.relative_to(root).as_posix(), d)
+                for p, d in records[folder]
+                if _has_section(d, target)
+            ]
             if not candidates:
                 continue
             date, rel, data = max(candidates, key=lambda c: c[:2])
             rows = rows_of(data, target)
             values = [float(v) for v in target.extract(rows)] if rows is not None else []
             if values:
-                result.devices.append(DeviceResult(folder.name, data["date"], rel, values,
-                                                   all(target.passes(v) for v in values)))
+                result.devices.append(
+                    DeviceResult(folder.name, data["date"], rel, values, all(target.passes(v) for v in values))
+                )
         results.append(result)
     return results
 
@@ -277,8 +418,10 @@ def performance_table(results=None) -> list[str]:
             why = f" ({r.target.why})" if r.target.why else ""
             lines.append(f"| {r.target.words} | — | {NOT_MEASURED}{why} | — | — | — |")
         for d in r.devices:
-            lines.append(f"| {r.target.words} | `{d.device}` | {'met' if d.met else 'not met'} | "
-                         f"{value_range(d.values, r.target.unit)} | {_date_label(d.date)} | `bench/results/{d.report}` |")
+            lines.append(
+                f"| {r.target.words} | `{d.device}` | {'met' if d.met else 'not met'} | "
+                f"{value_range(d.values, r.target.unit)} | {_date_label(d.date)} | `bench/results/{d.report}` |"
+            )
     return lines
 
 

@@ -1,4 +1,4 @@
-"""The viewer's targets (issue 43), on the 66k-patch village at the default M, in one run.
+"""The viewer's targets, on the 66k-patch village at the default M, in one run.
 
 * radiosity updates per second that reach the browser while the camera moves (target >= 10);
 * a camera move to its first radiosity on the page, median and 90th percentile (target <= 200 ms);
@@ -33,8 +33,15 @@ def _browser():
     from selenium.webdriver.chrome.service import Service
 
     options = Options()
-    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=960,600",
-                "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"):
+    for arg in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-dev-shm-usage",
+        "--window-size=960,600",
+        "--use-angle=swiftshader",
+        "--enable-unsafe-swiftshader",
+        "--ignore-gpu-blocklist",
+    ):
         options.add_argument(arg)
     return webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=options)
 
@@ -81,8 +88,9 @@ def main(argv=None) -> int:
     # walk(): the same street, one frame per 1/10 s of the flight, no images written.
     frames = int(SECONDS * 10)
     xs = np.linspace(x0, x1, frames)
-    path = pydynrad.CameraPath([[x, EYE, 2.5] for x in xs], [[x + 6, EYE, 3.0] for x in xs], frames, width=64,
-                               height=48)
+    path = pydynrad.CameraPath(
+        [[x, EYE, 2.5] for x in xs], [[x + 6, EYE, 3.0] for x in xs], frames, width=64, height=48
+    )
     dyn = pydynrad.DynamicRadiosity(scene, F, local_size=args.local_size, observer=[x0, EYE, 2.5])
     result = pydynrad.walk(scene, path, dyn, lights=lights, progress=False)
     walk_frames = np.array([r.seconds["update"] + r.seconds["lighting"] for r in result.frames[2:]])
@@ -98,8 +106,9 @@ def main(argv=None) -> int:
             while driver.execute_script("return window.pydynrad.stats.framesReceived") < 1:
                 time.sleep(0.05)
             first = time.monotonic() - t0
-            driver.execute_script("window.pydynrad.setCamera(arguments[0], arguments[1])", [x0, EYE, 2.5],
-                                  [x0 + 6, EYE, 3.0])
+            driver.execute_script(
+                "window.pydynrad.setCamera(arguments[0], arguments[1])", [x0, EYE, 2.5], [x0 + 6, EYE, 3.0]
+            )
             viewer.wait_idle()
             driver.set_script_timeout(120)
             idle_fps = driver.execute_async_script(IDLE_FPS)
@@ -112,19 +121,23 @@ def main(argv=None) -> int:
             colours = np.array([h["t_colours"] for h in hist])
             lat = np.array(fly["latencies"])
             out = {
-                "patches": len(scene), "M": dyn.M,
+                "patches": len(scene),
+                "M": dyn.M,
                 "page_first_frame_s": first,
                 "updates_per_second_in_browser": fly["received"] / fly["seconds"],
-                "latency_ms_median": float(np.median(lat)), "latency_ms_p90": float(np.percentile(lat, 90)),
-                "browser_fps_idle": idle_fps, "browser_fps_while_solving": fly["browserFrames"] / fly["seconds"],
+                "latency_ms_median": float(np.median(lat)),
+                "latency_ms_p90": float(np.percentile(lat, 90)),
+                "browser_fps_idle": idle_fps,
+                "browser_fps_while_solving": fly["browserFrames"] / fly["seconds"],
                 "viewer_frame_ms_median": 1e3 * float(np.median(view_frames[moving])) if moving.any() else None,
                 "viewer_colours_ms_median": 1e3 * float(np.median(colours)),
                 "walk_frame_ms_median": 1e3 * float(np.median(walk_frames[walk_swaps > 0])),
                 "solver_frames_in_viewer": len(hist),
             }
             out["viewer_over_walk"] = out["viewer_frame_ms_median"] / out["walk_frame_ms_median"]
-            out["viewer_with_colours_over_walk"] = (out["viewer_frame_ms_median"] + out["viewer_colours_ms_median"]) \
-                / out["walk_frame_ms_median"]
+            out["viewer_with_colours_over_walk"] = (
+                out["viewer_frame_ms_median"] + out["viewer_colours_ms_median"]
+            ) / out["walk_frame_ms_median"]
         # The same flight driven from Python with no browser connected: the viewer's own overhead,
         # without a software-rendering browser sharing the CPU cores.
         dyn = pydynrad.DynamicRadiosity(scene, F, local_size=args.local_size, observer=[x0, EYE, 2.5])

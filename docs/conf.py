@@ -82,8 +82,10 @@ def _public_modules(package) -> list[str]:
     import pkgutil
 
     return [package.__name__] + sorted(
-        m.name for m in pkgutil.walk_packages(package.__path__, package.__name__ + ".")
-        if not any(part.startswith("_") for part in m.name.split(".")))
+        m.name
+        for m in pkgutil.walk_packages(package.__path__, package.__name__ + ".")
+        if not any(part.startswith("_") for part in m.name.split("."))
+    )
 
 
 def _api_context(package) -> dict:
@@ -109,8 +111,11 @@ def _api_context(package) -> dict:
         module = importlib.import_module(modname)
         public = getattr(module, "__all__", None)
         if public is None:
-            public = [n for n, v in vars(module).items()
-                      if not n.startswith("_") and getattr(v, "__module__", None) == modname]
+            public = [
+                n
+                for n, v in vars(module).items()
+                if not n.startswith("_") and getattr(v, "__module__", None) == modname
+            ]
         for name in public:
             obj = getattr(module, name, None)
             if not (inspect.isclass(obj) or inspect.isfunction(obj) or inspect.isbuiltin(obj)):
@@ -166,8 +171,9 @@ def _resolve_alias(app, env, node, contnode):
     # pydynrad reaches pydynrad.InvalidInputError), the docstring's own class and module, then
     # the target as written.
     parts = (module or "").split(".") if module else []
-    scopes = ([f"{module}.{klass}."] if module and klass else []) + \
-        [".".join(parts[:k]) + "." for k in range(len(parts), 0, -1)]
+    scopes = ([f"{module}.{klass}."] if module and klass else []) + [
+        ".".join(parts[:k]) + "." for k in range(len(parts), 0, -1)
+    ]
     # A docstring documented on a shorter path's page (pydynrad.FormFactorStore.create, written
     # in pydynrad.rows.store) names things as its own module sees them: its class and module too.
     for scope in _docstring_scopes(node):
@@ -182,8 +188,9 @@ def _resolve_alias(app, env, node, contnode):
             if head in ALIASES:
                 new = ".".join([ALIASES[head]] + parts[cut:])
                 domain = env.get_domain("py")
-                resolved = domain.resolve_xref(env, node.get("refdoc"), app.builder, node.get("reftype"), new,
-                                               node, contnode)
+                resolved = domain.resolve_xref(
+                    env, node.get("refdoc"), app.builder, node.get("reftype"), new, node, contnode
+                )
                 if resolved is not None:
                     return resolved
     return None
@@ -214,12 +221,18 @@ def _check_reference(app, env, node, contnode):
 
         logging.getLogger(__name__).warning(
             "cross-reference to %s %r does not resolve (not documented, or an old module path)",
-            node.get("reftype"), target, location=node, type="pydynrad", subtype="xref")
+            node.get("reftype"),
+            target,
+            location=node,
+            type="pydynrad",
+            subtype="xref",
+        )
     return None
 
 
 def setup(app):
     app.connect("missing-reference", _check_reference)
+
 
 # -- Examples gallery ---------------------------------------------------------------------------
 # sphinx-gallery runs each example in the folder it reads it from, and the examples write their

@@ -35,16 +35,28 @@ print(scene)
 path = pydynrad.CameraPath(
     positions=[(278, 273, -800), (278, 273, -450), (150, 320, -250), (400, 220, -200)],
     look_ats=[(278, 273, 0), (278, 260, 280), (300, 200, 300), (250, 220, 300)],
-    frames=frames, fov_y=39.3, width=size, height=size)
+    frames=frames,
+    fov_y=39.3,
+    width=size,
+    height=size,
+)
 orbit = [(130, 420, 130), (130, 420, 430), (430, 420, 430), (430, 420, 130), (130, 420, 130)]
 lamp = pydynrad.walks.LightTrack(pydynrad.PointLight(orbit[0], (0.06, 0.05, 0.03)), orbit)
 
 # %%
 # Walk it. ``local_size`` is M, the size of the local set; the first and the last frame are
 # also solved in full (``reference_frames``) to measure the error of the dynamic answer.
-result = pydynrad.walk(scene, path, lights=[lamp], form_factors=F, local_size=len(scene) * 2 // 3,
-                       output="cornell-walk", exposure=-1.65, reference_frames=[0, -1],
-                       progress=False)
+result = pydynrad.walk(
+    scene,
+    path,
+    lights=[lamp],
+    form_factors=F,
+    local_size=len(scene) * 2 // 3,
+    output="cornell-walk",
+    exposure=-1.65,
+    reference_frames=[0, -1],
+    progress=False,
+)
 print(result.summary())
 
 # %%

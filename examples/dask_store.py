@@ -32,8 +32,9 @@ size = 128 if SMALL else 384
 
 if __name__ == "__main__":
     shutil.rmtree("cbox-store", ignore_errors=True)  # a fresh store (an existing one would be resumed)
-    store = pydynrad.precompute.precompute_distributed(spec, "cbox-store", resolution=32, block_rows=128, workers=2,
-                                            progress=False)
+    store = pydynrad.precompute.precompute_distributed(
+        spec, "cbox-store", resolution=32, block_rows=128, workers=2, progress=False
+    )
     print(store)
 
 # %%
@@ -54,8 +55,9 @@ if __name__ == "__main__":
     light = pydynrad.PointLight(position=[278, 450, 280], intensity=[0.2] * 3)
     rows = pydynrad.open_form_factors(scene, "cbox-store", cache_bytes=4 << 20)
     try:
-        dyn = pydynrad.DynamicRadiosity(scene, rows, local_size=len(scene) // 2, far_field=False,
-                                        observer=[278, 273, -500])
+        dyn = pydynrad.DynamicRadiosity(
+            scene, rows, local_size=len(scene) // 2, far_field=False, observer=[278, 273, -500]
+        )
         for z in np.linspace(-500, -200, 6):
             dyn.update([278, 273, z])
         B = dyn.radiosity([light])

@@ -34,8 +34,7 @@ def pose(z, degrees):
     return T
 
 
-cube = pydynrad.RigidObject(pydynrad.scenes.block(100.0, 1, albedo=(0.14, 0.45, 0.091)), pose(460, 0),
-                            name="cube")
+cube = pydynrad.RigidObject(pydynrad.scenes.block(100.0, 1, albedo=(0.14, 0.45, 0.091)), pose(460, 0), name="cube")
 observer = [278, 273, -200]
 dyn = pydynrad.DynamicRadiosity(scene, F, local_size=len(scene) // 2, objects=[cube], observer=observer)
 

@@ -41,10 +41,11 @@ B = pydynrad.solve(room, F, lights=[lamp]).radiosity
 # illuminance in lux (direct from the luminaire plus the light the walls reflect) and its
 # statistics.
 plane = work_plane([[0, 0], [4, 0], [4, 4], [0, 4]], height=0.75)
-E = illuminance(room, B, plane.points, plane.normals, lights=[lamp])   # (n, 3) lux
+E = illuminance(room, B, plane.points, plane.normals, lights=[lamp])  # (n, 3) lux
 stats = write_illuminance_csv("work-plane.csv", plane.points, E)
-print(f"{len(plane)} points: Em {stats.Em:.0f} lx, Emin {stats.Emin:.0f} lx, Emax {stats.Emax:.0f} lx, "
-      f"U0 {stats.U0:.2f}")
+print(
+    f"{len(plane)} points: Em {stats.Em:.0f} lx, Emin {stats.Emin:.0f} lx, Emax {stats.Emax:.0f} lx, U0 {stats.U0:.2f}"
+)
 
 # %%
 # The false-colour plot ``plot_work_plane`` writes (it needs matplotlib).

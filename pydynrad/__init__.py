@@ -11,11 +11,11 @@ them (:mod:`pydynrad.device`, :mod:`pydynrad.geometry`, :mod:`pydynrad.lights`,
 :mod:`pydynrad.scenes`).
 """
 
-from importlib import import_module
 import warnings
+from importlib import import_module
 
-from ._version import __version__
 from . import bake, device, dynamic, farfield, geometry, lights, photometry, precompute, rows, scenes
+from ._version import __version__
 from .bake import bake_lightmap, export_mesh
 from .bounces import multibounce, multibounce_radiosity
 from .device import default_device
@@ -27,47 +27,98 @@ from .geometry import Camera, RigidObject, Scene, load
 from .lights import DirectionalLight, LuminaireLight, PointLight, SkyLight, SpotLight, light_vector, read_ies, read_ldt
 from .pathtracer import path_trace
 from .photometry import illuminance
-from .renderer import render
 from .precompute import compute_store
+from .renderer import render
 from .rows import FormFactorStore, open_form_factors, save_form_factors
 from .solution import Solution, solve
+from .viewer import view
 from .walks import CameraPath, WalkResult, fly_through, load_path, orbit, walk
 
-
 __all__ = [
-    "bake_lightmap", "Camera", "CameraPath", "compute_store", "default_device", "DirectionalLight",
-    "DynamicRadiosity", "export_mesh", "FarField", "fly_through", "form_factors", "FormFactorStore", "FrameStats",
-    "illuminance", "InvalidInputError", "light_vector", "load", "load_path", "LuminaireLight", "MovingObjects", "multibounce",
-    "multibounce_radiosity", "open_form_factors", "orbit", "path_trace", "PointLight", "PydynradError", "read_ies",
-    "read_ldt", "render", "RigidObject", "save_form_factors", "Scene", "SkyLight", "Solution", "solve", "SpotLight",
-    "view", "walk", "WalkResult",
+    "bake_lightmap",
+    "Camera",
+    "CameraPath",
+    "compute_store",
+    "default_device",
+    "DirectionalLight",
+    "DynamicRadiosity",
+    "export_mesh",
+    "FarField",
+    "fly_through",
+    "form_factors",
+    "FormFactorStore",
+    "FrameStats",
+    "illuminance",
+    "InvalidInputError",
+    "light_vector",
+    "load",
+    "load_path",
+    "LuminaireLight",
+    "MovingObjects",
+    "multibounce",
+    "multibounce_radiosity",
+    "open_form_factors",
+    "orbit",
+    "path_trace",
+    "PointLight",
+    "PydynradError",
+    "read_ies",
+    "read_ldt",
+    "render",
+    "RigidObject",
+    "save_form_factors",
+    "Scene",
+    "SkyLight",
+    "Solution",
+    "solve",
+    "SpotLight",
+    "view",
+    "walk",
+    "WalkResult",
 ]
-
-
-def view(scene_or_dynamic, form_factors=None, **options):
-    """Watch a dynamic radiosity solution live in a web browser: :func:`pydynrad.viewer.view`
-    (its parameters and the :class:`~pydynrad.viewer.Viewer` it returns). Needs the ``view``
-    extra (``pip install 'pydynrad[view]'``)."""
-    # Deferred: the viewer's server library is an optional extra, and `import pydynrad` stays as it was.
-    from .viewer import view as serve
-
-    return serve(scene_or_dynamic, form_factors, **options)
 
 
 # Names that were top-level before the subpackages: still served, with a warning naming the new home
 # (CHANGELOG.md, 'Moved').
 _MOVED = {
-    "as_row_source": "rows", "ConvergenceError": "errors", "CSRRows": "rows", "DegenerateTriangleWarning": "geometry",
-    "Device": "device", "DeviceError": "errors", "DeviceMatrix": "device", "direct_irradiance": "lights",
-    "GroupRadiosity": "bake", "HemicubeRows": "rows", "KernelBuildError": "errors", "LightGroups": "bake",
-    "Lightmap": "bake", "LightTrack": "walks", "list_devices": "device", "load_form_factors": "rows",
-    "load_walk": "walks", "ObjectIntersectionWarning": "geometry", "ObjectTrack": "walks",
-    "OutOfMemoryError": "errors", "pack_lights": "lights", "path_trace_patches": "pathtracer",
-    "PhotometricDistribution": "lights", "PoseRows": "precompute", "precompute_distributed": "precompute",
-    "precompute_poses": "precompute", "read_image": "image_io", "RowCache": "rows", "RowSource": "rows",
-    "SceneFileError": "errors", "SceneSpec": "precompute", "StoreCorruptError": "rows",
-    "StoreIncompleteError": "rows", "StoreMismatchError": "rows", "stored_poses": "precompute",
-    "subdivide": "geometry", "WalkFile": "walks", "write_image": "image_io",
+    "as_row_source": "rows",
+    "ConvergenceError": "errors",
+    "CSRRows": "rows",
+    "DegenerateTriangleWarning": "geometry",
+    "Device": "device",
+    "DeviceError": "errors",
+    "DeviceMatrix": "device",
+    "direct_irradiance": "lights",
+    "GroupRadiosity": "bake",
+    "HemicubeRows": "rows",
+    "KernelBuildError": "errors",
+    "LightGroups": "bake",
+    "Lightmap": "bake",
+    "LightTrack": "walks",
+    "list_devices": "device",
+    "load_form_factors": "rows",
+    "load_walk": "walks",
+    "ObjectIntersectionWarning": "geometry",
+    "ObjectTrack": "walks",
+    "OutOfMemoryError": "errors",
+    "pack_lights": "lights",
+    "path_trace_patches": "pathtracer",
+    "PhotometricDistribution": "lights",
+    "PoseRows": "precompute",
+    "precompute_distributed": "precompute",
+    "precompute_poses": "precompute",
+    "read_image": "image_io",
+    "RowCache": "rows",
+    "RowSource": "rows",
+    "SceneFileError": "errors",
+    "SceneSpec": "precompute",
+    "StoreCorruptError": "rows",
+    "StoreIncompleteError": "rows",
+    "StoreMismatchError": "rows",
+    "stored_poses": "precompute",
+    "subdivide": "geometry",
+    "WalkFile": "walks",
+    "write_image": "image_io",
 }
 
 

@@ -32,8 +32,11 @@ def check_file_target(path) -> Path:
     path = check_parent_folder(path)
     if path.is_dir():
         raise InvalidInputError(f"cannot write the file {str(path)!r}: a folder of that name is in the way")
-    if not os.access(path.parent, os.W_OK | os.X_OK,  # else found only after the work
-                     effective_ids=os.access in os.supports_effective_ids):
+    if not os.access(
+        path.parent,
+        os.W_OK | os.X_OK,  # else found only after the work
+        effective_ids=os.access in os.supports_effective_ids,
+    ):
         raise InvalidInputError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} is not writable")
     return path
 

@@ -38,21 +38,18 @@ import warnings
 import numpy as np
 import scipy.sparse as sp
 
-from .checks import check_form_factors, check_form_factor_rows, patch_indices
-from .geometry.scene import checked_scene
-from .errors import InvalidInputError, OutOfMemoryError
-from .host.threads import cores as host_cores, pool as host_pool
+from .checks import check_form_factor_rows, check_form_factors, patch_indices
+from .device.devices import default_device, device_or_default, real_dtype
 from .device.launch import GEMM_GRAIN, PANEL, gemm_layout, round_up
-from .host.memory import available_host_bytes
-from .device.devices import default_device
-from .device.devices import device_or_default
-from .host.shortcuts import host_shortcuts
-from .device.devices import real_dtype
 from .device.matrix import DeviceMatrix
-from .geometry.scene import PrecisionWarning
+from .errors import InvalidInputError, OutOfMemoryError
+from .geometry.scene import PrecisionWarning, checked_scene
 from .host.blas import one_blas_thread
-from .lights.sources import check_radiosity_range
-from .lights.sources import resolve_light
+from .host.memory import available_host_bytes
+from .host.shortcuts import host_shortcuts
+from .host.threads import cores as host_cores
+from .host.threads import pool as host_pool
+from .lights.sources import check_radiosity_range, resolve_light
 from .progress import progress_bar
 
 __all__ = ["multibounce", "multibounce_block", "multibounce_radiosity", "multibounce_memory"]
@@ -130,8 +127,23 @@ class _Builder:
             return
         i32 = np.int32
         self.kernel(
-            self.device.queue, *self.lay.grid(m, n), i32(m), i32(n), i32(kdim),
-            U, i32(ldu), i32(0), V, i32(ldv), i32(v_off), base, i32(ldb), i32(b_off), out, i32(ldo), i32(o_off),
+            self.device.queue,
+            *self.lay.grid(m, n),
+            i32(m),
+            i32(n),
+            i32(kdim),
+            U,
+            i32(ldu),
+            i32(0),
+            V,
+            i32(ldv),
+            i32(v_off),
+            base,
+            i32(ldb),
+            i32(b_off),
+            out,
+            i32(ldo),
+            i32(o_off),
         )
 
     def read(self, buf) -> np.ndarray:
@@ -159,14 +171,19 @@ class _Builder:
             cl.enqueue_copy(q, rows_A, self.A, src_offset=r0 * Mp * w)
             cl.enqueue_copy(q, rows_F, self.F, src_offset=r0 * Mp * w)
             cl.enqueue_copy(
-                q, col, self.A, buffer_origin=(r0 * w, 0), host_origin=(0, 0), region=(nb * w, Mp),
-                buffer_pitches=(Mp * w,), host_pitches=(nb * w,), is_blocking=True,
+                q,
+                col,
+                self.A,
+                buffer_origin=(r0 * w, 0),
+                host_origin=(0, 0),
+                region=(nb * w, Mp),
+                buffer_pitches=(Mp * w,),
+                host_pitches=(nb * w,),
+                is_blocking=True,
             )
             # Pivot rows scaled by the inverse pivot block, in float64 on the host (nb^2 (2M) flops).
             pivot_inv = np.linalg.inv(rows_A[:, r0:c0].astype(np.float64))
-            scaled = np.ascontiguousarray(
-                np.hstack([pivot_inv @ rows_A[:, c0:], pivot_inv @ rows_F]), dtype=self.work
-            )
+            scaled = np.ascontiguousarray(np.hstack([pivot_inv @ rows_A[:, c0:], pivot_inv @ rows_F]), dtype=self.work)
             neg_col = -col
             neg_col[r0:c0] = 0  # the pivot rows are replaced, not updated
             cl.enqueue_copy(q, U, neg_col)
@@ -188,7 +205,9 @@ class _Builder:
         q, Mp = self.device.queue, self.Mp
         cl.enqueue_copy(q, self.A, self.padded(FP, 0.0))
         cl.enqueue_copy(q, self.F, self.padded(F, 0.0))
-        K = cl.Buffer(self.device.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=self.padded(F, 0.0))
+        K = cl.Buffer(
+            self.device.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=self.padded(F, 0.0)
+        )
         K_next = cl.Buffer(self.device.context, cl.mem_flags.READ_WRITE, self.square_bytes)
         for _ in range(bounces):
             self.gemm(Mp, Mp, Mp, self.A, Mp, K, Mp, 0, self.F, Mp, 0, K_next, Mp, 0)
@@ -198,8 +217,16 @@ class _Builder:
         return self.read(K)
 
 
-def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.float32, device=None,
-                progress: bool | None = None, backend: str = "auto") -> np.ndarray:
+def multibounce(
+    scene,
+    F,
+    patches=None,
+    bounces: int | None = None,
+    dtype=np.float32,
+    device=None,
+    progress: bool | None = None,
+    backend: str = "auto",
+) -> np.ndarray:
     """K_S = (I - F_SS P_S)^{-1} F_SS per colour channel.
 
     Parameters
@@ -238,13 +265,15 @@ def multibounce(scene, F, patches=None, bounces: int | None = None, dtype=np.flo
     device = device_or_default(device)
     idx = _checked_patches(patches, len(checked_scene(scene)))
     if bounces is None:
-        warn_precision(float(scene.albedo[idx].max()) if len(idx) else 0.0, "float64" if out == np.float64 else "float32",
-                       stacklevel=2)
+        warn_precision(
+            float(scene.albedo[idx].max()) if len(idx) else 0.0,
+            "float64" if out == np.float64 else "float32",
+            stacklevel=2,
+        )
     M, C = len(idx), 1 if scene.is_grey else 3
     _check_memory(M, C, out, bounces, device)
     F = check_form_factors(scene, F)
-    return _build(F[idx][:, idx], scene.albedo[idx, :C].astype(np.float64), bounces, out, device, progress,
-                  backend)
+    return _build(F[idx][:, idx], scene.albedo[idx, :C].astype(np.float64), bounces, out, device, progress, backend)
 
 
 #: The rounding of K's float32 arithmetic, amplified by the albedo (2^-24 / (1 - max albedo)),
@@ -259,14 +288,27 @@ def warn_precision(max_albedo: float, arithmetic: str, stacklevel: int = 2) -> b
     0.9999999 was 3.5% off, at 0.999999 0.09%, in float64 8e-11)."""
     if arithmetic == "float64" or (max_albedo < 1.0 and 2.0**-24 / (1.0 - max_albedo) <= PRECISION_LIMIT):
         return False
-    warnings.warn(f"an albedo of {max_albedo:.9g} amplifies float32 rounding in K to about "
-                  f"{2.0**-24 / max(1.0 - max_albedo, 1e-300):.2g} of B: build it in float64 (storage='fp64', "
-                  "dtype=np.float64)", PrecisionWarning, stacklevel=stacklevel + 1)
+    warnings.warn(
+        f"an albedo of {max_albedo:.9g} amplifies float32 rounding in K to about "
+        f"{2.0**-24 / max(1.0 - max_albedo, 1e-300):.2g} of B: build it in float64 (storage='fp64', "
+        "dtype=np.float64)",
+        PrecisionWarning,
+        stacklevel=stacklevel + 1,
+    )
     return True
 
 
-def multibounce_block(F_SS, albedo, bounces: int | None = None, dtype=np.float32, device=None,
-                      progress: bool | None = None, backend: str = "auto", *, checked: bool = False) -> np.ndarray:
+def multibounce_block(
+    F_SS,
+    albedo,
+    bounces: int | None = None,
+    dtype=np.float32,
+    device=None,
+    progress: bool | None = None,
+    backend: str = "auto",
+    *,
+    checked: bool = False,
+) -> np.ndarray:
     """K = (I - F_SS P)^{-1} F_SS from the block of F over the set, for callers that hold it.
 
     :func:`multibounce` with ``patches`` validates all of F and cuts this block out of it; a
@@ -357,8 +399,9 @@ def _host_channels(F_work: np.ndarray, rho: np.ndarray, bounces: int | None, res
         list(host_pool().map(channel, range(C)))
 
 
-def _build(F_SS: np.ndarray, rho: np.ndarray, bounces: int | None, out: np.dtype, device, progress,
-           backend: str = "auto") -> np.ndarray:
+def _build(
+    F_SS: np.ndarray, rho: np.ndarray, bounces: int | None, out: np.dtype, device, progress, backend: str = "auto"
+) -> np.ndarray:
     """K per channel from a validated F_SS (M, M, sparse or dense; never written) and albedos
     rho (M, C), float64. The host's solve takes F_SS made dense in its working dtype at once
     (a float64 copy first cost a fifth of numpy's own solve at M = 768)."""

@@ -7,14 +7,28 @@ solution."""
 
 from __future__ import annotations
 
-
 import numpy as np
 import scipy.sparse as sp
 
 from .errors import InvalidInputError
 
-__all__ = ["floats", "vec3", "unit_vector", "number", "flag", "stops", "integer", "finite", "patch_indices",
-           "resolution", "check_form_factors", "check_form_factor_rows", "sparse_structure", "ROW_SUM_SLACK", "MAX_RESOLUTION"]
+__all__ = [
+    "floats",
+    "vec3",
+    "unit_vector",
+    "number",
+    "flag",
+    "stops",
+    "integer",
+    "finite",
+    "patch_indices",
+    "resolution",
+    "check_form_factors",
+    "check_form_factor_rows",
+    "sparse_structure",
+    "ROW_SUM_SLACK",
+    "MAX_RESOLUTION",
+]
 
 
 def floats(value, what: str) -> np.ndarray:
@@ -37,7 +51,9 @@ def floats(value, what: str) -> np.ndarray:
     except (TypeError, ValueError, OverflowError) as exc:
         text = _brief(value)
         if isinstance(exc, OverflowError):  # a Python int past float64 (10**400)
-            raise InvalidInputError(f"{what} must be numbers within float64's range (about 1.8e308); got {text}") from None
+            raise InvalidInputError(
+                f"{what} must be numbers within float64's range (about 1.8e308); got {text}"
+            ) from None
         raise InvalidInputError(f"{what} must be numbers; got {text}") from None
 
 
@@ -80,8 +96,10 @@ def stops(value, what: str = "exposure") -> float:
     within +-:data:`MAX_STOPS`; InvalidInputError naming ``what`` otherwise."""
     v = number(value, what)
     if abs(v) > MAX_STOPS:
-        raise InvalidInputError(f"{what} must lie within +-{MAX_STOPS} stops (a gain of 2**{v:g} is outside float32's "
-                                f"normal range); got {value!r}")
+        raise InvalidInputError(
+            f"{what} must lie within +-{MAX_STOPS} stops (a gain of 2**{v:g} is outside float32's "
+            f"normal range); got {value!r}"
+        )
     return v
 
 
@@ -135,13 +153,14 @@ def finite(a: np.ndarray, what: str) -> None:
     if bad.any():
         first = np.unravel_index(int(np.argmax(bad)), np.shape(a))
         where = first[0] if len(first) == 1 else tuple(int(i) for i in first)
-        raise InvalidInputError(f"{what} contains NaN or infinite values ({bad.sum()} of {bad.size}; "
-                                f"first at index {where}: {a[first]})")
+        raise InvalidInputError(
+            f"{what} contains NaN or infinite values ({bad.sum()} of {bad.size}; first at index {where}: {a[first]})"
+        )
 
 
-
-def patch_indices(value, n: int, what: str = "patch indices", *, unique: bool = False,
-                  nonempty: bool = False) -> np.ndarray:
+def patch_indices(
+    value, n: int, what: str = "patch indices", *, unique: bool = False, nonempty: bool = False
+) -> np.ndarray:
     """``value`` as a 1-D int64 array of patch indices in ``0..n-1``, or InvalidInputError naming ``what``.
 
     The one rule for every argument that names patches (rows of F, the patches of K, path
@@ -204,7 +223,9 @@ def sparse_structure(indptr, indices, shape, what: str = "F", nnz: int | None = 
     name = _row_namer(row_names)
     for arr, label in ((indptr, "indptr"), (indices, "indices")):
         if arr.ndim != 1 or not (np.issubdtype(arr.dtype, np.integer) or arr.size == 0):
-            raise InvalidInputError(f"{what}: {label} must be a 1-D integer array; got shape {arr.shape}, dtype {arr.dtype}")
+            raise InvalidInputError(
+                f"{what}: {label} must be a 1-D integer array; got shape {arr.shape}, dtype {arr.dtype}"
+            )
     if len(indptr) != m + 1:
         raise InvalidInputError(f"{what}: indptr has {len(indptr)} entries; {m} rows need {m + 1}")
     nnz = len(indices) if nnz is None else int(nnz)
@@ -213,18 +234,23 @@ def sparse_structure(indptr, indices, shape, what: str = "F", nnz: int | None = 
     steps = np.diff(indptr)
     if steps.size and steps.min() < 0:
         i = int(np.argmax(steps < 0))
-        raise InvalidInputError(f"{what}: row {name(i)} has a negative length (indptr decreases from "
-                                f"{int(indptr[i])} to {int(indptr[i + 1])})")
+        raise InvalidInputError(
+            f"{what}: row {name(i)} has a negative length (indptr decreases from "
+            f"{int(indptr[i])} to {int(indptr[i + 1])})"
+        )
     if indptr[-1] != nnz or len(indices) != nnz:
-        raise InvalidInputError(f"{what}: indptr ends at {int(indptr[-1])} but there are {len(indices)} indices "
-                                f"and {nnz} values")
+        raise InvalidInputError(
+            f"{what}: indptr ends at {int(indptr[-1])} but there are {len(indices)} indices and {nnz} values"
+        )
     if nnz:
         bad = (indices < 0) | (indices >= n)
         if bad.any():
             p = int(np.argmax(bad))
             i = int(np.searchsorted(indptr, p, side="right")) - 1
             hint = " (1-based indices? pydynrad's are 0-based)" if indices.min() == 1 and indices.max() == n else ""
-            raise InvalidInputError(f"{what}: row {name(i)} has column index {int(indices[p])} outside 0..{n - 1}{hint}")
+            raise InvalidInputError(
+                f"{what}: row {name(i)} has column index {int(indices[p])} outside 0..{n - 1}{hint}"
+            )
 
 
 def _as_safe_csr(F, what: str, row_names=None) -> sp.csr_matrix:
@@ -236,8 +262,9 @@ def _as_safe_csr(F, what: str, row_names=None) -> sp.csr_matrix:
     elif F.format == "coo":
         for arr, dim, label in ((F.row, F.shape[0], "row"), (F.col, F.shape[1], "column")):
             if arr.size and (arr.min() < 0 or arr.max() >= dim):
-                raise InvalidInputError(f"{what}: COO {label} indices in [{arr.min()}, {arr.max()}] lie outside "
-                                        f"0..{dim - 1}")
+                raise InvalidInputError(
+                    f"{what}: COO {label} indices in [{arr.min()}, {arr.max()}] lie outside 0..{dim - 1}"
+                )
     # copy=True: scipy shares indices with the caller's matrix, and sum_duplicates later
     # sorts them in place, which would scramble the caller's (non-canonical) F.
     return sp.csr_matrix(F, dtype=np.float64, copy=True)
@@ -260,7 +287,9 @@ def check_form_factors(scene, F) -> sp.csr_matrix:
     own = F.diagonal()
     if own.any():  # a flat patch sees none of itself: another matrix's rows, or a shifted index
         i = int(np.flatnonzero(own)[0])
-        raise InvalidInputError(f"F[{i}, {i}] = {own[i]:g}: a patch is flat and sees none of itself (F's diagonal is 0)")
+        raise InvalidInputError(
+            f"F[{i}, {i}] = {own[i]:g}: a patch is flat and sees none of itself (F's diagonal is 0)"
+        )
     return F
 
 
@@ -278,7 +307,9 @@ def check_form_factor_rows(rows, what: str = "F", row_names=None, shape: tuple |
     if not sp.issparse(rows):
         a = np.asarray(rows)
         if a.ndim != 2 or not np.issubdtype(a.dtype, np.number):
-            raise InvalidInputError(f"{what} must be a (sparse or dense) 2-D matrix of numbers; got {type(rows).__name__}")
+            raise InvalidInputError(
+                f"{what} must be a (sparse or dense) 2-D matrix of numbers; got {type(rows).__name__}"
+            )
         rows = sp.csr_matrix(a.astype(np.float64))
     if shape is not None and rows.shape != tuple(shape):
         raise InvalidInputError(f"{what} must have shape {tuple(shape)}; got {rows.shape}")

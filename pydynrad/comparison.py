@@ -78,8 +78,10 @@ def _label(out: np.ndarray, texts, size: int) -> None:
     buf.set_pixels(oiio.ROI(), out)
     for text, x, y in texts:
         if not oiio.ImageBufAlgo.render_text(buf, x, y, text, size, "", (1.0, 1.0, 1.0)):
-            raise PydynradError(f"OpenImageIO could not draw the colour bar's label {text!r} (no font?): "
-                                f"{buf.geterror() or oiio.geterror()}")
+            raise PydynradError(
+                f"OpenImageIO could not draw the colour bar's label {text!r} (no font?): "
+                f"{buf.geterror() or oiio.geterror()}"
+            )
     out[:] = buf.get_pixels(oiio.FLOAT).reshape(out.shape)
 
 
@@ -96,8 +98,9 @@ def _percent(v: float) -> str:
     return f"{p:.0f}%" if p >= 10 else f"{p:.1f}%" if p >= 0.1 else f"{p:.2f}%"
 
 
-def comparison_image(dynamic, reference, exposure: float | str = "auto", vmax: float | None = None,
-                     titles=None) -> tuple[np.ndarray, dict]:
+def comparison_image(
+    dynamic, reference, exposure: float | str = "auto", vmax: float | None = None, titles=None
+) -> tuple[np.ndarray, dict]:
     """Side-by-side panels: ``dynamic`` | ``reference`` | relative error map + colour bar.
 
     Parameters
@@ -128,7 +131,7 @@ def comparison_image(dynamic, reference, exposure: float | str = "auto", vmax: f
     if not (np.isfinite(vmax) and vmax > 0):
         raise InvalidInputError(f"vmax must be a positive relative error; got {vmax!r}")
     stats["vmax"] = float(vmax)
-    gain = np.float32(2.0**stops(exposure_or_auto(exposure, reference)))
+    gain = np.float32(2.0 ** stops(exposure_or_auto(exposure, reference)))
     gap = max(2, w // 64)
     size = max(8, h // 16)
     top_text, bottom_text = ">" + _percent(vmax), "0%"
@@ -137,15 +140,15 @@ def comparison_image(dynamic, reference, exposure: float | str = "auto", vmax: f
     panel_w = bar_w + 2 * gap + max(tw, bw)
     out = np.zeros((h, 3 * w + 3 * gap + panel_w, 3), dtype=np.float32)
     out[:, :w] = np.asarray(dynamic, dtype=np.float32) * gain
-    out[:, w + gap:2 * w + gap] = np.asarray(reference, dtype=np.float32) * gain
-    out[:, 2 * (w + gap):3 * w + 2 * gap] = false_colour(err, vmax)
+    out[:, w + gap : 2 * w + gap] = np.asarray(reference, dtype=np.float32) * gain
+    out[:, 2 * (w + gap) : 3 * w + 2 * gap] = false_colour(err, vmax)
     x0 = 3 * (w + gap)
     ramp = np.linspace(vmax, 0.0, h)  # the top of the bar is the largest error
-    out[:, x0:x0 + bar_w] = false_colour(ramp, vmax)[:, None, :]
+    out[:, x0 : x0 + bar_w] = false_colour(ramp, vmax)[:, None, :]
     if h >= 2 * (t_up + b_down):  # labels that would overlap are left out (tiny images)
-        labels = out[:, x0 + bar_w + gap:].copy()
+        labels = out[:, x0 + bar_w + gap :].copy()
         _label(labels, [(top_text, 0, t_up), (bottom_text, 0, h - 1 - b_down)], size)
-        out[:, x0 + bar_w + gap:] = labels
+        out[:, x0 + bar_w + gap :] = labels
     if titles is not None:
         out = _with_titles(out, list(titles), w, gap, size, f" (0-{_percent(vmax)})")
     return out, stats
@@ -185,9 +188,20 @@ class ReferenceFrame:
     exposure: float = 0.0  # the stops the renders in ``image`` were shown at
 
 
-def reference_frame(scene, form_factors, radiosity, camera, *, lights=(), renderer=None, image=None,
-                    shading: str = "smooth", exposure: float | str = "auto", local_only=None,
-                    device=None) -> ReferenceFrame:
+def reference_frame(
+    scene,
+    form_factors,
+    radiosity,
+    camera,
+    *,
+    lights=(),
+    renderer=None,
+    image=None,
+    shading: str = "smooth",
+    exposure: float | str = "auto",
+    local_only=None,
+    device=None,
+) -> ReferenceFrame:
     """Solve the full radiosity for ``lights`` and compare ``radiosity`` (N, 3) with it.
 
     ``form_factors``: all of F (a matrix, or any row source, read whole); ``camera`` the view
@@ -210,18 +224,30 @@ def reference_frame(scene, form_factors, radiosity, camera, *, lights=(), render
     exposure = exposure_or_auto(exposure, full_image)
     error_title = "relative error"
     if local_only is None:
-        composite, stats = comparison_image(image, full_image, exposure,
-                                            titles=("dynamic", "full solve", error_title))
-        return ReferenceFrame(full, radiosity_error(radiosity, full, scene.areas), composite, stats,
-                              black=not full_image.any(), exposure=exposure)
+        composite, stats = comparison_image(image, full_image, exposure, titles=("dynamic", "full solve", error_title))
+        return ReferenceFrame(
+            full,
+            radiosity_error(radiosity, full, scene.areas),
+            composite,
+            stats,
+            black=not full_image.any(),
+            exposure=exposure,
+        )
     local_image = renderer.render(local_only, camera, shading)
-    top, local_stats = comparison_image(local_image, full_image, exposure,
-                                        titles=("local only (paper)", "full solve", error_title))
-    bottom, stats = comparison_image(image, full_image, exposure,
-                                     titles=("with far field", "full solve", error_title))
+    top, local_stats = comparison_image(
+        local_image, full_image, exposure, titles=("local only (paper)", "full solve", error_title)
+    )
+    bottom, stats = comparison_image(image, full_image, exposure, titles=("with far field", "full solve", error_title))
     width = max(top.shape[1], bottom.shape[1])  # the colour bars' labels differ in width
     top, bottom = (np.pad(x, ((0, 0), (0, width - x.shape[1]), (0, 0))) for x in (top, bottom))
     gap = np.ones((max(2, top.shape[0] // 64), top.shape[1], 3), dtype=top.dtype)
-    return ReferenceFrame(full, radiosity_error(radiosity, full, scene.areas), np.concatenate([top, gap, bottom]),
-                          stats, radiosity_error(local_only, full, scene.areas), local_stats, black=not full_image.any(),
-                          exposure=exposure)
+    return ReferenceFrame(
+        full,
+        radiosity_error(radiosity, full, scene.areas),
+        np.concatenate([top, gap, bottom]),
+        stats,
+        radiosity_error(local_only, full, scene.areas),
+        local_stats,
+        black=not full_image.any(),
+        exposure=exposure,
+    )

@@ -19,8 +19,19 @@ import math
 
 import numpy as np
 
-__all__ = ["RESOLUTION", "LOCAL_SIZE_CAP", "FOV_Y", "WIDTH", "HEIGHT", "EXPOSURE", "KEY_VALUE", "PROGRESS_DELAY",
-           "default_local_size", "auto_exposure", "exposure_or_auto"]
+__all__ = [
+    "RESOLUTION",
+    "LOCAL_SIZE_CAP",
+    "FOV_Y",
+    "WIDTH",
+    "HEIGHT",
+    "EXPOSURE",
+    "KEY_VALUE",
+    "PROGRESS_DELAY",
+    "default_local_size",
+    "auto_exposure",
+    "exposure_or_auto",
+]
 
 #: Hemicube resolution R (R x R pixels on the top face) of form factors, object rows, gathers.
 RESOLUTION = 64
@@ -59,8 +70,11 @@ def auto_exposure(values, weights=None) -> float:
     """
     v = np.asarray(values, dtype=np.float64).reshape(-1, 3)
     y = v @ _LUMA
-    w = np.ones(len(y)) if weights is None else np.broadcast_to(np.asarray(weights, dtype=np.float64).reshape(-1),
-                                                               (len(y),))
+    w = (
+        np.ones(len(y))
+        if weights is None
+        else np.broadcast_to(np.asarray(weights, dtype=np.float64).reshape(-1), (len(y),))
+    )
     lit = (y > 0) & np.isfinite(y) & (w > 0)
     if not lit.any():
         return 0.0

@@ -50,7 +50,10 @@ class MissingExtraError(PydynradError, ImportError):
     """
 
     def __init__(self, feature: str, needs: str, extra: str, *, alternative: str = "", name: str | None = None) -> None:
-        super().__init__(f"{feature} needs {needs}: pip install 'pydynrad[{extra}]'"
-                         + (f", or {alternative}" if alternative else ""), name=name)
+        super().__init__(
+            f"{feature} needs {needs}: pip install 'pydynrad[{extra}]'"
+            + (f", or {alternative}" if alternative else ""),
+            name=name,
+        )
         self.feature = feature
         self.extra = extra

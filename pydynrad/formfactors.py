@@ -27,17 +27,25 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _runs
-from .checks import integer, patch_indices, resolution as checked_resolution
-from .geometry.scene import checked_scene
-from .errors import InvalidInputError, OutOfMemoryError
-from .device.launch import float4, global_size, hemicube_tiles, ray_work_group
-from .host.memory import available_host_bytes
+from .checks import integer, patch_indices
+from .checks import resolution as checked_resolution
 from .device.devices import device_or_default
+from .device.launch import float4, global_size, hemicube_tiles, ray_work_group
+from .errors import InvalidInputError, OutOfMemoryError
+from .geometry.scene import SURFACE_OFFSET, checked_scene
+from .host.memory import available_host_bytes
 from .progress import progress_bar
-from .geometry.scene import SURFACE_OFFSET
 
-__all__ = ["checked_samples", "form_factors", "hemicube_blocks", "hemicube_runs", "pixel_form_factors", "sample_points", "stack_blocks",
-           "CLUSTER_RESOLUTION"]
+__all__ = [
+    "checked_samples",
+    "form_factors",
+    "hemicube_blocks",
+    "hemicube_runs",
+    "pixel_form_factors",
+    "sample_points",
+    "stack_blocks",
+    "CLUSTER_RESOLUTION",
+]
 
 
 #: Bytes of run buffers of the two blocks in flight (8 bytes per pixel slot); bounds memory for any N.
@@ -84,8 +92,10 @@ def pixel_form_factors(resolution: int) -> np.ndarray:
     R, H = resolution, resolution // 2
     need, have = PIXEL_WEIGHT_BYTES_PER_R2 * R * R, available_host_bytes()
     if need > have:
-        raise OutOfMemoryError(f"hemicube resolution {R} needs about {need / 2**30:.1f} GiB of host memory for its "
-                               f"pixel weights; {have / 2**30:.1f} GiB is available. Use a lower resolution")
+        raise OutOfMemoryError(
+            f"hemicube resolution {R} needs about {need / 2**30:.1f} GiB of host memory for its "
+            f"pixel weights; {have / 2**30:.1f} GiB is available. Use a lower resolution"
+        )
     edges = -1.0 + 2.0 * np.arange(R + 1) / R  # pixel boundaries across a face
     heights = 2.0 * np.arange(H + 1) / R  # pixel boundaries up a side face
     u0, u1 = edges[:-1], edges[1:]
@@ -120,8 +130,9 @@ def _sample_levels(samples) -> int:
     k = integer(samples, "samples", 1, 4**6)
     levels = int(round(np.log(k) / np.log(4)))
     if 4**levels != k:
-        raise InvalidInputError(f"samples must be a power of 4 (1, 4, 16, ...: the strata of a triangle's midpoint "
-                                f"subdivision); got {k}")
+        raise InvalidInputError(
+            f"samples must be a power of 4 (1, 4, 16, ...: the strata of a triangle's midpoint subdivision); got {k}"
+        )
     return levels
 
 
@@ -134,8 +145,10 @@ def checked_samples(samples, resolution: int) -> int:
     levels = _sample_levels(samples)
     k = 4**levels
     if resolution % (2 << levels):
-        raise InvalidInputError(f"samples={k} splits resolution {resolution} into {k} hemicubes of resolution "
-                                f"{resolution} / {2**levels}, which must be an even integer")
+        raise InvalidInputError(
+            f"samples={k} splits resolution {resolution} into {k} hemicubes of resolution "
+            f"{resolution} / {2**levels}, which must be an even integer"
+        )
     return k
 
 
@@ -167,14 +180,30 @@ def _runs_to_csr(patch, weight, count, n_cols: int) -> sp.csr_matrix:
     count = np.ascontiguousarray(count, np.int32)
     most = int(count.sum())  # entries at most: one per run
     indptr, indices, data = np.empty(B + 1, np.int64), np.empty(most, np.int32), np.empty(most)
-    nnz = _runs.to_csr(np.ascontiguousarray(patch, np.int32), np.ascontiguousarray(weight, np.float32), count, R,
-                       int(n_cols), indptr, indices, data)
+    nnz = _runs.to_csr(
+        np.ascontiguousarray(patch, np.int32),
+        np.ascontiguousarray(weight, np.float32),
+        count,
+        R,
+        int(n_cols),
+        indptr,
+        indices,
+        data,
+    )
     return sp.csr_matrix((data[:nnz].copy(), indices[:nnz].copy(), indptr), shape=(B, n_cols))
 
 
-def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | None = None, *,
-                    desc: str = "form factors", clusters: tuple[np.ndarray, np.ndarray, int] | None = None,
-                    samples: int = 1):
+def hemicube_blocks(
+    scene,
+    resolution: int,
+    rows,
+    device=None,
+    progress: bool | None = None,
+    *,
+    desc: str = "form factors",
+    clusters: tuple[np.ndarray, np.ndarray, int] | None = None,
+    samples: int = 1,
+):
     """Rows of hemicube form factors in bounded blocks: yields one float64 CSR block at a time.
 
     The one block loop behind :func:`form_factors` and
@@ -192,9 +221,17 @@ def hemicube_blocks(scene, resolution: int, rows, device=None, progress: bool | 
     return (_runs_to_csr(*r, n_cols) for r in runs)
 
 
-def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | None = None, *,
-                  desc: str = "form factors", clusters: tuple[np.ndarray, np.ndarray, int] | None = None,
-                  samples: int = 1):
+def hemicube_runs(
+    scene,
+    resolution: int,
+    rows,
+    device=None,
+    progress: bool | None = None,
+    *,
+    desc: str = "form factors",
+    clusters: tuple[np.ndarray, np.ndarray, int] | None = None,
+    samples: int = 1,
+):
     """The device's side of :func:`hemicube_blocks`: an iterator of each block's run-length
     scanlines ``(patch, weight, count)`` as read back, (b, K 3R, R) int32 and float32 and
     (b, K 3R) int32 for K = ``samples`` hemicubes per row (see kernels/hemicube.cl), before any
@@ -203,13 +240,14 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
     (a moving object's hemicubes, queued beside the frame's other host work)."""
     import pyopencl as cl
 
-
     dev = device_or_default(device)
     R_total = checked_resolution(resolution)
     K = checked_samples(samples, R_total)
     R = R_total // int(round(np.sqrt(K)))  # each sample's hemicube
     if 3 * R_total * R_total * 4 > dev.max_alloc_bytes:
-        raise InvalidInputError(f"resolution {R_total} needs more memory per hemicube than {dev.name} allows in one buffer")
+        raise InvalidInputError(
+            f"resolution {R_total} needs more memory per hemicube than {dev.name} allows in one buffer"
+        )
     n = len(checked_scene(scene))
     rows = np.arange(n, dtype=np.int32) if rows is None else patch_indices(rows, n, "rows").astype(np.int32)
     if len(rows) == 0:
@@ -218,7 +256,9 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
     per_row = K * S * R * 8
     # Two blocks in flight (see below), each at most half of BLOCK_BYTES, and about
     # OVERLAP_BLOCKS blocks in all so that even a small scene overlaps host and device work.
-    block = int(max(1, min(len(rows), BLOCK_BYTES // (2 * per_row), max(MIN_BLOCK_ROWS, -(-len(rows) // OVERLAP_BLOCKS)))))
+    block = int(
+        max(1, min(len(rows), BLOCK_BYTES // (2 * per_row), max(MIN_BLOCK_ROWS, -(-len(rows) // OVERLAP_BLOCKS))))
+    )
     tiles, wg = hemicube_tiles(dev), ray_work_group(dev)
     defines, extra = tiles.defines(R), []
     if K > 1:
@@ -234,8 +274,10 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
     else:
         labels, scale, _ = clusters
         defines["HC_CLUSTERS"] = 1
-        extra = [dev.to_device(np.ascontiguousarray(a, dtype=t)) for a, t in
-                 ((labels, np.int32), (scale, np.float32), (weights, np.float32))]
+        extra = [
+            dev.to_device(np.ascontiguousarray(a, dtype=t))
+            for a, t in ((labels, np.int32), (scale, np.float32), (weights, np.float32))
+        ]
     nodes, tris, order = scene.bvh.buffers(dev)
     normals = scene.patch_buffers(dev)[1]
     mf = cl.mem_flags
@@ -244,7 +286,9 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
     # indices go through preallocated buffers too (a buffer made from host memory waited for
     # the queue to drain on PoCL), and the read-back of block b + 1 is enqueued only after
     # block b's host work: PoCL's reads wait for the kernel before them even when not blocking.
-    buffers = [tuple(cl.Buffer(dev.context, mf.WRITE_ONLY, block * K * S * w) for w in (R * 4, R * 4, 4)) for _ in range(2)]
+    buffers = [
+        tuple(cl.Buffer(dev.context, mf.WRITE_ONLY, block * K * S * w) for w in (R * 4, R * 4, 4)) for _ in range(2)
+    ]
     # Each block's rows, then the instance each row's rays skip (BVH.own_instances), in one copy.
     idx_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, 2 * block * 4) for _ in range(2)]
     org_bufs = [cl.Buffer(dev.context, mf.READ_ONLY, block * K * 16) for _ in range(2)]
@@ -261,8 +305,21 @@ def hemicube_runs(scene, resolution: int, rows, device=None, progress: bool | No
         # The first block is launched by the caller's thread, later ones by the thread that reads
         # the blocks: a kernel object per thread (Device.kernel), its arguments its own.
         knl = dev.kernel("hemicube.cl", "hemicube_runs", defines)
-        knl(dev.queue, (global_size(len(idx) * K * tiles.bands(R), wg),), (wg,), nodes, tris, order, org_bufs[k], normals,
-            idx_bufs[k], np.int32(len(idx)), eps, *buffers[k], *extra)
+        knl(
+            dev.queue,
+            (global_size(len(idx) * K * tiles.bands(R), wg),),
+            (wg,),
+            nodes,
+            tris,
+            order,
+            org_bufs[k],
+            normals,
+            idx_bufs[k],
+            np.int32(len(idx)),
+            eps,
+            *buffers[k],
+            *extra,
+        )
         return len(idx)
 
     def read(b: int, k: int):
@@ -296,8 +353,9 @@ def stack_blocks(blocks, n_cols: int) -> sp.csr_matrix:
     return m
 
 
-def form_factors(scene, resolution: int = 64, rows=None, device=None, progress: bool | None = None,
-                 samples: int = 1) -> sp.csr_matrix:
+def form_factors(
+    scene, resolution: int = 64, rows=None, device=None, progress: bool | None = None, samples: int = 1
+) -> sp.csr_matrix:
     """Gathering form factors F[i, j] of a scene by hemicubes.
 
     Parameters

@@ -85,11 +85,15 @@ def write_image(path, image, exposure: float = 0.0) -> Path:
     with np.errstate(over="ignore"):
         a = _checked_image(image) * np.float32(2.0**exposure)
     if not np.all(np.isfinite(a)):  # 2**exposure or the product overflowed float32
-        raise InvalidInputError(f"exposure {exposure:g} stops overflows float32 for this image (largest value "
-                                f"{float(np.abs(_checked_image(image)).max()):g}): use a smaller exposure")
+        raise InvalidInputError(
+            f"exposure {exposure:g} stops overflows float32 for this image (largest value "
+            f"{float(np.abs(_checked_image(image)).max()):g}): use a smaller exposure"
+        )
     if fmt == "hdr" and a.min() < 0:  # RGBE has no sign
-        raise InvalidInputError(f"cannot write {str(path)!r}: Radiance HDR stores no negative values (the image's "
-                                f"least is {float(a.min()):g}); use .exr or .pfm")
+        raise InvalidInputError(
+            f"cannot write {str(path)!r}: Radiance HDR stores no negative values (the image's "
+            f"least is {float(a.min()):g}); use .exr or .pfm"
+        )
     if linear:
         spec = oiio.ImageSpec(a.shape[1], a.shape[0], a.shape[2], oiio.FLOAT)
         pixels = a

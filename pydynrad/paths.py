@@ -54,20 +54,26 @@ from pathlib import Path
 
 import numpy as np
 
-from .defaults import FOV_Y
-from .geometry.camera import Camera
 from .checks import floats, number, unit_vector
+from .defaults import FOV_Y
 from .errors import InvalidInputError
+from .geometry.camera import Camera
 from .geometry.loading import load
-from .geometry.objects import RigidObject
-from .geometry.objects import rigid_transform
-from .lights.sources import DirectionalLight
-from .lights.sources import PointLight
-from .lights.sources import SpotLight
+from .geometry.objects import RigidObject, rigid_transform
+from .lights.sources import DirectionalLight, PointLight, SpotLight
 from .scenes import block
 
-__all__ = ["CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path", "load_walk", "WalkFile",
-           "INTERPOLATIONS"]
+__all__ = [
+    "CameraPath",
+    "LightTrack",
+    "ObjectTrack",
+    "orbit",
+    "fly_through",
+    "load_path",
+    "load_walk",
+    "WalkFile",
+    "INTERPOLATIONS",
+]
 
 INTERPOLATIONS = ("catmull-rom", "linear")
 
@@ -102,8 +108,11 @@ def _frame_count(frames) -> int:
     if n < 1:
         raise InvalidInputError(f"frames must be a whole number >= 1; got {n}")
     if n > MAX_FRAMES:
-        raise InvalidInputError(f"frames must be at most {MAX_FRAMES:,} (a walk renders every frame); got "
-                                f"{n:,}" if n < 10**30 else f"frames must be at most {MAX_FRAMES:,}; got a {len(str(n))}-digit number")
+        raise InvalidInputError(
+            f"frames must be at most {MAX_FRAMES:,} (a walk renders every frame); got {n:,}"
+            if n < 10**30
+            else f"frames must be at most {MAX_FRAMES:,}; got a {len(str(n))}-digit number"
+        )
     return n
 
 
@@ -129,8 +138,9 @@ def sample_curve(keys: np.ndarray, s: float, interpolation: str) -> np.ndarray:
     p0 = keys[i - 1] if i > 0 else 2.0 * p1 - p2
     p3 = keys[i + 2] if i + 2 < k else 2.0 * p2 - p1
     t2, t3 = t * t, t * t * t
-    return 0.5 * ((2.0 * p1) + (-p0 + p2) * t + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2
-                  + (-p0 + 3.0 * p1 - 3.0 * p2 + p3) * t3)
+    return 0.5 * (
+        (2.0 * p1) + (-p0 + p2) * t + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2 + (-p0 + 3.0 * p1 - 3.0 * p2 + p3) * t3
+    )
 
 
 def _param(frame: int, frames: int, n_keys: int) -> float:
@@ -200,8 +210,19 @@ class CameraPath:
         return Camera(eye, target, self.up, self.fov_y, self.width, self.height)
 
 
-def orbit(center, radius: float, elevation: float, frames: int, *, start_angle: float = 0.0, turns: float = 1.0,
-          up=(0.0, 1.0, 0.0), fov_y: float = FOV_Y, width: int = 320, height: int = 240) -> CameraPath:
+def orbit(
+    center,
+    radius: float,
+    elevation: float,
+    frames: int,
+    *,
+    start_angle: float = 0.0,
+    turns: float = 1.0,
+    up=(0.0, 1.0, 0.0),
+    fov_y: float = FOV_Y,
+    width: int = 320,
+    height: int = 240,
+) -> CameraPath:
     """A circle of ``radius`` around ``center`` at ``elevation`` above it (along ``up``), always
     looking at ``center``; ``turns`` full turns over ``frames`` frames, starting at
     ``start_angle`` degrees. ``fov_y`` (degrees), ``width`` and ``height`` (pixels) set the
@@ -220,11 +241,14 @@ def orbit(center, radius: float, elevation: float, frames: int, *, start_angle: 
     # Frames sample the full turn without repeating the start when turns == 1.
     angles = np.radians(start_angle) + 2.0 * np.pi * turns * np.arange(n) / n
     pos = c + radius * (np.cos(angles)[:, None] * a + np.sin(angles)[:, None] * b) + elevation * up_v
-    return CameraPath(pos, np.repeat(c[None], n, axis=0), n, fov_y, width, height, up=tuple(up_v), interpolation="linear")
+    return CameraPath(
+        pos, np.repeat(c[None], n, axis=0), n, fov_y, width, height, up=tuple(up_v), interpolation="linear"
+    )
 
 
-def fly_through(points, frames: int, *, up=(0.0, 1.0, 0.0), fov_y: float = FOV_Y, width: int = 320,
-                height: int = 240) -> CameraPath:
+def fly_through(
+    points, frames: int, *, up=(0.0, 1.0, 0.0), fov_y: float = FOV_Y, width: int = 320, height: int = 240
+) -> CameraPath:
     """Fly through ``points`` (K >= 2, Catmull-Rom) in ``frames`` frames, looking ahead;
     lens and image as in :func:`orbit`."""
     return CameraPath(_keyframes(points, "fly-through points"), None, _frame_count(frames), fov_y, width, height, up=up)
@@ -275,8 +299,12 @@ class ObjectTrack:
         T = np.asarray(self.transforms, dtype=np.float64)
         T = T[None] if T.ndim == 2 else T
         if T.ndim != 3 or len(T) == 0:
-            raise InvalidInputError(f"object keyframes must be (K, 4, 4) transforms; got shape {np.shape(self.transforms)}")
-        object.__setattr__(self, "transforms", np.stack([rigid_transform(t, f"object keyframe {k}") for k, t in enumerate(T)]))
+            raise InvalidInputError(
+                f"object keyframes must be (K, 4, 4) transforms; got shape {np.shape(self.transforms)}"
+            )
+        object.__setattr__(
+            self, "transforms", np.stack([rigid_transform(t, f"object keyframe {k}") for k, t in enumerate(T)])
+        )
         _check_interpolation(self.interpolation)
 
     def at(self, frame: int, frames: int) -> np.ndarray:
@@ -313,8 +341,10 @@ def _known_fields(doc: dict, allowed: tuple[str, ...], where: str) -> None:
     if unknown:
         renamed = {k: RENAMED[k] for k in unknown if k in RENAMED}
         hint = "; ".join(f"{k!r} is now {v}" for k, v in renamed.items())
-        raise InvalidInputError(f"{where}: unknown field {', '.join(map(repr, unknown))} (allowed: {', '.join(allowed)})"
-                                + (f"; {hint}" if hint else ""))
+        raise InvalidInputError(
+            f"{where}: unknown field {', '.join(map(repr, unknown))} (allowed: {', '.join(allowed)})"
+            + (f"; {hint}" if hint else "")
+        )
 
 
 #: Fields of earlier path files and what replaced them (named in the error for the old one).
@@ -325,9 +355,11 @@ _ORBIT_FIELDS = ("center", "radius", "elevation", "start_angle", "turns")
 _OBJECT_FIELDS = ("mesh", "block", "albedo", "emission", "name", "keyframes", "interpolation")
 _BLOCK_FIELDS = ("size", "subdivisions")
 #: Per light type: the light's own fields (its dataclass's, position aside) and whether it moves.
-_LIGHT_FIELDS = {"point": (("intensity",), True),
-                 "spot": (("direction", "intensity", "outer_angle_deg"), True),
-                 "directional": (("direction", "irradiance"), False)}
+_LIGHT_FIELDS = {
+    "point": (("intensity",), True),
+    "spot": (("direction", "intensity", "outer_angle_deg"), True),
+    "directional": (("direction", "irradiance"), False),
+}
 
 
 def _spot_degrees(item: dict, where: str) -> tuple[dict, dict]:
@@ -342,12 +374,17 @@ def _spot_degrees(item: dict, where: str) -> tuple[dict, dict]:
     item, radians = dict(item), {}
     for k in old:
         if f"{k}_deg" in item:
-            raise InvalidInputError(f"{where}: give {k + '_deg'!r} (degrees) or the deprecated {k!r} (radians), not both")
+            raise InvalidInputError(
+                f"{where}: give {k + '_deg'!r} (degrees) or the deprecated {k!r} (radians), not both"
+            )
         radians[k] = number(item.pop(k), f"{where}: {k}")
         item[f"{k}_deg"] = float(np.degrees(radians[k]))
-    warnings.warn(f"{where}: {' and '.join(map(repr, old))} (radians) are deprecated and will be removed in the next "
-                  f"release; give the cone half-angles in degrees as {' and '.join(repr(k + '_deg') for k in old)}",
-                  DeprecationWarning, stacklevel=4)
+    warnings.warn(
+        f"{where}: {' and '.join(map(repr, old))} (radians) are deprecated and will be removed in the next "
+        f"release; give the cone half-angles in degrees as {' and '.join(repr(k + '_deg') for k in old)}",
+        DeprecationWarning,
+        stacklevel=4,
+    )
     return item, radians
 
 
@@ -365,11 +402,13 @@ def _parse_light(item, where: str):
     _known_fields(item, ("type", *fields, *optional, *(("keyframes", "interpolation") if moves else ())), where)
     values = {f: _field(item, f, where, required=True) for f in fields}
     if kind == "spot":  # degrees in the file, radians in SpotLight
-        outer = radians.get("outer_angle") or np.radians(number(values.pop("outer_angle_deg"),
-                                                                 f"{where}: outer_angle_deg"))
+        outer = radians.get("outer_angle") or np.radians(
+            number(values.pop("outer_angle_deg"), f"{where}: outer_angle_deg")
+        )
         values.pop("outer_angle_deg", None)
-        inner = radians.get("inner_angle") or np.radians(number(_field(item, "inner_angle_deg", where,
-                                                                       np.degrees(outer)), f"{where}: inner_angle_deg"))
+        inner = radians.get("inner_angle") or np.radians(
+            number(_field(item, "inner_angle_deg", where, np.degrees(outer)), f"{where}: inner_angle_deg")
+        )
         values["outer_angle"], values["inner_angle"] = float(outer), float(inner)
     if not moves:
         return DirectionalLight(**values)
@@ -413,15 +452,17 @@ def _object_scene(item: dict, base: Path, where: str):
         # any file the reader may open ('../x.obj', an absolute path, a link leading out).
         target = (base / mesh).resolve()
         if Path(mesh).is_absolute() or not target.is_relative_to(base.resolve()):
-            raise InvalidInputError(f"{where}: 'mesh' {mesh!r} is outside the path file's folder {str(base)!r}; "
-                                    "put the mesh in that folder (or below it) and name it relative to it")
+            raise InvalidInputError(
+                f"{where}: 'mesh' {mesh!r} is outside the path file's folder {str(base)!r}; "
+                "put the mesh in that folder (or below it) and name it relative to it"
+            )
         try:
             return load(base / mesh)
         except InvalidInputError as exc:
             raise InvalidInputError(f"{where}: 'mesh': {exc}") from None
     b = item["block"]
     if not isinstance(b, dict):
-        raise InvalidInputError(f"{where}: 'block' must be an object like {{\"size\": 100, \"subdivisions\": 1}}")
+        raise InvalidInputError(f'{where}: \'block\' must be an object like {{"size": 100, "subdivisions": 1}}')
     _known_fields(b, _BLOCK_FIELDS, f"{where}: block")
     size = floats(_field(b, "size", f"{where}: block", required=True), f"{where}: block size")
     if size.shape not in ((), (3,)) or not np.all(np.isfinite(size)) or not np.all(size > 0):
@@ -444,8 +485,10 @@ def _parse_object(item, base: Path, where: str) -> ObjectTrack:
         raise InvalidInputError(f"{where}: {exc}") from None
     keys = _field(item, "keyframes", where, required=True)
     if not isinstance(keys, list) or not keys:
-        raise InvalidInputError(f"{where}: 'keyframes' must be a non-empty list of 4x4 matrices or "
-                                "{\"position\": [x, y, z], \"rotation_deg\": [rx, ry, rz]} objects")
+        raise InvalidInputError(
+            f"{where}: 'keyframes' must be a non-empty list of 4x4 matrices or "
+            '{"position": [x, y, z], "rotation_deg": [rx, ry, rz]} objects'
+        )
     poses = [_pose(k, f"{where}: keyframe {i}") for i, k in enumerate(keys)]
     obj = RigidObject(scene, poses[0], name=item.get("name"))
     return ObjectTrack(obj, poses, item.get("interpolation", "catmull-rom"))
@@ -472,8 +515,9 @@ def load_walk(path) -> WalkFile:
     if path.exists() and not path.is_file():  # a folder, or /dev/zero: read without end
         raise InvalidInputError(f"path file {str(path)!r}: not a regular file")
     if path.is_file() and path.stat().st_size > MAX_PATH_FILE_BYTES:
-        raise InvalidInputError(f"path file {str(path)!r}: {path.stat().st_size:,} bytes, more than a path file's "
-                                f"{MAX_PATH_FILE_BYTES:,}")
+        raise InvalidInputError(
+            f"path file {str(path)!r}: {path.stat().st_size:,} bytes, more than a path file's {MAX_PATH_FILE_BYTES:,}"
+        )
     try:
         doc = json.loads(path.read_text())
     except FileNotFoundError:
@@ -489,8 +533,11 @@ def load_walk(path) -> WalkFile:
         raise InvalidInputError(f"{where}: the top level must be a JSON object")
     try:
         _known_fields(doc, _TOP_FIELDS, where)
-        lens = {"fov_y": _field(doc, "fov_y", where, FOV_Y), "width": _field(doc, "width", where, 320),
-                "height": _field(doc, "height", where, 240)}
+        lens = {
+            "fov_y": _field(doc, "fov_y", where, FOV_Y),
+            "width": _field(doc, "width", where, 320),
+            "height": _field(doc, "height", where, 240),
+        }
         up = tuple(unit_vector(_field(doc, "up", where, (0.0, 1.0, 0.0)), "up"))
         frames = _field(doc, "frames", where, required=True)
         if "orbit" in doc and ("keyframes" in doc or "interpolation" in doc):
@@ -501,20 +548,30 @@ def load_walk(path) -> WalkFile:
             if not isinstance(o, dict):
                 raise InvalidInputError(f"{where}: 'orbit' must be an object")
             _known_fields(o, _ORBIT_FIELDS, f"{where}: orbit")
-            cam = orbit(_field(o, "center", where, required=True), _field(o, "radius", where, required=True),
-                        _field(o, "elevation", where, 0.0), frames, start_angle=_field(o, "start_angle", where, 0.0),
-                        turns=_field(o, "turns", where, 1.0), up=up, **lens)
+            cam = orbit(
+                _field(o, "center", where, required=True),
+                _field(o, "radius", where, required=True),
+                _field(o, "elevation", where, 0.0),
+                frames,
+                start_angle=_field(o, "start_angle", where, 0.0),
+                turns=_field(o, "turns", where, 1.0),
+                up=up,
+                **lens,
+            )
         else:
             keys = _field(doc, "keyframes", where, required=True)
             if not isinstance(keys, list) or not keys or not all(isinstance(k, dict) for k in keys):
-                raise InvalidInputError(f"{where}: 'keyframes' must be a non-empty list of "
-                                        "{\"position\": [x, y, z], \"look_at\": [x, y, z]} objects")
+                raise InvalidInputError(
+                    f"{where}: 'keyframes' must be a non-empty list of "
+                    '{"position": [x, y, z], "look_at": [x, y, z]} objects'
+                )
             positions = [_field(k, "position", f"{where}: keyframe {i}", required=True) for i, k in enumerate(keys)]
             look_ats = [_field(k, "look_at", f"{where}: keyframe {i}", required=True) for i, k in enumerate(keys)]
             for i, k in enumerate(keys):
                 _known_fields(k, ("position", "look_at"), f"{where}: keyframe {i}")
-            cam = CameraPath(positions, look_ats, frames, up=up, interpolation=doc.get("interpolation", "catmull-rom"),
-                             **lens)
+            cam = CameraPath(
+                positions, look_ats, frames, up=up, interpolation=doc.get("interpolation", "catmull-rom"), **lens
+            )
         items = _field(doc, "lights", where, [])
         if not isinstance(items, list):
             raise InvalidInputError(f"{where}: 'lights' must be a list")

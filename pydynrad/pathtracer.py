@@ -27,15 +27,14 @@ import time
 
 import numpy as np
 
-from .geometry.camera import Camera, check_image_memory
 from .checks import integer, patch_indices
-from .geometry.scene import checked_scene
-from .errors import InvalidInputError
-from .device.launch import float4, global_size
-from .lights.sources import SHADOW_EPSILON, checked_lights, pack_lights_and_tables
-from .lights.sky import pack_sky
-from .geometry.scene import Scene
 from .device.devices import default_device
+from .device.launch import float4, global_size
+from .errors import InvalidInputError
+from .geometry.camera import Camera, check_image_memory
+from .geometry.scene import Scene, checked_scene
+from .lights.sky import pack_sky
+from .lights.sources import SHADOW_EPSILON, checked_lights, pack_lights_and_tables
 from .progress import progress_bar
 
 __all__ = ["path_trace", "path_trace_patches"]
@@ -86,17 +85,28 @@ class _Tracer:
         # Materials are uploaded per tracer: scenes that share geometry (and so these cached
         # buffers) may differ in albedo and emission.
         self.args = (
-            nodes, tris, order,
-            normals, up(float4(scene.albedo)), up(float4(scene.emission)),
-            np.int32(len(em)), up(tri), up(float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
-            up(cdf.astype(np.float32)), np.float32(inv_power),
-            np.int32(n_lights), up(packed), up(tables), up(pack_sky(lights, scene.up)),
+            nodes,
+            tris,
+            order,
+            normals,
+            up(float4(scene.albedo)),
+            up(float4(scene.emission)),
+            np.int32(len(em)),
+            up(tri),
+            up(float4(scene.emission[em]) if len(em) else np.zeros((1, 4), np.float32)),
+            up(cdf.astype(np.float32)),
+            np.float32(inv_power),
+            np.int32(n_lights),
+            up(packed),
+            up(tables),
+            up(pack_sky(lights, scene.up)),
             np.float32(scene.frame.length(SHADOW_EPSILON * scene.ray_scale)),
             np.float32(scene.frame.length(2.0 * scene.scale)),  # directional shadow rays need only leave the scene
         )
 
-    def accumulate(self, kernel_name: str, items: tuple, n_items: int, spp: int, seed: int,
-                   progress, time_limit: float | None) -> tuple[np.ndarray, int]:
+    def accumulate(
+        self, kernel_name: str, items: tuple, n_items: int, spp: int, seed: int, progress, time_limit: float | None
+    ) -> tuple[np.ndarray, int]:
         """Run passes until ``spp`` samples (or the time limit); return (sum (n, 3), samples)."""
         import pyopencl as cl
 
@@ -112,8 +122,18 @@ class _Tracer:
         with bar:
             while done < spp:
                 n = min(size, spp - done)
-                kernel(queue, gsize, local, *items, np.int32(n_items), accum, np.uint32(seed),
-                       np.uint32(done), np.int32(n), *self.args)
+                kernel(
+                    queue,
+                    gsize,
+                    local,
+                    *items,
+                    np.int32(n_items),
+                    accum,
+                    np.uint32(seed),
+                    np.uint32(done),
+                    np.int32(n),
+                    *self.args,
+                )
                 queue.finish()
                 done += n
                 bar.update(n)
@@ -130,13 +150,23 @@ class _Tracer:
 def _check_common(spp, seed, time_limit) -> None:
     integer(spp, "spp (samples per item)", 1, MAX_SPP)
     integer(seed, "seed", 0, 2**32 - 1)
-    if time_limit is not None and (isinstance(time_limit, bool) or not isinstance(time_limit, (int, float, np.number))
-                                   or not time_limit > 0):
+    if time_limit is not None and (
+        isinstance(time_limit, bool) or not isinstance(time_limit, (int, float, np.number)) or not time_limit > 0
+    ):
         raise InvalidInputError(f"time_limit must be positive seconds or None; got {time_limit!r}")
 
 
-def path_trace(scene: Scene, camera, spp: int = 64, lights=(), seed: int = 0, max_depth: int = 256,
-               device=None, progress: bool | None = None, time_limit: float | None = None) -> np.ndarray:
+def path_trace(
+    scene: Scene,
+    camera,
+    spp: int = 64,
+    lights=(),
+    seed: int = 0,
+    max_depth: int = 256,
+    device=None,
+    progress: bool | None = None,
+    time_limit: float | None = None,
+) -> np.ndarray:
     """Path-trace the image ``camera`` sees.
 
     Parameters
@@ -174,15 +204,24 @@ def path_trace(scene: Scene, camera, spp: int = 64, lights=(), seed: int = 0, ma
     origin = np.zeros(4, dtype=np.float32)
     origin[:3] = scene.frame.points(camera.position)
     directions = tracer.device.to_device(float4(camera.ray_directions().reshape(-1, 3)))
-    total, done = tracer.accumulate("trace_pixels", (origin, directions), h * w, int(spp), int(seed),
-                                    progress, time_limit)
+    total, done = tracer.accumulate(
+        "trace_pixels", (origin, directions), h * w, int(spp), int(seed), progress, time_limit
+    )
     # The kernel returns radiance; pi * radiance is the radiosity of a diffuse surface.
     return (total * (math.pi / done)).reshape(h, w, 3).astype(np.float32)
 
 
-def path_trace_patches(scene: Scene, patches=None, spp: int = 256, lights=(), seed: int = 0,
-                       max_depth: int = 256, device=None, progress: bool | None = None,
-                       time_limit: float | None = None) -> np.ndarray:
+def path_trace_patches(
+    scene: Scene,
+    patches=None,
+    spp: int = 256,
+    lights=(),
+    seed: int = 0,
+    max_depth: int = 256,
+    device=None,
+    progress: bool | None = None,
+    time_limit: float | None = None,
+) -> np.ndarray:
     """Estimate patch radiosities by gathering at patch centres.
 
     ``B_i = E_i + rho_i * H_i`` with the irradiance ``H_i`` at patch i's centre estimated from
@@ -208,6 +247,7 @@ def path_trace_patches(scene: Scene, patches=None, spp: int = 256, lights=(), se
     tracer = _Tracer(scene, lights, max_depth, device)
     ids_dev = tracer.device.to_device(ids.astype(np.int32))
     centers = scene.patch_buffers(tracer.device)[0]
-    total, done = tracer.accumulate("gather_patches", (ids_dev, centers),
-                                    len(ids), int(spp), int(seed), progress, time_limit)
+    total, done = tracer.accumulate(
+        "gather_patches", (ids_dev, centers), len(ids), int(spp), int(seed), progress, time_limit
+    )
     return (scene.emission[ids] + total / done).astype(np.float32)

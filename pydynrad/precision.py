@@ -10,9 +10,12 @@ import numpy as np
 
 from .errors import InvalidInputError
 
-
 #: Element type in device memory per storage name.
-STORAGE_DTYPES: dict[str, np.dtype] = {"fp16": np.dtype(np.float16), "fp32": np.dtype(np.float32), "fp64": np.dtype(np.float64)}
+STORAGE_DTYPES: dict[str, np.dtype] = {
+    "fp16": np.dtype(np.float16),
+    "fp32": np.dtype(np.float32),
+    "fp64": np.dtype(np.float64),
+}
 
 
 def storage_dtype(storage: str) -> np.dtype:

@@ -24,13 +24,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry.camera import Camera, check_image_memory
 from .checks import number
-from .geometry.scene import checked_scene
-from .errors import InvalidInputError
-from .device.launch import WG, global_size
-from .smoothing import checked_radiosity as _as_radiosity, smooth_vertices, smoothing_groups
 from .device.devices import default_device
+from .device.launch import WG, global_size
+from .errors import InvalidInputError
+from .geometry.camera import Camera, check_image_memory
+from .geometry.scene import checked_scene
+from .smoothing import checked_radiosity as _as_radiosity
+from .smoothing import smooth_vertices, smoothing_groups
 
 __all__ = ["Renderer", "Visibility", "render", "smoothing_groups", "SHADINGS"]
 
@@ -39,6 +40,7 @@ SHADINGS = ("smooth", "flat")
 #: Peak host memory of :meth:`Renderer.render` per pixel, rounded up: 109 bytes measured
 #: (a 3000 x 3000 smooth render, PoCL CPU, whose device buffers are host memory too).
 RENDER_BYTES_PER_PIXEL = 128
+
 
 @dataclass
 class Visibility:
@@ -108,8 +110,20 @@ class Renderer:
         d_uvf = cl.Buffer(dev.context, mf.WRITE_ONLY, 16 * n_pix)
         d_depth = cl.Buffer(dev.context, mf.WRITE_ONLY, 4 * n_pix)
         knl = dev.kernel("render.cl", "primary_visibility")
-        knl(dev.queue, (global_size(n_pix),), (WG,), nodes, tris, order, origin, d_dirs, np.int32(n_pix), d_patch, d_uvf,
-            d_depth)
+        knl(
+            dev.queue,
+            (global_size(n_pix),),
+            (WG,),
+            nodes,
+            tris,
+            order,
+            origin,
+            d_dirs,
+            np.int32(n_pix),
+            d_patch,
+            d_uvf,
+            d_depth,
+        )
         patch = np.empty(n_pix, dtype=np.int32)
         uvf = np.empty((n_pix, 4), dtype=np.float32)
         depth = np.empty(n_pix, dtype=np.float32)

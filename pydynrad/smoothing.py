@@ -20,14 +20,14 @@ from functools import cached_property
 import numpy as np
 
 from .checks import finite, floats, number
-from .geometry.scene import checked_scene
 from .errors import InvalidInputError
+from .geometry.scene import checked_scene
 
 __all__ = ["SmoothVertices", "checked_radiosity", "smooth_vertices", "smoothing_groups"]
 
 # Smoothing groups depend on the scene only: kept while the scene lives, so repeated
 # render() calls (a walk) and bakes group the corners once.
-_cache: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_cache: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def smoothing_groups(scene, crease_angle: float = 30.0) -> tuple[np.ndarray, int]:
@@ -95,8 +95,10 @@ def checked_radiosity(radiosity, n: int) -> np.ndarray:
         given = floats(radiosity, "radiosity")
     if np.all(np.isfinite(given)) and np.abs(given).max(initial=0.0) > FLOAT32_MAX:
         # finite in float64, inf once cast: say so, not "NaN or infinite" of values that were neither
-        raise InvalidInputError(f"radiosity reaches {float(np.abs(given).max()):.3g}, beyond float32 (what renders "
-                                "and smoothed vertices hold): scale the scene's emission and lights down")
+        raise InvalidInputError(
+            f"radiosity reaches {float(np.abs(given).max()):.3g}, beyond float32 (what renders "
+            "and smoothed vertices hold): scale the scene's emission and lights down"
+        )
     b = np.asarray(radiosity, dtype=np.float32)
     if b.ndim == 1 and b.shape == (n,):
         b = b[:, None]
@@ -136,8 +138,13 @@ class SmoothVertices:
         n = len(self.corner_vertex)
         b = checked_radiosity(radiosity, n).astype(np.float64)
         flat = self.corner_vertex.reshape(-1)
-        values = np.stack([np.bincount(flat, weights=self.weight * np.repeat(b[:, c], 3), minlength=self.n_vertices)
-                           for c in range(3)], axis=1)
+        values = np.stack(
+            [
+                np.bincount(flat, weights=self.weight * np.repeat(b[:, c], 3), minlength=self.n_vertices)
+                for c in range(3)
+            ],
+            axis=1,
+        )
         return values / self._total[:, None]
 
     @cached_property

@@ -28,15 +28,14 @@ import numpy as np
 import scipy.sparse as sp
 
 from .checks import check_form_factors, flag, number
-from .device.devices import real_dtype
 from .device.csr import DeviceCSR
+from .device.devices import device_or_default, real_dtype
+from .device.launch import sell_layout
 from .device.sell import DeviceSELL
 from .errors import ConvergenceError, InvalidInputError, OutOfMemoryError
-from .device.launch import sell_layout
-from .lights.sources import check_radiosity_range, checked_light_vector
 from .host.memory import available_host_bytes
-from .device.devices import device_or_default
 from .lights.areas import analytic_emitter_light
+from .lights.sources import check_radiosity_range, checked_light_vector
 
 __all__ = ["Solution", "RadiositySolver", "solve", "DENSE_MAX_PATCHES"]
 
@@ -129,12 +128,21 @@ class RadiositySolver:
     def _matrix(self, channels: int):
         key, sell = self.format(channels), self._sell(channels)
         if key not in self._formats:
-            self._formats[key] = (DeviceCSR(self.device, self._host_F, self.dtype, self._layout) if sell is None
-                                  else DeviceSELL(self.device, self._host_F, self.dtype, sell))
+            self._formats[key] = (
+                DeviceCSR(self.device, self._host_F, self.dtype, self._layout)
+                if sell is None
+                else DeviceSELL(self.device, self._host_F, self.dtype, sell)
+            )
         return self._formats[key]
 
-    def solve(self, L: np.ndarray, tol: float = 1e-6, max_iterations: int = 10000, bounces: int | None = None,
-              raise_on_failure: bool = True) -> Solution:
+    def solve(
+        self,
+        L: np.ndarray,
+        tol: float = 1e-6,
+        max_iterations: int = 10000,
+        bounces: int | None = None,
+        raise_on_failure: bool = True,
+    ) -> Solution:
         """B for light vector L (N, 3). See :func:`solve` for the parameters."""
         L = checked_light_vector(L, self._n)
         check_radiosity_range(L, self.scene.albedo, self.dtype)
@@ -144,8 +152,9 @@ class RadiositySolver:
         rho = self.scene.albedo.astype(np.float64)[:, :nch]
         t0 = time.perf_counter()
         # A fixed number of bounces never stops early (tol < 0).
-        B, it, residual, history = self._matrix(nch).jacobi(L[:, :nch], rho, L[:, :nch], tol if bounces is None else -1.0,
-                                                  max_iterations)
+        B, it, residual, history = self._matrix(nch).jacobi(
+            L[:, :nch], rho, L[:, :nch], tol if bounces is None else -1.0, max_iterations
+        )
         seconds = time.perf_counter() - t0
         converged = residual <= tol
         if bounces is None and not converged and raise_on_failure:
@@ -156,8 +165,16 @@ class RadiositySolver:
             )
         radiosity = np.repeat(B, 3, axis=1) if nch == 1 else B
         return Solution(
-            radiosity=radiosity, light=L, iterations=it, residual=residual, converged=converged,
-            method="iterative", dtype=self.dtype.name, channels=nch, seconds=seconds, history=history,
+            radiosity=radiosity,
+            light=L,
+            iterations=it,
+            residual=residual,
+            converged=converged,
+            method="iterative",
+            dtype=self.dtype.name,
+            channels=nch,
+            seconds=seconds,
+            history=history,
         )
 
 
@@ -206,14 +223,32 @@ def _dense_solve(scene, F: sp.csr_matrix, L: np.ndarray) -> Solution:
     r = L + scene.albedo.astype(np.float64) * (F @ B) - B
     residual = float(np.abs(r).max() / max(np.abs(B).max(), np.finfo(float).tiny))
     return Solution(
-        radiosity=B, light=L, iterations=0, residual=residual, converged=True, method="dense", dtype="float64",
-        channels=nch, seconds=time.perf_counter() - t0,
+        radiosity=B,
+        light=L,
+        iterations=0,
+        residual=residual,
+        converged=True,
+        method="dense",
+        dtype="float64",
+        channels=nch,
+        seconds=time.perf_counter() - t0,
     )
 
 
-def solve(scene, F, lights=(), method: str = "iterative", tol: float = 1e-6, max_iterations: int = 10000,
-          dtype=np.float32, device=None, bounces: int | None = None, raise_on_failure: bool = True,
-          light=None, emitters: str = "hemicube") -> Solution:
+def solve(
+    scene,
+    F,
+    lights=(),
+    method: str = "iterative",
+    tol: float = 1e-6,
+    max_iterations: int = 10000,
+    dtype=np.float32,
+    device=None,
+    bounces: int | None = None,
+    raise_on_failure: bool = True,
+    light=None,
+    emitters: str = "hemicube",
+) -> Solution:
     """Radiosity B = L + P F B over all patches.
 
     Parameters
@@ -254,8 +289,9 @@ def solve(scene, F, lights=(), method: str = "iterative", tol: float = 1e-6, max
         sol = _dense_solve(scene, check_form_factors(scene, F), L)
     else:
         solver = RadiositySolver(scene, F, dtype=dtype, device=device)
-        sol = solver.solve(L, tol=tol, max_iterations=max_iterations, bounces=bounces,
-                           raise_on_failure=raise_on_failure)
+        sol = solver.solve(
+            L, tol=tol, max_iterations=max_iterations, bounces=bounces, raise_on_failure=raise_on_failure
+        )
     if E is not None:
         sol.radiosity = sol.radiosity + E
     return sol

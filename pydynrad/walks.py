@@ -24,26 +24,38 @@ from pathlib import Path
 
 import numpy as np
 
-from .geometry.camera import Camera
-from .defaults import auto_exposure, default_local_size
-from .checks import integer, stops
-from .errors import InvalidInputError
-from .dynamic.moves import MovingObjects
-from .paths import CameraPath, LightTrack, ObjectTrack, WalkFile, fly_through, lights_at, load_path, load_walk, orbit
 from .atomic import check_file_target
+from .checks import integer, stops
 from .comparison import reference_frame
+from .defaults import auto_exposure
 from .device.devices import device_or_default
 from .dynamic import DynamicRadiosity
+from .dynamic.moves import MovingObjects
+from .errors import InvalidInputError
 from .formfactors import form_factors as hemicubes
+from .geometry.camera import Camera
 from .geometry.objects import check_reach
-from .image_io import _format_for
-from .image_io import write_image
+from .image_io import _format_for, write_image
+from .paths import CameraPath, LightTrack, ObjectTrack, WalkFile, fly_through, lights_at, load_path, load_walk, orbit
 from .progress import progress_bar
 from .renderer import Renderer
 from .rows.files import whole_matrix
+from .video import VideoWriter
 
-__all__ = ["walk", "WalkResult", "FrameRecord", "CameraPath", "LightTrack", "ObjectTrack", "orbit", "fly_through", "load_path",
-           "load_walk", "WalkFile", "STAGES"]
+__all__ = [
+    "walk",
+    "WalkResult",
+    "FrameRecord",
+    "CameraPath",
+    "LightTrack",
+    "ObjectTrack",
+    "orbit",
+    "fly_through",
+    "load_path",
+    "load_walk",
+    "WalkFile",
+    "STAGES",
+]
 
 STAGES = ("update", "lighting", "render", "write")
 
@@ -98,17 +110,21 @@ class WalkResult:
             lines.append(f"{stage:10s} {v[0]:10.1f} {np.median(rest):10.1f} {rest.max():10.1f}")
         total = sum(t[s] for s in STAGES)
         rest = total[1:] if len(total) > 1 else total
-        lines.append(f"{'frame':10s} {1e3 * total[0]:10.1f} {1e3 * np.median(rest):10.1f} {1e3 * rest.max():10.1f}"
-                     f"   -> {1.0 / max(np.median(rest), 1e-9):.1f} frames/s"
-                     + ("" if self.rendered else " (update + lighting only: nothing rendered)"))
+        lines.append(
+            f"{'frame':10s} {1e3 * total[0]:10.1f} {1e3 * np.median(rest):10.1f} {1e3 * rest.max():10.1f}"
+            f"   -> {1.0 / max(np.median(rest), 1e-9):.1f} frames/s"
+            + ("" if self.rendered else " (update + lighting only: nothing rendered)")
+        )
         for f in self.frames:
             if f.error is None:
                 continue
             line = f"dynamic vs full radiosity at frame {f.index}: relative RMS error {100 * f.error:.3g}%"
             if f.local_only_error is not None:
-                line += (f" with the far field, {100 * f.local_only_error:.3g}% local only (the paper's method); "
-                         f"mean per pixel {100 * f.pixel_error['mean']:.3g}% and "
-                         f"{100 * f.local_only_pixel_error['mean']:.3g}%")
+                line += (
+                    f" with the far field, {100 * f.local_only_error:.3g}% local only (the paper's method); "
+                    f"mean per pixel {100 * f.pixel_error['mean']:.3g}% and "
+                    f"{100 * f.local_only_pixel_error['mean']:.3g}%"
+                )
             lines.append(line)
         return "\n".join(lines)
 
@@ -220,16 +236,17 @@ def walk(
         raise InvalidInputError(f"objects must be a sequence of ObjectTrack; got {type(objects).__name__}") from None
     for t in tracks:
         if not isinstance(t, ObjectTrack):
-            raise InvalidInputError(f"objects must be ObjectTrack entries (a RigidObject with keyframes); got {type(t).__name__}")
+            raise InvalidInputError(
+                f"objects must be ObjectTrack entries (a RigidObject with keyframes); got {type(t).__name__}"
+            )
     auto = exposure is None or (isinstance(exposure, str) and exposure == "auto")
     exposure = None if auto else stops(exposure)  # before any frame's work, not at the first image written
     if not render and (output is not None or keep_images or video is not None):
-        raise InvalidInputError("render=False renders no frames: it cannot write them (output=, video=) or keep them "
-                                "(keep_images=)")
+        raise InvalidInputError(
+            "render=False renders no frames: it cannot write them (output=, video=) or keep them (keep_images=)"
+        )
     movie = None
     if video is not None:
-        from .video import VideoWriter
-
         movie = VideoWriter(video, fps, feature="walk(video=...)")  # the extra and the file, before any work
     n = len(path)
     # Every frame's camera and poses before any work (the solution's build included), not mid-walk;
@@ -287,8 +304,14 @@ def walk(
                 renderer = Renderer(dynamic.scene, device)  # the world at this frame's poses
             img = renderer.render(b, cam, shading) if render else None
             t3 = time.perf_counter()
-            rec = FrameRecord(k, cam, {"update": t1 - t0, "lighting": t2 - t1, "render": t3 - t2, "write": 0.0}, stats,
-                              black=img is not None and not img.any(), lit=bool(b.any()))
+            rec = FrameRecord(
+                k,
+                cam,
+                {"update": t1 - t0, "lighting": t2 - t1, "render": t3 - t2, "write": 0.0},
+                stats,
+                black=img is not None and not img.any(),
+                lit=bool(b.any()),
+            )
             if exposure is None and img is not None and img.any():  # auto: fixed at the first lit frame
                 exposure = auto_exposure(img)
             if out_dir is not None:
@@ -299,12 +322,26 @@ def walk(
                 rec.seconds["write"] = time.perf_counter() - t3
             if k in refs and tracks:
                 world = dynamic.scene
-                _reference(rec, dynamic, world, hemicubes(world, dynamic.resolution, device=device), frame_lights, b, img,
-                           renderer, shading, out_dir, exposure, device)
+                _reference(
+                    rec,
+                    dynamic,
+                    world,
+                    hemicubes(world, dynamic.resolution, device=device),
+                    frame_lights,
+                    b,
+                    img,
+                    renderer,
+                    shading,
+                    out_dir,
+                    exposure,
+                    device,
+                )
             elif k in refs:
                 if full_F is None:
                     full_F = whole_matrix(form_factors)
-                _reference(rec, dynamic, scene, full_F, frame_lights, b, img, renderer, shading, out_dir, exposure, device)
+                _reference(
+                    rec, dynamic, scene, full_F, frame_lights, b, img, renderer, shading, out_dir, exposure, device
+                )
             if keep_images:
                 images.append(img)
             records.append(rec)
@@ -315,15 +352,27 @@ def walk(
     return WalkResult(records, b, img, images, exposure=exposure or 0.0, rendered=render)
 
 
-def _reference(rec: FrameRecord, dynamic, scene, F, lights, b, img, renderer, shading, out_dir, exposure,
-               device) -> None:
+def _reference(
+    rec: FrameRecord, dynamic, scene, F, lights, b, img, renderer, shading, out_dir, exposure, device
+) -> None:
     """Solve the full radiosity for this frame's lights; record the error and the comparison."""
 
     local_only = None
     if getattr(dynamic, "far", None) is not None:  # the paper's answer from the same K, for comparison
         local_only = np.asarray(dynamic.radiosity(lights, far_field=False))
-    ref = reference_frame(scene, F, b, rec.camera, lights=lights, renderer=renderer, image=img, shading=shading,
-                          exposure=exposure, local_only=local_only, device=device)
+    ref = reference_frame(
+        scene,
+        F,
+        b,
+        rec.camera,
+        lights=lights,
+        renderer=renderer,
+        image=img,
+        shading=shading,
+        exposure=exposure,
+        local_only=local_only,
+        device=device,
+    )
     rec.error, rec.pixel_error = ref.error, ref.pixel_error
     rec.local_only_error, rec.local_only_pixel_error = ref.local_only_error, ref.local_only_pixel_error
     if out_dir is not None:

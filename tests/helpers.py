@@ -40,8 +40,12 @@ def box_mesh(n: int = 2, size: float = 1.0, inward: bool = True) -> tuple[np.nda
                     pts.append(p)
             for i in range(n):
                 for j in range(n):
-                    q = [base + i * (n + 1) + j, base + (i + 1) * (n + 1) + j,
-                         base + (i + 1) * (n + 1) + j + 1, base + i * (n + 1) + j + 1]
+                    q = [
+                        base + i * (n + 1) + j,
+                        base + (i + 1) * (n + 1) + j,
+                        base + (i + 1) * (n + 1) + j + 1,
+                        base + i * (n + 1) + j + 1,
+                    ]
                     tris += [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]
     pts, tris = np.array(pts), np.array(tris)
     v = pts[tris]

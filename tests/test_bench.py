@@ -52,13 +52,27 @@ def _check_report(results: dict, written: dict, sections) -> None:
 def test_report_writer_round_trip(tmp_path):
     results = {
         "device": {"platform": "P", "device": "D", "type": "CPU", "compute_units": 2},
-        "date": "2026-01-01T00:00:00+00:00", "size": "tiny", "seconds": 1.5,
-        "sections": {"demo": {
-            "title": "Demo section", "description": "words", "seconds": 0.5,
-            "tables": [{"title": "T", "columns": ["a", "b"], "rows": [[1, 0.125], [2, float("nan")]]}],
-            "plots": [{"name": "p", "title": "P", "xlabel": "x", "ylabel": "y", "xscale": "log",
-                       "series": [{"label": "s", "x": [1, 10], "y": [np.float32(2.0), 3.0]}]}],
-        }},
+        "date": "2026-01-01T00:00:00+00:00",
+        "size": "tiny",
+        "seconds": 1.5,
+        "sections": {
+            "demo": {
+                "title": "Demo section",
+                "description": "words",
+                "seconds": 0.5,
+                "tables": [{"title": "T", "columns": ["a", "b"], "rows": [[1, 0.125], [2, float("nan")]]}],
+                "plots": [
+                    {
+                        "name": "p",
+                        "title": "P",
+                        "xlabel": "x",
+                        "ylabel": "y",
+                        "xscale": "log",
+                        "series": [{"label": "s", "x": [1, 10], "y": [np.float32(2.0), 3.0]}],
+                    }
+                ],
+            }
+        },
     }
     written = report.write_report(results, tmp_path, "dev-slug")
     data = json.loads(written["json"].read_text())
@@ -70,8 +84,10 @@ def test_report_writer_round_trip(tmp_path):
 
 
 def test_slug_and_format():
-    assert report.slugify("Portable Computing Language / pthread-Intel(R) Xeon(R)") == \
-        "portable-computing-language-pthread-intel-r-xeon-r"
+    assert (
+        report.slugify("Portable Computing Language / pthread-Intel(R) Xeon(R)")
+        == "portable-computing-language-pthread-intel-r-xeon-r"
+    )
     assert report.format_value(0.000123456) == "1.235e-04"
     assert report.format_value(12.3456) == "12.35"
     assert report.format_value(None) == "—"
@@ -84,25 +100,34 @@ def test_results_per_device_and_index(tmp_path):
     zen5 = {"device": "pthread-AMD EPYC", "version": hstr + "generic", "cpu_family": "1ah/2h"}
     assert report.device_dir(xeon, tmp_path) == tmp_path / "pthread-intel-r-xeon-r-processor-rocketlake"
     assert report.device_slug(zen5) == "pthread-amd-epyc-family-1ah"
-    zen4 = {"device": "pthread-AMD EPYC", "version": hstr + "znver3", "cpu_family": "19h/11h",
-            "compiler_cpu": "skylake-avx512 (PoCL's LLVM named it znver3)"}
+    zen4 = {
+        "device": "pthread-AMD EPYC",
+        "version": hstr + "znver3",
+        "cpu_family": "19h/11h",
+        "compiler_cpu": "skylake-avx512 (PoCL's LLVM named it znver3)",
+    }
     assert report.device_slug(zen4) == "pthread-amd-epyc-family-19h-11h"
     assert report.device_slug({**zen4, "cpu_family": "19h/1h", "compiler_cpu": None}) == "pthread-amd-epyc-znver3"
     assert report.device_slug({"device": "NVIDIA H200", "version": "OpenCL 3.0 CUDA"}) == "nvidia-h200"
     assert report.device_dir(epyc).parent == report.RESULTS_ROOT
     assert suite.report_name("quick", list(suite.SECTIONS)) == "quick"
     assert suite.report_name("quick", ["dynamic", "paper"]) == "quick-dynamic-paper"
-    for info, date, sub in ((xeon, "2026-11-23T04:04:19+00:00", "full"), (xeon, "2026-12-02 02:10", None),
-                            (epyc, "2026-12-02T06:00:00", None)):
+    for info, date, sub in (
+        (xeon, "2026-11-23T04:04:19+00:00", "full"),
+        (xeon, "2026-12-02 02:10", None),
+        (epyc, "2026-12-02T06:00:00", None),
+    ):
         folder = report.device_dir(info, tmp_path) / (sub or "")
         folder.mkdir(parents=True, exist_ok=True)
         (folder / f"r{len(list(folder.iterdir()))}.json").write_text(json.dumps({"device": info, "date": date}))
     (tmp_path / "pthread-amd-epyc-znver2" / "notes.json").write_text("not a report")  # skipped, not a crash
     lines = report.write_index(tmp_path).read_text().splitlines()
     assert "- [`pthread-amd-epyc-znver2/`](pthread-amd-epyc-znver2/): 2026-12-02" in lines
-    assert ("- [`pthread-intel-r-xeon-r-processor-rocketlake/`](pthread-intel-r-xeon-r-processor-rocketlake/): "
-            "2026-11-23, 2026-12-02; "
-            "sub-folders `full/`") in lines
+    assert (
+        "- [`pthread-intel-r-xeon-r-processor-rocketlake/`](pthread-intel-r-xeon-r-processor-rocketlake/): "
+        "2026-11-23, 2026-12-02; "
+        "sub-folders `full/`"
+    ) in lines
 
 
 def test_pathtracer_section_tiny(tmp_path, device):
@@ -145,6 +170,8 @@ def test_bake_section_tiny(tmp_path, device):
     bake = results["sections"]["bake"]["tables"][1]["rows"][0]
     # Coverage is a fraction, and the seam error inside charts is below the one at their borders.
     assert 0 < bake[3] < 1 and bake[7] < bake[10]
+
+
 def test_objects_section_tiny(tmp_path, device):
     results, written = suite.run_suite("tiny", ["objects"], tmp_path, device=device, progress=False, strict=True)
     _check_report(results, written, ["objects"])
@@ -157,7 +184,9 @@ def test_objects_section_tiny(tmp_path, device):
     # Rows from the static F: refreshing rows lowers the error against the full solve (observed
     # 0.0049 -> 0.0024 for 32 rows and for all 50; the far field's own error stays); with the
     # stale rows corrected, every budget gives about what all the rows do (observed 0.0025).
-    assert full[(0, "static F, uncorrected")] > 1.5 * max(full[(32, "static F, uncorrected")], full[("all", "static F")])
+    assert full[(0, "static F, uncorrected")] > 1.5 * max(
+        full[(32, "static F, uncorrected")], full[("all", "static F")]
+    )
     assert full[(0, "static F")] < 1.05 * full[("all", "static F")]
     # The path's poses precomputed: the rows of a fresh build at each pose, so only the correction's
     # tolerance stays between the two (observed 3.9e-6 against 1.0e-4 on the fly).

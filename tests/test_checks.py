@@ -3,8 +3,8 @@ import pytest
 
 import pydynrad
 from pydynrad.checks import finite, integer, number, vec3
-from pydynrad.geometry.scene import checked_scene as scene
 from pydynrad.errors import InvalidInputError
+from pydynrad.geometry.scene import checked_scene as scene
 
 
 def test_vec3_accepts_three_finite_numbers():
@@ -12,13 +12,16 @@ def test_vec3_accepts_three_finite_numbers():
     assert a.dtype == np.float64 and a.tolist() == [1.0, 2.5, -3.0]
 
 
-@pytest.mark.parametrize("value, message", [
-    ((1, 2), r"observer must be a 3-vector .* shape \(2,\)"),
-    ([[1, 2, 3]], r"shape \(1, 3\)"),
-    ("abc", "observer must be numbers; got 'abc'"),
-    ((0, np.nan, 0), r"observer must be finite .*nan"),
-    ((0, 0, np.inf), "NaN or infinite"),
-])
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        ((1, 2), r"observer must be a 3-vector .* shape \(2,\)"),
+        ([[1, 2, 3]], r"shape \(1, 3\)"),
+        ("abc", "observer must be numbers; got 'abc'"),
+        ((0, np.nan, 0), r"observer must be finite .*nan"),
+        ((0, 0, np.inf), "NaN or infinite"),
+    ],
+)
 def test_vec3_names_the_bad_value(value, message):
     with pytest.raises(InvalidInputError, match=message):
         vec3(value, "observer")
@@ -76,8 +79,12 @@ def test_public_entry_points_reject_non_numbers_and_non_scenes():
         pydynrad.PointLight((0, 0, 0), np.array(["1e3"] * 3, dtype=object))
     assert pydynrad.Camera((0, 0, -1), (0, 0, 0), fov_y=np.float32(45)).fov_y == 45.0
     light = pydynrad.PointLight((0, 0, 0), 1.0)
-    for call in (lambda: pydynrad.light_vector(None, [light]), lambda: pydynrad.lights.direct_irradiance(None, [light]),
-                 lambda: pydynrad.form_factors("box"), lambda: pydynrad.multibounce(None, np.eye(3))):
+    for call in (
+        lambda: pydynrad.light_vector(None, [light]),
+        lambda: pydynrad.lights.direct_irradiance(None, [light]),
+        lambda: pydynrad.form_factors("box"),
+        lambda: pydynrad.multibounce(None, np.eye(3)),
+    ):
         with pytest.raises(InvalidInputError, match="scene must be a pydynrad.Scene"):
             call()
 
@@ -103,20 +110,24 @@ def _index_takers(device, tmp_path):
     return s, takers, cache
 
 
-@pytest.mark.parametrize("bad, message", [
-    ([0.5], r"1-D array of integers; got shape \(1,\), dtype float64"),
-    ([[0, 1]], r"1-D array of integers; got shape \(1, 2\)"),
-    ([0, 16], r"patch indices in 0\.\.15; got values in \[0, 16\]"),
-    ([-1], r"patch indices in 0\.\.15; got values in \[-1, -1\]"),
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ([0.5], r"1-D array of integers; got shape \(1,\), dtype float64"),
+        ([[0, 1]], r"1-D array of integers; got shape \(1, 2\)"),
+        ([0, 16], r"patch indices in 0\.\.15; got values in \[0, 16\]"),
+        ([-1], r"patch indices in 0\.\.15; got values in \[-1, -1\]"),
+    ],
+)
 def test_one_patch_index_rule_everywhere(device, tmp_path, bad, message):
     s, takers, cache = _index_takers(device, tmp_path)
     try:
         for name, take in takers.items():
             with pytest.raises(InvalidInputError, match=message):
                 take(bad)
-            assert np.shape(take(np.array([3, 1]))) == ((2, 3) if name == "path_trace_patches" else
-                                                        (1, 2, 2) if name == "multibounce patches" else (2, len(s)))
+            assert np.shape(take(np.array([3, 1]))) == (
+                (2, 3) if name == "path_trace_patches" else (1, 2, 2) if name == "multibounce patches" else (2, len(s))
+            )
     finally:
         cache.close()
 
@@ -138,8 +149,9 @@ def test_repeats_and_empty_sets_only_refused_where_they_mean_nothing(device, tmp
         cache.close()
 
 
-@pytest.mark.parametrize("bad, message", [(3, "even"), (0, r"2\.\.4096"), (4098, r"2\.\.4096"), (8.0, "integer"),
-                                          (True, "integer")])
+@pytest.mark.parametrize(
+    "bad, message", [(3, "even"), (0, r"2\.\.4096"), (4098, r"2\.\.4096"), (8.0, "integer"), (True, "integer")]
+)
 def test_one_resolution_rule_everywhere(device, tmp_path, bad, message):
     """Whatever form_factors rejects, no store, file, solver or CLI option accepts or records."""
     import scipy.sparse as sp
@@ -164,7 +176,6 @@ def test_one_resolution_rule_everywhere(device, tmp_path, bad, message):
     if isinstance(bad, int) and not isinstance(bad, bool):
         with pytest.raises(SystemExit):
             build_parser().parse_args(["render", "cornell_box", "-o", "x.png", "--resolution", str(bad)])
-
 
 
 def test_booleans_are_not_numbers():

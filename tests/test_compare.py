@@ -42,16 +42,16 @@ def test_comparison_image_layout_and_error_values():
     dyn[:, : w // 2] *= 1.2  # left half 20 % too bright
     err = pixel_error(dyn, ref)
     np.testing.assert_allclose(err[:, : w // 2], 0.2, rtol=1e-5)
-    np.testing.assert_allclose(err[:, w // 2:], 0.0, atol=1e-7)
+    np.testing.assert_allclose(err[:, w // 2 :], 0.0, atol=1e-7)
     img, stats = comparison_image(dyn, ref, exposure=1.0, vmax=0.2)
     assert stats["vmax"] == 0.2 and stats["max"] == pytest.approx(0.2, rel=1e-5)
     assert img.shape[0] == h and img.shape[1] > 3 * w and img.dtype == np.float32
     np.testing.assert_allclose(img[:, :w], 2.0 * dyn, rtol=1e-6)  # exposure applied to the renders
     gap = max(2, w // 64)
-    np.testing.assert_allclose(img[:, w + gap:2 * w + gap], 2.0 * ref, rtol=1e-6)
-    emap = img[:, 2 * (w + gap):3 * w + 2 * gap]
+    np.testing.assert_allclose(img[:, w + gap : 2 * w + gap], 2.0 * ref, rtol=1e-6)
+    emap = img[:, 2 * (w + gap) : 3 * w + 2 * gap]
     np.testing.assert_allclose(emap[:, : w // 2], np.broadcast_to(false_colour(1.0, 1.0), (h, w // 2, 3)), atol=1e-6)
-    np.testing.assert_allclose(emap[:, w // 2:], np.broadcast_to(false_colour(0.0, 1.0), (h, w // 2, 3)), atol=1e-6)
+    np.testing.assert_allclose(emap[:, w // 2 :], np.broadcast_to(false_colour(0.0, 1.0), (h, w // 2, 3)), atol=1e-6)
     with pytest.raises(InvalidInputError):
         comparison_image(dyn, ref[:, :-1])
 
@@ -63,9 +63,9 @@ def test_colour_bar_labels_are_drawn_at_its_ends():
     ref = np.full((h, w, 3), 0.5, dtype=np.float32)
     img, _ = comparison_image(ref * 1.2, ref, vmax=0.2)
     gap, bar_w = max(2, w // 64), max(8, w // 16)
-    labels = img[:, 3 * (w + gap) + bar_w + gap:].max(axis=2)
+    labels = img[:, 3 * (w + gap) + bar_w + gap :].max(axis=2)
     ink = np.flatnonzero(labels.max(axis=1) > 0.5)
     size = max(8, h // 16)
     assert len(ink) and ink.min() < size and ink.max() > h - 1 - size
-    assert labels[2 * size:h - 2 * size].max() == 0.0
+    assert labels[2 * size : h - 2 * size].max() == 0.0
     assert labels.max() <= 1.0 + 1e-6

@@ -1,4 +1,4 @@
-"""Comparison pictures readable alone (issue 45): titled rows and columns, each row on its own
+"""Comparison pictures readable alone: titled rows and columns, each row on its own
 error scale with its colour bar."""
 
 import numpy as np
@@ -17,7 +17,7 @@ def test_titles_add_a_band_of_text_above_the_panels():
     np.testing.assert_array_equal(titled[band:], plain)  # the panels unchanged below the band
     gap = max(2, w // 64)
     for k in range(3):  # white text over each of the three panels
-        assert titled[:band, k * (w + gap):(k + 1) * w + k * gap].max() > 0.5, k
+        assert titled[:band, k * (w + gap) : (k + 1) * w + k * gap].max() > 0.5, k
 
 
 def test_each_row_has_its_own_scale(device):
@@ -27,8 +27,15 @@ def test_each_row_has_its_own_scale(device):
     dyn = pydynrad.DynamicRadiosity(scene, F, local_size=60, device=device)
     cam = pydynrad.Camera([278, 273, -800], [278, 273, 0], fov_y=39.3, width=64, height=48)
     dyn.update(cam.position)
-    ref = reference_frame(scene, F, dyn.radiosity([light]), cam, lights=[light],
-                          local_only=dyn.radiosity([light], far_field=False), device=device)
+    ref = reference_frame(
+        scene,
+        F,
+        dyn.radiosity([light]),
+        cam,
+        lights=[light],
+        local_only=dyn.radiosity([light], far_field=False),
+        device=device,
+    )
     # Independent of the picture: the rows' scales are their own 99th percentiles.
     assert ref.local_only_pixel_error["vmax"] == max(ref.local_only_pixel_error["p99"], 1e-3)
     assert ref.pixel_error["vmax"] == max(ref.pixel_error["p99"], 1e-3)

@@ -1,4 +1,4 @@
-"""One table of defaults (issue 45): every command and function follows pydynrad.defaults,
+"""One table of defaults: every command and function follows pydynrad.defaults,
 and docs/guide/defaults.md says the same."""
 
 import inspect
@@ -24,8 +24,16 @@ def _parse(argv):
     return build_parser().parse_args(argv)
 
 
-@pytest.mark.parametrize("argv", [["demo"], ["walk", "cornell_box", "--path", "p.json"], ["compare", "cornell_box", "-o", "c.png"],
-                                  ["render", "cornell_box", "-o", "r.png"], ["bake", "cornell_box", "-o", "b.glb"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["demo"],
+        ["walk", "cornell_box", "--path", "p.json"],
+        ["compare", "cornell_box", "-o", "c.png"],
+        ["render", "cornell_box", "-o", "r.png"],
+        ["bake", "cornell_box", "-o", "b.glb"],
+    ],
+)
 def test_the_commands_share_one_set_of_defaults(argv):
     args = _parse(argv)
     assert args.default_resolution == defaults.RESOLUTION == 64
@@ -53,7 +61,9 @@ def test_the_functions_share_them():
 def test_path_files_default_to_the_command_line_fov(tmp_path):
     from pydynrad.paths import load_walk
 
-    (tmp_path / "p.json").write_text(json.dumps({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}))
+    (tmp_path / "p.json").write_text(
+        json.dumps({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]})
+    )
     assert load_walk(tmp_path / "p.json").path.fov_y == defaults.FOV_Y
     from pydynrad.cli.main import DEFAULT_FOV_Y
 
@@ -64,8 +74,11 @@ def test_spot_angles_in_path_files_are_degrees_and_the_radians_keys_warn(tmp_pat
     from pydynrad.paths import load_walk
 
     def spot(**angles):
-        doc = {"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
-               "lights": [{"type": "spot", "direction": [0, -1, 0], "intensity": 1, "keyframes": [[0, 1, 0]], **angles}]}
+        doc = {
+            "frames": 2,
+            "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
+            "lights": [{"type": "spot", "direction": [0, -1, 0], "intensity": 1, "keyframes": [[0, 1, 0]], **angles}],
+        }
         (tmp_path / "p.json").write_text(json.dumps(doc))
         (light,) = load_walk(tmp_path / "p.json").lights
         return light
@@ -102,7 +115,7 @@ def test_auto_exposure_maps_the_log_average_to_middle_grey():
     img[0], img[1] = 0.09, 0.36  # geometric mean 0.18: 0 stops
     assert auto_exposure(img) == pytest.approx(0.0, abs=1e-12)
     img[1, 1] = 0.0  # unlit pixels do not count
-    assert auto_exposure(img) == pytest.approx(round(math.log2(0.18 / (0.09 ** 2 * 0.36) ** (1 / 3)), 2))
+    assert auto_exposure(img) == pytest.approx(round(math.log2(0.18 / (0.09**2 * 0.36) ** (1 / 3)), 2))
     # Luminance weights: pure green at Y = 0.7152 * g.
     assert auto_exposure([[0.0, 0.18 / 0.7152, 0.0]]) == pytest.approx(0.0, abs=1e-12)
     # Area weights (patches): the larger patch dominates.
@@ -114,9 +127,15 @@ def test_auto_exposure_maps_the_log_average_to_middle_grey():
 def test_the_docs_table_says_what_the_code_does():
     page = (ROOT / "docs" / "guide" / "defaults.md").read_text()
     assert "defaults" in (ROOT / "docs" / "guide" / "index.md").read_text()
-    for text in (f"**{defaults.RESOLUTION}**", f"min({defaults.LOCAL_SIZE_CAP}, N // 2)", f"**{defaults.FOV_Y} degrees**",
-                 f"**{defaults.WIDTH} x {defaults.HEIGHT}**", "**auto**", f"{defaults.KEY_VALUE}",
-                 f"after {defaults.PROGRESS_DELAY:g} s"):
+    for text in (
+        f"**{defaults.RESOLUTION}**",
+        f"min({defaults.LOCAL_SIZE_CAP}, N // 2)",
+        f"**{defaults.FOV_Y} degrees**",
+        f"**{defaults.WIDTH} x {defaults.HEIGHT}**",
+        "**auto**",
+        f"{defaults.KEY_VALUE}",
+        f"after {defaults.PROGRESS_DELAY:g} s",
+    ):
         assert text in page, text
 
 
@@ -140,12 +159,22 @@ def test_formfactors_store_computes_in_process_by_default(tmp_path, capsys, monk
 
 
 def test_compare_and_walk_say_what_they_chose(tmp_path, capsys):
-    code, out, err = run_main(["compare", *SMALL, "-o", str(tmp_path / "c.png"), "--width", "40", "--height", "30"], capsys)
+    code, out, err = run_main(
+        ["compare", *SMALL, "-o", str(tmp_path / "c.png"), "--width", "40", "--height", "30"], capsys
+    )
     assert code == 0, err
     assert "local set: 168 of 336 patches" in out and "exposure: " in out
     path = tmp_path / "p.json"
-    path.write_text(json.dumps({"frames": 3, "width": 40, "height": 30,
-                                "keyframes": [{"position": [278, 273, -800], "look_at": [278, 273, 0]}]}))
+    path.write_text(
+        json.dumps(
+            {
+                "frames": 3,
+                "width": 40,
+                "height": 30,
+                "keyframes": [{"position": [278, 273, -800], "look_at": [278, 273, 0]}],
+            }
+        )
+    )
     code, out, err = run_main(["walk", *SMALL, "--path", str(path)], capsys)
     assert code == 0, err
     assert "no --out: each frame is solved (update + lighting) and timed, not rendered" in out
@@ -158,7 +187,9 @@ def test_compare_and_walk_say_what_they_chose(tmp_path, capsys):
 def test_walk_without_rendering_times_only_the_solver(device):
     scene = pydynrad.scenes.cornell_box(max_edge=250.0)
     F = pydynrad.form_factors(scene, resolution=8, device=device, progress=False)
-    path = pydynrad.CameraPath([[278, 273, -800], [278, 273, 0]], [[278, 273, 0], [278, 273, 400]], 3, width=20, height=16)
+    path = pydynrad.CameraPath(
+        [[278, 273, -800], [278, 273, 0]], [[278, 273, 0], [278, 273, 400]], 3, width=20, height=16
+    )
     light = pydynrad.PointLight([278, 450, 280], 0.2)
     result = pydynrad.walk(scene, path, lights=[light], form_factors=F, render=False, progress=False, device=device)
     assert result.image is None and all(f.seconds["render"] < 1e-3 for f in result.frames)

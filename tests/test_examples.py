@@ -32,11 +32,14 @@ def test_every_example_is_listed():
     assert sorted(p.name for p in EXAMPLES.glob("*.py")) == sorted(PICTURES)
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n for n in sorted(PICTURES)])
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n for n in sorted(PICTURES)]
+)
 def test_example_runs_and_writes_its_pictures(name, tmp_path):
     env = dict(os.environ, PYDYNRAD_DOCS_SMALL="1", MPLBACKEND="Agg")
-    run = subprocess.run([sys.executable, str(EXAMPLES / name)], cwd=tmp_path, env=env, capture_output=True,
-                         text=True, timeout=600)
+    run = subprocess.run(
+        [sys.executable, str(EXAMPLES / name)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600
+    )
     assert run.returncode == 0, f"{name} failed:\n{run.stdout[-4000:]}\n{run.stderr[-8000:]}"
     for picture in PICTURES[name]:
         out = tmp_path / picture

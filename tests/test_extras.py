@@ -59,7 +59,9 @@ def test_import_pydynrad_needs_no_extra():
 def test_precompute_distributed_without_dask_names_the_extra(without_dask, tmp_path):
     from pydynrad.precompute.distributed import precompute_distributed
 
-    with pytest.raises(MissingExtraError, match=r"^precompute_distributed needs Dask: pip install 'pydynrad\[dask\]'$") as info:
+    with pytest.raises(
+        MissingExtraError, match=r"^precompute_distributed needs Dask: pip install 'pydynrad\[dask\]'$"
+    ) as info:
         precompute_distributed("cornell_box", tmp_path / "ff", resolution=8, workers=1)
     assert info.value.extra == "dask"
     assert not (tmp_path / "ff").exists()  # refused before any work
@@ -72,12 +74,14 @@ def test_start_client_without_dask_names_the_extra(without_dask):
         _start_client(1, None)
 
 
-@pytest.mark.parametrize("where, given", [(["--workers", "3"], "--workers 3"),
-                                          (["--scheduler", "tcp://localhost:1"], "--scheduler")])
+@pytest.mark.parametrize(
+    "where, given", [(["--workers", "3"], "--workers 3"), (["--scheduler", "tcp://localhost:1"], "--scheduler")]
+)
 def test_cli_store_on_dask_without_dask_is_one_line(without_dask, tmp_path, capsys, where, given):
     code, out, err = run_main(["formfactors", *SMALL, "-o", str(tmp_path / "ff"), *where], capsys)
-    assert_one_line_error(code, err, "pydynrad formfactors: error:", f"{given} needs Dask",
-                          "pip install 'pydynrad[dask]'", "--workers 0")
+    assert_one_line_error(
+        code, err, "pydynrad formfactors: error:", f"{given} needs Dask", "pip install 'pydynrad[dask]'", "--workers 0"
+    )
     assert not (tmp_path / "ff").exists()
 
 

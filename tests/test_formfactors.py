@@ -37,7 +37,9 @@ def perpendicular_rectangles(l, w, h):
     b = (W**2 * (1 + W**2 + H**2) / ((1 + W**2) * (W**2 + H**2))) ** (W**2)
     c = (H**2 * (1 + H**2 + W**2) / ((1 + H**2) * (H**2 + W**2))) ** (H**2)
     return (1 / (np.pi * W)) * (
-        W * np.arctan(1 / W) + H * np.arctan(1 / H) - np.sqrt(H**2 + W**2) * np.arctan(1 / np.sqrt(H**2 + W**2))
+        W * np.arctan(1 / W)
+        + H * np.arctan(1 / H)
+        - np.sqrt(H**2 + W**2) * np.arctan(1 / np.sqrt(H**2 + W**2))
         + np.log(a * b * c) / 4
     )
 
@@ -225,8 +227,10 @@ def test_row_blocks_give_the_single_block_rows(device, monkeypatch, block_rows):
 
     scene = perpendicular_plates(subdivisions=2)
     idx = np.array([63, 0, 17, 17, 40, 5, 62, 1, 30])
-    whole, part = form_factors(scene, resolution=16, device=device), form_factors(scene, resolution=16, rows=idx,
-                                                                                 device=device)
+    whole, part = (
+        form_factors(scene, resolution=16, device=device),
+        form_factors(scene, resolution=16, rows=idx, device=device),
+    )
     per_row = 3 * 16 * 16 * 8  # run buffers per row: 3R x R slots of 8 bytes
     assert ff.BLOCK_BYTES >= 2 * len(scene) * per_row  # the default holds all 64 rows in one block
     assert ff.MIN_BLOCK_ROWS >= len(scene)  # and a run this short is not cut for overlap
@@ -261,7 +265,7 @@ def test_runs_sum_into_csr_rows_in_the_order_they_come(n_cols):
             if patch[b, s, j] >= 0:
                 c = int(patch[b, s, j])
                 truth[b][c] = truth[b].get(c, 0.0) + float(weight[b, s, j])
-        patch[b, s, count[b, s]:] = n_cols  # past the count: a column that would be refused if read
+        patch[b, s, count[b, s] :] = n_cols  # past the count: a column that would be refused if read
     got = _runs_to_csr(patch, weight, count, n_cols)
     assert got.dtype == np.float64 and got.has_sorted_indices and got.shape == (B, n_cols)
     for b in range(B):
@@ -286,7 +290,6 @@ def rows_cast_one_by_one(scene, rows, R, device):
     layout of kernels/hemicube.h in numpy, float64) cast through cast_rays: each pixel's weight
     to the patch it meets from the front (not the row's own)."""
     from bench.formfactors import hemicube_rays
-
     from pydynrad.geometry.bvh import cast_rays
 
     patch, _, front = cast_rays(scene, *hemicube_rays(scene, rows, R), device=device)
@@ -311,7 +314,9 @@ def test_rows_are_the_hemicube_rays_cast_one_by_one(device, monkeypatch, resolut
     got = form_factors(scene, resolution=R, rows=rows, device=device).toarray()
     # Observed: 3e-8 per row (float32 sums). A ray within rounding of an edge may pick the
     # neighbouring patch in one of the two: allow one pixel per row.
-    assert np.abs(got - rows_cast_one_by_one(scene, rows, R, device)).sum(axis=1).max() < 2 * pixel_form_factors(R).max()
+    assert (
+        np.abs(got - rows_cast_one_by_one(scene, rows, R, device)).sum(axis=1).max() < 2 * pixel_form_factors(R).max()
+    )
 
 
 def test_pixel_weights_are_the_hemisphere():
@@ -374,8 +379,10 @@ def test_area_sampled_rows_remove_the_centre_points_bias(device):
     """16 unit-plate patches: the centre-point rows overestimate the parallel plates' F by 2.7% at
     any R (R = 128: +2.66%); 16 strata per row at the same rays (R = 128, 32 per sample) leave
     +0.11% (observed; perpendicular -0.75% -> -0.03%)."""
-    a_truth = (("parallel", parallel_plates, parallel_rectangles(1, 1, 1)),
-               ("perpendicular", perpendicular_plates, perpendicular_rectangles(1, 1, 1)))
+    a_truth = (
+        ("parallel", parallel_plates, parallel_rectangles(1, 1, 1)),
+        ("perpendicular", perpendicular_plates, perpendicular_rectangles(1, 1, 1)),
+    )
     for case, make, truth in a_truth:
         scene = make(subdivisions=1)
         a = scene.areas.astype(np.float64)
@@ -397,12 +404,21 @@ def test_area_sampled_rows_keep_the_furnace(device):
         assert np.all(F.diagonal() == 0) and F.data.min() > 0
         # The same rows in any order and block: sample origins and rotations belong to the patch.
         idx = np.array([70, 3, 70, 191])
-        np.testing.assert_array_equal(form_factors(scene, resolution=R, samples=K, rows=idx, device=device).toarray(),
-                                      F.toarray()[idx])
+        np.testing.assert_array_equal(
+            form_factors(scene, resolution=R, samples=K, rows=idx, device=device).toarray(), F.toarray()[idx]
+        )
 
 
-@pytest.mark.parametrize("samples,resolution,needle", [(3, 32, "power of 4"), (0, 32, "samples"), (2.0, 32, "samples"),
-                                                       (4, 6, "resolution 6 / 2"), (16, 4, "resolution 4 / 4")])
+@pytest.mark.parametrize(
+    "samples,resolution,needle",
+    [
+        (3, 32, "power of 4"),
+        (0, 32, "samples"),
+        (2.0, 32, "samples"),
+        (4, 6, "resolution 6 / 2"),
+        (16, 4, "resolution 4 / 4"),
+    ],
+)
 def test_bad_samples(device, samples, resolution, needle):
     with pytest.raises(InvalidInputError, match=needle):
         form_factors(parallel_plates(subdivisions=0), resolution=resolution, samples=samples, device=device)

@@ -1,15 +1,17 @@
 """Hostile input: what used to crash the process or answer wrongly is refused, naming the problem.
 
-Each test here was a defect of issue 14; the broken-F cases that segfaulted run in a
+Each test here was once a defect; the broken-F cases that segfaulted run in a
 subprocess, so a crash fails the test instead of killing the run."""
 
 import re
 import subprocess
 import sys
 import textwrap
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
+
 import pydynrad
 from pydynrad.checks import sparse_structure
 from pydynrad.errors import InvalidInputError
@@ -31,29 +33,34 @@ def _broken(F: sp.csr_matrix, kind: str) -> sp.csr_matrix:
     return G
 
 
-KINDS = {"column out of range": r"row 0 has column index 1000048 outside 0\.\.47",
-         "negative column": r"row 47 has column index -1 outside 0\.\.47",
-         "1-based": r"column index 48 outside 0\.\.47 \(1-based indices\?",
-         "negative indptr": r"row 4 has a negative length \(indptr decreases from \d+ to -3\)",
-         "reversed indptr": r"row 5 has a negative length"}
+KINDS = {
+    "column out of range": r"row 0 has column index 1000048 outside 0\.\.47",
+    "negative column": r"row 47 has column index -1 outside 0\.\.47",
+    "1-based": r"column index 48 outside 0\.\.47 \(1-based indices\?",
+    "negative indptr": r"row 4 has a negative length \(indptr decreases from \d+ to -3\)",
+    "reversed indptr": r"row 5 has a negative length",
+}
 
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_broken_F_is_refused_by_every_entry_point(closed_box_48, closed_box_48_F, device, kind):
     G = _broken(closed_box_48_F, kind)
-    calls = {"solve": lambda: pydynrad.solve(closed_box_48, G, device=device),
-             "multibounce": lambda: pydynrad.multibounce(closed_box_48, G, np.arange(8), device=device),
-             "DynamicRadiosity": lambda: pydynrad.DynamicRadiosity(closed_box_48, G, local_size=8, device=device),
-             "CSRRows": lambda: pydynrad.rows.CSRRows(G),
-             "CSC input": lambda: pydynrad.solve(closed_box_48, sp.csc_matrix((G.data, G.indices, G.indptr), shape=G.shape),
-                                                 device=device)}
+    calls = {
+        "solve": lambda: pydynrad.solve(closed_box_48, G, device=device),
+        "multibounce": lambda: pydynrad.multibounce(closed_box_48, G, np.arange(8), device=device),
+        "DynamicRadiosity": lambda: pydynrad.DynamicRadiosity(closed_box_48, G, local_size=8, device=device),
+        "CSRRows": lambda: pydynrad.rows.CSRRows(G),
+        "CSC input": lambda: pydynrad.solve(
+            closed_box_48, sp.csc_matrix((G.data, G.indices, G.indptr), shape=G.shape), device=device
+        ),
+    }
     for name, call in calls.items():
         with pytest.raises(InvalidInputError, match=KINDS[kind] if name != "CSC input" else "CSC"):
             call()
 
 
 def test_broken_F_in_a_subprocess_fails_cleanly_instead_of_crashing(tmp_path):
-    # multibounce with 1-based indices segfaulted on main before issue 14.
+    # multibounce with 1-based indices segfaulted before the structure checks.
     script = textwrap.dedent("""
         import numpy as np, pydynrad
         scene = pydynrad.scenes.closed_box(subdivisions=1)
@@ -81,13 +88,16 @@ def test_sparse_structure_accepts_what_scipy_builds():
         sparse_structure(A.indptr, A.indices.astype(float), A.shape)
 
 
-@pytest.mark.parametrize("size, subdivisions, resolutions, rows", [
-    ((1, 1, 1), 2, (2, 6, 16, 64), None),
-    ((3, 1, 0.1), 1, (2, 16, 64), None),
-    # A thin box seen edge-on from its side walls: rays graze the big walls' shared edges. The
-    # Moller-Trumbore test with slack lost one pixel of one of these rows at R = 128 (2.2e-5).
-    ((1, 1, 0.01), 2, (16, 128), np.arange(128)),
-])
+@pytest.mark.parametrize(
+    "size, subdivisions, resolutions, rows",
+    [
+        ((1, 1, 1), 2, (2, 6, 16, 64), None),
+        ((3, 1, 0.1), 1, (2, 16, 64), None),
+        # A thin box seen edge-on from its side walls: rays graze the big walls' shared edges. The
+        # Moller-Trumbore test with slack lost one pixel of one of these rows at R = 128 (2.2e-5).
+        ((1, 1, 0.01), 2, (16, 128), np.arange(128)),
+    ],
+)
 def test_closed_boxes_rows_sum_to_one_at_every_resolution(device, size, subdivisions, resolutions, rows):
     scene = pydynrad.scenes.closed_box(size=size, subdivisions=subdivisions)
     for R in resolutions:
@@ -106,8 +116,10 @@ def _moved_box(scale, offset, albedo=0.5, emission=1.0):
     return pydynrad.Scene(base.points * scale + offset * SHIFT, base.triangles, albedo=albedo, emission=emission)
 
 
-@pytest.mark.parametrize("scale, offset", [(1e-6, 0.0), (1e6, 0.0), (1.0, 1e6), (1.0, 1e7), (1e-3, 1e4), (1e6, -1e7),
-                                           (1e-15, 0.0), (1e14, 0.0)])
+@pytest.mark.parametrize(
+    "scale, offset",
+    [(1e-6, 0.0), (1e6, 0.0), (1.0, 1e6), (1.0, 1e7), (1e-3, 1e4), (1e6, -1e7), (1e-15, 0.0), (1e14, 0.0)],
+)
 def test_furnace_far_from_origin_and_at_extreme_scales(device, scale, offset):
     # Closed box, albedo 0.5, emission 1: B = E / (1 - rho) = 2 everywhere. Before the device
     # frame a unit box at 1e6 gave 1.961 and its F was empty at 1e14 or 1e-15.
@@ -128,10 +140,11 @@ def test_an_exposure_that_overflows_is_refused_not_written_as_inf(tmp_path):
     from pydynrad.comparison import comparison_image
 
     for exposure in (2000.0, -127.0, float("nan")):
-        for call in (lambda: pydynrad.image_io.write_image(tmp_path / "z.exr", image, exposure=exposure),
-                     lambda: comparison_image(image, image, exposure),
-                     lambda: export_mesh(pydynrad.scenes.block(1.0, 0), np.ones((12, 3)), tmp_path / "m.glb",
-                                         exposure=exposure)):
+        for call in (
+            lambda: pydynrad.image_io.write_image(tmp_path / "z.exr", image, exposure=exposure),
+            lambda: comparison_image(image, image, exposure),
+            lambda: export_mesh(pydynrad.scenes.block(1.0, 0), np.ones((12, 3)), tmp_path / "m.glb", exposure=exposure),
+        ):
             with pytest.raises(InvalidInputError, match="exposure"):
                 call()
     assert not list(tmp_path.glob("[zm].*"))
@@ -139,24 +152,42 @@ def test_an_exposure_that_overflows_is_refused_not_written_as_inf(tmp_path):
         pydynrad.image_io.write_image(tmp_path / "y.exr", np.full((2, 2, 3), 3e38, np.float32), exposure=1.0)
 
 
-def test_a_walk_checks_every_frame_before_any_work_and_deep_json_is_named(closed_box_48, closed_box_48_F, tmp_path, device):
+def test_a_walk_checks_every_frame_before_any_work_and_deep_json_is_named(
+    closed_box_48, closed_box_48_F, tmp_path, device
+):
     """A camera that degenerates mid-path (the position interpolated onto its look-at point) is
     refused before the solution is built, naming the frame (once: frame 0 was written first),
     and a path file nested too deeply for Python's parser is named (once: a RecursionError)."""
     import json
 
-    doc = {"frames": 3, "interpolation": "linear", "width": 8, "height": 6,
-           "keyframes": [{"position": [0.5, 0.5, -2.0], "look_at": [0.5, 0.5, 0.0]},
-                         {"position": [0.5, 0.5, 0.0], "look_at": [0.5, 0.5, -2.0]}]}
+    doc = {
+        "frames": 3,
+        "interpolation": "linear",
+        "width": 8,
+        "height": 6,
+        "keyframes": [
+            {"position": [0.5, 0.5, -2.0], "look_at": [0.5, 0.5, 0.0]},
+            {"position": [0.5, 0.5, 0.0], "look_at": [0.5, 0.5, -2.0]},
+        ],
+    }
     (tmp_path / "degenerate.json").write_text(json.dumps(doc))
     camera_path, _ = pydynrad.load_path(tmp_path / "degenerate.json")
     with pytest.raises(InvalidInputError, match="frame 1 of 3: camera look_at"):
-        pydynrad.walk(closed_box_48, camera_path, form_factors=closed_box_48_F, local_size=16, output=tmp_path / "out", device=device)
+        pydynrad.walk(
+            closed_box_48,
+            camera_path,
+            form_factors=closed_box_48_F,
+            local_size=16,
+            output=tmp_path / "out",
+            device=device,
+        )
     assert not (tmp_path / "out").exists()
     (tmp_path / "out" / "frame_0001.png").mkdir(parents=True)  # a folder in a later frame's place
     good = pydynrad.fly_through([[0.5, 0.5, -2.0], [0.5, 0.5, -1.0]], 3, width=8, height=6)
     with pytest.raises(InvalidInputError, match="frame_0001.png': a folder of that name is in the way"):
-        pydynrad.walk(closed_box_48, good, form_factors=closed_box_48_F, local_size=16, output=tmp_path / "out", device=device)
+        pydynrad.walk(
+            closed_box_48, good, form_factors=closed_box_48_F, local_size=16, output=tmp_path / "out", device=device
+        )
     assert not (tmp_path / "out" / "frame_0000.png").exists()
     (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(InvalidInputError, match="nested too deeply"):
@@ -183,14 +214,28 @@ def test_unit_vectors_of_huge_and_tiny_lengths():
     np.testing.assert_allclose(sun.direction, d / np.linalg.norm(d), rtol=1e-15)
 
 
-@pytest.mark.parametrize("frames, message", [("ten", "frames must be a whole number >= 1; got 'ten'"),
-                                             (10**9, "frames must be at most 1,000,000")])
+@pytest.mark.parametrize(
+    "frames, message",
+    [("ten", "frames must be a whole number >= 1; got 'ten'"), (10**9, "frames must be at most 1,000,000")],
+)
 def test_path_file_frames_are_named(tmp_path, frames, message):
     import json
 
     path = tmp_path / "p.json"
-    path.write_text(json.dumps({"frames": frames, "width": 8, "height": 8, "fov_y": 40, "keyframes": [
-        {"position": [0.1, 0.5, 0.5], "look_at": [0.9, 0.5, 0.5]}, {"position": [0.2, 0.5, 0.5], "look_at": [0.9, 0.5, 0.5]}]}))
+    path.write_text(
+        json.dumps(
+            {
+                "frames": frames,
+                "width": 8,
+                "height": 8,
+                "fov_y": 40,
+                "keyframes": [
+                    {"position": [0.1, 0.5, 0.5], "look_at": [0.9, 0.5, 0.5]},
+                    {"position": [0.2, 0.5, 0.5], "look_at": [0.9, 0.5, 0.5]},
+                ],
+            }
+        )
+    )
     with pytest.raises(InvalidInputError, match=message):  # main: "could not convert string to float"; 10^9 accepted
         pydynrad.paths.load_path(path)
 

@@ -2,8 +2,7 @@ import numpy as np
 import pytest
 
 from pydynrad import InvalidInputError
-from pydynrad.image_io import read_image, write_image
-from pydynrad.image_io import srgb_encode
+from pydynrad.image_io import read_image, srgb_encode, write_image
 
 
 def test_exr_round_trip_is_exact_and_linear(tmp_path):
@@ -94,7 +93,7 @@ def test_pfm_rows_follow_the_spec_and_round_trip(tmp_path):
     path = tmp_path / "a.pfm"
     write_image(path, a)
     raw = path.read_bytes()
-    assert raw.startswith(b"PF") and np.frombuffer(raw[-18 * 4:], "<f4")[0] == a[-1, 0, 0]  # bottom row first
+    assert raw.startswith(b"PF") and np.frombuffer(raw[-18 * 4 :], "<f4")[0] == a[-1, 0, 0]  # bottom row first
     np.testing.assert_array_equal(read_image(path), a)
     path.write_bytes(raw[:-8])
     with pytest.raises(InvalidInputError, match="malformed PFM"):

@@ -11,11 +11,11 @@ import time
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from helpers import box_scene, dense_K, dense_radiosity, reciprocal_F, rel
 
 import pydynrad
 from pydynrad import multibounce, multibounce_radiosity
 from pydynrad.bounces import multibounce_memory
-from helpers import box_scene, dense_K, dense_radiosity, reciprocal_F, rel
 
 
 @pytest.mark.parametrize("backend", ["device", "host"])  # the OpenCL kernels and numpy, on any device
@@ -140,7 +140,12 @@ def test_grey_K_with_coloured_light(device):
     assert K.shape[0] == 1
     dense = pydynrad.solve(s, F, method="dense", light=L, device=device).radiosity
     np.testing.assert_allclose(multibounce_radiosity(s, K, light=L), dense, rtol=1e-13, atol=1e-15)  # observed 8e-16
-    np.testing.assert_allclose(multibounce_radiosity(s, pydynrad.device.DeviceMatrix(device, K, "fp64"), light=L), dense, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(
+        multibounce_radiosity(s, pydynrad.device.DeviceMatrix(device, K, "fp64"), light=L),
+        dense,
+        rtol=1e-13,
+        atol=1e-15,
+    )
 
 
 def test_paper_scale_refused_quickly(device):

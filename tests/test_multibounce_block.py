@@ -28,14 +28,17 @@ def test_block_matches_dense_inverse_and_multibounce(device):
     assert np.array_equal(K, multibounce_block(F_SS.toarray(), rho, dtype=np.float64, device=device))
 
 
-@pytest.mark.parametrize("block,albedo,match", [
-    (np.full((4, 4), 0.3), np.full((4, 1), 0.5), "sums to"),
-    (-np.eye(4)[::-1] * 0.1, np.full((4, 1), 0.5), ">= 0"),
-    (np.where(np.eye(4) > 0, 0.0, np.nan), np.full((4, 1), 0.5), "NaN or infinite"),
-    (np.zeros((4, 3)), np.full((4, 1), 0.5), "square"),
-    (np.zeros((4, 4)), np.full((4, 2), 0.5), "albedo must have shape"),
-    (np.zeros((4, 4)), np.full((4, 1), 1.0), r"\[0, 1\)"),
-])
+@pytest.mark.parametrize(
+    "block,albedo,match",
+    [
+        (np.full((4, 4), 0.3), np.full((4, 1), 0.5), "sums to"),
+        (-np.eye(4)[::-1] * 0.1, np.full((4, 1), 0.5), ">= 0"),
+        (np.where(np.eye(4) > 0, 0.0, np.nan), np.full((4, 1), 0.5), "NaN or infinite"),
+        (np.zeros((4, 3)), np.full((4, 1), 0.5), "square"),
+        (np.zeros((4, 4)), np.full((4, 2), 0.5), "albedo must have shape"),
+        (np.zeros((4, 4)), np.full((4, 1), 1.0), r"\[0, 1\)"),
+    ],
+)
 def test_block_refuses_bad_input(device, block, albedo, match):
     with pytest.raises(pydynrad.InvalidInputError, match=match):
         multibounce_block(block, albedo, device=device)

@@ -56,9 +56,16 @@ def test_single_bounce_between_plates_matches_form_factor(device):
     distance 1 in closed form (Howell's catalogue, C-11)."""
     x = y = 1.0  # side / distance
     xs, ys = np.sqrt(1 + x * x), np.sqrt(1 + y * y)
-    f = 2 / (np.pi * x * y) * (
-        np.log(np.sqrt((1 + x * x) * (1 + y * y) / (1 + x * x + y * y)))
-        + x * ys * np.arctan(x / ys) + y * xs * np.arctan(y / xs) - x * np.arctan(x) - y * np.arctan(y)
+    f = (
+        2
+        / (np.pi * x * y)
+        * (
+            np.log(np.sqrt((1 + x * x) * (1 + y * y) / (1 + x * x + y * y)))
+            + x * ys * np.arctan(x / ys)
+            + y * xs * np.arctan(y / xs)
+            - x * np.arctan(x)
+            - y * np.arctan(y)
+        )
     )
     plates = pydynrad.scenes.parallel_plates(1.0, 1.0, 1.0, subdivisions=3)
     top = plates.source_face // 2 == 1  # the emitter, facing the receiver below
@@ -79,11 +86,16 @@ def test_analytic_lights_match_direct_irradiance(device):
     floor, up = plane_mesh(6)
     blocker = np.array([[0.1, 0.1, 0.5], [0.4, 0.1, 0.5], [0.4, 0.4, 0.5]])
     k = len(up)
-    scene = Scene(np.vstack([floor, blocker]), np.vstack([up, [[len(floor), len(floor) + 1, len(floor) + 2]]]),
-                  albedo=np.append(np.full(k, 0.7), 0.0))
-    lights = [PointLight((0.3, 0.3, 1.0), (1.0, 2.0, 0.5)),
-              SpotLight((0.7, 0.7, 0.8), (0, 0, -1), 3.0, 0.2, 0.6),
-              DirectionalLight((0.3, -0.2, -1.0), 0.4)]
+    scene = Scene(
+        np.vstack([floor, blocker]),
+        np.vstack([up, [[len(floor), len(floor) + 1, len(floor) + 2]]]),
+        albedo=np.append(np.full(k, 0.7), 0.0),
+    )
+    lights = [
+        PointLight((0.3, 0.3, 1.0), (1.0, 2.0, 0.5)),
+        SpotLight((0.7, 0.7, 0.8), (0, 0, -1), 3.0, 0.2, 0.6),
+        DirectionalLight((0.3, -0.2, -1.0), 0.4),
+    ]
     truth = 0.7 * direct_irradiance(scene, lights, device=device)[:k]
     assert (truth[:, 1] == 0).any() and (truth[:, 1] > 0).sum() > k // 2  # some shadowed, most lit
     b = path_trace_patches(scene, patches=np.arange(k), spp=3, lights=lights, device=device)

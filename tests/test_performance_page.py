@@ -18,8 +18,9 @@ def test_page_lists_every_device_folder_with_dated_runs():
     assert page.startswith("# Performance\n")
     headings = re.findall(r"^## `([^`]+)`$", page, re.M)
     assert headings == _device_folders(RESULTS_ROOT)
-    assert re.search(r"^Device `[^`]+`, run \d{4}-\d{2}-\d{2} \d{2}:\d{2} UTC, size `\w+`; from `bench/results/",
-                     page, re.M)
+    assert re.search(
+        r"^Device `[^`]+`, run \d{4}-\d{2}-\d{2} \d{2}:\d{2} UTC, size `\w+`; from `bench/results/", page, re.M
+    )
     assert performance_markdown() == page  # deterministic
 
 
@@ -27,8 +28,17 @@ def test_latest_run_of_each_section_per_device(tmp_path):
     dev = {"platform": "P", "device": "D", "type": "CPU", "compute_units": 2}
 
     def report(date, value, size="quick"):
-        return {"device": dev, "date": date, "size": size, "sections": {
-            "paper": {"title": "Paper", "tables": [{"title": "t", "columns": ["a", "b|c"], "rows": [[value, None]]}]}}}
+        return {
+            "device": dev,
+            "date": date,
+            "size": size,
+            "sections": {
+                "paper": {
+                    "title": "Paper",
+                    "tables": [{"title": "t", "columns": ["a", "b|c"], "rows": [[value, None]]}],
+                }
+            },
+        }
 
     (tmp_path / "dev-a" / "old").mkdir(parents=True)
     (tmp_path / "dev-b").mkdir()

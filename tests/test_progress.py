@@ -1,13 +1,11 @@
 """progress=None means "after two seconds" everywhere; True and False force it."""
 
-import sys
-
 import pydynrad
 from pydynrad.progress import shows_progress
 
 
 def test_the_rule(monkeypatch, capsys):
-    """tqdm's rules (issue 45): None shows a bar after the delay on any stream, True at once."""
+    """tqdm's rules: None shows a bar after the delay on any stream, True at once."""
     assert shows_progress(True) and shows_progress(True, long=False) and not shows_progress(False)
     assert shows_progress(None) and shows_progress(None, long=False)  # not only on a terminal
 
@@ -18,10 +16,12 @@ def test_long_calls_follow_it(device, capsys, tmp_path):
     calls = {
         "path tracing": lambda p: pydynrad.pathtracer.path_trace_patches(s, spp=2, device=device, progress=p),
         "form factors R=8": lambda p: pydynrad.form_factors(s, resolution=8, device=device, progress=p),
-        "multibounce": lambda p: pydynrad.multibounce(s, pydynrad.form_factors(s, resolution=8, device=device),
-                                                      device=device, progress=p),
-        "form factors": lambda p: pydynrad.compute_store(s, tmp_path / f"store-{p}", resolution=8, device=device,
-                                                         progress=p),
+        "multibounce": lambda p: pydynrad.multibounce(
+            s, pydynrad.form_factors(s, resolution=8, device=device), device=device, progress=p
+        ),
+        "form factors": lambda p: pydynrad.compute_store(
+            s, tmp_path / f"store-{p}", resolution=8, device=device, progress=p
+        ),
     }
     for desc, call in calls.items():
         call(None)

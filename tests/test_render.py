@@ -87,8 +87,11 @@ def test_smooth_corner_values_area_weighted_and_split_at_creases_and_materials()
 
     gentle = Scene(*two_triangles(20.0), albedo=0.5)
     assert smoothing_groups(gentle, crease_angle=30.0)[1] == 4
-    for scene in (Scene(*two_triangles(60.0), albedo=0.5), flat.with_materials(albedo=[[0.5] * 3, [0.7, 0.5, 0.5]]),
-                  flat.with_materials(emission=[0.0, 1.0])):
+    for scene in (
+        Scene(*two_triangles(60.0), albedo=0.5),
+        flat.with_materials(albedo=[[0.5] * 3, [0.7, 0.5, 0.5]]),
+        flat.with_materials(emission=[0.0, 1.0]),
+    ):
         groups, n_groups = smoothing_groups(scene, crease_angle=30.0)
         assert n_groups == 6
         corners = Renderer(scene).corner_radiosity(b)

@@ -11,10 +11,10 @@ tol / (1 - rho) plus float32 rounding accumulated over the bounces (~1e-6 here).
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from helpers import box_scene, dense_radiosity, reciprocal_F
 
 import pydynrad
 from pydynrad import solve
-from helpers import box_scene, dense_radiosity, reciprocal_F
 
 
 @pytest.mark.parametrize("rho", [0.5, 0.99])
@@ -46,7 +46,10 @@ def test_furnace_float32(device, rho):
 def test_iterative_matches_dense_coloured_leaky(device):
     rng = np.random.default_rng(4)
     s = box_scene(3)
-    s = s.with_materials(albedo=rng.uniform(0, 0.9, (len(s), 3)), emission=rng.uniform(0, 1, (len(s), 3)) * (rng.random((len(s), 1)) < 0.2))
+    s = s.with_materials(
+        albedo=rng.uniform(0, 0.9, (len(s), 3)),
+        emission=rng.uniform(0, 1, (len(s), 3)) * (rng.random((len(s), 1)) < 0.2),
+    )
     F = reciprocal_F(s.areas, row_sum=0.9, seed=2)
     truth = dense_radiosity(s, F, s.emission.astype(np.float64))
     dense = solve(s, F, method="dense", device=device)
@@ -128,7 +131,9 @@ def test_albedo_0999_reports_non_convergence_or_converges(device):
     assert not partial.converged and partial.iterations == 200 and partial.residual > 1e-6
     assert len(partial.history) == 200 and partial.history[-1] < partial.history[0]
     truth = 1.0 / (1.0 - s.albedo[0, 0].astype(np.float64))
-    np.testing.assert_allclose(solve(s, F, method="dense", device=device).radiosity, truth, rtol=1e-12)  # observed 1.2e-14
+    np.testing.assert_allclose(
+        solve(s, F, method="dense", device=device).radiosity, truth, rtol=1e-12
+    )  # observed 1.2e-14
 
 
 def test_albedo_one_refused():
@@ -190,7 +195,12 @@ def test_cornell_energy_balance(cornell_solved):
     the blocks (the total was 1.3% then because the two partly cancelled). Area-sampled rows
     (``form_factors(samples=)``) remove the centre points' part: test_scenes.py."""
     s, F, sol = cornell_solved
-    A, rho, E, B = (s.areas.astype(np.float64), s.albedo.astype(np.float64), s.emission.astype(np.float64), sol.radiosity)
+    A, rho, E, B = (
+        s.areas.astype(np.float64),
+        s.albedo.astype(np.float64),
+        s.emission.astype(np.float64),
+        sol.radiosity,
+    )
     H = F @ B
     emitted, absorbed = A @ E, A @ ((1 - rho) * H)
     column_mass = np.asarray(F.T @ A).ravel()
@@ -248,14 +258,17 @@ def test_rgb_pass_equals_three_grey_solves(device, dtype):
     rgb = solve(s, F, dtype=dtype, bounces=6, device=device)
     assert rgb.channels == 3
     for c in range(3):
-        grey = s.with_materials(albedo=np.repeat(s.albedo[:, c : c + 1], 3, axis=1),
-                                emission=np.repeat(s.emission[:, c : c + 1], 3, axis=1))
+        grey = s.with_materials(
+            albedo=np.repeat(s.albedo[:, c : c + 1], 3, axis=1), emission=np.repeat(s.emission[:, c : c + 1], 3, axis=1)
+        )
         one = solve(grey, F, dtype=dtype, bounces=6, device=device)
         assert one.channels == 1
         rtol = 1e-13 if dtype == np.float64 else 2e-6  # observed 3e-15 and 1.2e-7
         np.testing.assert_allclose(rgb.radiosity[:, c], one.radiosity[:, 0], rtol=rtol)
     truth = _series(s, F, s.emission.astype(np.float64), 6)
-    assert np.abs(rgb.radiosity - truth).max() < (1e-14 if dtype == np.float64 else 2e-6) * np.abs(truth).max()  # 2.5e-16, 8e-8
+    assert (
+        np.abs(rgb.radiosity - truth).max() < (1e-14 if dtype == np.float64 else 2e-6) * np.abs(truth).max()
+    )  # 2.5e-16, 8e-8
 
 
 @pytest.mark.parametrize("layout", [None, (1, 1), (1, 7), (1, 1000), (16, 5), (64, 1000)])
@@ -336,7 +349,9 @@ def test_grey_solve_in_every_device_format(device, traits, dtype):
     dev = device.with_traits(**traits)
     rng = np.random.default_rng(17)
     s = box_scene(4)
-    s = s.with_materials(albedo=np.full((len(s), 3), 0.7), emission=np.repeat(rng.uniform(0, 1, (len(s), 1)), 3, axis=1))
+    s = s.with_materials(
+        albedo=np.full((len(s), 3), 0.7), emission=np.repeat(rng.uniform(0, 1, (len(s), 1)), 3, axis=1)
+    )
     F = _leaky_F_with_empty_rows(s, seed=18)
     L = s.emission.astype(np.float64)
     solver = RadiositySolver(s, F, dtype=dtype, device=dev)

@@ -45,75 +45,163 @@ def _target(words_start):
 
 
 def _report(section, title, columns, rows, size="quick"):
-    return {"date": "2026-01-01T00:00:00+00:00", "size": size,
-            "sections": {section: {"tables": [{"title": title, "columns": columns, "rows": rows}]}}}
+    return {
+        "date": "2026-01-01T00:00:00+00:00",
+        "size": size,
+        "sections": {section: {"tables": [{"title": title, "columns": columns, "rows": rows}]}},
+    }
 
 
 OBJ_COLS = ["budget", "rows", "pixel error vs full"]
 FAR_COLS = ["scene", "variant", "all %", "pixels %", "x local-only frame", "precompute % of F"]
-FAR_ROWS = [["Cornell box", "local only (paper)", 16.9, 49.8, 1.0, None],
-            ["Cornell box", "far field, C = N/8", 0.47, 0.61, 1.12, 5.4],
-            ["village", "far field, C = N/4", 0.18, 0.12, 1.25, 10.4],
-            ["village", "far field, C = N/8", 0.30, 0.20, 1.10, 8.8]]
+FAR_ROWS = [
+    ["Cornell box", "local only (paper)", 16.9, 49.8, 1.0, None],
+    ["Cornell box", "far field, C = N/8", 0.47, 0.61, 1.12, 5.4],
+    ["village", "far field, C = N/4", 0.18, 0.12, 1.25, 10.4],
+    ["village", "far field, C = N/8", 0.30, 0.20, 1.10, 8.8],
+]
 UPDATE_COLS = ["M", "storage", "pass", "ms", "GB/s of K", "copy / ours"]
-UPDATE_ROWS = [[1024, "fp16", "exact update, 8 swaps, 3% non-zero", 1.0, 5.9, 4.38],
-               [1024, "fp32", "exact update, 8 swaps, 10% non-zero", 1.1, 10.8, 2.41],
-               [1024, "fp64", "exact update, 8 swaps, 3% non-zero", 1.1, 21.7, 1.20],
-               [4096, "fp32", "exact update, 8 swaps, 3% non-zero", 7.4, 27.1, 0.96],
-               [1024, "fp32", "lighting K x", 0.16, 25.1, 1.04],
-               [1024, "fp16", "lighting K x", 0.11, 18.1, 1.44]]
+UPDATE_ROWS = [
+    [1024, "fp16", "exact update, 8 swaps, 3% non-zero", 1.0, 5.9, 4.38],
+    [1024, "fp32", "exact update, 8 swaps, 10% non-zero", 1.1, 10.8, 2.41],
+    [1024, "fp64", "exact update, 8 swaps, 3% non-zero", 1.1, 21.7, 1.20],
+    [4096, "fp32", "exact update, 8 swaps, 3% non-zero", 7.4, 27.1, 0.96],
+    [1024, "fp32", "lighting K x", 0.16, 25.1, 1.04],
+    [1024, "fp16", "lighting K x", 0.11, 18.1, 1.44],
+]
 PAPER_COLS = ["M", "update", "K storage", "lighting ratio", "paper", "update ratio", "paper"]
-PAPER_ROWS = [[1024, "paper", "fp16", 1270.0, 400.0, 51.5, 200.0],
-              [1024, "exact", "fp16", 774.0, 400.0, 92.2, 200.0],
-              [1024, "exact + far field", "fp16", 675.0, 400.0, 103.9, 200.0],
-              [4096, "exact", "fp16", 139.0, 400.0, 21.2, 200.0]]
+PAPER_ROWS = [
+    [1024, "paper", "fp16", 1270.0, 400.0, 51.5, 200.0],
+    [1024, "exact", "fp16", 774.0, 400.0, 92.2, 200.0],
+    [1024, "exact + far field", "fp16", 675.0, 400.0, 103.9, 200.0],
+    [4096, "exact", "fp16", 139.0, 400.0, 21.2, 200.0],
+]
 
 # (target, report, the values read by hand from the rows above)
 CASES = [
-    ("a frame with a moving object", _report("objects", "A moving frame against a walk frame, by medians",
-                                             ["block patches", "moving / walk, medians", "moving / walk, minima"],
-                                             [[48, 2.68, 2.56], [64, 2.99, 3.09]]), [2.68, 2.99]),
-    ("pixel error of a moving-object", _report("objects", "A move per frame against the occlusion budget",
-                                               OBJ_COLS, [[0, "static F", 0.0091], [0, "static F, uncorrected", 0.078],
-                                                          [0, "static F, 64-patch block", 0.0097],
-                                                          [32, "static F", 0.0090]]), [0.91, 0.97]),
-    ("form factors' hemicube rays", _report("formfactors", "Ray throughput (rays/s)",
-                                            ["scene", "form_factors_over_embree", "hemicube_runs_over_embree"],
-                                            [["village", 2.51, 3.03], ["bunny", 2.60, 2.21]]), [2.51, 2.60]),
-    ("exact update of 8 swaps", _report("dynamic", "Update kernels and lighting product on one channel of K",
-                                        UPDATE_COLS, UPDATE_ROWS), [4.38, 2.41]),
-    ("lighting product within 1.2x", _report("dynamic", "Update kernels and lighting product on one channel of K",
-                                             UPDATE_COLS, UPDATE_ROWS), [1.04, 1.44]),
-    ("exact frame >= 400x", _report("paper", "Naive full radiosity vs the dynamic method", PAPER_COLS,
-                                    PAPER_ROWS, "full"), [92.2, 103.9]),
-    ("exact frame >= 100x", _report("paper", "Naive full radiosity vs the dynamic method", PAPER_COLS,
-                                    PAPER_ROWS, "full"), [21.2]),
-    ("full solve's sparse product", _report("paper", "Naive full radiosity's SpMV vs the copy bound",
-                                            ["N", "copy / SpMV", "copy / its SpMV"], [[66154, 2.2, 1.22]], "full"),
-     [1.22]),
-    ("multibounce build", _report("bandwidth", "Multibounce build K = (I - F P)^-1 F (grey)",
-                                  ["M", "ours / numpy f32", "ours / numpy f64"], [[512, 1.12, 1.14], [768, 1.07, 1.09]]),
-     [1.12, 1.07]),
-    ("far field (C = N/8): all-patch", _report("farfield", "Error against the full solve and time", FAR_COLS,
-                                               FAR_ROWS), [0.47, 0.30]),
-    ("far field (C = N/8): mean pixel", _report("farfield", "Error against the full solve and time", FAR_COLS,
-                                                FAR_ROWS), [0.61, 0.20]),
-    ("frame with static lights", _report("farfield", "Error against the full solve and time", FAR_COLS, FAR_ROWS),
-     [1.12, 1.10]),
-    ("far-field precompute", _report("farfield", "Error against the full solve and time", FAR_COLS, FAR_ROWS),
-     [5.4, 8.8]),
-    ("light change <= 3x", _report("farfield", "Light changes of the default far field (C = N/8)",
-                                   ["scene", "changes", "(change - coarse) / local lighting"],
-                                   [["Cornell box", "dimmed", 4.01], ["village", "moving lights", 26.5]]),
-     [4.01, 26.5]),
-    ("a 1,000,000-patch store", {"date": "2026-01-01 00:00", "size": "full", "walks": [
-        {"source": "store", "far_field": "off", "N": 1065668, "peak_rss_mib": 2000.0, "run": "1"},
-        {"source": "store", "far_field": "on (stored G)", "N": 1065668, "peak_rss_mib": 4000.0, "run": "1"},
-        {"source": "store", "far_field": "on (held G)", "N": 1065668, "peak_rss_mib": 8000.0, "run": "2"},
-        {"source": "store", "far_field": "off", "N": 1065668, "peak_rss_mib": 2400.0, "run": "3"},
-        {"source": "store", "far_field": "on (stored G)", "N": 1065668, "peak_rss_mib": 3000.0, "run": "3"},
-        {"source": "store", "far_field": "off", "N": 115146, "peak_rss_mib": 100.0, "run": "4"},
-        {"source": "store", "far_field": "on (stored G)", "N": 115146, "peak_rss_mib": 900.0, "run": "4"}]}, [1.25]),
+    (
+        "a frame with a moving object",
+        _report(
+            "objects",
+            "A moving frame against a walk frame, by medians",
+            ["block patches", "moving / walk, medians", "moving / walk, minima"],
+            [[48, 2.68, 2.56], [64, 2.99, 3.09]],
+        ),
+        [2.68, 2.99],
+    ),
+    (
+        "pixel error of a moving-object",
+        _report(
+            "objects",
+            "A move per frame against the occlusion budget",
+            OBJ_COLS,
+            [
+                [0, "static F", 0.0091],
+                [0, "static F, uncorrected", 0.078],
+                [0, "static F, 64-patch block", 0.0097],
+                [32, "static F", 0.0090],
+            ],
+        ),
+        [0.91, 0.97],
+    ),
+    (
+        "form factors' hemicube rays",
+        _report(
+            "formfactors",
+            "Ray throughput (rays/s)",
+            ["scene", "form_factors_over_embree", "hemicube_runs_over_embree"],
+            [["village", 2.51, 3.03], ["bunny", 2.60, 2.21]],
+        ),
+        [2.51, 2.60],
+    ),
+    (
+        "exact update of 8 swaps",
+        _report("dynamic", "Update kernels and lighting product on one channel of K", UPDATE_COLS, UPDATE_ROWS),
+        [4.38, 2.41],
+    ),
+    (
+        "lighting product within 1.2x",
+        _report("dynamic", "Update kernels and lighting product on one channel of K", UPDATE_COLS, UPDATE_ROWS),
+        [1.04, 1.44],
+    ),
+    (
+        "exact frame >= 400x",
+        _report("paper", "Naive full radiosity vs the dynamic method", PAPER_COLS, PAPER_ROWS, "full"),
+        [92.2, 103.9],
+    ),
+    (
+        "exact frame >= 100x",
+        _report("paper", "Naive full radiosity vs the dynamic method", PAPER_COLS, PAPER_ROWS, "full"),
+        [21.2],
+    ),
+    (
+        "full solve's sparse product",
+        _report(
+            "paper",
+            "Naive full radiosity's SpMV vs the copy bound",
+            ["N", "copy / SpMV", "copy / its SpMV"],
+            [[66154, 2.2, 1.22]],
+            "full",
+        ),
+        [1.22],
+    ),
+    (
+        "multibounce build",
+        _report(
+            "bandwidth",
+            "Multibounce build K = (I - F P)^-1 F (grey)",
+            ["M", "ours / numpy f32", "ours / numpy f64"],
+            [[512, 1.12, 1.14], [768, 1.07, 1.09]],
+        ),
+        [1.12, 1.07],
+    ),
+    (
+        "far field (C = N/8): all-patch",
+        _report("farfield", "Error against the full solve and time", FAR_COLS, FAR_ROWS),
+        [0.47, 0.30],
+    ),
+    (
+        "far field (C = N/8): mean pixel",
+        _report("farfield", "Error against the full solve and time", FAR_COLS, FAR_ROWS),
+        [0.61, 0.20],
+    ),
+    (
+        "frame with static lights",
+        _report("farfield", "Error against the full solve and time", FAR_COLS, FAR_ROWS),
+        [1.12, 1.10],
+    ),
+    (
+        "far-field precompute",
+        _report("farfield", "Error against the full solve and time", FAR_COLS, FAR_ROWS),
+        [5.4, 8.8],
+    ),
+    (
+        "light change <= 3x",
+        _report(
+            "farfield",
+            "Light changes of the default far field (C = N/8)",
+            ["scene", "changes", "(change - coarse) / local lighting"],
+            [["Cornell box", "dimmed", 4.01], ["village", "moving lights", 26.5]],
+        ),
+        [4.01, 26.5],
+    ),
+    (
+        "a 1,000,000-patch store",
+        {
+            "date": "2026-01-01 00:00",
+            "size": "full",
+            "walks": [
+                {"source": "store", "far_field": "off", "N": 1065668, "peak_rss_mib": 2000.0, "run": "1"},
+                {"source": "store", "far_field": "on (stored G)", "N": 1065668, "peak_rss_mib": 4000.0, "run": "1"},
+                {"source": "store", "far_field": "on (held G)", "N": 1065668, "peak_rss_mib": 8000.0, "run": "2"},
+                {"source": "store", "far_field": "off", "N": 1065668, "peak_rss_mib": 2400.0, "run": "3"},
+                {"source": "store", "far_field": "on (stored G)", "N": 1065668, "peak_rss_mib": 3000.0, "run": "3"},
+                {"source": "store", "far_field": "off", "N": 115146, "peak_rss_mib": 100.0, "run": "4"},
+                {"source": "store", "far_field": "on (stored G)", "N": 115146, "peak_rss_mib": 900.0, "run": "4"},
+            ],
+        },
+        [1.25],
+    ),
 ]
 
 
@@ -146,7 +234,9 @@ def test_latest_report_per_device_decides(tmp_path):
     (tmp_path / "dev-b" / "old.json").write_text(json.dumps(old))
     (result,) = evaluate(tmp_path, (target,))
     assert [(d.device, d.values, d.met, d.report) for d in result.devices] == [
-        ("dev-a", [1.3], False, "dev-a/sub/new.json"), ("dev-b", [1.1], True, "dev-b/old.json")]
+        ("dev-a", [1.3], False, "dev-a/sub/new.json"),
+        ("dev-b", [1.1], True, "dev-b/old.json"),
+    ]
     assert result.status == "met on 1 of 2 devices"
     (empty,) = evaluate(tmp_path, (_target("demo"),))
     assert empty.status == NOT_MEASURED

@@ -30,10 +30,13 @@ def _browser() -> tuple[str, str] | None:
 
 _MISSING = [name for name in ("selenium", "websockets") if importlib.util.find_spec(name) is None]
 pytestmark = [
-    pytest.mark.skipif(bool(_MISSING), reason=f"the viewer test needs {', '.join(_MISSING)}: pip install "
-                                              "'pydynrad[view]' selenium"),
-    pytest.mark.skipif(_browser() is None, reason="no Chromium and chromedriver on PATH (Debian: apt-get install "
-                                                  "chromium chromium-driver)"),
+    pytest.mark.skipif(
+        bool(_MISSING), reason=f"the viewer test needs {', '.join(_MISSING)}: pip install 'pydynrad[view]' selenium"
+    ),
+    pytest.mark.skipif(
+        _browser() is None,
+        reason="no Chromium and chromedriver on PATH (Debian: apt-get install chromium chromium-driver)",
+    ),
 ]
 
 SHOTS = os.environ.get("PYDYNRAD_VIEWER_SHOTS")
@@ -49,9 +52,16 @@ def browser():
     options = Options()
     options.binary_location = chrome
     # WebGL 2 without a GPU: ANGLE on SwiftShader, which Chromium enables only when asked.
-    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1000,640",
-                "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist",
-                "--hide-scrollbars"):
+    for arg in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-dev-shm-usage",
+        "--window-size=1000,640",
+        "--use-angle=swiftshader",
+        "--enable-unsafe-swiftshader",
+        "--ignore-gpu-blocklist",
+        "--hide-scrollbars",
+    ):
         options.add_argument(arg)
     options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     d = webdriver.Chrome(service=Service(driver), options=options)
@@ -71,8 +81,12 @@ def _wait(predicate, timeout: float = 30.0, what: str = "the page"):
 
 def _open(browser, viewer):
     browser.get(viewer.url)
-    _wait(lambda: browser.execute_script("return window.pydynrad && window.pydynrad.stats.framesReceived > 0 "
-                                         "&& window.pydynrad.stats.drawn > 0"), what="the first frame drawn")
+    _wait(
+        lambda: browser.execute_script(
+            "return window.pydynrad && window.pydynrad.stats.framesReceived > 0 && window.pydynrad.stats.drawn > 0"
+        ),
+        what="the first frame drawn",
+    )
 
 
 def _frames_received(browser) -> int:
@@ -82,8 +96,10 @@ def _frames_received(browser) -> int:
 def _settled(browser, viewer) -> dict:
     """The solver caught up with the browser's camera and the browser drew its last frame."""
     stats = viewer.wait_idle(timeout=60)
-    _wait(lambda: browser.execute_script("return window.pydynrad.stats.lastFrame") >= stats["frame"],
-          what="the last frame to reach the browser")
+    _wait(
+        lambda: browser.execute_script("return window.pydynrad.stats.lastFrame") >= stats["frame"],
+        what="the last frame to reach the browser",
+    )
     time.sleep(0.8)  # the exposure's easing (0.15 s time constant)
     return stats
 
@@ -103,13 +119,18 @@ def _distance_to_local(viewer, point) -> float:
 
 
 def _set_sun_on_page(browser, elevation: float, azimuth: float, irradiance: float) -> None:
-    browser.execute_script("""
+    browser.execute_script(
+        """
         const [el, az, irr] = arguments;
         document.getElementById('sun-on').checked = true;
         document.getElementById('sun-elevation').value = el;
         document.getElementById('sun-azimuth').value = az;
         document.getElementById('sun-irradiance').value = irr;
-        document.getElementById('sun-azimuth').dispatchEvent(new Event('input'));""", elevation, azimuth, irradiance)
+        document.getElementById('sun-azimuth').dispatchEvent(new Event('input'));""",
+        elevation,
+        azimuth,
+        irradiance,
+    )
 
 
 def _check_walkthrough(browser, viewer, far_camera, near_camera, sun, name: str) -> None:
@@ -134,8 +155,10 @@ def _check_walkthrough(browser, viewer, far_camera, near_camera, sun, name: str)
     lit = viewer.dynamic.radiosity(viewer.lights).sum()
     frames = _frames_received(browser)
     _set_sun_on_page(browser, *sun)
-    _wait(lambda: viewer.lights and any(isinstance(x, pydynrad.DirectionalLight) for x in viewer.lights),
-          what="the page's sun to reach the viewer")
+    _wait(
+        lambda: viewer.lights and any(isinstance(x, pydynrad.DirectionalLight) for x in viewer.lights),
+        what="the page's sun to reach the viewer",
+    )
     stats = _settled(browser, viewer)
     assert _frames_received(browser) > frames
     relit = viewer.dynamic.radiosity(viewer.lights).sum()
@@ -154,8 +177,14 @@ def test_cornell_box_in_chromium(browser):
     with view(scene, F, port=0, local_size=192) as viewer:
         # Outside the open side, then inside near the back wall; a low sun from the north (-z)
         # shines in through the open side.
-        _check_walkthrough(browser, viewer, ([278, 273, -900], [278, 273, 0]), ([450, 330, 480], [150, 120, 150]),
-                           (20.0, 0.0, 40.0), "cornell")
+        _check_walkthrough(
+            browser,
+            viewer,
+            ([278, 273, -900], [278, 273, 0]),
+            ([450, 330, 480], [150, 120, 150]),
+            (20.0, 0.0, 40.0),
+            "cornell",
+        )
         viewer.set_overlay("local")
         stats = viewer.wait_idle()
         assert stats["local"] == viewer.dynamic.M

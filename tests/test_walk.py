@@ -60,11 +60,19 @@ def write_json(tmp_path, doc, name="path.json"):
 
 
 def test_load_path_file(tmp_path):
-    doc = {"frames": 5, "fov_y": 50, "width": 40, "height": 30, "interpolation": "linear",
-           "keyframes": [{"position": [0, 0, 5], "look_at": [0, 0, 0]}, {"position": [2, 0, 5], "look_at": [0, 0, 0]}],
-           "lights": [{"type": "point", "intensity": [1, 2, 3], "keyframes": [[0, 1, 0], [0, 3, 0]]},
-                      {"type": "point", "intensity": 4, "keyframes": [[1, 1, 1]]},
-                      {"type": "directional", "direction": [0, -1, 0], "irradiance": 0.5}]}
+    doc = {
+        "frames": 5,
+        "fov_y": 50,
+        "width": 40,
+        "height": 30,
+        "interpolation": "linear",
+        "keyframes": [{"position": [0, 0, 5], "look_at": [0, 0, 0]}, {"position": [2, 0, 5], "look_at": [0, 0, 0]}],
+        "lights": [
+            {"type": "point", "intensity": [1, 2, 3], "keyframes": [[0, 1, 0], [0, 3, 0]]},
+            {"type": "point", "intensity": 4, "keyframes": [[1, 1, 1]]},
+            {"type": "directional", "direction": [0, -1, 0], "irradiance": 0.5},
+        ],
+    }
     path, lights = load_path(write_json(tmp_path, doc))
     assert len(path) == 5 and path.camera(0).shape == (30, 40) and path.camera(0).fov_y == 50
     np.testing.assert_allclose(path.camera(2).position, [1, 0, 5])
@@ -88,28 +96,67 @@ def test_load_path_file(tmp_path):
         ({"frames": 2, "width": 0, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "image width"),
         ({"frames": 2, "fov_y": 200, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "fov_y"),
         # Renamed fields are named with their new names, never silently ignored.
-        ({"frames": 2, "size": [10, 10], "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]},
-         "unknown field 'size'.*'size' is now 'width' and 'height'"),
-        ({"frames": 2, "fov": 50, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]},
-         "unknown field 'fov'.*'fov' is now 'fov_y'"),
+        (
+            {"frames": 2, "size": [10, 10], "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]},
+            "unknown field 'size'.*'size' is now 'width' and 'height'",
+        ),
+        (
+            {"frames": 2, "fov": 50, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]},
+            "unknown field 'fov'.*'fov' is now 'fov_y'",
+        ),
         ({"frames": 2, "orbit": {"center": [0, 0, 0], "radius": 1, "height": 2}}, "orbit: unknown field 'height'"),
-        ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0], "fov_y": 3}]},
-         "keyframe 0: unknown field 'fov_y'"),
-        ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
-          "lights": [{"type": "spot", "intensity": 1, "direction": [0, -1, 0], "inner_angle": 0.1,
-                      "outer_angle": 0.2, "keyframes": [[0, 1, 0]], "cone": 3}]}, "light 0: unknown field 'cone'"),
-        ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
-          "lights": [{"type": "spot", "intensity": 1, "direction": [0, -1, 0], "keyframes": [[0, 1, 0]]}]},
-         "light 0: missing field 'outer_angle_deg'"),
-        ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}], "lights": [{"type": "area"}]},
-         "unknown light type"),
+        (
+            {"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0], "fov_y": 3}]},
+            "keyframe 0: unknown field 'fov_y'",
+        ),
+        (
+            {
+                "frames": 2,
+                "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
+                "lights": [
+                    {
+                        "type": "spot",
+                        "intensity": 1,
+                        "direction": [0, -1, 0],
+                        "inner_angle_deg": 5,
+                        "outer_angle_deg": 10,
+                        "keyframes": [[0, 1, 0]],
+                        "cone": 3,
+                    }
+                ],
+            },
+            "light 0: unknown field 'cone'",
+        ),
+        (
+            {
+                "frames": 2,
+                "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
+                "lights": [{"type": "spot", "intensity": 1, "direction": [0, -1, 0], "keyframes": [[0, 1, 0]]}],
+            },
+            "light 0: missing field 'outer_angle_deg'",
+        ),
+        (
+            {"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}], "lights": [{"type": "area"}]},
+            "unknown light type",
+        ),
         ({"frames": 2, "orbit": {"radius": 1}}, "missing field 'center'"),
         # Fields that would be ignored are refused (the orbit won, the one-keyframe light kept any name).
-        ({"frames": 2, "orbit": {"center": [0, 0, 0], "radius": 1},
-          "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "'orbit' or 'keyframes'.*not both"),
-        ({"frames": 2, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
-          "lights": [{"type": "point", "intensity": 1, "keyframes": [[0, 1, 0]], "interpolation": "bogus"}]},
-         "light 0: .*bogus"),
+        (
+            {
+                "frames": 2,
+                "orbit": {"center": [0, 0, 0], "radius": 1},
+                "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
+            },
+            "'orbit' or 'keyframes'.*not both",
+        ),
+        (
+            {
+                "frames": 2,
+                "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}],
+                "lights": [{"type": "point", "intensity": 1, "keyframes": [[0, 1, 0]], "interpolation": "bogus"}],
+            },
+            "light 0: .*bogus",
+        ),
     ],
 )
 def test_bad_path_files_name_the_file_and_the_problem(tmp_path, doc, message):
@@ -142,12 +189,28 @@ class DirectOnly:
 def test_walk_drives_solver_moves_lights_and_writes_frames(device, tmp_path):
     pts, tris = box_mesh(n=4, inward=True)
     scene = Scene(pts, tris, albedo=0.5)
-    path = CameraPath([[0.5, 0.5, 0.9], [0.4, 0.6, 0.8]], [[0.5, 0.5, 0.0], [0.2, 0.4, 0.0]], frames=3,
-                      width=24, height=16, fov_y=80, interpolation="linear")
+    path = CameraPath(
+        [[0.5, 0.5, 0.9], [0.4, 0.6, 0.8]],
+        [[0.5, 0.5, 0.0], [0.2, 0.4, 0.0]],
+        frames=3,
+        width=24,
+        height=16,
+        fov_y=80,
+        interpolation="linear",
+    )
     track = LightTrack(PointLight((0.2, 0.8, 0.5), 1.0), [[0.2, 0.8, 0.5], [0.8, 0.8, 0.5]], interpolation="linear")
     solver = DirectOnly(scene, device)
-    result = walk(scene, path, solver, lights=[track], output=tmp_path / "frames", image_format="exr",
-                  keep_images=True, progress=False, device=device)
+    result = walk(
+        scene,
+        path,
+        solver,
+        lights=[track],
+        output=tmp_path / "frames",
+        image_format="exr",
+        keep_images=True,
+        progress=False,
+        device=device,
+    )
     np.testing.assert_allclose(np.array(solver.observers), [c.position for c in path])
     assert [f.stats for f in result.frames] == [1, 2, 3]
     renderer = Renderer(scene, device)
@@ -183,16 +246,43 @@ def test_walk_with_dynamic_radiosity_matches_full_solve_when_local_set_is_everyt
     F = form_factors(scene, resolution=16, device=device, progress=False)
     path = orbit((0.5, 0.5, 0.5), 0.3, 0.0, frames=3, width=20, height=16, fov_y=90)
     lights = [LightTrack(PointLight((0.3, 0.5, 0.5), 0.2), [[0.3, 0.5, 0.5], [0.7, 0.5, 0.5]])]
-    everything = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene), reference_frames=[0, -1],
-                      output=tmp_path, progress=False, device=device)
+    everything = walk(
+        scene,
+        path,
+        lights=lights,
+        form_factors=F,
+        local_size=len(scene),
+        reference_frames=[0, -1],
+        output=tmp_path,
+        progress=False,
+        device=device,
+    )
     assert set(everything.errors()) == {0, 2}
     assert max(everything.errors().values()) < 1e-4  # B = L + P K L with K over all patches is the full solution
     assert (tmp_path / "compare_0002.png").is_file() and (tmp_path / "frame_0001.png").is_file()
-    part = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene) // 3, reference_frames=[-1],
-                solver_options={"far_field": False}, progress=False, device=device)
+    part = walk(
+        scene,
+        path,
+        lights=lights,
+        form_factors=F,
+        local_size=len(scene) // 3,
+        reference_frames=[-1],
+        solver_options={"far_field": False},
+        progress=False,
+        device=device,
+    )
     assert part.errors()[2] > 10 * everything.errors()[2]  # patches outside the local set lack indirect light
-    far = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene) // 3, reference_frames=[-1],
-               output=tmp_path / "far", progress=False, device=device)
+    far = walk(
+        scene,
+        path,
+        lights=lights,
+        form_factors=F,
+        local_size=len(scene) // 3,
+        reference_frames=[-1],
+        output=tmp_path / "far",
+        progress=False,
+        device=device,
+    )
     # The same K gives the paper's answer beside the far field's: recorded and compared side by side.
     assert far.frames[2].local_only_error == pytest.approx(part.errors()[2], rel=1e-6)
     assert far.errors()[2] < part.errors()[2] / 5
@@ -204,20 +294,26 @@ def test_walk_with_dynamic_radiosity_matches_full_solve_when_local_set_is_everyt
 def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     """The same F as a .npz file and as a store behind a row cache a third of its size: the same
     frames, and the cache's prefetch of the next frame's entering rows is what serves them."""
-    from pydynrad.rows.files import open_form_factors, save_form_factors
-    from pydynrad.formfactors import form_factors
-    from pydynrad.rows.sources import CSRRows
     from pydynrad.farfield import FarField, cluster_patches
     from pydynrad.farfield.gather import basis_prolongation
+    from pydynrad.formfactors import form_factors
     from pydynrad.precompute.store import compute_store
+    from pydynrad.rows.files import open_form_factors, save_form_factors
+    from pydynrad.rows.sources import CSRRows
 
     pts, tris = box_mesh(n=4, inward=True)
     scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))
     scene = scene.with_materials(emission=np.where(scene.centers[:, 1] > 0.99, 1.0, 0.0))
     F = form_factors(scene, resolution=16, device=device, progress=False)  # hemicube F: not reciprocal
     save_form_factors(scene, tmp_path / "f.npz", F, resolution=16)
-    compute_store(scene, tmp_path / "ff", resolution=16, block_rows=32, progress=False,
-                  row_function=lambda scene, rows, resolution, device=None: F[rows])
+    compute_store(
+        scene,
+        tmp_path / "ff",
+        resolution=16,
+        block_rows=32,
+        progress=False,
+        row_function=lambda scene, rows, resolution, device=None: F[rows],
+    )
     path = fly_through([[0.1, 0.5, 0.1], [0.5, 0.5, 0.5], [0.9, 0.5, 0.9]], frames=10, width=20, height=16, fov_y=90)
     lights = [LightTrack(PointLight((0.3, 0.5, 0.5), 0.2), [[0.3, 0.5, 0.5], [0.7, 0.5, 0.5]])]
     # Equal far fields for both (from G, as a store has it: the linear basis; fresh, since the coarse solve starts
@@ -226,10 +322,21 @@ def test_walk_reading_a_store_equals_walk_reading_the_file(device, tmp_path):
     G = F @ basis_prolongation(scene, clusters)
     options = {"storage": "fp64", "max_swaps_per_frame": 4}
     cache = open_form_factors(scene, tmp_path / "ff", cache_bytes=CSRRows(F).nbytes // 3)
-    walks = {name: walk(scene, path, lights=lights, form_factors=src, local_size=48,
-                        solver_options={**options, "far_field": FarField(scene, None, clusters, G, device=device)},
-                        reference_frames=[-1], keep_images=True, progress=False, device=device)
-             for name, src in (("file", open_form_factors(scene, tmp_path / "f.npz")), ("store", cache))}
+    walks = {
+        name: walk(
+            scene,
+            path,
+            lights=lights,
+            form_factors=src,
+            local_size=48,
+            solver_options={**options, "far_field": FarField(scene, None, clusters, G, device=device)},
+            reference_frames=[-1],
+            keep_images=True,
+            progress=False,
+            device=device,
+        )
+        for name, src in (("file", open_form_factors(scene, tmp_path / "f.npz")), ("store", cache))
+    }
     cache.close()
     entering = sum(len(f.stats.added) for f in walks["store"].frames)
     assert entering >= 10  # the local set did move
@@ -253,22 +360,45 @@ def test_path_files_track_spot_lights(tmp_path, device):
     from pydynrad.lights.sources import SpotLight
     from pydynrad.paths import lights_at
 
-    doc = {"frames": 3, "width": 12, "height": 10, "fov_y": 80,
-           "keyframes": [{"position": [0.5, 0.5, 0.1], "look_at": [0.5, 0.5, 0.9]}],
-           "lights": [{"type": "spot", "direction": [0, -1, 0], "intensity": [0.3, 0.2, 0.1], "inner_angle": 0.2,
-                       "outer_angle": 0.6, "interpolation": "linear", "keyframes": [[0.2, 0.8, 0.5], [0.8, 0.8, 0.5]]}]}
+    doc = {
+        "frames": 3,
+        "width": 12,
+        "height": 10,
+        "fov_y": 80,
+        "keyframes": [{"position": [0.5, 0.5, 0.1], "look_at": [0.5, 0.5, 0.9]}],
+        "lights": [
+            {
+                "type": "spot",
+                "direction": [0, -1, 0],
+                "intensity": [0.3, 0.2, 0.1],
+                "inner_angle_deg": 10.0,
+                "outer_angle_deg": 30.0,
+                "interpolation": "linear",
+                "keyframes": [[0.2, 0.8, 0.5], [0.8, 0.8, 0.5]],
+            }
+        ],
+    }
     path, lights = load_path(write_json(tmp_path, doc))
     (track,) = lights
     assert isinstance(track, LightTrack) and isinstance(track.light, SpotLight)
-    expect = [SpotLight((x, 0.8, 0.5), (0, -1, 0), (0.3, 0.2, 0.1), 0.2, 0.6) for x in (0.2, 0.5, 0.8)]
+    cone = float(np.radians(10.0)), float(np.radians(30.0))  # degrees in the file, radians in SpotLight
+    expect = [SpotLight((x, 0.8, 0.5), (0, -1, 0), (0.3, 0.2, 0.1), *cone) for x in (0.2, 0.5, 0.8)]
     for k in range(3):
         (spot,) = lights_at(lights, k, 3)
         assert spot == expect[k]
     pts, tris = box_mesh(n=2, inward=True)
     scene = Scene(pts, tris, albedo=(0.6, 0.5, 0.4))
     F = form_factors(scene, resolution=16, device=device, progress=False)
-    result = walk(scene, path, lights=lights, form_factors=F, local_size=len(scene), keep_images=True,
-                  progress=False, device=device)
+    result = walk(
+        scene,
+        path,
+        lights=lights,
+        form_factors=F,
+        local_size=len(scene),
+        keep_images=True,
+        progress=False,
+        device=device,
+    )
     full = pydynrad.solve(scene, F, lights=[expect[-1]], device=device).radiosity
     assert full.max() > 0 and np.abs(result.radiosity - full).max() < 1e-5 * full.max()
     first = pydynrad.solve(scene, F, lights=[expect[0]], device=device).radiosity
@@ -278,14 +408,18 @@ def test_path_files_track_spot_lights(tmp_path, device):
 def test_path_file_fields_are_named_and_endless_files_refused(tmp_path):
     """Orbit fields, up and light types of the wrong kind are named (numpy's and Python's own
     messages had come through, an up of zeros blamed the keyframes); /dev/zero is not read."""
-    cases = [({"orbit": {"center": [0, 0, 0], "radius": "800"}}, "orbit radius must be one finite number"),
-             ({"orbit": {"center": [0, 0, 0], "radius": 8, "elevation": None}}, "orbit elevation"),
-             ({"orbit": {"center": [0, 0, 0], "radius": 8, "start_angle": [1, 2]}}, "orbit start_angle"),
-             ({"up": [0, 0, 0], "orbit": {"center": [0, 0, 0], "radius": 8}}, "up must be a non-zero vector"),
-             ({"up": None, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "up must be a 3-vector"),
-             ({"keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}], "lights": [{"type": ["point"]}]},
-              "unknown light type"),
-             ({"frames": 10**40, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "41-digit number")]
+    cases = [
+        ({"orbit": {"center": [0, 0, 0], "radius": "800"}}, "orbit radius must be one finite number"),
+        ({"orbit": {"center": [0, 0, 0], "radius": 8, "elevation": None}}, "orbit elevation"),
+        ({"orbit": {"center": [0, 0, 0], "radius": 8, "start_angle": [1, 2]}}, "orbit start_angle"),
+        ({"up": [0, 0, 0], "orbit": {"center": [0, 0, 0], "radius": 8}}, "up must be a non-zero vector"),
+        ({"up": None, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "up must be a 3-vector"),
+        (
+            {"keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}], "lights": [{"type": ["point"]}]},
+            "unknown light type",
+        ),
+        ({"frames": 10**40, "keyframes": [{"position": [0, 0, 1], "look_at": [0, 0, 0]}]}, "41-digit number"),
+    ]
     for doc, message in cases:
         path = tmp_path / "p.json"
         path.write_text(json.dumps({"frames": 2, **doc}))

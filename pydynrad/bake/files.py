@@ -40,7 +40,7 @@ def remove_stale_temporaries(path) -> int:
         if not (name.startswith("." + mark) or name.startswith(".." + mark)):  # its own, or one written through it
             continue
         at = name.find(mark)
-        pid = name[at + len(mark):].split("-", 1)[0]
+        pid = name[at + len(mark) :].split("-", 1)[0]
         if not pid.isdigit() or int(pid) == os.getpid() or _alive(int(pid)):
             continue
         try:
@@ -63,8 +63,13 @@ def write_pair(first, first_writer, second, second_writer) -> tuple[Path, Path]:
     paths = [check_file_target(first), check_file_target(second)]
     for p in paths:
         remove_stale_temporaries(p)
-    tmps = [p.with_name(f".{p.name.encode()[:150].decode(errors='ignore')}{TMP_MARK}{os.getpid()}-"
-                        f"{uuid.uuid4().hex[:8]}{p.suffix if len(p.suffix.encode()) <= 16 else ''}") for p in paths]
+    tmps = [
+        p.with_name(
+            f".{p.name.encode()[:150].decode(errors='ignore')}{TMP_MARK}{os.getpid()}-"
+            f"{uuid.uuid4().hex[:8]}{p.suffix if len(p.suffix.encode()) <= 16 else ''}"
+        )
+        for p in paths
+    ]
     try:
         for tmp, target, writer in zip(tmps, paths, (first_writer, second_writer)):
             try:

@@ -32,8 +32,15 @@ def _padded(data: bytes, fill: bytes) -> bytes:
     return data + fill * (-len(data) % 4)
 
 
-def glb_bytes(faces: np.ndarray, attributes: dict, extras: dict, name: str = "mesh", generator: str = "pydynrad",
-              texture: bytes | None = None, texcoord: int = 0) -> bytes:
+def glb_bytes(
+    faces: np.ndarray,
+    attributes: dict,
+    extras: dict,
+    name: str = "mesh",
+    generator: str = "pydynrad",
+    texture: bytes | None = None,
+    texcoord: int = 0,
+) -> bytes:
     """The GLB file of one mesh.
 
     Parameters
@@ -78,9 +85,11 @@ def glb_bytes(faces: np.ndarray, attributes: dict, extras: dict, name: str = "me
         views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(texture)})
         blob.extend(_padded(texture, b"\0"))
         pbr["baseColorTexture"] = {"index": 0, "texCoord": texcoord}
-        images = {"images": [{"bufferView": len(views) - 1, "mimeType": "image/png"}],
-                  "samplers": [{"magFilter": _LINEAR, "minFilter": _LINEAR, "wrapS": _CLAMP, "wrapT": _CLAMP}],
-                  "textures": [{"source": 0, "sampler": 0}]}
+        images = {
+            "images": [{"bufferView": len(views) - 1, "mimeType": "image/png"}],
+            "samplers": [{"magFilter": _LINEAR, "minFilter": _LINEAR, "wrapS": _CLAMP, "wrapT": _CLAMP}],
+            "textures": [{"source": 0, "sampler": 0}],
+        }
     doc = {
         "asset": {"version": "2.0", "generator": generator, "extras": extras},
         "extensionsUsed": ["KHR_materials_unlit"],

@@ -27,15 +27,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import flag, floats
-from ..geometry.scene import checked_scene
-from ..errors import InvalidInputError
 from ..bounces import multibounce_radiosity
+from ..checks import flag, floats
 from ..dynamic import DynamicRadiosity
-from ..lights.sources import checked_light_vector
-from ..lights.sources import direct_irradiance
-from ..solution import RadiositySolver
-from ..solution import solve
+from ..errors import InvalidInputError
+from ..geometry.scene import checked_scene
+from ..lights.sources import checked_light_vector, direct_irradiance
+from ..solution import RadiositySolver, solve
 
 __all__ = ["LightGroups", "GroupRadiosity", "EMISSION"]
 
@@ -52,24 +50,28 @@ def _weights(names: tuple[str, ...], weights) -> np.ndarray:
     if isinstance(weights, Mapping):
         unknown = sorted(set(weights) - set(names))
         if unknown:
-            raise InvalidInputError(f"unknown light group(s) {', '.join(map(repr, unknown))}; "
-                                    f"the groups are {', '.join(map(repr, names))}")
+            raise InvalidInputError(
+                f"unknown light group(s) {', '.join(map(repr, unknown))}; the groups are {', '.join(map(repr, names))}"
+            )
         items = [(names.index(k), v) for k, v in weights.items()]
     else:
         try:
             seq = list(weights)
         except TypeError:  # combine(0.5): one number is no list of weights
-            raise InvalidInputError(f"weights must map group names to weights, or list one per group "
-                                    f"({', '.join(names)}); got {weights!r}") from None
+            raise InvalidInputError(
+                f"weights must map group names to weights, or list one per group ({', '.join(names)}); got {weights!r}"
+            ) from None
         if len(seq) != len(names):
-            raise InvalidInputError(f"give one weight per light group ({len(names)}: {', '.join(names)}); "
-                                    f"got {len(seq)}")
+            raise InvalidInputError(
+                f"give one weight per light group ({len(names)}: {', '.join(names)}); got {len(seq)}"
+            )
         items = list(enumerate(seq))
     for i, value in items:
         w = floats(value, f"the weight of light group {names[i]!r}")
         if w.shape not in ((), (3,)) or not np.all(np.isfinite(w)):
-            raise InvalidInputError(f"the weight of light group {names[i]!r} must be a finite number or RGB triple; "
-                                    f"got {value!r}")
+            raise InvalidInputError(
+                f"the weight of light group {names[i]!r} must be a finite number or RGB triple; got {value!r}"
+            )
         out[i] = w
     return out
 
@@ -153,8 +155,9 @@ class LightGroups:
         return np.einsum("gc,gnc->nc", _weights(self.names, weights), self.light_vectors)
 
     def _per_group(self, solve_one) -> GroupRadiosity:
-        return GroupRadiosity(self.names, np.stack([np.asarray(solve_one(L), dtype=np.float64)
-                                                    for L in self.light_vectors]))
+        return GroupRadiosity(
+            self.names, np.stack([np.asarray(solve_one(L), dtype=np.float64) for L in self.light_vectors])
+        )
 
     def solve(self, F, method: str = "iterative", dtype=np.float32, **options) -> GroupRadiosity:
         """Full radiosity per group (:func:`pydynrad.solve`; ``options`` are its tol,
@@ -163,13 +166,15 @@ class LightGroups:
         if method == "iterative":
             solver = RadiositySolver(self.scene, F, dtype=dtype, device=self.device)
             return self._per_group(lambda L: solver.solve(L, **options).radiosity)
-        return self._per_group(lambda L: solve(self.scene, F, method=method, dtype=dtype, device=self.device,
-                                               light=L, **options).radiosity)
+        return self._per_group(
+            lambda L: solve(self.scene, F, method=method, dtype=dtype, device=self.device, light=L, **options).radiosity
+        )
 
     def multibounce(self, K, patches=None) -> GroupRadiosity:
         """Radiosity per group through a multibounce matrix K (:func:`pydynrad.multibounce_radiosity`)."""
-        return self._per_group(lambda L: multibounce_radiosity(self.scene, K, light=L, patches=patches,
-                                                               device=self.device))
+        return self._per_group(
+            lambda L: multibounce_radiosity(self.scene, K, light=L, patches=patches, device=self.device)
+        )
 
     def dynamic(self, dynamic) -> GroupRadiosity:
         """Radiosity per group from a :class:`~pydynrad.DynamicRadiosity` at its current local set
@@ -179,7 +184,11 @@ class LightGroups:
         if not isinstance(dynamic, DynamicRadiosity):
             raise InvalidInputError(f"dynamic must be a DynamicRadiosity; got {type(dynamic).__name__}")
         if dynamic.scene is not self.scene:
-            moved = " (its objects moved since: the world's light vectors changed with them; make the light "\
-                    "groups again from dynamic.scene)" if getattr(dynamic, "objects", None) else ""
+            moved = (
+                " (its objects moved since: the world's light vectors changed with them; make the light "
+                "groups again from dynamic.scene)"
+                if getattr(dynamic, "objects", None)
+                else ""
+            )
             raise InvalidInputError(f"the DynamicRadiosity was built for another scene than these light groups{moved}")
         return self._per_group(lambda L: dynamic.radiosity(light=L))

@@ -33,16 +33,15 @@ from pathlib import Path
 import numpy as np
 
 from ..checks import number, stops
-from ..geometry.scene import checked_scene
-from ..errors import InvalidInputError, OutOfMemoryError
-from ..image_io import LINEAR_FORMATS, write_image
-from ..host.memory import available_host_bytes
-from ..smoothing import smooth_vertices
-from .files import write_checked
-from .files import write_pair
-from .vertex import checked_mesh_path, mesh_bytes, mesh_metadata
 from ..device.devices import default_device
 from ..device.launch import global_size
+from ..errors import InvalidInputError, OutOfMemoryError
+from ..geometry.scene import checked_scene
+from ..host.memory import available_host_bytes
+from ..image_io import LINEAR_FORMATS, write_image
+from ..smoothing import smooth_vertices
+from .files import write_checked, write_pair
+from .vertex import checked_mesh_path, mesh_bytes, mesh_metadata
 
 __all__ = ["Lightmap", "bake_lightmap", "BYTES_PER_TEXEL"]
 
@@ -125,19 +124,27 @@ class Lightmap:
         def tap(dx, dy):
             return img[np.clip(y0 + dy, 0, h - 1), np.clip(x0 + dx, 0, w - 1)]
 
-        return ((1 - fx) * (1 - fy) * tap(0, 0) + fx * (1 - fy) * tap(1, 0)
-                + (1 - fx) * fy * tap(0, 1) + fx * fy * tap(1, 1))
+        return (
+            (1 - fx) * (1 - fy) * tap(0, 0)
+            + fx * (1 - fy) * tap(1, 0)
+            + (1 - fx) * fy * tap(0, 1)
+            + fx * fy * tap(1, 1)
+        )
 
     def patch_uv(self, patch, barycentric) -> np.ndarray:
         """(P, 2) lightmap coordinates of points given by patch index (P,) and barycentrics (P, 3)."""
-        return np.einsum("pk,pkd->pd", np.asarray(barycentric, dtype=np.float64),
-                         self.uv[self.faces[np.asarray(patch)]].astype(np.float64))
+        return np.einsum(
+            "pk,pkd->pd",
+            np.asarray(barycentric, dtype=np.float64),
+            self.uv[self.faces[np.asarray(patch)]].astype(np.float64),
+        )
 
     def write(self, path) -> Path:
         """Write the image as a linear float file (.exr, .hdr, .tif, .pfm; see :func:`pydynrad.image_io.write_image`)."""
         if Path(path).suffix.lower() not in LINEAR_FORMATS:
-            raise InvalidInputError(f"a lightmap holds linear radiosity: write it as {', '.join(LINEAR_FORMATS)}, "
-                                    f"not {str(path)!r}")
+            raise InvalidInputError(
+                f"a lightmap holds linear radiosity: write it as {', '.join(LINEAR_FORMATS)}, not {str(path)!r}"
+            )
         return write_image(path, self.image)
 
     def write_mesh(self, path, *, exposure: float = 0.0, image_name: str | None = None, embed: bool = True) -> Path:
@@ -151,17 +158,26 @@ class Lightmap:
         vertex colours of :func:`export_mesh` are written instead."""
         path = checked_mesh_path(path, (".glb",))
         exposure = stops(exposure)
-        meta = mesh_metadata(self.scene_name, self.n_patches, exposure, self.crease_angle, unit=self.scene_unit,
-                             up=self.scene_up)
+        meta = mesh_metadata(
+            self.scene_name, self.n_patches, exposure, self.crease_angle, unit=self.scene_unit, up=self.scene_up
+        )
         h, w = self.shape
-        meta["lightmap"] = {"image": image_name, "width": w, "height": h, "texels_per_unit": self.texels_per_unit,
-                            "padding_texels": self.padding, "uv_set": "TEXCOORD_1 (TEXCOORD_0 holds the same)",
-                            "uv_origin": "top-left of the image, v down"}
+        meta["lightmap"] = {
+            "image": image_name,
+            "width": w,
+            "height": h,
+            "texels_per_unit": self.texels_per_unit,
+            "padding_texels": self.padding,
+            "uv_set": "TEXCOORD_1 (TEXCOORD_0 holds the same)",
+            "uv_origin": "top-left of the image, v down",
+        }
         texture = None
         if embed:
             texture = self._png(exposure)
-            meta["lightmap"]["embedded"] = ("base colour texture: 8-bit PNG of radiosity * 2**exposure clipped to "
-                                            "[0, 1], sRGB-encoded; no COLOR_0 (glTF would multiply it in)")
+            meta["lightmap"]["embedded"] = (
+                "base colour texture: 8-bit PNG of radiosity * 2**exposure clipped to "
+                "[0, 1], sRGB-encoded; no COLOR_0 (glTF would multiply it in)"
+            )
         data = mesh_bytes(path, self.positions, self.faces, self.vertex_radiosity, meta, uv=self.uv, texture=texture)
         return write_checked(path, data)
 
@@ -174,12 +190,17 @@ class Lightmap:
         of these names left are removed. Returns (mesh path, image path)."""
         image_path = Path(image_path)
         if image_path.suffix.lower() not in LINEAR_FORMATS:
-            raise InvalidInputError(f"a lightmap holds linear radiosity: write it as {', '.join(LINEAR_FORMATS)}, "
-                                    f"not {str(image_path)!r}")
+            raise InvalidInputError(
+                f"a lightmap holds linear radiosity: write it as {', '.join(LINEAR_FORMATS)}, not {str(image_path)!r}"
+            )
         mesh_path = checked_mesh_path(mesh_path, (".glb",))
         exposure = stops(exposure)
-        image, mesh = write_pair(image_path, self.write, mesh_path,
-                                 lambda tmp: self.write_mesh(tmp, exposure=exposure, image_name=image_path.name))
+        image, mesh = write_pair(
+            image_path,
+            self.write,
+            mesh_path,
+            lambda tmp: self.write_mesh(tmp, exposure=exposure, image_name=image_path.name),
+        )
         return mesh, image
 
     def _png(self, exposure: float) -> bytes:
@@ -192,13 +213,17 @@ class Lightmap:
 
 def _check_memory(texels: float, what: str) -> None:
     if texels > MAX_TEXELS:
-        raise OutOfMemoryError(f"a lightmap of {what} would have {texels:.3g} texels, more than the {MAX_TEXELS} "
-                               "the kernels can index; lower texels_per_unit")
+        raise OutOfMemoryError(
+            f"a lightmap of {what} would have {texels:.3g} texels, more than the {MAX_TEXELS} "
+            "the kernels can index; lower texels_per_unit"
+        )
     need = texels * BYTES_PER_TEXEL
     have = available_host_bytes()
     if need > have / 2:
-        raise OutOfMemoryError(f"a lightmap of {what} would need {need / 2**30:.1f} GiB while baking, more than half "
-                               f"of the {have / 2**30:.1f} GiB available; lower texels_per_unit")
+        raise OutOfMemoryError(
+            f"a lightmap of {what} would need {need / 2**30:.1f} GiB while baking, more than half "
+            f"of the {have / 2**30:.1f} GiB available; lower texels_per_unit"
+        )
 
 
 #: The fewest texels the median patch may get in a lightmap.
@@ -215,9 +240,11 @@ def check_texel_density(scene, texels_per_unit: float) -> None:
     # floors the density it packs at (1e-9 gave 1e-3's atlas, recorded as 1e-9).
     texels = float(np.median(scene.areas)) * tpu * tpu
     if texels < MIN_TEXELS_PER_PATCH:
-        raise InvalidInputError(f"{tpu:g} texels per unit gives the median patch {texels:.2g} texels; at least "
-                                f"{MIN_TEXELS_PER_PATCH:g} needs {np.sqrt(MIN_TEXELS_PER_PATCH / np.median(scene.areas)):.3g} "
-                                "per unit (or bake vertex colours, without --lightmap)")
+        raise InvalidInputError(
+            f"{tpu:g} texels per unit gives the median patch {texels:.2g} texels; at least "
+            f"{MIN_TEXELS_PER_PATCH:g} needs {np.sqrt(MIN_TEXELS_PER_PATCH / np.median(scene.areas)):.3g} "
+            "per unit (or bake vertex colours, without --lightmap)"
+        )
 
 
 def _surfaces(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, int]:
@@ -262,8 +289,13 @@ def _atlas(positions: np.ndarray, faces: np.ndarray, texels_per_unit: float, pad
         vertex.append(used[vmapping])
         uvs.append(uv)
         offset += len(vmapping)
-    return (np.concatenate(vertex).astype(np.int64), out_faces, np.concatenate(uvs).astype(np.float32),
-            int(atlas.width), int(atlas.height))
+    return (
+        np.concatenate(vertex).astype(np.int64),
+        out_faces,
+        np.concatenate(uvs).astype(np.float32),
+        int(atlas.width),
+        int(atlas.height),
+    )
 
 
 def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int, device):
@@ -290,10 +322,12 @@ def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int, device):
     cl.enqueue_fill_buffer(device.queue, d_owner, np.int32(-1), 0, 4 * h * w)
     cl.enqueue_fill_buffer(device.queue, d_covered, np.uint8(0), 0, h * w)
     size = (global_size(n),)
-    device.kernel("lightmap.cl", "lightmap_best")(device.queue, size, None, np.int32(n), d_box, d_corner,
-                                                  np.int32(w), d_best, d_covered)
-    device.kernel("lightmap.cl", "lightmap_owner")(device.queue, size, None, np.int32(n), d_box, d_corner,
-                                                   np.int32(w), d_best, d_owner)
+    device.kernel("lightmap.cl", "lightmap_best")(
+        device.queue, size, None, np.int32(n), d_box, d_corner, np.int32(w), d_best, d_covered
+    )
+    device.kernel("lightmap.cl", "lightmap_owner")(
+        device.queue, size, None, np.int32(n), d_box, d_corner, np.int32(w), d_best, d_owner
+    )
     owner = np.empty(h * w, dtype=np.int32)
     covered = np.empty(h * w, dtype=np.uint8)
     cl.enqueue_copy(device.queue, owner, d_owner)
@@ -337,8 +371,9 @@ def _dilate(image: np.ndarray, filled: np.ndarray, rings: int) -> None:
         filled |= grow
 
 
-def bake_lightmap(scene, radiosity, texels_per_unit: float, *, padding: int = 2, crease_angle: float = 30.0,
-                  device=None) -> Lightmap:
+def bake_lightmap(
+    scene, radiosity, texels_per_unit: float, *, padding: int = 2, crease_angle: float = 30.0, device=None
+) -> Lightmap:
     """Bake a radiosity solution into a lightmap.
 
     Parameters
@@ -378,7 +413,20 @@ def bake_lightmap(scene, radiosity, texels_per_unit: float, *, padding: int = 2,
 
     image, covered, filled = _rasterise(corners, vertex_values[faces], h, w, device or default_device())
     _dilate(image, filled, int(padding))
-    return Lightmap(image=image, covered=covered, filled=filled, uv=uv, faces=faces, vertex=vmapping,
-                    vertex_radiosity=vertex_values, positions=smooth.positions[vmapping], texels_per_unit=tpu,
-                    padding=int(padding), crease_angle=float(crease_angle), scene_name=scene.name, n_patches=len(scene),
-                    scene_unit=float(scene.unit), scene_up=tuple(float(x) for x in scene.up))
+    return Lightmap(
+        image=image,
+        covered=covered,
+        filled=filled,
+        uv=uv,
+        faces=faces,
+        vertex=vmapping,
+        vertex_radiosity=vertex_values,
+        positions=smooth.positions[vmapping],
+        texels_per_unit=tpu,
+        padding=int(padding),
+        crease_angle=float(crease_angle),
+        scene_name=scene.name,
+        n_patches=len(scene),
+        scene_unit=float(scene.unit),
+        scene_up=tuple(float(x) for x in scene.up),
+    )

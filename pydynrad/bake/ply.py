@@ -36,9 +36,16 @@ def ply_bytes(faces: np.ndarray, properties: dict, comments: list[str]) -> bytes
     face_rows = np.empty(len(faces), dtype=[("n", "u1"), ("v", "<i4", (3,))])
     face_rows["n"] = 3
     face_rows["v"] = faces
-    header = ["ply", "format binary_little_endian 1.0", *(f"comment {c}" for c in comments),
-              f"element vertex {n_vertices}", *(f"property {_PLY_TYPES[dtype[k].str[1:]]} {k}" for k in names),
-              f"element face {len(faces)}", "property list uchar int vertex_indices", "end_header"]
+    header = [
+        "ply",
+        "format binary_little_endian 1.0",
+        *(f"comment {c}" for c in comments),
+        f"element vertex {n_vertices}",
+        *(f"property {_PLY_TYPES[dtype[k].str[1:]]} {k}" for k in names),
+        f"element face {len(faces)}",
+        "property list uchar int vertex_indices",
+        "end_header",
+    ]
     if any("\n" in line or "\r" in line for line in header):
         raise InvalidInputError("PLY header lines must not contain line breaks")
     return ("\n".join(header) + "\n").encode("ascii") + vertices.tobytes() + face_rows.tobytes()
@@ -51,7 +58,7 @@ def read_ply(data: bytes) -> tuple[list[str], dict, np.ndarray]:
         lines = data[:end].decode("ascii").splitlines()
         if lines[:2] != ["ply", "format binary_little_endian 1.0"]:
             raise ValueError("not a binary little-endian PLY file")
-        comments = [line[len("comment "):] for line in lines if line.startswith("comment ")]
+        comments = [line[len("comment ") :] for line in lines if line.startswith("comment ")]
         counts, fields, element = {}, [], None
         for line in lines:
             words = line.split()
@@ -65,8 +72,9 @@ def read_ply(data: bytes) -> tuple[list[str], dict, np.ndarray]:
         if n_v < 0 or n_f < 0:
             raise ValueError(f"negative element counts ({n_v} vertices, {n_f} faces)")
         vertices = np.frombuffer(data, dtype=vdtype, count=n_v, offset=end)
-        rows = np.frombuffer(data, dtype=[("n", "u1"), ("v", "<i4", (3,))], count=n_f,
-                             offset=end + n_v * vdtype.itemsize)
+        rows = np.frombuffer(
+            data, dtype=[("n", "u1"), ("v", "<i4", (3,))], count=n_f, offset=end + n_v * vdtype.itemsize
+        )
         if np.any(rows["n"] != 3) or end + n_v * vdtype.itemsize + rows.nbytes != len(data):
             raise ValueError("faces are not triangles or the file's length is wrong")
         if rows.size and (rows["v"].min() < 0 or rows["v"].max() >= n_v):

@@ -28,14 +28,13 @@ import numpy as np
 
 from ..atomic import check_file_target
 from ..checks import stops
-from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
+from ..geometry.scene import checked_scene, rotation_to
 from ..image_io import srgb_encode
 from ..smoothing import smooth_vertices
 from .files import write_checked
 from .gltf import glb_bytes
 from .ply import ply_bytes
-from ..geometry.scene import rotation_to
 
 __all__ = ["export_mesh", "MESH_FORMATS"]
 
@@ -47,27 +46,33 @@ def checked_mesh_path(path, formats: tuple[str, ...] = MESH_FORMATS) -> Path:
     folder stands."""
     path = Path(path)
     if path.suffix.lower() not in formats:
-        raise InvalidInputError(f"cannot tell the mesh format of {str(path)!r}: use one of the extensions "
-                                f"{', '.join(formats)}")
+        raise InvalidInputError(
+            f"cannot tell the mesh format of {str(path)!r}: use one of the extensions {', '.join(formats)}"
+        )
     return check_file_target(path)
 
 
-def mesh_metadata(scene_name: str, n_patches: int, exposure: float, crease_angle: float, unit: float | None = None,
-                  up=None) -> dict:
+def mesh_metadata(
+    scene_name: str, n_patches: int, exposure: float, crease_angle: float, unit: float | None = None, up=None
+) -> dict:
     """What a baked file's values mean, for its metadata. With ``unit`` (metres per scene unit)
     and ``up`` (the scene's up axis) :func:`mesh_bytes` writes positions in metres, +y up (glTF's
     convention); without them, in the scene's own coordinates."""
     frame = {"length_unit": "the scene's own unit (not rescaled to metres)"}
     if unit is not None and up is not None:
-        frame = {"length_unit": "metres, +y up (the scene's coordinates scaled and rotated on write)",
-                 "scene_unit_metres": float(unit), "scene_up": [float(x) for x in up]}
+        frame = {
+            "length_unit": "metres, +y up (the scene's coordinates scaled and rotated on write)",
+            "scene_unit_metres": float(unit),
+            "scene_up": [float(x) for x in up],
+        }
     return {
         "scene": scene_name,
         "patches": n_patches,
         "triangles": "triangle i is patch i of the scene",
         **frame,
-        "radiosity": ("linear radiosity (radiant exitance, the unit of the scene's emission); "
-                      "radiance is radiosity / pi"),
+        "radiosity": (
+            "linear radiosity (radiant exitance, the unit of the scene's emission); radiance is radiosity / pi"
+        ),
         "exposure": exposure,
         "display_encoding": "radiosity * 2**exposure, clipped to [0, 1]; 8-bit values are sRGB-encoded (IEC 61966-2-1)",
         "crease_angle_degrees": crease_angle,
@@ -85,7 +90,7 @@ def to_metres_y_up(positions, unit: float, up) -> np.ndarray:
 
 def display_values(radiosity: np.ndarray, exposure: float) -> np.ndarray:
     """(V, 3) float32 linear ``radiosity * 2**exposure`` clipped to [0, 1]."""
-    return np.clip(radiosity * 2.0**stops(exposure), 0.0, 1.0).astype(np.float32)
+    return np.clip(radiosity * 2.0 ** stops(exposure), 0.0, 1.0).astype(np.float32)
 
 
 def mesh_bytes(path: Path, positions, faces, radiosity, meta: dict, uv=None, texture: bytes | None = None) -> bytes:

@@ -14,10 +14,10 @@ import threading
 import numpy as np
 import scipy.sparse as sp
 
-from .devices import real_dtype
 from ..errors import InvalidInputError, OutOfMemoryError
-from .launch import spmv_layout
 from ..host.anderson import Anderson
+from .devices import real_dtype
+from .launch import spmv_layout
 
 __all__ = ["DeviceCSR", "row_blocks", "sweeps"]
 
@@ -64,8 +64,9 @@ class DeviceCSR:
     def __init__(self, device, A: sp.csr_matrix, dtype=np.float32, layout: tuple[int, int] | None = None) -> None:
         A = sp.csr_matrix(A)
         if A.nnz >= 2**31:
-            raise OutOfMemoryError(f"a {A.shape} matrix has {A.nnz} non-zeros; the CSR kernel indexes with 32-bit "
-                                   "integers (< 2^31)")
+            raise OutOfMemoryError(
+                f"a {A.shape} matrix has {A.nnz} non-zeros; the CSR kernel indexes with 32-bit integers (< 2^31)"
+            )
         self.device, self.shape, self.nnz = device, A.shape, A.nnz
         self.dtype = real_dtype(dtype, device)
         self._layout = spmv_layout(device, max(A.shape[0], 1), layout)
@@ -96,13 +97,28 @@ class DeviceCSR:
         kernels: dict = self._kernels.__dict__  # this thread's kernels, keyed by width
         kernel = kernels.get(width)
         if kernel is None:
-            defines = {"STORAGE_FP64" if self.dtype == np.float64 else "STORAGE_FP32": 1, "NCH": width,
-                       **self._layout.defines}
+            defines = {
+                "STORAGE_FP64" if self.dtype == np.float64 else "STORAGE_FP32": 1,
+                "NCH": width,
+                **self._layout.defines,
+            }
             kernel = kernels[width] = d.kernel("spmv.cl", "bounce", defines)
         if partial_buf is None:
             partial_buf = cl.Buffer(d.context, cl.mem_flags.READ_WRITE, 2 * self._n_blocks * self.dtype.itemsize)
-        kernel(d.queue, *self._layout.grid, self._blk, self._rowptr, self._cols, self._vals,
-               L_buf, rho_buf, x_buf, y_buf, partial_buf, np.int32(self.shape[0] == self.shape[1]))
+        kernel(
+            d.queue,
+            *self._layout.grid,
+            self._blk,
+            self._rowptr,
+            self._cols,
+            self._vals,
+            L_buf,
+            rho_buf,
+            x_buf,
+            y_buf,
+            partial_buf,
+            np.int32(self.shape[0] == self.shape[1]),
+        )
 
     def bounce(self, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:
         """y = L + rho * (A x): L, rho (rows, k), x (cols, k), k = 1 or 3; returns (rows, k) float64."""
@@ -110,8 +126,10 @@ class DeviceCSR:
 
         k = x.shape[1]
         if x.shape[0] != self.shape[1] or L.shape != (self.shape[0], k) or rho.shape != (self.shape[0], k):
-            raise InvalidInputError(f"bounce of a {self.shape} matrix needs L, rho ({self.shape[0]}, {k}) and x "
-                                    f"({self.shape[1]}, {k}); got {L.shape}, {rho.shape}, {x.shape}")
+            raise InvalidInputError(
+                f"bounce of a {self.shape} matrix needs L, rho ({self.shape[0]}, {k}) and x "
+                f"({self.shape[1]}, {k}); got {L.shape}, {rho.shape}, {x.shape}"
+            )
         width = 1 if k == 1 else 4
         d = self.device
         bufs = [d.to_device(self.packed(a, width)) for a in (L, rho, x)]
@@ -123,8 +141,9 @@ class DeviceCSR:
             cl.enqueue_copy(d.queue, out, y, is_blocking=True)
         return out[:, :k].astype(np.float64)
 
-    def jacobi(self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float, max_sweeps: int,
-               mixing: int = 0) -> tuple[np.ndarray, int, float, list[float]]:
+    def jacobi(
+        self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float, max_sweeps: int, mixing: int = 0
+    ) -> tuple[np.ndarray, int, float, list[float]]:
         """Iterate x <- L + rho * (A x) from x0 (A square) until the relative max-norm change
         ``max |x_new - x| / max |x_new|`` is <= tol (never, for tol < 0) or ``max_sweeps`` ran.
 
@@ -150,15 +169,36 @@ class DeviceCSR:
         partial_buf = cl.Buffer(d.context, mf.READ_WRITE, 2 * nb * self.dtype.itemsize)
         out = np.empty((n, width), dtype=self.dtype)
         if mixing > 0:
-            return self._mixed(L_buf, rho_buf, np.asarray(x0, np.float64), x, y, partial_buf, out, tol, max_sweeps,
-                               mixing)
-        x, change, history = sweeps(d, lambda x, y: self.bounce_buffers(L_buf, rho_buf, x, y, width, partial_buf),
-                                    x, y, partial_buf, nb, self.dtype, tol, max_sweeps)
+            return self._mixed(
+                L_buf, rho_buf, np.asarray(x0, np.float64), x, y, partial_buf, out, tol, max_sweeps, mixing
+            )
+        x, change, history = sweeps(
+            d,
+            lambda x, y: self.bounce_buffers(L_buf, rho_buf, x, y, width, partial_buf),
+            x,
+            y,
+            partial_buf,
+            nb,
+            self.dtype,
+            tol,
+            max_sweeps,
+        )
         cl.enqueue_copy(d.queue, out, x, is_blocking=True)
         return out[:, :k].astype(np.float64), len(history), change, history
 
-    def _mixed(self, L_buf, rho_buf, u: np.ndarray, x_buf, y_buf, partial_buf, out: np.ndarray, tol: float,
-               max_sweeps: int, depth: int) -> tuple[np.ndarray, int, float, list[float]]:
+    def _mixed(
+        self,
+        L_buf,
+        rho_buf,
+        u: np.ndarray,
+        x_buf,
+        y_buf,
+        partial_buf,
+        out: np.ndarray,
+        tol: float,
+        max_sweeps: int,
+        depth: int,
+    ) -> tuple[np.ndarray, int, float, list[float]]:
         """:meth:`jacobi` with Anderson mixing from u (n, k) float64 (already in ``x_buf``)."""
         import pyopencl as cl
 

@@ -39,11 +39,7 @@ from .pocl import cache_tag, compiler_target, fix_cpu_name, host_cpu_family, rep
 if TYPE_CHECKING:  # pyopencl is imported lazily so that `import pydynrad` stays cheap
     import pyopencl as cl
 
-__all__ = ["Device", "DeviceTraits", "default_device", "device_or_default", "kernel_dir",
-           "list_devices", "real_dtype"]
-
-
-
+__all__ = ["Device", "DeviceTraits", "default_device", "device_or_default", "kernel_dir", "list_devices", "real_dtype"]
 
 
 def _writable(folder: Path) -> bool:
@@ -64,7 +60,10 @@ def _use_pocl_cache() -> None:
         return
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
     tag = cache_tag()  # see pocl_target: PoCL's own key cannot tell the CPU names written apart
-    for folder in (base / "pocl" / tag, Path(tempfile.gettempdir()) / f"pocl-cache-{getattr(os, 'getuid', lambda: 0)()}" / tag):
+    for folder in (
+        base / "pocl" / tag,
+        Path(tempfile.gettempdir()) / f"pocl-cache-{getattr(os, 'getuid', lambda: 0)()}" / tag,
+    ):
         if _writable(folder):
             os.environ["POCL_CACHE_DIR"] = str(folder)
             return
@@ -167,8 +166,9 @@ class Device:
         elif self.queue.properties & cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE:
             # Every launcher relies on it: a read waits for the kernels before it, a scratch
             # buffer is reused after the kernel that read it.
-            raise InvalidInputError("pydynrad needs an in-order command queue; got one with "
-                                    "OUT_OF_ORDER_EXEC_MODE_ENABLE")
+            raise InvalidInputError(
+                "pydynrad needs an in-order command queue; got one with OUT_OF_ORDER_EXEC_MODE_ENABLE"
+            )
 
     @property
     def cl_device(self):
@@ -200,7 +200,11 @@ class Device:
         clang and whose buffers start on >= 128-byte boundaries. Their vload/vstore builtins
         are not inlined, which costs about 2x in streaming loops."""
         d = self.cl_device
-        return self.is_cpu and "portable computing language" in d.platform.name.lower() and int(d.mem_base_addr_align) >= 1024
+        return (
+            self.is_cpu
+            and "portable computing language" in d.platform.name.lower()
+            and int(d.mem_base_addr_align) >= 1024
+        )
 
     @property
     def traits(self) -> DeviceTraits:
@@ -208,14 +212,18 @@ class Device:
         if self._traits is None:
             d = self.cl_device
             self._traits = DeviceTraits(
-                cpu=self.is_cpu, compute_units=max(1, int(d.max_compute_units)),
+                cpu=self.is_cpu,
+                compute_units=max(1, int(d.max_compute_units)),
                 float_width=max(1, int(d.preferred_vector_width_float)),
                 double_width=max(1, int(d.preferred_vector_width_double)),
-                max_work_group=int(d.max_work_group_size), local_mem_bytes=int(d.local_mem_size),
-                aligned_vectors=self.aligned_vector_access, cache_bytes=int(d.global_mem_cache_size))
+                max_work_group=int(d.max_work_group_size),
+                local_mem_bytes=int(d.local_mem_size),
+                aligned_vectors=self.aligned_vector_access,
+                cache_bytes=int(d.global_mem_cache_size),
+            )
         return self._traits
 
-    def with_traits(self, **changes) -> "Device":
+    def with_traits(self, **changes) -> Device:
         """The same context, queue and program cache with some :class:`DeviceTraits` changed, so
         every layout is chosen as for that device: e.g. ``with_traits(float_width=8,
         aligned_vectors=False)`` runs the kernels an AVX2 CPU without PoCL would get."""
@@ -257,15 +265,20 @@ class Device:
                 # pyopencl puts each device's build log into the message.
                 log = str(exc)
                 if "unknown target CPU" in log:
-                    log += ("\n(this OpenCL compiler does not know this CPU, and pydynrad could not give it one: "
-                            "see pydynrad/pocl_target.py)")
+                    log += (
+                        "\n(this OpenCL compiler does not know this CPU, and pydynrad could not give it one: "
+                        "see pydynrad/pocl_target.py)"
+                    )
                 raise KernelBuildError(f"OpenCL build of {filename} failed on {self.name}", log) from exc
             if compiler_output_wanted():
                 log = str(prg.get_build_info(self.cl_device, cl.program_build_info.LOG) or "").strip()
                 text = "\n".join(t for t in (log, printed.text.strip()) if t)
                 if text:
-                    warnings.warn(f"build log of {filename} {' '.join(opts)} on {self.name}:\n{text}", cl.CompilerWarning,
-                                  stacklevel=2)
+                    warnings.warn(
+                        f"build log of {filename} {' '.join(opts)} on {self.name}:\n{text}",
+                        cl.CompilerWarning,
+                        stacklevel=2,
+                    )
             self._programs[key] = prg
             return prg
 
@@ -301,8 +314,11 @@ class Device:
             "max_alloc_MiB": self.max_alloc_bytes // 2**20,
             "fp64": self.supports_fp64,
             "fp16_arithmetic": "cl_khr_fp16" in d.extensions,
-            **({"compiler_cpu": f"{replaced_cpu(d)} (PoCL's LLVM named it {target[1]})"}
-               if replaced_cpu(d) and (target := compiler_target(d)) else {}),
+            **(
+                {"compiler_cpu": f"{replaced_cpu(d)} (PoCL's LLVM named it {target[1]})"}
+                if replaced_cpu(d) and (target := compiler_target(d))
+                else {}
+            ),
             **({"cpu_family": family} if family else {}),
         }
 
@@ -332,8 +348,10 @@ def _pick_cl_device():
         try:
             return cl.create_some_context(interactive=False)
         except cl.Error as exc:
-            raise DeviceError(f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} selects no OpenCL device ({exc}); "
-                              "`pydynrad info` lists the valid values") from exc
+            raise DeviceError(
+                f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} selects no OpenCL device ({exc}); "
+                "`pydynrad info` lists the valid values"
+            ) from exc
     try:
         platforms = cl.get_platforms()
     except cl.Error as exc:
@@ -371,8 +389,10 @@ def device_or_default(device) -> Device:
     if device is None:
         return default_device()
     if not isinstance(device, Device):
-        raise InvalidInputError(f"device must be a pydynrad Device (pydynrad.default_device(), pydynrad.device.Device(...)) "
-                                f"or None; got {type(device).__name__}")
+        raise InvalidInputError(
+            f"device must be a pydynrad Device (pydynrad.default_device(), pydynrad.device.Device(...)) "
+            f"or None; got {type(device).__name__}"
+        )
     return device
 
 

@@ -32,9 +32,30 @@ import numpy as np
 from ..errors import InvalidInputError
 
 __all__ = [
-    "WG", "RED_WG", "PANEL", "GEMM_GRAIN", "WIDTHS", "round_up", "global_size", "float4",
-    "BVH_PACKETS", "bvh_packet", "RAY_WG_CPU", "ray_work_group", "HemicubeTiles", "hemicube_tiles",
-    "cpu_vector_width", "SpmvLayout", "spmv_layout", "SellLayout", "SELL_WINDOW_SLICES", "sell_layout", "GemmLayout", "gemm_layout", "MatvecLayout", "matvec_layout",
+    "WG",
+    "RED_WG",
+    "PANEL",
+    "GEMM_GRAIN",
+    "WIDTHS",
+    "round_up",
+    "global_size",
+    "float4",
+    "BVH_PACKETS",
+    "bvh_packet",
+    "RAY_WG_CPU",
+    "ray_work_group",
+    "HemicubeTiles",
+    "hemicube_tiles",
+    "cpu_vector_width",
+    "SpmvLayout",
+    "spmv_layout",
+    "SellLayout",
+    "SELL_WINDOW_SLICES",
+    "sell_layout",
+    "GemmLayout",
+    "gemm_layout",
+    "MatvecLayout",
+    "matvec_layout",
     "UpdateLayout",
 ]
 
@@ -175,7 +196,9 @@ def spmv_layout(device, n: int, override: tuple[int, ...] | None = None) -> Spmv
     if override is not None:
         lx, blocks, *step = override
         if lx < 1 or lx & (lx - 1) or blocks < 1 or len(step) > 1 or (step and step[0] not in (2, 4)):
-            raise InvalidInputError(f"layout must be (LX a power of two, blocks >= 1[, RGB_STEP 2 or 4]); got {override}")
+            raise InvalidInputError(
+                f"layout must be (LX a power of two, blocks >= 1[, RGB_STEP 2 or 4]); got {override}"
+            )
         rgb_step = step[0] if step else rgb_step
     else:
         t = _traits(device)
@@ -321,8 +344,14 @@ MATVEC_CHAINS = 4
 MATVEC_ACC_REGS = 8
 
 
-def matvec_layout(device, M: int, ld: int, override: tuple[int, int] | None = None,
-                  real_itemsize: int = 4, k_itemsize: int | None = None) -> MatvecLayout:
+def matvec_layout(
+    device,
+    M: int,
+    ld: int,
+    override: tuple[int, int] | None = None,
+    real_itemsize: int = 4,
+    k_itemsize: int | None = None,
+) -> MatvecLayout:
     """CPU: rows streamed side by side per work-item (:meth:`MatvecLayout.rows_per_item`), loads
     two SIMD registers wide where the widest kernel vector (16) allows. GPU: a work-group per
     row, coalesced float4 loads, as many items as the device's work-group size and local memory
@@ -414,7 +443,7 @@ class UpdateLayout:
     aligned: bool = False
 
     @staticmethod
-    def make(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, cpu: bool | None = None) -> "UpdateLayout":
+    def make(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, cpu: bool | None = None) -> UpdateLayout:
         """The layout for an M x M matrix with row pitch ld; ``cpu`` overrides the device type
         (to test the GPU kernels on a CPU)."""
         t = _traits(device)
@@ -426,14 +455,33 @@ class UpdateLayout:
         # Rank update: about 8 work-items per compute unit, each a whole number of row groups.
         rank_rb = CPU_ROWS * -(-rows // min(rows, 8 * t.compute_units))
         cw = min(ld, CPU_STRIP)
-        return UpdateLayout(True, M, ld, k_itemsize, real_itemsize, cpu_vector_width(t, real_itemsize),
-                            cpu_vector_width(t, real_itemsize, registers=2), 1, rank_rb, cw, -(-ld // cw),
-                            bool(t.aligned_vectors))
+        return UpdateLayout(
+            True,
+            M,
+            ld,
+            k_itemsize,
+            real_itemsize,
+            cpu_vector_width(t, real_itemsize),
+            cpu_vector_width(t, real_itemsize, registers=2),
+            1,
+            rank_rb,
+            cw,
+            -(-ld // cw),
+            bool(t.aligned_vectors),
+        )
 
     def defines(self, nv_max: int) -> dict[str, int]:
         """Build defines for at most ``nv_max`` vectors per gather (2 nv_max terms per rank update)."""
-        out = {"VW": self.vw, "SW": self.sw, "WG": self.wg, "RR": CPU_ROWS, "CWMAX": CPU_STRIP, "NVMAX": nv_max, "NAMAX": 2 * nv_max,
-               "RED_WG": RED_WG}
+        out = {
+            "VW": self.vw,
+            "SW": self.sw,
+            "WG": self.wg,
+            "RR": CPU_ROWS,
+            "CWMAX": CPU_STRIP,
+            "NVMAX": nv_max,
+            "NAMAX": 2 * nv_max,
+            "RED_WG": RED_WG,
+        }
         if self.cpu and self.aligned:
             out["PDR_CLANG_VECTORS"] = 1
         return out

@@ -22,9 +22,9 @@ import numpy as np
 
 from ..checks import finite
 from ..errors import DeviceError, InvalidInputError, OutOfMemoryError
+from ..precision import compute_dtype, storage_dtype
 from .launch import MAX_RHS, global_size, matvec_layout, round_up
 from .transfers import ReadSlab
-from ..precision import compute_dtype, storage_dtype
 
 __all__ = ["DeviceMatrix", "MAX_RHS"]
 
@@ -32,10 +32,6 @@ __all__ = ["DeviceMatrix", "MAX_RHS"]
 #: Rows are padded to a multiple of this many elements (128 bytes of fp16, 256 of fp32), so
 #: every vector load is aligned and rows start on cache-line boundaries.
 LD_ALIGN = 64
-
-
-
-
 
 
 def padded_ld(M: int) -> int:
@@ -86,7 +82,7 @@ class DeviceMatrix:
         self.upload(K)
 
     @classmethod
-    def zeros(cls, device, C: int, M: int, storage: str = "fp32", *, layout=None) -> "DeviceMatrix":
+    def zeros(cls, device, C: int, M: int, storage: str = "fp32", *, layout=None) -> DeviceMatrix:
         """An all-zero matrix, for callers that fill K with their own kernels."""
         import pyopencl as cl
 
@@ -149,9 +145,11 @@ class DeviceMatrix:
         # every product with K would be inf or NaN: a multibounce matrix at albedos near 1.
         top = max(float(K.max(initial=0.0)), -float(K.min(initial=0.0)))  # no temporary of |K|
         if top > float(np.finfo(self.dtype).max):
-            raise InvalidInputError(f"K's entries reach {top:.3g}, beyond {self.storage}'s range "
-                                    f"({float(np.finfo(self.dtype).max):.4g}; albedos near 1 make K large): "
-                                    "use a wider storage")
+            raise InvalidInputError(
+                f"K's entries reach {top:.3g}, beyond {self.storage}'s range "
+                f"({float(np.finfo(self.dtype).max):.4g}; albedos near 1 make K large): "
+                "use a wider storage"
+            )
         host = np.zeros((self.M, self.ld), dtype=self.dtype)
         for c in range(self.C):
             host[:, : self.M] = K[c]
@@ -186,8 +184,15 @@ class DeviceMatrix:
         k = self._k_matvec.get(nrhs)
         if k is None:
             k = self._k_matvec[nrhs] = cl.Kernel(self._program(nrhs), "matvec")
-        k(self.device.queue, *self._layout.matvec_grid(self.M, nrhs), self.buffers[channel], np.int32(self.M),
-          np.int32(self.ld), x_buf, y_buf)
+        k(
+            self.device.queue,
+            *self._layout.matvec_grid(self.M, nrhs),
+            self.buffers[channel],
+            np.int32(self.M),
+            np.int32(self.ld),
+            x_buf,
+            y_buf,
+        )
 
     def enqueue_rmatvec(self, channel: int, x_buf, y_buf) -> None:
         """Enqueue y = x^T K[channel] on device buffers: x holds M REAL values, y M."""
@@ -198,8 +203,17 @@ class DeviceMatrix:
                 self.device.context, cl.mem_flags.READ_WRITE, self._n_blocks * self.ld * self.real_dtype.itemsize
             )
         q, M, ld = self.device.queue, np.int32(self.M), np.int32(self.ld)
-        self._k_partial(q, (self.ld // self._layout.vw, self._n_blocks), None, self.buffers[channel], M, ld,
-                        np.int32(self._layout.rb), x_buf, self._partial)
+        self._k_partial(
+            q,
+            (self.ld // self._layout.vw, self._n_blocks),
+            None,
+            self.buffers[channel],
+            M,
+            ld,
+            np.int32(self._layout.rb),
+            x_buf,
+            self._partial,
+        )
         self._k_reduce(q, (global_size(self.M),), None, self._partial, M, ld, np.int32(self._n_blocks), y_buf)
 
     # -- host-facing products --------------------------------------------------------------------
@@ -230,7 +244,9 @@ class DeviceMatrix:
         if X.ndim == 2:
             X = np.broadcast_to(X, (self.C, *X.shape))
         if X.ndim != 3 or X.shape[0] != self.C or X.shape[2] != self.M or X.shape[1] < 1:
-            raise InvalidInputError(f"X must have shape ({self.C}, r, {self.M}) or (r, {self.M}) with r >= 1; got {X.shape}")
+            raise InvalidInputError(
+                f"X must have shape ({self.C}, r, {self.M}) or (r, {self.M}) with r >= 1; got {X.shape}"
+            )
         finite(X, "X")
         r = X.shape[1]
         slab = self._results()

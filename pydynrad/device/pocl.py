@@ -45,7 +45,16 @@ import platform
 import threading
 from pathlib import Path
 
-__all__ = ["host_cpu_family", "psabi_level", "library_cpu", "target_name", "cache_tag", "fix_cpu_name", "replaced_cpu", "compiler_target"]
+__all__ = [
+    "host_cpu_family",
+    "psabi_level",
+    "library_cpu",
+    "target_name",
+    "cache_tag",
+    "fix_cpu_name",
+    "replaced_cpu",
+    "compiler_target",
+]
 
 # PoCL 3.0's x86-64 kernel library variants (lib/CL/pocl_llvm_utils.cc, kernellib_feature_map), in
 # its order (the last that matches wins): the CPU each was compiled for, the /proc/cpuinfo flags
@@ -157,18 +166,40 @@ def _reader(ranges: list[tuple[int, int]]):
         return ctypes.c_uint64.from_address(address).value if readable(address, 8) else None
 
     def string_is(pointer: int, expected: bytes) -> bool:
-        return bool(pointer) and readable(pointer, len(expected) + 1) and \
-            ctypes.string_at(pointer, len(expected) + 1) == expected + b"\0"
+        return (
+            bool(pointer)
+            and readable(pointer, len(expected) + 1)
+            and ctypes.string_at(pointer, len(expected) + 1) == expected + b"\0"
+        )
 
     return pointer_at, string_is
 
 
 # The CPU names LLVM gives AVX-512 (FeatureAVX512F in llvm/lib/TargetParser/X86TargetParser.cpp):
 # LLVM 14's, and those of later releases, so that a newer PoCL naming its host right is left alone.
-_AVX512_CPUS = frozenset({"knl", "knm", "skylake-avx512", "skx", "cascadelake", "cooperlake", "cannonlake",
-                          "icelake-client", "icelake-server", "rocketlake", "tigerlake", "sapphirerapids",
-                          "x86-64-v4", "znver4", "znver5", "emeraldrapids", "graniterapids", "graniterapids-d",
-                          "diamondrapids"})
+_AVX512_CPUS = frozenset(
+    {
+        "knl",
+        "knm",
+        "skylake-avx512",
+        "skx",
+        "cascadelake",
+        "cooperlake",
+        "cannonlake",
+        "icelake-client",
+        "icelake-server",
+        "rocketlake",
+        "tigerlake",
+        "sapphirerapids",
+        "x86-64-v4",
+        "znver4",
+        "znver5",
+        "emeraldrapids",
+        "graniterapids",
+        "graniterapids-d",
+        "diamondrapids",
+    }
+)
 
 
 def needs_replacing(cpu: str, flags: set[str]) -> bool:

@@ -15,9 +15,9 @@ import threading
 import numpy as np
 import scipy.sparse as sp
 
-from .devices import real_dtype
-from .csr import row_blocks, sweeps
 from ..errors import InvalidInputError, OutOfMemoryError
+from .csr import row_blocks, sweeps
+from .devices import real_dtype
 
 __all__ = ["SellMatrix", "sell_slices", "DeviceSELL"]
 
@@ -49,8 +49,9 @@ def sell_slices(A: sp.csr_matrix, c: int, sigma: int, dtype=np.float32) -> SellM
     sptr = np.zeros(slices + 1, dtype=np.int64)
     np.cumsum(width * c, out=sptr[1:])
     if sptr[-1] >= 2**31:
-        raise OutOfMemoryError(f"SELL-{c} of a {A.shape} matrix holds {sptr[-1]} entries; the kernel indexes with "
-                               "32-bit integers (< 2^31)")
+        raise OutOfMemoryError(
+            f"SELL-{c} of a {A.shape} matrix holds {sptr[-1]} entries; the kernel indexes with 32-bit integers (< 2^31)"
+        )
     # Entry k of old row i (new position p = inv[i], its j-th entry) goes to slice p // c at
     # column j, lane p % c; int32 throughout (every offset is below sptr[-1] < 2^31), which
     # halves the O(nnz) temporaries (0.56 GB for the village's 35 M entries).
@@ -98,13 +99,17 @@ class DeviceSELL:
         kernels: dict = self._kernels.__dict__  # this thread's kernels, keyed by width
         kernel = kernels.get(channels)
         if kernel is None:
-            defines = {"STORAGE_FP64" if self.dtype == np.float64 else "STORAGE_FP32": 1,
-                       "NCH": 1 if channels == 1 else 4, **self._layout.defines}
+            defines = {
+                "STORAGE_FP64" if self.dtype == np.float64 else "STORAGE_FP32": 1,
+                "NCH": 1 if channels == 1 else 4,
+                **self._layout.defines,
+            }
             kernel = kernels[channels] = self.device.kernel("spmv.cl", "bounce_sell", defines)
         return kernel
 
-    def jacobi(self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float,
-               max_sweeps: int) -> tuple[np.ndarray, int, float, list[float]]:
+    def jacobi(
+        self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float, max_sweeps: int
+    ) -> tuple[np.ndarray, int, float, list[float]]:
         """See :meth:`pydynrad.device.csr.DeviceCSR.jacobi`; k = 1 or 3 channels."""
         import pyopencl as cl
 
@@ -118,8 +123,9 @@ class DeviceSELL:
         kernel = self._kernel(k)
 
         def bounce(x, y):
-            kernel(d.queue, (nb,), (1,), self._blk, self._sptr, self._cols, self._vals, L_buf, rho_buf, x, y,
-                   partial_buf)
+            kernel(
+                d.queue, (nb,), (1,), self._blk, self._sptr, self._cols, self._vals, L_buf, rho_buf, x, y, partial_buf
+            )
 
         x, change, history = sweeps(d, bounce, x, y, partial_buf, nb, self.dtype, tol, max_sweeps)
         out = self.packed(x0)

@@ -14,6 +14,7 @@ command.
 from __future__ import annotations
 
 import numpy as np
+
 from ..errors import InvalidInputError
 
 __all__ = ["ReadSlab"]
@@ -57,11 +58,14 @@ class ReadSlab:
         items = list(items)
         bad = [(i, n) for i, n in items if not (0 <= i < len(self.sizes) and 1 <= n <= self.sizes[i])]
         if not items or bad:
-            raise InvalidInputError(f"ReadSlab.read needs (part, count) items with 1 <= count <= the part's size "
-                                    f"{self.sizes}; got {items}")
+            raise InvalidInputError(
+                f"ReadSlab.read needs (part, count) items with 1 <= count <= the part's size {self.sizes}; got {items}"
+            )
         lo = min(self.offsets[i] for i, _ in items)
         hi = max(self.offsets[i] + n * self.dtype.itemsize for i, n in items)
         host = np.empty(hi - lo, dtype=np.uint8)
         cl.enqueue_copy(self.device.queue, host, self.buffer, src_offset=lo, is_blocking=True)
-        return [host[self.offsets[i] - lo : self.offsets[i] - lo + n * self.dtype.itemsize].view(self.dtype).copy()
-                for i, n in items]
+        return [
+            host[self.offsets[i] - lo : self.offsets[i] - lo + n * self.dtype.itemsize].view(self.dtype).copy()
+            for i, n in items
+        ]

@@ -90,8 +90,15 @@ def batched_swap(
     return SwapUpdate(A=A, B=B, cols=cols, rows=rows)
 
 
-def exact_swap(kernels, slots: np.ndarray, F_SJ: np.ndarray, F_JS: np.ndarray, F_JJ: np.ndarray,
-               rho_S: np.ndarray, rho_J: np.ndarray) -> None:
+def exact_swap(
+    kernels,
+    slots: np.ndarray,
+    F_SJ: np.ndarray,
+    F_JS: np.ndarray,
+    F_JJ: np.ndarray,
+    rho_S: np.ndarray,
+    rho_J: np.ndarray,
+) -> None:
     """Apply the exact batch swap to every channel of the device matrix behind ``kernels``.
 
     rho_S (C, M) and rho_J (C, k): the albedo per channel. Device work per channel: the

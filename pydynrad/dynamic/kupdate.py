@@ -22,9 +22,9 @@ import time
 
 import numpy as np
 
-from ..errors import InvalidInputError
 from ..device.launch import CPU_ROWS, WG, UpdateLayout, global_size, round_up
 from ..device.transfers import ReadSlab
+from ..errors import InvalidInputError
 
 __all__ = ["UpdateKernels", "scratch_nbytes", "SPARSE_DENSITY", "PROBE_DENSITIES", "crossover"]
 
@@ -72,8 +72,9 @@ def _density_from_env() -> float | None:
     return value
 
 
-def scratch_nbytes(device, M: int, ld: int, k_itemsize: int, real_itemsize: int, max_vectors: int,
-                   channels: int = 1) -> int:
+def scratch_nbytes(
+    device, M: int, ld: int, k_itemsize: int, real_itemsize: int, max_vectors: int, channels: int = 1
+) -> int:
     """Device bytes of :class:`UpdateKernels`' buffers for these sizes at their peak: the
     partial sums and the result slab, which stay, and the uploads, which live until the kernels
     reading them are done. The rank passes are not waited for, so one frame's rank factors and
@@ -105,8 +106,18 @@ class UpdateKernels:
         self.real = matrix.real_dtype
         self.layout = UpdateLayout.make(dev, self.M, self.ld, matrix.dtype.itemsize, self.real.itemsize, cpu_kernels)
         prg = dev.program("update.cl", {**matrix.defines, **self.layout.defines(self.nv_max)})
-        names = ("gather_rows", "gather_partial", "gather_reduce", "gather_sparse_cols", "gather_sparse_rows",
-                 "rank_update_rows", "rank_update", "read_slots", "write_slots", "double_reflection")
+        names = (
+            "gather_rows",
+            "gather_partial",
+            "gather_reduce",
+            "gather_sparse_cols",
+            "gather_sparse_rows",
+            "rank_update_rows",
+            "rank_update",
+            "read_slots",
+            "write_slots",
+            "double_reflection",
+        )
         self._k = {n: cl.Kernel(prg, n) for n in names}
         mf, ctx, r = cl.mem_flags, dev.context, self.real.itemsize
         nv, M, ld = self.nv_max, self.M, self.ld
@@ -126,8 +137,9 @@ class UpdateKernels:
     def nbytes(self) -> int:
         """Device bytes of the partial sums, the result slab and the uploads at their peak
         (:func:`scratch_nbytes`)."""
-        return scratch_nbytes(self.device, self.M, self.ld, self.matrix.dtype.itemsize, self.real.itemsize, self.nv_max,
-                              self.matrix.C)
+        return scratch_nbytes(
+            self.device, self.M, self.ld, self.matrix.dtype.itemsize, self.real.itemsize, self.nv_max, self.matrix.C
+        )
 
     # -- helpers ---------------------------------------------------------------------------------
     def _put(self, a: np.ndarray, width: int, dtype=None):
@@ -194,8 +206,14 @@ class UpdateKernels:
             return fixed
         if not measure:
             return SPARSE_DENSITY
-        key = (self.device.cl_device.int_ptr, self.layout.cpu, self.M, self.matrix.dtype.itemsize, self.real.itemsize,
-               self.nv_max)
+        key = (
+            self.device.cl_device.int_ptr,
+            self.layout.cpu,
+            self.M,
+            self.matrix.dtype.itemsize,
+            self.real.itemsize,
+            self.nv_max,
+        )
         if key not in _CROSSOVERS:
             rng = np.random.default_rng(0)
             X, Y = rng.standard_normal((2, self.nv_max, self.M))
@@ -232,14 +250,38 @@ class UpdateKernels:
         rb, blocks = lay.gather_blocks(n)
         M, ld, nv = np.int32(self.M), np.int32(self.ld), np.int32(n)
         if lay.cpu:
-            self._k["gather_rows"](q, *lay.gather_grid(blocks), K, M, ld, np.int32(rb), np.int32(lay.gather_cw), nv,
-                                   X_buf, Y_buf, self._rowpart, self._colpart)
+            self._k["gather_rows"](
+                q,
+                *lay.gather_grid(blocks),
+                K,
+                M,
+                ld,
+                np.int32(rb),
+                np.int32(lay.gather_cw),
+                nv,
+                X_buf,
+                Y_buf,
+                self._rowpart,
+                self._colpart,
+            )
         else:
-            self._k["gather_partial"](q, *lay.gather_grid(blocks), K, M, ld, np.int32(rb), nv, X_buf, Y_buf,
-                                      self._rowpart, self._colpart)
+            self._k["gather_partial"](
+                q, *lay.gather_grid(blocks), K, M, ld, np.int32(rb), nv, X_buf, Y_buf, self._rowpart, self._colpart
+            )
         # In-order queue: the next channel's gather reuses the partial sums only after this reduce.
-        self._k["gather_reduce"](q, *lay.element_grid(n), self._rowpart, self._colpart, M, ld, nv, np.int32(lay.parts),
-                                 np.int32(blocks), self._res(channel, "KX"), self._res(channel, "YK"))
+        self._k["gather_reduce"](
+            q,
+            *lay.element_grid(n),
+            self._rowpart,
+            self._colpart,
+            M,
+            ld,
+            nv,
+            np.int32(lay.parts),
+            np.int32(blocks),
+            self._res(channel, "KX"),
+            self._res(channel, "YK"),
+        )
         return n
 
     def _sparse_indices(self, cols: np.ndarray, rows: np.ndarray) -> tuple:
@@ -253,8 +295,15 @@ class UpdateKernels:
             out.append((len(idx), self.device.to_device(idx)))
         return tuple(out)
 
-    def _enqueue_sparse_gather(self, channel: int, X: np.ndarray, Y: np.ndarray, cols: np.ndarray,
-                               rows: np.ndarray, indices: tuple | None = None) -> int:
+    def _enqueue_sparse_gather(
+        self,
+        channel: int,
+        X: np.ndarray,
+        Y: np.ndarray,
+        cols: np.ndarray,
+        rows: np.ndarray,
+        indices: tuple | None = None,
+    ) -> int:
         """K X and Y K from the slots ``cols`` (X's non-zeros) and ``rows`` (Y's) alone;
         ``indices``: :meth:`_sparse_indices` of them, shared by every channel."""
         n = X.shape[0]
@@ -269,15 +318,23 @@ class UpdateKernels:
             vals = np.zeros((n, rp))
             vals[:, : len(nz)] = vectors[:, nz]
             vals_buf = self.device.to_device((vals.T if transpose else vals).astype(self.real))
-            self._k[name](q, (global_size(items),), (WG,), K, M, ld, np.int32(rp), idx, vals_buf, nv,
-                          self._res(channel, out))
+            self._k[name](
+                q, (global_size(items),), (WG,), K, M, ld, np.int32(rp), idx, vals_buf, nv, self._res(channel, out)
+            )
         return n
 
     def _enqueue_read_slots(self, channel: int, slots: np.ndarray) -> int:
         k, slots_buf = self._put_slots(slots)
-        self._k["read_slots"](self.device.queue, *self.layout.element_grid(k), self.matrix.buffers[channel],
-                              np.int32(self.M), np.int32(self.ld), slots_buf, self._res(channel, "cols"),
-                              self._res(channel, "rows"))
+        self._k["read_slots"](
+            self.device.queue,
+            *self.layout.element_grid(k),
+            self.matrix.buffers[channel],
+            np.int32(self.M),
+            np.int32(self.ld),
+            slots_buf,
+            self._res(channel, "cols"),
+            self._res(channel, "rows"),
+        )
         return k
 
     def gather(self, channel: int, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -286,8 +343,9 @@ class UpdateKernels:
         KX, YK = self._get((channel, "KX", n), (channel, "YK", n))
         return KX, YK
 
-    def gather_all(self, X: np.ndarray, Y: np.ndarray, slots: np.ndarray | None = None,
-                   sparse: bool | None = None) -> tuple[np.ndarray, ...]:
+    def gather_all(
+        self, X: np.ndarray, Y: np.ndarray, slots: np.ndarray | None = None, sparse: bool | None = None
+    ) -> tuple[np.ndarray, ...]:
         """:meth:`gather` for every channel c with X[c], Y[c] (C, n, M), and with ``slots`` also
         :meth:`read_slots` (taken before the gathers): all passes enqueued, one read back.
 
@@ -301,7 +359,9 @@ class UpdateKernels:
         if len(X) != C or len(Y) != C:
             raise InvalidInputError(f"gather_all needs one X and Y per channel ({C}); got {len(X)}, {len(Y)}")
         if X.ndim != 3 or X.shape != Y.shape or X.shape[2] != self.M:
-            raise InvalidInputError(f"gather_all needs X, Y of equal shape ({C}, n, {self.M}); got {X.shape}, {Y.shape}")
+            raise InvalidInputError(
+                f"gather_all needs X, Y of equal shape ({C}, n, {self.M}); got {X.shape}, {Y.shape}"
+            )
         self._check(X.shape[1])
         cols = np.flatnonzero(np.any(X != 0, axis=(0, 1))).astype(np.int32)
         rows = np.flatnonzero(np.any(Y != 0, axis=(0, 1))).astype(np.int32)
@@ -327,7 +387,9 @@ class UpdateKernels:
         A, B = np.atleast_2d(A), np.atleast_2d(B)
         n = A.shape[0]
         if not 1 <= n <= 2 * self.nv_max or B.shape != A.shape:
-            raise InvalidInputError(f"rank update needs A, B of equal shape (n <= {2 * self.nv_max}, M); got {A.shape}, {B.shape}")
+            raise InvalidInputError(
+                f"rank update needs A, B of equal shape (n <= {2 * self.nv_max}, M); got {A.shape}, {B.shape}"
+            )
         return n, self._put(A, self.M), self._put(B, self.ld)
 
     def _launch_rank(self, channel: int, rank: tuple, write: tuple | None = None) -> None:
@@ -338,8 +400,21 @@ class UpdateKernels:
         (n, A_buf, B_buf), M, ld = rank, np.int32(self.M), np.int32(self.ld)
         if lay.cpu:
             k, slots_buf, cols_buf, rows_buf = write or (0, self._zeros, self._zeros, self._zeros)
-            self._k["rank_update_rows"](q, *lay.rank_grid, K, M, ld, np.int32(n), np.int32(lay.rank_rb), A_buf, B_buf,
-                                        np.int32(k), slots_buf, cols_buf, rows_buf)
+            self._k["rank_update_rows"](
+                q,
+                *lay.rank_grid,
+                K,
+                M,
+                ld,
+                np.int32(n),
+                np.int32(lay.rank_rb),
+                A_buf,
+                B_buf,
+                np.int32(k),
+                slots_buf,
+                cols_buf,
+                rows_buf,
+            )
             return
         self._k["rank_update"](q, *lay.rank_grid, K, M, ld, np.int32(n), A_buf, B_buf)
         if write:
@@ -351,8 +426,17 @@ class UpdateKernels:
         return k, slots_buf, self._put(cols, self.M), self._put(rows, self.M)
 
     def _launch_write(self, channel: int, k: int, slots_buf, cols_buf, rows_buf) -> None:
-        self._k["write_slots"](self.device.queue, *self.layout.element_grid(k), self.matrix.buffers[channel],
-                               np.int32(self.M), np.int32(self.ld), slots_buf, np.int32(k), cols_buf, rows_buf)
+        self._k["write_slots"](
+            self.device.queue,
+            *self.layout.element_grid(k),
+            self.matrix.buffers[channel],
+            np.int32(self.M),
+            np.int32(self.ld),
+            slots_buf,
+            np.int32(k),
+            cols_buf,
+            rows_buf,
+        )
 
     def rank_update(self, channel: int, A: np.ndarray, B: np.ndarray) -> None:
         """K += sum_n outer(A[n], B[n]) for A, B of shape (n, M), n <= 2 * max_vectors."""
@@ -368,8 +452,9 @@ class UpdateKernels:
         """K[:, slots[m]] = cols[m], K[slots[m], :] = rows[m]; cols/rows must agree where they cross."""
         self._launch_write(channel, *self._put_write(slots, cols, rows))
 
-    def update_slots(self, channel: int, A: np.ndarray, B: np.ndarray, slots: np.ndarray, cols: np.ndarray,
-                     rows: np.ndarray) -> None:
+    def update_slots(
+        self, channel: int, A: np.ndarray, B: np.ndarray, slots: np.ndarray, cols: np.ndarray, rows: np.ndarray
+    ) -> None:
         """:meth:`rank_update` then :meth:`write_slots`, queued together and not waited for.
 
         On a CPU the slot writes happen inside the rank pass (``rank_update_rows`` with NS > 0),
@@ -388,13 +473,16 @@ class UpdateKernels:
         rho = np.asarray(rho)
         rows = np.atleast_2d(rho)
         if np.shape(f_c) != (self.M,) or np.shape(f_r) != (self.M,) or rows.shape[1:] != (self.M,):
-            raise InvalidInputError(f"double_reflection needs f_c, f_r ({self.M},) and rho ({self.M},) or (C, {self.M}); "
-                                    f"got {np.shape(f_c)}, {np.shape(f_r)}, {rho.shape}")
+            raise InvalidInputError(
+                f"double_reflection needs f_c, f_r ({self.M},) and rho ({self.M},) or (C, {self.M}); "
+                f"got {np.shape(f_c)}, {np.shape(f_r)}, {rho.shape}"
+            )
         if rows.shape[0] > self.matrix.C:
             raise InvalidInputError(f"at most {self.matrix.C} albedo rows; got {rows.shape[0]}")
         for c, r in enumerate(rows):
             v = self.device.to_device(np.concatenate([f_c, f_r, r]).astype(self.real))
-            self._k["double_reflection"](self.device.queue, *self.layout.reduction_grid(), v, np.int32(self.M),
-                                         self._res(c, "KX"))
+            self._k["double_reflection"](
+                self.device.queue, *self.layout.reduction_grid(), v, np.int32(self.M), self._res(c, "KX")
+            )
         dr = np.array([h[0, 0] for h in self._get(*[(c, "KX", 1, 1) for c in range(len(rows))])])
         return float(dr[0]) if rho.ndim == 1 else dr

@@ -14,8 +14,8 @@ import scipy.sparse as sp
 
 from ..checks import check_form_factors
 from ..errors import InvalidInputError
-from ..rows.sources import HemicubeRows, RowSource, read_rows
 from ..rows.cache import RowCache
+from ..rows.sources import HemicubeRows, RowSource, read_rows
 
 __all__ = ["LocalRows"]
 
@@ -84,13 +84,17 @@ class LocalRows:
                 raise InvalidInputError(f"form_factors serves {form_factors.n_patches} patches; the scene has {n}")
             made_for = source_geometry(form_factors)
             if made_for is not None and made_for != scene.geometry_hash():
-                raise InvalidInputError(f"form_factors serves the rows of another scene geometry than {scene.name!r} "
-                                        f"(the same {n} patches in number): give this scene's")
+                raise InvalidInputError(
+                    f"form_factors serves the rows of another scene geometry than {scene.name!r} "
+                    f"(the same {n} patches in number): give this scene's"
+                )
             self.source = form_factors
         else:
             shape = getattr(form_factors, "shape", None)
             if shape != (n, n):
-                raise InvalidInputError(f"form_factors must have shape ({n}, {n}) for this {n}-patch scene; got {shape}")
+                raise InvalidInputError(
+                    f"form_factors must have shape ({n}, {n}) for this {n}-patch scene; got {shape}"
+                )
             self.csr = check_form_factors(scene, form_factors)  # float64, kept at full precision
             self.source = None
 
@@ -119,7 +123,7 @@ class LocalRows:
         J = np.asarray(J, dtype=np.int64)
         rows_J = self.rows(J)
         cols = self.local[:, np.concatenate([J, np.asarray(local_patches)[slots]])].toarray()
-        F_SJ, F_SR = np.ascontiguousarray(cols[:, : len(J)]), np.ascontiguousarray(cols[:, len(J):])
+        F_SJ, F_SR = np.ascontiguousarray(cols[:, : len(J)]), np.ascontiguousarray(cols[:, len(J) :])
         F_JS = self._scatter_rows(rows_J, local_patches)
         F_JJ = self._scatter_rows(rows_J, J)
         self.local = _replace_rows(self.local, slots, rows_J)

@@ -23,19 +23,18 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-
 import numpy as np
 import scipy.sparse as sp
 
-from ..host.colproduct import rows_product
 from ..errors import InvalidInputError, PydynradError
+from ..host.colproduct import rows_product
+from ..host.threads import pool
 from ..rows.sources import HemicubeRows
 from .localrows import LocalRows
 from .occlusion import GATHER_ALL_OUTSIDE, VIEW_FORM_FACTOR, hidden_entries, refresh_order, sphere_form_factor
 from .poserows import Since, at_pose, difference_at_pose, in_order, reciprocal_columns
 from .poses import PoseRows
 from .stale import CORRECTION_TOLERANCE, rows_minus
-from ..host.threads import pool
 
 __all__ = ["MovingObjects", "WorldRows"]
 
@@ -88,66 +87,6 @@ class MovingObjects:
     poses: PoseRows | None = None
 
 
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 class WorldRows:
     """Rows of F for a static scene with objects (a :class:`~pydynrad.rows.sources.RowSource`).
 
@@ -159,12 +98,22 @@ class WorldRows:
     with ``static_ff=None`` they are hemicubes of the world too, and exact at the current poses.
     """
 
-    def __init__(self, world, n_static: int, objects, static_ff, static_scene, resolution: int,
-                 device, poses: PoseRows | None = None) -> None:
+    def __init__(
+        self,
+        world,
+        n_static: int,
+        objects,
+        static_ff,
+        static_scene,
+        resolution: int,
+        device,
+        poses: PoseRows | None = None,
+    ) -> None:
         if poses is not None:
             if not isinstance(poses, PoseRows):
-                raise InvalidInputError(f"poses= must be PoseRows (precompute_poses, stored_poses); got "
-                                        f"{type(poses).__name__}")
+                raise InvalidInputError(
+                    f"poses= must be PoseRows (precompute_poses, stored_poses); got {type(poses).__name__}"
+                )
             poses.check(static_scene, objects, resolution)
         self.poses = poses
         self.hemicubes = HemicubeRows(world, resolution, device)
@@ -209,8 +158,9 @@ class WorldRows:
         if self._first_view is None:  # the first poses' part, once
             self._first_view = self._seeing(self._first_spheres)
         if self._in_view is None:
-            self._in_view = self._first_view | self._seeing([o.bounding_sphere(T) for o, T in
-                                                             zip(self.objects_moving, self.world.bvh.transforms)])
+            self._in_view = self._first_view | self._seeing(
+                [o.bounding_sphere(T) for o, T in zip(self.objects_moving, self.world.bvh.transforms)]
+            )
         return self._in_view
 
     def _seeing(self, spheres) -> np.ndarray:
@@ -313,9 +263,10 @@ class WorldRows:
         at = where[idx]
         if len(at) and np.array_equal(at, np.arange(at[0], at[0] + len(at))):  # a view (scipy's slice copies)
             a, z = held.indptr[at[0]], held.indptr[at[0] + len(at)]
-            indptr = held.indptr[at[0]: at[0] + len(at) + 1]
-            return sp.csr_matrix((held.data[a:z], held.indices[a:z], indptr - a if a else indptr),
-                                 shape=(len(at), held.shape[1]))
+            indptr = held.indptr[at[0] : at[0] + len(at) + 1]
+            return sp.csr_matrix(
+                (held.data[a:z], held.indices[a:z], indptr - a if a else indptr), shape=(len(at), held.shape[1])
+            )
         return held[at]
 
     def _static_rows(self, s: np.ndarray) -> sp.csr_matrix:
@@ -335,12 +286,19 @@ class WorldRows:
         them was a visible share of a move), else fetched from its source."""
         F, select = (self.static.csr, s) if self.static.csr is not None else (self.static.rows(s), np.arange(len(s)))
         world = self.world
-        hidden = hidden_entries(F, s, world.centers, world.normals, self.objects_moving, world.bvh.transforms,
-                                self.device, select)
-        return F, hidden, reciprocal_columns(s, self.objects(), self.object_patches, world.areas, self.n_patches), select
+        hidden = hidden_entries(
+            F, s, world.centers, world.normals, self.objects_moving, world.bvh.transforms, self.device, select
+        )
+        return (
+            F,
+            hidden,
+            reciprocal_columns(s, self.objects(), self.object_patches, world.areas, self.n_patches),
+            select,
+        )
 
-    def differences(self, s: np.ndarray, kept: sp.csr_matrix, at: np.ndarray, also: np.ndarray | None = None,
-                    held=None) -> sp.csr_matrix:
+    def differences(
+        self, s: np.ndarray, kept: sp.csr_matrix, at: np.ndarray, also: np.ndarray | None = None, held=None
+    ) -> sp.csr_matrix:
         """(len(s), N) CSR: the rows of static patches ``s`` at the current poses (``rows``)
         minus ``kept[at]`` (``kept`` (M, N), ``at`` (len(s),) its rows). From the static F they
         are never made: :func:`difference_at_pose` merges each with its kept row as it is made
@@ -365,12 +323,13 @@ class WorldRows:
         both = np.concatenate([s, also])
         F, hidden, recip, select = self._pose_inputs(both)
         if len(also):
+
             def made(miss):
                 # _at() asks for all of them, in order: distinct, none at the pose yet (a dict from
                 # patch to place in both, for any order, cost a move far more than this check).
                 if not np.array_equal(miss, also):
                     raise PydynradError("differences(): the outside rows asked for are not those made")
-                return at_pose(F, hidden, recip[len(s):], select[len(s):])
+                return at_pose(F, hidden, recip[len(s) :], select[len(s) :])
 
             self._at(also, made)
         since = self._since(s, at, held) if F is self.static.csr else None
@@ -406,10 +365,20 @@ class WorldRows:
             return static
         return in_order(static, self.objects()[idx[obj] - self.n_static], ~obj)
 
-    def refresh(self, moved: np.ndarray, candidates: np.ndarray, slots: np.ndarray, kept: sp.csr_matrix, spheres,
-                budget: int | None, weight: np.ndarray | None, correct: bool = False,
-                outside: np.ndarray | None = None, meanwhile=None,
-                held=None) -> tuple[np.ndarray, sp.csr_matrix, int, tuple | None]:
+    def refresh(
+        self,
+        moved: np.ndarray,
+        candidates: np.ndarray,
+        slots: np.ndarray,
+        kept: sp.csr_matrix,
+        spheres,
+        budget: int | None,
+        weight: np.ndarray | None,
+        correct: bool = False,
+        outside: np.ndarray | None = None,
+        meanwhile=None,
+        held=None,
+    ) -> tuple[np.ndarray, sp.csr_matrix, int, tuple | None]:
         """Which of the static ``candidates`` (patch indices in ``slots``; ``kept`` the local
         set's rows (M, N) in slot order, so theirs are ``current = kept[slots]``, sliced only
         when the budget ranks them) to refresh after a move, and the new rows of ``moved``
@@ -493,8 +462,9 @@ class WorldRows:
             left = (order[rest], rows_minus(new[rest], kept, slots[order[rest]])) if correct else None
             order, new = order[best], new[best]
         rows = self.object_rows[np.concatenate([moved, candidates[still]]) - self.n_static]
-        return np.concatenate([still, order]), sp.vstack([rows, new], format="csr"), hemicubes, left if correct else None
-
-
-
-
+        return (
+            np.concatenate([still, order]),
+            sp.vstack([rows, new], format="csr"),
+            hemicubes,
+            left if correct else None,
+        )

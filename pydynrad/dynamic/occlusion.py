@@ -7,21 +7,26 @@ left. See docs/design.md, 'Moving objects'.
 
 from __future__ import annotations
 
-
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InvalidInputError
-from .poserows import native_spans
 from .. import _segments
 from ..checks import patch_indices
+from ..errors import InvalidInputError
 from ..geometry.bvh import occluded
-from ..host.threads import cores
-from ..host.threads import map_parts
-from ..host.threads import row_parts
+from ..host.threads import cores, map_parts, row_parts
 from ..lights.sources import DirectionalLight
+from .poserows import native_spans
 
-__all__ = ["sphere_solid_angle", "sphere_form_factor", "shadow_rays_near", "refresh_order", "hidden_by", "hidden_between", "hidden_entries"]
+__all__ = [
+    "sphere_solid_angle",
+    "sphere_form_factor",
+    "shadow_rays_near",
+    "refresh_order",
+    "hidden_by",
+    "hidden_between",
+    "hidden_entries",
+]
 
 
 def sphere_solid_angle(points: np.ndarray, normals: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
@@ -78,11 +83,11 @@ def shadow_rays_near(points: np.ndarray, light, spheres) -> np.ndarray:
         vv = np.maximum(np.einsum("nj,nj->n", v, v), 1e-300)[:, None]
     near = np.zeros(len(p), bool)
     for k in range(0, len(c), SHADOW_SPHERES):  # (n, k, 3) temporaries of a bounded size
-        u = c[None, k:k + SHADOW_SPHERES, :] - p[:, None, :]  # from each point to each centre
+        u = c[None, k : k + SHADOW_SPHERES, :] - p[:, None, :]  # from each point to each centre
         uv = np.einsum("nkj,nj->nk", u, v)
         t = np.maximum(uv, 0.0) if vv is None else np.clip(uv / vv, 0.0, 1.0)
         gap = t[:, :, None] * v[:, None, :] - u  # closest point on the ray minus the centre
-        near |= np.any(np.einsum("nkj,nkj->nk", gap, gap) <= r[k:k + SHADOW_SPHERES] ** 2, axis=1)
+        near |= np.any(np.einsum("nkj,nkj->nk", gap, gap) <= r[k : k + SHADOW_SPHERES] ** 2, axis=1)
     return near
 
 
@@ -146,8 +151,16 @@ def hidden_between(objects, transforms, points: np.ndarray, a: np.ndarray, b: np
     return _hidden_entries(objects, transforms, points, ends - 1, ends, b.astype(np.int32), a, device)
 
 
-def _hidden_entries(objects, transforms, points: np.ndarray, starts: np.ndarray, ends: np.ndarray,
-                    indices: np.ndarray, owners: np.ndarray, device=None) -> np.ndarray:
+def _hidden_entries(
+    objects,
+    transforms,
+    points: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    indices: np.ndarray,
+    owners: np.ndarray,
+    device=None,
+) -> np.ndarray:
     """(m,) bool over ``indices`` (m,) int32: entry j of row k (``starts[k] <= j < ends[k]``, as
     :func:`native_spans` gives) is the segment ``points[owners[k]] -> points[indices[j]]`` (rows
     with ``owners[k] < 0`` are skipped, as are the entries of no row: False), True where it
@@ -177,10 +190,18 @@ def _hidden_entries(objects, transforms, points: np.ndarray, starts: np.ndarray,
         lo, hi = o.scene.bbox.astype(np.float64)
         box = np.concatenate([Rt.ravel(), -Rt @ T[:3, 3], lo - BOX_MARGIN * r, hi + BOX_MARGIN * r])
         planes = o.solid_planes
-        args = (tuple(float(v) for v in c), r * (1.0 + SPHERE_MARGIN), box.tolist(),
-                None if planes is None else planes.ravel().tolist())
-        found = map_parts(lambda k: _segments.near_sphere(P, starts[k[0]:k[1]], ends[k[0]:k[1]], indices,
-                                                          owners[k[0]:k[1]], *args), parts)
+        args = (
+            tuple(float(v) for v in c),
+            r * (1.0 + SPHERE_MARGIN),
+            box.tolist(),
+            None if planes is None else planes.ravel().tolist(),
+        )
+        found = map_parts(
+            lambda k: _segments.near_sphere(
+                P, starts[k[0] : k[1]], ends[k[0] : k[1]], indices, owners[k[0] : k[1]], *args
+            ),
+            parts,
+        )
         near = np.frombuffer(b"".join(f[0] for f in found), np.int64)
         if planes is not None:  # decided in the pass: the segments that cross the solid
             out[near] = True
@@ -194,8 +215,16 @@ def _hidden_entries(objects, transforms, points: np.ndarray, starts: np.ndarray,
     return out
 
 
-def hidden_entries(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.ndarray, normals: np.ndarray, objects,
-                   transforms, device=None, select: np.ndarray | None = None) -> np.ndarray:
+def hidden_entries(
+    rows: sp.csr_matrix,
+    row_patches: np.ndarray,
+    centers: np.ndarray,
+    normals: np.ndarray,
+    objects,
+    transforms,
+    device=None,
+    select: np.ndarray | None = None,
+) -> np.ndarray:
     """(nnz,) bool over the entries of static ``rows`` (CSR), True where the objects hide F[s, x],
     the segment between the centres of s and x crossing one (:func:`_hidden_entries`): a
     patch-centre estimate of the occlusion a hemicube at the pose would see, for no hemicube.
@@ -205,7 +234,9 @@ def hidden_entries(rows: sp.csr_matrix, row_patches: np.ndarray, centers: np.nda
     row_patches = np.asarray(row_patches, np.int64)
     starts, ends, indices, _ = native_spans(rows, select)
     if len(row_patches) != len(starts):
-        raise InvalidInputError(f"hidden_entries needs one patch per row tested ({len(starts)}); got {len(row_patches)}")
+        raise InvalidInputError(
+            f"hidden_entries needs one patch per row tested ({len(starts)}); got {len(row_patches)}"
+        )
     # Only whether a front can see a sphere (it is not wholly behind the patch's plane), not
     # the ranking's solid angles and sort (several times the cost, line-profiled in a move).
     P, n = np.asarray(centers, np.float64)[row_patches], np.asarray(normals, np.float64)[row_patches]

@@ -56,8 +56,9 @@ class UsedPatches:
         self.bits[:, patch >> 3] |= np.uint8(1 << (7 - (patch & 7)))
 
 
-def paper_swap(kernels, slot: int, f_c: np.ndarray, f_r: np.ndarray, rho_S: np.ndarray, rho_j: np.ndarray,
-               row_mask: np.ndarray) -> None:
+def paper_swap(
+    kernels, slot: int, f_c: np.ndarray, f_r: np.ndarray, rho_S: np.ndarray, rho_j: np.ndarray, row_mask: np.ndarray
+) -> None:
     """Steps 1 and 3-7 above on every channel of the device matrix behind ``kernels``.
 
     f_c, f_r (M,): F[S, j] and F[j, S] with zeros at ``slot``; rho_S (C, M) the slots' albedo
@@ -78,4 +79,6 @@ def paper_swap(kernels, slot: int, f_c: np.ndarray, f_r: np.ndarray, rho_S: np.n
         gp_r = g_r[c] + gPK[c, 0]
         col, row = gp_c.copy(), gp_r.copy()  # 7. the new column, row and diagonal
         col[slot] = row[slot] = dr[c]
-        kernels.update_slots(c, rho_j[c] * gp_c * row_mask, gp_r, [slot], col[None], row[None])  # 6. masked rank one, 7.
+        kernels.update_slots(
+            c, rho_j[c] * gp_c * row_mask, gp_r, [slot], col[None], row[None]
+        )  # 6. masked rank one, 7.

@@ -11,14 +11,24 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InvalidInputError
 from .. import _poserows
 from ..checks import patch_indices
-from ..host.threads import cores
-from ..host.threads import map_parts
-from ..host.threads import row_parts
+from ..errors import InvalidInputError
+from ..host.threads import cores, map_parts, row_parts
 
-__all__ = ["stale_rows", "native_spans", "reciprocal_columns", "at_pose", "Since", "PoseDifference", "difference_at_pose", "kept_slots", "stacked_rows", "swap_chunks", "PARALLEL_ENTRIES"]
+__all__ = [
+    "stale_rows",
+    "native_spans",
+    "reciprocal_columns",
+    "at_pose",
+    "Since",
+    "PoseDifference",
+    "difference_at_pose",
+    "kept_slots",
+    "stacked_rows",
+    "swap_chunks",
+    "PARALLEL_ENTRIES",
+]
 
 
 def native_spans(m: sp.csr_matrix, select: np.ndarray | None = None):
@@ -31,8 +41,9 @@ def native_spans(m: sp.csr_matrix, select: np.ndarray | None = None):
     return (indptr[rows].astype(np.int64), indptr[rows + 1].astype(np.int64), indices, data)
 
 
-def reciprocal_columns(row_patches: np.ndarray, object_rows: sp.csr_matrix, object_patches: np.ndarray,
-                       areas: np.ndarray, n_cols: int) -> sp.csr_matrix:
+def reciprocal_columns(
+    row_patches: np.ndarray, object_rows: sp.csr_matrix, object_patches: np.ndarray, areas: np.ndarray, n_cols: int
+) -> sp.csr_matrix:
     """(len(row_patches), n_cols): the columns ``object_patches`` of the rows of ``row_patches``
     by reciprocity, F[s, o] = A_o F[o, s] / A_s, from the objects' rows ``object_rows``
     (len(object_patches), N); zero elsewhere."""
@@ -44,12 +55,14 @@ def reciprocal_columns(row_patches: np.ndarray, object_rows: sp.csr_matrix, obje
     recip = sp.csr_matrix(object_rows).T.tocsr()[row_patches]
     recip.sort_indices()
     data = recip.data * A[object_patches][recip.indices] * np.repeat(1.0 / A[row_patches], np.diff(recip.indptr))
-    return sp.csr_matrix((data, np.asarray(object_patches, np.int64)[recip.indices], recip.indptr),
-                         shape=(len(row_patches), n_cols))
+    return sp.csr_matrix(
+        (data, np.asarray(object_patches, np.int64)[recip.indices], recip.indptr), shape=(len(row_patches), n_cols)
+    )
 
 
-def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix,
-            select: np.ndarray | None = None) -> sp.csr_matrix:
+def at_pose(
+    rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix, select: np.ndarray | None = None
+) -> sp.csr_matrix:
     """Static ``rows`` (CSR, no entries in the object columns; its rows ``select``, read in
     place, all by default) at the objects' poses, shaped as ``recip``: without their entries
     ``hidden`` ((rows.nnz,) bool, :func:`~pydynrad.dynamic.occlusion.hidden_entries`), with the object columns ``recip``
@@ -64,8 +77,7 @@ def at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix,
     # One thread: in two parts (their outputs then stacked) it was slower, since a pass that
     # writes every entry once is bound by memory, not by a core, and stacking copies it again
     # (docs/decisions/0033-native-host-passes.md).
-    nnz = _poserows.assemble(starts, ends, indices, data, hidden, *native_csr(recip),
-                             indptr, out_indices, out_data)
+    nnz = _poserows.assemble(starts, ends, indices, data, hidden, *native_csr(recip), indptr, out_indices, out_data)
     return sp.csr_matrix((out_data[:nnz], out_indices[:nnz], indptr), shape=recip.shape)
 
 
@@ -73,12 +85,15 @@ def _pose_spans(caller: str, rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.
     """(starts, ends, indices, data, hidden as uint8, recip as CSR): the checked inputs of
     :func:`at_pose` and :func:`difference_at_pose` as ``csrc/poserows.c`` reads them."""
     if not (sp.issparse(rows) and rows.format == "csr"):
-        raise InvalidInputError(f"{caller} needs the rows as CSR (hidden is over their entries); got {type(rows).__name__}")
+        raise InvalidInputError(
+            f"{caller} needs the rows as CSR (hidden is over their entries); got {type(rows).__name__}"
+        )
     recip = sp.csr_matrix(recip)
     starts, ends, indices, data = native_spans(rows, select)
     if len(starts) != recip.shape[0] or rows.shape[1] > recip.shape[1]:
-        raise InvalidInputError(f"{len(starts)} rows of {rows.shape[1]} columns and their object columns {recip.shape} "
-                                f"do not match")
+        raise InvalidInputError(
+            f"{len(starts)} rows of {rows.shape[1]} columns and their object columns {recip.shape} do not match"
+        )
     if np.shape(hidden) != (rows.nnz,):
         raise InvalidInputError(f"hidden must have one flag per entry of the rows ({rows.nnz}); got {np.shape(hidden)}")
     return starts, ends, indices, data, _mask_bytes(hidden), recip
@@ -129,8 +144,15 @@ class PoseDifference(NamedTuple):
     capped: np.ndarray
 
 
-def difference_at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_matrix, kept: sp.csr_matrix,
-                       slots: np.ndarray, select: np.ndarray | None = None, since: Since | None = None) -> PoseDifference:
+def difference_at_pose(
+    rows: sp.csr_matrix,
+    hidden: np.ndarray,
+    recip: sp.csr_matrix,
+    kept: sp.csr_matrix,
+    slots: np.ndarray,
+    select: np.ndarray | None = None,
+    since: Since | None = None,
+) -> PoseDifference:
     """``at_pose(rows, hidden, recip, select) - kept[slots]`` (r, N) CSR, exact zeros dropped,
     without the rows at the pose: each is merged with its kept row as it is made, value for
     value as :func:`at_pose` makes it (``csrc/poserows.c``, ``moved_difference``). ``kept``
@@ -151,21 +173,48 @@ def difference_at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_ma
         raise InvalidInputError(f"object columns {recip.shape} and kept rows {kept.shape} do not match")
     slots = kept_slots(slots, len(starts), kept.shape[0])
     r_indptr, r_indices, r_data = native_csr(recip)
-    flags, p_starts, p_ends, p_indices, p_data, hidden_prev, row_sums, first = \
-        _since_inputs(since, rows, hidden, len(starts), kept.shape[1])
+    flags, p_starts, p_ends, p_indices, p_data, hidden_prev, row_sums, first = _since_inputs(
+        since, rows, hidden, len(starts), kept.shape[1]
+    )
     capped = np.zeros(len(starts), np.uint8)
 
     def part(task):
         (a, z), (k_indptr, k_indices, k_data), use = task
         ra, rz, sl = r_indptr[a], r_indptr[z], slots[a:z]
-        n = int((ends[a:z] - starts[a:z]).sum()) + int(rz - ra) + int((k_indptr[sl + 1] - k_indptr[sl]).sum()) \
+        n = (
+            int((ends[a:z] - starts[a:z]).sum())
+            + int(rz - ra)
+            + int((k_indptr[sl + 1] - k_indptr[sl]).sum())
             + int((p_ends[a:z] - p_starts[a:z]).sum())
+        )
         # Only D's entries are written (no page of the rest of the bound faulted in).
         indptr, out_indices, out_data = np.empty(z - a + 1, np.int64), np.empty(n, np.int32), np.empty(n)
-        nnz = _poserows.moved_difference(starts[a:z], ends[a:z], indices, data, hidden, r_indptr[a:z + 1] - ra,
-                                         r_indices[ra:rz], r_data[ra:rz], k_indptr, k_indices, k_data, sl,
-                                         use[a:z], hidden_prev, row_sums[a:z], p_starts[a:z], p_ends[a:z],
-                                         p_indices, p_data, first, indptr, out_indices, out_data, capped[a:z])
+        nnz = _poserows.moved_difference(
+            starts[a:z],
+            ends[a:z],
+            indices,
+            data,
+            hidden,
+            r_indptr[a : z + 1] - ra,
+            r_indices[ra:rz],
+            r_data[ra:rz],
+            k_indptr,
+            k_indices,
+            k_data,
+            sl,
+            use[a:z],
+            hidden_prev,
+            row_sums[a:z],
+            p_starts[a:z],
+            p_ends[a:z],
+            p_indices,
+            p_data,
+            first,
+            indptr,
+            out_indices,
+            out_data,
+            capped[a:z],
+        )
         return (indptr, out_indices[:nnz], out_data[:nnz]) if nnz >= 0 else a - 1 - nnz  # the row out of order
 
     work = np.concatenate([[0], np.cumsum(ends - starts)])
@@ -178,12 +227,13 @@ def difference_at_pose(rows: sp.csr_matrix, hidden: np.ndarray, recip: sp.csr_ma
         bad = [d for d in done if not isinstance(d, tuple)]
         if not bad:
             return PoseDifference(stacked_rows(done, recip.shape[1]), capped.view(bool))
-        if attempt or np.any(np.diff(indices[starts[bad[0]]:ends[bad[0]]]) <= 0):
+        if attempt or np.any(np.diff(indices[starts[bad[0]] : ends[bad[0]]]) <= 0):
             break  # a static row out of order: at_pose's rows must be in order too
         kept = kept.copy()
         kept.sum_duplicates()  # scipy leaves sums of CSR matrices unsorted
-    raise InvalidInputError(f"row {bad[0]}'s static columns are out of increasing order: difference_at_pose reads "
-                            "sorted rows")
+    raise InvalidInputError(
+        f"row {bad[0]}'s static columns are out of increasing order: difference_at_pose reads sorted rows"
+    )
 
 
 def _since_inputs(since: Since | None, rows: sp.csr_matrix, hidden: np.ndarray, r: int, n_cols: int) -> tuple:
@@ -191,24 +241,48 @@ def _since_inputs(since: Since | None, rows: sp.csr_matrix, hidden: np.ndarray, 
     mask uint8, row sums float64 (r,), first object column): :func:`difference_at_pose`'s
     "since" inputs, checked, or none to use."""
     empty = np.zeros(r, np.int64)
-    none = (np.zeros(r, np.uint8), empty, empty, np.zeros(0, np.int32), np.zeros(0), np.zeros(0, np.uint8),
-            np.zeros(r), 0)
+    none = (
+        np.zeros(r, np.uint8),
+        empty,
+        empty,
+        np.zeros(0, np.int32),
+        np.zeros(0),
+        np.zeros(0, np.uint8),
+        np.zeros(r),
+        0,
+    )
     if since is None:
         return none
     flags, at = np.ascontiguousarray(since.rows, bool), np.asarray(since.last_row, np.int64)
     last = since.last
-    if flags.shape != (r,) or at.shape != (r,) or np.shape(since.row_sums) != (r,) \
-            or np.shape(since.hidden) != hidden.shape or not (sp.issparse(last) and last.format == "csr") \
-            or last.shape[1] != n_cols or (r and (at.min() < -1 or at.max() >= last.shape[0])):
-        raise InvalidInputError(f"since must give a flag, a row sum and a row of its last D (CSR, {n_cols} columns, "
-                                f"or -1) for each of the {r} rows, and a mask of the same entries as hidden")
+    if (
+        flags.shape != (r,)
+        or at.shape != (r,)
+        or np.shape(since.row_sums) != (r,)
+        or np.shape(since.hidden) != hidden.shape
+        or not (sp.issparse(last) and last.format == "csr")
+        or last.shape[1] != n_cols
+        or (r and (at.min() < -1 or at.max() >= last.shape[0]))
+    ):
+        raise InvalidInputError(
+            f"since must give a flag, a row sum and a row of its last D (CSR, {n_cols} columns, "
+            f"or -1) for each of the {r} rows, and a mask of the same entries as hidden"
+        )
     if not (flags.any() and rows.has_canonical_format):
         return none
     indptr, indices, data = native_csr(last)
     held = flags & (at >= 0)
     starts, ends = np.where(held, indptr[at], 0), np.where(held, indptr[at + 1], 0)
-    return (flags.view(np.uint8), starts, ends, indices, data, _mask_bytes(since.hidden),
-            np.ascontiguousarray(since.row_sums, np.float64), int(since.first_object))
+    return (
+        flags.view(np.uint8),
+        starts,
+        ends,
+        indices,
+        data,
+        _mask_bytes(since.hidden),
+        np.ascontiguousarray(since.row_sums, np.float64),
+        int(since.first_object),
+    )
 
 
 def stacked_rows(parts: list, n_cols: int) -> sp.csr_matrix:
@@ -220,8 +294,10 @@ def stacked_rows(parts: list, n_cols: int) -> sp.csr_matrix:
         return sp.csr_matrix((data, indices, indptr), shape=(len(indptr) - 1, n_cols))
     first = np.cumsum([0] + [len(p[1]) for p in parts])
     indptr = np.concatenate([[0]] + [p[0][1:] + f for p, f in zip(parts, first)])
-    return sp.csr_matrix((np.concatenate([p[2] for p in parts]), np.concatenate([p[1] for p in parts]), indptr),
-                         shape=(len(indptr) - 1, n_cols))
+    return sp.csr_matrix(
+        (np.concatenate([p[2] for p in parts]), np.concatenate([p[1] for p in parts]), indptr),
+        shape=(len(indptr) - 1, n_cols),
+    )
 
 
 def native_csr(m: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -229,12 +305,21 @@ def native_csr(m: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     reads them (no copy where they already are: scipy's int32 indices for fewer than 2^31 columns)."""
     if m.shape[1] >= 2**31:
         raise InvalidInputError(f"rows of {m.shape[1]} columns need 64-bit column indices")
-    return (np.ascontiguousarray(m.indptr, np.int64), np.ascontiguousarray(m.indices, np.int32),
-            np.ascontiguousarray(m.data, np.float64))
+    return (
+        np.ascontiguousarray(m.indptr, np.int64),
+        np.ascontiguousarray(m.indices, np.int32),
+        np.ascontiguousarray(m.data, np.float64),
+    )
 
 
-def stale_rows(local: sp.csr_matrix, fresh_slots: np.ndarray, S: np.ndarray, moved_slots: np.ndarray,
-               moved: np.ndarray, areas: np.ndarray) -> sp.csr_matrix:
+def stale_rows(
+    local: sp.csr_matrix,
+    fresh_slots: np.ndarray,
+    S: np.ndarray,
+    moved_slots: np.ndarray,
+    moved: np.ndarray,
+    areas: np.ndarray,
+) -> sp.csr_matrix:
     """The kept rows (M, N) after a move, for the slots not given fresh rows.
 
     ``local`` already holds the fresh rows of ``fresh_slots`` (the moved objects' patches, in
@@ -296,7 +381,7 @@ def swap_chunks(slots: np.ndarray, size: int) -> list[np.ndarray]:
     """``slots`` cut into batches of at most ``size`` (the swap size of the device kernels)."""
     if size < 1:
         raise InvalidInputError(f"swap size must be >= 1; got {size}")
-    return [slots[i:i + size] for i in range(0, len(slots), size)]
+    return [slots[i : i + size] for i in range(0, len(slots), size)]
 
 
 #: Entries from which :func:`~pydynrad.dynamic.stale.rows_minus` and :func:`difference_at_pose` split its merge over the cores: a move on a small

@@ -48,15 +48,21 @@ class PoseRows:
         """Raise InvalidInputError unless these rows are of ``scene`` with ``objects`` at ``resolution``."""
         n = len(scene) + sum(len(o) for o in objects)
         if self.n_patches != n or self.resolution != resolution:
-            raise InvalidInputError(f"poses= holds rows of {self.n_patches} patches at R = {self.resolution}; this "
-                                    f"scene with its objects has {n} patches at R = {resolution}")
+            raise InvalidInputError(
+                f"poses= holds rows of {self.n_patches} patches at R = {self.resolution}; this "
+                f"scene with its objects has {n} patches at R = {resolution}"
+            )
         static, objs = self.geometry_of(scene, objects)
         if static != self.geometry[0]:
-            raise InvalidInputError(f"poses= holds rows made for another static scene than {scene.name!r} (its "
-                                    "geometry differs): precompute them for this one")
+            raise InvalidInputError(
+                f"poses= holds rows made for another static scene than {scene.name!r} (its "
+                "geometry differs): precompute them for this one"
+            )
         if objs != self.geometry[1]:
-            raise InvalidInputError(f"poses= holds rows made for other objects than {[o.name for o in objects]} (their "
-                                    "geometry differs): precompute them for these")
+            raise InvalidInputError(
+                f"poses= holds rows made for other objects than {[o.name for o in objects]} (their "
+                "geometry differs): precompute them for these"
+            )
 
     @staticmethod
     def key(transforms) -> bytes:
@@ -90,9 +96,3 @@ class PoseRows:
     def nbytes(self) -> int:
         """Host bytes of the rows held in memory (0 for a store's: read per configuration)."""
         return sum(p.nbytes + r.data.nbytes + r.indices.nbytes + r.indptr.nbytes for p, r in self._rows.values())
-
-
-
-
-
-

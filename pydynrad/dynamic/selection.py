@@ -49,7 +49,9 @@ class NearestSet:
         d, idx = self._tree.query(np.asarray(observer, dtype=np.float64), k=count)
         return np.atleast_1d(idx).astype(np.int64), np.atleast_1d(d)
 
-    def propose(self, observer: np.ndarray, local_patches: np.ndarray, local_mask: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    def propose(
+        self, observer: np.ndarray, local_patches: np.ndarray, local_mask: np.ndarray, k: int
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Swaps for this frame: (slots to free, patches to add), at most ``k`` of each.
 
         Repeats the paper's test k times: pair the t-th farthest evictable local patch with the t-th

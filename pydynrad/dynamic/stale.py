@@ -43,18 +43,12 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .. import _poserows
+from ..errors import InvalidInputError
 from ..host.anderson import Anderson
 from ..host.colproduct import rows_product
-from ..errors import InvalidInputError
-from .poserows import PARALLEL_ENTRIES
-from .poserows import kept_slots
-from .poserows import native_csr
-from .poserows import native_spans
-from .poserows import stacked_rows
-from .. import _poserows
-from ..host.threads import cores
-from ..host.threads import map_parts
-from ..host.threads import row_parts
+from ..host.threads import cores, map_parts, row_parts
+from .poserows import PARALLEL_ENTRIES, kept_slots, native_csr, native_spans, stacked_rows
 
 __all__ = ["StaleRows", "rows_minus", "CORRECTION_TOLERANCE", "CORRECTION_ITERATIONS"]
 
@@ -76,8 +70,6 @@ CORRECTION_ITERATIONS = 8
 ANDERSON_DEPTH = 3
 
 
-
-
 def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     """(r, N) ``rows - kept[slots]``, exact zeros dropped: ``rows`` (r, N) CSR, or a sequence of
     CSR blocks of N columns stacked in order (not copied into one), ``kept`` (M, N) CSR,
@@ -91,7 +83,9 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
     kept = sp.csr_matrix(kept)
     n_rows = sum(b.shape[0] for b in blocks)
     if any(b.shape[1] != kept.shape[1] for b in blocks):
-        raise InvalidInputError(f"rows of {[b.shape[1] for b in blocks]} columns and kept rows {kept.shape} differ in columns")
+        raise InvalidInputError(
+            f"rows of {[b.shape[1] for b in blocks]} columns and kept rows {kept.shape} differ in columns"
+        )
     slots = kept_slots(slots, n_rows, kept.shape[0])
     k_csr, k_len = native_csr(kept), np.diff(kept.indptr)
     split = cores() if sum(b.nnz for b in blocks) >= PARALLEL_ENTRIES else 1
@@ -110,7 +104,7 @@ def rows_minus(rows, kept: sp.csr_matrix, slots: np.ndarray) -> sp.csr_matrix:
         for b in blocks:
             spans = native_spans(b)
             for a, z in row_parts(b.indptr, split):
-                yield tuple(x[a:z] for x in spans[:2]) + spans[2:], slots[first + a:first + z]
+                yield tuple(x[a:z] for x in spans[:2]) + spans[2:], slots[first + a : first + z]
             first += b.shape[0]
 
     parts = map_parts(merge, tasks())
@@ -197,8 +191,10 @@ class StaleRows:
         slots = np.asarray(slots, np.int64)
         blocks = [sp.csr_matrix(d) for d in deltas]
         if any(b.shape[1] != self.n_patches for b in blocks) or sum(b.shape[0] for b in blocks) != len(slots):
-            raise InvalidInputError(f"put needs one row of {self.n_patches} columns per slot ({len(slots)}); got "
-                                    f"{[b.shape for b in blocks]}")
+            raise InvalidInputError(
+                f"put needs one row of {self.n_patches} columns per slot ({len(slots)}); got "
+                f"{[b.shape for b in blocks]}"
+            )
         if len(np.unique(slots)) != len(slots):
             raise InvalidInputError("put needs each slot once: a slot's row differs from its kept row in one way")
         given = slots
@@ -208,13 +204,20 @@ class StaleRows:
             blocks.insert(0, self.delta if keep.all() else self.delta[np.flatnonzero(keep)])
             slots = np.concatenate([self.slots[keep], slots])
         blocks = [b for b in blocks if b.shape[0]] or [sp.csr_matrix((0, self.n_patches))]
-        delta = blocks[0] if len(blocks) == 1 else \
-            stacked_rows([(b.indptr, b.indices[: b.indptr[-1]], b.data[: b.indptr[-1]]) for b in blocks], self.n_patches)
+        delta = (
+            blocks[0]
+            if len(blocks) == 1
+            else stacked_rows(
+                [(b.indptr, b.indices[: b.indptr[-1]], b.data[: b.indptr[-1]]) for b in blocks], self.n_patches
+            )
+        )
         stale = np.diff(delta.indptr) > 0
         if not stale.all():  # the empty rows go from the row pointers alone: they hold no entries
             nnz = delta.indptr[-1]
-            delta = sp.csr_matrix((delta.data[:nnz], delta.indices[:nnz], np.concatenate([[0], delta.indptr[1:][stale]])),
-                                  shape=(int(stale.sum()), self.n_patches))
+            delta = sp.csr_matrix(
+                (delta.data[:nnz], delta.indices[:nnz], np.concatenate([[0], delta.indptr[1:][stale]])),
+                shape=(int(stale.sum()), self.n_patches),
+            )
             slots = slots[stale]
         self.slots, self.delta = slots, delta
         if pose is not None:
@@ -254,8 +257,16 @@ class StaleRows:
         change = rows_minus(sp.csr_matrix(after)[self.slots], before, self.slots)
         self.put(self.slots, sp.csr_matrix(self.delta - change))  # no pose: D is no longer as a pass made it
 
-    def correct(self, solve_kept, LS: np.ndarray, B: np.ndarray, S: np.ndarray, albedo: np.ndarray,
-                outside: bool, tolerance: float = CORRECTION_TOLERANCE) -> np.ndarray:
+    def correct(
+        self,
+        solve_kept,
+        LS: np.ndarray,
+        B: np.ndarray,
+        S: np.ndarray,
+        albedo: np.ndarray,
+        outside: bool,
+        tolerance: float = CORRECTION_TOLERANCE,
+    ) -> np.ndarray:
         """(M, 3) B on the local set with the stale rows at the current poses (module docstring).
 
         ``solve_kept(X)``: X + P_S K X for X (M, 3); ``LS`` (M, 3): the light to solve for on the

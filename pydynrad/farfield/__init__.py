@@ -12,5 +12,13 @@ from .gather import cluster_form_factors, cluster_form_factors_for
 from .level import FarField, far_field_for
 from .streamed import StoredG
 
-__all__ = ["Clusters", "cluster_patches", "default_cluster_count", "cluster_form_factors", "cluster_form_factors_for",
-           "FarField", "far_field_for", "StoredG"]
+__all__ = [
+    "Clusters",
+    "cluster_patches",
+    "default_cluster_count",
+    "cluster_form_factors",
+    "cluster_form_factors_for",
+    "FarField",
+    "far_field_for",
+    "StoredG",
+]

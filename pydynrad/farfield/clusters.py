@@ -21,17 +21,26 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..checks import integer, number
-from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
-from ..rows.prolongation import LINEAR_FUNCTIONS
+from ..geometry.scene import checked_scene
 from ..host.csrgraph import weak_components
+from ..rows.prolongation import LINEAR_FUNCTIONS
 
-__all__ = ["Clusters", "cluster_patches", "default_cluster_count", "NORMAL_BINS", "NORMAL_WEIGHT",
-           "DEFAULT_PATCHES_PER_CLUSTER", "light_components", "linear_basis"]
+__all__ = [
+    "Clusters",
+    "cluster_patches",
+    "default_cluster_count",
+    "NORMAL_BINS",
+    "NORMAL_WEIGHT",
+    "DEFAULT_PATCHES_PER_CLUSTER",
+    "light_components",
+    "linear_basis",
+]
 
 #: The 26 unit directions of the normal bins.
-NORMAL_BINS = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) != (0, 0, 0)],
-                       dtype=np.float64)
+NORMAL_BINS = np.array(
+    [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) != (0, 0, 0)], dtype=np.float64
+)
 NORMAL_BINS /= np.linalg.norm(NORMAL_BINS, axis=1, keepdims=True)
 
 #: How much more the coordinate along a group's normal counts than the ones across it.
@@ -60,15 +69,16 @@ class Clusters:
         return self.count
 
     @classmethod
-    def from_labels(cls, scene, labels) -> "Clusters":
+    def from_labels(cls, scene, labels) -> Clusters:
         """Clusters from (N,) labels made elsewhere (e.g. the ones a form-factor store's G was
         computed for): every patch in one of 0..C-1, each cluster of one albedo (the coarse
         albedo must be exact)."""
         n = len(checked_scene(scene))
         lab = np.asarray(labels)
         if lab.shape != (n,) or not np.issubdtype(lab.dtype, np.integer) or lab.min(initial=0) < 0:
-            raise InvalidInputError(f"cluster labels must be {n} integers >= 0, one cluster per patch; got "
-                                    f"{lab.dtype} shape {lab.shape}")
+            raise InvalidInputError(
+                f"cluster labels must be {n} integers >= 0, one cluster per patch; got {lab.dtype} shape {lab.shape}"
+            )
         lab = lab.astype(np.int64)
         C = int(lab.max()) + 1
         if len(np.unique(lab)) != C:
@@ -78,8 +88,10 @@ class Clusters:
         first[lab[::-1]] = np.arange(n)[::-1]
         mixed = np.flatnonzero(np.any(albedo != albedo[first[lab]], axis=1))
         if len(mixed):
-            raise InvalidInputError(f"cluster {lab[mixed[0]]} mixes albedos (patches {first[lab[mixed[0]]]} and "
-                                    f"{mixed[0]}); the far field needs clusters pure in albedo")
+            raise InvalidInputError(
+                f"cluster {lab[mixed[0]]} mixes albedos (patches {first[lab[mixed[0]]]} and "
+                f"{mixed[0]}); the far field needs clusters pure in albedo"
+            )
         groups = int(_groups(scene, np.zeros(n, dtype=np.int64))[0].max()) + 1
         return cls(labels=lab, count=C, groups=groups, scene_hash=scene.content_hash())
 
@@ -184,8 +196,9 @@ def free_singletons(components: np.ndarray) -> np.ndarray:
     return labels
 
 
-def cluster_patches(scene, clusters: int | None = None, patches_per_cluster: float | None = None,
-                    components=None) -> Clusters:
+def cluster_patches(
+    scene, clusters: int | None = None, patches_per_cluster: float | None = None, components=None
+) -> Clusters:
     """Partition the patches of ``scene`` into pure, compact clusters.
 
     Parameters
@@ -235,8 +248,6 @@ def cluster_patches(scene, clusters: int | None = None, patches_per_cluster: flo
     points = centres + (NORMAL_WEIGHT - 1.0) * np.sum(centres * normal, axis=1, keepdims=True) * normal
     labels = _bisect(points, gid, k)
     return Clusters(labels=labels, count=C, groups=n_groups, scene_hash=scene.content_hash())
-
-
 
 
 def _tangents(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -296,9 +307,12 @@ def linear_basis(clusters: Clusters, scene) -> tuple[sp.csr_matrix, sp.csr_matri
         for q in range(LINEAR_FUNCTIONS):
             gram[:, p, q] = np.bincount(lab, weights=a * psi[:, p] * psi[:, q], minlength=C)
     coef = np.einsum("ikq,iq->ik", np.linalg.pinv(gram, rcond=1e-9)[lab], a[:, None] * psi)  # (N, 3)
-    R = sp.csr_matrix((coef.T.ravel(), (np.add.outer(C * np.arange(LINEAR_FUNCTIONS), lab).ravel(),
-                                         np.tile(np.arange(n), LINEAR_FUNCTIONS))), shape=(LINEAR_FUNCTIONS * C, n))
+    R = sp.csr_matrix(
+        (
+            coef.T.ravel(),
+            (np.add.outer(C * np.arange(LINEAR_FUNCTIONS), lab).ravel(), np.tile(np.arange(n), LINEAR_FUNCTIONS)),
+        ),
+        shape=(LINEAR_FUNCTIONS * C, n),
+    )
     R.eliminate_zeros()
     return Pr, R
-
-

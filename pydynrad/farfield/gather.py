@@ -21,27 +21,25 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..checks import check_form_factor_rows, sparse_structure
-from ..geometry.scene import checked_scene
 from ..errors import InvalidInputError
-from ..rows.prolongation import BASES, as_prolongation, check_prolongation, g_samples, split_prolongation
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
-from .clusters import Clusters
-from .clusters import cluster_patches
-from .clusters import free_singletons
-from .clusters import linear_basis
+from ..geometry.scene import checked_scene
 from ..progress import progress_bar
+from ..rows.prolongation import BASES, as_prolongation, check_prolongation, g_samples, split_prolongation
 from ..rows.sources import HemicubeRows
-from ..rows.store import FormFactorStore
-from ..rows.store import StoreIncompleteError
+from ..rows.store import FormFactorStore, StoreIncompleteError
+from .clusters import Clusters, cluster_patches, free_singletons, linear_basis
 
-__all__ = ["cluster_form_factors", "cluster_form_factors_for", "basis_prolongation",
-           "checked_cluster_form_factors", "light_components_by_hemicube",
-           "clusters_without_f", "check_store", "COMPONENT_RESOLUTION"]
-
-
-
-
-
+__all__ = [
+    "cluster_form_factors",
+    "cluster_form_factors_for",
+    "basis_prolongation",
+    "checked_cluster_form_factors",
+    "light_components_by_hemicube",
+    "clusters_without_f",
+    "check_store",
+    "COMPONENT_RESOLUTION",
+]
 
 
 #: Hemicube resolution of the pass that finds which patches exchange light when F is never formed:
@@ -59,8 +57,9 @@ def check_store(scene, store, n: int) -> None:
         raise InvalidInputError(f"form-factor store {store.path} was made for another scene geometry")
 
 
-def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, device=None,
-                                 progress: bool | None = None, store=None) -> np.ndarray:
+def light_components_by_hemicube(
+    scene, resolution: int = COMPONENT_RESOLUTION, device=None, progress: bool | None = None, store=None
+) -> np.ndarray:
     """:func:`pydynrad.farfield.clusters.light_components` of a scene whose F is never formed.
 
     F's rows at ``resolution`` are traced in the bounded blocks of
@@ -78,8 +77,10 @@ def light_components_by_hemicube(scene, resolution: int = COMPONENT_RESOLUTION, 
         check_store(scene, store, n)
         missing = store.missing_blocks()
         if missing:
-            raise StoreIncompleteError(f"form-factor store {store.path} holds only part of F ({len(missing)} of "
-                                       f"{store.n_blocks} blocks missing): its light components need all of it")
+            raise StoreIncompleteError(
+                f"form-factor store {store.path} holds only part of F ({len(missing)} of "
+                f"{store.n_blocks} blocks missing): its light components need all of it"
+            )
         blocks = (store.read_block(k) for k in range(store.n_blocks))
     else:
         blocks = hemicube_blocks(scene, resolution, None, device, progress, desc="light components")
@@ -127,10 +128,15 @@ def basis_prolongation(scene, clusters, basis: str = "linear") -> sp.csr_matrix:
     return check_prolongation(linear_basis(clusters, scene)[0], n)
 
 
-
-
-def cluster_form_factors(scene, prolongation, resolution: int = CLUSTER_RESOLUTION, rows=None, device=None,
-                         progress: bool | None = None, samples: int = 1) -> sp.csr_matrix:
+def cluster_form_factors(
+    scene,
+    prolongation,
+    resolution: int = CLUSTER_RESOLUTION,
+    rows=None,
+    device=None,
+    progress: bool | None = None,
+    samples: int = 1,
+) -> sp.csr_matrix:
     """Rows of the patch-to-cluster form factors G = F Pr by hemicube, F never formed.
 
     Parameters
@@ -162,11 +168,23 @@ def cluster_form_factors(scene, prolongation, resolution: int = CLUSTER_RESOLUTI
     C = pr.shape[1]
     single = split_prolongation(pr)
     if single is not None:
-        blocks = hemicube_blocks(scene, resolution, rows, device, progress, desc="cluster form factors",
-                                 clusters=(*single, C), samples=samples)
+        blocks = hemicube_blocks(
+            scene,
+            resolution,
+            rows,
+            device,
+            progress,
+            desc="cluster form factors",
+            clusters=(*single, C),
+            samples=samples,
+        )
     else:
-        blocks = (b @ pr for b in hemicube_blocks(scene, resolution, rows, device, progress,
-                                                   desc="cluster form factors", samples=samples))
+        blocks = (
+            b @ pr
+            for b in hemicube_blocks(
+                scene, resolution, rows, device, progress, desc="cluster form factors", samples=samples
+            )
+        )
     return stack_blocks(blocks, C)
 
 
@@ -187,14 +205,13 @@ def checked_cluster_form_factors(G, shape: tuple[int, int]) -> sp.csr_matrix:
     sparse_structure(G.indptr, G.indices, G.shape, "G", nnz=len(G.data))
     for first in range(0, G.shape[0], SUM_BLOCK_ROWS):
         rows = np.arange(first, min(G.shape[0], first + SUM_BLOCK_ROWS))
-        check_form_factor_rows(G[first:rows[-1] + 1], "G", rows)
+        check_form_factor_rows(G[first : rows[-1] + 1], "G", rows)
     return G
 
 
-
-
-def cluster_form_factors_for(scene, source, clusters, resolution: int | None = None, device=None,
-                             progress: bool | None = None) -> sp.csr_matrix:
+def cluster_form_factors_for(
+    scene, source, clusters, resolution: int | None = None, device=None, progress: bool | None = None
+) -> sp.csr_matrix:
     """The whole (N, C) G for a dynamic solution's source of F's rows, F never held whole.
 
     ``source`` is what :class:`~pydynrad.DynamicRadiosity` reads F's rows from:
@@ -224,11 +241,14 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
     if isinstance(inner, FormFactorStore):
         check_store(scene, inner, n)
     elif getattr(inner, "n_patches", None) != n:
-        raise InvalidInputError(f"the form factors have {getattr(inner, 'n_patches', None)} rows; the scene has {n} patches")
+        raise InvalidInputError(
+            f"the form factors have {getattr(inner, 'n_patches', None)} rows; the scene has {n} patches"
+        )
     if isinstance(inner, HemicubeRows):
         R = inner.resolution if resolution is None else resolution
-        return cluster_form_factors(scene, pr, R, device=device, progress=progress,
-                                    samples=g_samples(inner.resolution, inner.samples, R))
+        return cluster_form_factors(
+            scene, pr, R, device=device, progress=progress, samples=g_samples(inner.resolution, inner.samples, R)
+        )
     if isinstance(inner, FormFactorStore):
         if inner.has_clusters:
             return inner.cluster_form_factors(pr)
@@ -237,7 +257,8 @@ def cluster_form_factors_for(scene, source, clusters, resolution: int | None = N
             raise StoreIncompleteError(
                 f"form-factor store {inner.path} holds no patch-to-cluster form factors G and only part of F "
                 f"({len(missing)} of {inner.n_blocks} blocks missing); add G with compute_store(..., clusters=...) or "
-                "`pydynrad formfactors SCENE -o STORE --clusters ...`")
+                "`pydynrad formfactors SCENE -o STORE --clusters ...`"
+            )
     starts = range(0, n, SUM_BLOCK_ROWS)
     with progress_bar(progress, long=n > 8 * SUM_BLOCK_ROWS, total=n, unit="row", desc="far field G") as bar:
         blocks = []

@@ -70,40 +70,44 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from ..bounces import multibounce_block
 from ..checks import check_form_factors, finite, integer
+from ..device.csr import DeviceCSR
+from ..device.devices import default_device, real_dtype
+from ..device.matrix import DeviceMatrix
+from ..errors import ConvergenceError, InvalidInputError, PydynradError
 from ..geometry.scene import checked_scene
 from ..host.colproduct import columns_product, rows_product
-from ..errors import ConvergenceError, InvalidInputError, PydynradError
-from ..lights.sources import check_radiosity_range
+from ..host.csrgraph import columns_float32, sum_by_label
 from ..host.product import HostBounce, HostMatrix, on_host
+from ..host.shortcuts import host_shortcuts
+from ..lights.sources import DirectionalLight, check_radiosity_range, light_vector
+from ..precision import compute_dtype, storage_dtype
+from ..rows.prolongation import LINEAR_FUNCTIONS, check_prolongation
+from ..rows.sources import CSRRows, HemicubeRows
+from ..rows.store import FormFactorStore
 from .clusters import Clusters, cluster_patches, light_components, linear_basis
-from ..rows.prolongation import LINEAR_FUNCTIONS
-from .gather import checked_cluster_form_factors
+from .gather import (
+    basis_prolongation,
+    check_store,
+    checked_cluster_form_factors,
+    cluster_form_factors_for,
+    clusters_without_f,
+)
 from .history import Answers
 from .streamed import StoredG
-from .gather import basis_prolongation
-from .gather import check_store
-from .gather import cluster_form_factors_for
-from .gather import clusters_without_f
-from ..bounces import multibounce_block
-from ..device.csr import DeviceCSR
-from ..device.devices import default_device
-from ..host.shortcuts import host_shortcuts
-from ..device.devices import real_dtype
-from ..device.matrix import DeviceMatrix
-from ..precision import compute_dtype
-from ..precision import storage_dtype
-from ..host.csrgraph import columns_float32
-from ..host.csrgraph import sum_by_label
-from ..lights.sources import DirectionalLight
-from ..lights.sources import light_vector
-from ..rows.prolongation import check_prolongation
-from ..rows.sources import CSRRows
-from ..rows.sources import HemicubeRows
-from ..rows.store import FormFactorStore
 
-__all__ = ["FarField", "far_field_for", "exposure_weights", "weighted_prolongation", "sky_directions", "PROLONGATIONS",
-           "GATHERS", "COARSE_SOLVES", "DENSE_CLUSTERS"]
+__all__ = [
+    "FarField",
+    "far_field_for",
+    "exposure_weights",
+    "weighted_prolongation",
+    "sky_directions",
+    "PROLONGATIONS",
+    "GATHERS",
+    "COARSE_SOLVES",
+    "DENSE_CLUSTERS",
+]
 
 PROLONGATIONS = ("indicator", "exposure", "linear")
 GATHERS = ("first_bounce", "shared", "cluster")
@@ -173,7 +177,9 @@ def weighted_prolongation(clusters: Clusters, areas: np.ndarray, w: np.ndarray) 
     """(N, C) Pr_w[i, c] = w_i / mean_c(w), the area-weighted mean; the indicator where the mean is 0."""
     a = np.asarray(areas, dtype=np.float64)
     lab = clusters.labels
-    mean = np.bincount(lab, weights=a * w, minlength=clusters.count) / np.bincount(lab, weights=a, minlength=clusters.count)
+    mean = np.bincount(lab, weights=a * w, minlength=clusters.count) / np.bincount(
+        lab, weights=a, minlength=clusters.count
+    )
     scale = np.where(mean[lab] > 0, w / np.where(mean[lab] > 0, mean[lab], 1.0), 1.0)
     n = len(lab)
     return sp.csr_matrix((scale, (np.arange(n), lab)), shape=(n, clusters.count))
@@ -190,11 +196,15 @@ def _checked_linear(linear, n: int, C: int) -> tuple[sp.csr_matrix, sp.csr_matri
     try:
         Pr, fit = linear
     except (TypeError, ValueError):
-        raise InvalidInputError("linear must be the (Pr, R_lin) pair of pydynrad.farfield.clusters.linear_basis") from None
+        raise InvalidInputError(
+            "linear must be the (Pr, R_lin) pair of pydynrad.farfield.clusters.linear_basis"
+        ) from None
     K = LINEAR_FUNCTIONS * C
     if not (sp.issparse(Pr) and sp.issparse(fit) and Pr.shape == (n, K) and fit.shape == (K, n)):
-        raise InvalidInputError(f"linear must be sparse (Pr, R_lin) of shapes ({n}, {K}) and ({K}, {n}) for these clusters; "
-                                f"got {getattr(Pr, 'shape', None)} and {getattr(fit, 'shape', None)}")
+        raise InvalidInputError(
+            f"linear must be sparse (Pr, R_lin) of shapes ({n}, {K}) and ({K}, {n}) for these clusters; "
+            f"got {getattr(Pr, 'shape', None)} and {getattr(fit, 'shape', None)}"
+        )
     return sp.csr_matrix(Pr), sp.csr_matrix(fit)
 
 
@@ -233,12 +243,14 @@ def _check_g_against_f(G, F, Pr, areas) -> None:
     d = np.abs(have - want)
     a = np.asarray(areas, np.float64) / float(np.sum(areas))
     worst = int(np.argmax(d - G_ROW_TOLERANCE[1] * want))
-    if d[worst] > G_ROW_TOLERANCE[0] + G_ROW_TOLERANCE[1] * want[worst] or \
-            float(a @ d) > G_MEAN_TOLERANCE[0] + G_MEAN_TOLERANCE[1] * float(a @ want):
+    if d[worst] > G_ROW_TOLERANCE[0] + G_ROW_TOLERANCE[1] * want[worst] or float(a @ d) > G_MEAN_TOLERANCE[
+        0
+    ] + G_MEAN_TOLERANCE[1] * float(a @ want):
         raise InvalidInputError(
             f"cluster_form_factors (G) contradicts the form factors F: patch {worst}'s row of G sums to "
             f"{have[worst]:.4g} where F Pr's sums to {want[worst]:.4g} (area-weighted mean difference {float(a @ d):.3g}); "
-            "G must be F Pr for these clusters (pydynrad.farfield.gather.cluster_form_factors), or leave it out")
+            "G must be F Pr for these clusters (pydynrad.farfield.gather.cluster_form_factors), or leave it out"
+        )
 
 
 def _cluster_columns(F, Pr) -> sp.csr_matrix:
@@ -341,10 +353,25 @@ class FarField:
         Wall time of the construction, of the last light change and of its coarse solve (B_c).
     """
 
-    def __init__(self, scene, form_factors=None, clusters=None, G=None, prolongation: str | None = None,
-                 gather: str | None = None, fine_sweeps: int | None = None, coarse: str = "auto", coarse_storage: str | None = None,
-                 tol: float = 1e-4, max_sweeps: int = 1000, dtype=np.float32, device=None, *, checked: bool = False,
-                 linear=None) -> None:
+    def __init__(
+        self,
+        scene,
+        form_factors=None,
+        clusters=None,
+        G=None,
+        prolongation: str | None = None,
+        gather: str | None = None,
+        fine_sweeps: int | None = None,
+        coarse: str = "auto",
+        coarse_storage: str | None = None,
+        tol: float = 1e-4,
+        max_sweeps: int = 1000,
+        dtype=np.float32,
+        device=None,
+        *,
+        checked: bool = False,
+        linear=None,
+    ) -> None:
 
         t0 = time.perf_counter()
         self.lock = threading.RLock()  # the per-light state's (class docstring, 'Threads')
@@ -368,17 +395,26 @@ class FarField:
         if not (np.isfinite(tol) and tol >= 0):
             raise InvalidInputError(f"tol must be a finite number >= 0; got {tol!r}")
         max_sweeps = integer(max_sweeps, "max_sweeps", 1)
-        fine_sweeps = integer((2 if prolongation == "linear" else 0) if fine_sweeps is None else fine_sweeps,
-                              "fine_sweeps", 0)
+        fine_sweeps = integer(
+            (2 if prolongation == "linear" else 0) if fine_sweeps is None else fine_sweeps, "fine_sweeps", 0
+        )
         if F is None and G is None:
-            raise InvalidInputError("the far field needs F in memory or its patch-to-cluster form factors G "
-                                    "(pydynrad.farfield.gather.cluster_form_factors, or a store holding G)")
+            raise InvalidInputError(
+                "the far field needs F in memory or its patch-to-cluster form factors G "
+                "(pydynrad.farfield.gather.cluster_form_factors, or a store holding G)"
+            )
         if gather != "cluster" and prolongation == "linear":
-            raise InvalidInputError(f"gather={gather!r} shares or gathers each cluster's one value by patch; it takes "
-                                    "prolongation='indicator' or 'exposure', not 'linear'")
-        if F is None and (gather != "cluster" or (fine_sweeps and prolongation != "linear") or prolongation == "exposure"):
-            raise InvalidInputError(f"gather={gather!r}, fine_sweeps and prolongation='exposure' need F in memory; got "
-                                    f"gather={gather!r}, fine_sweeps={fine_sweeps}, prolongation={prolongation!r} without F")
+            raise InvalidInputError(
+                f"gather={gather!r} shares or gathers each cluster's one value by patch; it takes "
+                "prolongation='indicator' or 'exposure', not 'linear'"
+            )
+        if F is None and (
+            gather != "cluster" or (fine_sweeps and prolongation != "linear") or prolongation == "exposure"
+        ):
+            raise InvalidInputError(
+                f"gather={gather!r}, fine_sweeps and prolongation='exposure' need F in memory; got "
+                f"gather={gather!r}, fine_sweeps={fine_sweeps}, prolongation={prolongation!r} without F"
+            )
         if clusters is None or not isinstance(clusters, Clusters):
             clusters = cluster_patches(scene, clusters, components=None if F is None else light_components(F))
         self.clusters = _checked_clusters(clusters, scene)
@@ -399,8 +435,10 @@ class FarField:
         self._G_stream = G if isinstance(G, StoredG) else None
         if self._G_stream is not None:
             if F is not None or tuple(G.shape) != Pr.shape:
-                raise InvalidInputError(f"a stored G is the far field without F, of shape {Pr.shape}; got shape "
-                                        f"{tuple(G.shape)}" + (" with F" if F is not None else ""))
+                raise InvalidInputError(
+                    f"a stored G is the far field without F, of shape {Pr.shape}; got shape "
+                    f"{tuple(G.shape)}" + (" with F" if F is not None else "")
+                )
             # Checked chunk by chunk while F_c is summed from it; never held whole.
             self.F_c = G.coarse_form_factors(self.R, C)
         else:
@@ -412,7 +450,7 @@ class FarField:
             # indicator. Summed after the restriction, on C x 3C, not on G (N x 3C: most of the far
             # field's memory at a million patches).
             RG = self.R @ G
-            self.F_c = sp.csr_matrix(RG if self._fit is None else RG[:, :C] + RG[:, C:2 * C] + RG[:, 2 * C:])
+            self.F_c = sp.csr_matrix(RG if self._fit is None else RG[:, :C] + RG[:, C : 2 * C] + RG[:, 2 * C :])
             del RG
         self.prolongation, self.gather, self.tol, self.max_sweeps = prolongation, gather, tol, max_sweeps
         self.fine_sweeps = fine_sweeps
@@ -428,10 +466,14 @@ class FarField:
         self._F_cols = None
         if with_F and host_shortcuts(self.device):
             self._F_cols = columns_float32(F) if dtype == np.float32 else sp.csc_matrix(F, dtype=dtype)
-        rows_on_device = gather == "shared" or (fine_sweeps > 0 and self._fit is None) or (with_F and self._F_cols is None)
+        rows_on_device = (
+            gather == "shared" or (fine_sweeps > 0 and self._fit is None) or (with_F and self._F_cols is None)
+        )
         self._F_dev = DeviceCSR(self.device, F, dtype) if rows_on_device else None
         # shared: G only makes F_c; a stored G is read per pass (:meth:`_gather`).
-        self._G_product = None if gather == "shared" or self._G_stream is not None else _gather_product(self.device, G, dtype)
+        self._G_product = (
+            None if gather == "shared" or self._G_stream is not None else _gather_product(self.device, G, dtype)
+        )
         self._dtype = dtype
         # The narrowest type any of its products computes in: a float64 far field may keep K_c in fp32.
         narrow = np.dtype(dtype) == np.float32 or compute_dtype(coarse_storage) == np.float32
@@ -466,8 +508,14 @@ class FarField:
         channels = 1 if self.scene.is_grey else 3
         # checked: F_c is made here from checked parts, and with the exposure prolongation its
         # rows may sum above 1 (R Pr_w = I, not Pr_w's rows) while rho_c times them stays below 1.
-        K = multibounce_block(self.F_c, self.rho_c[:, :channels], dtype=np.float64 if storage == "fp64" else dtype,
-                              device=self.device, progress=False, checked=True)
+        K = multibounce_block(
+            self.F_c,
+            self.rho_c[:, :channels],
+            dtype=np.float64 if storage == "fp64" else dtype,
+            device=self.device,
+            progress=False,
+            checked=True,
+        )
         if on_host(self.device, HostMatrix.nbytes_of(channels, self.C, storage)):
             return HostMatrix(K, storage)
         return DeviceMatrix(self.device, K, storage)
@@ -586,14 +634,17 @@ class FarField:
         k = s.shape[1]
         rho_c = self.rho_c[:, :k]
         if self.K_c is None:
-            x, self.sweeps, change, _ = self._Fc_dev.jacobi(s, rho_c, self._warm_start(s), self.tol, self.max_sweeps,
-                                                            COARSE_MIXING)
+            x, self.sweeps, change, _ = self._Fc_dev.jacobi(
+                s, rho_c, self._warm_start(s), self.tol, self.max_sweeps, COARSE_MIXING
+            )
             # As the full solve does: an unconverged answer is not returned, nor kept; tol = 0 asks
             # for max_sweeps sweeps exactly (as solve's bounces=), which never converge early.
             if self.tol > 0 and not change <= self.tol:
-                raise ConvergenceError(f"the far field's coarse sweeps did not reach tol={self.tol:g} in "
-                                       f"max_sweeps={self.max_sweeps} (last relative change {change:.3g}): raise "
-                                       "max_sweeps, or use coarse='dense'")
+                raise ConvergenceError(
+                    f"the far field's coarse sweeps did not reach tol={self.tol:g} in "
+                    f"max_sweeps={self.max_sweeps} (last relative change {change:.3g}): raise "
+                    "max_sweeps, or use coarse='dense'"
+                )
             self._solved.add(s, x)
             return x
         self.sweeps = 0
@@ -659,8 +710,15 @@ class FarField:
         return out
 
     @_locked
-    def follow_swap(self, before: sp.csr_matrix, after: sp.csr_matrix, members: np.ndarray, slots: np.ndarray,
-                    F_SJ: np.ndarray, F_SR: np.ndarray) -> None:
+    def follow_swap(
+        self,
+        before: sp.csr_matrix,
+        after: sp.csr_matrix,
+        members: np.ndarray,
+        slots: np.ndarray,
+        F_SJ: np.ndarray,
+        F_SR: np.ndarray,
+    ) -> None:
         """Carry the last injection over a swap, so that the next :meth:`injection` with the
         rows ``after`` and the local set ``members`` (M,) takes no pass over the rows: the
         patches J = ``members[slots]`` entered the slots ``slots`` of the local set, whose rows
@@ -725,8 +783,9 @@ class FarField:
             return local_rows
         kept_before = np.zeros(local_rows.nnz + 1, np.int64)  # entries kept before each entry
         np.cumsum(keep, out=kept_before[1:])
-        cut = sp.csr_matrix((local_rows.data[keep], local_rows.indices[keep], kept_before[local_rows.indptr]),
-                            shape=local_rows.shape)
+        cut = sp.csr_matrix(
+            (local_rows.data[keep], local_rows.indices[keep], kept_before[local_rows.indptr]), shape=local_rows.shape
+        )
         self._outside_cols = (given, np.array(members), cut)
         return cut
 
@@ -759,7 +818,8 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
         if not inner.has_clusters:
             raise InvalidInputError(
                 f"form-factor store {inner.path} holds no far-field G: compute it (compute_store(..., clusters=...) or "
-                "`pydynrad formfactors SCENE -o STORE --clusters C`), or pass far_field=False (--no-far-field)")
+                "`pydynrad formfactors SCENE -o STORE --clusters C`), or pass far_field=False (--no-far-field)"
+            )
         # A store's own prolongation matrix ("given") must be the indicator of its labels: checked with G below.
         basis = "linear" if inner.cluster_basis == "linear" else "indicator"
         if clusters is None:

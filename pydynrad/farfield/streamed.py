@@ -23,8 +23,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..checks import check_form_factor_rows
-from ..errors import InvalidInputError
 from ..device.csr import DeviceCSR
+from ..errors import InvalidInputError
 
 __all__ = ["StoredG", "CHUNK_NNZ", "READERS"]
 
@@ -128,8 +128,11 @@ class StoredG:
                 if spill is not None:
                     index.append((first, block.shape[0], block.nnz, offset))
                     try:
-                        for a in (block.indptr.astype(np.int64), block.indices.astype(np.int32, copy=False),
-                                  block.data.astype(np.float32, copy=False)):
+                        for a in (
+                            block.indptr.astype(np.int64),
+                            block.indices.astype(np.int32, copy=False),
+                            block.data.astype(np.float32, copy=False),
+                        ):
                             a.tofile(spill)
                             offset += a.nbytes
                     except OSError:  # a full disk costs the speed-up, not the pass
@@ -162,7 +165,7 @@ class StoredG:
             if funcs > 1:  # column c + f C is function f of cluster c: fold the functions onto c
                 G = sp.csr_matrix((G.data, G.indices % clusters, G.indptr), shape=(G.shape[0], clusters))
                 G.sum_duplicates()
-            part = (R[:, first:first + block.shape[0]] @ G).tocoo()
+            part = (R[:, first : first + block.shape[0]] @ G).tocoo()
             rows.append(part.row.astype(np.int32))
             cols.append(part.col.astype(np.int32))
             vals.append(part.data)
@@ -170,8 +173,9 @@ class StoredG:
         if not rows:
             raise InvalidInputError("the store's G has no rows")
         # Duplicates (clusters whose patches straddle two chunks) are summed by the conversion.
-        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(clusters, clusters))
+        return sp.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(clusters, clusters)
+        )
 
     def bounce(self, device, dtype, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:
         """y = L + rho * (G x) as :meth:`pydynrad.device.csr.DeviceCSR.bounce` (the same kernel and

@@ -15,6 +15,16 @@ from .objects import ObjectIntersectionWarning, RigidObject
 from .patching import subdivide
 from .scene import DegenerateTriangleWarning, PrecisionWarning, Scene
 
-__all__ = ["AlbedoClampedWarning", "Camera", "DegenerateTriangleWarning", "MalformedLineWarning",
-           "MissingMaterialWarning", "ObjectIntersectionWarning", "PrecisionWarning", "RigidObject", "Scene",
-           "load", "subdivide"]
+__all__ = [
+    "AlbedoClampedWarning",
+    "Camera",
+    "DegenerateTriangleWarning",
+    "MalformedLineWarning",
+    "MissingMaterialWarning",
+    "ObjectIntersectionWarning",
+    "PrecisionWarning",
+    "RigidObject",
+    "Scene",
+    "load",
+    "subdivide",
+]

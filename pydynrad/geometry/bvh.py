@@ -17,9 +17,9 @@ import numpy as np
 
 from .. import _bvh, _raybatch
 from ..checks import finite
-from ..errors import InvalidInputError
-from ..device.launch import bvh_packet, global_size, ray_work_group
 from ..device.devices import default_device
+from ..device.launch import bvh_packet, global_size, ray_work_group
+from ..errors import InvalidInputError
 
 __all__ = ["BVH", "InstancedBVH", "cast_rays", "occluded"]
 
@@ -29,6 +29,7 @@ MAX_DEPTH = 31
 
 #: Lanes of a wide node (csrc/bvh.c WIDTH) and float32 values per node.
 WIDTH, NODE_FLOATS = 4, 32
+
 
 def _children(nodes: np.ndarray) -> np.ndarray:
     """(n_nodes, 4) int32 child references of wide nodes (see :class:`BVH`)."""
@@ -76,7 +77,7 @@ class BVH:
     _device_buffers: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def build(cls, vertices: np.ndarray) -> "BVH":
+    def build(cls, vertices: np.ndarray) -> BVH:
         """Build over (N, 3, 3) triangle corners."""
         v = np.ascontiguousarray(vertices, dtype=np.float32)
         if v.ndim != 3 or v.shape[1:] != (3, 3) or len(v) == 0:
@@ -203,7 +204,9 @@ class InstancedBVH:
         self.convex = np.zeros(len(objects), bool) if convex is None else np.array(convex, bool).reshape(len(objects))
         self.frame_origin = np.zeros(3) if frame is None else np.asarray(frame.origin, np.float64)
         self.frame_unit = 1.0 if frame is None else float(frame.unit)
-        self.origins = np.zeros((len(objects), 3)) if origins is None else np.asarray(origins, np.float64).reshape(-1, 3)
+        self.origins = (
+            np.zeros((len(objects), 3)) if origins is None else np.asarray(origins, np.float64).reshape(-1, 3)
+        )
         node_at = np.cumsum([static.n_nodes] + [b.n_nodes for b in objects])
         tri_at = np.cumsum([len(static.order)] + [len(b.order) for b in objects])
         self.roots = node_at[:-1].astype(np.int32)  # each object tree's root node
@@ -237,7 +240,9 @@ class InstancedBVH:
         # Device ray p_d = (p - c) / u into the object tree's (R^T (p - t) - o) / u: rotation R^T,
         # translation (R^T (c - t) - o) / u; lengths, so t, unchanged.
         table[:, :3, :3] = Rt
-        table[:, :3, 3] = (np.einsum("kij,kj->ki", Rt, self.frame_origin - T[:, :3, 3]) - self.origins) / self.frame_unit
+        table[:, :3, 3] = (
+            np.einsum("kij,kj->ki", Rt, self.frame_origin - T[:, :3, 3]) - self.origins
+        ) / self.frame_unit
         table.view(np.int32)[:, 3, 0] = self.roots
         self._table()[:] = table
         self.transforms = T.copy()
@@ -292,12 +297,16 @@ def _rays(origins, directions, tmax, frame=None, first: int = 0) -> tuple[np.nda
     One native pass per ray (``csrc/rays.c``), with :meth:`DeviceFrame.points` and
     :meth:`~DeviceFrame.directions`' arithmetic."""
     origins, directions = _ray_arrays(origins, directions)
-    real = origins.dtype if origins.dtype == directions.dtype and origins.dtype in (np.float32, np.float64) else np.float64
+    real = (
+        origins.dtype if origins.dtype == directions.dtype and origins.dtype in (np.float32, np.float64) else np.float64
+    )
     o, d = (np.ascontiguousarray(a, dtype=real) for a in (origins, directions))
     tm = np.asarray(tmax, dtype=np.float32)
     tm = tm.reshape(1) if tm.size == 1 else np.ascontiguousarray(np.broadcast_to(tm, (len(o),)))
     out = np.empty_like(o, np.float32), np.empty_like(d, np.float32), np.empty(len(o), np.float32)
-    code, bad = _raybatch.prepare(o, d, tm, None if frame is None else (*map(float, frame.origin), float(frame.unit)), *out)
+    code, bad = _raybatch.prepare(
+        o, d, tm, None if frame is None else (*map(float, frame.origin), float(frame.unit)), *out
+    )
     if code == 1:
         raise InvalidInputError("ray origins or directions contain NaN or infinite values")
     if code == 2:
@@ -357,8 +366,15 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
     def launch(a: int, rays) -> None:
         for buf, host in zip(ins, rays):
             cl.enqueue_copy(dev.queue, buf, host, is_blocking=False)  # pyopencl holds host until copied
-        knl(dev.queue, (global_size(-(-len(rays[0]) // packet), wg),), (wg,), *bvh.buffers(dev), *ins,
-            np.int32(len(rays[0])), *outs)
+        knl(
+            dev.queue,
+            (global_size(-(-len(rays[0]) // packet), wg),),
+            (wg,),
+            *bvh.buffers(dev),
+            *ins,
+            np.int32(len(rays[0])),
+            *outs,
+        )
 
     # The host checks and converts chunk c + 1 (float64, one core) while the device traces chunk
     # c; then reads c back and uploads c + 1 (PoCL's reads and uploads wait for the kernels
@@ -398,8 +414,16 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
     wg = ray_work_group(dev)
     packet = bvh_packet(dev)
     dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": packet})(  # one program with cast_closest
-        dev.queue, (global_size(-(-n // packet), wg),), (wg,), nodes, tris, dev.to_device(o), dev.to_device(d),
-        dev.to_device(tm), np.int32(n), buf,
+        dev.queue,
+        (global_size(-(-n // packet), wg),),
+        (wg,),
+        nodes,
+        tris,
+        dev.to_device(o),
+        dev.to_device(d),
+        dev.to_device(tm),
+        np.int32(n),
+        buf,
     )
     cl.enqueue_copy(dev.queue, out, buf)
     dev.queue.finish()

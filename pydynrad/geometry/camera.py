@@ -38,13 +38,15 @@ def _side(value, what: str) -> int:
     return v
 
 
-def check_image_memory(camera: "Camera", bytes_per_pixel: int, what: str) -> None:
+def check_image_memory(camera: Camera, bytes_per_pixel: int, what: str) -> None:
     """Refuse, before anything is allocated, an image whose ``what`` needs more host memory
     (``bytes_per_pixel`` at its peak) than this process can have."""
     need, have = camera.width * camera.height * bytes_per_pixel, available_host_bytes()
     if need > have:
-        raise OutOfMemoryError(f"{what} a {camera.width} x {camera.height} image needs about {need / 2**30:.1f} GiB "
-                               f"of host memory; {have / 2**30:.1f} GiB is available. Render a smaller image")
+        raise OutOfMemoryError(
+            f"{what} a {camera.width} x {camera.height} image needs about {need / 2**30:.1f} GiB "
+            f"of host memory; {have / 2**30:.1f} GiB is available. Render a smaller image"
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,8 +84,9 @@ class Camera:
             raise InvalidInputError(f"camera look_at {target.tolist()} must differ from its position {pos.tolist()}")
         forward /= dist
         if np.linalg.norm(up) == 0 or np.linalg.norm(np.cross(forward, up / np.linalg.norm(up))) < 1e-6:
-            raise InvalidInputError(f"camera up must not be zero or parallel to the view direction "
-                                    f"{forward.tolist()}; got {up.tolist()}")
+            raise InvalidInputError(
+                f"camera up must not be zero or parallel to the view direction {forward.tolist()}; got {up.tolist()}"
+            )
         fov = number(self.fov_y, "camera fov_y")
         if not (np.isfinite(fov) and 0.0 < fov < 180.0):
             raise InvalidInputError(f"camera fov_y must be in (0, 180) degrees; got {self.fov_y!r}")
@@ -122,6 +125,6 @@ class Camera:
         d /= np.linalg.norm(d, axis=2, keepdims=True)
         return d.astype(np.float32)
 
-    def with_view(self, position, look_at) -> "Camera":
+    def with_view(self, position, look_at) -> Camera:
         """The same lens and image size at a new position and target."""
         return Camera(position, look_at, self.up, self.fov_y, self.width, self.height)

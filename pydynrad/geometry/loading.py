@@ -60,14 +60,29 @@ import numpy as np
 import trimesh
 
 from ..errors import InvalidInputError, SceneFileError
-from .materials import (Material, MaterialTable, Texture, barycentric_corners, clamp_albedo, gltf_sampler_wrap,
-                        sample_materials)
+from .materials import (
+    Material,
+    MaterialTable,
+    Texture,
+    barycentric_corners,
+    clamp_albedo,
+    gltf_sampler_wrap,
+    sample_materials,
+)
 from .patching import subdivide, subdivide_scene
-from .scene import Scene
-from .scene import unit_metres
-from .scene import up_vector
+from .scene import Scene, unit_metres, up_vector
 
-__all__ = ["load", "from_mesh", "patched_scene", "soup_scene", "AlbedoClampedWarning", "MissingMaterialWarning", "MalformedLineWarning", "MAX_ALBEDO", "SUPPORTED_FORMATS"]
+__all__ = [
+    "load",
+    "from_mesh",
+    "patched_scene",
+    "soup_scene",
+    "AlbedoClampedWarning",
+    "MissingMaterialWarning",
+    "MalformedLineWarning",
+    "MAX_ALBEDO",
+    "SUPPORTED_FORMATS",
+]
 
 MAX_ALBEDO = 0.999
 SUPPORTED_FORMATS = ("obj", "ply", "glb", "gltf", "stl", "off")
@@ -107,8 +122,16 @@ def _warn_malformed_lines(name: str, text: str, kind: str) -> None:
         warnings.warn(f"{name}: cannot use {'; '.join(bad[:5])}{more}", MalformedLineWarning, stacklevel=4)
 
 
-def load(path, max_patch_area: float | None = None, max_edge: float | None = None, default_albedo=0.5, *,
-         unit=None, up=None, report: bool = False) -> Scene:
+def load(
+    path,
+    max_patch_area: float | None = None,
+    max_edge: float | None = None,
+    default_albedo=0.5,
+    *,
+    unit=None,
+    up=None,
+    report: bool = False,
+) -> Scene:
     """Read a mesh file into a :class:`~pydynrad.Scene`.
 
     Parameters
@@ -140,14 +163,16 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
     unit = "m" if unit is None else unit
     up = "+y" if up is None else up
     if isinstance(path, (trimesh.Trimesh, trimesh.Scene)):
-        scene = from_mesh(path, max_patch_area=max_patch_area, max_edge=max_edge, default_albedo=default_albedo,
-                          unit=unit, up=up)
+        scene = from_mesh(
+            path, max_patch_area=max_patch_area, max_edge=max_edge, default_albedo=default_albedo, unit=unit, up=up
+        )
         if report:
             print(scene.summary())
         return scene
     if not isinstance(path, (str, os.PathLike)):
-        raise SceneFileError("path must be a file name (str or os.PathLike) or a trimesh mesh; "
-                             f"got {type(path).__name__}")
+        raise SceneFileError(
+            f"path must be a file name (str or os.PathLike) or a trimesh mesh; got {type(path).__name__}"
+        )
     path = Path(path)
     fmt = path.suffix.lower().lstrip(".")
     compressed = fmt == "gz"
@@ -156,8 +181,10 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
     if not path.is_file():
         raise SceneFileError(f"{path}: no such file" if not path.exists() else f"{path}: not a regular file")
     if fmt not in SUPPORTED_FORMATS:
-        raise SceneFileError(f"{path}: unsupported format {''.join(path.suffixes[-2:]) if compressed else path.suffix!r}; "
-                             f"supported: {', '.join(SUPPORTED_FORMATS)} (and .gz of them)")
+        raise SceneFileError(
+            f"{path}: unsupported format {''.join(path.suffixes[-2:]) if compressed else path.suffix!r}; "
+            f"supported: {', '.join(SUPPORTED_FORMATS)} (and .gz of them)"
+        )
     try:
         unit_checked, up_checked = _unit_up(unit, up)
     except InvalidInputError as exc:
@@ -168,7 +195,7 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
         except (OSError, EOFError, gzip.BadGzipFile) as exc:
             raise SceneFileError(f"{path}: cannot decompress: {type(exc).__name__}: {exc}") from exc
     data = (raw if compressed else path.read_bytes()) if fmt in _TEXT_FORMATS else b""  # read once for the checks below
-    if b"\0" in data[:1 << 16]:
+    if b"\0" in data[: 1 << 16]:
         raise SceneFileError(f"{path}: malformed {fmt.upper()} file: binary data (NUL bytes) in a text format")
     try:
         # process=False keeps face order (source_face) and lets bad vertices reach validation.
@@ -196,8 +223,19 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
         if fmt == "obj":
             order = _obj_file_order(data.decode("utf-8", errors="replace"), parts)
         name = path.name[: -len("".join(path.suffixes[-2:]))] if compressed else path.stem
-        scene = _scene_of_parts(parts, max_patch_area, max_edge, default_albedo, name, unit_checked, up_checked,
-                                doc=doc, order=order, base=path.parent, check_order=fmt == "obj")
+        scene = _scene_of_parts(
+            parts,
+            max_patch_area,
+            max_edge,
+            default_albedo,
+            name,
+            unit_checked,
+            up_checked,
+            doc=doc,
+            order=order,
+            base=path.parent,
+            check_order=fmt == "obj",
+        )
     except InvalidInputError as exc:
         raise SceneFileError(f"{path}: {exc}") from exc
     if report:
@@ -205,8 +243,16 @@ def load(path, max_patch_area: float | None = None, max_edge: float | None = Non
     return scene
 
 
-def from_mesh(mesh, max_patch_area: float | None = None, max_edge: float | None = None, default_albedo=0.5,
-              name: str | None = None, *, unit="m", up="+y") -> Scene:
+def from_mesh(
+    mesh,
+    max_patch_area: float | None = None,
+    max_edge: float | None = None,
+    default_albedo=0.5,
+    name: str | None = None,
+    *,
+    unit="m",
+    up="+y",
+) -> Scene:
     """A :class:`~pydynrad.Scene` from a ``trimesh.Trimesh`` or ``trimesh.Scene``.
 
     Materials come from each geometry's visual (see the module docstring; glTF factors in
@@ -228,7 +274,10 @@ def _unit_up(unit, up):
 def _parts(mesh) -> list:
     """[((vertices, faces), geometry)] of the triangle geometries of ``mesh``, in world space."""
     if isinstance(mesh, trimesh.Scene):
-        parts = [(_transformed(mesh.geometry[g], t), mesh.geometry[g]) for t, g in (mesh.graph[n] for n in mesh.graph.nodes_geometry)]
+        parts = [
+            (_transformed(mesh.geometry[g], t), mesh.geometry[g])
+            for t, g in (mesh.graph[n] for n in mesh.graph.nodes_geometry)
+        ]
     elif isinstance(mesh, trimesh.Trimesh):
         parts = [((np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces)), mesh)]
     elif isinstance(mesh, trimesh.parent.Geometry):  # a point cloud or a path: no triangles
@@ -241,8 +290,9 @@ def _parts(mesh) -> list:
     return parts
 
 
-def _scene_of_parts(parts, max_patch_area, max_edge, default_albedo, name, unit, up, doc=None, order=None,
-                    base=None, check_order=False) -> Scene:
+def _scene_of_parts(
+    parts, max_patch_area, max_edge, default_albedo, name, unit, up, doc=None, order=None, base=None, check_order=False
+) -> Scene:
     point_parts: list[np.ndarray] = []
     triangle_parts: list[np.ndarray] = []
     offset = 0
@@ -250,7 +300,9 @@ def _scene_of_parts(parts, max_patch_area, max_edge, default_albedo, name, unit,
         f = np.asarray(f)
         if f.size and (f.min() < 0 or f.max() >= len(v)):  # PLY and GLB indices reach here unchecked
             bad = int(np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))[0])
-            raise InvalidInputError(f"face {bad} indexes vertex {f[bad].tolist()} of {len(v)} (indices run 0..{len(v) - 1})")
+            raise InvalidInputError(
+                f"face {bad} indexes vertex {f[bad].tolist()} of {len(v)} (indices run 0..{len(v) - 1})"
+            )
         point_parts.append(v)
         triangle_parts.append(np.asarray(f, dtype=np.int64) + offset)
         offset += len(v)
@@ -290,8 +342,13 @@ def _scene_of_parts(parts, max_patch_area, max_edge, default_albedo, name, unit,
     else:
         pts, tri = shape.points, shape.triangles
     weights = barycentric_corners(corners[src], pts[tri])
-    albedo, emission = sample_materials(table, face_mat[src], None if face_uv is None else face_uv[src],
-                                        None if face_col is None else face_col[src], weights)
+    albedo, emission = sample_materials(
+        table,
+        face_mat[src],
+        None if face_uv is None else face_uv[src],
+        None if face_col is None else face_col[src],
+        weights,
+    )
     albedo = clamp_albedo(albedo, face_mat[src], table, MAX_ALBEDO, AlbedoClampedWarning, stacklevel=4)
     scene = Scene(pts, tri, albedo=albedo, emission=emission, source_face=file_face[src], name=name, unit=unit, up=up)
     if len(scene) == len(src):
@@ -299,22 +356,41 @@ def _scene_of_parts(parts, max_patch_area, max_edge, default_albedo, name, unit,
     return scene
 
 
-def patched_scene(points, triangles, albedo, emission, source_face=None, max_patch_area: float | None = None,
-                  max_edge: float | None = None, name: str = "scene", unit="m", up="+z") -> Scene:
+def patched_scene(
+    points,
+    triangles,
+    albedo,
+    emission,
+    source_face=None,
+    max_patch_area: float | None = None,
+    max_edge: float | None = None,
+    name: str = "scene",
+    unit="m",
+    up="+z",
+) -> Scene:
     """Validate a triangle mesh as a Scene, then split it into patches within the limits.
 
     Validation comes first so zero-area input triangles are dropped (and counted) once, as
     input faces, rather than after being split into many zero-area children.
     """
-    scene = Scene(points, triangles, albedo=albedo, emission=emission, source_face=source_face, name=name, unit=unit,
-                  up=up)
+    scene = Scene(
+        points, triangles, albedo=albedo, emission=emission, source_face=source_face, name=name, unit=unit, up=up
+    )
     if max_patch_area is None and max_edge is None:
         return scene
     return subdivide_scene(scene, max_area=max_patch_area, max_edge=max_edge)
 
 
-def soup_scene(vertices, albedo, emission, max_patch_area: float | None = None, max_edge: float | None = None,
-               name: str = "scene", unit="m", up="+z") -> Scene:
+def soup_scene(
+    vertices,
+    albedo,
+    emission,
+    max_patch_area: float | None = None,
+    max_edge: float | None = None,
+    name: str = "scene",
+    unit="m",
+    up="+z",
+) -> Scene:
     """A patched Scene from a triangle soup: (T, 3, 3) corners, counter-clockwise seen from the front.
 
     Corners at bit-identical positions become one point, so a soup built from shared literal
@@ -324,8 +400,17 @@ def soup_scene(vertices, albedo, emission, max_patch_area: float | None = None, 
     if v.ndim != 3 or v.shape[1:] != (3, 3):
         raise InvalidInputError(f"a triangle soup must have shape (T, 3, 3); got {v.shape}")
     points, triangles = _merge_points(v.reshape(-1, 3), np.arange(3 * len(v)).reshape(-1, 3))
-    return patched_scene(points, triangles, albedo, emission, max_patch_area=max_patch_area, max_edge=max_edge, name=name,
-                         unit=unit, up=up)
+    return patched_scene(
+        points,
+        triangles,
+        albedo,
+        emission,
+        max_patch_area=max_patch_area,
+        max_edge=max_edge,
+        name=name,
+        unit=unit,
+        up=up,
+    )
 
 
 class _MtlResolver(trimesh.resolvers.FilePathResolver):
@@ -347,11 +432,18 @@ def _warn_lost_materials(path: Path, loaded) -> None:
     """Warn when an OBJ names materials but some geometry came back without one (no MTL file,
     an unknown material name): those faces get the default albedo and no emission."""
     geometries = loaded.geometry.values() if isinstance(loaded, trimesh.Scene) else [loaded]
-    bare = sum(len(g.faces) for g in geometries
-               if isinstance(g, trimesh.Trimesh) and getattr(g.visual, "material", None) is None)
+    bare = sum(
+        len(g.faces)
+        for g in geometries
+        if isinstance(g, trimesh.Trimesh) and getattr(g.visual, "material", None) is None
+    )
     if bare:
-        warnings.warn(f"{path}: {bare} face(s) use materials that could not be loaded (missing or unreadable MTL); "
-                      "they get the default albedo and no emission", MissingMaterialWarning, stacklevel=3)
+        warnings.warn(
+            f"{path}: {bare} face(s) use materials that could not be loaded (missing or unreadable MTL); "
+            "they get the default albedo and no emission",
+            MissingMaterialWarning,
+            stacklevel=3,
+        )
 
 
 def _transformed(geometry, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -393,8 +485,9 @@ def _face_materials(mesh: trimesh.Trimesh, faces: np.ndarray, default_albedo, ta
     if material is None:
         key = ("default",)
         if key not in cache:
-            table.append(Material("(default)", "default", np.broadcast_to(np.asarray(default_albedo, np.float64),
-                                                                            (3,)).copy()))
+            table.append(
+                Material("(default)", "default", np.broadcast_to(np.asarray(default_albedo, np.float64), (3,)).copy())
+            )
             cache[key] = len(table) - 1
         return np.full(n, cache[key], np.int64), None, None
     if id(material) not in cache:
@@ -441,8 +534,11 @@ def _material(material, doc, base, default_albedo) -> Material:
         out = Material(name, "gltf", albedo, emission)
         if material.baseColorTexture is not None:
             info = pbr.get("baseColorTexture") if entry is not None else None
-            out.albedo_texture = Texture(material.baseColorTexture, _image_name(material.baseColorTexture, "baseColor"),
-                                         wrap=gltf_sampler_wrap(doc, info) if info else ("repeat", "repeat"))
+            out.albedo_texture = Texture(
+                material.baseColorTexture,
+                _image_name(material.baseColorTexture, "baseColor"),
+                wrap=gltf_sampler_wrap(doc, info) if info else ("repeat", "repeat"),
+            )
             if out.albedo_texture.channels == 4:
                 out.note("alpha ignored (opaque)")
             if info and info.get("texCoord", 0) != 0:
@@ -451,8 +547,11 @@ def _material(material, doc, base, default_albedo) -> Material:
                 out.note("KHR_texture_transform ignored")
         if material.emissiveTexture is not None:
             info = (entry or {}).get("emissiveTexture")
-            out.emission_texture = Texture(material.emissiveTexture, _image_name(material.emissiveTexture, "emissive"),
-                                           wrap=gltf_sampler_wrap(doc, info) if info else ("repeat", "repeat"))
+            out.emission_texture = Texture(
+                material.emissiveTexture,
+                _image_name(material.emissiveTexture, "emissive"),
+                wrap=gltf_sampler_wrap(doc, info) if info else ("repeat", "repeat"),
+            )
         if entry is None and doc is not None:
             out.note("not matched to the file's materials: factors in trimesh's 8 bits")
         if entry is not None and entry.get("alphaMode") in ("BLEND", "MASK"):
@@ -514,9 +613,15 @@ def _gltf_entry(doc, material):
     named = [m for m in entries if (m.get("name") or None) == (getattr(material, "name", None) or None)]
     if len(named) > 1 and material.baseColorFactor is not None:
         base = _rgb8_or_float(material.baseColorFactor)
-        named = [m for m in named if np.allclose(np.asarray((m.get("pbrMetallicRoughness") or {})
-                                                            .get("baseColorFactor", [1, 1, 1, 1]), float)[:3], base,
-                                                 atol=1.0 / 255.0)]
+        named = [
+            m
+            for m in named
+            if np.allclose(
+                np.asarray((m.get("pbrMetallicRoughness") or {}).get("baseColorFactor", [1, 1, 1, 1]), float)[:3],
+                base,
+                atol=1.0 / 255.0,
+            )
+        ]
     if len(named) > 1 and all(json.dumps(m, sort_keys=True) == json.dumps(named[0], sort_keys=True) for m in named):
         named = named[:1]
     return named[0] if len(named) == 1 else None
@@ -601,7 +706,7 @@ def _gltf_json(path: Path, data: bytes) -> dict:
     """The JSON of a .gltf file's text or a .glb file's first chunk ({} where there is none)."""
     if data[:4] == b"glTF":
         length, kind = struct.unpack_from("<I4s", data, 12) if len(data) >= 20 else (0, b"")
-        data = data[20:20 + length] if kind == b"JSON" else b"{}"
+        data = data[20 : 20 + length] if kind == b"JSON" else b"{}"
     try:
         out = json.loads(data.decode("utf-8"))
     except (UnicodeDecodeError, ValueError) as exc:
@@ -618,10 +723,16 @@ def _apply_emissive_strength(path: Path, data: bytes, loaded) -> None:
     materials = [m for m in materials if isinstance(m, dict)] if isinstance(materials, list) else []
 
     def strength(m) -> float:
-        ext = (m.get("extensions") or {}).get("KHR_materials_emissive_strength") if isinstance(m.get("extensions"), dict) else None
+        ext = (
+            (m.get("extensions") or {}).get("KHR_materials_emissive_strength")
+            if isinstance(m.get("extensions"), dict)
+            else None
+        )
         value = ext.get("emissiveStrength", 1.0) if isinstance(ext, dict) else 1.0
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
-            raise SceneFileError(f"{path}: material {m.get('name')!r}: emissiveStrength must be a number >= 0; got {value!r}")
+            raise SceneFileError(
+                f"{path}: material {m.get('name')!r}: emissiveStrength must be a number >= 0; got {value!r}"
+            )
         return float(value)
 
     strengths = [strength(m) for m in materials]
@@ -633,9 +744,14 @@ def _apply_emissive_strength(path: Path, data: bytes, loaded) -> None:
         return v[:n] if v.size >= n else np.asarray(default, np.float64)
 
     # The file's (name, base RGB, emissive RGB) per material; trimesh keeps base colours in 8 bits.
-    described = [(m.get("name") or None, colour((m.get("pbrMetallicRoughness") or {}).get("baseColorFactor"), 3,
-                                                (1.0, 1.0, 1.0)), colour(m.get("emissiveFactor"), 3, (0.0, 0.0, 0.0)))
-                 for m in materials]
+    described = [
+        (
+            m.get("name") or None,
+            colour((m.get("pbrMetallicRoughness") or {}).get("baseColorFactor"), 3, (1.0, 1.0, 1.0)),
+            colour(m.get("emissiveFactor"), 3, (0.0, 0.0, 0.0)),
+        )
+        for m in materials
+    ]
     geometries = loaded.geometry.values() if isinstance(loaded, trimesh.Scene) else [loaded]
     done = set()
     for g in geometries:
@@ -644,12 +760,18 @@ def _apply_emissive_strength(path: Path, data: bytes, loaded) -> None:
             continue
         emissive = colour(mat.emissiveFactor, 3, (0.0, 0.0, 0.0))
         base = None if mat.baseColorFactor is None else _rgb8_or_float(mat.baseColorFactor)
-        found = {v for (name, b, e), v in zip(described, strengths)
-                 if name == (mat.name or None) and np.allclose(e, emissive, rtol=1e-6, atol=1e-7)
-                 and (base is None or np.allclose(b, base, rtol=0.0, atol=1.0 / 255.0))}
+        found = {
+            v
+            for (name, b, e), v in zip(described, strengths)
+            if name == (mat.name or None)
+            and np.allclose(e, emissive, rtol=1e-6, atol=1e-7)
+            and (base is None or np.allclose(b, base, rtol=0.0, atol=1.0 / 255.0))
+        }
         if len(found) != 1:
-            raise SceneFileError(f"{path}: cannot tell which of its materials' KHR_materials_emissive_strength belongs to "
-                                 f"material {mat.name!r} (give the materials distinct names)")
+            raise SceneFileError(
+                f"{path}: cannot tell which of its materials' KHR_materials_emissive_strength belongs to "
+                f"material {mat.name!r} (give the materials distinct names)"
+            )
         if mat.emissiveFactor is not None:
             mat.emissiveFactor = np.asarray(mat.emissiveFactor, np.float64) * found.pop()
         done.add(id(mat))

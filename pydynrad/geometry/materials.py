@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -100,8 +100,11 @@ def _pixels(image) -> np.ndarray:
             a = np.asarray(image, dtype=np.float64)
             a = a / (65535.0 if mode == "I" and a.max(initial=0) > 255 else (255.0 if mode == "I" else 1.0))
         else:
-            keep = mode if mode in ("RGB", "RGBA", "L", "LA") else ("RGBA" if "A" in mode or "transparency" in image.info
-                                                                  else "RGB")
+            keep = (
+                mode
+                if mode in ("RGB", "RGBA", "L", "LA")
+                else ("RGBA" if "A" in mode or "transparency" in image.info else "RGB")
+            )
             a = np.asarray(image.convert(keep), dtype=np.float64) / 255.0
     else:
         a = np.asarray(image, dtype=np.float64)
@@ -165,11 +168,11 @@ class MaterialTable:
     materials: list
     index: np.ndarray
 
-    def take(self, rows) -> "MaterialTable":
+    def take(self, rows) -> MaterialTable:
         return MaterialTable(self.materials, np.asarray(self.index)[rows])
 
 
-@lru_cache(maxsize=None)
+@cache
 def _grid(n: int) -> np.ndarray:
     """(n^2, 2) barycentric (b1, b2) of the centroids of a triangle's n x n equal sub-triangles."""
     out = []
@@ -199,7 +202,7 @@ def _textured_mean(texture: Texture, uv: np.ndarray, colours: np.ndarray | None)
         b = _grid(int(k))  # (S, 2)
         weights = np.stack([1.0 - b.sum(axis=1), b[:, 0], b[:, 1]], axis=1)  # (S, 3)
         for start in range(0, len(pick), max(1, 200_000 // len(b))):  # bounded memory
-            part = pick[start:start + max(1, 200_000 // len(b))]
+            part = pick[start : start + max(1, 200_000 // len(b))]
             pts = np.matmul(weights, uv[part])  # (P, S, 2)
             lv = np.repeat(level[part], len(b))
             values = texture.sample(pts.reshape(-1, 2), lv).reshape(len(part), len(b), 3)
@@ -223,8 +226,13 @@ def barycentric_corners(parent_corners: np.ndarray, child_corners: np.ndarray) -
     return np.stack([1.0 - b1 - b2, b1, b2], axis=-1)
 
 
-def sample_materials(table: list, face_material: np.ndarray, face_uv: np.ndarray | None,
-                     face_colour: np.ndarray | None, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def sample_materials(
+    table: list,
+    face_material: np.ndarray,
+    face_uv: np.ndarray | None,
+    face_colour: np.ndarray | None,
+    weights: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     """Albedo and emission (P, 3) float64 of P patches.
 
     ``face_material`` (P,): each patch's material (into ``table``); ``face_uv`` (P, 3, 2) its source
@@ -242,8 +250,10 @@ def sample_materials(table: list, face_material: np.ndarray, face_uv: np.ndarray
             continue
         col = None if colours is None else colours[pick]
         has_uv = uv is not None and np.all(np.isfinite(uv[pick]))
-        for tex, factor, out, with_colour in ((mat.albedo_texture, mat.albedo, albedo, True),
-                                              (mat.emission_texture, mat.emission, emission, False)):
+        for tex, factor, out, with_colour in (
+            (mat.albedo_texture, mat.albedo, albedo, True),
+            (mat.emission_texture, mat.emission, emission, False),
+        ):
             c = col if with_colour else None
             if tex is not None and uv is not None and has_uv and np.any(factor > 0):  # has_uv implies uv
                 out[pick] = factor * _textured_mean(tex, uv[pick], c)
@@ -266,8 +276,12 @@ def clamp_albedo(albedo: np.ndarray, index: np.ndarray, table: list, limit: floa
         count = int(np.count_nonzero(rows & (index == m)))
         table[m].note(f"albedo of {count} patch(es) clamped from up to 1 to {limit}")
         names.append(repr(table[m].name))
-    warnings.warn(f"clamped albedo of {int(np.count_nonzero(rows))} face(s) from up to 1 to {limit} (albedo must be "
-                  f"< 1) in material(s) {', '.join(names)}", warning, stacklevel=stacklevel)
+    warnings.warn(
+        f"clamped albedo of {int(np.count_nonzero(rows))} face(s) from up to 1 to {limit} (albedo must be "
+        f"< 1) in material(s) {', '.join(names)}",
+        warning,
+        stacklevel=stacklevel,
+    )
     return np.where(near_one, limit, albedo)
 
 
@@ -275,9 +289,11 @@ def scene_summary(scene) -> str:
     """A text table of ``scene``: size, unit, up, and per material what was read."""
     lo, hi = scene.bbox
     size = (hi - lo) * scene.unit
-    lines = [f"{scene.name}: {len(scene)} patches, {len(scene.emitters)} emitting; unit {scene.unit_name} "
-             f"({scene.unit:g} m), up {tuple(round(float(x), 6) for x in scene.up)}; "
-             f"extent {size[0]:.4g} x {size[1]:.4g} x {size[2]:.4g} m"]
+    lines = [
+        f"{scene.name}: {len(scene)} patches, {len(scene.emitters)} emitting; unit {scene.unit_name} "
+        f"({scene.unit:g} m), up {tuple(round(float(x), 6) for x in scene.up)}; "
+        f"extent {size[0]:.4g} x {size[1]:.4g} x {size[2]:.4g} m"
+    ]
     table = scene.materials
     if table is None:
         groups = [("(all patches)", np.arange(len(scene)), None)]
@@ -294,8 +310,10 @@ def scene_summary(scene) -> str:
         extra: list[str] = []
         if mat is not None:
             if mat.albedo_texture is not None:
-                extra.append(f"albedo texture {mat.albedo_texture.name} {mat.albedo_texture.size[0]}x"
-                             f"{mat.albedo_texture.size[1]} ({'/'.join(mat.albedo_texture.wrap)})")
+                extra.append(
+                    f"albedo texture {mat.albedo_texture.name} {mat.albedo_texture.size[0]}x"
+                    f"{mat.albedo_texture.size[1]} ({'/'.join(mat.albedo_texture.wrap)})"
+                )
             if mat.emission_texture is not None:
                 extra.append(f"emission texture {mat.emission_texture.name}")
             if mat.kind in ("default", "face colours", "vertex colours"):

@@ -20,16 +20,12 @@ from functools import cached_property
 
 import numpy as np
 
+from ..checks import floats
 from ..errors import InvalidInputError
-from .scene import SURFACE_OFFSET
-from .bvh import BVH
-from .bvh import InstancedBVH
-from .bvh import occluded
+from .bvh import BVH, InstancedBVH, occluded
 from .convex import solid_planes
 from .loading import load
-from .scene import Scene
-from .scene import patch_geometry
-from ..checks import floats
+from .scene import SURFACE_OFFSET, Scene, patch_geometry
 
 __all__ = ["RigidObject", "ObjectIntersectionWarning", "rigid_transform", "with_objects", "instanced"]
 
@@ -175,8 +171,11 @@ class RigidObject:
         (then all are forgotten at once)."""
         if transform is None:
             return self._transform
-        key = transform.tobytes() if isinstance(transform, np.ndarray) and transform.shape == (4, 4) \
-            and transform.dtype == np.float64 else None
+        key = (
+            transform.tobytes()
+            if isinstance(transform, np.ndarray) and transform.shape == (4, 4) and transform.dtype == np.float64
+            else None
+        )
         checked = self.__dict__.setdefault("_checked", {})
         if key in checked:
             return checked[key]
@@ -196,7 +195,9 @@ def _objects(objects) -> list[RigidObject]:
     try:
         objs = [objects] if isinstance(objects, RigidObject) else list(objects)
     except TypeError:
-        raise InvalidInputError(f"objects must be a RigidObject or a list of them; got {type(objects).__name__}") from None
+        raise InvalidInputError(
+            f"objects must be a RigidObject or a list of them; got {type(objects).__name__}"
+        ) from None
     for o in objs:
         if not isinstance(o, RigidObject):
             raise InvalidInputError(f"objects must be RigidObject instances; got {type(o).__name__}")
@@ -228,13 +229,22 @@ def _combined(scene, objs: list[RigidObject], transforms=None):
         corners.append(np.stack([used.min(axis=0), used.max(axis=0)]))
         base += len(p)
     parts = [scene] + [o.scene for o in objs]
-    centers, normals, areas = [np.concatenate([getattr(scene, name)] + [g[k] for g in geometry])
-                               for k, name in enumerate(("centers", "normals", "areas"))]
+    centers, normals, areas = [
+        np.concatenate([getattr(scene, name)] + [g[k] for g in geometry])
+        for k, name in enumerate(("centers", "normals", "areas"))
+    ]
     boxes = np.stack(corners)
-    out = Scene._assembled(np.concatenate(points), np.concatenate(tris), np.concatenate([p.albedo for p in parts]),
-                           np.concatenate([p.emission for p in parts]), centers, normals, areas,
-                           name="+".join([scene.name] + [o.name for o in objs]),
-                           bbox=np.stack([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)]))
+    out = Scene._assembled(
+        np.concatenate(points),
+        np.concatenate(tris),
+        np.concatenate([p.albedo for p in parts]),
+        np.concatenate([p.emission for p in parts]),
+        centers,
+        normals,
+        areas,
+        name="+".join([scene.name] + [o.name for o in objs]),
+        bbox=np.stack([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)]),
+    )
     out.__dict__["_ray_scale"] = scene.ray_scale  # the static patches' rays as in the static scene
     out.unit, out.up = scene.unit, scene.up  # the static scene's unit and up axis
     return out
@@ -258,7 +268,8 @@ def check_reach(scene, obj: RigidObject, transform) -> None:
             f"object {obj.name!r} at this pose reaches {reach:.3g} from the static scene's centre (its bounding "
             f"sphere's far side), beyond {limit:.3g} ({MAX_REACH:.3g} of the scene's diagonals), where float32 device "
             "coordinates round its rays' origins by more than a tenth of their offset from its surface: keep it "
-            "within that (an object is hidden by a pose just outside the scene)")
+            "within that (an object is hidden by a pose just outside the scene)"
+        )
 
 
 def _warn_intersections(scene, objs: list[RigidObject], transforms) -> None:
@@ -278,7 +289,10 @@ def _warn_intersections(scene, objs: list[RigidObject], transforms) -> None:
         if hit.any():
             warnings.warn(
                 f"object {o.name!r} intersects the static scene ({int(hit.sum())} of its edges cross static "
-                "triangles): light leaks through the cut", ObjectIntersectionWarning, stacklevel=3)
+                "triangles): light leaks through the cut",
+                ObjectIntersectionWarning,
+                stacklevel=3,
+            )
 
 
 def with_objects(scene, objects):
@@ -305,8 +319,14 @@ def instanced(scene, objects, transforms=None, bvh=None):
     _warn_intersections(scene, objs, transforms)
     if bvh is None:
         trees = [o.device_bvh(scene.frame.unit) for o in objs]
-        bvh = InstancedBVH(scene.bvh, [t for t, _ in trees], transforms, scene.frame, [c for _, c in trees],
-                           convex=[o.faces_out for o in objs])
+        bvh = InstancedBVH(
+            scene.bvh,
+            [t for t, _ in trees],
+            transforms,
+            scene.frame,
+            [c for _, c in trees],
+            convex=[o.faces_out for o in objs],
+        )
     else:
         bvh.set_transforms(transforms)
     # The static scene's device frame, the one its tree and every upload of positions are in.

@@ -137,9 +137,7 @@ def subdivide(points, triangles, max_area: float | None = None, max_edge: float 
         m = mids[inverse].reshape(-1, 3)  # midpoints of edges ab, bc, ca
         a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
         ab, bc, ca = m[:, 0], m[:, 1], m[:, 2]
-        tri = np.concatenate(
-            [np.stack(t, axis=1) for t in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))]
-        )
+        tri = np.concatenate([np.stack(t, axis=1) for t in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
         parent = np.tile(parent, 4)
     tri = np.concatenate(done_tri)
     parent = np.concatenate(done_parent)
@@ -153,8 +151,16 @@ def subdivide_scene(scene, max_area: float | None = None, max_edge: float | None
     """``scene`` with its patches split by :func:`subdivide`: every child keeps its parent's
     albedo, emission and source face, so materials and file faces stay as they were."""
     points, triangles, parent = subdivide(scene.points, scene.triangles, max_area=max_area, max_edge=max_edge)
-    out = Scene(points, triangles, albedo=scene.albedo[parent], emission=scene.emission[parent],
-                source_face=scene.source_face[parent], name=scene.name, unit=scene.unit, up=scene.up)
+    out = Scene(
+        points,
+        triangles,
+        albedo=scene.albedo[parent],
+        emission=scene.emission[parent],
+        source_face=scene.source_face[parent],
+        name=scene.name,
+        unit=scene.unit,
+        up=scene.up,
+    )
     if scene.materials is not None:
         out.materials = scene.materials.take(parent)
     return out

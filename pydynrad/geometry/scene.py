@@ -17,17 +17,16 @@ See docs/guide/units.md.
 
 from __future__ import annotations
 
-import os
-
 import hashlib
+import os
 import warnings
 from functools import cached_property
 
 import numpy as np
 
 from ..checks import floats
-from ..errors import InvalidInputError
 from ..device.launch import float4
+from ..errors import InvalidInputError
 from .bvh import BVH
 from .materials import MaterialTable, scene_summary
 
@@ -49,8 +48,21 @@ MIN_RELATIVE_SIZE = 1e-5
 
 
 #: Metres per unit, by the unit names :func:`unit_metres` accepts.
-UNIT_NAMES = {"m": 1.0, "metre": 1.0, "meter": 1.0, "metres": 1.0, "meters": 1.0, "cm": 0.01, "mm": 0.001,
-              "km": 1000.0, "in": 0.0254, "inch": 0.0254, "ft": 0.3048, "foot": 0.3048, "feet": 0.3048}
+UNIT_NAMES = {
+    "m": 1.0,
+    "metre": 1.0,
+    "meter": 1.0,
+    "metres": 1.0,
+    "meters": 1.0,
+    "cm": 0.01,
+    "mm": 0.001,
+    "km": 1000.0,
+    "in": 0.0254,
+    "inch": 0.0254,
+    "ft": 0.3048,
+    "foot": 0.3048,
+    "feet": 0.3048,
+}
 _AXES = {"x": 0, "y": 1, "z": 2}
 
 
@@ -60,8 +72,9 @@ def unit_metres(unit) -> float:
     if isinstance(unit, str):
         key = unit.strip().lower()
         if key not in UNIT_NAMES:
-            raise InvalidInputError(f"unknown length unit {unit!r}; use one of m, cm, mm, in, ft, km or metres per "
-                                    "unit as a number")
+            raise InvalidInputError(
+                f"unknown length unit {unit!r}; use one of m, cm, mm, in, ft, km or metres per unit as a number"
+            )
         return UNIT_NAMES[key]
     if isinstance(unit, bool):
         raise InvalidInputError(f"unit must be a unit name or metres per unit; got {unit!r}")
@@ -158,12 +171,16 @@ def _as_rgb(value, n: int, what: str) -> np.ndarray:
     elif a.shape == (n,):
         a = np.repeat(a[:, None], 3, axis=1)
     if a.shape != (n, 3):
-        raise InvalidInputError(f"{what} must be a scalar, an RGB triple, (N,) or (N, 3) with N={n}; got shape {np.shape(value)}")
+        raise InvalidInputError(
+            f"{what} must be a scalar, an RGB triple, (N,) or (N, 3) with N={n}; got shape {np.shape(value)}"
+        )
     if not np.all(np.isfinite(a)):
         raise InvalidInputError(f"{what} contains NaN or infinite values")
     if np.abs(a).max(initial=0.0) > np.finfo(np.float32).max:
-        raise InvalidInputError(f"{what} exceeds float32's range (3.4e38), in which it is stored; got "
-                                f"{np.abs(a).max():g}: scale it down (radiosity is linear in emission)")
+        raise InvalidInputError(
+            f"{what} exceeds float32's range (3.4e38), in which it is stored; got "
+            f"{np.abs(a).max():g}: scale it down (radiosity is linear in emission)"
+        )
     return _frozen(np.array(a, dtype=np.float32))  # a copy: never the caller's array
 
 
@@ -185,9 +202,11 @@ def _doubled_areas(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _patch_arrays(v: np.ndarray, cross: np.ndarray, dbl_area: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(centres float64, unit normals float32, areas float32) of triangles ``v`` (n, 3, 3) from
     their :func:`_doubled_areas`."""
-    return (np.ascontiguousarray(v.mean(axis=1), dtype=np.float64),
-            np.ascontiguousarray(cross / dbl_area[:, None], dtype=np.float32),
-            np.ascontiguousarray(0.5 * dbl_area, dtype=np.float32))
+    return (
+        np.ascontiguousarray(v.mean(axis=1), dtype=np.float64),
+        np.ascontiguousarray(cross / dbl_area[:, None], dtype=np.float32),
+        np.ascontiguousarray(0.5 * dbl_area, dtype=np.float32),
+    )
 
 
 def patch_geometry(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -248,8 +267,9 @@ class Scene:
     up = np.array([0.0, 0.0, 1.0])
     materials: MaterialTable | None = None
 
-    def __init__(self, points, triangles, albedo=0.5, emission=0.0, source_face=None, name: str = "scene",
-                 unit="m", up="+z") -> None:
+    def __init__(
+        self, points, triangles, albedo=0.5, emission=0.0, source_face=None, name: str = "scene", unit="m", up="+z"
+    ) -> None:
         self.unit = unit_metres(unit)
         self.up = _frozen(np.array(up_vector(up)))
         pts = floats(points, "points")
@@ -301,19 +321,26 @@ class Scene:
         self.name = str(name)
         self.centers, self.normals, self.areas = _patch_arrays(pts[tri], cross, dbl_area)
         if not (np.all(np.isfinite(self.areas)) and self.areas.min() > 0):
-            raise InvalidInputError("patch areas overflow or underflow float32 (coordinates beyond ~1e18 or "
-                                    "patches below ~1e-22 units): rescale the scene")
+            raise InvalidInputError(
+                "patch areas overflow or underflow float32 (coordinates beyond ~1e18 or "
+                "patches below ~1e-22 units): rescale the scene"
+            )
         for a in (self.points, self.triangles, self.source_face, self.centers, self.normals, self.areas):
             _frozen(a)
         size, diag = np.sqrt(edge2[keep]), self.scale
         if size.min() < MIN_RELATIVE_SIZE * diag:
-            warnings.warn(f"{int(np.count_nonzero(size < MIN_RELATIVE_SIZE * diag))} patch(es) are smaller than "
-                          f"{MIN_RELATIVE_SIZE:g} of the scene's diagonal ({diag:g}): float32 ray casting cannot "
-                          "resolve them reliably", PrecisionWarning, stacklevel=2)
+            warnings.warn(
+                f"{int(np.count_nonzero(size < MIN_RELATIVE_SIZE * diag))} patch(es) are smaller than "
+                f"{MIN_RELATIVE_SIZE:g} of the scene's diagonal ({diag:g}): float32 ray casting cannot "
+                "resolve them reliably",
+                PrecisionWarning,
+                stacklevel=2,
+            )
 
     @classmethod
-    def _assembled(cls, points, triangles, albedo, emission, centers, normals, areas, name: str,
-                   bbox: np.ndarray) -> "Scene":
+    def _assembled(
+        cls, points, triangles, albedo, emission, centers, normals, areas, name: str, bbox: np.ndarray
+    ) -> Scene:
         """A Scene of arrays already sound: parts of validated scenes, moved rigidly
         (:func:`pydynrad.geometry.objects.instanced`, once per move). Not checked again: a large scene's
         checks and geometry cost a move's own work many times over
@@ -324,8 +351,16 @@ class Scene:
         out.source_face = np.arange(len(out.triangles))
         out.centers, out.normals, out.areas = centers, normals, areas
         out.name = str(name)
-        for a in (out.points, out.triangles, out.albedo, out.emission, out.source_face, out.centers, out.normals,
-                  out.areas):
+        for a in (
+            out.points,
+            out.triangles,
+            out.albedo,
+            out.emission,
+            out.source_face,
+            out.centers,
+            out.normals,
+            out.areas,
+        ):
             _frozen(a)
         out.__dict__["bbox"] = _frozen(np.asarray(bbox, np.float64))
         return out
@@ -425,7 +460,7 @@ class Scene:
             h.update(np.ascontiguousarray(a).tobytes())
         return h.hexdigest()
 
-    def with_materials(self, albedo=None, emission=None) -> "Scene":
+    def with_materials(self, albedo=None, emission=None) -> Scene:
         """A scene with the same geometry (and the same BVH, not rebuilt) and new materials."""
         out = object.__new__(Scene)
         out.__dict__.update(self.__dict__)

@@ -35,9 +35,11 @@ class Anderson:
         """The next iterate from f(u) (n, k) and its residual f(u) - u (n, k)."""
         n, k = fu.shape
         if residual.shape != fu.shape or (self._last is not None and self._last[0].shape != (k, n)):
-            raise InvalidInputError(f"Anderson mixes iterates of one shape: got f(u) {fu.shape}, residual "
-                                    f"{residual.shape}" + ("" if self._last is None else
-                                                           f", after ({self._last[0].shape[1]}, {self._last[0].shape[0]})"))
+            raise InvalidInputError(
+                f"Anderson mixes iterates of one shape: got f(u) {fu.shape}, residual "
+                f"{residual.shape}"
+                + ("" if self._last is None else f", after ({self._last[0].shape[1]}, {self._last[0].shape[0]})")
+            )
         if self._last is None:
             self._last = (np.array(fu.T), np.array(residual.T))
             self._dg, self._dr = np.empty((k, self.depth, n)), np.empty((k, self.depth, n))

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .. import _colproduct
 from ..errors import InvalidInputError
 from .threads import cores, map_parts, row_parts
-from .. import _colproduct
 
 __all__ = ["columns_product", "rows_product", "PARALLEL_ENTRIES"]
 
@@ -25,8 +25,9 @@ def columns_product(A: sp.csc_matrix, cols: np.ndarray, x: np.ndarray) -> np.nda
     if not (sp.issparse(A) and A.format == "csc"):
         raise InvalidInputError(f"columns_product needs a CSC matrix; got {type(A).__name__}")
     if A.dtype not in (np.float32, np.float64) or A.indices.dtype not in (np.int32, np.int64):
-        raise InvalidInputError(f"columns_product needs float32/float64 values and int32/int64 indices; got "
-                                f"{A.dtype} and {A.indices.dtype}")
+        raise InvalidInputError(
+            f"columns_product needs float32/float64 values and int32/int64 indices; got {A.dtype} and {A.indices.dtype}"
+        )
     cols = np.ascontiguousarray(cols, np.int64)
     x = np.ascontiguousarray(x, np.float64)
     if x.ndim != 2 or x.shape[0] != len(cols) or not 1 <= x.shape[1] <= 4:
@@ -56,8 +57,9 @@ def rows_product(A: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
     if not (sp.issparse(A) and A.format == "csr"):
         raise InvalidInputError(f"rows_product needs a CSR matrix; got {type(A).__name__}")
     if A.dtype not in (np.float32, np.float64) or A.indices.dtype not in (np.int32, np.int64):
-        raise InvalidInputError(f"rows_product needs float32/float64 values and int32/int64 indices; got "
-                                f"{A.dtype} and {A.indices.dtype}")
+        raise InvalidInputError(
+            f"rows_product needs float32/float64 values and int32/int64 indices; got {A.dtype} and {A.indices.dtype}"
+        )
     x = np.asarray(x)
     vector = x.ndim == 1
     x = np.ascontiguousarray(x[:, None] if vector else x, np.float64)

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InvalidInputError
 from .. import _csrgraph
 from ..checks import integer
+from ..errors import InvalidInputError
 
 __all__ = ["weak_components", "columns_float32", "sum_by_label"]
 
@@ -44,8 +44,15 @@ def columns_float32(F) -> sp.csc_matrix:
     indptr = np.empty(n_cols + 1, np.int64)
     indices = np.empty(F.nnz, np.int32)
     data = np.empty(F.nnz, np.float32)
-    _csrgraph.to_columns(F.indptr.astype(np.int64), np.ascontiguousarray(F.indices), np.ascontiguousarray(F.data),
-                         n_cols, indptr, indices, data)
+    _csrgraph.to_columns(
+        F.indptr.astype(np.int64),
+        np.ascontiguousarray(F.indices),
+        np.ascontiguousarray(F.data),
+        n_cols,
+        indptr,
+        indices,
+        data,
+    )
     return sp.csc_matrix((data, indices, indptr), shape=F.shape)
 
 
@@ -66,7 +73,9 @@ def sum_by_label(F, labels: np.ndarray, weights: np.ndarray, n_labels: int) -> s
     labels = np.ascontiguousarray(labels, dtype=np.int64)
     weights = np.ascontiguousarray(weights, dtype=np.float64)
     if labels.shape != (n_cols,) or weights.shape != (n_cols,):
-        raise InvalidInputError(f"labels and weights must have shape ({n_cols},); got {labels.shape} and {weights.shape}")
+        raise InvalidInputError(
+            f"labels and weights must have shape ({n_cols},); got {labels.shape} and {weights.shape}"
+        )
     data = np.ascontiguousarray(F.data if F.dtype in (np.float32, np.float64) else F.data.astype(np.float64))
     indices, indptr = np.ascontiguousarray(F.indices), F.indptr.astype(np.int64)
     counts = np.empty(n_rows, np.int64)
@@ -78,7 +87,8 @@ def sum_by_label(F, labels: np.ndarray, weights: np.ndarray, n_labels: int) -> s
     nnz = _csrgraph.sum_by_label(indptr, indices, data, labels, weights, n_labels, out_indptr, out_indices, out_data)
     # Sums that came out exactly zero are dropped, as scipy drops them: views of the rest.
     out_indices, out_data = out_indices[:nnz], out_data[:nnz]
-    G = sp.csr_matrix((out_data, out_indices, out_indptr.astype(np.int32) if nnz < 2**31 else out_indptr),
-                      shape=(n_rows, n_labels))
+    G = sp.csr_matrix(
+        (out_data, out_indices, out_indptr.astype(np.int32) if nnz < 2**31 else out_indptr), shape=(n_rows, n_labels)
+    )
     G.has_sorted_indices = False
     return G

@@ -9,8 +9,10 @@ __all__ = ["available_host_bytes"]
 
 #: Where the cgroup (v2 first, then v1) limits of this process are read; a container sees its own.
 CGROUP_ROOT = Path("/sys/fs/cgroup")
-_CGROUP_FILES = (("memory.max", "memory.current", "inactive_file"),
-                 ("memory/memory.limit_in_bytes", "memory/memory.usage_in_bytes", "total_inactive_file"))
+_CGROUP_FILES = (
+    ("memory.max", "memory.current", "inactive_file"),
+    ("memory/memory.limit_in_bytes", "memory/memory.usage_in_bytes", "total_inactive_file"),
+)
 
 
 def _machine_bytes() -> int:
@@ -40,8 +42,9 @@ def _cgroup_bytes() -> int | None:
             return None
         stat = (CGROUP_ROOT / limit_file).with_name("memory.stat")
         try:
-            inactive = next((int(v) for k, v in (line.split() for line in stat.read_text().splitlines())
-                             if k == inactive_key), 0)
+            inactive = next(
+                (int(v) for k, v in (line.split() for line in stat.read_text().splitlines()) if k == inactive_key), 0
+            )
         except (OSError, ValueError):
             inactive = 0
         return max(0, int(limit) - usage + inactive)

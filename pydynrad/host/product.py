@@ -22,12 +22,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..checks import finite
-from .shortcuts import host_shortcuts
 from ..errors import InvalidInputError
+from ..precision import compute_dtype, storage_dtype
 from .blas import one_blas_thread
 from .colproduct import rows_product
-from ..precision import compute_dtype
-from ..precision import storage_dtype
+from .shortcuts import host_shortcuts
 
 __all__ = ["HOST_PRODUCT_BYTES", "DENSE_FILL", "on_host", "HostBounce", "HostMatrix"]
 
@@ -84,8 +83,10 @@ class HostBounce:
         """y = L + rho * (A x): L, rho (rows, k), x (cols, k), k = 1 or 3; returns (rows, k) float64."""
         k = x.shape[1]
         if x.shape[0] != self.shape[1] or L.shape != (self.shape[0], k) or rho.shape != (self.shape[0], k):
-            raise InvalidInputError(f"bounce of a {self.shape} matrix needs L, rho ({self.shape[0]}, {k}) and x "
-                                    f"({self.shape[1]}, {k}); got {L.shape}, {rho.shape}, {x.shape}")
+            raise InvalidInputError(
+                f"bounce of a {self.shape} matrix needs L, rho ({self.shape[0]}, {k}) and x "
+                f"({self.shape[1]}, {k}); got {L.shape}, {rho.shape}, {x.shape}"
+            )
         if self.dense:
             with one_blas_thread():
                 Ax = self._A @ x.astype(self.dtype)
@@ -127,7 +128,9 @@ class HostMatrix:
         if X.ndim == 2:
             X = np.broadcast_to(X, (self.C, *X.shape))
         if X.ndim != 3 or X.shape[0] != self.C or X.shape[2] != self.M or X.shape[1] < 1:
-            raise InvalidInputError(f"X must have shape ({self.C}, r, {self.M}) or (r, {self.M}) with r >= 1; got {X.shape}")
+            raise InvalidInputError(
+                f"X must have shape ({self.C}, r, {self.M}) or (r, {self.M}) with r >= 1; got {X.shape}"
+            )
         finite(X, "X")
         with one_blas_thread():
             return np.matmul(X.astype(self.real_dtype), self._K.transpose(0, 2, 1)).astype(np.float64)

@@ -17,6 +17,21 @@ from .sky import CIE_GENERAL_SKIES, SkyLight
 from .sources import DirectionalLight, PointLight, SpotLight, direct_irradiance, light_vector, pack_lights
 from .text import parse_light
 
-__all__ = ["CIE_GENERAL_SKIES", "DirectionalLight", "IESFormatError", "LuminaireLight", "PhotometricDistribution",
-           "PointLight", "SkyLight", "SpotLight", "direct_irradiance", "light_vector", "pack_lights", "parse_ies",
-           "parse_ldt", "parse_light", "read_ies", "read_ldt"]
+__all__ = [
+    "CIE_GENERAL_SKIES",
+    "DirectionalLight",
+    "IESFormatError",
+    "LuminaireLight",
+    "PhotometricDistribution",
+    "PointLight",
+    "SkyLight",
+    "SpotLight",
+    "direct_irradiance",
+    "light_vector",
+    "pack_lights",
+    "parse_ies",
+    "parse_ldt",
+    "parse_light",
+    "read_ies",
+    "read_ldt",
+]

@@ -20,15 +20,20 @@ import weakref
 
 import numpy as np
 
-from ..checks import integer
-from ..errors import InvalidInputError
-from ..device.launch import float4, global_size
-from .sources import SHADOW_EPSILON, resolve_light
-from .sources import direct_irradiance
-from ..checks import checked_sensors
+from ..checks import checked_sensors, integer
 from ..device.devices import default_device
+from ..device.launch import float4, global_size
+from ..errors import InvalidInputError
+from .sources import SHADOW_EPSILON, direct_irradiance, resolve_light
 
-__all__ = ["emitter_irradiance", "reflected_light_vector", "analytic_emitter_light", "EMITTER_MODES", "MAX_GRID", "checked_grid"]
+__all__ = [
+    "emitter_irradiance",
+    "reflected_light_vector",
+    "analytic_emitter_light",
+    "EMITTER_MODES",
+    "MAX_GRID",
+    "checked_grid",
+]
 
 #: How the direct light of emitting patches reaches a receiver: through the hemicube (F or the
 #: sensor's own), or by the contour integral here.
@@ -37,7 +42,7 @@ EMITTER_MODES = ("hemicube", "analytic")
 # The emitters' irradiance at the patch centres depends on the scene alone (its arrays are
 # read-only), not on the lights: kept while the scene lives, so a relit solve or every frame of
 # DynamicRadiosity.radiosity(emitters="analytic") traces its shadow rays once.
-_at_patches: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_at_patches: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 #: Most visibility samples per side of an emitter (``grid``): 4,096 shadow rays per point and emitter.
@@ -59,7 +64,6 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None, subse
     """
     import pyopencl as cl
 
-
     points, normals = checked_sensors(points, normals)
     grid = checked_grid(grid)
     n = len(points)
@@ -73,9 +77,22 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None, subse
     out_dev = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, n * 16)
     kernel = dev.kernel("areas.cl", "emitter_irradiance")
     up = dev.to_device
-    kernel(dev.queue, (global_size(n),), None, up(float4(scene.frame.points(points))), up(float4(normals)),
-           np.int32(n), up(float4(packed)), up(float4(scene.emission[em])), np.int32(len(em)), nodes, tris,
-           np.float32(scene.frame.length(SHADOW_EPSILON * scene.ray_scale)), np.int32(grid), out_dev)
+    kernel(
+        dev.queue,
+        (global_size(n),),
+        None,
+        up(float4(scene.frame.points(points))),
+        up(float4(normals)),
+        np.int32(n),
+        up(float4(packed)),
+        up(float4(scene.emission[em])),
+        np.int32(len(em)),
+        nodes,
+        tris,
+        np.float32(scene.frame.length(SHADOW_EPSILON * scene.ray_scale)),
+        np.int32(grid),
+        out_dev,
+    )
     out = np.empty((n, 4), np.float32)
     cl.enqueue_copy(dev.queue, out, out_dev)
     return out[:, :3].astype(np.float64)
@@ -107,6 +124,8 @@ def analytic_emitter_light(scene, lights, light, emitters: str, device=None):
     if emitters == "hemicube":
         return resolve_light(scene, lights, light, device), None
     if light is not None:
-        raise InvalidInputError("emitters='analytic' builds its own light vector from lights=; "
-                                "a precomputed light= cannot be split into emission and reflected light")
+        raise InvalidInputError(
+            "emitters='analytic' builds its own light vector from lights=; "
+            "a precomputed light= cannot be split into emission and reflected light"
+        )
     return reflected_light_vector(scene, lights, device=device), scene.emission.astype(np.float64)

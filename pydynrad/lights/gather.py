@@ -13,10 +13,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..checks import resolution as checked_resolution
+from ..device.devices import default_device
+from ..device.launch import bvh_packet, float4, global_size
 from ..formfactors import pixel_form_factors
 from ..geometry.scene import SURFACE_OFFSET
-from ..device.launch import bvh_packet, float4, global_size
-from ..device.devices import default_device
 
 __all__ = ["gather_irradiance"]
 
@@ -27,8 +27,9 @@ _SENSOR_KEY_OFFSET = 0x9E3779B9
 BLOCK_POINTS = 4096
 
 
-def gather_irradiance(scene, points, normals, radiosity=None, sky=None, resolution: int = 64, keys=None,
-                      own=None, device=None) -> np.ndarray:
+def gather_irradiance(
+    scene, points, normals, radiosity=None, sky=None, resolution: int = 64, keys=None, own=None, device=None
+) -> np.ndarray:
     """(n, 3) float64 irradiance at ``points`` from the patches' radiosity and the sky.
 
     Parameters
@@ -77,8 +78,25 @@ def gather_irradiance(scene, points, normals, radiosity=None, sky=None, resoluti
     out = np.empty((n, 3))
     for first in range(0, n, block):
         b = min(block, n - first)
-        kernel(dev.queue, (global_size(b * S),), None, nodes, tris, order, points_dev, normals_dev, keys_dev, own_dev,
-               np.int32(first), np.int32(b), eps, weights, B_dev, sky_dev, partial_dev)
+        kernel(
+            dev.queue,
+            (global_size(b * S),),
+            None,
+            nodes,
+            tris,
+            order,
+            points_dev,
+            normals_dev,
+            keys_dev,
+            own_dev,
+            np.int32(first),
+            np.int32(b),
+            eps,
+            weights,
+            B_dev,
+            sky_dev,
+            partial_dev,
+        )
         partial = np.empty((b * S, 4), np.float32)
         cl.enqueue_copy(dev.queue, partial, partial_dev)
         out[first : first + b] = partial.reshape(b, S, 4)[..., :3].astype(np.float64).sum(axis=1)

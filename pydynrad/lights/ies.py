@@ -47,8 +47,9 @@ class _Numbers:
     """The numbers of a file after a given line, each with its line number, read in order."""
 
     def __init__(self, lines: list[str], first: int, where: str) -> None:
-        self.items = [(tok, k + 1) for k in range(first, len(lines))
-                      for tok in re.split(r"[,\s]+", lines[k].strip()) if tok]
+        self.items = [
+            (tok, k + 1) for k in range(first, len(lines)) for tok in re.split(r"[,\s]+", lines[k].strip()) if tok
+        ]
         self.pos = 0
         self.where = where
         self.last_line = len(lines) + 1  # the line that would hold the next number
@@ -57,8 +58,9 @@ class _Numbers:
         """``count`` numbers and the line the first was on."""
         if self.pos + count > len(self.items):
             have = len(self.items) - self.pos
-            raise IESFormatError(f"{self.where}: line {self.last_line} (end of file): expected {count} "
-                                 f"{what}, found {have}")
+            raise IESFormatError(
+                f"{self.where}: line {self.last_line} (end of file): expected {count} {what}, found {have}"
+            )
         out = np.empty(count)
         for k in range(count):
             tok, line = self.items[self.pos + k]
@@ -102,8 +104,10 @@ def expand_c_symmetry(c: np.ndarray, cd: np.ndarray, where: str) -> tuple[np.nda
         # The whole circle, 0..360; a table that stops one step short of 360 (its last plane
         # dropped as a copy of the first) is read as closing on C = 0, a wider gap is refused.
         if not (c[0] == 0 and 180 < c[-1] <= 360 and 360 - c[-1] <= np.diff(c).max() + 1e-9):
-            raise IESFormatError(f"{where}: C angles {c[0]:g}..{c[-1]:g} are not a symmetry this reader knows "
-                                 "(0, 0-90, 0-180, 90-270, 270-90, 0-360)")
+            raise IESFormatError(
+                f"{where}: C angles {c[0]:g}..{c[-1]:g} are not a symmetry this reader knows "
+                "(0, 0-90, 0-180, 90-270, 270-90, 0-360)"
+            )
         rule = lambda a: [a]  # noqa: E731 (the whole circle: no images)
     angles, source = [], []
     for i, a in enumerate(c):
@@ -125,7 +129,9 @@ def expand_c_symmetry(c: np.ndarray, cd: np.ndarray, where: str) -> tuple[np.nda
 def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> PhotometricDistribution:
     """A distribution from the text of an LM-63 file (see the module docstring)."""
     if not isinstance(text, str):
-        raise InvalidInputError(f"parse_ies takes the file's text (str); got {type(text).__name__} (read_ies reads a file)")
+        raise InvalidInputError(
+            f"parse_ies takes the file's text (str); got {type(text).__name__} (read_ies reads a file)"
+        )
     # A UTF-8 byte-order mark read as text, and a DOS end-of-file mark (Ctrl-Z) after the table.
     lines = text.removeprefix("\ufeff").rstrip().rstrip("\x1a").splitlines()
     keywords: dict[str, str] = {}
@@ -158,16 +164,20 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
             raise IESFormatError(f"{where}: line {aline}: tilt multiplying factors must be >= 0")
         tilt_factor = float(np.interp(tilt, angles, factors))
     elif tilt_kind != "NONE":
-        raise IESFormatError(f"{where}: line {k + 1}: TILT={tilt_kind or '?'} is not supported "
-                             "(TILT=NONE or TILT=INCLUDE; a separate tilt file is not read)")
+        raise IESFormatError(
+            f"{where}: line {k + 1}: TILT={tilt_kind or '?'} is not supported "
+            "(TILT=NONE or TILT=INCLUDE; a separate tilt file is not read)"
+        )
     head, head_line = nums.take(10, "luminaire header values (lamps, lumens, multiplier, angles, type, units, sizes)")
     n_lamps, lumens, multiplier, n_vert, n_horiz, ptype = head[:6]
     for value, what, least in ((n_vert, "number of vertical angles", 2), (n_horiz, "number of horizontal angles", 1)):
         if value < least or value != int(value):
             raise IESFormatError(f"{where}: line {head_line}: the {what} must be an integer >= {least}; got {value:g}")
     if ptype != 1:
-        raise IESFormatError(f"{where}: line {head_line}: photometric type {ptype:g} is not supported "
-                             "(only type C, 1, the type of building luminaires)")
+        raise IESFormatError(
+            f"{where}: line {head_line}: photometric type {ptype:g} is not supported "
+            "(only type C, 1, the type of building luminaires)"
+        )
     factors, _ = nums.take(3, "ballast factor, ballast-lamp factor and input watts")
     vert, vline = nums.take(int(n_vert), "vertical angles")
     horiz, hline = nums.take(int(n_horiz), "horizontal angles")
@@ -180,9 +190,11 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
         raise IESFormatError(f"{where}: line {cline}: candela values must be >= 0")
     if nums.pos < len(nums.items):  # counts that do not match the table shift every value after them
         tok, line = nums.items[nums.pos]
-        raise IESFormatError(f"{where}: line {line}: {len(nums.items) - nums.pos} value(s) after the candela table "
-                             f"(first {tok!r}): the counts in line {head_line} ({int(n_vert)} vertical, "
-                             f"{int(n_horiz)} horizontal angles) do not match the file")
+        raise IESFormatError(
+            f"{where}: line {line}: {len(nums.items) - nums.pos} value(s) after the candela table "
+            f"(first {tok!r}): the counts in line {head_line} ({int(n_vert)} vertical, "
+            f"{int(n_horiz)} horizontal angles) do not match the file"
+        )
     lamp_factor = factors[1] if year < 2002 else 1.0
     scale = multiplier * factors[0] * lamp_factor
     with np.errstate(over="ignore", invalid="ignore"):
@@ -191,8 +203,9 @@ def parse_ies(text: str, where: str = "<string>", tilt: float = 0.0) -> Photomet
         parts = [f"candela multiplier {multiplier:g}", f"ballast factor {factors[0]:g}"]
         parts += [f"ballast-lamp factor {lamp_factor:g}"] if year < 2002 else []
         parts += [f"tilt factor {tilt_factor:g}"] if tilt_kind == "INCLUDE" else []
-        raise IESFormatError(f"{where}: line {head_line}: the {', '.join(parts)} must be >= 0 and keep the candela "
-                             "values finite")
+        raise IESFormatError(
+            f"{where}: line {head_line}: the {', '.join(parts)} must be >= 0 and keep the candela values finite"
+        )
     c, cd = expand_c_symmetry(horiz, cd, where)
     flux = None if lumens < 0 else float(n_lamps * lumens)
     return PhotometricDistribution(c, vert, cd, name=name, lumens=flux, source=where)
@@ -210,8 +223,10 @@ def read_photometric_text(path) -> str:
     except ValueError:  # a NUL byte in the path: refused below, by the read
         unusable = False
     if unusable:
-        raise InvalidInputError(f"cannot read {str(path)!r}: not a regular file of at most "
-                                f"{MAX_PHOTOMETRIC_BYTES // 2**20} MiB (a photometric file is a few kB)")
+        raise InvalidInputError(
+            f"cannot read {str(path)!r}: not a regular file of at most "
+            f"{MAX_PHOTOMETRIC_BYTES // 2**20} MiB (a photometric file is a few kB)"
+        )
     try:
         raw = path.read_bytes().removeprefix(b"\xef\xbb\xbf")
     except OSError as e:

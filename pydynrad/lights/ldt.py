@@ -62,7 +62,9 @@ class _Lines:
 def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
     """A distribution from the text of a EULUMDAT file (see the module docstring)."""
     if not isinstance(text, str):
-        raise InvalidInputError(f"parse_ldt takes the file's text (str); got {type(text).__name__} (read_ldt reads a file)")
+        raise InvalidInputError(
+            f"parse_ldt takes the file's text (str); got {type(text).__name__} (read_ldt reads a file)"
+        )
     r = _Lines(text.removeprefix("\ufeff").rstrip().rstrip("\x1a"), where)
     r.text("the company identification")
     r.integer("the type indicator Ityp", 0, 3)
@@ -75,9 +77,19 @@ def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
     name = r.text("the luminaire name")
     for what in ("luminaire number", "file name", "date/user"):
         r.text(f"the {what}")
-    for what in ("luminaire length", "luminaire width", "luminaire height", "luminous area length",
-                 "luminous area width", "luminous area height C0", "C90", "C180", "C270",
-                 "downward flux fraction", "light output ratio"):
+    for what in (
+        "luminaire length",
+        "luminaire width",
+        "luminaire height",
+        "luminous area length",
+        "luminous area width",
+        "luminous area height C0",
+        "C90",
+        "C180",
+        "C270",
+        "downward flux fraction",
+        "light output ratio",
+    ):
         r.number(f"the {what}")
     conversion = r.number("the conversion factor for luminous intensities")
     conversion_line = r.k
@@ -104,8 +116,10 @@ def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
     if isym == 0 and mc >= 2 and not (c[0] == 0 and c[-1] + (c[-1] - c[-2]) >= 360.0 - 1e-6):
         # Without symmetry the planes must go round (the last one step short of 360: C0, C180
         # do): planes over 0..90 would be mirrored as if the file declared a symmetry it did not.
-        raise IESFormatError(f"{where}: line {c_line}: Isym = 0 (no symmetry) needs C planes from 0 round the "
-                             f"circle; got {mc} plane(s) over {c[0]:g}..{c[-1]:g}")
+        raise IESFormatError(
+            f"{where}: line {c_line}: Isym = 0 (no symmetry) needs C planes from 0 round the "
+            f"circle; got {mc} plane(s) over {c[0]:g}..{c[-1]:g}"
+        )
     if isym == 0:
         planes = np.arange(mc)
     elif isym == 1:
@@ -122,9 +136,11 @@ def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
         raise IESFormatError(f"{where}: line {cd_line}: luminous intensities must be >= 0")
     left = [k for k in range(r.k, len(r.lines)) if r.lines[k].strip()]
     if left:  # counts that do not match the file shift every value after them
-        raise IESFormatError(f"{where}: line {left[0] + 1}: {len(left)} line(s) after the intensity table (first "
-                             f"{r.lines[left[0]].strip()!r}): Mc = {mc}, Ng = {ng} and Isym = {isym} (lines 3, 4, 6) "
-                             "do not match the file")
+        raise IESFormatError(
+            f"{where}: line {left[0] + 1}: {len(left)} line(s) after the intensity table (first "
+            f"{r.lines[left[0]].strip()!r}): Mc = {mc}, Ng = {ng} and Isym = {isym} (lines 3, 4, 6) "
+            "do not match the file"
+        )
     angles = c[planes]
     if isym == 3:
         angles = np.where(angles >= 270, angles - 360, angles)  # 270..360..90 as -90..90
@@ -133,8 +149,10 @@ def parse_ldt(text: str, where: str = "<string>") -> PhotometricDistribution:
     with np.errstate(over="ignore", invalid="ignore"):
         cd = cd * (flux / 1000.0 * conversion)
     if not (flux >= 0 and conversion >= 0 and np.all(np.isfinite(cd))):
-        raise IESFormatError(f"{where}: line {conversion_line}: the conversion factor ({conversion:g}) and the "
-                             f"first lamp set's flux ({flux:g} lm) must be >= 0 and keep the intensities finite")
+        raise IESFormatError(
+            f"{where}: line {conversion_line}: the conversion factor ({conversion:g}) and the "
+            f"first lamp set's flux ({flux:g} lm) must be >= 0 and keep the intensities finite"
+        )
     return PhotometricDistribution(angles, gamma, cd, name=name, lumens=flux, source=where)
 
 

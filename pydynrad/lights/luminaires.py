@@ -57,13 +57,16 @@ class PhotometricDistribution:
         if len(c) == 0 or np.any(np.diff(c) <= 0) or c[0] != 0 or (len(c) > 1 and c[-1] != 360):
             raise InvalidInputError("c_angles must increase from 0 to 360 degrees (or be the single angle 0)")
         if cd.shape != (len(c), len(g)):
-            raise InvalidInputError(f"candela must have shape ({len(c)}, {len(g)}) (C planes, gamma angles); "
-                                    f"got {cd.shape}")
+            raise InvalidInputError(
+                f"candela must have shape ({len(c)}, {len(g)}) (C planes, gamma angles); got {cd.shape}"
+            )
         if not np.all(np.isfinite(cd)) or cd.min() < 0:
             raise InvalidInputError("candela values must be finite and >= 0")
         if len(c) > 1 and not np.array_equal(cd[0], cd[-1]):  # one direction, two intensities
-            raise InvalidInputError("candela at C = 360 must equal those at C = 0 (the same half-plane); they differ "
-                                    f"by up to {np.abs(cd[-1] - cd[0]).max():g} cd")
+            raise InvalidInputError(
+                "candela at C = 360 must equal those at C = 0 (the same half-plane); they differ "
+                f"by up to {np.abs(cd[-1] - cd[0]).max():g} cd"
+            )
         for name, a in (("c_angles", c), ("gamma_angles", g), ("candela", cd)):
             a = np.array(a, dtype=np.float64)
             a.setflags(write=False)
@@ -71,7 +74,7 @@ class PhotometricDistribution:
 
     # -- closed forms ---------------------------------------------------------------------------------
     @classmethod
-    def lambertian(cls, peak: float, step: float = 0.25) -> "PhotometricDistribution":
+    def lambertian(cls, peak: float, step: float = 0.25) -> PhotometricDistribution:
         """A cosine source: ``I = peak cos(gamma)`` below the horizon (gamma <= 90), 0 above.
 
         Sampled every ``step`` degrees (linear interpolation of the cosine: relative error
@@ -83,11 +86,12 @@ class PhotometricDistribution:
         if not (0 < step <= 90 and abs(steps - round(steps)) <= 1e-9 * steps and steps <= 360_000):
             raise InvalidInputError(f"lambertian step must divide 90 degrees, at least 90 / 360000; got {step!r}")
         g = np.linspace(0.0, 180.0, 2 * int(round(steps)) + 1)
-        return cls([0.0], g, [np.maximum(np.cos(np.radians(g)), 0.0) * number(peak, "lambertian peak (cd)")],
-                   name="lambertian")
+        return cls(
+            [0.0], g, [np.maximum(np.cos(np.radians(g)), 0.0) * number(peak, "lambertian peak (cd)")], name="lambertian"
+        )
 
     @classmethod
-    def isotropic(cls, intensity: float) -> "PhotometricDistribution":
+    def isotropic(cls, intensity: float) -> PhotometricDistribution:
         """The same intensity (cd) in every direction."""
         return cls([0.0], [0.0, 180.0], [[number(intensity, "isotropic intensity (cd)")] * 2], name="isotropic")
 
@@ -127,9 +131,14 @@ class PhotometricDistribution:
         """The device table: nC, nG, C angles and gamma angles (radians), intensities C-major, float32
         (candela beyond float32 come out inf: the lights' packing refuses them)."""
         with np.errstate(over="ignore"):
-            return np.concatenate([[len(self.c_angles), len(self.gamma_angles)], np.radians(self.c_angles),
-                                   np.radians(self.gamma_angles), self.candela.ravel()]).astype(np.float32)
-
+            return np.concatenate(
+                [
+                    [len(self.c_angles), len(self.gamma_angles)],
+                    np.radians(self.c_angles),
+                    np.radians(self.gamma_angles),
+                    self.candela.ravel(),
+                ]
+            ).astype(np.float32)
 
 
 @dataclass(frozen=True, eq=False)
@@ -161,7 +170,7 @@ class LuminaireLight:
     c0: tuple = (1.0, 0.0, 0.0)
     scale: tuple = (1.0, 1.0, 1.0)
 
-    def placed(self, up) -> "LuminaireLight":
+    def placed(self, up) -> LuminaireLight:
         """This luminaire in a scene whose up axis is ``up``: itself where its nadir is given,
         else a copy pointing down ``-up``."""
         if self._given_nadir:
@@ -174,13 +183,17 @@ class LuminaireLight:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_given_nadir", self.nadir is not None)
-        object.__setattr__(self, "_given_c0", tuple(np.asarray(self.c0, np.float64).ravel()) if np.size(self.c0) == 3 else self.c0)
+        object.__setattr__(
+            self, "_given_c0", tuple(np.asarray(self.c0, np.float64).ravel()) if np.size(self.c0) == 3 else self.c0
+        )
         if self.nadir is None:
             object.__setattr__(self, "nadir", (0.0, 0.0, -1.0))
 
         if not isinstance(self.distribution, PhotometricDistribution):
-            raise InvalidInputError("LuminaireLight.distribution must be a PhotometricDistribution "
-                                    "(read_ies, read_ldt, PhotometricDistribution.lambertian)")
+            raise InvalidInputError(
+                "LuminaireLight.distribution must be a PhotometricDistribution "
+                "(read_ies, read_ldt, PhotometricDistribution.lambertian)"
+            )
         object.__setattr__(self, "position", vec3_tuple(self.position, "LuminaireLight.position"))
         nadir = unit_vector(self.nadir, "LuminaireLight.nadir")
         c0 = unit_vector(self.c0, "LuminaireLight.c0")

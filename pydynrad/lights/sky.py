@@ -38,10 +38,10 @@ from functools import cached_property
 
 import numpy as np
 
-from ..checks import integer, number, resolution as checked_resolution, unit_vector
+from ..checks import integer, number, unit_vector
+from ..checks import resolution as checked_resolution
 from ..errors import InvalidInputError
-from ..geometry.scene import rotation_to
-from ..geometry.scene import up_vector
+from ..geometry.scene import rotation_to, up_vector
 
 __all__ = ["SkyLight", "CIE_GENERAL_SKIES", "pack_sky", "sun_direction", "north_east", "SkyOrientationWarning"]
 
@@ -72,17 +72,37 @@ def sun_direction(elevation: float, azimuth: float, up=(0.0, 1.0, 0.0)) -> tuple
     d = math.cos(el) * (math.cos(az) * north + math.sin(az) * east) + math.sin(el) * u
     return tuple(map(float, d / np.linalg.norm(d)))
 
-_GRADATION = {1: (4.0, -0.70), 2: (1.1, -0.8), 3: (0.0, -1.0), 4: (-1.0, -0.55), 5: (-1.0, -0.32),
-              6: (-1.0, -0.15)}
-_INDICATRIX = {1: (0.0, -1.0, 0.0), 2: (2.0, -1.5, 0.15), 3: (5.0, -2.5, 0.30), 4: (10.0, -3.0, 0.45),
-               5: (16.0, -3.0, 0.30), 6: (24.0, -2.8, 0.15)}
+
+_GRADATION = {1: (4.0, -0.70), 2: (1.1, -0.8), 3: (0.0, -1.0), 4: (-1.0, -0.55), 5: (-1.0, -0.32), 6: (-1.0, -0.15)}
+_INDICATRIX = {
+    1: (0.0, -1.0, 0.0),
+    2: (2.0, -1.5, 0.15),
+    3: (5.0, -2.5, 0.30),
+    4: (10.0, -3.0, 0.45),
+    5: (16.0, -3.0, 0.30),
+    6: (24.0, -2.8, 0.15),
+}
 #: CIE S 011 sky type -> (gradation group, indicatrix group); the parameters a, b and c, d, e are above.
-_TYPES = {1: (1, 1), 2: (1, 2), 3: (2, 1), 4: (2, 2), 5: (3, 1), 6: (3, 2), 7: (3, 3), 8: (3, 4), 9: (4, 2),
-          10: (4, 3), 11: (4, 4), 12: (5, 4), 13: (5, 5), 14: (6, 5), 15: (6, 6)}
+_TYPES = {
+    1: (1, 1),
+    2: (1, 2),
+    3: (2, 1),
+    4: (2, 2),
+    5: (3, 1),
+    6: (3, 2),
+    7: (3, 3),
+    8: (3, 4),
+    9: (4, 2),
+    10: (4, 3),
+    11: (4, 4),
+    12: (5, 4),
+    13: (5, 5),
+    14: (6, 5),
+    15: (6, 6),
+}
 #: (a, b, c, d, e) of each CIE standard general sky type 1..15.
 CIE_GENERAL_SKIES = {t: _GRADATION[g] + _INDICATRIX[i] for t, (g, i) in _TYPES.items()}
 _ALIASES = {"overcast": 1, "clear": 12}
-
 
 
 @dataclass(frozen=True)
@@ -126,8 +146,9 @@ class SkyLight:
                 raise InvalidInputError(f"CIE standard general sky types are 1..15; got {kind}")
             kind = int(kind)
         elif kind not in ("uniform", "cie_overcast"):
-            raise InvalidInputError(f"sky kind must be 'uniform', 'cie_overcast', 'overcast', 'clear' or 1..15; "
-                                    f"got {self.kind!r}")
+            raise InvalidInputError(
+                f"sky kind must be 'uniform', 'cie_overcast', 'overcast', 'clear' or 1..15; got {self.kind!r}"
+            )
         object.__setattr__(self, "kind", kind)
         if self.up is not None:
             object.__setattr__(self, "up", tuple(map(float, unit_vector(self.up, "SkyLight.up"))))
@@ -136,8 +157,9 @@ class SkyLight:
             if needs_sun:
                 raise InvalidInputError(f"CIE sky type {kind} depends on the sun's position: give sun_direction")
         else:
-            object.__setattr__(self, "sun_direction",
-                               tuple(map(float, unit_vector(self.sun_direction, "SkyLight.sun_direction"))))
+            object.__setattr__(
+                self, "sun_direction", tuple(map(float, unit_vector(self.sun_direction, "SkyLight.sun_direction")))
+            )
             # CIE S 011 defines the sky for a sun at or above the horizon (Z_s <= 90 degrees); below
             # it, the formulas give a sky of its own, and the likely cause is a direction given
             # as the sunlight's way down (a DirectionalLight's) rather than towards the sun.
@@ -145,11 +167,13 @@ class SkyLight:
                 raise InvalidInputError(
                     f"SkyLight.sun_direction {self.sun_direction} is below the horizon (up {self.up}): CIE sky "
                     f"type {kind} is defined for a sun at or above it; give the direction towards the sun (a "
-                    "DirectionalLight's direction is the way its light travels, the opposite)")
+                    "DirectionalLight's direction is the way its light travels, the opposite)"
+                )
         given = [v is not None for v in (self.zenith_luminance, self.horizontal_illuminance)]
         if sum(given) != 1:
-            raise InvalidInputError("give a SkyLight exactly one of zenith_luminance (cd/m2) or "
-                                    "horizontal_illuminance (lux)")
+            raise InvalidInputError(
+                "give a SkyLight exactly one of zenith_luminance (cd/m2) or horizontal_illuminance (lux)"
+            )
         for name in ("zenith_luminance", "horizontal_illuminance"):
             value = getattr(self, name)
             if value is not None:
@@ -173,7 +197,7 @@ class SkyLight:
     def _sun(self) -> tuple:
         return self.sun_direction if self.sun_direction is not None else self.zenith_direction
 
-    def placed(self, up) -> "SkyLight":
+    def placed(self, up) -> SkyLight:
         """This sky in a scene whose up axis is ``up``: itself where its own ``up`` is given,
         else a copy with that zenith."""
         if self.up is not None:
@@ -272,8 +296,10 @@ class SkyLight:
         mode = 2.0 if self.kind == "cie_overcast" else 1.0
         a, b, c, d, e = (0.0,) * 5 if self.kind == "cie_overcast" else self._parameters()
         norm = 0.0 if self.kind == "cie_overcast" else self._norm()
-        return np.array([*self.zenith_direction, mode, *self._sun, self.zenith, a, b, c, d,
-                         e, norm, self.ground_luminance, 0.0], dtype=np.float32)
+        return np.array(
+            [*self.zenith_direction, mode, *self._sun, self.zenith, a, b, c, d, e, norm, self.ground_luminance, 0.0],
+            dtype=np.float32,
+        )
 
 
 def pack_sky(lights, up=None) -> np.ndarray:

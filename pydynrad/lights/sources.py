@@ -30,21 +30,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import checked_sensors, floats, number, rgb_tuple, unit_tuple, vec3_tuple
-from ..geometry.scene import checked_scene
-from ..errors import InvalidInputError
+from ..checks import ROW_SUM_SLACK, checked_sensors, floats, number, rgb_tuple, unit_tuple, vec3_tuple
+from ..device.devices import default_device
 from ..device.launch import WG, float4, global_size
+from ..errors import InvalidInputError
+from ..geometry.scene import SURFACE_OFFSET, checked_scene
 from .gather import gather_irradiance
 from .luminaires import LuminaireLight
-from .sky import SkyLight, pack_sky
-from .sky import SkyOrientationWarning
-from ..checks import ROW_SUM_SLACK
-from ..device.devices import default_device
-from ..geometry.scene import SURFACE_OFFSET
+from .sky import SkyLight, SkyOrientationWarning, pack_sky
 
-__all__ = ["PointLight", "SpotLight", "DirectionalLight", "direct_irradiance", "point_irradiance", "light_vector",
-           "pack_lights", "pack_light_tables", "pack_lights_and_tables", "checked_lights", "checked_light_vector",
-           "check_radiosity_range", "resolve_light"]
+__all__ = [
+    "PointLight",
+    "SpotLight",
+    "DirectionalLight",
+    "direct_irradiance",
+    "point_irradiance",
+    "light_vector",
+    "pack_lights",
+    "pack_light_tables",
+    "pack_lights_and_tables",
+    "checked_lights",
+    "checked_light_vector",
+    "check_radiosity_range",
+    "resolve_light",
+]
 
 #: Shadow-ray origins sit this fraction of the scene's bounding-box diagonal off the surface.
 SHADOW_EPSILON = 1e-4
@@ -132,8 +141,9 @@ def checked_lights(lights) -> list:
     """``lights`` (one light object or a sequence) as a list, or InvalidInputError."""
     kinds = (*LIGHT_TYPES, *_photometric_types())
     if isinstance(lights, np.ndarray):
-        raise InvalidInputError(f"lights= takes light objects ({_LIGHT_NAMES}); "
-                                "pass a precomputed light vector as light=L")
+        raise InvalidInputError(
+            f"lights= takes light objects ({_LIGHT_NAMES}); pass a precomputed light vector as light=L"
+        )
     if isinstance(lights, kinds):
         lights = [lights]
     try:
@@ -193,14 +203,18 @@ def _packed(lights: list, frame=None) -> tuple[np.ndarray, np.ndarray]:
     with np.errstate(over="ignore"):
         out = packed.astype(np.float32)
     if not np.all(np.isfinite(out)):
-        raise InvalidInputError("a light's position or intensity overflows float32 on the device "
-                                "(beyond ~3e38 once the scene is scaled to its own size)")
+        raise InvalidInputError(
+            "a light's position or intensity overflows float32 on the device "
+            "(beyond ~3e38 once the scene is scaled to its own size)"
+        )
     # A light whose every channel rounds to zero in float32 (below ~1.4e-45, the smallest
     # subnormal, once the scene is scaled to its own size) would go dark without a word.
     if np.any(np.any(packed[:, 8:11] != 0, axis=1) & ~np.any(out[:, 8:11] != 0, axis=1)):
-        raise InvalidInputError("a light's intensity underflows float32 on the device (below ~1.4e-45 once the "
-                                "scene is scaled to its own size) and would light nothing; scale the light "
-                                "intensities (and emission) up")
+        raise InvalidInputError(
+            "a light's intensity underflows float32 on the device (below ~1.4e-45 once the "
+            "scene is scaled to its own size) and would light nothing; scale the light "
+            "intensities (and emission) up"
+        )
     with np.errstate(over="ignore"):
         table = np.concatenate(tables).astype(np.float32) if tables else np.zeros(1, np.float32)
     if not np.all(np.isfinite(table)):  # inf candela times a zero weight is NaN on the device
@@ -218,7 +232,6 @@ def point_irradiance(scene, points, normals, lights, device=None) -> np.ndarray:
     a normal per point).
     """
     if points is not None or normals is not None:
-
         points, normals = checked_sensors(points, normals)
     return _point_irradiance(scene, points, normals, checked_lights(lights), device)
 
@@ -261,10 +274,20 @@ def _point_irradiance(scene, points, normals, lights: list, device, patches=None
     # Directional shadow rays need only reach past the scene: twice its diagonal (plus the
     # farthest sensor's distance outside it).
     kernel(
-        device.queue, (global_size(n),), (WG,), np.int32(n), centers, normals, np.int32(len(packed)),
-        device.to_device(packed), device.to_device(tables), nodes, tris,
+        device.queue,
+        (global_size(n),),
+        (WG,),
+        np.int32(n),
+        centers,
+        normals,
+        np.int32(len(packed)),
+        device.to_device(packed),
+        device.to_device(tables),
+        nodes,
+        tris,
         np.float32(scene.frame.length(offset * scene.ray_scale)),
-        np.float32(scene.frame.length(2.0 * scene.scale + outside)), out_dev,
+        np.float32(scene.frame.length(2.0 * scene.scale + outside)),
+        out_dev,
     )
     out = np.empty((n, 4), dtype=np.float32)
     read = cl.enqueue_copy(device.queue, out, out_dev, is_blocking=not queued)
@@ -294,17 +317,26 @@ def _direct_irradiance(scene, lights: list, device) -> np.ndarray:
     E = _point_irradiance(scene, None, None, lights, device)
     skies = [light for light in lights if isinstance(light, SkyLight)]
     if skies:
-
         ids = np.arange(len(scene))
-        sky_light = gather_irradiance(scene, None, None, sky=pack_sky(lights, scene.up), resolution=skies[0].resolution,
-                                      keys=ids, own=ids, device=device)
+        sky_light = gather_irradiance(
+            scene,
+            None,
+            None,
+            sky=pack_sky(lights, scene.up),
+            resolution=skies[0].resolution,
+            keys=ids,
+            own=ids,
+            device=device,
+        )
         check_sky_orientation(scene, skies[0], sky_light)
         E = E + sky_light
     with np.errstate(over="ignore"):
         E = np.asarray(E, dtype=np.float32)
     if not np.all(np.isfinite(E)):
-        raise InvalidInputError("the direct irradiance overflows float32 (above 3.4e38 at some patch): the lights "
-                                "are too strong for float32; scale the light intensities (and emission) down")
+        raise InvalidInputError(
+            "the direct irradiance overflows float32 (above 3.4e38 at some patch): the lights "
+            "are too strong for float32; scale the light intensities (and emission) down"
+        )
     return E
 
 
@@ -317,15 +349,23 @@ def check_sky_orientation(scene, sky: SkyLight, lit) -> None:
     zenith = np.asarray(sky.placed(scene.up).up)
     agree = float(zenith @ np.asarray(scene.up, np.float64))
     if sky.up is not None and agree < 0.5:
-        warnings.warn(f"the sky's zenith {tuple(round(float(x), 4) for x in zenith)} is {np.degrees(np.arccos(np.clip(agree, -1, 1))):.0f} "
-                      f"degrees from the scene's up axis {tuple(round(float(x), 4) for x in scene.up)}: leave SkyLight.up "
-                      "out to use the scene's", SkyOrientationWarning, stacklevel=4)
+        warnings.warn(
+            f"the sky's zenith {tuple(round(float(x), 4) for x in zenith)} is {np.degrees(np.arccos(np.clip(agree, -1, 1))):.0f} "
+            f"degrees from the scene's up axis {tuple(round(float(x), 4) for x in scene.up)}: leave SkyLight.up "
+            "out to use the scene's",
+            SkyOrientationWarning,
+            stacklevel=4,
+        )
     if sky.horizontal > 0 and not np.any(np.asarray(lit) > 0):
         facing = int(np.count_nonzero(scene.normals.astype(np.float64) @ zenith > 1e-6))
-        warnings.warn(f"the sky (zenith {tuple(round(float(x), 4) for x in zenith)}) lights no patch of {scene.name!r}: "
-                      f"{facing} of {len(scene)} patches face its upper half and none sees it past the scene "
-                      f"(scene.up is {tuple(round(float(x), 4) for x in scene.up)}; a closed room is lit by a sky only "
-                      "through openings)", SkyOrientationWarning, stacklevel=4)
+        warnings.warn(
+            f"the sky (zenith {tuple(round(float(x), 4) for x in zenith)}) lights no patch of {scene.name!r}: "
+            f"{facing} of {len(scene)} patches face its upper half and none sees it past the scene "
+            f"(scene.up is {tuple(round(float(x), 4) for x in scene.up)}; a closed room is lit by a sky only "
+            "through openings)",
+            SkyOrientationWarning,
+            stacklevel=4,
+        )
 
 
 def light_vector(scene, lights=(), device=None) -> np.ndarray:
@@ -362,9 +402,11 @@ def check_radiosity_range(L: np.ndarray, albedo: np.ndarray, dtype=np.float32) -
     rho = min(albedo_max * (1.0 + ROW_SUM_SLACK), 0.5 * (1.0 + albedo_max))
     bound = top / (1.0 - rho) if rho < 1.0 else np.inf
     if top > 0 and bound > float(np.finfo(dtype).max):
-        raise InvalidInputError(f"the radiosity may reach {bound:.3g} (max L {top:.3g} / (1 - {rho:g}), the largest "
-                                f"albedo times F's largest row sum), "
-                                f"beyond {np.dtype(dtype).name}: scale the emission and the lights down")
+        raise InvalidInputError(
+            f"the radiosity may reach {bound:.3g} (max L {top:.3g} / (1 - {rho:g}), the largest "
+            f"albedo times F's largest row sum), "
+            f"beyond {np.dtype(dtype).name}: scale the emission and the lights down"
+        )
 
 
 def resolve_light(scene, lights=(), light=None, device=None) -> np.ndarray:

@@ -27,9 +27,7 @@ from .ies import read_ies
 from .ldt import read_ldt
 from .luminaires import LuminaireLight
 from .sky import SkyLight
-from .sources import DirectionalLight
-from .sources import PointLight
-from .sources import SpotLight
+from .sources import DirectionalLight, PointLight, SpotLight
 
 __all__ = ["LightKind", "LIGHT_KINDS", "LIGHT_ALIASES", "parse_light", "light_syntax", "plain_number"]
 
@@ -95,8 +93,9 @@ class LightKind:
         for f in self.fields:
             if key == f.name or key in f.aliases:
                 return f
-        raise InvalidInputError(f"{kind} light: unknown field {key!r}; its fields are "
-                                f"{', '.join(f.name for f in self.fields)}")
+        raise InvalidInputError(
+            f"{kind} light: unknown field {key!r}; its fields are {', '.join(f.name for f in self.fields)}"
+        )
 
 
 def number(text: str, what: str) -> float:
@@ -111,10 +110,16 @@ def sky_model(text: str, what: str):
 
 
 def _sky(model="uniform", zenith=None, horizontal=None, sun=None, up=None, ground=0.0, resolution=64):
-    return SkyLight(model, zenith_luminance=zenith, horizontal_illuminance=horizontal, sun_direction=sun, up=up,
-                    ground_reflectance=ground,
-                    # a whole number as an int; 64.5 is refused as it is, not cut to 64
-                    resolution=int(resolution) if float(resolution).is_integer() else resolution)
+    return SkyLight(
+        model,
+        zenith_luminance=zenith,
+        horizontal_illuminance=horizontal,
+        sun_direction=sun,
+        up=up,
+        ground_reflectance=ground,
+        # a whole number as an int; 64.5 is refused as it is, not cut to 64
+        resolution=int(resolution) if float(resolution).is_integer() else resolution,
+    )
 
 
 def _luminaire(pos, file, nadir=None, c0=(1.0, 0.0, 0.0), scale=1.0):
@@ -129,8 +134,9 @@ def _point(pos, intensity):
 
 def _spot(pos, dir, intensity, outer, inner=None):
     if inner is not None and inner > outer:
-        raise InvalidInputError(f"inner ({math.degrees(inner):g} degrees) must not exceed outer "
-                                f"({math.degrees(outer):g} degrees)")
+        raise InvalidInputError(
+            f"inner ({math.degrees(inner):g} degrees) must not exceed outer ({math.degrees(outer):g} degrees)"
+        )
     return SpotLight(pos, dir, intensity, outer if inner is None else inner, outer)
 
 
@@ -145,28 +151,50 @@ _INTENSITY = Field("intensity", colour, "W/sr, one number (grey) or R,G,B")
 #: Every light kind the text form knows, by name.
 LIGHT_KINDS: dict[str, LightKind] = {
     "point": LightKind(_point, (_POS, _INTENSITY), "an isotropic point light"),
-    "spot": LightKind(_spot, (_POS, _DIR, _INTENSITY,
-                              Field("outer", degrees, "cone half-angle in degrees where the light ends"),
-                              Field("inner", degrees, "half-angle in degrees of full intensity (default: outer, "
-                                                      "a hard edge)", default=None)),
-                      "a point light in a cone (smooth falloff from inner to outer)"),
-    "sun": LightKind(_sun, (_DIR, Field("irradiance", colour, "W/unit^2 on a surface facing it, one number or R,G,B")),
-                     "a directional light at infinity"),
-    "sky": LightKind(_sky, (
-        Field("model", sky_model, "uniform, cie_overcast, overcast, clear or a CIE sky type 1..15", default="uniform"),
-        Field("zenith", number, "zenith luminance, cd/m2 (give this or horizontal)", default=None),
-        Field("horizontal", number, "unobstructed horizontal illuminance, lx", default=None),
-        Field("sun", vector, "direction X,Y,Z towards the sun (CIE skies that depend on it)", default=None),
-        Field("up", vector, "the zenith X,Y,Z (default: the scene's up axis)", default=None),
-        Field("ground", number, "ground reflectance in [0, 1)", default=0.0),
-        Field("resolution", number, "hemicube resolution of the sky pass", default=64)),
-        "a sky over a uniform ground, seen by every patch through the scene's openings"),
-    "luminaire": LightKind(_luminaire, (
-        _POS, Field("file", lambda text, what: text.strip(), "an IES LM-63 (.ies) or EULUMDAT (.ldt) file"),
-        Field("nadir", vector, "direction X,Y,Z of gamma = 0 (default: down the scene's up axis)", default=None),
-        Field("c0", vector, "direction X,Y,Z of the C = 0 plane", default=(1.0, 0.0, 0.0)),
-        Field("scale", colour, "factor on the file's candela, one number or R,G,B", default=1.0)),
-        "a point source with a measured intensity distribution"),
+    "spot": LightKind(
+        _spot,
+        (
+            _POS,
+            _DIR,
+            _INTENSITY,
+            Field("outer", degrees, "cone half-angle in degrees where the light ends"),
+            Field(
+                "inner", degrees, "half-angle in degrees of full intensity (default: outer, a hard edge)", default=None
+            ),
+        ),
+        "a point light in a cone (smooth falloff from inner to outer)",
+    ),
+    "sun": LightKind(
+        _sun,
+        (_DIR, Field("irradiance", colour, "W/unit^2 on a surface facing it, one number or R,G,B")),
+        "a directional light at infinity",
+    ),
+    "sky": LightKind(
+        _sky,
+        (
+            Field(
+                "model", sky_model, "uniform, cie_overcast, overcast, clear or a CIE sky type 1..15", default="uniform"
+            ),
+            Field("zenith", number, "zenith luminance, cd/m2 (give this or horizontal)", default=None),
+            Field("horizontal", number, "unobstructed horizontal illuminance, lx", default=None),
+            Field("sun", vector, "direction X,Y,Z towards the sun (CIE skies that depend on it)", default=None),
+            Field("up", vector, "the zenith X,Y,Z (default: the scene's up axis)", default=None),
+            Field("ground", number, "ground reflectance in [0, 1)", default=0.0),
+            Field("resolution", number, "hemicube resolution of the sky pass", default=64),
+        ),
+        "a sky over a uniform ground, seen by every patch through the scene's openings",
+    ),
+    "luminaire": LightKind(
+        _luminaire,
+        (
+            _POS,
+            Field("file", lambda text, what: text.strip(), "an IES LM-63 (.ies) or EULUMDAT (.ldt) file"),
+            Field("nadir", vector, "direction X,Y,Z of gamma = 0 (default: down the scene's up axis)", default=None),
+            Field("c0", vector, "direction X,Y,Z of the C = 0 plane", default=(1.0, 0.0, 0.0)),
+            Field("scale", colour, "factor on the file's candela, one number or R,G,B", default=1.0),
+        ),
+        "a point source with a measured intensity distribution",
+    ),
 }
 #: Other names of kinds.
 LIGHT_ALIASES = {"directional": "sun"}
@@ -180,8 +208,10 @@ def parse_light(text: str):
     if name not in LIGHT_KINDS:
         if sep and "=" not in rest and kind.count(",") == 2:  # the older X,Y,Z:R,G,B point light
             return _point(vector(kind, "point light position"), colour(rest, "point light intensity"))
-        raise InvalidInputError(f"unknown light kind {kind!r} in {text!r}; use {', '.join(LIGHT_KINDS)} "
-                                f"(as KIND:FIELD=VALUE;...) or X,Y,Z:R,G,B for a point light")
+        raise InvalidInputError(
+            f"unknown light kind {kind!r} in {text!r}; use {', '.join(LIGHT_KINDS)} "
+            f"(as KIND:FIELD=VALUE;...) or X,Y,Z:R,G,B for a point light"
+        )
     spec = LIGHT_KINDS[name]
     values = {}
     for item in filter(None, (s.strip() for s in rest.split(";"))):
@@ -194,8 +224,9 @@ def parse_light(text: str):
         values[f.name] = f.parse(value, f"{name} light {f.name}")
     missing = [f.name for f in spec.fields if f.default is _REQUIRED and f.name not in values]
     if missing:
-        raise InvalidInputError(f"{name} light: missing {', '.join(missing)} (fields: "
-                                f"{'; '.join(f'{f.name}=' for f in spec.fields)})")
+        raise InvalidInputError(
+            f"{name} light: missing {', '.join(missing)} (fields: {'; '.join(f'{f.name}=' for f in spec.fields)})"
+        )
     try:
         return spec.make(**values)
     except PydynradError as exc:

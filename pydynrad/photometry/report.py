@@ -56,8 +56,9 @@ def illuminance_statistics(E) -> IlluminanceStats:
     """Em, Emin, Emax, U0, Ud of illuminances ``E`` ((n,), or (n, 3): Rec. 709-weighted)."""
     a = _values(E)
     em, lo, hi = float(a.mean()), float(a.min()), float(a.max())
-    return IlluminanceStats(len(a), em, lo, hi, lo / em if em > 0 else float("nan"),
-                            lo / hi if hi > 0 else float("nan"))
+    return IlluminanceStats(
+        len(a), em, lo, hi, lo / em if em > 0 else float("nan"), lo / hi if hi > 0 else float("nan")
+    )
 
 
 def write_illuminance_csv(path, points, E) -> IlluminanceStats:

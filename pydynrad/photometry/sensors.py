@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checks import checked_sensors, floats, patch_indices, resolution as checked_resolution
-from ..geometry.scene import checked_scene
+from ..checks import checked_sensors, floats, patch_indices
+from ..checks import resolution as checked_resolution
 from ..errors import InvalidInputError
-from ..lights.sources import checked_lights, point_irradiance
+from ..geometry.scene import checked_scene
 from ..lights.areas import checked_grid, emitter_irradiance
 from ..lights.gather import gather_irradiance
 from ..lights.sky import SkyLight, pack_sky
+from ..lights.sources import checked_lights, point_irradiance
 
 __all__ = ["illuminance", "auto_emitters", "EMITTER_CHOICES", "NEAR_SIZES"]
 
@@ -42,10 +43,19 @@ def auto_emitters(scene, points, resolution: int, grid: int) -> np.ndarray:
     return em[distance <= NEAR_SIZES * np.sqrt(scene.areas[em].astype(np.float64))]
 
 
-
-def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, patches=None,
-                resolution: int = 64, emitters: str = "auto", visibility_grid: int = 4,
-                device=None) -> np.ndarray:
+def illuminance(
+    scene,
+    radiosity=None,
+    points=None,
+    normals=None,
+    lights=(),
+    *,
+    patches=None,
+    resolution: int = 64,
+    emitters: str = "auto",
+    visibility_grid: int = 4,
+    device=None,
+) -> np.ndarray:
     """Irradiance at sensor points (lux when the scene's light is photometric).
 
     Parameters
@@ -124,9 +134,20 @@ def illuminance(scene, radiosity=None, points=None, normals=None, lights=(), *, 
             radiosity[near] -= scene.emission[near]
     has_sky = any(isinstance(light, SkyLight) for light in lights)
     if radiosity is not None or has_sky:
-        E += gather_irradiance(scene, points, normals, radiosity, pack_sky(lights, scene.up) if has_sky else None,
-                               resolution, keys, own, device)
+        E += gather_irradiance(
+            scene,
+            points,
+            normals,
+            radiosity,
+            pack_sky(lights, scene.up) if has_sky else None,
+            resolution,
+            keys,
+            own,
+            device,
+        )
     if not np.all(np.isfinite(E)):  # as direct_irradiance refuses it on the patches
-        raise InvalidInputError("the illuminance overflows float32 at some sensor (above 3.4e38): the lights are "
-                                "too strong for float32; scale the light intensities (and emission) down")
+        raise InvalidInputError(
+            "the illuminance overflows float32 at some sensor (above 3.4e38): the lights are "
+            "too strong for float32; scale the light intensities (and emission) down"
+        )
     return E

@@ -36,8 +36,14 @@ import numpy as np
 from ..checks import floats
 from ..errors import InvalidInputError
 
-__all__ = ["REC709_LUMINANCE", "photometric", "exitance_from_luminance", "luminance_from_exitance",
-           "isotropic_intensity", "lambertian_peak_intensity"]
+__all__ = [
+    "REC709_LUMINANCE",
+    "photometric",
+    "exitance_from_luminance",
+    "luminance_from_exitance",
+    "isotropic_intensity",
+    "lambertian_peak_intensity",
+]
 
 #: Weights of R, G and B in the luminance Y of linear Rec. 709 / sRGB primaries (sum 1).
 REC709_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])

@@ -76,8 +76,9 @@ def _edge_distance(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return np.min(np.linalg.norm(p[:, None] - (a + t[..., None] * ab), axis=2), axis=1)
 
 
-def work_plane(polygon, height: float, spacing: float | None = None, border: float = 0.0, up: int | None = None,
-               scene=None) -> WorkPlane:
+def work_plane(
+    polygon, height: float, spacing: float | None = None, border: float = 0.0, up: int | None = None, scene=None
+) -> WorkPlane:
     """A grid of sensors at ``height`` over ``polygon``, facing up.
 
     Parameters
@@ -105,8 +106,9 @@ def work_plane(polygon, height: float, spacing: float | None = None, border: flo
         if up is None:
             axis = int(np.argmax(np.abs(scene.up)))
             if abs(abs(float(scene.up[axis])) - 1.0) > 1e-9:
-                raise InvalidInputError(f"the scene's up axis {tuple(map(float, scene.up))} is not a coordinate axis: "
-                                        "give work_plane's up")
+                raise InvalidInputError(
+                    f"the scene's up axis {tuple(map(float, scene.up))} is not a coordinate axis: give work_plane's up"
+                )
             up = axis
             if scene.up[axis] < 0:
                 raise InvalidInputError(f"the scene's up axis points down its axis {axis}: give work_plane's up")
@@ -142,9 +144,11 @@ def work_plane(polygon, height: float, spacing: float | None = None, border: flo
         points = float(np.prod(counts_f))
     need = points * WORK_PLANE_BYTES
     if not need <= available_host_bytes() / 2:
-        raise InvalidInputError(f"a work plane of {points:.3g} grid points at spacing {spacing:g} "
-                                f"would need {need / 2**30:.3g} GiB, more than half the memory available: use a "
-                                "larger spacing")
+        raise InvalidInputError(
+            f"a work plane of {points:.3g} grid points at spacing {spacing:g} "
+            f"would need {need / 2**30:.3g} GiB, more than half the memory available: use a "
+            "larger spacing"
+        )
     counts = counts_f.astype(int)
     steps = size / counts
     u = lo[0] + (np.arange(counts[0]) + 0.5) * steps[0]
@@ -164,5 +168,11 @@ def work_plane(polygon, height: float, spacing: float | None = None, border: flo
     normals = np.zeros_like(points)
     normals[:, up] = 1.0
     cells = np.stack([rows.ravel()[keep], cols.ravel()[keep]], axis=1)
-    return WorkPlane(points, normals, cells, (int(counts[1]), int(counts[0])), (float(steps[0]), float(steps[1])),
-                     (float(lo[0]), float(lo[1])))
+    return WorkPlane(
+        points,
+        normals,
+        cells,
+        (int(counts[1]), int(counts[0])),
+        (float(steps[0]), float(steps[1])),
+        (float(lo[0]), float(lo[1])),
+    )

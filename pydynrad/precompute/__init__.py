@@ -6,9 +6,9 @@
 * :func:`precompute_poses` and :func:`stored_poses`: a moving object's rows at each of its poses.
 """
 
-from .poses import precompute_poses, stored_poses
 from ..dynamic.poses import PoseRows
 from .distributed import SceneSpec, precompute_distributed
+from .poses import precompute_poses, stored_poses
 from .store import compute_store
 
 __all__ = ["PoseRows", "SceneSpec", "compute_store", "precompute_distributed", "precompute_poses", "stored_poses"]

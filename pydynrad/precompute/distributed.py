@@ -27,14 +27,13 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-
+from ..device.devices import default_device
 from ..errors import InvalidInputError, MissingExtraError, PydynradError
 from ..geometry.scene import Scene
-from ..scenes.byname import BUILTIN_SCENES, is_builtin, scene_by_name
-from ..rows.store import DEFAULT_BLOCK_ROWS, DEFAULT_TASK_ROWS, FormFactorStore, RowFunction
-from .store import compute_blocks, form_factor_rows, prepare_store, task_groups
-from ..device.devices import default_device
 from ..progress import progress_bar
+from ..rows.store import DEFAULT_BLOCK_ROWS, DEFAULT_TASK_ROWS, FormFactorStore, RowFunction
+from ..scenes.byname import BUILTIN_SCENES, is_builtin, scene_by_name
+from .store import compute_blocks, form_factor_rows, prepare_store, task_groups
 
 __all__ = ["SceneSpec", "opencl_worker_plugin_class", "precompute_distributed"]
 
@@ -62,14 +61,15 @@ class SceneSpec:
     def is_builtin(self) -> bool:
         return is_builtin(self.name)
 
-    def resolved(self) -> "SceneSpec":
+    def resolved(self) -> SceneSpec:
         """The same spec with a file path made absolute, so workers in other folders find it."""
         if self.is_builtin:
             return self
         p = Path(self.name).expanduser()
         if not p.is_file():
-            raise InvalidInputError(f"scene {self.name!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) "
-                                    "nor a mesh file")
+            raise InvalidInputError(
+                f"scene {self.name!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) nor a mesh file"
+            )
         return SceneSpec(str(p.resolve()), self.params)
 
     def build(self) -> Scene:
@@ -147,8 +147,17 @@ def _worker_prolongation(store: FormFactorStore):
     return pr
 
 
-def _blocks_task(path: str, group: list[int], payload, geometry_hash: str, resolution: int, patching: dict,
-                 row_function: RowFunction, part: str = "F", samples: int = 1) -> tuple[list[int], int, float]:
+def _blocks_task(
+    path: str,
+    group: list[int],
+    payload,
+    geometry_hash: str,
+    resolution: int,
+    patching: dict,
+    row_function: RowFunction,
+    part: str = "F",
+    samples: int = 1,
+) -> tuple[list[int], int, float]:
     """Compute and write the consecutive blocks ``group`` of F or G on a worker; returns (group, rows, seconds)."""
     t0 = time.perf_counter()
     scene = _worker_scene(payload, geometry_hash)
@@ -176,7 +185,9 @@ def _start_client(workers: int | None, scheduler: str | None):
 
     if scheduler is not None:
         if workers is not None:
-            raise InvalidInputError("give either workers (for a LocalCluster) or scheduler (an existing cluster), not both")
+            raise InvalidInputError(
+                "give either workers (for a LocalCluster) or scheduler (an existing cluster), not both"
+            )
         try:
             return Client(scheduler), None
         except ValueError as exc:  # distributed's address parser: no port, unknown scheme, ...
@@ -187,8 +198,9 @@ def _start_client(workers: int | None, scheduler: str | None):
         # cluster's start for 10 s, then failed it (distributed 2026.8). Collected here, now
         # that the exception is no longer held, with no other loop starting.
         gc.collect()
-        raise InvalidInputError(f"malformed scheduler address {scheduler!r} ({problem}); "
-                                "expected one like tcp://host:8786")
+        raise InvalidInputError(
+            f"malformed scheduler address {scheduler!r} ({problem}); expected one like tcp://host:8786"
+        )
     n = workers if workers is not None else (os.cpu_count() or 1)
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise InvalidInputError(f"workers must be a positive integer; got {workers!r}")
@@ -197,20 +209,37 @@ def _start_client(workers: int | None, scheduler: str | None):
             # The scheduler's HTTP server listens even without a dashboard, on 8787 unless told
             # otherwise; any free port spares a second precompute (or a user's own cluster) the
             # multi-line "Port 8787 is already in use" warning.
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                   silence_logs=logging.ERROR)
+            cluster = LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=logging.ERROR
+            )
         except (RuntimeError, OSError) as exc:  # a worker died while starting ("Nanny failed to start.")
-            raise PydynradError(f"the local Dask cluster of {n} workers failed to start ({exc}): "
-                                "a worker process exited or could not be spawned") from exc
+            raise PydynradError(
+                f"the local Dask cluster of {n} workers failed to start ({exc}): "
+                "a worker process exited or could not be spawned"
+            ) from exc
     return Client(cluster), cluster
 
 
-def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
-                           workers: int | None = None, scheduler: str | None = None, progress: bool | None = None,
-                           verify: bool = False, row_function: RowFunction = form_factor_rows,
-                           blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS, clusters=None,
-                           cluster_resolution: int | None = None, cluster_params: dict | None = None,
-                           compute_f: bool = True, cluster_basis: str = "linear", samples: int = 1) -> FormFactorStore:
+def precompute_distributed(
+    scene_spec,
+    path,
+    *,
+    resolution: int,
+    block_rows: int = DEFAULT_BLOCK_ROWS,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool | None = None,
+    verify: bool = False,
+    row_function: RowFunction = form_factor_rows,
+    blocks: Iterable[int] | None = None,
+    task_rows: int = DEFAULT_TASK_ROWS,
+    clusters=None,
+    cluster_resolution: int | None = None,
+    cluster_params: dict | None = None,
+    compute_f: bool = True,
+    cluster_basis: str = "linear",
+    samples: int = 1,
+) -> FormFactorStore:
     """Compute every missing block of the store at ``path`` on a Dask cluster; returns the store.
 
     Parameters
@@ -246,25 +275,53 @@ def precompute_distributed(scene_spec, path, *, resolution: int, block_rows: int
     scene = spec if isinstance(spec, Scene) else spec.build()
     patching = {} if isinstance(spec, Scene) else spec.recipe()
     path = Path(path).resolve()
-    store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
-                                verify=verify, blocks=blocks, clusters=clusters, cluster_resolution=cluster_resolution,
-                                cluster_params=cluster_params, compute_f=compute_f, cluster_basis=cluster_basis,
-                                samples=samples)
+    store, todo = prepare_store(
+        scene,
+        path,
+        resolution=resolution,
+        block_rows=block_rows,
+        patching=patching,
+        verify=verify,
+        blocks=blocks,
+        clusters=clusters,
+        cluster_resolution=cluster_resolution,
+        cluster_params=cluster_params,
+        compute_f=compute_f,
+        cluster_basis=cluster_basis,
+        samples=samples,
+    )
     if not todo["F"] and not todo["G"]:
         return store
     client, cluster = _start_client(workers, scheduler)
     try:
         client.register_plugin(opencl_worker_plugin_class()())
-        payload = spec if isinstance(spec, SceneSpec) else client.scatter((scene.points, scene.triangles), broadcast=True)
+        payload = (
+            spec if isinstance(spec, SceneSpec) else client.scatter((scene.points, scene.triangles), broadcast=True)
+        )
         ghash = scene.geometry_hash()
         rows = sum(len(store.block_range(k)) for part in ("F", "G") for k in todo[part])
-        with progress_bar(progress, total=rows, unit="row", desc="form factors" + (" and G" if todo["G"] else "")) as bar:
+        with progress_bar(
+            progress, total=rows, unit="row", desc="form factors" + (" and G" if todo["G"] else "")
+        ) as bar:
             # F first, then G: G's tasks then find F's blocks on disk and sum them (compute_blocks), no hemicubes.
             for part in ("F", "G"):
-                futures = [client.submit(_blocks_task, str(path), group, payload, ghash, resolution, patching,
-                                         row_function, part, samples, pure=False,
-                                         key=f"pydynrad-{part}blocks-{ghash[:16]}-{group[0]}-{group[-1]}")
-                           for group in task_groups(store, todo[part], task_rows)]
+                futures = [
+                    client.submit(
+                        _blocks_task,
+                        str(path),
+                        group,
+                        payload,
+                        ghash,
+                        resolution,
+                        patching,
+                        row_function,
+                        part,
+                        samples,
+                        pure=False,
+                        key=f"pydynrad-{part}blocks-{ghash[:16]}-{group[0]}-{group[-1]}",
+                    )
+                    for group in task_groups(store, todo[part], task_rows)
+                ]
                 for fut in as_completed(futures):
                     _, nrows, _ = fut.result()  # re-raises a worker's error here, with its traceback
                     bar.update(nrows)

@@ -8,17 +8,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InvalidInputError
-from ..dynamic.occlusion import refresh_order
-from ..dynamic.poses import PoseRows
 from ..checks import floats
 from ..checks import resolution as checked_resolution
 from ..defaults import RESOLUTION
+from ..dynamic.occlusion import refresh_order
+from ..dynamic.poses import PoseRows
+from ..errors import InvalidInputError
 from ..formfactors import form_factors
+from ..geometry.objects import _objects, instanced, rigid_transform
 from ..progress import progress_bar
-from ..geometry.objects import _objects
-from ..geometry.objects import instanced
-from ..geometry.objects import rigid_transform
 from ..rows.store import StoreMismatchError
 
 __all__ = ["precompute_poses", "stored_poses"]
@@ -34,7 +32,9 @@ def _configurations(objs, poses):
         config = floats(config, "a configuration of poses")
         transforms = [rigid_transform(t) for t in (config[None] if config.ndim == 2 else config)]
         if len(transforms) != len(objs):
-            raise InvalidInputError(f"a configuration needs one transform per object ({len(objs)}); got {len(transforms)}")
+            raise InvalidInputError(
+                f"a configuration needs one transform per object ({len(objs)}); got {len(transforms)}"
+            )
         yield transforms
 
 
@@ -52,8 +52,9 @@ def stored_poses(scene, objects, store, resolution: int = RESOLUTION) -> PoseRow
     return PoseRows(len(scene) + sum(len(o) for o in objs), R, PoseRows.geometry_of(scene, objs), store=store)
 
 
-def precompute_poses(scene, objects, poses, resolution: int = RESOLUTION, device=None, store=None,
-                     progress: bool | None = None) -> PoseRows:
+def precompute_poses(
+    scene, objects, poses, resolution: int = RESOLUTION, device=None, store=None, progress: bool | None = None
+) -> PoseRows:
     """The rows of each configuration in ``poses`` for :class:`pydynrad.MovingObjects`'s ``poses=``.
 
     ``poses``: a sequence of configurations, each a (4, 4) transform per object (a single

@@ -16,11 +16,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..checks import integer
-from ..rows.store import (DEFAULT_BLOCK_ROWS, DEFAULT_TASK_ROWS, FormFactorStore, RowFunction)
+from ..farfield.gather import basis_prolongation, cluster_form_factors
 from ..formfactors import form_factors
 from ..progress import progress_bar
-from ..farfield.gather import basis_prolongation
-from ..farfield.gather import cluster_form_factors
+from ..rows.store import DEFAULT_BLOCK_ROWS, DEFAULT_TASK_ROWS, FormFactorStore, RowFunction
 
 
 def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None, samples: int = 1) -> sp.csr_matrix:
@@ -29,18 +28,31 @@ def form_factor_rows(scene, rows: np.ndarray, resolution: int, device=None, samp
     return form_factors(scene, resolution=resolution, rows=rows, device=device, samples=samples)
 
 
-def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: dict | None, verify: bool,
-                  blocks: Iterable[int] | None, clusters=None, cluster_resolution: int | None = None,
-                  cluster_params: dict | None = None, compute_f: bool = True,
-                  cluster_basis: str = "linear", samples: int = 1) -> tuple[FormFactorStore, dict[str, list[int]]]:
+def prepare_store(
+    scene,
+    path,
+    *,
+    resolution: int,
+    block_rows: int,
+    patching: dict | None,
+    verify: bool,
+    blocks: Iterable[int] | None,
+    clusters=None,
+    cluster_resolution: int | None = None,
+    cluster_params: dict | None = None,
+    compute_f: bool = True,
+    cluster_basis: str = "linear",
+    samples: int = 1,
+) -> tuple[FormFactorStore, dict[str, list[int]]]:
     """Create or reopen a store for writing: stale temporaries removed, ``clusters`` recorded
     (as the prolongation of ``cluster_basis``, :func:`pydynrad.farfield.gather.basis_prolongation`).
 
     Returns the store and the blocks to compute per part: {"F": [...], "G": [...]} (G's when
     the store has clusters, recorded now or before; F's unless ``compute_f`` is False).
     """
-    store = FormFactorStore.create(scene, path, resolution=resolution, block_rows=block_rows,
-                                   patching=patching, exist_ok=True, samples=samples)
+    store = FormFactorStore.create(
+        scene, path, resolution=resolution, block_rows=block_rows, patching=patching, exist_ok=True, samples=samples
+    )
     store.remove_stale_temporaries()
     if clusters is not None:
         given = sp.issparse(clusters) or np.ndim(clusters) == 2  # a matrix is its own prolongation
@@ -49,8 +61,12 @@ def prepare_store(scene, path, *, resolution: int, block_rows: int, patching: di
             # on demand at that resolution; at another one the two disagree, by far more than
             # the far field's own error (docs/decisions/0021-far-field-without-f.md).
             cluster_resolution = resolution
-        store.set_clusters(basis_prolongation(scene, clusters, cluster_basis), resolution=cluster_resolution,
-                           params=cluster_params, basis="given" if given else cluster_basis)
+        store.set_clusters(
+            basis_prolongation(scene, clusters, cluster_basis),
+            resolution=cluster_resolution,
+            params=cluster_params,
+            basis="given" if given else cluster_basis,
+        )
     todo = {}
     for part in ("F", "G"):
         wanted = part == "G" and store.has_clusters or part == "F" and compute_f
@@ -77,8 +93,15 @@ def task_groups(store: FormFactorStore, blocks: Iterable[int], task_rows: int) -
     return groups
 
 
-def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function: RowFunction, device=None,
-                   part: str = "F", prolongation=None) -> int:
+def compute_blocks(
+    store: FormFactorStore,
+    scene,
+    group: list[int],
+    row_function: RowFunction,
+    device=None,
+    part: str = "F",
+    prolongation=None,
+) -> int:
     """Compute the consecutive blocks ``group`` of F (or of G) in one call and write each; returns rows done.
 
     F's rows come from ``row_function``; G's = F Pr with the store's prolongation (pass it as
@@ -94,27 +117,43 @@ def compute_blocks(store: FormFactorStore, scene, group: list[int], row_function
     if part == "G":
         pr = store.prolongation() if prolongation is None else prolongation
         if store.cluster_resolution == store.header["params"]["resolution"] and all(
-                store.block_path(k).exists() for k in group):
+            store.block_path(k).exists() for k in group
+        ):
             csr = sp.csr_matrix(sp.vstack([store.read_block(k) for k in group], format="csr") @ pr, dtype=np.float32)
         else:
-            csr = cluster_form_factors(scene, pr, store.cluster_resolution, rows=rows, device=device,
-                                       samples=store.cluster_samples)
+            csr = cluster_form_factors(
+                scene, pr, store.cluster_resolution, rows=rows, device=device, samples=store.cluster_samples
+            )
     else:
         # Row functions written before samples existed keep working for single-hemicube stores.
         sampled = {"samples": store.samples} if store.samples > 1 else {}
         csr = sp.csr_matrix(row_function(scene, rows, store.header["params"]["resolution"], device=device, **sampled))
     for k in group:
         r = store.block_range(k)
-        store.write_block(k, csr[r.start - first.start:r.stop - first.start], part)
+        store.write_block(k, csr[r.start - first.start : r.stop - first.start], part)
     return last.stop - first.start
 
 
-def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
-                  patching: dict | None = None, progress: bool | None = None, verify: bool = False,
-                  row_function: RowFunction = form_factor_rows, device=None,
-                  blocks: Iterable[int] | None = None, task_rows: int = DEFAULT_TASK_ROWS, clusters=None,
-                  cluster_resolution: int | None = None, cluster_params: dict | None = None,
-                  compute_f: bool = True, cluster_basis: str = "linear", samples: int = 1) -> FormFactorStore:
+def compute_store(
+    scene,
+    path,
+    *,
+    resolution: int,
+    block_rows: int = DEFAULT_BLOCK_ROWS,
+    patching: dict | None = None,
+    progress: bool | None = None,
+    verify: bool = False,
+    row_function: RowFunction = form_factor_rows,
+    device=None,
+    blocks: Iterable[int] | None = None,
+    task_rows: int = DEFAULT_TASK_ROWS,
+    clusters=None,
+    cluster_resolution: int | None = None,
+    cluster_params: dict | None = None,
+    compute_f: bool = True,
+    cluster_basis: str = "linear",
+    samples: int = 1,
+) -> FormFactorStore:
     """Create (or resume) the store at ``path`` and compute every missing block in this process.
 
     ``samples``: hemicubes per row (1, 4, 16, ...: :func:`pydynrad.form_factors`), recorded
@@ -140,14 +179,29 @@ def compute_store(scene, path, *, resolution: int, block_rows: int = DEFAULT_BLO
     rows out (a store of G alone, for walks that compute F's rows on demand).
     """
 
-    store, todo = prepare_store(scene, path, resolution=resolution, block_rows=block_rows, patching=patching,
-                                verify=verify, blocks=blocks, clusters=clusters, cluster_resolution=cluster_resolution,
-                                cluster_params=cluster_params, compute_f=compute_f, cluster_basis=cluster_basis,
-                                samples=samples)
+    store, todo = prepare_store(
+        scene,
+        path,
+        resolution=resolution,
+        block_rows=block_rows,
+        patching=patching,
+        verify=verify,
+        blocks=blocks,
+        clusters=clusters,
+        cluster_resolution=cluster_resolution,
+        cluster_params=cluster_params,
+        compute_f=compute_f,
+        cluster_basis=cluster_basis,
+        samples=samples,
+    )
     pr = store.prolongation() if todo["G"] else None
     for part, desc in (("F", "form factors"), ("G", "cluster form factors")):
-        with progress_bar(progress if todo[part] else False, total=sum(len(store.block_range(k)) for k in todo[part]),
-                          unit="row", desc=desc) as bar:
+        with progress_bar(
+            progress if todo[part] else False,
+            total=sum(len(store.block_range(k)) for k in todo[part]),
+            unit="row",
+            desc=desc,
+        ) as bar:
             for group in task_groups(store, todo[part], task_rows):
                 bar.update(compute_blocks(store, scene, group, row_function, device, part, pr))
     return store

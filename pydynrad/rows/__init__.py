@@ -17,6 +17,17 @@ from .files import load_form_factors, open_form_factors, save_form_factors
 from .sources import CSRRows, HemicubeRows, RowSource, as_row_source
 from .store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError
 
-__all__ = ["as_row_source", "CSRRows", "FormFactorStore", "HemicubeRows", "load_form_factors",
-           "open_form_factors", "RowCache", "RowSource", "save_form_factors", "StoreCorruptError",
-           "StoreIncompleteError", "StoreMismatchError"]
+__all__ = [
+    "as_row_source",
+    "CSRRows",
+    "FormFactorStore",
+    "HemicubeRows",
+    "load_form_factors",
+    "open_form_factors",
+    "RowCache",
+    "RowSource",
+    "save_form_factors",
+    "StoreCorruptError",
+    "StoreIncompleteError",
+    "StoreMismatchError",
+]

@@ -31,8 +31,10 @@ ROW_OVERHEAD = 384
 def _split_rows(csr: sp.csr_matrix, idx: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     # Copies, so a cached row never keeps its whole source block alive.
     ip = csr.indptr
-    return {int(r): (csr.indices[ip[k]:ip[k + 1]].astype(np.int32), csr.data[ip[k]:ip[k + 1]].astype(np.float32))
-            for k, r in enumerate(idx)}
+    return {
+        int(r): (csr.indices[ip[k] : ip[k + 1]].astype(np.int32), csr.data[ip[k] : ip[k + 1]].astype(np.float32))
+        for k, r in enumerate(idx)
+    }
 
 
 def _row_cost(row: tuple[np.ndarray, np.ndarray]) -> int:
@@ -58,7 +60,9 @@ class RowCache:
 
     def __init__(self, source: RowSource, max_bytes: int) -> None:
         if not isinstance(source, RowSource):
-            raise InvalidInputError(f"source must be a RowSource (n_patches and rows(idx)); got {type(source).__name__}")
+            raise InvalidInputError(
+                f"source must be a RowSource (n_patches and rows(idx)); got {type(source).__name__}"
+            )
         if isinstance(max_bytes, bool) or not isinstance(max_bytes, (int, np.integer)) or max_bytes < 0:
             raise InvalidInputError(f"max_bytes must be a non-negative integer; got {max_bytes!r}")
         self.source = source
@@ -176,7 +180,7 @@ class RowCache:
         """Wait for running prefetches and stop the background thread."""
         self._pool.shutdown(wait=True)
 
-    def __enter__(self) -> "RowCache":
+    def __enter__(self) -> RowCache:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -186,5 +190,7 @@ class RowCache:
         return len(self._rows)
 
     def __repr__(self) -> str:
-        return (f"RowCache({len(self._rows)} rows, {self.nbytes / 2**20:.1f} of {self.max_bytes / 2**20:.1f} MiB, "
-                f"source={type(self.source).__name__})")
+        return (
+            f"RowCache({len(self._rows)} rows, {self.nbytes / 2**20:.1f} of {self.max_bytes / 2**20:.1f} MiB, "
+            f"source={type(self.source).__name__})"
+        )

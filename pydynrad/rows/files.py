@@ -22,17 +22,24 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..atomic import check_parent_folder, write_atomic
-from ..checks import resolution as checked_resolution, sparse_structure
-from ..geometry.scene import checked_scene
+from ..checks import resolution as checked_resolution
+from ..checks import sparse_structure
 from ..errors import InvalidInputError
 from ..formfactors import checked_samples
+from ..geometry.scene import checked_scene
 from .cache import RowCache
 from .sources import RowSource
-from .store import FormFactorStore
-from .store import StoreIncompleteError
+from .store import FormFactorStore, StoreIncompleteError
 
-__all__ = ["FF_FORMAT", "is_form_factor_file", "load_form_factors", "open_form_factors", "recorded_resolution",
-           "save_form_factors", "whole_matrix"]
+__all__ = [
+    "FF_FORMAT",
+    "is_form_factor_file",
+    "load_form_factors",
+    "open_form_factors",
+    "recorded_resolution",
+    "save_form_factors",
+    "whole_matrix",
+]
 
 FF_FORMAT = "pydynrad-form-factors"
 FF_VERSION = 1
@@ -55,17 +62,31 @@ def save_form_factors(scene, path, F, resolution: int, samples: int = 1) -> Path
     n = len(scene)
     if F.shape != (n, n):
         raise InvalidInputError(f"F must have shape ({n}, {n}) for this {n}-patch scene; got {F.shape}")
-    header = {"format": FF_FORMAT, "version": FF_VERSION, "scene": scene.name, "geometry_hash": scene.geometry_hash(),
-              "n_patches": n, "resolution": resolution, "samples": samples, "nnz": int(F.nnz)}
+    header = {
+        "format": FF_FORMAT,
+        "version": FF_VERSION,
+        "scene": scene.name,
+        "geometry_hash": scene.geometry_hash(),
+        "n_patches": n,
+        "resolution": resolution,
+        "samples": samples,
+        "nnz": int(F.nnz),
+    }
     buf = io.BytesIO()
-    np.savez(buf, header=np.array(json.dumps(header)), data=F.data.astype(np.float32),
-             indices=F.indices.astype(np.int32), indptr=F.indptr.astype(np.int64))
+    np.savez(
+        buf,
+        header=np.array(json.dumps(header)),
+        data=F.data.astype(np.float32),
+        indices=F.indices.astype(np.int32),
+        indptr=F.indptr.astype(np.int64),
+    )
     write_atomic(path, buf.getvalue())
     return path
 
 
-def load_form_factors(scene, path, *, resolution: int | None = None,
-                      samples: int | None = None) -> tuple[sp.csr_matrix, dict]:
+def load_form_factors(
+    scene, path, *, resolution: int | None = None, samples: int | None = None
+) -> tuple[sp.csr_matrix, dict]:
     """Read a file written by :func:`save_form_factors` for ``scene``; returns (F (N, N) float32 CSR, header).
 
     The header's ``samples`` is 1 for files written before it was recorded (they were all
@@ -81,15 +102,21 @@ def load_form_factors(scene, path, *, resolution: int | None = None,
     header, (data, indices, indptr) = _read(path, arrays=True)
     n = int(header["n_patches"])
     if header.get("geometry_hash") != scene.geometry_hash():
-        raise InvalidInputError(f"form-factor file {str(path)!r} was computed for another scene geometry "
-                                f"({header.get('scene')!r}, {n} patches; this scene has {len(scene)} patches): "
-                                "recompute it with `pydynrad formfactors`")
+        raise InvalidInputError(
+            f"form-factor file {str(path)!r} was computed for another scene geometry "
+            f"({header.get('scene')!r}, {n} patches; this scene has {len(scene)} patches): "
+            "recompute it with `pydynrad formfactors`"
+        )
     if n != len(scene) or data.ndim != 1:
-        raise InvalidInputError(f"form-factor file {str(path)!r} is damaged: header says {n} patches, "
-                                f"data has shape {data.shape}; this scene has {len(scene)} patches")
+        raise InvalidInputError(
+            f"form-factor file {str(path)!r} is damaged: header says {n} patches, "
+            f"data has shape {data.shape}; this scene has {len(scene)} patches"
+        )
     if data.dtype not in (np.float32, np.float64):  # float16, complex or text: scipy would fail or warn inside
-        raise InvalidInputError(f"form-factor file {str(path)!r} holds {data.dtype} values; form factors are float32 "
-                                "or float64: recompute it with `pydynrad formfactors`")
+        raise InvalidInputError(
+            f"form-factor file {str(path)!r} holds {data.dtype} values; form factors are float32 "
+            "or float64: recompute it with `pydynrad formfactors`"
+        )
     _check_parameters(path, header, resolution, samples)
     # Before scipy sees them: its kernels index memory with these arrays unchecked.
     sparse_structure(indptr, indices, (n, n), f"form-factor file {str(path)!r}", nnz=len(data))
@@ -109,8 +136,10 @@ def _check_parameters(path: Path, header: dict, resolution: int | None, samples:
         want["samples"] = checked_samples(samples, want["resolution"] or have["resolution"])
     diff = [f"{k} {have[k]}, requested {v}" for k, v in want.items() if v is not None and have[k] != v]
     if diff:
-        raise InvalidInputError(f"form-factor file {str(path)!r} was computed with other parameters "
-                                f"({'; '.join(diff)}): recompute it with `pydynrad formfactors`")
+        raise InvalidInputError(
+            f"form-factor file {str(path)!r} was computed with other parameters "
+            f"({'; '.join(diff)}): recompute it with `pydynrad formfactors`"
+        )
 
 
 def _read(path: Path, arrays: bool) -> tuple[dict, tuple]:
@@ -141,22 +170,31 @@ def _open_store(scene, path: Path, samples: int | None = None, resolution: int |
     """The complete store at ``path``, checked against ``scene`` with the parameters it records
     (and with ``samples`` and ``resolution`` where given)."""
     params = FormFactorStore.read_header(path)["params"]
-    store = FormFactorStore.open(scene, path, resolution=params["resolution"] if resolution is None else resolution,
-                                 patching=params["patching"],
-                                 samples=params.get("samples", 1) if samples is None else samples)
+    store = FormFactorStore.open(
+        scene,
+        path,
+        resolution=params["resolution"] if resolution is None else resolution,
+        patching=params["patching"],
+        samples=params.get("samples", 1) if samples is None else samples,
+    )
     missing = store.missing_blocks()
     if missing and len(missing) == store.n_blocks and store.complete_clusters:
-        raise StoreIncompleteError(f"form-factor store {str(path)!r} holds G alone (made with --no-f), not F's rows, "
-                                   "which the CLI's commands need: from Python, DynamicRadiosity(scene, None, "
-                                   "cluster_form_factors=store.cluster_form_factors(...)); or store F too, without --no-f")
+        raise StoreIncompleteError(
+            f"form-factor store {str(path)!r} holds G alone (made with --no-f), not F's rows, "
+            "which the CLI's commands need: from Python, DynamicRadiosity(scene, None, "
+            "cluster_form_factors=store.cluster_form_factors(...)); or store F too, without --no-f"
+        )
     if missing:
-        raise StoreIncompleteError(f"form-factor store {str(path)!r} is unfinished ({len(missing)} of {store.n_blocks} "
-                                   "blocks missing): run `pydynrad formfactors` with the same options again to finish it")
+        raise StoreIncompleteError(
+            f"form-factor store {str(path)!r} is unfinished ({len(missing)} of {store.n_blocks} "
+            "blocks missing): run `pydynrad formfactors` with the same options again to finish it"
+        )
     return store
 
 
-def open_form_factors(scene, path, cache_bytes: int | None = None, *, samples: int | None = None,
-                      resolution: int | None = None):
+def open_form_factors(
+    scene, path, cache_bytes: int | None = None, *, samples: int | None = None, resolution: int | None = None
+):
     """F of ``scene`` from a ``.npz`` file or a form-factor store folder.
 
     Returns a float32 CSR matrix (N, N) for a file. For a store, the

@@ -13,7 +13,6 @@ import scipy.sparse as sp
 
 from ..errors import InvalidInputError
 
-
 #: The coarse bases a prolongation can be made for from cluster labels.
 BASES = ("indicator", "linear")
 
@@ -26,7 +25,9 @@ def check_prolongation(prolongation, n: int) -> sp.csr_matrix:
         try:
             a = np.asarray(prolongation, dtype=np.float64)
         except (TypeError, ValueError):
-            raise InvalidInputError(f"prolongation must be an (N, C) matrix of numbers; got {type(prolongation).__name__}") from None
+            raise InvalidInputError(
+                f"prolongation must be an (N, C) matrix of numbers; got {type(prolongation).__name__}"
+            ) from None
         if a.ndim != 2:
             raise InvalidInputError(f"prolongation must be a 2-D (N, C) matrix; got shape {a.shape}")
         pr = sp.csr_matrix(a)
@@ -53,8 +54,9 @@ def as_prolongation(clusters, n: int) -> sp.csr_matrix:
         return check_prolongation(clusters, n)
     labels = np.asarray(labels)
     if labels.shape != (n,) or not np.issubdtype(labels.dtype, np.integer) or (n and labels.min() < 0):
-        raise InvalidInputError(f"cluster labels must be {n} integers >= 0 (one per patch); got shape {labels.shape}, "
-                                f"dtype {labels.dtype}")
+        raise InvalidInputError(
+            f"cluster labels must be {n} integers >= 0 (one per patch); got shape {labels.shape}, dtype {labels.dtype}"
+        )
     C = int(getattr(clusters, "count", labels.max() + 1 if n else 1))
     return check_prolongation(sp.csr_matrix((np.ones(n), (np.arange(n), labels)), shape=(n, C)), n)
 

@@ -17,11 +17,10 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import scipy.sparse as sp
 
-from ..checks import check_form_factor_rows, patch_indices, resolution as checked_resolution
+from ..checks import check_form_factor_rows, patch_indices
+from ..checks import resolution as checked_resolution
 from ..errors import InvalidInputError
-from ..formfactors import checked_samples
-from ..formfactors import hemicube_blocks
-from ..formfactors import stack_blocks
+from ..formfactors import checked_samples, hemicube_blocks, stack_blocks
 
 __all__ = ["RowSource", "CSRRows", "HemicubeRows", "as_row_source", "read_rows"]
 

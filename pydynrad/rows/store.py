@@ -66,17 +66,14 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from ..atomic import TMP_MARK, write_atomic
-from ..checks import integer, patch_indices, resolution as checked_resolution, sparse_structure
-from ..geometry.scene import checked_scene
 from .._version import __version__
+from ..atomic import TMP_MARK, write_atomic
+from ..checks import integer, patch_indices, sparse_structure
+from ..checks import resolution as checked_resolution
 from ..errors import InvalidInputError, PydynradError
-from .prolongation import LINEAR_FUNCTIONS
-from .prolongation import as_prolongation
-from .prolongation import g_samples
-from .prolongation import labels_of_linear
-from .prolongation import split_prolongation
 from ..formfactors import checked_samples
+from ..geometry.scene import checked_scene
+from .prolongation import LINEAR_FUNCTIONS, as_prolongation, g_samples, labels_of_linear, split_prolongation
 
 __all__ = [
     "FormFactorStore",
@@ -142,8 +139,14 @@ def _write_csr(path: Path, k: int, rows: range, block, n_cols: int, binding: str
         raise InvalidInputError(f"block {k} holds negative, NaN or infinite form factors")
     indptr = csr.indptr.astype(np.int64)
     indices = csr.indices.astype(np.int32)
-    meta = {"block": int(k), "row_start": rows.start, "row_stop": rows.stop, "nnz": int(indices.size),
-            "sha256": _digest(indptr, indices, data, binding), "bound": bool(binding)}
+    meta = {
+        "block": int(k),
+        "row_start": rows.start,
+        "row_stop": rows.stop,
+        "nnz": int(indices.size),
+        "sha256": _digest(indptr, indices, data, binding),
+        "bound": bool(binding),
+    }
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=COMPRESS_LEVEL) as zf:
         for name, a in (("indptr", indptr), ("indices", indices), ("data", data)):
@@ -159,12 +162,26 @@ def _write_csr(path: Path, k: int, rows: range, block, n_cols: int, binding: str
 #: struct.error), a broken DEFLATE stream (zlib.error, which zipfile lets through), an unknown
 #: compression or an encrypted member (NotImplementedError, RuntimeError), the .npy headers and
 #: meta.json (ValueError, UnicodeDecodeError, KeyError, TypeError, AttributeError, IndexError).
-DECODE_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error, struct.error,
-                 NotImplementedError, RuntimeError, TypeError, AttributeError, IndexError, OverflowError)
+DECODE_ERRORS = (
+    OSError,
+    ValueError,
+    KeyError,
+    EOFError,
+    zipfile.BadZipFile,
+    zlib.error,
+    struct.error,
+    NotImplementedError,
+    RuntimeError,
+    TypeError,
+    AttributeError,
+    IndexError,
+    OverflowError,
+)
 
 
-def _read_csr(path: Path, k: int, rows: range, n_cols: int, what: str, store: Path, binding: str = "",
-              legacy: bool = True) -> sp.csr_matrix:
+def _read_csr(
+    path: Path, k: int, rows: range, n_cols: int, what: str, store: Path, binding: str = "", legacy: bool = True
+) -> sp.csr_matrix:
     """Read and verify a block written by :func:`_write_csr`; ``what`` names it in errors. Every
     decoding or parse error is a :class:`StoreCorruptError` naming the block. ``legacy``: the
     store's blocks may be of the format from before checksums were bound (decided once per
@@ -174,27 +191,40 @@ def _read_csr(path: Path, k: int, rows: range, n_cols: int, what: str, store: Pa
             meta = json.loads(zf.read("meta.json"))
             if not isinstance(meta, dict):
                 raise ValueError("meta.json is not an object")
-            arrays = {n: np.lib.format.read_array(zf.open(f"{n}.npy"), allow_pickle=False)
-                      for n in ("indptr", "indices", "data")}
+            arrays = {
+                n: np.lib.format.read_array(zf.open(f"{n}.npy"), allow_pickle=False)
+                for n in ("indptr", "indices", "data")
+            }
     except FileNotFoundError:
-        raise StoreIncompleteError(f"{what} of store {store} has not been computed; run compute_store to finish "
-                                   "the store") from None
+        raise StoreIncompleteError(
+            f"{what} of store {store} has not been computed; run compute_store to finish the store"
+        ) from None
     except DECODE_ERRORS as exc:
-        raise StoreCorruptError(f"{what} of store {store} is corrupt: file {path} cannot be decoded "
-                                f"({type(exc).__name__}: {exc}); run pydynrad formfactors with --verify (or "
-                                "compute_store(..., verify=True)) to recompute it") from exc
+        raise StoreCorruptError(
+            f"{what} of store {store} is corrupt: file {path} cannot be decoded "
+            f"({type(exc).__name__}: {exc}); run pydynrad formfactors with --verify (or "
+            "compute_store(..., verify=True)) to recompute it"
+        ) from exc
     indptr, indices, data = arrays["indptr"], arrays["indices"], arrays["data"]
     if binding and not legacy and meta.get("bound") is not True:
-        raise StoreCorruptError(f"{what} of store {store}: file {path} has the unbound checksum of a store from "
-                                "before checksums were bound, in a store whose blocks are bound (a block from "
-                                "elsewhere); run pydynrad formfactors with --verify to recompute it")
+        raise StoreCorruptError(
+            f"{what} of store {store}: file {path} has the unbound checksum of a store from "
+            "before checksums were bound, in a store whose blocks are bound (a block from "
+            "elsewhere); run pydynrad formfactors with --verify to recompute it"
+        )
     # Blocks written before checksums were bound to their store carry no "bound" flag.
     bound = binding if meta.get("bound") else ""
-    if (meta.get("block") != k or meta.get("row_start") != rows.start or meta.get("row_stop") != rows.stop
-            or meta.get("sha256") != _digest(indptr, indices, data, bound)):
-        raise StoreCorruptError(f"{what} of store {store}: file {path} fails its checksum or belongs to another "
-                                "store or block; run pydynrad formfactors with --verify (or compute_store(..., "
-                                "verify=True)) to recompute it")
+    if (
+        meta.get("block") != k
+        or meta.get("row_start") != rows.start
+        or meta.get("row_stop") != rows.stop
+        or meta.get("sha256") != _digest(indptr, indices, data, bound)
+    ):
+        raise StoreCorruptError(
+            f"{what} of store {store}: file {path} fails its checksum or belongs to another "
+            "store or block; run pydynrad formfactors with --verify (or compute_store(..., "
+            "verify=True)) to recompute it"
+        )
     try:  # a consistent checksum over hand-made arrays still must not send scipy past memory
         sparse_structure(indptr, indices, (len(rows), n_cols), f"file {path}", nnz=len(data))
     except InvalidInputError as exc:
@@ -232,9 +262,16 @@ def _canonical_params(resolution: int, patching: dict | None, samples: int = 1) 
         # A JSON round trip makes tuples lists, so the recorded and the requested values compare equal.
         patch = json.loads(json.dumps(dict(patching or {}), sort_keys=True))
     except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"patching parameters must be JSON-serialisable (numbers, strings, lists): {exc}") from exc
-    return {"resolution": int(resolution), "samples": samples, "patching": patch, "pydynrad_version": _library_version(),
-            "dtype": "float32"}
+        raise InvalidInputError(
+            f"patching parameters must be JSON-serialisable (numbers, strings, lists): {exc}"
+        ) from exc
+    return {
+        "resolution": int(resolution),
+        "samples": samples,
+        "patching": patch,
+        "pydynrad_version": _library_version(),
+        "dtype": "float32",
+    }
 
 
 #: The most rows a block may hold (a block is one file read whole: 2^31 rows is past any use,
@@ -244,25 +281,30 @@ MAX_BLOCK_ROWS = 2**31 - 1
 
 def _described(pose_header: dict) -> list[str]:
     """Each object of a pose header as 'name (patches, hash prefix)'."""
-    return [f"{o.get('name')} ({o.get('n_patches')} patches, {str(o.get('geometry_hash'))[:8]})"
-            for o in pose_header.get("objects", [])]
+    return [
+        f"{o.get('name')} ({o.get('n_patches')} patches, {str(o.get('geometry_hash'))[:8]})"
+        for o in pose_header.get("objects", [])
+    ]
 
 
 def _check_header_fields(path: Path, header: dict) -> None:
     """StoreCorruptError naming the first field of a store header that every reader relies on
     and that is missing or of the wrong kind (block_rows 0, a string, no params, ...)."""
+
     def positive_int(v) -> bool:  # within int64: numpy indexes with them (10**20 had crashed a read)
         return isinstance(v, int) and not isinstance(v, bool) and 1 <= v < 2**62
 
     params = header.get("params")
     sub = params if isinstance(params, dict) else {}
-    fields = (("n_patches", header.get("n_patches"), positive_int, "a positive integer"),
-              ("block_rows", header.get("block_rows"), positive_int, "a positive integer"),
-              ("geometry_hash", header.get("geometry_hash"), lambda v: isinstance(v, str), "a string"),
-              ("params", params, lambda v: isinstance(v, dict), "an object"),
-              ("params.resolution", sub.get("resolution"), positive_int, "a positive integer"),
-              ("params.samples", sub.get("samples", 1), positive_int, "a positive integer"),
-              ("params.patching", sub.get("patching"), lambda v: isinstance(v, dict), "an object"))
+    fields = (
+        ("n_patches", header.get("n_patches"), positive_int, "a positive integer"),
+        ("block_rows", header.get("block_rows"), positive_int, "a positive integer"),
+        ("geometry_hash", header.get("geometry_hash"), lambda v: isinstance(v, str), "a string"),
+        ("params", params, lambda v: isinstance(v, dict), "an object"),
+        ("params.resolution", sub.get("resolution"), positive_int, "a positive integer"),
+        ("params.samples", sub.get("samples", 1), positive_int, "a positive integer"),
+        ("params.patching", sub.get("patching"), lambda v: isinstance(v, dict), "an object"),
+    )
     for name, value, ok, kind in fields:
         if not ok(value):
             raise StoreCorruptError(f"store header {path / HEADER}: {name} must be {kind}; got {value!r}")
@@ -279,8 +321,9 @@ class FormFactorStore:
     def __init__(self, path: Path, header: dict) -> None:
         self.path = Path(path)  # a str too (it had raised a bare TypeError at the first block)
         if not isinstance(header, dict):
-            raise InvalidInputError(f"header must be a store header (a dict, FormFactorStore.read_header); got "
-                                    f"{type(header).__name__}")
+            raise InvalidInputError(
+                f"header must be a store header (a dict, FormFactorStore.read_header); got {type(header).__name__}"
+            )
         _check_header_fields(self.path, header)
         self.header = header
         self._legacy: bool | None = None  # decided once, on the first read (legacy)
@@ -291,8 +334,17 @@ class FormFactorStore:
 
     # -- creation and opening --------------------------------------------------------------
     @classmethod
-    def create(cls, scene, path, *, resolution: int, block_rows: int = DEFAULT_BLOCK_ROWS,
-               patching: dict | None = None, exist_ok: bool = False, samples: int = 1) -> "FormFactorStore":
+    def create(
+        cls,
+        scene,
+        path,
+        *,
+        resolution: int,
+        block_rows: int = DEFAULT_BLOCK_ROWS,
+        patching: dict | None = None,
+        exist_ok: bool = False,
+        samples: int = 1,
+    ) -> FormFactorStore:
         """Make a new, empty store for ``scene`` at ``path`` (a folder).
 
         ``resolution`` and ``samples`` are the hemicube resolution and the hemicubes per row
@@ -308,13 +360,17 @@ class FormFactorStore:
         params = _canonical_params(resolution, patching, samples)
         if (path / HEADER).exists():
             if not exist_ok:
-                raise InvalidInputError(f"a form-factor store already exists at {path}; open it, or pass exist_ok=True to resume it")
+                raise InvalidInputError(
+                    f"a form-factor store already exists at {path}; open it, or pass exist_ok=True to resume it"
+                )
             store = cls.open(scene, path, resolution=resolution, patching=patching, samples=samples)
             if store.block_rows != block_rows:
                 raise StoreMismatchError(f"store {path} has block_rows={store.block_rows}, not {block_rows}")
             return store
         if path.exists() and (not path.is_dir() or any(path.iterdir())):
-            raise InvalidInputError(f"{path} exists and is not an empty folder; a form-factor store needs its own folder")
+            raise InvalidInputError(
+                f"{path} exists and is not an empty folder; a form-factor store needs its own folder"
+            )
         header = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
@@ -342,21 +398,30 @@ class FormFactorStore:
         if not isinstance(header, dict) or header.get("format") != FORMAT:
             raise InvalidInputError(f"{path} is not a pydynrad form-factor store")
         if header.get("format_version") != FORMAT_VERSION:
-            raise StoreMismatchError(f"store {path} has format version {header.get('format_version')}; this pydynrad reads {FORMAT_VERSION}")
+            raise StoreMismatchError(
+                f"store {path} has format version {header.get('format_version')}; this pydynrad reads {FORMAT_VERSION}"
+            )
         _check_header_fields(path, header)
         return header
 
     @classmethod
-    def open(cls, scene, path, *, resolution: int, patching: dict | None = None, samples: int = 1) -> "FormFactorStore":
+    def open(cls, scene, path, *, resolution: int, patching: dict | None = None, samples: int = 1) -> FormFactorStore:
         """Open the store of ``scene`` at ``path``, refusing it unless it was made for this scene and
         parameters (a store from before ``samples`` was recorded holds 1)."""
         checked_scene(scene)
         path = Path(path)
         header = cls.read_header(path)
-        want = {"geometry_hash": scene.geometry_hash(), "n_patches": int(len(scene)),
-                **_canonical_params(resolution, patching, samples)}
-        have = {"geometry_hash": header["geometry_hash"], "n_patches": header["n_patches"], "samples": 1,
-                **header["params"]}
+        want = {
+            "geometry_hash": scene.geometry_hash(),
+            "n_patches": int(len(scene)),
+            **_canonical_params(resolution, patching, samples),
+        }
+        have = {
+            "geometry_hash": header["geometry_hash"],
+            "n_patches": header["n_patches"],
+            "samples": 1,
+            **header["params"],
+        }
         diff = [f"{k}: store has {have.get(k)!r}, requested {v!r}" for k, v in want.items() if have.get(k) != v]
         if diff:
             raise StoreMismatchError(f"form-factor store {path} does not match the request ({'; '.join(diff)})")
@@ -405,8 +470,14 @@ class FormFactorStore:
         """What block ``k`` of ``part`` belongs to, hashed into its checksum: this store's scene
         geometry and parameters (resolution, samples, patching; for G its clusters), the part and the block."""
         h = self.header
-        key = {"geometry_hash": h["geometry_hash"], "n_patches": h["n_patches"], "block_rows": h["block_rows"],
-               "params": h["params"], "part": part, "block": int(k)}
+        key = {
+            "geometry_hash": h["geometry_hash"],
+            "n_patches": h["n_patches"],
+            "block_rows": h["block_rows"],
+            "params": h["params"],
+            "part": part,
+            "block": int(k),
+        }
         if part == "G":
             key["prolongation_sha256"] = self._require_clusters().get("prolongation_sha256")
         return json.dumps(key, sort_keys=True)
@@ -441,8 +512,9 @@ class FormFactorStore:
         """Block ``k`` of F (or of G) as a (rows in block, N or C) float32 CSR matrix, checksum verified."""
         rows = self.block_range(k)
         what = f"block {k} (rows {rows.start}..{rows.stop - 1})" + (" of G" if part == "G" else "")
-        return _read_csr(self.block_path(k, part), k, rows, self._columns(part), what, self.path,
-                         self._binding(k, part), self.legacy)
+        return _read_csr(
+            self.block_path(k, part), k, rows, self._columns(part), what, self.path, self._binding(k, part), self.legacy
+        )
 
     def rows(self, idx, part: str = "F") -> sp.csr_matrix:
         """Rows ``idx`` of F (or of G) as a (len(idx), N or C) float32 CSR matrix, in the order given."""
@@ -453,7 +525,7 @@ class FormFactorStore:
         order = np.argsort(blocks, kind="stable")
         parts = []
         for k, first, count in zip(*np.unique(blocks[order], return_index=True, return_counts=True)):
-            sel = order[first:first + count]
+            sel = order[first : first + count]
             parts.append(self.read_block(int(k), part)[idx[sel] - k * self.block_rows])
         stacked = sp.vstack(parts, format="csr")
         # stacked holds the rows in block order; put them back in the caller's order.
@@ -472,11 +544,13 @@ class FormFactorStore:
         if not isinstance(header, dict):
             raise StoreCorruptError(f"{where} must hold a JSON object; got {type(header).__name__}")
         positive = lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v < 2**31  # noqa: E731
-        for name, ok, kind in (("n_clusters", positive, "a positive integer"),
-                               ("resolution", positive, "a positive integer"),
-                               ("prolongation_sha256", lambda v: isinstance(v, str), "a string"),
-                               ("basis", lambda v: v in CLUSTER_BASES, f"one of {CLUSTER_BASES}"),
-                               ("params", lambda v: isinstance(v, dict), "an object")):
+        for name, ok, kind in (
+            ("n_clusters", positive, "a positive integer"),
+            ("resolution", positive, "a positive integer"),
+            ("prolongation_sha256", lambda v: isinstance(v, str), "a string"),
+            ("basis", lambda v: v in CLUSTER_BASES, f"one of {CLUSTER_BASES}"),
+            ("params", lambda v: isinstance(v, dict), "an object"),
+        ):
             if name in header or name in ("n_clusters", "resolution", "prolongation_sha256"):
                 if not ok(header.get(name)):
                     raise StoreCorruptError(f"{where}: {name} must be {kind}; got {header.get(name)!r}")
@@ -486,7 +560,8 @@ class FormFactorStore:
         if self._cluster_header is None:
             raise StoreIncompleteError(
                 f"store {self.path} holds no patch-to-cluster form factors G; compute them with "
-                "compute_store(..., clusters=...) or `pydynrad formfactors SCENE -o STORE --clusters C`")
+                "compute_store(..., clusters=...) or `pydynrad formfactors SCENE -o STORE --clusters C`"
+            )
         return self._cluster_header
 
     @property
@@ -529,8 +604,12 @@ class FormFactorStore:
             extra = json.loads(json.dumps(dict(params or {}), sort_keys=True))
         except (TypeError, ValueError) as exc:
             raise InvalidInputError(f"cluster parameters must be JSON-serialisable: {exc}") from exc
-        header = {"n_clusters": int(pr.shape[1]), "resolution": int(resolution), "prolongation_sha256": digest,
-                  "basis": basis}
+        header = {
+            "n_clusters": int(pr.shape[1]),
+            "resolution": int(resolution),
+            "prolongation_sha256": digest,
+            "basis": basis,
+        }
         if self._cluster_header is not None:
             self._match_clusters(header)  # params are a record of how, not part of what G is
             try:
@@ -552,7 +631,8 @@ class FormFactorStore:
         if diff:
             raise StoreMismatchError(
                 f"store {self.path} holds G for other clusters or parameters ({'; '.join(diff)}); use another "
-                f"store, or delete {CLUSTER_HEADER}, {PROLONGATION} and {PARTS['G'][0]}/ there to replace G")
+                f"store, or delete {CLUSTER_HEADER}, {PROLONGATION} and {PARTS['G'][0]}/ there to replace G"
+            )
 
     def _canonical_prolongation(self, clusters) -> tuple[sp.csr_matrix, str]:
         pr = as_prolongation(clusters, self.n_patches).astype(np.float32)
@@ -566,7 +646,9 @@ class FormFactorStore:
     def prolongation(self) -> sp.csr_matrix:
         """The (N, C) float32 prolongation G was made with, checksum verified."""
         h = self._require_clusters()
-        pr = _read_csr(self.path / PROLONGATION, 0, range(self.n_patches), h["n_clusters"], "the prolongation", self.path)
+        pr = _read_csr(
+            self.path / PROLONGATION, 0, range(self.n_patches), h["n_clusters"], "the prolongation", self.path
+        )
         if _digest(pr.indptr.astype(np.int64), pr.indices, pr.data) != h["prolongation_sha256"]:
             raise StoreCorruptError(f"{self.path / PROLONGATION} is not the prolongation {CLUSTER_HEADER} records")
         return pr
@@ -599,8 +681,10 @@ class FormFactorStore:
             self.check_clusters(clusters)
         missing = self.missing_blocks(part="G")
         if missing:
-            raise StoreIncompleteError(f"{len(missing)} of {self.n_blocks} blocks of G in store {self.path} have not "
-                                       "been computed; run compute_store with the same clusters to finish them")
+            raise StoreIncompleteError(
+                f"{len(missing)} of {self.n_blocks} blocks of G in store {self.path} have not "
+                "been computed; run compute_store with the same clusters to finish them"
+            )
 
     def cluster_form_factors(self, clusters=None) -> sp.csr_matrix:
         """The whole (N, C) float32 G; with ``clusters``, first checked to be the ones G was made with."""
@@ -618,15 +702,25 @@ class FormFactorStore:
         """(world N, checksum binding) of configuration ``key``, from one read of POSE_HEADER."""
         h, objects = self.header, self._require_pose_header()
         n = self.n_patches + sum(int(o["n_patches"]) for o in objects["objects"])
-        return n, json.dumps({"geometry_hash": h["geometry_hash"], "n_patches": h["n_patches"], "part": "pose",
-                              "objects": objects, "transforms_sha256": key}, sort_keys=True)
+        return n, json.dumps(
+            {
+                "geometry_hash": h["geometry_hash"],
+                "n_patches": h["n_patches"],
+                "part": "pose",
+                "objects": objects,
+                "transforms_sha256": key,
+            },
+            sort_keys=True,
+        )
 
     def _require_pose_header(self) -> dict:
         try:
             header = json.loads((self.path / POSE_HEADER).read_text())
         except FileNotFoundError:
-            raise StoreIncompleteError(f"store {self.path} holds no per-pose rows of moving objects; precompute them "
-                                       "with pydynrad.precompute.precompute_poses(..., store=...)") from None
+            raise StoreIncompleteError(
+                f"store {self.path} holds no per-pose rows of moving objects; precompute them "
+                "with pydynrad.precompute.precompute_poses(..., store=...)"
+            ) from None
         except (OSError, ValueError) as exc:
             raise StoreCorruptError(f"unreadable {self.path / POSE_HEADER}: {exc}") from exc
         objects = header.get("objects") if isinstance(header, dict) else None
@@ -653,6 +747,7 @@ class FormFactorStore:
     def check_pose_objects(self, objects, *, resolution: int) -> None:
         """Raise :class:`StoreMismatchError` unless the per-pose rows are of ``objects`` at ``resolution``."""
         want, have = self._pose_objects(objects, resolution), self._require_pose_header()
+
         def strip(h: dict) -> tuple:
             return h.get("resolution"), [(o.get("geometry_hash"), o.get("n_patches")) for o in h.get("objects", [])]
 
@@ -660,7 +755,8 @@ class FormFactorStore:
             raise StoreMismatchError(
                 f"store {self.path} holds per-pose rows of other objects or another resolution (store: "
                 f"{_described(have)} at R = {have.get('resolution')}; requested: {_described(want)} at R = "
-                f"{want['resolution']}; objects of the same name differ in geometry where their hashes do)")
+                f"{want['resolution']}; objects of the same name differ in geometry where their hashes do)"
+            )
 
     @staticmethod
     def pose_key(transforms) -> str:
@@ -776,7 +872,8 @@ class FormFactorStore:
                 f"store {self.path}: none of its {len(found['corrupt'])} finished blocks"
                 f"{' of G' if part == 'G' else ''} matches its header, though {len(intact)} are intact: "
                 f"{HEADER} was edited after they were written (or they are another store's). Nothing was "
-                f"deleted; restore {HEADER}, or remove the folder to compute the store afresh")
+                f"deleted; restore {HEADER}, or remove the folder to compute the store afresh"
+            )
 
     @property
     def complete(self) -> bool:
@@ -791,9 +888,14 @@ class FormFactorStore:
     @property
     def nbytes_on_disk(self) -> int:
         """Bytes of the headers, the prolongation and every finished block file of F and G."""
-        files = [self.path / HEADER, self.path / CLUSTER_HEADER, self.path / PROLONGATION, self.path / POSE_HEADER,
-                 *(f for folder, prefix in PARTS.values() for f in (self.path / folder).glob(f"{prefix}*.npz")),
-                 *self.pose_files()]
+        files = [
+            self.path / HEADER,
+            self.path / CLUSTER_HEADER,
+            self.path / PROLONGATION,
+            self.path / POSE_HEADER,
+            *(f for folder, prefix in PARTS.values() for f in (self.path / folder).glob(f"{prefix}*.npz")),
+            *self.pose_files(),
+        ]
         return sum(p.stat().st_size for p in files if p.exists())
 
     def to_csr(self) -> sp.csr_matrix:
@@ -804,10 +906,14 @@ class FormFactorStore:
         done = self.n_blocks - len(self.missing_blocks())
         g = ""
         if self.has_clusters:
-            g = (f", G: C={self.n_clusters}, {self.n_blocks - len(self.missing_blocks(part='G'))}/{self.n_blocks} "
-                 f"blocks, resolution={self.cluster_resolution}")
-        return (f"FormFactorStore({str(self.path)!r}, N={self.n_patches}, {done}/{self.n_blocks} blocks of "
-                f"{self.block_rows} rows, resolution={self.header['params']['resolution']}{g})")
+            g = (
+                f", G: C={self.n_clusters}, {self.n_blocks - len(self.missing_blocks(part='G'))}/{self.n_blocks} "
+                f"blocks, resolution={self.cluster_resolution}"
+            )
+        return (
+            f"FormFactorStore({str(self.path)!r}, N={self.n_patches}, {done}/{self.n_blocks} blocks of "
+            f"{self.block_rows} rows, resolution={self.header['params']['resolution']}{g})"
+        )
 
 
 #: The coarse bases a store records G for: those of :data:`pydynrad.farfield.gather.BASES`, or a
@@ -826,10 +932,15 @@ def _check_basis(pr: sp.csr_matrix, basis: str) -> None:
         # Three functions per cluster summing to 1 on each patch; those in columns >= C are u/2 and v/2.
         C = pr.shape[1] // LINEAR_FUNCTIONS
         sums = np.asarray(pr.sum(axis=1)).ravel()
-        ok = (labels_of_linear(pr) is not None and np.allclose(sums, 1.0, rtol=0, atol=1e-6)
-              and np.all(pr.data[pr.indices >= C] <= 0.5 + 1e-6))
+        ok = (
+            labels_of_linear(pr) is not None
+            and np.allclose(sums, 1.0, rtol=0, atol=1e-6)
+            and np.all(pr.data[pr.indices >= C] <= 0.5 + 1e-6)
+        )
     else:
         ok = True
     if not ok:
-        raise InvalidInputError(f"the prolongation is not one of the {basis!r} basis "
-                                "(pydynrad.farfield.gather.basis_prolongation); record it with basis='given'")
+        raise InvalidInputError(
+            f"the prolongation is not one of the {basis!r} basis "
+            "(pydynrad.farfield.gather.basis_prolongation); record it with basis='given'"
+        )

@@ -33,8 +33,10 @@ def _rectangles(corners: list[np.ndarray], subdivisions: int, max_patch_area, al
     points = np.concatenate(corners).astype(np.float64)
     quads = np.arange(len(points)).reshape(-1, 4)
     triangles = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=1).reshape(-1, 3)
-    areas = 0.5 * np.linalg.norm(np.cross(points[triangles[:, 1]] - points[triangles[:, 0]],
-                                          points[triangles[:, 2]] - points[triangles[:, 0]]), axis=1)
+    areas = 0.5 * np.linalg.norm(
+        np.cross(points[triangles[:, 1]] - points[triangles[:, 0]], points[triangles[:, 2]] - points[triangles[:, 0]]),
+        axis=1,
+    )
     # Uniform levels first (a regular grid of right triangles), then the area limit if any.
     points, triangles, parent = subdivide(points, triangles, max_area=areas.min() / 4**subdivisions * (1 + 1e-9))
     if max_patch_area is not None:
@@ -44,8 +46,15 @@ def _rectangles(corners: list[np.ndarray], subdivisions: int, max_patch_area, al
     return Scene(points, triangles, albedo=albedo, emission=emission, source_face=parent, name=name, unit="m", up="+z")
 
 
-def parallel_plates(a: float = 1.0, b: float = 1.0, c: float = 1.0, subdivisions: int = 3,
-                    max_patch_area: float | None = None, albedo=0.5, emission=0.0) -> Scene:
+def parallel_plates(
+    a: float = 1.0,
+    b: float = 1.0,
+    c: float = 1.0,
+    subdivisions: int = 3,
+    max_patch_area: float | None = None,
+    albedo=0.5,
+    emission=0.0,
+) -> Scene:
     """Two directly opposed a x b rectangles at distance c, facing each other.
 
     Rectangle 0 (``source_face // 2 == 0``) spans ``[0, a] x [0, b]`` at z = 0 facing +z;
@@ -58,8 +67,15 @@ def parallel_plates(a: float = 1.0, b: float = 1.0, c: float = 1.0, subdivisions
     return _rectangles([bottom, top], subdivisions, max_patch_area, albedo, emission, "parallel_plates")
 
 
-def perpendicular_plates(a: float = 1.0, b: float = 1.0, c: float = 1.0, subdivisions: int = 3,
-                         max_patch_area: float | None = None, albedo=0.5, emission=0.0) -> Scene:
+def perpendicular_plates(
+    a: float = 1.0,
+    b: float = 1.0,
+    c: float = 1.0,
+    subdivisions: int = 3,
+    max_patch_area: float | None = None,
+    albedo=0.5,
+    emission=0.0,
+) -> Scene:
     """Two rectangles at a right angle sharing an edge of length a (along x).
 
     Rectangle 0 is horizontal, ``[0, a] x [0, b]`` at z = 0 facing +z; rectangle 1 is
@@ -90,8 +106,9 @@ def _box_walls(size) -> list[np.ndarray]:
     return walls
 
 
-def closed_box(size=(1.0, 1.0, 1.0), subdivisions: int = 2, max_patch_area: float | None = None,
-               albedo=0.5, emission=1.0) -> Scene:
+def closed_box(
+    size=(1.0, 1.0, 1.0), subdivisions: int = 2, max_patch_area: float | None = None, albedo=0.5, emission=1.0
+) -> Scene:
     """A closed axis-aligned box ``[0, sx] x [0, sy] x [0, sz]`` with inward-facing walls.
 
     The furnace test: with uniform emission E and albedo rho every patch's radiosity is
@@ -103,8 +120,9 @@ def closed_box(size=(1.0, 1.0, 1.0), subdivisions: int = 2, max_patch_area: floa
     return _rectangles(walls, subdivisions, max_patch_area, albedo, emission, "closed_box")
 
 
-def block(size=(1.0, 1.0, 1.0), subdivisions: int = 1, max_patch_area: float | None = None,
-          albedo=0.5, emission=0.0) -> Scene:
+def block(
+    size=(1.0, 1.0, 1.0), subdivisions: int = 1, max_patch_area: float | None = None, albedo=0.5, emission=0.0
+) -> Scene:
     """A solid box centred on the origin with outward-facing sides: a movable object.
 
     ``size`` is one length (a cube) or three; each side is cut into ``2 * 4**subdivisions``

@@ -12,8 +12,8 @@ from __future__ import annotations
 import inspect
 from pathlib import Path
 
-from ..errors import InvalidInputError
 from .. import scenes
+from ..errors import InvalidInputError
 from ..geometry.loading import load
 from ..geometry.patching import subdivide_scene
 
@@ -41,8 +41,10 @@ def scene_by_name(name: str, **params):
         split = params.pop("max_edge", None) if "max_edge" not in accepted else None
         unknown = sorted(set(params) - set(accepted))
         if unknown:
-            raise InvalidInputError(f"the built-in scene {name!r} has no parameter {', '.join(map(repr, unknown))}; "
-                                    f"it takes {', '.join(['max_edge', *(p for p in accepted if p != 'max_edge')])}")
+            raise InvalidInputError(
+                f"the built-in scene {name!r} has no parameter {', '.join(map(repr, unknown))}; "
+                f"it takes {', '.join(['max_edge', *(p for p in accepted if p != 'max_edge')])}"
+            )
         scene = make(**params)
         if split is None:
             return scene
@@ -50,6 +52,8 @@ def scene_by_name(name: str, **params):
         return subdivide_scene(scene, max_edge=split)
     path = Path(name)
     if not path.exists() and not path.suffix:
-        raise InvalidInputError(f"scene {name!r} is neither a mesh file nor a built-in scene ({', '.join(BUILTIN_SCENES)})")
+        raise InvalidInputError(
+            f"scene {name!r} is neither a mesh file nor a built-in scene ({', '.join(BUILTIN_SCENES)})"
+        )
 
     return load(path, **params)

@@ -57,10 +57,17 @@ def _ceiling_quads() -> tuple[np.ndarray, np.ndarray]:
     """The ceiling as a 3 x 3 grid of rectangles on the light's edges: (8 frame quads, light quad)."""
     xs = (0.0, *_LIGHT_X, 556.0)
     zs = (0.0, *_LIGHT_Z, 559.2)
-    cells = [[(xs[i], _HEIGHT, zs[k]), (xs[i + 1], _HEIGHT, zs[k]), (xs[i + 1], _HEIGHT, zs[k + 1]), (xs[i], _HEIGHT, zs[k + 1])]
-             for i in range(3) for k in range(3)]
+    cells = [
+        [
+            (xs[i], _HEIGHT, zs[k]),
+            (xs[i + 1], _HEIGHT, zs[k]),
+            (xs[i + 1], _HEIGHT, zs[k + 1]),
+            (xs[i], _HEIGHT, zs[k + 1]),
+        ]
+        for i in range(3)
+        for k in range(3)
+    ]
     return np.array(cells[:4] + cells[5:]), np.array(cells[4:5])
-
 
 
 def _inside_convex(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
@@ -99,8 +106,9 @@ def _floor_triangles(spacing: float = FLOOR_SPACING) -> np.ndarray:
         count = len(points) - start
         if closed_ring:
             segments += [(start + i, start + (i + 1) % count) for i in range(count)]
-    g = np.stack(np.meshgrid(np.arange(0.5, 556.0 / spacing) * spacing,
-                             np.arange(0.5, 559.2 / spacing) * spacing), -1).reshape(-1, 2)
+    g = np.stack(
+        np.meshgrid(np.arange(0.5, 556.0 / spacing) * spacing, np.arange(0.5, 559.2 / spacing) * spacing), -1
+    ).reshape(-1, 2)
     boundary = np.asarray(points)
     clear = np.min(np.linalg.norm(g[:, None] - boundary[None], axis=2), axis=1) > 0.5 * spacing
     clear &= _inside_convex(g, outline) & ~_inside_convex(g, holes[0]) & ~_inside_convex(g, holes[1])
@@ -150,8 +158,9 @@ def _oriented(tri: np.ndarray, facing: np.ndarray, inward: bool) -> np.ndarray:
     return tri
 
 
-def cornell_box(max_patch_area: float | None = None, max_edge: float | None = 100.0,
-                light_radiance=LIGHT_RADIANCE) -> Scene:
+def cornell_box(
+    max_patch_area: float | None = None, max_edge: float | None = 100.0, light_radiance=LIGHT_RADIANCE
+) -> Scene:
     """The Cornell Box as a patched :class:`~pydynrad.Scene` (lengths in mm).
 
     Parameters
@@ -166,12 +175,21 @@ def cornell_box(max_patch_area: float | None = None, max_edge: float | None = 10
         Radiance of the ceiling light; its emission is ``pi * light_radiance``.
     """
     frame, light = _ceiling_quads()
-    box_parts = [(_floor_triangles(), WHITE), (frame, WHITE), (np.array([_BACK]), WHITE),
-                 (np.array([_RIGHT]), GREEN), (np.array([_LEFT]), RED), (light, LIGHT_ALBEDO)]
+    box_parts = [
+        (_floor_triangles(), WHITE),
+        (frame, WHITE),
+        (np.array([_BACK]), WHITE),
+        (np.array([_RIGHT]), GREEN),
+        (np.array([_LEFT]), RED),
+        (light, LIGHT_ALBEDO),
+    ]
     tris, albedo = [], []
     for part, rgb in box_parts:
-        t = (_oriented(part, _INTERIOR, inward=True) if part.shape[1] == 3
-             else _oriented_triangles(part, _INTERIOR, inward=True))
+        t = (
+            _oriented(part, _INTERIOR, inward=True)
+            if part.shape[1] == 3
+            else _oriented_triangles(part, _INTERIOR, inward=True)
+        )
         tris.append(t)
         albedo.append(np.tile(rgb, (len(t), 1)))
     for top in (_SHORT_TOP, _TALL_TOP):
@@ -182,5 +200,13 @@ def cornell_box(max_patch_area: float | None = None, max_edge: float | None = 10
         albedo.append(np.tile(WHITE, (len(t), 1)))
     emission = [np.zeros((len(t), 3)) for t in tris]
     emission[5][:] = np.pi * np.asarray(light_radiance, dtype=np.float64)
-    return soup_scene(np.concatenate(tris), np.concatenate(albedo), np.concatenate(emission),
-                      max_patch_area=max_patch_area, max_edge=max_edge, name="cornell_box", unit="mm", up="+y")
+    return soup_scene(
+        np.concatenate(tris),
+        np.concatenate(albedo),
+        np.concatenate(emission),
+        max_patch_area=max_patch_area,
+        max_edge=max_edge,
+        name="cornell_box",
+        unit="mm",
+        up="+y",
+    )

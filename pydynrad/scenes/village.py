@@ -118,9 +118,21 @@ class _Parts:
         return o, u, v, m
 
 
-def _wall(parts: _Parts, axis: int, s0: float, s1: float, c0: float, c1: float, y0: float, y1: float,
-          openings: list[tuple], mats: tuple[str, str, str], caps: bool = False,
-          lo_spans: list[tuple] | None = None, hi_spans: list[tuple] | None = None) -> None:
+def _wall(
+    parts: _Parts,
+    axis: int,
+    s0: float,
+    s1: float,
+    c0: float,
+    c1: float,
+    y0: float,
+    y1: float,
+    openings: list[tuple],
+    mats: tuple[str, str, str],
+    caps: bool = False,
+    lo_spans: list[tuple] | None = None,
+    hi_spans: list[tuple] | None = None,
+) -> None:
     """A wall slab running along ``axis`` (0: x, 2: z) over [s0, s1], thickness [c0, c1] across.
 
     ``openings`` are (a, b, ya, yb) holes (doors reach ``ya = y0``). ``mats`` = (side c0, which
@@ -189,8 +201,12 @@ def _house(parts: _Parts, rng: np.random.Generator, width: float, depth: float) 
 
     door_col = int(rng.integers(n_cols))
     door_h, sill, win_top = p + _DOOR_H, p + _SILL, p + _WINDOW_TOP
-    front = [_centred(col_lo[k], col_hi[k], 1.0, p, door_h, rng.uniform(-0.2, 0.2)) if k == door_col
-             else _centred(col_lo[k], col_hi[k], 1.2, sill, win_top, rng.uniform(-0.2, 0.2)) for k in range(n_cols)]
+    front = [
+        _centred(col_lo[k], col_hi[k], 1.0, p, door_h, rng.uniform(-0.2, 0.2))
+        if k == door_col
+        else _centred(col_lo[k], col_hi[k], 1.2, sill, win_top, rng.uniform(-0.2, 0.2))
+        for k in range(n_cols)
+    ]
     back = [_centred(col_lo[k], col_hi[k], 1.2, sill, win_top, rng.uniform(-0.2, 0.2)) for k in range(n_cols)]
     left = [_centred(t, z_split_lo if split else depth - t, 1.0, sill, win_top, 0.0)]
     right = [_centred(t, depth - t, 1.2, sill, win_top, rng.uniform(-0.3, 0.3))]
@@ -206,14 +222,34 @@ def _house(parts: _Parts, rng: np.random.Generator, width: float, depth: float) 
         # With column 0 split, the first wall's door opens into the back room, clear of the cross wall.
         z_lo = z_split_hi + 0.2 if (k == 0 and split) else t + 0.3
         dz = rng.uniform(z_lo, depth - t - 1.2)
-        _wall(parts, 2, t, depth - t, x - 0.5 * ti, x + 0.5 * ti, p, top, [(dz, dz + 0.9, p, p + 2.05)],
-              (paint, paint, paint), lo_spans=beside_split if k == 0 else None)
+        _wall(
+            parts,
+            2,
+            t,
+            depth - t,
+            x - 0.5 * ti,
+            x + 0.5 * ti,
+            p,
+            top,
+            [(dz, dz + 0.9, p, p + 2.05)],
+            (paint, paint, paint),
+            lo_spans=beside_split if k == 0 else None,
+        )
     rooms = [(col_lo[k], t, col_hi[k], depth - t) for k in range(1 if split else 0, n_cols)]
     if split:
         dx = rng.uniform(t + 0.2, col_hi[0] - 1.1)
-        _wall(parts, 0, t, col_hi[0], z_split_lo, z_split_hi, p, top, [(dx, dx + 0.9, p, p + 2.05)], (paint, paint, paint))
+        _wall(
+            parts, 0, t, col_hi[0], z_split_lo, z_split_hi, p, top, [(dx, dx + 0.9, p, p + 2.05)], (paint, paint, paint)
+        )
         rooms += [(col_lo[0], t, col_hi[0], z_split_lo), (col_lo[0], z_split_hi, col_hi[0], depth - t)]
-    shade = {"-x": "room_lamp", "+x": "room_lamp", "-y": "room_lamp", "-z": "room_lamp", "+z": "room_lamp", "+y": "metal"}
+    shade = {
+        "-x": "room_lamp",
+        "+x": "room_lamp",
+        "-y": "room_lamp",
+        "-z": "room_lamp",
+        "+z": "room_lamp",
+        "+y": "metal",
+    }
     for room in rooms:
         _horizontal(parts, p, +1, room, "wood")
         _horizontal(parts, top, -1, room, "ceiling")
@@ -235,13 +271,26 @@ _POLE, _HEAD = 0.06, 0.2  # half widths (m)
 
 def _street_lamp(parts: _Parts, x: float, z: float) -> None:
     """A pole with a glowing head; the head's underside is a frame around the pole's top."""
-    parts.box((x - _POLE, 0, z - _POLE), (x + _POLE, 3.6, z + _POLE), {"-x": "metal", "+x": "metal", "-z": "metal", "+z": "metal"})
+    parts.box(
+        (x - _POLE, 0, z - _POLE),
+        (x + _POLE, 3.6, z + _POLE),
+        {"-x": "metal", "+x": "metal", "-z": "metal", "+z": "metal"},
+    )
     head = {"-x": "street_lamp", "+x": "street_lamp", "-z": "street_lamp", "+z": "street_lamp", "+y": "metal"}
     parts.box((x - _HEAD, 3.6, z - _HEAD), (x + _HEAD, 3.85, z + _HEAD), head)
-    _frame(parts, 3.6, -1, (x - _HEAD, z - _HEAD, x + _HEAD, z + _HEAD), (x - _POLE, z - _POLE, x + _POLE, z + _POLE), "street_lamp")
+    _frame(
+        parts,
+        3.6,
+        -1,
+        (x - _HEAD, z - _HEAD, x + _HEAD, z + _HEAD),
+        (x - _POLE, z - _POLE, x + _POLE, z + _POLE),
+        "street_lamp",
+    )
 
 
-def _grid(o: np.ndarray, u: np.ndarray, v: np.ndarray, mat: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _grid(
+    o: np.ndarray, u: np.ndarray, v: np.ndarray, mat: np.ndarray, cell: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Grid each quad (o + a u + b v, 0 <= a, b <= 1) into cells no longer than ``cell`` per side.
 
     Returns points (P, 3), triangles (2C, 3) counter-clockwise about u x v, and each
@@ -292,7 +341,14 @@ def village(seed: int = 0, houses: int | None = None, detail: float = 1.0) -> Sc
     n_rows = math.ceil(houses / n_cols)
 
     parts, ground = _Parts(), _Parts()
-    _frame(ground, 0.0, +1, (-MARGIN, -MARGIN, n_cols * LOT + MARGIN, n_rows * LOT + MARGIN), (0, 0, n_cols * LOT, n_rows * LOT), "grass")
+    _frame(
+        ground,
+        0.0,
+        +1,
+        (-MARGIN, -MARGIN, n_cols * LOT + MARGIN, n_rows * LOT + MARGIN),
+        (0, 0, n_cols * LOT, n_rows * LOT),
+        "grass",
+    )
     for lot in range(n_cols * n_rows):
         x0, z0 = (lot % n_cols) * LOT, (lot // n_cols) * LOT
         road, garden = (x0, z0, x0 + LOT, z0 + ROAD), (x0, z0 + ROAD, x0 + LOT, z0 + LOT)
@@ -313,12 +369,21 @@ def village(seed: int = 0, houses: int | None = None, detail: float = 1.0) -> Sc
     pts_q, tri_q, mat_q = _grid(*parts.arrays(), cell)
     pts_g, tri_g, mat_g = _grid(*ground.arrays(), 2 * cell)
     corners = np.array([t[:3] for t in parts.tris])
-    pts_t, tri_t, from_tri = subdivide(corners.reshape(-1, 3), np.arange(3 * len(corners)).reshape(-1, 3), max_edge=1.5 * cell)
+    pts_t, tri_t, from_tri = subdivide(
+        corners.reshape(-1, 3), np.arange(3 * len(corners)).reshape(-1, 3), max_edge=1.5 * cell
+    )
     mat_t = np.array([t[3] for t in parts.tris])[from_tri]
 
     points = np.concatenate([pts_q, pts_g, pts_t])
     offsets = np.cumsum([0, len(pts_q), len(pts_g)])
     triangles = np.concatenate([tri_q + offsets[0], tri_g + offsets[1], tri_t + offsets[2]])
     mats = np.concatenate([mat_q, mat_g, mat_t])
-    return Scene(points, triangles, albedo=_ALBEDO[mats], emission=_EMISSION[mats], name=f"village(seed={seed})",
-                 unit="m", up="+y")
+    return Scene(
+        points,
+        triangles,
+        albedo=_ALBEDO[mats],
+        emission=_EMISSION[mats],
+        name=f"village(seed={seed})",
+        unit="m",
+        up="+y",
+    )

@@ -11,14 +11,29 @@ internet. See docs/guide/viewer.md.
 
 from __future__ import annotations
 
-from .session import OVERLAYS, SKY_KINDS, Viewer
+from ..dynamic import DynamicRadiosity
+from ..paths import CameraPath, WalkFile, load_walk
+from .server import require_websockets
+from .session import OVERLAYS, SKY_KINDS, Viewer, build_dynamic
 
 __all__ = ["view", "Viewer", "OVERLAYS", "SKY_KINDS"]
 
 
-def view(scene_or_dynamic, form_factors=None, *, lights=(), path=None, local_size: int | None = None,
-         solver_options: dict | None = None, resolution: int = 32, host: str = "127.0.0.1", port: int = 8080,
-         frames_per_second: float = 10.0, open_browser: bool = False, device=None) -> Viewer:
+def view(
+    scene_or_dynamic,
+    form_factors=None,
+    *,
+    lights=(),
+    path=None,
+    local_size: int | None = None,
+    solver_options: dict | None = None,
+    resolution: int = 32,
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    frames_per_second: float = 10.0,
+    open_browser: bool = False,
+    device=None,
+) -> Viewer:
     """Serve a live view of a dynamic radiosity solution at ``http://host:port/``; the handle.
 
     Parameters
@@ -49,22 +64,23 @@ def view(scene_or_dynamic, form_factors=None, *, lights=(), path=None, local_siz
     Viewer
         Running until :meth:`Viewer.close`; in Jupyter it shows the page inline.
     """
-    from ..dynamic import DynamicRadiosity
-    from ..paths import WalkFile, load_walk
-    from .server import require_websockets
-    from .session import build_dynamic
 
     require_websockets()  # before any solver work
     if path is not None and not isinstance(path, WalkFile):
-        from ..paths import CameraPath
-
         path = path if isinstance(path, CameraPath) else load_walk(path)
     if isinstance(scene_or_dynamic, DynamicRadiosity):
         dynamic = scene_or_dynamic
     else:
         dynamic = build_dynamic(scene_or_dynamic, form_factors, path, local_size, solver_options, resolution, device)
-    viewer = Viewer(dynamic, lights=lights, path=path, form_factors=form_factors, host=host, port=port,
-                    frames_per_second=frames_per_second)
+    viewer = Viewer(
+        dynamic,
+        lights=lights,
+        path=path,
+        form_factors=form_factors,
+        host=host,
+        port=port,
+        frames_per_second=frames_per_second,
+    )
     if open_browser:
         import webbrowser
 

@@ -43,8 +43,10 @@ def pack(kind: str, arrays: dict | None = None, **fields) -> bytes:
 def unpack(message: bytes) -> tuple[dict, dict]:
     """(header, arrays) of a message made by :func:`pack` (the page's decoder, in Python: tests)."""
     (n,) = struct.unpack_from("<I", message, 0)
-    head = json.loads(message[4:4 + n])
+    head = json.loads(message[4 : 4 + n])
     base = 4 + n + _pad(4 + n)
-    arrays = {name: np.frombuffer(message, _DTYPES[code], count, base + off)
-              for name, (code, off, count) in head["arrays"].items()}
+    arrays = {
+        name: np.frombuffer(message, _DTYPES[code], count, base + off)
+        for name, (code, off, count) in head["arrays"].items()
+    }
     return head, arrays

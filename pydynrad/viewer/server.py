@@ -34,8 +34,11 @@ class _QuietProbes(logging.Filter):
 
     def filter(self, record: logging.LogRecord) -> bool:
         exc = record.exc_info[1] if record.exc_info else None
-        return not (record.getMessage() == "opening handshake failed" and exc is not None
-                    and isinstance(exc.__cause__, EOFError))
+        return not (
+            record.getMessage() == "opening handshake failed"
+            and exc is not None
+            and isinstance(exc.__cause__, EOFError)
+        )
 
 
 _LOG = logging.getLogger("pydynrad.viewer")
@@ -110,8 +113,13 @@ class Server:
             if path == "/ws":
                 return None  # the WebSocket handshake
             if path in ("/", "/index.html"):
-                headers = Headers([("Content-Type", "text/html; charset=utf-8"), ("Content-Length", str(len(page))),
-                                   ("Cache-Control", "no-store")])
+                headers = Headers(
+                    [
+                        ("Content-Type", "text/html; charset=utf-8"),
+                        ("Content-Length", str(len(page))),
+                        ("Cache-Control", "no-store"),
+                    ]
+                )
                 return Response(200, "OK", headers, page)
             return connection.respond(404, "not found\n")
 
@@ -120,8 +128,16 @@ class Server:
         self._on_connect, self._on_message = on_connect, on_message
 
         # compression=None: deflating half-float radiosity costs more CPU than it saves on a local link.
-        self._server = serve(self._handle, host, port, process_request=process_request, compression=None,
-                             max_size=64 * 2**20, server_header=None, logger=_LOG)
+        self._server = serve(
+            self._handle,
+            host,
+            port,
+            process_request=process_request,
+            compression=None,
+            max_size=64 * 2**20,
+            server_header=None,
+            logger=_LOG,
+        )
         self.host, self.port = self._server.socket.getsockname()[:2]
         self._thread = threading.Thread(target=self._server.serve_forever, name="pydynrad-viewer-http", daemon=True)
         self._thread.start()

@@ -25,12 +25,14 @@ from ..dynamic import DynamicRadiosity
 from ..dynamic.moves import MovingObjects
 from ..errors import InvalidInputError, PydynradError
 from ..geometry.camera import Camera
-from ..image_io import write_image
+from ..image_io import read_image, write_image
 from ..lights.sky import SkyLight, north_east, sun_direction
 from ..lights.sources import DirectionalLight, PointLight
 from ..paths import CameraPath, WalkFile, lights_at, load_walk
 from ..renderer import Renderer
+from ..rows.files import whole_matrix
 from ..smoothing import smooth_vertices
+from ..solution import solve
 from .protocol import pack
 from .server import Server
 
@@ -98,16 +100,24 @@ class _Lights:
         self.sun["on"], self.sky["kind"], self.points, self.fixed = False, "none", [], []
         for light in lights:
             if isinstance(light, DirectionalLight) and not self.sun["on"]:
-                self.sun.update(self._angles(-np.asarray(light.direction)), on=True,
-                                irradiance=float(max(light.irradiance)))
-            elif isinstance(light, SkyLight) and self.sky["kind"] == "none" and light.horizontal_illuminance is not None \
-                    and light.kind in ("uniform", "cie_overcast", 1, 12):
-                self.sky = {"kind": {1: "overcast", 12: "clear"}.get(light.kind, light.kind),
-                            "illuminance": float(light.horizontal_illuminance)}
+                self.sun.update(
+                    self._angles(-np.asarray(light.direction)), on=True, irradiance=float(max(light.irradiance))
+                )
+            elif (
+                isinstance(light, SkyLight)
+                and self.sky["kind"] == "none"
+                and light.horizontal_illuminance is not None
+                and light.kind in ("uniform", "cie_overcast", 1, 12)
+            ):
+                self.sky = {
+                    "kind": {1: "overcast", 12: "clear"}.get(light.kind, light.kind),
+                    "illuminance": float(light.horizontal_illuminance),
+                }
             elif isinstance(light, PointLight):
                 peak = float(max(light.intensity)) or 1.0
-                self.points.append({"position": list(light.position), "intensity": peak,
-                                    "colour": [c / peak for c in light.intensity]})
+                self.points.append(
+                    {"position": list(light.position), "intensity": peak, "colour": [c / peak for c in light.intensity]}
+                )
             else:
                 self.fixed.append(light)
 
@@ -121,10 +131,12 @@ class _Lights:
     def update(self, message: dict) -> None:
         """The page's lights message, checked: a bad field raises InvalidInputError."""
         sun, sky = message.get("sun", {}), message.get("sky", {})
-        new_sun = {"on": bool(sun.get("on", self.sun["on"])),
-                   "elevation": float(sun.get("elevation", self.sun["elevation"])),
-                   "azimuth": float(sun.get("azimuth", self.sun["azimuth"])) % 360.0,
-                   "irradiance": float(sun.get("irradiance", self.sun["irradiance"]))}
+        new_sun = {
+            "on": bool(sun.get("on", self.sun["on"])),
+            "elevation": float(sun.get("elevation", self.sun["elevation"])),
+            "azimuth": float(sun.get("azimuth", self.sun["azimuth"])) % 360.0,
+            "irradiance": float(sun.get("irradiance", self.sun["irradiance"])),
+        }
         if not -90.0 <= new_sun["elevation"] <= 90.0 or not new_sun["irradiance"] >= 0:
             raise InvalidInputError(f"sun elevation must lie in -90..90 degrees and irradiance be >= 0; got {sun}")
         kind = sky.get("kind", self.sky["kind"])
@@ -134,8 +146,13 @@ class _Lights:
         points = []
         for i, p in enumerate(message.get("points", [dict(q) for q in self.points])):
             old = self.points[i] if i < len(self.points) else {"colour": [1.0, 1.0, 1.0]}
-            points.append({"position": [float(v) for v in p["position"]], "intensity": float(p["intensity"]),
-                           "colour": old["colour"]})
+            points.append(
+                {
+                    "position": [float(v) for v in p["position"]],
+                    "intensity": float(p["intensity"]),
+                    "colour": old["colour"],
+                }
+            )
         self.sun, self.sky, self.points = new_sun, new_sky, points
         self.objects()  # raise here, not in the solver thread
 
@@ -147,17 +164,27 @@ class _Lights:
             out.append(DirectionalLight(tuple(-v for v in towards), (self.sun["irradiance"],) * 3))
         if self.sky["kind"] != "none":
             kind = self.sky["kind"]
-            sun = sun_direction(max(0.0, self.sun["elevation"]), self.sun["azimuth"], self.up) if kind == "clear" else None
-            out.append(SkyLight(kind, horizontal_illuminance=self.sky["illuminance"], sun_direction=sun,
-                                resolution=SKY_RESOLUTION))
+            sun = (
+                sun_direction(max(0.0, self.sun["elevation"]), self.sun["azimuth"], self.up)
+                if kind == "clear"
+                else None
+            )
+            out.append(
+                SkyLight(
+                    kind, horizontal_illuminance=self.sky["illuminance"], sun_direction=sun, resolution=SKY_RESOLUTION
+                )
+            )
         for p in self.points:
             out.append(PointLight(p["position"], tuple(p["intensity"] * c for c in p["colour"])))
         return out + self.fixed
 
     def state(self) -> dict:
-        return {"sun": dict(self.sun), "sky": dict(self.sky),
-                "points": [{"position": p["position"], "intensity": p["intensity"]} for p in self.points],
-                "fixed": len(self.fixed)}
+        return {
+            "sun": dict(self.sun),
+            "sky": dict(self.sky),
+            "points": [{"position": p["position"], "intensity": p["intensity"]} for p in self.points],
+            "fixed": len(self.fixed),
+        }
 
 
 class Viewer:
@@ -174,8 +201,18 @@ class Viewer:
         Where the page is served.
     """
 
-    def __init__(self, dynamic: DynamicRadiosity, *, lights=(), path=None, form_factors=None, host: str = "127.0.0.1",
-                 port: int = 8080, frames_per_second: float = 10.0, camera: Camera | None = None) -> None:
+    def __init__(
+        self,
+        dynamic: DynamicRadiosity,
+        *,
+        lights=(),
+        path=None,
+        form_factors=None,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        frames_per_second: float = 10.0,
+        camera: Camera | None = None,
+    ) -> None:
         self.dynamic = dynamic
         self._form_factors = form_factors
         scene = dynamic.scene
@@ -186,8 +223,11 @@ class Viewer:
         self._lights = _Lights(scene, lights)
         self._path, self._tracks = None, []
         if path is not None:
-            walk = path if isinstance(path, WalkFile) else (
-                WalkFile(path, [], []) if isinstance(path, CameraPath) else load_walk(path))
+            walk = (
+                path
+                if isinstance(path, WalkFile)
+                else (WalkFile(path, [], []) if isinstance(path, CameraPath) else load_walk(path))
+            )
             self._path, self._tracks = walk.path, list(walk.objects)
             self._lights.fixed += list(walk.lights)
         self._fps = float(frames_per_second)
@@ -217,8 +257,11 @@ class Viewer:
         self._origin = scene.bbox.astype(np.float64).mean(axis=0)  # the page's coordinates: scene minus origin
         self._server = Server(host, port, self._on_connect, self._on_message)
         self.host, self.port = self._server.host, self._server.port
-        shown = "localhost" if host in ("127.0.0.1", "localhost", "::1") else (host if host not in ("", "0.0.0.0", "::") else
-                                                                               "localhost")
+        shown = (
+            "localhost"
+            if host in ("127.0.0.1", "localhost", "::1")
+            else (host if host not in ("", "0.0.0.0", "::") else "localhost")
+        )
         self.url = f"http://{shown}:{self.port}/"
         self._solver = threading.Thread(target=self._run, name="pydynrad-viewer-solver", daemon=True)
         self._solver.start()
@@ -233,11 +276,20 @@ class Viewer:
     def set_camera(self, position, look_at, fov_y: float | None = None) -> None:
         """Move the observer (and every browser's camera) to ``position`` looking at ``look_at``."""
         cam = self.camera
-        cam = Camera(position, look_at, self.dynamic.scene.up, cam.fov_y if fov_y is None else fov_y, cam.width,
-                     cam.height)
+        cam = Camera(
+            position, look_at, self.dynamic.scene.up, cam.fov_y if fov_y is None else fov_y, cam.width, cam.height
+        )
         self._set_camera(cam)
-        self._server.broadcast(_json({"kind": "camera", "position": cam.position.tolist(),
-                                      "look_at": cam.look_at.tolist(), "fov_y": cam.fov_y}))
+        self._server.broadcast(
+            _json(
+                {
+                    "kind": "camera",
+                    "position": cam.position.tolist(),
+                    "look_at": cam.look_at.tolist(),
+                    "fov_y": cam.fov_y,
+                }
+            )
+        )
 
     @property
     def lights(self) -> list:
@@ -337,18 +389,18 @@ class Viewer:
     def full_solve(self) -> float:
         """Solve the full radiosity for the current lights (all N patches, :func:`pydynrad.solve`),
         keep it for the ``"error"`` overlay, and return the current frame's relative RMS error."""
-        from ..rows.files import whole_matrix
-        from ..solution import solve
 
         if self._form_factors is None:
             raise InvalidInputError("a full solve needs the form factors: give view() form_factors=F")
         if self._tracks:
-            raise InvalidInputError("a full solve of a path with moving objects is not offered here: use walk's "
-                                    "reference_frames")
+            raise InvalidInputError(
+                "a full solve of a path with moving objects is not offered here: use walk's reference_frames"
+            )
         with self._cond:
             version, lights = self._lights_version, self._frame_lights()
-        reference = solve(self.dynamic.scene, whole_matrix(self._form_factors), lights,
-                          device=self.dynamic.device).radiosity
+        reference = solve(
+            self.dynamic.scene, whole_matrix(self._form_factors), lights, device=self.dynamic.device
+        ).radiosity
         with self._cond:
             self._reference = (version, np.asarray(reference))
             self._done = None  # send the next frame with the error
@@ -358,8 +410,6 @@ class Viewer:
     def screenshot(self, path=None, timeout: float = 20.0) -> np.ndarray:
         """What the first connected browser shows, as an (H, W, 4) uint8 RGBA array (written to
         ``path`` too when given: .png)."""
-        from ..image_io import read_image
-
         clients = list(self._server.clients)
         if not clients:
             raise InvalidInputError(f"no browser is connected: open {self.url}")
@@ -382,7 +432,9 @@ class Viewer:
             file = target or Path(tmp) / "shot.png"
             file.write_bytes(png)
             image = read_image(file)
-        return np.asarray(np.clip(np.round(image * 255.0), 0, 255), dtype=np.uint8) if image.dtype != np.uint8 else image
+        return (
+            np.asarray(np.clip(np.round(image * 255.0), 0, 255), dtype=np.uint8) if image.dtype != np.uint8 else image
+        )
 
     def record(self, folder) -> None:
         """Write every radiosity update from now on to ``folder`` as ``frame_NNNNN.png``, rendered
@@ -470,8 +522,13 @@ class Viewer:
     def _state(self) -> dict:
         with self._cond:
             path = None if self._path is None else {**self._path_state, "frames": len(self._path)}
-            return {"kind": "state", "lights": self._lights.state(), "path": path, "overlay": self._overlay,
-                    "recording": self._record_dir is not None}
+            return {
+                "kind": "state",
+                "lights": self._lights.state(),
+                "path": path,
+                "overlay": self._overlay,
+                "recording": self._record_dir is not None,
+            }
 
     def _broadcast_state(self) -> None:
         self._server.broadcast(_json(self._state()))
@@ -482,13 +539,27 @@ class Viewer:
         corners = (np.asarray(scene.vertices, dtype=np.float64) - origin).astype(np.float32)
         n_v = self._smooth.n_vertices
         cam = self.camera
-        head = {"name": getattr(scene, "name", "scene"), "n_patches": self._n, "n_vertices": n_v,
-                "origin": origin.tolist(), "up": [float(v) for v in scene.up], "scale": float(scene.scale),
-                "rad_w": TEXTURE_WIDTH, "rad_h": _texture_rows(n_v), "ov_w": TEXTURE_WIDTH, "ov_h": _texture_rows(self._n),
-                "camera": {"position": cam.position.tolist(), "look_at": cam.look_at.tolist(), "fov_y": cam.fov_y},
-                "point_intensity": 20.0 * (0.25 * float(scene.scale) * float(scene.unit)) ** 2}
-        client.send(pack("scene", {"positions": corners.reshape(-1),
-                                   "vid": self._smooth.corner_vertex.reshape(-1).astype(np.uint32)}, **head))
+        head = {
+            "name": getattr(scene, "name", "scene"),
+            "n_patches": self._n,
+            "n_vertices": n_v,
+            "origin": origin.tolist(),
+            "up": [float(v) for v in scene.up],
+            "scale": float(scene.scale),
+            "rad_w": TEXTURE_WIDTH,
+            "rad_h": _texture_rows(n_v),
+            "ov_w": TEXTURE_WIDTH,
+            "ov_h": _texture_rows(self._n),
+            "camera": {"position": cam.position.tolist(), "look_at": cam.look_at.tolist(), "fov_y": cam.fov_y},
+            "point_intensity": 20.0 * (0.25 * float(scene.scale) * float(scene.unit)) ** 2,
+        }
+        client.send(
+            pack(
+                "scene",
+                {"positions": corners.reshape(-1), "vid": self._smooth.corner_vertex.reshape(-1).astype(np.uint32)},
+                **head,
+            )
+        )
         client.send(_json(self._state()))
         if self._notice:
             client.send(_json({"kind": "notice", "text": self._notice}))
@@ -504,8 +575,14 @@ class Viewer:
                 aspect = float(msg.get("aspect") or cam.width / cam.height)
                 width = 640
                 height = max(1, int(round(width / max(aspect, 1e-3))))
-                new = Camera(msg["position"], msg["look_at"], self.dynamic.scene.up, float(msg.get("fov_y", cam.fov_y)),
-                             width, min(height, 4096))
+                new = Camera(
+                    msg["position"],
+                    msg["look_at"],
+                    self.dynamic.scene.up,
+                    float(msg.get("fov_y", cam.fov_y)),
+                    width,
+                    min(height, 4096),
+                )
                 self._set_camera(new, int(msg.get("seq", 0)))
             elif kind == "lights":
                 self._apply_lights(msg)
@@ -523,8 +600,10 @@ class Viewer:
                 else:
                     self.stop_recording()
             elif kind == "client_stats":
-                client.stats = {k: msg.get(k) for k in ("fps", "updates_per_second", "frames_received",
-                                                        "latency_ms_median", "bytes_received")}
+                client.stats = {
+                    k: msg.get(k)
+                    for k in ("fps", "updates_per_second", "frames_received", "latency_ms_median", "bytes_received")
+                }
             elif kind == "screenshot":
                 png = base64.b64decode(str(msg["png"]).split(",", 1)[1])
                 with self._cond:
@@ -589,8 +668,16 @@ class Viewer:
                 self._set_camera(cam)
                 with self._cond:
                     key = self._key()
-                self._server.broadcast(_json({"kind": "camera", "position": cam.position.tolist(),
-                                              "look_at": cam.look_at.tolist(), "fov_y": cam.fov_y}))
+                self._server.broadcast(
+                    _json(
+                        {
+                            "kind": "camera",
+                            "position": cam.position.tolist(),
+                            "look_at": cam.look_at.tolist(),
+                            "fov_y": cam.fov_y,
+                        }
+                    )
+                )
             if self._broadcast_path:
                 self._broadcast_path = False
                 self._broadcast_state()
@@ -631,19 +718,45 @@ class Viewer:
         now = time.monotonic()
         if now - self._last_residual[0] >= RESIDUAL_INTERVAL:
             self._last_residual = (now, float(dyn.residual()))
-        st = {"frame": self._frames, "seq": key[0], "swaps": int(stats.swaps), "M": int(dyn.M), "N": self._n,
-              "local": int(local.sum()), "clusters": None if dyn.far is None else int(dyn.far.C),
-              "t_select": stats.t_select, "t_form_factors": stats.t_form_factors, "t_update": stats.t_update,
-              "t_move": stats.t_move, "t_lighting": t2 - t1, "t_colours": t3 - t2, "t_frame": t2 - t0,
-              "residual": self._last_residual[1], "error": error, "auto_stops": auto,
-              "far_error": _far_error(dyn),
-              "recording": record is not None, "recorded": self._recorded}
+        st = {
+            "frame": self._frames,
+            "seq": key[0],
+            "swaps": int(stats.swaps),
+            "M": int(dyn.M),
+            "N": self._n,
+            "local": int(local.sum()),
+            "clusters": None if dyn.far is None else int(dyn.far.C),
+            "t_select": stats.t_select,
+            "t_form_factors": stats.t_form_factors,
+            "t_update": stats.t_update,
+            "t_move": stats.t_move,
+            "t_lighting": t2 - t1,
+            "t_colours": t3 - t2,
+            "t_frame": t2 - t0,
+            "residual": self._last_residual[1],
+            "error": error,
+            "auto_stops": auto,
+            "far_error": _far_error(dyn),
+            "recording": record is not None,
+            "recorded": self._recorded,
+        }
         if moved:
             first = self._static_n
             corners = (np.asarray(dyn.scene.vertices[first:], dtype=np.float64) - self._origin).astype(np.float32)
             self._server.broadcast(pack("positions", {"positions": corners.reshape(-1)}, offset=first * 9))
-        self._server.broadcast(pack("frame", arrays, frame=self._frames, seq=key[0], stats=st, auto_stops=auto,
-                                    recording=record is not None, recorded=self._recorded), frame=True)
+        self._server.broadcast(
+            pack(
+                "frame",
+                arrays,
+                frame=self._frames,
+                seq=key[0],
+                stats=st,
+                auto_stops=auto,
+                recording=record is not None,
+                recorded=self._recorded,
+            ),
+            frame=True,
+        )
         if record is not None:
             self._record(record, B, cam, auto)
         with self._cond:
@@ -661,9 +774,13 @@ class Viewer:
             rgba[:, :3] = np.where(local[:, None], [[40, 220, 90]], [[220, 40, 200]])
             rgba[:, 3] = 90
         elif overlay == "clusters" and self.dynamic.far is not None:
-            labels = self.dynamic.far.clusters.labels[:n] if len(self.dynamic.far.clusters.labels) >= n else \
-                np.concatenate([self.dynamic.far.clusters.labels,
-                                np.arange(n - len(self.dynamic.far.clusters.labels)) + 10**6])
+            labels = (
+                self.dynamic.far.clusters.labels[:n]
+                if len(self.dynamic.far.clusters.labels) >= n
+                else np.concatenate(
+                    [self.dynamic.far.clusters.labels, np.arange(n - len(self.dynamic.far.clusters.labels)) + 10**6]
+                )
+            )
             rgba[:, :3] = _hue_colours(labels)
             rgba[:, 3] = 160
         elif overlay == "error" and reference is not None and reference[0] == version:
@@ -737,4 +854,3 @@ def build_dynamic(scene, form_factors, path, local_size, solver_options, resolut
     n = len(scene) + sum(len(t.object) for t in tracks)
     m = min(n, 1024) if local_size is None else min(int(local_size), n)
     return DynamicRadiosity(scene, form_factors, local_size=m, device=device, **options)
-

@@ -9,9 +9,9 @@ import trimesh
 
 import pydynrad
 from pydynrad import InvalidInputError, bake_lightmap, export_mesh
-from pydynrad.errors import OutOfMemoryError
 from pydynrad.bake.gltf import read_glb
 from pydynrad.bake.ply import read_ply
+from pydynrad.errors import OutOfMemoryError
 from pydynrad.renderer import Renderer
 
 
@@ -39,7 +39,7 @@ def test_glb_round_trip_holds_the_smooth_vertex_radiosity(solved, tmp_path):
     scene, B = solved
     path = export_mesh(scene, B, tmp_path / "box.glb", exposure=-6.0)
     mesh = _load_one(path)
-    # Triangle i is patch i, in metres +y up (issue 41: glTF's convention; the box is in millimetres,
+    # Triangle i is patch i, in metres +y up (glTF's convention; the box is in millimetres,
     # y up, so scaled only; glTF holds float32).
     np.testing.assert_allclose(mesh.vertices[mesh.faces], scene.vertices * scene.unit, rtol=1e-6, atol=1e-9)
     radiosity = np.asarray(mesh.vertex_attributes["_RADIOSITY"])
@@ -106,13 +106,15 @@ def test_damaged_glb_and_ply_are_named_as_such(solved, tmp_path):
         read_glb(data[:-8])
     # A count of -1 (it had read the whole buffer) or past the buffer, in a file of the right length.
     n_json = struct.unpack_from("<I", data, 12)[0]
-    doc = json.loads(data[20:20 + n_json])
+    doc = json.loads(data[20 : 20 + n_json])
     for count in (-1, 10**30):
         doc["accessors"][0]["count"] = count
         text = json.dumps(doc).encode()
         text += b" " * (-len(text) % 4)
-        rest = data[20 + n_json:]
-        forged = struct.pack("<III", 0x46546C67, 2, 20 + len(text) + len(rest)) + struct.pack("<II", len(text), 0x4E4F534A)
+        rest = data[20 + n_json :]
+        forged = struct.pack("<III", 0x46546C67, 2, 20 + len(text) + len(rest)) + struct.pack(
+            "<II", len(text), 0x4E4F534A
+        )
         with pytest.raises(InvalidInputError, match="count"):
             read_glb(forged + text + rest)
     data = export_mesh(scene, B, tmp_path / "a.ply").read_bytes()
@@ -177,8 +179,12 @@ def test_every_texel_a_triangle_touches_is_covered(lightmap):
     x, y, _ = _touched_texels(lm)
     assert lm.covered[y, x].all()
     # ...and not many more: the charts' area in texels plus a band along their borders.
-    uv_area = 0.5 * np.abs(np.cross(np.pad(t[:, 1] - t[:, 0], ((0, 0), (0, 1))),
-                                    np.pad(t[:, 2] - t[:, 0], ((0, 0), (0, 1))))[:, 2]).sum()
+    uv_area = (
+        0.5
+        * np.abs(
+            np.cross(np.pad(t[:, 1] - t[:, 0], ((0, 0), (0, 1))), np.pad(t[:, 2] - t[:, 0], ((0, 0), (0, 1))))[:, 2]
+        ).sum()
+    )
     assert uv_area < lm.covered.sum() < 1.1 * uv_area
 
 
@@ -195,8 +201,10 @@ def test_charts_end_at_material_borders(device):
     from scipy.sparse.csgraph import connected_components
 
     corner = lm.vertex[lm.faces]  # smooth vertex of each corner
-    graph = coo_matrix((np.ones(corner.size), (corner.reshape(-1), np.roll(corner, 1, axis=1).reshape(-1))),
-                       shape=(lm.vertex.max() + 1,) * 2)
+    graph = coo_matrix(
+        (np.ones(corner.size), (corner.reshape(-1), np.roll(corner, 1, axis=1).reshape(-1))),
+        shape=(lm.vertex.max() + 1,) * 2,
+    )
     surface = connected_components(graph, directed=False)[1][corner[:, 0]]
     owner = np.full((h + 2, w + 2), -1)
     point_surface = np.repeat(surface, per_triangle)

@@ -1,4 +1,4 @@
-"""kill -9 during ``pydynrad bake --lightmap`` (issue 46, item 5): the pair is written so that a
+"""kill -9 during ``pydynrad bake --lightmap``: the pair is written so that a
 mesh never stands beside a lightmap that is not its own, and the next run leaves no debris.
 
 Before: 2 of 7 kills left hidden 7-32 MB temporaries that nothing removed, and 3 of 7 a GLB
@@ -25,8 +25,20 @@ OLD, NEW = ("--texels-per-unit", "300"), ("--texels-per-unit", "400")
 
 
 def _bake(folder, extra, kill_after: float | None = None) -> int:
-    cmd = [sys.executable, "-m", "pydynrad", "bake", "closed_box", "-o", "a.glb", "--lightmap", "a.exr",
-           "--resolution", "16", *extra]
+    cmd = [
+        sys.executable,
+        "-m",
+        "pydynrad",
+        "bake",
+        "closed_box",
+        "-o",
+        "a.glb",
+        "--lightmap",
+        "a.exr",
+        "--resolution",
+        "16",
+        *extra,
+    ]
     proc = subprocess.Popen(cmd, cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     if kill_after is None:
         out, _ = proc.communicate(timeout=120)
@@ -104,8 +116,10 @@ def test_stale_temporaries_of_dead_writers_are_removed_and_live_ones_kept(tmp_pa
     target = tmp_path / "a.glb"
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    stale = [tmp_path / f".a.glb{TMP_MARK}{dead.pid}-0badf00d.glb",
-             tmp_path / f"..a.glb{TMP_MARK}{dead.pid}-0badf00d.glb{TMP_MARK}{dead.pid}-12345678.glb"]
+    stale = [
+        tmp_path / f".a.glb{TMP_MARK}{dead.pid}-0badf00d.glb",
+        tmp_path / f"..a.glb{TMP_MARK}{dead.pid}-0badf00d.glb{TMP_MARK}{dead.pid}-12345678.glb",
+    ]
     live = [tmp_path / f".a.glb{TMP_MARK}{os.getpid()}-0badf00d.glb", tmp_path / f".b.glb{TMP_MARK}{dead.pid}-1.glb"]
     for p in stale + live:
         p.write_bytes(b"x" * 10)

@@ -14,7 +14,9 @@ WEIGHTS = {"emission": 0.5, "lamp": (1.0, 0.5, 0.2), "spots": 2.0}
 def cornell_lights(device):
     scene = pydynrad.scenes.cornell_box(max_edge=200.0)
     F = pydynrad.form_factors(scene, resolution=16, device=device)
-    lamp = PointLight((278, 450, 280), 0.04)  # W/sr in the millimetre box, irradiance per m^2 (issue 41): what 1e6 times more had lit per mm^2
+    lamp = PointLight(
+        (278, 450, 280), 0.04
+    )  # W/sr in the millimetre box, irradiance per m^2: what 1e6 times more had lit per mm^2
     spot = SpotLight((100, 500, 100), (0.3, -1, 0.4), (0.03, 0.02, 0.01), 0.3, 0.6)
     sun = DirectionalLight((0.2, -0.3, 1.0), 0.02)  # through the open side
     groups = LightGroups(scene, {"lamp": [lamp], "spots": [spot, sun]}, device=device)
@@ -25,10 +27,11 @@ def _weighted(scene, lights):
     """The same scene and lights with every intensity scaled by hand: the truth to compare with."""
     lamp, spot, sun = lights
     rgb = np.asarray(WEIGHTS["lamp"])
-    scaled = [PointLight(lamp.position, np.asarray(lamp.intensity) * rgb),
-              SpotLight(spot.position, spot.direction, np.asarray(spot.intensity) * 2.0, spot.inner_angle,
-                        spot.outer_angle),
-              DirectionalLight(sun.direction, np.asarray(sun.irradiance) * 2.0)]
+    scaled = [
+        PointLight(lamp.position, np.asarray(lamp.intensity) * rgb),
+        SpotLight(spot.position, spot.direction, np.asarray(spot.intensity) * 2.0, spot.inner_angle, spot.outer_angle),
+        DirectionalLight(sun.direction, np.asarray(sun.irradiance) * 2.0),
+    ]
     return scene.with_materials(emission=scene.emission * 0.5), scaled
 
 
@@ -94,8 +97,9 @@ def test_groups_refuse_bad_input(cornell_lights, device):
         with pytest.raises(InvalidInputError, match="not a light or a sequence of lights"):
             LightGroups(scene, {"lamp": value})
     other = pydynrad.scenes.cornell_box(max_edge=300.0)
-    dyn = pydynrad.DynamicRadiosity(other, pydynrad.form_factors(other, resolution=8, device=device), local_size=16,
-                                    device=device)
+    dyn = pydynrad.DynamicRadiosity(
+        other, pydynrad.form_factors(other, resolution=8, device=device), local_size=16, device=device
+    )
     dyn.update((278, 273, -200))
     with pytest.raises(InvalidInputError, match="another scene"):
         groups.dynamic(dyn)
@@ -103,8 +107,9 @@ def test_groups_refuse_bad_input(cornell_lights, device):
     poses = [np.eye(4), np.eye(4)]
     poses[0][:3, 3], poses[1][:3, 3] = (150.0, 420.0, 420.0), (250.0, 420.0, 380.0)  # clear of the box's blocks
     block = pydynrad.RigidObject(pydynrad.scenes.block(100.0, 0), poses[0])
-    moving = pydynrad.DynamicRadiosity(scene, F, local_size=64, objects=[block], observer=(278, 273, -200),
-                                       device=device)
+    moving = pydynrad.DynamicRadiosity(
+        scene, F, local_size=64, objects=[block], observer=(278, 273, -200), device=device
+    )
     at_first = LightGroups(moving.scene, {"lamp": [lights[0]]}, device=device)
     at_first.dynamic(moving)
     moving.move(block, poses[1])

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from pydynrad.device.sell import DeviceSELL, sell_slices
 from pydynrad.device.launch import SellLayout
+from pydynrad.device.sell import DeviceSELL, sell_slices
 
 
 def _ragged(n, seed):
@@ -58,7 +58,9 @@ def test_bounces_match_scipy(device, c, channels, dtype):
     rtol = 1e-13 if dtype == np.float64 else 2e-6  # observed 2e-16 and 1.5e-7
     np.testing.assert_allclose(B, truth, rtol=rtol)
     assert sweeps == 3 and len(history) == 3
-    assert change == pytest.approx(np.abs(truth - prev).max() / np.abs(truth).max(), rel=1e-3 if dtype == np.float32 else 1e-10)
+    assert change == pytest.approx(
+        np.abs(truth - prev).max() / np.abs(truth).max(), rel=1e-3 if dtype == np.float32 else 1e-10
+    )
     # observed 1e-4 (float32: y - x of a change near 3e-4 keeps ~3 digits) and 1e-13
     assert M.nbytes >= M.stored * (4 + np.dtype(dtype).itemsize) and M.stored >= A.nnz
 
@@ -67,4 +69,6 @@ def test_a_non_square_matrix_is_refused(device):
     from pydynrad import InvalidInputError
 
     with pytest.raises(InvalidInputError, match="square"):
-        DeviceSELL(device, sp.random(40, 7, density=0.2, format="csr", random_state=1), np.float32, SellLayout(4, 16, 2))
+        DeviceSELL(
+            device, sp.random(40, 7, density=0.2, format="csr", random_state=1), np.float32, SellLayout(4, 16, 2)
+        )

@@ -9,10 +9,10 @@ from helpers import grid_scene
 import pydynrad
 from pydynrad import InvalidInputError
 from pydynrad.device.csr import DeviceCSR
-from pydynrad.dynamic.kupdate import UpdateKernels
-from pydynrad.lights.sources import point_irradiance
 from pydynrad.device.matrix import DeviceMatrix
+from pydynrad.dynamic.kupdate import UpdateKernels
 from pydynrad.lights.areas import emitter_irradiance
+from pydynrad.lights.sources import point_irradiance
 
 
 def test_one_normal_serves_every_point_and_bad_normals_are_refused(device):
@@ -29,8 +29,10 @@ def test_one_normal_serves_every_point_and_bad_normals_are_refused(device):
     lit = scene.with_materials(emission=np.full((len(scene), 3), 1.0))
     with pytest.raises(InvalidInputError, match="sensor normals"):
         emitter_irradiance(lit, points, down[:2], device=device)
-    np.testing.assert_array_equal(emitter_irradiance(lit, points, [0.0, 0.0, -1.0], device=device),
-                                  emitter_irradiance(lit, points, down, device=device))
+    np.testing.assert_array_equal(
+        emitter_irradiance(lit, points, [0.0, 0.0, -1.0], device=device),
+        emitter_irradiance(lit, points, down, device=device),
+    )
 
 
 def test_device_csr_refuses_what_its_kernel_would_overrun(device):

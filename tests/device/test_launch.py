@@ -5,10 +5,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import box_scene
 
 import pydynrad
 from pydynrad.device.launch import WG, global_size, round_up
-from helpers import box_scene
 
 
 def test_global_size_rounds_up_to_whole_work_groups():
@@ -16,12 +16,15 @@ def test_global_size_rounds_up_to_whole_work_groups():
     assert global_size(5, 4) == 8 and round_up(96, 128) == 128 and round_up(256, 128) == 256
 
 
-@pytest.mark.parametrize("filename,missing", [
-    ("update.cl", "VW, SW, WG, RR, CWMAX, NVMAX, NAMAX and RED_WG"),
-    ("matvec.cl", "VW, LX, NRHS and RI"),
-    ("spmv.cl", "NCH and LX (with RGB_STEP) or SELL_C"),
-    ("gemm.cl", "VW and TM"),
-])
+@pytest.mark.parametrize(
+    "filename,missing",
+    [
+        ("update.cl", "VW, SW, WG, RR, CWMAX, NVMAX, NAMAX and RED_WG"),
+        ("matvec.cl", "VW, LX, NRHS and RI"),
+        ("spmv.cl", "NCH and LX (with RGB_STEP) or SELL_C"),
+        ("gemm.cl", "VW and TM"),
+    ],
+)
 def test_kernels_take_layout_defines_from_the_host(device, filename, missing):
     with pytest.raises(pydynrad.errors.KernelBuildError) as info:
         device.program(filename, {"STORAGE_FP32": 1})
@@ -41,10 +44,12 @@ def test_path_tracer_needs_the_bounce_limit(device):
 
 
 def test_hemicube_needs_the_hosts_packet_width_and_tiles(device):
-    for defines, missing in (({"HC_RES": 8, "HC_TILE_Y": 2}, "needs BVH_PACKET of 4, 8 or 16"),
-                             ({"HC_RES": 8, "BVH_PACKET": 12, "HC_TILE_Y": 2}, "needs BVH_PACKET of 4, 8 or 16"),
-                             ({"HC_RES": 8, "BVH_PACKET": 8}, "needs HC_TILE_Y"),
-                             ({"HC_RES": 8, "BVH_PACKET": 8, "HC_TILE_Y": 3}, "needs HC_TILE_Y")):
+    for defines, missing in (
+        ({"HC_RES": 8, "HC_TILE_Y": 2}, "needs BVH_PACKET of 4, 8 or 16"),
+        ({"HC_RES": 8, "BVH_PACKET": 12, "HC_TILE_Y": 2}, "needs BVH_PACKET of 4, 8 or 16"),
+        ({"HC_RES": 8, "BVH_PACKET": 8}, "needs HC_TILE_Y"),
+        ({"HC_RES": 8, "BVH_PACKET": 8, "HC_TILE_Y": 3}, "needs HC_TILE_Y"),
+    ):
         with pytest.raises(pydynrad.errors.KernelBuildError) as info:
             device.program("hemicube.cl", defines)
         assert missing in info.value.build_log
@@ -77,15 +82,18 @@ def test_patch_buffers_once_per_device_and_per_geometry(device):
     c2, _ = other.patch_buffers(device)
     cl.enqueue_copy(device.queue, host, c2, is_blocking=True)
     # Centres go up in the scene's device frame (re-centred and scaled: docs/design.md, 'Device frame').
-    assert np.array_equal(host[:, :3], other.frame.points(other.centers)) and not np.array_equal(other.centers, s.centers)
+    assert np.array_equal(host[:, :3], other.frame.points(other.centers)) and not np.array_equal(
+        other.centers, s.centers
+    )
 
 
 def test_sell_layout_only_for_grey_solves_on_wide_simd_cpus():
     from pydynrad.device.devices import DeviceTraits
     from pydynrad.device.launch import SELL_WINDOW_SLICES, sell_layout
 
-    avx512 = DeviceTraits(cpu=True, compute_units=2, float_width=16, double_width=8, max_work_group=4096,
-                          local_mem_bytes=1 << 20)
+    avx512 = DeviceTraits(
+        cpu=True, compute_units=2, float_width=16, double_width=8, max_work_group=4096, local_mem_bytes=1 << 20
+    )
     s = sell_layout(avx512, 4, 1)
     assert (s.c, s.sigma, s.blocks, s.defines) == (16, 16 * SELL_WINDOW_SLICES, 32, {"SELL_C": 16})
     assert sell_layout(avx512, 8, 1).c == 8

@@ -14,22 +14,33 @@ from helpers import coloured_box, dense_K, reciprocal_F, rel
 
 from pydynrad import multibounce
 from pydynrad.device.devices import DeviceTraits
-from pydynrad.dynamic.kupdate import UpdateKernels
 from pydynrad.device.launch import GEMM_GRAIN, UpdateLayout, cpu_vector_width, gemm_layout, matvec_layout, spmv_layout
 from pydynrad.device.matrix import DeviceMatrix, padded_ld
+from pydynrad.dynamic.kupdate import UpdateKernels
 
-AVX512 = DeviceTraits(cpu=True, compute_units=2, float_width=16, double_width=8, max_work_group=4096,
-                      local_mem_bytes=2**21, aligned_vectors=True)
+AVX512 = DeviceTraits(
+    cpu=True,
+    compute_units=2,
+    float_width=16,
+    double_width=8,
+    max_work_group=4096,
+    local_mem_bytes=2**21,
+    aligned_vectors=True,
+)
 AVX2 = dataclasses.replace(AVX512, compute_units=32, float_width=8, double_width=4)
 SSE = dataclasses.replace(AVX512, compute_units=4, float_width=4, double_width=2, aligned_vectors=False)
-GPU = DeviceTraits(cpu=False, compute_units=132, float_width=1, double_width=1, max_work_group=1024,
-                   local_mem_bytes=48 * 1024)
+GPU = DeviceTraits(
+    cpu=False, compute_units=132, float_width=1, double_width=1, max_work_group=1024, local_mem_bytes=48 * 1024
+)
 SMALL_GPU = dataclasses.replace(GPU, compute_units=4, max_work_group=32, local_mem_bytes=256)
 
 
 # Per CPU: update/GEMM width in floats and in doubles, matvec width in floats and in doubles.
-@pytest.mark.parametrize("traits,widths", [(AVX512, (16, 8, 16, 16)), (AVX2, (8, 4, 16, 8)), (SSE, (4, 4, 8, 4))],
-                         ids=["avx512", "avx2", "sse"])
+@pytest.mark.parametrize(
+    "traits,widths",
+    [(AVX512, (16, 8, 16, 16)), (AVX2, (8, 4, 16, 8)), (SSE, (4, 4, 8, 4))],
+    ids=["avx512", "avx2", "sse"],
+)
 def test_cpu_kernels_take_the_devices_register_width(traits, widths):
     """Update and GEMM kernels: one register of REALs per vector (4 at least: the narrowest
     kernel vector); matvec and the sparse gathers: two registers, at most 16; fp16 storage
@@ -54,6 +65,7 @@ def test_matvec_rows_side_by_side_hide_the_fma_latency():
     and register of REALs), at most MATVEC_ACC_REGS; narrow storage from memory keeps one row;
     a GPU and the LX > 1 layout always one; the grid covers every row."""
     from pydynrad.device.launch import MATVEC_ACC_REGS, MATVEC_CHAINS
+
     M, ld = 1000, padded_ld(1000)
     cached = dataclasses.replace(AVX512, cache_bytes=2**25)
     for traits in (cached, dataclasses.replace(AVX2, cache_bytes=2**25)):
@@ -101,8 +113,11 @@ def test_gpu_layouts_stay_within_the_devices_limits(traits):
     assert matvec_layout(GPU, M, ld).lx == 64 and matvec_layout(SMALL_GPU, M, ld).lx == 16  # 256 B / (4 RHS x 4 B)
 
 
-@pytest.mark.parametrize("width,aligned,storage", [(8, True, "fp16"), (8, True, "fp64"), (4, False, "fp32")],
-                         ids=["avx2-clang-fp16", "avx2-clang-fp64", "portable-4-fp32"])
+@pytest.mark.parametrize(
+    "width,aligned,storage",
+    [(8, True, "fp16"), (8, True, "fp64"), (4, False, "fp32")],
+    ids=["avx2-clang-fp16", "avx2-clang-fp64", "portable-4-fp32"],
+)
 def test_kernels_at_other_widths_against_numpy(device, width, aligned, storage):
     """The kernels an AVX2 CPU (8 floats) or a 4-wide CPU without PoCL's clang would get, built
     and run here: gathers (dense and sparse), rank update, products with K and the device
@@ -111,7 +126,9 @@ def test_kernels_at_other_widths_against_numpy(device, width, aligned, storage):
         pytest.skip(f"{device.name} has no clang vector path")
     dev = device.with_traits(cpu=True, float_width=width, double_width=width // 2, aligned_vectors=aligned)
     built, program = [], dev.program
-    dev.program = lambda filename, defines=None: built.append((filename, dict(defines or {}))) or program(filename, defines)
+    dev.program = lambda filename, defines=None: (
+        built.append((filename, dict(defines or {}))) or program(filename, defines)
+    )
     rng = np.random.default_rng(width)
     M = 203  # ld = 256: rows past the last group of 8, sparse steps and column strips that end early
     m = DeviceMatrix(dev, rng.uniform(-1, 1, (1, M, M)), storage)
@@ -146,17 +163,26 @@ def test_a_walk_with_gpu_layouts_equals_one_with_cpu_layouts(device):
     """DynamicRadiosity on a GPU-like description of the test device (every GPU layout: the
     coalesced gather and rank update, a work-group per row of K and of F, 128-item groups)
     walks to the same K as a fresh float64 build and lights the scene as the CPU layouts do."""
-    import pydynrad
     from helpers import observer_walk
 
-    gpu = device.with_traits(cpu=False, compute_units=16, float_width=1, double_width=1, max_work_group=128,
-                             local_mem_bytes=32768, aligned_vectors=False)
+    import pydynrad
+
+    gpu = device.with_traits(
+        cpu=False,
+        compute_units=16,
+        float_width=1,
+        double_width=1,
+        max_work_group=128,
+        local_mem_bytes=32768,
+        aligned_vectors=False,
+    )
     scene = coloured_box(4, seed=3, emitters=4)
     F = reciprocal_F(scene.areas, row_sum=0.95, density=0.08, seed=3)
     walks = []
     for dev in (gpu, device):
-        dyn = pydynrad.DynamicRadiosity(scene, F, local_size=48, storage="fp32", max_swaps_per_frame=6,
-                                        observer=[0.5, 0.5, 0.5], device=dev)
+        dyn = pydynrad.DynamicRadiosity(
+            scene, F, local_size=48, storage="fp32", max_swaps_per_frame=6, observer=[0.5, 0.5, 0.5], device=dev
+        )
         swaps = sum(dyn.update(p).swaps for p in observer_walk(np.random.default_rng(8), 30))
         walks.append((swaps, dyn))
     (swaps, dyn), (_, ref) = walks

@@ -27,7 +27,13 @@ def test_products_match_numpy(device, storage, layout):
     assert (m.C, m.M, m.storage) == (C, M, storage)
     assert m.ld >= M and m.ld % 64 == 0
     assert len(m.buffers) == C
-    assert m.nbytes == C * M * m.ld * np.dtype(np.float16 if storage == "fp16" else np.float32 if storage == "fp32" else np.float64).itemsize
+    assert (
+        m.nbytes
+        == C
+        * M
+        * m.ld
+        * np.dtype(np.float16 if storage == "fp16" else np.float32 if storage == "fp32" else np.float64).itemsize
+    )
     y = m.matvec(x)
     assert y.dtype == np.float64 and y.shape == (C, M)
     assert rel(y, np.einsum("cij,cj->ci", K, x)) < TOL[storage]

@@ -60,8 +60,11 @@ def test_the_device_builds_and_says_what_it_was_given(device):
         assert "compiler_cpu" in device.info()
     else:
         assert replaced_cpu(d) is None and "compiler_cpu" not in device.info()
-    wide = cl.Program(device.context, "__kernel void roots(__global float16 *a) "
-                      "{ size_t i = get_global_id(0); a[i] = floor(rsqrt(fabs(a[i])) + 0.5f); }").build()
+    wide = cl.Program(
+        device.context,
+        "__kernel void roots(__global float16 *a) "
+        "{ size_t i = get_global_id(0); a[i] = floor(rsqrt(fabs(a[i])) + 0.5f); }",
+    ).build()
     v = np.full(16 * 3, -0.01, np.float32)
     vbuf = cl.Buffer(device.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=v)
     wide.roots(device.queue, (3,), None, vbuf)

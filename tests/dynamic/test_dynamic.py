@@ -17,13 +17,13 @@ import scipy.sparse as sp
 from helpers import coloured_box, dense_K, dense_radiosity, observer_walk, reciprocal_F, rel
 
 import pydynrad
+from pydynrad.device.matrix import DeviceMatrix
 from pydynrad.dynamic import DynamicRadiosity
-from pydynrad.errors import InvalidInputError
 from pydynrad.dynamic.exact import batched_swap
 from pydynrad.dynamic.kupdate import UpdateKernels
-from pydynrad.device.matrix import DeviceMatrix
-from pydynrad.rows.sources import CSRRows
 from pydynrad.dynamic.selection import NearestSet
+from pydynrad.errors import InvalidInputError
+from pydynrad.rows.sources import CSRRows
 
 WALK_TOL = {"fp64": 1e-13, "fp32": 2e-5, "fp16": 3e-3}
 
@@ -62,8 +62,16 @@ def test_entering_blocks_equal_dense_indexing(coloured_box_F):
 def test_exact_walk_equals_fresh_build(device, coloured_box_F, storage):
     scene, F = coloured_box_F
     rng = np.random.default_rng(5)
-    dyn = DynamicRadiosity(scene, F, local_size=48, update="exact", storage=storage, max_swaps_per_frame=6,
-                           observer=[0.5, 0.5, 0.5], device=device)
+    dyn = DynamicRadiosity(
+        scene,
+        F,
+        local_size=48,
+        update="exact",
+        storage=storage,
+        max_swaps_per_frame=6,
+        observer=[0.5, 0.5, 0.5],
+        device=device,
+    )
     swaps = batched = 0
     for p in observer_walk(rng, 90):
         st = dyn.update(p)
@@ -106,8 +114,18 @@ def test_single_swap_is_downdate_then_bordering():
     F_JS = F[j, S][None].copy()
     F_JS[0, s] = 0
     rS = rho[S]
-    u = batched_swap(K[:, [s]], K[[s], :], K @ (rS[:, None] * F_SJ), (F_JS * rS) @ K, F_SJ, F_JS,
-                     F[[j]][:, [j]], rS, rho[[j]], np.array([s]))
+    u = batched_swap(
+        K[:, [s]],
+        K[[s], :],
+        K @ (rS[:, None] * F_SJ),
+        (F_JS * rS) @ K,
+        F_SJ,
+        F_JS,
+        F[[j]][:, [j]],
+        rS,
+        rho[[j]],
+        np.array([s]),
+    )
     got = K + u.A @ u.B
     got[:, s], got[s, :] = u.cols[0], u.rows[0]
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-15)  # observed 1.4e-17 (PoCL/Xeon, 2026-12-01)
@@ -120,7 +138,9 @@ def test_row_source_matches_sparse(device, coloured_box_F):
     """A RowSource gives only rows; F[S, J] comes from the kept rows of S, so a walk over a row
     source equals the walk over the matrix itself."""
     scene, F = coloured_box_F
-    kw = dict(local_size=40, update="exact", storage="fp64", max_swaps_per_frame=4, observer=[0.2, 0.5, 0.5], device=device)
+    kw = dict(
+        local_size=40, update="exact", storage="fp64", max_swaps_per_frame=4, observer=[0.2, 0.5, 0.5], device=device
+    )
     a, b = DynamicRadiosity(scene, F, **kw), DynamicRadiosity(scene, CSRRows(F), **kw)
     for p in observer_walk(np.random.default_rng(2), 15):
         assert a.update(p).swaps == b.update(p).swaps
@@ -134,8 +154,9 @@ def test_hemicube_rows_on_demand(device):
     with every patch in the set, B is the full solve of that matrix."""
     scene = coloured_box(3, seed=26, emitters=2)  # 108 patches
     F = pydynrad.form_factors(scene, resolution=16, device=device)
-    kw = dict(local_size=40, update="exact", storage="fp64", max_swaps_per_frame=4, observer=[0.5, 0.5, 0.5],
-              device=device)
+    kw = dict(
+        local_size=40, update="exact", storage="fp64", max_swaps_per_frame=4, observer=[0.5, 0.5, 0.5], device=device
+    )
     lazy, full = DynamicRadiosity(scene, None, resolution=16, **kw), DynamicRadiosity(scene, CSRRows(F), **kw)
     swaps = 0
     for p in observer_walk(np.random.default_rng(27), 12):
@@ -157,7 +178,9 @@ def test_hemicube_rows_on_demand(device):
 def test_full_set_reproduces_the_full_solution(device, mode):
     scene = coloured_box(3, emitters=3, seed=7)  # 108 patches
     F = reciprocal_F(scene.areas, row_sum=1.0, density=0.2, seed=8)
-    dyn = DynamicRadiosity(scene, F, local_size=len(scene), update=mode, storage="fp64", observer=[0.5, 0.5, 0.5], device=device)
+    dyn = DynamicRadiosity(
+        scene, F, local_size=len(scene), update=mode, storage="fp64", observer=[0.5, 0.5, 0.5], device=device
+    )
     assert dyn.update([0.1, 0.9, 0.3]).swaps == 0
     L = np.random.default_rng(1).random((len(scene), 3))
     B = dyn.radiosity(light=L)
@@ -184,8 +207,17 @@ def test_one_patch_gives_its_own_light(device, coloured_box_F):
 def test_albedo_extremes(device, albedo, mode):
     scene = coloured_box(3, albedo=albedo, emitters=2, seed=9)
     F = reciprocal_F(scene.areas, row_sum=1.0, density=0.2, seed=10)
-    dyn = DynamicRadiosity(scene, F, local_size=50, update=mode, storage="fp64", max_swaps_per_frame=3,
-                           observer=[0.5, 0.5, 0.5], far_field=False, device=device)
+    dyn = DynamicRadiosity(
+        scene,
+        F,
+        local_size=50,
+        update=mode,
+        storage="fp64",
+        max_swaps_per_frame=3,
+        observer=[0.5, 0.5, 0.5],
+        far_field=False,
+        device=device,
+    )
     for p in observer_walk(np.random.default_rng(4), 10):
         dyn.update(p)
     L = np.random.default_rng(5).random((len(scene), 3))
@@ -234,8 +266,9 @@ def test_lighting_changes_B_not_K(device, coloured_box_F):
     import pyopencl as cl
 
     scene, F = coloured_box_F
-    dyn = DynamicRadiosity(scene, F, local_size=32, storage="fp16", observer=[0.5, 0.5, 0.5], far_field=False,
-                           device=device)
+    dyn = DynamicRadiosity(
+        scene, F, local_size=32, storage="fp16", observer=[0.5, 0.5, 0.5], far_field=False, device=device
+    )
     dyn.update([0.3, 0.6, 0.5])
 
     def raw():
@@ -266,7 +299,9 @@ def test_emitters_are_never_evicted(device):
     F = reciprocal_F(scene.areas, row_sum=0.95, density=0.08, seed=12)
     emit = np.flatnonzero(scene.emission.max(axis=1) > 0)
     for mode in ("exact", "paper"):
-        dyn = DynamicRadiosity(scene, F, local_size=40, update=mode, storage="fp32", observer=[0.5, 0.5, 0.5], device=device)
+        dyn = DynamicRadiosity(
+            scene, F, local_size=40, update=mode, storage="fp32", observer=[0.5, 0.5, 0.5], device=device
+        )
         held = set(emit) & set(dyn.local_patches)
         for p in observer_walk(np.random.default_rng(13), 25):
             st = dyn.update(p)
@@ -278,23 +313,44 @@ def test_emitters_are_never_evicted(device):
 def test_grey_scene_keeps_one_channel(device):
     scene = coloured_box(3, grey=True, seed=14)
     F = reciprocal_F(scene.areas, row_sum=0.95, density=0.2, seed=15)
-    dyn = DynamicRadiosity(scene, F, local_size=30, storage="fp64", max_swaps_per_frame=4, observer=[0.5, 0.5, 0.1],
-                           far_field=False, device=device)
+    dyn = DynamicRadiosity(
+        scene,
+        F,
+        local_size=30,
+        storage="fp64",
+        max_swaps_per_frame=4,
+        observer=[0.5, 0.5, 0.1],
+        far_field=False,
+        device=device,
+    )
     for p in observer_walk(np.random.default_rng(16), 12):
         dyn.update(p)
     assert dyn.matrix.C == 1
     S = dyn.local_patches
     assert rel(dyn.matrix.to_host(), dense_K(scene, F, S, 1)) < 1e-13  # observed 1e-15
     L = np.random.default_rng(17).random((len(scene), 3))
-    np.testing.assert_allclose(dyn.radiosity(light=L)[S], L[S] + scene.albedo[S] * (dense_K(scene, F, S, 1)[0] @ L[S]), rtol=1e-13)
+    np.testing.assert_allclose(
+        dyn.radiosity(light=L)[S], L[S] + scene.albedo[S] * (dense_K(scene, F, S, 1)[0] @ L[S]), rtol=1e-13
+    )
 
 
 # -- drift, refresh, memory ----------------------------------------------------------------------
 def test_residual_and_refresh(device, coloured_box_F):
     scene, F = coloured_box_F
-    exact = DynamicRadiosity(scene, F, local_size=40, update="exact", storage="fp64", observer=[0.5, 0.5, 0.5], device=device)
-    paper = DynamicRadiosity(scene, F, local_size=40, update="paper", storage="fp64", observer=[0.5, 0.5, 0.5],
-                             refresh_tolerance=1e-3, refresh_interval=10, device=device)
+    exact = DynamicRadiosity(
+        scene, F, local_size=40, update="exact", storage="fp64", observer=[0.5, 0.5, 0.5], device=device
+    )
+    paper = DynamicRadiosity(
+        scene,
+        F,
+        local_size=40,
+        update="paper",
+        storage="fp64",
+        observer=[0.5, 0.5, 0.5],
+        refresh_tolerance=1e-3,
+        refresh_interval=10,
+        device=device,
+    )
     # Both start from a fresh build: fp64 rounding, observed ~7e-16 (the former warm-started
     # GMRES probe read exactly 0 here).
     assert exact.residual() < 1e-9 and paper.residual() < 1e-9
@@ -317,8 +373,16 @@ def test_residual_and_refresh(device, coloured_box_F):
 
 def test_memory_bytes(device, coloured_box_F):
     scene, F = coloured_box_F
-    dyn = DynamicRadiosity(scene, F, local_size=64, storage="fp16", max_swaps_per_frame=8, observer=[0.5, 0.5, 0.5],
-                           far_field=False, device=device)
+    dyn = DynamicRadiosity(
+        scene,
+        F,
+        local_size=64,
+        storage="fp16",
+        max_swaps_per_frame=8,
+        observer=[0.5, 0.5, 0.5],
+        far_field=False,
+        device=device,
+    )
     assert dyn.memory_bytes == DynamicRadiosity.estimate_memory_bytes(64, 3, "fp16", 8, device)
     assert dyn.memory_bytes >= 3 * 64 * 64 * 2
     # The paper's figure: M = 4096, RGB, fp16 is about 96 MiB: K alone is exactly 96 MiB, the
@@ -461,7 +525,9 @@ def test_prefetch_time_is_its_own_field(device, coloured_box_F, monkeypatch):
 
     scene, F = coloured_box_F
     skipped = [0.0]
-    monkeypatch.setattr(frame_loop, "time", types.SimpleNamespace(perf_counter=lambda: time.perf_counter() + skipped[0]))
+    monkeypatch.setattr(
+        frame_loop, "time", types.SimpleNamespace(perf_counter=lambda: time.perf_counter() + skipped[0])
+    )
 
     class SlowPrefetch(CSRRows):
         calls = 0
@@ -485,8 +551,9 @@ def test_warm_up_leaves_K_unchanged(device, coloured_box_F, mode, storage):
     """The constructor's warm-up launches every update kernel; a second one must leave K
     bit for bit as it was, and the frames after it give what a solver never warmed gives."""
     scene, F = coloured_box_F
-    dyn = DynamicRadiosity(scene, F, local_size=48, update=mode, storage=storage, observer=[0.5, 0.5, 0.5],
-                           device=device)
+    dyn = DynamicRadiosity(
+        scene, F, local_size=48, update=mode, storage=storage, observer=[0.5, 0.5, 0.5], device=device
+    )
     before = dyn.matrix.to_host()
     dyn.warm_up()
     assert np.array_equal(dyn.matrix.to_host(), before)
@@ -534,8 +601,16 @@ def test_sparse_and_dense_gathers_give_one_K(device, coloured_box_F, monkeypatch
     out = {}
     for share in (0.0, 1.0):  # 0: never sparse (every batch has non-zeros), 1: always
         monkeypatch.setenv("PYDYNRAD_SPARSE_DENSITY", str(share))
-        dyn = DynamicRadiosity(scene, F, local_size=48, update=mode, storage="fp64", max_swaps_per_frame=6,
-                               observer=[0.5, 0.5, 0.5], device=device)
+        dyn = DynamicRadiosity(
+            scene,
+            F,
+            local_size=48,
+            update=mode,
+            storage="fp64",
+            max_swaps_per_frame=6,
+            observer=[0.5, 0.5, 0.5],
+            device=device,
+        )
         for p in observer_walk(np.random.default_rng(7), 30):
             dyn.update(p)
         out[share] = (dyn.local_patches, dyn.matrix.to_host())
@@ -554,14 +629,23 @@ def test_rows_of_another_scene_small_sets_and_albedos_near_one(device, tmp_path)
     from pydynrad.geometry.scene import PrecisionWarning
 
     box = pydynrad.scenes.cornell_box(max_edge=250.0)
-    turned = pydynrad.Scene(box.points[:, [2, 1, 0]], box.triangles[:, [0, 2, 1]], albedo=box.albedo,
-                            emission=box.emission)
+    turned = pydynrad.Scene(
+        box.points[:, [2, 1, 0]], box.triangles[:, [0, 2, 1]], albedo=box.albedo, emission=box.emission
+    )
     store = pydynrad.compute_store(turned, tmp_path / "st", resolution=8, progress=False)
     for rows in (pydynrad.rows.HemicubeRows(turned, 8, device), store):
         with pytest.raises(InvalidInputError, match="another scene geometry"):
             DynamicRadiosity(box, rows, local_size=len(box), resolution=8, far_field=False, device=device)
-    dyn = DynamicRadiosity(box, pydynrad.rows.HemicubeRows(box, 8, device), local_size=4, resolution=8, far_field=False,
-                           refresh_tolerance=1e-3, refresh_interval=1, device=device)
+    dyn = DynamicRadiosity(
+        box,
+        pydynrad.rows.HemicubeRows(box, 8, device),
+        local_size=4,
+        resolution=8,
+        far_field=False,
+        refresh_tolerance=1e-3,
+        refresh_interval=1,
+        device=device,
+    )
     centre = box.bbox.mean(axis=0)
     dyn.update(centre)  # the build
     for step in (1, 2):
@@ -573,13 +657,25 @@ def test_rows_of_another_scene_small_sets_and_albedos_near_one(device, tmp_path)
         scene = closed.with_materials(albedo=albedo, emission=emission)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            DynamicRadiosity(scene, pydynrad.form_factors(scene, 8, device=device), local_size=len(scene),
-                             resolution=8, storage=storage, far_field=False, observer=[0.5, 0.5, 0.5], device=device)
+            DynamicRadiosity(
+                scene,
+                pydynrad.form_factors(scene, 8, device=device),
+                local_size=len(scene),
+                resolution=8,
+                storage=storage,
+                far_field=False,
+                observer=[0.5, 0.5, 0.5],
+                device=device,
+            )
         assert any(issubclass(w.category, PrecisionWarning) for w in caught) == warned, (albedo, storage)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            pydynrad.multibounce(scene, pydynrad.form_factors(scene, 8, device=device),
-                                 dtype=np.float64 if storage == "fp64" else np.float32, device=device)
+            pydynrad.multibounce(
+                scene,
+                pydynrad.form_factors(scene, 8, device=device),
+                dtype=np.float64 if storage == "fp64" else np.float32,
+                device=device,
+            )
         assert any(issubclass(w.category, PrecisionWarning) for w in caught) == warned, (albedo, storage)
 
 
@@ -591,21 +687,33 @@ def test_arguments_that_had_crashed_or_been_misread(device):
     box = pydynrad.scenes.cornell_box(max_edge=250.0)
     F = pydynrad.form_factors(box, 8, device=device)
     cases = [
-        (lambda: DynamicRadiosity(box, F, local_size=64, resolution=8, observer=[1e160, 0, 0], device=device),
-         "too far"),
+        (
+            lambda: DynamicRadiosity(box, F, local_size=64, resolution=8, observer=[1e160, 0, 0], device=device),
+            "too far",
+        ),
         (lambda: DynamicRadiosity(box, F, local_size=64, device="cpu"), "device must be a pydynrad Device"),
         (lambda: pydynrad.solve(box, F, device="x"), "device must be a pydynrad Device"),
         (lambda: pydynrad.solve(box, F, tol="1e-3", device=device), "tol must be one finite number"),
         (lambda: pydynrad.solve(box, F, max_iterations=np.inf, device=device), "max_iterations"),
         (lambda: pydynrad.solve(box, F, bounces=10**30, device=device), r"bounces must be an integer in 0\.\.1000000"),
         (lambda: pydynrad.solve(box, F, bounces=np.nan, device=device), "bounces"),
-        (lambda: pydynrad.solve(box, F, raise_on_failure="no", device=device), "raise_on_failure must be True or False"),
+        (
+            lambda: pydynrad.solve(box, F, raise_on_failure="no", device=device),
+            "raise_on_failure must be True or False",
+        ),
         (lambda: DynamicRadiosity(box, F, local_size=64, keep_emitters="no", device=device), "keep_emitters"),
-        (lambda: DynamicRadiosity(box, F, local_size=64, far_field=False, clusters=50, device=device),
-         "clusters build the far field"),
-        (lambda: pydynrad.bake.LightGroups(box, {"a": [pydynrad.PointLight([100, 500, 100], 1e5)]}, device=device)
-         .dynamic(DynamicRadiosity(box, F, local_size=64, device=device, observer=box.bbox.mean(axis=0)))
-         .combine({"a": 1e308}), "past float64's range"),
+        (
+            lambda: DynamicRadiosity(box, F, local_size=64, far_field=False, clusters=50, device=device),
+            "clusters build the far field",
+        ),
+        (
+            lambda: (
+                pydynrad.bake.LightGroups(box, {"a": [pydynrad.PointLight([100, 500, 100], 1e5)]}, device=device)
+                .dynamic(DynamicRadiosity(box, F, local_size=64, device=device, observer=box.bbox.mean(axis=0)))
+                .combine({"a": 1e308})
+            ),
+            "past float64's range",
+        ),
     ]
     for call, message in cases:
         with pytest.raises(InvalidInputError, match=message):

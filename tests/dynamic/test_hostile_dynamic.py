@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import scipy.sparse as sp
+
 import pydynrad
 from pydynrad.errors import InvalidInputError
 from pydynrad.geometry.scene import PrecisionWarning
@@ -15,8 +16,9 @@ def test_residual_sees_the_max_entry_error(device, storage):
     # closed box, 192 patches); the former probe read 1-2e-7 for fp32 where entries were off 5e-6.
     scene = pydynrad.scenes.closed_box(subdivisions=2, albedo=0.8)
     F = pydynrad.form_factors(scene, resolution=16, device=device)
-    dyn = pydynrad.DynamicRadiosity(scene, F, local_size=96, storage=storage, observer=[0.5, 0.5, 0.5],
-                                    far_field=False, device=device)
+    dyn = pydynrad.DynamicRadiosity(
+        scene, F, local_size=96, storage=storage, observer=[0.5, 0.5, 0.5], far_field=False, device=device
+    )
     rng = np.random.default_rng(3)
     for _ in range(40):
         dyn.update(rng.random(3))
@@ -27,12 +29,15 @@ def test_residual_sees_the_max_entry_error(device, storage):
     assert true / 3 < dyn.residual() < 3 * true
 
 
-# State and concurrency (issue 14, item 7), outputs that cannot overflow silently (item 6).
-def test_update_is_not_re_entrant_and_a_huge_observer_is_refused_before_the_frame_advances(closed_box_48, closed_box_48_F, device):
+# State and concurrency, outputs that cannot overflow silently (item 6).
+def test_update_is_not_re_entrant_and_a_huge_observer_is_refused_before_the_frame_advances(
+    closed_box_48, closed_box_48_F, device
+):
     import threading
 
-    dyn = pydynrad.DynamicRadiosity(closed_box_48, closed_box_48_F, local_size=8, observer=[0.5, 0.5, 0.5], far_field=False,
-                                    device=device)
+    dyn = pydynrad.DynamicRadiosity(
+        closed_box_48, closed_box_48_F, local_size=8, observer=[0.5, 0.5, 0.5], far_field=False, device=device
+    )
     with pytest.raises(InvalidInputError, match="too far from the scene"):
         dyn.update([1e155, 0.0, 0.0])  # main: an IndexError from the selection, frame counter advanced
     assert dyn.frame == 0
@@ -75,7 +80,9 @@ def test_rows_are_checked_once_on_their_way_to_the_local_set(monkeypatch, closed
             got = LocalRows(closed_box_48, source, 8, device).rows(idx)
             assert got.dtype == np.float64 and np.array_equal(got.toarray(), want)
     assert calls == []  # main: checked again by the cache and again by LocalRows
-    bare = type("Bare", (), {"n_patches": len(closed_box_48), "rows": lambda self, i: sp.csr_matrix(closed_box_48_F)[i]})()
+    bare = type(
+        "Bare", (), {"n_patches": len(closed_box_48), "rows": lambda self, i: sp.csr_matrix(closed_box_48_F)[i]}
+    )()
     assert np.array_equal(LocalRows(closed_box_48, bare, 8, device).rows(idx).toarray(), want)
     assert len(calls) == 1  # a source without the contract is checked by its reader
 
@@ -87,20 +94,32 @@ def test_albedos_near_one_are_solved_or_named_for_what_they_are(device):
     # as the dense solve does, and the bounce iteration names the bounces it would need.
     closed_box_48 = pydynrad.scenes.closed_box(subdivisions=0, emission=0.0)
     F = pydynrad.form_factors(closed_box_48, resolution=64, device=device)
-    bright = closed_box_48.with_materials(albedo=0.9995, emission=np.where(closed_box_48.source_face // 2 == 4, 1.0, 0.0))
+    bright = closed_box_48.with_materials(
+        albedo=0.9995, emission=np.where(closed_box_48.source_face // 2 == 4, 1.0, 0.0)
+    )
     ref = pydynrad.solve(bright, F, method="dense", dtype=np.float64, device=device).radiosity
-    dyn = pydynrad.DynamicRadiosity(bright, F, local_size=len(bright), far_field=False, storage="fp64",
-                                    observer=[0.5, 0.5, 0.5], device=device)
+    dyn = pydynrad.DynamicRadiosity(
+        bright, F, local_size=len(bright), far_field=False, storage="fp64", observer=[0.5, 0.5, 0.5], device=device
+    )
     B = dyn.radiosity()
     assert ref.max() > 300  # about 1 / (1 - 0.9995) / 6 faces' worth
     np.testing.assert_allclose(B, ref, rtol=1e-12, atol=1e-12 * ref.max())
     with pytest.raises(pydynrad.errors.ConvergenceError, match="albedos near 1 need about"):
         pydynrad.solve(bright, F, tol=1e-8, dtype=np.float64, device=device)
     # K itself past fp16's range is refused at the build, not stored as inf with a warning.
-    brighter = closed_box_48.with_materials(albedo=0.999999, emission=np.where(closed_box_48.source_face // 2 == 4, 1.0, 0.0))
+    brighter = closed_box_48.with_materials(
+        albedo=0.999999, emission=np.where(closed_box_48.source_face // 2 == 4, 1.0, 0.0)
+    )
     with pytest.raises(InvalidInputError, match="beyond fp16's range"), pytest.warns(PrecisionWarning):
-        pydynrad.DynamicRadiosity(brighter, F, local_size=len(brighter), far_field=False, storage="fp16",
-                                  observer=[0.5, 0.5, 0.5], device=device)
+        pydynrad.DynamicRadiosity(
+            brighter,
+            F,
+            local_size=len(brighter),
+            far_field=False,
+            storage="fp16",
+            observer=[0.5, 0.5, 0.5],
+            device=device,
+        )
 
 
 def test_residual_is_scaled_by_k_not_by_a_column_of_rounding_residue(device):
@@ -110,8 +129,9 @@ def test_residual_is_scaled_by_k_not_by_a_column_of_rounding_residue(device):
     closed_box_48 = pydynrad.scenes.cornell_box(max_edge=200.0)
     F = pydynrad.form_factors(closed_box_48, resolution=64, device=device)
     a, b = np.array([50.0, 100.0, 50.0]), np.array([500.0, 450.0, 500.0])
-    dyn = pydynrad.DynamicRadiosity(closed_box_48, F, local_size=128, update="exact", storage="fp32", far_field=False,
-                                    observer=a, device=device)
+    dyn = pydynrad.DynamicRadiosity(
+        closed_box_48, F, local_size=128, update="exact", storage="fp32", far_field=False, observer=a, device=device
+    )
     for f in range(224):
         t = (f % 80) / 40
         dyn.update(a + (b - a) * (t if t <= 1 else 2 - t))

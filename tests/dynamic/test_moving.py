@@ -6,12 +6,15 @@ and the same F with the rows a limited budget leaves stale, solved densely in nu
 
 import numpy as np
 import pytest
-from pydynrad.geometry.objects import with_objects
+from helpers import END, MIDDLE, START, dense_K, dense_radiosity, pose, rel
+from helpers import MOVING_LIGHTS as LIGHTS
+from helpers import MOVING_OBSERVER as OBSERVER
+from helpers import MOVING_R as R
+from helpers import moving_full_solve as full_solve
+
 import pydynrad as pd
 from pydynrad.dynamic.occlusion import sphere_solid_angle
-from pydynrad.geometry.objects import instanced
-from helpers import dense_K, dense_radiosity, pose, rel
-from helpers import MOVING_R as R, MOVING_OBSERVER as OBSERVER, MOVING_LIGHTS as LIGHTS, START, MIDDLE, END, moving_full_solve as full_solve
+from pydynrad.geometry.objects import instanced, with_objects
 
 
 @pytest.fixture(scope="module")
@@ -43,11 +46,21 @@ def test_light_vector_after_moves_relights_only_what_they_shadow(cornell_384, gr
 
     monkeypatch.setattr(radiosity_module, "_point_irradiance", counting)  # a relight after a move
     monkeypatch.setattr(lights_module, "_point_irradiance", counting)  # a light vector traced whole
-    lights = [pd.PointLight((278.0, 500.0, 280.0), (0.3, 0.3, 0.3)),
-              pd.SpotLight((100.0, 540.0, 100.0), (0.3, -1.0, 0.4), (0.2, 0.2, 0.1), 0.3, 0.8),
-              pd.DirectionalLight((0.0, -1.0, 0.0), (40.0, 40.0, 40.0))]
+    lights = [
+        pd.PointLight((278.0, 500.0, 280.0), (0.3, 0.3, 0.3)),
+        pd.SpotLight((100.0, 540.0, 100.0), (0.3, -1.0, 0.4), (0.2, 0.2, 0.1), 0.3, 0.8),
+        pd.DirectionalLight((0.0, -1.0, 0.0), (40.0, 40.0, 40.0)),
+    ]
     obj, carried = pd.RigidObject(green_block, START), pd.RigidObject(lamp, pose(0, (400.0, 300.0, 120.0)))
-    dyn = pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384) // 2, resolution=R, objects=pd.MovingObjects([obj, carried], occlusion=0), observer=OBSERVER, device=device)
+    dyn = pd.DynamicRadiosity(
+        cornell_384,
+        None,
+        local_size=len(cornell_384) // 2,
+        resolution=R,
+        objects=pd.MovingObjects([obj, carried], occlusion=0),
+        observer=OBSERVER,
+        device=device,
+    )
     dyn.radiosity(lights)
     dyn.radiosity(lights)  # steady
     for T, U in ((MIDDLE, None), (END, pose(30, (350.0, 150.0, 200.0))), (START, None)):
@@ -86,7 +99,16 @@ def test_unlimited_budget_equals_full_solve(cornell_384, green_block, lamp, devi
     """Two objects (one emitting), moved twice, in chunks of 8 swaps: B is the full solve's."""
     obj, carried = pd.RigidObject(green_block, START), pd.RigidObject(lamp, pose(0, (400.0, 300.0, 120.0)))
     n = len(cornell_384) + len(green_block) + len(lamp)
-    dyn = pd.DynamicRadiosity(cornell_384, None, local_size=n, resolution=R, objects=pd.MovingObjects([obj, carried], occlusion=None), max_swaps_per_frame=8, observer=OBSERVER, device=device)
+    dyn = pd.DynamicRadiosity(
+        cornell_384,
+        None,
+        local_size=n,
+        resolution=R,
+        objects=pd.MovingObjects([obj, carried], occlusion=None),
+        max_swaps_per_frame=8,
+        observer=OBSERVER,
+        device=device,
+    )
     assert len(dyn.scene) == n and dyn.scene.n_patches == n
     for T, U in ((MIDDLE, pose(10, (300.0, 200.0, 100.0))), (END, pose(45, (150.0, 250.0, 150.0)))):
         dyn.move(obj, T)
@@ -104,9 +126,11 @@ def test_unlimited_budget_equals_full_solve(cornell_384, green_block, lamp, devi
     assert rel(B, dense_radiosity(ref, F_flat, pd.light_vector(ref, LIGHTS, device=device))) < 3e-3
     # The objects receive light and reflect it: green bleeds onto the floor next to the block.
     n_box = len(cornell_384)
-    assert B[n_box:n_box + len(green_block)].max() > 0
+    assert B[n_box : n_box + len(green_block)].max() > 0
     floor = np.flatnonzero((cornell_384.normals[:, 1] > 0.99) & (cornell_384.centers[:, 1] < 1.0))
-    without = dense_radiosity(cornell_384, pd.form_factors(cornell_384, R, device=device), pd.light_vector(cornell_384, LIGHTS, device=device))
+    without = dense_radiosity(
+        cornell_384, pd.form_factors(cornell_384, R, device=device), pd.light_vector(cornell_384, LIGHTS, device=device)
+    )
     near = floor[np.argsort(np.linalg.norm(cornell_384.centers[floor] - END[:3, 3], axis=1))[:4]]
 
     def green(b):
@@ -127,7 +151,9 @@ def test_budget_trades_error(cornell_384, green_block, device):
     world, F1, B_ref = full_solve(cornell_384, [end], device)
     F1 = F1.toarray().astype(np.float64)
     L = pd.light_vector(world, LIGHTS, device=device)
-    score = sum(sphere_solid_angle(cornell_384.centers, cornell_384.normals, *o.bounding_sphere()) for o in (start, end))
+    score = sum(
+        sphere_solid_angle(cornell_384.centers, cornell_384.normals, *o.bounding_sphere()) for o in (start, end)
+    )
     ranked = np.argsort(-score, kind="stable")
     A = world.areas.astype(np.float64)
     recip = (F1[n_box:, :n_box] * A[n_box:, None]).T / A[:n_box, None]
@@ -140,7 +166,15 @@ def test_budget_trades_error(cornell_384, green_block, device):
     errors = []
     for budget in (0, 64, 160, None):
         obj = pd.RigidObject(green_block, START)
-        dyn = pd.DynamicRadiosity(cornell_384, None, local_size=n, resolution=R, objects=pd.MovingObjects([obj], occlusion=budget), observer=OBSERVER, device=device)
+        dyn = pd.DynamicRadiosity(
+            cornell_384,
+            None,
+            local_size=n,
+            resolution=R,
+            objects=pd.MovingObjects([obj], occlusion=budget),
+            observer=OBSERVER,
+            device=device,
+        )
         dyn.move(obj, END)
         st = dyn.update(OBSERVER)
         B = dyn.radiosity(LIGHTS)
@@ -157,7 +191,15 @@ def test_budget_trades_error(cornell_384, green_block, device):
 @pytest.mark.parametrize("budget", [0, None])
 def test_away_and_back_restores_K(cornell_384, green_block, device, budget):
     obj = pd.RigidObject(green_block, START)
-    dyn = pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384) + len(green_block), resolution=R, objects=pd.MovingObjects([obj], occlusion=budget), observer=OBSERVER, device=device)
+    dyn = pd.DynamicRadiosity(
+        cornell_384,
+        None,
+        local_size=len(cornell_384) + len(green_block),
+        resolution=R,
+        objects=pd.MovingObjects([obj], occlusion=budget),
+        observer=OBSERVER,
+        device=device,
+    )
     # From the first move on, the rows a budget leaves stale are the same at every pose (the
     # built ones) and the objects' own rows and columns are those of the pose.
     dyn.move(obj, END)
@@ -175,7 +217,15 @@ def test_static_form_factors_with_objects(cornell_384, green_block, device):
     F_static = pd.form_factors(cornell_384, R, device=device)
     obj = pd.RigidObject(green_block, START)
     M = len(green_block) + 100
-    dyn = pd.DynamicRadiosity(cornell_384, F_static, local_size=M, resolution=R, objects=pd.MovingObjects([obj], occlusion=16), observer=OBSERVER, device=device)
+    dyn = pd.DynamicRadiosity(
+        cornell_384,
+        F_static,
+        local_size=M,
+        resolution=R,
+        objects=pd.MovingObjects([obj], occlusion=16),
+        observer=OBSERVER,
+        device=device,
+    )
     objects = np.arange(len(cornell_384), len(cornell_384) + len(green_block))
     assert np.isin(objects, dyn.local_patches).all()
     dyn.move(obj, END)
@@ -202,8 +252,9 @@ def test_static_form_factors_with_objects(cornell_384, green_block, device):
 
 def test_bad_input(cornell_384, green_block, device):
     obj = pd.RigidObject(green_block, START)
-    dyn = pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384), resolution=R, objects=[obj], observer=OBSERVER,
-                              device=device)
+    dyn = pd.DynamicRadiosity(
+        cornell_384, None, local_size=len(cornell_384), resolution=R, objects=[obj], observer=OBSERVER, device=device
+    )
     with pytest.raises(pd.InvalidInputError, match="not rigid"):
         dyn.move(obj, np.diag([1.0, 2.0, 1.0, 1.0]))
     with pytest.raises(pd.InvalidInputError, match="NaN"):
@@ -213,13 +264,29 @@ def test_bad_input(cornell_384, green_block, device):
     with pytest.raises(pd.InvalidInputError, match="more than local_size"):
         pd.DynamicRadiosity(cornell_384, None, local_size=len(green_block) - 1, objects=[obj], device=device)
     with pytest.raises(pd.InvalidInputError, match="update='exact'"):
-        pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384), objects=[obj], update="paper", device=device)
+        pd.DynamicRadiosity(
+            cornell_384, None, local_size=len(cornell_384), objects=[obj], update="paper", device=device
+        )
     with pytest.raises(pd.InvalidInputError, match="occlusion"):
-        pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384), objects=pd.MovingObjects([obj], occlusion=-1), device=device)
+        pd.DynamicRadiosity(
+            cornell_384, None, local_size=len(cornell_384), objects=pd.MovingObjects([obj], occlusion=-1), device=device
+        )
     with pytest.raises(pd.InvalidInputError, match="occlusion_correction"):
-        pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384), objects=pd.MovingObjects([obj], occlusion_correction='yes'), device=device)
+        pd.DynamicRadiosity(
+            cornell_384,
+            None,
+            local_size=len(cornell_384),
+            objects=pd.MovingObjects([obj], occlusion_correction="yes"),
+            device=device,
+        )
     with pytest.raises(pd.InvalidInputError, match="'auto'"):
-        pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384), objects=pd.MovingObjects([obj], occlusion='some'), device=device)
+        pd.DynamicRadiosity(
+            cornell_384,
+            None,
+            local_size=len(cornell_384),
+            objects=pd.MovingObjects([obj], occlusion="some"),
+            device=device,
+        )
     dyn.move(obj, pose(0, (350.0, 200.0, 330.0)))  # through the tall block: allowed, warned
     with pytest.warns(pd.geometry.ObjectIntersectionWarning):
         dyn.update(OBSERVER)
@@ -236,8 +303,9 @@ def test_a_pose_the_device_cannot_resolve_is_refused_before_anything_moves(corne
     from pydynrad.geometry.objects import MAX_REACH
 
     obj = pd.RigidObject(green_block, START)
-    dyn = pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384), resolution=R, objects=[obj], observer=OBSERVER,
-                              device=device)
+    dyn = pd.DynamicRadiosity(
+        cornell_384, None, local_size=len(cornell_384), resolution=R, objects=[obj], observer=OBSERVER, device=device
+    )
     B = dyn.radiosity(LIGHTS)
     centre, radius = cornell_384.frame.origin, obj.bounding_sphere()[1]
     behind = lambda reach: pose(0, centre + (0.0, 0.0, reach - radius))  # noqa: E731  (+z: behind the back wall)
@@ -246,8 +314,14 @@ def test_a_pose_the_device_cannot_resolve_is_refused_before_anything_moves(corne
         with pytest.raises(pd.InvalidInputError, match=r"float32 .* keep it within"):
             dyn.move(obj, behind(reach))
         with pytest.raises(pd.InvalidInputError, match="float32"):
-            pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384), resolution=R,
-                                objects=[pd.RigidObject(green_block, behind(reach))], device=device)
+            pd.DynamicRadiosity(
+                cornell_384,
+                None,
+                local_size=len(cornell_384),
+                resolution=R,
+                objects=[pd.RigidObject(green_block, behind(reach))],
+                device=device,
+            )
     with pytest.raises(pd.InvalidInputError, match="float32"):
         with_objects(cornell_384, [pd.RigidObject(green_block, behind(1e18))])
     track = pd.walks.ObjectTrack(obj, [START, behind(1.01 * limit)], interpolation="linear")
@@ -259,7 +333,10 @@ def test_a_pose_the_device_cannot_resolve_is_refused_before_anything_moves(corne
     world = instanced(cornell_384, [pd.RigidObject(green_block, far)])
     assert world.ray_scale == cornell_384.ray_scale < world.scale / 5
     n = len(cornell_384)
-    F_world, F_box = pd.form_factors(world, R, rows=np.arange(n), device=device), pd.form_factors(cornell_384, R, device=device)
+    F_world, F_box = (
+        pd.form_factors(world, R, rows=np.arange(n), device=device),
+        pd.form_factors(cornell_384, R, device=device),
+    )
     assert F_world[:, n:].nnz == 0
     np.testing.assert_array_equal(F_world[:, :n].toarray(), F_box.toarray())
     dyn.move(obj, far)
@@ -282,7 +359,15 @@ def test_object_track_and_walk(cornell_384, green_block, device):
     track = pd.walks.ObjectTrack(obj, [START, MIDDLE, END])  # three frames: one on each keyframe
     path = pd.fly_through([(278.0, 273.0, -300.0), (278.0, 273.0, -250.0)], frames=3, fov_y=40, width=24, height=18)
     n = len(cornell_384) + len(green_block)
-    dyn = pd.DynamicRadiosity(cornell_384, None, local_size=n, resolution=R, objects=pd.MovingObjects([obj], occlusion=None), observer=path.camera(0).position, device=device)
+    dyn = pd.DynamicRadiosity(
+        cornell_384,
+        None,
+        local_size=n,
+        resolution=R,
+        objects=pd.MovingObjects([obj], occlusion=None),
+        observer=path.camera(0).position,
+        device=device,
+    )
     result = pd.walk(cornell_384, path, dyn, lights=LIGHTS, objects=[track], reference_frames=[0, 2], device=device)
     np.testing.assert_array_equal(obj.transform, END)
     errors = [f.error for f in result.frames if f.error is not None]
@@ -303,7 +388,15 @@ def test_static_form_factors_budget_trades_error(cornell_384, green_block, devic
     errors = {}
     for budget, correct in ((0, False), (32, False), (None, False), (0, True), (32, True)):
         obj = pd.RigidObject(green_block, START)
-        dyn = pd.DynamicRadiosity(cornell_384, F_static, local_size=len(world) - 40, resolution=R, objects=pd.MovingObjects([obj], occlusion=budget, occlusion_correction=correct), observer=OBSERVER, device=device)
+        dyn = pd.DynamicRadiosity(
+            cornell_384,
+            F_static,
+            local_size=len(world) - 40,
+            resolution=R,
+            objects=pd.MovingObjects([obj], occlusion=budget, occlusion_correction=correct),
+            observer=OBSERVER,
+            device=device,
+        )
         for T in (MIDDLE, END):
             dyn.move(obj, T)
             st = dyn.update(OBSERVER)
@@ -327,9 +420,16 @@ def test_default_budget_follows_the_rows(cornell_384, green_block, device):
     F_static = pd.form_factors(cornell_384, R, device=device)
 
     def budget(form_factors, **kw):
-        return pd.DynamicRadiosity(cornell_384, form_factors, local_size=64, resolution=R,
-                                   objects=pd.MovingObjects([pd.RigidObject(green_block, START)], **kw),
-                                   far_field=False, observer=OBSERVER, device=device).occlusion
+        return pd.DynamicRadiosity(
+            cornell_384,
+            form_factors,
+            local_size=64,
+            resolution=R,
+            objects=pd.MovingObjects([pd.RigidObject(green_block, START)], **kw),
+            far_field=False,
+            observer=OBSERVER,
+            device=device,
+        ).occlusion
 
     assert budget(F_static) == 0
     assert budget(F_static, occlusion_correction=False) == DEFAULT_OCCLUSION == 32
@@ -350,7 +450,15 @@ def test_a_move_that_fails_is_not_half_applied(cornell_384, green_block, device,
 
     def made():
         obj = pd.RigidObject(green_block, START)
-        dyn = pd.DynamicRadiosity(cornell_384, F_static, local_size=n, resolution=R, objects=pd.MovingObjects([obj], occlusion=0), observer=OBSERVER, device=device)
+        dyn = pd.DynamicRadiosity(
+            cornell_384,
+            F_static,
+            local_size=n,
+            resolution=R,
+            objects=pd.MovingObjects([obj], occlusion=0),
+            observer=OBSERVER,
+            device=device,
+        )
         dyn.radiosity(LIGHTS)
         dyn.radiosity(LIGHTS)  # steady lights: the move brings them along
         return dyn, obj
@@ -376,8 +484,10 @@ def test_a_move_that_fails_is_not_half_applied(cornell_384, green_block, device,
     # The objects' hemicubes fail as they are queued, or as they are waited for on a pool thread.
     from pydynrad.rows.sources import HemicubeRows
 
-    for owner, name, failing in ((moves_module.WorldRows, "fresh_queued", broken),
-                                 (HemicubeRows, "queued", lambda *args: broken)):
+    for owner, name, failing in (
+        (moves_module.WorldRows, "fresh_queued", broken),
+        (HemicubeRows, "queued", lambda *args: broken),
+    ):
         dyn, obj = made()
         before = dyn.scene
         monkeypatch.setattr(owner, name, failing)
@@ -423,7 +533,16 @@ def test_budget_zero_moves_then_walk_swaps(cornell_384, green_block, device, mon
 
     def walked():
         obj = pd.RigidObject(green_block, START)
-        dyn = pd.DynamicRadiosity(cornell_384, F_static, local_size=n - 150, resolution=R, objects=pd.MovingObjects([obj], occlusion=0), max_swaps_per_frame=16, observer=OBSERVER, device=device)
+        dyn = pd.DynamicRadiosity(
+            cornell_384,
+            F_static,
+            local_size=n - 150,
+            resolution=R,
+            objects=pd.MovingObjects([obj], occlusion=0),
+            max_swaps_per_frame=16,
+            observer=OBSERVER,
+            device=device,
+        )
         dyn.radiosity(LIGHTS)
         for T in (MIDDLE, END):
             dyn.move(obj, T)
@@ -457,10 +576,21 @@ def test_memory_estimate_counts_the_move_batch(cornell_384, green_block, device)
     # A move swaps the block's 48 patches in one batch: the update's scratch is sized for it,
     # not for the frame's 8 swaps, and the estimate says so.
     obj = pd.RigidObject(green_block, START)
-    dyn = pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384), resolution=R, objects=[obj], max_swaps_per_frame=8,
-                              far_field=False, observer=OBSERVER, device=device)
+    dyn = pd.DynamicRadiosity(
+        cornell_384,
+        None,
+        local_size=len(cornell_384),
+        resolution=R,
+        objects=[obj],
+        max_swaps_per_frame=8,
+        far_field=False,
+        observer=OBSERVER,
+        device=device,
+    )
     M = len(cornell_384)
-    assert dyn.memory_bytes == pd.DynamicRadiosity.estimate_memory_bytes(M, 3, "fp32", 8, device, object_patches=len(green_block))
+    assert dyn.memory_bytes == pd.DynamicRadiosity.estimate_memory_bytes(
+        M, 3, "fp32", 8, device, object_patches=len(green_block)
+    )
     assert dyn.memory_bytes > pd.DynamicRadiosity.estimate_memory_bytes(M, 3, "fp32", 8, device)
 
 
@@ -478,8 +608,15 @@ def test_a_thousand_moves_do_not_drift_or_grow(device):
     at = lambda x: pose(0, (x, 430.0, 300.0))  # noqa: E731  (above the tall block, below the light)
     obj = pd.RigidObject(green_block, at(150.0))
     n = len(cornell_384) + len(green_block)
-    dyn = pd.DynamicRadiosity(cornell_384, pd.form_factors(cornell_384, R, device=device), local_size=n // 2, resolution=R,
-                              objects=[obj], observer=OBSERVER, device=device)
+    dyn = pd.DynamicRadiosity(
+        cornell_384,
+        pd.form_factors(cornell_384, R, device=device),
+        local_size=n // 2,
+        resolution=R,
+        objects=[obj],
+        observer=OBSERVER,
+        device=device,
+    )
     dyn.radiosity(LIGHTS)
     K = dyn.matrix.to_host().copy()
     ends, memory = {150.0: [], 400.0: []}, []
@@ -512,7 +649,16 @@ def test_moves_that_fail_or_come_from_elsewhere_leave_the_solution_right(cornell
 
     def fresh():
         obj = pd.RigidObject(green_block, START)
-        return obj, pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384) + len(green_block), resolution=R, objects=pd.MovingObjects([obj], occlusion=None), observer=OBSERVER, device=device, far_field=False)
+        return obj, pd.DynamicRadiosity(
+            cornell_384,
+            None,
+            local_size=len(cornell_384) + len(green_block),
+            resolution=R,
+            objects=pd.MovingObjects([obj], occlusion=None),
+            observer=OBSERVER,
+            device=device,
+            far_field=False,
+        )
 
     obj, dyn = fresh()
     K0 = dyn.matrix.to_host()
@@ -529,7 +675,16 @@ def test_moves_that_fail_or_come_from_elsewhere_leave_the_solution_right(cornell
     np.testing.assert_array_equal(obj.transform, cut)
     # Set directly, and moved by a second solution sharing the object: both follow it.
     obj, dyn = fresh()
-    other = pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384) + len(green_block), resolution=R, objects=pd.MovingObjects([obj], occlusion=None), observer=OBSERVER, device=device, far_field=False)
+    other = pd.DynamicRadiosity(
+        cornell_384,
+        None,
+        local_size=len(cornell_384) + len(green_block),
+        resolution=R,
+        objects=pd.MovingObjects([obj], occlusion=None),
+        observer=OBSERVER,
+        device=device,
+        far_field=False,
+    )
     obj.transform = END
     assert dyn.update(OBSERVER).moved == 1 and other.update(OBSERVER).moved == 1
     world = instanced(cornell_384, [obj])
@@ -541,8 +696,29 @@ def test_moves_that_fail_or_come_from_elsewhere_leave_the_solution_right(cornell
     small = pd.scenes.block(40.0, 1, albedo=(0.1, 0.7, 0.1))
     poses = pd.precompute.precompute_poses(cornell_384, [pd.RigidObject(small)], [START], resolution=R, device=device)
     with pytest.raises(pd.InvalidInputError, match="other objects"):
-        pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384) + len(green_block), resolution=R, objects=pd.MovingObjects([pd.RigidObject(green_block, START)], poses=poses), observer=OBSERVER, device=device)
-    turned = pd.Scene(cornell_384.points[:, [2, 1, 0]], cornell_384.triangles[:, [0, 2, 1]], albedo=cornell_384.albedo, emission=cornell_384.emission)
+        pd.DynamicRadiosity(
+            cornell_384,
+            None,
+            local_size=len(cornell_384) + len(green_block),
+            resolution=R,
+            objects=pd.MovingObjects([pd.RigidObject(green_block, START)], poses=poses),
+            observer=OBSERVER,
+            device=device,
+        )
+    turned = pd.Scene(
+        cornell_384.points[:, [2, 1, 0]],
+        cornell_384.triangles[:, [0, 2, 1]],
+        albedo=cornell_384.albedo,
+        emission=cornell_384.emission,
+    )
     poses = pd.precompute.precompute_poses(turned, [pd.RigidObject(green_block)], [START], resolution=R, device=device)
     with pytest.raises(pd.InvalidInputError, match="another static scene"):
-        pd.DynamicRadiosity(cornell_384, None, local_size=len(cornell_384) + len(green_block), resolution=R, objects=pd.MovingObjects([pd.RigidObject(green_block, START)], poses=poses), observer=OBSERVER, device=device)
+        pd.DynamicRadiosity(
+            cornell_384,
+            None,
+            local_size=len(cornell_384) + len(green_block),
+            resolution=R,
+            objects=pd.MovingObjects([pd.RigidObject(green_block, START)], poses=poses),
+            observer=OBSERVER,
+            device=device,
+        )

@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
-from pydynrad.geometry.objects import with_objects
+from helpers import END, brute_force_hits
+
 import pydynrad as pd
-from helpers import brute_force_hits
-from helpers import END
+from pydynrad.geometry.objects import with_objects
 
 
 @pytest.mark.parametrize("solid", [True, False], ids=["convex, clipped", "two blocks, traced"])
@@ -16,8 +16,11 @@ def test_hidden_entries_match_numpy(cornell_384, green_block, device, solid):
     from pydynrad.dynamic.occlusion import hidden_by
 
     if not solid:
-        green_block = pd.Scene(np.vstack([green_block.points, green_block.points + (60.0, 60.0, 0.0)]),
-                         np.vstack([green_block.triangles, green_block.triangles + len(green_block.points)]), albedo=0.5)
+        green_block = pd.Scene(
+            np.vstack([green_block.points, green_block.points + (60.0, 60.0, 0.0)]),
+            np.vstack([green_block.triangles, green_block.triangles + len(green_block.points)]),
+            albedo=0.5,
+        )
     obj = pd.RigidObject(green_block, END)
     assert (obj.solid_planes is not None) == solid
     rng = np.random.default_rng(4)
@@ -50,8 +53,9 @@ def test_outside_gathered_only_where_objects_are_in_view(device, monkeypatch):
 
     def moved():
         obj = pd.RigidObject(green_block, at(3.0))
-        dyn = pd.DynamicRadiosity(village, F, local_size=256, resolution=16, objects=[obj], observer=(1.0, 1.7, 2.5),
-                                  device=device)
+        dyn = pd.DynamicRadiosity(
+            village, F, local_size=256, resolution=16, objects=[obj], observer=(1.0, 1.7, 2.5), device=device
+        )
         dyn.move(obj, at(4.0))
         dyn.update((1.0, 1.7, 2.5))
         return dyn, dyn.radiosity(sun)
@@ -64,8 +68,9 @@ def test_outside_gathered_only_where_objects_are_in_view(device, monkeypatch):
     _, B_all = moved()
     np.testing.assert_allclose(B[outside & view], B_all[outside & view], rtol=1e-12, atol=0.0)
     world = with_objects(village, [pd.RigidObject(green_block, at(4.0))])
-    truth = pd.solve(world, pd.form_factors(world, 16, device=device), lights=sun, tol=1e-8, dtype=np.float64,
-                     device=device).radiosity
+    truth = pd.solve(
+        world, pd.form_factors(world, 16, device=device), lights=sun, tol=1e-8, dtype=np.float64, device=device
+    ).radiosity
     # observed 0.26% (0.10% gathering every outside patch, 0.36% gathering none)
     assert radiosity_error(B, truth, world.areas) < 0.004
 
@@ -79,7 +84,10 @@ def test_shadow_rays_near_in_chunks_of_spheres(monkeypatch):
     points = rng.uniform(-100.0, 100.0, (3000, 3))
     spheres = [(rng.uniform(-50.0, 50.0, 3), float(rng.uniform(5.0, 30.0))) for _ in range(11)]
     monkeypatch.setattr(occlusion, "SHADOW_SPHERES", 4)
-    for light in (pd.PointLight((10.0, 150.0, 5.0), (1.0, 1.0, 1.0)), pd.DirectionalLight((0.3, -1.0, 0.2), (1.0, 1.0, 1.0))):
+    for light in (
+        pd.PointLight((10.0, 150.0, 5.0), (1.0, 1.0, 1.0)),
+        pd.DirectionalLight((0.3, -1.0, 0.2), (1.0, 1.0, 1.0)),
+    ):
         one_by_one = np.zeros(len(points), bool)
         for sphere in spheres:
             one_by_one |= shadow_rays_near(points, light, [sphere])
@@ -114,15 +122,28 @@ def test_segments_near_sphere_match_numpy():
     np.testing.assert_array_equal(rays, np.hstack([a[truth], d[truth]]))  # no box: the segments in world space
     # Rows read as spans in another order give each row's segments; spans that end before they start are refused.
     order = rng.permutation(50)
-    out2 = np.frombuffer(_segments.near_sphere(P, indptr[:-1][order].copy(), indptr[1:][order].copy(),
-                                               indices.astype(np.int32), owners[order].copy(), tuple(c), r, None)[0], np.int64)
+    out2 = np.frombuffer(
+        _segments.near_sphere(
+            P,
+            indptr[:-1][order].copy(),
+            indptr[1:][order].copy(),
+            indices.astype(np.int32),
+            owners[order].copy(),
+            tuple(c),
+            r,
+            None,
+        )[0],
+        np.int64,
+    )
     np.testing.assert_array_equal(np.sort(out2), truth)
     bad = indices.astype(np.int32)
     bad[3] = len(P)
     with pytest.raises(ValueError, match="out of range"):
         _segments.near_sphere(P, *spans, bad, np.zeros(50, np.int64), tuple(c), r, None)
     with pytest.raises(ValueError, match="out of range"):
-        _segments.near_sphere(P, indptr[1:].copy(), indptr[:-1].copy(), indices.astype(np.int32), owners, tuple(c), r, None)
+        _segments.near_sphere(
+            P, indptr[1:].copy(), indptr[:-1].copy(), indices.astype(np.int32), owners, tuple(c), r, None
+        )
 
 
 def test_segments_near_sphere_box_matches_numpy():
@@ -145,14 +166,16 @@ def test_segments_near_sphere_box_matches_numpy():
     t = -A @ c
     lo, hi = np.array([-0.3, -0.2, -0.25]), np.array([0.3, 0.2, 0.25])
     cornell_384 = np.concatenate([A.ravel(), t, lo, hi])
-    out, rays = _segments.near_sphere(P, indptr[:-1], indptr[1:], indices.astype(np.int32), owners, tuple(c), r,
-                                      cornell_384.tolist())
+    out, rays = _segments.near_sphere(
+        P, indptr[:-1], indptr[1:], indices.astype(np.int32), owners, tuple(c), r, cornell_384.tolist()
+    )
     out, rays = np.frombuffer(out, np.int64), np.frombuffer(rays, np.float64).reshape(-1, 6)
     row = np.repeat(np.arange(len(owners)), np.diff(indptr))
     a, b = P[owners[row]], P[indices]
     d = b - a
     s = np.clip(np.einsum("ij,ij->i", c - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
     near = np.linalg.norm(a + s[:, None] * d - c, axis=1) <= r
+
     def to_object(x):  # in the native pass's order of operations, for the same rounding
         return np.stack([A[k, 0] * x[:, 0] + A[k, 1] * x[:, 1] + A[k, 2] * x[:, 2] + t[k] for k in range(3)], axis=1)
 

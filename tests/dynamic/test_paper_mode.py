@@ -67,8 +67,16 @@ def emitting_box_F():
 
 
 def run_walk(device, scene, F, storage, frames=60, seed=23):
-    dyn = DynamicRadiosity(scene, F, local_size=40, update="paper", storage=storage, max_swaps_per_frame=4,
-                           observer=[0.5, 0.5, 0.5], device=device)
+    dyn = DynamicRadiosity(
+        scene,
+        F,
+        local_size=40,
+        update="paper",
+        storage=storage,
+        max_swaps_per_frame=4,
+        observer=[0.5, 0.5, 0.5],
+        device=device,
+    )
     ref = PaperReference(scene, F, dyn.local_patches)
     plain = PaperReference(scene, F, dyn.local_patches, use_bitset=False)
     swaps = 0

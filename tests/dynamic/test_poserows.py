@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import scipy.sparse as sp
+
 import pydynrad as pd
 from pydynrad.dynamic.poserows import at_pose, reciprocal_columns
 
@@ -37,10 +38,16 @@ def test_rows_at_pose():
         at_pose(rows.tocoo(), hidden, recip)
     # Object columns alone above 1 (patch 4's row x 4: 0.4 + 0.8 for row 0): scaled to 1, the
     # static entries gone; no row at the pose sums above 1.
-    out = at_pose(rows, np.zeros(rows.nnz, bool),
-                  reciprocal_columns(np.array([0, 1, 2]), sp.diags([1.0, 4.0]) @ objects, obj, areas, 5))
-    np.testing.assert_allclose(out.toarray(), [[0, 0, 0, 0.4 / 1.2, 0.8 / 1.2], [0, 0, 0, 0.1 / 1.3, 1.2 / 1.3],
-                                               [0.1, 0.1, 0, 0, 0]], rtol=1e-12)
+    out = at_pose(
+        rows,
+        np.zeros(rows.nnz, bool),
+        reciprocal_columns(np.array([0, 1, 2]), sp.diags([1.0, 4.0]) @ objects, obj, areas, 5),
+    )
+    np.testing.assert_allclose(
+        out.toarray(),
+        [[0, 0, 0, 0.4 / 1.2, 0.8 / 1.2], [0, 0, 0, 0.1 / 1.3, 1.2 / 1.3], [0.1, 0.1, 0, 0, 0]],
+        rtol=1e-12,
+    )
 
 
 def test_rows_at_pose_match_numpy():
@@ -71,10 +78,12 @@ def test_rows_at_pose_match_numpy():
     assert (at_pose(rows, 256 * hidden.astype(np.int64), recip) != got).nnz == 0  # any non-zero flag hides
     # Rows picked out of a larger matrix (with only the static columns) and read in place give
     # the same rows as the copy of them, the mask over the larger matrix's entries.
-    big = sp.vstack([sp.random(7, n_static, density=0.3, random_state=rng, format="csr"), dense, dense[::-1]], format="csr")
+    big = sp.vstack(
+        [sp.random(7, n_static, density=0.3, random_state=rng, format="csr"), dense, dense[::-1]], format="csr"
+    )
     select = 7 + np.arange(r)
     big_hidden = np.zeros(big.nnz, bool)
-    big_hidden[big.indptr[7]:big.indptr[7 + r]] = hidden
+    big_hidden[big.indptr[7] : big.indptr[7 + r]] = hidden
     picked = at_pose(big, big_hidden, recip, select)
     assert picked.shape == got.shape and (picked != got).nnz == 0
     with pytest.raises(pd.InvalidInputError, match=rf"rows to select must be patch indices in 0\.\.{big.shape[0] - 1}"):
@@ -115,12 +124,17 @@ def test_difference_at_pose_is_at_pose_minus_kept(monkeypatch):
     assert truth.nnz and not np.diff(truth.indptr)[:50].any()
 
     def same(a, b):
-        return a.shape == b.shape and all(np.array_equal(getattr(a, k), getattr(b, k)) for k in ("indptr", "indices", "data"))
+        return a.shape == b.shape and all(
+            np.array_equal(getattr(a, k), getattr(b, k)) for k in ("indptr", "indices", "data")
+        )
 
     got = difference_at_pose(big, hidden, recip, kept, slots, select)
     assert same(got.delta, truth)
     # Capped: where the row at the pose sums above 1 (its static entries left, plus its object columns).
-    sums = np.add.reduceat(np.where(hidden, 0.0, big.data), big.indptr[:-1])[select] + np.asarray(recip.sum(axis=1)).ravel()
+    sums = (
+        np.add.reduceat(np.where(hidden, 0.0, big.data), big.indptr[:-1])[select]
+        + np.asarray(recip.sum(axis=1)).ravel()
+    )
     objects = np.asarray(recip.sum(axis=1)).ravel()
     np.testing.assert_array_equal(got.capped, (objects > 1.0) | ((sums - objects > 0) & (sums > 1.0)))
     assert 0 < got.capped.sum() < r
@@ -134,11 +148,11 @@ def test_difference_at_pose_is_at_pose_minus_kept(monkeypatch):
     shuffled.has_sorted_indices = False
     assert same(difference_at_pose(big, hidden, recip, shuffled, slots, select).delta, truth)
     rows = sp.csr_matrix(big[select])  # the same rows as a matrix of their own, read whole
-    assert same(difference_at_pose(rows, hidden[big.indptr[7]:], recip, kept, slots).delta, truth)
+    assert same(difference_at_pose(rows, hidden[big.indptr[7] :], recip, kept, slots).delta, truth)
     bad = rows.copy()
-    bad.indices[bad.indptr[3]:bad.indptr[4]] = bad.indices[bad.indptr[3]:bad.indptr[4]][::-1].copy()
+    bad.indices[bad.indptr[3] : bad.indptr[4]] = bad.indices[bad.indptr[3] : bad.indptr[4]][::-1].copy()
     with pytest.raises(pd.InvalidInputError, match="row 3's static columns are out of increasing order"):
-        difference_at_pose(bad, hidden[big.indptr[7]:], recip, kept, slots)
+        difference_at_pose(bad, hidden[big.indptr[7] :], recip, kept, slots)
     with pytest.raises(pd.InvalidInputError, match=r"\[0, 260\)"):
         difference_at_pose(big, hidden, recip, kept, slots + M, select)
     with pytest.raises(pd.InvalidInputError, match="one kept row per row"):
@@ -167,9 +181,12 @@ def test_difference_since_the_last_pose_is_the_pass_made_whole(monkeypatch):
 
     def pose_of(seed):
         g = np.random.default_rng(seed)
-        objects = sp.csr_matrix(g.random((n_obj, n_static + n_obj)) * (g.random((n_obj, n_static + n_obj)) < 0.5) * 0.15)
-        return g.random(big.nnz) < 0.2, reciprocal_columns(patches, objects, np.arange(n_static, n_static + n_obj),
-                                                            areas, n_static + n_obj)
+        objects = sp.csr_matrix(
+            g.random((n_obj, n_static + n_obj)) * (g.random((n_obj, n_static + n_obj)) < 0.5) * 0.15
+        )
+        return g.random(big.nnz) < 0.2, reciprocal_columns(
+            patches, objects, np.arange(n_static, n_static + n_obj), areas, n_static + n_obj
+        )
 
     (h_kept, r_kept), (h_last, r_last) = pose_of(1), pose_of(2)
     h_now, r_now = h_last.copy(), pose_of(3)[1]
@@ -194,16 +211,23 @@ def test_difference_since_the_last_pose_is_the_pass_made_whole(monkeypatch):
     since = Since(named, h_last, row_sums, last[order], last_row, n_static)
 
     def same(a, b):
-        return isinstance(a, PoseDifference) and np.array_equal(a.capped, b.capped) and a.delta.shape == b.delta.shape \
+        return (
+            isinstance(a, PoseDifference)
+            and np.array_equal(a.capped, b.capped)
+            and a.delta.shape == b.delta.shape
             and all(np.array_equal(getattr(a.delta, k), getattr(b.delta, k)) for k in ("indptr", "indices", "data"))
+        )
 
     assert same(difference_at_pose(big, h_now, r_now, kept, slots, select, since), truth)
     monkeypatch.setattr(poserows, "PARALLEL_ENTRIES", 1)
     monkeypatch.setattr(poserows, "cores", lambda: 3)
     assert same(difference_at_pose(big, h_now, r_now, kept, slots, select, since), truth)
     # A wrong last D, where a row named has one that nothing since changes, shows in the answer.
-    k = next(k for k in np.flatnonzero(named & ~truth.capped & (last_row >= 0))
-             if (np.diff(last[k].indices) > 0).all() and len(last[k].indices))
+    k = next(
+        k
+        for k in np.flatnonzero(named & ~truth.capped & (last_row >= 0))
+        if (np.diff(last[k].indices) > 0).all() and len(last[k].indices)
+    )
     wrong = last[order].tolil()
     wrong[last_row[k], last[k].indices[0]] += 1.0
     bent = difference_at_pose(big, h_now, r_now, kept, slots, select, since._replace(last=sp.csr_matrix(wrong)))
@@ -216,9 +240,15 @@ def test_difference_since_the_last_pose_is_the_pass_made_whole(monkeypatch):
     assert same(difference_at_pose(big, h_now, r_now, shuffled, slots, select, since), truth)
     # Masks whose flags are any non-zero byte (a bool array viewed from bytes of 2 and 5) read as 0 and 1.
     twos = lambda h, v: (h.astype(np.uint8) * v).view(bool)  # noqa: E731
-    assert same(difference_at_pose(big, twos(h_now, 2), r_now, kept, slots, select,
-                                   since._replace(hidden=twos(h_last, 5))), truth)
-    for bad in (since._replace(rows=named[:-1]), since._replace(hidden=h_last[:-1]), since._replace(last_row=last_row + r),
-                since._replace(row_sums=row_sums[:-1])):
+    assert same(
+        difference_at_pose(big, twos(h_now, 2), r_now, kept, slots, select, since._replace(hidden=twos(h_last, 5))),
+        truth,
+    )
+    for bad in (
+        since._replace(rows=named[:-1]),
+        since._replace(hidden=h_last[:-1]),
+        since._replace(last_row=last_row + r),
+        since._replace(row_sums=row_sums[:-1]),
+    ):
         with pytest.raises(pd.InvalidInputError, match="since must give"):
             difference_at_pose(big, h_now, r_now, kept, slots, select, bad)

@@ -3,9 +3,12 @@
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from helpers import END, MIDDLE, START, dense_K, dense_radiosity, pose, rel
+from helpers import MOVING_LIGHTS as LIGHTS
+from helpers import MOVING_OBSERVER as OBSERVER
+from helpers import MOVING_R as R
+
 import pydynrad as pd
-from helpers import dense_K, dense_radiosity, pose, rel
-from helpers import MOVING_R as R, MOVING_OBSERVER as OBSERVER, MOVING_LIGHTS as LIGHTS, START, MIDDLE, END
 
 
 def test_stale_rows_corrected(cornell_384, green_block, device):
@@ -17,7 +20,15 @@ def test_stale_rows_corrected(cornell_384, green_block, device):
 
     def moved(budget, correct):
         obj = pd.RigidObject(green_block, START)
-        dyn = pd.DynamicRadiosity(cornell_384, F_static, local_size=n, resolution=R, objects=pd.MovingObjects([obj], occlusion=budget, occlusion_correction=correct), observer=OBSERVER, device=device)
+        dyn = pd.DynamicRadiosity(
+            cornell_384,
+            F_static,
+            local_size=n,
+            resolution=R,
+            objects=pd.MovingObjects([obj], occlusion=budget, occlusion_correction=correct),
+            observer=OBSERVER,
+            device=device,
+        )
         dyn.radiosity(LIGHTS)
         for T in (MIDDLE, END):
             dyn.move(obj, T)
@@ -32,11 +43,20 @@ def test_stale_rows_corrected(cornell_384, green_block, device):
     truth = dense_radiosity(world, F_all, L)
     stale = moved(0, False)
     uncorrected = rel(stale.radiosity(LIGHTS, far_field=False), truth)
-    unmoved = pd.DynamicRadiosity(cornell_384, F_static, local_size=n, resolution=R, objects=[pd.RigidObject(green_block, START)],
-                                  observer=OBSERVER, device=device).matrix.to_host()
+    unmoved = pd.DynamicRadiosity(
+        cornell_384,
+        F_static,
+        local_size=n,
+        resolution=R,
+        objects=[pd.RigidObject(green_block, START)],
+        observer=OBSERVER,
+        device=device,
+    ).matrix.to_host()
     for budget in (0, 16):
         dyn = moved(budget, True)
-        assert len(dyn._stale) > 100  # rows left stale in K: observed 414 (budget 0: the block's 48 among them), 349 (16)
+        assert (
+            len(dyn._stale) > 100
+        )  # rows left stale in K: observed 414 (budget 0: the block's 48 among them), 349 (16)
         dyn.radiosity(LIGHTS)
         assert dyn._stale.iterations == 1  # the last frame's answer, confirmed by one pass over K
         B = dyn.radiosity(LIGHTS, far_field=False)
@@ -69,7 +89,15 @@ def test_correction_tolerance_trades_passes_for_accuracy(cornell_384, green_bloc
     errors, passes = {}, {}
     for tol in (2e-4, 1e-7):
         obj = pd.RigidObject(green_block, START)
-        dyn = pd.DynamicRadiosity(cornell_384, F_static, local_size=n - 150, resolution=R, objects=pd.MovingObjects([obj], occlusion=0, correction_tolerance=tol), observer=OBSERVER, device=device)
+        dyn = pd.DynamicRadiosity(
+            cornell_384,
+            F_static,
+            local_size=n - 150,
+            resolution=R,
+            objects=pd.MovingObjects([obj], occlusion=0, correction_tolerance=tol),
+            observer=OBSERVER,
+            device=device,
+        )
         dyn.radiosity(LIGHTS, far_field=False)
         passes[tol] = 0
         for T in (MIDDLE, END):
@@ -84,7 +112,14 @@ def test_correction_tolerance_trades_passes_for_accuracy(cornell_384, green_bloc
     assert errors[2e-4] < 1e-4 and errors[1e-7] < 2e-7 and passes[1e-7] > passes[2e-4]
     for bad in (0, 1.0, float("nan"), "1e-4", True):
         with pytest.raises(pd.InvalidInputError, match="correction_tolerance"):
-            pd.DynamicRadiosity(cornell_384, F_static, local_size=n - 150, resolution=R, objects=pd.MovingObjects([pd.RigidObject(green_block, START)], correction_tolerance=bad), device=device)
+            pd.DynamicRadiosity(
+                cornell_384,
+                F_static,
+                local_size=n - 150,
+                resolution=R,
+                objects=pd.MovingObjects([pd.RigidObject(green_block, START)], correction_tolerance=bad),
+                device=device,
+            )
 
 
 def test_walk_frames_resume_the_correction(cornell_384, green_block, device):
@@ -94,7 +129,16 @@ def test_walk_frames_resume_the_correction(cornell_384, green_block, device):
     takes one pass over K."""
     F_static = pd.form_factors(cornell_384, R, device=device)
     obj = pd.RigidObject(green_block, START)
-    dyn = pd.DynamicRadiosity(cornell_384, F_static, local_size=len(cornell_384) + len(green_block) - 150, resolution=R, objects=pd.MovingObjects([obj], occlusion=0), max_swaps_per_frame=16, observer=OBSERVER, device=device)
+    dyn = pd.DynamicRadiosity(
+        cornell_384,
+        F_static,
+        local_size=len(cornell_384) + len(green_block) - 150,
+        resolution=R,
+        objects=pd.MovingObjects([obj], occlusion=0),
+        max_swaps_per_frame=16,
+        observer=OBSERVER,
+        device=device,
+    )
     dyn.radiosity(LIGHTS)
     for T in (MIDDLE, END):
         dyn.move(obj, T)
@@ -210,8 +254,9 @@ def test_rows_minus_sorts_kept_rows_out_of_order():
     is sorted, duplicates summed, before the merge: the answer is scipy's."""
     from pydynrad.dynamic.stale import rows_minus
 
-    kept = sp.csr_matrix((np.array([1.0, 2.0, 0.5, 0.25, 3.0]), np.array([3, 1, 1, 1, 0]), np.array([0, 2, 4, 5])),
-                         shape=(3, 5))
+    kept = sp.csr_matrix(
+        (np.array([1.0, 2.0, 0.5, 0.25, 3.0]), np.array([3, 1, 1, 1, 0]), np.array([0, 2, 4, 5])), shape=(3, 5)
+    )
     rows = sp.csr_matrix(np.array([[0.0, 2.0, 0.0, 4.0, 0.0], [0.0, 0.75, 1.0, 0.0, 0.0]]))
     slots = np.array([0, 1])
     truth = rows.toarray() - kept.toarray()[slots]
@@ -238,7 +283,16 @@ def test_moves_start_from_the_last_poses_difference(cornell_384, green_block, de
 
     def solution():
         obj = pd.RigidObject(green_block, START)
-        return obj, pd.DynamicRadiosity(cornell_384, F_static, local_size=n - 150, resolution=R, objects=pd.MovingObjects([obj], occlusion=0), max_swaps_per_frame=16, observer=OBSERVER, device=device)
+        return obj, pd.DynamicRadiosity(
+            cornell_384,
+            F_static,
+            local_size=n - 150,
+            resolution=R,
+            objects=pd.MovingObjects([obj], occlusion=0),
+            max_swaps_per_frame=16,
+            observer=OBSERVER,
+            device=device,
+        )
 
     path = [MIDDLE, END, MIDDLE, pose(50, (300.0, 420.0, 250.0)), END, START, MIDDLE]
     monkeypatch.setattr(moves, "difference_at_pose", counted)
@@ -259,14 +313,15 @@ def test_moves_start_from_the_last_poses_difference(cornell_384, green_block, de
             dyn.radiosity(LIGHTS)
         held.append((dyn._stale.slots.copy(), dyn._stale.delta.copy(), dyn.radiosity(LIGHTS, far_field=False)))
     (slots, D, B), (slots0, D0, B0) = held
-    assert np.array_equal(slots, slots0) and all(np.array_equal(getattr(D, k), getattr(D0, k))
-                                                 for k in ("indptr", "indices", "data"))
+    assert np.array_equal(slots, slots0) and all(
+        np.array_equal(getattr(D, k), getattr(D0, k)) for k in ("indptr", "indices", "data")
+    )
     np.testing.assert_array_equal(B, B0)
     per_move = started[: len(path)]
     # Started from: none at the first move, nor at the one retried after its failure; most rows at the others
     # (observed 194-218 of 204-222 rows).
     assert per_move[0] == 0 and per_move[4] == 0 and min(per_move[1:4] + per_move[5:]) > 150, per_move
-    assert not any(started[len(path):])
+    assert not any(started[len(path) :])
     source = dyn._ff.source
     with pytest.raises(pd.InvalidInputError, match="distinct patches"):
         source.differences(np.array([0]), dyn._ff.local, np.array([0]), also=np.array([3, 3]))

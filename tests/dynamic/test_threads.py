@@ -1,4 +1,4 @@
-"""Threads sharing one DynamicRadiosity (issue 46, item 1): every call sees a whole frame.
+"""Threads sharing one DynamicRadiosity: every call sees a whole frame.
 
 A sequential twin walks the same observer path and gives, for every frame and light, the answer
 a reader must get. The threaded solution is walked by one thread (with refreshes and residual
@@ -33,8 +33,9 @@ def setup():
 
 
 def _solution(scene, F, device):
-    return DynamicRadiosity(scene, F, local_size=48, storage="fp64", max_swaps_per_frame=6,
-                            observer=[0.5, 0.5, 0.5], device=device)
+    return DynamicRadiosity(
+        scene, F, local_size=48, storage="fp64", max_swaps_per_frame=6, observer=[0.5, 0.5, 0.5], device=device
+    )
 
 
 def _truths(scene, F, lights, walk, device) -> list[list[np.ndarray]]:
@@ -154,8 +155,12 @@ def test_a_far_field_shared_by_two_solutions(device, setup):
     """Two solutions on one FarField, each thread its own light: each answer its own."""
     scene, F, lights = setup
     far = FarField(scene, F, device=device)
-    a = DynamicRadiosity(scene, F, local_size=48, storage="fp64", observer=[0.2, 0.2, 0.2], far_field=far, device=device)
-    b = DynamicRadiosity(scene, F, local_size=48, storage="fp64", observer=[0.8, 0.8, 0.8], far_field=far, device=device)
+    a = DynamicRadiosity(
+        scene, F, local_size=48, storage="fp64", observer=[0.2, 0.2, 0.2], far_field=far, device=device
+    )
+    b = DynamicRadiosity(
+        scene, F, local_size=48, storage="fp64", observer=[0.8, 0.8, 0.8], far_field=far, device=device
+    )
     truth = {0: a.radiosity(light=lights[0]), 1: b.radiosity(light=lights[1])}
     worst, errors = [0.0], []
 

@@ -11,8 +11,8 @@ import pyopencl as cl
 import pytest
 from helpers import rel
 
-from pydynrad.dynamic.kupdate import UpdateKernels
 from pydynrad.device.matrix import DeviceMatrix
+from pydynrad.dynamic.kupdate import UpdateKernels
 
 
 # M = 13: one partial row group; 600: ld = 640, a full and a partial column strip of the CPU

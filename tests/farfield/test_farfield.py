@@ -3,16 +3,16 @@
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from helpers import box_scene, dense_radiosity, reciprocal_F
 from scipy.linalg import lu_factor, lu_solve
 
 import pydynrad
 from pydynrad import DirectionalLight, DynamicRadiosity, PointLight, Scene
 from pydynrad.comparison import radiosity_error
+from pydynrad.device.matrix import DeviceMatrix
 from pydynrad.farfield import Clusters, FarField, cluster_patches
 from pydynrad.farfield.clusters import NORMAL_BINS
-from helpers import box_scene, dense_radiosity, reciprocal_F
 from pydynrad.host.product import HostBounce, HostMatrix
-from pydynrad.device.matrix import DeviceMatrix
 
 
 @pytest.fixture(scope="module")
@@ -99,14 +99,20 @@ def test_clusters_are_pure_and_cover_every_patch_once(cornell_lit, per):
 
 
 def test_every_patch_its_own_cluster_is_the_full_solve(device):
-    scene = box_scene(3).with_materials(albedo=np.random.default_rng(1).uniform(0.1, 0.9, (108, 3)),
-                                        emission=np.where(np.arange(108) < 3, 4.0, 0.0))
+    scene = box_scene(3).with_materials(
+        albedo=np.random.default_rng(1).uniform(0.1, 0.9, (108, 3)), emission=np.where(np.arange(108) < 3, 4.0, 0.0)
+    )
     F = reciprocal_F(scene.areas, row_sum=1.0, density=0.2, seed=2)
     L = np.random.default_rng(3).random((len(scene), 3))
     want = dense_radiosity(scene, F, L)
-    for M, obs, coarse in ((1, [0.5, 0.5, 0.02], "dense"), (7, [0.1, 0.9, 0.5], "sweeps"), (30, [0.9, 0.1, 0.9], "dense")):
-        far = FarField(scene, F, clusters=len(scene), coarse=coarse, tol=1e-14, max_sweeps=5000, dtype=np.float64,
-                       device=device)
+    for M, obs, coarse in (
+        (1, [0.5, 0.5, 0.02], "dense"),
+        (7, [0.1, 0.9, 0.5], "sweeps"),
+        (30, [0.9, 0.1, 0.9], "dense"),
+    ):
+        far = FarField(
+            scene, F, clusters=len(scene), coarse=coarse, tol=1e-14, max_sweeps=5000, dtype=np.float64, device=device
+        )
         dyn = DynamicRadiosity(scene, F, local_size=M, storage="fp64", observer=obs, far_field=far, device=device)
         dyn.update([0.5, 0.5, 0.5])
         np.testing.assert_allclose(dyn.radiosity(light=L), want, rtol=1e-13)  # observed 1.5e-15 (PoCL, 2026-12-01)
@@ -140,8 +146,9 @@ def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
     # with a fine sweep) and 2.6% (cluster).
     for gather, fine_sweeps, tol in (("first_bounce", 0, 0.01), ("shared", 1, 0.01), ("cluster", 0, 0.05)):
         far = FarField(scene, F, clusters=len(scene) // 8, gather=gather, fine_sweeps=fine_sweeps, device=device)
-        dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=[0.5, 0.5, 1.0], far_field=far,
-                               device=device)
+        dyn = DynamicRadiosity(
+            scene, F, local_size=len(scene) // 8, observer=[0.5, 0.5, 1.0], far_field=far, device=device
+        )
         B = dyn.radiosity(light=L)
         assert np.all(B[~dark].max(axis=1) > 0)  # nothing the full solution lights is black
         assert B[dark].max() < 1e-2 * mean  # no leaks into the closed room
@@ -152,21 +159,31 @@ def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
 def test_dense_coarse_level_and_first_bounce_gather(device, cornell_lit, storage, rtol):
     """B_far = L + D1 + P G D_c, D1 = P F L, with D_c = R D1 + P_c F_c D_c solved densely in float64."""
     scene, F, L, _, _ = cornell_lit
-    far = FarField(scene, F, clusters=len(scene) // 8, coarse="dense", coarse_storage=storage, dtype=np.float64,
-                   device=device)
+    far = FarField(
+        scene, F, clusters=len(scene) // 8, coarse="dense", coarse_storage=storage, dtype=np.float64, device=device
+    )
     # Small beside a CPU device: K_c and G on the host (pydynrad.host.product); elsewhere on the device.
     assert far.coarse == "dense" and isinstance(far.K_c, HostMatrix) and isinstance(far._G_product, HostBounce)
     assert far.host_memory_bytes > far.K_c.nbytes >= 3 * far.C**2 * int(storage[2:]) // 8
     rho = scene.albedo.astype(np.float64)
     D1 = rho * (F @ L)
     s = far.R @ D1
-    D_c = np.stack([np.linalg.solve(np.eye(far.C) - far.rho_c[:, [c]] * far.F_c.toarray(), s[:, c]) for c in range(3)], 1)
+    D_c = np.stack(
+        [np.linalg.solve(np.eye(far.C) - far.rho_c[:, [c]] * far.F_c.toarray(), s[:, c]) for c in range(3)], 1
+    )
     want = L + D1 + rho * (far.G @ D_c)
     # Observed max relative error (PoCL, 2026-12-02): 6e-16 (fp64), 5e-8 (fp32), 2e-5 (fp16 K_c); 4e-15 swept.
     np.testing.assert_allclose(far.light(L), want, rtol=rtol, atol=rtol * want.max())
     # As on a GPU: D1 from a device pass of F's rows, not the host's lit columns of F.
-    gpu = FarField(scene, F, clusters=far.clusters, coarse="dense", coarse_storage=storage, dtype=np.float64,
-                   device=device.with_traits(cpu=False))
+    gpu = FarField(
+        scene,
+        F,
+        clusters=far.clusters,
+        coarse="dense",
+        coarse_storage=storage,
+        dtype=np.float64,
+        device=device.with_traits(cpu=False),
+    )
     assert gpu._F_cols is None and gpu._F_dev is not None and isinstance(gpu.K_c, DeviceMatrix)
     assert gpu.device_memory_bytes > gpu.K_c.nbytes >= 3 * far.C**2 * int(storage[2:]) // 8
     np.testing.assert_allclose(gpu.light(L), want, rtol=rtol, atol=rtol * want.max())
@@ -180,8 +197,11 @@ def test_coarse_sweeps_start_from_earlier_solutions_combined(device, cornell_lit
     start the sweeps at their answer (one sweep to confirm it); new lights still converge to the
     answer a far field that never saw other lights gives."""
     scene, F, _, _, _ = cornell_lit
-    lamp = lambda x: pydynrad.light_vector(scene, [PointLight(position=[x, 450, 280], intensity=[0.2] * 3)],  # noqa: E731
-                                           device=device)
+    lamp = lambda x: pydynrad.light_vector(
+        scene,
+        [PointLight(position=[x, 450, 280], intensity=[0.2] * 3)],  # noqa: E731
+        device=device,
+    )
     far = FarField(scene, F, clusters=len(scene) // 8, coarse="sweeps", dtype=np.float64, device=device)
     far._combined = lambda L: None  # the answer's own combination would skip the coarse solve
     a, b = lamp(150.0), lamp(400.0)
@@ -291,8 +311,9 @@ def test_light_changes_follow_the_full_solve(device, cornell_lit):
     scene, F, _, _, full = cornell_lit
     for coarse in ("dense", "sweeps"):
         far = FarField(scene, F, clusters=len(scene) // 8, coarse=coarse, device=device)
-        dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=[278, 273, 280], far_field=far,
-                               device=device)
+        dyn = DynamicRadiosity(
+            scene, F, local_size=len(scene) // 8, observer=[278, 273, 280], far_field=far, device=device
+        )
         sweeps = []
         for x in (150.0, 200.0, 400.0):
             lights = [PointLight(position=[x, 450, 280], intensity=[0.2] * 3)]
@@ -335,8 +356,9 @@ def test_injection_follows_the_swaps_of_a_walk(device, cornell_lit, update):
     is skipped; B equals that of a solution that multiplies the rows whole (to a float32
     rounding: the light reaches the device's products in float32)."""
     scene, F, L, _, _ = cornell_lit
-    kw = dict(local_size=len(scene) // 4, update=update, max_swaps_per_frame=8, observer=[278, 273, -300],
-              device=device)
+    kw = dict(
+        local_size=len(scene) // 4, update=update, max_swaps_per_frame=8, observer=[278, 273, -300], device=device
+    )
     dyn, whole = DynamicRadiosity(scene, F, **kw), DynamicRadiosity(scene, F, **kw)
     dyn.radiosity(light=L)
     carried = worst = 0
@@ -364,8 +386,9 @@ def test_injection_after_a_carried_swap_cuts_nothing(device, cornell_lit, monkey
     from pydynrad.farfield import level
 
     scene, F, L, _, _ = cornell_lit
-    dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 2, max_swaps_per_frame=8, observer=[278, 273, -300],
-                           device=device)
+    dyn = DynamicRadiosity(
+        scene, F, local_size=len(scene) // 2, max_swaps_per_frame=8, observer=[278, 273, -300], device=device
+    )
     for k, z in enumerate(np.linspace(-300, 500, 8)):
         dyn.update([278, 273, z])
         S, rows = dyn._local_patches, dyn._ff.local
@@ -384,20 +407,27 @@ def test_injection_after_a_carried_swap_cuts_nothing(device, cornell_lit, monkey
 
 
 def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell_lit, tmp_path):
-    from pydynrad.rows.files import open_form_factors
     from pydynrad.precompute.store import compute_store
+    from pydynrad.rows.files import open_form_factors
 
     scene, F, L, ref, _ = cornell_lit
     cl = cluster_patches(scene, patches_per_cluster=8)
-    compute_store(scene, tmp_path / "ff", resolution=32, clusters=cl, progress=False,
-                  row_function=lambda scene, rows, resolution, device=None: F[rows])
+    compute_store(
+        scene,
+        tmp_path / "ff",
+        resolution=32,
+        clusters=cl,
+        progress=False,
+        row_function=lambda scene, rows, resolution, device=None: F[rows],
+    )
     obs = [278, 273, 280]
     store = open_form_factors(scene, tmp_path / "ff")
     dyn = DynamicRadiosity(scene, store, local_size=137, observer=obs, device=device)
     assert np.array_equal(dyn.far.clusters.labels, cl.labels) and dyn.far.gather == "cluster"  # the store's own G
     err = radiosity_error(dyn.radiosity(light=L), ref, scene.areas)
-    on_demand = DynamicRadiosity(scene, None, local_size=137, observer=obs, resolution=32, clusters=cl.count,
-                                 device=device)
+    on_demand = DynamicRadiosity(
+        scene, None, local_size=137, observer=obs, resolution=32, clusters=cl.count, device=device
+    )
     # Observed 0.57% for both (G by hemicubes at R = 24, the linear basis; the indicator's 1.1%;
     # 0.14% from F in memory, with the per-patch first bounce).
     assert dyn.far.prolongation == on_demand.far.prolongation == "linear"
@@ -413,8 +443,13 @@ def test_far_field_from_a_store_and_from_rows_on_demand(device, cornell_lit, tmp
     assert held.host_memory_bytes > held._G_product.nbytes >= 4 * held.G_nnz
     gpu = FarField(scene, None, dyn.far.clusters, G=store.cluster_form_factors(), device=device.with_traits(cpu=False))
     assert gpu.device_memory_bytes - dyn.far.device_memory_bytes > 8 * gpu.G_nnz
-    compute_store(scene, tmp_path / "no-G", resolution=32, progress=False,
-                  row_function=lambda scene, rows, resolution, device=None: F[rows])
+    compute_store(
+        scene,
+        tmp_path / "no-G",
+        resolution=32,
+        progress=False,
+        row_function=lambda scene, rows, resolution, device=None: F[rows],
+    )
     with pytest.raises(pydynrad.InvalidInputError, match="holds no far-field G"):
         DynamicRadiosity(scene, open_form_factors(scene, tmp_path / "no-G"), local_size=10, device=device)
 
@@ -425,8 +460,13 @@ def test_light_refuses_bad_light_vectors(device, cornell_lit):
     nan = L.copy()
     nan[3, 1] = np.nan
     # Each went through before: NaN to an all-NaN B_far, (N, 2) to a grey answer, others to numpy's errors.
-    for bad, match in ((nan, "L contains NaN"), (L[:, :2], r"shape \(\d+, 3\)"), (L[:-1], "shape"), (L[:, 0], "shape"),
-                       ("light", "array of numbers")):
+    for bad, match in (
+        (nan, "L contains NaN"),
+        (L[:, :2], r"shape \(\d+, 3\)"),
+        (L[:-1], "shape"),
+        (L[:, 0], "shape"),
+        ("light", "array of numbers"),
+    ):
         with pytest.raises(pydynrad.InvalidInputError, match=match):
             far.light(bad)
     assert far.B_far is None
@@ -462,10 +502,16 @@ def test_bad_input(device, cornell_lit):
         FarField(scene, F, cl, prolongation="linear", gather="first_bounce", device=device)
     with pytest.raises(pydynrad.InvalidInputError, match="prolongation"):
         FarField(scene, F, cl, prolongation="smooth", device=device)
-    for bad, match in (({"tol": -1.0}, "tol"), ({"tol": float("nan")}, "tol"), ({"max_sweeps": 0}, "max_sweeps"),
-                       ({"fine_sweeps": -1}, "fine_sweeps"), ({"gather": "pairs"}, "gather"),
-                       ({"coarse": "lu"}, "coarse"), ({"coarse_storage": "fp8"}, "storage"),
-                       ({"dtype": np.float16}, "dtype")):
+    for bad, match in (
+        ({"tol": -1.0}, "tol"),
+        ({"tol": float("nan")}, "tol"),
+        ({"max_sweeps": 0}, "max_sweeps"),
+        ({"fine_sweeps": -1}, "fine_sweeps"),
+        ({"gather": "pairs"}, "gather"),
+        ({"coarse": "lu"}, "coarse"),
+        ({"coarse_storage": "fp8"}, "storage"),
+        ({"dtype": np.float16}, "dtype"),
+    ):
         with pytest.raises(pydynrad.InvalidInputError, match=match):
             FarField(scene, F, cl, device=device, **bad)
     with pytest.raises(pydynrad.InvalidInputError, match="mixes albedos"):

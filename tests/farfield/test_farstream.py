@@ -5,17 +5,16 @@ import os
 
 import numpy as np
 import pytest
+from helpers import box_scene, dense_radiosity, reciprocal_F
 
 import pydynrad
 from pydynrad import DynamicRadiosity
-from pydynrad.farfield import FarField, cluster_patches
+from pydynrad.farfield import FarField, cluster_patches, level
 from pydynrad.farfield import clusters as clusters_module
-from pydynrad.farfield import level
 from pydynrad.farfield.gather import basis_prolongation
 from pydynrad.farfield.streamed import StoredG
-from pydynrad.rows.store import StoreIncompleteError, StoreMismatchError
 from pydynrad.precompute.store import compute_store
-from helpers import box_scene, dense_radiosity, reciprocal_F
+from pydynrad.rows.store import StoreIncompleteError, StoreMismatchError
 
 
 @pytest.fixture(scope="module")
@@ -26,8 +25,15 @@ def stored(tmp_path_factory):
     F = reciprocal_F(scene.areas, row_sum=0.95, density=0.2, seed=2)
     cl = cluster_patches(scene, len(scene) // 4)
     path = tmp_path_factory.mktemp("stream") / "s"
-    store = compute_store(scene, path, resolution=8, block_rows=10, clusters=cl, progress=False,
-                          row_function=lambda scene, rows, resolution, device=None: F[rows])
+    store = compute_store(
+        scene,
+        path,
+        resolution=8,
+        block_rows=10,
+        clusters=cl,
+        progress=False,
+        row_function=lambda scene, rows, resolution, device=None: F[rows],
+    )
     L = np.random.default_rng(3).random((len(scene), 3))
     return scene, F, cl, store, L
 
@@ -71,11 +77,26 @@ def test_stored_g_with_every_patch_its_own_cluster_is_the_full_solve(tmp_path, d
     scene = box_scene(2).with_materials(albedo=np.random.default_rng(4).uniform(0.1, 0.9, (48, 3)))
     F = reciprocal_F(scene.areas, row_sum=1.0, density=0.3, seed=5)
     cl = cluster_patches(scene, len(scene))
-    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=7, clusters=cl, progress=False,
-                          row_function=lambda scene, rows, resolution, device=None: F[rows])
+    store = compute_store(
+        scene,
+        tmp_path / "s",
+        resolution=8,
+        block_rows=7,
+        clusters=cl,
+        progress=False,
+        row_function=lambda scene, rows, resolution, device=None: F[rows],
+    )
     L = np.random.default_rng(6).random((len(scene), 3))
-    far = FarField(scene, None, cl, G=StoredG(store, basis_prolongation(scene, cl), chunk_nnz=100), tol=1e-14,
-                   max_sweeps=5000, dtype=np.float64, device=device)
+    far = FarField(
+        scene,
+        None,
+        cl,
+        G=StoredG(store, basis_prolongation(scene, cl), chunk_nnz=100),
+        tol=1e-14,
+        max_sweeps=5000,
+        dtype=np.float64,
+        device=device,
+    )
     # The store keeps F in float32: the truth is the dense solve of that F. Observed 7.5e-16.
     F32 = store.to_csr().astype(np.float64)
     np.testing.assert_allclose(far.light(L), dense_radiosity(scene, F32, L), rtol=1e-12)
@@ -97,8 +118,14 @@ def test_a_store_walk_streams_g_and_builds_the_linear_basis_once(stored, device,
     whole = FarField(scene, None, dyn.far.clusters, G=store.cluster_form_factors(), device=device)
     np.testing.assert_allclose(dyn.far.light(L), whole.light(L), rtol=1e-6)  # observed identical
     # The store's G passed in is held on the device, with the store's clusters (not new ones).
-    held = DynamicRadiosity(scene, store, local_size=12, observer=[0.1, 0.9, 0.5], device=device,
-                            cluster_form_factors=store.cluster_form_factors())
+    held = DynamicRadiosity(
+        scene,
+        store,
+        local_size=12,
+        observer=[0.1, 0.9, 0.5],
+        device=device,
+        cluster_form_factors=store.cluster_form_factors(),
+    )
     assert held.far._G_stream is None and np.array_equal(held.far.clusters.labels, dyn.far.clusters.labels)
     np.testing.assert_allclose(held.far.light(L), whole.light(L), rtol=1e-6)
 
@@ -115,8 +142,15 @@ def test_stored_g_refuses_what_it_cannot_serve(stored, tmp_path, device):
     other = cluster_patches(box_scene(2), 12)  # clusters of another scene: refused before any basis is built on them
     with pytest.raises(pydynrad.InvalidInputError, match="another scene"):
         DynamicRadiosity(scene, store, local_size=12, observer=[0.1, 0.9, 0.5], clusters=other, device=device)
-    part = compute_store(scene, tmp_path / "part", resolution=8, block_rows=10, clusters=cl, progress=False,
-                         row_function=lambda scene, rows, resolution, device=None: F[rows])
+    part = compute_store(
+        scene,
+        tmp_path / "part",
+        resolution=8,
+        block_rows=10,
+        clusters=cl,
+        progress=False,
+        row_function=lambda scene, rows, resolution, device=None: F[rows],
+    )
     part.block_path(3, "G").unlink()
     with pytest.raises(StoreIncompleteError, match="1 of 11 blocks of G"):
         StoredG(part, pr)

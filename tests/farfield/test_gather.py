@@ -152,9 +152,17 @@ def same_csr(a, b) -> bool:
 
 def test_store_holds_g_beside_f(box, tmp_path, device):
     scene, labels, G = box
-    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=10, clusters=labels,
-                          cluster_basis="indicator", cluster_params={"method": "diagonals"}, progress=False,
-                          device=device)
+    store = compute_store(
+        scene,
+        tmp_path / "s",
+        resolution=8,
+        block_rows=10,
+        clusters=labels,
+        cluster_basis="indicator",
+        cluster_params={"method": "diagonals"},
+        progress=False,
+        device=device,
+    )
     assert store.complete and store.complete_clusters and store.n_clusters == labels.max() + 1
     assert store.cluster_resolution == 8  # F's: G summed from the stored rows of F, no hemicubes of its own
     F = store.to_csr()
@@ -174,8 +182,17 @@ def test_store_holds_g_beside_f(box, tmp_path, device):
 def test_store_of_g_alone_and_resume(box, tmp_path, device):
     scene, labels, G = box
     path = tmp_path / "g"
-    store = compute_store(scene, path, resolution=8, block_rows=16, clusters=indicator(labels), cluster_resolution=8,
-                          compute_f=False, progress=False, device=device)
+    store = compute_store(
+        scene,
+        path,
+        resolution=8,
+        block_rows=16,
+        clusters=indicator(labels),
+        cluster_resolution=8,
+        compute_f=False,
+        progress=False,
+        device=device,
+    )
     assert store.complete_clusters and not store.complete and store.missing_blocks() == list(range(12))
     with pytest.raises(StoreIncompleteError, match="block 0"):
         store.rows([0])
@@ -186,23 +203,43 @@ def test_store_of_g_alone_and_resume(box, tmp_path, device):
     with pytest.raises(StoreCorruptError):
         store.cluster_rows([70])
     # Resumed without naming the clusters again: the recorded ones finish G.
-    store = compute_store(scene, path, resolution=8, block_rows=16, compute_f=False, verify=True, progress=False,
-                          device=device)
+    store = compute_store(
+        scene, path, resolution=8, block_rows=16, compute_f=False, verify=True, progress=False, device=device
+    )
     assert same_csr(store.cluster_form_factors(), G)
 
 
 def test_store_refuses_other_clusters(box, tmp_path, device):
     scene, labels, _ = box
-    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8,
-                          cluster_basis="indicator", compute_f=False, progress=False, device=device)
+    store = compute_store(
+        scene,
+        tmp_path / "s",
+        resolution=8,
+        block_rows=48,
+        clusters=labels,
+        cluster_resolution=8,
+        cluster_basis="indicator",
+        compute_f=False,
+        progress=False,
+        device=device,
+    )
     other = labels.copy()
     other[[0, 1]] = other[[1, 0]] if other[0] != other[1] else (other[0] + 1) % (labels.max() + 1)
     for bad in (other, scene.source_face // 2, weighted(labels, scene.areas, np.linspace(1, 2, len(scene)))):
         with pytest.raises(StoreMismatchError, match="other clusters"):
             store.cluster_form_factors(bad)
         with pytest.raises(StoreMismatchError, match="prolongation_sha256"):
-            compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=bad, cluster_resolution=8,
-                          compute_f=False, progress=False, device=device)
+            compute_store(
+                scene,
+                tmp_path / "s",
+                resolution=8,
+                block_rows=48,
+                clusters=bad,
+                cluster_resolution=8,
+                compute_f=False,
+                progress=False,
+                device=device,
+            )
     with pytest.raises(StoreMismatchError, match="resolution"):
         store.set_clusters(labels, resolution=16)
     with pytest.raises(StoreMismatchError, match="geometry_hash"):  # G of another scene: the store refuses the scene
@@ -219,19 +256,31 @@ def test_g_for_each_kind_of_row_source(box, tmp_path, device, monkeypatch):
     """A store's own G (also through a row cache), cluster-id hemicubes for on-demand rows, and
     F Pr from the source's own rows otherwise (F in memory, a store of F alone); a store with
     neither G nor all of F, one of another scene or other clusters is refused."""
-    from pydynrad.rows import CSRRows, HemicubeRows, RowCache
     from pydynrad.farfield import gather
+    from pydynrad.rows import CSRRows, HemicubeRows, RowCache
 
     scene, labels, G = box
-    store = compute_store(scene, tmp_path / "s", resolution=8, block_rows=48, clusters=labels, cluster_resolution=8,
-                          cluster_basis="indicator", compute_f=False, progress=False, device=device)
+    store = compute_store(
+        scene,
+        tmp_path / "s",
+        resolution=8,
+        block_rows=48,
+        clusters=labels,
+        cluster_resolution=8,
+        cluster_basis="indicator",
+        compute_f=False,
+        progress=False,
+        device=device,
+    )
     assert same_csr(gather.cluster_form_factors_for(scene, store, labels), G)
     assert same_csr(gather.cluster_form_factors_for(scene, RowCache(store, 2**20), labels), G)
     on_demand = HemicubeRows(scene, 64, device)
     assert same_csr(gather.cluster_form_factors_for(scene, on_demand, labels, resolution=8, device=device), G)
     # By default at the rows' own resolution: G is then F Pr of the rows the local set reads.
-    assert_float32_equal(gather.cluster_form_factors_for(scene, HemicubeRows(scene, 8, device), labels, device=device),
-                         form_factors(scene, resolution=8, device=device).astype(np.float64) @ indicator(labels))
+    assert_float32_equal(
+        gather.cluster_form_factors_for(scene, HemicubeRows(scene, 8, device), labels, device=device),
+        form_factors(scene, resolution=8, device=device).astype(np.float64) @ indicator(labels),
+    )
     F = form_factors(scene, resolution=8, device=device)
     Pr = indicator(labels)
     assert_float32_equal(gather.cluster_form_factors_for(scene, CSRRows(F), labels), F.astype(np.float64) @ Pr)
@@ -258,19 +307,27 @@ def test_store_of_g_alone_lights_a_walk_with_rows_on_demand(tmp_path, device):
 
     scene = cornell_box(max_edge=250)
     cl = cluster_patches(scene)
-    store = compute_store(scene, tmp_path / "g", resolution=32, clusters=cl, compute_f=False, progress=False,
-                          device=device)
+    store = compute_store(
+        scene, tmp_path / "g", resolution=32, clusters=cl, compute_f=False, progress=False, device=device
+    )
     assert not store.complete and store.complete_clusters
     kw = dict(local_size=30, observer=[278, 273, 280], resolution=32, device=device)
-    from_store = DynamicRadiosity(scene, None, clusters=Clusters.from_labels(scene, store.cluster_labels()),
-                                  cluster_form_factors=store.cluster_form_factors(basis_prolongation(scene, cl)), **kw)
+    from_store = DynamicRadiosity(
+        scene,
+        None,
+        clusters=Clusters.from_labels(scene, store.cluster_labels()),
+        cluster_form_factors=store.cluster_form_factors(basis_prolongation(scene, cl)),
+        **kw,
+    )
     on_the_spot = DynamicRadiosity(scene, None, clusters=cl, **kw)
     lights = [PointLight(position=[278, 450, 280], intensity=[2e5] * 3)]
     B = from_store.radiosity(lights)
     np.testing.assert_array_equal(B, on_the_spot.radiosity(lights))
     L = light_vector(scene, lights, device=device)
-    full = solve(scene, form_factors(scene, resolution=32, device=device), light=L, dtype=np.float64,
-                 tol=1e-10, device=device).radiosity
+    full = solve(
+        scene, form_factors(scene, resolution=32, device=device), light=L, dtype=np.float64, tol=1e-10, device=device
+    ).radiosity
+
     def error(b):
         return np.sqrt(np.sum((b - full) ** 2) / np.sum(full**2))
 

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 import pydynrad
 from pydynrad.errors import InvalidInputError
 
@@ -20,8 +21,11 @@ def test_a_light_past_float32_is_refused_and_leaves_the_far_field_as_it_was(devi
     far = FarField(closed_box_48, F, clusters=len(closed_box_48) // 8, device=device)
     dyn = pydynrad.DynamicRadiosity(closed_box_48, F, local_size=64, observer=(278.0, 273.0, -300.0), device=device)
     for bad in (L / L.max() * 3e38, L / L.max() * 1e298):
-        for call in (lambda: far.light(bad), lambda: dyn.radiosity(light=bad),
-                     lambda: pydynrad.solve(closed_box_48, F, light=bad, device=device)):
+        for call in (
+            lambda: far.light(bad),
+            lambda: dyn.radiosity(light=bad),
+            lambda: pydynrad.solve(closed_box_48, F, light=bad, device=device),
+        ):
             with pytest.raises(InvalidInputError, match="beyond float32"):
                 call()
     with pytest.raises(InvalidInputError, match="L must be >= 0"):
@@ -31,14 +35,22 @@ def test_a_light_past_float32_is_refused_and_leaves_the_far_field_as_it_was(devi
     from pydynrad.device.matrix import DeviceMatrix
 
     big = L / L.max() * 1e300
-    far64 = FarField(closed_box_48, F, clusters=len(closed_box_48) // 8, dtype=np.float64, coarse="dense", coarse_storage="fp32",
-                     device=device)
+    far64 = FarField(
+        closed_box_48,
+        F,
+        clusters=len(closed_box_48) // 8,
+        dtype=np.float64,
+        coarse="dense",
+        coarse_storage="fp32",
+        device=device,
+    )
     K = DeviceMatrix(device, pydynrad.multibounce(closed_box_48, F, device=device), "fp32")
     for call in (lambda: far64.light(big), lambda: pydynrad.multibounce_radiosity(closed_box_48, K, light=big)):
         with pytest.raises(InvalidInputError, match="beyond float32"):
             call()
-    dyn64 = pydynrad.DynamicRadiosity(closed_box_48, F, local_size=64, storage="fp64", far_field=False,
-                                      observer=(278.0, 273.0, -300.0), device=device)
+    dyn64 = pydynrad.DynamicRadiosity(
+        closed_box_48, F, local_size=64, storage="fp64", far_field=False, observer=(278.0, 273.0, -300.0), device=device
+    )
     huge = L / L.max() * 2e38  # radiosity past float32, within float64
     B = dyn64.radiosity(light=huge)
     assert np.all(np.isfinite(B)) and B.max() >= 2e38

@@ -4,12 +4,11 @@ by their planes (csrc/segments.c) against Moller-Trumbore on the mesh's triangle
 import numpy as np
 import pytest
 import trimesh
+from helpers import brute_force_hits
 
 import pydynrad as pd
 from pydynrad import _segments
 from pydynrad.geometry.convex import MAX_PLANES, solid_planes
-
-from helpers import brute_force_hits
 
 
 def _mesh(m: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
@@ -29,8 +28,9 @@ def _t_junction():
     top = m.face_normals[:, 2] > 0.5
     P, faces = list(V), [list(f) for f in m.faces[~top]]
     for f in m.faces[top]:  # each split at the midpoint of a shortest edge: one of the square's sides
-        i, j, k = min(((f[q], f[(q + 1) % 3], f[(q + 2) % 3]) for q in range(3)),
-                      key=lambda e: np.linalg.norm(V[e[1]] - V[e[0]]))
+        i, j, k = min(
+            ((f[q], f[(q + 1) % 3], f[(q + 2) % 3]) for q in range(3)), key=lambda e: np.linalg.norm(V[e[1]] - V[e[0]])
+        )
         P.append(0.5 * (V[i] + V[j]))
         faces += [[i, len(P) - 1, k], [len(P) - 1, j, k]]
     return np.array(P), np.array(faces)
@@ -58,11 +58,19 @@ def test_other_meshes_are_not_solids():
     assert solid_planes(P, T[2:]) is None  # open: a side lacks two triangles
     assert solid_planes(P, np.vstack([T, T[:1]])) is None  # a triangle twice
     assert solid_planes(P, np.vstack([T[1:], T[1:2, ::-1]])) is None  # one twice (reversed), one of its area missing
-    two = trimesh.util.concatenate([trimesh.creation.box((1, 1, 1)),
-                                    trimesh.creation.box((1, 1, 1), trimesh.transformations.translation_matrix((3, 0, 0)))])
+    two = trimesh.util.concatenate(
+        [
+            trimesh.creation.box((1, 1, 1)),
+            trimesh.creation.box((1, 1, 1), trimesh.transformations.translation_matrix((3, 0, 0))),
+        ]
+    )
     assert solid_planes(*_mesh(two)) is None  # two solids apart: inner sides lie inside the hull
-    ell = trimesh.util.concatenate([trimesh.creation.box((2, 1, 1)),
-                                    trimesh.creation.box((1, 1, 1), trimesh.transformations.translation_matrix((0.5, 1, 0)))])
+    ell = trimesh.util.concatenate(
+        [
+            trimesh.creation.box((2, 1, 1)),
+            trimesh.creation.box((1, 1, 1), trimesh.transformations.translation_matrix((0.5, 1, 0))),
+        ]
+    )
     assert solid_planes(*_mesh(ell)) is None  # an L: not convex
     dent = trimesh.creation.box((1, 1, 1)).subdivide()
     V = np.array(dent.vertices)
@@ -91,9 +99,17 @@ def _clipped(P, T, a, b, pose=None):
     pts = np.concatenate([a, b])
     n = len(a)
     ends = np.arange(1, n + 1, dtype=np.int64)
-    out, rays = _segments.near_sphere(pts, ends - 1, ends, np.arange(n, 2 * n, dtype=np.int32), np.arange(n, dtype=np.int64),
-                                   tuple(pose[:3, 3]), 1e9, np.concatenate([A.ravel(), t, lo, hi]).tolist(),
-                                   planes.ravel().tolist())
+    out, rays = _segments.near_sphere(
+        pts,
+        ends - 1,
+        ends,
+        np.arange(n, 2 * n, dtype=np.int32),
+        np.arange(n, dtype=np.int64),
+        tuple(pose[:3, 3]),
+        1e9,
+        np.concatenate([A.ravel(), t, lo, hi]).tolist(),
+        planes.ravel().tolist(),
+    )
     assert rays == b""  # decided in the pass: no rays to trace
     kept = np.zeros(n, bool)
     kept[np.frombuffer(out, np.int64)] = True
@@ -104,8 +120,9 @@ def _clipped(P, T, a, b, pose=None):
 def test_clipping_matches_crossing_triangles(shape):
     """Random segments, many with an end inside the solid or both: the pass keeps exactly those
     that cross a triangle (a segment wholly inside crosses none)."""
-    P, T = {"cube": _cube, "icosahedron": lambda: _mesh(trimesh.creation.icosahedron()),
-            "t-junction": _t_junction}[shape]()
+    P, T = {"cube": _cube, "icosahedron": lambda: _mesh(trimesh.creation.icosahedron()), "t-junction": _t_junction}[
+        shape
+    ]()
     rng = np.random.default_rng(3)
     a, b = rng.uniform(-1.5, 1.5, (2, 20000, 3))
     a[:3000] *= 0.3  # inside, most of them
@@ -116,8 +133,9 @@ def test_clipping_matches_crossing_triangles(shape):
     pose[:3, 3] = (5.0, -2.0, 1.0)
     truth = _crossings(P, T, a, b)
     assert 3000 < truth.sum() < 17000 and (~truth[:1500]).sum() > 100  # both ends inside: no crossing
-    np.testing.assert_array_equal(_clipped(P, T, a @ pose[:3, :3].T + pose[:3, 3], b @ pose[:3, :3].T + pose[:3, 3],
-                                           pose), truth)
+    np.testing.assert_array_equal(
+        _clipped(P, T, a @ pose[:3, :3].T + pose[:3, 3], b @ pose[:3, :3].T + pose[:3, 3], pose), truth
+    )
 
 
 def test_clipping_at_the_boundary():
@@ -125,16 +143,19 @@ def test_clipping_at_the_boundary():
     starting or ending on a side from outside, between two of its edges through the inside) cross
     none of its triangles at t in (0, 1) and are not kept; those through it or from inside out are."""
     P, T = _cube()
-    seg = np.array([
-        [(-3, -0.5, 0), (3, -0.5, 0)],      # along the bottom side, in its plane
-        [(-3, 0, 0.25), (3, 0, 0.25)],      # along the top side (z), in its plane
-        [(0, 0.5, 0), (0, 2, 0)],           # starts on a side, leaves
-        [(-2, 0, 0), (-1, 0, 0)],           # ends on a side
-        [(-2, -1, 0.25), (0, 1, 0.25)],     # through the solid's top side plane: along it, touching
-        [(-3, 0, 0), (3, 0, 0)],            # through: crosses two sides
-        [(0, 0, 0), (3, 0, 0)],             # from the centre out: crosses one
-        [(0.5, 0, 0), (-0.5, 0.1, 0.1)],    # inside: crosses none
-        [(-1, -0.5, 0), (1, 0.5, 0)],       # corner edge to corner edge, through the inside: from a boundary point in
-    ], np.float64)
+    seg = np.array(
+        [
+            [(-3, -0.5, 0), (3, -0.5, 0)],  # along the bottom side, in its plane
+            [(-3, 0, 0.25), (3, 0, 0.25)],  # along the top side (z), in its plane
+            [(0, 0.5, 0), (0, 2, 0)],  # starts on a side, leaves
+            [(-2, 0, 0), (-1, 0, 0)],  # ends on a side
+            [(-2, -1, 0.25), (0, 1, 0.25)],  # through the solid's top side plane: along it, touching
+            [(-3, 0, 0), (3, 0, 0)],  # through: crosses two sides
+            [(0, 0, 0), (3, 0, 0)],  # from the centre out: crosses one
+            [(0.5, 0, 0), (-0.5, 0.1, 0.1)],  # inside: crosses none
+            [(-1, -0.5, 0), (1, 0.5, 0)],  # corner edge to corner edge, through the inside: from a boundary point in
+        ],
+        np.float64,
+    )
     kept = _clipped(P, T, seg[:, 0], seg[:, 1])
     assert kept.tolist() == [False, False, False, False, False, True, True, False, False]

@@ -1,4 +1,4 @@
-"""The real third-party scenes of bench/data/corpus (issue 41), loaded and checked against the
+"""The real third-party scenes of bench/data/corpus, loaded and checked against the
 values read off the files independently (corpus.json, made by its own stats.py), and the
 Stanford bunny read straight from its .obj.gz."""
 
@@ -46,8 +46,9 @@ def _check(name):
         mean = areas[rows] @ scene.albedo[rows].astype(np.float64) / areas[rows].sum()
         factor = np.asarray(per.get("Kd", per.get("baseColorFactor", [1, 1, 1]))[:3], float)
         if "texture" not in per:  # a plain colour: exactly the file's (clamped below 1)
-            np.testing.assert_allclose(scene.albedo[rows], np.tile(np.minimum(factor, 0.999), (rows.sum(), 1)),
-                                       rtol=1e-6)
+            np.testing.assert_allclose(
+                scene.albedo[rows], np.tile(np.minimum(factor, 0.999), (rows.sum(), 1)), rtol=1e-6
+            )
         else:  # textured: the texture is read (not the factor's white), near the image's own mean
             assert m.albedo_texture is not None and m.albedo_texture.size == tuple(per["texture"]["size"])
             np.testing.assert_allclose(m.albedo_texture.mean, per["texture"]["mean_linear"], atol=2e-5)

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 import pydynrad
 from pydynrad.errors import InvalidInputError
 
@@ -33,8 +34,7 @@ def test_obj_and_mtl_lines_trimesh_drops_are_named(tmp_path):
     from pydynrad.geometry.loading import MalformedLineWarning
 
     (tmp_path / "m.mtl").write_text("newmtl wall\nKd x y z\n")
-    (tmp_path / "s.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl wall\n"
-                                    "f 1 2 3\nf 2 4\n")
+    (tmp_path / "s.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl wall\nf 1 2 3\nf 2 4\n")
     with pytest.warns(MalformedLineWarning) as record:
         scene = pydynrad.load(tmp_path / "s.obj")
     messages = " | ".join(str(w.message) for w in record)

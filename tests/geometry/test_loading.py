@@ -8,9 +8,8 @@ import trimesh
 
 import pydynrad
 from pydynrad import Scene
+from pydynrad.errors import InvalidInputError, SceneFileError
 from pydynrad.geometry import DegenerateTriangleWarning
-from pydynrad.errors import SceneFileError
-from pydynrad.errors import InvalidInputError
 from pydynrad.geometry.loading import MAX_ALBEDO, AlbedoClampedWarning, MissingMaterialWarning, from_mesh
 
 # Two unit squares and a triangle; three materials, one emitting; faces listed out of material order.
@@ -81,8 +80,8 @@ def test_obj_mtl_materials_per_face(tmp_path):
     np.testing.assert_allclose(scene.albedo, albedo, rtol=1e-6)
     np.testing.assert_allclose(scene.emission, emission, rtol=1e-6)
     assert len(scene.emitters) == 1
-    # source_face is the file's face order (its `f` lines), and the patches come in it (issue 41:
-    # it had followed trimesh's per-material geometries, not the file its name points to).
+    # source_face is the file's face order (its `f` lines), and the patches come in it (it
+    # had followed trimesh's per-material geometries, not the file its name points to).
     faces = np.array([VERTS[np.array(face) - 1] for face in FILE_FACES])
     np.testing.assert_allclose(scene.centers, faces[scene.source_face].mean(axis=1), atol=1e-6)
     assert list(scene.source_face) == list(range(5))
@@ -151,7 +150,9 @@ def test_ply_face_colours(tmp_path):
 
 def test_ply_vertex_colours_are_averaged_per_face(tmp_path):
     box = trimesh.creation.box()
-    colours = np.column_stack([np.arange(8) * 30, 200 - np.arange(8) * 20, np.full(8, 7), np.full(8, 255)]).astype(np.uint8)
+    colours = np.column_stack([np.arange(8) * 30, 200 - np.arange(8) * 20, np.full(8, 7), np.full(8, 255)]).astype(
+        np.uint8
+    )
     box.visual.vertex_colors = colours
     box.export(tmp_path / "vbox.ply")
     scene = pydynrad.load(tmp_path / "vbox.ply")
@@ -168,11 +169,15 @@ def test_glb_colours_and_pbr_material(tmp_path):
     np.testing.assert_allclose(scene.albedo, box.visual.face_colors[:, :3] / 255.0, atol=1e-6)
     assert len(scene.points) == 8  # coincident corners are merged again
     lamp = trimesh.creation.box()
-    material = trimesh.visual.material.PBRMaterial(baseColorFactor=[0.5, 0.25, 0.75, 1.0], emissiveFactor=[1.0, 0.5, 0.0])
+    material = trimesh.visual.material.PBRMaterial(
+        baseColorFactor=[0.5, 0.25, 0.75, 1.0], emissiveFactor=[1.0, 0.5, 0.0]
+    )
     lamp.visual = trimesh.visual.TextureVisuals(material=material)
     lamp.export(tmp_path / "lamp.glb")
     scene = pydynrad.load(tmp_path / "lamp.glb")
-    np.testing.assert_allclose(scene.albedo, np.tile(np.round(np.array([0.5, 0.25, 0.75]) * 255) / 255, (12, 1)), rtol=1e-6)
+    np.testing.assert_allclose(
+        scene.albedo, np.tile(np.round(np.array([0.5, 0.25, 0.75]) * 255) / 255, (12, 1)), rtol=1e-6
+    )
     np.testing.assert_allclose(scene.emission, np.tile([1.0, 0.5, 0.0], (12, 1)), rtol=1e-6)
 
 
@@ -223,15 +228,18 @@ def test_zero_area_faces_are_dropped_and_counted(tmp_path):
     assert np.all(scene.source_face == 0) and scene.areas.sum() == pytest.approx(0.5)
 
 
-@pytest.mark.parametrize("name, content, message", [
-    ("garbage.obj", bytes(range(256)) * 8, "OBJ"),
-    ("garbage.ply", bytes(range(256)) * 8, "PLY"),
-    ("garbage.glb", b"glTF" + bytes(60), "GLB"),
-    ("empty.obj", b"# no geometry\n", "empty"),
-    ("points.obj", b"v 0 0 0\nv 1 0 0\n", "empty"),
-    ("nan.obj", b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
-    ("scene.xyz", b"0 0 0\n", "unsupported format"),
-])
+@pytest.mark.parametrize(
+    "name, content, message",
+    [
+        ("garbage.obj", bytes(range(256)) * 8, "OBJ"),
+        ("garbage.ply", bytes(range(256)) * 8, "PLY"),
+        ("garbage.glb", b"glTF" + bytes(60), "GLB"),
+        ("empty.obj", b"# no geometry\n", "empty"),
+        ("points.obj", b"v 0 0 0\nv 1 0 0\n", "empty"),
+        ("nan.obj", b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
+        ("scene.xyz", b"0 0 0\n", "unsupported format"),
+    ],
+)
 def test_bad_files_raise_errors_naming_file_and_problem(tmp_path, name, content, message):
     path = tmp_path / name
     path.write_bytes(content)
@@ -259,21 +267,41 @@ def _gltf_two_materials(strength):
     idx = np.array([0, 1, 2], np.uint32).tobytes()
     idx2 = np.array([3, 4, 5], np.uint32).tobytes()
     blob = pos + idx + idx2
-    lamp = {"name": "lamp", "emissiveFactor": [1.0, 0.5, 0.25],
-            "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": strength}}}
+    lamp = {
+        "name": "lamp",
+        "emissiveFactor": [1.0, 0.5, 0.25],
+        "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": strength}},
+    }
     wall = {"name": "wall", "pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.5, 0.5, 1.0]}}
-    return {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
-            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0},
-                                       {"attributes": {"POSITION": 0}, "indices": 2, "material": 1}]}],
-            "materials": [lamp, wall], "extensionsUsed": ["KHR_materials_emissive_strength"],
-            "buffers": [{"byteLength": len(blob),
-                         "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
-            "bufferViews": [{"buffer": 0, "byteLength": 72}, {"buffer": 0, "byteOffset": 72, "byteLength": 12},
-                            {"buffer": 0, "byteOffset": 84, "byteLength": 12}],
-            "accessors": [{"bufferView": 0, "componentType": 5126, "count": 6, "type": "VEC3",
-                           "min": [0, 0, 0], "max": [1, 1, 1]},
-                          {"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR"},
-                          {"bufferView": 2, "componentType": 5125, "count": 3, "type": "SCALAR"}]}
+    return {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [
+            {
+                "primitives": [
+                    {"attributes": {"POSITION": 0}, "indices": 1, "material": 0},
+                    {"attributes": {"POSITION": 0}, "indices": 2, "material": 1},
+                ]
+            }
+        ],
+        "materials": [lamp, wall],
+        "extensionsUsed": ["KHR_materials_emissive_strength"],
+        "buffers": [
+            {"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteLength": 72},
+            {"buffer": 0, "byteOffset": 72, "byteLength": 12},
+            {"buffer": 0, "byteOffset": 84, "byteLength": 12},
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 6, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 1]},
+            {"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR"},
+            {"bufferView": 2, "componentType": 5125, "count": 3, "type": "SCALAR"},
+        ],
+    }
 
 
 def test_gltf_emissive_strength_and_face_indices(tmp_path):
@@ -289,8 +317,14 @@ def test_gltf_emissive_strength_and_face_indices(tmp_path):
         else:
             doc = json.dumps(_gltf_two_materials(100.0)).encode()
             doc += b" " * (-len(doc) % 4)
-            path.write_bytes(b"glTF" + (2).to_bytes(4, "little") + (20 + len(doc)).to_bytes(4, "little")
-                             + len(doc).to_bytes(4, "little") + b"JSON" + doc)
+            path.write_bytes(
+                b"glTF"
+                + (2).to_bytes(4, "little")
+                + (20 + len(doc)).to_bytes(4, "little")
+                + len(doc).to_bytes(4, "little")
+                + b"JSON"
+                + doc
+            )
         scene = pydynrad.load(path)
         lamp = scene.emission.max(axis=1) > 0
         assert lamp.sum() == 1
@@ -298,8 +332,10 @@ def test_gltf_emissive_strength_and_face_indices(tmp_path):
         np.testing.assert_allclose(scene.albedo[~lamp][0], [0.5, 0.5, 0.5], atol=1 / 255)
     for face, message in (("3 0 1 5", "face 0 indexes vertex"), ("3 0 1 -1", "face 0 indexes vertex")):
         ply = tmp_path / "bad.ply"
-        ply.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
-                       "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
-                       f"0 0 0\n1 0 0\n0 1 0\n1 1 0\n{face}\n")
+        ply.write_text(
+            "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+            f"0 0 0\n1 0 0\n0 1 0\n1 1 0\n{face}\n"
+        )
         with pytest.raises(SceneFileError, match=message):
             pydynrad.load(ply)

@@ -1,4 +1,4 @@
-"""Materials as the formats define them (issue 41): textures, vertex colours and factors read as
+"""Materials as the formats define them: textures, vertex colours and factors read as
 area means over each patch's footprint, against references computed here independently.
 
 The reference of a patch is the mean over its footprint of the texture as texels (a piecewise-
@@ -50,8 +50,9 @@ def png(img) -> bytes:
     return out.getvalue()
 
 
-def reference_mean(img8, uv, colours=None, factor=np.ones(3), wrap="repeat", k=64):
+def reference_mean(img8, uv, colours=None, factor=(1.0, 1.0, 1.0), wrap="repeat", k=64):
     """Area mean over the UV triangle ``uv`` (3, 2) (v up) of factor x colour x texel value."""
+    factor = np.asarray(factor, dtype=np.float64)
     lin = _decode(img8)
     h, w = lin.shape[:2]
     i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
@@ -75,8 +76,17 @@ QUAD_UV = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
 QUAD_FACES = np.array([[0, 1, 2], [0, 2, 3]])
 
 
-def write_gltf(path, img8, factor=(1, 1, 1, 1), colours=None, emissive=None, emissive_img=None, strength=None,
-               wrap=10497, uv=QUAD_UV):
+def write_gltf(
+    path,
+    img8,
+    factor=(1, 1, 1, 1),
+    colours=None,
+    emissive=None,
+    emissive_img=None,
+    strength=None,
+    wrap=10497,
+    uv=QUAD_UV,
+):
     """A .gltf (one quad, embedded buffers and images) with the given material."""
     blob = bytearray()
     views, accessors = [], []
@@ -99,8 +109,10 @@ def write_gltf(path, img8, factor=(1, 1, 1, 1), colours=None, emissive=None, emi
         attrs["COLOR_0"] = add(np.asarray(colours, np.float32), 5126, "VEC3")
     indices = add(QUAD_FACES.astype(np.uint32).ravel(), 5125, "SCALAR")
     images = [{"uri": "data:image/png;base64," + base64.b64encode(png(img8)).decode()}]
-    material = {"name": "painted", "pbrMetallicRoughness": {"baseColorFactor": list(factor),
-                                                            "baseColorTexture": {"index": 0}}}
+    material = {
+        "name": "painted",
+        "pbrMetallicRoughness": {"baseColorFactor": list(factor), "baseColorTexture": {"index": 0}},
+    }
     if emissive is not None:
         material["emissiveFactor"] = list(emissive)
     if emissive_img is not None:
@@ -108,14 +120,25 @@ def write_gltf(path, img8, factor=(1, 1, 1, 1), colours=None, emissive=None, emi
         material["emissiveTexture"] = {"index": 1}
     if strength is not None:
         material["extensions"] = {"KHR_materials_emissive_strength": {"emissiveStrength": strength}}
-    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
-           "meshes": [{"primitives": [{"attributes": attrs, "indices": indices, "material": 0}]}],
-           "materials": [material], "images": images,
-           "samplers": [{"wrapS": wrap, "wrapT": wrap}],
-           "textures": [{"source": k, "sampler": 0} for k in range(len(images))],
-           "buffers": [{"byteLength": len(blob),
-                        "uri": "data:application/octet-stream;base64," + base64.b64encode(bytes(blob)).decode()}],
-           "bufferViews": views, "accessors": accessors}
+    doc = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": attrs, "indices": indices, "material": 0}]}],
+        "materials": [material],
+        "images": images,
+        "samplers": [{"wrapS": wrap, "wrapT": wrap}],
+        "textures": [{"source": k, "sampler": 0} for k in range(len(images))],
+        "buffers": [
+            {
+                "byteLength": len(blob),
+                "uri": "data:application/octet-stream;base64," + base64.b64encode(bytes(blob)).decode(),
+            }
+        ],
+        "bufferViews": views,
+        "accessors": accessors,
+    }
     path.write_text(json.dumps(doc))
     return path
 
@@ -160,14 +183,18 @@ def test_every_patch_gets_its_footprints_mean(tmp_path, fmt, image):
     img = checkerboard() if image == "checkerboard" else gradient()
     colours = np.array([[0.1, 0.2, 0.8], [0.9, 0.9, 0.9], [0.5, 1.0, 0.3], [1.0, 0.4, 0.6]]) if fmt == "gltf" else None
     factor = np.array([0.7, 0.5, 0.9]) if fmt == "gltf" else np.array([0.8, 0.6, 0.9])
-    path = (write_gltf(tmp_path / "quad.gltf", img, factor=(*factor, 1.0), colours=colours) if fmt == "gltf"
-            else write_obj(tmp_path, img))
+    path = (
+        write_gltf(tmp_path / "quad.gltf", img, factor=(*factor, 1.0), colours=colours)
+        if fmt == "gltf"
+        else write_obj(tmp_path, img)
+    )
     for max_edge in (None, 0.75, 0.3):
         scene = pydynrad.load(path, max_edge=max_edge)
         uv = patch_uv(scene)
         cols = None if colours is None else patch_colours(scene, colours)
-        expected = np.array([reference_mean(img, uv[k], None if cols is None else cols[k], factor)
-                             for k in range(len(scene))])
+        expected = np.array(
+            [reference_mean(img, uv[k], None if cols is None else cols[k], factor) for k in range(len(scene))]
+        )
         np.testing.assert_allclose(scene.albedo, expected, rtol=0.01, atol=1e-4)
         assert scene.albedo.dtype == np.float32 and scene.albedo.max() < MAX_ALBEDO
 
@@ -212,8 +239,9 @@ def test_clamp_wrap_and_emission(tmp_path):
         expected = [reference_mean(img, patch_uv(scene)[k] * 2.0 - 0.5, wrap=mode) for k in range(2)]
         np.testing.assert_allclose(scene.albedo, expected, rtol=0.01)
     glow = checkerboard(checks=2, a=(255, 255, 255), b=(0, 0, 0))
-    scene = pydynrad.load(write_gltf(tmp_path / "e.gltf", img, emissive=(1.0, 0.5, 0.25), emissive_img=glow,
-                                     strength=40.0))
+    scene = pydynrad.load(
+        write_gltf(tmp_path / "e.gltf", img, emissive=(1.0, 0.5, 0.25), emissive_img=glow, strength=40.0)
+    )
     expected = [reference_mean(glow, patch_uv(scene)[k], factor=40.0 * np.array([1.0, 0.5, 0.25])) for k in range(2)]
     np.testing.assert_allclose(scene.emission, expected, rtol=0.01)
     scene = pydynrad.load(write_obj(tmp_path, img, ke="3 2 1", ke_img=glow, name="lamp"))

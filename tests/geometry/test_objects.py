@@ -7,11 +7,10 @@ the same geometry built as one static scene .
 import numpy as np
 import pytest
 
-from pydynrad.geometry.objects import with_objects
 import pydynrad as pd
-from pydynrad.geometry.bvh import cast_rays
 from pydynrad.formfactors import pixel_form_factors
-from pydynrad.geometry.objects import instanced
+from pydynrad.geometry.bvh import cast_rays
+from pydynrad.geometry.objects import instanced, with_objects
 
 R = 32
 
@@ -30,8 +29,12 @@ def brick():
 
 
 def test_rigid_transform_refused(brick):
-    for bad, msg in [(np.diag([2.0, 1, 1, 1]), "not rigid"), (np.diag([-1.0, 1, 1, 1]), "mirrors"),
-                     (np.full((4, 4), np.nan), "NaN"), (np.eye(3), r"\(4, 4\)")]:
+    for bad, msg in [
+        (np.diag([2.0, 1, 1, 1]), "not rigid"),
+        (np.diag([-1.0, 1, 1, 1]), "mirrors"),
+        (np.full((4, 4), np.nan), "NaN"),
+        (np.eye(3), r"\(4, 4\)"),
+    ]:
         with pytest.raises(pd.InvalidInputError, match=msg):
             pd.RigidObject(brick, transform=bad)
     shear = np.eye(4)
@@ -54,7 +57,9 @@ def test_rigid_transform_refused(brick):
     with pytest.raises(pd.InvalidInputError, match="not rigid"):
         obj.world_points(T)
     for k in range(20):  # more poses than it keeps: each still right
-        np.testing.assert_allclose(obj.bounding_sphere(pose(k))[0], pose(k)[:3, :3] @ obj.bounding_sphere()[0] + pose(k)[:3, 3])
+        np.testing.assert_allclose(
+            obj.bounding_sphere(pose(k))[0], pose(k)[:3, :3] @ obj.bounding_sphere()[0] + pose(k)[:3, 3]
+        )
 
 
 def test_with_objects_numbering(cornell_384, brick):
@@ -64,9 +69,9 @@ def test_with_objects_numbering(cornell_384, brick):
     assert len(both) == n + 2 * m
     np.testing.assert_array_equal(both.centers[:n], cornell_384.centers)
     T = pose(0, (400.0, 450.0, 150.0))
-    np.testing.assert_allclose(both.centers[n + m:], brick.centers @ T[:3, :3].T + T[:3, 3], atol=1e-3)
-    np.testing.assert_allclose(both.areas[n:n + m], brick.areas, rtol=1e-5)
-    np.testing.assert_array_equal(both.albedo[n:n + m], brick.albedo)
+    np.testing.assert_allclose(both.centers[n + m :], brick.centers @ T[:3, :3].T + T[:3, 3], atol=1e-3)
+    np.testing.assert_allclose(both.areas[n : n + m], brick.areas, rtol=1e-5)
+    np.testing.assert_array_equal(both.albedo[n : n + m], brick.albedo)
 
 
 def test_with_objects_is_the_validated_scene(cornell_384, brick):
@@ -76,8 +81,12 @@ def test_with_objects_is_the_validated_scene(cornell_384, brick):
     a, b = pd.RigidObject(brick, pose(30)), pd.RigidObject(brick, pose(0, (400.0, 450.0, 150.0)))
     both = with_objects(cornell_384, [a, b])
     parts = [cornell_384, brick, brick]
-    checked = pd.Scene(both.points, both.triangles, np.concatenate([p.albedo for p in parts]),
-                       np.concatenate([p.emission for p in parts]))
+    checked = pd.Scene(
+        both.points,
+        both.triangles,
+        np.concatenate([p.albedo for p in parts]),
+        np.concatenate([p.emission for p in parts]),
+    )
     n = len(cornell_384)
     for name in ("points", "triangles", "albedo", "emission", "source_face", "bbox"):
         np.testing.assert_array_equal(getattr(both, name), getattr(checked, name), err_msg=name)
@@ -91,7 +100,9 @@ def test_with_objects_is_the_validated_scene(cornell_384, brick):
 def test_hemicube_rows_match_static_copy(cornell_384, brick, device, offset):
     """Also far from the origin: object trees share the static scene's device frame."""
     if offset:
-        cornell_384 = pd.Scene(cornell_384.points + offset, cornell_384.triangles, cornell_384.albedo, cornell_384.emission, name="far box")
+        cornell_384 = pd.Scene(
+            cornell_384.points + offset, cornell_384.triangles, cornell_384.albedo, cornell_384.emission, name="far box"
+        )
     obj = pd.RigidObject(brick, pose(30, (150.0 + offset, 300.0 + offset, 400.0 + offset)))
     ref = pd.form_factors(with_objects(cornell_384, [obj]), R, device=device)
     inst = pd.form_factors(instanced(cornell_384, [obj]), R, device=device)
@@ -101,7 +112,7 @@ def test_hemicube_rows_match_static_copy(cornell_384, brick, device, offset):
     # the neighbouring patch: at most a couple of pixels in all, each one pixel's weight.
     assert diff.max() <= 1.01 * pixel_form_factors(R).max()
     assert (diff > 1e-6).nnz <= 4
-    assert ref[len(cornell_384):].sum() > 0.9 * len(brick)  # the object's rows are there and see the box
+    assert ref[len(cornell_384) :].sum() > 0.9 * len(brick)  # the object's rows are there and see the box
 
 
 def test_convex_objects_rows_skip_their_own_tree(cornell_384, brick, device):
@@ -122,17 +133,22 @@ def test_convex_objects_rows_skip_their_own_tree(cornell_384, brick, device):
         skipped = pd.form_factors(world, R, rows=idx, device=device)
         world.bvh.convex[:] = False
         walked = pd.form_factors(world, R, rows=idx, device=device)
-        assert skipped.nnz > 30 * m and all(np.array_equal(getattr(skipped, k), getattr(walked, k))
-                                             for k in ("indptr", "indices", "data"))
+        assert skipped.nnz > 30 * m and all(
+            np.array_equal(getattr(skipped, k), getattr(walked, k)) for k in ("indptr", "indices", "data")
+        )
     inward = pd.Scene(brick.points, brick.triangles[:, ::-1], brick.albedo, brick.emission, name="inward")
     world = instanced(cornell_384, [pd.RigidObject(inward, pose(30))])  # its patches face into the solid
     assert pd.RigidObject(inward).solid_planes is not None and world.bvh.convex.tolist() == [False]
     rows = pd.form_factors(world, R, rows=idx, device=device)
     assert rows[:, n:].sum() > 0.9 * m  # each sees the solid's other sides, which its tree shows
     one = pd.scenes.block(60.0, 1)
-    pair = pd.Scene(np.vstack([one.points - (50.0, 0.0, 0.0), one.points + (50.0, 0.0, 0.0)]),
-                    np.vstack([one.triangles, one.triangles + len(one.points)]),
-                    np.vstack([one.albedo, one.albedo]), np.vstack([one.emission, one.emission]), name="pair")
+    pair = pd.Scene(
+        np.vstack([one.points - (50.0, 0.0, 0.0), one.points + (50.0, 0.0, 0.0)]),
+        np.vstack([one.triangles, one.triangles + len(one.points)]),
+        np.vstack([one.albedo, one.albedo]),
+        np.vstack([one.emission, one.emission]),
+        name="pair",
+    )
     world = instanced(cornell_384, [pd.RigidObject(pair, pose(20))])
     assert world.bvh.convex.tolist() == [False]
     assert (world.bvh.own_instances(np.arange(n, len(world))) == -1).all()
@@ -184,8 +200,9 @@ def test_rays_and_render_match_static_copy(cornell_384, brick, device):
     img_inst = pd.render(inst, B, cam, device=device)
     bad = np.any(np.abs(img_ref - img_inst) > 1e-5, axis=2)
     assert bad.sum() <= 2  # a ray along a shared edge may pick the other triangle
-    hit_obj = pd.render(inst, np.r_[np.zeros((len(cornell_384), 3)), np.ones((len(brick), 3))], cam, shading="flat",
-                        device=device)
+    hit_obj = pd.render(
+        inst, np.r_[np.zeros((len(cornell_384), 3)), np.ones((len(brick), 3))], cam, shading="flat", device=device
+    )
     assert hit_obj.max() == 1.0  # the object is in view
 
     rng = np.random.default_rng(2)
@@ -199,8 +216,10 @@ def test_rays_and_render_match_static_copy(cornell_384, brick, device):
     np.testing.assert_array_equal(f_inst[same], f_ref[same])
     for width in (16, 8, 4):  # any-hit packets through the instance at every packet width
         dev = device.with_traits(float_width=width)
-        np.testing.assert_array_equal(pd.geometry.bvh.occluded(inst, o, d, 300.0, device=dev),
-                                      pd.geometry.bvh.occluded(ref, o, d, 300.0, device=dev))
+        np.testing.assert_array_equal(
+            pd.geometry.bvh.occluded(inst, o, d, 300.0, device=dev),
+            pd.geometry.bvh.occluded(ref, o, d, 300.0, device=dev),
+        )
 
 
 def test_path_tracer_sees_object(cornell_384, brick, device):
@@ -225,7 +244,9 @@ def test_move_rewrites_table_only(cornell_384, brick, device):
     assert moved.bvh is bvh
     changed = np.flatnonzero(np.any(nodes_before.view(np.int32) != bvh.nodes.view(np.int32), axis=1))
     assert len(changed) and changed.min() * 8 >= bvh._table_float4  # only the instance table
-    ref = pd.form_factors(with_objects(cornell_384, [obj]), R, rows=np.arange(len(cornell_384), len(moved)), device=device)
+    ref = pd.form_factors(
+        with_objects(cornell_384, [obj]), R, rows=np.arange(len(cornell_384), len(moved)), device=device
+    )
     got = pd.form_factors(moved, R, rows=np.arange(len(cornell_384), len(moved)), device=device)
     assert (abs(ref - got) > 1e-6).nnz <= 4
 
@@ -249,8 +270,15 @@ def test_intersection_warned_exactly_where_edges_cross(cornell_384, brick, devic
             for z in (40.0, 300.0):
                 obj = pd.RigidObject(brick, pose(30, (x, y, z)))
                 corners = obj.world_points()[brick.triangles]
-                crosses = bool(occluded(cornell_384, corners.reshape(-1, 3), (corners[:, [1, 2, 0]] - corners).reshape(-1, 3),
-                                        np.float32(1.0), device=device).any())
+                crosses = bool(
+                    occluded(
+                        cornell_384,
+                        corners.reshape(-1, 3),
+                        (corners[:, [1, 2, 0]] - corners).reshape(-1, 3),
+                        np.float32(1.0),
+                        device=device,
+                    ).any()
+                )
                 with warnings.catch_warnings(record=True) as w:
                     warnings.simplefilter("always")
                     instanced(cornell_384, [obj])

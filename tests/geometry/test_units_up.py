@@ -1,4 +1,4 @@
-"""A scene's unit and up axis (issue 41): skies, suns, luminaires, sensors and exports use them."""
+"""A scene's unit and up axis: skies, suns, luminaires, sensors and exports use them."""
 
 import warnings
 
@@ -15,7 +15,7 @@ from pydynrad.photometry import illuminance, work_plane
 
 # A small IES LM-63 file: a rotationally symmetric downlight (cd at gamma 0..90).
 IES = """IESNA:LM-63-2002
-[TEST] issue 41
+[TEST] units and up axis
 TILT=NONE
 1 1000 1 7 1 1 2 0.1 0.1 0
 1 1 100
@@ -39,8 +39,10 @@ def _yard(up="+y"):
     quad((x0, 0, z1), (x1, 0, z1), (x1, h, z1), (x0, h, z1))  # box side facing +z
     quad((x1, 0, z0), (x1, h, z0), (x1, h, z1), (x1, 0, z1))  # box side facing +x
     pts = np.array(quads, float).reshape(-1, 3)
-    tris = np.array([[4 * k, 4 * k + 1, 4 * k + 2] for k in range(len(quads))]
-                    + [[4 * k, 4 * k + 2, 4 * k + 3] for k in range(len(quads))])
+    tris = np.array(
+        [[4 * k, 4 * k + 1, 4 * k + 2] for k in range(len(quads))]
+        + [[4 * k, 4 * k + 2, 4 * k + 3] for k in range(len(quads))]
+    )
     r = rotation_to("+y", up)
     scene = pydynrad.Scene(pts @ r.T, tris, albedo=0.5, name="yard", up=up)
     return pydynrad.geometry.patching.subdivide_scene(scene, max_edge=0.5)
@@ -65,8 +67,9 @@ def test_unit_and_up_parsing():
     # North is -z with y up, +y with z up (the same direction, rotated): east +x in both.
     np.testing.assert_allclose(sun_direction(0, 0, "+y"), [0, 0, -1], atol=1e-15)
     np.testing.assert_allclose(sun_direction(0, 90, "+z"), [1, 0, 0], atol=1e-15)
-    np.testing.assert_allclose(rotation_to("+y", "+z") @ sun_direction(30, 135, "+y"), sun_direction(30, 135, "+z"),
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        rotation_to("+y", "+z") @ sun_direction(30, 135, "+y"), sun_direction(30, 135, "+z"), atol=1e-15
+    )
 
 
 def test_a_rotated_scene_gets_the_same_sky_and_sun(device):
@@ -95,16 +98,22 @@ def test_the_sky_lights_the_y_up_cornell_box(device):
     floor = box.normals[:, 1] > 0.99
     assert E[floor].max() > 0
     # The old default zenith, +z in a y-up box, sees nothing but the black ground: said, not silent.
-    with pytest.warns(SkyOrientationWarning, match="lights no patch"):
-        pydynrad.lights.direct_irradiance(box, [SkyLight(horizontal_illuminance=1e4, up=(0, 0, 1), resolution=8)],
-                                          device=device)
+    with pytest.warns(SkyOrientationWarning) as said:
+        pydynrad.lights.direct_irradiance(
+            box, [SkyLight(horizontal_illuminance=1e4, up=(0, 0, 1), resolution=8)], device=device
+        )
+    messages = [str(w.message) for w in said]
+    assert any("lights no patch" in m for m in messages) and any(
+        "90 degrees from the scene's up" in m for m in messages
+    )
 
 
 def test_a_millimetre_room_and_a_metre_room_read_the_same_lux(device):
     lamp = parse_ies(IES)
     room_m = pydynrad.scenes.closed_box((4.0, 3.0, 2.5), subdivisions=2, albedo=0.5)
-    room_mm = pydynrad.Scene(room_m.points * 1000.0, room_m.triangles, albedo=0.5, emission=room_m.emission,
-                             unit="mm", up="+z")
+    room_mm = pydynrad.Scene(
+        room_m.points * 1000.0, room_m.triangles, albedo=0.5, emission=room_m.emission, unit="mm", up="+z"
+    )
     plane_m = work_plane([[0, 0], [4, 0], [4, 3], [0, 3]], 0.75, scene=room_m)
     plane_mm = work_plane([[0, 0], [4000, 0], [4000, 3000], [0, 3000]], 750.0, scene=room_mm)
     np.testing.assert_allclose(plane_mm.points, plane_m.points * 1000.0)  # EN 12464-1's spacing, in metres

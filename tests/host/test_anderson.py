@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from pydynrad.host.anderson import Anderson
 from pydynrad.device.csr import DeviceCSR
+from pydynrad.host.anderson import Anderson
 
 
 def test_anderson_mixing_solves_a_low_rank_fixed_point():
@@ -68,7 +68,8 @@ def test_mixing_refuses_bad_input(device):
     # No sweep asked: x0 back, as the plain sweeps give it.
     A = sp.csr_matrix(np.full((4, 4), 0.2))
     x0 = np.arange(4.0)[:, None]
-    x, sweeps, change, history = DeviceCSR(device, A, np.float64).jacobi(np.ones((4, 1)), np.full((4, 1), 0.5), x0,
-                                                                          1e-6, 0, mixing=3)
+    x, sweeps, change, history = DeviceCSR(device, A, np.float64).jacobi(
+        np.ones((4, 1)), np.full((4, 1), 0.5), x0, 1e-6, 0, mixing=3
+    )
     np.testing.assert_array_equal(x, x0)
     assert sweeps == 0 and history == [] and change == np.inf

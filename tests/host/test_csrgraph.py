@@ -16,8 +16,9 @@ def _graph(n, density, seed, index_dtype=np.int32):
     return sp.csr_matrix((A.data, A.indices.astype(index_dtype), A.indptr), shape=A.shape)
 
 
-@pytest.mark.parametrize("n, density, index_dtype", [(1, 0.0, np.int32), (50, 0.01, np.int32), (400, 0.003, np.int64),
-                                                     (300, 0.05, np.int32)])
+@pytest.mark.parametrize(
+    "n, density, index_dtype", [(1, 0.0, np.int32), (50, 0.01, np.int32), (400, 0.003, np.int64), (300, 0.05, np.int32)]
+)
 def test_weak_components_match_scipy(n, density, index_dtype):
     A = _graph(n, density, n, index_dtype)  # sparse enough for many components and lone nodes
     expected = connected_components(A, directed=True, connection="weak")[1]
@@ -30,8 +31,9 @@ def test_weak_components_join_one_way_edges():
     assert weak_components(A).tolist() == [0, 0, 1, 0, 2]
 
 
-@pytest.mark.parametrize("shape, dtype", [((60, 60), np.float64), ((7, 300), np.float64), ((300, 7), np.float64),
-                                          ((60, 60), np.float32)])
+@pytest.mark.parametrize(
+    "shape, dtype", [((60, 60), np.float64), ((7, 300), np.float64), ((300, 7), np.float64), ((60, 60), np.float32)]
+)
 def test_columns_float32_matches_scipy(shape, dtype):
     rng = np.random.default_rng(1)
     A = sp.random(*shape, density=0.05, format="csr", random_state=rng, dtype=np.float64)
@@ -43,8 +45,10 @@ def test_columns_float32_matches_scipy(shape, dtype):
     assert got.dtype == np.float32 and got.shape == shape
 
 
-@pytest.mark.parametrize("dtype, index_dtype, weighted", [(np.float32, np.int32, False), (np.float64, np.int32, True),
-                                                         (np.float32, np.int64, True)])
+@pytest.mark.parametrize(
+    "dtype, index_dtype, weighted",
+    [(np.float32, np.int32, False), (np.float64, np.int32, True), (np.float32, np.int64, True)],
+)
 def test_sum_by_label_is_scipys_product_bit_for_bit(dtype, index_dtype, weighted):
     # G = F Pr for a prolongation of one entry per row: the same entries, values and order as
     # scipy's product (which the far field used), exact zeros dropped as scipy drops them.
@@ -88,8 +92,17 @@ def test_labels_changed_under_the_native_pass_are_refused_not_read_out_of_bounds
     F = sp.csr_matrix(np.ones((3, 4)))
     labels = np.array([0, 1, 0, 1], np.int64)
     with pytest.raises(ValueError, match="out of range"):
-        _csrgraph.sum_by_label(F.indptr.astype(np.int64), F.indices, F.data, labels, np.ones(4), 2, labels,
-                               np.empty(8, np.int32), np.empty(8))
+        _csrgraph.sum_by_label(
+            F.indptr.astype(np.int64),
+            F.indices,
+            F.data,
+            labels,
+            np.ones(4),
+            2,
+            labels,
+            np.empty(8, np.int32),
+            np.empty(8),
+        )
 
 
 def test_bad_structures_are_refused():
@@ -103,5 +116,6 @@ def test_bad_structures_are_refused():
     with pytest.raises(ValueError, match="non-decreasing"):
         _csrgraph.weak_components(np.array([0, 2, 1], np.int64), ix, labels)
     with pytest.raises(ValueError, match="out of range"):
-        _csrgraph.to_columns(ip, ix, np.ones(2), 3, np.empty(4, np.int64), np.empty(2, np.int32),
-                             np.empty(2, np.float32))
+        _csrgraph.to_columns(
+            ip, ix, np.ones(2), 3, np.empty(4, np.int64), np.empty(2, np.int32), np.empty(2, np.float32)
+        )

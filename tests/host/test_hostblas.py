@@ -30,9 +30,18 @@ def test_exact_swap_is_the_same_with_one_thread(device):
 
     rng = np.random.default_rng(3)
     M, k = 96, 6
-    args = (rng.random((M, k)), rng.random((k, M)), rng.random((M, k)), rng.random((k, M)),
-            1e-2 * rng.random((M, k)), 1e-2 * rng.random((k, M)), 1e-2 * rng.random((k, k)),
-            0.5 * rng.random(M), 0.5 * rng.random(k), np.arange(k))
+    args = (
+        rng.random((M, k)),
+        rng.random((k, M)),
+        rng.random((M, k)),
+        rng.random((k, M)),
+        1e-2 * rng.random((M, k)),
+        1e-2 * rng.random((k, M)),
+        1e-2 * rng.random((k, k)),
+        0.5 * rng.random(M),
+        0.5 * rng.random(k),
+        np.arange(k),
+    )
     free = batched_swap(*args)
     with blas_beside(device):
         one = batched_swap(*args)

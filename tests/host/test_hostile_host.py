@@ -3,7 +3,9 @@
 import subprocess
 import sys
 import textwrap
+
 import pytest
+
 import pydynrad
 from pydynrad.errors import InvalidInputError
 
@@ -12,7 +14,9 @@ def test_resolution_needing_more_than_memory_is_refused(monkeypatch, closed_box_
     with pytest.raises(InvalidInputError, match=r"resolution must lie in 2\.\.4096; got 8192"):
         pydynrad.form_factors(closed_box_48, resolution=8192, rows=[0], device=device)
     monkeypatch.setattr(pydynrad.formfactors, "available_host_bytes", lambda: 8 * 2**30)
-    with pytest.raises(pydynrad.errors.OutOfMemoryError, match="resolution 4096 needs about 11.2 GiB .* 8.0 GiB is available"):
+    with pytest.raises(
+        pydynrad.errors.OutOfMemoryError, match="resolution 4096 needs about 11.2 GiB .* 8.0 GiB is available"
+    ):
         pydynrad.form_factors(closed_box_48, resolution=4096, rows=[0], device=device)  # main: 11 GiB in numpy first
 
 
@@ -35,8 +39,11 @@ def test_available_memory_obeys_the_cgroup_limit(monkeypatch, tmp_path, layout):
 
     folder = tmp_path if layout == "v2" else tmp_path / "memory"
     folder.mkdir(exist_ok=True)
-    limit, usage, stat = (("memory.max", "memory.current", "inactive_file") if layout == "v2" else
-                          ("memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file"))
+    limit, usage, stat = (
+        ("memory.max", "memory.current", "inactive_file")
+        if layout == "v2"
+        else ("memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file")
+    )
     (folder / limit).write_text(f"{2 * 2**30}\n")
     (folder / usage).write_text(f"{3 * 2**29}\n")
     (folder / "memory.stat").write_text(f"anon 123\n{stat} {2**28}\n")

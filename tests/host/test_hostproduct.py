@@ -7,8 +7,8 @@ import scipy.sparse as sp
 
 from pydynrad import InvalidInputError
 from pydynrad.device.csr import DeviceCSR
-from pydynrad.host.product import HOST_PRODUCT_BYTES, HostBounce, HostMatrix, on_host
 from pydynrad.device.matrix import DeviceMatrix
+from pydynrad.host.product import HOST_PRODUCT_BYTES, HostBounce, HostMatrix, on_host
 
 
 @pytest.mark.parametrize("density, dense", [(0.6, True), (0.25, True), (0.05, False)])
@@ -27,7 +27,9 @@ def test_bounce_is_l_plus_p_a_x(device, density, dense, dtype):
     tol = 2e-7 if dtype == np.float32 and dense else 1e-15
     np.testing.assert_allclose(got, want, rtol=tol, atol=0)
     # The device's CSR kernel gives the same to its rounding.
-    np.testing.assert_allclose(got, DeviceCSR(device, A, dtype).bounce(L, rho, x), rtol=5e-7 if dtype == np.float32 else 1e-15)
+    np.testing.assert_allclose(
+        got, DeviceCSR(device, A, dtype).bounce(L, rho, x), rtol=5e-7 if dtype == np.float32 else 1e-15
+    )
     grey = prod.bounce(L[:, :1], rho[:, :1], x[:, :1])
     np.testing.assert_allclose(grey, want[:, :1], rtol=tol)
     with pytest.raises(InvalidInputError, match="needs L, rho"):

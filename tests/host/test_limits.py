@@ -1,4 +1,4 @@
-"""Memory limits (issue 46, item 3): large allocations are checked against what the process may
+"""Memory limits: large allocations are checked against what the process may
 allocate (RLIMIT_AS, the cgroup, the machine) and the device's memory before they happen, so a
 limit gives an OutOfMemoryError and never a signal.
 
@@ -21,16 +21,23 @@ def _run(code: str, limit: int = LIMIT, timeout: float = 120) -> subprocess.Comp
     def limited():
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
-    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
-                          timeout=timeout, preexec_fn=limited)
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        preexec_fn=limited,
+    )
 
 
 def _refused(code: str) -> str:
     """Run ``code`` (which must raise) under the limit: the child exits normally (no signal) and
     prints the OutOfMemoryError's message; returns it."""
     body = textwrap.indent(textwrap.dedent(code).strip(), "    ")
-    proc = _run("import pydynrad\ntry:\n" + body + "\nexcept pydynrad.OutOfMemoryError as exc:\n"
-                "    print('REFUSED', exc)\nelse:\n    print('RAN')\n")
+    proc = _run(
+        "import pydynrad\ntry:\n" + body + "\nexcept pydynrad.OutOfMemoryError as exc:\n"
+        "    print('REFUSED', exc)\nelse:\n    print('RAN')\n"
+    )
     assert proc.returncode == 0, (proc.returncode, proc.stderr[-2000:])  # -11 was the segfault
     assert "REFUSED" in proc.stdout, proc.stdout + proc.stderr[-2000:]
     return proc.stdout
@@ -78,7 +85,8 @@ def test_multibounce_past_the_limit_is_refused():
 @pytest.mark.parametrize("limit_gib", [1.5, 2.5])
 def test_tighter_limits_refuse_the_same_way(limit_gib):
     """The same construction under other limits: a refusal each time, never a signal."""
-    proc = _run("""
+    proc = _run(
+        """
         import scipy.sparse as sp
         import pydynrad
         s = pydynrad.scenes.closed_box(subdivisions=6)
@@ -87,5 +95,7 @@ def test_tighter_limits_refuse_the_same_way(limit_gib):
                                       observer=[.5] * 3, far_field=False)
         except (pydynrad.OutOfMemoryError, pydynrad.errors.DeviceError) as exc:
             print("REFUSED", type(exc).__name__)
-        """, limit=int(limit_gib * 2**30))
+        """,
+        limit=int(limit_gib * 2**30),
+    )
     assert proc.returncode == 0 and "REFUSED" in proc.stdout, (proc.returncode, proc.stderr[-2000:])

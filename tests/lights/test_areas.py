@@ -2,12 +2,11 @@
 
 import numpy as np
 import pytest
+from helpers import ceiling_lit_box
 
 import pydynrad
 from pydynrad.formfactors import _polygon_form_factor
 from pydynrad.photometry import illuminance
-
-from helpers import ceiling_lit_box
 
 EMITTER = np.array([[0, 0, 1], [0, 1, 1], [1, 1, 1], [1, 0, 1]], float)  # 1 x 1 m at z = 1, facing down
 
@@ -100,8 +99,9 @@ def test_solve_with_analytic_emitters_is_closer_to_exact_form_factors(device):
     assert np.sqrt(np.mean(err_a**2)) < 0.004 and err_a.max() < 0.012
     assert np.sqrt(np.mean(err_a**2)) < 0.4 * np.sqrt(np.mean(err_h**2))
     np.testing.assert_allclose(exact.radiosity[~lit, 0], truth[~lit], rtol=3e-3)  # the ceiling: E + its reflection
-    dyn = pydynrad.DynamicRadiosity(room, F, local_size=len(room), storage="fp64", observer=[0.5, 0.5, 0.5],
-                                    device=device)
+    dyn = pydynrad.DynamicRadiosity(
+        room, F, local_size=len(room), storage="fp64", observer=[0.5, 0.5, 0.5], device=device
+    )
     np.testing.assert_allclose(dyn.radiosity(emitters="analytic"), exact.radiosity, rtol=1e-5)
     with pytest.raises(pydynrad.InvalidInputError, match="cannot be split"):
         pydynrad.solve(room, F, light=exact.light, emitters="analytic", device=device)

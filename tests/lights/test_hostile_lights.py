@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
+
 import pydynrad
 from pydynrad.errors import InvalidInputError
 from pydynrad.renderer import Renderer
-
 
 # Far from the origin and at extreme scales: the device frame (docs/design.md, 'Device frame').
 SHIFT = np.array([1.0, -0.5, 0.25])
@@ -27,7 +27,9 @@ def test_point_light_and_rays_in_the_users_frame(device, scale, offset):
     expected = 5.0 * np.einsum("ij,ij->i", scene.normals.astype(np.float64), to_light) / r**3
     np.testing.assert_allclose(E, expected, rtol=1e-5)
     # A ray from the light to each patch centre stops there: t = 1 for directions of that length.
-    patch, t, front = pydynrad.geometry.bvh.cast_rays(scene, np.broadcast_to(light, to_light.shape), -to_light, device=device)
+    patch, t, front = pydynrad.geometry.bvh.cast_rays(
+        scene, np.broadcast_to(light, to_light.shape), -to_light, device=device
+    )
     np.testing.assert_allclose(t, 1.0, rtol=1e-5)
     assert front.all() and np.mean(patch == np.arange(len(scene))) > 0.99  # a centre may sit on an edge
     # Depth from the renderer in the user's unit: the box is [0, scale]^3 shifted.
@@ -38,15 +40,19 @@ def test_point_light_and_rays_in_the_users_frame(device, scale, offset):
 
 
 def test_sensors_and_bakes_refuse_what_would_come_back_as_inf_or_text(tmp_path):
-    from pydynrad.photometry import illuminance
     from pydynrad.lights import LuminaireLight, PhotometricDistribution
+    from pydynrad.photometry import illuminance
 
     plates = pydynrad.scenes.parallel_plates(subdivisions=1)
     # 1e39 cd is inf in the device's table (inf times a zero weight: NaN at the sensor), and 1e30
     # cd times 1e10 passes float32 at the sensor: both came back as NaN or inf with a warning.
-    for lum, message in ((LuminaireLight((0.5, 0.5, 0.5), PhotometricDistribution.isotropic(1e39)), "candela table"),
-                         (LuminaireLight((0.5, 0.5, 0.5), PhotometricDistribution.isotropic(1e30), scale=1e10),
-                          "illuminance overflows float32")):
+    for lum, message in (
+        (LuminaireLight((0.5, 0.5, 0.5), PhotometricDistribution.isotropic(1e39)), "candela table"),
+        (
+            LuminaireLight((0.5, 0.5, 0.5), PhotometricDistribution.isotropic(1e30), scale=1e10),
+            "illuminance overflows float32",
+        ),
+    ):
         with pytest.raises(InvalidInputError, match=message):
             illuminance(plates, None, [[0.5, 0.5, 0.0]], [0, 0, 1], lights=lum)
     with pytest.raises(InvalidInputError, match="radiosity must be numbers"):
@@ -54,8 +60,15 @@ def test_sensors_and_bakes_refuse_what_would_come_back_as_inf_or_text(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
-@pytest.mark.parametrize("text", ["point:pos=1,2,3;intensity=1_000", "point:pos=1,2,3;intensity=５",
-                                  "point:pos=1,2,3;intensity=\u0665", "point:pos=0x10,2,3;intensity=5"])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "point:pos=1,2,3;intensity=1_000",
+        "point:pos=1,2,3;intensity=５",
+        "point:pos=1,2,3;intensity=\u0665",
+        "point:pos=0x10,2,3;intensity=5",
+    ],
+)
 def test_light_text_takes_plain_numbers_only(text):
     # Python's float() reads "1_000" and other scripts' digits: a typo must not become a light.
     from pydynrad.lights.text import parse_light
@@ -73,9 +86,10 @@ def test_a_sky_resolution_of_a_fraction_is_refused_not_cut():
 
 
 def test_photometric_files_the_review_found_refused_still_read():
+    from test_luminaires import ldt_text
+
     from bench.cie171_data import LM63_EXAMPLE
     from pydynrad.lights import parse_ies, parse_ldt
-    from test_luminaires import ldt_text
 
     # A DOS end-of-file mark after the table.
     assert parse_ies(LM63_EXAMPLE.rstrip() + "\r\n\x1a").candela.max() == parse_ies(LM63_EXAMPLE).candela.max()

@@ -121,8 +121,10 @@ def test_light_validation():
         light_vector(box, [PointLight((278, 540, 280), 1e-48)])
     with pytest.raises(pydynrad.InvalidInputError, match="underflows float32"):
         light_vector(box, [DirectionalLight((0, -1, 0), (1e-46,) * 3)])
-    faint, normal = (pydynrad.lights.direct_irradiance(box, [PointLight((278, 540, 280), I)]).astype(np.float64) / I
-                     for I in (1e-39, 1.0))
+    faint, normal = (
+        pydynrad.lights.direct_irradiance(box, [PointLight((278, 540, 280), I)]).astype(np.float64) / I
+        for I in (1e-39, 1.0)
+    )
     lit = normal > 1e-3 * normal.max()
     np.testing.assert_allclose(faint[lit], normal[lit], rtol=1e-2)  # subnormal on the device: few bits
     light_vector(box, [DirectionalLight((0, -1, 0), (1.0, 1e-50, 1.0))])  # one negligible channel: fine

@@ -7,24 +7,65 @@ import numpy as np
 import pytest
 
 import pydynrad
-from pydynrad import InvalidInputError
 from bench.cie171_data import LM63_EXAMPLE
+from pydynrad import InvalidInputError
+from pydynrad.lights import (
+    IESFormatError,
+    LuminaireLight,
+    PhotometricDistribution,
+    parse_ies,
+    parse_ldt,
+    read_ies,
+    read_ldt,
+)
 from pydynrad.photometry import illuminance
-from pydynrad.lights import IESFormatError, LuminaireLight, PhotometricDistribution, parse_ies, parse_ldt, read_ies, read_ldt
 
 # The candela table of the LM-63-2002 standard's example file (LM63_EXAMPLE: TILT=INCLUDE,
 # quadrant symmetry), one row per horizontal angle 0, 45, 90.
-LM63_TABLE = np.array([[10000, 50000, 25000, 10000, 5000], [10000, 35000, 16000, 8000, 3000],
-                       [10000, 20000, 10000, 5000, 1000]], float)
+LM63_TABLE = np.array(
+    [[10000, 50000, 25000, 10000, 5000], [10000, 35000, 16000, 8000, 3000], [10000, 20000, 10000, 5000, 1000]], float
+)
 
 
 def ldt_text(isym, mc, dc, gammas, planes, flux=2000.0, conversion=1.0):
     """A EULUMDAT file laid out line by line as the format prescribes, one value per line."""
-    lines = ["pydynrad test company", "1", str(isym), str(mc), str(dc), str(len(gammas)), str(gammas[1] - gammas[0]),
-             "report 42", "Test downlight", "TD-1", "td1.ldt", "2026-12-01 test",
-             "200", "0", "100", "180", "0", "0", "0", "0", "0", "100", "85", str(conversion), "0",
-             "1", "1", "LED", str(flux), "3000K", "1B", "20",
-             *["0.5"] * 10, *[f"{k * dc:g}" for k in range(mc)], *[f"{g:g}" for g in gammas]]
+    lines = [
+        "pydynrad test company",
+        "1",
+        str(isym),
+        str(mc),
+        str(dc),
+        str(len(gammas)),
+        str(gammas[1] - gammas[0]),
+        "report 42",
+        "Test downlight",
+        "TD-1",
+        "td1.ldt",
+        "2026-12-01 test",
+        "200",
+        "0",
+        "100",
+        "180",
+        "0",
+        "0",
+        "0",
+        "0",
+        "0",
+        "100",
+        "85",
+        str(conversion),
+        "0",
+        "1",
+        "1",
+        "LED",
+        str(flux),
+        "3000K",
+        "1B",
+        "20",
+        *["0.5"] * 10,
+        *[f"{k * dc:g}" for k in range(mc)],
+        *[f"{g:g}" for g in gammas],
+    ]
     lines += [f"{v:.10g}" for plane in planes for v in plane]
     return "\n".join(lines) + "\n"
 
@@ -121,8 +162,9 @@ def test_device_distribution_matches_the_host_and_follows_orientation(device):
 
 def _direction(lum, c, gamma):
     c, g = math.radians(c), math.radians(gamma)
-    return (math.cos(g) * np.asarray(lum.nadir) + math.sin(g) * (math.cos(c) * np.asarray(lum.c0)
-                                                                  + math.sin(c) * np.asarray(lum.c90)))
+    return math.cos(g) * np.asarray(lum.nadir) + math.sin(g) * (
+        math.cos(c) * np.asarray(lum.c0) + math.sin(c) * np.asarray(lum.c90)
+    )
 
 
 def test_lambertian_point_source(device):
@@ -138,7 +180,6 @@ def test_lambertian_point_source(device):
     np.testing.assert_allclose(E[:, 0], I0 * cos * cos / r**2, rtol=1e-5)
 
 
-
 def test_a_luminaire_near_float32s_limit_meets_its_inverse_square_law(device):
     # A millimetre scene is scaled to its own size on the device (1/unit^2 on the light's factor,
     # unit^2/d^2 from the distance): with the table's candela taken first, 1e37 cd and up had
@@ -146,11 +187,17 @@ def test_a_luminaire_near_float32s_limit_meets_its_inverse_square_law(device):
     box = pydynrad.scenes.cornell_box(max_edge=200.0)
     # (Issue 41: the box declares millimetres, so irradiance is per m^2: 3e38 cd at 0.27 m would be
     # 4e39 lx, beyond float32 for the answer itself, and the lamp is 9 mm under the ceiling.)
-    E = [pydynrad.lights.direct_irradiance(box, [LuminaireLight((278, 540, 280), PhotometricDistribution.lambertian(peak))],
-                                    device).astype(np.float64) / peak for peak in (1.0, 1e32, 1e33)]
+    E = [
+        pydynrad.lights.direct_irradiance(
+            box, [LuminaireLight((278, 540, 280), PhotometricDistribution.lambertian(peak))], device
+        ).astype(np.float64)
+        / peak
+        for peak in (1.0, 1e32, 1e33)
+    ]
     assert np.isfinite(E[2]).all() and E[0].max() > 0
     np.testing.assert_allclose(E[1], E[0], rtol=1e-6)
     np.testing.assert_allclose(E[2], E[0], rtol=1e-6)
+
 
 def test_flux_is_conserved_in_a_closed_black_room(device):
     # CIE 171:2006, 5.4: all the flux of a luminaire inside a closed room arrives on its walls.
@@ -191,14 +238,19 @@ def _ies(header="1 1000 1.0 3 1 1 2 0.5 0.5 0.1", vert="0 45 90", horiz="0", cd=
     return "\n".join(["IESNA:LM-63-2002", "[LUMINAIRE] probe", tilt, header, "1 1 0", vert, horiz, cd]) + "\n"
 
 
-@pytest.mark.parametrize("text, message", [
-    (_ies(header="1 1000 1.0 inf 1 1 2 0.5 0.5 0.1"), "line 4: expected a finite number"),  # had crashed int()
-    (_ies(vert="0 nan 90"), "line 6: expected a finite number"),
-    (_ies(header="1 1000 1.0 3 4 1 2 0.5 0.5 0.1", horiz="0 90 180 270 360", cd="100 80 60\n" * 5),
-     "value.s. after the candela table"),  # the counts say 4 planes: every value had shifted by one
-    (_ies(header="1 1000 -2.0 3 1 1 2 0.5 0.5 0.1"), "line 4: the candela multiplier"),
-    (_ies(tilt="TILT=INCLUDE\n1\n3\n90 45 0\n1.0 0.9 0.8"), "tilt angles must increase"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (_ies(header="1 1000 1.0 inf 1 1 2 0.5 0.5 0.1"), "line 4: expected a finite number"),  # had crashed int()
+        (_ies(vert="0 nan 90"), "line 6: expected a finite number"),
+        (
+            _ies(header="1 1000 1.0 3 4 1 2 0.5 0.5 0.1", horiz="0 90 180 270 360", cd="100 80 60\n" * 5),
+            "value.s. after the candela table",
+        ),  # the counts say 4 planes: every value had shifted by one
+        (_ies(header="1 1000 -2.0 3 1 1 2 0.5 0.5 0.1"), "line 4: the candela multiplier"),
+        (_ies(tilt="TILT=INCLUDE\n1\n3\n90 45 0\n1.0 0.9 0.8"), "tilt angles must increase"),
+    ],
+)
 def test_ies_files_that_would_have_crashed_or_shifted_are_named(text, message):
     with pytest.raises(IESFormatError, match=message):
         parse_ies(text, "probe.ies")
@@ -234,7 +286,13 @@ def test_photometric_text_in_utf8_with_a_byte_order_mark_and_bad_types(tmp_path)
 def test_sensor_and_work_plane_shapes_are_named():
     plates = pydynrad.scenes.parallel_plates(subdivisions=1)
     with pytest.raises(InvalidInputError, match=r"sensor points must have shape \(n, 3\)"):
-        illuminance(plates, None, [1, 2], [0, 0, 1], lights=LuminaireLight((0.5, 0.5, 0.5), PhotometricDistribution.isotropic(1.0)))
+        illuminance(
+            plates,
+            None,
+            [1, 2],
+            [0, 0, 1],
+            lights=LuminaireLight((0.5, 0.5, 0.5), PhotometricDistribution.isotropic(1.0)),
+        )
     from pydynrad.photometry import work_plane
 
     square = [[0, 0], [4, 0], [4, 3], [0, 3]]
@@ -252,10 +310,16 @@ def test_lm63_2019_generation_type_is_no_factor_and_1995_lamp_factor_is():
     ballast-lamp factor): LM-63-2002 makes it "future use" and LM-63-2019 the file generation
     type, a code (1.10000: accredited laboratory), which had made the table 10% too bright."""
     body = "TILT=NONE\n1 -1 1 3 1 1 2 0 0 0\n1 1.10000 20\n0 45 90\n0\n1000 500 100\n"
-    for first, factor in (("IES:LM-63-2019\n[TEST] t\n", 1.0), ("IESNA:LM-63-2002\n", 1.0),
-                          ("IESNA:LM-63-1995\n", 1.1), ("IESNA91\n", 1.1), ("", 1.1)):
-        np.testing.assert_allclose(parse_ies(first + body).candela[0], np.array([1000.0, 500.0, 100.0]) * factor,
-                                   rtol=1e-15)
+    for first, factor in (
+        ("IES:LM-63-2019\n[TEST] t\n", 1.0),
+        ("IESNA:LM-63-2002\n", 1.0),
+        ("IESNA:LM-63-1995\n", 1.1),
+        ("IESNA91\n", 1.1),
+        ("", 1.1),
+    ):
+        np.testing.assert_allclose(
+            parse_ies(first + body).candela[0], np.array([1000.0, 500.0, 100.0]) * factor, rtol=1e-15
+        )
     # A 1986 file's free text may start with the word Tilt: only TILT= ends the header.
     np.testing.assert_allclose(parse_ies("Tiltable wall washer\n" + body).candela[0], [1100.0, 550.0, 110.0])
 
@@ -298,8 +362,23 @@ def test_ldt_counts_that_do_not_match_the_file_are_named():
     are named, not read as the wrong fields."""
     from pydynrad.lights.ldt import parse_ldt
 
-    head = ["c", "1", "1", "1", "0", "3", "45", "r", "name", "n", "f", "d",
-            *"200 0 100 180 0 0 0 0 0 100 85 1 0 1 1 LED 1000 3000K 1B 20".split(), *["0.5"] * 10, "0"]
+    head = [
+        "c",
+        "1",
+        "1",
+        "1",
+        "0",
+        "3",
+        "45",
+        "r",
+        "name",
+        "n",
+        "f",
+        "d",
+        *"200 0 100 180 0 0 0 0 0 100 85 1 0 1 1 LED 1000 3000K 1B 20".split(),
+        *["0.5"] * 10,
+        "0",
+    ]
     good = "\n".join(head + "0 45 90".split() + "500 400 300".split()) + "\n\n"
     np.testing.assert_allclose(parse_ldt(good).candela[0], [500.0, 400.0, 300.0])
     with pytest.raises(IESFormatError, match="line 50: 4 line"):

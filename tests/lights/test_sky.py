@@ -9,8 +9,8 @@ import pytest
 import pydynrad
 from pydynrad import InvalidInputError
 from pydynrad.formfactors import _polygon_form_factor
-from pydynrad.photometry import illuminance
 from pydynrad.lights import SkyLight
+from pydynrad.photometry import illuminance
 
 
 def _floor(size=10.0, albedo=0.3):
@@ -101,8 +101,9 @@ def test_bad_skies_are_refused():
         SkyLight(12, zenith_luminance=1.0, sun_direction=(0.3, 0.2, -1.0), up=(0, 0, 1))
     with pytest.raises(InvalidInputError, match="below the horizon"):
         SkyLight(12, zenith_luminance=1.0, sun_direction=(0.3, 0.2, -1.0)).placed((0, 0, 1))
-    assert SkyLight(12, zenith_luminance=1.0, sun_direction=(1.0, 0.0, 0.0)).luminance([[0.0, 0.0, 1.0]])[0] == \
-        pytest.approx(1.0, rel=1e-12)
+    assert SkyLight(12, zenith_luminance=1.0, sun_direction=(1.0, 0.0, 0.0)).luminance([[0.0, 0.0, 1.0]])[
+        0
+    ] == pytest.approx(1.0, rel=1e-12)
     SkyLight(1, zenith_luminance=1.0, sun_direction=(0.3, 0.2, -1.0))
     with pytest.raises(InvalidInputError, match="ground_reflectance"):
         SkyLight(zenith_luminance=1.0, ground_reflectance=1.0)
@@ -116,8 +117,9 @@ def test_solve_dynamic_and_path_tracer_agree_under_a_sky(device):
     sky = SkyLight("cie_overcast", zenith_luminance=1.0, ground_reflectance=0.2)
     F = pydynrad.form_factors(scene, 64, device=device)
     B = pydynrad.solve(scene, F, lights=[sky], device=device).radiosity
-    dyn = pydynrad.DynamicRadiosity(scene, F, local_size=len(scene), storage="fp64", observer=[0.5, 0.5, 0.5],
-                                    device=device)
+    dyn = pydynrad.DynamicRadiosity(
+        scene, F, local_size=len(scene), storage="fp64", observer=[0.5, 0.5, 0.5], device=device
+    )
     np.testing.assert_allclose(dyn.radiosity([sky]), B, rtol=1e-5)
     P = pydynrad.pathtracer.path_trace_patches(scene, spp=4096, lights=[sky], device=device).astype(np.float64)
     rel = (P - B) / B

@@ -128,7 +128,9 @@ def scene_cases(dev, label):
     close(csr.jacobi(L, rho, L, 1e-6, 200)[0], want, 1e-4, f"{label} grey CSR solve")
     sell = sell_layout(dev, 4, 1)
     if sell is not None:
-        close(DeviceSELL(dev, grey, np.float32, sell).jacobi(L, rho, L, 1e-6, 200)[0], want, 1e-4, f"{label} SELL solve")
+        close(
+            DeviceSELL(dev, grey, np.float32, sell).jacobi(L, rho, L, 1e-6, 200)[0], want, 1e-4, f"{label} SELL solve"
+        )
     K = multibounce(box, F, patches=np.arange(0, N, 2), device=dev)  # gemm_acc (device path forced on a CPU)
     S = np.arange(0, N, 2)
     FSS = F.toarray()[np.ix_(S, S)]
@@ -157,8 +159,17 @@ def dynamic_walk(dev, label):
 
     box = closed_box(subdivisions=2)  # 192 patches
     F = pydynrad.form_factors(box, resolution=8, device=dev)
-    dyn = pydynrad.DynamicRadiosity(box, F, local_size=64, update="exact", storage="fp16", max_swaps_per_frame=4,
-                                    observer=[0.2, 0.5, 0.2], far_field=False, device=dev)
+    dyn = pydynrad.DynamicRadiosity(
+        box,
+        F,
+        local_size=64,
+        update="exact",
+        storage="fp16",
+        max_swaps_per_frame=4,
+        observer=[0.2, 0.5, 0.2],
+        far_field=False,
+        device=dev,
+    )
     for p in ([0.3, 0.5, 0.3], [0.5, 0.5, 0.5], [0.8, 0.5, 0.8]):
         dyn.update(p)
     dyn.radiosity([pydynrad.PointLight((0.5, 0.7, 0.5), (1.0, 1.0, 1.0))])

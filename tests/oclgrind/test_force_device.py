@@ -8,10 +8,10 @@ import pytest
 import pydynrad
 from pydynrad.bounces import multibounce
 from pydynrad.device.csr import DeviceCSR
-from pydynrad.host.shortcuts import FORCE_DEVICE_ENV, host_shortcuts
 from pydynrad.device.matrix import DeviceMatrix
 from pydynrad.farfield import FarField
 from pydynrad.host.product import HOST_PRODUCT_BYTES, HostBounce, HostMatrix, on_host
+from pydynrad.host.shortcuts import FORCE_DEVICE_ENV, host_shortcuts
 from pydynrad.scenes.analytic import closed_box
 
 
@@ -76,8 +76,9 @@ def test_forced_dynamic_radiosity_agrees(device, box, monkeypatch):
     light = pydynrad.PointLight((0.5, 0.6, 0.5), (2.0, 2.0, 2.0))
 
     def frames():
-        dyn = pydynrad.DynamicRadiosity(scene, F, local_size=64, max_swaps_per_frame=4, observer=[0.2, 0.5, 0.2],
-                                        device=device)
+        dyn = pydynrad.DynamicRadiosity(
+            scene, F, local_size=64, max_swaps_per_frame=4, observer=[0.2, 0.5, 0.2], device=device
+        )
         for p in ([0.4, 0.5, 0.4], [0.8, 0.5, 0.7]):
             dyn.update(p)
         return dyn.radiosity([light])

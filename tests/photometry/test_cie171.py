@@ -54,8 +54,12 @@ def _corner(a, b, h):
 
 def _parallel(x, y, rect, h):
     x0, x1, y0, y1 = rect
-    return (_corner(x1 - x, y1 - y, h) - _corner(x0 - x, y1 - y, h)
-            - _corner(x1 - x, y0 - y, h) + _corner(x0 - x, y0 - y, h))
+    return (
+        _corner(x1 - x, y1 - y, h)
+        - _corner(x0 - x, y1 - y, h)
+        - _corner(x1 - x, y0 - y, h)
+        + _corner(x0 - x, y0 - y, h)
+    )
 
 
 def _lambert(p, n, corners):
@@ -77,8 +81,9 @@ def test_5_3_area_source(device):
     for r in rows:
         x, y, z = _point(r[1])
         on_floor = z == 0
-        ref[r[1]] = 1000.0 * (_parallel(x, y, cie171.AREA_SOURCE, 3.0) if on_floor
-                              else _lambert((x, y, z), (1, 0, 0), square))
+        ref[r[1]] = 1000.0 * (
+            _parallel(x, y, cie171.AREA_SOURCE, 3.0) if on_floor else _lambert((x, y, z), (1, 0, 0), square)
+        )
     contour = [r for r in rows if r[0] == "5.3 contour"]
     _check(contour, np.array([ref[r[1]] for r in contour]), 1e-5)  # 2.2e-7 observed
     # The hemicube, except 20 cm below the ceiling on the wall, where it sees the source

@@ -1,4 +1,4 @@
-"""CIE 171:2006 test 5.3 at pydynrad.illuminance's default settings (issue 45): every point
+"""CIE 171:2006 test 5.3 at pydynrad.illuminance's default settings: every point
 within 1% of the analytic form factor of the 1 m area source, the one 20 cm below its edge too."""
 
 import numpy as np

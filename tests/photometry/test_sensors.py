@@ -2,12 +2,11 @@
 
 import numpy as np
 import pytest
+from helpers import ceiling_lit_box
 
 import pydynrad
 from pydynrad import InvalidInputError, PointLight
 from pydynrad.photometry import illuminance
-
-from helpers import ceiling_lit_box
 
 
 @pytest.fixture(scope="module")
@@ -35,8 +34,7 @@ def test_free_sensors_agree_with_patches_they_coincide_with(lit_box, device):
     scene, F, B, light = lit_box
     ids = np.arange(0, len(scene), 5)
     at_patch = illuminance(scene, B, lights=[light], patches=ids, resolution=32, device=device)
-    free = illuminance(scene, B, scene.centers[ids], scene.normals[ids], lights=[light], resolution=32,
-                       device=device)
+    free = illuminance(scene, B, scene.centers[ids], scene.normals[ids], lights=[light], resolution=32, device=device)
     # Differently rotated hemicubes of the same point: 0.16% RMS, 0.43% at most at R = 32.
     rel = (free - at_patch) / at_patch
     assert np.sqrt(np.mean(rel**2)) < 0.005
@@ -87,12 +85,17 @@ def test_sensors_far_from_the_origin(device):
     points = np.array([[0.3, 0.2, 0.5], [2.0, -1.0, 1.0]])
     results = []
     for shift in (np.zeros(3), np.array([1e6, -2e6, 5e5])):
-        scene = pydynrad.Scene(np.vstack([emitter, floor]) + shift, tris, albedo=0.5,
-                               emission=np.array([50.0, 50.0, 0.0, 0.0]))
+        scene = pydynrad.Scene(
+            np.vstack([emitter, floor]) + shift, tris, albedo=0.5, emission=np.array([50.0, 50.0, 0.0, 0.0])
+        )
         light = PointLight(shift + [1.0, 1.0, 3.0], 100.0)
         B = pydynrad.light_vector(scene, [light], device)
-        results.append([illuminance(scene, B, points + shift, [0, 0, 1], lights=light, emitters=mode, device=device)
-                        for mode in ("hemicube", "analytic")])
+        results.append(
+            [
+                illuminance(scene, B, points + shift, [0, 0, 1], lights=light, emitters=mode, device=device)
+                for mode in ("hemicube", "analytic")
+            ]
+        )
     # The same float32 device positions either way (the frame's shift is exact in float64):
     # equal bit for bit observed; float32 rounding would be ~1e-7.
     np.testing.assert_allclose(results[1], results[0], rtol=1e-7)
@@ -101,12 +104,24 @@ def test_sensors_far_from_the_origin(device):
 def test_a_sensor_just_under_a_desk_is_in_its_shadow(device):
     """A sensor 1 cm under a 1 m desk top in a 141 m scene: shadow rays leave free sensors by the
     sky gather's offset (1e-5 of the diagonal), not a patch's (1e-4, 1.4 cm: above the desk)."""
-    v = np.array([[-50, -50, 0], [50, -50, 0], [50, 50, 0], [-50, 50, 0],
-                  [-0.5, -0.5, 0.75], [0.5, -0.5, 0.75], [0.5, 0.5, 0.75], [-0.5, 0.5, 0.75]], float)
+    v = np.array(
+        [
+            [-50, -50, 0],
+            [50, -50, 0],
+            [50, 50, 0],
+            [-50, 50, 0],
+            [-0.5, -0.5, 0.75],
+            [0.5, -0.5, 0.75],
+            [0.5, 0.5, 0.75],
+            [-0.5, 0.5, 0.75],
+        ],
+        float,
+    )
     scene = pydynrad.Scene(v, [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]], albedo=0.0)
     for light in (pydynrad.DirectionalLight((0, 0, -1), 1000.0), PointLight((0, 0, 3), 100.0)):
-        under, beside = illuminance(scene, None, [[0, 0, 0.74], [2, 0, 0.74]], [[0, 0, 1]] * 2, lights=[light],
-                                    device=device)
+        under, beside = illuminance(
+            scene, None, [[0, 0, 0.74], [2, 0, 0.74]], [[0, 0, 1]] * 2, lights=[light], device=device
+        )
         assert under.max() == 0.0 and beside.min() > 0.0, light
     # The sky it sees past the desk's edges, within 1.2 degrees of the horizon: of order
     # pi L (0.01 / 0.5)^2 = 1.3 lx of the open 3142 (observed 2.5, the square's corners more).

@@ -1,4 +1,4 @@
-"""Photometry outputs a user's tools read (issue 45): the CSV is one table that numpy and pandas
+"""Photometry outputs a user's tools read: the CSV is one table that numpy and pandas
 read back; the plot leaves matplotlib's backend and pyplot's figures alone."""
 
 import numpy as np

@@ -8,8 +8,14 @@ import pytest
 
 import pydynrad
 from pydynrad import InvalidInputError, PointLight
-from pydynrad.photometry import (en12464_spacing, illuminance, illuminance_statistics, plot_work_plane, work_plane,
-                                 write_illuminance_csv)
+from pydynrad.photometry import (
+    en12464_spacing,
+    illuminance,
+    illuminance_statistics,
+    plot_work_plane,
+    work_plane,
+    write_illuminance_csv,
+)
 
 
 def test_en12464_spacing_rule():
@@ -113,7 +119,7 @@ def test_elongated_areas_take_the_shorter_side_and_the_csv_round_trips(tmp_path)
     write_illuminance_csv(out, far.points, np.zeros(len(far)))
     lines = out.read_text().splitlines()
     rows = list(csv.reader(line for line in lines if not line.startswith("#")))
-    pts = np.array([[float(v) for v in r[:3]] for r in rows[1:1 + len(far)]])
+    pts = np.array([[float(v) for v in r[:3]] for r in rows[1 : 1 + len(far)]])
     np.testing.assert_array_equal(pts, far.points)
     assert "# U0 = undefined" in lines
     with pytest.raises(InvalidInputError, match=">= 0"):

@@ -10,8 +10,8 @@ from helpers import grid_scene, same_csr, synthetic_rows
 
 from pydynrad import InvalidInputError
 from pydynrad.precompute.distributed import _WORKER_SCENE, SceneSpec, _worker_scene, precompute_distributed
-from pydynrad.rows.store import FormFactorStore, StoreMismatchError
 from pydynrad.precompute.store import compute_store
+from pydynrad.rows.store import FormFactorStore, StoreMismatchError
 
 # Workers unpickle the synthetic row function by value: they need not import the tests' helpers.
 cloudpickle.register_pickle_by_value(sys.modules["helpers"])
@@ -20,15 +20,31 @@ cloudpickle.register_pickle_by_value(sys.modules["helpers"])
 def test_local_cluster_resumes_and_equals_single_process(tmp_path):
     """2 workers, a store left half-done (blocks missing, one corrupt, a stale temp file)."""
     scene = grid_scene(8)  # 128 patches, 8 blocks of 16 rows
-    single = compute_store(scene, tmp_path / "single", resolution=8, block_rows=16, progress=False,
-                           row_function=synthetic_rows)
-    part = compute_store(scene, tmp_path / "dist", resolution=8, block_rows=16, progress=False,
-                         row_function=synthetic_rows, blocks=[0, 1, 2, 5])
+    single = compute_store(
+        scene, tmp_path / "single", resolution=8, block_rows=16, progress=False, row_function=synthetic_rows
+    )
+    part = compute_store(
+        scene,
+        tmp_path / "dist",
+        resolution=8,
+        block_rows=16,
+        progress=False,
+        row_function=synthetic_rows,
+        blocks=[0, 1, 2, 5],
+    )
     part.block_path(1).write_bytes(b"torn")
     (part.block_path(3).parent / "b000003.npz.tmp-1-abc").write_bytes(b"half")
     finished = {k: part.block_path(k).stat().st_mtime_ns for k in (0, 2, 5)}
-    store = precompute_distributed(scene, tmp_path / "dist", resolution=8, block_rows=16, workers=2,
-                                   verify=True, progress=False, row_function=synthetic_rows)
+    store = precompute_distributed(
+        scene,
+        tmp_path / "dist",
+        resolution=8,
+        block_rows=16,
+        workers=2,
+        verify=True,
+        progress=False,
+        row_function=synthetic_rows,
+    )
     assert store.complete and not list(store.block_path(0).parent.glob("*.tmp-*"))
     assert {k: store.block_path(k).stat().st_mtime_ns for k in (0, 2, 5)} == finished  # kept, not recomputed
     for k in range(store.n_blocks):  # bit for bit, block file payloads included
@@ -45,13 +61,21 @@ def test_real_form_factors_distributed_equal_single_process(tmp_path):
     box.export(mesh_file)
     spec = SceneSpec(str(mesh_file), {"max_patch_area": 0.05})
     scene = spec.build()
-    single = compute_store(scene, tmp_path / "single", resolution=16, block_rows=32, progress=False,
-                           patching=spec.recipe() | {"scene": str(mesh_file.resolve())})
+    single = compute_store(
+        scene,
+        tmp_path / "single",
+        resolution=16,
+        block_rows=32,
+        progress=False,
+        patching=spec.recipe() | {"scene": str(mesh_file.resolve())},
+    )
     store = precompute_distributed(spec, tmp_path / "dist", resolution=16, block_rows=32, workers=2, progress=False)
     assert store.complete
     f = store.to_csr()
     assert same_csr(f, single.to_csr())
-    np.testing.assert_allclose(np.asarray(f.sum(axis=1)).ravel(), 1.0, atol=1e-5)  # closed room: rows sum to 1 (observed 1.2e-7)
+    np.testing.assert_allclose(
+        np.asarray(f.sum(axis=1)).ravel(), 1.0, atol=1e-5
+    )  # closed room: rows sum to 1 (observed 1.2e-7)
 
 
 def test_worker_refuses_a_scene_with_other_geometry():
@@ -59,7 +83,9 @@ def test_worker_refuses_a_scene_with_other_geometry():
     _WORKER_SCENE.clear()
     with pytest.raises(InvalidInputError, match="geometry hash"):
         _worker_scene((moved.points, moved.triangles), scene.geometry_hash())
-    assert _worker_scene((scene.points, scene.triangles), scene.geometry_hash()).geometry_hash() == scene.geometry_hash()
+    assert (
+        _worker_scene((scene.points, scene.triangles), scene.geometry_hash()).geometry_hash() == scene.geometry_hash()
+    )
 
 
 def test_bad_arguments(tmp_path):
@@ -71,11 +97,19 @@ def test_bad_arguments(tmp_path):
     with pytest.raises(InvalidInputError, match="JSON"):
         SceneSpec("cornell_box", {"f": object()})
     with pytest.raises(InvalidInputError, match="not both"):
-        precompute_distributed(scene, tmp_path / "b", resolution=8, workers=2, scheduler="tcp://127.0.0.1:1",
-                               progress=False, row_function=synthetic_rows)
+        precompute_distributed(
+            scene,
+            tmp_path / "b",
+            resolution=8,
+            workers=2,
+            scheduler="tcp://127.0.0.1:1",
+            progress=False,
+            row_function=synthetic_rows,
+        )
     with pytest.raises(InvalidInputError, match="workers"):
-        precompute_distributed(scene, tmp_path / "c", resolution=8, workers=0, progress=False,
-                               row_function=synthetic_rows)
+        precompute_distributed(
+            scene, tmp_path / "c", resolution=8, workers=0, progress=False, row_function=synthetic_rows
+        )
     compute_store(scene, tmp_path / "d", resolution=8, block_rows=4, progress=False, row_function=synthetic_rows)
     with pytest.raises(StoreMismatchError):  # refused on the client, before any cluster starts
         precompute_distributed(scene, tmp_path / "d", resolution=16, block_rows=4, progress=False)

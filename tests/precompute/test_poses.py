@@ -2,21 +2,35 @@
 
 import numpy as np
 import pytest
+from helpers import END, MIDDLE, START, rel
+from helpers import MOVING_LIGHTS as LIGHTS
+from helpers import MOVING_OBSERVER as OBSERVER
+from helpers import MOVING_R as R
+from helpers import moving_full_solve as full_solve
+
 import pydynrad as pd
-from helpers import rel
-from helpers import MOVING_R as R, MOVING_OBSERVER as OBSERVER, MOVING_LIGHTS as LIGHTS, START, MIDDLE, END, moving_full_solve as full_solve
 
 
 def test_precomputed_poses(cornell_384, green_block, device):
     """The paper's variant: rows of each pose precomputed; a move there takes them (no hemicube
     for a row the store holds) and gives what hemicubes at the move would."""
     n = len(cornell_384) + len(green_block)
-    poses = pd.precompute.precompute_poses(cornell_384, [pd.RigidObject(green_block)], [START, END], resolution=R, device=device)
+    poses = pd.precompute.precompute_poses(
+        cornell_384, [pd.RigidObject(green_block)], [START, END], resolution=R, device=device
+    )
     assert len(poses) == 2 and poses.nbytes > 0
     runs = []
     for stored in (poses, None):
         obj = pd.RigidObject(green_block, START)
-        dyn = pd.DynamicRadiosity(cornell_384, None, local_size=n, resolution=R, objects=pd.MovingObjects([obj], occlusion=None, poses=stored), observer=OBSERVER, device=device)
+        dyn = pd.DynamicRadiosity(
+            cornell_384,
+            None,
+            local_size=n,
+            resolution=R,
+            objects=pd.MovingObjects([obj], occlusion=None, poses=stored),
+            observer=OBSERVER,
+            device=device,
+        )
         stats = []
         for T in (END, MIDDLE, START):
             dyn.move(obj, T)
@@ -29,9 +43,18 @@ def test_precomputed_poses(cornell_384, green_block, device):
     assert st[0].hemicubes < st_hc[0].hemicubes // 2 and st[2].hemicubes < st_hc[2].hemicubes // 2
     assert st[1].hemicubes == st_hc[1].hemicubes  # MIDDLE was not precomputed
     with pytest.raises(pd.InvalidInputError, match="R = 32"):
-        pd.DynamicRadiosity(cornell_384, None, local_size=n, resolution=32, objects=pd.MovingObjects([pd.RigidObject(green_block, START)], poses=poses), device=device)
+        pd.DynamicRadiosity(
+            cornell_384,
+            None,
+            local_size=n,
+            resolution=32,
+            objects=pd.MovingObjects([pd.RigidObject(green_block, START)], poses=poses),
+            device=device,
+        )
     with pytest.raises(pd.InvalidInputError, match="this scene with its objects has 384 patches"):
-        pd.DynamicRadiosity(cornell_384, None, local_size=n, resolution=R, device=device, objects=pd.MovingObjects([], poses=poses))
+        pd.DynamicRadiosity(
+            cornell_384, None, local_size=n, resolution=R, device=device, objects=pd.MovingObjects([], poses=poses)
+        )
 
 
 def test_poses_in_store(cornell_384, green_block, device, tmp_path):
@@ -39,21 +62,43 @@ def test_poses_in_store(cornell_384, green_block, device, tmp_path):
     hemicubes; a store of another scene, or of poses of other objects, is refused; a file
     tampered with fails its checksum."""
     store = pd.FormFactorStore.create(cornell_384, tmp_path / "ff", resolution=R)
-    poses = pd.precompute.precompute_poses(cornell_384, [pd.RigidObject(green_block)], [START, END], resolution=R, device=device, store=store)
+    poses = pd.precompute.precompute_poses(
+        cornell_384, [pd.RigidObject(green_block)], [START, END], resolution=R, device=device, store=store
+    )
     assert len(poses) == 2 and poses.nbytes == 0  # on disk, not in memory
-    reopened = pd.precompute.stored_poses(cornell_384, [pd.RigidObject(green_block)], pd.FormFactorStore.open(cornell_384, tmp_path / "ff", resolution=R), R)
+    reopened = pd.precompute.stored_poses(
+        cornell_384,
+        [pd.RigidObject(green_block)],
+        pd.FormFactorStore.open(cornell_384, tmp_path / "ff", resolution=R),
+        R,
+    )
     n = len(cornell_384) + len(green_block)
     K, hemicubes = [], []
     for stored in (reopened, None):
         obj = pd.RigidObject(green_block, START)
-        dyn = pd.DynamicRadiosity(cornell_384, None, local_size=n, resolution=R, objects=pd.MovingObjects([obj], occlusion=None, poses=stored), observer=OBSERVER, device=device)
+        dyn = pd.DynamicRadiosity(
+            cornell_384,
+            None,
+            local_size=n,
+            resolution=R,
+            objects=pd.MovingObjects([obj], occlusion=None, poses=stored),
+            observer=OBSERVER,
+            device=device,
+        )
         dyn.move(obj, END)
         hemicubes.append(dyn.update(OBSERVER).hemicubes)
         K.append(dyn.matrix.to_host())
     np.testing.assert_array_equal(K[0], K[1])  # the same float32 rows, the same swap
     assert hemicubes[0] < hemicubes[1] // 2
     # Resuming writes nothing new; other objects, another resolution, another scene: refused.
-    assert len(pd.precompute.precompute_poses(cornell_384, [pd.RigidObject(green_block)], [END], resolution=R, device=device, store=store)) == 2
+    assert (
+        len(
+            pd.precompute.precompute_poses(
+                cornell_384, [pd.RigidObject(green_block)], [END], resolution=R, device=device, store=store
+            )
+        )
+        == 2
+    )
     other = pd.scenes.block(50.0, 1)
     with pytest.raises(pd.rows.StoreMismatchError, match="other objects"):
         pd.precompute.stored_poses(cornell_384, [pd.RigidObject(other)], store, R)
@@ -76,9 +121,19 @@ def test_precomputed_poses_with_static_form_factors(cornell_384, green_block, de
     box, none here), and B is its solve."""
     F_static = pd.form_factors(cornell_384, R, device=device)
     n = len(cornell_384) + len(green_block)
-    poses = pd.precompute.precompute_poses(cornell_384, [pd.RigidObject(green_block)], [END], resolution=R, device=device)
+    poses = pd.precompute.precompute_poses(
+        cornell_384, [pd.RigidObject(green_block)], [END], resolution=R, device=device
+    )
     obj = pd.RigidObject(green_block, START)
-    dyn = pd.DynamicRadiosity(cornell_384, F_static, local_size=n, resolution=R, objects=pd.MovingObjects([obj], occlusion=0, poses=poses), observer=OBSERVER, device=device)
+    dyn = pd.DynamicRadiosity(
+        cornell_384,
+        F_static,
+        local_size=n,
+        resolution=R,
+        objects=pd.MovingObjects([obj], occlusion=0, poses=poses),
+        observer=OBSERVER,
+        device=device,
+    )
     dyn.radiosity(LIGHTS)
     dyn.move(obj, END)
     assert dyn.update(OBSERVER).hemicubes == 0

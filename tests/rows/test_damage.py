@@ -1,4 +1,4 @@
-"""Damaged stores (issue 46, items 2, 4, 8): every reader turns a broken file into a
+"""Damaged stores: every reader turns a broken file into a
 StoreCorruptError naming the block, ``--verify`` repairs it (F, G, the prolongation, pose files),
 a block rewritten in the legacy format is refused in a store of bound blocks, and a resume over
 an edited header refuses before it deletes anything.
@@ -23,8 +23,20 @@ R = 8
 
 
 def _formfactors(tmp_path, capsys, *extra, name="s"):
-    args = ["formfactors", "closed_box", "-o", str(tmp_path / name), "--resolution", str(R), "--block-rows", "32",
-            "--workers", "0", "--quiet", *extra]
+    args = [
+        "formfactors",
+        "closed_box",
+        "-o",
+        str(tmp_path / name),
+        "--resolution",
+        str(R),
+        "--block-rows",
+        "32",
+        "--workers",
+        "0",
+        "--quiet",
+        *extra,
+    ]
     code = main(args)
     out = capsys.readouterr()
     assert code == 0, out
@@ -141,8 +153,19 @@ def test_legacy_blocks_are_decided_once_per_store(tmp_path, capsys):
     """Item 4: a block from another store (another resolution) rewritten in the legacy format
     is refused in a store of bound blocks; a store whose header and blocks are all legacy reads."""
     _formfactors(tmp_path, capsys)
-    args = ["formfactors", "closed_box", "-o", str(tmp_path / "o"), "--resolution", "16", "--block-rows", "32",
-            "--workers", "0", "--quiet"]
+    args = [
+        "formfactors",
+        "closed_box",
+        "-o",
+        str(tmp_path / "o"),
+        "--resolution",
+        "16",
+        "--block-rows",
+        "32",
+        "--workers",
+        "0",
+        "--quiet",
+    ]
     assert main(args) == 0
     scene = pd.scenes.closed_box()
     a, b = pd.open_form_factors(scene, tmp_path / "s"), pd.open_form_factors(scene, tmp_path / "o")
@@ -178,15 +201,17 @@ def test_a_resume_over_an_edited_header_deletes_nothing(tmp_path, capsys):
     header = json.loads((path / "header.json").read_text())
     (path / "header.json").write_text(json.dumps(dict(header, block_rows=16)))
     for extra in ((), ("--verify",)):
-        code = main(["formfactors", "closed_box", "-o", str(path), "--resolution", str(R), "--workers", "0", "--quiet",
-                     *extra])
+        code = main(
+            ["formfactors", "closed_box", "-o", str(path), "--resolution", str(R), "--workers", "0", "--quiet", *extra]
+        )
         err = capsys.readouterr().err
         assert code == 2 and "header.json was edited" in err and "Traceback" not in err
         assert {p.name: p.read_bytes() for p in (path / "blocks").iterdir()} == files
     scene = pd.scenes.closed_box()
     with pytest.raises(StoreMismatchError, match="Nothing was deleted"):
-        pd.precompute.compute_store(scene, path, resolution=R, block_rows=16, verify=True,
-                                    patching=header["params"]["patching"])
+        pd.precompute.compute_store(
+            scene, path, resolution=R, block_rows=16, verify=True, patching=header["params"]["patching"]
+        )
     assert {p.name: p.read_bytes() for p in (path / "blocks").iterdir()} == files
 
 
@@ -226,8 +251,11 @@ def test_path_file_meshes_are_confined_to_its_folder(tmp_path, mesh):
     folder = tmp_path / "walk"
     (folder / "sub").mkdir(parents=True)
     (folder / "link.obj").symlink_to(tmp_path / "outside.obj")
-    doc = {"frames": 2, "keyframes": [{"position": [0, 0, -5], "look_at": [0, 0, 0]}],
-           "objects": [{"mesh": mesh, "keyframes": [{"position": [0, 0, 0]}]}]}
+    doc = {
+        "frames": 2,
+        "keyframes": [{"position": [0, 0, -5], "look_at": [0, 0, 0]}],
+        "objects": [{"mesh": mesh, "keyframes": [{"position": [0, 0, 0]}]}],
+    }
     (folder / "path.json").write_text(json.dumps(doc))
     with pytest.raises(pd.errors.InvalidInputError, match="outside the path file's folder"):
         load_walk(folder / "path.json")

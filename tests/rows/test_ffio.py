@@ -6,11 +6,11 @@ import scipy.sparse as sp
 from helpers import box_mesh, grid_scene, same_csr, synthetic_rows
 
 from pydynrad import InvalidInputError, Scene
-from pydynrad.rows.files import load_form_factors, open_form_factors, save_form_factors, whole_matrix
+from pydynrad.precompute.store import compute_store
 from pydynrad.rows.cache import RowCache
+from pydynrad.rows.files import load_form_factors, open_form_factors, save_form_factors, whole_matrix
 from pydynrad.rows.sources import CSRRows
 from pydynrad.rows.store import FormFactorStore, StoreIncompleteError, StoreMismatchError
-from pydynrad.precompute.store import compute_store
 
 
 def small_scene():
@@ -56,8 +56,15 @@ def test_save_refuses_bad_targets_and_shapes(tmp_path):
 
 def test_open_store_plain_and_cached(tmp_path):
     scene = grid_scene(6)  # 72 patches
-    compute_store(scene, tmp_path / "ff", resolution=8, block_rows=16, progress=False, row_function=synthetic_rows,
-                  patching={"scene": "grid"})
+    compute_store(
+        scene,
+        tmp_path / "ff",
+        resolution=8,
+        block_rows=16,
+        progress=False,
+        row_function=synthetic_rows,
+        patching={"scene": "grid"},
+    )
     truth = synthetic_rows(scene, np.arange(len(scene)), 8)
     store = open_form_factors(scene, tmp_path / "ff")
     assert isinstance(store, FormFactorStore)
@@ -79,8 +86,9 @@ def test_open_refuses_missing_wrong_and_unfinished(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(InvalidInputError, match="no form-factor store"):
         open_form_factors(scene, tmp_path / "empty")
-    compute_store(scene, tmp_path / "ff", resolution=8, block_rows=16, progress=False, row_function=synthetic_rows,
-                  blocks=[0, 2])
+    compute_store(
+        scene, tmp_path / "ff", resolution=8, block_rows=16, progress=False, row_function=synthetic_rows, blocks=[0, 2]
+    )
     with pytest.raises(StoreMismatchError, match="geometry_hash"):
         open_form_factors(grid_scene(6, z=1.0), tmp_path / "ff")
     with pytest.raises(StoreIncompleteError, match="3 of 5 blocks missing"):
@@ -92,10 +100,16 @@ def test_scene_comes_first_and_the_old_order_is_named(tmp_path):
     scene = small_scene()
     F = sp.csr_matrix((len(scene), len(scene)), dtype=np.float32)
     path = save_form_factors(scene, tmp_path / "f.npz", F, 8)
-    calls = [lambda: save_form_factors(tmp_path / "g.npz", scene, F, 8), lambda: load_form_factors(path, scene),
-             lambda: open_form_factors(path, scene), lambda: FormFactorStore.create(tmp_path / "s", scene, resolution=8),
-             lambda: FormFactorStore.open(tmp_path / "s", scene, resolution=8),
-             lambda: compute_store(tmp_path / "s", scene, resolution=8)]
+    calls = [
+        lambda: save_form_factors(tmp_path / "g.npz", scene, F, 8),
+        lambda: load_form_factors(path, scene),
+        lambda: open_form_factors(path, scene),
+        lambda: FormFactorStore.create(tmp_path / "s", scene, resolution=8),
+        lambda: FormFactorStore.open(tmp_path / "s", scene, resolution=8),
+        lambda: compute_store(tmp_path / "s", scene, resolution=8),
+    ]
     for call in calls:
-        with pytest.raises(InvalidInputError, match=r"scene must be a pydynrad.Scene; got \w*Path \(the scene comes first"):
+        with pytest.raises(
+            InvalidInputError, match=r"scene must be a pydynrad.Scene; got \w*Path \(the scene comes first"
+        ):
             call()

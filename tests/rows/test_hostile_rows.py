@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 import pydynrad
 from pydynrad.errors import InvalidInputError
 
@@ -25,11 +26,14 @@ class _Source:
         return block
 
 
-@pytest.mark.parametrize("kind, message", [
-    ("column", r"row 30 has column index 55 outside 0\.\.47"),
-    ("value", "NaN or infinite"),
-    ("shape", r"must have shape \(\d+, 48\); got \(\d+, 47\)"),
-])
+@pytest.mark.parametrize(
+    "kind, message",
+    [
+        ("column", r"row 30 has column index 55 outside 0\.\.47"),
+        ("value", "NaN or infinite"),
+        ("shape", r"must have shape \(\d+, 48\); got \(\d+, 47\)"),
+    ],
+)
 def test_row_source_blocks_are_checked_with_the_patch_named(closed_box_48, closed_box_48_F, device, kind, message):
     source = _Source(closed_box_48_F, kind, bad_patch=30)
     # The far field sums G from every row at construction: the bad block is refused there.
@@ -70,7 +74,7 @@ def test_a_form_factor_file_of_another_dtype_is_refused(closed_box_48, closed_bo
             pydynrad.rows.load_form_factors(closed_box_48, path)
 
 
-# Stores that know their own blocks (issue 14, item 2).
+# Stores that know their own blocks.
 def test_a_block_from_another_store_is_refused_and_recomputed_on_resume(tmp_path, capsys, device):
     import json
     import shutil
@@ -79,8 +83,21 @@ def test_a_block_from_another_store_is_refused_and_recomputed_on_resume(tmp_path
     from pydynrad.rows.store import StoreCorruptError
 
     def formfactors(name, R):
-        code = main(["formfactors", "closed_box", "-o", str(tmp_path / name), "--resolution", str(R),
-                     "--block-rows", "64", "--workers", "0", "--quiet"])
+        code = main(
+            [
+                "formfactors",
+                "closed_box",
+                "-o",
+                str(tmp_path / name),
+                "--resolution",
+                str(R),
+                "--block-rows",
+                "64",
+                "--workers",
+                "0",
+                "--quiet",
+            ]
+        )
         out = capsys.readouterr().out
         assert code == 0, out
         return out
@@ -102,9 +119,11 @@ def test_a_block_from_another_store_is_refused_and_recomputed_on_resume(tmp_path
     assert abs(pydynrad.open_form_factors(scene, tmp_path / "b").to_csr() - fresh).max() == 0
     # Headers every reader relies on: one-line errors.
     header = json.loads((tmp_path / "a" / "header.json").read_text())
-    for field, value, needle in (("block_rows", 0, "block_rows must be a positive integer; got 0"),
-                                 ("block_rows", "64", "block_rows must be a positive integer; got '64'"),
-                                 ("params", None, "params must be an object")):
+    for field, value, needle in (
+        ("block_rows", 0, "block_rows must be a positive integer; got 0"),
+        ("block_rows", "64", "block_rows must be a positive integer; got '64'"),
+        ("params", None, "params must be an object"),
+    ):
         broken = dict(header, **{field: value})
         (tmp_path / "a" / "header.json").write_text(json.dumps(broken))
         with pytest.raises(StoreCorruptError, match=needle):
@@ -115,8 +134,21 @@ def test_formfactors_verify_checks_every_block_and_recomputes_what_fails(tmp_pat
     from pydynrad.cli.main import main
 
     out = tmp_path / "s"
-    args = ["formfactors", "closed_box", "-o", str(out), "--resolution", "8", "--block-rows", "64", "--workers", "0",
-            "--clusters", "6", "--quiet"]
+    args = [
+        "formfactors",
+        "closed_box",
+        "-o",
+        str(out),
+        "--resolution",
+        "8",
+        "--block-rows",
+        "64",
+        "--workers",
+        "0",
+        "--clusters",
+        "6",
+        "--quiet",
+    ]
     assert main(args) == 0
     capsys.readouterr()
     scene = pydynrad.scenes.closed_box()
@@ -131,13 +163,18 @@ def test_formfactors_verify_checks_every_block_and_recomputes_what_fails(tmp_pat
     assert main(args + ["--verify"]) == 0
     printed = capsys.readouterr().out
     assert f"verified {out}: 2 of 3 blocks already done; 1 fail their checksum and are recomputed (block 1)" in printed
-    assert f"verified {out}, G: 1 of 3 blocks already done; 1 fail their checksum and are recomputed (block 0); 1 missing" in printed
+    assert (
+        f"verified {out}, G: 1 of 3 blocks already done; 1 fail their checksum and are recomputed (block 0); 1 missing"
+        in printed
+    )
     assert all(not v for k, v in store.verify("F").items() if k != "verified")
     assert all(not v for k, v in store.verify("G").items() if k != "verified")
     assert abs(store.read_block(1) - good_f).max() == 0 and abs(store.read_block(2, "G") - good_g).max() == 0
     # Only for a store that exists, and not for a single file.
-    for target, needle in ((tmp_path / "none", "--verify checks an existing store"),
-                           (tmp_path / "f.npz", "--verify apply to a store folder")):
+    for target, needle in (
+        (tmp_path / "none", "--verify checks an existing store"),
+        (tmp_path / "f.npz", "--verify apply to a store folder"),
+    ):
         assert main(["formfactors", "closed_box", "-o", str(target), "--resolution", "8", "--verify", "--quiet"]) == 2
         assert needle in capsys.readouterr().err
 

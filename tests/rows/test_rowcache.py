@@ -9,10 +9,10 @@ from helpers import grid_scene, reciprocal_F, same_csr, synthetic_rows
 
 from pydynrad import InvalidInputError
 from pydynrad.dynamic import DynamicRadiosity
+from pydynrad.precompute.store import compute_store
 from pydynrad.rows.cache import ROW_OVERHEAD, RowCache
 from pydynrad.rows.sources import CSRRows, RowSource, as_row_source
 from pydynrad.rows.store import StoreCorruptError
-from pydynrad.precompute.store import compute_store
 
 
 class CountingSource:
@@ -136,7 +136,9 @@ def local_sets(scene, m: int, steps: int):
 def test_streamed_rows_equal_in_memory_rows_along_a_walk(tmp_path):
     """Store -> cache smaller than the store -> the rows a walk needs equal the in-memory rows."""
     scene = grid_scene(20)  # 800 patches
-    store = compute_store(scene, tmp_path / "ff", resolution=8, block_rows=32, progress=False, row_function=synthetic_rows)
+    store = compute_store(
+        scene, tmp_path / "ff", resolution=8, block_rows=32, progress=False, row_function=synthetic_rows
+    )
     memory = CSRRows(store.to_csr())
     assert same_csr(memory.matrix, synthetic_rows(scene, np.arange(800), 8))
     store_payload = memory.nbytes
@@ -158,7 +160,9 @@ def test_streamed_rows_equal_in_memory_rows_along_a_walk(tmp_path):
 
 def test_store_errors_pass_through_the_cache(tmp_path):
     scene = grid_scene(4)  # 32 patches
-    store = compute_store(scene, tmp_path / "ff", resolution=8, block_rows=8, progress=False, row_function=synthetic_rows)
+    store = compute_store(
+        scene, tmp_path / "ff", resolution=8, block_rows=8, progress=False, row_function=synthetic_rows
+    )
     good = store.rows([0])
     store.block_path(1).write_bytes(b"not a zip")
     with RowCache(store, max_bytes=10**6) as cache:
@@ -177,13 +181,29 @@ def test_streamed_walk_equals_in_memory_walk(tmp_path, device):
     emission[::37] = 1.0
     scene = scene.with_materials(albedo=0.6, emission=emission)
     f = sp.csr_matrix(reciprocal_F(scene.areas, row_sum=0.9, density=0.02, seed=3), dtype=np.float32)
-    store = compute_store(scene, tmp_path / "ff", resolution=8, block_rows=32, progress=False,
-                          row_function=lambda scene, rows, resolution, device=None: f[rows])
+    store = compute_store(
+        scene,
+        tmp_path / "ff",
+        resolution=8,
+        block_rows=32,
+        progress=False,
+        row_function=lambda scene, rows, resolution, device=None: f[rows],
+    )
     cache = RowCache(store, max_bytes=CSRRows(f).nbytes // 3)
     sources = {"rows in memory": CSRRows(f), "streamed": cache, "matrix in memory": f}
-    walks = {name: DynamicRadiosity(scene, src, local_size=48, update="exact", storage="fp64", max_swaps_per_frame=6,
-                                    far_field=False, device=device)
-             for name, src in sources.items()}
+    walks = {
+        name: DynamicRadiosity(
+            scene,
+            src,
+            local_size=48,
+            update="exact",
+            storage="fp64",
+            max_swaps_per_frame=6,
+            far_field=False,
+            device=device,
+        )
+        for name, src in sources.items()
+    }
     lo, hi = scene.bbox.astype(np.float64)
     swaps = 0
     for t in np.linspace(0, 1, 12):

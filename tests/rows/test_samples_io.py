@@ -13,11 +13,11 @@ from helpers import assert_one_line_error, box_mesh, run_main, same_csr
 
 from pydynrad import DynamicRadiosity, InvalidInputError, Scene, form_factors
 from pydynrad.farfield.gather import cluster_form_factors_for
-from pydynrad.rows.prolongation import as_prolongation
+from pydynrad.precompute.store import compute_store
 from pydynrad.rows.files import FF_FORMAT, load_form_factors, open_form_factors, save_form_factors
+from pydynrad.rows.prolongation import as_prolongation
 from pydynrad.rows.sources import HemicubeRows
 from pydynrad.rows.store import HEADER, FormFactorStore, StoreCorruptError, StoreMismatchError
-from pydynrad.precompute.store import compute_store
 from pydynrad.scenes import cornell_box
 
 R, K = 16, 4
@@ -67,14 +67,33 @@ def test_file_records_samples_and_refuses_others(emitting_box, sampled, tmp_path
 
 def test_store_of_samples_f_and_g(emitting_box, sampled, tmp_path, device):
     pr = as_prolongation(labels_of(emitting_box), len(emitting_box))
-    store = compute_store(emitting_box, tmp_path / "ff", resolution=R, samples=K, block_rows=16, progress=False, device=device,
-                          clusters=labels_of(emitting_box), cluster_basis="indicator")
+    store = compute_store(
+        emitting_box,
+        tmp_path / "ff",
+        resolution=R,
+        samples=K,
+        block_rows=16,
+        progress=False,
+        device=device,
+        clusters=labels_of(emitting_box),
+        cluster_basis="indicator",
+    )
     assert store.samples == K and same_csr(store.to_csr(), sampled)  # the same rows, bit for bit
     G = store.cluster_form_factors().toarray()
     np.testing.assert_allclose(G, (sampled.astype(np.float64) @ pr).toarray(), rtol=0, atol=1e-7)  # summed from F
     # G alone (no F): cluster-id hemicubes with F's samples, F Pr of the rows a walk would compute.
-    g_only = compute_store(emitting_box, tmp_path / "g", resolution=R, samples=K, block_rows=16, progress=False, device=device,
-                           clusters=labels_of(emitting_box), cluster_basis="indicator", compute_f=False)
+    g_only = compute_store(
+        emitting_box,
+        tmp_path / "g",
+        resolution=R,
+        samples=K,
+        block_rows=16,
+        progress=False,
+        device=device,
+        clusters=labels_of(emitting_box),
+        cluster_basis="indicator",
+        compute_f=False,
+    )
     assert g_only.cluster_samples == K
     np.testing.assert_allclose(g_only.cluster_form_factors().toarray(), G, rtol=0, atol=3e-7)
     with pytest.raises(StoreMismatchError, match="samples: store has 4, requested 1"):
@@ -105,8 +124,12 @@ def test_rows_on_demand_and_dynamic_radiosity(emitting_box, sampled, device):
     rows = HemicubeRows(emitting_box, R, device, samples=K)
     assert same_csr(rows.rows(idx), form_factors(emitting_box, resolution=R, rows=idx, samples=K, device=device))
     G = cluster_form_factors_for(emitting_box, rows, labels_of(emitting_box), device=device)
-    np.testing.assert_allclose(G.toarray(), (sampled.astype(np.float64) @ as_prolongation(labels_of(emitting_box), len(emitting_box)))
-                               .toarray(), rtol=0, atol=3e-7)
+    np.testing.assert_allclose(
+        G.toarray(),
+        (sampled.astype(np.float64) @ as_prolongation(labels_of(emitting_box), len(emitting_box))).toarray(),
+        rtol=0,
+        atol=3e-7,
+    )
     with pytest.raises(InvalidInputError, match="even integer"):
         HemicubeRows(emitting_box, 8, samples=64)
     # Rows on demand with samples=K light the box as F computed with samples=K does.
@@ -135,8 +158,10 @@ def test_cli_samples_file_and_store(tmp_path, capsys):
     for bad, needle in (("5", "power of 4"), ("64", "which must be an even integer")):
         code, _, err = run_main(["formfactors", *small, "--samples", bad, "-o", str(tmp_path / "x.npz")], capsys)
         assert_one_line_error(code, err, needle)
-    code, _, err = run_main(["render", *small, "--form-factors", str(tmp_path / "f.npz"), "--samples", "16",
-                             "-o", str(tmp_path / "x.png")], capsys)
+    code, _, err = run_main(
+        ["render", *small, "--form-factors", str(tmp_path / "f.npz"), "--samples", "16", "-o", str(tmp_path / "x.png")],
+        capsys,
+    )
     assert_one_line_error(code, err, "samples 4, requested 16")
 
 
@@ -145,8 +170,9 @@ def test_distributed_store_of_samples(emitting_box, sampled, tmp_path):
     """Workers open the store with its samples and compute its rows with them (2 spawned workers)."""
     from pydynrad.precompute.distributed import precompute_distributed
 
-    store = precompute_distributed(emitting_box, tmp_path / "ff", resolution=R, samples=K, block_rows=16, workers=2,
-                                   progress=False)
+    store = precompute_distributed(
+        emitting_box, tmp_path / "ff", resolution=R, samples=K, block_rows=16, workers=2, progress=False
+    )
     assert store.samples == K and same_csr(store.to_csr(), sampled)
     with pytest.raises(StoreMismatchError, match="samples: store has 4, requested 1"):
         precompute_distributed(emitting_box, tmp_path / "ff", resolution=R, block_rows=16, workers=2, progress=False)

@@ -6,13 +6,12 @@ import zipfile
 import numpy as np
 import pytest
 import scipy.sparse as sp
-
 from helpers import grid_scene, same_csr, synthetic_rows
 
 from pydynrad import InvalidInputError, RigidObject
-from pydynrad.scenes import block
-from pydynrad.rows.store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError
 from pydynrad.precompute.store import compute_store
+from pydynrad.rows.store import FormFactorStore, StoreCorruptError, StoreIncompleteError, StoreMismatchError
+from pydynrad.scenes import block
 
 
 def reference(scene, resolution=8):
@@ -21,7 +20,9 @@ def reference(scene, resolution=8):
 
 def test_round_trip(tmp_path):
     scene = grid_scene()  # 72 patches, blocks of 10 rows: 8 blocks, the last one short
-    store = compute_store(scene, tmp_path / "ff", resolution=8, block_rows=10, progress=False, row_function=synthetic_rows)
+    store = compute_store(
+        scene, tmp_path / "ff", resolution=8, block_rows=10, progress=False, row_function=synthetic_rows
+    )
     ref = reference(scene)
     assert store.complete and store.n_blocks == 8 and store.missing_blocks() == []
     assert same_csr(store.to_csr(), ref)
@@ -44,8 +45,15 @@ def test_round_trip(tmp_path):
 
 def test_header_mismatch_refused(tmp_path):
     scene = grid_scene()
-    compute_store(scene, tmp_path / "ff", resolution=8, block_rows=16, patching={"max_area": 0.5},
-                  progress=False, row_function=synthetic_rows)
+    compute_store(
+        scene,
+        tmp_path / "ff",
+        resolution=8,
+        block_rows=16,
+        patching={"max_area": 0.5},
+        progress=False,
+        row_function=synthetic_rows,
+    )
     moved = grid_scene(z=1.0)  # same N and topology, other geometry
     with pytest.raises(StoreMismatchError, match="geometry_hash"):
         FormFactorStore.open(moved, tmp_path / "ff", resolution=8, patching={"max_area": 0.5})
@@ -56,10 +64,19 @@ def test_header_mismatch_refused(tmp_path):
     with pytest.raises(StoreMismatchError, match="patching"):
         FormFactorStore.open(scene, tmp_path / "ff", resolution=8, patching={"max_area": 0.25})
     with pytest.raises(StoreMismatchError):  # resuming must not silently mix parameters either
-        compute_store(scene, tmp_path / "ff", resolution=4, block_rows=16, patching={"max_area": 0.5},
-                      progress=False, row_function=synthetic_rows)
+        compute_store(
+            scene,
+            tmp_path / "ff",
+            resolution=4,
+            block_rows=16,
+            patching={"max_area": 0.5},
+            progress=False,
+            row_function=synthetic_rows,
+        )
     with pytest.raises(StoreMismatchError, match="block_rows"):
-        FormFactorStore.create(scene, tmp_path / "ff", resolution=8, block_rows=8, patching={"max_area": 0.5}, exist_ok=True)
+        FormFactorStore.create(
+            scene, tmp_path / "ff", resolution=8, block_rows=8, patching={"max_area": 0.5}, exist_ok=True
+        )
     with pytest.raises(InvalidInputError, match="already exists"):
         FormFactorStore.create(scene, tmp_path / "ff", resolution=8, block_rows=16, patching={"max_area": 0.5})
     assert issubclass(StoreMismatchError, InvalidInputError)
@@ -84,8 +101,9 @@ def test_killed_writer_resumes(tmp_path):
         return synthetic_rows(scene, rows, resolution)
 
     with pytest.raises(Crash):  # one block per call (task_rows=10), so three blocks get written
-        compute_store(scene, path, resolution=8, block_rows=10, task_rows=10, progress=False,
-                      row_function=dies_after_three)
+        compute_store(
+            scene, path, resolution=8, block_rows=10, task_rows=10, progress=False, row_function=dies_after_three
+        )
     # A writer killed mid-write leaves a temporary file; it must never count as a block.
     (path / "blocks" / "b000003.npz.tmp-999-deadbeef").write_bytes(b"PK\x03\x04 half a zip")
     store = FormFactorStore.open(scene, path, resolution=8)
@@ -139,8 +157,9 @@ def test_corrupt_block_detected_and_repaired(tmp_path):
 
     assert same_csr(store.rows([0, 39]), ref[[0, 39]])  # intact blocks still serve
     assert store.missing_blocks() == [] and store.missing_blocks(verify=True) == [2, 5, 6]
-    store = compute_store(scene, path, resolution=8, block_rows=10, progress=False, verify=True,
-                          row_function=synthetic_rows)
+    store = compute_store(
+        scene, path, resolution=8, block_rows=10, progress=False, verify=True, row_function=synthetic_rows
+    )
     assert same_csr(store.to_csr(), ref)
 
 
@@ -175,8 +194,9 @@ def test_write_block_canonicalises_a_copy(tmp_path):
     scene = grid_scene(2)  # 8 patches, one block
     store = FormFactorStore.create(scene, tmp_path / "ff", resolution=8, block_rows=8)
     # Unsorted columns and a duplicate entry (1, 5) twice: stored summed and sorted.
-    m = sp.csr_matrix((np.array([0.3, 0.1, 0.2, 0.05], np.float32), np.array([5, 2, 5, 1]), [0, 0, 4, 4, 4, 4, 4, 4, 4]),
-                      shape=(8, 8))
+    m = sp.csr_matrix(
+        (np.array([0.3, 0.1, 0.2, 0.05], np.float32), np.array([5, 2, 5, 1]), [0, 0, 4, 4, 4, 4, 4, 4, 4]), shape=(8, 8)
+    )
     before = (m.data.copy(), m.indices.copy())
     store.write_block(0, m)
     got = store.read_block(0)
@@ -192,10 +212,14 @@ def test_cluster_and_pose_headers_are_checked_when_read(tmp_path):
     scene = grid_scene()
     compute_store(scene, tmp_path / "ff", resolution=8, block_rows=10, progress=False, row_function=synthetic_rows)
     good = {"n_clusters": 12, "resolution": 8, "prolongation_sha256": "ab", "basis": "indicator", "params": {}}
-    for bad, message in (({}, "n_clusters must be a positive integer"), ([1], "must hold a JSON object"),
-                         ({**good, "n_clusters": "48"}, "n_clusters"), ({**good, "n_clusters": 10**30}, "n_clusters"),
-                         ({k: v for k, v in good.items() if k != "prolongation_sha256"}, "prolongation_sha256"),
-                         ({**good, "basis": "cubic"}, "basis must be one of")):
+    for bad, message in (
+        ({}, "n_clusters must be a positive integer"),
+        ([1], "must hold a JSON object"),
+        ({**good, "n_clusters": "48"}, "n_clusters"),
+        ({**good, "n_clusters": 10**30}, "n_clusters"),
+        ({k: v for k, v in good.items() if k != "prolongation_sha256"}, "prolongation_sha256"),
+        ({**good, "basis": "cubic"}, "basis must be one of"),
+    ):
         (tmp_path / "ff" / "clusters.json").write_text(json.dumps(bad))
         with pytest.raises(StoreCorruptError, match=message):
             FormFactorStore.open(scene, tmp_path / "ff", resolution=8)

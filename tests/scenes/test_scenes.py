@@ -29,7 +29,9 @@ def rays_off_normals(scene):
 
 def quad_area(q):
     q = np.asarray(q, dtype=np.float64)
-    return 0.5 * (np.linalg.norm(np.cross(q[1] - q[0], q[2] - q[0])) + np.linalg.norm(np.cross(q[2] - q[0], q[3] - q[0])))
+    return 0.5 * (
+        np.linalg.norm(np.cross(q[1] - q[0], q[2] - q[0])) + np.linalg.norm(np.cross(q[2] - q[0], q[3] - q[0]))
+    )
 
 
 # -- Cornell box ---------------------------------------------------------------------------
@@ -76,8 +78,11 @@ def test_cornell_wall_areas_match_published_geometry(cbox):
     assert a["light"] == pytest.approx(130.0 * 105.0, rel=1e-6)
     assert a["ceiling"] == pytest.approx(556.0 * 559.2 - 130.0 * 105.0, rel=1e-6)
     assert a["left"] == pytest.approx(quad_area(cornell._LEFT), rel=1e-6)
-    blocks = footprints + sum(h * np.linalg.norm(np.subtract(t[i], t[(i + 1) % 4])) for t, h in
-                  ((cornell._SHORT_TOP, 165.0), (cornell._TALL_TOP, 330.0)) for i in range(4))
+    blocks = footprints + sum(
+        h * np.linalg.norm(np.subtract(t[i], t[(i + 1) % 4]))
+        for t, h in ((cornell._SHORT_TOP, 165.0), (cornell._TALL_TOP, 330.0))
+        for i in range(4)
+    )
     assert float(cbox.areas.sum()) - sum(a.values()) == pytest.approx(blocks, rel=1e-6)
 
 
@@ -85,10 +90,15 @@ def test_cornell_materials_and_light(cbox):
     m = _wall_masks(cbox)
     np.testing.assert_allclose(cbox.albedo[m["left"]], np.tile(cornell.RED, (m["left"].sum(), 1)), rtol=1e-6)
     np.testing.assert_allclose(cbox.albedo[m["right"]], np.tile(cornell.GREEN, (m["right"].sum(), 1)), rtol=1e-6)
-    np.testing.assert_allclose(cbox.albedo[m["floor"] | m["back"] | m["ceiling"]], np.tile(cornell.WHITE, (1, 1)).repeat(
-        (m["floor"] | m["back"] | m["ceiling"]).sum(), axis=0), rtol=1e-6)
+    np.testing.assert_allclose(
+        cbox.albedo[m["floor"] | m["back"] | m["ceiling"]],
+        np.tile(cornell.WHITE, (1, 1)).repeat((m["floor"] | m["back"] | m["ceiling"]).sum(), axis=0),
+        rtol=1e-6,
+    )
     light = m["light"]
-    np.testing.assert_allclose(cbox.emission[light], np.tile(np.pi * np.array([17.0, 12.0, 4.0]), (light.sum(), 1)), rtol=1e-6)
+    np.testing.assert_allclose(
+        cbox.emission[light], np.tile(np.pi * np.array([17.0, 12.0, 4.0]), (light.sum(), 1)), rtol=1e-6
+    )
     assert np.all(cbox.normals[light, 1] < -0.999)
     lx, lz = cbox.centers[light, 0], cbox.centers[light, 2]
     assert lx.min() > 213 and lx.max() < 343 and lz.min() > 227 and lz.max() < 332
@@ -104,7 +114,11 @@ def test_cornell_normals_face_the_lit_side(cbox):
     # Every other patch belongs to a block, whose faces look away from the block's axis.
     for top, height in ((cornell._SHORT_TOP, 165.0), (cornell._TALL_TOP, 330.0)):
         axis = np.mean(top, axis=0) * [1, 0.5, 1]
-        on = ~walls & (cbox.centers[:, 1] <= height + 1e-3) & (np.linalg.norm((cbox.centers - axis)[:, [0, 2]], axis=1) < 130)
+        on = (
+            ~walls
+            & (cbox.centers[:, 1] <= height + 1e-3)
+            & (np.linalg.norm((cbox.centers - axis)[:, [0, 2]], axis=1) < 130)
+        )
         assert np.all(np.einsum("ij,ij->i", cbox.normals[on], cbox.centers[on] - axis) > 0)
     hit, back = rays_off_normals(cbox)
     assert np.all(cbox.normals[hit < 0, 2] < 0)  # only rays towards the open front leave the box
@@ -143,7 +157,11 @@ def test_cornell_is_closed_but_for_its_front():
 
 
 def test_village_is_deterministic_from_its_seed():
-    a, b, c = village(seed=3, houses=2, detail=0.3), village(seed=3, houses=2, detail=0.3), village(seed=4, houses=2, detail=0.3)
+    a, b, c = (
+        village(seed=3, houses=2, detail=0.3),
+        village(seed=3, houses=2, detail=0.3),
+        village(seed=4, houses=2, detail=0.3),
+    )
     assert a.content_hash() == b.content_hash()
     assert a.content_hash() != c.content_hash()
 
@@ -181,7 +199,9 @@ def test_village_lamp_light_leaves_through_doors_and_windows():
     d *= np.sign(np.einsum("ij,ij->i", d, normal))[:, None]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     hit = brute_force_hits(s.vertices, origin + 1e-4 * normal, d).patch
-    grass = np.all(np.isclose(s.albedo, MATERIALS["grass"]), axis=1) | np.all(np.isclose(s.albedo, MATERIALS["road"]), axis=1)
+    grass = np.all(np.isclose(s.albedo, MATERIALS["grass"]), axis=1) | np.all(
+        np.isclose(s.albedo, MATERIALS["road"]), axis=1
+    )
     outside = (hit < 0) | grass[np.maximum(hit, 0)]
     assert 0 < outside.mean() < 0.5  # openings let some light out; the walls keep most in
 
