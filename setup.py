@@ -9,14 +9,25 @@ from setuptools import Extension, find_packages, setup
 # pydynrad.<module>: csrc/<file>, each a small C extension with one job. No contraction of a
 # multiply and an add into an FMA: the native sums that reproduce scipy's (G = F Pr) or numpy's
 # bit for bit need their roundings (GCC in ISO C mode does not contract; clang does by default).
-NATIVE = {"_bvh": "bvh.c", "_raybatch": "rays.c", "_runs": "runs.c", "_segments": "segments.c",
-          "_poserows": "poserows.c", "_colproduct": "colproduct.c", "_csrgraph": "csrgraph.c"}
+NATIVE = {
+    "_bvh": "bvh.c",
+    "_raybatch": "rays.c",
+    "_runs": "runs.c",
+    "_segments": "segments.c",
+    "_poserows": "poserows.c",
+    "_colproduct": "colproduct.c",
+    "_csrgraph": "csrgraph.c",
+}
 
 setup(
     packages=[*find_packages(include=["pydynrad", "pydynrad.*"]), "pydynrad.kernels"],
     package_dir={"pydynrad": "pydynrad", "pydynrad.kernels": "kernels"},
     # py.typed: the package's inline annotations are for type checkers too (PEP 561).
     package_data={"pydynrad": ["py.typed"], "pydynrad.kernels": ["*.cl", "*.h"]},
-    ext_modules=[Extension(f"pydynrad.{name}", sources=[f"csrc/{source}"], extra_compile_args=["-O3", "-std=c99", "-ffp-contract=off"])
-                 for name, source in NATIVE.items()],
+    ext_modules=[
+        Extension(
+            f"pydynrad.{name}", sources=[f"csrc/{source}"], extra_compile_args=["-O3", "-std=c99", "-ffp-contract=off"]
+        )
+        for name, source in NATIVE.items()
+    ],
 )

@@ -197,11 +197,10 @@ def test_coarse_sweeps_start_from_earlier_solutions_combined(device, cornell_lit
     start the sweeps at their answer (one sweep to confirm it); new lights still converge to the
     answer a far field that never saw other lights gives."""
     scene, F, _, _, _ = cornell_lit
-    lamp = lambda x: pydynrad.light_vector(
-        scene,
-        [PointLight(position=[x, 450, 280], intensity=[0.2] * 3)],  # noqa: E731
-        device=device,
-    )
+
+    def lamp(x):
+        return pydynrad.light_vector(scene, [PointLight(position=[x, 450, 280], intensity=[0.2] * 3)], device=device)
+
     far = FarField(scene, F, clusters=len(scene) // 8, coarse="sweeps", dtype=np.float64, device=device)
     far._combined = lambda L: None  # the answer's own combination would skip the coarse solve
     a, b = lamp(150.0), lamp(400.0)
@@ -229,7 +228,10 @@ def test_light_combinations_reuse_earlier_answers(device, cornell_lit):
     over F or G, and equals what a far field computing it gives; a new light, or one that only
     an extrapolation of near-parallel lights makes, is computed."""
     scene, F, _, _, full = cornell_lit
-    lamp = lambda x: coloured_lamp(scene, x, device)  # noqa: E731
+
+    def lamp(x):
+        return coloured_lamp(scene, x, device)
+
     far = FarField(scene, F, clusters=len(scene) // 8, device=device)
     fresh = FarField(scene, F, clusters=far.clusters, device=device)
     fresh._combined = lambda L: None
@@ -267,7 +269,10 @@ def test_light_combinations_reuse_earlier_answers(device, cornell_lit):
 def test_light_combinations_in_float64(device, cornell_lit):
     """A float64 far field keeps its answers in float64: a combination is as exact as they are."""
     scene, F, _, _, _ = cornell_lit
-    lamp = lambda x: coloured_lamp(scene, x, device)  # noqa: E731
+
+    def lamp(x):
+        return coloured_lamp(scene, x, device)
+
     far = FarField(scene, F, clusters=len(scene) // 8, coarse_storage="fp64", dtype=np.float64, device=device)
     fresh = FarField(scene, F, clusters=far.clusters, coarse_storage="fp64", dtype=np.float64, device=device)
     fresh._combined = lambda L: None
