@@ -1,6 +1,6 @@
 /*
  * Passes over a CSR matrix's structure that the far field's precompute makes of the full F
- * (pydynrad/csrgraph.py): its weakly connected components (patches that exchange no light
+ * (pydynrad/host/csrgraph.py): its weakly connected components (patches that exchange no light
  * with each other, which no cluster may join) and its copy by column in float32 (the first
  * bounce's product over lit columns).
  *

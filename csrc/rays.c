@@ -1,5 +1,5 @@
 /*
- * Rays checked and moved into a scene's device frame, in one pass (pydynrad/bvh.py, _rays).
+ * Rays checked and moved into a scene's device frame, in one pass (pydynrad/geometry/bvh.py, _rays).
  *
  * Host-side by design: the rays come from the user as (n, 3) float32 or float64 arrays, and the
  * kernels read float32 in the scene's DeviceFrame, x_device = (x - origin) / unit. numpy did this

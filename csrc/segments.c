@@ -23,7 +23,7 @@
  * numpy passes of gathers and small matrix products, here they are a copy of what the slab
  * test computed anyway.
  *
- * With planes (an object that is one convex solid, pydynrad/convex.py), a segment that crosses
+ * With planes (an object that is one convex solid, pydynrad/geometry/convex.py), a segment that crosses
  * the box is kept only if it crosses the solid's boundary, which clipping it by the planes
  * decides exactly: nothing is left to trace. On the bench's block, 99.9% of the segments that
  * crossed its box were hidden (the box is the block), and tracing them waited for the block's
@@ -109,7 +109,7 @@ static int crosses_solid(const double *a, const double *b, const double *planes,
     return t0 < t1 && !inside;
 }
 
-/* The most planes a solid may give (pydynrad/convex.py's MAX_PLANES is at most this). */
+/* The most planes a solid may give (pydynrad/geometry/convex.py's MAX_PLANES is at most this). */
 #define MAX_PLANES 64
 
 /* Per point: u = p - c and |u|^2 (what the sphere test reads, 32 bytes: the village's and the

@@ -15,7 +15,7 @@
 
 #define BVH_NODE 8  // float4 per wide node
 // Traversal stack: a wide node pushes at most four children and the walk pops one, so a tree
-// of D wide levels needs 3 D + 1 entries; pydynrad/bvh.py refuses deeper trees (MAX_DEPTH).
+// of D wide levels needs 3 D + 1 entries; pydynrad/geometry/bvh.py refuses deeper trees (MAX_DEPTH).
 #define BVH_STACK 96
 
 // The hot loops below use operators, not OpenCL builtins (fmin, fma, dot, cross, select).

@@ -9,11 +9,11 @@
 // work-group stacks its items along the rows (local size (1, LY)), so they share the same
 // V strip (kdim x VW), which stays in the nearest cache. The host guarantees n % VW == 0
 // (buffers are padded) and m % TM == 0 or pads U with zero rows.
-// VW and TM are required: pydynrad/launch.py (GemmLayout) picks them per device.
+// VW and TM are required: pydynrad/device/launch.py (GemmLayout) picks them per device.
 #include "storage.h"
 
 #if !defined(VW) || !defined(TM)
-#error "gemm.cl needs VW and TM from the host (pydynrad/launch.py)"
+#error "gemm.cl needs VW and TM from the host (pydynrad/device/launch.py)"
 #endif
 
 __kernel void gemm_acc(const int m, const int n, const int kdim,

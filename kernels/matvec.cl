@@ -12,14 +12,14 @@
 //       light vector sharing one grey K).
 //   RI: rows per work-item of the LX == 1 `matvec` (1 to 4), streamed side by side so that
 //       RI * NRHS accumulator chains hide the FMA latency (1 where LX > 1).
-// All four are required; pydynrad/launch.py (MatvecLayout.defines) picks them per device.
+// All four are required; pydynrad/device/launch.py (MatvecLayout.defines) picks them per device.
 // Requirements (the host guarantees them): ld % VW == 0, K's padding columns M..ld hold 0,
 // x holds ld entries (zeros past M); with LX == 1 the global size is rounded up past M / RI (items
 // past M return), with LX > 1 it is exactly M work-groups.
 #include "storage.h"
 
 #if !defined(VW) || !defined(LX) || !defined(NRHS) || !defined(RI)
-#error "matvec.cl needs VW, LX, NRHS and RI from the host (pydynrad/launch.py)"
+#error "matvec.cl needs VW, LX, NRHS and RI from the host (pydynrad/device/launch.py)"
 #endif
 
 // Y[q, i] = sum_j K[i, j] X[q, j] for i < M and the NRHS right-hand sides q: X holds NRHS

@@ -23,7 +23,7 @@
 #include "sky.h"
 
 #ifndef MAX_DEPTH
-#error "MAX_DEPTH (the bounce limit) must come from the host (pydynrad/pathtrace.py)"
+#error "MAX_DEPTH (the bounce limit) must come from the host (pydynrad/pathtracer.py)"
 #endif
 #ifndef RR_DEPTH
 #define RR_DEPTH 3

@@ -19,12 +19,12 @@
 //           indices per vector load, gathering x from cache. A tight loop of one thread.
 //   LX > 1  (GPUs, CSR-vector): the group's LX items share each row, reading adjacent
 //           entries (coalesced), and reduce in local memory.
-// NCH and LX (or SELL_C, below) are required: the host picks NCH, pydynrad/launch.py LX or SELL_C,
+// NCH and LX (or SELL_C, below) are required: the host picks NCH, pydynrad/device/launch.py LX or SELL_C,
 // and RGB_STEP (float32 RGB entries per vector step on CPUs: 4 with 16-float registers, else 2).
 #include "storage.h"
 
 #if !defined(NCH) || !(defined(LX) || defined(SELL_C)) || (defined(LX) && !defined(RGB_STEP))
-#error "spmv.cl needs NCH and LX (with RGB_STEP) or SELL_C from the host (pydynrad/devicecsr.py, pydynrad/launch.py)"
+#error "spmv.cl needs NCH and LX (with RGB_STEP) or SELL_C from the host (pydynrad/device/csr.py, pydynrad/device/launch.py)"
 #endif
 
 #if NCH == 1
@@ -132,7 +132,7 @@ void bounce(__global const int *blk, __global const int *rowptr, __global const 
 #endif  // LX
 
 // ---- SELL-C: the same bounce on a sliced-ELL copy of F (grey solves on wide-SIMD CPUs) ---------
-// The host renumbers the patches (rows sorted by length within windows, pydynrad/devicesell.py)
+// The host renumbers the patches (rows sorted by length within windows, pydynrad/device/sell.py)
 // and cuts them into slices of SELL_C consecutive rows; slice s stores its rows' entries
 // column by column: entry j of lane l at sptr[s] + j SELL_C + l (short rows padded with
 // value 0, column 0). One work-item walks a block of slices (blk, as for bounce); each step

@@ -16,7 +16,7 @@
 // vector of B or X read from cache serves RR rows of K, which is what makes a rank-2k pass
 // stream K instead of re-reading the small factors for every row.
 //
-// Layout defines, all required (pydynrad/launch.py, UpdateLayout.defines, picks them per device):
+// Layout defines, all required (pydynrad/device/launch.py, UpdateLayout.defines, picks them per device):
 //   VW   vector width of K loads (4, 8 or 16: a CPU's SIMD register of REALs, 4 on GPUs)
 //   SW   vector width of the sparse gathers (a step of gathered entries, not register-blocked)
 //   WG   work-items per row block in gather_partial (a GPU's coalesced group)
@@ -30,7 +30,7 @@
 #include "storage.h"
 
 #if !defined(VW) || !defined(SW) || !defined(WG) || !defined(RR) || !defined(CWMAX) || !defined(NVMAX) || !defined(NAMAX) || !defined(RED_WG)
-#error "update.cl needs VW, SW, WG, RR, CWMAX, NVMAX, NAMAX and RED_WG from the host (pydynrad/launch.py)"
+#error "update.cl needs VW, SW, WG, RR, CWMAX, NVMAX, NAMAX and RED_WG from the host (pydynrad/device/launch.py)"
 #endif
 
 #define IMIN(a, b) ((a) < (b) ? (a) : (b))

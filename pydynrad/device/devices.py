@@ -267,7 +267,7 @@ class Device:
                 if "unknown target CPU" in log:
                     log += (
                         "\n(this OpenCL compiler does not know this CPU, and pydynrad could not give it one: "
-                        "see pydynrad/pocl_target.py)"
+                        "see pydynrad/device/pocl.py)"
                     )
                 raise KernelBuildError(f"OpenCL build of {filename} failed on {self.name}", log) from exc
             if compiler_output_wanted():

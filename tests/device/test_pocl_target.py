@@ -1,4 +1,4 @@
-"""The CPU name given to PoCL 3.0's LLVM where it does not know the host (pydynrad/pocl_target.py)."""
+"""The CPU name given to PoCL 3.0's LLVM where it does not know the host (pydynrad/device/pocl.py)."""
 
 import numpy as np
 

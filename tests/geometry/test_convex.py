@@ -1,4 +1,4 @@
-"""Convex solids: which meshes bound one (pydynrad/convex.py), and the move's clipping of segments
+"""Convex solids: which meshes bound one (pydynrad/geometry/convex.py), and the move's clipping of segments
 by their planes (csrc/segments.c) against Moller-Trumbore on the mesh's triangles in float64."""
 
 import numpy as np

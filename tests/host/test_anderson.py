@@ -1,4 +1,4 @@
-"""Anderson mixing (pydynrad/anderson.py) and the mixed Jacobi sweeps of DeviceCSR, against
+"""Anderson mixing (pydynrad/host/anderson.py) and the mixed Jacobi sweeps of DeviceCSR, against
 dense solves."""
 
 import numpy as np

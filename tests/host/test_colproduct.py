@@ -1,5 +1,5 @@
 """The product with chosen columns of a CSC matrix and the product by row of a CSR matrix
-(pydynrad/colproduct.py, csrc/colproduct.c) against scipy's products, in every index and value
+(pydynrad/host/colproduct.py, csrc/colproduct.c) against scipy's products, in every index and value
 type, split over threads or not."""
 
 import numpy as np
