@@ -1,3 +1,5 @@
+// Launch bound (~100 ms on a small GPU tracing ~50 M rays/s): n points x emitting triangles x
+// grid^2 shadow rays in one launch (sensor grids: 1,000 x 100 x 16 = 1.6 M rays, ~30 ms); not split.
 // Direct irradiance from emitting patches at points, by the exact point-to-polygon form factor
 // (Lambert's contour integral) times a visibility fraction from shadow rays: accurate however
 // close a point is to an emitter, where a hemicube's pixels are far too coarse.

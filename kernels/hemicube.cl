@@ -1,3 +1,6 @@
+// Launch bound (~100 ms on a small GPU tracing ~50 M rays/s): one launch traces a block of rows,
+// K * 3R * R rays each; pydynrad/formfactors.py sizes a block so its runs (8 bytes per pixel)
+// fit BLOCK_BYTES / 2, i.e. at most BLOCK_BYTES / 16 rays per launch.
 // Hemicube form factors by ray casting: one work-item per band of HC_TILE_Y scanlines of a
 // hemicube, traced tile by tile (the layout, the ray directions and the tiles are hemicube.h's).
 // Each row averages HC_SAMPLES hemicubes (1 unless the host defines it), one per stratum of its

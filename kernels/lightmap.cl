@@ -1,3 +1,6 @@
+// Launch bound (~100 ms on a small GPU): one item per triangle walks its bounding box of texels
+// (grown by one): the launch's work is the sum of the boxes, about the lightmap's texels (a
+// 4096^2 map: 17 M texel tests, a few ms).
 // Lightmap rasterising (pydynrad/bake/lightmap.py): which triangle fills each texel.
 // One work-item per lightmap triangle walks the texels of its bounding box grown by one texel.
 // Texel (x, y) covers [x, x+1] x [y, y+1]; its centre is (x + 0.5, y + 0.5).

@@ -1,3 +1,7 @@
+// Launch bound (~100 ms on a small GPU: 100 GB/s, 1 TFLOP/s fp32, max_mem_alloc <= 2 GiB): each
+// launch streams one channel of K once (matvec, rmatvec_partial) or reads n_blocks * ld partials
+// (rmatvec_reduce); a channel is one buffer, so <= max_mem_alloc_size (DeviceMatrix refuses more):
+// <= 2 GiB / 100 GB/s ~ 21 ms (M = 16,384 fp16: 512 MiB, ~5 ms).
 // Dense matrix-vector products with one M x M row-major matrix K (leading dimension ld).
 // Storage type from storage.h (STORAGE_FP16/FP32/FP64); vectors x, y are REAL.
 //

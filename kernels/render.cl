@@ -1,3 +1,5 @@
+// Launch bound (~100 ms on a small GPU tracing ~50 M rays/s): one ray per pixel of one image:
+// 2 M rays at 1920 x 1080 (~40 ms).
 // Primary visibility for images: one work-item per pixel casts the camera ray that
 // pydynrad.geometry.camera.Camera.ray_directions() computed on the host (so host and device agree on
 // every pixel's ray) and records what it sees. Shading happens afterwards from these records.

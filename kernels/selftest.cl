@@ -1,3 +1,4 @@
+// Launch bound: one multiply per item (a test kernel).
 // A minimal program: lets the device layer and the tests check building, caching, defines
 // and build-log reporting without depending on any real kernel.
 #ifndef SELFTEST_SCALE

@@ -1,3 +1,6 @@
+// Launch bound (~100 ms on a small GPU: 100 GB/s, max_mem_alloc <= 2 GiB): one launch is one
+// bounce, one pass over F's values and column indices (each one buffer, <= max_mem_alloc_size:
+// <= 4 GiB, ~43 ms) plus O(N) vectors.
 // One bounce of the radiosity iteration on a CSR form-factor matrix F:
 //     y = L + P (F x)
 // per patch i and colour channel, and the convergence measures of the same pass. Each bounce

@@ -1,3 +1,7 @@
+// Launch bound (~100 ms on a small GPU: 100 GB/s, 1 TFLOP/s fp32, max_mem_alloc <= 2 GiB): a
+// gather reads one channel of K once (<= max_mem_alloc_size: ~21 ms) with 2 NV <= 2 NVMAX FMAs
+// per element; a rank update reads and writes it once (~43 ms) with NA <= NAMAX FMAs per
+// element; read_slots, write_slots, the sparse gathers and double_reflection touch O(M k) elements.
 // In-place updates of the local multibounce matrix K (one channel, M x M, row pitch ld) for
 // dynamic radiosity. K's element type comes from storage.h (STORAGE_FP16/FP32/FP64); the
 // small vectors are REAL (float, or double with fp64 storage).

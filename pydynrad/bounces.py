@@ -40,7 +40,7 @@ import scipy.sparse as sp
 
 from .checks import check_form_factor_rows, check_form_factors, patch_indices
 from .device.devices import default_device, device_or_default, real_dtype
-from .device.launch import GEMM_GRAIN, PANEL, gemm_layout, round_up
+from .device.launch import GEMM_GRAIN, PANEL, enqueue_kernel, gemm_layout, round_up
 from .device.matrix import DeviceMatrix
 from .errors import InvalidInputError, OutOfMemoryError
 from .geometry.scene import PrecisionWarning, checked_scene
@@ -126,8 +126,9 @@ class _Builder:
         if n == 0:
             return
         i32 = np.int32
-        self.kernel(
-            self.device.queue,
+        enqueue_kernel(
+            self.device,
+            self.kernel,
             *self.lay.grid(m, n),
             i32(m),
             i32(n),

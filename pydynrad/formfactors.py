@@ -30,7 +30,7 @@ from . import _runs
 from .checks import integer, patch_indices
 from .checks import resolution as checked_resolution
 from .device.devices import device_or_default
-from .device.launch import float4, global_size, hemicube_tiles, ray_work_group
+from .device.launch import enqueue_kernel, float4, global_size, hemicube_tiles, ray_work_group
 from .errors import InvalidInputError, OutOfMemoryError
 from .geometry.scene import SURFACE_OFFSET, checked_scene
 from .host.memory import available_host_bytes
@@ -305,8 +305,9 @@ def hemicube_runs(
         # The first block is launched by the caller's thread, later ones by the thread that reads
         # the blocks: a kernel object per thread (Device.kernel), its arguments its own.
         knl = dev.kernel("hemicube.cl", "hemicube_runs", defines)
-        knl(
-            dev.queue,
+        enqueue_kernel(
+            dev,
+            knl,
             (global_size(len(idx) * K * tiles.bands(R), wg),),
             (wg,),
             nodes,

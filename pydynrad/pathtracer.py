@@ -29,7 +29,7 @@ import numpy as np
 
 from .checks import integer, patch_indices
 from .device.devices import default_device
-from .device.launch import float4, global_size
+from .device.launch import enqueue_kernel, float4, global_size, ray_work_group
 from .errors import InvalidInputError
 from .geometry.camera import Camera, check_image_memory
 from .geometry.scene import Scene, checked_scene
@@ -114,7 +114,7 @@ class _Tracer:
         queue = self.device.queue
         accum = cl.Buffer(self.device.context, cl.mem_flags.READ_WRITE, size=max(1, n_items) * 16)
         cl.enqueue_fill_buffer(queue, accum, np.float32(0), 0, max(1, n_items) * 16)
-        local = None
+        local = (ray_work_group(self.device),)  # an item traces n paths
         gsize = (global_size(n_items),)
         done, size = 0, 1
         start = time.perf_counter()
@@ -122,8 +122,9 @@ class _Tracer:
         with bar:
             while done < spp:
                 n = min(size, spp - done)
-                kernel(
-                    queue,
+                enqueue_kernel(
+                    self.device,
+                    kernel,
                     gsize,
                     local,
                     *items,

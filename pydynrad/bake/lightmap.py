@@ -34,7 +34,7 @@ import numpy as np
 
 from ..checks import number, stops
 from ..device.devices import default_device
-from ..device.launch import global_size
+from ..device.launch import enqueue_kernel, global_size, ray_work_group
 from ..errors import InvalidInputError, OutOfMemoryError
 from ..geometry.scene import checked_scene
 from ..host.memory import available_host_bytes
@@ -321,13 +321,10 @@ def _rasterise(corners: np.ndarray, values: np.ndarray, h: int, w: int, device):
     cl.enqueue_fill_buffer(device.queue, d_best, np.int32(np.iinfo(np.int32).min), 0, 4 * h * w)
     cl.enqueue_fill_buffer(device.queue, d_owner, np.int32(-1), 0, 4 * h * w)
     cl.enqueue_fill_buffer(device.queue, d_covered, np.uint8(0), 0, h * w)
-    size = (global_size(n),)
-    device.kernel("lightmap.cl", "lightmap_best")(
-        device.queue, size, None, np.int32(n), d_box, d_corner, np.int32(w), d_best, d_covered
-    )
-    device.kernel("lightmap.cl", "lightmap_owner")(
-        device.queue, size, None, np.int32(n), d_box, d_corner, np.int32(w), d_best, d_owner
-    )
+    size, local = (global_size(n),), (ray_work_group(device),)  # an item walks a triangle's texels
+    best, owner_k = device.kernel("lightmap.cl", "lightmap_best"), device.kernel("lightmap.cl", "lightmap_owner")
+    enqueue_kernel(device, best, size, local, np.int32(n), d_box, d_corner, np.int32(w), d_best, d_covered)
+    enqueue_kernel(device, owner_k, size, local, np.int32(n), d_box, d_corner, np.int32(w), d_best, d_owner)
     owner = np.empty(h * w, dtype=np.int32)
     covered = np.empty(h * w, dtype=np.uint8)
     cl.enqueue_copy(device.queue, owner, d_owner)

@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from ..errors import InvalidInputError, OutOfMemoryError
 from ..host.anderson import Anderson
 from .devices import real_dtype
-from .launch import spmv_layout
+from .launch import enqueue_kernel, spmv_layout
 
 __all__ = ["DeviceCSR", "row_blocks", "sweeps"]
 
@@ -105,8 +105,9 @@ class DeviceCSR:
             kernel = kernels[width] = d.kernel("spmv.cl", "bounce", defines)
         if partial_buf is None:
             partial_buf = cl.Buffer(d.context, cl.mem_flags.READ_WRITE, 2 * self._n_blocks * self.dtype.itemsize)
-        kernel(
-            d.queue,
+        enqueue_kernel(
+            d,
+            kernel,
             *self._layout.grid,
             self._blk,
             self._rowptr,
@@ -118,6 +119,7 @@ class DeviceCSR:
             y_buf,
             partial_buf,
             np.int32(self.shape[0] == self.shape[1]),
+            fixed=True,  # reqd_work_group_size(LX): a local-memory reduction over LX items
         )
 
     def bounce(self, L: np.ndarray, rho: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -14,6 +14,11 @@
   host and kernel must agree on is written twice.
 * :func:`global_size`: a global size rounded up to whole work-groups; every kernel launched
   so guards ``if (gid >= n) return;``.
+* :func:`enqueue_kernel`: the one way a kernel is enqueued. Every launch states its work-group size
+  (never ``None``, which leaves it to the runtime), fitted to the device's
+  ``max_work_group_size`` and work-item sizes and to the kernel's own
+  ``CL_KERNEL_WORK_GROUP_SIZE`` (:func:`kernel_work_group_limit`), and rounds the global size
+  up to whole work-groups.
 
 CPU layouts give a few fat work-items long contiguous runs and vectors as wide as the SIMD
 registers the device reports (16 floats with AVX-512, 8 with AVX2, 4 with SSE or NEON: a
@@ -39,6 +44,9 @@ __all__ = [
     "WIDTHS",
     "round_up",
     "global_size",
+    "kernel_work_group_limit",
+    "fit_work_group",
+    "enqueue_kernel",
     "float4",
     "BVH_PACKETS",
     "bvh_packet",
@@ -146,6 +154,66 @@ def global_size(n: int, local: int = WG) -> int:
 def _traits(device):
     """A Device's traits, or the DeviceTraits given."""
     return getattr(device, "traits", device)
+
+
+def kernel_work_group_limit(kernel, device) -> int:
+    """The most work-items one work-group of ``kernel`` may have on ``device``: the smaller of
+    the device's ``max_work_group_size`` (as its traits say) and the kernel's own
+    ``CL_KERNEL_WORK_GROUP_SIZE`` (lower where its registers or local memory are many). The
+    kernel's value is queried once and kept on the kernel object."""
+    return max(1, min(_kernel_limits(kernel, device)[0], int(_traits(device).max_work_group)))
+
+
+def _kernel_limits(kernel, device) -> tuple[int, tuple[int, ...]]:
+    """(the kernel's ``CL_KERNEL_WORK_GROUP_SIZE``, the device's ``max_work_item_sizes``),
+    queried once and kept on the kernel object (a kernel belongs to one device's program)."""
+    limits = getattr(kernel, "_pdr_limits", None)
+    if limits is None:
+        import pyopencl as cl
+
+        d = device.cl_device
+        own = int(kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, d))
+        limits = kernel._pdr_limits = (own, tuple(int(v) for v in d.max_work_item_sizes))
+    return limits
+
+
+def fit_work_group(device, kernel, local: tuple[int, ...], fixed: bool = False) -> tuple[int, ...]:
+    """``local`` fitted to ``device`` and ``kernel``: each dimension within the device's
+    ``max_work_item_sizes``, their product within :func:`kernel_work_group_limit`, by halving
+    the largest dimension. ``fixed``: the kernel was built for exactly this size (its local
+    memory, barriers or a ``WG``-like define depend on it), so a device or kernel that cannot
+    take it raises :class:`~pydynrad.errors.DeviceError` instead."""
+    from ..errors import DeviceError
+
+    local = tuple(max(1, int(v)) for v in local)
+    limit = kernel_work_group_limit(kernel, device)
+    dims = _kernel_limits(kernel, device)[1]
+    fits = all(v <= d for v, d in zip(local, dims)) and math.prod(local) <= limit
+    if fits:
+        return local
+    if fixed:
+        raise DeviceError(
+            f"kernel {kernel.function_name} was built for work-groups of {local} items; this device "
+            f"allows {limit} ({dims} per dimension) for it"
+        )
+    out = [min(v, d) for v, d in zip(local, dims)]
+    while math.prod(out) > limit:
+        k = out.index(max(out))
+        out[k] = max(1, out[k] // 2)
+    return tuple(out)
+
+
+def enqueue_kernel(device, kernel, global_size: tuple[int, ...], local: tuple[int, ...], *args, fixed: bool = False):
+    """Enqueue ``kernel(*args)`` on ``device``'s queue over ``global_size`` items in work-groups
+    of ``local`` (:func:`fit_work_group`; ``fixed`` as there), each global dimension rounded up
+    to whole work-groups: the kernel returns for items past its range. Every launch in pydynrad
+    goes through here, so none leaves the work-group size to the runtime (a GPU's choice can
+    exceed what the kernel allows, PoCL's varies with the global size and compiles anew)."""
+    if local is None:
+        raise TypeError(f"enqueue_kernel of {kernel.function_name} needs an explicit local size")
+    local = fit_work_group(device, kernel, tuple(local), fixed)
+    grid = tuple(max(lo, round_up(g, lo)) for g, lo in zip(global_size, local))
+    return kernel(device.queue, grid, local, *args)
 
 
 def _pow2_at_most(n: int, cap: int) -> int:
@@ -309,6 +377,7 @@ class MatvecLayout:
     aligned: bool
     regs: int = 1
     chains: int = 1
+    wg: int = RAY_WG_CPU
 
     def rows_per_item(self, nrhs: int) -> int:
         """Rows one LX == 1 item of ``matvec`` streams side by side (its RI) for nrhs vectors:
@@ -326,10 +395,19 @@ class MatvecLayout:
             out["PDR_CLANG_VECTORS"] = 1
         return out
 
-    def matvec_grid(self, M: int, nrhs: int = 1) -> tuple[tuple[int], tuple[int] | None]:
+    def matvec_grid(self, M: int, nrhs: int = 1) -> tuple[tuple[int], tuple[int]]:
+        """(global, local) of ``matvec``: LX == 1, an item per RI rows in work-groups of ``wg``
+        (:func:`matvec_layout`); LX > 1, a work-group of LX items per row."""
         if self.lx == 1:
-            return (global_size(-(-M // self.rows_per_item(nrhs))),), None
+            return (global_size(-(-M // self.rows_per_item(nrhs)), self.wg),), (self.wg,)
         return (M * self.lx,), (self.lx,)
+
+    def rmatvec_grids(self, M: int, ld: int) -> tuple[tuple, tuple]:
+        """(global, local) of ``rmatvec_partial`` (an item per VW columns of a row block, WG
+        items along the columns) and of ``rmatvec_reduce`` (an item per column)."""
+        cols = ld // self.vw
+        lx = min(WG, cols)
+        return ((round_up(cols, lx), -(-M // self.rb)), (lx, 1)), ((global_size(M),), (WG,))
 
 
 #: Work-items per row of the GPU ``matvec`` (the most: fewer where the device allows fewer).
@@ -382,7 +460,10 @@ def matvec_layout(
     k_itemsize = real_itemsize if k_itemsize is None else int(k_itemsize)
     cached = 2 * M * ld * k_itemsize <= t.cache_bytes
     chains = MATVEC_CHAINS if t.cpu and (cached or k_itemsize >= real_itemsize) else 1
-    return MatvecLayout(int(vw), int(lx), rb, bool(t.aligned_vectors), regs, chains)
+    # LX == 1 work-groups: up to 64 items (on 2 cores, 64 ran an fp16 M = 4,096 product 1.5x
+    # faster than 8), fewer where that would leave under 2 groups per compute unit (RI <= 4).
+    wg = _pow2_at_most(max(RAY_WG_CPU, M // (8 * t.compute_units)), WG)
+    return MatvecLayout(int(vw), int(lx), rb, bool(t.aligned_vectors), regs, chains, wg)
 
 
 # -- the local update of K (kernels/update.cl) ------------------------------------------------------
@@ -520,12 +601,13 @@ class UpdateLayout:
         return (self.wg, blocks), (self.wg, 1)
 
     @property
-    def rank_grid(self) -> tuple[tuple[int, ...], tuple[int, ...] | None]:
+    def rank_grid(self) -> tuple[tuple[int, ...], tuple[int, ...]]:
         """(global, local) of the rank update: an item per rank_rb rows on a CPU; on a GPU an
-        item per (VW-vector column, row), local size left to the runtime."""
+        item per (VW-vector column, row) in work-groups of 16 columns by 4 rows (ld / VW is a
+        multiple of 16; rows rounded up to 4, past M the kernel returns)."""
         if self.cpu:
             return (-(-self.M // self.rank_rb),), (1,)
-        return (self.ld // self.vw, self.M), None
+        return (self.ld // self.vw, round_up(self.M, 4)), (16, 4)
 
     @staticmethod
     def reduction_grid() -> tuple[tuple[int], tuple[int]]:

@@ -23,7 +23,7 @@ import numpy as np
 from ..checks import finite
 from ..errors import DeviceError, InvalidInputError, OutOfMemoryError
 from ..precision import compute_dtype, storage_dtype
-from .launch import MAX_RHS, global_size, matvec_layout, round_up
+from .launch import MAX_RHS, enqueue_kernel, matvec_layout, round_up
 from .transfers import ReadSlab
 
 __all__ = ["DeviceMatrix", "MAX_RHS"]
@@ -184,14 +184,16 @@ class DeviceMatrix:
         k = self._k_matvec.get(nrhs)
         if k is None:
             k = self._k_matvec[nrhs] = cl.Kernel(self._program(nrhs), "matvec")
-        k(
-            self.device.queue,
+        enqueue_kernel(
+            self.device,
+            k,
             *self._layout.matvec_grid(self.M, nrhs),
             self.buffers[channel],
             np.int32(self.M),
             np.int32(self.ld),
             x_buf,
             y_buf,
+            fixed=self._layout.lx > 1,  # LX > 1: a local-memory reduction over exactly LX items
         )
 
     def enqueue_rmatvec(self, channel: int, x_buf, y_buf) -> None:
@@ -202,11 +204,12 @@ class DeviceMatrix:
             self._partial = cl.Buffer(
                 self.device.context, cl.mem_flags.READ_WRITE, self._n_blocks * self.ld * self.real_dtype.itemsize
             )
-        q, M, ld = self.device.queue, np.int32(self.M), np.int32(self.ld)
-        self._k_partial(
-            q,
-            (self.ld // self._layout.vw, self._n_blocks),
-            None,
+        d, M, ld = self.device, np.int32(self.M), np.int32(self.ld)
+        partial_grid, reduce_grid = self._layout.rmatvec_grids(self.M, self.ld)
+        enqueue_kernel(
+            d,
+            self._k_partial,
+            *partial_grid,
             self.buffers[channel],
             M,
             ld,
@@ -214,7 +217,7 @@ class DeviceMatrix:
             x_buf,
             self._partial,
         )
-        self._k_reduce(q, (global_size(self.M),), None, self._partial, M, ld, np.int32(self._n_blocks), y_buf)
+        enqueue_kernel(d, self._k_reduce, *reduce_grid, self._partial, M, ld, np.int32(self._n_blocks), y_buf)
 
     # -- host-facing products --------------------------------------------------------------------
     def _vectors(self, x: np.ndarray) -> np.ndarray:

@@ -18,6 +18,7 @@ import scipy.sparse as sp
 from ..errors import InvalidInputError, OutOfMemoryError
 from .csr import row_blocks, sweeps
 from .devices import real_dtype
+from .launch import enqueue_kernel
 
 __all__ = ["SellMatrix", "sell_slices", "DeviceSELL"]
 
@@ -123,8 +124,8 @@ class DeviceSELL:
         kernel = self._kernel(k)
 
         def bounce(x, y):
-            kernel(
-                d.queue, (nb,), (1,), self._blk, self._sptr, self._cols, self._vals, L_buf, rho_buf, x, y, partial_buf
+            enqueue_kernel(
+                d, kernel, (nb,), (1,), self._blk, self._sptr, self._cols, self._vals, L_buf, rho_buf, x, y, partial_buf
             )
 
         x, change, history = sweeps(d, bounce, x, y, partial_buf, nb, self.dtype, tol, max_sweeps)

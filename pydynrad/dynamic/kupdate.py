@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from ..device.launch import CPU_ROWS, WG, UpdateLayout, global_size, round_up
+from ..device.launch import CPU_ROWS, WG, UpdateLayout, enqueue_kernel, global_size, round_up
 from ..device.transfers import ReadSlab
 from ..errors import InvalidInputError
 
@@ -246,12 +246,13 @@ class UpdateKernels:
         if Y.shape != X.shape:
             raise InvalidInputError(f"gather needs X, Y of equal shape; got {X.shape}, {Y.shape}")
         X_buf, Y_buf = self._put(X, self.ld), self._put(Y, self.M)
-        q, K, lay = self.device.queue, self.matrix.buffers[channel], self.layout
+        K, lay = self.matrix.buffers[channel], self.layout
         rb, blocks = lay.gather_blocks(n)
         M, ld, nv = np.int32(self.M), np.int32(self.ld), np.int32(n)
         if lay.cpu:
-            self._k["gather_rows"](
-                q,
+            enqueue_kernel(
+                self.device,
+                self._k["gather_rows"],
                 *lay.gather_grid(blocks),
                 K,
                 M,
@@ -265,12 +266,24 @@ class UpdateKernels:
                 self._colpart,
             )
         else:
-            self._k["gather_partial"](
-                q, *lay.gather_grid(blocks), K, M, ld, np.int32(rb), nv, X_buf, Y_buf, self._rowpart, self._colpart
+            enqueue_kernel(
+                self.device,
+                self._k["gather_partial"],
+                *lay.gather_grid(blocks),
+                K,
+                M,
+                ld,
+                np.int32(rb),
+                nv,
+                X_buf,
+                Y_buf,
+                self._rowpart,
+                self._colpart,
             )
         # In-order queue: the next channel's gather reuses the partial sums only after this reduce.
-        self._k["gather_reduce"](
-            q,
+        enqueue_kernel(
+            self.device,
+            self._k["gather_reduce"],
             *lay.element_grid(n),
             self._rowpart,
             self._colpart,
@@ -307,7 +320,7 @@ class UpdateKernels:
         """K X and Y K from the slots ``cols`` (X's non-zeros) and ``rows`` (Y's) alone;
         ``indices``: :meth:`_sparse_indices` of them, shared by every channel."""
         n = X.shape[0]
-        q, K = self.device.queue, self.matrix.buffers[channel]
+        K = self.matrix.buffers[channel]
         M, ld, nv = np.int32(self.M), np.int32(self.ld), np.int32(n)
         (cols_rp, cols_idx), (rows_rp, rows_idx) = indices or self._sparse_indices(cols, rows)
         # vals: (n, Rp) for columns, (Rp, n) for rows.
@@ -318,15 +331,27 @@ class UpdateKernels:
             vals = np.zeros((n, rp))
             vals[:, : len(nz)] = vectors[:, nz]
             vals_buf = self.device.to_device((vals.T if transpose else vals).astype(self.real))
-            self._k[name](
-                q, (global_size(items),), (WG,), K, M, ld, np.int32(rp), idx, vals_buf, nv, self._res(channel, out)
+            enqueue_kernel(
+                self.device,
+                self._k[name],
+                (global_size(items),),
+                (WG,),
+                K,
+                M,
+                ld,
+                np.int32(rp),
+                idx,
+                vals_buf,
+                nv,
+                self._res(channel, out),
             )
         return n
 
     def _enqueue_read_slots(self, channel: int, slots: np.ndarray) -> int:
         k, slots_buf = self._put_slots(slots)
-        self._k["read_slots"](
-            self.device.queue,
+        enqueue_kernel(
+            self.device,
+            self._k["read_slots"],
             *self.layout.element_grid(k),
             self.matrix.buffers[channel],
             np.int32(self.M),
@@ -396,12 +421,13 @@ class UpdateKernels:
         """K += A B (``rank``: :meth:`_put_rank`'s count and buffers); then, with ``write``
         (:meth:`_put_write`'s), the slots' columns and rows: in the same pass on a CPU
         (``rank_update_rows``), by ``write_slots`` after it on a GPU."""
-        q, K, lay = self.device.queue, self.matrix.buffers[channel], self.layout
+        K, lay = self.matrix.buffers[channel], self.layout
         (n, A_buf, B_buf), M, ld = rank, np.int32(self.M), np.int32(self.ld)
         if lay.cpu:
             k, slots_buf, cols_buf, rows_buf = write or (0, self._zeros, self._zeros, self._zeros)
-            self._k["rank_update_rows"](
-                q,
+            enqueue_kernel(
+                self.device,
+                self._k["rank_update_rows"],
                 *lay.rank_grid,
                 K,
                 M,
@@ -416,7 +442,7 @@ class UpdateKernels:
                 rows_buf,
             )
             return
-        self._k["rank_update"](q, *lay.rank_grid, K, M, ld, np.int32(n), A_buf, B_buf)
+        enqueue_kernel(self.device, self._k["rank_update"], *lay.rank_grid, K, M, ld, np.int32(n), A_buf, B_buf)
         if write:
             self._launch_write(channel, *write)
 
@@ -426,8 +452,9 @@ class UpdateKernels:
         return k, slots_buf, self._put(cols, self.M), self._put(rows, self.M)
 
     def _launch_write(self, channel: int, k: int, slots_buf, cols_buf, rows_buf) -> None:
-        self._k["write_slots"](
-            self.device.queue,
+        enqueue_kernel(
+            self.device,
+            self._k["write_slots"],
             *self.layout.element_grid(k),
             self.matrix.buffers[channel],
             np.int32(self.M),
@@ -481,8 +508,14 @@ class UpdateKernels:
             raise InvalidInputError(f"at most {self.matrix.C} albedo rows; got {rows.shape[0]}")
         for c, r in enumerate(rows):
             v = self.device.to_device(np.concatenate([f_c, f_r, r]).astype(self.real))
-            self._k["double_reflection"](
-                self.device.queue, *self.layout.reduction_grid(), v, np.int32(self.M), self._res(c, "KX")
+            enqueue_kernel(
+                self.device,
+                self._k["double_reflection"],
+                *self.layout.reduction_grid(),
+                v,
+                np.int32(self.M),
+                self._res(c, "KX"),
+                fixed=True,  # a local-memory tree over RED_WG items
             )
         dr = np.array([h[0, 0] for h in self._get(*[(c, "KX", 1, 1) for c in range(len(rows))])])
         return float(dr[0]) if rho.ndim == 1 else dr

@@ -18,7 +18,7 @@ import numpy as np
 from .. import _bvh, _raybatch
 from ..checks import finite
 from ..device.devices import default_device
-from ..device.launch import bvh_packet, global_size, ray_work_group
+from ..device.launch import bvh_packet, enqueue_kernel, global_size, ray_work_group
 from ..errors import InvalidInputError
 
 __all__ = ["BVH", "InstancedBVH", "cast_rays", "occluded"]
@@ -366,8 +366,9 @@ def cast_rays(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> tu
     def launch(a: int, rays) -> None:
         for buf, host in zip(ins, rays):
             cl.enqueue_copy(dev.queue, buf, host, is_blocking=False)  # pyopencl holds host until copied
-        knl(
-            dev.queue,
+        enqueue_kernel(
+            dev,
+            knl,
             (global_size(-(-len(rays[0]) // packet), wg),),
             (wg,),
             *bvh.buffers(dev),
@@ -413,8 +414,9 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
     # size (each compile far longer than the trace), and a move's shadow rays vary in number.
     wg = ray_work_group(dev)
     packet = bvh_packet(dev)
-    dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": packet})(  # one program with cast_closest
-        dev.queue,
+    enqueue_kernel(
+        dev,
+        dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": packet}),  # one program with cast_closest
         (global_size(-(-n // packet), wg),),
         (wg,),
         nodes,

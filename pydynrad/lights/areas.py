@@ -22,7 +22,7 @@ import numpy as np
 
 from ..checks import checked_sensors, integer
 from ..device.devices import default_device
-from ..device.launch import float4, global_size
+from ..device.launch import enqueue_kernel, float4, global_size, ray_work_group
 from ..errors import InvalidInputError
 from .sources import SHADOW_EPSILON, direct_irradiance, resolve_light
 
@@ -77,10 +77,11 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None, subse
     out_dev = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, n * 16)
     kernel = dev.kernel("areas.cl", "emitter_irradiance")
     up = dev.to_device
-    kernel(
-        dev.queue,
+    enqueue_kernel(
+        dev,
+        kernel,
         (global_size(n),),
-        None,
+        (ray_work_group(dev),),  # an item loops over every emitter's shadow rays
         up(float4(scene.frame.points(points))),
         up(float4(normals)),
         np.int32(n),

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..checks import resolution as checked_resolution
 from ..device.devices import default_device
-from ..device.launch import bvh_packet, float4, global_size
+from ..device.launch import bvh_packet, enqueue_kernel, float4, global_size, ray_work_group
 from ..formfactors import pixel_form_factors
 from ..geometry.scene import SURFACE_OFFSET
 
@@ -78,10 +78,11 @@ def gather_irradiance(
     out = np.empty((n, 3))
     for first in range(0, n, block):
         b = min(block, n - first)
-        kernel(
-            dev.queue,
+        enqueue_kernel(
+            dev,
+            kernel,
             (global_size(b * S),),
-            None,
+            (ray_work_group(dev),),  # an item traces a hemicube scanline
             nodes,
             tris,
             order,

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..checks import ROW_SUM_SLACK, checked_sensors, floats, number, rgb_tuple, unit_tuple, vec3_tuple
 from ..device.devices import default_device
-from ..device.launch import WG, float4, global_size
+from ..device.launch import WG, enqueue_kernel, float4, global_size
 from ..errors import InvalidInputError
 from ..geometry.scene import SURFACE_OFFSET, checked_scene
 from .gather import gather_irradiance
@@ -273,8 +273,9 @@ def _point_irradiance(scene, points, normals, lights: list, device, patches=None
     kernel = device.kernel("lights.cl", "direct_irradiance")
     # Directional shadow rays need only reach past the scene: twice its diagonal (plus the
     # farthest sensor's distance outside it).
-    kernel(
-        device.queue,
+    enqueue_kernel(
+        device,
+        kernel,
         (global_size(n),),
         (WG,),
         np.int32(n),

@@ -14,7 +14,15 @@ from helpers import coloured_box, dense_K, reciprocal_F, rel
 
 from pydynrad import multibounce
 from pydynrad.device.devices import DeviceTraits
-from pydynrad.device.launch import GEMM_GRAIN, UpdateLayout, cpu_vector_width, gemm_layout, matvec_layout, spmv_layout
+from pydynrad.device.launch import (
+    GEMM_GRAIN,
+    RAY_WG_CPU,
+    UpdateLayout,
+    cpu_vector_width,
+    gemm_layout,
+    matvec_layout,
+    spmv_layout,
+)
 from pydynrad.device.matrix import DeviceMatrix, padded_ld
 from pydynrad.dynamic.kupdate import UpdateKernels
 
@@ -76,7 +84,8 @@ def test_matvec_rows_side_by_side_hide_the_fma_latency():
                 assert ri * regs >= MATVEC_CHAINS or (ri + 1) * regs > MATVEC_ACC_REGS
                 assert ri * regs <= max(regs, MATVEC_ACC_REGS) and mv.defines(nrhs)["RI"] == ri
                 (g,), local = mv.matvec_grid(M, nrhs)
-                assert local is None and g * ri >= M and (g - 64) * ri < M
+                assert local == (mv.wg,) and RAY_WG_CPU <= mv.wg <= 64 and g % mv.wg == 0
+                assert g * ri >= M and (g - mv.wg) * ri < M
     assert matvec_layout(cached, M, ld, real_itemsize=4, k_itemsize=2).rows_per_item(1) == 4
     assert matvec_layout(AVX512, M, ld, real_itemsize=4, k_itemsize=2).rows_per_item(1) == 1  # no cache reported
     assert matvec_layout(AVX512, M, ld, real_itemsize=4, k_itemsize=4).rows_per_item(1) == 4
