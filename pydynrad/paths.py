@@ -149,6 +149,39 @@ def _param(frame: int, frames: int, n_keys: int) -> float:
     return 0.0 if frames == 1 else frame * (n_keys - 1) / (frames - 1)
 
 
+#: Frames a path is checked in at once (:meth:`CameraPath.check`, :meth:`ObjectTrack.poses`):
+#: 65,536 frames' views or poses are a few MB.
+CHECK_CHUNK = 65536
+
+
+def _params(start: int, stop: int, frames: int, n_keys: int) -> np.ndarray:
+    """:func:`_param` of frames ``start..stop-1`` at once (the same float64 values: the
+    products are exact below 2^53, and one division rounds them as Python's does)."""
+    if frames == 1:
+        return np.zeros(stop - start)
+    return np.arange(start, stop, dtype=np.int64) * (n_keys - 1) / float(frames - 1)
+
+
+def sample_curves(keys: np.ndarray, s: np.ndarray, interpolation: str) -> np.ndarray:
+    """:func:`sample_curve` at many parameters ``s`` (m,) at once: (m, 3)."""
+    k = len(keys)
+    s = np.asarray(s, dtype=np.float64)
+    if k == 1:
+        return np.repeat(keys[:1], len(s), axis=0)
+    s = np.minimum(np.maximum(s, 0.0), k - 1.0)
+    i = np.minimum(np.floor(s).astype(np.int64), k - 2)
+    t = (s - i)[:, None]
+    p1, p2 = keys[i], keys[i + 1]
+    if interpolation == "linear":
+        return (1.0 - t) * p1 + t * p2
+    p0 = np.where((i > 0)[:, None], keys[np.maximum(i - 1, 0)], 2.0 * p1 - p2)
+    p3 = np.where((i + 2 < k)[:, None], keys[np.minimum(i + 2, k - 1)], 2.0 * p2 - p1)
+    t2, t3 = t * t, t * t * t
+    return 0.5 * (
+        (2.0 * p1) + (-p0 + p2) * t + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2 + (-p0 + 3.0 * p1 - 3.0 * p2 + p3) * t3
+    )
+
+
 @dataclass(frozen=True, eq=False)
 class CameraPath:
     """A camera moving through keyframes.
@@ -208,6 +241,56 @@ class CameraPath:
             behind = sample_curve(self.positions, max(s - ds, 0.0), self.interpolation)
             target = eye + (ahead - behind)
         return Camera(eye, target, self.up, self.fov_y, self.width, self.height)
+
+    def views(self, start: int = 0, stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The eyes and look-at points (m, 3) of frames ``start..stop-1`` at once, as
+        :meth:`camera` places them."""
+        stop = self.frames if stop is None else stop
+        k = len(self.positions)
+        s = _params(start, stop, self.frames, k)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is found by the check
+            eye = sample_curves(self.positions, s, self.interpolation)
+            if self.look_ats is not None:
+                return eye, sample_curves(self.look_ats, s, self.interpolation)
+            ahead = sample_curves(self.positions, np.minimum(s + 0.05, k - 1.0), self.interpolation)
+            behind = sample_curves(self.positions, np.maximum(s - 0.05, 0.0), self.interpolation)
+            return eye, eye + (ahead - behind)
+
+    def check(self, progress: bool | None = None) -> None:
+        """Refuse the path if any frame's camera would be refused (:meth:`camera` raises its
+        :class:`~pydynrad.errors.InvalidInputError`, naming the frame): before a walk's first
+        frame, not at frame 700,000 of it.
+
+        The views are computed and tested in chunks of :data:`CHECK_CHUNK` frames at once
+        (10^6 frames in about a second, where a :class:`Camera` per frame had taken 97 s to 7
+        minutes); a frame within twice the camera's tolerances of being refused is then made as
+        its :class:`Camera`, which decides. ``progress``: a bar over the frames
+        (:mod:`pydynrad.progress`, for paths of more than one chunk; by default shown once the
+        check has run for 2 s)."""
+        from .progress import progress_bar
+
+        up = np.asarray(self.camera(0).up)  # the lens, the image size and the up vector: every frame's
+        one_chunk = self.frames <= CHECK_CHUNK  # nothing to show progress over
+        bar = progress_bar(False if one_chunk else progress, total=self.frames, desc="checking the path", unit="frame")
+        try:
+            for start in range(0, self.frames, CHECK_CHUNK):
+                stop = min(start + CHECK_CHUNK, self.frames)
+                eye, target = self.views(start, stop)
+                with np.errstate(over="ignore", invalid="ignore"):
+                    forward = target - eye
+                    dist = np.linalg.norm(forward, axis=1)
+                    near = dist <= 2e-9 * np.maximum(1.0, np.linalg.norm(eye, axis=1))
+                    side = np.linalg.norm(np.cross(forward / dist[:, None], up), axis=1)
+                    doubt = ~(np.isfinite(eye).all(axis=1) & np.isfinite(target).all(axis=1))
+                    doubt |= near | ~(side >= 2e-6)
+                for k in start + np.flatnonzero(doubt):
+                    try:
+                        self.camera(int(k))
+                    except InvalidInputError as exc:
+                        raise InvalidInputError(f"frame {k} of {self.frames}: {exc}") from None
+                bar.update(stop - start)
+        finally:
+            bar.close()
 
 
 def orbit(
@@ -319,6 +402,27 @@ class ObjectTrack:
         out = np.eye(4)
         out[:3, 3] = sample_curve(T[:, :3, 3], s, self.interpolation)
         out[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix(T[k : k + 2, :3, :3]))(s - k).as_matrix()
+        return out
+
+    def poses(self, frames: int, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """The (m, 4, 4) poses of frames ``start..stop-1`` of ``frames`` at once, as :meth:`at`
+        makes them (its rotation's slerp to rounding: a pose to place the object by is :meth:`at`'s)."""
+        from scipy.spatial.transform import Rotation
+
+        stop = frames if stop is None else stop
+        T = self.transforms
+        s = _params(start, stop, frames, len(T))
+        out = np.repeat(np.eye(4)[None], len(s), axis=0)
+        out[:, :3, 3] = sample_curves(T[:, :3, 3], s, self.interpolation)
+        k = np.minimum(np.floor(s).astype(np.int64), max(len(T) - 2, 0))
+        if len(T) == 1:
+            out[:, :3, :3] = T[0, :3, :3]
+            return out
+        keys = Rotation.from_matrix(T[:, :3, :3])
+        steps = (keys[:-1].inv() * keys[1:]).as_rotvec()  # scipy's Slerp, between each pair of keyframes
+        out[:, :3, :3] = (keys[k] * Rotation.from_rotvec((s - k)[:, None] * steps[k])).as_matrix()
+        on_key = s == np.floor(s)
+        out[on_key] = T[np.floor(s[on_key]).astype(np.int64)]  # a keyframe's pose exactly, as at() gives it
         return out
 
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from .checks import number
 from .device.devices import default_device
-from .device.launch import WG, global_size
+from .device.launch import WG, enqueue_kernel, global_size
 from .errors import InvalidInputError
 from .geometry.camera import Camera, check_image_memory
 from .geometry.scene import checked_scene
@@ -110,8 +110,9 @@ class Renderer:
         d_uvf = cl.Buffer(dev.context, mf.WRITE_ONLY, 16 * n_pix)
         d_depth = cl.Buffer(dev.context, mf.WRITE_ONLY, 4 * n_pix)
         knl = dev.kernel("render.cl", "primary_visibility")
-        knl(
-            dev.queue,
+        enqueue_kernel(
+            dev,
+            knl,
             (global_size(n_pix),),
             (WG,),
             nodes,

@@ -88,8 +88,17 @@ def smoothing_groups(scene, crease_angle: float = 30.0) -> tuple[np.ndarray, int
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
+#: Negative radiosity down to this fraction of the largest magnitude is rounding (a float32
+#: solve's, ~1e-7 of it) and is shown as 0; below it :func:`checked_radiosity` refuses the
+#: values (light is not negative: a render or mesh of them would show a wrong solution as right).
+NEGATIVE_RADIOSITY_TOLERANCE = 1e-5
+
+
 def checked_radiosity(radiosity, n: int) -> np.ndarray:
-    """``radiosity`` of shape (n,), (n, 1) or (n, 3) as a finite (n, 3) float32 view, or InvalidInputError."""
+    """``radiosity`` of shape (n,), (n, 1) or (n, 3) as a finite (n, 3) float32 view, or
+    InvalidInputError; also where a value is negative beyond rounding
+    (:data:`NEGATIVE_RADIOSITY_TOLERANCE`), values negative within it read as 0. The one check
+    of :func:`pydynrad.render`, :func:`pydynrad.export_mesh` and the bakes."""
     given = np.asarray(radiosity)
     if given.dtype.kind not in "fiub":  # text that spells numbers is refused (a copy only then)
         given = floats(radiosity, "radiosity")
@@ -105,6 +114,18 @@ def checked_radiosity(radiosity, n: int) -> np.ndarray:
     if b.ndim != 2 or b.shape[0] != n or b.shape[1] not in (1, 3):
         raise InvalidInputError(f"radiosity must have shape ({n},), ({n}, 1) or ({n}, 3); got {np.shape(radiosity)}")
     finite(b, "radiosity")
+    low = float(b.min(initial=0.0))
+    if low < 0.0:
+        scale = float(np.abs(b).max())
+        if low < -NEGATIVE_RADIOSITY_TOLERANCE * scale:
+            patch, channel = np.unravel_index(int(np.argmin(b)), b.shape)
+            raise InvalidInputError(
+                f"radiosity is negative beyond rounding: patch {patch} (channel {channel}) holds {low:.4g}, "
+                f"{-low / scale:.3g} of the largest magnitude {scale:.4g} (down to {NEGATIVE_RADIOSITY_TOLERANCE:g} "
+                f"of it is read as rounding, and as 0); {int(np.count_nonzero(b < -NEGATIVE_RADIOSITY_TOLERANCE * scale))} "
+                "values are: light is not negative, check the solution that made them"
+            )
+        b = np.maximum(b, 0.0)
     return np.broadcast_to(b, (n, 3))
 
 

@@ -12,13 +12,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InvalidInputError
+from ..errors import InvalidInputError, OutOfMemoryError
+from ..host.memory import available_host_bytes
 from .scene import Scene
 
 __all__ = ["subdivide", "subdivide_scene"]
 
 #: Refuse to produce more patches than this: a typo in a limit should fail fast, not fill memory.
 MAX_TRIANGLES = 1 << 27
+
+#: Host bytes per patch at the peak of a subdivision and the scene built from it (measured: 325
+#: for :func:`subdivide`'s rounds, its edge tables and the sort by parent, 367 with
+#: :func:`subdivide_scene`'s materials): near :data:`MAX_TRIANGLES` that is 50 GB, so a
+#: subdivision is refused as :class:`~pydynrad.errors.OutOfMemoryError` before it starts where
+#: the process's memory (RLIMIT_AS, the cgroup, the machine) cannot hold it.
+SUBDIVIDE_BYTES_PER_PATCH = 384
 
 _EDGES = np.array([[0, 1], [1, 2], [2, 0]])
 
@@ -103,6 +111,25 @@ def subdivide(points, triangles, max_area: float | None = None, max_edge: float 
             f"subdividing to max_area={max_area}, max_edge={max_edge} would make about {expected:.3g} patches "
             f"(more than {MAX_TRIANGLES})"
         )
+    need, available = expected * SUBDIVIDE_BYTES_PER_PATCH, available_host_bytes()
+    if need > available:
+        raise OutOfMemoryError(
+            f"subdividing to max_area={max_area}, max_edge={max_edge} would make about {expected:.3g} patches, "
+            f"needing about {need / 2**30:.3g} GiB of host memory; {available / 2**30:.3g} GiB is available "
+            "(the machine, the memory cgroup and ulimit -v): use larger limits"
+        )
+    try:
+        return _split(p, tri, max_area, max_edge)
+    except MemoryError as exc:  # the estimate is close, not a bound: numpy's bare error, named
+        raise OutOfMemoryError(
+            f"subdividing to max_area={max_area}, max_edge={max_edge} (about {expected:.3g} patches, "
+            f"{need / 2**30:.3g} GiB estimated, {available / 2**30:.3g} GiB available) ran out of host "
+            f"memory: {exc or 'numpy could not allocate'}; use larger limits"
+        ) from None
+
+
+def _split(p: np.ndarray, tri: np.ndarray, max_area: float | None, max_edge: float | None):
+    """:func:`subdivide`'s rounds, on checked input."""
     parent = np.arange(len(tri), dtype=np.int64)
     n_points = len(p)
     # Every edge split so far, as sorted keys lo << 32 | hi, and the index of its midpoint.

@@ -22,6 +22,16 @@ from ..host.memory import available_host_bytes
 #: the points kept and their inside tests (float64 and int64 arrays, with temporaries).
 WORK_PLANE_BYTES = 96
 
+#: The default spacing reads the shorter side of an elongated area as at least this fraction of
+#: the longer: EN 12464-1's rule follows a corridor's width, but a sliver 1e-9 m wide had made
+#: p = 1e-7 m and 39 million points along 4 m (1 GB, 18 s). At 1/1000 a 4 m sliver gets about
+#: 950 points, and any length L at most about 625 * L^0.3 (L in metres) along it.
+MIN_SIDE_RATIO = 1e-3
+
+#: The most grid points :func:`work_plane` lays out unless its ``max_points`` says otherwise
+#: (EN 12464-1's default spacing gives 10^4 over a square kilometre).
+MAX_WORK_PLANE_POINTS = 1_000_000
+
 __all__ = ["WorkPlane", "work_plane", "en12464_spacing"]
 
 
@@ -77,7 +87,13 @@ def _edge_distance(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
 
 
 def work_plane(
-    polygon, height: float, spacing: float | None = None, border: float = 0.0, up: int | None = None, scene=None
+    polygon,
+    height: float,
+    spacing: float | None = None,
+    border: float = 0.0,
+    up: int | None = None,
+    scene=None,
+    max_points: int = MAX_WORK_PLANE_POINTS,
 ) -> WorkPlane:
     """A grid of sensors at ``height`` over ``polygon``, facing up.
 
@@ -92,6 +108,8 @@ def work_plane(
         Largest grid step; by default EN 12464-1's p for the polygon's longer side, or its
         shorter one where the longer is at least twice it (:func:`en12464_spacing`, in metres:
         converted through ``scene.unit`` when a scene is given, else lengths read as metres).
+        The shorter side is read as at least ``MIN_SIDE_RATIO`` (1/1000) of the longer, so a
+        sliver gets a grid along its length, not one of a billion points.
     border : float
         Width of the strip along the polygon's edges left without points.
     up : int, optional
@@ -99,6 +117,9 @@ def work_plane(
         a coordinate axis, + or -), or 2 (z) without a scene.
     scene : Scene, optional
         The scene the plane lies in: its ``up`` and ``unit`` give the defaults above.
+    max_points : int
+        The most grid points laid out (inside the polygon or not; 10^6 by default): a larger
+        grid is refused with an :class:`InvalidInputError` naming its size, before it is made.
     """
     metres = 1.0
     if scene is not None:
@@ -133,7 +154,9 @@ def work_plane(
         # EN 12464-1's d is the longer side, but the shorter where the longer is twice it or more
         # (a corridor's grid follows its width).
         longer, shorter = float(size.max()), float(size.min())
+        shorter = max(shorter, MIN_SIDE_RATIO * longer)  # a sliver's width is no grid step
         spacing = en12464_spacing((shorter if longer >= 2.0 * shorter else longer) * metres) / metres
+    max_points = integer(max_points, "max_points", 1)
     spacing = number(spacing, "spacing")
     if not (math.isfinite(spacing) and spacing > 0):
         raise InvalidInputError(f"spacing must be a positive length; got {spacing!r}")
@@ -148,6 +171,12 @@ def work_plane(
             f"a work plane of {points:.3g} grid points at spacing {spacing:g} "
             f"would need {need / 2**30:.3g} GiB, more than half the memory available: use a "
             "larger spacing"
+        )
+    if not points <= max_points:
+        raise InvalidInputError(
+            f"a work plane of {counts_f[0]:.0f} x {counts_f[1]:.0f} = {points:.3g} grid points over "
+            f"{size[0]:g} x {size[1]:g} at spacing {spacing:g} is more than max_points = {max_points}: "
+            "use a larger spacing (or raise max_points)"
         )
     counts = counts_f.astype(int)
     steps = size / counts
