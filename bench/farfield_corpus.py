@@ -285,12 +285,12 @@ def farfield_corpus_section(ctx) -> dict:
     for case in cases:
         rows += scene_rows(*case, p, ctx.device)
     return {
-        "title": "The far field on real scenes: error, estimate, leaks, popping, light change (issue 42)",
+        "title": "The far field on real scenes: error, estimate, leaks, popping, light change",
         "description": __doc__.split("\n\n", 1)[1],
         "tables": [
             {
                 "title": f"Corpus and built-ins, R = {p['resolution']}, default far field",
-                "headers": HEADERS,
+                "columns": HEADERS,
                 "rows": rows,
             }
         ],
@@ -309,6 +309,6 @@ if __name__ == "__main__":
     ctx.size, ctx.device = size, pydynrad.default_device()
     out = farfield_corpus_section(ctx)
     table = out["tables"][0]
-    print(" | ".join(table["headers"]))
+    print(" | ".join(table["columns"]))
     for r in table["rows"]:
         print(" | ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in r), flush=True)
