@@ -1,11 +1,16 @@
-// Launch bound (~100 ms on a small GPU tracing ~50 M rays/s): n points x emitting triangles x
-// grid^2 shadow rays in one launch (sensor grids: 1,000 x 100 x 16 = 1.6 M rays, ~30 ms); not split.
+// Launch bound (~100 ms on a small GPU tracing ~50 M rays/s): points x emitting triangles x
+// grid^2 shadow rays. pydynrad/lights/areas.py splits a call into launches of at most
+// EMITTER_RAYS_PER_LAUNCH (2^22) rays, ~84 ms: ranges of emitters j0 .. n_emitters - 1 (each
+// launch after the first adds to out, continuing each point's sum in the same order) and chunks
+// of points (a global offset; n_points is the chunk's end). grid^2 <= 4,096, so a launch holds
+// at least one point and 1,024 emitters.
 // Direct irradiance from emitting patches at points, by the exact point-to-polygon form factor
 // (Lambert's contour integral) times a visibility fraction from shadow rays: accurate however
 // close a point is to an emitter, where a hemicube's pixels are far too coarse.
 //
 // emitters: 4 float4 per emitting triangle: v0, v1, v2 (xyz), its unit normal (xyz);
-// exitance: its emission (float4, rgb). One work-item per point, looping over the emitters.
+// exitance: its emission (float4, rgb). One work-item per point, looping over the emitters j0 ..
+// n_emitters - 1 in order.
 #include "bvh.cl"
 
 // Form factor from a differential area at p with unit normal n to the convex polygon q[0..m-1]
@@ -40,14 +45,15 @@ inline int clip_triangle(float3 p, float3 n, const float3 *t, float3 *out)
 __kernel void emitter_irradiance(__global const float4 *points, __global const float4 *normals, const int n_points,
                                  __global const float4 *emitters, __global const float4 *exitance, const int n_emitters,
                                  __global const float4 *nodes, __global const float4 *tris,
-                                 const float eps, const int grid, __global float4 *out)
+                                 const float eps, const int grid, const int j0, __global float4 *out)
 {
     const int i = get_global_id(0);
     if (i >= n_points) return;
     const float3 p = points[i].xyz, n = normals[i].xyz;
     const float3 org = p + eps * n;
-    float3 acc = (float3)(0.0f);
-    for (int j = 0; j < n_emitters; ++j) {
+    // Emitters j0 .. n_emitters - 1: a launch after the first (j0 > 0) continues the sum it left in out.
+    float3 acc = j0 > 0 ? out[i].xyz : (float3)(0.0f);
+    for (int j = j0; j < n_emitters; ++j) {
         float3 t[3] = {emitters[4 * j].xyz, emitters[4 * j + 1].xyz, emitters[4 * j + 2].xyz};
         const float3 ny = emitters[4 * j + 3].xyz;
         if (BVH_DOT(ny, p - t[0]) <= 0.0f) continue;  // behind the emitter: it emits from its front only

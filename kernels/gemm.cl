@@ -1,7 +1,8 @@
-// Launch bound (~100 ms on a small GPU at 1 TFLOP/s fp32): one launch is m n kdim FMAs. The
-// elimination's launches have kdim = PANEL (128): 2 Mp^2 128 flops, ~69 ms at Mp = 16,384;
-// series() launches kdim = Mp (2 Mp^3 flops: ~100 ms at Mp ~ 3,700). Larger builds exceed the
-// bound and are not split yet (multibounce is an offline precompute, not a frame).
+// Launch bound (~100 ms on a small GPU at 1 TFLOP/s fp32): one launch is m n kdim FMAs.
+// pydynrad/bounces.py (_Builder.gemm) splits every product into launches of whole TM-row blocks
+// of out (through u_off, b_off and o_off) of at most GEMM_FLOPS_PER_LAUNCH (8e10) flops, ~80 ms:
+// series() (kdim = Mp) in blocks of ~4e10 / Mp^2 rows (144 at Mp = 16,384), the elimination's
+// (kdim = PANEL) once Mp passes ~17,000. A single TM-row block exceeds it only past Mp ~ 70,000.
 // out = base + U V  (out, base: m x n; U: m x kdim; V: kdim x n), all row-major in REAL
 // (float or double: STORAGE_FP32 / STORAGE_FP64 via storage.h), each with its own leading
 // dimension and element offset. out may alias base (an in-place update: every element is

@@ -1,5 +1,7 @@
-// Launch bound (~100 ms on a small GPU tracing ~50 M rays/s): n points x n_lights shadow rays
-// in one launch (a frame's patches and lights: 16,384 x 8 = 131 k rays, ~3 ms); not split.
+// Launch bound (~100 ms on a small GPU tracing ~50 M rays/s): one item's n_lights shadow rays per
+// point; pydynrad/lights/sources.py splits the points into launches of at most
+// LIGHT_RAYS_PER_LAUNCH (2^22) / n_lights points (a global offset; n is the chunk's end), so one
+// launch traces at most ~4.2 M rays (~84 ms; one point's n_lights rays if more lights than 2^22).
 // Direct irradiance from analytic lights at patch centres or sensors, with one shadow ray per light
 // (lights.h holds the light packing and the formula).
 #include "lights.h"

@@ -1,7 +1,9 @@
-// Launch bound (~100 ms on a small GPU tracing ~50 M rays/s): a pass is n items x spp paths of
-// at most MAX_DEPTH bounces (2 rays each); pydynrad/pathtracer.py doubles spp per pass from 1 up to
-// _MAX_PASS (16), so a 640 x 480 pass of 16 spp at depth ~3 traces ~30 M rays (~0.6 s): only
-// passes of 1-2 spp stay under the bound at that size.
+// Launch bound (~100 ms on a small GPU tracing ~50 M rays/s): a pass is n items x spp paths,
+// each bounce 2 + n_lights rays; pydynrad/pathtracer.py doubles spp per pass from 1 up to
+// _MAX_PASS (16) and splits each pass into launches over ranges of items (a global offset;
+// n_pixels / n_items is the range's end) of at most PATH_RAYS_PER_LAUNCH (2^22) rays counting
+// 6 bounces a path (~84 ms; Russian roulette ends most paths sooner): a 640 x 480 pass of 16 spp
+// without lights is 15 launches of 21,845 pixels.
 // Reference path tracer: the ground truth that radiosity results are compared against.
 //
 // Every surface is a one-sided Lambertian patch (the side its normal faces), like the

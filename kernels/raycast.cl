@@ -1,6 +1,6 @@
-// Launch bound (~100 ms on a small GPU tracing ~50 M rays/s): cast_closest launches at most
-// CAST_CHUNK (2^18) rays (~5 ms); cast_occluded launches the caller's n rays in one launch (a
-// move's shadow rays: thousands), unbounded for a huge n.
+// Launch bound (~100 ms on a small GPU tracing ~50 M rays/s): pydynrad/geometry/bvh.py launches
+// both kernels in chunks of at most CAST_CHUNK (2^18) rays, ~5 ms (cast_occluded's chunks a whole
+// number of packets, so each packet holds the rays it would in one launch).
 // Batch ray casting against the patch BVH. Used by the BVH tests,
 // the ray-throughput bench and any host code that needs a handful of hits.
 #include "bvh.cl"

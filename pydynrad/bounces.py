@@ -58,6 +58,11 @@ OUTPUT_DTYPES = (np.dtype(np.float16), np.dtype(np.float32), np.dtype(np.float64
 BACKENDS = ("auto", "device", "host")
 
 
+#: Most flops (2 m n kdim) one ``gemm_acc`` launch computes: ~80 ms on a small GPU at
+#: 1 TFLOP/s fp32 (the bound in ``kernels/gemm.cl``'s header); longer products go in row blocks.
+GEMM_FLOPS_PER_LAUNCH = 8 * 10**10
+
+
 def _padded(M: int) -> tuple[int, int]:
     """(panel width, padded size): the system is padded with identity rows to a whole number of
     panels, each a multiple of every GEMM tile."""
@@ -126,26 +131,33 @@ class _Builder:
         if n == 0:
             return
         i32 = np.int32
-        enqueue_kernel(
-            self.device,
-            self.kernel,
-            *self.lay.grid(m, n),
-            i32(m),
-            i32(n),
-            i32(kdim),
-            U,
-            i32(ldu),
-            i32(0),
-            V,
-            i32(ldv),
-            i32(v_off),
-            base,
-            i32(ldb),
-            i32(b_off),
-            out,
-            i32(ldo),
-            i32(o_off),
-        )
+        # Launches of whole TM-row blocks of at most GEMM_FLOPS_PER_LAUNCH flops (2 rows n kdim):
+        # rows r0 .. r0 + rows - 1 through U's, base's and out's offsets. Every element of out is
+        # one work-item's sum over k in order, so the blocks' results are the one launch's.
+        tm = self.lay.tm
+        rows = max(tm, GEMM_FLOPS_PER_LAUNCH // (2 * n * kdim) // tm * tm)
+        for r0 in range(0, m, rows):
+            rm = min(rows, m - r0)
+            enqueue_kernel(
+                self.device,
+                self.kernel,
+                *self.lay.grid(rm, n),
+                i32(rm),
+                i32(n),
+                i32(kdim),
+                U,
+                i32(ldu),
+                i32(r0 * ldu),
+                V,
+                i32(ldv),
+                i32(v_off),
+                base,
+                i32(ldb),
+                i32(b_off + r0 * ldb),
+                out,
+                i32(ldo),
+                i32(o_off + r0 * ldo),
+            )
 
     def read(self, buf) -> np.ndarray:
         import pyopencl as cl

@@ -45,6 +45,12 @@ PATH_TRACE_BYTES_PER_PIXEL = 80
 
 #: Largest number of samples per item in one kernel launch (keeps launches short on GPUs).
 _MAX_PASS = 16
+#: Most rays one pass's launch traces (by the estimate of :meth:`_Tracer.rays_per_path`): ~84 ms
+#: on a small GPU at ~50 M rays/s (the bound in ``kernels/pathtrace.cl``'s header). A pass is
+#: split into launches over ranges of its items (pixels or patches), each item's samples in one.
+PATH_RAYS_PER_LAUNCH = 1 << 22
+#: Bounces per path the launch bound counts (Russian roulette ends most paths well before).
+_BOUNCES_ESTIMATE = 6
 #: Most samples per item (pixel or patch) one call takes. Each item's sum is float32, one pass of
 #: :data:`_MAX_PASS` samples added at a time: at 2^24 samples a pass adds 1e-6 of the sum, ~8
 #: ulps, rounded by up to half of one (6% of what it adds), so more samples buy rounding, not
@@ -60,6 +66,7 @@ class _Tracer:
         integer(max_depth, "max_depth", 1, 2**31 - 1)  # the kernel's int bounce counter
         self.device = device = device or default_device()
         self.defines = {"MAX_DEPTH": int(max_depth)}
+        self.max_depth = int(max_depth)
         em = scene.emitters
         # Areas in the device frame, where the kernel measures distances: the pdf per device area.
         power = scene.emission[em].astype(np.float64).mean(axis=1) * (scene.areas[em] / scene.frame.unit**2)
@@ -77,6 +84,7 @@ class _Tracer:
         lights = checked_lights(lights)
         packed, tables = pack_lights_and_tables(lights, scene.frame)
         n_lights = len(packed)
+        self.n_lights = n_lights
         if not n_lights:
             packed = np.zeros((1, 12), np.float32)  # a buffer cannot be empty; the kernel reads none
         up = device.to_device
@@ -104,6 +112,12 @@ class _Tracer:
             np.float32(scene.frame.length(2.0 * scene.scale)),  # directional shadow rays need only leave the scene
         )
 
+    def rays_per_path(self) -> int:
+        """Rays one path traces, for the launch bound: per bounce one shadow ray per analytic
+        light, one towards an emitter and the bounce ray, over at most :data:`_BOUNCES_ESTIMATE`
+        bounces."""
+        return (2 + self.n_lights) * min(self.max_depth, _BOUNCES_ESTIMATE)
+
     def accumulate(
         self, kernel_name: str, items: tuple, n_items: int, spp: int, seed: int, progress, time_limit: float | None
     ) -> tuple[np.ndarray, int]:
@@ -115,26 +129,32 @@ class _Tracer:
         accum = cl.Buffer(self.device.context, cl.mem_flags.READ_WRITE, size=max(1, n_items) * 16)
         cl.enqueue_fill_buffer(queue, accum, np.float32(0), 0, max(1, n_items) * 16)
         local = (ray_work_group(self.device),)  # an item traces n paths
-        gsize = (global_size(n_items),)
         done, size = 0, 1
         start = time.perf_counter()
         bar = progress_bar(progress, total=spp, unit="spp", desc=f"path tracing ({kernel_name})")
         with bar:
             while done < spp:
                 n = min(size, spp - done)
-                enqueue_kernel(
-                    self.device,
-                    kernel,
-                    gsize,
-                    local,
-                    *items,
-                    np.int32(n_items),
-                    accum,
-                    np.uint32(seed),
-                    np.uint32(done),
-                    np.int32(n),
-                    *self.args,
-                )
+                # Items a .. end - 1 per launch (a global offset; the guard count the chunk's
+                # end): each item's sum is its own work-item's, so the image is the one
+                # launch's, bit for bit.
+                chunk = max(1, PATH_RAYS_PER_LAUNCH // (n * self.rays_per_path()))
+                for a in range(0, n_items, chunk):
+                    end = min(n_items, a + chunk)
+                    enqueue_kernel(
+                        self.device,
+                        kernel,
+                        (global_size(end - a),),
+                        local,
+                        *items,
+                        np.int32(end),
+                        accum,
+                        np.uint32(seed),
+                        np.uint32(done),
+                        np.int32(n),
+                        *self.args,
+                        offset=(a,),
+                    )
                 queue.finish()
                 done += n
                 bar.update(n)

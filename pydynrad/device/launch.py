@@ -203,17 +203,31 @@ def fit_work_group(device, kernel, local: tuple[int, ...], fixed: bool = False) 
     return tuple(out)
 
 
-def enqueue_kernel(device, kernel, global_size: tuple[int, ...], local: tuple[int, ...], *args, fixed: bool = False):
+def enqueue_kernel(
+    device,
+    kernel,
+    global_size: tuple[int, ...],
+    local: tuple[int, ...],
+    *args,
+    fixed: bool = False,
+    offset: tuple[int, ...] | None = None,
+):
     """Enqueue ``kernel(*args)`` on ``device``'s queue over ``global_size`` items in work-groups
     of ``local`` (:func:`fit_work_group`; ``fixed`` as there), each global dimension rounded up
     to whole work-groups: the kernel returns for items past its range. Every launch in pydynrad
     goes through here, so none leaves the work-group size to the runtime (a GPU's choice can
-    exceed what the kernel allows, PoCL's varies with the global size and compiles anew)."""
+    exceed what the kernel allows, PoCL's varies with the global size and compiles anew).
+
+    ``offset``: the global offset (``get_global_id`` starts there), for a long launch split into
+    chunks of items: the kernel's guard count is then the chunk's end, so the rounded-up items
+    past it return."""
     if local is None:
         raise TypeError(f"enqueue_kernel of {kernel.function_name} needs an explicit local size")
     local = fit_work_group(device, kernel, tuple(local), fixed)
     grid = tuple(max(lo, round_up(g, lo)) for g, lo in zip(global_size, local))
-    return kernel(device.queue, grid, local, *args)
+    if offset is None:
+        return kernel(device.queue, grid, local, *args)
+    return kernel(device.queue, grid, local, *args, global_offset=tuple(int(o) for o in offset))
 
 
 def _pow2_at_most(n: int, cap: int) -> int:

@@ -275,10 +275,10 @@ class InstancedBVH:
     upload_once = BVH.upload_once
 
 
-#: Rays per launch of :func:`cast_rays`: the host converts the next chunk while the device
-#: traces one (see there), in buffers of this size whatever the batch. A chunk this size
-#: takes several times longer to trace than to check and convert, so the conversion hides behind
-#: the trace (docs/decisions/0011-ray-tracing.md).
+#: Rays per launch of :func:`cast_rays` and :func:`occluded` (~5 ms on a small GPU). cast_rays
+#: converts the next chunk on the host while the device traces one (see there), in buffers of
+#: this size whatever the batch. A chunk this size takes several times longer to trace than to
+#: check and convert, so the conversion hides behind the trace (docs/decisions/0011-ray-tracing.md).
 CAST_CHUNK = 1 << 18
 
 
@@ -408,25 +408,33 @@ def occluded(scene_or_bvh, origins, directions, tmax=np.inf, device=None) -> np.
     out = np.zeros(n, np.int8)
     if n == 0:
         return out.astype(bool)
-    buf = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
     nodes, tris, _ = bvh.buffers(dev)
     # A fixed work-group: left to choose, PoCL compiles the kernel anew for each new global
     # size (each compile far longer than the trace), and a move's shadow rays vary in number.
     wg = ray_work_group(dev)
     packet = bvh_packet(dev)
-    enqueue_kernel(
-        dev,
-        dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": packet}),  # one program with cast_closest
-        (global_size(-(-n // packet), wg),),
-        (wg,),
-        nodes,
-        tris,
-        dev.to_device(o),
-        dev.to_device(d),
-        dev.to_device(tm),
-        np.int32(n),
-        buf,
-    )
-    cl.enqueue_copy(dev.queue, out, buf)
+    knl = dev.kernel("raycast.cl", "cast_occluded", {"BVH_PACKET": packet})  # one program with cast_closest
+    # Launches of at most CAST_CHUNK rays (kernels/raycast.cl's bound), a whole number of
+    # packets: every packet holds the rays it holds in one launch, so the results are its own.
+    chunk = min(n, max(packet, CAST_CHUNK // packet * packet))
+    mf = cl.mem_flags
+    ins = [cl.Buffer(dev.context, mf.READ_ONLY, chunk * size) for size in (12, 12, 4)]
+    buf = cl.Buffer(dev.context, mf.WRITE_ONLY, chunk)
+    for a in range(0, n, chunk):
+        m = min(chunk, n - a)
+        for dst, host in zip(ins, (o, d, tm)):
+            cl.enqueue_copy(dev.queue, dst, host[a : a + m], is_blocking=False)  # pyopencl holds host until copied
+        enqueue_kernel(
+            dev,
+            knl,
+            (global_size(-(-m // packet), wg),),
+            (wg,),
+            nodes,
+            tris,
+            *ins,
+            np.int32(m),
+            buf,
+        )
+        cl.enqueue_copy(dev.queue, out[a : a + m], buf, is_blocking=False)
     dev.queue.finish()
     return out.astype(bool)

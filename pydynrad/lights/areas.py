@@ -45,6 +45,10 @@ EMITTER_MODES = ("hemicube", "analytic")
 _at_patches: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
+#: Most shadow rays (points x emitters x grid^2) one ``emitter_irradiance`` launch traces: ~84 ms
+#: on a small GPU at ~50 M rays/s (the bound in ``kernels/areas.cl``'s header).
+EMITTER_RAYS_PER_LAUNCH = 1 << 22
+
 #: Most visibility samples per side of an emitter (``grid``): 4,096 shadow rays per point and emitter.
 MAX_GRID = 64
 
@@ -74,26 +78,45 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None, subse
     corners = scene.frame.points(scene.vertices[em])  # the device frame, as the BVH (form factors are scale-free)
     packed = np.concatenate([corners, scene.normals[em][:, None, :]], axis=1).reshape(-1, 3)
     nodes, tris, _ = scene.bvh.buffers(dev)
-    out_dev = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, n * 16)
+    out_dev = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, n * 16)
     kernel = dev.kernel("areas.cl", "emitter_irradiance")
     up = dev.to_device
-    enqueue_kernel(
-        dev,
-        kernel,
-        (global_size(n),),
-        (ray_work_group(dev),),  # an item loops over every emitter's shadow rays
+    args = (
         up(float4(scene.frame.points(points))),
         up(float4(normals)),
-        np.int32(n),
         up(float4(packed)),
         up(float4(scene.emission[em])),
-        np.int32(len(em)),
         nodes,
         tris,
         np.float32(scene.frame.length(SHADOW_EPSILON * scene.ray_scale)),
         np.int32(grid),
-        out_dev,
     )
+    # Launches of at most EMITTER_RAYS_PER_LAUNCH shadow rays: emitters j0 .. j1 - 1 (a later
+    # range adds to each point's sum, in the one launch's order), points a .. end - 1 (the
+    # kernel's guard count the chunk's end). Bit for bit the one launch's result.
+    per_pair = grid * grid
+    emitters = max(1, min(len(em), EMITTER_RAYS_PER_LAUNCH // per_pair))
+    for j0 in range(0, len(em), emitters):
+        j1 = min(len(em), j0 + emitters)
+        chunk = max(1, EMITTER_RAYS_PER_LAUNCH // ((j1 - j0) * per_pair))
+        for a in range(0, n, chunk):
+            end = min(n, a + chunk)
+            enqueue_kernel(
+                dev,
+                kernel,
+                (global_size(end - a),),
+                (ray_work_group(dev),),  # an item loops over every emitter's shadow rays
+                args[0],
+                args[1],
+                np.int32(end),
+                args[2],
+                args[3],
+                np.int32(j1),
+                *args[4:],
+                np.int32(j0),
+                out_dev,
+                offset=(a,),
+            )
     out = np.empty((n, 4), np.float32)
     cl.enqueue_copy(dev.queue, out, out_dev)
     return out[:, :3].astype(np.float64)
