@@ -23,7 +23,7 @@ setup(
     packages=[*find_packages(include=["pydynrad", "pydynrad.*"]), "pydynrad.kernels"],
     package_dir={"pydynrad": "pydynrad", "pydynrad.kernels": "kernels"},
     # py.typed: the package's inline annotations are for type checkers too (PEP 561).
-    package_data={"pydynrad": ["py.typed"], "pydynrad.kernels": ["*.cl", "*.h"]},
+    package_data={"pydynrad": ["py.typed"], "pydynrad.viewer": ["page.html"], "pydynrad.kernels": ["*.cl", "*.h"]},
     ext_modules=[
         Extension(
             f"pydynrad.{name}", sources=[f"csrc/{source}"], extra_compile_args=["-O3", "-std=c99", "-ffp-contract=off"]
