@@ -1,4 +1,4 @@
-"""The far field on real scenes (issue 42): its error, its own estimate of it, leaks, popping and
+"""The far field on real scenes: its error, its own estimate of it, leaks, popping and
 the light change's cost, on the corpus of bench/data/corpus and the built-ins, at default settings.
 
 Per scene (its suggested lights: the corpus.json sun for exteriors, the file's own emitters for

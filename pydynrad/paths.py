@@ -262,8 +262,8 @@ class CameraPath:
         frame, not at frame 700,000 of it.
 
         The views are computed and tested in chunks of :data:`CHECK_CHUNK` frames at once
-        (10^6 frames in about a second, where a :class:`Camera` per frame had taken 97 s to 7
-        minutes); a frame within twice the camera's tolerances of being refused is then made as
+        (a :class:`Camera` per frame is far too slow for a path of millions of frames; the runs are
+        in docs/decisions/0034-robustness-limits.md); a frame within twice the camera's tolerances of being refused is then made as
         its :class:`Camera`, which decides. ``progress``: a bar over the frames
         (:mod:`pydynrad.progress`, for paths of more than one chunk; by default shown once the
         check has run for 2 s)."""

@@ -262,8 +262,8 @@ def walk(
         movie = VideoWriter(video, fps, feature="walk(video=...)")  # the extra and the file, before any work
     n = len(path)
     # Every frame's camera and poses before any work (the solution's build included), not mid-walk:
-    # tested in chunks of frames at once (a Camera and a slerp per frame had taken 97 s to 7
-    # minutes over 10^6 frames, silently); each frame's camera is made when the frame is.
+    # tested in chunks of frames at once (a Camera and a slerp per frame left a long path silent for
+    # minutes before its first frame); each frame's camera is made when the frame is.
     path.check(progress)
     _check_reach(scene, tracks, n, progress)
     refs = _frame_set(reference_frames, n)

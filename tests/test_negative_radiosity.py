@@ -1,5 +1,5 @@
 """render and export_mesh refuse negative radiosity beyond rounding, and show rounding's as 0
-(issue 46, item 11: both had accepted negative radiosity)."""
+(both had accepted negative radiosity)."""
 
 import numpy as np
 import pytest

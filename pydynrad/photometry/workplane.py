@@ -23,8 +23,8 @@ from ..host.memory import available_host_bytes
 WORK_PLANE_BYTES = 96
 
 #: The default spacing reads the shorter side of an elongated area as at least this fraction of
-#: the longer: EN 12464-1's rule follows a corridor's width, but a sliver 1e-9 m wide had made
-#: p = 1e-7 m and 39 million points along 4 m (1 GB, 18 s). At 1/1000 a 4 m sliver gets about
+#: the longer: EN 12464-1's rule follows a corridor's width, so a sliver 1e-9 m wide would get
+#: p = 1e-7 m and 4e7 points along 4 m (docs/decisions/0034-robustness-limits.md). At 1/1000 a 4 m sliver gets about
 #: 950 points, and any length L at most about 625 * L^0.3 (L in metres) along it.
 MIN_SIDE_RATIO = 1e-3
 

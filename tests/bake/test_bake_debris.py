@@ -19,8 +19,8 @@ import pydynrad
 from pydynrad.atomic import TMP_MARK
 from pydynrad.bake.files import remove_stale_temporaries, write_pair
 
-#: Two bakes whose writes take long enough to be hit: at 400 texels per unit the temporaries
-#: exist from ~0.97 to ~1.39 s after "solved:" and the run ends at ~1.6 s (PoCL, 2 cores).
+#: Two bakes whose writes take long enough to be hit: at 400 texels per unit the temporaries exist
+#: for a few tenths of a second after "solved:", which the kill delays below fall around.
 OLD, NEW = ("--texels-per-unit", "300"), ("--texels-per-unit", "400")
 
 

@@ -1,4 +1,4 @@
-"""Every kernel launch states its work-group size (issue 44, 'GPU rules in code').
+"""Every kernel launch states its work-group size ('GPU rules in code').
 
 Runs the Oclgrind cases (tests/oclgrind/cases.py: every kernel of kernels/ on tiny inputs,
 with the GPU layouts and with CPU traits) on the default device with pyopencl's kernel call

@@ -1,4 +1,4 @@
-"""Long launches split on the host (issue 44: no launch above ~100 ms on a small GPU; each
+"""Long launches split on the host (no launch above ~100 ms on a small GPU; each
 kernel's header states its bound): with the split forced down to a few items per launch, every
 split launch gives the one launch's result bit for bit, since each item stays one work-item's
 and its sums keep their order.

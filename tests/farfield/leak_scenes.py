@@ -1,4 +1,4 @@
-"""Scenes where a coarse level could carry light across walls (issue 42): each with its lights,
+"""Scenes where a coarse level could carry light across walls: each with its lights,
 an observer whose local set covers part of the lit region, and nothing else.
 
 Every scene is built of axis-aligned quads cut into square-ish cells; walls have two faces (a

@@ -19,7 +19,7 @@ from pydynrad.host.product import HostBounce, HostMatrix
 def cornell_lit(device):
     scene = pydynrad.scenes.cornell_box()
     F = pydynrad.form_factors(scene, resolution=32, device=device, progress=False)
-    # W/sr in the millimetre box, irradiance per m^2 (issue 41): what 2e5 had lit per mm^2
+    # W/sr in the millimetre box, irradiance per m^2: what 2e5 had lit per mm^2
     lights = [PointLight(position=[278, 450, 280], intensity=[0.2] * 3)]
     L = pydynrad.light_vector(scene, lights, device=device)
     Fd, rho = F.toarray(), scene.albedo.astype(np.float64)

@@ -1,4 +1,4 @@
-"""Leak scenes (issue 42): the far field at its defaults with a local set covering part of the
+"""Leak scenes: the far field at its defaults with a local set covering part of the
 lit region leaves dark what the full solve leaves dark, and its answer and estimate hold."""
 
 import pytest
@@ -29,7 +29,7 @@ def test_dark_stays_dark(device, leak_case, tolerance):
     lit = ref.max(axis=1) > 1e-2 * ref.mean()
     assert local.sum() < 0.5 * lit.sum()  # M covers only part of the lit region
     dark = ref.max(axis=1) < 1e-3 * ref.mean()
-    # Observed (PoCL, AMD EPYC, 2026-12-07): none lit in any scene, B = 0 exactly on the sealed ones.
+    # Observed on PoCL: none lit in any scene, B = 0 exactly on the sealed ones.
     assert B[dark].max(initial=0.0) < 1e-2 * ref.mean()
     err = radiosity_error(B, ref, scene.areas)
     est = dyn.error_estimate

@@ -1,5 +1,5 @@
 """Subdivision under a memory limit: OutOfMemoryError with the numbers, never numpy's bare
-MemoryError (issue 46, item 11: near the subdivision cap under RLIMIT_AS)."""
+MemoryError (near the subdivision cap under RLIMIT_AS)."""
 
 import subprocess
 import sys
