@@ -29,6 +29,7 @@ import scipy.sparse as sp
 from . import _runs
 from .checks import integer, patch_indices
 from .checks import resolution as checked_resolution
+from .defaults import RESOLUTION
 from .device.devices import device_or_default
 from .device.launch import enqueue_kernel, float4, global_size, hemicube_tiles, ray_work_group
 from .errors import InvalidInputError, OutOfMemoryError
@@ -355,7 +356,7 @@ def stack_blocks(blocks, n_cols: int) -> sp.csr_matrix:
 
 
 def form_factors(
-    scene, resolution: int = 64, rows=None, device=None, progress: bool | None = None, samples: int = 1
+    scene, resolution: int = RESOLUTION, rows=None, device=None, progress: bool | None = None, samples: int = 1
 ) -> sp.csr_matrix:
     """Gathering form factors F[i, j] of a scene by hemicubes.
 

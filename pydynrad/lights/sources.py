@@ -137,13 +137,9 @@ LIGHT_TYPES = (PointLight, SpotLight, DirectionalLight)
 _LIGHT_NAMES = "PointLight, SpotLight, DirectionalLight, LuminaireLight or SkyLight"
 
 
-def _photometric_types() -> tuple:
-    return LuminaireLight, SkyLight
-
-
 def checked_lights(lights) -> list:
     """``lights`` (one light object or a sequence) as a list, or InvalidInputError."""
-    kinds = (*LIGHT_TYPES, *_photometric_types())
+    kinds = (*LIGHT_TYPES, LuminaireLight, SkyLight)
     if isinstance(lights, np.ndarray):
         raise InvalidInputError(
             f"lights= takes light objects ({_LIGHT_NAMES}); pass a precomputed light vector as light=L"
@@ -188,13 +184,12 @@ def pack_lights_and_tables(lights, frame=None) -> tuple[np.ndarray, np.ndarray]:
 
 def _packed(lights: list, frame=None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`pack_lights` and :func:`pack_light_tables` of checked ``lights``, in one pass."""
-    luminaire = _photometric_types()[0]
     packed, tables, offset = [], [], 0
     up = getattr(frame, "up", None)
     for light in lights:
         if isinstance(light, LIGHT_TYPES):
             packed.append(light._packed())
-        elif isinstance(light, luminaire):
+        elif isinstance(light, LuminaireLight):
             light = light.placed(up if up is not None else (0.0, 0.0, 1.0))
             packed.append(light._packed(offset))
             tables.append(light._table())

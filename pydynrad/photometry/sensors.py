@@ -13,6 +13,7 @@ import numpy as np
 
 from ..checks import checked_sensors, floats, patch_indices
 from ..checks import resolution as checked_resolution
+from ..defaults import RESOLUTION
 from ..errors import InvalidInputError
 from ..geometry.scene import checked_scene
 from ..lights.areas import checked_grid, emitter_irradiance
@@ -51,7 +52,7 @@ def illuminance(
     lights=(),
     *,
     patches=None,
-    resolution: int = 64,
+    resolution: int = RESOLUTION,
     emitters: str = "auto",
     visibility_grid: int = 4,
     device=None,

@@ -113,10 +113,6 @@ class StoreIncompleteError(PydynradError):
     """Rows were requested from a block that has not been computed yet."""
 
 
-def _library_version() -> str:
-    return __version__
-
-
 def _digest(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, binding: str = "") -> str:
     """SHA-256 of a block's arrays, after ``binding`` (what the block belongs to, see
     :meth:`FormFactorStore._binding`): a block copied from another store, or moved within one,
@@ -269,7 +265,7 @@ def _canonical_params(resolution: int, patching: dict | None, samples: int = 1) 
         "resolution": int(resolution),
         "samples": samples,
         "patching": patch,
-        "pydynrad_version": _library_version(),
+        "pydynrad_version": __version__,
         "dtype": "float32",
     }
 

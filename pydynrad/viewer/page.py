@@ -19,7 +19,9 @@ from __future__ import annotations
 
 from importlib.resources import files
 
-__all__ = ["PAGE"]
+__all__ = ["page_bytes"]
 
-#: The whole page, served at ``/``.
-PAGE = files(__package__).joinpath("page.html").read_text(encoding="utf-8")
+
+def page_bytes() -> bytes:
+    """The whole page, served at ``/``, read when a server starts (not when pydynrad is imported)."""
+    return files(__package__).joinpath("page.html").read_bytes()

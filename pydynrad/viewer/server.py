@@ -13,7 +13,7 @@ import threading
 from collections.abc import Callable
 
 from ..errors import MissingExtraError
-from .page import PAGE
+from .page import page_bytes
 
 __all__ = ["Client", "Server", "require_websockets"]
 
@@ -96,7 +96,7 @@ class Client:
 
 
 class Server:
-    """Serves :data:`~pydynrad.viewer.page.PAGE` and the WebSocket on ``host:port`` (0: any free
+    """Serves :func:`~pydynrad.viewer.page.page_bytes` and the WebSocket on ``host:port`` (0: any free
     port) in a background thread. ``on_connect(client)`` runs when a browser connects,
     ``on_message(client, message)`` for each message it sends (parsed JSON)."""
 
@@ -106,7 +106,7 @@ class Server:
         from websockets.http11 import Response
         from websockets.sync.server import serve
 
-        page = PAGE.encode()
+        page = page_bytes()
 
         def process_request(connection, request):
             path = request.path.split("?")[0]
