@@ -168,7 +168,7 @@ def _sub_for(n: int) -> int:
 
 
 def _walk(scene, frames, seed=0):
-    lo, hi = scene.points.min(axis=0), scene.points.max(axis=0)
+    lo, hi = scene.vertices.min(axis=0), scene.vertices.max(axis=0)
     p = (lo + hi) / 2
     rng = np.random.default_rng(seed)
     step = 0.03 * (hi - lo)

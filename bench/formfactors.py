@@ -155,7 +155,7 @@ def _embree(scene):
     from embreex.mesh_construction import TriangleMesh
 
     es = rtcore_scene.EmbreeScene()
-    TriangleMesh(scene=es, vertices=scene.points.astype(np.float32), indices=scene.triangles.astype(np.int32))
+    TriangleMesh(scene=es, vertices=scene.vertices.astype(np.float32), indices=scene.faces.astype(np.int32))
     return es
 
 

@@ -115,7 +115,7 @@ def _block64(albedo):
     import pydynrad as pd
 
     b = pd.scenes.block(100.0, 1, albedo=albedo)
-    v = b.points[b.triangles]  # (48, 3, 3)
+    v = b.vertices[b.faces]  # (48, 3, 3)
     split = np.abs(b.normals[:, 1]) > 0.5
     t = v[split]
     longest = np.argmax(np.linalg.norm(t - np.roll(t, -1, axis=1), axis=2), axis=1)  # edge k -> k + 1

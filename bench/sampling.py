@@ -58,7 +58,7 @@ def _reordered(scene, seed: int):
     if seed == 0:
         return scene
     p = np.random.default_rng(seed).permutation(len(scene))
-    return Scene(scene.points, scene.triangles[p], albedo=scene.albedo[p], emission=scene.emission[p], name=scene.name)
+    return Scene(scene.vertices, scene.faces[p], albedo=scene.albedo[p], emission=scene.emission[p], name=scene.name)
 
 
 def energy_balance(scene, resolution: int, samples: int, device) -> tuple[np.ndarray, float]:

@@ -43,7 +43,8 @@ from .device.devices import default_device, device_or_default, real_dtype
 from .device.launch import GEMM_GRAIN, PANEL, enqueue_kernel, gemm_layout, round_up
 from .device.matrix import DeviceMatrix
 from .errors import InvalidInputError, OutOfMemoryError
-from .geometry.scene import PrecisionWarning, checked_scene
+from .geometry.loading import checked_scene
+from .geometry.scene import PrecisionWarning
 from .host.blas import one_blas_thread
 from .host.memory import available_host_bytes
 from .host.shortcuts import host_shortcuts
@@ -258,7 +259,7 @@ def multibounce(
         nearest even, the storage rounding) or float64.
     device : Device, optional
     progress : bool, optional
-        Show a tqdm bar; None: on a terminal, for M >= 2048 (:mod:`pydynrad.progress`).
+        Show a tqdm bar; None: once the build has taken two seconds (:mod:`pydynrad.progress`).
     backend : "auto" | "device" | "host"
         Who does the O(M^3) work: "device" the OpenCL kernels, "host" numpy (LAPACK/BLAS),
         "auto" the host when ``device`` is a CPU (its traits say so: ``Device.with_traits(cpu=False)`` or
@@ -276,7 +277,8 @@ def multibounce(
     """
     out, bounces = _checked_options(dtype, bounces, backend)
     device = device_or_default(device)
-    idx = _checked_patches(patches, len(checked_scene(scene)))
+    scene = checked_scene(scene)
+    idx = _checked_patches(patches, len(scene))
     if bounces is None:
         warn_precision(
             float(scene.albedo[idx].max()) if len(idx) else 0.0,
@@ -428,7 +430,7 @@ def _build(
     else:
         steps = 1 if host else builder.Mp // builder.nb
     result = np.empty((C, M, M), dtype=out)
-    with progress_bar(progress, long=M >= 2048, total=C * steps, desc=f"multibounce M={M}", unit="step") as bar:
+    with progress_bar(progress, total=C * steps, desc=f"multibounce M={M}", unit="step") as bar:
         if host:
             F_work = F_SS.astype(work).toarray() if sp.issparse(F_SS) else np.array(F_SS, dtype=work)
             _host_channels(F_work, rho, bounces, result, bar)
@@ -456,7 +458,8 @@ def multibounce_radiosity(scene, K, lights=(), *, light=None, patches=None, devi
     Changing a light or an emission changes only L: one light pass plus this one product.
     """
 
-    idx = _checked_patches(patches, len(checked_scene(scene)))
+    scene = checked_scene(scene)
+    idx = _checked_patches(patches, len(scene))
     L = resolve_light(scene, lights, light, device)
     C, M = (K.C, K.M) if isinstance(K, DeviceMatrix) else (np.shape(K)[0], np.shape(K)[1])
     if M != len(idx) or C not in (1, 3) or (not isinstance(K, DeviceMatrix) and np.shape(K) != (C, M, M)):

@@ -33,7 +33,8 @@ from .defaults import RESOLUTION
 from .device.devices import device_or_default
 from .device.launch import enqueue_kernel, float4, global_size, hemicube_tiles, ray_work_group
 from .errors import InvalidInputError, OutOfMemoryError
-from .geometry.scene import SURFACE_OFFSET, checked_scene
+from .geometry.loading import checked_scene
+from .geometry.scene import SURFACE_OFFSET
 from .host.memory import available_host_bytes
 from .progress import progress_bar
 
@@ -64,9 +65,6 @@ CLUSTER_RESOLUTION = 24
 #: Peak host memory of :func:`pixel_form_factors` per R^2, rounded up: 708 bytes measured at
 #: R = 1024 and 2048 (the pixels' corner polygons in float64), so R = 4096 needs 11 GiB.
 PIXEL_WEIGHT_BYTES_PER_R2 = 720
-
-#: Show a progress bar on a terminal when a call casts more rays than this.
-LONG_RUN_RAYS = 50_000_000
 
 
 def _polygon_form_factor(corners: np.ndarray) -> np.ndarray:
@@ -161,10 +159,11 @@ def sample_points(scene, rows, samples: int = 1) -> np.ndarray:
     ``samples`` must be a power of 4 and ``rows`` patch indices (InvalidInputError otherwise).
     """
     levels = _sample_levels(samples)
-    rows = patch_indices(rows, len(checked_scene(scene)), "rows")
+    scene = checked_scene(scene)
+    rows = patch_indices(rows, len(scene), "rows")
     if levels == 0:
         return scene.centers[rows][:, None]
-    return np.einsum("mc,rcx->rmx", _stratum_centroids(levels), scene.vertices[rows])
+    return np.einsum("mc,rcx->rmx", _stratum_centroids(levels), scene.triangles[rows])
 
 
 def _runs_to_csr(patch, weight, count, n_cols: int) -> sp.csr_matrix:
@@ -217,7 +216,8 @@ def hemicube_blocks(
     are checked here, and the first block is queued on the device before this returns (as
     :func:`hemicube_runs`).
     """
-    n_cols = len(checked_scene(scene)) if clusters is None else clusters[2]
+    scene = checked_scene(scene)
+    n_cols = len(scene) if clusters is None else clusters[2]
     runs = hemicube_runs(scene, resolution, rows, device, progress, desc=desc, clusters=clusters, samples=samples)
     return (_runs_to_csr(*r, n_cols) for r in runs)
 
@@ -249,7 +249,8 @@ def hemicube_runs(
         raise InvalidInputError(
             f"resolution {R_total} needs more memory per hemicube than {dev.name} allows in one buffer"
         )
-    n = len(checked_scene(scene))
+    scene = checked_scene(scene)
+    n = len(scene)
     rows = np.arange(n, dtype=np.int32) if rows is None else patch_indices(rows, n, "rows").astype(np.int32)
     if len(rows) == 0:
         return iter(())
@@ -330,10 +331,8 @@ def hemicube_runs(
             cl.enqueue_copy(dev.queue, h, d)
         return host
 
-    long = len(rows) > block and len(rows) * S * R > LONG_RUN_RAYS
-
     def blocks(b: int):
-        with progress_bar(progress, long=long, total=len(rows), unit="patch", desc=f"{desc} R={R}") as bar:
+        with progress_bar(progress, total=len(rows), unit="patch", desc=f"{desc} R={R}") as bar:
             runs = read(b, 0)
             for k, first in enumerate(range(0, len(rows), block)):
                 following = launch(first + block, (k + 1) % 2) if first + block < len(rows) else 0
@@ -370,7 +369,7 @@ def form_factors(
     device : Device, optional
         The OpenCL device (default: :func:`pydynrad.default_device`).
     progress : bool, optional
-        Show a tqdm bar; None: on a terminal, for runs over LONG_RUN_RAYS rays (:mod:`pydynrad.progress`).
+        Show a tqdm bar; None: once the run has taken two seconds (:mod:`pydynrad.progress`).
     samples : int
         Hemicubes per row (1, 4, 16, ...): each row averages hemicubes at the centroids of
         ``samples`` equal strata of its patch, each of resolution R / sqrt(samples), so the rays
@@ -383,5 +382,6 @@ def form_factors(
         Row k holds patch ``rows[k]``'s form factors to every patch (fraction of the energy
         leaving it that arrives at each). ``F[i, i] = 0``.
     """
-    n = len(checked_scene(scene))
+    scene = checked_scene(scene)
+    n = len(scene)
     return stack_blocks(hemicube_blocks(scene, resolution, rows, device, progress, samples=samples), n)

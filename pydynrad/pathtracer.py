@@ -32,7 +32,8 @@ from .device.devices import default_device
 from .device.launch import enqueue_kernel, float4, global_size, ray_work_group
 from .errors import InvalidInputError
 from .geometry.camera import Camera, check_image_memory
-from .geometry.scene import Scene, checked_scene
+from .geometry.loading import checked_scene
+from .geometry.scene import Scene
 from .lights.sky import pack_sky
 from .lights.sources import SHADOW_EPSILON, checked_lights, pack_lights_and_tables
 from .progress import progress_bar
@@ -62,7 +63,7 @@ class _Tracer:
     """A scene's and its lights' device buffers (the kernels' SCENE_ARGS) and the bounce limit."""
 
     def __init__(self, scene: Scene, lights, max_depth: int, device) -> None:
-        checked_scene(scene)
+        scene = checked_scene(scene)
         integer(max_depth, "max_depth", 1, 2**31 - 1)  # the kernel's int bounce counter
         self.device = device = device or default_device()
         self.defines = {"MAX_DEPTH": int(max_depth)}
@@ -74,7 +75,7 @@ class _Tracer:
             inv_power = 1.0 / power.sum()  # the kernel turns this into each emitter's area pdf
             cdf = np.cumsum(power * inv_power)
             cdf[-1] = 1.0 + 1e-6  # every u in [0, 1) finds an emitter despite rounding
-            v = scene.frame.points(scene.vertices[em]).astype(np.float64)
+            v = scene.frame.points(scene.triangles[em]).astype(np.float64)
             tri = np.stack([v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], np.zeros_like(v[:, 0])], axis=1)
             tri = float4(tri.reshape(-1, 3))
             tri.reshape(len(em), 4, 4)[:, 3, :3] = scene.normals[em]
@@ -205,7 +206,8 @@ def path_trace(
     max_depth : int
         Bounce limit; Russian roulette ends most paths long before it.
     progress : bool, optional
-        Show a tqdm bar over the samples; None: when stderr is a terminal.
+        Show a tqdm bar over the samples; None: once tracing has taken two seconds
+        (:mod:`pydynrad.progress`).
     time_limit : float, optional
         Stop after the pass that exceeds this many seconds (the image averages the samples done).
 
@@ -217,6 +219,7 @@ def path_trace(
         escapes or reaches a patch's back are 0 (``render``'s default background and backface).
     """
     _check_common(spp, seed, time_limit)
+    scene = checked_scene(scene)
     tracer = _Tracer(scene, lights, max_depth, device)
     if not isinstance(camera, Camera):
         raise InvalidInputError(f"camera must be a pydynrad.Camera; got {type(camera).__name__}")
@@ -261,7 +264,7 @@ def path_trace_patches(
     (n, 3) float32 radiosity (the scene's emission units).
     """
     _check_common(spp, seed, time_limit)
-    checked_scene(scene)
+    scene = checked_scene(scene)
     ids = np.arange(len(scene)) if patches is None else patch_indices(patches, len(scene), "patches")
     if len(ids) == 0:
         return np.zeros((0, 3), dtype=np.float32)

@@ -19,16 +19,14 @@ from .defaults import PROGRESS_DELAY
 __all__ = ["progress_bar", "shows_progress"]
 
 
-def shows_progress(progress: bool | None, long: bool = True) -> bool:
-    """Whether a bar may be shown: ``progress`` itself; for None, yes (after the delay).
-    ``long`` is accepted for callers of earlier releases and no longer matters: the delay is
-    the rule."""
+def shows_progress(progress: bool | None) -> bool:
+    """Whether a bar may be shown: ``progress`` itself; for None, yes (after the delay)."""
     return True if progress is None else bool(progress)
 
 
-def progress_bar(progress: bool | None, *, long: bool = True, **tqdm_options):
+def progress_bar(progress: bool | None, **tqdm_options):
     """A ``tqdm.auto.tqdm`` (``total=``, ``desc=``, ``unit=``, or an iterable) by the rule above."""
     from tqdm.auto import tqdm
 
     tqdm_options.setdefault("delay", PROGRESS_DELAY if progress is None else 0.0)
-    return tqdm(disable=not shows_progress(progress, long), **tqdm_options)
+    return tqdm(disable=not shows_progress(progress), **tqdm_options)

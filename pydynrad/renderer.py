@@ -29,7 +29,7 @@ from .device.devices import default_device
 from .device.launch import WG, enqueue_kernel, global_size
 from .errors import InvalidInputError
 from .geometry.camera import Camera, check_image_memory
-from .geometry.scene import checked_scene
+from .geometry.loading import checked_scene
 from .smoothing import checked_radiosity as _as_radiosity
 from .smoothing import smooth_vertices, smoothing_groups
 
@@ -146,7 +146,7 @@ class Renderer:
         """Trace an 8 x 8 image once, so that the first :meth:`render` of a frame loop does not
         wait for PoCL to compile the visibility kernel (compiled at its first launch, per
         local size: every launch uses the same one)."""
-        corners = self.scene.vertices.reshape(-1, 3)
+        corners = self.scene.triangles.reshape(-1, 3)
         lo, hi = corners.min(axis=0), corners.max(axis=0)
         centre = 0.5 * (lo + hi)
         self.visibility(Camera(centre + (hi - lo), centre, width=8, height=8))

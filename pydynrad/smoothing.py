@@ -21,7 +21,7 @@ import numpy as np
 
 from .checks import finite, floats, number
 from .errors import InvalidInputError
-from .geometry.scene import checked_scene
+from .geometry.loading import checked_scene
 
 __all__ = ["SmoothVertices", "checked_radiosity", "smooth_vertices", "smoothing_groups"]
 
@@ -53,8 +53,8 @@ def smoothing_groups(scene, crease_angle: float = 30.0) -> tuple[np.ndarray, int
         raise InvalidInputError(f"crease_angle must be in [0, 180] degrees; got {crease_angle!r}")
     n = len(scene)
     # Points are identified by position, so meshes stored with duplicated vertices still smooth.
-    _, point_id = np.unique(scene.points, axis=0, return_inverse=True)
-    corner_point = point_id.reshape(-1)[scene.triangles].reshape(-1)
+    _, point_id = np.unique(scene.vertices, axis=0, return_inverse=True)
+    corner_point = point_id.reshape(-1)[scene.faces].reshape(-1)
     corner_patch = np.repeat(np.arange(n), 3)
     order = np.argsort(corner_point, kind="stable")
     sorted_point = corner_point[order]
@@ -183,7 +183,7 @@ def smooth_vertices(scene, crease_angle: float = 30.0) -> SmoothVertices:
     if found is None:
         groups, n_groups = smoothing_groups(scene, key)
         positions = np.zeros((n_groups, 3), dtype=np.float32)
-        positions[groups.reshape(-1)] = scene.vertices.reshape(-1, 3)
+        positions[groups.reshape(-1)] = scene.triangles.reshape(-1, 3)
         weight = np.repeat(scene.areas.astype(np.float64), 3)
         found = per_scene[key] = SmoothVertices(groups, positions, weight)
     return found

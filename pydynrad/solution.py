@@ -33,9 +33,11 @@ from .device.devices import device_or_default, real_dtype
 from .device.launch import sell_layout
 from .device.sell import DeviceSELL
 from .errors import ConvergenceError, InvalidInputError, OutOfMemoryError
+from .geometry.loading import checked_scene
 from .host.memory import available_host_bytes
 from .lights.areas import analytic_emitter_light
 from .lights.sources import check_radiosity_range, checked_light_vector
+from .progress import progress_bar
 
 __all__ = ["Solution", "RadiositySolver", "solve", "DENSE_MAX_PATCHES"]
 
@@ -101,6 +103,7 @@ class RadiositySolver:
     """
 
     def __init__(self, scene, F, dtype=np.float32, device=None, *, layout: tuple[int, int] | None = None) -> None:
+        scene = checked_scene(scene)
         self.scene, self.device = scene, device_or_default(device)
         self.dtype = real_dtype(dtype, self.device)
         F = check_form_factors(scene, F)
@@ -142,6 +145,7 @@ class RadiositySolver:
         max_iterations: int = 10000,
         bounces: int | None = None,
         raise_on_failure: bool = True,
+        progress: bool | None = None,
     ) -> Solution:
         """B for light vector L (N, 3). See :func:`solve` for the parameters."""
         L = checked_light_vector(L, self._n)
@@ -151,10 +155,18 @@ class RadiositySolver:
         nch = _channels(self.scene, L)
         rho = self.scene.albedo.astype(np.float64)[:, :nch]
         t0 = time.perf_counter()
-        # A fixed number of bounces never stops early (tol < 0).
-        B, it, residual, history = self._matrix(nch).jacobi(
-            L[:, :nch], rho, L[:, :nch], tol if bounces is None else -1.0, max_iterations
-        )
+        # The number of sweeps is unknown ahead (about ln(tol) / ln(albedo)): the bar counts them
+        # and shows the change the stopping rule reads.
+        with progress_bar(progress, desc=f"solve N={self._n}", unit="sweep") as bar:
+
+            def step(change: float) -> None:
+                bar.set_postfix_str(f"change {change:.2g}", refresh=False)
+                bar.update(1)
+
+            # A fixed number of bounces never stops early (tol < 0).
+            B, it, residual, history = self._matrix(nch).jacobi(
+                L[:, :nch], rho, L[:, :nch], tol if bounces is None else -1.0, max_iterations, step=step
+            )
         seconds = time.perf_counter() - t0
         converged = residual <= tol
         if bounces is None and not converged and raise_on_failure:
@@ -248,6 +260,7 @@ def solve(
     raise_on_failure: bool = True,
     light=None,
     emitters: str = "hemicube",
+    progress: bool | None = None,
 ) -> Solution:
     """Radiosity B = L + P F B over all patches.
 
@@ -277,6 +290,9 @@ def solve(
         where hemicube rows are coarse) by the exact point-to-polygon form factor with shadow
         rays, solving for ``B - E`` (:func:`pydynrad.lights.areas.reflected_light_vector`);
         then ``Solution.light`` is that reflected light vector. Only with ``lights=``.
+    progress : bool, optional
+        A tqdm bar counting the iterative solve's sweeps; None: once the solve has taken two
+        seconds (:mod:`pydynrad.progress`); False: never.
 
     Returns
     -------
@@ -284,13 +300,19 @@ def solve(
     """
     if method not in ("iterative", "dense"):
         raise InvalidInputError(f"unknown method {method!r}; allowed: 'iterative', 'dense'")
+    scene = checked_scene(scene)
     L, E = analytic_emitter_light(scene, lights, light, emitters, device)
     if method == "dense":
         sol = _dense_solve(scene, check_form_factors(scene, F), L)
     else:
         solver = RadiositySolver(scene, F, dtype=dtype, device=device)
         sol = solver.solve(
-            L, tol=tol, max_iterations=max_iterations, bounces=bounces, raise_on_failure=raise_on_failure
+            L,
+            tol=tol,
+            max_iterations=max_iterations,
+            bounces=bounces,
+            raise_on_failure=raise_on_failure,
+            progress=progress,
         )
     if E is not None:
         sol.radiosity = sol.radiosity + E

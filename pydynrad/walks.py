@@ -35,6 +35,7 @@ from .dynamic.moves import MovingObjects
 from .errors import InvalidInputError
 from .formfactors import form_factors as hemicubes
 from .geometry.camera import Camera
+from .geometry.loading import checked_scene
 from .geometry.objects import MAX_REACH, check_reach
 from .image_io import _format_for, write_image
 from .paths import (
@@ -260,6 +261,7 @@ def walk(
     movie = None
     if video is not None:
         movie = VideoWriter(video, fps, feature="walk(video=...)")  # the extra and the file, before any work
+    scene = checked_scene(scene)
     n = len(path)
     # Every frame's camera and poses before any work (the solution's build included), not mid-walk:
     # tested in chunks of frames at once (a Camera and a slerp per frame left a long path silent for

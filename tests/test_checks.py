@@ -4,7 +4,7 @@ import pytest
 import pydynrad
 from pydynrad.checks import finite, integer, number, vec3
 from pydynrad.errors import InvalidInputError
-from pydynrad.geometry.scene import checked_scene as scene
+from pydynrad.geometry.loading import checked_scene as scene
 
 
 def test_vec3_accepts_three_finite_numbers():
@@ -51,7 +51,7 @@ def test_number_and_scene():
     for bad in ("wide", None, (1, 2), np.nan):
         with pytest.raises(InvalidInputError, match="fov must be"):
             number(bad, "fov")
-    with pytest.raises(InvalidInputError, match="scene must be a pydynrad.Scene; got str"):
+    with pytest.raises(InvalidInputError, match="scene must be a pydynrad.Scene or a trimesh mesh; got str"):
         scene("cornell_box")
     # A Python int past float64 is a value error with a message a line long, not an OverflowError.
     with pytest.raises(InvalidInputError, match=r"fov must be one finite number; got 1000.{0,60}\.\.\. \(int\)$"):

@@ -180,8 +180,8 @@ def occluded_plates(front_facing: bool, covers: float):
     occ = np.column_stack([quad, np.full(4, z)])
     occ_tris = np.array([[0, 2, 1], [0, 3, 2]]) if front_facing else np.array([[0, 1, 2], [0, 2, 3]])
     p, t, _ = subdivide(occ, occ_tris, max_area=covers / 32 * 1.0001)
-    pts = np.vstack([base.points, p])
-    tris = np.vstack([base.triangles, t + len(base.points)])
+    pts = np.vstack([base.vertices, p])
+    tris = np.vstack([base.faces, t + len(base.vertices)])
     group = np.concatenate([base.source_face // 2, np.full(len(t), 2)])
     return Scene(pts, tris), group
 
@@ -349,7 +349,7 @@ def test_sample_points_are_the_centroids_of_the_midpoint_subdivision(levels):
     from pydynrad.formfactors import sample_points
 
     scene = perpendicular_plates(subdivisions=0)  # two right triangles per plate, of different shapes
-    points, tri, parent = subdivide(scene.points, scene.triangles, max_area=scene.areas.max() / 4**levels * 1.001)
+    points, tri, parent = subdivide(scene.vertices, scene.faces, max_area=scene.areas.max() / 4**levels * 1.001)
     got = sample_points(scene, np.arange(len(scene)), 4**levels)
     assert got.shape == (len(scene), 4**levels, 3)
     for i in range(len(scene)):

@@ -81,7 +81,7 @@ def test_mesh_objects_are_read_relative_to_the_path_file(tmp_path):
     cube = pd.scenes.block(2.0, 0)
     sub = tmp_path / "meshes"
     sub.mkdir()
-    lines = [f"v {x} {y} {z}" for x, y, z in cube.points] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in cube.triangles]
+    lines = [f"v {x} {y} {z}" for x, y, z in cube.vertices] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in cube.faces]
     (sub / "cube.obj").write_text("\n".join(lines) + "\n")
     doc = dict(
         CAMERA,
@@ -97,8 +97,8 @@ def test_mesh_objects_are_read_relative_to_the_path_file(tmp_path):
     (track,) = load_walk(write(tmp_path, doc)).objects
     obj = track.object
     assert obj.name == "cube" and len(obj) == len(cube) and track.interpolation == "linear"
-    corners = obj.world_points()[obj.scene.triangles]  # the loader merges shared vertices; triangles keep order
-    np.testing.assert_allclose(corners, (cube.points + [1, 2, 3])[cube.triangles], atol=1e-6)
+    corners = obj.world_points()[obj.scene.faces]  # the loader merges shared vertices; triangles keep order
+    np.testing.assert_allclose(corners, (cube.vertices + [1, 2, 3])[cube.faces], atol=1e-6)
     np.testing.assert_array_equal(obj.scene.emission, np.tile([5.0, 5.0, 4.0], (len(cube), 1)))
 
 

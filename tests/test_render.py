@@ -9,7 +9,7 @@ from pydynrad.renderer import Renderer, render, smoothing_groups
 def cast_camera(scene, camera):
     """:func:`helpers.brute_force_hits` for every pixel's ray: patch (H, W), barycentrics
     (H, W, 3), front (H, W) and margin (H, W)."""
-    h = brute_force_hits(scene.vertices, camera.position, camera.ray_directions())
+    h = brute_force_hits(scene.triangles, camera.position, camera.ray_directions())
     shape = camera.shape
     return h.patch.reshape(shape), h.barycentric.reshape(*shape, 3), h.front.reshape(shape), h.margin.reshape(shape)
 

@@ -31,7 +31,7 @@ from ..bounces import multibounce_radiosity
 from ..checks import flag, floats
 from ..dynamic import DynamicRadiosity
 from ..errors import InvalidInputError
-from ..geometry.scene import checked_scene
+from ..geometry.loading import checked_scene
 from ..lights.sources import checked_light_vector, direct_irradiance
 from ..solution import RadiositySolver, solve
 

@@ -36,9 +36,10 @@ from ..checks import number, stops
 from ..device.devices import default_device
 from ..device.launch import enqueue_kernel, global_size, ray_work_group
 from ..errors import InvalidInputError, OutOfMemoryError
-from ..geometry.scene import checked_scene
+from ..geometry.loading import checked_scene
 from ..host.memory import available_host_bytes
 from ..image_io import LINEAR_FORMATS, write_image
+from ..progress import progress_bar
 from ..smoothing import smooth_vertices
 from .files import write_checked, write_pair
 from .vertex import checked_mesh_path, mesh_bytes, mesh_metadata
@@ -369,7 +370,14 @@ def _dilate(image: np.ndarray, filled: np.ndarray, rings: int) -> None:
 
 
 def bake_lightmap(
-    scene, radiosity, texels_per_unit: float, *, padding: int = 2, crease_angle: float = 30.0, device=None
+    scene,
+    radiosity,
+    texels_per_unit: float,
+    *,
+    padding: int = 2,
+    crease_angle: float = 30.0,
+    device=None,
+    progress: bool | None = None,
 ) -> Lightmap:
     """Bake a radiosity solution into a lightmap.
 
@@ -388,6 +396,9 @@ def bake_lightmap(
         Degrees; see :func:`pydynrad.render`.
     device : Device, optional
         Runs the rasterising kernels (``kernels/lightmap.cl``); the process default when omitted.
+    progress : bool, optional
+        A tqdm bar over the bake's stages (smooth vertices, atlas, rasterise, dilate); None:
+        once the bake has taken two seconds (:mod:`pydynrad.progress`); False: never.
 
     Returns
     -------
@@ -400,16 +411,21 @@ def bake_lightmap(
         raise InvalidInputError(f"texels_per_unit must be > 0; got {texels_per_unit!r}")
     if isinstance(padding, bool) or not isinstance(padding, (int, np.integer)) or not 1 <= padding <= 64:
         raise InvalidInputError(f"padding must be a whole number of texels in 1..64; got {padding!r}")
-    smooth = smooth_vertices(scene, crease_angle)
-    values = smooth.radiosity(radiosity)  # checks the radiosity before the atlas is built
-    check_texel_density(scene, tpu)
-    vmapping, faces, uv, w, h = _atlas(smooth.positions, smooth.corner_vertex, tpu, int(padding))
-    _check_memory(float(w) * h, f"{w}x{h} texels")
-    vertex_values = values[vmapping]
-    corners = (uv.astype(np.float64) * [w, h])[faces]
-
-    image, covered, filled = _rasterise(corners, vertex_values[faces], h, w, device or default_device())
-    _dilate(image, filled, int(padding))
+    # xatlas reports nothing while it packs, so the bar counts stages: its time, not a fraction.
+    with progress_bar(progress, total=4, desc="bake lightmap", unit="stage") as bar:
+        smooth = smooth_vertices(scene, crease_angle)
+        values = smooth.radiosity(radiosity)  # checks the radiosity before the atlas is built
+        check_texel_density(scene, tpu)
+        bar.update(1)
+        vmapping, faces, uv, w, h = _atlas(smooth.positions, smooth.corner_vertex, tpu, int(padding))
+        _check_memory(float(w) * h, f"{w}x{h} texels")
+        vertex_values = values[vmapping]
+        corners = (uv.astype(np.float64) * [w, h])[faces]
+        bar.update(1)
+        image, covered, filled = _rasterise(corners, vertex_values[faces], h, w, device or default_device())
+        bar.update(1)
+        _dilate(image, filled, int(padding))
+        bar.update(1)
     return Lightmap(
         image=image,
         covered=covered,

@@ -29,7 +29,8 @@ import numpy as np
 from ..atomic import check_file_target
 from ..checks import stops
 from ..errors import InvalidInputError
-from ..geometry.scene import checked_scene, rotation_to
+from ..geometry.loading import checked_scene
+from ..geometry.scene import rotation_to
 from ..image_io import srgb_encode
 from ..smoothing import smooth_vertices
 from .files import write_checked

@@ -182,7 +182,7 @@ def _light(text: str):
 
 
 def _progress(args) -> bool | None:
-    """--quiet: no bars; otherwise the library's rule (bars on a terminal)."""
+    """--quiet: no bars; otherwise the library's rule (a bar once the work has taken two seconds)."""
     return False if args.quiet else None
 
 
@@ -492,7 +492,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     _checked_target(args.output)  # reject a bad image name before any work
     scene = load_scene(args.scene, args.max_edge)
     camera = _default_camera(scene, args)
-    sol = solve(scene, whole_matrix(_form_factors(args, scene)), args.light)
+    sol = solve(scene, whole_matrix(_form_factors(args, scene)), args.light, progress=_progress(args))
     img = render(scene, sol.radiosity, camera, args.shading)
     linear = _format_for(Path(args.output))[1]  # auto: linear float images keep their values
     write_image(args.output, img, 0.0 if linear and args.exposure == "auto" else _chosen_exposure(args, img))
@@ -541,7 +541,7 @@ def _cmd_bake(args: argparse.Namespace) -> int:
     print(f"scene: {scene!r}")
     if args.lightmap:
         check_texel_density(scene, _texels_per_unit(args, scene))  # before the solve it would waste
-    sol = solve(scene, whole_matrix(_form_factors(args, scene)), args.light)
+    sol = solve(scene, whole_matrix(_form_factors(args, scene)), args.light, progress=_progress(args))
     print(f"solved: {sol.iterations} bounces, {len(args.light)} light(s) besides the emission")
     if not sol.radiosity.any():
         _warn_black(f"the bake of {args.scene}", False)
@@ -552,7 +552,9 @@ def _cmd_bake(args: argparse.Namespace) -> int:
         print(f"wrote {out} (vertex colours, {time.perf_counter() - t0:.2f} s)")
         return 0
     tpu = _texels_per_unit(args, scene)
-    lm = bake_lightmap(scene, sol.radiosity, tpu, padding=args.padding, crease_angle=args.crease_angle)
+    lm = bake_lightmap(
+        scene, sol.radiosity, tpu, padding=args.padding, crease_angle=args.crease_angle, progress=_progress(args)
+    )
     # As one pair: a mesh never beside a lightmap not its own, even after kill -9.
     lm.write_pair(out, lightmap_path, exposure=exposure)
     h, w = lm.shape

@@ -32,11 +32,11 @@ def row_blocks(indptr: np.ndarray, blocks: int) -> np.ndarray:
     return np.maximum.accumulate(blk).astype(np.int32)
 
 
-def sweeps(device, bounce, x, y, partial_buf, blocks: int, dtype, tol: float, max_sweeps: int):
+def sweeps(device, bounce, x, y, partial_buf, blocks: int, dtype, tol: float, max_sweeps: int, step=None):
     """Run ``bounce(x, y)`` (enqueue y from x, each block's ``max |y - x|`` and ``max |y|`` into
     ``partial_buf``), swapping x and y, until the relative change ``max|y - x| / max|y|`` is <= tol
-    or ``max_sweeps`` ran. Returns (the buffer holding the last iterate, the last change, every
-    sweep's change)."""
+    or ``max_sweeps`` ran; ``step(change)``, if given, after each sweep (a progress bar). Returns
+    (the buffer holding the last iterate, the last change, every sweep's change)."""
     import pyopencl as cl
 
     partial = np.empty((blocks, 2), dtype=dtype)
@@ -49,6 +49,8 @@ def sweeps(device, bounce, x, y, partial_buf, blocks: int, dtype, tol: float, ma
         scale = float(partial[:, 1].max())
         change = float(partial[:, 0].max()) / scale if scale > 0 else 0.0
         history.append(change)
+        if step is not None:
+            step(change)
         if change <= tol:
             break
     return x, change, history
@@ -144,7 +146,14 @@ class DeviceCSR:
         return out[:, :k].astype(np.float64)
 
     def jacobi(
-        self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float, max_sweeps: int, mixing: int = 0
+        self,
+        L: np.ndarray,
+        rho: np.ndarray,
+        x0: np.ndarray,
+        tol: float,
+        max_sweeps: int,
+        mixing: int = 0,
+        step=None,
     ) -> tuple[np.ndarray, int, float, list[float]]:
         """Iterate x <- L + rho * (A x) from x0 (A square) until the relative max-norm change
         ``max |x_new - x| / max |x_new|`` is <= tol (never, for tol < 0) or ``max_sweeps`` ran.
@@ -152,7 +161,8 @@ class DeviceCSR:
         ``mixing`` > 0: each next x is the Anderson mixing (:class:`pydynrad.host.anderson.Anderson`,
         that many earlier steps) of the sweeps' images, on the host in float64 (each sweep then
         reads its image back and uploads the next x: (n, 4) REALs each way); the change is
-        that of the last sweep, from its x to its image, which the answer is.
+        that of the last sweep, from its x to its image, which the answer is. ``step(change)``,
+        if given, runs after each sweep (a progress bar).
 
         Returns (x, sweeps, the last relative change, every sweep's relative change); x is
         float64 of x0's shape, computed in this matrix's type.
@@ -172,7 +182,7 @@ class DeviceCSR:
         out = np.empty((n, width), dtype=self.dtype)
         if mixing > 0:
             return self._mixed(
-                L_buf, rho_buf, np.asarray(x0, np.float64), x, y, partial_buf, out, tol, max_sweeps, mixing
+                L_buf, rho_buf, np.asarray(x0, np.float64), x, y, partial_buf, out, tol, max_sweeps, mixing, step
             )
         x, change, history = sweeps(
             d,
@@ -184,6 +194,7 @@ class DeviceCSR:
             self.dtype,
             tol,
             max_sweeps,
+            step,
         )
         cl.enqueue_copy(d.queue, out, x, is_blocking=True)
         return out[:, :k].astype(np.float64), len(history), change, history
@@ -200,6 +211,7 @@ class DeviceCSR:
         tol: float,
         max_sweeps: int,
         depth: int,
+        step,
     ) -> tuple[np.ndarray, int, float, list[float]]:
         """:meth:`jacobi` with Anderson mixing from u (n, k) float64 (already in ``x_buf``)."""
         import pyopencl as cl
@@ -217,6 +229,8 @@ class DeviceCSR:
             scale = float(np.abs(fu).max())
             change = float(np.abs(residual).max()) / scale if scale > 0 else 0.0
             history.append(change)
+            if step is not None:
+                step(change)
             if change <= tol or len(history) >= max_sweeps:
                 return fu, len(history), change, history
             u = mixer.next(fu, residual)

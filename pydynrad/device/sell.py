@@ -109,7 +109,7 @@ class DeviceSELL:
         return kernel
 
     def jacobi(
-        self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float, max_sweeps: int
+        self, L: np.ndarray, rho: np.ndarray, x0: np.ndarray, tol: float, max_sweeps: int, step=None
     ) -> tuple[np.ndarray, int, float, list[float]]:
         """See :meth:`pydynrad.device.csr.DeviceCSR.jacobi`; k = 1 or 3 channels."""
         import pyopencl as cl
@@ -128,7 +128,7 @@ class DeviceSELL:
                 d, kernel, (nb,), (1,), self._blk, self._sptr, self._cols, self._vals, L_buf, rho_buf, x, y, partial_buf
             )
 
-        x, change, history = sweeps(d, bounce, x, y, partial_buf, nb, self.dtype, tol, max_sweeps)
+        x, change, history = sweeps(d, bounce, x, y, partial_buf, nb, self.dtype, tol, max_sweeps, step)
         out = self.packed(x0)
         cl.enqueue_copy(d.queue, out, x, is_blocking=True)
         B = np.empty((self.shape[0], k))

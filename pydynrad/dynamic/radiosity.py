@@ -51,8 +51,8 @@ from ..device.matrix import DeviceMatrix, padded_ld
 from ..errors import InvalidInputError, OutOfMemoryError, PydynradError
 from ..farfield import FarField, far_field_for
 from ..farfield.estimate import DEFAULT_TOLERANCE, ErrorControl
+from ..geometry.loading import checked_scene
 from ..geometry.objects import _objects, check_reach, instanced, rigid_transform
-from ..geometry.scene import checked_scene
 from ..host.memory import available_host_bytes
 from ..lights.areas import analytic_emitter_light
 from ..lights.sources import (
@@ -239,7 +239,7 @@ class DynamicRadiosity:
         samples: int = 1,
         tolerance: float | None = DEFAULT_TOLERANCE,
     ) -> None:
-        checked_scene(scene)
+        scene = checked_scene(scene)
         moving = objects if isinstance(objects, MovingObjects) or objects is None else MovingObjects(objects)
         occlusion = "auto" if moving is None else moving.occlusion
         occlusion_correction = True if moving is None else moving.occlusion_correction

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 
 from ..checks import integer, number
 from ..errors import InvalidInputError
-from ..geometry.scene import checked_scene
+from ..geometry.loading import checked_scene
 from ..host.csrgraph import weak_components
 from ..rows.prolongation import LINEAR_FUNCTIONS
 
@@ -73,7 +73,8 @@ class Clusters:
         """Clusters from (N,) labels made elsewhere (e.g. the ones a form-factor store's G was
         computed for): every patch in one of 0..C-1, each cluster of one albedo (the coarse
         albedo must be exact)."""
-        n = len(checked_scene(scene))
+        scene = checked_scene(scene)
+        n = len(scene)
         lab = np.asarray(labels)
         if lab.shape != (n,) or not np.issubdtype(lab.dtype, np.integer) or lab.min(initial=0) < 0:
             raise InvalidInputError(
@@ -216,7 +217,7 @@ def cluster_patches(
     -------
     Clusters
     """
-    checked_scene(scene)
+    scene = checked_scene(scene)
     n = len(scene)
     if components is None:
         components = np.zeros(n, dtype=np.int64)

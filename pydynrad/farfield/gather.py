@@ -23,7 +23,7 @@ import scipy.sparse as sp
 from ..checks import check_form_factor_rows, sparse_structure
 from ..errors import InvalidInputError
 from ..formfactors import CLUSTER_RESOLUTION, hemicube_blocks, stack_blocks
-from ..geometry.scene import checked_scene
+from ..geometry.loading import checked_scene
 from ..progress import progress_bar
 from ..rows.prolongation import BASES, as_prolongation, check_prolongation, g_samples, split_prolongation
 from ..rows.sources import HemicubeRows
@@ -72,7 +72,8 @@ def light_components_by_hemicube(
     """
     from scipy.sparse.csgraph import connected_components
 
-    n = len(checked_scene(scene))
+    scene = checked_scene(scene)
+    n = len(scene)
     if store is not None:
         check_store(scene, store, n)
         missing = store.missing_blocks()
@@ -119,7 +120,8 @@ def basis_prolongation(scene, clusters, basis: str = "linear") -> sp.csr_matrix:
     :func:`pydynrad.farfield.clusters.linear_basis`. An (N, K) matrix is itself the prolongation."""
     if basis not in BASES:
         raise InvalidInputError(f"the coarse basis must be one of {BASES}; got {basis!r}")
-    n = len(checked_scene(scene))
+    scene = checked_scene(scene)
+    n = len(scene)
     pr = as_prolongation(clusters, n)  # the labels checked (one per patch) before the linear basis indexes with them
     if sp.issparse(clusters) or np.ndim(clusters) == 2 or basis == "indicator":
         return pr
@@ -152,7 +154,7 @@ def cluster_form_factors(
         Patches whose rows of G to compute; all by default.
     device : Device, optional
     progress : bool, optional
-        tqdm bar; by default only on a terminal for long runs.
+        tqdm bar; by default once the run has taken two seconds (:mod:`pydynrad.progress`).
     samples : int
         Hemicubes per row (1, 4, 16, ...), as for :func:`pydynrad.form_factors`.
 
@@ -163,7 +165,8 @@ def cluster_form_factors(
         cluster, weighted by Pr; equal to ``form_factors(scene, resolution, rows, samples=samples) @ Pr`` up to
         float32 rounding.
     """
-    n = len(checked_scene(scene))
+    scene = checked_scene(scene)
+    n = len(scene)
     pr = check_prolongation(prolongation, n)
     C = pr.shape[1]
     single = split_prolongation(pr)
@@ -233,7 +236,8 @@ def cluster_form_factors_for(
     Returns float32 CSR.
     """
 
-    n = len(checked_scene(scene))
+    scene = checked_scene(scene)
+    n = len(scene)
     pr = as_prolongation(clusters, n)
     inner = source
     while not isinstance(inner, (FormFactorStore, HemicubeRows)) and hasattr(inner, "source"):
@@ -260,7 +264,7 @@ def cluster_form_factors_for(
                 "`pydynrad formfactors SCENE -o STORE --clusters ...`"
             )
     starts = range(0, n, SUM_BLOCK_ROWS)
-    with progress_bar(progress, long=n > 8 * SUM_BLOCK_ROWS, total=n, unit="row", desc="far field G") as bar:
+    with progress_bar(progress, total=n, unit="row", desc="far field G") as bar:
         blocks = []
         for first in starts:
             rows = np.arange(first, min(n, first + SUM_BLOCK_ROWS))

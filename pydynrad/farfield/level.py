@@ -76,7 +76,7 @@ from ..device.csr import DeviceCSR
 from ..device.devices import default_device, real_dtype
 from ..device.matrix import DeviceMatrix
 from ..errors import ConvergenceError, InvalidInputError, PydynradError
-from ..geometry.scene import checked_scene
+from ..geometry.loading import checked_scene
 from ..host.colproduct import columns_product, rows_product
 from ..host.csrgraph import columns_float32, sum_by_label
 from ..host.product import HostBounce, HostMatrix, on_host

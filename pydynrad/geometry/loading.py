@@ -267,6 +267,20 @@ def from_mesh(
     return _scene_of_parts(parts, max_patch_area, max_edge, default_albedo, name, *_unit_up(unit, up))
 
 
+def checked_scene(value, what: str = "scene") -> Scene:
+    """``value`` as a :class:`~pydynrad.Scene`: a Scene as it is, a ``trimesh.Trimesh`` or
+    ``trimesh.Scene`` through :func:`from_mesh` (metres, +y up, as :func:`load` reads it), else
+    InvalidInputError naming its type. Every function that takes a scene takes it through here.
+    A mesh is converted on every call: pass the Scene to calls that repeat."""
+    if isinstance(value, Scene):
+        return value
+    if isinstance(value, (trimesh.Trimesh, trimesh.Scene)):
+        return from_mesh(value)
+    # Functions that take a scene and a file take them in that order: f(scene, path, ...).
+    hint = " (the scene comes first, then the path)" if isinstance(value, (str, os.PathLike)) else ""
+    raise InvalidInputError(f"{what} must be a pydynrad.Scene or a trimesh mesh; got {type(value).__name__}{hint}")
+
+
 def _unit_up(unit, up):
     return unit_metres(unit), up_vector(up)
 
@@ -337,10 +351,10 @@ def _scene_of_parts(
         shape = Scene(points, triangles, albedo=0.0, emission=0.0, name=name, unit=unit, up=up)
     src = shape.source_face
     if max_patch_area is not None or max_edge is not None:
-        pts, tri, parent = subdivide(shape.points, shape.triangles, max_area=max_patch_area, max_edge=max_edge)
+        pts, tri, parent = subdivide(shape.vertices, shape.faces, max_area=max_patch_area, max_edge=max_edge)
         src = src[parent]
     else:
-        pts, tri = shape.points, shape.triangles
+        pts, tri = shape.vertices, shape.faces
     weights = barycentric_corners(corners[src], pts[tri])
     albedo, emission = sample_materials(
         table,

@@ -124,7 +124,7 @@ class RigidObject:
         cache = self.__dict__.setdefault("_device_bvhs", {})
         if unit not in cache:
             origin = self._bound_object[0]
-            cache[unit] = (BVH.build((self.scene.vertices.astype(np.float64) - origin) / unit), origin)
+            cache[unit] = (BVH.build((self.scene.triangles.astype(np.float64) - origin) / unit), origin)
         return cache[unit]
 
     @cached_property
@@ -138,7 +138,7 @@ class RigidObject:
         is the whole boundary of one convex solid of few faces (a box), else None
         (:func:`pydynrad.geometry.convex.solid_planes`): a move then finds the segments it hides by
         clipping them, without tracing them."""
-        return solid_planes(self.scene.points, self.scene.triangles)
+        return solid_planes(self.scene.vertices, self.scene.faces)
 
     @cached_property
     def faces_out(self) -> bool:
@@ -148,7 +148,7 @@ class RigidObject:
         solid and sees its other sides, so such an object is not taken as one."""
         if self.solid_planes is None:
             return False
-        inside = self.scene.vertices.astype(np.float64).reshape(-1, 3).mean(axis=0)  # a convex solid holds it
+        inside = self.scene.triangles.astype(np.float64).reshape(-1, 3).mean(axis=0)  # a convex solid holds it
         towards = inside - self.scene.centers.astype(np.float64)
         return bool(np.all(np.einsum("ij,ij->i", self.scene.normals.astype(np.float64), towards) < 0.0))
 
@@ -161,7 +161,7 @@ class RigidObject:
     def world_points(self, transform=None) -> np.ndarray:
         """(V, 3) float64 points of the object at ``transform`` (default: its pose)."""
         T = self._pose(transform)
-        return self.scene.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        return self.scene.vertices.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
 
     def _pose(self, transform) -> np.ndarray:
         """``transform`` checked (:func:`rigid_transform`), read-only; the pose for None. A move
@@ -218,14 +218,14 @@ def _combined(scene, objs: list[RigidObject], transforms=None):
     transforms = [o.transform for o in objs] if transforms is None else transforms
     for o, T in zip(objs, transforms):  # a reference the device cannot resolve is no reference
         check_reach(scene, o, T)
-    points, tris, geometry, corners = [scene.points], [scene.triangles], [], [scene.bbox]
-    base = len(scene.points)
+    points, tris, geometry, corners = [scene.vertices], [scene.faces], [], [scene.bbox]
+    base = len(scene.vertices)
     for o, T in zip(objs, transforms):
         p = o.world_points(T)
         points.append(p)
-        tris.append(o.scene.triangles + base)
-        geometry.append(patch_geometry(p, o.scene.triangles))
-        used = p[np.unique(o.scene.triangles)]
+        tris.append(o.scene.faces + base)
+        geometry.append(patch_geometry(p, o.scene.faces))
+        used = p[np.unique(o.scene.faces)]
         corners.append(np.stack([used.min(axis=0), used.max(axis=0)]))
         base += len(p)
     parts = [scene] + [o.scene for o in objs]
@@ -282,7 +282,7 @@ def _warn_intersections(scene, objs: list[RigidObject], transforms) -> None:
         gap = np.maximum(np.maximum(lo - c, c - hi), 0.0)  # per axis, from the sphere's centre to each box
         if not np.any(np.einsum("ij,ij->i", gap, gap) <= (r * (1.0 + 1e-6)) ** 2):
             continue
-        corners = o.world_points(T)[o.scene.triangles]  # (T, 3, 3)
+        corners = o.world_points(T)[o.scene.faces]  # (T, 3, 3)
         start, end = corners.reshape(-1, 3), corners[:, [1, 2, 0]].reshape(-1, 3)
         d = end - start
         hit = occluded(scene, start, d, np.float32(1.0))

@@ -177,7 +177,7 @@ def _split(p: np.ndarray, tri: np.ndarray, max_area: float | None, max_edge: flo
 def subdivide_scene(scene, max_area: float | None = None, max_edge: float | None = None):
     """``scene`` with its patches split by :func:`subdivide`: every child keeps its parent's
     albedo, emission and source face, so materials and file faces stay as they were."""
-    points, triangles, parent = subdivide(scene.points, scene.triangles, max_area=max_area, max_edge=max_edge)
+    points, triangles, parent = subdivide(scene.vertices, scene.faces, max_area=max_area, max_edge=max_edge)
     out = Scene(
         points,
         triangles,

@@ -1,8 +1,8 @@
 """The patch scene: planar triangles with a diffuse albedo and an emission each.
 
 A :class:`Scene` is the unit every other part of pydynrad works on. Patches are triangles
-(``triangles`` index into ``points``); shared points carry the mesh's connectivity so the
-renderer can interpolate radiosity smoothly. Geometry is validated once here, so kernels
+(``faces`` index into ``vertices``, trimesh's names); shared vertices carry the mesh's
+connectivity so the renderer can interpolate radiosity smoothly. Geometry is validated once here, so kernels
 never see NaNs, degenerate triangles or out-of-range materials.
 
 Units: lengths in the scene's own unit, which the scene declares (:attr:`Scene.unit`, metres
@@ -18,7 +18,6 @@ See docs/guide/units.md.
 from __future__ import annotations
 
 import hashlib
-import os
 import warnings
 from functools import cached_property
 
@@ -209,10 +208,10 @@ def _patch_arrays(v: np.ndarray, cross: np.ndarray, dbl_area: np.ndarray) -> tup
     )
 
 
-def patch_geometry(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(centres, normals, areas) of a Scene's patches ``triangles`` over ``points``, as
-    :class:`Scene` computes them (bit for bit), for triangles already known to be sound."""
-    v = np.asarray(points, np.float64)[triangles]
+def patch_geometry(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(centres, normals, areas) of a Scene's patches ``faces`` over ``vertices``, as
+    :class:`Scene` computes them (bit for bit), for faces already known to be sound."""
+    v = np.asarray(vertices, np.float64)[faces]
     return _patch_arrays(v, *_doubled_areas(v))
 
 
@@ -233,6 +232,26 @@ def _checked_emission(value, n: int) -> np.ndarray:
     return e
 
 
+def _renamed_arguments(vertices, faces, renamed: dict) -> tuple:
+    """``(vertices, faces)`` from Scene's arguments, taking the names they had before they took
+    trimesh's (``points=``, ``triangles=``) for one release, with a DeprecationWarning."""
+    for old, new in (("points", "vertices"), ("triangles", "faces")):
+        if old not in renamed:
+            continue
+        if (vertices if new == "vertices" else faces) is not None:
+            raise InvalidInputError(f"Scene got both {new}= and its old name {old}=")
+        warnings.warn(f"Scene({old}=...) is deprecated: use {new}= (trimesh's name)", DeprecationWarning, stacklevel=3)
+        if new == "vertices":
+            vertices = renamed.pop(old)
+        else:
+            faces = renamed.pop(old)
+    if renamed:
+        raise TypeError(f"Scene() got unexpected keyword argument(s) {', '.join(sorted(renamed))}")
+    if vertices is None or faces is None:
+        raise InvalidInputError("Scene needs vertices (V, 3) and faces (N, 3)")
+    return vertices, faces
+
+
 class Scene:
     """N triangular patches with materials.
 
@@ -241,10 +260,13 @@ class Scene:
 
     Parameters
     ----------
-    points : (V, 3) float
+    vertices : (V, 3) float
         Vertex positions.
-    triangles : (N, 3) int
+    faces : (N, 3) int
         Vertex indices of each patch, counter-clockwise seen from the front (the lit side).
+        ``vertices``, ``faces`` and ``triangles`` mean what they mean in trimesh; a
+        ``trimesh.Trimesh`` or ``trimesh.Scene`` becomes a Scene through :func:`~pydynrad.load`,
+        and every function that takes a Scene takes one of those too.
     albedo : float, (3,), (N,) or (N, 3)
         Diffuse reflectance per patch and RGB channel, each in [0, 1).
     emission : float, (3,), (N,) or (N, 3)
@@ -268,22 +290,32 @@ class Scene:
     materials: MaterialTable | None = None
 
     def __init__(
-        self, points, triangles, albedo=0.5, emission=0.0, source_face=None, name: str = "scene", unit="m", up="+z"
+        self,
+        vertices=None,
+        faces=None,
+        albedo=0.5,
+        emission=0.0,
+        source_face=None,
+        name: str = "scene",
+        unit="m",
+        up="+z",
+        **renamed,
     ) -> None:
+        vertices, faces = _renamed_arguments(vertices, faces, renamed)
         self.unit = unit_metres(unit)
         self.up = _frozen(np.array(up_vector(up)))
-        pts = floats(points, "points")
-        tri = np.asarray(triangles)
+        pts = floats(vertices, "vertices")
+        tri = np.asarray(faces)
         if pts.ndim != 2 or pts.shape[1] != 3:
-            raise InvalidInputError(f"points must have shape (V, 3); got {pts.shape}")
+            raise InvalidInputError(f"vertices must have shape (V, 3); got {pts.shape}")
         if tri.size == 0:
-            raise InvalidInputError("the mesh is empty: it has no triangles")
+            raise InvalidInputError("the mesh is empty: it has no faces")
         if tri.ndim != 2 or tri.shape[1] != 3:
-            raise InvalidInputError(f"triangles must have shape (N, 3); got {tri.shape}")
+            raise InvalidInputError(f"faces must have shape (N, 3); got {tri.shape}")
         if not np.issubdtype(tri.dtype, np.integer):
-            raise InvalidInputError(f"triangles must hold integer vertex indices; got dtype {tri.dtype}")
+            raise InvalidInputError(f"faces must hold integer vertex indices; got dtype {tri.dtype}")
         if tri.min() < 0 or tri.max() >= len(pts):
-            raise InvalidInputError(f"triangles index vertices outside 0..{len(pts) - 1}")
+            raise InvalidInputError(f"faces index vertices outside 0..{len(pts) - 1}")
         used = np.unique(tri)
         if not np.all(np.isfinite(pts[used])):
             raise InvalidInputError("vertices contain NaN or infinite coordinates")
@@ -313,8 +345,8 @@ class Scene:
             cross, dbl_area = cross[keep], dbl_area[keep]
 
         # float64: a scene far from the origin keeps its shape; DeviceFrame makes it float32.
-        self.points = np.array(pts, dtype=np.float64)  # copies: frozen below, never the caller's arrays
-        self.triangles = np.array(tri, dtype=np.int32)
+        self.vertices = np.array(pts, dtype=np.float64)  # copies: frozen below, never the caller's arrays
+        self.faces = np.array(tri, dtype=np.int32)
         self.albedo = albedo
         self.emission = emission
         self.source_face = np.array(source_face)
@@ -325,7 +357,7 @@ class Scene:
                 "patch areas overflow or underflow float32 (coordinates beyond ~1e18 or "
                 "patches below ~1e-22 units): rescale the scene"
             )
-        for a in (self.points, self.triangles, self.source_face, self.centers, self.normals, self.areas):
+        for a in (self.vertices, self.faces, self.source_face, self.centers, self.normals, self.areas):
             _frozen(a)
         size, diag = np.sqrt(edge2[keep]), self.scale
         if size.min() < MIN_RELATIVE_SIZE * diag:
@@ -339,21 +371,21 @@ class Scene:
 
     @classmethod
     def _assembled(
-        cls, points, triangles, albedo, emission, centers, normals, areas, name: str, bbox: np.ndarray
+        cls, vertices, faces, albedo, emission, centers, normals, areas, name: str, bbox: np.ndarray
     ) -> Scene:
         """A Scene of arrays already sound: parts of validated scenes, moved rigidly
         (:func:`pydynrad.geometry.objects.instanced`, once per move). Not checked again: a large scene's
         checks and geometry cost a move's own work many times over
         (docs/decisions/0028-moving-objects-large-scenes.md)."""
         out = object.__new__(cls)
-        out.points, out.triangles = np.asarray(points, np.float64), np.asarray(triangles, np.int32)
+        out.vertices, out.faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int32)
         out.albedo, out.emission = np.asarray(albedo, np.float32), np.asarray(emission, np.float32)
-        out.source_face = np.arange(len(out.triangles))
+        out.source_face = np.arange(len(out.faces))
         out.centers, out.normals, out.areas = centers, normals, areas
         out.name = str(name)
         for a in (
-            out.points,
-            out.triangles,
+            out.vertices,
+            out.faces,
             out.albedo,
             out.emission,
             out.source_face,
@@ -367,16 +399,24 @@ class Scene:
 
     # -- sizes and views -------------------------------------------------------------------
     def __len__(self) -> int:
-        return len(self.triangles)
+        return len(self.faces)
 
     @property
     def n_patches(self) -> int:
-        return len(self.triangles)
+        return len(self.faces)
 
     @property
-    def vertices(self) -> np.ndarray:
-        """(N, 3, 3) float64 corner positions of every patch."""
-        return self.points[self.triangles]
+    def triangles(self) -> np.ndarray:
+        """(N, 3, 3) float64 corner positions of every patch (trimesh's ``Trimesh.triangles``)."""
+        return self.vertices[self.faces]
+
+    @property
+    def points(self) -> np.ndarray:
+        """Deprecated name of :attr:`vertices` (V, 3), kept for one release."""
+        warnings.warn(
+            "Scene.points is deprecated: use Scene.vertices (trimesh's name)", DeprecationWarning, stacklevel=2
+        )
+        return self.vertices
 
     @property
     def is_grey(self) -> bool:
@@ -387,14 +427,14 @@ class Scene:
     @cached_property
     def bbox(self) -> np.ndarray:
         """(2, 3) min and max corner of the used points (cached: per-call kernels need it)."""
-        p = self.points[np.unique(self.triangles)]
+        p = self.vertices[np.unique(self.faces)]
         return np.stack([p.min(axis=0), p.max(axis=0)])
 
     @cached_property
     def triangle_boxes(self) -> np.ndarray:
         """(2, N, 3) float64: each triangle's bounding box, min and max corner (cached: a moving
         object's intersection test reads it every move)."""
-        corners = self.points[self.triangles].astype(np.float64)
+        corners = self.triangles
         return np.stack([corners.min(axis=1), corners.max(axis=1)])
 
     @property
@@ -426,7 +466,7 @@ class Scene:
     @cached_property
     def bvh(self):
         """The patch BVH (in :attr:`frame`), built on first use and shared by every kernel that casts rays."""
-        return BVH.build(self.frame.points(self.vertices))
+        return BVH.build(self.frame.points(self.triangles))
 
     def patch_buffers(self, device, patches=None) -> tuple:
         """``(centers, normals)``: (N, 4) float32 device buffers (xyz, 0) of :attr:`centers` (in
@@ -446,7 +486,7 @@ class Scene:
     def content_hash(self) -> str:
         """SHA-256 of geometry and materials: identifies the scene in file headers."""
         h = hashlib.sha256()
-        for a in (self.points.astype(np.float32), self.triangles, self.albedo, self.emission):
+        for a in (self.vertices.astype(np.float32), self.faces, self.albedo, self.emission):
             h.update(np.ascontiguousarray(a).tobytes())
         return h.hexdigest()
 
@@ -456,7 +496,7 @@ class Scene:
         Hashes the points as float32, as scenes stored them before they kept float64, so files
         and stores made then still match."""
         h = hashlib.sha256()
-        for a in (self.points.astype(np.float32), self.triangles):
+        for a in (self.vertices.astype(np.float32), self.faces):
             h.update(np.ascontiguousarray(a).tobytes())
         return h.hexdigest()
 
@@ -482,15 +522,6 @@ class Scene:
 
     def __repr__(self) -> str:
         return f"Scene({self.name!r}, {len(self)} patches, {len(self.emitters)} emitting, grey={self.is_grey})"
-
-
-def checked_scene(value, what: str = "scene") -> Scene:
-    """``value`` if it is a :class:`Scene`, else InvalidInputError naming its type."""
-    if not isinstance(value, Scene):
-        # Functions that take a scene and a file take them in that order: f(scene, path, ...).
-        hint = " (the scene comes first, then the path)" if isinstance(value, (str, os.PathLike)) else ""
-        raise InvalidInputError(f"{what} must be a pydynrad.Scene; got {type(value).__name__}{hint}")
-    return value
 
 
 #: Hemicube centres sit this far off their patch, times the scene's bounding-box diagonal:

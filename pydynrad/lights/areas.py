@@ -75,7 +75,7 @@ def emitter_irradiance(scene, points, normals, grid: int = 4, device=None, subse
     if n == 0 or len(em) == 0:
         return np.zeros((n, 3))
     dev = device or default_device()
-    corners = scene.frame.points(scene.vertices[em])  # the device frame, as the BVH (form factors are scale-free)
+    corners = scene.frame.points(scene.triangles[em])  # the device frame, as the BVH (form factors are scale-free)
     packed = np.concatenate([corners, scene.normals[em][:, None, :]], axis=1).reshape(-1, 3)
     nodes, tris, _ = scene.bvh.buffers(dev)
     out_dev = cl.Buffer(dev.context, cl.mem_flags.READ_WRITE, n * 16)

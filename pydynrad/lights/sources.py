@@ -34,7 +34,8 @@ from ..checks import ROW_SUM_SLACK, checked_sensors, floats, number, rgb_tuple, 
 from ..device.devices import default_device
 from ..device.launch import WG, enqueue_kernel, float4, global_size
 from ..errors import InvalidInputError
-from ..geometry.scene import SURFACE_OFFSET, checked_scene
+from ..geometry.loading import checked_scene
+from ..geometry.scene import SURFACE_OFFSET
 from .gather import gather_irradiance
 from .luminaires import LuminaireLight
 from .sky import SkyLight, SkyOrientationWarning, pack_sky
@@ -323,7 +324,7 @@ def direct_irradiance(scene, lights, device=None) -> np.ndarray:
 def _direct_irradiance(scene, lights: list, device) -> np.ndarray:
     """:func:`direct_irradiance` of checked ``lights``."""
 
-    checked_scene(scene)
+    scene = checked_scene(scene)
     E = _point_irradiance(scene, None, None, lights, device)
     skies = [light for light in lights if isinstance(light, SkyLight)]
     if skies:
@@ -380,7 +381,8 @@ def check_sky_orientation(scene, sky: SkyLight, lit) -> None:
 
 def light_vector(scene, lights=(), device=None) -> np.ndarray:
     """L (N, 3) float64: emission plus the albedo-weighted direct irradiance of ``lights``."""
-    L = checked_scene(scene).emission.astype(np.float64)
+    scene = checked_scene(scene)
+    L = scene.emission.astype(np.float64)
     lights = checked_lights(lights)
     if lights:
         L = L + scene.albedo.astype(np.float64) * _direct_irradiance(scene, lights, device)
@@ -425,4 +427,5 @@ def resolve_light(scene, lights=(), light=None, device=None) -> np.ndarray:
         return light_vector(scene, lights, device)
     if len(checked_lights(lights)):
         raise InvalidInputError("give lights= (light objects) or light= (a light vector L), not both")
-    return checked_light_vector(light, len(checked_scene(scene)))
+    scene = checked_scene(scene)
+    return checked_light_vector(light, len(scene))

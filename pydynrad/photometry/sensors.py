@@ -15,7 +15,7 @@ from ..checks import checked_sensors, floats, patch_indices
 from ..checks import resolution as checked_resolution
 from ..defaults import RESOLUTION
 from ..errors import InvalidInputError
-from ..geometry.scene import checked_scene
+from ..geometry.loading import checked_scene
 from ..lights.areas import checked_grid, emitter_irradiance
 from ..lights.gather import gather_irradiance
 from ..lights.sky import SkyLight, pack_sky
@@ -98,7 +98,7 @@ def illuminance(
     (n, 3) float64
         Irradiance per colour channel (W/unit^2, or lux).
     """
-    checked_scene(scene)
+    scene = checked_scene(scene)
     lights = checked_lights(lights)
     # Both checked whether or not this call uses them: a bad value is the caller's mistake either way.
     resolution, visibility_grid = checked_resolution(resolution), checked_grid(visibility_grid)

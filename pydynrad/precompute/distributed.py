@@ -295,9 +295,7 @@ def precompute_distributed(
     client, cluster = _start_client(workers, scheduler)
     try:
         client.register_plugin(opencl_worker_plugin_class()())
-        payload = (
-            spec if isinstance(spec, SceneSpec) else client.scatter((scene.points, scene.triangles), broadcast=True)
-        )
+        payload = spec if isinstance(spec, SceneSpec) else client.scatter((scene.vertices, scene.faces), broadcast=True)
         ghash = scene.geometry_hash()
         rows = sum(len(store.block_range(k)) for part in ("F", "G") for k in todo[part])
         with progress_bar(

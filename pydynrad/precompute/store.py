@@ -18,6 +18,7 @@ import scipy.sparse as sp
 from ..checks import integer
 from ..farfield.gather import basis_prolongation, cluster_form_factors
 from ..formfactors import form_factors
+from ..geometry.loading import checked_scene
 from ..progress import progress_bar
 from ..rows.store import DEFAULT_BLOCK_ROWS, DEFAULT_TASK_ROWS, FormFactorStore, RowFunction
 
@@ -179,6 +180,7 @@ def compute_store(
     rows out (a store of G alone, for walks that compute F's rows on demand).
     """
 
+    scene = checked_scene(scene)
     store, todo = prepare_store(
         scene,
         path,

@@ -26,7 +26,7 @@ from ..checks import resolution as checked_resolution
 from ..checks import sparse_structure
 from ..errors import InvalidInputError
 from ..formfactors import checked_samples
-from ..geometry.scene import checked_scene
+from ..geometry.loading import checked_scene
 from .cache import RowCache
 from .sources import RowSource
 from .store import FormFactorStore, StoreIncompleteError
@@ -52,7 +52,7 @@ def save_form_factors(scene, path, F, resolution: int, samples: int = 1) -> Path
     ``resolution``, the hemicubes per row ``samples`` (:func:`pydynrad.form_factors`) and nnz.
     Written whole (temporary file in the same folder, then rename).
     """
-    checked_scene(scene)
+    scene = checked_scene(scene)
     resolution = checked_resolution(resolution)
     samples = checked_samples(samples, resolution)
     path = check_parent_folder(path)
@@ -94,7 +94,7 @@ def load_form_factors(
     made for another scene geometry, or, where ``resolution`` or ``samples`` is given, made
     with another one.
     """
-    checked_scene(scene)
+    scene = checked_scene(scene)
     path = Path(path)
     if not path.is_file():
         why = "no such file" if not path.exists() else "not a regular file"
@@ -212,7 +212,7 @@ def open_form_factors(
     ``samples`` raises InvalidInputError), :class:`~pydynrad.rows.StoreIncompleteError`
     for a store not finished yet.
     """
-    checked_scene(scene)
+    scene = checked_scene(scene)
     path = Path(path)
     if path.is_dir():
         store = _open_store(scene, path, samples, resolution)

@@ -72,7 +72,7 @@ from ..checks import integer, patch_indices, sparse_structure
 from ..checks import resolution as checked_resolution
 from ..errors import InvalidInputError, PydynradError
 from ..formfactors import checked_samples
-from ..geometry.scene import checked_scene
+from ..geometry.loading import checked_scene
 from .prolongation import LINEAR_FUNCTIONS, as_prolongation, g_samples, labels_of_linear, split_prolongation
 
 __all__ = [
@@ -350,7 +350,7 @@ class FormFactorStore:
         existing store with a matching header is opened (to resume it); a mismatching one
         always raises :class:`StoreMismatchError`.
         """
-        checked_scene(scene)
+        scene = checked_scene(scene)
         path = Path(path)
         integer(block_rows, "block_rows", 1, MAX_BLOCK_ROWS)
         params = _canonical_params(resolution, patching, samples)
@@ -404,7 +404,7 @@ class FormFactorStore:
     def open(cls, scene, path, *, resolution: int, patching: dict | None = None, samples: int = 1) -> FormFactorStore:
         """Open the store of ``scene`` at ``path``, refusing it unless it was made for this scene and
         parameters (a store from before ``samples`` was recorded holds 1)."""
-        checked_scene(scene)
+        scene = checked_scene(scene)
         path = Path(path)
         header = cls.read_header(path)
         want = {

@@ -536,7 +536,7 @@ class Viewer:
     def _on_connect(self, client) -> None:
         scene = self.dynamic.scene
         origin = self._origin
-        corners = (np.asarray(scene.vertices, dtype=np.float64) - origin).astype(np.float32)
+        corners = (np.asarray(scene.triangles, dtype=np.float64) - origin).astype(np.float32)
         n_v = self._smooth.n_vertices
         cam = self.camera
         head = {
@@ -742,7 +742,7 @@ class Viewer:
         }
         if moved:
             first = self._static_n
-            corners = (np.asarray(dyn.scene.vertices[first:], dtype=np.float64) - self._origin).astype(np.float32)
+            corners = (np.asarray(dyn.scene.triangles[first:], dtype=np.float64) - self._origin).astype(np.float32)
             self._server.broadcast(pack("positions", {"positions": corners.reshape(-1)}, offset=first * 9))
         self._server.broadcast(
             pack(

@@ -41,7 +41,7 @@ def test_glb_round_trip_holds_the_smooth_vertex_radiosity(solved, tmp_path):
     mesh = _load_one(path)
     # Triangle i is patch i, in metres +y up (glTF's convention; the box is in millimetres,
     # y up, so scaled only; glTF holds float32).
-    np.testing.assert_allclose(mesh.vertices[mesh.faces], scene.vertices * scene.unit, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(mesh.vertices[mesh.faces], scene.triangles * scene.unit, rtol=1e-6, atol=1e-9)
     radiosity = np.asarray(mesh.vertex_attributes["_RADIOSITY"])
     # Every corner carries what smooth shading interpolates there, to float32 rounding.
     corners = Renderer(scene).corner_radiosity(B)

@@ -555,7 +555,7 @@ def test_formfactors_store_on_a_local_cluster_equals_one_process(tmp_path, capsy
 
 
 def _longest_edge(scene):
-    v = scene.points[scene.triangles].astype(np.float64)
+    v = scene.vertices[scene.faces].astype(np.float64)
     return float(np.sqrt(((v - v[:, [1, 2, 0]]) ** 2).sum(axis=-1)).max())
 
 

@@ -47,7 +47,7 @@ def test_one_line_errors_for_wrong_types(closed_box_48, closed_box_48_F, device)
         pydynrad.DynamicRadiosity(closed_box_48, closed_box_48_F, local_size=8, refresh_tolerance="1e-4", device=device)
     with pytest.raises(pydynrad.errors.SceneFileError, match="path must be a file name .* got NoneType"):
         pydynrad.load(None)
-    with pytest.raises(InvalidInputError, match="points must be numbers"):
+    with pytest.raises(InvalidInputError, match="vertices must be numbers"):
         pydynrad.Scene([["a", "b", "c"]] * 3, [[0, 1, 2]])
 
 

@@ -630,7 +630,7 @@ def test_rows_of_another_scene_small_sets_and_albedos_near_one(device, tmp_path)
 
     box = pydynrad.scenes.cornell_box(max_edge=250.0)
     turned = pydynrad.Scene(
-        box.points[:, [2, 1, 0]], box.triangles[:, [0, 2, 1]], albedo=box.albedo, emission=box.emission
+        box.vertices[:, [2, 1, 0]], box.faces[:, [0, 2, 1]], albedo=box.albedo, emission=box.emission
     )
     store = pydynrad.compute_store(turned, tmp_path / "st", resolution=8, progress=False)
     for rows in (pydynrad.rows.HemicubeRows(turned, 8, device), store):

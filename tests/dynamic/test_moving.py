@@ -706,8 +706,8 @@ def test_moves_that_fail_or_come_from_elsewhere_leave_the_solution_right(cornell
             device=device,
         )
     turned = pd.Scene(
-        cornell_384.points[:, [2, 1, 0]],
-        cornell_384.triangles[:, [0, 2, 1]],
+        cornell_384.vertices[:, [2, 1, 0]],
+        cornell_384.faces[:, [0, 2, 1]],
         albedo=cornell_384.albedo,
         emission=cornell_384.emission,
     )

@@ -17,8 +17,8 @@ def test_hidden_entries_match_numpy(cornell_384, green_block, device, solid):
 
     if not solid:
         green_block = pd.Scene(
-            np.vstack([green_block.points, green_block.points + (60.0, 60.0, 0.0)]),
-            np.vstack([green_block.triangles, green_block.triangles + len(green_block.points)]),
+            np.vstack([green_block.vertices, green_block.vertices + (60.0, 60.0, 0.0)]),
+            np.vstack([green_block.faces, green_block.faces + len(green_block.vertices)]),
             albedo=0.5,
         )
     obj = pd.RigidObject(green_block, END)
@@ -27,7 +27,7 @@ def test_hidden_entries_match_numpy(cornell_384, green_block, device, solid):
     i, j = rng.integers(0, len(cornell_384), (2, 6000))
     p0, p1 = cornell_384.centers[i].astype(np.float64), cornell_384.centers[j].astype(np.float64)
     got = hidden_by([obj], [obj.transform], p0, p1, device)
-    truth = brute_force_hits(obj.world_points()[green_block.triangles], p0, p1 - p0).t < 1.0  # crossing at t in (0, 1)
+    truth = brute_force_hits(obj.world_points()[green_block.faces], p0, p1 - p0).t < 1.0  # crossing at t in (0, 1)
     assert truth.sum() > 100
     assert (got != truth).sum() <= 2  # float32 rays along a shared edge; observed 0
 

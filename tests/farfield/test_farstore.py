@@ -115,7 +115,7 @@ def test_light_components_refuse_a_store_of_another_scene(device, tmp_path):
         row_function=lambda scene, rows, resolution, device=None: F[rows],
     )
     # The same patch count, another geometry: its F would give this scene wrong components.
-    moved = pydynrad.Scene(box_scene(2).points * [1.0, 2.0, 1.0], scene.triangles, name="stretched box")
+    moved = pydynrad.Scene(box_scene(2).vertices * [1.0, 2.0, 1.0], scene.faces, name="stretched box")
     with pytest.raises(pydynrad.InvalidInputError, match="another scene geometry"):
         light_components_by_hemicube(moved, store=store)
     with pytest.raises(pydynrad.InvalidInputError, match="rows; the scene has"):

@@ -66,7 +66,7 @@ def test_rays_inside_a_closed_mesh_hit_its_inside(device):
     inside_box = np.all(np.abs(o) < [1.0, 0.5, 1.5], axis=1)
     o = o[~inside_box]
     d = rng.normal(size=o.shape)
-    patch = check_against_brute_force(device, scene.vertices, o, d)
+    patch = check_against_brute_force(device, scene.triangles, o, d)
     assert np.all(patch >= 0), "nothing escapes a closed sphere"
     p, _, front = cast_rays(scene, o, d, device=device)
     on_sphere = p < len(sphere.faces)

@@ -17,7 +17,7 @@ def _mesh(m: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
 
 def _cube(subdivisions: int = 1):
     s = pd.scenes.block((2.0, 1.0, 0.5), subdivisions)
-    return s.points, s.triangles
+    return s.vertices, s.faces
 
 
 def _t_junction():

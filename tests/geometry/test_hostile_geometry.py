@@ -10,8 +10,8 @@ from pydynrad.errors import InvalidInputError
 def test_patches_too_small_for_float32_warn():
     base = pydynrad.scenes.closed_box(subdivisions=0)
     tiny = np.array([[0.5, 0.5, 0.5], [0.5 + 1e-7, 0.5, 0.5], [0.5, 0.5 + 1e-7, 0.5]])
-    points = np.concatenate([base.points, tiny])
-    triangles = np.concatenate([base.triangles, [[len(base.points), len(base.points) + 1, len(base.points) + 2]]])
+    points = np.concatenate([base.vertices, tiny])
+    triangles = np.concatenate([base.faces, [[len(base.vertices), len(base.vertices) + 1, len(base.vertices) + 2]]])
     with pytest.warns(pydynrad.geometry.scene.PrecisionWarning, match="1 patch"):
         pydynrad.Scene(points, triangles)
 
@@ -20,12 +20,12 @@ def test_scene_arrays_are_read_only_and_overflowing_values_are_refused(closed_bo
     with pytest.raises(ValueError, match="read-only"):
         closed_box_48.albedo[:] = 1.0  # main: solve then iterated 10,000 times before failing
     with pytest.raises(ValueError, match="read-only"):
-        closed_box_48.points[0, 0] = 5.0
-    points = np.array(closed_box_48.points)
-    pydynrad.Scene(points, closed_box_48.triangles)
+        closed_box_48.vertices[0, 0] = 5.0
+    points = np.array(closed_box_48.vertices)
+    pydynrad.Scene(points, closed_box_48.faces)
     points[0, 0] = 0.25  # the caller's own array stays writable: the scene copied it
     with pytest.raises(InvalidInputError, match=r"emission exceeds float32's range"):
-        pydynrad.Scene(closed_box_48.points, closed_box_48.triangles, emission=1e39)  # main: stored as inf
+        pydynrad.Scene(closed_box_48.vertices, closed_box_48.faces, emission=1e39)  # main: stored as inf
     with pytest.raises(InvalidInputError, match="direct irradiance overflows float32"):
         pydynrad.light_vector(closed_box_48, [pydynrad.PointLight([0.5, 0.5, 0.5], 3e38)], device=device)  # main: inf
 

@@ -86,7 +86,7 @@ def test_obj_mtl_materials_per_face(tmp_path):
     np.testing.assert_allclose(scene.centers, faces[scene.source_face].mean(axis=1), atol=1e-6)
     assert list(scene.source_face) == list(range(5))
     # Per-material geometries repeat vertices; the scene merges them into one mesh.
-    assert len(scene.points) == 7
+    assert len(scene.vertices) == 7
 
 
 def test_obj_patching_keeps_materials_and_area(tmp_path):
@@ -102,7 +102,7 @@ def test_obj_patching_keeps_materials_and_area(tmp_path):
     np.testing.assert_allclose(coarse.centers[fine.source_face], corners.mean(axis=1), atol=1e-6)
     np.testing.assert_allclose(fine.normals, coarse.normals[fine.source_face], atol=1e-5)
     by_edge = pydynrad.load(path, max_edge=0.3)
-    v = by_edge.vertices.astype(float)
+    v = by_edge.triangles.astype(float)
     assert np.linalg.norm(v - np.roll(v, 1, axis=1), axis=2).max() <= 0.3 + 1e-6
 
 
@@ -167,7 +167,7 @@ def test_glb_colours_and_pbr_material(tmp_path):
     box.export(tmp_path / "box.glb")
     scene = pydynrad.load(tmp_path / "box.glb")
     np.testing.assert_allclose(scene.albedo, box.visual.face_colors[:, :3] / 255.0, atol=1e-6)
-    assert len(scene.points) == 8  # coincident corners are merged again
+    assert len(scene.vertices) == 8  # coincident corners are merged again
     lamp = trimesh.creation.box()
     material = trimesh.visual.material.PBRMaterial(
         baseColorFactor=[0.5, 0.25, 0.75, 1.0], emissiveFactor=[1.0, 0.5, 0.0]
@@ -185,7 +185,7 @@ def test_stl_gets_default_albedo_and_merged_points(tmp_path):
     trimesh.creation.box().export(tmp_path / "box.stl")
     scene = pydynrad.load(tmp_path / "box.stl", default_albedo=(0.3, 0.4, 0.5))
     np.testing.assert_allclose(scene.albedo, np.tile([0.3, 0.4, 0.5], (12, 1)), rtol=1e-6)
-    assert len(scene.points) == 8
+    assert len(scene.vertices) == 8
     assert not scene.is_grey
 
 

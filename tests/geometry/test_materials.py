@@ -161,7 +161,7 @@ def write_obj(tmp_path, img8, kd="0.8 0.6 0.9", ke=None, ke_img=None, uv=QUAD_UV
 
 def patch_uv(scene):
     """(N, 3, 2) each patch's corner UVs, from its corners' positions on the quad (u = x, v = -z)."""
-    v = scene.vertices
+    v = scene.triangles
     return np.stack([v[..., 0], -v[..., 2]], axis=-1)
 
 

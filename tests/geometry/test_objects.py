@@ -82,13 +82,13 @@ def test_with_objects_is_the_validated_scene(cornell_384, brick):
     both = with_objects(cornell_384, [a, b])
     parts = [cornell_384, brick, brick]
     checked = pd.Scene(
-        both.points,
-        both.triangles,
+        both.vertices,
+        both.faces,
         np.concatenate([p.albedo for p in parts]),
         np.concatenate([p.emission for p in parts]),
     )
     n = len(cornell_384)
-    for name in ("points", "triangles", "albedo", "emission", "source_face", "bbox"):
+    for name in ("vertices", "faces", "triangles", "albedo", "emission", "source_face", "bbox"):
         np.testing.assert_array_equal(getattr(both, name), getattr(checked, name), err_msg=name)
     for name in ("centers", "normals", "areas"):
         np.testing.assert_array_equal(getattr(both, name)[n:], getattr(checked, name)[n:], err_msg=name)
@@ -101,7 +101,7 @@ def test_hemicube_rows_match_static_copy(cornell_384, brick, device, offset):
     """Also far from the origin: object trees share the static scene's device frame."""
     if offset:
         cornell_384 = pd.Scene(
-            cornell_384.points + offset, cornell_384.triangles, cornell_384.albedo, cornell_384.emission, name="far box"
+            cornell_384.vertices + offset, cornell_384.faces, cornell_384.albedo, cornell_384.emission, name="far box"
         )
     obj = pd.RigidObject(brick, pose(30, (150.0 + offset, 300.0 + offset, 400.0 + offset)))
     ref = pd.form_factors(with_objects(cornell_384, [obj]), R, device=device)
@@ -136,15 +136,15 @@ def test_convex_objects_rows_skip_their_own_tree(cornell_384, brick, device):
         assert skipped.nnz > 30 * m and all(
             np.array_equal(getattr(skipped, k), getattr(walked, k)) for k in ("indptr", "indices", "data")
         )
-    inward = pd.Scene(brick.points, brick.triangles[:, ::-1], brick.albedo, brick.emission, name="inward")
+    inward = pd.Scene(brick.vertices, brick.faces[:, ::-1], brick.albedo, brick.emission, name="inward")
     world = instanced(cornell_384, [pd.RigidObject(inward, pose(30))])  # its patches face into the solid
     assert pd.RigidObject(inward).solid_planes is not None and world.bvh.convex.tolist() == [False]
     rows = pd.form_factors(world, R, rows=idx, device=device)
     assert rows[:, n:].sum() > 0.9 * m  # each sees the solid's other sides, which its tree shows
     one = pd.scenes.block(60.0, 1)
     pair = pd.Scene(
-        np.vstack([one.points - (50.0, 0.0, 0.0), one.points + (50.0, 0.0, 0.0)]),
-        np.vstack([one.triangles, one.triangles + len(one.points)]),
+        np.vstack([one.vertices - (50.0, 0.0, 0.0), one.vertices + (50.0, 0.0, 0.0)]),
+        np.vstack([one.faces, one.faces + len(one.vertices)]),
         np.vstack([one.albedo, one.albedo]),
         np.vstack([one.emission, one.emission]),
         name="pair",
@@ -170,7 +170,7 @@ def test_shadow_follows_object(cornell_384, brick, device):
         np.testing.assert_array_equal(E_inst, E_ref)
         # Independent truth: a floor centre is shadowed where the segment to the light crosses
         # the object's triangles, tested in numpy (Moller-Trumbore in float64).
-        v = obj.world_points()[brick.triangles]
+        v = obj.world_points()[brick.faces]
         p = cornell_384.centers[floor].astype(np.float64)
         d = np.asarray(light[0].position) - p
         e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
@@ -269,7 +269,7 @@ def test_intersection_warned_exactly_where_edges_cross(cornell_384, brick, devic
         for y in (45.0, 200.0, 420.0):
             for z in (40.0, 300.0):
                 obj = pd.RigidObject(brick, pose(30, (x, y, z)))
-                corners = obj.world_points()[brick.triangles]
+                corners = obj.world_points()[brick.faces]
                 crosses = bool(
                     occluded(
                         cornell_384,

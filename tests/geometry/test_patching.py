@@ -110,7 +110,7 @@ def test_perpendicular_plates_geometry():
 
 def test_closed_box_is_closed_and_inward():
     cube = closed_box(2.0, subdivisions=2)
-    mesh = trimesh.Trimesh(cube.points, cube.triangles, process=True)
+    mesh = trimesh.Trimesh(cube.vertices, cube.faces, process=True)
     assert mesh.is_watertight
     # Inward normals: the mesh's signed volume is negative.
     assert mesh.volume == pytest.approx(-8.0)

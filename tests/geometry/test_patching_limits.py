@@ -62,7 +62,7 @@ def test_the_estimate_holds_the_subdivisions_peak(monkeypatch):
 
     s = pydynrad.scenes.closed_box(subdivisions=1)
     area = 1e-4
-    expected = patching._expected_count(s.points.astype(np.float64), s.triangles.astype(np.int64), area, None)
+    expected = patching._expected_count(s.vertices.astype(np.float64), s.faces.astype(np.int64), area, None)
     tracemalloc.start()
     try:
         out = patching.subdivide_scene(s, max_area=area)

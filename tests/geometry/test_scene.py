@@ -18,7 +18,7 @@ def test_derived_geometry_matches_hand_computation():
     np.testing.assert_allclose(s.areas, [3.0, 3.0])
     np.testing.assert_allclose(s.normals, [[0, 0, 1], [0, 0, 1]])
     np.testing.assert_allclose(s.centers[0], [4 / 3, 1, 0], rtol=1e-6)
-    assert s.vertices.shape == (2, 3, 3)
+    assert s.triangles.shape == (2, 3, 3)
     assert s.scale == pytest.approx(np.sqrt(13.0))
     assert len(s) == s.n_patches == 2
 

@@ -112,7 +112,7 @@ def test_a_millimetre_room_and_a_metre_room_read_the_same_lux(device):
     lamp = parse_ies(IES)
     room_m = pydynrad.scenes.closed_box((4.0, 3.0, 2.5), subdivisions=2, albedo=0.5)
     room_mm = pydynrad.Scene(
-        room_m.points * 1000.0, room_m.triangles, albedo=0.5, emission=room_m.emission, unit="mm", up="+z"
+        room_m.vertices * 1000.0, room_m.faces, albedo=0.5, emission=room_m.emission, unit="mm", up="+z"
     )
     plane_m = work_plane([[0, 0], [4, 0], [4, 3], [0, 3]], 0.75, scene=room_m)
     plane_mm = work_plane([[0, 0], [4000, 0], [4000, 3000], [0, 3000]], 750.0, scene=room_mm)

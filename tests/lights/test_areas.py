@@ -72,7 +72,7 @@ def test_analytic_emitters_and_hemicube_agree_in_a_lit_box(device):
 
 def _exact_rows(scene):
     """Dense F of a convex scene by Lambert's contour integral at each patch centre (no occlusion)."""
-    V, C, N = (a.astype(np.float64) for a in (scene.vertices, scene.centers, scene.normals))
+    V, C, N = (a.astype(np.float64) for a in (scene.triangles, scene.centers, scene.normals))
     F = np.zeros((len(scene), len(scene)))
     for i in range(len(scene)):
         x = np.cross(N[i], [0.123, 1.0, 0.2])

@@ -13,7 +13,7 @@ SHIFT = np.array([1.0, -0.5, 0.25])
 
 def _moved_box(scale, offset, albedo=0.5, emission=1.0):
     base = pydynrad.scenes.closed_box(subdivisions=1)
-    return pydynrad.Scene(base.points * scale + offset * SHIFT, base.triangles, albedo=albedo, emission=emission)
+    return pydynrad.Scene(base.vertices * scale + offset * SHIFT, base.faces, albedo=albedo, emission=emission)
 
 
 @pytest.mark.parametrize("scale, offset", [(1.0, 0.0), (1e-4, 1e3), (1e3, 1e7)])

@@ -56,7 +56,7 @@ def test_blocker_casts_shadow(device):
     c = s.centers[:-2].astype(np.float64)
     # Where the segment centre -> light crosses z = h/2: at half the centre's (x, y).
     cross = np.abs(c[:, :2] * 0.5).max(axis=1)
-    law = inverse_square(pydynrad.Scene(s.points, s.triangles[:-2]), light, 1.0)[:, 0]
+    law = inverse_square(pydynrad.Scene(s.vertices, s.faces[:-2]), light, 1.0)[:, 0]
     shadowed, lit = cross < half - 0.02, cross > half + 0.02
     assert shadowed.sum() > 10 and lit.sum() > 10
     assert np.all(E[shadowed] == 0)

@@ -82,10 +82,8 @@ def test_worker_refuses_a_scene_with_other_geometry():
     scene, moved = grid_scene(3), grid_scene(3, z=2.0)
     _WORKER_SCENE.clear()
     with pytest.raises(InvalidInputError, match="geometry hash"):
-        _worker_scene((moved.points, moved.triangles), scene.geometry_hash())
-    assert (
-        _worker_scene((scene.points, scene.triangles), scene.geometry_hash()).geometry_hash() == scene.geometry_hash()
-    )
+        _worker_scene((moved.vertices, moved.faces), scene.geometry_hash())
+    assert _worker_scene((scene.vertices, scene.faces), scene.geometry_hash()).geometry_hash() == scene.geometry_hash()
 
 
 def test_bad_arguments(tmp_path):

@@ -246,7 +246,7 @@ def test_path_file_meshes_are_confined_to_its_folder(tmp_path, mesh):
     from pydynrad.paths import load_walk
 
     cube = pd.scenes.block(2.0, 0)
-    lines = [f"v {x} {y} {z}" for x, y, z in cube.points] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in cube.triangles]
+    lines = [f"v {x} {y} {z}" for x, y, z in cube.vertices] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in cube.faces]
     (tmp_path / "outside.obj").write_text("\n".join(lines) + "\n")
     folder = tmp_path / "walk"
     (folder / "sub").mkdir(parents=True)

@@ -18,7 +18,7 @@ BOX = (556.0, 548.8, 559.2)
 
 def rays_off_normals(scene):
     """For each patch, the first patch its normal ray meets (-1: none) and whether that face is a back face."""
-    tris = scene.vertices.astype(np.float64)
+    tris = scene.triangles.astype(np.float64)
     n = scene.normals.astype(np.float64)
     origins = scene.centers.astype(np.float64) + 1e-5 * scene.scale * n
     hit = brute_force_hits(tris, origins, n).patch
@@ -44,11 +44,11 @@ def cbox():
 
 def test_cornell_dimensions_and_patching(cbox):
     np.testing.assert_allclose(cbox.bbox, [[0, 0, 0], BOX], atol=1e-3)
-    v = cbox.vertices.astype(np.float64)
+    v = cbox.triangles.astype(np.float64)
     assert np.linalg.norm(v - np.roll(v, 1, axis=1), axis=2).max() <= 100.0 + 1e-3
     assert len(cbox) == 1128  # the documented default (max_edge=100 mm)
     assert len(cornell_box(max_edge=50.0)) == 4512
-    assert len(cbox.points) < len(cbox)  # corners are shared: one connected mesh
+    assert len(cbox.vertices) < len(cbox)  # corners are shared: one connected mesh
     fine = cornell_box(max_patch_area=2000.0, max_edge=None)
     assert fine.areas.max() <= 2000.0
     assert fine.areas.sum() == pytest.approx(cbox.areas.sum(), rel=1e-6)
@@ -140,7 +140,7 @@ def test_cornell_is_closed_but_for_its_front():
     d = rng.normal(size=(4000, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     o = np.tile([300.0, 400.0, 300.0], (len(d), 1))
-    hit, dist = brute_force_hits(s.vertices, o, d)[:2]
+    hit, dist = brute_force_hits(s.triangles, o, d)[:2]
     missed = hit < 0
     assert 0 < missed.sum() < len(d) // 4
     # A ray that hits nothing leaves through the open side z = 0, inside the opening.
@@ -175,7 +175,7 @@ def test_village_default_size_and_materials():
     e = s.emitters
     assert len(e) > 0 and s.emission.min() >= 0
     assert len(np.unique(np.round(s.albedo, 3), axis=0)) >= 10  # many materials, not grey
-    v = s.vertices.astype(np.float64)
+    v = s.triangles.astype(np.float64)
     edges = np.linalg.norm(v - np.roll(v, 1, axis=1), axis=2)
     assert edges.max() <= 2 * np.sqrt(2) * BASE_CELL + 1e-4  # the ground's cells are the largest
 
@@ -198,7 +198,7 @@ def test_village_lamp_light_leaves_through_doors_and_windows():
     d = rng.normal(size=origin.shape)
     d *= np.sign(np.einsum("ij,ij->i", d, normal))[:, None]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    hit = brute_force_hits(s.vertices, origin + 1e-4 * normal, d).patch
+    hit = brute_force_hits(s.triangles, origin + 1e-4 * normal, d).patch
     grass = np.all(np.isclose(s.albedo, MATERIALS["grass"]), axis=1) | np.all(
         np.isclose(s.albedo, MATERIALS["road"]), axis=1
     )
