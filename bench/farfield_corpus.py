@@ -46,6 +46,8 @@ SIZES = {
         "resolution": 24,
         "corpus": ("veach_ajar", "kenney_retro_urban", "kenney_suburb", "cornell_box"),
         "max_edge": {"cornell_box": 0.1, "kenney_retro_urban": 1.0},
+        # The same file again, patched past 100,000 patches: the largest scene of the section.
+        "large": {"kenney_suburb": 2.0},
         "builtins": True,
         "frames": 8,
         "image": (96, 64),
@@ -54,6 +56,7 @@ SIZES = {
         "resolution": 32,
         "corpus": ("veach_ajar", "kenney_retro_urban", "kenney_suburb", "cornell_box"),
         "max_edge": {"cornell_box": 0.05, "kenney_retro_urban": 0.5, "kenney_suburb": 1.5},
+        "large": {},
         "builtins": True,
         "frames": 16,
         "image": (160, 120),
@@ -75,11 +78,13 @@ def _corpus_cases(p):
     from pydynrad import PointLight
 
     facts = {s["name"]: s for s in json.loads((CORPUS / "corpus.json").read_text())["scenes"]}
-    for name in p["corpus"]:
+    runs = [(name, name, p["max_edge"].get(name)) for name in p["corpus"]]
+    runs += [(f"{name} (max_edge {edge:g})", name, edge) for name, edge in p.get("large", {}).items()]
+    for label, name, edge in runs:
         s = facts[name]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            scene = pydynrad.load(CORPUS / s["file"], max_edge=p["max_edge"].get(name))
+            scene = pydynrad.load(CORPUS / s["file"], max_edge=edge)
         obs = s["observer"]
         pos = np.array(obs["position"], float)
         look = np.array(obs["look_at"], float) if "look_at" in obs else pos + np.array(obs["direction"], float)
@@ -91,7 +96,7 @@ def _corpus_cases(p):
             lamp = PointLight(tuple(pos + [0.0, 0.3, 0.0]), (0.0,) * 3)
             lights = [lamp]
             moved = [PointLight(tuple(pos + [0.01 * scene.scale, 0.3, 0.0]), (0.05,) * 3)]
-        yield name, scene, lights, moved, pos, look
+        yield label, scene, lights, moved, pos, look
 
 
 def _builtin_cases():
@@ -161,7 +166,7 @@ def scene_rows(name, scene, lights, moved, pos, look, p, device):
     F = pydynrad.form_factors(scene, resolution=p["resolution"], device=device, progress=False)
     t_F = time.perf_counter() - t0
     L = pydynrad.light_vector(scene, lights, device=device)
-    ref = pydynrad.solve(scene, F, light=L, tol=1e-8, device=device).radiosity
+    ref = pydynrad.solve(scene, F, light=L, tol=1e-8, device=device, progress=False).radiosity
     mean = ref.mean()
     dark = ref.max(axis=1) < 1e-3 * mean
     M = min(1024, n // 4)

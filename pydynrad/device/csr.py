@@ -10,6 +10,7 @@ sweeps), G (every patch from the clusters) and F (the first bounce and the fine 
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import scipy.sparse as sp
@@ -82,6 +83,9 @@ class DeviceCSR:
         # arguments): a fresh one per bounce cost host time on the order of a Jacobi sweep
         # (docs/decisions/0005-warm-up-and-fixed-local-sizes.md).
         self._kernels = threading.local()
+        #: The fastest :meth:`bounce` so far, in seconds (None before one): a cost model's measure of
+        #: a pass over the matrix on this device, uploads and read-back included.
+        self.seconds_bounce: float | None = None
 
     def packed(self, a: np.ndarray, width: int) -> np.ndarray:
         """(n, width) array of this matrix's type holding a's first channels (zeros elsewhere)."""
@@ -136,6 +140,7 @@ class DeviceCSR:
             )
         width = 1 if k == 1 else 4
         d = self.device
+        t0 = time.perf_counter()
         bufs = [d.to_device(self.packed(a, width)) for a in (L, rho, x)]
         y = cl.Buffer(d.context, cl.mem_flags.READ_WRITE, max(self.shape[0], 1) * width * self.dtype.itemsize)
         L_buf, rho_buf, x_buf = bufs
@@ -143,6 +148,8 @@ class DeviceCSR:
         out = np.empty((self.shape[0], width), dtype=self.dtype)
         if self.shape[0]:
             cl.enqueue_copy(d.queue, out, y, is_blocking=True)
+        seconds = time.perf_counter() - t0
+        self.seconds_bounce = seconds if self.seconds_bounce is None else min(self.seconds_bounce, seconds)
         return out[:, :k].astype(np.float64)
 
     def jacobi(

@@ -198,7 +198,7 @@ class DynamicRadiosity:
         With the far field: every answer's all-patch error is estimated from its residual
         L + P F B - B (:attr:`error_estimate`; :mod:`pydynrad.farfield.estimate`), and while the
         estimate exceeds ``tolerance`` (area-weighted relative RMS; default
-        :data:`~pydynrad.farfield.estimate.DEFAULT_TOLERANCE`, 0.5%) sweeps B <- L + P F B refine
+        :data:`~pydynrad.farfield.estimate.DEFAULT_TOLERANCE`, 0.1%) sweeps B <- L + P F B refine
         it (F in memory; a frame with unchanged lights only beyond twice the tolerance). None:
         estimate only. Without F in memory the residual is sampled and nothing is refined.
 

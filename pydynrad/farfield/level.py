@@ -491,6 +491,7 @@ class FarField:
         self.combined = False  # whether the last light change was a combination of earlier ones
         self._bounced = None  # the last first bounce on the host (:meth:`_first_bounce`)
         self.first_bounce_columns = 0
+        self._column_seconds: float | None = None  # the host's fastest seconds per entry of F's columns
         self._L = None
         self.B_far = None
         self._injected = None  # (B_far, local rows, members, injection) of the last injection
@@ -661,9 +662,17 @@ class FarField:
         fit = self._solved.fit(s)
         return s.copy() if fit is None else fit[1] + fit[2]
 
+    def share_rows(self, rows: DeviceCSR) -> None:
+        """Take ``rows``, F on the device (the error estimate's copy), for the first bounce where
+        a pass over it costs less than F's lit columns on the host (:meth:`_first_bounce`); kept
+        only in the far field's own type, and only where it holds no copy of its own."""
+        if self._F_dev is None and rows.dtype == np.dtype(self._dtype) and rows.shape == (len(self.rho),) * 2:
+            self._F_dev = rows
+
     def _first_bounce(self, L: np.ndarray) -> np.ndarray:
         """D1 = P F L (N, k): over the lit columns of F by column (or, where fewer, the last D1 plus
-        the first bounce of the columns whose light changed), or a pass of F's rows."""
+        the first bounce of the columns whose light changed), or a pass of F's rows on the device
+        where that is measured to cost less: a sun lights most columns, a lamp few."""
         rho = self.rho[:, : L.shape[1]]
         if self._F_cols is None:
             return self._F_dev.bounce(np.zeros_like(L), rho, L)
@@ -674,8 +683,21 @@ class FarField:
             changed = _differing_rows(L, last[0])
             if len(changed) < len(cols):  # D1 is linear in L: add the change's first bounce
                 cols, x, D1 = changed, L - last[0], last[1]
+        indptr = self._F_cols.indptr
+        entries = int((indptr[cols + 1] - indptr[cols]).sum())
+        rows = self._F_dev
+        if rows is not None and rows.seconds_bounce is not None and self._column_seconds is not None:
+            if entries * self._column_seconds > rows.seconds_bounce:
+                D1 = rows.bounce(np.zeros_like(L), rho, L)
+                self._bounced = (L.copy(), D1, 0)
+                self.first_bounce_columns = len(self.rho)
+                return D1
+        t0 = time.perf_counter()
         # F's entries read once in their own type, not copied out and upcast (csrc/colproduct.c).
         D1 = D1 + rho * columns_product(self._F_cols, cols, x[cols])
+        if entries:
+            s = (time.perf_counter() - t0) / entries
+            self._column_seconds = s if self._column_seconds is None else min(self._column_seconds, s)
         self._bounced = (L.copy(), D1, 0 if last is None or x is L else last[2] + 1)
         self.first_bounce_columns = len(cols)
         return D1

@@ -391,8 +391,15 @@ def test_injection_after_a_carried_swap_cuts_nothing(device, cornell_lit, monkey
     from pydynrad.farfield import level
 
     scene, F, L, _, _ = cornell_lit
+    # tolerance=None: one injection per frame (refinement sweeps inject again, with the same rows).
     dyn = DynamicRadiosity(
-        scene, F, local_size=len(scene) // 2, max_swaps_per_frame=8, observer=[278, 273, -300], device=device
+        scene,
+        F,
+        local_size=len(scene) // 2,
+        max_swaps_per_frame=8,
+        observer=[278, 273, -300],
+        device=device,
+        tolerance=None,
     )
     for k, z in enumerate(np.linspace(-300, 500, 8)):
         dyn.update([278, 273, z])
@@ -568,3 +575,24 @@ def test_answers_fit_combinations_of_the_last_sources():
     assert np.abs(rest).max() > 0.1 and off[:, 0].min() > 0.1
     record.add(np.ones((50, 1)), np.ones((50, 1)))  # one channel: the record starts again
     assert record.count == 1 and record.fit(s) is None
+
+
+def test_first_bounce_by_columns_or_by_a_pass_is_the_same_product(device, cornell_lit):
+    """The far field's first bounce P F L goes over F's lit columns on the host, or through the
+    error estimate's copy of F on the device once a pass is measured to cost less (a sun lights
+    most columns): the same product either way, to float32 rounding, against numpy's."""
+    scene, F, L, _, _ = cornell_lit
+    dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 4, observer=[278, 273, -300], device=device)
+    dyn.radiosity(light=L)  # the estimate's pass: F on the device, shared, and its time measured
+    far = dyn.far
+    if far._F_cols is None:
+        pytest.skip("the device is not the host: the first bounce is always a pass of F's rows")
+    assert far._F_dev is not None and far._F_dev.seconds_bounce is not None
+    expected = far.rho * (F.astype(np.float64) @ L)
+    by_columns = far._first_bounce(L)
+    far._bounced = None
+    far._column_seconds = 1.0  # a pass now predicted cheaper than any column product
+    by_pass = far._first_bounce(L)
+    assert far.first_bounce_columns == len(scene)
+    for D1 in (by_columns, by_pass):
+        np.testing.assert_allclose(D1, expected, rtol=2e-6, atol=1e-7 * np.abs(expected).max())

@@ -33,8 +33,9 @@ def test_dark_stays_dark(device, leak_case, tolerance):
     assert B[dark].max(initial=0.0) < 1e-2 * ref.mean()
     err = radiosity_error(B, ref, scene.areas)
     est = dyn.error_estimate
-    # Observed: 0.41-1.37% at tolerance=None, 0.25-0.44% at the default (0.5%).
-    assert err < (0.015 if tolerance is None else 0.005)
+    # Observed: 0.41-1.37% at tolerance=None; 0.03-0.12% at the default (0.1%), the 0.12% where
+    # the estimate read 0.61 of the truth (the sun through a window).
+    assert err < (0.015 if tolerance is None else 0.0015)
     assert 0.5 * err <= est.error <= 3 * err or err < 1e-4
     assert est.bound >= err  # F nearly reciprocal: the bound holds
 

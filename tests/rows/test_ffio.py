@@ -110,6 +110,7 @@ def test_scene_comes_first_and_the_old_order_is_named(tmp_path):
     ]
     for call in calls:
         with pytest.raises(
-            InvalidInputError, match=r"scene must be a pydynrad.Scene or a trimesh mesh; got \w*Path \(the scene comes first"
+            InvalidInputError,
+            match=r"scene must be a pydynrad.Scene or a trimesh mesh; got \w*Path \(the scene comes first",
         ):
             call()
