@@ -9,24 +9,31 @@ is one bounce of F (one sparse product, on the device), and the true error e = B
 (I - P F) e = r. Norms are area-weighted over patches and channels, ``|x|^2 = sum_i A_i |x_i|^2``,
 as :func:`pydynrad.comparison.radiosity_error` weighs its error, and relative to ``|B|``:
 
-* **bound**: with F reciprocal (A_i F_ij = A_j F_ji) and rows summing to at most 1, F is
-  self-adjoint in that inner product with norm <= 1, so ``|P F| <= rho_max`` and
-  ``|e| <= |r| / (1 - rho_max)`` (hemicube F is reciprocal to its rounding). Safe, and 2-10x
-  loose at the albedos of real scenes (0.5-0.9), since a residual that changes sign from
-  patch to patch is mostly cancelled by the next bounce;
-* **estimate**: ``|e| ~ |r| / (1 - q)`` with ``q = |P F r| / |r|`` the contraction the residual
-  itself shows over one more bounce: e = r + P F r + (P F)^2 r + ..., summed as a geometric
-  series of ratio q. Measured (bench/farfield_corpus.py, tests/farfield/test_estimate.py)
-  within 0.8-1.3x of the true all-patch error on the built-ins, the corpus and the leak scenes.
+* with F reciprocal (A_i F_ij = A_j F_ji, hemicube F to its rounding) and rows summing to at most
+  1, T = P F is self-adjoint in the inner product weighted by A / rho, per channel, with its
+  spectrum in [-rho_max, rho_max]. Then ``|e|^2 = <r, (I - T)^-2 r>`` is an integral over the
+  spectral measure of r, whose first moments ``<r, r>``, ``<r, T r>``, ``<T r, T r>`` one
+  more bounce ``y = T r`` gives. Quadrature on them (Golub and Meurant, *Matrices, Moments
+  and Quadrature*) brackets it: the one-node Gauss rule is a **lower** bound and the Gauss-Radau
+  rule with a node fixed at rho_max an **upper** bound (every derivative of (1 - t)^-2 is
+  positive below 1) -- where the plain bound ``|r| / (1 - rho_max)`` is 2-25x loose;
+* **estimate**: the geometric mean of the two, as a ratio to |r| (in the A / rho norm, applied to
+  the area-weighted |r|). A residual of the oscillating modes (negative eigenvalues: facing
+  surfaces) contracts fast in norm yet cancels over the bounces, and a norm ratio
+  ``|r| / (1 - |T r| / |r|)`` read it 4-7x too high on an open suburb (q 0.8 after a sweep),
+  buying up to 16 sweeps that were not needed; the bracket's mean read 1.0-2.5x there and
+  0.98-1.2x on the interiors (docs/decisions/0041-far-field-tolerance-and-light-change.md).
 
-q costs a second bounce, so it is measured when first needed, whenever the light vector has
-changed by more than :data:`REMEASURE_CHANGE` of itself since it was, and on every refinement
-sweep (for free: the next sweep's residual is P F r); in between the last q is used.
+The moments cost a bounce, so they are taken when first needed, on a light change whose light
+vector moved by more than :data:`REMEASURE_CHANGE` of itself since they were, and on every
+sweep (measured on the residual the sweep leaves); in between the last ratio of estimate to
+residual is carried (a sun turning by a degree: the residual's spectrum hardly moves).
 
 Refinement (``tolerance``): while the estimate exceeds the tolerance, one sweep
-``B <- L + P F B = B + r`` (the residual's own product: no extra pass), the far field's answer
-replaced by it outside the local set and the local set solved again from it (its injection: a
-product with the kept rows), then the residual of the new answer. A light change starts from its
+``B <- L + P F B = B + r``, the far field's answer replaced by it outside the local set and the
+local set solved again from it (its injection: a product with the kept rows), then the residual
+of the new answer: ``F B_next = F B + F r + F[:, S] d`` with ``F r`` the moments' own pass and
+``d`` the local set's change by its re-solve (F's columns of S on the host, a pass on a GPU). A light change starts from its
 gather plus the correction the sweeps made to earlier lights' answers, fitted to the new light as
 the far field fits its answers (:class:`pydynrad.farfield.history.Answers`; the correction is
 linear in L): a sun moving by a degree starts at its last refined answer and costs the residual
@@ -35,8 +42,9 @@ alone. A light change whose estimate is under the tolerance pays one bounce and 
 Without F in memory (a store, rows on demand) the residual is sampled: :data:`SAMPLED_ROWS` rows
 drawn in proportion to patch area (the mean of their ``|r_i|^2`` is an unbiased estimate of the
 area-weighted mean square), held, and multiplied with B again every frame; the interval is the
-95% normal interval of that mean, and q is :data:`UNMEASURED_CONTRACTION` (no second bounce is
-possible from sampled rows). No refinement there: the tolerance needs F.
+95% normal interval of that mean, and the ratio of error to residual is
+``1 / (1 - UNMEASURED_CONTRACTION)`` (no second bounce is possible from sampled rows). No
+refinement there: the tolerance needs F.
 """
 
 from __future__ import annotations
@@ -63,6 +71,7 @@ __all__ = [
     "UNMEASURED_CONTRACTION",
     "FRAME_HYSTERESIS",
     "REMEASURE_CHANGE",
+    "residual_ratios",
 ]
 
 #: The estimated all-patch relative RMS error the far field refines to by default. A tenth of the
@@ -72,8 +81,9 @@ __all__ = [
 DEFAULT_TOLERANCE = 0.001
 #: The most refinement sweeps per light change (or frame).
 MAX_REFINE_SWEEPS = 16
-#: q is capped here (a residual that bounces back whole would divide by zero).
-MAX_CONTRACTION = 0.95
+#: Sweeps stop where one cut the residual by less than this factor (rounding, or modes a sweep
+#: does not damp): a further sweep would cost a bounce for nothing.
+MIN_SWEEP_GAIN = 0.95
 #: q for sampled residuals (no second bounce): 1 / (1 - q) = 2, above the 1.2-1.8 measured with F.
 UNMEASURED_CONTRACTION = 0.5
 #: Rows sampled for the residual without F.
@@ -82,8 +92,9 @@ SAMPLED_ROWS = 512
 #: times the tolerance: its estimate moves a little from frame to frame, and a sweep on one frame
 #: but not the next would show as a pop.
 FRAME_HYSTERESIS = 2.0
-#: q is measured again where the light vector moved by more than this (area-weighted relative
-#: norm) since it last was.
+#: The moments are measured again on a light change where the light vector moved by more than
+#: this (area-weighted relative norm) since they last were; and a warm start scaled from the
+#: last correction is taken only where the light is within this of the last one scaled.
 REMEASURE_CHANGE = 0.5
 #: Corrections of earlier light changes kept for the warm start.
 CORRECTIONS = 4
@@ -94,6 +105,40 @@ WARM_GAIN = 4.0
 
 def _norm(areas: np.ndarray, x: np.ndarray) -> float:
     return float(np.sqrt(np.einsum("i,ij,ij->", areas, x, x)))
+
+
+def residual_ratios(r: np.ndarray, y: np.ndarray, areas: np.ndarray, rho: np.ndarray) -> tuple[float, float]:
+    """(lower, upper): bounds on ``|e| / |r|`` for the error e = (I - T)^-1 r, from the residual
+    r (N, k) and its bounce y = T r = P F r (N, k), in the norm weighted by A / rho per channel,
+    in which T is self-adjoint for reciprocal F: the one-node Gauss rule and the two-node
+    Gauss-Radau rule with a node at the channel's largest albedo, applied to (1 - t)^-2 over the
+    spectral measure of r whose moments are <r, r>, <r, T r>, <T r, T r>. (1.0, 1.0) for r = 0."""
+    lower = upper = total = 0.0
+    for c in range(r.shape[1]):
+        b = float(rho[:, c].max())
+        if b <= 0.0:  # no bounce in this channel: e = r
+            m0 = float(np.einsum("i,i,i->", areas, r[:, c], r[:, c]))
+            lower, upper, total = lower + m0, upper + m0, total + m0
+            continue
+        # rho = 0 patches have y = 0 and, in every answer checked here, r = 0 (B = L there).
+        w = areas / np.maximum(rho[:, c], 1e-12)
+        m0 = float(np.einsum("i,i,i->", w, r[:, c], r[:, c]))
+        if m0 == 0.0:
+            continue
+        m1 = float(np.einsum("i,i,i->", w, r[:, c], y[:, c]))
+        m2 = float(np.einsum("i,i,i->", w, y[:, c], y[:, c]))
+        theta = min(m1 / m0, b)
+        lower += m0 / (1.0 - theta) ** 2
+        M1, M2 = m1 - b * m0, m2 - 2.0 * b * m1 + b * b * m0  # moments about b (t - b <= 0)
+        if M1 < 0.0 and M2 > 0.0:
+            t, w1 = b + M2 / M1, M1 * M1 / M2
+            upper += w1 / (1.0 - t) ** 2 + max(m0 - w1, 0.0) / (1.0 - b) ** 2
+        else:  # all of r's measure at b
+            upper += m0 / (1.0 - b) ** 2
+        total += m0
+    if total == 0.0:
+        return 1.0, 1.0
+    return float(np.sqrt(lower / total)), float(np.sqrt(upper / total))
 
 
 def relative_rms(x: np.ndarray, B: np.ndarray, areas: np.ndarray) -> float:
@@ -112,11 +157,11 @@ class ErrorEstimate:
     :func:`pydynrad.comparison.radiosity_error`.
     """
 
-    error: float  # the estimate of the all-patch error: residual / (1 - contraction)
+    error: float  # the estimate of the all-patch error: residual times the bracket's geometric mean
     residual: float  # |L + P F B - B| / |B|
-    contraction: float  # q = |P F r| / |r|, measured or carried (``measured``)
-    measured: bool  # q measured on this light
-    bound: float  # residual / (1 - rho_max): an upper bound for reciprocal F
+    contraction: float  # q = |P F r| / |r| (the residual's norm over one more bounce)
+    measured: bool  # the moments measured on this answer (else carried from the last light change)
+    bound: float  # the Gauss-Radau upper bound (residual times its ratio) for reciprocal F
     sweeps: int  # refinement sweeps this answer took
     sampled: int  # rows the residual was sampled from (0: all of F)
     interval: tuple[float, float] | None  # ~95% interval of the error where sampled
@@ -178,8 +223,8 @@ class ErrorControl:
         self.samples = int(samples)
         self._rng = np.random.default_rng(seed)
         self._sample = None  # (patches, their rows) of the sampled residual
-        self.q: float | None = None
-        self._q_light: np.ndarray | None = None  # L at which q was measured
+        self._ratios: tuple[float, float, float] | None = None  # (estimate, upper, q) of the last moments
+        self._ratios_light: np.ndarray | None = None  # L at which they were measured
         self._FB = None  # (B, F B) of the last answer checked: frames update F B by the columns that changed
         self._seen = None  # (far.B_far, L) of the last answer checked
         self._corrections = Answers(CORRECTIONS)  # (L, refined B_far - gathered B_far)
@@ -244,16 +289,31 @@ class ErrorControl:
     def _bound(self, res: float) -> float:
         return res / (1.0 - self.rho_max) if self.rho_max < 1 else float("inf")
 
-    def _measure_q(self, r: np.ndarray, L: np.ndarray) -> None:
-        n0 = _norm(self.areas, r)
-        if n0 > 0:
-            self.q = min(MAX_CONTRACTION, _norm(self.areas, self.rho * self._bounce(r)) / n0)
-            self._q_light = L.copy()
-
-    def _q_stale(self, L: np.ndarray) -> bool:
-        if self.q is None or self._q_light is None or self._q_light.shape != L.shape:
+    def _stale(self, L: np.ndarray) -> bool:
+        held = self._ratios_light
+        if self._ratios is None or held is None or held.shape != L.shape:
             return True
-        return relative_rms(L - self._q_light, L, self.areas) > REMEASURE_CHANGE
+        return relative_rms(L - held, L, self.areas) > REMEASURE_CHANGE
+
+    def _moments(self, r: np.ndarray, L: np.ndarray) -> np.ndarray:
+        """F r (one pass), and the ratios of estimate, upper bound and q to the residual from it."""
+        self._ratios_light = L.copy()
+        Fr = self._bounce(r)
+        y = self.rho * Fr
+        lower, upper = residual_ratios(r, y, self.areas, self.rho)
+        n0 = _norm(self.areas, r)
+        q = _norm(self.areas, y) / n0 if n0 > 0 else 0.0
+        self._ratios = (float(np.sqrt(lower * upper)), upper, q)
+        return Fr
+
+    def _after_sweep(self, FB, Fr, B_next, swept) -> np.ndarray:
+        """F B_next from F B and F r: plus F's columns of the local set's change by its re-solve
+        (``B_next - swept``, ``swept = B + r``), on the host; a whole pass without F by column."""
+        d = B_next - swept
+        cols = np.flatnonzero(np.any(d != 0, axis=1))
+        if self._F_cols is None or len(cols) >= 0.25 * len(d):
+            return self._bounce(B_next)
+        return FB + Fr + (columns_product(self._F_cols, cols, d[cols]) if len(cols) else 0.0)
 
     def _warm_start(self, L: np.ndarray) -> np.ndarray | None:
         """The correction the sweeps made to earlier lights, fitted to L: their best combination
@@ -295,25 +355,25 @@ class ErrorControl:
                 B = resolve(gathered + start)
         FB = self._updated_FB(B) if not light_change else self._bounce(B)
         r = L + self.rho * FB - B
-        measured = False
-        if light_change and self._q_stale(L):
-            self._measure_q(r, L)
-            measured = True
+        measured = self._ratios is None or (light_change and self._stale(L))
+        Fr = self._moments(r, L) if measured else None
         res = relative_rms(r, B, self.areas)
-        q = self.q if self.q is not None else UNMEASURED_CONTRACTION
-        est = res / (1.0 - q)
+        ratio, upper, q = self._ratios
+        est = res * ratio
         limit = None if self.tolerance is None else self.tolerance * (1.0 if light_change else FRAME_HYSTERESIS)
         while limit is not None and est > limit and sweeps < MAX_REFINE_SWEEPS:
-            B_next = resolve(B + r)
-            FB = self._bounce(B_next)
-            r_next = L + self.rho * FB - B_next
-            n_prev = _norm(self.areas, r)
-            q = min(MAX_CONTRACTION, _norm(self.areas, r_next) / n_prev) if n_prev > 0 else 0.0
-            self.q, self._q_light, measured = q, L.copy(), True
-            B, r, sweeps = B_next, r_next, sweeps + 1
-            res = relative_rms(r, B, self.areas)
-            est = res / (1.0 - q)
-            if q >= MAX_CONTRACTION:  # the sweeps no longer gain (rounding): stop
+            if Fr is None:  # moments carried: F r for the sweep, and them measured on the way
+                Fr = self._moments(r, L)
+                measured = True
+            swept = B + r
+            B_next = resolve(swept)
+            FB = self._after_sweep(FB, Fr, B_next, swept)
+            B, r, sweeps = B_next, L + self.rho * FB - B_next, sweeps + 1
+            Fr = self._moments(r, L)
+            res, last_res = relative_rms(r, B, self.areas), res
+            ratio, upper, q = self._ratios
+            est = res * ratio
+            if res > MIN_SWEEP_GAIN * last_res:  # the sweeps no longer gain: stop
                 break
         if sweeps or (light_change and self._corrections.count):
             self._corrections.add(L, self.far.B_far - gathered)
@@ -321,6 +381,6 @@ class ErrorControl:
         self._FB = (B, FB)
         self._seen = (self.far.B_far, L, np.array(members))
         self.last = ErrorEstimate(
-            est, res, q, measured, self._bound(res), sweeps, 0, None, time.perf_counter() - t0, light_change
+            est, res, q, measured, res * upper, sweeps, 0, None, time.perf_counter() - t0, light_change
         )
         return B

@@ -114,3 +114,28 @@ def test_tolerance_is_checked(device, builtins):
     for bad in (0.0, -1.0, float("nan"), "1%"):
         with pytest.raises((InvalidInputError, ValueError, TypeError)):
             DynamicRadiosity(scene, F, local_size=32, device=device, tolerance=bad)
+
+
+def test_the_quadrature_bracket_holds_against_a_dense_solve(closed_box_48, closed_box_48_F):
+    """``residual_ratios``: Gauss below and Gauss-Radau above the true |e| / |r| in the A / rho
+    norm, for residuals of every kind (smooth, oscillating, random), with F made exactly
+    reciprocal (the premise; hemicube F is reciprocal to its rounding) and rows summing to <= 1."""
+    from pydynrad.farfield.estimate import residual_ratios
+
+    A = closed_box_48.areas.astype(np.float64)
+    F = closed_box_48_F.toarray().astype(np.float64)
+    F = 0.5 * (F + (F.T * A[None, :]) / A[:, None])  # A_i F_ij = A_j F_ji exactly
+    F /= max(1.0, F.sum(axis=1).max())
+    rng = np.random.default_rng(7)
+    rho = np.column_stack([np.full(48, 0.8), rng.uniform(0.1, 0.95, 48), np.full(48, 0.3)])
+    smooth = np.repeat(closed_box_48.centers[:, :1] - closed_box_48.centers[:, :1].min() + 1.0, 3, axis=1)
+    w, v = np.linalg.eigh(np.sqrt(A)[:, None] * F / np.sqrt(A)[None, :])  # F's modes, similar form
+    oscillating = np.repeat((v[:, np.argmin(w)] / np.sqrt(A))[:, None], 3, axis=1)
+    for r in (smooth, oscillating, rng.normal(size=(48, 3)), rng.uniform(size=(48, 3))):
+        y = rho * (F @ r)
+        e = np.column_stack([np.linalg.solve(np.eye(48) - rho[:, c][:, None] * F, r[:, c]) for c in range(3)])
+        W = A[:, None] / rho
+        true = np.sqrt((W * e * e).sum() / (W * r * r).sum())
+        lower, upper = residual_ratios(r, y, A, rho)
+        assert lower <= true * (1 + 1e-9) and true <= upper * (1 + 1e-9), (lower, true, upper)
+    assert residual_ratios(np.zeros((48, 3)), np.zeros((48, 3)), A, rho) == (1.0, 1.0)
