@@ -602,6 +602,10 @@ class FarField:
             B = self._F_dev.jacobi(L, rho, B, 0.0, self.fine_sweeps)[0]
         if self.gather != "shared" and not self.combined:  # the shared gather is not linear in L
             self._lit.add(L, B)
+        # Recorded as computed (answers combine linearly), answered clamped at 0: the linear basis
+        # of a far field without F undershoots where a cluster's light falls off steeply
+        # (veach_ajar from a store: -2e-4 of the largest value), and light is not negative.
+        B = np.maximum(B, 0.0)
         self.B_far = np.repeat(B, 3, axis=1) if k == 1 else B
         self._L = L_all
         self.seconds_light = time.perf_counter() - t0

@@ -1,5 +1,7 @@
 """The far field without F (stores, rows on demand): the piecewise-linear coarse basis."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from helpers import box_scene, dense_radiosity, reciprocal_F
@@ -165,3 +167,37 @@ def test_linear_basis_drops_a_direction_that_is_only_rounding():
     P = Pr.toarray()
     assert np.all(P[:, 1] == 0.0)  # across the line: nothing
     np.testing.assert_allclose(P[:, 2], np.arange(8) / 7 / 2, atol=1e-6)  # along it: the hat, to float32
+
+
+def test_without_f_the_far_field_answers_no_negative_light(device, tmp_path):
+    """veach_ajar (a real scene: a lamp behind an ajar door) from a store: the linear basis of the
+    far field without F undershot below 0 on a patch where its cluster's light falls off steeply
+    (-0.22 of 1000 at R = 24); light is not negative, so the answer is clamped, and the renderer,
+    which refuses negative radiosity, draws it. Refined to the tolerance, it needs no clamp."""
+    import warnings
+
+    from pydynrad.precompute.store import compute_store
+    from pydynrad.rows.files import open_form_factors
+
+    corpus = Path(__file__).resolve().parents[2] / "bench" / "data" / "corpus"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the file's own clamped albedos and missing textures
+        scene = pydynrad.load(corpus / "veach_ajar" / "veach_ajar.obj")
+    F = pydynrad.form_factors(scene, resolution=24, device=device, progress=False)
+    compute_store(
+        scene,
+        tmp_path / "ff",
+        resolution=24,
+        clusters=cluster_patches(scene),
+        progress=False,
+        row_function=lambda scene, rows, resolution, device=None: F[rows],
+    )
+    L = pydynrad.light_vector(scene, device=device)
+    obs = [4.05, 1.62, -2.31]
+    dyn = DynamicRadiosity(
+        scene, open_form_factors(scene, tmp_path / "ff"), local_size=1024, observer=obs, device=device, tolerance=None
+    )
+    B = dyn.radiosity(light=L)
+    assert B.min() >= 0.0
+    camera = pydynrad.Camera(obs, [0.0, 1.6, -2.8], (0, 1, 0), 60.0, 32, 24)
+    assert np.isfinite(pydynrad.render(scene, B, camera, device=device)).all()
