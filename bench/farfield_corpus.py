@@ -13,7 +13,11 @@ position), against the full solve of the same F (``pydynrad.solve``, tol 1e-8):
   by 1% of the scene), three in a row (each a new light vector), the fastest, with its parts (the far field's light(), its coarse solve, the
   estimate and sweeps) and one bounce of the full solve with F on the device (``DeviceCSR.bounce``);
 * popping: frame-to-frame RMS change of B over the walk with static lights, over the RMS of B;
-  a static-light frame (update + radiosity) against the local-only frame.
+  a static-light frame (update + radiosity) against the local-only frame;
+* for some scenes the same walk with F's rows read from a store on disk (``compute_store`` with
+  the section's F and clusters, ``open_form_factors``): F is then not in memory, the estimate
+  samples rows on frames, and a light change over the tolerance is refined by passes over the
+  store's blocks.
 
 ``python -m bench.farfield_corpus [size]`` prints the tables.
 """
@@ -48,6 +52,8 @@ SIZES = {
         "max_edge": {"cornell_box": 0.1, "kenney_retro_urban": 1.0},
         # The same file again, patched past 100,000 patches: the largest scene of the section.
         "large": {"kenney_suburb": 2.0},
+        # Walked again with F's rows from a store on disk (F not in memory).
+        "stores": ("veach_ajar", "kenney_suburb", "village at night (built-in)"),
         "builtins": True,
         "frames": 8,
         "image": (96, 64),
@@ -209,7 +215,7 @@ def scene_rows(name, scene, lights, moved, pos, look, p, device):
             prev = B
         err = radiosity_error(B, ref, scene.areas)
         pix = _pixels(scene, B, ref, cam, device)
-        lit = int((B[dark].max(axis=1) > 1e-2 * mean).sum()) if dark.any() else 0
+        lit = _lit(B, dark, mean)
         # The light change: back and forth between the lights and the moved ones, best of 3.
         changes = []
         for k in range(1, 4):  # the lights moved by k steps: new light vectors, none a combination of earlier ones
@@ -253,7 +259,98 @@ def scene_rows(name, scene, lights, moved, pos, look, p, device):
                 str(est),
             ]
         )
-    return rows
+    stored = _store_rows(name, scene, F, L, ref, lights, moved, pos, path, cam, M, bounce, p, device)
+    return rows, stored
+
+
+def _lit(B, dark, mean) -> int:
+    return int((B[dark].max(axis=1) > 1e-2 * mean).sum()) if dark.any() else 0
+
+
+def _store_rows(name, scene, F, L, ref, lights, moved, pos, path, cam, M, bounce, p, device) -> list:
+    """The walk and the light change again with F's rows from a store on disk."""
+    import tempfile
+
+    import pydynrad
+    from pydynrad import DynamicRadiosity
+    from pydynrad.comparison import radiosity_error
+    from pydynrad.farfield.clusters import cluster_patches
+    from pydynrad.precompute.store import compute_store
+    from pydynrad.rows.files import open_form_factors
+
+    if name not in p.get("stores", ()):
+        return []
+    out, mean = [], ref.mean()
+    dark = ref.max(axis=1) < 1e-3 * mean
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "ff"
+        compute_store(
+            scene,
+            folder,
+            resolution=p["resolution"],
+            clusters=cluster_patches(scene),
+            progress=False,
+            row_function=lambda scene, rows, resolution, device=None: F[rows],
+        )
+        for label, tol in (("store, tolerance=None", None), ("store, default tolerance", "default")):
+            kw = {} if tol == "default" else {"tolerance": None}
+            rows = open_form_factors(scene, folder)
+            dyn = DynamicRadiosity(scene, rows, local_size=M, observer=pos, device=device, **kw)
+            t1 = time.perf_counter()
+            dyn.radiosity(light=L)
+            first = time.perf_counter() - t1
+            first_sweeps = dyn.error_estimate.sweeps
+            for o in path:
+                dyn.update(o)
+                B = dyn.radiosity(light=L)
+            err = radiosity_error(B, ref, scene.areas)
+            walk_est = dyn.error_estimate
+            changes = []
+            for k in range(1, 4):
+                Lx = pydynrad.light_vector(scene, _stepped(lights, moved, k), device=device)
+                t1 = time.perf_counter()
+                dyn.radiosity(light=Lx)
+                changes.append((time.perf_counter() - t1, dyn.error_estimate.sweeps))
+            best = min(changes)
+            out.append(
+                [
+                    name,
+                    len(scene),
+                    label,
+                    100 * err,
+                    100 * _pixels(scene, B, ref, cam, device)[0],
+                    _lit(B, dark, mean),
+                    int(dark.sum()),
+                    walk_est.error / err if err > 0 else float("nan"),
+                    1e3 * first,
+                    first_sweeps,
+                    1e3 * best[0],
+                    best[1],
+                    best[0] / bounce,
+                    str(walk_est),
+                ]
+            )
+            if hasattr(rows, "close"):
+                rows.close()
+    return out
+
+
+STORE_HEADERS = [
+    "scene",
+    "N",
+    "far field",
+    "all-patch %",
+    "pixel mean %",
+    "dark lit",
+    "dark",
+    "walk's estimate / true",
+    "first light ms",
+    "first light sweeps",
+    "light change ms",
+    "sweeps",
+    "light change / bounce of F on the device",
+    "walk's last estimate",
+]
 
 
 HEADERS = [
@@ -285,20 +382,26 @@ HEADERS = [
 
 def farfield_corpus_section(ctx) -> dict:
     p = SIZES[ctx.size]
-    rows = []
+    rows, stored = [], []
     cases = list(_corpus_cases(p)) + (list(_builtin_cases()) if p["builtins"] else [])
     for case in cases:
-        rows += scene_rows(*case, p, ctx.device)
+        more, more_stored = scene_rows(*case, p, ctx.device)
+        rows, stored = rows + more, stored + more_stored
+    tables = [
+        {
+            "title": f"Corpus and built-ins, R = {p['resolution']}, default far field",
+            "columns": HEADERS,
+            "rows": rows,
+        }
+    ]
+    if stored:
+        tables.append(
+            {"title": "The same walks with F's rows from a store on disk", "columns": STORE_HEADERS, "rows": stored}
+        )
     return {
         "title": "The far field on real scenes: error, estimate, leaks, popping, light change",
         "description": __doc__.split("\n\n", 1)[1],
-        "tables": [
-            {
-                "title": f"Corpus and built-ins, R = {p['resolution']}, default far field",
-                "columns": HEADERS,
-                "rows": rows,
-            }
-        ],
+        "tables": tables,
     }
 
 
@@ -313,7 +416,7 @@ if __name__ == "__main__":
     ctx = _Ctx()
     ctx.size, ctx.device = size, pydynrad.default_device()
     out = farfield_corpus_section(ctx)
-    table = out["tables"][0]
-    print(" | ".join(table["columns"]))
-    for r in table["rows"]:
-        print(" | ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in r), flush=True)
+    for table in out["tables"]:
+        print(" | ".join(table["columns"]))
+        for r in table["rows"]:
+            print(" | ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in r), flush=True)

@@ -139,3 +139,43 @@ def test_the_quadrature_bracket_holds_against_a_dense_solve(closed_box_48, close
         lower, upper = residual_ratios(r, y, A, rho)
         assert lower <= true * (1 + 1e-9) and true <= upper * (1 + 1e-9), (lower, true, upper)
     assert residual_ratios(np.zeros((48, 3)), np.zeros((48, 3)), A, rho) == (1.0, 1.0)
+
+
+def test_a_store_refines_a_light_change_to_the_tolerance(device, builtins, tmp_path):
+    """Without F in memory but with a store behind the rows: a light change over the tolerance is
+    refined by passes over the store's blocks (read in turn), to under the tolerance; a frame with
+    unchanged lights reads nothing whole (a pass per frame would read the whole store) and keeps
+    the light change's estimate: B_far stands, the local set is solved exactly from it."""
+    from pydynrad.farfield.clusters import cluster_patches
+    from pydynrad.precompute.store import compute_store
+    from pydynrad.rows.files import open_form_factors
+
+    scene, F, lights, obs = builtins["village night"]
+    compute_store(
+        scene,
+        tmp_path / "ff",
+        resolution=24,
+        clusters=cluster_patches(scene),
+        progress=False,
+        row_function=lambda scene, rows, resolution, device=None: F[rows],
+    )
+    L = pydynrad.light_vector(scene, lights, device=device)
+    ref = _ref(scene, F, L, device)
+    tolerance, M = 0.002, len(scene) // 8
+    plain = DynamicRadiosity(
+        scene, open_form_factors(scene, tmp_path / "ff"), local_size=M, observer=obs, device=device, tolerance=None
+    )
+    assert radiosity_error(plain.radiosity(light=L), ref, scene.areas) > 2 * tolerance  # refinement needed
+    dyn = DynamicRadiosity(
+        scene, open_form_factors(scene, tmp_path / "ff"), local_size=M, observer=obs, device=device, tolerance=tolerance
+    )
+    B = dyn.radiosity(light=L)
+    est = dyn.error_estimate
+    assert est.sampled == 0 and est.sweeps >= 1 and est.error <= tolerance
+    assert radiosity_error(B, ref, scene.areas) <= tolerance
+    dyn.update(np.asarray(obs) + [1.0, 0.0, 1.0])
+    B = dyn.radiosity(light=L)
+    err = radiosity_error(B, ref, scene.areas)
+    kept = dyn.error_estimate
+    assert kept.error == est.error and not kept.measured and not kept.light_change and kept.sweeps == 0
+    assert err <= tolerance and 0.5 * err <= kept.error <= 3 * err, (err, kept)
