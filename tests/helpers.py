@@ -261,3 +261,20 @@ def moving_full_solve(scene, objects, device):
     world = instanced(scene, objects)
     F = pydynrad.form_factors(world, MOVING_R, device=device)
     return world, F, dense_radiosity(world, F, pydynrad.light_vector(world, MOVING_LIGHTS, device=device))
+
+
+def store_of(scene, F, folder, resolution: int):
+    """``folder``, a store of ``scene`` holding F's own rows (no hemicubes run) and the far
+    field's G for the default clusters: a walk from it reads what a walk with F in memory holds."""
+    from pydynrad.farfield.clusters import cluster_patches
+    from pydynrad.precompute.store import compute_store
+
+    compute_store(
+        scene,
+        folder,
+        resolution=resolution,
+        clusters=cluster_patches(scene),
+        progress=False,
+        row_function=lambda scene, rows, resolution, device=None: F[rows],
+    )
+    return folder

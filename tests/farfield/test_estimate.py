@@ -3,6 +3,7 @@ tolerance it refines to."""
 
 import numpy as np
 import pytest
+from helpers import store_of
 
 import pydynrad
 from pydynrad import DirectionalLight, DynamicRadiosity, PointLight
@@ -146,19 +147,10 @@ def test_a_store_refines_a_light_change_to_the_tolerance(device, builtins, tmp_p
     refined by passes over the store's blocks (read in turn), to under the tolerance; a frame with
     unchanged lights reads nothing whole (a pass per frame would read the whole store) and keeps
     the light change's estimate: B_far stands, the local set is solved exactly from it."""
-    from pydynrad.farfield.clusters import cluster_patches
-    from pydynrad.precompute.store import compute_store
     from pydynrad.rows.files import open_form_factors
 
     scene, F, lights, obs = builtins["village night"]
-    compute_store(
-        scene,
-        tmp_path / "ff",
-        resolution=24,
-        clusters=cluster_patches(scene),
-        progress=False,
-        row_function=lambda scene, rows, resolution, device=None: F[rows],
-    )
+    store_of(scene, F, tmp_path / "ff", 24)
     L = pydynrad.light_vector(scene, lights, device=device)
     ref = _ref(scene, F, L, device)
     tolerance, M = 0.002, len(scene) // 8

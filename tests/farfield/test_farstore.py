@@ -4,7 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import box_scene, dense_radiosity, reciprocal_F
+from helpers import box_scene, dense_radiosity, reciprocal_F, store_of
 from test_farfield import yard_and_room
 
 import pydynrad
@@ -176,22 +176,13 @@ def test_without_f_the_far_field_answers_no_negative_light(device, tmp_path):
     which refuses negative radiosity, draws it. Refined to the tolerance, it needs no clamp."""
     import warnings
 
-    from pydynrad.precompute.store import compute_store
     from pydynrad.rows.files import open_form_factors
 
     corpus = Path(__file__).resolve().parents[2] / "bench" / "data" / "corpus"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the file's own clamped albedos and missing textures
         scene = pydynrad.load(corpus / "veach_ajar" / "veach_ajar.obj")
-    F = pydynrad.form_factors(scene, resolution=24, device=device, progress=False)
-    compute_store(
-        scene,
-        tmp_path / "ff",
-        resolution=24,
-        clusters=cluster_patches(scene),
-        progress=False,
-        row_function=lambda scene, rows, resolution, device=None: F[rows],
-    )
+    store_of(scene, pydynrad.form_factors(scene, resolution=24, device=device, progress=False), tmp_path / "ff", 24)
     L = pydynrad.light_vector(scene, device=device)
     obs = [4.05, 1.62, -2.31]
     dyn = DynamicRadiosity(
