@@ -19,6 +19,7 @@ import numpy as np
 from .checks import stops
 from .defaults import exposure_or_auto
 from .errors import InvalidInputError, PydynradError
+from .geometry.loading import checked_scene
 from .renderer import Renderer
 from .rows.files import whole_matrix
 from .solution import solve
@@ -214,6 +215,7 @@ def reference_frame(
     scale. ``exposure``: stops, or "auto" (the default): from the full solution's render.
     """
 
+    scene = checked_scene(scene)
     auto = exposure is None or (isinstance(exposure, str) and exposure == "auto")
     exposure = None if auto else stops(exposure)  # before the full solve
     renderer = renderer or Renderer(scene, device)

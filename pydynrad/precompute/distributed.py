@@ -246,7 +246,7 @@ def precompute_distributed(
     ----------
     scene_spec : SceneSpec, str, (name, params) or Scene
         The scene. A spec (built-in name or mesh path, with parameters) is what workers get:
-        a few bytes. A :class:`~pydynrad.geometry.scene.Scene` is sent as its (points, triangles)
+        a few bytes. A :class:`~pydynrad.geometry.scene.Scene` is sent as its (vertices, faces)
         arrays, broadcast once to every worker.
     path : folder of the store (created, or resumed if its header matches).
     resolution : hemicube resolution (pixels on the top face's side).

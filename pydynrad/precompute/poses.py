@@ -15,6 +15,7 @@ from ..dynamic.occlusion import refresh_order
 from ..dynamic.poses import PoseRows
 from ..errors import InvalidInputError
 from ..formfactors import form_factors
+from ..geometry.loading import checked_scene
 from ..geometry.objects import _objects, instanced, rigid_transform
 from ..progress import progress_bar
 from ..rows.store import StoreMismatchError
@@ -67,6 +68,7 @@ def precompute_poses(
     (:mod:`pydynrad.progress`).
     """
 
+    scene = checked_scene(scene)
     objs = _objects(objects)
     R = checked_resolution(resolution)
     n_static = len(scene)

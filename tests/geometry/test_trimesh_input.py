@@ -84,6 +84,10 @@ def test_entry_points_take_a_trimesh_mesh_as_load_reads_it(device, room_mesh, tm
         pydynrad.path_trace(room_mesh, camera, spp=2, lights=lamp, device=device),
         pydynrad.path_trace(scene, camera, spp=2, lights=lamp, device=device),
     )
+    from pydynrad.comparison import reference_frame
+
+    frames = [reference_frame(s, F_scene, B, camera, lights=lamp, device=device) for s in (room_mesh, scene)]
+    assert frames[0].error == frames[1].error and np.array_equal(frames[0].image, frames[1].image)
     obj = pydynrad.RigidObject(room_mesh)
     np.testing.assert_array_equal(obj.scene.vertices, scene.vertices)
     pydynrad.save_form_factors(room_mesh, tmp_path / "F.npz", F_scene, resolution=16)
