@@ -200,8 +200,9 @@ class DynamicRadiosity:
         estimate exceeds ``tolerance`` (area-weighted relative RMS; default
         :data:`~pydynrad.farfield.estimate.DEFAULT_TOLERANCE`, 0.1%) sweeps B <- L + P F B refine
         it (F in memory; a frame with unchanged lights only beyond twice the tolerance). None:
-        estimate only. Without F in memory, a light change is refined from a store's blocks read in
-        turn (seconds per pass); with rows on demand the residual is sampled and nothing is refined.
+        estimate only. Without F in memory, a light change is refined from a store's blocks (kept
+        after the first pass where they fit the memory budget); with rows on demand the residual
+        is sampled and nothing is refined.
 
     Notes
     -----

@@ -165,6 +165,20 @@ def test_a_store_refines_a_light_change_to_the_tolerance(device, builtins, tmp_p
     est = dyn.error_estimate
     assert est.sampled == 0 and est.sweeps >= 1 and est.error <= tolerance
     assert radiosity_error(B, ref, scene.areas) <= tolerance
+    # The blocks fit the memory budget: kept after the first pass (F itself), the later passes read
+    # memory. Behind a row cache too small for them, every pass reads the files: the same answer.
+    assert (dyn._errors._store_held != F).nnz == 0
+    small = DynamicRadiosity(
+        scene,
+        open_form_factors(scene, tmp_path / "ff", cache_bytes=2**20),
+        local_size=M,
+        observer=obs,
+        device=device,
+        tolerance=tolerance,
+    )
+    np.testing.assert_array_equal(small.radiosity(light=L), B)
+    assert small._errors._store_held is None and small.error_estimate.sweeps == est.sweeps
+    small._ff.source.close()
     dyn.update(np.asarray(obs) + [1.0, 0.0, 1.0])
     B = dyn.radiosity(light=L)
     err = radiosity_error(B, ref, scene.areas)
