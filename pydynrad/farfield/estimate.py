@@ -19,10 +19,10 @@ as :func:`pydynrad.comparison.radiosity_error` weighs its error, and relative to
   positive below 1) -- where the plain bound ``|r| / (1 - rho_max)`` is 2-25x loose;
 * **estimate**: the geometric mean of the two, as a ratio to ``|r|`` (in the A / rho norm, applied to
   the area-weighted ``|r|``). A residual of the oscillating modes (negative eigenvalues: facing
-  surfaces) contracts fast in norm yet cancels over the bounces, and a norm ratio
-  ``|r| / (1 - |T r| / |r|)`` read it 4-7x too high on an open suburb (q 0.8 after a sweep),
-  buying up to 16 sweeps that were not needed; the bracket's mean read 1.0-2.5x there and
-  0.98-1.2x on the interiors (docs/decisions/0041-far-field-tolerance-and-light-change.md).
+  surfaces) contracts fast in norm yet cancels over the bounces: a norm ratio
+  ``|r| / (1 - |T r| / |r|)`` sums it as if it did not, reads it several times too high and buys
+  sweeps that are not needed; the bracket sees the cancelling in ``<r, T r>``
+  (docs/decisions/0041-far-field-tolerance-and-light-change.md).
 
 The moments cost a bounce, so they are taken when first needed, on a light change whose light
 vector moved by more than :data:`REMEASURE_CHANGE` of itself since they were, and on every
@@ -49,8 +49,7 @@ patch area (the mean of their ``|r_i|^2`` is an unbiased estimate of the area-we
 square), held, and multiplied with B again every frame; the interval is the 95% normal interval
 of that mean, the ratio of error to residual ``1 / (1 - UNMEASURED_CONTRACTION)`` (no second
 bounce is possible from sampled rows), and nothing is refined. Sampled rows read the residual
-of a refined answer poorly (0.008-0.8x of the truth on the corpus): where it concentrates on
-small patches the sample misses it.
+of a refined answer poorly: it concentrates on small patches the sample misses.
 """
 
 from __future__ import annotations
@@ -84,8 +83,8 @@ __all__ = [
 ]
 
 #: The estimated all-patch relative RMS error the far field refines to by default. A tenth of the
-#: 1% all-patch target: what the observer sees (dim patches, per pixel) errs 2-7x more than the
-#: all-patch norm on the corpus, and the estimate may read half the truth
+#: 1% all-patch target: what the observer sees (dim patches, per pixel) errs several times more
+#: than the all-patch norm, and the estimate may read half the truth
 #: (docs/decisions/0041-far-field-tolerance-and-light-change.md).
 DEFAULT_TOLERANCE = 0.001
 #: The most refinement sweeps per light change (or frame).
@@ -238,8 +237,10 @@ class ErrorControl:
         # The store's blocks are kept after the first pass where they fit: within the budget of a
         # row cache in front of the store (the memory given to F's rows), else a quarter of the
         # host memory available then.
-        cache = local_rows.source if isinstance(local_rows.source, RowCache) else None
-        self._store_budget = cache.max_bytes if cache is not None else available_host_bytes() // 4
+        self._store_budget = 0
+        if self._store is not None:
+            cache = local_rows.source if isinstance(local_rows.source, RowCache) else None
+            self._store_budget = cache.max_bytes if cache is not None else available_host_bytes() // 4
         self._store_held: sp.csr_matrix | None = None
         self.samples = int(samples)
         self._rng = np.random.default_rng(seed)
@@ -271,7 +272,7 @@ class ErrorControl:
     def _store_pass(self, x: np.ndarray) -> np.ndarray:
         """F x from the store's blocks, each read (and its checksum verified) in turn; after the
         first pass the blocks are kept whole where they fit the budget, so that the passes of the
-        sweeps read memory, not files (0.36-4.8 s per light change from the files on the corpus)."""
+        sweeps read memory, not files (docs/decisions/0041-far-field-tolerance-and-light-change.md)."""
         if self._store_held is not None:
             return rows_product(self._store_held, x)
         store, kept, size, out = self._store, [], 0, []
@@ -288,17 +289,16 @@ class ErrorControl:
             self._store_held = sp.csr_matrix(sp.vstack(kept, format="csr"))
         return np.concatenate(out)
 
-    def _updated_FB(self, B: np.ndarray, changed: np.ndarray) -> np.ndarray:
-        """F B, from the last F B plus F's columns where B changed (F by column on the host),
-        or a whole pass. ``changed``: the patches B may differ on since the last F B (a frame with
-        unchanged lights: the local sets then and now), so no pass over all of B finds them."""
-        held = self._FB
-        if held is not None and self._F_cols is not None and held[0].shape == B.shape:
-            d = B[changed] - held[0][changed]
+    def _moved(self, FB: np.ndarray, B_was: np.ndarray, B: np.ndarray, changed: np.ndarray) -> np.ndarray:
+        """F B from ``FB`` = F ``B_was`` (added to in place: the caller's to give up) plus F's
+        columns where B differs from it, among the patches ``changed`` (the only ones it may differ
+        on: the local sets, so no pass over all of B finds them), by column on the host; a whole
+        pass without F by column or where a quarter of the patches moved."""
+        if self._F_cols is not None:
+            d = B[changed] - B_was[changed]
             moved = np.any(d != 0, axis=1)
             cols, d = changed[moved], d[moved]
             if len(cols) < 0.25 * len(B):
-                FB = held[1]  # held for this update only: added to in place
                 if len(cols):
                     FB += columns_product(self._F_cols, cols, d)
                 return FB
@@ -355,15 +355,6 @@ class ErrorControl:
         self._ratios = (float(np.sqrt(lower * upper)), upper, q)
         return Fr
 
-    def _after_sweep(self, FB, Fr, B_next, swept) -> np.ndarray:
-        """F B_next from F B and F r: plus F's columns of the local set's change by its re-solve
-        (``B_next - swept``, ``swept = B + r``), on the host; a whole pass without F by column."""
-        d = B_next - swept
-        cols = np.flatnonzero(np.any(d != 0, axis=1))
-        if self._F_cols is None or len(cols) >= 0.25 * len(d):
-            return self._bounce(B_next)
-        return FB + Fr + (columns_product(self._F_cols, cols, d[cols]) if len(cols) else 0.0)
-
     def _warm_start(self, L: np.ndarray) -> np.ndarray | None:
         """The correction the sweeps made to earlier lights, fitted to L: their best combination
         where it neither cancels nor extrapolates far (:data:`WARM_GAIN`), else the last one
@@ -398,7 +389,7 @@ class ErrorControl:
             if not light_change and last is not None and not last.sampled:
                 # After a light change refined from the store, B_far stands and only the local set
                 # moved (solved exactly from it): that change's whole estimate stands too, where
-                # 512 sampled rows read the refined answer's residual at 0.008-0.8x of the truth.
+                # sampled rows miss a refined answer's residual, which sits on small patches.
                 self.last = replace(
                     last, measured=False, sweeps=0, seconds=time.perf_counter() - t0, light_change=False
                 )
@@ -411,10 +402,11 @@ class ErrorControl:
             start = self._warm_start(L)
             if start is not None:
                 B = resolve(gathered + start)
-        if light_change:
+        held = self._FB
+        if light_change or held is None or held[0].shape != B.shape:
             FB = self._bounce(B)
         else:  # only the local sets' patches changed: the last one checked and this one
-            FB = self._updated_FB(B, np.union1d(seen[2], members))
+            FB = self._moved(held[1], held[0], B, np.union1d(seen[2], members))
         r = self.rho * FB
         r += L
         r -= B
@@ -429,8 +421,8 @@ class ErrorControl:
                 Fr = self._moments(r, L)
                 measured = True
             swept = B + r
-            B_next = resolve(swept)
-            FB = self._after_sweep(FB, Fr, B_next, swept)
+            B_next = resolve(swept)  # the re-solve changes the local set's patches only
+            FB = self._moved(FB + Fr, swept, B_next, members)
             B, r, sweeps = B_next, L + self.rho * FB - B_next, sweeps + 1
             Fr = self._moments(r, L)
             res, last_res = relative_rms(r, B, self.areas), res
