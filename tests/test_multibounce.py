@@ -2,7 +2,7 @@
 radiosity B = L + P K L against the full solvers.
 
 float32 error: Gauss-Jordan error ~ cond(I - F P) * 2^-24 with cond <= (1 + rho)/(1 - rho), a
-bound of 1e-3 at rho = 0.999; observed (PoCL/Xeon, 2026-12-01) 1e-7 at rho <= 0.9 and 8e-8 at
+bound of 1e-3 at rho = 0.999; observed (PoCL/Xeon) 1e-7 at rho <= 0.9 and 8e-8 at
 rho = 0.999, so the tolerances sit about 100x above that: 1e-5. float64: observed ~1e-15.
 """
 

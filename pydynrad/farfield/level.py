@@ -603,8 +603,8 @@ class FarField:
         if self.gather != "shared" and not self.combined:  # the shared gather is not linear in L
             self._lit.add(L, B)
         # Recorded as computed (answers combine linearly), answered clamped at 0: the linear basis
-        # of a far field without F undershoots where a cluster's light falls off steeply
-        # (veach_ajar from a store: -2e-4 of the largest value), and light is not negative.
+        # of a far field without F undershoots where a cluster's light falls off steeply, and
+        # light is not negative (docs/decisions/0041-far-field-tolerance-and-light-change.md).
         B = np.maximum(B, 0.0)
         self.B_far = np.repeat(B, 3, axis=1) if k == 1 else B
         self._L = L_all

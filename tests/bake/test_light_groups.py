@@ -67,7 +67,7 @@ def test_combined_multibounce_and_dynamic_equal_weighted_lights(cornell_lights, 
     np.testing.assert_allclose(groups.dynamic(dyn).combine(WEIGHTS), truth, rtol=1e-6, atol=1e-9 * truth.max())
     # The far field shares each cluster's indirect light by the patches' first bounce, which is
     # not linear in L: groups combine to its answer for the weighted lights within 1e-3 of the
-    # maximum (observed 2.4e-4, PoCL 2026-12-02; its error against the full solve is 1.1%).
+    # maximum (observed 2.4e-4, PoCL; its error against the full solve is 1.1%).
     dyn = pydynrad.DynamicRadiosity(scene, F, local_size=120, storage="fp64", device=device)
     dyn.update((278, 273, -200))
     truth = dyn.radiosity(light=L)

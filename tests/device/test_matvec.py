@@ -2,7 +2,7 @@
 
 Tolerances (relative to max |y|, inputs in [0, 1)): the stored matrix differs from K by the
 storage rounding (fp16: 2^-11 relative per element, fp32: 2^-24); products accumulate in the
-compute type (fp32 for fp16/fp32, fp64 for fp64). So fp16 ~1e-3, fp32 ~1e-6, fp64 ~1e-13; observed (PoCL/Xeon, 2026-12-01) 5e-5, 2.4e-7, 1.1e-15.
+compute type (fp32 for fp16/fp32, fp64 for fp64). So fp16 ~1e-3, fp32 ~1e-6, fp64 ~1e-13; observed (PoCL/Xeon) 5e-5, 2.4e-7, 1.1e-15.
 """
 
 import numpy as np

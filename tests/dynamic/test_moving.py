@@ -117,7 +117,7 @@ def test_unlimited_budget_equals_full_solve(cornell_384, green_block, lamp, devi
         assert st.moved == 2 and st.rows_refreshed > 0 and st.t_move > 0
     world, F, B_ref = full_solve(cornell_384, [obj, carried], device)
     B = dyn.radiosity(LIGHTS)
-    assert rel(B, B_ref) < 2e-6  # fp32 K; observed 3e-8 (PoCL, Xeon, 2026-12-02)
+    assert rel(B, B_ref) < 2e-6  # fp32 K; observed 3e-8 (PoCL, Xeon)
     np.testing.assert_allclose(dyn.matrix.to_host(), dense_K(world, F, dyn.local_patches), atol=1e-6, rtol=0)
     # Against the static copy (one BVH over everything): a grazing hemicube pixel may see the
     # neighbouring patch, so the two F differ in a few pixels' worth.
@@ -185,7 +185,7 @@ def test_budget_trades_error(cornell_384, green_block, device):
         assert rel(B, dense_radiosity(world, model, L)) < 2e-6  # observed <= 7e-8
         errors.append(rel(B[:n_box], B_ref[:n_box]))
     assert errors[0] > errors[1] > errors[2] > errors[3]
-    assert errors[0] < 0.03 and errors[3] < 2e-6  # observed 0.0086, 0.0085, 0.0080, 3e-8 (PoCL, Xeon, 2026-12-02)
+    assert errors[0] < 0.03 and errors[3] < 2e-6  # observed 0.0086, 0.0085, 0.0080, 3e-8 (PoCL, Xeon)
 
 
 @pytest.mark.parametrize("budget", [0, None])
@@ -404,10 +404,10 @@ def test_static_form_factors_budget_trades_error(cornell_384, green_block, devic
             assert st.hemicubes == len(green_block)  # the rows refreshed come from F
         errors[budget, correct] = rel(dyn.radiosity(LIGHTS), B_ref)
     assert errors[0, False] > errors[32, False] > errors[None, False]
-    # observed 0.0118, 0.0104, 0.0026 (PoCL, Xeon, 2026-12-02); the rest is the patch-centre
+    # observed 0.0118, 0.0104, 0.0026 (PoCL, Xeon); the rest is the patch-centre
     # occlusion estimate and the far field's coarse level of the first pose
     assert errors[None, False] < 0.01
-    for budget in (0, 32):  # observed within 2e-8 of the refresh of every row (PoCL, EPYC, 2026-12-02)
+    for budget in (0, 32):  # observed within 2e-8 of the refresh of every row (PoCL, EPYC)
         assert abs(errors[budget, True] - errors[None, False]) < 1e-4
 
 
@@ -557,8 +557,7 @@ def test_budget_zero_moves_then_walk_swaps(cornell_384, green_block, device, mon
     assert dyn._stale.converged and len(dyn._stale) > 100
     dyn.refresh()
     truth = dyn.radiosity(LIGHTS, far_field=False)
-    # The correction stops at an estimated error of 2e-4 (CORRECTION_TOLERANCE); observed 3.5e-5 (1.8e-6 when it
-    # stopped at a step of 1e-4, before 2026-12-06).
+    # The correction stops at an estimated error of 2e-4 (CORRECTION_TOLERANCE); observed 3.5e-5.
     assert rel(B, truth) < 1e-4
     monkeypatch.setattr(stale, "CORRECTION_ITERATIONS", 1)
     capped = walked()

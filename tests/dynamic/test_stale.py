@@ -63,7 +63,7 @@ def test_stale_rows_corrected(cornell_384, green_block, device):
         # The far field switched off: from B^(0) plus the last correction (one pass), then one to confirm.
         assert dyn._stale.converged and dyn._stale.iterations == 2
         # The iteration stops at 1e-4 of max B; observed 8e-9, 2.3e-8 with the Gauss-Seidel step on the stale rows
-        # (5e-8, 2e-8 without; PoCL, Xeon, 2026-12-03).
+        # (5e-8, 2e-8 without; PoCL, Xeon).
         assert rel(B, truth) < 2e-7
         assert rel(B, truth) < uncorrected / 100  # uncorrected observed 0.012
         if budget == 0:  # no swap at all: K is still the one built at the first pose
@@ -108,7 +108,7 @@ def test_correction_tolerance_trades_passes_for_accuracy(cornell_384, green_bloc
             assert dyn._stale.converged
         dyn.refresh()
         errors[tol] = rel(B, dyn.radiosity(LIGHTS, far_field=False))
-    # Observed 1.1e-5 in 7 passes and 4.7e-8 in 10 over the two moves (fp32 K; PoCL, Zen 4, 2026-12-06).
+    # Observed 1.1e-5 in 7 passes and 4.7e-8 in 10 over the two moves (fp32 K; PoCL, Zen 4).
     assert errors[2e-4] < 1e-4 and errors[1e-7] < 2e-7 and passes[1e-7] > passes[2e-4]
     for bad in (0, 1.0, float("nan"), "1e-4", True):
         with pytest.raises(pd.InvalidInputError, match="correction_tolerance"):
@@ -155,7 +155,7 @@ def test_walk_frames_resume_the_correction(cornell_384, green_block, device):
     dyn.radiosity(LIGHTS)
     assert dyn._stale.iterations == 1
     dyn.refresh()
-    assert rel(B, dyn.radiosity(LIGHTS)) < 1e-5  # observed 3.2e-6 (PoCL, Zen 4, 2026-12-03)
+    assert rel(B, dyn.radiosity(LIGHTS)) < 1e-5  # observed 3.2e-6 (PoCL, Zen 4)
 
 
 def test_rows_minus_matches_scipy(monkeypatch):

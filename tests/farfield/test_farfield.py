@@ -115,7 +115,7 @@ def test_every_patch_its_own_cluster_is_the_full_solve(device):
         )
         dyn = DynamicRadiosity(scene, F, local_size=M, storage="fp64", observer=obs, far_field=far, device=device)
         dyn.update([0.5, 0.5, 0.5])
-        np.testing.assert_allclose(dyn.radiosity(light=L), want, rtol=1e-13)  # observed 1.5e-15 (PoCL, 2026-12-01)
+        np.testing.assert_allclose(dyn.radiosity(light=L), want, rtol=1e-13)  # observed 1.5e-15 (PoCL)
         levels = dyn.patch_levels
         assert (levels == "local").sum() == M and (levels == "far").sum() == len(scene) - M
 
@@ -142,7 +142,7 @@ def test_sun_lights_every_lit_patch_and_leaks_nothing(device):
     mean = ref.mean()
     dark = ref.max(axis=1) < 1e-3 * mean
     assert 0.1 < dark.mean() < 0.5  # the room's inside: a real test of leaks
-    # Observed (PoCL, 2026-12-02): no leak at all (0.0); all-patch error 0.53% (first bounce), 0.40% (shared
+    # Observed (PoCL): no leak at all (0.0); all-patch error 0.53% (first bounce), 0.40% (shared
     # with a fine sweep) and 2.6% (cluster).
     for gather, fine_sweeps, tol in (("first_bounce", 0, 0.01), ("shared", 1, 0.01), ("cluster", 0, 0.05)):
         far = FarField(scene, F, clusters=len(scene) // 8, gather=gather, fine_sweeps=fine_sweeps, device=device)
@@ -172,7 +172,7 @@ def test_dense_coarse_level_and_first_bounce_gather(device, cornell_lit, storage
         [np.linalg.solve(np.eye(far.C) - far.rho_c[:, [c]] * far.F_c.toarray(), s[:, c]) for c in range(3)], 1
     )
     want = L + D1 + rho * (far.G @ D_c)
-    # Observed max relative error (PoCL, 2026-12-02): 6e-16 (fp64), 5e-8 (fp32), 2e-5 (fp16 K_c); 4e-15 swept.
+    # Observed max relative error (PoCL): 6e-16 (fp64), 5e-8 (fp32), 2e-5 (fp16 K_c); 4e-15 swept.
     np.testing.assert_allclose(far.light(L), want, rtol=rtol, atol=rtol * want.max())
     # As on a GPU: D1 from a device pass of F's rows, not the host's lit columns of F.
     gpu = FarField(

@@ -48,7 +48,7 @@ def test_every_patch_its_own_cluster_is_the_full_solve_without_f(device):
     dyn = DynamicRadiosity(
         scene, F, local_size=7, storage="fp64", observer=[0.1, 0.9, 0.5], far_field=far, device=device
     )
-    # Observed max relative error 8.7e-16 (PoCL CPU, 2026-12-02).
+    # Observed max relative error 8.7e-16 (PoCL CPU).
     np.testing.assert_allclose(dyn.radiosity(light=L), dense_radiosity(scene, F, L), rtol=5e-14)
 
 
@@ -70,7 +70,7 @@ def test_sun_without_f_lights_every_lit_patch_and_leaks_nothing(device):
         assert np.all(B[~dark].max(axis=1) > 0)
         assert B[dark].max() < 1e-2 * ref.mean()
         errors[basis] = radiosity_error(B, ref, scene.areas)
-    # Observed (PoCL, 2026-12-02): no leak (0.0); all-patch error indicator 2.6%, linear 0.77% (its
+    # Observed (PoCL): no leak (0.0); all-patch error indicator 2.6%, linear 0.77% (its
     # two default sweeps; 0.46% converged).
     assert errors["linear"] < 0.012 and errors["linear"] < 0.5 * errors["indicator"]
 

@@ -23,7 +23,7 @@ def test_bounce_is_l_plus_p_a_x(device, density, dense, dtype):
     want = L + rho * (stored @ x)
     got = prod.bounce(L, rho, x)
     # Dense float32 multiplies float32 x (as the device does); CSR sums in float64 (rows_product).
-    # Observed (Zen 4, 2026-12-06): 1.4e-7 dense float32, 7e-16 dense float64, 0 by CSR.
+    # Observed (Zen 4): 1.4e-7 dense float32, 7e-16 dense float64, 0 by CSR.
     tol = 2e-7 if dtype == np.float32 and dense else 1e-15
     np.testing.assert_allclose(got, want, rtol=tol, atol=0)
     # The device's CSR kernel gives the same to its rounding.
@@ -44,7 +44,7 @@ def test_matrix_products_of_the_stored_entries(device, storage, rtol):
     stored = K.astype({"fp16": np.float16, "fp32": np.float32, "fp64": np.float64}[storage]).astype(np.float64)
     x = rng.random((3, 40))
     want = np.einsum("cij,cj->ci", stored, x)
-    # Observed (Zen 4, 2026-12-06): 1.1e-7 in float32 (fp16 and fp32 storage), 4e-16 in float64.
+    # Observed (Zen 4): 1.1e-7 in float32 (fp16 and fp32 storage), 4e-16 in float64.
     np.testing.assert_allclose(host.matvec(x), want, rtol=rtol)
     np.testing.assert_allclose(host.matvec(x), dev.matvec(x), rtol=2 * rtol)
     X = rng.random((5, 40))

@@ -142,5 +142,5 @@ def test_precomputed_poses_with_static_form_factors(cornell_384, green_block, de
     np.testing.assert_array_equal(source.rows(patches).toarray(), stored.toarray())
     _, F_full, full = full_solve(cornell_384, [pd.RigidObject(green_block, END)], device)
     np.testing.assert_allclose(source.rows(np.arange(n)).toarray(), F_full.toarray(), rtol=0, atol=1e-8)  # observed 0
-    # The correction stops at an estimated error of 2e-4 of max B; observed 2.4e-5 (PoCL, Zen 4, 2026-12-06).
+    # The correction stops at an estimated error of 2e-4 of max B; observed 2.4e-5 (PoCL, Zen 4).
     assert rel(dyn.radiosity(LIGHTS, far_field=False), full) < 1e-4

@@ -246,7 +246,7 @@ def _imbalance_by_patch(scene, device, resolution, samples=1):
 def test_builtin_energy_balance(device):
     from pydynrad.scenes import closed_box, parallel_plates, perpendicular_plates
 
-    # Observed (PoCL CPU, 2026-12-02): closed box 8e-12, parallel plates 7.5e-7, perpendicular 2.3e-4.
+    # Observed (PoCL CPU): closed box 8e-12, parallel plates 7.5e-7, perpendicular 2.3e-4.
     assert np.abs(_imbalance_by_patch(closed_box(), device, 32).sum(axis=0)).max() < 1e-9
     assert np.abs(_imbalance_by_patch(parallel_plates(emission=1.0), device, 64).sum(axis=0)).max() < 1e-5
     assert np.abs(_imbalance_by_patch(perpendicular_plates(emission=1.0), device, 64).sum(axis=0)).max() < 1e-3
@@ -268,13 +268,13 @@ def test_cornell_floor_no_longer_breaks_the_energy_balance(device, cbox):
 
 def test_area_sampled_rows_shrink_the_cornell_imbalance(device):
     # 384 patches of up to 200 mm, R = 64: -1.85% (worst channel) from centre-point rows;
-    # -0.32% from 4 strata per row at the same rays (observed, PoCL CPU, 2026-12-02).
+    # -0.32% from 4 strata per row at the same rays (observed, PoCL CPU).
     coarse = cornell_box(max_edge=200.0)
     point, strata = (np.abs(_imbalance_by_patch(coarse, device, 64, K).sum(axis=0)).max() for K in (1, 4))
     assert point > 0.015 and strata < 5e-3 and strata < point / 4
 
 
-# bench/sampling.py (PoCL CPU, 2026-12-02), mean (bias) and sd (noise) over patch orders of the
+# bench/sampling.py (PoCL CPU), mean (bias) and sd (noise) over patch orders of the
 # worst channel: Cornell box R = 256 with 16 strata -2.6e-4, 1.5e-4 (centre points: -0.6%, any R);
 # the village -2e-5..2.9e-4, 6.2e-4 (centre points: up to 2.1e-3 at R = 128).
 @pytest.mark.slow
