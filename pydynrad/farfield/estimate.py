@@ -68,6 +68,7 @@ from ..rows.cache import RowCache
 from ..rows.sources import CSRRows, read_rows
 from ..rows.store import FormFactorStore
 from .history import Answers
+from .trapped import TrappedLight
 
 __all__ = [
     "ErrorEstimate",
@@ -242,6 +243,8 @@ class ErrorControl:
             cache = local_rows.source if isinstance(local_rows.source, RowCache) else None
             self._store_budget = cache.max_bytes if cache is not None else available_host_bytes() // 4
         self._store_held: sp.csr_matrix | None = None
+        self._store_entries = 0  # F's non-zeros, counted on the first pass over the store
+        self._trapped: TrappedLight | None = None  # made on the first sweep
         self.samples = int(samples)
         self._rng = np.random.default_rng(seed)
         self._sample = None  # (patches, their rows) of the sampled residual
@@ -276,8 +279,10 @@ class ErrorControl:
         if self._store_held is not None:
             return rows_product(self._store_held, x)
         store, kept, size, out = self._store, [], 0, []
+        self._store_entries = 0
         for k in range(store.n_blocks):
             block = store.read_block(k)
+            self._store_entries += block.nnz
             out.append(rows_product(block, x))
             if kept is not None:
                 size += block.data.nbytes + block.indices.nbytes + block.indptr.nbytes
@@ -288,6 +293,19 @@ class ErrorControl:
         if kept is not None:
             self._store_held = sp.csr_matrix(sp.vstack(kept, format="csr"))
         return np.concatenate(out)
+
+    @property
+    def trapped(self) -> TrappedLight:
+        """The patches each sweep solves directly (:mod:`pydynrad.farfield.trapped`), found on the
+        first sweep from F's row sums (a pass over ones) and its rows."""
+        if self._trapped is None:
+            sums = self._bounce(np.ones((len(self.areas), 1)))[:, 0]
+            if self._F is not None:
+                rows, entries = (lambda idx: self._F[idx]), self._F.nnz
+            else:
+                rows, entries = lambda idx: read_rows(self._store, idx), self._store_entries
+            self._trapped = TrappedLight(self.rho, sums, rows, entries)
+        return self._trapped
 
     def _moved(self, FB: np.ndarray, B_was: np.ndarray, B: np.ndarray, changed: np.ndarray) -> np.ndarray:
         """F B from ``FB`` = F ``B_was`` (added to in place: the caller's to give up) plus F's
@@ -416,13 +434,21 @@ class ErrorControl:
         ratio, upper, q = self._ratios
         est = res * ratio
         limit = None if self.tolerance is None else self.tolerance * (1.0 if light_change else FRAME_HYSTERESIS)
+        changed = None  # the patches a sweep's direct solves change: the local set and Q
         while limit is not None and est > limit and sweeps < MAX_REFINE_SWEEPS:
             if Fr is None:  # moments carried: F r for the sweep, and them measured on the way
                 Fr = self._moments(r, L)
                 measured = True
             swept = B + r
+            trapped = self.trapped
+            if changed is None:
+                changed = np.union1d(members, trapped.patches)
+            was = swept
+            if len(trapped):
+                was = swept.copy()
+                swept[trapped.patches] = trapped.solve(L, swept)
             B_next = resolve(swept)  # the re-solve changes the local set's patches only
-            FB = self._moved(FB + Fr, swept, B_next, members)
+            FB = self._moved(FB + Fr, was, B_next, changed)
             B, r, sweeps = B_next, L + self.rho * FB - B_next, sweeps + 1
             Fr = self._moments(r, L)
             res, last_res = relative_rms(r, B, self.areas), res
