@@ -113,8 +113,9 @@ WARM_GAIN = 4.0
 
 
 def _norm(areas: np.ndarray, x: np.ndarray) -> float:
-    # Two steps: numpy's three-operand einsum does not vectorise, and a frame takes several norms.
-    return float(np.sqrt(areas @ np.einsum("ij,ij->i", x, x)))
+    # The squares' columns against the areas: one matrix-vector product, where einsum's sum over
+    # a row of three (and its three-operand form) does not vectorise, and a frame takes two norms.
+    return float(np.sqrt(((x * x).T @ areas).sum()))
 
 
 def residual_ratios(r: np.ndarray, y: np.ndarray, areas: np.ndarray, rho: np.ndarray) -> tuple[float, float]:
@@ -154,9 +155,13 @@ def residual_ratios(r: np.ndarray, y: np.ndarray, areas: np.ndarray, rho: np.nda
 def relative_rms(x: np.ndarray, B: np.ndarray, areas: np.ndarray) -> float:
     """``|x| / |B|``, area-weighted over patches and channels (0 where both are 0)."""
     a = np.asarray(areas, np.float64)
-    den = _norm(a, B)
-    num = _norm(a, x)
-    return 0.0 if num == 0 else (num / den if den > 0 else float("inf"))
+    return _relative(a, x, _norm(a, B) ** 2)
+
+
+def _relative(areas: np.ndarray, x: np.ndarray, size: float) -> float:
+    """``|x| / sqrt(size)``, size being ``|B|^2`` (0 where both are 0)."""
+    num = _norm(areas, x)
+    return 0.0 if num == 0 else (num / np.sqrt(size) if size > 0 else float("inf"))
 
 
 @dataclass(frozen=True)
@@ -250,8 +255,10 @@ class ErrorControl:
         self._sample = None  # (patches, their rows) of the sampled residual
         self._ratios: tuple[float, float, float] | None = None  # (estimate, upper, q) of the last moments
         self._ratios_light: np.ndarray | None = None  # L at which they were measured
-        self._FB = None  # (B, F B) of the last answer checked: frames update F B by the columns that changed
-        self._seen = None  # (far.B_far, L) of the last answer checked
+        # (a copy of B, its residual, |B|^2) of the last answer checked: frames update them by the
+        # patches that changed
+        self._held = None
+        self._seen = None  # (far.B_far, the local set) of the last answer checked
         self._corrections = Answers(CORRECTIONS)  # (L, refined B_far - gathered B_far)
         self._last_correction = None  # the last (L, correction) recorded
         self.last: ErrorEstimate | None = None
@@ -307,20 +314,32 @@ class ErrorControl:
             self._trapped = TrappedLight(self.rho, sums, rows, entries)
         return self._trapped
 
-    def _moved(self, FB: np.ndarray, B_was: np.ndarray, B: np.ndarray, changed: np.ndarray) -> np.ndarray:
-        """F B from ``FB`` = F ``B_was`` (added to in place: the caller's to give up) plus F's
-        columns where B differs from it, among the patches ``changed`` (the only ones it may differ
-        on: the local sets, so no pass over all of B finds them), by column on the host; a whole
-        pass without F by column or where a quarter of the patches moved."""
+    def _moved(self, r: np.ndarray, B_was: np.ndarray, B: np.ndarray, changed: np.ndarray, L: np.ndarray) -> np.ndarray:
+        """The residual of B from ``r``, that of ``B_was`` (added to in place: the caller's to give
+        up): ``r + (P F - I) (B - B_was)``, B differing from ``B_was`` among the patches ``changed``
+        only (the local sets, and in a sweep the trapped patches: so no pass over all of B finds
+        them), by F's columns on the host; a whole pass ``L + P F B - B`` without F by column or
+        where a quarter of the patches moved."""
         if self._F_cols is not None:
             d = B[changed] - B_was[changed]
             moved = np.any(d != 0, axis=1)
             cols, d = changed[moved], d[moved]
             if len(cols) < 0.25 * len(B):
                 if len(cols):
-                    FB += columns_product(self._F_cols, cols, d)
-                return FB
-        return self._bounce(B)
+                    Fd = columns_product(self._F_cols, cols, d)
+                    Fd *= self.rho
+                    r += Fd
+                    r[cols] -= d
+                return r
+        return self._residual(L, B)
+
+    def _residual(self, L: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """``L + P F B - B`` (N, 3) by a whole pass over F."""
+        r = self._bounce(B)
+        r *= self.rho
+        r += L
+        r -= B
+        return r
 
     # -- the estimate --------------------------------------------------------------------------------
     def _sampled(self, L: np.ndarray, B: np.ndarray, light_change: bool, t0: float) -> ErrorEstimate:
@@ -363,15 +382,16 @@ class ErrorControl:
         return relative_rms(L - held, L, self.areas) > REMEASURE_CHANGE
 
     def _moments(self, r: np.ndarray, L: np.ndarray) -> np.ndarray:
-        """F r (one pass), and the ratios of estimate, upper bound and q to the residual from it."""
+        """y = P F r (one pass), and the ratios of estimate, upper bound and q to the residual from
+        it. y is also the residual of the swept answer B + r: L + P F (B + r) - (B + r) = P F r."""
         self._ratios_light = L.copy()
-        Fr = self._bounce(r)
-        y = self.rho * Fr
+        y = self._bounce(r)
+        y *= self.rho
         lower, upper = residual_ratios(r, y, self.areas, self.rho)
         n0 = _norm(self.areas, r)
         q = _norm(self.areas, y) / n0 if n0 > 0 else 0.0
         self._ratios = (float(np.sqrt(lower * upper)), upper, q)
-        return Fr
+        return y
 
     def _warm_start(self, L: np.ndarray) -> np.ndarray | None:
         """The correction the sweeps made to earlier lights, fitted to L: their best combination
@@ -399,8 +419,10 @@ class ErrorControl:
         t0 = time.perf_counter()
         gathered = self.far.B_far
         seen = self._seen
-        light_change = seen is None or seen[0] is not gathered or not np.array_equal(seen[1], L)
-        if not light_change and np.array_equal(seen[2], members) and self.last is not None:
+        # The far field answers a light it has not answered with a new B_far (an unchanged L with the
+        # same object), and this check leaves B_far as its last answer: so the object tells.
+        light_change = seen is None or seen[0] is not gathered
+        if not light_change and np.array_equal(seen[1], members) and self.last is not None:
             return B  # the same lights and local set: the same answer as checked last
         if self.sampled and not (light_change and self.tolerance is not None and self._store is not None):
             last = self.last
@@ -413,31 +435,34 @@ class ErrorControl:
                 )
             else:
                 self.last = self._sampled(L, B, light_change, t0)
-            self._seen = (gathered, L, np.array(members))
+            self._seen = (gathered, np.array(members))
             return B
         sweeps = 0
         if light_change and self.tolerance is not None and self._corrections.count:
             start = self._warm_start(L)
             if start is not None:
                 B = resolve(gathered + start)
-        held = self._FB
+        held, self._held = self._held, None  # updated in place below: none kept if this fails midway
         if light_change or held is None or held[0].shape != B.shape:
-            FB = self._bounce(B)
+            r = self._residual(L, B)
+            kept, size = B.copy(), _norm(self.areas, B) ** 2  # a copy: B goes to the caller
         else:  # only the local sets' patches changed: the last one checked and this one
-            FB = self._moved(held[1], held[0], B, np.union1d(seen[2], members))
-        r = self.rho * FB
-        r += L
-        r -= B
+            kept, r_was, size = held
+            local = np.union1d(seen[1], members)
+            r = self._moved(r_was, kept, B, local, L)
+            # |B|^2 and the copy of B kept follow the same patches: no pass over all of B.
+            size += float(self.areas[local] @ (B[local] ** 2 - kept[local] ** 2).sum(axis=1))
+            kept[local] = B[local]
         measured = self._ratios is None or (light_change and self._stale(L))
-        Fr = self._moments(r, L) if measured else None
-        res = relative_rms(r, B, self.areas)
+        y = self._moments(r, L) if measured else None
+        res = _relative(self.areas, r, size)
         ratio, upper, q = self._ratios
         est = res * ratio
         limit = None if self.tolerance is None else self.tolerance * (1.0 if light_change else FRAME_HYSTERESIS)
         changed = None  # the patches a sweep's direct solves change: the local set and Q
         while limit is not None and est > limit and sweeps < MAX_REFINE_SWEEPS:
-            if Fr is None:  # moments carried: F r for the sweep, and them measured on the way
-                Fr = self._moments(r, L)
+            if y is None:  # moments carried: P F r for the sweep, and them measured on the way
+                y = self._moments(r, L)
                 measured = True
             swept = B + r
             trapped = self.trapped
@@ -448,10 +473,10 @@ class ErrorControl:
                 was = swept.copy()
                 swept[trapped.patches] = trapped.solve(L, swept)
             B_next = resolve(swept)  # the re-solve changes the local set's patches only
-            FB = self._moved(FB + Fr, was, B_next, changed)
-            B, r, sweeps = B_next, L + self.rho * FB - B_next, sweeps + 1
-            Fr = self._moments(r, L)
-            res, last_res = relative_rms(r, B, self.areas), res
+            B, r, sweeps = B_next, self._moved(y, was, B_next, changed, L), sweeps + 1
+            size = _norm(self.areas, B) ** 2
+            y = self._moments(r, L)
+            res, last_res = _relative(self.areas, r, size), res
             ratio, upper, q = self._ratios
             est = res * ratio
             if res > MIN_SWEEP_GAIN * last_res:  # the sweeps no longer gain: stop
@@ -459,8 +484,8 @@ class ErrorControl:
         if sweeps or (light_change and self._corrections.count):
             self._corrections.add(L, self.far.B_far - gathered)
             self._last_correction = (L.copy(), self.far.B_far - gathered)
-        self._FB = (B.copy(), FB)  # a copy: B goes to the caller, who may change it in place
-        self._seen = (self.far.B_far, L, np.array(members))
+        self._held = (B.copy() if sweeps else kept, r, size)
+        self._seen = (self.far.B_far, np.array(members))
         self.last = ErrorEstimate(
             est, res, q, measured, res * upper, sweeps, 0, None, time.perf_counter() - t0, light_change
         )

@@ -185,3 +185,28 @@ def test_a_store_refines_a_light_change_to_the_tolerance(device, builtins, tmp_p
     kept = dyn.error_estimate
     assert kept.error == est.error and not kept.measured and not kept.light_change and kept.sweeps == 0
     assert err <= tolerance and 0.5 * err <= kept.error <= 3 * err, (err, kept)
+
+
+def test_a_walk_keeps_the_residual_it_updates_by_columns(device, builtins):
+    """With static lights a frame updates the last residual by F's columns of the patches whose
+    answer changed (the local sets then and now), and |B|^2 by the same patches: after 300 frames
+    back and forth both equal the residual and norm computed afresh from the frame's answer in
+    float64 as closely as a fresh pass of the device's float32 F does (no drift)."""
+    scene, F, lights, obs = builtins["village night"]
+    L = pydynrad.light_vector(scene, lights, device=device)
+    dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device)
+    dyn.radiosity(light=L)
+    path = [np.asarray(obs) + [0.05 * k, 0.0, 0.03 * k] for k in range(30)]
+    changes = 0
+    for k in range(300):
+        dyn.update(path[k % 30] if (k // 30) % 2 == 0 else path[29 - k % 30])
+        B = dyn.radiosity(light=L)
+        changes += k > 0 and dyn.error_estimate.light_change  # the first frame checks the light first
+    kept, r, size = dyn._errors._held
+    F64 = F.astype(np.float64)
+    fresh = L + scene.albedo * (F64 @ B) - B
+    np.testing.assert_array_equal(kept, B)
+    device_pass = np.abs(dyn._errors._residual(L, B) - fresh).max()  # F in float32 on the device
+    assert np.abs(r - fresh).max() <= 2 * device_pass, (np.abs(r - fresh).max(), device_pass)
+    assert size == pytest.approx(float(scene.areas @ (B * B).sum(axis=1)), rel=1e-12)
+    assert changes == 0  # every frame was updated by columns: the lights did not change
