@@ -50,7 +50,7 @@ from ..device.devices import device_or_default
 from ..device.matrix import DeviceMatrix, padded_ld
 from ..errors import InvalidInputError, OutOfMemoryError, PydynradError
 from ..farfield import FarField, far_field_for
-from ..farfield.estimate import DEFAULT_TOLERANCE, ErrorControl
+from ..farfield.estimate import DEFAULT_TOLERANCE, ErrorControl, coarse_tolerance
 from ..geometry.loading import checked_scene
 from ..geometry.objects import _objects, check_reach, instanced, rigid_transform
 from ..host.memory import available_host_bytes
@@ -199,8 +199,10 @@ class DynamicRadiosity:
         L + P F B - B (:attr:`error_estimate`; :mod:`pydynrad.farfield.estimate`), and while the
         estimate exceeds ``tolerance`` (area-weighted relative RMS; default
         :data:`~pydynrad.farfield.estimate.DEFAULT_TOLERANCE`, 0.1%) sweeps B <- L + P F B refine
-        it (F in memory; a frame with unchanged lights only beyond twice the tolerance). None:
-        estimate only. Without F in memory, a light change is refined from a store's blocks (kept
+        it (F in memory; a frame with unchanged lights only beyond twice the tolerance; patches
+        that trap light solved directly, :mod:`pydynrad.farfield.trapped`), and the far field it
+        builds stops its coarse sweeps at :data:`~pydynrad.farfield.estimate.COARSE_SHARE` times
+        the tolerance. None: estimate only. Without F in memory, a light change is refined from a store's blocks (kept
         after the first pass where they fit the memory budget); with rows on demand the residual
         is sampled and nothing is refined.
 
@@ -313,7 +315,7 @@ class DynamicRadiosity:
         self.refreshes = 0
         self._rng = np.random.default_rng(0x5EEAC106)
         self._check_memory()  # before any of it is allocated: a refusal, never a signal
-        self.far = self._far_field(far_field, clusters, cluster_form_factors)
+        self.far = self._far_field(far_field, clusters, cluster_form_factors, coarse_tolerance(self._ff, tolerance))
         # The far field's error, estimated on every answer, and sweeps to ``tolerance`` (farfield/estimate.py).
         self._errors = None if self.far is None else ErrorControl(scene, self.far, self._ff, self.device, tolerance)
         self._frame_stats: FrameStats | None = None  # the last update()'s, whose error_estimate radiosity() fills
@@ -394,7 +396,7 @@ class DynamicRadiosity:
         levels[self._local_patches] = "local"
         return levels
 
-    def _far_field(self, far_field, clusters, G):
+    def _far_field(self, far_field, clusters, G, tol: float | None):
         if far_field is not True and (clusters is not None or G is not None):  # they build one; none is built
             given = " and ".join(n for n, v in (("clusters", clusters), ("cluster_form_factors", G)) if v is not None)
             raise InvalidInputError(f"{given} build the far field; with far_field={far_field!r} they would be ignored")
@@ -406,7 +408,7 @@ class DynamicRadiosity:
             return far_field
         if far_field is not True:
             raise InvalidInputError(f"far_field must be True, False or a FarField; got {far_field!r}")
-        return far_field_for(self.scene, self._ff, clusters, G, self.device)
+        return far_field_for(self.scene, self._ff, clusters, G, self.device, tol)
 
     @property
     def lock(self) -> threading.RLock:

@@ -81,6 +81,8 @@ __all__ = [
     "FRAME_HYSTERESIS",
     "REMEASURE_CHANGE",
     "residual_ratios",
+    "COARSE_SHARE",
+    "coarse_tolerance",
 ]
 
 #: The estimated all-patch relative RMS error the far field refines to by default. A tenth of the
@@ -105,6 +107,12 @@ FRAME_HYSTERESIS = 2.0
 #: this (area-weighted relative norm) since they last were; and a warm start scaled from the
 #: last correction is taken only where the light is within this of the last one scaled.
 REMEASURE_CHANGE = 0.5
+#: In a solution that refines, the far field's coarse sweeps stop at a relative change of this many
+#: times the tolerance (not at the coarse level's own 1e-4): the coarse level's error (1-2% on the
+#: corpus) is far above either, the sweeps make up the rest, and from the last light's solutions
+#: the coarse level then takes 1-2 sweeps instead of 5-7
+#: (docs/decisions/0042-far-field-trapped-light.md).
+COARSE_SHARE = 10.0
 #: Corrections of earlier light changes kept for the warm start.
 CORRECTIONS = 4
 #: ... combined only where sum_i |a_i| max|L_i| <= this times max|L| (per channel): a fit that
@@ -190,6 +198,25 @@ class ErrorEstimate:
         return s + (f", {self.sweeps} sweeps)" if self.sweeps else ")")
 
 
+def _checked_tolerance(tolerance) -> float | None:
+    if tolerance is not None:
+        tolerance = float(tolerance)
+        if not (np.isfinite(tolerance) and tolerance > 0):
+            raise InvalidInputError(f"tolerance must be a positive number or None; got {tolerance!r}")
+    return tolerance
+
+
+def coarse_tolerance(local_rows, tolerance) -> float | None:
+    """The relative change at which the far field's coarse sweeps stop, for a solution with these
+    rows and ``tolerance``: :data:`COARSE_SHARE` times it where the answers are refined (F in
+    memory, or a store behind the rows), None (the far field's own) where they are not."""
+    tolerance = _checked_tolerance(tolerance)
+    if tolerance is None:
+        return None
+    refined = _whole_F(local_rows) is not None or isinstance(_uncached(local_rows.source), FormFactorStore)
+    return COARSE_SHARE * tolerance if refined else None
+
+
 def _whole_F(local_rows):
     """F in memory behind a dynamic solution's rows (a matrix or CSRRows), or None."""
     if local_rows.csr is not None:
@@ -222,11 +249,7 @@ class ErrorControl:
         samples: int = SAMPLED_ROWS,
         seed: int = 0x5EED,
     ) -> None:
-        if tolerance is not None:
-            tolerance = float(tolerance)
-            if not (np.isfinite(tolerance) and tolerance > 0):
-                raise InvalidInputError(f"tolerance must be a positive number or None; got {tolerance!r}")
-        self.tolerance = tolerance
+        self.tolerance = _checked_tolerance(tolerance)
         self.far, self.device = far, device
         self.areas = np.asarray(scene.areas, np.float64)
         self.rho = np.asarray(scene.albedo, np.float64)

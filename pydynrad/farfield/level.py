@@ -816,7 +816,7 @@ class FarField:
         return cut
 
 
-def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarField:
+def far_field_for(scene, local_rows, clusters=None, G=None, device=None, tol: float | None = None) -> FarField:
     """The FarField a :class:`~pydynrad.DynamicRadiosity` uses for its form factors
     (:class:`pydynrad.dynamic.localrows.LocalRows`).
 
@@ -828,16 +828,18 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
     ``G=store.cluster_form_factors()`` to hold it on the device instead); rows computed on
     demand: G from cluster-id hemicubes;
     any other row source: G summed from its rows, each block validated
-    (:func:`pydynrad.farfield.gather.cluster_form_factors_for`).
+    (:func:`pydynrad.farfield.gather.cluster_form_factors_for`). ``tol``: the coarse sweeps'
+    (:class:`FarField`; None: its default).
     """
+    coarse = {} if tol is None else {"tol": tol}
 
     if local_rows.csr is not None:
-        return FarField(scene, local_rows.csr, clusters, G, device=device, checked=True)
+        return FarField(scene, local_rows.csr, clusters, G, device=device, checked=True, **coarse)
     inner = local_rows.source
     while not isinstance(inner, (FormFactorStore, CSRRows)) and hasattr(inner, "source"):
         inner = inner.source  # through row caches
     if isinstance(inner, CSRRows):
-        return FarField(scene, inner.matrix, clusters, G, device=device)
+        return FarField(scene, inner.matrix, clusters, G, device=device, **coarse)
     basis = "linear"
     if isinstance(inner, FormFactorStore) and (G is None or inner.has_clusters):
         # A G passed in with a store that holds one is read as the store's: its clusters and basis.
@@ -862,7 +864,7 @@ def far_field_for(scene, local_rows, clusters=None, G=None, device=None) -> FarF
         else:
             source = local_rows.source if isinstance(inner, HemicubeRows) else _CheckedRows(local_rows)
             G = cluster_form_factors_for(scene, source, pr, device=device)
-    return FarField(scene, None, clusters, G, prolongation=basis, device=device, linear=linear)
+    return FarField(scene, None, clusters, G, prolongation=basis, device=device, linear=linear, **coarse)
 
 
 class _CheckedRows:

@@ -210,3 +210,23 @@ def test_a_walk_keeps_the_residual_it_updates_by_columns(device, builtins):
     assert np.abs(r - fresh).max() <= 2 * device_pass, (np.abs(r - fresh).max(), device_pass)
     assert size == pytest.approx(float(scene.areas @ (B * B).sum(axis=1)), rel=1e-12)
     assert changes == 0  # every frame was updated by columns: the lights did not change
+
+
+def test_a_refining_solution_loosens_its_far_fields_coarse_sweeps(device, builtins):
+    """The far field a refining solution builds stops its coarse sweeps at COARSE_SHARE times the
+    tolerance (the sweeps make up the rest); without refinement, or for a far field passed in, the
+    coarse level keeps its own 1e-4."""
+    from pydynrad.farfield import FarField
+    from pydynrad.farfield.estimate import COARSE_SHARE, DEFAULT_TOLERANCE
+
+    scene, F, lights, obs = builtins["village night"]
+    M = len(scene) // 8
+    assert DynamicRadiosity(scene, F, local_size=M, observer=obs, device=device).far.tol == pytest.approx(
+        COARSE_SHARE * DEFAULT_TOLERANCE
+    )
+    assert DynamicRadiosity(scene, F, local_size=M, observer=obs, device=device, tolerance=0.002).far.tol == (
+        pytest.approx(COARSE_SHARE * 0.002)
+    )
+    assert DynamicRadiosity(scene, F, local_size=M, observer=obs, device=device, tolerance=None).far.tol == 1e-4
+    own = FarField(scene, F, device=device)
+    assert DynamicRadiosity(scene, F, local_size=M, observer=obs, device=device, far_field=own).far.tol == 1e-4
