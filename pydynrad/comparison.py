@@ -30,14 +30,25 @@ __all__ = ["radiosity_error", "pixel_error", "false_colour", "comparison_image",
 COLOUR_MAP = "viridis"
 
 
-def radiosity_error(radiosity, reference, areas) -> float:
+def radiosity_error(radiosity, reference, areas, emission=None) -> float:
     """Area-weighted relative RMS error ``sqrt(sum A |b - r|^2 / sum A |r|^2)`` over patches
-    and channels; ``radiosity`` and ``reference`` (N, 3), ``areas`` (N,)."""
+    and channels; ``radiosity`` and ``reference`` (N, 3), ``areas`` (N,).
+
+    ``emission`` (N, 3), optional: the emitters' own emission within the reference, left out of
+    the denominator (``r - E`` there): the error relative to the reflected radiosity, which
+    :attr:`pydynrad.DynamicRadiosity.error_estimate` estimates. A bright emitter otherwise makes
+    the relative error of everything it lights look small."""
     b, r = np.asarray(radiosity, dtype=np.float64), np.asarray(reference, dtype=np.float64)
     a = np.asarray(areas, dtype=np.float64)
     if b.shape != r.shape or b.ndim != 2 or len(a) != len(b):
         raise InvalidInputError(f"radiosity {b.shape}, reference {r.shape} and areas {a.shape} do not match")
-    den = float(np.sum(a[:, None] * r * r))
+    d = r
+    if emission is not None:
+        e = np.asarray(emission, dtype=np.float64)
+        if e.shape != r.shape:
+            raise InvalidInputError(f"emission {e.shape} does not match the reference {r.shape}")
+        d = r - e
+    den = float(np.sum(a[:, None] * d * d))
     if den == 0.0:
         raise InvalidInputError("the reference radiosity is zero everywhere: relative error undefined")
     return float(np.sqrt(np.sum(a[:, None] * (b - r) ** 2) / den))

@@ -33,6 +33,12 @@ def test_radiosity_error_is_area_weighted_relative_rms():
     assert radiosity_error(ref, ref, areas) == 0.0
     with pytest.raises(InvalidInputError):
         radiosity_error(b, np.zeros_like(ref), areas)
+    # Relative to the reflected light: the first patch emits 0.75 of its 1.0, left out below.
+    emission = np.array([[0.75, 0.75, 0.75], [0.0, 0.0, 0.0]])
+    expect = np.sqrt(1.0 * 3 * 0.2**2 / (3.0 * 3 * 0.25**2 + 1.0 * 3 * 4))
+    assert radiosity_error(b, ref, areas, emission=emission) == pytest.approx(expect, rel=1e-13)
+    with pytest.raises(InvalidInputError, match="emission"):
+        radiosity_error(b, ref, areas, emission=emission[:1])
 
 
 def test_comparison_image_layout_and_error_values():

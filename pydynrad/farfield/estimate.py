@@ -7,7 +7,10 @@ against the radiosity equation itself: its residual
 
 is one bounce of F (one sparse product, on the device), and the true error e = B* - B solves
 (I - P F) e = r. Norms are area-weighted over patches and channels, ``|x|^2 = sum_i A_i |x_i|^2``,
-as :func:`pydynrad.comparison.radiosity_error` weighs its error, and relative to ``|B|``:
+as :func:`pydynrad.comparison.radiosity_error` weighs its error, and relative to the reflected
+radiosity ``|B - E|``: the emitters' own emission, in L and exact, is left out of the norm, where
+it would hide the error of everything it lights (veach_ajar's lamp of 1000 beside walls of 1-5:
+``|B|`` is 50 times ``|B - E|``, and a tolerance met on ``|B|`` left its walls 5% off):
 
 * with F reciprocal (A_i F_ij = A_j F_ji, hemicube F to its rounding) and rows summing to at most
   1, T = P F is self-adjoint in the inner product weighted by A / rho, per channel, with its
@@ -177,11 +180,12 @@ class ErrorEstimate:
     """The far field's error as measured on one answer (:attr:`pydynrad.DynamicRadiosity.error_estimate`).
 
     All values are area-weighted relative RMS over patches and channels, as
-    :func:`pydynrad.comparison.radiosity_error`.
+    :func:`pydynrad.comparison.radiosity_error` with ``emission=``: relative to the reflected
+    radiosity B - E, the emitters' own emission left out of the norm (module docstring).
     """
 
     error: float  # the estimate of the all-patch error: residual times the bracket's geometric mean
-    residual: float  # |L + P F B - B| / |B|
+    residual: float  # |L + P F B - B| / |B - E|
     contraction: float  # q = |P F r| / |r| (the residual's norm over one more bounce)
     measured: bool  # the moments measured on this answer (else carried from the last light change)
     bound: float  # the Gauss-Radau upper bound (residual times its ratio) for reciprocal F
@@ -254,6 +258,9 @@ class ErrorControl:
         self.areas = np.asarray(scene.areas, np.float64)
         self.rho = np.asarray(scene.albedo, np.float64)
         self.rho_max = float(self.rho.max()) if len(self.rho) else 0.0
+        # The norms leave the emitters' own emission out (module docstring).
+        self._emitters = np.flatnonzero(scene.emission.max(axis=1) > 0)
+        self._emission = np.asarray(scene.emission, np.float64)[self._emitters]
         self._rows = local_rows
         self._F = _whole_F(local_rows)
         self._F_cols = getattr(far, "_F_cols", None) if self._F is not None else None
@@ -365,7 +372,22 @@ class ErrorControl:
         return r
 
     # -- the estimate --------------------------------------------------------------------------------
-    def _sampled(self, L: np.ndarray, B: np.ndarray, light_change: bool, t0: float) -> ErrorEstimate:
+    def _emitted(self, L: np.ndarray) -> np.ndarray | None:
+        """The emitters' emission within L, min(E, L) on the emitting patches (a light vector
+        given without it then loses nothing more than it holds), or None without emitters."""
+        if not len(self._emitters):
+            return None
+        return np.minimum(self._emission, L[self._emitters])
+
+    def _reflected(self, size: float, B: np.ndarray, emitted: np.ndarray | None) -> float:
+        """|B - E|^2 from size = |B|^2: only the emitting patches differ."""
+        if emitted is None:
+            return size
+        em, a = self._emitters, self.areas[self._emitters]
+        b = B[em]
+        return max(size - float(a @ (b * b - (b - emitted) ** 2).sum(axis=1)), 0.0)
+
+    def _sampled(self, L: np.ndarray, B: np.ndarray, light_change: bool, t0: float, emitting: bool) -> ErrorEstimate:
         n = len(B)
         if self._sample is None or (light_change and self._sample[0] is None):
             p = self.areas / self.areas.sum()
@@ -376,7 +398,7 @@ class ErrorControl:
         r = L[idx] + self.rho[idx] * (rows @ B) - B[idx]
         sq = (r * r).sum(axis=1)
         mean_a = float(self.areas.sum())
-        den = _norm(self.areas, B)
+        den = np.sqrt(self._reflected(_norm(self.areas, B) ** 2, B, self._emitted(L) if emitting else None))
         ms = float(sq.mean())
         res = np.sqrt(ms * mean_a) / den if den > 0 else 0.0
         se = float(sq.std(ddof=1) / np.sqrt(len(sq))) if len(sq) > 1 else ms
@@ -435,10 +457,12 @@ class ErrorControl:
         off = relative_rms(L - s * last, L, self.areas)
         return s * delta if np.all((s > 0.5) & (s < 2.0)) and off < REMEASURE_CHANGE else None
 
-    def check(self, L: np.ndarray, B: np.ndarray, members: np.ndarray, resolve) -> np.ndarray:
+    def check(self, L: np.ndarray, B: np.ndarray, members: np.ndarray, resolve, emitting: bool = True) -> np.ndarray:
         """The answer B (N, 3) for light L, checked (and refined while over the tolerance);
         sets :attr:`last`. ``resolve(B_far)`` puts a refined far answer into the far field and
-        returns the whole answer with the local set solved from it."""
+        returns the whole answer with the local set solved from it. ``emitting``: L holds the
+        emitters' emission (a light vector of :func:`pydynrad.light_vector`), which the norms
+        leave out; False for a reflected light vector (``emitters="analytic"``)."""
         t0 = time.perf_counter()
         gathered = self.far.B_far
         seen = self._seen
@@ -457,7 +481,7 @@ class ErrorControl:
                     last, measured=False, sweeps=0, seconds=time.perf_counter() - t0, light_change=False
                 )
             else:
-                self.last = self._sampled(L, B, light_change, t0)
+                self.last = self._sampled(L, B, light_change, t0, emitting)
             self._seen = (gathered, np.array(members))
             return B
         sweeps = 0
@@ -478,38 +502,57 @@ class ErrorControl:
             kept[local] = B[local]
         measured = self._ratios is None or (light_change and self._stale(L))
         y = self._moments(r, L) if measured else None
-        res = _relative(self.areas, r, size)
+        emitted = self._emitted(L) if emitting else None
+        res = _relative(self.areas, r, self._reflected(size, B, emitted))
         ratio, upper, q = self._ratios
         est = res * ratio
         limit = None if self.tolerance is None else self.tolerance * (1.0 if light_change else FRAME_HYSTERESIS)
-        changed = None  # the patches a sweep's direct solves change: the local set and Q
-        while limit is not None and est > limit and sweeps < MAX_REFINE_SWEEPS:
-            if y is None:  # moments carried: P F r for the sweep, and them measured on the way
+        while limit is not None and sweeps < MAX_REFINE_SWEEPS:
+            if est <= limit:
+                if y is not None or not sweeps:  # the ratio measured on this answer, or carried as it was
+                    break
+                y = self._moments(r, L)  # the refined answer's own moments: the estimate stands on them
+                ratio, upper, q = self._ratios
+                est = res * ratio
+                continue
+            trapped = self.trapped
+            if len(trapped):
+                # The trapped patches first, solved from the rest, the residual brought to that by
+                # their columns: the sweep then carries their change (the largest) to the patches
+                # they light, which a solve after the sweep left a sweep behind.
+                solved = B.copy()
+                solved[trapped.patches] = trapped.solve(L, B)
+                B, r, y = solved, self._moved(r, B, solved, trapped.patches, L), None
+            if y is None:  # P F r for the sweep, and the moments measured on the way
                 y = self._moments(r, L)
                 measured = True
             swept = B + r
-            trapped = self.trapped
-            if changed is None:
-                changed = np.union1d(members, trapped.patches)
-            was = swept
-            if len(trapped):
-                was = swept.copy()
-                swept[trapped.patches] = trapped.solve(L, swept)
             B_next = resolve(swept)  # the re-solve changes the local set's patches only
-            B, r, sweeps = B_next, self._moved(y, was, B_next, changed, L), sweeps + 1
+            B, r, y, sweeps = B_next, self._moved(y, swept, B_next, members, L), None, sweeps + 1
             size = _norm(self.areas, B) ** 2
-            y = self._moments(r, L)
-            res, last_res = _relative(self.areas, r, size), res
-            ratio, upper, q = self._ratios
-            est = res * ratio
+            res, last_res = _relative(self.areas, r, self._reflected(size, B, emitted)), res
+            est = res * self._ratios[0]  # the ratio of the sweep's start, until measured again
             if res > MIN_SWEEP_GAIN * last_res:  # the sweeps no longer gain: stop
                 break
+        if sweeps and y is None:  # stopped by the cap or the gain: the refined answer's own moments
+            self._moments(r, L)
+            ratio, upper, q = self._ratios
+            est = res * ratio
         if sweeps or (light_change and self._corrections.count):
             self._corrections.add(L, self.far.B_far - gathered)
             self._last_correction = (L.copy(), self.far.B_far - gathered)
         self._held = (B.copy() if sweeps else kept, r, size)
         self._seen = (self.far.B_far, np.array(members))
         self.last = ErrorEstimate(
-            est, res, q, measured, res * upper, sweeps, 0, None, time.perf_counter() - t0, light_change
+            est,
+            res,
+            q,
+            measured,
+            res * upper,
+            sweeps,
+            0,
+            None,
+            time.perf_counter() - t0,
+            light_change,
         )
         return B

@@ -30,6 +30,12 @@ def _ref(scene, F, L, device):
     return pydynrad.solve(scene, F, light=L, tol=1e-10, device=device).radiosity
 
 
+def _err(B, ref, scene, L):
+    """The all-patch error relative to the reflected light, as the estimate measures it: the
+    emitters' own emission within L left out of the norm."""
+    return radiosity_error(B, ref, scene.areas, emission=np.minimum(scene.emission, L))
+
+
 @pytest.mark.parametrize("case", ["box", "village night", "village sun"])
 def test_estimate_against_truth_on_builtins(device, builtins, case):
     scene, F, lights, obs = builtins[case]
@@ -39,13 +45,13 @@ def test_estimate_against_truth_on_builtins(device, builtins, case):
     for step in range(3):  # a light change, then frames whose local set moved
         stats_frame = dyn.update(np.asarray(obs) + np.array([0.1, 0.0, 0.08]) * step * scene.scale)
         B = dyn.radiosity(light=L)
-        err, est = radiosity_error(B, ref, scene.areas), dyn.error_estimate
-        # Observed ratios 0.94-1.06 (PoCL CPU).
+        err, est = _err(B, ref, scene, L), dyn.error_estimate
+        # Observed ratios 1.08-1.13 (PoCL CPU).
         assert 0.5 * err <= est.error and (est.error <= 3 * err or err < 1e-4), (case, step, err, est)
         assert est.sweeps == 0 and (est.light_change == (step == 0) or not stats_frame.swaps)
         assert stats_frame.error_estimate is est
         r = L + scene.albedo * (F @ B) - B
-        assert est.residual == pytest.approx(relative_rms(r, B, scene.areas), rel=1e-3)
+        assert est.residual == pytest.approx(relative_rms(r, B - np.minimum(scene.emission, L), scene.areas), rel=1e-3)
 
 
 @pytest.mark.parametrize("tolerance", [0.004, 0.0015, 0.0005])
@@ -56,14 +62,14 @@ def test_tolerance_is_honoured(device, builtins, tolerance):
     dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device, tolerance=tolerance)
     B = dyn.radiosity(light=L)
     est = dyn.error_estimate
-    err = radiosity_error(B, ref, scene.areas)
+    err = _err(B, ref, scene, L)
     assert est.sweeps >= 1 and est.error <= tolerance
     assert err <= tolerance, (err, est)
     assert 0.5 * err <= est.error <= 3 * err
     # Lights unchanged, the observer moves: still under it; far_field=False untouched by it.
     dyn.update(np.asarray(obs) + [1.0, 0.0, 1.0])
     B = dyn.radiosity(light=L)
-    assert radiosity_error(B, ref, scene.areas) <= tolerance
+    assert _err(B, ref, scene, L) <= tolerance
     paper = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device, far_field=False)
     paper.update(np.asarray(obs) + [1.0, 0.0, 1.0])
     np.testing.assert_array_equal(paper.radiosity(light=L), dyn.radiosity(light=L, far_field=False))
@@ -89,7 +95,7 @@ def test_moving_light_warm_starts_from_the_last_correction(device, builtins):
         L = pydynrad.light_vector(scene, [PointLight((8.0 + 0.05 * k, 3.0, 8.0), (400.0,) * 3)], device=device)
         B = dyn.radiosity(light=L)
         sweeps.append(dyn.error_estimate.sweeps)
-        assert radiosity_error(B, _ref(scene, F, L, device), scene.areas) <= 0.002
+        assert _err(B, _ref(scene, F, L, device), scene, L) <= 0.002
     assert sweeps[0] >= 2 and max(sweeps[2:]) < sweeps[0]
 
 
@@ -104,7 +110,7 @@ def test_sampled_rows_estimate(device, builtins):
     dyn._errors._F = None  # as a store: rows only
     B = dyn.radiosity(light=L)
     est = dyn.error_estimate
-    err = radiosity_error(B, ref, scene.areas)
+    err = _err(B, ref, scene, L)
     assert est.sampled > 0 and est.sweeps == 0 and est.interval[0] <= est.error <= est.interval[1]
     assert 0.5 * err <= est.error <= 3 * err, (err, est)
     assert whole.radiosity(light=L) is not None
@@ -157,14 +163,14 @@ def test_a_store_refines_a_light_change_to_the_tolerance(device, builtins, tmp_p
     plain = DynamicRadiosity(
         scene, open_form_factors(scene, tmp_path / "ff"), local_size=M, observer=obs, device=device, tolerance=None
     )
-    assert radiosity_error(plain.radiosity(light=L), ref, scene.areas) > 2 * tolerance  # refinement needed
+    assert _err(plain.radiosity(light=L), ref, scene, L) > 2 * tolerance  # refinement needed
     dyn = DynamicRadiosity(
         scene, open_form_factors(scene, tmp_path / "ff"), local_size=M, observer=obs, device=device, tolerance=tolerance
     )
     B = dyn.radiosity(light=L)
     est = dyn.error_estimate
     assert est.sampled == 0 and est.sweeps >= 1 and est.error <= tolerance
-    assert radiosity_error(B, ref, scene.areas) <= tolerance
+    assert _err(B, ref, scene, L) <= tolerance
     # The blocks fit the memory budget: kept after the first pass (F itself), the later passes read
     # memory. Behind a row cache too small for them, every pass reads the files: the same answer.
     assert (dyn._errors._store_held != F).nnz == 0
@@ -181,7 +187,7 @@ def test_a_store_refines_a_light_change_to_the_tolerance(device, builtins, tmp_p
     small._ff.source.close()
     dyn.update(np.asarray(obs) + [1.0, 0.0, 1.0])
     B = dyn.radiosity(light=L)
-    err = radiosity_error(B, ref, scene.areas)
+    err = _err(B, ref, scene, L)
     kept = dyn.error_estimate
     assert kept.error == est.error and not kept.measured and not kept.light_change and kept.sweeps == 0
     assert err <= tolerance and 0.5 * err <= kept.error <= 3 * err, (err, kept)
@@ -230,3 +236,30 @@ def test_a_refining_solution_loosens_its_far_fields_coarse_sweeps(device, builti
     assert DynamicRadiosity(scene, F, local_size=M, observer=obs, device=device, tolerance=None).far.tol == 1e-4
     own = FarField(scene, F, device=device)
     assert DynamicRadiosity(scene, F, local_size=M, observer=obs, device=device, far_field=own).far.tol == 1e-4
+
+
+def test_the_estimate_leaves_the_emitters_own_light_out(device, builtins):
+    """The built-in Cornell box's lamp emits: with emitters="analytic" the solution solves for
+    B - E from the reflected light vector, and its estimate is of that answer; with the light
+    vector holding E (the default) the estimate's norm leaves E out. Both read the same truth,
+    the error relative to the reflected light, within the usual 0.5-3x."""
+    scene, F, lights, obs = builtins["box"]
+    assert len(scene.emitters) > 0
+    L = pydynrad.light_vector(scene, lights, device=device)
+    ref = _ref(scene, F, L, device)
+    for emitters in ("hemicube", "analytic"):
+        dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device, tolerance=None)
+        B = dyn.radiosity(lights, emitters=emitters)
+        truth = (
+            _err(B, ref, scene, L)
+            if emitters == "hemicube"
+            else radiosity_error(B, _ref_analytic(scene, F, lights, device), scene.areas, emission=scene.emission)
+        )
+        assert 0.5 * truth <= dyn.error_estimate.error <= 3 * truth, (emitters, truth, dyn.error_estimate)
+    plain = radiosity_error(B, _ref_analytic(scene, F, lights, device), scene.areas)
+    # Observed 0.44% against 0.91% (estimate 1.02%): the lamp in the norm hides half the error.
+    assert plain < 0.6 * truth
+
+
+def _ref_analytic(scene, F, lights, device):
+    return pydynrad.solve(scene, F, lights, tol=1e-10, device=device, emitters="analytic").radiosity
