@@ -197,7 +197,7 @@ class DynamicRadiosity:
     tolerance : float or None
         With the far field: every answer's all-patch error is estimated from its residual
         L + P F B - B (:attr:`error_estimate`; :mod:`pydynrad.farfield.estimate`), and while the
-        estimate exceeds ``tolerance`` (area-weighted relative RMS; default
+        estimate exceeds ``tolerance`` (area-weighted relative RMS of the reflected light; default
         :data:`~pydynrad.farfield.estimate.DEFAULT_TOLERANCE`, 0.1%) sweeps B <- L + P F B refine
         it (F in memory; a frame with unchanged lights only beyond twice the tolerance; patches
         that trap light solved directly, :mod:`pydynrad.farfield.trapped`), and the far field it
@@ -901,7 +901,9 @@ class DynamicRadiosity:
         """The far field's :class:`~pydynrad.farfield.estimate.ErrorEstimate` of the last
         :meth:`radiosity` answer (None before one, without a far field, with moving objects, or
         after a call with ``far_field=False`` only). Its ``error`` estimates the area-weighted
-        all-patch relative RMS error against the full solve of the same F."""
+        all-patch relative RMS error against the full solve of the same F, relative to the
+        reflected radiosity B - E (the emitters' own emission left out of the norm:
+        ``comparison.radiosity_error(..., emission=)``)."""
         return None if self._errors is None else self._errors.last
 
     def _light_vector(self, lights, light, emitters: str) -> tuple[np.ndarray, np.ndarray | None]:
