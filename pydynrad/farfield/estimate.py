@@ -9,8 +9,8 @@ is one bounce of F (one sparse product, on the device), and the true error e = B
 (I - P F) e = r. Norms are area-weighted over patches and channels, ``|x|^2 = sum_i A_i |x_i|^2``,
 as :func:`pydynrad.comparison.radiosity_error` weighs its error, and relative to the reflected
 radiosity ``|B - E|``: the emitters' own emission, in L and exact, is left out of the norm, where
-it would hide the error of everything it lights (veach_ajar's lamp of 1000 beside walls of 1-5:
-``|B|`` is 50 times ``|B - E|``, and a tolerance met on ``|B|`` left its walls 5% off):
+it would hide the error of everything it lights
+(docs/decisions/0042-far-field-trapped-light.md):
 
 * with F reciprocal (A_i F_ij = A_j F_ji, hemicube F to its rounding) and rows summing to at most
   1, T = P F is self-adjoint in the inner product weighted by A / rho, per channel, with its
@@ -111,10 +111,9 @@ FRAME_HYSTERESIS = 2.0
 #: last correction is taken only where the light is within this of the last one scaled.
 REMEASURE_CHANGE = 0.5
 #: In a solution that refines, the far field's coarse sweeps stop at a relative change of this many
-#: times the tolerance (not at the coarse level's own 1e-4): the coarse level's error (1-2% on the
-#: corpus) is far above either, the sweeps make up the rest, and from the last light's solutions
-#: the coarse level then takes 1-2 sweeps instead of 5-7
-#: (docs/decisions/0042-far-field-trapped-light.md).
+#: times the tolerance (not at the coarse level's own 1e-4): the coarse level's own error is far
+#: above either, the sweeps make up the rest, and warm-started from the last lights' solutions the
+#: coarse level then stops after a sweep or two (docs/decisions/0042-far-field-trapped-light.md).
 COARSE_SHARE = 10.0
 #: Corrections of earlier light changes kept for the warm start.
 CORRECTIONS = 4

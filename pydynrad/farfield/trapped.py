@@ -4,16 +4,14 @@ A sweep ``B <- L + P F B`` damps the error on patch i by at most ``rho_i sum_j F
 bounce (its albedo times the share of its hemisphere that other patches fill): near 1 where bright
 surfaces nearly enclose each other (an alcove, the space under an eave, a box's inside), light
 there bounces tens of times before it settles, and sweeps over all of F take as many passes to
-follow it (a contraction of 0.9 per sweep on a 136,410-patch suburb whose error sat on 2,905
-patches with rows summing past 0.99 and albedos of 0.86-0.95). The set Q of patches with
-``rho_i sum_j F_ij`` above :data:`TRAPPED` is small on the scenes measured (48 of 4,484; 1,571 of
-136,410), and its block of F sparse, so each sweep solves Q's equations exactly from the rest,
+follow it. The set Q of patches with ``rho_i sum_j F_ij`` above :data:`TRAPPED` is small on real
+scenes, and its block of F sparse, so each sweep solves Q's equations exactly from the rest,
 
     (I - P_Q F_QQ) B_Q = L_Q + P_Q F_QX B_X,
 
 by a sparse LU factored once (per distinct albedo channel), as the local set is solved from its
-injection. What is left to the sweeps then contracts by about 0.3 per sweep on the same scene
-(docs/decisions/0042-far-field-trapped-light.md). Where F among those patches is large (an
+injection; what is left to the sweeps contracts fast (the measurements, and the remedies tried:
+docs/decisions/0042-far-field-trapped-light.md). Where F among those patches is large (an
 interior whose walls all pass the threshold), Q keeps the most trapped patches whose block stays
 within :data:`TRAPPED_SHARE` of F's entries: the factorisation's cost grows faster than its
 entries.
