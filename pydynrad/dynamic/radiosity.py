@@ -875,7 +875,7 @@ class DynamicRadiosity:
             B[S] = self._solve_kept(LS)
         if far is not None and not self.objects and not len(self._stale):  # its residual, and sweeps to tolerance
             with self.far.lock:
-                B = self._errors.check(L, B, S, lambda B_far: self._resolved(L, B_far), E is None)
+                B = self._errors.check(L, B, S, far, lambda B_far: self._resolved(L, B_far), E is None)
             if self._frame_stats is not None:
                 self._frame_stats.error_estimate = self._errors.last
         if self.objects:

@@ -339,7 +339,9 @@ class ErrorControl:
             if self._F is not None:
                 rows, entries = (lambda idx: self._F[idx]), self._F.nnz
             else:
-                rows, entries = lambda idx: read_rows(self._store, idx), self._store_entries
+                held = self._store_held  # the blocks kept in memory, else read again from the files
+                rows = (lambda idx: held[idx]) if held is not None else (lambda idx: read_rows(self._store, idx))
+                entries = self._store_entries
             self._trapped = TrappedLight(self.rho, sums, rows, entries)
         return self._trapped
 
@@ -456,17 +458,20 @@ class ErrorControl:
         off = relative_rms(L - s * last, L, self.areas)
         return s * delta if np.all((s > 0.5) & (s < 2.0)) and off < REMEASURE_CHANGE else None
 
-    def check(self, L: np.ndarray, B: np.ndarray, members: np.ndarray, resolve, emitting: bool = True) -> np.ndarray:
+    def check(
+        self, L: np.ndarray, B: np.ndarray, members: np.ndarray, gathered: np.ndarray, resolve, emitting: bool = True
+    ) -> np.ndarray:
         """The answer B (N, 3) for light L, checked (and refined while over the tolerance);
-        sets :attr:`last`. ``resolve(B_far)`` puts a refined far answer into the far field and
-        returns the whole answer with the local set solved from it. ``emitting``: L holds the
-        emitters' emission (a light vector of :func:`pydynrad.light_vector`), which the norms
-        leave out; False for a reflected light vector (``emitters="analytic"``)."""
+        sets :attr:`last`. ``gathered``: the far field's answer B stands on, as its ``light(L)``
+        returned it (the far field's B_far may since be another solution's, where two share it);
+        ``resolve(B_far)`` puts a refined far answer into the far field and returns the whole
+        answer with the local set solved from it. ``emitting``: L holds the emitters' emission (a
+        light vector of :func:`pydynrad.light_vector`), which the norms leave out; False for a
+        reflected light vector (``emitters="analytic"``)."""
         t0 = time.perf_counter()
-        gathered = self.far.B_far
         seen = self._seen
         # The far field answers a light it has not answered with a new B_far (an unchanged L with the
-        # same object), and this check leaves B_far as its last answer: so the object tells.
+        # same object), and this check leaves as seen the far answer it ends on: so the object tells.
         light_change = seen is None or seen[0] is not gathered
         if not light_change and np.array_equal(seen[1], members) and self.last is not None:
             return B  # the same lights and local set: the same answer as checked last
@@ -484,10 +489,12 @@ class ErrorControl:
             self._seen = (gathered, np.array(members))
             return B
         sweeps = 0
+        answer = gathered  # the far answer B stands on, replaced by each resolve
         if light_change and self.tolerance is not None and self._corrections.count:
             start = self._warm_start(L)
             if start is not None:
-                B = resolve(gathered + start)
+                answer = gathered + start
+                B = resolve(answer)
         held, self._held = self._held, None  # updated in place below: none kept if this fails midway
         if light_change or held is None or held[0].shape != B.shape:
             r = self._residual(L, B)
@@ -515,19 +522,27 @@ class ErrorControl:
                 est = res * ratio
                 continue
             trapped = self.trapped
-            if len(trapped):
-                # The trapped patches first, solved from the rest, the residual brought to that by
-                # their columns: the sweep then carries their change (the largest) to the patches
-                # they light, which a solve after the sweep left a sweep behind.
+            # The trapped patches first, solved from the rest, the residual brought to that by
+            # their columns: the sweep then carries their change (the largest) to the patches they
+            # light, which a solve after the sweep leaves a sweep behind. Without F's columns on
+            # the host each update of the residual is a pass: they are solved after the sweep
+            # then, with the local set, one pass for both.
+            first = len(trapped) and self._F_cols is not None
+            if first:
                 solved = B.copy()
                 solved[trapped.patches] = trapped.solve(L, B)
                 B, r, y = solved, self._moved(r, B, solved, trapped.patches, L), None
             if y is None:  # P F r for the sweep, and the moments measured on the way
                 y = self._moments(r, L)
                 measured = True
-            swept = B + r
-            B_next = resolve(swept)  # the re-solve changes the local set's patches only
-            B, r, y, sweeps = B_next, self._moved(y, swept, B_next, members, L), None, sweeps + 1
+            answer = was = B + r
+            changed = members
+            if len(trapped) and not first:
+                answer = was.copy()
+                answer[trapped.patches] = trapped.solve(L, was)
+                changed = np.union1d(members, trapped.patches)
+            B_next = resolve(answer)  # the re-solve changes the local set's patches only
+            B, r, y, sweeps = B_next, self._moved(y, was, B_next, changed, L), None, sweeps + 1
             size = _norm(self.areas, B) ** 2
             res, last_res = _relative(self.areas, r, self._reflected(size, B, emitted)), res
             est = res * self._ratios[0]  # the ratio of the sweep's start, until measured again
@@ -538,10 +553,10 @@ class ErrorControl:
             ratio, upper, q = self._ratios
             est = res * ratio
         if sweeps or (light_change and self._corrections.count):
-            self._corrections.add(L, self.far.B_far - gathered)
-            self._last_correction = (L.copy(), self.far.B_far - gathered)
+            self._corrections.add(L, answer - gathered)
+            self._last_correction = (L.copy(), answer - gathered)
         self._held = (B.copy() if sweeps else kept, r, size)
-        self._seen = (self.far.B_far, np.array(members))
+        self._seen = (answer, np.array(members))
         self.last = ErrorEstimate(
             est,
             res,

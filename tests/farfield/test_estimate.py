@@ -263,3 +263,33 @@ def test_the_estimate_leaves_the_emitters_own_light_out(device, builtins):
 
 def _ref_analytic(scene, F, lights, device):
     return pydynrad.solve(scene, F, lights, tol=1e-10, device=device, emitters="analytic").radiosity
+
+
+def test_a_shared_far_field_changed_between_light_and_check(device, builtins):
+    """Two solutions share one FarField: where the other one lights it between this one's
+    light() and its check (another thread may take the far field's lock in that window), the
+    check reads the answer this one's B stands on, and the next call, under the other's lights,
+    is a light change whose residual is that answer's own."""
+    scene, F, lights, obs = builtins["village night"]
+    L1 = pydynrad.light_vector(scene, lights, device=device)
+    L2 = pydynrad.light_vector(scene, [PointLight((20.0, 3.0, 20.0), (400.0,) * 3)], device=device)
+    M = len(scene) // 8
+    one = DynamicRadiosity(scene, F, local_size=M, observer=obs, device=device, tolerance=None)
+    other = DynamicRadiosity(
+        scene, F, local_size=M, observer=[30.0, 1.7, 30.0], device=device, tolerance=None, far_field=one.far
+    )
+    check, raced = one._errors.check, []
+
+    def racing(*args, **kwargs):
+        if not raced:
+            raced.append(other.radiosity(light=L2))
+        return check(*args, **kwargs)
+
+    one._errors.check = racing
+    F64 = F.astype(np.float64)
+    for L in (L1, L2):
+        B = one.radiosity(light=L)
+        est = one.error_estimate
+        r = L + scene.albedo * (F64 @ B) - B
+        assert est.light_change
+        assert est.residual == pytest.approx(relative_rms(r, B - np.minimum(scene.emission, L), scene.areas), rel=1e-3)
