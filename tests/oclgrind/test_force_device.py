@@ -7,9 +7,11 @@ import pytest
 
 import pydynrad
 from pydynrad.bounces import multibounce
+from pydynrad.comparison import radiosity_error
 from pydynrad.device.csr import DeviceCSR
 from pydynrad.device.matrix import DeviceMatrix
 from pydynrad.farfield import FarField
+from pydynrad.farfield.estimate import DEFAULT_TOLERANCE
 from pydynrad.host.product import HOST_PRODUCT_BYTES, HostBounce, HostMatrix, on_host
 from pydynrad.host.shortcuts import FORCE_DEVICE_ENV, host_shortcuts
 from pydynrad.scenes.analytic import closed_box
@@ -69,21 +71,27 @@ def test_forced_far_field_runs_on_the_device_and_agrees(device, box, monkeypatch
 
 
 def test_forced_dynamic_radiosity_agrees(device, box, monkeypatch):
-    """The frame loop with its far field, every shortcut off, against the default."""
+    """The frame loop with its far field, every shortcut off, against the default: the same
+    answer without refinement; refined, both within the tolerance of the full solve (the sweeps
+    solve the trapped patches before a sweep with F's columns on the host, after it without)."""
     if not device.traits.cpu:
         pytest.skip("the device path is the only one beside a GPU")
     scene, F = box
     light = pydynrad.PointLight((0.5, 0.6, 0.5), (2.0, 2.0, 2.0))
 
-    def frames():
+    def frames(**kw):
         dyn = pydynrad.DynamicRadiosity(
-            scene, F, local_size=64, max_swaps_per_frame=4, observer=[0.2, 0.5, 0.2], device=device
+            scene, F, local_size=64, max_swaps_per_frame=4, observer=[0.2, 0.5, 0.2], device=device, **kw
         )
         for p in ([0.4, 0.5, 0.4], [0.8, 0.5, 0.7]):
             dyn.update(p)
         return dyn.radiosity([light])
 
+    L = pydynrad.light_vector(scene, [light], device=device)
+    full = pydynrad.solve(scene, F, light=L, tol=1e-10, device=device).radiosity
     monkeypatch.delenv(FORCE_DEVICE_ENV, raising=False)
-    want = frames()
+    want, refined = frames(tolerance=None), frames()
     monkeypatch.setenv(FORCE_DEVICE_ENV, "1")
-    np.testing.assert_allclose(frames(), want, rtol=1e-4, atol=1e-5 * want.max())
+    np.testing.assert_allclose(frames(tolerance=None), want, rtol=1e-4, atol=1e-5 * want.max())
+    for B in (refined, frames()):
+        assert radiosity_error(B, full, scene.areas, emission=np.minimum(scene.emission, L)) <= DEFAULT_TOLERANCE
