@@ -106,6 +106,12 @@ SAMPLED_ROWS = 512
 #: times the tolerance: its estimate moves a little from frame to frame, and a sweep on one frame
 #: but not the next would show as a pop.
 FRAME_HYSTERESIS = 2.0
+#: A frame's residual leaves out changes of the local set's answer under this share of the RMS
+#: reflected radiosity (per patch, max over channels; carried until they exceed it): most of its
+#: patches move by the local solve's rounding alone, every column a pass of its entries. The
+#: residual is then that of an answer within the share of the one returned, which changes the
+#: estimate by at most twice the share (F's norm in the area weighting is at most 1).
+FRAME_FLOOR = 1e-6
 #: The moments are measured again on a light change where the light vector moved by more than
 #: this (area-weighted relative norm) since they last were; and a warm start scaled from the
 #: last correction is taken only where the light is within this of the last one scaled.
@@ -122,10 +128,12 @@ CORRECTIONS = 4
 WARM_GAIN = 4.0
 
 
-def _norm(areas: np.ndarray, x: np.ndarray) -> float:
+def _norm(areas: np.ndarray, x: np.ndarray, scratch: np.ndarray | None = None) -> float:
     # The squares' columns against the areas: one matrix-vector product, where einsum's sum over
     # a row of three (and its three-operand form) does not vectorise, and a frame takes two norms.
-    return float(np.sqrt(((x * x).T @ areas).sum()))
+    # ``scratch`` (x's shape) takes the squares: a fresh (N, 3) array each frame faults its pages in.
+    squares = np.multiply(x, x, out=scratch)
+    return float(np.sqrt((squares.T @ areas).sum()))
 
 
 def residual_ratios(r: np.ndarray, y: np.ndarray, areas: np.ndarray, rho: np.ndarray) -> tuple[float, float]:
@@ -168,9 +176,9 @@ def relative_rms(x: np.ndarray, B: np.ndarray, areas: np.ndarray) -> float:
     return _relative(a, x, _norm(a, B) ** 2)
 
 
-def _relative(areas: np.ndarray, x: np.ndarray, size: float) -> float:
+def _relative(areas: np.ndarray, x: np.ndarray, size: float, scratch: np.ndarray | None = None) -> float:
     """``|x| / sqrt(size)``, size being ``|B|^2`` (0 where both are 0)."""
-    num = _norm(areas, x)
+    num = _norm(areas, x, scratch)
     return 0.0 if num == 0 else (num / np.sqrt(size) if size > 0 else float("inf"))
 
 
@@ -257,6 +265,8 @@ class ErrorControl:
         self.areas = np.asarray(scene.areas, np.float64)
         self.rho = np.asarray(scene.albedo, np.float64)
         self.rho_max = float(self.rho.max()) if len(self.rho) else 0.0
+        self._total_area = float(self.areas.sum())
+        self._squares: np.ndarray | None = None  # the frames' residual norms' scratch
         # The norms leave the emitters' own emission out (module docstring).
         self._emitters = np.flatnonzero(scene.emission.max(axis=1) > 0)
         self._emission = np.asarray(scene.emission, np.float64)[self._emitters]
@@ -345,24 +355,47 @@ class ErrorControl:
             self._trapped = TrappedLight(self.rho, sums, rows, entries)
         return self._trapped
 
-    def _moved(self, r: np.ndarray, B_was: np.ndarray, B: np.ndarray, changed: np.ndarray, L: np.ndarray) -> np.ndarray:
-        """The residual of B from ``r``, that of ``B_was`` (added to in place: the caller's to give
-        up): ``r + (P F - I) (B - B_was)``, B differing from ``B_was`` among the patches ``changed``
-        only (the local sets, and in a sweep the trapped patches: so no pass over all of B finds
-        them), by F's columns on the host; a whole pass ``L + P F B - B`` without F by column or
-        where a quarter of the patches moved."""
+    def _moved(
+        self, r: np.ndarray, B_was: np.ndarray, B: np.ndarray, changed: np.ndarray, L: np.ndarray, floor: float = 0.0
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """(the residual, the patches it takes from B): the residual of B from ``r``, that of
+        ``B_was`` (added to in place: the caller's to give up), ``r + (P F - I) (B - B_was)``, B
+        differing from ``B_was`` among the patches ``changed`` only (the local sets, and in a sweep
+        the trapped patches: so no pass over all of B finds them), by F's columns on the host;
+        changes of at most ``floor`` (max over channels) are left out, those patches keeping
+        ``B_was``'s values. None for the patches: a whole pass ``L + P F B - B``, without F by
+        column or where a quarter of the patches moved."""
         if self._F_cols is not None:
             d = B[changed] - B_was[changed]
-            moved = np.any(d != 0, axis=1)
+            moved = np.abs(d).max(axis=1) > floor
             cols, d = changed[moved], d[moved]
             if len(cols) < 0.25 * len(B):
                 if len(cols):
-                    Fd = columns_product(self._F_cols, cols, d)
-                    Fd *= self.rho
-                    r += Fd
+                    self._add_columns(r, cols, d)
                     r[cols] -= d
-                return r
-        return self._residual(L, B)
+                return r, cols
+        return self._residual(L, B), None
+
+    def _add_columns(self, r: np.ndarray, cols: np.ndarray, d: np.ndarray) -> None:
+        """r += P F[:, cols] d. Columns with few entries in all (a frame's few patches that
+        changed by more than the floor) are added entry by entry to the rows they reach; else
+        through a dense product, whose passes over all N rows would otherwise cost more."""
+        F = self._F_cols
+        starts = F.indptr[cols].astype(np.int64)
+        counts = F.indptr[cols + 1] - starts
+        total = int(counts.sum())
+        if total >= len(r) // 8:
+            Fd = columns_product(F, cols, d)
+            Fd *= self.rho
+            r += Fd
+            return
+        # The entries' positions: each column's run, laid end to end.
+        firsts = np.repeat(starts - np.concatenate(([0], np.cumsum(counts)[:-1])), counts)
+        at = firsts + np.arange(total)
+        rows = F.indices[at]
+        add = F.data[at].astype(np.float64)[:, None] * np.repeat(d, counts, axis=0)
+        add *= self.rho[rows]
+        np.add.at(r, rows, add)
 
     def _residual(self, L: np.ndarray, B: np.ndarray) -> np.ndarray:
         """``L + P F B - B`` (N, 3) by a whole pass over F."""
@@ -496,23 +529,31 @@ class ErrorControl:
                 answer = gathered + start
                 B = resolve(answer)
         held, self._held = self._held, None  # updated in place below: none kept if this fails midway
+        emitted = self._emitted(L) if emitting else None
         if light_change or held is None or held[0].shape != B.shape:
             r = self._residual(L, B)
             kept, size = B.copy(), _norm(self.areas, B) ** 2  # a copy: B goes to the caller
-        else:  # only the local sets' patches changed: the last one checked and this one
+        else:
+            # Only the local sets' patches changed (the last one checked and this one), most of
+            # them by the rounding of the local solve: changes under FRAME_FLOOR of the RMS
+            # radiosity stay out (kept holds the values the residual is of), and |B|^2 follows
+            # the patches taken: no pass over all of B.
             kept, r_was, size = held
-            local = np.union1d(seen[1], members)
-            r = self._moved(r_was, kept, B, local, L)
-            # |B|^2 and the copy of B kept follow the same patches: no pass over all of B.
-            size += float(self.areas[local] @ (B[local] ** 2 - kept[local] ** 2).sum(axis=1))
-            kept[local] = B[local]
+            floor = FRAME_FLOOR * np.sqrt(self._reflected(size, kept, emitted) / self._total_area)
+            r, taken = self._moved(r_was, kept, B, np.union1d(seen[1], members), L, floor)
+            if taken is None:  # a whole pass: the residual is B's own
+                taken = np.flatnonzero(np.any(kept != B, axis=1))
+            size += float(self.areas[taken] @ (B[taken] ** 2 - kept[taken] ** 2).sum(axis=1))
+            kept[taken] = B[taken]
         measured = self._ratios is None or (light_change and self._stale(L))
         y = self._moments(r, L) if measured else None
-        emitted = self._emitted(L) if emitting else None
-        res = _relative(self.areas, r, self._reflected(size, B, emitted))
+        if self._squares is None or self._squares.shape != r.shape:
+            self._squares = np.empty_like(r)
+        res = _relative(self.areas, r, self._reflected(size, kept, emitted), self._squares)
         ratio, upper, q = self._ratios
         est = res * ratio
         limit = None if self.tolerance is None else self.tolerance * (1.0 if light_change else FRAME_HYSTERESIS)
+        start = kept  # the answer r is the residual of (B itself, but for a frame's left-out changes)
         while limit is not None and sweeps < MAX_REFINE_SWEEPS:
             if est <= limit:
                 if y is not None or not sweeps:  # the ratio measured on this answer, or carried as it was
@@ -528,10 +569,12 @@ class ErrorControl:
             # the host each update of the residual is a pass: they are solved after the sweep
             # then, with the local set, one pass for both.
             first = len(trapped) and self._F_cols is not None
+            if not sweeps:
+                B = start.copy()  # the sweeps re-solve the local set: nothing of B is lost
             if first:
                 solved = B.copy()
                 solved[trapped.patches] = trapped.solve(L, B)
-                B, r, y = solved, self._moved(r, B, solved, trapped.patches, L), None
+                B, r, y = solved, self._moved(r, B, solved, trapped.patches, L)[0], None
             if y is None:  # P F r for the sweep, and the moments measured on the way
                 y = self._moments(r, L)
                 measured = True
@@ -542,7 +585,7 @@ class ErrorControl:
                 answer[trapped.patches] = trapped.solve(L, was)
                 changed = np.union1d(members, trapped.patches)
             B_next = resolve(answer)  # the re-solve changes the local set's patches only
-            B, r, y, sweeps = B_next, self._moved(y, was, B_next, changed, L), None, sweeps + 1
+            B, r, y, sweeps = B_next, self._moved(y, was, B_next, changed, L)[0], None, sweeps + 1
             size = _norm(self.areas, B) ** 2
             res, last_res = _relative(self.areas, r, self._reflected(size, B, emitted)), res
             est = res * self._ratios[0]  # the ratio of the sweep's start, until measured again

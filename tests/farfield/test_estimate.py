@@ -195,27 +195,43 @@ def test_a_store_refines_a_light_change_to_the_tolerance(device, builtins, tmp_p
 
 def test_a_walk_keeps_the_residual_it_updates_by_columns(device, builtins):
     """With static lights a frame updates the last residual by F's columns of the patches whose
-    answer changed (the local sets then and now), and |B|^2 by the same patches: after 300 frames
-    back and forth both equal the residual and norm computed afresh from the frame's answer in
-    float64 as closely as a fresh pass of the device's float32 F does (no drift)."""
+    answer changed (the local sets then and now) by more than FRAME_FLOOR of the RMS radiosity,
+    and |B|^2 by the same patches: after 300 frames back and forth the answer kept is within the
+    floor of the frame's, and the residual and norm are that answer's own, as closely as a fresh
+    pass of the device's float32 F gives them (no drift); most changes were left out."""
+    from pydynrad.farfield.estimate import FRAME_FLOOR
+
     scene, F, lights, obs = builtins["village night"]
     L = pydynrad.light_vector(scene, lights, device=device)
     dyn = DynamicRadiosity(scene, F, local_size=len(scene) // 8, observer=obs, device=device)
     dyn.radiosity(light=L)
     path = [np.asarray(obs) + [0.05 * k, 0.0, 0.03 * k] for k in range(30)]
-    changes = 0
+    changes, taken, changed = 0, [], []
+    moved = dyn._errors._moved
+
+    def counting(r, B_was, B, patches, L, floor=0.0):
+        out = moved(r, B_was, B, patches, L, floor)
+        if floor > 0 and out[1] is not None:
+            taken.append(len(out[1]))
+            changed.append(int(np.any(B[patches] != B_was[patches], axis=1).sum()))
+        return out
+
+    dyn._errors._moved = counting
     for k in range(300):
         dyn.update(path[k % 30] if (k // 30) % 2 == 0 else path[29 - k % 30])
         B = dyn.radiosity(light=L)
         changes += k > 0 and dyn.error_estimate.light_change  # the first frame checks the light first
     kept, r, size = dyn._errors._held
+    rms = np.sqrt(float(scene.areas @ ((B - np.minimum(scene.emission, L)) ** 2).sum(axis=1)) / scene.areas.sum())
+    assert np.abs(kept - B).max() <= FRAME_FLOOR * rms * 1.01
     F64 = F.astype(np.float64)
-    fresh = L + scene.albedo * (F64 @ B) - B
-    np.testing.assert_array_equal(kept, B)
-    device_pass = np.abs(dyn._errors._residual(L, B) - fresh).max()  # F in float32 on the device
+    fresh = L + scene.albedo * (F64 @ kept) - kept
+    device_pass = np.abs(dyn._errors._residual(L, kept) - fresh).max()  # F in float32 on the device
     assert np.abs(r - fresh).max() <= 2 * device_pass, (np.abs(r - fresh).max(), device_pass)
-    assert size == pytest.approx(float(scene.areas @ (B * B).sum(axis=1)), rel=1e-12)
+    assert size == pytest.approx(float(scene.areas @ (kept * kept).sum(axis=1)), rel=1e-12)
     assert changes == 0  # every frame was updated by columns: the lights did not change
+    # Observed: 37,010 of 105,780 changed columns taken over 290 frames.
+    assert sum(taken) < 0.5 * sum(changed), (sum(taken), sum(changed))
 
 
 def test_a_refining_solution_loosens_its_far_fields_coarse_sweeps(device, builtins):
