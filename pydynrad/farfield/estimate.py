@@ -286,7 +286,8 @@ class ErrorControl:
         if self._store is not None:
             cache = local_rows.source if isinstance(local_rows.source, RowCache) else None
             self._store_budget = cache.max_bytes if cache is not None else available_host_bytes() // 4
-        self._store_held: sp.csr_matrix | None = None
+        self._store_held: sp.csr_matrix | None = None  # all of F's blocks, where they fit
+        self._store_blocks: list | None = None  # the leading blocks kept (after the first pass)
         self._store_entries = 0  # F's non-zeros, counted on the first pass over the store
         self._trapped: TrappedLight | None = None  # made on the first sweep
         self.samples = int(samples)
@@ -319,25 +320,30 @@ class ErrorControl:
         return self._F_dev.bounce(zeros, np.ones_like(x), x)
 
     def _store_pass(self, x: np.ndarray) -> np.ndarray:
-        """F x from the store's blocks, each read (and its checksum verified) in turn; after the
-        first pass the blocks are kept whole where they fit the budget, so that the passes of the
-        sweeps read memory, not files (docs/decisions/0041-far-field-tolerance-and-light-change.md)."""
+        """F x from the store's blocks, each read (and its checksum verified) in turn; on the first
+        pass the leading blocks that fit the budget are kept, so that the passes of the sweeps
+        read memory, not files, for as much of F as fits (all of it: one product over F whole;
+        docs/decisions/0041-far-field-tolerance-and-light-change.md)."""
         if self._store_held is not None:
             return rows_product(self._store_held, x)
-        store, kept, size, out = self._store, [], 0, []
-        self._store_entries = 0
+        store, out, kept, first = self._store, [], self._store_blocks, self._store_blocks is None
+        if first:
+            kept, size, self._store_entries = [], 0, 0
         for k in range(store.n_blocks):
-            block = store.read_block(k)
-            self._store_entries += block.nnz
+            if k < len(kept) and not first:
+                block = kept[k]
+            else:
+                block = store.read_block(k)
+                if first:
+                    self._store_entries += block.nnz
+                    size += block.data.nbytes + block.indices.nbytes + block.indptr.nbytes
+                    if size <= self._store_budget and len(kept) == k:
+                        kept.append(block)
             out.append(rows_product(block, x))
-            if kept is not None:
-                size += block.data.nbytes + block.indices.nbytes + block.indptr.nbytes
-                if size <= self._store_budget:
-                    kept.append(block)
-                else:
-                    kept = None
-        if kept is not None:
-            self._store_held = sp.csr_matrix(sp.vstack(kept, format="csr"))
+        if first:
+            self._store_blocks = kept
+            if len(kept) == store.n_blocks:
+                self._store_held = sp.csr_matrix(sp.vstack(kept, format="csr"))
         return np.concatenate(out)
 
     @property

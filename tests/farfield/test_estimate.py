@@ -172,7 +172,8 @@ def test_a_store_refines_a_light_change_to_the_tolerance(device, builtins, tmp_p
     assert est.sampled == 0 and est.sweeps >= 1 and est.error <= tolerance
     assert _err(B, ref, scene, L) <= tolerance
     # The blocks fit the memory budget: kept after the first pass (F itself), the later passes read
-    # memory. Behind a row cache too small for them, every pass reads the files: the same answer.
+    # memory. Behind a row cache too small for them, the leading blocks that fit are kept and
+    # every later pass reads the others from the files: the same answer.
     assert (dyn._errors._store_held != F).nnz == 0
     small = DynamicRadiosity(
         scene,
@@ -182,8 +183,22 @@ def test_a_store_refines_a_light_change_to_the_tolerance(device, builtins, tmp_p
         device=device,
         tolerance=tolerance,
     )
+    errors, reads, passes = small._errors, [0], []
+    read_block, store_pass = errors._store.read_block, errors._store_pass
+    errors._store.read_block = lambda *a: reads.__setitem__(0, reads[0] + 1) or read_block(*a)
+
+    def counted(x):
+        before = reads[0]
+        out = store_pass(x)
+        passes.append(reads[0] - before)
+        return out
+
+    errors._store_pass = counted
     np.testing.assert_array_equal(small.radiosity(light=L), B)
-    assert small._errors._store_held is None and small.error_estimate.sweeps == est.sweeps
+    assert errors._store_held is None and small.error_estimate.sweeps == est.sweeps
+    n, held = errors._store.n_blocks, len(errors._store_blocks)
+    assert 0 < held < n and len(passes) > 2
+    assert passes[0] == n and all(p == n - held for p in passes[1:]), (passes, n, held)
     small._ff.source.close()
     dyn.update(np.asarray(obs) + [1.0, 0.0, 1.0])
     B = dyn.radiosity(light=L)
