@@ -340,13 +340,11 @@ def _store_rows(name, scene, F, L, ref, lights, moved, pos, path, cam, M, bounce
     return out
 
 
+#: The columns both tables begin with.
+_ERROR_HEADERS = ["scene", "N", "far field", "all-patch %", "of reflected %", "pixel mean %"]
+
 STORE_HEADERS = [
-    "scene",
-    "N",
-    "far field",
-    "all-patch %",
-    "of reflected %",
-    "pixel mean %",
+    *_ERROR_HEADERS,
     "dark lit",
     "dark",
     "walk's estimate / true",
@@ -360,12 +358,7 @@ STORE_HEADERS = [
 
 
 HEADERS = [
-    "scene",
-    "N",
-    "far field",
-    "all-patch %",
-    "of reflected %",
-    "pixel mean %",
+    *_ERROR_HEADERS,
     "pixel median %",
     "pixel p99 %",
     "dark lit",

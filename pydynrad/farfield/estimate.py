@@ -224,8 +224,8 @@ def coarse_tolerance(local_rows, tolerance) -> float | None:
     tolerance = _checked_tolerance(tolerance)
     if tolerance is None:
         return None
-    refined = _whole_F(local_rows) is not None or isinstance(_uncached(local_rows.source), FormFactorStore)
-    return COARSE_SHARE * tolerance if refined else None
+    F, store = _whole(local_rows)
+    return COARSE_SHARE * tolerance if F is not None or store is not None else None
 
 
 def _whole_F(local_rows):
@@ -236,6 +236,14 @@ def _whole_F(local_rows):
     while inner is not None and not isinstance(inner, CSRRows) and hasattr(inner, "source"):
         inner = inner.source
     return inner.matrix if isinstance(inner, CSRRows) else None
+
+
+def _whole(local_rows) -> tuple:
+    """(F in memory, or None; else the store behind the rows, or None): what a pass over all of F
+    can read (rows on demand cannot be read whole: a pass would compute all of F)."""
+    F = _whole_F(local_rows)
+    source = _uncached(local_rows.source) if F is None else None
+    return F, (source if isinstance(source, FormFactorStore) else None)
 
 
 def _uncached(source):
@@ -271,14 +279,11 @@ class ErrorControl:
         self._emitters = np.flatnonzero(scene.emission.max(axis=1) > 0)
         self._emission = np.asarray(scene.emission, np.float64)[self._emitters]
         self._rows = local_rows
-        self._F = _whole_F(local_rows)
+        # Without F in memory, a store behind the rows can still be read whole, block by block: a
+        # light change over the tolerance is refined from it.
+        self._F, self._store = _whole(local_rows)
         self._F_cols = getattr(far, "_F_cols", None) if self._F is not None else None
         self._F_dev = None  # DeviceCSR of F, made on the first pass (or the far field's own)
-        # Without F in memory, a store behind the rows can still be read whole, block by block: a
-        # light change over the tolerance is refined from it (rows on demand cannot: a pass would
-        # compute all of F).
-        source = _uncached(local_rows.source) if self._F is None else None
-        self._store = source if isinstance(source, FormFactorStore) else None
         # The store's blocks are kept after the first pass where they fit: within the budget of a
         # row cache in front of the store (the memory given to F's rows), else a quarter of the
         # host memory available then.
@@ -437,7 +442,7 @@ class ErrorControl:
         idx, rows = self._sample
         r = L[idx] + self.rho[idx] * (rows @ B) - B[idx]
         sq = (r * r).sum(axis=1)
-        mean_a = float(self.areas.sum())
+        mean_a = self._total_area
         den = np.sqrt(self._reflected(_norm(self.areas, B) ** 2, B, self._emitted(L) if emitting else None))
         ms = float(sq.mean())
         res = np.sqrt(ms * mean_a) / den if den > 0 else 0.0
@@ -559,7 +564,6 @@ class ErrorControl:
         ratio, upper, q = self._ratios
         est = res * ratio
         limit = None if self.tolerance is None else self.tolerance * (1.0 if light_change else FRAME_HYSTERESIS)
-        start = kept  # the answer r is the residual of (B itself, but for a frame's left-out changes)
         while limit is not None and sweeps < MAX_REFINE_SWEEPS:
             if est <= limit:
                 if y is not None or not sweeps:  # the ratio measured on this answer, or carried as it was
@@ -576,7 +580,9 @@ class ErrorControl:
             # then, with the local set, one pass for both.
             first = len(trapped) and self._F_cols is not None
             if not sweeps:
-                B = start.copy()  # the sweeps re-solve the local set: nothing of B is lost
+                # From the answer r is the residual of (B itself, but for a frame's left-out
+                # changes): the sweeps re-solve the local set, so nothing of B is lost.
+                B = kept.copy()
             if first:
                 solved = B.copy()
                 solved[trapped.patches] = trapped.solve(L, B)
@@ -602,8 +608,9 @@ class ErrorControl:
             ratio, upper, q = self._ratios
             est = res * ratio
         if sweeps or (light_change and self._corrections.count):
-            self._corrections.add(L, answer - gathered)
-            self._last_correction = (L.copy(), answer - gathered)
+            correction = answer - gathered
+            self._corrections.add(L, correction)
+            self._last_correction = (L.copy(), correction)
         self._held = (B.copy() if sweeps else kept, r, size)
         self._seen = (answer, np.array(members))
         self.last = ErrorEstimate(

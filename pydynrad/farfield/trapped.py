@@ -78,8 +78,8 @@ class TrappedLight:
         F_QQ = sp.csr_matrix(F_Q[:, Q])
         eye = sp.identity(k, format="csr")
         # One factorisation per distinct albedo column of Q (one for a grey scene).
-        columns, self._channel = np.unique(rho[Q].T, axis=0, return_inverse=True)
-        self._channel = np.asarray(self._channel).ravel()
+        columns, channel = np.unique(rho[Q].T, axis=0, return_inverse=True)
+        self._channel = np.asarray(channel).ravel()
         self._lu = [sla.splu(sp.csc_matrix(eye - sp.diags(c) @ F_QQ)) for c in columns]
         self._rho = rho[Q]
         self._F_QQ = F_QQ
